@@ -1,0 +1,364 @@
+//! The project's data formats: the TOML robot description ([`RobotConfig`]) and the
+//! `cdpr-recording v1` CSV interchange format ([`recording`]).
+//!
+//! Both formats are read by people as much as by programs, so every error names the file, the line
+//! and the key or column that is wrong, and says what to do.
+//!
+//! ```no_run
+//! let cfg = taut_config::RobotConfig::load("config/examples/aras-cam.toml").unwrap();
+//! println!("{} has {} cables", cfg.robot.name, cfg.cables.len());
+//! ```
+#![deny(missing_docs)]
+
+pub mod devices;
+pub mod recording;
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A robot description as read from a TOML file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// The `[robot]` table.
+    pub robot: Robot,
+    /// The `[[cable]]` tables, in cable order.
+    #[serde(rename = "cable")]
+    pub cables: Vec<Cable>,
+    /// The `[calibration]` table (optional; defaults as in the paper).
+    #[serde(default)]
+    pub calibration: CalibrationConfig,
+    /// The `[can]` table: CANopen bus of the servo drives (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub can: Option<devices::CanConfig>,
+    /// The `[loadcells]` table: Modbus RTU load cells (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loadcells: Option<devices::LoadCellBusConfig>,
+    /// The `[tracker]` table: external position tracker input (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tracker: Option<devices::TrackerConfig>,
+}
+
+/// The `[robot]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Robot {
+    /// A name for logs and file names.
+    pub name: String,
+    /// Mass of the end-effector / platform, kg.
+    pub mass_kg: f64,
+}
+
+/// One `[[cable]]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Cable {
+    /// Nominal anchor (cable exit point) in the tracker frame, m. Optional: the calibration does
+    /// not need it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anchor: Option<[f64; 3]>,
+    /// Attachment point `b_j` on the platform, m, platform frame.
+    #[serde(default)]
+    pub platform_point: [f64; 3],
+    /// The `[cable.drive]` sub-table: the servo drive that winds this cable (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive: Option<devices::DriveConfig>,
+    /// The `[cable.loadcell]` sub-table: the load cell that measures this cable (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loadcell: Option<devices::LoadCellConfig>,
+}
+
+/// The `[calibration]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CalibrationConfig {
+    /// Samples of a cable with less tension than this are loose and excluded, N.
+    pub min_tension_n: f64,
+    /// Tracker noise, 1-sigma per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Encoder length noise, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// Expected axial stiffness EA of the cables, N. Sets how fast the variance of a length reading
+    /// grows with tension x length (unobserved stretch T·L/EA).
+    pub cable_ea_n: f64,
+    /// Fraction of the recording (its last time block) held out for validation.
+    pub heldout_fraction: f64,
+}
+
+impl Default for CalibrationConfig {
+    fn default() -> Self {
+        CalibrationConfig {
+            min_tension_n: 3.0,
+            tracker_sigma_m: 1.5e-3,
+            encoder_sigma_m: 0.05e-3,
+            cable_ea_n: 2.0e5,
+            heldout_fraction: 0.2,
+        }
+    }
+}
+
+/// An error in a configuration file, with where it is and what to do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigError {
+    /// The file, if the text came from one.
+    pub file: Option<PathBuf>,
+    /// 1-based line, where known.
+    pub line: Option<usize>,
+    /// The key path, e.g. `cable[2].anchor`, where known.
+    pub key: Option<String>,
+    /// What is wrong and what to do.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.file {
+            Some(p) => write!(f, "{}", p.display())?,
+            None => write!(f, "<config>")?,
+        }
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if let Some(k) = &self.key {
+            write!(f, ": key `{k}`")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+impl RobotConfig {
+    /// Reads and validates a configuration file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: Some(path.to_path_buf()),
+            line: None,
+            key: None,
+            message: format!("cannot read the file: {e}"),
+        })?;
+        Self::from_toml_str(&text).map_err(|mut e| {
+            e.file = Some(path.to_path_buf());
+            e
+        })
+    }
+
+    /// Parses and validates configuration text.
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        let cfg: RobotConfig = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start));
+            ConfigError {
+                file: None,
+                line,
+                key: None,
+                // toml's message names the key and what was expected; drop its own
+                // "TOML parse error at line.." preamble and source excerpt, we print the line.
+                message: e.message().trim().to_string(),
+            }
+        })?;
+        cfg.validate(text)?;
+        Ok(cfg)
+    }
+
+    /// A point-mass robot with `n` cables and no nominal geometry: what `taut calibrate` assumes
+    /// when no configuration is given.
+    pub fn point_mass(n: usize) -> Self {
+        RobotConfig {
+            robot: Robot { name: "unnamed".into(), mass_kg: 1.0 },
+            cables: (0..n)
+                .map(|_| Cable { anchor: None, platform_point: [0.0; 3], drive: None, loadcell: None })
+                .collect(),
+            calibration: CalibrationConfig::default(),
+            can: None,
+            loadcells: None,
+            tracker: None,
+        }
+    }
+
+    /// Nominal anchors, if every cable has one.
+    pub fn anchors(&self) -> Option<Vec<[f64; 3]>> {
+        self.cables.iter().map(|c| c.anchor).collect()
+    }
+
+    /// Platform attachment points `b_j`.
+    pub fn platform_points(&self) -> Vec<[f64; 3]> {
+        self.cables.iter().map(|c| c.platform_point).collect()
+    }
+
+    /// Writes the configuration as TOML, atomically (temporary file + rename).
+    pub fn save_atomic(&self, path: impl AsRef<Path>) -> std::io::Result<()> {
+        let text = toml::to_string_pretty(self)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+        write_atomic(path.as_ref(), text.as_bytes())
+    }
+
+    fn validate(&self, text: &str) -> Result<(), ConfigError> {
+        let cable_lines = table_header_lines(text, "[[cable]]");
+        let err = |line: Option<usize>, key: String, message: String| ConfigError {
+            file: None,
+            line,
+            key: Some(key),
+            message,
+        };
+        if !(self.robot.mass_kg.is_finite() && self.robot.mass_kg > 0.0) {
+            return Err(err(
+                table_header_lines(text, "[robot]").first().copied(),
+                "robot.mass_kg".into(),
+                format!("must be a positive mass in kg, got {}", self.robot.mass_kg),
+            ));
+        }
+        if self.cables.len() < 3 {
+            return Err(err(
+                None,
+                "cable".into(),
+                format!(
+                    "a suspended cable robot needs at least 3 [[cable]] tables, found {}",
+                    self.cables.len()
+                ),
+            ));
+        }
+        for (i, c) in self.cables.iter().enumerate() {
+            let line = cable_lines.get(i).copied();
+            let finite = |v: &[f64; 3]| v.iter().all(|x| x.is_finite());
+            if let Some(a) = &c.anchor {
+                if !finite(a) {
+                    return Err(err(line, format!("cable[{i}].anchor"), "must be three finite numbers (m)".into()));
+                }
+            }
+            if !finite(&c.platform_point) {
+                return Err(err(
+                    line,
+                    format!("cable[{i}].platform_point"),
+                    "must be three finite numbers (m)".into(),
+                ));
+            }
+            if let Some(d) = &c.drive {
+                d.validate().map_err(|(k, m)| err(line, format!("cable[{i}].drive.{k}"), m))?;
+            }
+            if let Some(l) = &c.loadcell {
+                l.validate().map_err(|(k, m)| err(line, format!("cable[{i}].loadcell.{k}"), m))?;
+            }
+        }
+        let cal = &self.calibration;
+        let cal_line = table_header_lines(text, "[calibration]").first().copied();
+        for (k, v) in [
+            ("min_tension_n", cal.min_tension_n),
+            ("tracker_sigma_m", cal.tracker_sigma_m),
+            ("encoder_sigma_m", cal.encoder_sigma_m),
+            ("cable_ea_n", cal.cable_ea_n),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(err(cal_line, format!("calibration.{k}"), format!("must be a finite non-negative number, got {v}")));
+            }
+        }
+        if !(cal.heldout_fraction >= 0.0 && cal.heldout_fraction < 0.9) {
+            return Err(err(
+                cal_line,
+                "calibration.heldout_fraction".into(),
+                format!("must be in [0, 0.9), got {}", cal.heldout_fraction),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// 1-based line number of byte offset `pos` in `text`.
+pub fn line_of(text: &str, pos: usize) -> usize {
+    text[..pos.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+}
+
+/// 1-based lines on which a table header such as `[[cable]]` appears.
+fn table_header_lines(text: &str, header: &str) -> Vec<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.trim_start().starts_with(header))
+        .map(|(i, _)| i + 1)
+        .collect()
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same directory, fsync, rename.
+/// A reader sees either the old file or the new one, never a torn one.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path.file_name().ok_or_else(|| {
+        std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
+    })?;
+    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn example_configs_load() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                RobotConfig::load(&p).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
+        }
+        assert!(n >= 2, "expected the example configs in {}", dir.display());
+    }
+
+    #[test]
+    fn unknown_key_names_line_and_key() {
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\nmas_kg = 1\n";
+        let e = RobotConfig::from_toml_str(text).unwrap_err();
+        assert_eq!(e.line, Some(4), "{e}");
+        assert!(e.message.contains("mas_kg"), "{e}");
+    }
+
+    #[test]
+    fn bad_value_names_cable_and_key() {
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\nanchor = [1, 2]\n";
+        let e = RobotConfig::from_toml_str(text).unwrap_err();
+        assert_eq!(e.line, Some(7), "{e}");
+        let text = "[robot]\nname = \"x\"\nmass_kg = -3.0\n[[cable]]\n[[cable]]\n[[cable]]\n";
+        let e = RobotConfig::from_toml_str(text).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("robot.mass_kg"), "{e}");
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n";
+        let e = RobotConfig::from_toml_str(text).unwrap_err();
+        assert!(e.message.contains("at least 3"), "{e}");
+    }
+
+    #[test]
+    fn defaults_apply() {
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n";
+        let c = RobotConfig::from_toml_str(text).unwrap();
+        assert_eq!(c.calibration.min_tension_n, 3.0);
+        assert_eq!(c.cables[0].platform_point, [0.0; 3]);
+        assert!(c.anchors().is_none());
+    }
+
+    #[test]
+    fn atomic_write_round_trips() {
+        let dir = std::env::temp_dir().join(format!("taut-config-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("cfg.toml");
+        let c = RobotConfig::point_mass(4);
+        c.save_atomic(&p).unwrap();
+        let back = RobotConfig::load(&p).unwrap();
+        assert_eq!(back, c);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
