@@ -1,0 +1,1 @@
+//! Virtual devices on the same transports as the real ones (filled by the devices work).
