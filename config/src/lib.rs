@@ -11,6 +11,7 @@
 #![deny(missing_docs)]
 
 pub mod devices;
+pub mod params;
 pub mod recording;
 
 use serde::{Deserialize, Serialize};
