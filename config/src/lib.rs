@@ -13,6 +13,7 @@
 pub mod devices;
 pub mod params;
 pub mod recording;
+pub mod runtime;
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -39,6 +40,18 @@ pub struct RobotConfig {
     /// The `[tracker]` table: external position tracker input (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tracker: Option<devices::TrackerConfig>,
+    /// The `[rt]` table: the real-time loop (optional).
+    #[serde(default)]
+    pub rt: runtime::RtConfig,
+    /// The `[motion]` table: the guided start-up motion (optional).
+    #[serde(default)]
+    pub motion: runtime::MotionConfig,
+    /// The `[safety]` table: limits checked every cycle (optional).
+    #[serde(default)]
+    pub safety: runtime::SafetyConfig,
+    /// The `[daemon]` table: control socket and data files of `taut start` (optional).
+    #[serde(default)]
+    pub daemon: runtime::DaemonConfig,
 }
 
 /// The `[robot]` table.
@@ -175,6 +188,10 @@ impl RobotConfig {
             can: None,
             loadcells: None,
             tracker: None,
+            rt: Default::default(),
+            motion: Default::default(),
+            safety: Default::default(),
+            daemon: Default::default(),
         }
     }
 
@@ -261,6 +278,13 @@ impl RobotConfig {
                 format!("must be in [0, 0.9), got {}", cal.heldout_fraction),
             ));
         }
+        let first_line = |h: &str| table_header_lines(text, h).first().copied();
+        self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;
+        self.motion
+            .validate(self.cables.len())
+            .map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
+        self.safety.validate().map_err(|(k, m)| err(first_line("[safety]"), format!("safety.{k}"), m))?;
+        self.daemon.validate().map_err(|(k, m)| err(first_line("[daemon]"), format!("daemon.{k}"), m))?;
         Ok(())
     }
 }

@@ -1,0 +1,326 @@
+//! Runtime sections of the robot configuration, read by `taut start`: the real-time loop (`[rt]`),
+//! the guided start-up motion (`[motion]`), the safety limits (`[safety]`) and the daemon
+//! (`[daemon]`). Every table and every key is optional; the defaults suit the example robots.
+//!
+//! ```toml
+//! [rt]
+//! rate_hz = 500            # loop rate; 1000 works
+//! priority = 80            # SCHED_FIFO priority (1..=99); needs LimitRTPRIO or CAP_SYS_NICE
+//! cpu = 1                  # optional: pin the loop thread to this CPU
+//! lock_memory = true       # mlockall(MCL_CURRENT | MCL_FUTURE)
+//!
+//! [motion]
+//! init_reel_m = -0.3       # each phase reels its cable in by 0.3 m, then back out
+//! init_reel_speed_m_s = 0.05
+//! excitation_s = 60
+//! workspace_min_m = [-1.5, -0.8, 1.0]
+//! workspace_max_m = [1.5, 0.8, 2.5]
+//!
+//! [safety]
+//! max_tension_n = 400
+//!
+//! [daemon]
+//! socket = "/run/taut/taut.sock"
+//! data_dir = "/var/lib/taut"
+//! ```
+//!
+//! Each `validate` returns `(key, message)` for the first bad field; [`crate::RobotConfig`] adds the
+//! file, the line and the table name.
+
+use serde::{Deserialize, Serialize};
+
+/// The `[rt]` table: the real-time loop thread.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RtConfig {
+    /// Loop rate, Hz.
+    pub rate_hz: f64,
+    /// `SCHED_FIFO` priority of the loop thread, 1..=99; 0 keeps the normal scheduler.
+    pub priority: i32,
+    /// CPU to pin the loop thread to (optional).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cpu: Option<usize>,
+    /// Lock all memory (`mlockall`) before the loop starts.
+    pub lock_memory: bool,
+    /// Capacity of the sample ring buffer (loop -> calibrator), samples.
+    pub ring_capacity: usize,
+    /// Capacity of the command queue (control -> loop), commands.
+    pub command_capacity: usize,
+}
+
+impl Default for RtConfig {
+    fn default() -> Self {
+        RtConfig { rate_hz: 500.0, priority: 80, cpu: None, lock_memory: true, ring_capacity: 16_384, command_capacity: 64 }
+    }
+}
+
+impl RtConfig {
+    /// Checks the values; returns the bad key and what is wrong.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        if !(self.rate_hz.is_finite() && (1.0..=10_000.0).contains(&self.rate_hz)) {
+            return Err(("rate_hz".into(), format!("must be a loop rate in 1..=10000 Hz, got {}", self.rate_hz)));
+        }
+        if !(0..=99).contains(&self.priority) {
+            return Err(("priority".into(), format!("must be a SCHED_FIFO priority in 1..=99 (0: normal scheduler), got {}", self.priority)));
+        }
+        if self.ring_capacity < 16 {
+            return Err(("ring_capacity".into(), format!("must be at least 16 samples, got {}", self.ring_capacity)));
+        }
+        if self.command_capacity == 0 {
+            return Err(("command_capacity".into(), "must be at least 1".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The `[motion]` table: the guided start-up motion.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionConfig {
+    /// Longest wait for all drives to reach "operation enabled", s.
+    pub enable_timeout_s: f64,
+    /// The three initialisation phases, each `[held_a, held_b, reeled]` (cable indices). Every
+    /// other cable follows in torque mode.
+    pub init_phases: Vec<[usize; 3]>,
+    /// Length by which the reeled cable's commanded length changes in a phase, m (negative: reel
+    /// in). The cable then returns to where it started.
+    pub init_reel_m: f64,
+    /// Speed of the reeled cable, m/s.
+    pub init_reel_speed_m_s: f64,
+    /// Tension of the follower cables during the phases (torque mode), N.
+    pub init_follower_tension_n: f64,
+    /// Pause between phases with every cable held, s.
+    pub init_settle_s: f64,
+    /// Duration of the excitation trajectory, s.
+    pub excitation_s: f64,
+    /// Largest speed of the platform on the excitation trajectory, m/s.
+    pub excitation_speed_m_s: f64,
+    /// Lower corner of the workspace box, m, tracker frame. Default: derived from the nominal
+    /// anchors (middle half of their footprint, 1 m to 3 m below them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub workspace_min_m: Option<[f64; 3]>,
+    /// Upper corner of the workspace box, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub workspace_max_m: Option<[f64; 3]>,
+    /// Time over which a change of the commanded lengths caused by new parameters is ramped in, s.
+    pub swap_ramp_s: f64,
+    /// Speed of operator moves, m/s.
+    pub move_speed_m_s: f64,
+}
+
+impl Default for MotionConfig {
+    fn default() -> Self {
+        MotionConfig {
+            enable_timeout_s: 5.0,
+            init_phases: vec![[0, 1, 2], [1, 2, 0], [2, 0, 1]],
+            init_reel_m: -0.3,
+            init_reel_speed_m_s: 0.05,
+            init_follower_tension_n: 10.0,
+            init_settle_s: 0.5,
+            excitation_s: 60.0,
+            excitation_speed_m_s: 0.3,
+            workspace_min_m: None,
+            workspace_max_m: None,
+            swap_ramp_s: 2.0,
+            move_speed_m_s: 0.2,
+        }
+    }
+}
+
+impl MotionConfig {
+    /// Checks the values for a robot of `n_cables`; returns the bad key and what is wrong.
+    pub fn validate(&self, n_cables: usize) -> Result<(), (String, String)> {
+        if self.init_phases.len() != 3 {
+            return Err(("init_phases".into(), format!("the initialisation has three phases, got {}", self.init_phases.len())));
+        }
+        for (k, ph) in self.init_phases.iter().enumerate() {
+            if ph.iter().any(|&c| c >= n_cables) || ph[0] == ph[1] || ph[1] == ph[2] || ph[0] == ph[2] {
+                return Err((
+                    format!("init_phases[{k}]"),
+                    format!("must name three different cables [held, held, reeled] below {n_cables}, got {ph:?}"),
+                ));
+            }
+        }
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        for (k, v) in [
+            ("enable_timeout_s", self.enable_timeout_s),
+            ("init_reel_speed_m_s", self.init_reel_speed_m_s),
+            ("excitation_s", self.excitation_s),
+            ("excitation_speed_m_s", self.excitation_speed_m_s),
+            ("swap_ramp_s", self.swap_ramp_s),
+            ("move_speed_m_s", self.move_speed_m_s),
+        ] {
+            if !positive(v) {
+                return Err((k.into(), format!("must be a positive number, got {v}")));
+            }
+        }
+        if !(self.init_reel_m.is_finite() && self.init_reel_m != 0.0 && self.init_reel_m.abs() < 5.0) {
+            return Err(("init_reel_m".into(), format!("must be a non-zero length under 5 m, got {}", self.init_reel_m)));
+        }
+        for (k, v) in [("init_follower_tension_n", self.init_follower_tension_n), ("init_settle_s", self.init_settle_s)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((k.into(), format!("must be a finite non-negative number, got {v}")));
+            }
+        }
+        match (self.workspace_min_m, self.workspace_max_m) {
+            (Some(lo), Some(hi)) => {
+                if (0..3).any(|i| !(lo[i].is_finite() && hi[i].is_finite() && lo[i] < hi[i])) {
+                    return Err(("workspace_max_m".into(), format!("must be above workspace_min_m on every axis, got {lo:?} .. {hi:?}")));
+                }
+            }
+            (None, None) => {}
+            _ => return Err(("workspace_min_m".into(), "give both workspace_min_m and workspace_max_m, or neither".into())),
+        }
+        Ok(())
+    }
+}
+
+/// The `[safety]` table: limits checked in every cycle.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetyConfig {
+    /// Largest allowed tension of any cable, N (hold when exceeded).
+    pub max_tension_n: f64,
+    /// A cable with less tension than this is loose, N (the reeled cable of an initialisation
+    /// phase must not go loose).
+    pub loose_tension_n: f64,
+    /// A tension reading older than this is stale, s.
+    pub tension_max_age_s: f64,
+    /// A tracker pose older than this is stale, s (only while the tracker is needed: the
+    /// initialisation and the excitation).
+    pub tracker_max_age_s: f64,
+    /// Largest commanded cable speed, m/s.
+    pub max_cable_speed_m_s: f64,
+    /// How far outside the workspace box the platform may be before the loop holds, m.
+    pub workspace_margin_m: f64,
+}
+
+impl Default for SafetyConfig {
+    fn default() -> Self {
+        SafetyConfig {
+            max_tension_n: 500.0,
+            loose_tension_n: 1.0,
+            tension_max_age_s: 0.1,
+            tracker_max_age_s: 0.1,
+            max_cable_speed_m_s: 1.0,
+            workspace_margin_m: 0.3,
+        }
+    }
+}
+
+impl SafetyConfig {
+    /// Checks the values; returns the bad key and what is wrong.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        for (k, v) in [
+            ("max_tension_n", self.max_tension_n),
+            ("tension_max_age_s", self.tension_max_age_s),
+            ("tracker_max_age_s", self.tracker_max_age_s),
+            ("max_cable_speed_m_s", self.max_cable_speed_m_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((k.into(), format!("must be a positive number, got {v}")));
+            }
+        }
+        for (k, v) in [("loose_tension_n", self.loose_tension_n), ("workspace_margin_m", self.workspace_margin_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((k.into(), format!("must be a finite non-negative number, got {v}")));
+            }
+        }
+        if self.loose_tension_n >= self.max_tension_n {
+            return Err(("loose_tension_n".into(), format!("must be below max_tension_n ({} N)", self.max_tension_n)));
+        }
+        Ok(())
+    }
+}
+
+/// The `[daemon]` table: files and the control socket of `taut start`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaemonConfig {
+    /// Unix domain socket for `taut ctl` (created with mode 0660).
+    pub socket: String,
+    /// Directory for recordings and parameter files (`params/` history, `current.toml`).
+    pub data_dir: String,
+    /// Every how many loop samples one goes into the calibrator's data set (the recording keeps
+    /// them all).
+    pub calib_decimation: usize,
+    /// A new anchor may move at most this far from the running one to be accepted, m.
+    pub max_anchor_change_m: f64,
+    /// A new encoder offset may change at most this much to be accepted, m.
+    pub max_l0_change_m: f64,
+    /// Largest accepted 1-sigma of any anchor coordinate or offset, m.
+    pub max_sigma_m: f64,
+}
+
+impl Default for DaemonConfig {
+    fn default() -> Self {
+        DaemonConfig {
+            socket: "/run/taut/taut.sock".into(),
+            data_dir: "/var/lib/taut".into(),
+            calib_decimation: 5,
+            max_anchor_change_m: 0.5,
+            max_l0_change_m: 0.5,
+            max_sigma_m: 0.01,
+        }
+    }
+}
+
+impl DaemonConfig {
+    /// Checks the values; returns the bad key and what is wrong.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        if self.socket.trim().is_empty() {
+            return Err(("socket".into(), "must be a path, e.g. \"/run/taut/taut.sock\"".into()));
+        }
+        if self.data_dir.trim().is_empty() {
+            return Err(("data_dir".into(), "must be a directory path, e.g. \"/var/lib/taut\"".into()));
+        }
+        if self.calib_decimation == 0 {
+            return Err(("calib_decimation".into(), "must be at least 1".into()));
+        }
+        for (k, v) in [
+            ("max_anchor_change_m", self.max_anchor_change_m),
+            ("max_l0_change_m", self.max_l0_change_m),
+            ("max_sigma_m", self.max_sigma_m),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((k.into(), format!("must be a positive length in m, got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid() {
+        RtConfig::default().validate().unwrap();
+        MotionConfig::default().validate(4).unwrap();
+        SafetyConfig::default().validate().unwrap();
+        DaemonConfig::default().validate().unwrap();
+    }
+
+    #[test]
+    fn bad_values_name_the_key() {
+        let r = RtConfig { priority: 120, ..Default::default() };
+        assert_eq!(r.validate().unwrap_err().0, "priority");
+        let m = MotionConfig { init_phases: vec![[0, 1, 2], [1, 1, 0], [2, 0, 1]], ..Default::default() };
+        assert_eq!(m.validate(4).unwrap_err().0, "init_phases[1]");
+        assert_eq!(MotionConfig::default().validate(2).unwrap_err().0, "init_phases[0]");
+        let s = SafetyConfig { loose_tension_n: 600.0, ..Default::default() };
+        assert_eq!(s.validate().unwrap_err().0, "loose_tension_n");
+        let d = DaemonConfig { calib_decimation: 0, ..Default::default() };
+        assert_eq!(d.validate().unwrap_err().0, "calib_decimation");
+    }
+
+    #[test]
+    fn partial_tables_parse() {
+        let m: MotionConfig = toml::from_str("excitation_s = 20\nworkspace_min_m = [0,0,0]\nworkspace_max_m = [1,1,1]").unwrap();
+        assert_eq!(m.excitation_s, 20.0);
+        assert_eq!(m.init_reel_m, -0.3);
+        m.validate(3).unwrap();
+        assert!(toml::from_str::<RtConfig>("rate = 3").is_err());
+    }
+}
