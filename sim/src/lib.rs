@@ -6,4 +6,5 @@
 //! same mistake.
 #![deny(missing_docs)]
 
+pub mod catenary;
 pub mod devices;
