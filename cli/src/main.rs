@@ -1,1 +1,46 @@
-fn main() {}
+//! `taut`: robot-side software for suspended cable-driven parallel robots.
+//!
+//! A thin binary over the library crates: argument parsing, tables for people, JSON for programs.
+//! `main` only maps errors to exit codes; each subcommand lives in its own module.
+
+mod calibrate;
+mod demo;
+mod plot;
+mod report;
+mod simulate;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "taut", version, about = "Cable robot calibration and control", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a robot, record its initialisation and excitation, calibrate it, print the results.
+    Demo(demo::DemoArgs),
+    /// Write a recording (cdpr-recording v1) of a simulated robot.
+    Simulate(simulate::SimulateArgs),
+    /// Calibrate anchors and encoder offsets from any recording, real or simulated.
+    Calibrate(calibrate::CalibrateArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Demo(a) => demo::run(&a),
+        Command::Simulate(a) => simulate::run(&a),
+        Command::Calibrate(a) => calibrate::run(&a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

@@ -1,0 +1,127 @@
+//! `taut calibrate REC.csv`: initialise and calibrate from any recording, with no prior geometry.
+
+use crate::report;
+use anyhow::{Context, Result};
+use std::path::{Path, PathBuf};
+use taut_calib::{init, metrics, CalibOptions, CalibReport};
+use taut_config::recording::{ParseReport, Recording};
+use taut_config::RobotConfig;
+
+/// Arguments of `taut calibrate`.
+#[derive(clap::Args)]
+pub struct CalibrateArgs {
+    /// The recording (cdpr-recording v1 CSV).
+    pub recording: PathBuf,
+    /// Robot configuration (platform points, noise model). Without it: point-mass platform.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Write the results as JSON to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write figures (SVG and PNG) into this directory.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Write the calibrated parameters (taut-params v1 TOML) to this file, atomically.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Everything one calibration run produced: the initial estimate, the calibration with and
+/// without force weighting, and the metrics that compare them.
+pub struct Outcome {
+    /// The initial estimate.
+    pub init: init::InitResult,
+    /// Force-aware calibration.
+    pub force: CalibReport,
+    /// Unweighted calibration (no loose-cable exclusion, uniform variance), for comparison.
+    pub plain: Option<CalibReport>,
+    /// Co-registration RMS and peak of the initial estimate on all taut samples, m.
+    pub before: metrics::RmsPeak,
+    /// Cramér–Rao bound at the force-aware estimate.
+    pub crb: metrics::CrbReport,
+}
+
+/// Loads a recording and says what was skipped.
+pub fn load_recording(path: &Path) -> Result<(Recording, ParseReport)> {
+    let (rec, rep) = Recording::load(path)?;
+    for n in &rep.notes {
+        eprintln!("note: {}: {n}", path.display());
+    }
+    Ok((rec, rep))
+}
+
+/// The configuration to use for a recording: the given file, or a point-mass robot.
+pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
+    let cfg = match path {
+        Some(p) => RobotConfig::load(p)?,
+        None => RobotConfig::point_mass(rec.n_cables),
+    };
+    anyhow::ensure!(
+        cfg.cables.len() == rec.n_cables,
+        "the configuration has {} [[cable]] tables but the recording has {} length columns (l0..l{}); use the configuration of the robot that made the recording",
+        cfg.cables.len(),
+        rec.n_cables,
+        rec.n_cables - 1
+    );
+    Ok(cfg)
+}
+
+/// Initialises and calibrates (force-aware, and unweighted for comparison).
+pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::ProgressBar) -> Result<Outcome> {
+    let b = cfg.platform_points();
+    let opts = CalibOptions::from_config(&cfg.calibration);
+    progress.set_message("initialising");
+    let init = init::initialise(rec, &b, &opts).context("initialisation failed")?;
+    progress.inc(1);
+    progress.set_message("calibrating (force-aware)");
+    let force = taut_calib::calibrate(rec, &b, &init.params, &opts).context("calibration failed")?;
+    progress.inc(1);
+    progress.set_message("calibrating (unweighted)");
+    let plain = if force.used_tensions {
+        let plain_opts = CalibOptions { force_aware: false, ..opts.clone() };
+        Some(taut_calib::calibrate(rec, &b, &init.params, &plain_opts).context("unweighted calibration failed")?)
+    } else {
+        None
+    };
+    progress.inc(1);
+    let before = metrics::rms_peak(&metrics::co_registration(rec, &b, &init.params), &metrics::taut_mask(rec, &opts));
+    let crb = metrics::cramer_rao(rec, &b, &force.params, &opts);
+    progress.inc(1);
+    Ok(Outcome { init, force, plain, before, crb })
+}
+
+/// A progress bar on a terminal; hidden when stderr is piped.
+pub fn progress(steps: u64) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::with_draw_target(Some(steps), indicatif::ProgressDrawTarget::stderr());
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{bar:30}] {pos}/{len} {msg}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+pub fn run(a: &CalibrateArgs) -> Result<()> {
+    let (rec, parse) = load_recording(&a.recording)?;
+    let cfg = config_for(a.config.as_deref(), &rec)?;
+    let pb = progress(4);
+    let out = pipeline(&rec, &cfg, &pb)?;
+    pb.finish_and_clear();
+    report::print_calibration(&rec, &parse, &out, None);
+    if let Some(j) = &a.json {
+        let v = report::json(&rec, &parse, &out, None);
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes())
+            .with_context(|| format!("writing {}", j.display()))?;
+    }
+    if let Some(dir) = &a.plot {
+        report::plots(dir, &rec, &cfg, &out)?;
+        eprintln!("figures written to {}", dir.display());
+    }
+    if let Some(p) = &a.out {
+        report::params_file(&cfg, &a.recording.display().to_string(), &out.force)
+            .save_atomic(p)
+            .with_context(|| format!("writing {}", p.display()))?;
+        eprintln!("parameters written to {}", p.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,67 @@
+//! `taut demo`: a simulated ARAS-CAM-like robot calibrating itself, end to end.
+
+use crate::calibrate::{pipeline, progress};
+use crate::report::{self, Truth};
+use crate::simulate::{scenario, SimulateArgs};
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+
+/// Arguments of `taut demo`.
+#[derive(clap::Args)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    sim: SimulateArgs,
+    /// Write the results as JSON to this file.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write figures (SVG and PNG) into this directory.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+}
+
+pub fn run(a: &DemoArgs) -> Result<()> {
+    let s = scenario(&a.sim)?;
+    println!(
+        "taut demo: simulated {} ({} cables), seed {}, {:.0} s excitation at {:.0} Hz, loose-cable excursions {:.0}%",
+        s.robot.robot.name,
+        s.robot.cables.len(),
+        a.sim.seed,
+        s.duration_s,
+        s.rate_hz,
+        s.loose_fraction * 100.0
+    );
+    let pb = progress(5);
+    pb.set_message("simulating");
+    let run = taut_sim::simulate(&s);
+    pb.inc(1);
+    let rec = &run.recording;
+    run.recording
+        .save_atomic(&a.sim.output)
+        .with_context(|| format!("writing {}", a.sim.output.display()))?;
+    // Read back what was written: the demo calibrates the file, as `taut calibrate` would.
+    let (rec_file, parse) = taut_config::recording::Recording::load(&a.sim.output)?;
+    debug_assert_eq!(rec_file.len(), rec.len());
+    let out = pipeline(&rec_file, &s.robot, &pb)?;
+    pb.finish_and_clear();
+    let phases = rec.phase.as_ref().map(|p| p.iter().filter(|&&k| k >= 0).count()).unwrap_or(0);
+    println!(
+        "recorded {} ({} samples: {} in the three-phase initialisation, {} with a loose cable)",
+        a.sim.output.display(),
+        rec.len(),
+        phases,
+        run.loose_samples
+    );
+    println!();
+    let truth = Truth { anchors: run.truth.anchors.clone(), l0: run.truth.l0.clone() };
+    report::print_calibration(&rec_file, &parse, &out, Some(&truth));
+    if let Some(j) = &a.json {
+        let v = report::json(&rec_file, &parse, &out, Some(&truth));
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes())
+            .with_context(|| format!("writing {}", j.display()))?;
+    }
+    if let Some(dir) = &a.plot {
+        report::plots(dir, &rec_file, &s.robot, &out)?;
+        println!("figures written to {}", dir.display());
+    }
+    Ok(())
+}
