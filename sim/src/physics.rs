@@ -1,0 +1,387 @@
+//! The physics of one cable: the switchable effects ([`Physics`]) and the cable between its anchor
+//! and the platform ([`CableModel`]).
+//!
+//! What an encoder counts is the *unstretched* cable paid out by the drum. The model here turns a
+//! platform attachment point `B` and a tension into that length, and a drum command (a length in
+//! position mode or a tension in torque mode) into the force on the platform and a potential
+//! energy for the equilibrium solver.
+//!
+//! ```text
+//!          | swivel axis (vertical, through the nominal anchor A)
+//!          |   ___
+//!     A -> |  /   \  pulley of radius r, centre C = A + r u_h, turned to face B
+//!          |  \___/
+//!            \_ exit point E (tangent), wrap arc r*beta from A to E
+//!               \
+//!                \  straight (or catenary) span E -> B
+//!                 B  platform attachment
+//! ```
+//!
+//! Without a pulley `E = A`. The cable reaches the pulley along the swivel axis from above; the
+//! part above `A` has a constant length and is absorbed in the encoder offset.
+
+use crate::catenary::{self, CableSpec, Catenary, End};
+
+/// Axial stiffness used for a cable in position mode when elasticity is switched off, N: stiff
+/// enough that its stretch (T L / EA ~ microns) is below the encoder resolution, soft enough for
+/// the equilibrium solver's finite differences.
+pub const EA_RIGID: f64 = 1e8;
+
+/// Standard gravity, m/s^2.
+pub const G: f64 = 9.81;
+
+/// Switchable cable physics. Everything is off by default except slack cables, which the
+/// excitation's excursions cause.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Physics {
+    /// Axial stiffness EA of every cable, N: the encoder counts the unstretched length
+    /// `geometric / (1 + T/EA)`.
+    pub elasticity: Option<f64>,
+    /// Cable weight per length, N/m: the cable hangs in a catenary whose arc is longer than the
+    /// chord (solved exactly).
+    pub sag: Option<f64>,
+    /// Radius of a swivel pulley at every anchor, m.
+    pub pulley: Option<f64>,
+    /// Per-cable encoder scale (drum radius error): reading = scale x length + offset.
+    pub scale: Option<Vec<f64>>,
+    /// Encoder readings lag the tracker by this, s (the encoder value at `t` is the length at
+    /// `t - time_offset_s`). Zero is off.
+    pub time_offset_s: f64,
+    /// Play in the drive train, m: the reading follows the length through a hysteresis (play
+    /// operator) of this width. Zero is off.
+    pub backlash_m: f64,
+    /// Loose cables: where the trajectory demands a negative tension the cable goes slack and its
+    /// drum pays out extra cable.
+    pub slack: bool,
+}
+
+impl Default for Physics {
+    fn default() -> Self {
+        Physics {
+            elasticity: None,
+            sag: None,
+            pulley: None,
+            scale: None,
+            time_offset_s: 0.0,
+            backlash_m: 0.0,
+            slack: true,
+        }
+    }
+}
+
+impl Physics {
+    /// Ideal cables: every effect off, slack too.
+    pub fn ideal() -> Self {
+        Physics { slack: false, ..Physics::default() }
+    }
+
+    /// The encoder scale of cable `j` (1 when the effect is off).
+    pub fn scale_of(&self, j: usize) -> f64 {
+        self.scale.as_ref().and_then(|s| s.get(j).copied()).unwrap_or(1.0)
+    }
+}
+
+/// A drum command: what the drive of one cable does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CableCommand {
+    /// Position mode: the drum has paid out this unstretched length, m.
+    Length(f64),
+    /// Torque mode: the drum holds this tension on the cable, N (at the anchor side).
+    Tension(f64),
+}
+
+/// Geometry of the cable path from the anchor to a platform point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathGeom {
+    /// Where the cable leaves the anchor (the pulley's tangent point, or the anchor itself), m.
+    pub exit: [f64; 3],
+    /// Arc wrapped on the pulley, m.
+    pub wrap: f64,
+    /// Straight distance from the exit point to the platform point, m.
+    pub straight: f64,
+    /// Unit vector from the platform point towards the exit point.
+    pub dir: [f64; 3],
+}
+
+impl PathGeom {
+    /// Path length (wrap + straight), m.
+    pub fn length(&self) -> f64 {
+        self.wrap + self.straight
+    }
+}
+
+/// A taut cable of known tension: what the encoder counts and where the cable pulls.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Taut {
+    /// Unstretched length from the anchor to the platform, m.
+    pub unstretched: f64,
+    /// Unit direction of the force on the platform.
+    pub dir: [f64; 3],
+}
+
+/// What a cable does to the platform under a drum command.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CableLoad {
+    /// Force on the platform, N.
+    pub force: [f64; 3],
+    /// Potential energy of the cable (and its drive, in torque mode), J.
+    pub energy: f64,
+    /// Tension at the platform end, N.
+    pub tension: f64,
+    /// Unstretched length paid out by the drum, m.
+    pub drum_length: f64,
+    /// True when a position-mode cable is longer than the path (no tension).
+    pub slack: bool,
+}
+
+/// One cable: anchor and the effects that shape its length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CableModel {
+    /// Anchor (cable exit point without pulley; the point where the swivel axis touches the
+    /// pulley with one), m.
+    pub anchor: [f64; 3],
+    /// Pulley radius, m (0: no pulley).
+    pub pulley_r: f64,
+    /// Axial stiffness, N (`f64::INFINITY`: inextensible).
+    pub ea: f64,
+    /// Weight per length, N/m (0: no sag).
+    pub w: f64,
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn norm(a: [f64; 3]) -> f64 {
+    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+}
+
+fn scale3(a: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+impl CableModel {
+    /// The model of a cable anchored at `anchor` with the effects of `physics`.
+    pub fn new(anchor: [f64; 3], physics: &Physics) -> Self {
+        CableModel {
+            anchor,
+            pulley_r: physics.pulley.unwrap_or(0.0),
+            ea: physics.elasticity.unwrap_or(f64::INFINITY),
+            w: physics.sag.unwrap_or(0.0),
+        }
+    }
+
+    /// The same cable with [`EA_RIGID`] when it is inextensible: what a drive in position mode
+    /// needs to produce a tension.
+    pub fn rigidified(mut self) -> Self {
+        if !self.ea.is_finite() {
+            self.ea = EA_RIGID;
+        }
+        self
+    }
+
+    /// Path geometry to the platform point `b`.
+    pub fn path(&self, b: [f64; 3]) -> PathGeom {
+        let a = self.anchor;
+        let d = sub(b, a);
+        if self.pulley_r <= 0.0 {
+            let l = norm(d);
+            return PathGeom { exit: a, wrap: 0.0, straight: l, dir: scale3(d, -1.0 / l) };
+        }
+        let r = self.pulley_r;
+        // The pulley plane: vertical, through the swivel axis, containing b.
+        let rho = d[0].hypot(d[1]);
+        let uh = if rho > 1e-12 { [d[0] / rho, d[1] / rho, 0.0] } else { [1.0, 0.0, 0.0] };
+        // b relative to the pulley centre, in (horizontal along uh, vertical).
+        let (x, z) = (rho - r, d[2]);
+        let dc = x.hypot(z);
+        let psi = z.atan2(x);
+        let alpha = (r / dc).min(1.0).acos();
+        // The cable comes down the axis at angle pi and wraps counter-clockwise (in the
+        // (uh, z) plane) to the tangent point at psi - alpha.
+        let phi = psi - alpha;
+        let beta = (phi - std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI);
+        let c = [a[0] + r * uh[0], a[1] + r * uh[1], a[2]];
+        let exit = [c[0] + r * phi.cos() * uh[0], c[1] + r * phi.cos() * uh[1], c[2] + r * phi.sin()];
+        let e = sub(exit, b);
+        let straight = norm(e);
+        PathGeom { exit, wrap: r * beta, straight, dir: scale3(e, 1.0 / straight) }
+    }
+
+    /// Catenary span from `b` to the exit point: horizontal distance, rise, and the horizontal
+    /// unit vector towards the exit.
+    fn span(b: [f64; 3], exit: [f64; 3]) -> (f64, f64, [f64; 3]) {
+        let d = sub(exit, b);
+        let h = d[0].hypot(d[1]);
+        let eh = if h > 1e-12 { [d[0] / h, d[1] / h, 0.0] } else { [1.0, 0.0, 0.0] };
+        (h.max(1e-9), d[2], eh)
+    }
+
+    fn spec(&self) -> CableSpec {
+        CableSpec { w: self.w, ea: self.ea }
+    }
+
+    /// The taut cable from the anchor to `b` with tension `t` at the platform end.
+    ///
+    /// With sag, the cable on the pulley is taken as inextensible (its stretch, wrap x T/EA, is
+    /// microns) and the pulley's tangent point is that of the chord.
+    pub fn taut(&self, b: [f64; 3], t: f64) -> Result<Taut, catenary::CatenaryError> {
+        let path = self.path(b);
+        if self.w > 0.0 {
+            let (h, v, eh) = Self::span(b, path.exit);
+            let s = catenary::solve_given_tension(h, v, t, End::Lower, &self.spec())?;
+            let f = [s.h_force * eh[0], s.h_force * eh[1], s.v0];
+            return Ok(Taut { unstretched: s.l0 + path.wrap, dir: scale3(f, 1.0 / s.t0()) });
+        }
+        let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
+        Ok(Taut { unstretched: path.length() / (1.0 + k), dir: path.dir })
+    }
+
+    /// The cable's action on the platform point `b` under `cmd`.
+    ///
+    /// Position mode needs a finite EA (see [`CableModel::rigidified`]). Energies are relative
+    /// (constant terms dropped) and meant for the equilibrium solver's line search.
+    pub fn load(&self, b: [f64; 3], cmd: CableCommand) -> CableLoad {
+        let path = self.path(b);
+        let ell = path.length();
+        if self.w > 0.0 {
+            if let Some(l) = self.load_catenary(b, &path, cmd) {
+                return l;
+            }
+            // The catenary failed (degenerate span): fall through to the straight cable.
+        }
+        match cmd {
+            CableCommand::Length(lu) => {
+                let ea = self.ea;
+                if ell > lu {
+                    let t = ea * (ell / lu - 1.0);
+                    CableLoad {
+                        force: scale3(path.dir, t),
+                        energy: 0.5 * ea / lu * (ell - lu) * (ell - lu),
+                        tension: t,
+                        drum_length: lu,
+                        slack: false,
+                    }
+                } else {
+                    CableLoad { force: [0.0; 3], energy: 0.0, tension: 0.0, drum_length: lu, slack: true }
+                }
+            }
+            CableCommand::Tension(t) => {
+                let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
+                CableLoad {
+                    force: scale3(path.dir, t),
+                    energy: t * ell,
+                    tension: t,
+                    drum_length: ell / (1.0 + k),
+                    slack: false,
+                }
+            }
+        }
+    }
+
+    fn load_catenary(&self, b: [f64; 3], path: &PathGeom, cmd: CableCommand) -> Option<CableLoad> {
+        let (h, v, eh) = Self::span(b, path.exit);
+        let spec = self.spec();
+        let force = |s: &Catenary| [s.h_force * eh[0], s.h_force * eh[1], s.v0];
+        match cmd {
+            CableCommand::Length(lu) => {
+                let free = lu - path.wrap;
+                let s = catenary::solve_given_length(h, v, free, &spec).ok()?;
+                Some(CableLoad {
+                    force: force(&s),
+                    // Gravity of the whole cable at the platform's height plus the catenary's
+                    // own energy: its gradient in b is minus the force (checked in catenary).
+                    energy: s.energy_rel(&spec) + self.w * free * b[2],
+                    tension: s.t0(),
+                    drum_length: lu,
+                    slack: false,
+                })
+            }
+            CableCommand::Tension(t) => {
+                let s = catenary::solve_given_tension(h, v, t, End::Upper, &spec).ok()?;
+                // Drive work t*L plus the cable's energy measured from the exit height, whose
+                // derivative in L at fixed ends is -T_upper (inextensible): stationary in L.
+                Some(CableLoad {
+                    force: force(&s),
+                    energy: t * (s.l0 + path.wrap) + s.energy_rel(&spec) - self.w * s.l0 * v,
+                    tension: s.t0(),
+                    drum_length: s.l0 + path.wrap,
+                    slack: false,
+                })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pulley_path_limits_and_tangency() {
+        let a = [1.0, 2.0, 4.0];
+        let b = [3.0, -1.0, 1.0];
+        let straight = CableModel::new(a, &Physics::ideal()).path(b);
+        assert!((straight.length() - norm(sub(b, a))).abs() < 1e-12);
+        let tiny = CableModel::new(a, &Physics { pulley: Some(1e-9), ..Physics::ideal() }).path(b);
+        assert!((tiny.length() - straight.length()).abs() < 1e-8);
+        let r = 0.1;
+        let p = CableModel::new(a, &Physics { pulley: Some(r), ..Physics::ideal() }).path(b);
+        // The exit point is on the pulley circle, the straight segment is tangent there.
+        let rho = sub(b, a)[0].hypot(sub(b, a)[1]);
+        let uh = [sub(b, a)[0] / rho, sub(b, a)[1] / rho, 0.0];
+        let c = [a[0] + r * uh[0], a[1] + r * uh[1], a[2]];
+        let ce = sub(p.exit, c);
+        assert!((norm(ce) - r).abs() < 1e-12);
+        let dot = ce[0] * p.dir[0] + ce[1] * p.dir[1] + ce[2] * p.dir[2];
+        assert!(dot.abs() < 1e-12, "segment not tangent: {dot}");
+        // The wrap is between 0 and a half turn for a platform below the anchor, and the path is
+        // longer than the distance from the anchor's tangent point to b minus the radius.
+        assert!(p.wrap > 0.0 && p.wrap < std::f64::consts::PI * r);
+        // Gradient of the path length is minus the direction (the exit point slides freely).
+        let e = 1e-6;
+        for k in 0..3 {
+            let mut bp = b;
+            let mut bm = b;
+            bp[k] += e;
+            bm[k] -= e;
+            let m = CableModel::new(a, &Physics { pulley: Some(r), ..Physics::ideal() });
+            let g = (m.path(bp).length() - m.path(bm).length()) / (2.0 * e);
+            assert!((g + p.dir[k]).abs() < 1e-7, "axis {k}: {g} vs {}", -p.dir[k]);
+        }
+    }
+
+    /// Every load's energy gradient is minus its force (finite differences), for each effect.
+    #[test]
+    fn load_energy_gradient_is_minus_force() {
+        let a = [3.5, -1.75, 4.0];
+        let b = [0.3, 0.2, 1.5];
+        let physics = [
+            Physics::ideal(),
+            Physics { elasticity: Some(2e5), ..Physics::ideal() },
+            Physics { pulley: Some(0.05), ..Physics::ideal() },
+            Physics { sag: Some(0.8), ..Physics::ideal() },
+            Physics { sag: Some(0.8), elasticity: Some(5e4), pulley: Some(0.05), ..Physics::ideal() },
+        ];
+        for ph in &physics {
+            let m = CableModel::new(a, ph).rigidified();
+            let lu = m.taut(b, 40.0).unwrap().unstretched;
+            for (cmd, weight_at_platform) in [(CableCommand::Length(lu), false), (CableCommand::Tension(40.0), true)] {
+                let l0 = m.load(b, cmd);
+                // A follower holds 40 N at the anchor; at the platform a heavy cable pulls less by
+                // about its weight per length times the rise.
+                let weight = if weight_at_platform { m.w * (a[2] - b[2]) } else { 0.0 };
+                assert!((l0.tension + weight - 40.0).abs() < 0.5, "{ph:?} {cmd:?}: {l0:?}");
+                let e = 1e-6;
+                for k in 0..3 {
+                    let mut bp = b;
+                    let mut bm = b;
+                    bp[k] += e;
+                    bm[k] -= e;
+                    let g = (m.load(bp, cmd).energy - m.load(bm, cmd).energy) / (2.0 * e);
+                    assert!((g + l0.force[k]).abs() < 2e-3 * 40.0, "{ph:?} {cmd:?} axis {k}: {g} vs {}", -l0.force[k]);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,235 @@
+//! A stepping plant for the real-time loop and the virtual drives: the platform's quasi-static
+//! response to drum commands.
+//!
+//! Each [`Plant::step`] takes the elapsed time and one [`CableCommand`] per cable, finds the
+//! static equilibrium (warm-started from the last one, see [`crate::equilibrium`]) and returns the
+//! platform position, the encoder readings (scale, offset, backlash, time offset, optional noise)
+//! and the platform-end tensions (optional load-cell noise). Everything is allocated in
+//! [`Plant::new`]; a step does not allocate.
+//!
+//! ```no_run
+//! use taut_sim::{plant::Plant, CableCommand, Scenario};
+//! let s = Scenario::aras_cam(1);
+//! let truth = taut_sim::Truth::sample(&s.robot, &s.physics, 0.1, 2.0, &mut taut_sim::rng(1, 0)).unwrap();
+//! let mut plant = Plant::new(&truth, &s.physics, [0.0, 0.0, 1.8]);
+//! let hold = plant.lengths_holding([0.0, 0.0, 1.8], &[20.0; 4]).unwrap();
+//! let cmds: Vec<_> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+//! let out = plant.step(0.001, &cmds);
+//! println!("{:?} {:?}", out.position, out.encoder_m);
+//! ```
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::equilibrium::{EquilibriumReport, System};
+use crate::physics::{CableCommand, CableLoad, CableModel, Physics};
+use crate::sensors::{Encoder, LoadCell, Noise};
+use crate::truth::Truth;
+use crate::SimError;
+
+/// Encoder history kept for the time offset, samples per cable.
+const HISTORY: usize = 256;
+
+/// One step's outputs, borrowed from the plant.
+#[derive(Debug, Clone, Copy)]
+pub struct StepOutput<'a> {
+    /// Platform reference point, m.
+    pub position: [f64; 3],
+    /// Encoder readings, m.
+    pub encoder_m: &'a [f64],
+    /// Load-cell readings (platform-end tensions), N.
+    pub tension_n: &'a [f64],
+    /// Unstretched lengths paid out by the drums (no sensor effects), m.
+    pub drum_m: &'a [f64],
+    /// How the equilibrium search went.
+    pub report: EquilibriumReport,
+}
+
+/// The simulated robot, stepped by time.
+#[derive(Debug, Clone)]
+pub struct Plant {
+    models: Vec<CableModel>,
+    offsets: Vec<[f64; 3]>,
+    platform_points: Vec<[f64; 3]>,
+    mass: f64,
+    p: [f64; 3],
+    t: f64,
+    time_offset: f64,
+    loads: Vec<CableLoad>,
+    drum: Vec<f64>,
+    encoder_out: Vec<f64>,
+    tension_out: Vec<f64>,
+    encoders: Vec<Encoder>,
+    loadcells: Vec<LoadCell>,
+    noisy: bool,
+    rng: ChaCha8Rng,
+    // Ring buffer of (time, drum lengths) for the time offset.
+    hist_t: Vec<f64>,
+    hist_l: Vec<f64>,
+    hist_len: usize,
+    hist_head: usize,
+    lagged: Vec<f64>,
+    last_report: EquilibriumReport,
+}
+
+impl Plant {
+    /// A plant of the true robot with the cable `physics`, platform at `p0` (a starting guess:
+    /// the first step finds the equilibrium from there). Exact sensors; see [`Plant::with_noise`].
+    pub fn new(truth: &Truth, physics: &Physics, p0: [f64; 3]) -> Self {
+        let n = truth.n_cables();
+        let none = Noise::none();
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        Plant {
+            models: truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect(),
+            offsets: truth.platform_points.clone(),
+            platform_points: truth.platform_points.clone(),
+            mass: truth.mass_kg,
+            p: p0,
+            t: 0.0,
+            time_offset: physics.time_offset_s.max(0.0),
+            loads: vec![CableLoad { force: [0.0; 3], energy: 0.0, tension: 0.0, drum_length: 0.0, slack: false }; n],
+            drum: vec![0.0; n],
+            encoder_out: vec![0.0; n],
+            tension_out: vec![0.0; n],
+            encoders: (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none)).collect(),
+            loadcells: (0..n).map(|_| LoadCell::new(&none, &mut rng)).collect(),
+            noisy: false,
+            rng,
+            hist_t: vec![f64::NEG_INFINITY; HISTORY],
+            hist_l: vec![0.0; HISTORY * n],
+            hist_len: 0,
+            hist_head: 0,
+            lagged: vec![0.0; n],
+            last_report: EquilibriumReport { iterations: 0, residual_n: f64::NAN, converged: false, stable: false },
+        }
+    }
+
+    /// Adds encoder and load-cell noise (the tracker is not part of the plant), seeded.
+    pub fn with_noise(mut self, noise: &Noise, seed: u64) -> Self {
+        let mut rng = crate::rng(seed, crate::STREAM_PLANT);
+        for e in &mut self.encoders {
+            *e = e.clone().with_noise(noise);
+        }
+        self.loadcells = (0..self.models.len()).map(|_| LoadCell::new(noise, &mut rng)).collect();
+        self.rng = rng;
+        self.noisy = true;
+        self
+    }
+
+    /// Number of cables.
+    pub fn n_cables(&self) -> usize {
+        self.models.len()
+    }
+
+    /// Current platform position, m.
+    pub fn position(&self) -> [f64; 3] {
+        self.p
+    }
+
+    /// Simulated time, s.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+
+    /// The last equilibrium report.
+    pub fn report(&self) -> EquilibriumReport {
+        self.last_report
+    }
+
+    /// Imposes the platform orientation (unit quaternion w, x, y, z; the plant keeps it fixed).
+    pub fn set_orientation(&mut self, q: [f64; 4]) {
+        let r = crate::trajectory::rotation(q);
+        for (o, b) in self.offsets.iter_mut().zip(&self.platform_points) {
+            *o = crate::trajectory::rotate(&r, *b);
+        }
+    }
+
+    /// Drum lengths (position mode) that hold the platform in equilibrium at `p` with these
+    /// platform-end tensions. The tensions must balance the weight; the plant's stiff cables then
+    /// settle within microns of `p`.
+    pub fn lengths_holding(&self, p: [f64; 3], tensions: &[f64]) -> Result<Vec<f64>, SimError> {
+        self.models
+            .iter()
+            .zip(&self.offsets)
+            .zip(tensions)
+            .map(|((m, o), &t)| {
+                m.taut([p[0] + o[0], p[1] + o[1], p[2] + o[2]], t)
+                    .map(|c| c.unstretched)
+                    .map_err(|e| SimError::Catenary(e.to_string()))
+            })
+            .collect()
+    }
+
+    /// Advances by `dt` seconds under `commands` (one per cable).
+    ///
+    /// # Panics
+    /// If the number of commands is not the number of cables.
+    pub fn step(&mut self, dt: f64, commands: &[CableCommand]) -> StepOutput<'_> {
+        assert_eq!(commands.len(), self.models.len(), "one command per cable");
+        self.t += dt;
+        let sys = System { models: &self.models, offsets: &self.offsets, commands, mass: self.mass };
+        let (p, rep) = sys.solve(self.p, &mut self.loads);
+        // Keep the last good position if the search failed (no equilibrium: e.g. every cable
+        // slack); the report says so.
+        if rep.converged {
+            self.p = p;
+        }
+        self.last_report = rep;
+        for (j, l) in self.loads.iter().enumerate() {
+            self.drum[j] = l.drum_length;
+        }
+        self.push_history();
+        self.lag_into_scratch();
+        for j in 0..self.models.len() {
+            let (rng, noisy) = (&mut self.rng, self.noisy);
+            self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng);
+            let t = self.loads[j].tension;
+            self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
+        }
+        StepOutput {
+            position: self.p,
+            encoder_m: &self.encoder_out,
+            tension_n: &self.tension_out,
+            drum_m: &self.drum,
+            report: rep,
+        }
+    }
+
+    fn push_history(&mut self) {
+        let n = self.models.len();
+        let h = self.hist_head;
+        self.hist_t[h] = self.t;
+        self.hist_l[h * n..(h + 1) * n].copy_from_slice(&self.drum);
+        self.hist_head = (h + 1) % HISTORY;
+        self.hist_len = (self.hist_len + 1).min(HISTORY);
+    }
+
+    /// Drum lengths at `t - time_offset`, linearly interpolated in the history (the oldest
+    /// entry if the history is too short).
+    fn lag_into_scratch(&mut self) {
+        let n = self.models.len();
+        if self.time_offset <= 0.0 {
+            self.lagged.copy_from_slice(&self.drum);
+            return;
+        }
+        let target = self.t - self.time_offset;
+        // Walk back from the newest entry.
+        let idx = |k: usize| (self.hist_head + HISTORY - 1 - k) % HISTORY;
+        let mut newer = idx(0);
+        for k in 1..self.hist_len {
+            let older = idx(k);
+            if self.hist_t[older] <= target {
+                let (t0, t1) = (self.hist_t[older], self.hist_t[newer]);
+                let s = if t1 > t0 { (target - t0) / (t1 - t0) } else { 1.0 };
+                for j in 0..n {
+                    let (a, b) = (self.hist_l[older * n + j], self.hist_l[newer * n + j]);
+                    self.lagged[j] = a + s * (b - a);
+                }
+                return;
+            }
+            newer = older;
+        }
+        let oldest = idx(self.hist_len - 1);
+        self.lagged.copy_from_slice(&self.hist_l[oldest * n..(oldest + 1) * n]);
+    }
+}

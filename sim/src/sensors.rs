@@ -1,0 +1,253 @@
+//! Sensor models: the position tracker, the drum encoders and the load cells.
+//!
+//! | sensor    | default noise                                                              |
+//! |-----------|----------------------------------------------------------------------------|
+//! | tracker   | 1.5 mm 1-sigma per axis; 0.2 % outliers of ~5 cm; 0.5 % missing (NaN) in bursts |
+//! | encoder   | 0.05 mm 1-sigma, then quantised to 0.01 mm                                 |
+//! | load cell | 0.3 N 1-sigma plus a per-cell offset (0.5 N 1-sigma)                       |
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal, StandardNormal};
+
+/// Sensor noise. [`Noise::default`] is a realistic set, [`Noise::none`] exact sensors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Noise {
+    /// Tracker noise, 1-sigma per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Probability that a tracker sample is an outlier.
+    pub tracker_outlier_prob: f64,
+    /// Typical size of a tracker outlier, m.
+    pub tracker_outlier_m: f64,
+    /// Fraction of tracker samples missing (NaN).
+    pub tracker_dropout_prob: f64,
+    /// Mean number of consecutive missing tracker samples.
+    pub tracker_dropout_len: usize,
+    /// Encoder quantum, m (0: not quantised).
+    pub encoder_quantum_m: f64,
+    /// Encoder noise, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// Load-cell noise, 1-sigma, N.
+    pub loadcell_sigma_n: f64,
+    /// Load-cell offset, 1-sigma of the per-cell constant, N.
+    pub loadcell_offset_n: f64,
+}
+
+impl Default for Noise {
+    fn default() -> Self {
+        Noise {
+            tracker_sigma_m: 1.5e-3,
+            tracker_outlier_prob: 0.002,
+            tracker_outlier_m: 0.05,
+            tracker_dropout_prob: 0.005,
+            tracker_dropout_len: 4,
+            encoder_quantum_m: 1e-5,
+            encoder_sigma_m: 5e-5,
+            loadcell_sigma_n: 0.3,
+            loadcell_offset_n: 0.5,
+        }
+    }
+}
+
+impl Noise {
+    /// Exact sensors: no noise, outliers, dropouts, quantisation or offsets.
+    pub fn none() -> Self {
+        Noise {
+            tracker_sigma_m: 0.0,
+            tracker_outlier_prob: 0.0,
+            tracker_outlier_m: 0.0,
+            tracker_dropout_prob: 0.0,
+            tracker_dropout_len: 1,
+            encoder_quantum_m: 0.0,
+            encoder_sigma_m: 0.0,
+            loadcell_sigma_n: 0.0,
+            loadcell_offset_n: 0.0,
+        }
+    }
+}
+
+fn gauss(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
+    if sigma > 0.0 {
+        let z: f64 = StandardNormal.sample(rng);
+        sigma * z
+    } else {
+        0.0
+    }
+}
+
+/// The position tracker: noise, rare outliers, bursts of missing samples.
+#[derive(Debug, Clone)]
+pub struct Tracker {
+    noise: Noise,
+    missing_left: usize,
+}
+
+impl Tracker {
+    /// A tracker with `noise`.
+    pub fn new(noise: &Noise) -> Self {
+        Tracker { noise: noise.clone(), missing_left: 0 }
+    }
+
+    /// One measurement of the true position `p` (NaN while a dropout lasts).
+    pub fn measure(&mut self, p: [f64; 3], rng: &mut ChaCha8Rng) -> [f64; 3] {
+        let n = &self.noise;
+        // Draw the same number of variates every sample so that switching one effect does not
+        // shift the random stream of the others.
+        let u_drop: f64 = rng.gen();
+        let len_draw: f64 = rng.gen();
+        let u_out: f64 = rng.gen();
+        let g: [f64; 3] = std::array::from_fn(|_| gauss(rng, 1.0));
+        let o: [f64; 3] = std::array::from_fn(|_| gauss(rng, 1.0));
+        if self.missing_left == 0 && n.tracker_dropout_prob > 0.0 {
+            let mean = n.tracker_dropout_len.max(1) as f64;
+            if u_drop < n.tracker_dropout_prob / mean {
+                // Burst length uniform in 1..=2*mean-1 (mean `mean`).
+                self.missing_left = 1 + (len_draw * (2.0 * mean - 1.0)).floor() as usize;
+            }
+        }
+        if self.missing_left > 0 {
+            self.missing_left -= 1;
+            return [f64::NAN; 3];
+        }
+        let mut m: [f64; 3] = std::array::from_fn(|k| p[k] + n.tracker_sigma_m * g[k]);
+        if u_out < n.tracker_outlier_prob {
+            // ~5 cm in a random direction, magnitude spread +-20 %.
+            let r = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]).sqrt().max(1e-9);
+            let mag = n.tracker_outlier_m * (1.0 + 0.2 * (len_draw - 0.5));
+            for k in 0..3 {
+                m[k] += mag * o[k] / r;
+            }
+        }
+        m
+    }
+}
+
+/// Play operator: the output follows the input only once the input has moved by more than half
+/// the play width away from it (backlash in the drive train).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Backlash {
+    width: f64,
+    y: Option<f64>,
+}
+
+impl Backlash {
+    /// A play of `width` m (0: the output is the input).
+    pub fn new(width: f64) -> Self {
+        Backlash { width, y: None }
+    }
+
+    /// The output for input `x`.
+    pub fn update(&mut self, x: f64) -> f64 {
+        let h = 0.5 * self.width;
+        let y = match self.y {
+            None => x,
+            Some(y) => y.clamp(x - h, x + h),
+        };
+        self.y = Some(y);
+        y
+    }
+}
+
+/// One drum encoder: scale and offset (truth), backlash, noise and quantisation.
+#[derive(Debug, Clone)]
+pub struct Encoder {
+    scale: f64,
+    offset: f64,
+    backlash: Backlash,
+    sigma: f64,
+    quantum: f64,
+}
+
+impl Encoder {
+    /// An encoder reading `scale x length + offset` through a play of `backlash_m`.
+    pub fn new(scale: f64, offset: f64, backlash_m: f64, noise: &Noise) -> Self {
+        Encoder {
+            scale,
+            offset,
+            backlash: Backlash::new(backlash_m),
+            sigma: noise.encoder_sigma_m,
+            quantum: noise.encoder_quantum_m,
+        }
+    }
+
+    /// The same encoder with the noise and quantisation of `noise`.
+    pub fn with_noise(mut self, noise: &Noise) -> Self {
+        self.sigma = noise.encoder_sigma_m;
+        self.quantum = noise.encoder_quantum_m;
+        self
+    }
+
+    /// The reading for the unstretched length `length` (m) paid out by the drum.
+    pub fn read(&mut self, length: f64, rng: &mut ChaCha8Rng) -> f64 {
+        let y = self.backlash.update(length);
+        let e = gauss(rng, 1.0);
+        let r = self.scale * y + self.offset + self.sigma * e;
+        if self.quantum > 0.0 {
+            (r / self.quantum).round() * self.quantum
+        } else {
+            r
+        }
+    }
+}
+
+/// One load cell: offset and noise.
+#[derive(Debug, Clone)]
+pub struct LoadCell {
+    /// Constant offset, N.
+    pub offset: f64,
+    sigma: f64,
+}
+
+impl LoadCell {
+    /// A load cell with its offset drawn from `noise`.
+    pub fn new(noise: &Noise, rng: &mut ChaCha8Rng) -> Self {
+        let offset = Normal::new(0.0, noise.loadcell_offset_n.max(0.0)).map(|d| d.sample(rng)).unwrap_or(0.0);
+        LoadCell { offset, sigma: noise.loadcell_sigma_n }
+    }
+
+    /// The reading for tension `t`, N.
+    pub fn read(&self, t: f64, rng: &mut ChaCha8Rng) -> f64 {
+        t + self.offset + gauss(rng, self.sigma)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn backlash_is_a_hysteresis_of_the_play_width() {
+        let mut b = Backlash::new(0.002);
+        assert_eq!(b.update(1.0), 1.0);
+        // Going up: the output lags the input by half the play.
+        let up = b.update(1.01);
+        assert!((up - (1.01 - 0.001)).abs() < 1e-12);
+        // Reversing by less than the play: the output does not move.
+        assert_eq!(b.update(1.009), up);
+        // Going down: lags by half the play on the other side: total hysteresis = width.
+        let down = b.update(1.0);
+        assert!((down - 1.001).abs() < 1e-12);
+        assert!((up - down - (0.01 - 0.002)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn tracker_dropouts_and_outliers_have_the_configured_rates() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let noise = Noise::default();
+        let mut tr = Tracker::new(&noise);
+        let n = 200_000;
+        let (mut missing, mut outliers) = (0, 0);
+        for _ in 0..n {
+            let m = tr.measure([0.0; 3], &mut rng);
+            if m[0].is_nan() {
+                missing += 1;
+            } else if (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]).sqrt() > 0.02 {
+                outliers += 1;
+            }
+        }
+        let (fm, fo) = (missing as f64 / n as f64, outliers as f64 / n as f64);
+        assert!((0.0035..0.0065).contains(&fm), "missing {fm}");
+        assert!((0.0012..0.0028).contains(&fo), "outliers {fo}");
+    }
+}

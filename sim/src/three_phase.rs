@@ -1,0 +1,156 @@
+//! The guided three-phase initialisation motion (paper, section III).
+//!
+//! Three cables are in position mode, the others follow at a low constant tension. From a central
+//! rest position, phase `k` reels `cables[k]` in by `reel_m` at `speed_m_s` while the other two
+//! hold their lengths, then reels it back out (labelled -1) to the centre. The platform is the
+//! static equilibrium of the [`Plant`] at every sample: it moves on the circle where the spheres
+//! of the two held cables meet, its height set by the reeled cable. Reeling *in* keeps the held
+//! cables taut: the platform rises towards the reeled anchor and the two others keep carrying
+//! their share; a sample where a position-mode cable loses its tension is an error.
+//!
+//! The default pairing (`cables = [0, 1, 2]`) works for three and four cables: with four, cable 3
+//! follows.
+
+use crate::physics::{CableCommand, CableModel, Physics, G};
+use crate::plant::Plant;
+use crate::truth::Truth;
+use crate::SimError;
+
+/// A three-phase initialisation motion.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ThreePhasePlan {
+    /// Length reeled in during each phase, m.
+    pub reel_m: f64,
+    /// Reeling speed, m/s.
+    pub speed_m_s: f64,
+    /// Tension of the follower cables (torque mode), N.
+    pub follower_tension_n: f64,
+    /// The three position-mode cables; phase `k` reels `cables[k]`.
+    pub cables: [usize; 3],
+    /// Rest at the centre before each phase, s.
+    pub dwell_s: f64,
+}
+
+impl Default for ThreePhasePlan {
+    fn default() -> Self {
+        ThreePhasePlan { reel_m: 0.5, speed_m_s: 0.05, follower_tension_n: 10.0, cables: [0, 1, 2], dwell_s: 1.0 }
+    }
+}
+
+/// The sampled motion: true positions, drum lengths and tensions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ThreePhaseMotion {
+    /// Sample times from the start of the motion, s.
+    pub t: Vec<f64>,
+    /// Platform positions, m.
+    pub p: Vec<[f64; 3]>,
+    /// Unstretched drum lengths, row-major per sample, m.
+    pub drum: Vec<f64>,
+    /// Platform-end tensions, row-major per sample, N.
+    pub tension: Vec<f64>,
+    /// Phase per sample (-1 outside).
+    pub phase: Vec<i32>,
+    /// Drum lengths at the centre (the held lengths), m.
+    pub rest_lengths: Vec<f64>,
+}
+
+/// Tensions that hold the platform at `c` with the followers at `tf`: the 3x3 force balance of
+/// the position-mode cables, with their force directions refined for sag.
+fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3]) -> Result<Vec<f64>, SimError> {
+    let n = truth.n_cables();
+    let models: Vec<_> = truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect();
+    let b: Vec<[f64; 3]> = truth.platform_points.iter().map(|o| [c[0] + o[0], c[1] + o[1], c[2] + o[2]]).collect();
+    let mut t: Vec<f64> = (0..n).map(|_| plan.follower_tension_n).collect();
+    let mut dirs: Vec<[f64; 3]> = (0..n).map(|j| models[j].path(b[j]).dir).collect();
+    for _ in 0..4 {
+        let mut rhs = nalgebra::Vector3::new(0.0, 0.0, truth.mass_kg * G);
+        for j in (0..n).filter(|j| !plan.cables.contains(j)) {
+            rhs -= plan.follower_tension_n * nalgebra::Vector3::from(dirs[j]);
+        }
+        let m = nalgebra::Matrix3::from_fn(|r, k| dirs[plan.cables[k]][r]);
+        let x = m.lu().solve(&rhs).ok_or(SimError::ThreePhaseInfeasible {
+            reason: "the three position-mode cables are coplanar at the centre",
+        })?;
+        for k in 0..3 {
+            t[plan.cables[k]] = x[k];
+        }
+        if t.iter().any(|&x| x <= 1.0) {
+            return Err(SimError::ThreePhaseInfeasible {
+                reason: "at the centre a position-mode cable would carry less than 1 N: lower the follower tension or change the pairing",
+            });
+        }
+        // Sag tilts the force at the platform end: refine the directions.
+        for j in 0..n {
+            if let Ok(taut) = models[j].taut(b[j], t[j]) {
+                dirs[j] = taut.dir;
+            }
+        }
+    }
+    Ok(t)
+}
+
+/// Simulates the motion at `rate_hz` from the central position `c`.
+pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3], rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
+    let n = truth.n_cables();
+    if plan.cables.iter().any(|&j| j >= n) || plan.cables[0] == plan.cables[1] || plan.cables[1] == plan.cables[2] || plan.cables[0] == plan.cables[2] {
+        return Err(SimError::ThreePhaseInfeasible { reason: "the plan needs three distinct cables of the robot" });
+    }
+    if !(plan.reel_m.is_finite() && plan.speed_m_s > 0.0 && rate_hz > 0.0) {
+        return Err(SimError::ThreePhaseInfeasible { reason: "reel length, speed and rate must be positive" });
+    }
+    // The plant's timing is exact; the scenario applies the encoder time offset itself.
+    let plant_physics = Physics { time_offset_s: 0.0, backlash_m: 0.0, scale: None, ..physics.clone() };
+    let mut plant = Plant::new(truth, &plant_physics, c);
+    let tens = rest_tensions(truth, &plant_physics, plan, c)?;
+    let rest = plant.lengths_holding(c, &tens)?;
+    let dt = 1.0 / rate_hz;
+    let reel_s = plan.reel_m.abs() / plan.speed_m_s;
+    // Timeline: per phase a dwell, the reel-in, the reel-out; a final dwell.
+    let phase_s = plan.dwell_s + 2.0 * reel_s;
+    let total = 3.0 * phase_s + plan.dwell_s;
+    let samples = (total * rate_hz).round() as usize + 1;
+    let mut m = ThreePhaseMotion {
+        t: Vec::with_capacity(samples),
+        p: Vec::with_capacity(samples),
+        drum: Vec::with_capacity(samples * n),
+        tension: Vec::with_capacity(samples * n),
+        phase: Vec::with_capacity(samples),
+        rest_lengths: rest.clone(),
+    };
+    let mut cmds: Vec<CableCommand> = (0..n)
+        .map(|j| if plan.cables.contains(&j) { CableCommand::Length(rest[j]) } else { CableCommand::Tension(plan.follower_tension_n) })
+        .collect();
+    for i in 0..samples {
+        let t = i as f64 * dt;
+        let k = ((t / phase_s).floor() as usize).min(3);
+        let tau = t - k as f64 * phase_s - plan.dwell_s;
+        let (delta, phase) = if k < 3 && tau >= 0.0 {
+            if tau <= reel_s {
+                (plan.reel_m * tau / reel_s, k as i32)
+            } else {
+                (plan.reel_m * ((2.0 * reel_s - tau) / reel_s).max(0.0), -1)
+            }
+        } else {
+            (0.0, -1)
+        };
+        for (idx, &j) in plan.cables.iter().enumerate() {
+            let reeled = if idx == k { delta } else { 0.0 };
+            cmds[j] = CableCommand::Length(rest[j] - reeled);
+        }
+        let out = plant.step(dt, &cmds);
+        if !out.report.converged {
+            return Err(SimError::Equilibrium { t, residual_n: out.report.residual_n });
+        }
+        for &j in &plan.cables {
+            if out.tension_n[j] < 1.0 {
+                return Err(SimError::ThreePhaseSlack { phase, cable: j, t, tension_n: out.tension_n[j] });
+            }
+        }
+        m.t.push(t);
+        m.p.push(out.position);
+        m.drum.extend_from_slice(out.drum_m);
+        m.tension.extend_from_slice(out.tension_n);
+        m.phase.push(phase);
+    }
+    Ok(m)
+}
