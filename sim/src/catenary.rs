@@ -201,11 +201,30 @@ const MAX_ITER: usize = 60;
 
 /// Solves for the forces of a cable of unstretched length `l0` spanning `(h, v)`.
 pub fn solve_given_length(h: f64, v: f64, l0: f64, c: &CableSpec) -> Result<Catenary, CatenaryError> {
+    solve_given_length_from(h, v, l0, c, None)
+}
+
+/// [`solve_given_length`] warm-started from the forces of `guess` (e.g. the last solution of a
+/// nearby span).
+pub fn solve_given_length_from(h: f64, v: f64, l0: f64, c: &CableSpec, guess: Option<Catenary>) -> Result<Catenary, CatenaryError> {
+    match (length_inner(h, v, l0, c, guess), guess) {
+        // A poor warm start must not fail where a cold one succeeds.
+        (Err(_), Some(_)) => length_inner(h, v, l0, c, None),
+        (r, _) => r,
+    }
+}
+
+fn length_inner(h: f64, v: f64, l0: f64, c: &CableSpec, guess: Option<Catenary>) -> Result<Catenary, CatenaryError> {
     if !(h.is_finite() && v.is_finite() && l0 > 0.0 && h > 0.0 && c.w > 0.0 && c.ea > 0.0) {
         return Err(CatenaryError::BadInput);
     }
     let chord = h.hypot(v);
-    let mut st = if l0 > chord * (1.0 + 1e-9) {
+    if !c.ea.is_finite() && l0 <= chord {
+        return Err(CatenaryError::TooShort { l0, chord });
+    }
+    let mut st = if let Some(g) = guess.filter(|g| g.h_force > 0.0 && g.h_force.is_finite() && g.v0.is_finite()) {
+        Catenary { h_force: g.h_force, v0: g.v0, l0 }
+    } else if l0 > chord * (1.0 + 1e-9) {
         inextensible_guess(h, v, l0, c.w)
     } else {
         if !c.ea.is_finite() {
@@ -287,7 +306,7 @@ fn inextensible_guess(h: f64, v: f64, l0: f64, w: f64) -> Catenary {
         } else {
             hi = mid;
         }
-        if hi / lo < 1.0 + 1e-13 {
+        if hi / lo < 1.0 + 1e-9 {
             break;
         }
     }
@@ -301,7 +320,7 @@ fn inextensible_guess(h: f64, v: f64, l0: f64, w: f64) -> Catenary {
     while g(b) < 0.0 {
         b *= 2.0;
     }
-    for _ in 0..200 {
+    for _ in 0..80 {
         let m = 0.5 * (a + b);
         if g(m) > 0.0 {
             b = m;
@@ -315,17 +334,39 @@ fn inextensible_guess(h: f64, v: f64, l0: f64, w: f64) -> Catenary {
 /// Solves for the forces and the unstretched length of a cable spanning `(h, v)` whose tension at
 /// `end` is `t`.
 pub fn solve_given_tension(h: f64, v: f64, t: f64, end: End, c: &CableSpec) -> Result<Catenary, CatenaryError> {
+    solve_given_tension_from(h, v, t, end, c, None)
+}
+
+/// [`solve_given_tension`] warm-started from `guess`.
+pub fn solve_given_tension_from(
+    h: f64,
+    v: f64,
+    t: f64,
+    end: End,
+    c: &CableSpec,
+    guess: Option<Catenary>,
+) -> Result<Catenary, CatenaryError> {
+    match (tension_inner(h, v, t, end, c, guess), guess) {
+        (Err(_), Some(_)) => tension_inner(h, v, t, end, c, None),
+        (r, _) => r,
+    }
+}
+
+fn tension_inner(h: f64, v: f64, t: f64, end: End, c: &CableSpec, guess: Option<Catenary>) -> Result<Catenary, CatenaryError> {
     if !(h.is_finite() && v.is_finite() && t > 0.0 && h > 0.0 && c.w > 0.0 && c.ea > 0.0) {
         return Err(CatenaryError::BadInput);
     }
     let chord = h.hypot(v);
     let k = compliance(c.ea);
-    // Start from the straight cable with the tension along the chord.
-    let l = chord / (1.0 + t * k);
-    let mut st = Catenary { h_force: t * h / chord, v0: t * v / chord - 0.5 * c.w * l, l0: l };
-    if end == End::Upper {
-        st.v0 = t * v / chord - c.w * l;
-    }
+    let mut st = match guess.filter(|g| g.h_force > 0.0 && g.l0 > 0.0 && g.h_force.is_finite() && g.v0.is_finite()) {
+        Some(g) => g,
+        None => {
+            // Start from the straight cable with the tension along the chord.
+            let l = chord / (1.0 + t * k);
+            let share = if end == End::Upper { 1.0 } else { 0.5 };
+            Catenary { h_force: t * h / chord, v0: t * v / chord - share * c.w * l, l0: l }
+        }
+    };
     let res = |s: &Catenary| {
         let (x, z) = s.end(c);
         let te = match end {

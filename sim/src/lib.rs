@@ -39,6 +39,9 @@ pub mod three_phase;
 pub mod trajectory;
 pub mod truth;
 
+#[cfg(test)]
+mod tests;
+
 pub use physics::{CableCommand, Physics};
 pub use plant::Plant;
 pub use scenario::{simulate, try_simulate, Scenario, SimRun};
@@ -108,7 +111,7 @@ impl std::fmt::Display for SimError {
             SimError::ThreePhaseSlack { phase, cable, t, tension_n } => write!(
                 f,
                 "three-phase motion: cable {cable} went slack ({tension_n:.2} N) at t = {t:.2} s in phase {phase}; \
-                 reel less or start from a more central position"
+                 reel less, change the follower tension or set another start"
             ),
             SimError::Equilibrium { t, residual_n } => {
                 write!(f, "no static equilibrium found at t = {t:.3} s (residual {residual_n:.3e} N)")

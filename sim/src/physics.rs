@@ -20,6 +20,8 @@
 //! Without a pulley `E = A`. The cable reaches the pulley along the swivel axis from above; the
 //! part above `A` has a constant length and is absorbed in the encoder offset.
 
+use std::cell::Cell;
+
 use crate::catenary::{self, CableSpec, Catenary, End};
 
 /// Axial stiffness used for a cable in position mode when elasticity is switched off, N: stiff
@@ -242,10 +244,16 @@ impl CableModel {
     /// Position mode needs a finite EA (see [`CableModel::rigidified`]). Energies are relative
     /// (constant terms dropped) and meant for the equilibrium solver's line search.
     pub fn load(&self, b: [f64; 3], cmd: CableCommand) -> CableLoad {
+        self.load_warm(b, cmd, None)
+    }
+
+    /// [`CableModel::load`] with a catenary warm start: `warm` holds the last catenary of this
+    /// cable and receives the new one (no effect without sag).
+    pub fn load_warm(&self, b: [f64; 3], cmd: CableCommand, warm: Option<&Cell<Option<Catenary>>>) -> CableLoad {
         let path = self.path(b);
         let ell = path.length();
         if self.w > 0.0 {
-            if let Some(l) = self.load_catenary(b, &path, cmd) {
+            if let Some(l) = self.load_catenary(b, &path, cmd, warm) {
                 return l;
             }
             // The catenary failed (degenerate span): fall through to the straight cable.
@@ -279,14 +287,21 @@ impl CableModel {
         }
     }
 
-    fn load_catenary(&self, b: [f64; 3], path: &PathGeom, cmd: CableCommand) -> Option<CableLoad> {
+    fn load_catenary(&self, b: [f64; 3], path: &PathGeom, cmd: CableCommand, warm: Option<&Cell<Option<Catenary>>>) -> Option<CableLoad> {
         let (h, v, eh) = Self::span(b, path.exit);
         let spec = self.spec();
+        let guess = warm.and_then(Cell::get);
+        let keep = |s: Catenary| {
+            if let Some(w) = warm {
+                w.set(Some(s));
+            }
+            s
+        };
         let force = |s: &Catenary| [s.h_force * eh[0], s.h_force * eh[1], s.v0];
         match cmd {
             CableCommand::Length(lu) => {
                 let free = lu - path.wrap;
-                let s = catenary::solve_given_length(h, v, free, &spec).ok()?;
+                let s = keep(catenary::solve_given_length_from(h, v, free, &spec, guess).ok()?);
                 Some(CableLoad {
                     force: force(&s),
                     // Gravity of the whole cable at the platform's height plus the catenary's
@@ -298,7 +313,7 @@ impl CableModel {
                 })
             }
             CableCommand::Tension(t) => {
-                let s = catenary::solve_given_tension(h, v, t, End::Upper, &spec).ok()?;
+                let s = keep(catenary::solve_given_tension_from(h, v, t, End::Upper, &spec, guess).ok()?);
                 // Drive work t*L plus the cable's energy measured from the exit height, whose
                 // derivative in L at fixed ends is -T_upper (inextensible): stationary in L.
                 Some(CableLoad {

@@ -18,9 +18,12 @@
 //! println!("{:?} {:?}", out.position, out.encoder_m);
 //! ```
 
+use std::cell::Cell;
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use crate::catenary::Catenary;
 use crate::equilibrium::{EquilibriumReport, System};
 use crate::physics::{CableCommand, CableLoad, CableModel, Physics};
 use crate::sensors::{Encoder, LoadCell, Noise};
@@ -69,6 +72,7 @@ pub struct Plant {
     hist_len: usize,
     hist_head: usize,
     lagged: Vec<f64>,
+    warm: Vec<Cell<Option<Catenary>>>,
     last_report: EquilibriumReport,
 }
 
@@ -100,6 +104,7 @@ impl Plant {
             hist_len: 0,
             hist_head: 0,
             lagged: vec![0.0; n],
+            warm: vec![Cell::new(None); n],
             last_report: EquilibriumReport { iterations: 0, residual_n: f64::NAN, converged: false, stable: false },
         }
     }
@@ -167,7 +172,7 @@ impl Plant {
     pub fn step(&mut self, dt: f64, commands: &[CableCommand]) -> StepOutput<'_> {
         assert_eq!(commands.len(), self.models.len(), "one command per cable");
         self.t += dt;
-        let sys = System { models: &self.models, offsets: &self.offsets, commands, mass: self.mass };
+        let sys = System { models: &self.models, offsets: &self.offsets, commands, mass: self.mass, warm: &self.warm };
         let (p, rep) = sys.solve(self.p, &mut self.loads);
         // Keep the last good position if the search failed (no equilibrium: e.g. every cable
         // slack); the report says so.

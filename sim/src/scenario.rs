@@ -101,7 +101,7 @@ impl Scenario {
         Scenario {
             robot: robot("outdoor-20m", 40.0, &[[10.0, -10.0, 12.0], [10.0, 10.0, 12.0], [-10.0, 10.0, 12.0], [-10.0, -10.0, 12.0]]),
             duration_s: 120.0,
-            three_phase: Some(ThreePhasePlan { reel_m: 1.5, speed_m_s: 0.1, follower_tension_n: 100.0, ..ThreePhasePlan::default() }),
+            three_phase: Some(ThreePhasePlan { reel_m: 1.5, speed_m_s: 0.25, follower_tension_n: 100.0, ..ThreePhasePlan::default() }),
             physics: Physics { sag: Some(1.2), elasticity: Some(3e6), ..Physics::default() },
             site_error_m: 0.3,
             min_tension_n: 50.0,
@@ -235,13 +235,17 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     let dt = 1.0 / s.rate_hz;
 
     let tp: Option<ThreePhaseMotion> =
-        s.three_phase.as_ref().map(|plan| three_phase::simulate(&truth, &s.physics, plan, ws.center_point(), s.rate_hz)).transpose()?;
+        s.three_phase.as_ref().map(|plan| three_phase::simulate(&truth, &s.physics, plan, &ws, s.rate_hz)).transpose()?;
     let n_tp = tp.as_ref().map_or(0, |m| m.t.len());
     let n_ex = (s.duration_s * s.rate_hz).round() as usize;
     let total = n_tp + n_ex;
 
+    let mut ex = Excitation::new(&ws, s.duration_s, &mut rng(s.seed, STREAM_TRAJECTORY));
+    if let Some(m) = &tp {
+        ex.set_start(m.start);
+    }
     let mut exm = ExcitationModel {
-        ex: Excitation::new(&ws, s.duration_s, &mut rng(s.seed, STREAM_TRAJECTORY)),
+        ex,
         models: &models,
         truth: &truth,
         t_min: s.min_tension_n,

@@ -1,8 +1,8 @@
 //! The guided three-phase initialisation motion (paper, section III).
 //!
-//! Three cables are in position mode, the others follow at a low constant tension. From a central
-//! rest position, phase `k` reels `cables[k]` in by `reel_m` at `speed_m_s` while the other two
-//! hold their lengths, then reels it back out (labelled -1) to the centre. The platform is the
+//! Three cables are in position mode, the others follow at a low constant tension. From a rest
+//! position near the centre, phase `k` reels `cables[k]` in by `reel_m` at `speed_m_s` while the
+//! other two hold their lengths, then reels it back out (labelled -1) to the rest position. The platform is the
 //! static equilibrium of the [`Plant`] at every sample: it moves on the circle where the spheres
 //! of the two held cables meet, its height set by the reeled cable. Reeling *in* keeps the held
 //! cables taut: the platform rises towards the reeled anchor and the two others keep carrying
@@ -13,6 +13,7 @@
 
 use crate::physics::{CableCommand, CableModel, Physics, G};
 use crate::plant::Plant;
+use crate::trajectory::Workspace;
 use crate::truth::Truth;
 use crate::SimError;
 
@@ -27,13 +28,16 @@ pub struct ThreePhasePlan {
     pub follower_tension_n: f64,
     /// The three position-mode cables; phase `k` reels `cables[k]`.
     pub cables: [usize; 3],
-    /// Rest at the centre before each phase, s.
+    /// Rest at the start position before each phase, s.
     pub dwell_s: f64,
+    /// Start (rest) position, m; `None`: searched near the workspace centre (see
+    /// [`simulate`]).
+    pub start: Option<[f64; 3]>,
 }
 
 impl Default for ThreePhasePlan {
     fn default() -> Self {
-        ThreePhasePlan { reel_m: 0.5, speed_m_s: 0.05, follower_tension_n: 10.0, cables: [0, 1, 2], dwell_s: 1.0 }
+        ThreePhasePlan { reel_m: 0.5, speed_m_s: 0.1, follower_tension_n: 10.0, cables: [0, 1, 2], dwell_s: 1.0, start: None }
     }
 }
 
@@ -50,8 +54,12 @@ pub struct ThreePhaseMotion {
     pub tension: Vec<f64>,
     /// Phase per sample (-1 outside).
     pub phase: Vec<i32>,
-    /// Drum lengths at the centre (the held lengths), m.
+    /// Drum lengths at the start (the held lengths), m.
     pub rest_lengths: Vec<f64>,
+    /// The start (rest) position, m.
+    pub start: [f64; 3],
+    /// The least tension of a position-mode cable during the motion, N.
+    pub margin_n: f64,
 }
 
 /// Tensions that hold the platform at `c` with the followers at `tf`: the 3x3 force balance of
@@ -89,8 +97,44 @@ fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f6
     Ok(t)
 }
 
-/// Simulates the motion at `rate_hz` from the central position `c`.
-pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3], rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
+/// Simulates the motion at `rate_hz`.
+///
+/// Without a start in the plan, the start is the position near the workspace centre (a 3 x 3 x 3
+/// grid over +-30 % of the inscribed ellipse and 30-55 % of the anchor height) where the
+/// position-mode cables keep the most tension during the whole motion: on a rectangle the
+/// follower's pull unbalances the reeled cable's phase, and the centre itself leaves little
+/// margin.
+pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, ws: &Workspace, rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
+    if let Some(c) = plan.start {
+        return run(truth, physics, plan, c, rate_hz);
+    }
+    let c = ws.center_point();
+    let mut best: Option<([f64; 3], f64)> = None;
+    let mut first_err = None;
+    // The centre first: on ties it wins.
+    for (fz, fx, fy) in [(0.425, 0.0, 0.0)].into_iter().chain(
+        [0.425, 0.3, 0.55].into_iter().flat_map(|fz| [0.0, -0.3, 0.3].into_iter().flat_map(move |fx| [0.0, -0.3, 0.3].map(|fy| (fz, fx, fy)))),
+    ) {
+        let p = [c[0] + fx * ws.semi[0], c[1] + fy * ws.semi[1], fz * ws.z_top];
+        match run(truth, physics, plan, p, 4.0) {
+            Ok(m) => {
+                if best.is_none_or(|(_, b)| m.margin_n > b) {
+                    best = Some((p, m.margin_n));
+                }
+            }
+            Err(e) => {
+                first_err.get_or_insert(e);
+            }
+        }
+    }
+    match best {
+        Some((p, _)) => run(truth, physics, plan, p, rate_hz),
+        None => Err(first_err.unwrap_or(SimError::ThreePhaseInfeasible { reason: "no start position works" })),
+    }
+}
+
+/// Simulates the motion at `rate_hz` from the rest position `c`.
+fn run(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3], rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
     let n = truth.n_cables();
     if plan.cables.iter().any(|&j| j >= n) || plan.cables[0] == plan.cables[1] || plan.cables[1] == plan.cables[2] || plan.cables[0] == plan.cables[2] {
         return Err(SimError::ThreePhaseInfeasible { reason: "the plan needs three distinct cables of the robot" });
@@ -116,6 +160,8 @@ pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64
         tension: Vec::with_capacity(samples * n),
         phase: Vec::with_capacity(samples),
         rest_lengths: rest.clone(),
+        start: c,
+        margin_n: f64::INFINITY,
     };
     let mut cmds: Vec<CableCommand> = (0..n)
         .map(|j| if plan.cables.contains(&j) { CableCommand::Length(rest[j]) } else { CableCommand::Tension(plan.follower_tension_n) })
@@ -145,6 +191,7 @@ pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64
             if out.tension_n[j] < 1.0 {
                 return Err(SimError::ThreePhaseSlack { phase, cable: j, t, tension_n: out.tension_n[j] });
             }
+            m.margin_n = m.margin_n.min(out.tension_n[j]);
         }
         m.t.push(t);
         m.p.push(out.position);

@@ -6,10 +6,11 @@
 //!   in [0.2, 0.65] x the lowest anchor height.
 //! * The **base motion** is a sum of three sinusoids per axis (periods 8-45 s, slow enough that
 //!   no cable goes loose), mapped from the square to the ellipse by a smooth square-to-disk map,
-//!   and blended in from the centre over the first 5 s.
-//! * An **excursion** blends (minimum-jerk, 3 s) to a point 10-25 % of the inscribed radius
+//!   and blended in from the start (the centre, or where the three-phase motion ended) over the
+//!   first 5 s.
+//! * An **excursion** blends (minimum-jerk, 2.5 s) to a point 10-25 % of the inscribed radius
 //!   inside a hull edge, low in the workspace, and oscillates there along the edge normal with a
-//!   peak acceleration of 2-3.5 m/s^2: while it accelerates outwards, the cables on the far side
+//!   peak acceleration of 2.5-4.5 m/s^2: while it accelerates outwards, the cables on the far side
 //!   cannot hold their share and go loose (as where the paper's robot "could not follow").
 //!
 //! The number of loose samples grows with the excursions' duration, which
@@ -125,12 +126,13 @@ pub struct Excitation {
     excursion_s: f64,
     slot_s: f64,
     duration_s: f64,
+    start: [f64; 3],
 }
 
 /// Time to blend in from the centre at the start, s.
 const START_RAMP_S: f64 = 5.0;
 /// Blend into and out of an excursion, s.
-const EXCURSION_RAMP_S: f64 = 3.0;
+const EXCURSION_RAMP_S: f64 = 2.5;
 
 impl Excitation {
     /// Draws a trajectory of `duration_s` in `ws`; excursions are off until
@@ -163,7 +165,7 @@ impl Excitation {
                     z,
                 ];
                 let amp = 0.6 * inset;
-                let peak_acc = rng.gen_range(2.0..3.5);
+                let peak_acc = rng.gen_range(2.5..4.5);
                 Excursion {
                     t_mid: START_RAMP_S + (i as f64 + 0.5) * slot_s + jitter,
                     target,
@@ -172,7 +174,12 @@ impl Excitation {
                 }
             })
             .collect();
-        Excitation { ws: ws.clone(), base, tilt, excursions, excursion_s: 0.0, slot_s, duration_s }
+        Excitation { ws: ws.clone(), base, tilt, excursions, excursion_s: 0.0, slot_s, duration_s, start: ws.center_point() }
+    }
+
+    /// Starts the motion (at rest) from `p` instead of the workspace centre.
+    pub fn set_start(&mut self, p: [f64; 3]) {
+        self.start = p;
     }
 
     /// Sets how long each excursion lasts, s (0: none); capped to 80 % of its time slot.
@@ -203,7 +210,7 @@ impl Excitation {
             c[2] + 0.225 * self.ws.z_top * u[2],
         ];
         let r = blend(t / START_RAMP_S);
-        std::array::from_fn(|k| c[k] + r * (p[k] - c[k]))
+        std::array::from_fn(|k| self.start[k] + r * (p[k] - self.start[k]))
     }
 
     /// Platform position at `t`, m.
