@@ -1,0 +1,364 @@
+//! Problems of the data that are not physics: frozen readings, tracker outliers and dropouts,
+//! clock jumps, dead load cells. They are found before any fitting, reported with where they
+//! are, and excluded, so no effect is fitted to explain them.
+
+use taut_config::recording::Recording;
+
+/// What kind of data problem.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProblemKind {
+    /// An encoder repeats the same reading while the platform moves.
+    FrozenEncoder,
+    /// The tracker repeats the same position while the encoders move.
+    FrozenTracker,
+    /// A tracker position far from its neighbours.
+    TrackerOutlier,
+    /// Samples without a tracker position (or orientation).
+    TrackerDropout,
+    /// Time goes backwards, repeats, or jumps.
+    ClockJump,
+    /// A load cell that reads nothing (all missing, stuck at zero or constant).
+    DeadLoadCell,
+}
+
+impl ProblemKind {
+    /// Short machine-readable name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ProblemKind::FrozenEncoder => "frozen-encoder",
+            ProblemKind::FrozenTracker => "frozen-tracker",
+            ProblemKind::TrackerOutlier => "tracker-outlier",
+            ProblemKind::TrackerDropout => "tracker-dropout",
+            ProblemKind::ClockJump => "clock-jump",
+            ProblemKind::DeadLoadCell => "dead-load-cell",
+        }
+    }
+}
+
+/// One data problem and where it is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DataProblem {
+    /// Kind.
+    pub kind: ProblemKind,
+    /// Cable concerned, if one.
+    pub cable: Option<usize>,
+    /// Time of the first affected sample, s.
+    pub t_start: f64,
+    /// Time of the last affected sample, s.
+    pub t_end: f64,
+    /// Samples affected (and excluded).
+    pub samples: usize,
+    /// For a person.
+    pub description: String,
+}
+
+/// Masks that follow from the problems.
+#[derive(Debug, Clone)]
+pub struct DataMasks {
+    /// Row usable at all (position present, not an outlier, not frozen tracker).
+    pub row_ok: Vec<bool>,
+    /// Cable reading usable (present, not frozen).
+    pub cable_ok: Vec<Vec<bool>>,
+    /// Load cell of cable j is dead: its tensions must be ignored.
+    pub dead_loadcell: Vec<bool>,
+    /// Segment id per row: a clock problem or a dropout starts a new segment.
+    pub segment: Vec<u32>,
+    /// Median sample interval, s.
+    pub dt: f64,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let k = v.len() / 2;
+    v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    v[k]
+}
+
+/// Runs of `true` in `flags` as (start, end exclusive).
+fn runs(flags: &[bool]) -> Vec<(usize, usize)> {
+    let mut out = vec![];
+    let mut i = 0;
+    while i < flags.len() {
+        if flags[i] {
+            let s = i;
+            while i < flags.len() && flags[i] {
+                i += 1;
+            }
+            out.push((s, i));
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+fn summarise(kind: ProblemKind, cable: Option<usize>, t: &[f64], flags: &[bool], what: &str) -> Option<DataProblem> {
+    let rs = runs(flags);
+    if rs.is_empty() {
+        return None;
+    }
+    let samples: usize = rs.iter().map(|(a, b)| b - a).sum();
+    let first = rs[0];
+    let last = rs[rs.len() - 1];
+    let who = cable.map(|c| format!("cable {c}: ")).unwrap_or_default();
+    let places: Vec<String> = rs.iter().take(4).map(|(a, b)| format!("t = {:.2}-{:.2} s", t[*a], t[b - 1])).collect();
+    let more = if rs.len() > 4 { format!(" and {} more", rs.len() - 4) } else { String::new() };
+    Some(DataProblem {
+        kind,
+        cable,
+        t_start: t[first.0],
+        t_end: t[last.1 - 1],
+        samples,
+        description: format!("{who}{what}: {samples} samples in {} stretch(es) ({}{more}); excluded", rs.len(), places.join(", "), ),
+    })
+}
+
+/// Finds the data problems of `rec`. `tracker_sigma_m` sets the smallest tracker jump that can be
+/// called an outlier.
+pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
+    let n = rec.n_cables;
+    let m = rec.len();
+    let mut problems = vec![];
+    // Dropouts: position (or orientation) missing.
+    let missing: Vec<bool> = (0..m)
+        .map(|i| {
+            !rec.p[i].iter().all(|v| v.is_finite())
+                || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite()))
+        })
+        .collect();
+    problems.extend(summarise(ProblemKind::TrackerDropout, None, &rec.t, &missing, "tracker dropout (no position)"));
+    let mut row_ok: Vec<bool> = missing.iter().map(|x| !x).collect();
+
+    // Clock.
+    let mut dts: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    let dt = median(&mut dts);
+    let mut segment = vec![0u32; m];
+    let mut seg = 0;
+    let mut clock_events = vec![];
+    for i in 1..m {
+        let d = rec.t[i] - rec.t[i - 1];
+        let bad = !(d > 0.0) || d > 5.0 * dt;
+        if bad || missing[i] != missing[i - 1] {
+            seg += 1;
+        }
+        if bad {
+            let moved = (0..3).map(|k| (rec.p[i][k] - rec.p[i - 1][k]).powi(2)).sum::<f64>().sqrt();
+            clock_events.push((i, d, moved));
+        }
+        segment[i] = seg;
+    }
+    if !clock_events.is_empty() {
+        let descr: Vec<String> = clock_events
+            .iter()
+            .take(4)
+            .map(|&(i, d, moved)| {
+                if d <= 0.0 {
+                    format!("row {i} at t = {:.3} s goes {} by {:.3} s", rec.t[i], if d < 0.0 { "back" } else { "nowhere (repeated time)" }, -d)
+                } else if moved.is_finite() && moved < 20.0 * tracker_sigma_m.max(1e-4) {
+                    format!("time jumps by {:.3} s at t = {:.3} s while the data continue (clock jump)", d, rec.t[i - 1])
+                } else {
+                    format!("no samples for {:.3} s after t = {:.3} s (gap)", d, rec.t[i - 1])
+                }
+            })
+            .collect();
+        let more = if clock_events.len() > 4 { format!(" and {} more", clock_events.len() - 4) } else { String::new() };
+        problems.push(DataProblem {
+            kind: ProblemKind::ClockJump,
+            cable: None,
+            t_start: rec.t[clock_events[0].0],
+            t_end: rec.t[clock_events[clock_events.len() - 1].0],
+            samples: clock_events.len(),
+            description: format!(
+                "{}{more}; the time-offset model does not interpolate across them",
+                descr.join("; ")
+            ),
+        });
+        // A sample whose time went backwards or repeated cannot be placed in time: exclude it.
+        for &(i, d, _) in &clock_events {
+            if d <= 0.0 {
+                row_ok[i] = false;
+            }
+        }
+    }
+
+    // Tracker outliers: distance to the median of the 5 neighbouring positions, against a robust
+    // scale of the same quantity (which includes the motion between samples at low rates).
+    let mut dev = vec![0.0; m];
+    if m >= 7 {
+        for i in 2..m - 2 {
+            let mut d2 = 0.0;
+            for k in 0..3 {
+                let mut w = [rec.p[i - 2][k], rec.p[i - 1][k], rec.p[i + 1][k], rec.p[i + 2][k]];
+                w.sort_by(|a, b| a.total_cmp(b));
+                let med = 0.5 * (w[1] + w[2]);
+                d2 += (rec.p[i][k] - med).powi(2);
+            }
+            dev[i] = d2.sqrt();
+        }
+        let mut finite: Vec<f64> = dev.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+        let scale = median(&mut finite);
+        let thr = (10.0 * scale).max(8.0 * tracker_sigma_m).max(1e-4);
+        let outl: Vec<bool> = dev.iter().map(|&d| d.is_finite() && d > thr).collect();
+        if let Some(mut p) = summarise(ProblemKind::TrackerOutlier, None, &rec.t, &outl, "tracker outliers") {
+            p.description = format!("{} (more than {:.1} mm from their neighbours)", p.description, thr * 1e3);
+            problems.push(p);
+        }
+        for (o, ok) in outl.iter().zip(row_ok.iter_mut()) {
+            if *o {
+                *ok = false;
+            }
+        }
+    }
+
+    // Frozen readings: a run of identical values while the other sensor moves.
+    let min_run = ((0.1 / dt.max(1e-6)).round() as usize).max(4);
+    let moved_thr = (10.0 * tracker_sigma_m).max(5e-3);
+    let mut cable_ok = vec![vec![true; m]; n];
+    for j in 0..n {
+        let mut frozen = vec![false; m];
+        let mut i = 0;
+        while i < m {
+            let v = rec.l[i * n + j];
+            let s = i;
+            while i + 1 < m && rec.l[(i + 1) * n + j] == v && v.is_finite() {
+                i += 1;
+            }
+            let e = i + 1;
+            if e - s >= min_run {
+                let moved = (0..3).map(|k| (rec.p[e - 1][k] - rec.p[s][k]).powi(2)).sum::<f64>().sqrt();
+                let path: f64 = (s + 1..e)
+                    .map(|k| (0..3).map(|c| (rec.p[k][c] - rec.p[k - 1][c]).powi(2)).sum::<f64>().sqrt())
+                    .filter(|d| d.is_finite())
+                    .sum();
+                if moved.max(0.5 * path) > moved_thr {
+                    frozen[s..e].iter_mut().for_each(|f| *f = true);
+                }
+            }
+            i += 1;
+        }
+        for i in 0..m {
+            if frozen[i] || !rec.l[i * n + j].is_finite() {
+                cable_ok[j][i] = false;
+            }
+        }
+        problems.extend(summarise(ProblemKind::FrozenEncoder, Some(j), &rec.t, &frozen, "encoder frozen (same reading repeated while the platform moves)"));
+    }
+    {
+        let mut frozen = vec![false; m];
+        let mut i = 0;
+        while i < m {
+            let s = i;
+            while i + 1 < m && rec.p[i + 1] == rec.p[s] && rec.p[s][0].is_finite() {
+                i += 1;
+            }
+            let e = i + 1;
+            if e - s >= min_run {
+                let moved = (0..n).map(|j| (rec.l[(e - 1) * n + j] - rec.l[s * n + j]).abs()).filter(|v| v.is_finite()).fold(0.0, f64::max);
+                if moved > moved_thr {
+                    frozen[s..e].iter_mut().for_each(|f| *f = true);
+                }
+            }
+            i += 1;
+        }
+        problems.extend(summarise(ProblemKind::FrozenTracker, None, &rec.t, &frozen, "tracker frozen (same position repeated while the cables move)"));
+        for (f, ok) in frozen.iter().zip(row_ok.iter_mut()) {
+            if *f {
+                *ok = false;
+            }
+        }
+    }
+
+    // Dead load cells.
+    let mut dead_loadcell = vec![false; n];
+    if let Some(f) = &rec.f {
+        let spread = |j: usize| {
+            let v: Vec<f64> = (0..m).map(|i| f[i * n + j]).filter(|v| v.is_finite()).collect();
+            if v.is_empty() {
+                return (0usize, 0.0, 0.0, 0.0);
+            }
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let zeros = v.iter().filter(|x| x.abs() < 1e-9).count() as f64 / v.len() as f64;
+            (v.len(), lo, hi, zeros)
+        };
+        let stats: Vec<_> = (0..n).map(spread).collect();
+        let any_alive = stats.iter().any(|s| s.0 > 0 && s.2 - s.1 > 1.0);
+        for j in 0..n {
+            let (cnt, lo, hi, zeros) = stats[j];
+            let what = if cnt == 0 {
+                Some("reads nothing (every tension missing)".to_string())
+            } else if any_alive && hi - lo < 1e-3 {
+                Some(format!("reads a constant {lo:.2} N over the whole recording"))
+            } else if any_alive && zeros > 0.5 {
+                Some(format!("reads exactly 0 N in {:.0}% of the samples", zeros * 100.0))
+            } else {
+                None
+            };
+            if let Some(w) = what {
+                dead_loadcell[j] = true;
+                problems.push(DataProblem {
+                    kind: ProblemKind::DeadLoadCell,
+                    cable: Some(j),
+                    t_start: rec.t.first().copied().unwrap_or(0.0),
+                    t_end: rec.t.last().copied().unwrap_or(0.0),
+                    samples: m,
+                    description: format!(
+                        "cable {j}: load cell {w}; its tensions are ignored (not taken as a loose cable), and effects that need tension are not fitted for this cable"
+                    ),
+                });
+            }
+        }
+    }
+    (problems, DataMasks { row_ok, cable_ok, dead_loadcell, segment, dt })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(m: usize) -> Recording {
+        let mut r = Recording::with_capacity(3, m, true, false, false);
+        for i in 0..m {
+            let t = i as f64 * 0.01;
+            let p = [t.sin(), (1.3 * t).cos(), 1.0 + 0.2 * t.sin()];
+            let l: Vec<f64> = (0..3).map(|j| 3.0 + p[0] * (j as f64 - 1.0) + 0.1 * p[2]).collect();
+            let f: Vec<f64> = (0..3).map(|j| 20.0 + 5.0 * (t + j as f64).sin()).collect();
+            r.push(t, p, None, &l, Some(&f), None);
+        }
+        r
+    }
+
+    #[test]
+    fn clean_recording_has_no_problems() {
+        let (p, masks) = detect(&rec(2000), 1.5e-3);
+        assert!(p.is_empty(), "{p:?}");
+        assert!(masks.row_ok.iter().all(|x| *x));
+    }
+
+    #[test]
+    fn finds_frozen_encoder_outlier_clock_jump_and_dead_load_cell() {
+        let mut r = rec(3000);
+        for i in 500..560 {
+            r.l[i * 3 + 1] = r.l[499 * 3 + 1];
+        }
+        r.p[1200][2] += 0.05;
+        for i in 2000..3000 {
+            r.t[i] += 3.0;
+        }
+        let f = r.f.as_mut().unwrap();
+        for i in 0..3000 {
+            f[i * 3 + 2] = 0.0;
+        }
+        let (p, masks) = detect(&r, 1.5e-3);
+        let kinds: Vec<_> = p.iter().map(|x| (x.kind, x.cable)).collect();
+        assert!(kinds.contains(&(ProblemKind::FrozenEncoder, Some(1))), "{p:#?}");
+        assert!(kinds.contains(&(ProblemKind::TrackerOutlier, None)), "{p:#?}");
+        assert!(kinds.contains(&(ProblemKind::ClockJump, None)), "{p:#?}");
+        assert!(kinds.contains(&(ProblemKind::DeadLoadCell, Some(2))), "{p:#?}");
+        assert!(!masks.row_ok[1200] && !masks.cable_ok[1][530] && masks.dead_loadcell[2]);
+        assert_ne!(masks.segment[1999], masks.segment[2000]);
+        assert!(p.iter().find(|x| x.kind == ProblemKind::ClockJump).unwrap().description.contains("clock jump"));
+    }
+}

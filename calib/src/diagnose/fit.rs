@@ -1,0 +1,445 @@
+//! The joint model: anchors, encoder offsets and the parameters of the active effects, fitted
+//! together by [`super::lm`].
+//!
+//! Parameter layout: `[A_0 (3), L0_0, A_1, L0_1, .., A_{n-1}, L0_{n-1}]`, then for each active
+//! effect in [`ModelSpec::effects`] order either one parameter per cable or one shared.
+
+use super::effects::{pulley_length, sag_excess, Effect, Sharing, TensionEnd};
+use super::lm::{self, LeastSquares, LmOptions, LmReport};
+
+/// A recording prepared for fitting: per-cable columns, derived quantities and masks.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// Number of cables.
+    pub n: usize,
+    /// Sample times of the kept rows, s.
+    pub t: Vec<f64>,
+    /// Row of the recording each kept sample came from.
+    pub rows: Vec<usize>,
+    /// Attachment point `X = P + R b_j` per cable and sample, m.
+    pub x: Vec<Vec<[f64; 3]>>,
+    /// Encoder readings per cable and sample, m.
+    pub l: Vec<Vec<f64>>,
+    /// Tensions per cable and sample, N (NaN: none or a dead load cell).
+    pub f: Vec<Vec<f64>>,
+    /// Cable velocity from the encoder readings, m/s.
+    pub vel: Vec<Vec<f64>>,
+    /// Direction of the last clear motion of the cable (+1 paying out, -1 reeling in, 0 unknown).
+    pub dir: Vec<Vec<f64>>,
+    /// Sample is usable for cable j (not loose, no data problem).
+    pub usable: Vec<Vec<bool>>,
+    /// Reading of cable j excluded as loose (and only for that).
+    pub loose: Vec<Vec<bool>>,
+    /// Continuous stretch of time the sample belongs to (a clock jump or dropout starts a new one);
+    /// time-offset interpolation never crosses a boundary.
+    pub segment: Vec<u32>,
+    /// Sample is in the held-out time blocks.
+    pub heldout: Vec<bool>,
+}
+
+/// Which effects the model includes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelSpec {
+    /// Active effects, in the order their parameters follow the base parameters.
+    pub effects: Vec<Effect>,
+    /// Where the load cells measure the tension (matters for sag only).
+    pub tension_end: TensionEnd,
+}
+
+impl ModelSpec {
+    /// Number of parameters for `n` cables.
+    pub fn n_params(&self, n: usize) -> usize {
+        4 * n + self.effects.iter().map(|e| width(*e, n)).sum::<usize>()
+    }
+    /// Index of the first parameter of `e`, if active.
+    pub fn offset(&self, e: Effect, n: usize) -> Option<usize> {
+        let mut o = 4 * n;
+        for &f in &self.effects {
+            if f == e {
+                return Some(o);
+            }
+            o += width(f, n);
+        }
+        None
+    }
+    /// Parameter vector for this spec from base parameters and the values of a previous spec
+    /// (effects new to this spec start at [`Effect::start`]).
+    pub fn extend(&self, n: usize, prev: &ModelSpec, x: &[f64]) -> Vec<f64> {
+        let mut out = x[..4 * n].to_vec();
+        for &e in &self.effects {
+            let w = width(e, n);
+            match prev.offset(e, n) {
+                Some(o) => out.extend_from_slice(&x[o..o + w]),
+                None => out.extend(std::iter::repeat(e.start()).take(w)),
+            }
+        }
+        out
+    }
+}
+
+/// Number of parameters of effect `e` for `n` cables.
+pub fn width(e: Effect, n: usize) -> usize {
+    match e.sharing() {
+        Sharing::PerCable => n,
+        Sharing::Shared => 1,
+    }
+}
+
+/// The joint least-squares problem on a set of samples.
+pub struct Joint<'a> {
+    /// The data.
+    pub prep: &'a Prepared,
+    /// The model.
+    pub spec: &'a ModelSpec,
+    /// Samples (indices into `prep`) that contribute residuals.
+    pub samples: &'a [usize],
+    /// Noise sigma the residuals are divided by, m.
+    pub sigma: f64,
+}
+
+/// Modelled reading and its Jacobian row for one cable and sample.
+pub struct Prediction {
+    /// Modelled encoder reading, m.
+    pub value: f64,
+    /// Partial derivatives `(parameter, d reading / d parameter)`.
+    pub row: [(usize, f64); 10],
+    /// Number of valid entries in `row`.
+    pub len: usize,
+}
+
+impl<'a> Joint<'a> {
+    /// Attachment point of cable `j` at `t_i - delta` (linear interpolation inside the sample's
+    /// segment, clamped at its ends) and its velocity.
+    fn shifted(&self, i: usize, j: usize, delta: f64) -> ([f64; 3], [f64; 3]) {
+        let p = self.prep;
+        let xs = &p.x[j];
+        if delta == 0.0 {
+            return (xs[i], [0.0; 3]);
+        }
+        let tau = p.t[i] - delta;
+        let seg = p.segment[i];
+        let nn = p.t.len();
+        let mut k = i;
+        // Walk to the interval [t_k, t_{k+1}) holding tau; a delay is a few samples at most.
+        while k > 0 && p.t[k] > tau && p.segment[k - 1] == seg {
+            k -= 1;
+        }
+        while k + 1 < nn && p.t[k + 1] <= tau && p.segment[k + 1] == seg {
+            k += 1;
+        }
+        if k + 1 >= nn || p.segment[k + 1] != seg || p.t[k] > tau {
+            return (xs[k], [0.0; 3]);
+        }
+        let dt = p.t[k + 1] - p.t[k];
+        if dt <= 0.0 {
+            return (xs[k], [0.0; 3]);
+        }
+        let s = (tau - p.t[k]) / dt;
+        let a = xs[k];
+        let b = xs[k + 1];
+        let v = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt, (b[2] - a[2]) / dt];
+        ([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])], v)
+    }
+
+    /// The modelled reading of cable `j` at sample `i`.
+    pub fn predict(&self, x: &[f64], i: usize, j: usize) -> Prediction {
+        let n = self.prep.n;
+        let spec = self.spec;
+        let base = 4 * j;
+        let anchor = [x[base], x[base + 1], x[base + 2]];
+        let l0 = x[base + 3];
+        let get = |e: Effect| -> Option<(usize, f64)> {
+            spec.offset(e, n).map(|o| {
+                let k = if e.sharing() == Sharing::PerCable { o + j } else { o };
+                (k, x[k])
+            })
+        };
+        let tension = self.prep.f[j][i];
+        let has_t = tension.is_finite();
+        let delta = get(Effect::TimeOffset);
+        let (xp, vel) = self.shifted(i, j, delta.map_or(0.0, |d| d.1));
+        // Geometry: straight or over the pulley.
+        let mut g;
+        let mut gx; // dG/dX
+        let mut dg_dr = None;
+        let straight = || {
+            let d = [xp[0] - anchor[0], xp[1] - anchor[1], xp[2] - anchor[2]];
+            let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            (rho, [d[0] / rho, d[1] / rho, d[2] / rho])
+        };
+        match get(Effect::Pulley).and_then(|(k, r)| pulley_length(xp, anchor, r).map(|v| (k, v))) {
+            Some((k, (len, d))) => {
+                g = len;
+                gx = [d[0], d[1], d[2]];
+                dg_dr = Some((k, d[3]));
+            }
+            None => {
+                (g, gx) = straight();
+                if let Some((k, _)) = get(Effect::Pulley) {
+                    dg_dr = Some((k, 0.0));
+                }
+            }
+        }
+        let mut dg_dw = None;
+        if let Some((k, w)) = get(Effect::Sag) {
+            let mut dw = 0.0;
+            if has_t && w > 0.0 {
+                if let Some((e, d)) = sag_excess(xp, anchor, w, tension, spec.tension_end) {
+                    g += e;
+                    gx = [gx[0] + d[0], gx[1] + d[1], gx[2] + d[2]];
+                    dw = d[3];
+                }
+            }
+            dg_dw = Some((k, dw));
+        }
+        // Elasticity: the encoder sees the unstretched length G / (1 + c T).
+        let mut u = g;
+        let mut du_dg = 1.0;
+        let mut du_dc = None;
+        if let Some((k, c)) = get(Effect::Elasticity) {
+            if has_t {
+                let q = 1.0 + c * tension;
+                u = g / q;
+                du_dg = 1.0 / q;
+                du_dc = Some((k, -g * tension / (q * q)));
+            } else {
+                du_dc = Some((k, 0.0));
+            }
+        }
+        let (scale, dk) = match get(Effect::Scale) {
+            Some((k, s)) => (1.0 + s, Some((k, u))),
+            None => (1.0, None),
+        };
+        let mut value = scale * u + l0;
+        let mut dwb = None;
+        if let Some((k, wb)) = get(Effect::Backlash) {
+            let s = self.prep.dir[j][i];
+            // The reading lags the motion by half the play: below the length while paying out.
+            value -= 0.5 * wb * s;
+            dwb = Some((k, -0.5 * s));
+        }
+        let f = scale * du_dg; // d value / d G
+        let mut row = [(0usize, 0.0f64); 10];
+        row[0] = (base, -f * gx[0]);
+        row[1] = (base + 1, -f * gx[1]);
+        row[2] = (base + 2, -f * gx[2]);
+        row[3] = (base + 3, 1.0);
+        let mut len = 4;
+        let mut push = |e: Option<(usize, f64)>| {
+            if let Some(e) = e {
+                row[len] = e;
+                len += 1;
+            }
+        };
+        push(dg_dr.map(|(k, d)| (k, f * d)));
+        push(dg_dw.map(|(k, d)| (k, f * d)));
+        push(du_dc.map(|(k, d)| (k, scale * d)));
+        push(dk);
+        push(dwb);
+        if let Some((k, _)) = delta {
+            // d X / d delta = -v.
+            let d = -(gx[0] * vel[0] + gx[1] * vel[1] + gx[2] * vel[2]) * f;
+            // Only 8 slots: time-offset replaces nothing, so the row is at most 4 + 6 = 10 long
+            // in theory; in practice at most 4 effects are active together (checked below).
+            if len < 8 {
+                row[len] = (k, d);
+                len += 1;
+            }
+        }
+        Prediction { value, row, len }
+    }
+
+    /// Residual `reading - model` of cable `j` at sample `i`, m.
+    pub fn residual(&self, x: &[f64], i: usize, j: usize) -> f64 {
+        self.prep.l[j][i] - self.predict(x, i, j).value
+    }
+}
+
+impl LeastSquares for Joint<'_> {
+    fn n_params(&self) -> usize {
+        self.spec.n_params(self.prep.n)
+    }
+    fn rows(&self, x: &[f64], jacobian: bool, visit: &mut dyn FnMut(f64, &[(usize, f64)])) {
+        let inv = 1.0 / self.sigma;
+        let mut buf = [(0usize, 0.0f64); 10];
+        for &i in self.samples {
+            for j in 0..self.prep.n {
+                if !self.prep.usable[j][i] {
+                    continue;
+                }
+                let p = self.predict(x, i, j);
+                let r = (p.value - self.prep.l[j][i]) * inv;
+                if jacobian {
+                    for k in 0..p.len {
+                        buf[k] = (p.row[k].0, p.row[k].1 * inv);
+                    }
+                    visit(r, &buf[..p.len]);
+                } else {
+                    visit(r, &[]);
+                }
+            }
+        }
+    }
+    fn project(&self, x: &mut [f64]) {
+        let n = self.prep.n;
+        for &e in &self.spec.effects {
+            let o = self.spec.offset(e, n).expect("active");
+            let (lo, hi) = match e {
+                // A compliance, weight or radius below zero is not physics: fit on the boundary.
+                Effect::Elasticity => (0.0, 1e-2),
+                Effect::Sag => (0.0, 100.0),
+                Effect::Pulley => (0.0, 1.0),
+                Effect::Scale => (-0.2, 0.2),
+                Effect::TimeOffset => (-1.0, 1.0),
+                // Free sign: a negative width is reported as implausible rather than hidden.
+                Effect::Backlash => (-0.1, 0.1),
+                Effect::Slack => (f64::NEG_INFINITY, f64::INFINITY),
+            };
+            for v in &mut x[o..o + width(e, n)] {
+                *v = v.clamp(lo, hi);
+            }
+        }
+    }
+}
+
+/// Fits `spec` on `samples` from `x0`.
+pub fn fit(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x0: &[f64], sigma: f64, max_iterations: usize) -> LmReport {
+    assert!(spec.effects.len() <= 4, "at most 4 effects at once (Jacobian row capacity)");
+    let p = Joint { prep, spec, samples, sigma };
+    lm::minimize(&p, x0, LmOptions { max_iterations, cost_tolerance: 1e-7 })
+}
+
+/// Sum of squared residuals (m^2) and their count on `samples`.
+pub fn sum_squares(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> (f64, usize) {
+    let p = Joint { prep, spec, samples, sigma: 1.0 };
+    let mut s = 0.0;
+    let mut m = 0;
+    p.rows(x, false, &mut |r, _| {
+        s += r * r;
+        m += 1;
+    });
+    (s, m)
+}
+
+/// Per-cable residuals `reading - model` on `samples` (NaN where a sample is not usable).
+pub fn residuals(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> Vec<Vec<f64>> {
+    let p = Joint { prep, spec, samples, sigma: 1.0 };
+    (0..prep.n)
+        .map(|j| {
+            samples.iter().map(|&i| if prep.usable[j][i] { p.residual(x, i, j) } else { f64::NAN }).collect()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small synthetic data set: 4 anchors, a platform on a Lissajous path.
+    pub(crate) fn synthetic(n_samples: usize) -> (Prepared, Vec<f64>) {
+        let anchors = [[-3.0, -2.0, 3.0], [3.0, -2.0, 3.1], [3.0, 2.0, 2.9], [-3.0, 2.0, 3.0]];
+        let l0 = [0.3, -0.2, 0.1, 0.5];
+        let n = 4;
+        let mut prep = Prepared {
+            n,
+            t: vec![],
+            rows: vec![],
+            x: vec![vec![]; n],
+            l: vec![vec![]; n],
+            f: vec![vec![]; n],
+            vel: vec![vec![]; n],
+            dir: vec![vec![]; n],
+            usable: vec![vec![]; n],
+            loose: vec![vec![false; n_samples]; n],
+            segment: vec![],
+            heldout: vec![],
+        };
+        for i in 0..n_samples {
+            let t = i as f64 * 0.01;
+            let p = [1.5 * (0.7 * t).sin(), 1.0 * (1.1 * t).sin(), 1.0 + 0.5 * (0.5 * t).cos()];
+            prep.t.push(t);
+            prep.rows.push(i);
+            prep.segment.push(0);
+            prep.heldout.push(false);
+            for j in 0..n {
+                let d = ((p[0] - anchors[j][0]).powi(2) + (p[1] - anchors[j][1]).powi(2) + (p[2] - anchors[j][2]).powi(2)).sqrt();
+                prep.x[j].push(p);
+                prep.l[j].push(d + l0[j]);
+                prep.f[j].push(40.0 + 20.0 * ((0.3 + j as f64) * t).sin());
+                prep.vel[j].push(0.0);
+                prep.dir[j].push(if ((0.7 * t) + j as f64).sin() > 0.0 { 1.0 } else { -1.0 });
+                prep.usable[j].push(true);
+            }
+        }
+        let mut x = vec![];
+        for j in 0..n {
+            x.extend_from_slice(&anchors[j]);
+            x.push(l0[j]);
+        }
+        (prep, x)
+    }
+
+    fn check_jacobian(spec: &ModelSpec, extra: &[f64]) {
+        let (prep, mut x) = synthetic(400);
+        x.extend_from_slice(extra);
+        let samples: Vec<usize> = (0..400).step_by(37).collect();
+        let p = Joint { prep: &prep, spec, samples: &samples, sigma: 1.0 };
+        for &i in &samples {
+            for j in 0..4 {
+                let pr = p.predict(&x, i, j);
+                let mut dense = vec![0.0; x.len()];
+                for k in 0..pr.len {
+                    dense[pr.row[k].0] += pr.row[k].1;
+                }
+                for k in 0..x.len() {
+                    let h = 1e-6 * (1.0 + x[k].abs()).min(1e-3 / 1e-6) ;
+                    let h = if k >= 16 { (x[k].abs() * 1e-4).max(1e-9) } else { h };
+                    let mut xp = x.clone();
+                    xp[k] += h;
+                    let mut xm = x.clone();
+                    xm[k] -= h;
+                    let num = (p.predict(&xp, i, j).value - p.predict(&xm, i, j).value) / (2.0 * h);
+                    assert!(
+                        (num - dense[k]).abs() < 1e-5 * (1.0 + num.abs()),
+                        "{:?} sample {i} cable {j} param {k}: analytic {} numeric {num}",
+                        spec.effects,
+                        dense[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn joint_jacobian_matches_finite_differences() {
+        let end = TensionEnd::Platform;
+        check_jacobian(&ModelSpec { effects: vec![], tension_end: end }, &[]);
+        check_jacobian(&ModelSpec { effects: vec![Effect::Elasticity], tension_end: end }, &[5e-5, 4e-5, 6e-5, 5e-5]);
+        check_jacobian(&ModelSpec { effects: vec![Effect::Sag, Effect::Scale], tension_end: end }, &[0.8, 1e-3, -2e-3, 0.0, 5e-4]);
+        check_jacobian(&ModelSpec { effects: vec![Effect::Pulley, Effect::Backlash], tension_end: end }, &[0.05, 2e-3, 1e-3, 3e-3, 2e-3]);
+        check_jacobian(&ModelSpec { effects: vec![Effect::TimeOffset, Effect::Elasticity], tension_end: end }, &[0.023, 5e-5, 4e-5, 6e-5, 5e-5]);
+    }
+
+    #[test]
+    fn joint_fit_recovers_elasticity_on_exact_data() {
+        let (mut prep, x_true) = synthetic(2000);
+        let c = 1.0 / 20_000.0;
+        for j in 0..4 {
+            for i in 0..2000 {
+                let d = prep.l[j][i] - x_true[4 * j + 3];
+                let t = prep.f[j][i];
+                prep.l[j][i] = d / (1.0 + c * t) + x_true[4 * j + 3];
+            }
+        }
+        let spec = ModelSpec { effects: vec![Effect::Elasticity], tension_end: TensionEnd::Platform };
+        let samples: Vec<usize> = (0..2000).collect();
+        let mut x0 = x_true.clone();
+        x0[0] += 0.05;
+        x0[7] -= 0.03;
+        x0.extend([1e-6; 4]);
+        let r = fit(&prep, &spec, &samples, &x0, 1e-3, 100);
+        for j in 0..4 {
+            assert!((1.0 / r.x[16 + j] - 20_000.0).abs() < 1.0, "EA {}", 1.0 / r.x[16 + j]);
+        }
+    }
+}

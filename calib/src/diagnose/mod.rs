@@ -1,0 +1,792 @@
+//! Diagnosis: when the ideal model and a recording disagree, find out why.
+//!
+//! 1. **Data problems** that are not physics ([`dataq`]): frozen readings, tracker outliers and
+//!    dropouts, clock jumps, dead load cells. Found first, reported with where they are, excluded.
+//! 2. **Baseline**: the ideal model `l = |P + R b - A| + L0` fitted on the training blocks (loose
+//!    readings excluded: `T < min_tension_n`, or without tensions, readings whose encoder shows
+//!    clearly more cable than the straight line).
+//! 3. **Locate** the mismatch ([`analysis`]): per cable, per time block, per workspace octant, and
+//!    the correlation of the residual with tension, length, T·L, velocity, direction of motion,
+//!    elevation, the sag term L^3 cos^2/T^2, 1/T^2 and time.
+//! 4. **Name and model** it: forward selection over the effect library ([`effects`]). Each
+//!    candidate is fitted jointly with anchors and offsets ([`fit`], solved by [`lm`]) on a
+//!    subsample of the training blocks and judged on the held-out blocks. The best one is kept if
+//!    it lowers the held-out sum of squares by at least 2% and by more than 25 noise variances,
+//!    and if its parameters are physical (inside [`Effect::internal_range`]). Repeat while effects
+//!    still pay. Candidates whose held-out gain is within 20% of the winner's are reported as
+//!    explaining the data equally well: that is how time offset vs backlash, sag vs elasticity and
+//!    pulley vs shifted anchor are told apart, or honestly not.
+//! 5. **Show** the fit improve: RMS before and after, in sample and held out.
+//!
+//! Held-out data are time blocks: the recording is cut into 10 blocks and
+//! `round(10 heldout_fraction)` of them, spread over the recording, are held out, so the
+//! held-out data cover the workspace rather than only the end of the run.
+//!
+//! The residuals are weighted uniformly (`sigma^2 = sigma_enc^2 + sigma_tracker^2`): the
+//! force-aware variance of [`crate::noise`] grows with T·L, which would down-weight exactly the
+//! readings that reveal elasticity.
+//!
+//! ```no_run
+//! use taut_calib::diagnose::{diagnose, DiagnoseOptions};
+//! use taut_config::{recording::Recording, RobotConfig};
+//! let cfg = RobotConfig::load("robot.toml").unwrap();
+//! let (rec, _) = Recording::load("rec.csv").unwrap();
+//! let d = diagnose(&rec, &cfg.platform_points(), None, &DiagnoseOptions::from_config(&cfg.calibration)).unwrap();
+//! for f in &d.effects {
+//!     println!("{}: {}", f.effect.name(), f.evidence);
+//! }
+//! ```
+
+pub mod analysis;
+pub mod dataq;
+pub mod dual;
+pub mod effects;
+pub mod fit;
+pub mod lm;
+
+use crate::Params;
+use analysis::{rms, Mismatch, Regressor};
+pub use dataq::{DataProblem, ProblemKind};
+pub use effects::{Effect, Sharing, TensionEnd};
+use fit::{ModelSpec, Prepared};
+use std::fmt;
+use taut_config::recording::Recording;
+use taut_config::CalibrationConfig;
+
+/// Options of [`diagnose`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiagnoseOptions {
+    /// Readings with less tension than this are loose, N.
+    pub min_tension_n: f64,
+    /// Tracker noise, 1-sigma per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Encoder noise, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// Fraction of the recording held out (in time blocks).
+    pub heldout_fraction: f64,
+    /// Where the load cells measure tension (sag only).
+    pub tension_end: TensionEnd,
+    /// At most this many effects are named (slack aside).
+    pub max_effects: usize,
+    /// Candidate effects are screened on about this many samples.
+    pub screen_samples: usize,
+    /// The effects to try.
+    pub library: Vec<Effect>,
+    /// LM iteration limit of a full fit.
+    pub max_iterations: usize,
+}
+
+impl DiagnoseOptions {
+    /// Options from the `[calibration]` table.
+    pub fn from_config(c: &CalibrationConfig) -> Self {
+        DiagnoseOptions {
+            min_tension_n: c.min_tension_n,
+            tracker_sigma_m: c.tracker_sigma_m,
+            encoder_sigma_m: c.encoder_sigma_m,
+            heldout_fraction: if c.heldout_fraction > 0.0 { c.heldout_fraction } else { 0.2 },
+            tension_end: TensionEnd::Platform,
+            max_effects: 3,
+            screen_samples: 3000,
+            library: Effect::FITTED.to_vec(),
+            max_iterations: 60,
+        }
+    }
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self::from_config(&CalibrationConfig::default())
+    }
+}
+
+/// Why there is no diagnosis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DiagnoseError {
+    /// Platform points and recording disagree on the number of cables.
+    CableCount {
+        /// Cables in the recording.
+        recording: usize,
+        /// Platform points given.
+        platform_points: usize,
+    },
+    /// Too few usable samples after excluding data problems and loose cables.
+    TooFewSamples {
+        /// Cable with the fewest usable readings.
+        cable: usize,
+        /// Its usable readings.
+        usable: usize,
+    },
+    /// The ideal-model fit did not produce finite parameters.
+    BaselineFailed,
+}
+
+impl fmt::Display for DiagnoseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            DiagnoseError::CableCount { recording, platform_points } => write!(
+                f,
+                "the recording has {recording} cables but {platform_points} platform points were given; use the configuration of the robot that made the recording"
+            ),
+            DiagnoseError::TooFewSamples { cable, usable } => write!(
+                f,
+                "cable {cable}: only {usable} usable readings after excluding data problems and loose samples; record longer with the cable under tension"
+            ),
+            DiagnoseError::BaselineFailed => {
+                write!(f, "the ideal-model fit diverged; check that the tracker and encoder columns belong to the same robot")
+            }
+        }
+    }
+}
+
+impl std::error::Error for DiagnoseError {}
+
+/// RMS figures of one model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitSummary {
+    /// RMS of the residual on the training readings, m.
+    pub rms_m: f64,
+    /// RMS on the held-out readings (parameters from the training blocks), m.
+    pub heldout_rms_m: f64,
+    /// RMS per cable on all usable readings, m.
+    pub per_cable_rms_m: Vec<f64>,
+    /// Anchors, m.
+    pub anchors_m: Vec<[f64; 3]>,
+    /// Encoder offsets, m.
+    pub l0_m: Vec<f64>,
+    /// 1-sigma of the anchors, m.
+    pub anchor_sigma_m: Vec<[f64; 3]>,
+    /// 1-sigma of the offsets, m.
+    pub l0_sigma_m: Vec<f64>,
+}
+
+/// One named effect.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finding {
+    /// The effect.
+    pub effect: Effect,
+    /// Cables it shows on.
+    pub cables: Vec<usize>,
+    /// Parameter value(s) (physical units, see [`Effect::parameter`]): one per cable for a
+    /// per-cable effect, one for a shared effect; NaN for a cable without the data to fit it.
+    pub values: Vec<f64>,
+    /// 1-sigma of each value.
+    pub sigmas: Vec<f64>,
+    /// Samples (slack only).
+    pub samples: Option<usize>,
+    /// Training RMS before and after adding the effect, m.
+    pub rms_before_m: f64,
+    /// Training RMS after, m.
+    pub rms_after_m: f64,
+    /// Held-out RMS before, m.
+    pub heldout_rms_before_m: f64,
+    /// Held-out RMS after, m.
+    pub heldout_rms_after_m: f64,
+    /// The evidence in words.
+    pub evidence: String,
+    /// Other effects that explain the data equally well on held-out data, with their held-out
+    /// RMS, m.
+    pub equally_good: Vec<(Effect, f64)>,
+    /// Residual before/after against the regressor that revealed it, for figures.
+    pub plot: Option<PlotData>,
+}
+
+/// Residual against a regressor, before and after, per cable (subsampled).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlotData {
+    /// The regressor on the x axis.
+    pub regressor: Regressor,
+    /// Per cable: (x, residual before, residual after), m.
+    pub cables: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)>,
+}
+
+/// What [`diagnose`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnosis {
+    /// Cables.
+    pub cables: usize,
+    /// Samples in the recording.
+    pub samples: usize,
+    /// Whether tensions were available (and used).
+    pub used_tensions: bool,
+    /// The ideal model.
+    pub baseline: FitSummary,
+    /// Where the baseline mismatch is and what it follows.
+    pub mismatch: Mismatch,
+    /// Named effects, in the order they were added (slack first when present).
+    pub effects: Vec<Finding>,
+    /// The final model.
+    pub final_fit: FitSummary,
+    /// Remaining structure no effect explains, in words.
+    pub unexplained: Option<String>,
+    /// Data problems (excluded).
+    pub data_problems: Vec<DataProblem>,
+    /// Candidate effects tried in the last round and why they were not named.
+    pub rejected: Vec<String>,
+    /// Things a person should know.
+    pub notes: Vec<String>,
+    /// Baseline residual against time per cable (subsampled), for figures: (t, r).
+    pub baseline_residuals: Vec<(Vec<f64>, Vec<f64>)>,
+    /// Final residual against time per cable (subsampled).
+    pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
+}
+
+fn rotation(q: [f64; 4]) -> Option<[[f64; 3]; 3]> {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if !(n.is_finite() && n > 1e-9) {
+        return None;
+    }
+    let [w, x, y, z] = q.map(|v| v / n);
+    Some([
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ])
+}
+
+/// Builds the per-cable columns, velocities, directions and masks.
+fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &DiagnoseOptions) -> Prepared {
+    let n = rec.n_cables;
+    let rows: Vec<usize> = (0..rec.len()).filter(|&i| masks.row_ok[i]).collect();
+    let m = rows.len();
+    let mut prep = Prepared {
+        n,
+        t: rows.iter().map(|&i| rec.t[i]).collect(),
+        rows: rows.clone(),
+        x: vec![Vec::with_capacity(m); n],
+        l: vec![Vec::with_capacity(m); n],
+        f: vec![Vec::with_capacity(m); n],
+        vel: vec![vec![0.0; m]; n],
+        dir: vec![vec![0.0; m]; n],
+        usable: vec![Vec::with_capacity(m); n],
+        loose: vec![Vec::with_capacity(m); n],
+        segment: rows.iter().map(|&i| masks.segment[i]).collect(),
+        heldout: vec![false; m],
+    };
+    for &i in &rows {
+        let r = rec.q.as_ref().and_then(|q| rotation(q[i]));
+        for j in 0..n {
+            let rb = match &r {
+                Some(r) => [
+                    r[0][0] * b[j][0] + r[0][1] * b[j][1] + r[0][2] * b[j][2],
+                    r[1][0] * b[j][0] + r[1][1] * b[j][1] + r[1][2] * b[j][2],
+                    r[2][0] * b[j][0] + r[2][1] * b[j][1] + r[2][2] * b[j][2],
+                ],
+                None => b[j],
+            };
+            let p = rec.p[i];
+            prep.x[j].push([p[0] + rb[0], p[1] + rb[1], p[2] + rb[2]]);
+            let l = rec.l[i * n + j];
+            prep.l[j].push(l);
+            let f = match &rec.f {
+                Some(f) if !masks.dead_loadcell[j] => f[i * n + j],
+                _ => f64::NAN,
+            };
+            prep.f[j].push(f);
+            let loose = f.is_finite() && f < opts.min_tension_n;
+            let ok = masks.cable_ok[j][i] && l.is_finite();
+            prep.usable[j].push(ok && !loose);
+            prep.loose[j].push(ok && loose);
+        }
+    }
+    // Encoder velocity by a central difference over about 40 ms (at least one sample), inside
+    // a segment; the direction of motion is held through pauses.
+    let k = ((0.02 / masks.dt.max(1e-6)).round() as usize).max(1);
+    for j in 0..n {
+        let v_noise = opts.encoder_sigma_m * std::f64::consts::SQRT_2 / (2.0 * k as f64 * masks.dt.max(1e-6));
+        let thr = (4.0 * v_noise).max(1e-3);
+        let mut last = 0.0;
+        for i in 0..m {
+            let a = i.saturating_sub(k);
+            let c = (i + k).min(m - 1);
+            let (mut a, mut c) = (a, c);
+            while a < i && prep.segment[a] != prep.segment[i] {
+                a += 1;
+            }
+            while c > i && prep.segment[c] != prep.segment[i] {
+                c -= 1;
+            }
+            let v = if c > a && prep.t[c] > prep.t[a] { (prep.l[j][c] - prep.l[j][a]) / (prep.t[c] - prep.t[a]) } else { f64::NAN };
+            prep.vel[j][i] = v;
+            if v.is_finite() && v.abs() > thr {
+                last = v.signum();
+            }
+            prep.dir[j][i] = last;
+        }
+    }
+    // Held-out time blocks.
+    let nb = 10;
+    let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
+    let held: Vec<usize> = (0..k_out).map(|q| ((q + 1) * nb) / k_out - 1).collect();
+    for i in 0..m {
+        let blk = (i * nb / m.max(1)).min(nb - 1);
+        prep.heldout[i] = held.contains(&blk);
+    }
+    prep
+}
+
+/// Per-cable algebraic multilateration: `|X|^2 - l^2 = 2 X.A - 2 l L0 + (L0^2 - |A|^2)` is
+/// linear in `(A, L0, c)`. Only the fallback when no start is given and the calibration's own
+/// initialisation fails.
+fn multilaterate(prep: &Prepared, samples: &[usize]) -> Option<Vec<f64>> {
+    use nalgebra::{SMatrix, SVector};
+    let mut x = vec![];
+    for j in 0..prep.n {
+        let mut a = SMatrix::<f64, 5, 5>::zeros();
+        let mut bv = SVector::<f64, 5>::zeros();
+        for &i in samples {
+            if !prep.usable[j][i] {
+                continue;
+            }
+            let p = prep.x[j][i];
+            let l = prep.l[j][i];
+            let row = SVector::<f64, 5>::new(2.0 * p[0], 2.0 * p[1], 2.0 * p[2], -2.0 * l, 1.0);
+            let y = p[0] * p[0] + p[1] * p[1] + p[2] * p[2] - l * l;
+            a += row * row.transpose();
+            bv += row * y;
+        }
+        let s = a.cholesky()?.solve(&bv);
+        x.extend_from_slice(&[s[0], s[1], s[2], s[3]]);
+    }
+    Some(x)
+}
+
+struct Ctx<'a> {
+    prep: &'a Prepared,
+    sigma: f64,
+    train: Vec<usize>,
+    heldout: Vec<usize>,
+    screen_train: Vec<usize>,
+    screen_heldout: Vec<usize>,
+}
+
+fn stride(v: &[usize], target: usize) -> Vec<usize> {
+    let s = v.len().div_ceil(target.max(1)).max(1);
+    v.iter().step_by(s).copied().collect()
+}
+
+fn rms_of(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> f64 {
+    let (s, m) = fit::sum_squares(prep, spec, samples, x);
+    (s / m.max(1) as f64).sqrt()
+}
+
+/// A fitted candidate.
+struct Candidate {
+    spec: ModelSpec,
+    report: lm::LmReport,
+    ho_ss: f64,
+}
+
+impl Ctx<'_> {
+    fn fit(&self, spec: &ModelSpec, samples: &[usize], x0: &[f64], iters: usize) -> lm::LmReport {
+        fit::fit(self.prep, spec, samples, x0, self.sigma, iters)
+    }
+
+    fn summary(&self, spec: &ModelSpec, train_fit: &lm::LmReport, all_fit: &lm::LmReport) -> FitSummary {
+        let n = self.prep.n;
+        let all: Vec<usize> = (0..self.prep.t.len()).collect();
+        let res = fit::residuals(self.prep, spec, &all, &all_fit.x);
+        let sig = all_fit.sigmas();
+        FitSummary {
+            rms_m: rms_of(self.prep, spec, &self.train, &train_fit.x),
+            heldout_rms_m: rms_of(self.prep, spec, &self.heldout, &train_fit.x),
+            per_cable_rms_m: res.iter().map(|r| rms(r)).collect(),
+            anchors_m: (0..n).map(|j| [all_fit.x[4 * j], all_fit.x[4 * j + 1], all_fit.x[4 * j + 2]]).collect(),
+            l0_m: (0..n).map(|j| all_fit.x[4 * j + 3]).collect(),
+            anchor_sigma_m: (0..n).map(|j| [sig[4 * j], sig[4 * j + 1], sig[4 * j + 2]]).collect(),
+            l0_sigma_m: (0..n).map(|j| sig[4 * j + 3]).collect(),
+        }
+    }
+
+    /// Physical values, sigmas and whether each is plausible / significant, for effect `e` in
+    /// a fitted spec. Cables without the data for the effect get NaN.
+    fn values(&self, e: Effect, spec: &ModelSpec, r: &lm::LmReport, has_t: &[bool]) -> (Vec<f64>, Vec<f64>, Vec<bool>, Vec<bool>) {
+        let n = self.prep.n;
+        let o = spec.offset(e, n).expect("active");
+        let sig = r.sigmas();
+        let w = fit::width(e, n);
+        let (lo, hi) = e.internal_range();
+        let (mut vals, mut sigs, mut plausible, mut significant) = (vec![], vec![], vec![], vec![]);
+        for k in 0..w {
+            let has = e.sharing() == Sharing::Shared || !e.needs_tension() || has_t[k];
+            let (x, s) = (r.x[o + k], sig[o + k]);
+            let (v, vs) = e.to_physical(x, s);
+            if !has {
+                vals.push(f64::NAN);
+                sigs.push(f64::NAN);
+                plausible.push(true);
+                significant.push(false);
+                continue;
+            }
+            vals.push(v);
+            sigs.push(vs);
+            // Plausible: inside the range, or not distinguishable from its edge.
+            let inside = x >= lo - 3.0 * s && x <= hi + 3.0 * s && x.abs() < 0.999 * (hi - lo).abs().max(hi.abs());
+            plausible.push(inside && x >= lo - 3.0 * s);
+            let zero = if e == Effect::Scale { 0.0 } else { 0.0 };
+            significant.push((x - zero).abs() > 4.0 * s && x >= lo && x <= hi);
+        }
+        (vals, sigs, plausible, significant)
+    }
+}
+
+fn signature_regressor(e: Effect) -> Regressor {
+    match e {
+        Effect::Elasticity => Regressor::TensionLength,
+        Effect::Sag => Regressor::SagTerm,
+        Effect::Pulley => Regressor::Elevation,
+        Effect::Scale => Regressor::Length,
+        Effect::TimeOffset => Regressor::Velocity,
+        Effect::Backlash => Regressor::Direction,
+        Effect::Slack => Regressor::Tension,
+    }
+}
+
+fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let s = samples.len().div_ceil(max.max(1)).max(1);
+    res.iter()
+        .map(|r| {
+            let mut t = vec![];
+            let mut v = vec![];
+            for k in (0..samples.len()).step_by(s) {
+                if r[k].is_finite() {
+                    t.push(prep.t[samples[k]]);
+                    v.push(r[k]);
+                }
+            }
+            (t, v)
+        })
+        .collect()
+}
+
+/// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used
+/// as the starting point of the baseline fit; without it the calibration's initialisation runs.
+pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Params>, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+    let n = rec.n_cables;
+    if platform_points.len() != n {
+        return Err(DiagnoseError::CableCount { recording: n, platform_points: platform_points.len() });
+    }
+    let mut notes = vec![];
+    let (data_problems, masks) = dataq::detect(rec, opts.tracker_sigma_m);
+    let mut prep = prepare(rec, platform_points, &masks, opts);
+    let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();
+    let used_tensions = has_t.iter().any(|x| *x);
+    if !used_tensions {
+        notes.push("the recording has no tensions: elasticity and sag cannot be claimed; loose cables are found from the residual alone".into());
+    }
+    let sigma = (opts.tracker_sigma_m.powi(2) + opts.encoder_sigma_m.powi(2)).sqrt().max(1e-6);
+    let m = prep.t.len();
+    for j in 0..n {
+        let u = prep.usable[j].iter().filter(|x| **x).count();
+        if u < 20 {
+            return Err(DiagnoseError::TooFewSamples { cable: j, usable: u });
+        }
+    }
+    let loose_by_tension: usize = (0..n)
+        .map(|j| (0..m).filter(|&i| prep.f[j][i].is_finite() && prep.f[j][i] < opts.min_tension_n).count())
+        .sum();
+
+    // Start: given, or the calibration's initialisation + force-aware calibration.
+    let all_rows: Vec<usize> = (0..m).collect();
+    let mut x0: Option<Vec<f64>> = start.map(|p| (0..n).flat_map(|j| p.cable(j)).collect());
+    if x0.is_none() {
+        let copts = crate::CalibOptions {
+            min_tension_n: opts.min_tension_n,
+            tracker_sigma_m: opts.tracker_sigma_m,
+            encoder_sigma_m: opts.encoder_sigma_m,
+            ..crate::CalibOptions::default()
+        };
+        if let Ok(init) = crate::init::initialise(rec, platform_points, &copts) {
+            let p = crate::calibrate(rec, platform_points, &init.params, &copts).map(|r| r.params).unwrap_or(init.params);
+            x0 = Some((0..n).flat_map(|j| p.cable(j)).collect());
+        }
+    }
+    let x0 = match x0 {
+        Some(x) if x.iter().all(|v| v.is_finite()) => x,
+        _ => {
+            notes.push("the calibration's initialisation failed; started from algebraic multilateration".into());
+            multilaterate(&prep, &stride(&all_rows, 4000)).ok_or(DiagnoseError::BaselineFailed)?
+        }
+    };
+
+    let ideal = ModelSpec { effects: vec![], tension_end: opts.tension_end };
+    let train: Vec<usize> = (0..m).filter(|&i| !prep.heldout[i]).collect();
+    let heldout: Vec<usize> = (0..m).filter(|&i| prep.heldout[i]).collect();
+    let mut base = fit::fit(&prep, &ideal, &train, &x0, sigma, opts.max_iterations);
+    if !base.x.iter().all(|v| v.is_finite()) {
+        return Err(DiagnoseError::BaselineFailed);
+    }
+
+    // Loose cables without tensions: the encoder shows clearly more cable than the straight
+    // line (one-sided), found iteratively from the residual.
+    let mut loose_by_residual = 0;
+    if has_t.iter().any(|h| !h) {
+        for _ in 0..3 {
+            let res = fit::residuals(&prep, &ideal, &all_rows, &base.x);
+            let mut flagged = 0;
+            for j in (0..n).filter(|&j| !has_t[j]) {
+                let mut a: Vec<f64> = res[j].iter().copied().filter(|v| v.is_finite()).collect();
+                let med = {
+                    let k = a.len() / 2;
+                    a.select_nth_unstable_by(k, |x, y| x.total_cmp(y));
+                    a[k]
+                };
+                let mut dev: Vec<f64> = a.iter().map(|v| (v - med).abs()).collect();
+                let k = dev.len() / 2;
+                dev.select_nth_unstable_by(k, |x, y| x.total_cmp(y));
+                let s = 1.4826 * dev[k];
+                let thr = med + (6.0 * s).max(6.0 * sigma);
+                for i in 0..m {
+                    if prep.usable[j][i] && res[j][i] > thr {
+                        prep.usable[j][i] = false;
+                        prep.loose[j][i] = true;
+                        flagged += 1;
+                    }
+                }
+            }
+            loose_by_residual += flagged;
+            if flagged == 0 {
+                break;
+            }
+            base = fit::fit(&prep, &ideal, &train, &base.x, sigma, opts.max_iterations);
+        }
+    }
+    let prep = prep; // frozen from here on
+    let mut ctx = Ctx { prep: &prep, sigma, train, heldout, screen_train: vec![], screen_heldout: vec![] };
+    let frac = opts.screen_samples as f64 / m.max(1) as f64;
+    ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
+    ctx.screen_heldout = stride(&ctx.heldout, (frac * ctx.heldout.len() as f64).ceil().max(200.0) as usize);
+
+    let base_all = ctx.fit(&ideal, &all_rows, &base.x, opts.max_iterations);
+    let baseline = ctx.summary(&ideal, &base, &base_all);
+    let base_res = fit::residuals(&prep, &ideal, &all_rows, &base.x);
+    let anchors0: Vec<[f64; 3]> = baseline.anchors_m.clone();
+    let an_sub = stride(&all_rows, 6000);
+    let sub_res: Vec<Vec<f64>> = base_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
+    let mismatch = analysis::analyse(&prep, &an_sub, &sub_res, &anchors0, &has_t);
+
+    let mut effects = vec![];
+    if loose_by_tension + loose_by_residual > 0 {
+        // Before: the baseline on every present reading, loose ones included.
+        let mut ss = 0.0;
+        let mut cnt = 0usize;
+        let mut ss_ho = 0.0;
+        let mut cnt_ho = 0usize;
+        let probe = Prepared { usable: (0..n).map(|j| (0..m).map(|i| prep.usable[j][i] || prep.loose[j][i]).collect()).collect(), ..prep.clone() };
+        for i in 0..m {
+            for j in 0..n {
+                if probe.usable[j][i] {
+                    let r = fit::Joint { prep: &probe, spec: &ideal, samples: &[], sigma: 1.0 }.residual(&base.x, i, j);
+                    if prep.heldout[i] {
+                        ss_ho += r * r;
+                        cnt_ho += 1;
+                    } else {
+                        ss += r * r;
+                        cnt += 1;
+                    }
+                }
+            }
+        }
+        let cables: Vec<usize> = (0..n)
+            .filter(|&j| (0..m).any(|i| probe.usable[j][i] && !prep.usable[j][i]))
+            .collect();
+        let samples = loose_by_tension + loose_by_residual;
+        effects.push(Finding {
+            effect: Effect::Slack,
+            cables,
+            values: vec![if loose_by_tension > 0 { opts.min_tension_n } else { f64::NAN }],
+            sigmas: vec![f64::NAN],
+            samples: Some(samples),
+            rms_before_m: (ss / cnt.max(1) as f64).sqrt(),
+            rms_after_m: baseline.rms_m,
+            heldout_rms_before_m: (ss_ho / cnt_ho.max(1) as f64).sqrt(),
+            heldout_rms_after_m: baseline.heldout_rms_m,
+            evidence: if loose_by_tension > 0 {
+                format!("{loose_by_tension} readings with tension below {} N (loose cable); excluded", opts.min_tension_n)
+            } else {
+                format!("{loose_by_residual} readings where the encoder shows clearly more cable than the straight line (loose cable, found without tensions); excluded")
+            },
+            equally_good: vec![],
+            plot: None,
+        });
+    }
+
+    // Forward selection.
+    let mut spec = ideal.clone();
+    let mut cur_train = base.clone();
+    let mut rejected = vec![];
+    let plot_samples = stride(&all_rows, 1500);
+    while spec.effects.len() < opts.max_effects {
+        let cur_ho = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x).0;
+        let cur_ms = {
+            let (s, c) = fit::sum_squares(&prep, &spec, &ctx.screen_train, &cur_train.x);
+            s / c.max(1) as f64
+        };
+        let mut cands: Vec<(Effect, Candidate, bool)> = vec![];
+        rejected.clear();
+        for &e in &opts.library {
+            if spec.effects.contains(&e) || e == Effect::Slack {
+                continue;
+            }
+            if e.needs_tension() && !used_tensions {
+                rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
+                continue;
+            }
+            let mut s2 = spec.clone();
+            s2.effects.push(e);
+            let x0 = s2.extend(n, &spec, &cur_train.x);
+            let r = ctx.fit(&s2, &ctx.screen_train, &x0, 30);
+            if !r.x.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let ho = fit::sum_squares(&prep, &s2, &ctx.screen_heldout, &r.x).0;
+            let (_, _, plausible, significant) = ctx.values(e, &s2, &r, &has_t);
+            let ok = plausible.iter().all(|p| *p) && significant.iter().any(|s| *s);
+            cands.push((e, Candidate { spec: s2, report: r, ho_ss: ho }, ok));
+        }
+        let gain = |c: &Candidate| cur_ho - c.ho_ss;
+        let Some(best) = cands.iter().filter(|c| c.2).max_by(|a, b| gain(&a.1).total_cmp(&gain(&b.1))).map(|c| c.0) else {
+            for (e, c, _) in &cands {
+                rejected.push(format!("{}: parameters not physical or not significant (held-out change {:+.1}%)", e.name(), -100.0 * gain(c) / cur_ho));
+            }
+            break;
+        };
+        let bi = cands.iter().position(|c| c.0 == best).expect("present");
+        let bg = gain(&cands[bi].1);
+        let n_ho = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x).1 as f64;
+        let _ = n_ho;
+        if !(bg > 0.02 * cur_ho && bg > 25.0 * cur_ms) {
+            for (e, c, ok) in &cands {
+                rejected.push(format!(
+                    "{}: held-out sum of squares {:+.1}%{}",
+                    e.name(),
+                    -100.0 * gain(c) / cur_ho,
+                    if *ok { "" } else { ", parameters not physical or not significant" }
+                ));
+            }
+            break;
+        }
+        let cand = cands.remove(bi).1;
+        let new_spec = cand.spec.clone();
+        let full = ctx.fit(&new_spec, &ctx.train, &cand.report.x, opts.max_iterations);
+        let (values, sigmas, _, significant) = ctx.values(best, &new_spec, &full, &has_t);
+        let cables: Vec<usize> = match best.sharing() {
+            Sharing::PerCable => (0..n).filter(|&j| significant[j]).collect(),
+            Sharing::Shared => (0..n).filter(|&j| !best.needs_tension() || has_t[j]).collect(),
+        };
+        // Evidence: the residual before against the effect's signature regressor.
+        let reg = signature_regressor(best);
+        let before_res = fit::residuals(&prep, &spec, &plot_samples, &cur_train.x);
+        let after_res = fit::residuals(&prep, &new_spec, &plot_samples, &full.x);
+        let mut rs = vec![];
+        let mut pcables = vec![];
+        for j in 0..n {
+            let an = [cur_train.x[4 * j], cur_train.x[4 * j + 1], cur_train.x[4 * j + 2]];
+            let xs: Vec<f64> = plot_samples.iter().map(|&i| reg.value(&prep, an, i, j)).collect();
+            let sign = if best == Effect::Elasticity || best == Effect::TimeOffset { -1.0 } else { 1.0 };
+            rs.push(sign * analysis::correlation(&xs, &before_res[j]));
+            pcables.push((xs, before_res[j].clone(), after_res[j].clone()));
+        }
+        let fin: Vec<f64> = rs.iter().copied().filter(|r| r.is_finite()).collect();
+        let strong: Vec<usize> = (0..n).filter(|&j| rs[j].is_finite() && rs[j].abs() >= 0.3).collect();
+        let follows = if fin.is_empty() {
+            String::new()
+        } else {
+            let lo = fin.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = fin.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let which = if strong.len() == n { "every cable".to_string() } else if strong.is_empty() { "no cable clearly".to_string() } else { format!("cables {strong:?}") };
+            format!("residual follows {} on {which} (r = {lo:.2} .. {hi:.2}); ", best.signature(), )
+        };
+        let rms_before = rms_of(&prep, &spec, &ctx.train, &cur_train.x);
+        let rms_after = rms_of(&prep, &new_spec, &ctx.train, &full.x);
+        let ho_before = rms_of(&prep, &spec, &ctx.heldout, &cur_train.x);
+        let ho_after = rms_of(&prep, &new_spec, &ctx.heldout, &full.x);
+        let param_text = match best.sharing() {
+            Sharing::Shared => format!("{} = {:.4e} ± {:.1e}", best.parameter(), values[0], sigmas[0]),
+            Sharing::PerCable => format!(
+                "{} = [{}]",
+                best.parameter(),
+                values.iter().zip(&sigmas).map(|(v, s)| format!("{v:.4e} ± {s:.1e}")).collect::<Vec<_>>().join(", ")
+            ),
+        };
+        let equally_good: Vec<(Effect, f64)> = cands
+            .iter()
+            .filter(|(_, c, ok)| *ok && gain(c) >= 0.8 * bg)
+            .map(|(e, c, _)| (*e, (c.ho_ss / fit::sum_squares(&prep, &c.spec, &ctx.screen_heldout, &c.report.x).1.max(1) as f64).sqrt()))
+            .collect();
+        let mut evidence = format!(
+            "{follows}held-out RMS {:.2} -> {:.2} mm; {param_text}",
+            ho_before * 1e3,
+            ho_after * 1e3
+        );
+        if !equally_good.is_empty() {
+            evidence.push_str(&format!(
+                "; explains the held-out data about as well as {}",
+                equally_good.iter().map(|(e, _)| e.name()).collect::<Vec<_>>().join(", ")
+            ));
+        }
+        effects.push(Finding {
+            effect: best,
+            cables,
+            values,
+            sigmas,
+            samples: None,
+            rms_before_m: rms_before,
+            rms_after_m: rms_after,
+            heldout_rms_before_m: ho_before,
+            heldout_rms_after_m: ho_after,
+            evidence,
+            equally_good,
+            plot: Some(PlotData { regressor: reg, cables: pcables }),
+        });
+        spec = new_spec;
+        cur_train = full;
+    }
+    let final_all = ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations);
+    let final_fit = ctx.summary(&spec, &cur_train, &final_all);
+    let final_res = fit::residuals(&prep, &spec, &all_rows, &cur_train.x);
+
+    // Structure left over.
+    let fsub: Vec<Vec<f64>> = final_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
+    let after = analysis::analyse(&prep, &an_sub, &fsub, &final_fit.anchors_m, &has_t);
+    let expected = sigma;
+    let mut unexplained_cables = vec![];
+    for j in 0..n {
+        let floor = if masks.dt < 0.05 { after.per_cable_noise_m[j].max(0.5 * expected) } else { expected };
+        if after.per_cable_rms_m[j] > 2.0 * floor {
+            unexplained_cables.push(j);
+        }
+    }
+    let unexplained = if unexplained_cables.is_empty() {
+        None
+    } else {
+        let mut s = format!(
+            "structure remains that no effect in the library explains on cable(s) {unexplained_cables:?} (RMS {} mm vs noise {} mm)",
+            unexplained_cables.iter().map(|&j| format!("{:.2}", after.per_cable_rms_m[j] * 1e3)).collect::<Vec<_>>().join(", "),
+            unexplained_cables.iter().map(|&j| format!("{:.2}", after.per_cable_noise_m[j] * 1e3)).collect::<Vec<_>>().join(", ")
+        );
+        let follows: Vec<&String> = after.words.iter().filter(|w| w.starts_with("follows") || w.starts_with("largest")).collect();
+        if !follows.is_empty() {
+            s.push_str(&format!("; it {}", follows.iter().map(|s| s.as_str()).collect::<Vec<_>>().join("; ")));
+        }
+        Some(s)
+    };
+    if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
+        notes.push("no effect beyond loose cables was found: the residual is noise".into());
+    }
+    Ok(Diagnosis {
+        cables: n,
+        samples: rec.len(),
+        used_tensions,
+        baseline,
+        mismatch,
+        effects,
+        final_fit,
+        unexplained,
+        data_problems,
+        rejected,
+        notes,
+        baseline_residuals: subsample_series(&prep, &all_rows, &base_res, 2000),
+        final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
+    })
+}
+

@@ -1,0 +1,241 @@
+//! `taut diagnose REC.csv`: find the physics the ideal model leaves out, name it, model it, and
+//! show the fit improve. The work is in `taut_calib::diagnose`; this module prints, writes the
+//! `taut-diagnosis v1` JSON and draws the before/after figures.
+
+use crate::calibrate::{config_for, load_recording};
+use crate::plot::{color, write_panels, Panel, Series};
+use anyhow::{Context, Result};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect, Finding, Sharing, TensionEnd};
+
+/// Arguments of `taut diagnose`.
+#[derive(clap::Args)]
+pub struct DiagnoseArgs {
+    /// The recording (cdpr-recording v1 CSV).
+    pub recording: PathBuf,
+    /// Robot configuration (platform points, noise model). Without it: point-mass platform.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Write the diagnosis as JSON (taut-diagnosis v1) to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write figures (SVG and PNG) into this directory.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Where the load cells measure the tension: `platform` (at the attachment, the default) or `anchor` (at the winch).
+    #[arg(long, default_value = "platform")]
+    pub tension_at: String,
+}
+
+/// JSON number, `null` for NaN / infinite.
+fn num(v: f64) -> Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        Value::Null
+    }
+}
+
+fn param_value(f: &Finding, vals: &[f64]) -> Value {
+    match f.effect.sharing() {
+        Sharing::Shared => num(vals[0]),
+        Sharing::PerCable => Value::Array(vals.iter().map(|v| num(*v)).collect()),
+    }
+}
+
+/// The `taut-diagnosis v1` document.
+pub fn to_json(d: &Diagnosis) -> Value {
+    let effects: Vec<Value> = d
+        .effects
+        .iter()
+        .map(|f| {
+            let (params, sigmas) = if f.effect == Effect::Slack {
+                (
+                    json!({"threshold_N": num(f.values[0]), "samples": f.samples.unwrap_or(0)}),
+                    json!({}),
+                )
+            } else {
+                (
+                    json!({ f.effect.parameter(): param_value(f, &f.values) }),
+                    json!({ f.effect.parameter(): param_value(f, &f.sigmas) }),
+                )
+            };
+            json!({
+                "effect": f.effect.name(),
+                "cables": f.cables,
+                "parameters": params,
+                "parameters_sigma": sigmas,
+                "rms_before_m": num(f.rms_before_m),
+                "rms_after_m": num(f.rms_after_m),
+                "heldout_rms_before_m": num(f.heldout_rms_before_m),
+                "heldout_rms_after_m": num(f.heldout_rms_after_m),
+                "evidence": f.evidence,
+                "equally_good": f.equally_good.iter().map(|(e, r)| json!({"effect": e.name(), "heldout_rms_m": num(*r)})).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    json!({
+        "format": "taut-diagnosis v1",
+        "cables": d.cables,
+        "samples": d.samples,
+        "used_tensions": d.used_tensions,
+        "baseline": {
+            "rms_m": num(d.baseline.rms_m),
+            "heldout_rms_m": num(d.baseline.heldout_rms_m),
+            "per_cable_rms_m": d.baseline.per_cable_rms_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+            "anchors_m": d.baseline.anchors_m,
+            "l0_m": d.baseline.l0_m,
+        },
+        "mismatch": {
+            "summary": d.mismatch.words,
+            "per_cable_rms_m": d.mismatch.per_cable_rms_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+            "per_cable_noise_m": d.mismatch.per_cable_noise_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+            "correlations": d.mismatch.correlations.iter().map(|c| {
+                c.iter().map(|(r, v)| json!({"quantity": r.name(), "r": num(*v)})).collect::<Vec<_>>()
+            }).collect::<Vec<_>>(),
+            "time_blocks": d.mismatch.time_blocks.iter().map(|b| json!({"t_start_s": b.0, "t_end_s": b.1, "rms_m": num(b.2)})).collect::<Vec<_>>(),
+        },
+        "effects": effects,
+        "final": {
+            "rms_m": num(d.final_fit.rms_m),
+            "heldout_rms_m": num(d.final_fit.heldout_rms_m),
+            "per_cable_rms_m": d.final_fit.per_cable_rms_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+            "anchors_m": d.final_fit.anchors_m,
+            "anchor_sigma_m": d.final_fit.anchor_sigma_m,
+            "l0_m": d.final_fit.l0_m,
+            "l0_sigma_m": d.final_fit.l0_sigma_m,
+        },
+        "unexplained": d.unexplained,
+        "data_problems": d.data_problems.iter().map(|p| json!({
+            "problem": p.kind.name(), "cable": p.cable, "t_start_s": p.t_start, "t_end_s": p.t_end,
+            "samples": p.samples, "description": p.description,
+        })).collect::<Vec<_>>(),
+        "not_named": d.rejected,
+        "notes": d.notes,
+    })
+}
+
+/// Prints the diagnosis for people.
+pub fn print(d: &Diagnosis) {
+    let mm = |v: f64| v * 1e3;
+    println!("recording: {} samples, {} cables{}", d.samples, d.cables, if d.used_tensions { "" } else { ", no tensions" });
+    for p in &d.data_problems {
+        println!("data problem ({}): {}", p.kind.name(), p.description);
+    }
+    println!(
+        "ideal model: RMS {:.2} mm, held out {:.2} mm",
+        mm(d.baseline.rms_m),
+        mm(d.baseline.heldout_rms_m)
+    );
+    for w in &d.mismatch.words {
+        println!("  {w}");
+    }
+    if d.effects.is_empty() {
+        println!("no effect found");
+    }
+    for f in &d.effects {
+        println!(
+            "{}: RMS {:.2} -> {:.2} mm, held out {:.2} -> {:.2} mm",
+            f.effect.name(),
+            mm(f.rms_before_m),
+            mm(f.rms_after_m),
+            mm(f.heldout_rms_before_m),
+            mm(f.heldout_rms_after_m)
+        );
+        println!("  {}", f.evidence);
+    }
+    println!(
+        "final model: RMS {:.2} mm, held out {:.2} mm",
+        mm(d.final_fit.rms_m),
+        mm(d.final_fit.heldout_rms_m)
+    );
+    for (j, (a, s)) in d.final_fit.anchors_m.iter().zip(&d.final_fit.anchor_sigma_m).enumerate() {
+        println!(
+            "  cable {j}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
+            a[0],
+            a[1],
+            a[2],
+            mm(s[0]),
+            mm(s[1]),
+            mm(s[2]),
+            d.final_fit.l0_m[j]
+        );
+    }
+    if let Some(u) = &d.unexplained {
+        println!("{u}");
+    }
+    for r in &d.rejected {
+        println!("  not named: {r}");
+    }
+    for n in &d.notes {
+        println!("note: {n}");
+    }
+}
+
+/// Figures: the residual against time, before and after; and per effect the residual against
+/// the quantity that revealed it, before and after, per cable.
+pub fn plots(dir: &Path, d: &Diagnosis) -> Result<()> {
+    let pts = |t: &[f64], r: &[f64]| -> Vec<(f64, f64)> { t.iter().zip(r).map(|(a, b)| (*a, b * 1e3)).collect() };
+    let before: Vec<Vec<(f64, f64)>> = d.baseline_residuals.iter().map(|(t, r)| pts(t, r)).collect();
+    let after: Vec<Vec<(f64, f64)>> = d.final_residuals.iter().map(|(t, r)| pts(t, r)).collect();
+    let panels: Vec<Panel> = (0..d.cables)
+        .map(|j| Panel {
+            title: format!("cable {j}: residual (reading - model)"),
+            x_label: "time (s)",
+            y_label: "residual (mm)",
+            series: vec![
+                Series { label: "ideal model".into(), points: &before[j], color: color(0), markers: true },
+                Series { label: "with named effects".into(), points: &after[j], color: color(1), markers: true },
+            ],
+        })
+        .collect();
+    write_panels(dir, "diagnose-residual-vs-time", &panels)?;
+    for f in &d.effects {
+        let Some(p) = &f.plot else { continue };
+        let data: Vec<(Vec<(f64, f64)>, Vec<(f64, f64)>)> = p
+            .cables
+            .iter()
+            .map(|(x, b, a)| (pts(x, b), pts(x, a)))
+            .collect();
+        let x_label = format!("{} ({})", p.regressor.name(), p.regressor.unit());
+        let panels: Vec<Panel> = data
+            .iter()
+            .enumerate()
+            .map(|(j, (b, a))| Panel {
+                title: format!("cable {j}: {} - residual against {}", f.effect.name(), p.regressor.name()),
+                x_label: &x_label,
+                y_label: "residual (mm)",
+                series: vec![
+                    Series { label: "before".into(), points: b, color: color(0), markers: true },
+                    Series { label: format!("with {}", f.effect.name()), points: a, color: color(1), markers: true },
+                ],
+            })
+            .collect();
+        write_panels(dir, &format!("diagnose-{}", f.effect.name()), &panels)?;
+    }
+    Ok(())
+}
+
+pub fn run(a: &DiagnoseArgs) -> Result<()> {
+    let (rec, _parse) = load_recording(&a.recording)?;
+    let cfg = config_for(a.config.as_deref(), &rec)?;
+    let mut opts = DiagnoseOptions::from_config(&cfg.calibration);
+    opts.tension_end = match a.tension_at.as_str() {
+        "anchor" => TensionEnd::Anchor,
+        "platform" => TensionEnd::Platform,
+        other => anyhow::bail!("--tension-at `{other}`: use `anchor` (load cell at the winch) or `platform`"),
+    };
+    let d = diagnose(&rec, &cfg.platform_points(), None, &opts)
+        .with_context(|| format!("diagnosing {}", a.recording.display()))?;
+    print(&d);
+    if let Some(j) = &a.json {
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&to_json(&d))?.as_bytes())
+            .with_context(|| format!("writing {}", j.display()))?;
+    }
+    if let Some(dir) = &a.plot {
+        plots(dir, &d)?;
+        eprintln!("figures written to {}", dir.display());
+    }
+    Ok(())
+}

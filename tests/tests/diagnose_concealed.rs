@@ -1,0 +1,149 @@
+//! `taut diagnose` on simulated recordings in which one effect (or a pair) is switched on but
+//! nothing in the file says so: the right effect is named, its parameter is recovered within a
+//! tolerance derived from the reported uncertainty, and the held-out RMS falls. On effect-free
+//! recordings nothing but `slack` is named.
+
+use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect};
+use taut_sim::{simulate, Physics, Scenario};
+
+fn run(mut s: Scenario, duration_s: f64) -> (Diagnosis, taut_sim::SimRun) {
+    s.duration_s = duration_s;
+    let sim = simulate(&s);
+    let opts = DiagnoseOptions::from_config(&s.robot.calibration);
+    let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &opts).expect("diagnosis");
+    (d, sim)
+}
+
+fn named(d: &Diagnosis) -> Vec<Effect> {
+    d.effects.iter().map(|f| f.effect).filter(|e| *e != Effect::Slack).collect()
+}
+
+fn finding(d: &Diagnosis, e: Effect) -> &taut_calib::diagnose::Finding {
+    d.effects.iter().find(|f| f.effect == e).unwrap_or_else(|| panic!("{} not named: {:#?}", e.name(), summary(d)))
+}
+
+fn summary(d: &Diagnosis) -> Vec<String> {
+    let mut v: Vec<String> = d.effects.iter().map(|f| format!("{}: {}", f.effect.name(), f.evidence)).collect();
+    v.extend(d.rejected.iter().cloned());
+    v.extend(d.mismatch.words.iter().cloned());
+    v.push(format!("baseline {:.3} mm held out {:.3} mm", d.baseline.rms_m * 1e3, d.baseline.heldout_rms_m * 1e3));
+    v
+}
+
+/// |estimate - truth| within 6 reported sigmas, or within `rel` of the truth (the simulator's
+/// physics is independent of the diagnosis models, so a small model difference remains).
+fn assert_recovered(name: &str, est: f64, sigma: f64, truth: f64, rel: f64) {
+    let err = (est - truth).abs();
+    assert!(
+        err <= 6.0 * sigma || err <= rel * truth.abs(),
+        "{name}: estimate {est} ± {sigma} vs truth {truth} (error {err}, {:.1} sigma)",
+        err / sigma
+    );
+}
+
+fn assert_heldout_falls(d: &Diagnosis, factor: f64) {
+    assert!(
+        d.final_fit.heldout_rms_m * factor <= d.baseline.heldout_rms_m,
+        "held-out RMS {:.3} -> {:.3} mm, expected a {factor}x fall: {:#?}",
+        d.baseline.heldout_rms_m * 1e3,
+        d.final_fit.heldout_rms_m * 1e3,
+        summary(d)
+    );
+}
+
+#[test]
+fn noise_only_names_nothing_but_slack() {
+    for seed in [3, 4] {
+        let (d, _) = run(Scenario::aras_cam(seed), 40.0);
+        assert!(named(&d).is_empty(), "seed {seed}: {:#?}", summary(&d));
+    }
+    let (d, _) = run(Scenario::three_cable(5), 40.0);
+    assert!(named(&d).is_empty(), "three-cable: {:#?}", summary(&d));
+}
+
+#[test]
+fn elasticity_is_named_and_ea_recovered() {
+    let mut s = Scenario::aras_cam(11);
+    s.physics = Physics { elasticity: Some(20_000.0), ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    assert_eq!(named(&d).first(), Some(&Effect::Elasticity), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Elasticity);
+    for (v, s) in f.values.iter().zip(&f.sigmas) {
+        assert_recovered("EA", *v, *s, 20_000.0, 0.05);
+    }
+    assert_heldout_falls(&d, 3.0);
+}
+
+#[test]
+fn time_offset_is_named_on_three_cables() {
+    let mut s = Scenario::three_cable(12);
+    s.physics = Physics { time_offset_s: 0.03, ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    assert_eq!(named(&d).first(), Some(&Effect::TimeOffset), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::TimeOffset);
+    assert_recovered("offset_s", f.values[0], f.sigmas[0], 0.03, 0.05);
+}
+
+#[test]
+fn backlash_is_named() {
+    let mut s = Scenario::aras_cam(13);
+    s.physics = Physics { backlash_m: 0.006, ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    assert_eq!(named(&d).first(), Some(&Effect::Backlash), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Backlash);
+    for (v, s) in f.values.iter().zip(&f.sigmas) {
+        assert_recovered("width_m", *v, *s, 0.006, 0.1);
+    }
+}
+
+#[test]
+fn scale_is_named() {
+    let mut s = Scenario::aras_cam(14);
+    s.physics = Physics { scale: Some(vec![1.004; 4]), ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    assert_eq!(named(&d).first(), Some(&Effect::Scale), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Scale);
+    for (v, s) in f.values.iter().zip(&f.sigmas) {
+        assert_recovered("scale", *v, *s, 1.004, 0.001);
+    }
+}
+
+#[test]
+fn pulley_is_named() {
+    let mut s = Scenario::aras_cam(15);
+    s.physics = Physics { pulley: Some(0.08), ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    assert_eq!(named(&d).first(), Some(&Effect::Pulley), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Pulley);
+    assert_recovered("radius_m", f.values[0], f.sigmas[0], 0.08, 0.1);
+}
+
+#[test]
+fn sag_is_named_on_the_outdoor_robot() {
+    let mut s = Scenario::outdoor(16);
+    s.physics = Physics { sag: Some(1.2), ..Physics::default() };
+    let (d, _) = run(s, 60.0);
+    assert_eq!(named(&d).first(), Some(&Effect::Sag), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Sag);
+    assert_recovered("w", f.values[0], f.sigmas[0], 1.2, 0.1);
+}
+
+#[test]
+fn elasticity_and_backlash_together() {
+    let mut s = Scenario::aras_cam(17);
+    s.physics = Physics { elasticity: Some(20_000.0), backlash_m: 0.008, ..Physics::default() };
+    let (d, _) = run(s, 40.0);
+    let n = named(&d);
+    assert!(n.contains(&Effect::Elasticity) && n.contains(&Effect::Backlash), "{:#?}", summary(&d));
+    assert_heldout_falls(&d, 3.0);
+}
+
+#[test]
+fn without_tensions_elasticity_is_not_claimed() {
+    let mut s = Scenario::aras_cam(18);
+    s.physics = Physics { elasticity: Some(20_000.0), ..Physics::default() };
+    s.with_tensions = false;
+    let (d, _) = run(s, 40.0);
+    assert!(!d.used_tensions);
+    assert!(!named(&d).iter().any(|e| e.needs_tension()), "{:#?}", summary(&d));
+}
