@@ -8,7 +8,7 @@
 //! unstretched length in position mode, `T * length` for a constant-tension follower; catenaries
 //! with sag). The force residual is `r(p) = -grad U = sum_j F_j + m g`.
 //!
-//! Damped Newton: the stiffness `K = -dr/dp` by central differences of the forces (symmetrised,
+//! Damped Newton: the stiffness `K = -dr/dp` by forward differences of the forces (symmetrised,
 //! Levenberg-regularised until it is positive definite), the step capped to 0.25 m, backtracking
 //! until the energy drops (Armijo) or, near convergence where energy differences are round-off,
 //! until the residual drops. A warm start (the last equilibrium) converges in a few iterations.
@@ -78,17 +78,16 @@ impl System<'_> {
         (r, u)
     }
 
-    fn stiffness(&self, p: [f64; 3]) -> Matrix3<f64> {
+    /// Forward differences of the residual `r` at `p` (three evaluations: Newton only needs a
+    /// good direction, the line search and the residual test guard the result).
+    fn stiffness(&self, p: [f64; 3], r: [f64; 3]) -> Matrix3<f64> {
         let mut k = Matrix3::zeros();
         for c in 0..3 {
             let mut pp = p;
-            let mut pm = p;
             pp[c] += FD_STEP;
-            pm[c] -= FD_STEP;
             let (rp, _) = self.evaluate(pp, None);
-            let (rm, _) = self.evaluate(pm, None);
             for row in 0..3 {
-                k[(row, c)] = -(rp[row] - rm[row]) / (2.0 * FD_STEP);
+                k[(row, c)] = -(rp[row] - r[row]) / FD_STEP;
             }
         }
         0.5 * (k + k.transpose())
@@ -110,7 +109,7 @@ impl System<'_> {
                 break;
             }
             it += 1;
-            let k = self.stiffness(p);
+            let k = self.stiffness(p, r);
             let rv = Vector3::from(r);
             let scale = k.trace().abs().max(self.mass * G);
             let mut mu = 0.0;
@@ -154,7 +153,7 @@ impl System<'_> {
         let rn = Vector3::from(r).norm();
         // A line search that stalls at a residual this small has hit round-off, not a wall.
         converged = converged || rn < 100.0 * tol;
-        let stable = self.stiffness(p).cholesky().is_some();
+        let stable = self.stiffness(p, r).cholesky().is_some();
         (p, EquilibriumReport { iterations: it, residual_n: rn, converged, stable })
     }
 }

@@ -372,19 +372,25 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
 }
 
 /// Bisection on the excursion duration until the excitation's loose fraction reaches `target`
-/// (on a 25 Hz grid); returns the chosen duration.
+/// (on a 25 Hz grid); if the longest excursions are not enough, bisection on their peak
+/// acceleration (up to 3x). Returns the chosen duration.
 fn tune_excursions(exm: &mut ExcitationModel<'_>, target: f64, n_ex: usize, dt: f64, rate_hz: f64) -> f64 {
     let stride = ((rate_hz / 25.0).round() as usize).max(1);
-    let eval = |d: f64, exm: &mut ExcitationModel<'_>| {
+    let eval = |d: f64, k: f64, exm: &mut ExcitationModel<'_>| {
         exm.ex.set_excursion_duration(d);
+        exm.ex.set_accel_scale(k);
         exm.loose_fraction(n_ex, dt, stride)
     };
-    let (mut lo, mut hi) = (0.0, exm.ex.max_excursion_duration());
-    let (mut f_lo, mut f_hi) = (eval(lo, exm), eval(hi, exm));
-    if f_hi > target && f_lo < target {
+    let d_max = exm.ex.max_excursion_duration();
+    // (parameter, fraction) brackets; the parameter is the duration or the acceleration scale.
+    let f_max = eval(d_max, 1.0, exm);
+    let (param_is_duration, mut lo, mut hi) = if f_max >= target { (true, 0.0, d_max) } else { (false, 1.0, 3.0) };
+    let at = |x: f64, exm: &mut ExcitationModel<'_>| if param_is_duration { eval(x, 1.0, exm) } else { eval(d_max, x, exm) };
+    let (mut f_lo, mut f_hi) = (at(lo, exm), at(hi, exm));
+    if f_lo < target && f_hi > target {
         for _ in 0..16 {
             let mid = 0.5 * (lo + hi);
-            let f = eval(mid, exm);
+            let f = at(mid, exm);
             if f < target {
                 (lo, f_lo) = (mid, f);
             } else {
@@ -392,7 +398,7 @@ fn tune_excursions(exm: &mut ExcitationModel<'_>, target: f64, n_ex: usize, dt: 
             }
         }
     }
-    let d = if (f_lo - target).abs() <= (f_hi - target).abs() { lo } else { hi };
-    exm.ex.set_excursion_duration(d);
-    d
+    let x = if (f_lo - target).abs() <= (f_hi - target).abs() { lo } else { hi };
+    at(x, exm);
+    exm.ex.max_excursion_duration().min(if param_is_duration { x } else { d_max })
 }

@@ -501,3 +501,4 @@ mod plant {
         plant.lengths_holding(p, &t).unwrap()
     }
 }
+

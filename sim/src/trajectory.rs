@@ -127,6 +127,7 @@ pub struct Excitation {
     slot_s: f64,
     duration_s: f64,
     start: [f64; 3],
+    accel_scale: f64,
 }
 
 /// Time to blend in from the centre at the start, s.
@@ -174,7 +175,7 @@ impl Excitation {
                 }
             })
             .collect();
-        Excitation { ws: ws.clone(), base, tilt, excursions, excursion_s: 0.0, slot_s, duration_s, start: ws.center_point() }
+        Excitation { ws: ws.clone(), base, tilt, excursions, excursion_s: 0.0, slot_s, duration_s, start: ws.center_point(), accel_scale: 1.0 }
     }
 
     /// Starts the motion (at rest) from `p` instead of the workspace centre.
@@ -185,6 +186,12 @@ impl Excitation {
     /// Sets how long each excursion lasts, s (0: none); capped to 80 % of its time slot.
     pub fn set_excursion_duration(&mut self, d: f64) {
         self.excursion_s = d.clamp(0.0, 0.8 * self.slot_s);
+    }
+
+    /// Scales the excursions' peak accelerations (1: as drawn, 2.5-4.5 m/s^2; the amplitude is
+    /// kept, the frequency grows with the square root).
+    pub fn set_accel_scale(&mut self, k: f64) {
+        self.accel_scale = k.max(0.0);
     }
 
     /// The longest excursion duration allowed, s.
@@ -227,7 +234,7 @@ impl Excitation {
                 continue;
             }
             let w = blend((t - t0) / ramp).min(blend((t0 + d - t) / ramp));
-            let o = e.osc.at(t - t0);
+            let o = e.osc.amp * (e.osc.omega * self.accel_scale.sqrt() * (t - t0)).sin();
             let goal = [e.target[0] + o * e.normal[0], e.target[1] + o * e.normal[1], e.target[2]];
             for k in 0..3 {
                 p[k] += w * (goal[k] - p[k]);
