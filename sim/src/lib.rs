@@ -26,6 +26,8 @@
 //! println!("anchors {:?}, {} loose samples", run.truth.anchors, run.loose_samples);
 //! ```
 #![deny(missing_docs)]
+// Numerical code indexes several per-cable arrays in step; iterators would hide that.
+#![allow(clippy::needless_range_loop)]
 
 pub mod catenary;
 pub mod devices;

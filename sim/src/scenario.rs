@@ -277,7 +277,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
             run.positions.push(m.p[i]);
             run.orientations.push([1.0, 0.0, 0.0, 0.0]);
             run.tensions.extend_from_slice(&m.tension[i * n..(i + 1) * n]);
-            run.loose.extend(std::iter::repeat(false).take(n));
+            run.loose.extend(std::iter::repeat_n(false, n));
             phases.push(m.phase[i]);
             let te = m.t[i] - s.physics.time_offset_s;
             let x = (te / dt).max(0.0);
