@@ -102,7 +102,8 @@ fn standard_and_extended_frames_roundtrip() {
         CanFrame::new_remote(eid(0x0012_3456), 0).expect("remote frame"),
     ];
     for f in &sent {
-        tx.write_frame(f).unwrap_or_else(|e| panic!("send {f:?}: {e}"));
+        tx.write_frame(f)
+            .unwrap_or_else(|e| panic!("send {f:?}: {e}"));
     }
     let got: Vec<CanFrame> = (0..sent.len()).map(|_| read(&rx, "echoed frame")).collect();
 
@@ -126,7 +127,8 @@ fn standard_and_extended_frames_roundtrip() {
 
 #[test]
 fn receive_timeout_expires_then_frames_still_arrive() {
-    let Some(iface) = vcan::iface_or_skip(VCAN0, "receive_timeout_expires_then_frames_still_arrive")
+    let Some(iface) =
+        vcan::iface_or_skip(VCAN0, "receive_timeout_expires_then_frames_still_arrive")
     else {
         return;
     };
@@ -164,7 +166,8 @@ fn receive_timeout_expires_then_frames_still_arrive() {
 
 #[test]
 fn error_frames_reach_only_sockets_that_enable_them() {
-    let Some(iface) = vcan::iface_or_skip(VCAN0, "error_frames_reach_only_sockets_that_enable_them")
+    let Some(iface) =
+        vcan::iface_or_skip(VCAN0, "error_frames_reach_only_sockets_that_enable_them")
     else {
         return;
     };
@@ -173,8 +176,13 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     let rx_none = open(iface);
     let rx_ack_only = open(iface);
     rx_all.set_error_filter_accept_all().expect("error filter");
-    assert_eq!(rx_all.error_filter().expect("read error filter"), 0x1FFF_FFFF /* CAN_ERR_MASK */);
-    rx_ack_only.set_error_filter(CAN_ERR_ACK).expect("error filter");
+    assert_eq!(
+        rx_all.error_filter().expect("read error filter"),
+        0x1FFF_FFFF /* CAN_ERR_MASK */
+    );
+    rx_ack_only
+        .set_error_filter(CAN_ERR_ACK)
+        .expect("error filter");
 
     // vcan has no controller that would raise errors, but a raw socket may
     // inject an error frame; the CAN core routes it by error mask.
@@ -183,7 +191,11 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     send_fence(&tx);
 
     let got = read_until_fence(&rx_all, "error frame");
-    assert_eq!(got.len(), 1, "expected exactly the error frame, got {got:?}");
+    assert_eq!(
+        got.len(),
+        1,
+        "expected exactly the error frame, got {got:?}"
+    );
     match got[0] {
         CanFrame::Error(e) => {
             assert_ne!(e.error_bits() & CAN_ERR_BUSOFF, 0, "{e:?}");
@@ -193,9 +205,15 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     }
 
     let got = read_until_fence(&rx_none, "fence on socket without error mask");
-    assert!(got.is_empty(), "error frames must be filtered by default: {got:?}");
+    assert!(
+        got.is_empty(),
+        "error frames must be filtered by default: {got:?}"
+    );
     let got = read_until_fence(&rx_ack_only, "fence on socket with ACK-only mask");
-    assert!(got.is_empty(), "bus-off must not pass an ACK-only mask: {got:?}");
+    assert!(
+        got.is_empty(),
+        "bus-off must not pass an ACK-only mask: {got:?}"
+    );
 }
 
 #[test]
@@ -235,10 +253,19 @@ fn id_filters_select_frames() {
     }
     send_fence(&tx);
     let ids = |sock: &CanSocket, what: &str| -> Vec<Id> {
-        read_until_fence(sock, what).iter().map(|f| f.id()).collect()
+        read_until_fence(sock, what)
+            .iter()
+            .map(|f| f.id())
+            .collect()
     };
-    assert_eq!(ids(&rx_strict, "strictly filtered frames"), vec![sid(0x100), eid(0x1800_0001)]);
-    assert_eq!(ids(&rx_loose, "loosely filtered frames"), vec![sid(0x100), eid(0x100)]);
+    assert_eq!(
+        ids(&rx_strict, "strictly filtered frames"),
+        vec![sid(0x100), eid(0x1800_0001)]
+    );
+    assert_eq!(
+        ids(&rx_loose, "loosely filtered frames"),
+        vec![sid(0x100), eid(0x100)]
+    );
 }
 
 /// `CAN_EFF_FLAG` from `<linux/can.h>`.
@@ -255,13 +282,21 @@ fn vcan0_and_vcan1_are_separate_buses() {
     let tx_b = open(b);
     let rx_b = open(b);
 
-    tx_b.write_frame(&data_frame(sid(0x0B0), &[0xB])).expect("send on b");
-    tx_a.write_frame(&data_frame(sid(0x0A0), &[0xA])).expect("send on a");
+    tx_b.write_frame(&data_frame(sid(0x0B0), &[0xB]))
+        .expect("send on b");
+    tx_a.write_frame(&data_frame(sid(0x0A0), &[0xA]))
+        .expect("send on a");
     send_fence(&tx_a);
     send_fence(&tx_b);
 
-    let on_a: Vec<Id> = read_until_fence(&rx_a, "vcan0").iter().map(|f| f.id()).collect();
-    let on_b: Vec<Id> = read_until_fence(&rx_b, "vcan1").iter().map(|f| f.id()).collect();
+    let on_a: Vec<Id> = read_until_fence(&rx_a, "vcan0")
+        .iter()
+        .map(|f| f.id())
+        .collect();
+    let on_b: Vec<Id> = read_until_fence(&rx_b, "vcan1")
+        .iter()
+        .map(|f| f.id())
+        .collect();
     assert_eq!(on_a, vec![sid(0x0A0)]);
     assert_eq!(on_b, vec![sid(0x0B0)]);
 }
@@ -353,7 +388,11 @@ fn candump_log(dir: &Path) -> PathBuf {
                 .is_some_and(|s| s.starts_with("candump") && s.ends_with(".log"))
         })
         .collect();
-    assert_eq!(logs.len(), 1, "expected one candump log file, found {logs:?}");
+    assert_eq!(
+        logs.len(),
+        1,
+        "expected one candump log file, found {logs:?}"
+    );
     logs.into_iter().next().unwrap()
 }
 
@@ -364,13 +403,15 @@ fn cangen_frames_seen_by_candump_log_and_socket() {
     let Some(iface) = vcan::iface_or_skip(VCAN0, TEST) else {
         return;
     };
-    let (Some(candump), Some(cangen)) =
-        (vcan::tool_or_skip("candump", TEST), vcan::tool_or_skip("cangen", TEST))
-    else {
+    let (Some(candump), Some(cangen)) = (
+        vcan::tool_or_skip("candump", TEST),
+        vcan::tool_or_skip("cangen", TEST),
+    ) else {
         return;
     };
     let rx = open(iface);
-    rx.set_filters(&[CanFilter::new(0x42A, 0x7FF)]).expect("filter");
+    rx.set_filters(&[CanFilter::new(0x42A, 0x7FF)])
+        .expect("filter");
     let dir = tempfile::tempdir().expect("tempdir");
 
     // candump -l: log to candump-<date>.log in the cwd; -n: exit after N frames.
@@ -390,7 +431,19 @@ fn cangen_frames_seen_by_candump_log_and_socket() {
     // Fixed id 0x42A, 8 bytes, incrementing payload, 1 ms gap.
     run_tool(
         &cangen,
-        &[iface, "-n", &N.to_string(), "-I", "42A", "-L", "8", "-D", "i", "-g", "1"],
+        &[
+            iface,
+            "-n",
+            &N.to_string(),
+            "-I",
+            "42A",
+            "-L",
+            "8",
+            "-D",
+            "i",
+            "-g",
+            "1",
+        ],
     );
 
     let from_socket: Vec<CanFrame> = (0..N).map(|_| read(&rx, "cangen frame")).collect();
