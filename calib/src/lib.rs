@@ -1,1 +1,631 @@
-//! placeholder
+//! Kinematic calibration of suspended cable-driven parallel robots from a tracker, the cable
+//! encoders and (optionally) the load cells: force-aware Levenberg–Marquardt, prior-free
+//! initialisation (three-phase circles or algebraic multilateration), and the metrics to judge the
+//! result (co-registration, held-out error, Cramér–Rao bound).
+//!
+//! Pure: no I/O, no threads. The input is a [`Recording`] (crate `taut-config`).
+//!
+//! ```no_run
+//! use taut_calib::{calibrate, init, CalibOptions};
+//! use taut_config::{recording::Recording, RobotConfig};
+//!
+//! let cfg = RobotConfig::load("config/examples/aras-cam.toml").unwrap();
+//! let (rec, _) = Recording::load("excitation.csv").unwrap();
+//! let opts = CalibOptions::from_config(&cfg.calibration);
+//! let b = cfg.platform_points();
+//! let start = init::initialise(&rec, &b, &opts).unwrap();
+//! let report = calibrate(&rec, &b, &start.params, &opts).unwrap();
+//! for (j, (a, s)) in report.params.anchors.iter().zip(&report.anchor_sigma).enumerate() {
+//!     println!("cable {j}: anchor {a:?} m, 1-sigma {s:?} m");
+//! }
+//! println!("co-registration RMS {:.2} mm, held out {:.2} mm", report.rms_m * 1e3, report.heldout_rms_m * 1e3);
+//! ```
+//!
+//! # Model
+//!
+//! ```text
+//! l_ij = | P_i + R_i b_j - A_j | + L0_j          (paper eq. 2 and 7, with a platform point b_j)
+//! ```
+//!
+//! `P_i`, `R_i`: tracker position and orientation of sample `i` (`R_i = I` when the recording has
+//! no orientation); `b_j`: attachment point of cable `j` on the platform; `A_j`: anchor (cable
+//! exit point) in the tracker frame; `L0_j`: the unknown offset of the incremental encoder.
+//! Parameters per cable: `x_j = (A_j, L0_j)`, four numbers. Jacobians: [`model`].
+//!
+//! # Noise model (force-aware weighting)
+//!
+//! Each reading gets a variance, not an ad-hoc weight ([`noise`]):
+//!
+//! ```text
+//! sigma_ij^2 = sigma_enc^2 + u_ij^T Sigma_P u_ij + (T_ij rho_ij / EA)^2
+//! ```
+//!
+//! encoder noise, tracker noise projected on the cable direction `u`, and the unobserved elastic
+//! stretch `T L / EA` (paper eq. 10) as a one-sigma error. Readings of a loose cable
+//! (`T < min_tension_n`) are excluded: the encoder then counts slack, not geometry. Missing values
+//! (NaN) are skipped. Tracker outliers (a few cm, rare) are handled by a robust loss (Huber by
+//! default) applied to `e_ij = r_ij / sigma_ij` by iteratively re-weighted least squares inside
+//! LM. Without tensions, or with `force_aware: false`, the variance is uniform and no reading is
+//! excluded; the report says which ([`Weighting`]).
+//!
+//! # Solver
+//!
+//! ```text
+//! minimise_x  sum_i rho( (l_ij - f_ij(x)) / sigma_ij )     separately for each cable j
+//! ```
+//!
+//! Cable `j`'s residuals depend only on `x_j`, so the problem is `n` independent four-parameter
+//! problems. Each LM iteration is one pass over the cable's readings that accumulates the 4x4
+//! `J^T W J` and `J^T W r` without ever storing the `m x 4` Jacobian; see [`solver`] for the
+//! iteration and why it is fast (100 000 samples x 4 cables in a few ms).
+//!
+//! # Uncertainty and observability
+//!
+//! ```text
+//! Cov(x_j) = s_j^2 (J^T W J)^-1,   s_j^2 = max(1, chi2_j / (m_j - 4))
+//! ```
+//!
+//! `(J^T W J)^-1` is the covariance if the noise model is right. The a-posteriori variance factor
+//! `chi2 / (m - 4)` tests that: near 1 the model holds and the formal covariance is kept; above 1
+//! the residuals are larger than modelled (unmodelled slack, sag, a wrong `tracker_sigma_m`) and
+//! the covariance is scaled up by it. It is never scaled *down*: with a correct model the factor
+//! fluctuates around 1 by `sqrt(2/m)`, and shrinking the sigmas on a lucky recording would claim
+//! more than the sensors can give. The factor is reported per cable.
+//!
+//! The singular values of the weighted Jacobian `W^(1/2) J` (square roots of the eigenvalues of
+//! `J^T W J`) measure how well each direction of `x_j` is excited. When the smallest is below
+//! `min_rel_singular_value` times the largest, or a parameter's one-sigma exceeds `max_sigma_m`,
+//! [`calibrate`] refuses with [`CalibError::NotObservable`], naming the cable and the parameter
+//! that dominates the weakest direction and saying how to move the robot.
+//!
+//! # Modules
+//!
+//! - [`model`]: geometry and Jacobians. [`noise`]: which readings are used, their variance.
+//! - [`solver`]: per-cable LM. [`init`]: three-phase and multilateration initialisation.
+//! - [`metrics`]: co-registration, held-out split, Cramér–Rao bound.
+//! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
+#![deny(missing_docs)]
+
+pub mod diagnose;
+pub mod init;
+pub mod metrics;
+pub mod model;
+pub mod noise;
+pub mod solver;
+pub mod synth;
+
+use std::fmt;
+use taut_config::recording::Recording;
+use taut_config::CalibrationConfig;
+
+pub use noise::Weighting;
+pub use solver::Termination;
+
+/// Fewer used readings than this for a cable is an error (four parameters, and a margin to see
+/// the residuals).
+pub const MIN_READINGS: usize = 10;
+
+/// Kinematic parameters of the robot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// Anchor (cable exit point) of each cable in the tracker frame, m.
+    pub anchors: Vec<[f64; 3]>,
+    /// Encoder offset of each cable, m: `l = |P + R b - A| + L0`.
+    pub l0: Vec<f64>,
+}
+
+impl Params {
+    /// Number of cables.
+    pub fn n_cables(&self) -> usize {
+        self.anchors.len()
+    }
+
+    /// Cable `j`'s parameters as `(A_x, A_y, A_z, L0)`.
+    pub fn cable(&self, j: usize) -> [f64; 4] {
+        let a = self.anchors[j];
+        [a[0], a[1], a[2], self.l0[j]]
+    }
+
+    fn from_cables(x: &[[f64; 4]]) -> Self {
+        Params { anchors: x.iter().map(|v| [v[0], v[1], v[2]]).collect(), l0: x.iter().map(|v| v[3]).collect() }
+    }
+}
+
+/// A robust loss on the normalised residual `e = r / sigma`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RobustLoss {
+    /// Plain least squares, `rho = e^2 / 2`.
+    None,
+    /// Huber: quadratic up to `|e| = k`, linear beyond. Convex, so it cannot create local minima.
+    Huber {
+        /// Threshold in sigmas.
+        k: f64,
+    },
+    /// Cauchy: `rho = c^2/2 ln(1 + e^2/c^2)`; a gross outlier's weight goes to zero. Not convex:
+    /// use it from a good start.
+    Cauchy {
+        /// Scale in sigmas.
+        c: f64,
+    },
+}
+
+/// Options of [`calibrate`] and of the initialisation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibOptions {
+    /// Use tensions: exclude loose readings and add the stretch variance. `false` gives the
+    /// paper's unweighted baseline (uniform variance, nothing excluded).
+    pub force_aware: bool,
+    /// Readings with less tension than this are loose and excluded, N.
+    pub min_tension_n: f64,
+    /// Tracker position noise, 1-sigma per axis, m (isotropic).
+    pub tracker_sigma_m: f64,
+    /// Full tracker position covariance, m^2, row-major; overrides `tracker_sigma_m` (e.g. a
+    /// stereo tracker that is worse in depth).
+    pub tracker_cov_m2: Option<[[f64; 3]; 3]>,
+    /// Encoder length noise, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// Axial stiffness EA of the cables, N (0 or infinite: no stretch term).
+    pub cable_ea_n: f64,
+    /// Fraction of the recording (its last block in time) held out for validation; 0 disables.
+    pub heldout_fraction: f64,
+    /// LM iteration limit per cable (one pass over the data each).
+    pub max_iterations: usize,
+    /// Robust loss against tracker outliers.
+    pub loss: RobustLoss,
+    /// Refuse when a cable's smallest singular value is below this times its largest.
+    pub min_rel_singular_value: f64,
+    /// Refuse when a parameter's one-sigma exceeds this, m.
+    pub max_sigma_m: f64,
+    /// A reading whose normalised residual exceeds this many sigmas is counted as an outlier in
+    /// the report.
+    pub outlier_sigma: f64,
+}
+
+impl Default for CalibOptions {
+    fn default() -> Self {
+        Self::from_config(&CalibrationConfig::default())
+    }
+}
+
+impl CalibOptions {
+    /// Options from the `[calibration]` table of a robot configuration, with the solver defaults.
+    pub fn from_config(c: &CalibrationConfig) -> Self {
+        CalibOptions {
+            force_aware: true,
+            min_tension_n: c.min_tension_n,
+            tracker_sigma_m: c.tracker_sigma_m,
+            tracker_cov_m2: None,
+            encoder_sigma_m: c.encoder_sigma_m,
+            cable_ea_n: c.cable_ea_n,
+            heldout_fraction: c.heldout_fraction,
+            max_iterations: 100,
+            // k = 2: 98% efficient on Gaussian noise; a 5 cm tracker outlier (30 sigma) pulls
+            // like a 2-sigma reading instead of a 30-sigma one.
+            loss: RobustLoss::Huber { k: 2.0 },
+            // 1e-3: a direction that changes the lengths 1000x less than the best-excited one;
+            // unmodelled millimetre errors then move that parameter by metres.
+            min_rel_singular_value: 1e-3,
+            max_sigma_m: 0.05,
+            outlier_sigma: 6.0,
+        }
+    }
+}
+
+/// One of a cable's four parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Param {
+    /// Anchor x.
+    Ax,
+    /// Anchor y.
+    Ay,
+    /// Anchor z.
+    Az,
+    /// Encoder offset.
+    L0,
+}
+
+impl Param {
+    /// Parameter by index in `(A_x, A_y, A_z, L0)`.
+    pub fn from_index(k: usize) -> Self {
+        [Param::Ax, Param::Ay, Param::Az, Param::L0][k]
+    }
+
+    /// What motion excites this parameter.
+    pub fn advice(self) -> &'static str {
+        match self {
+            Param::Ax => "move the platform along x, towards and away from the anchor",
+            Param::Ay => "move the platform along y, towards and away from the anchor",
+            Param::Az => "move the platform vertically",
+            Param::L0 => "move the platform over a wider range of distances from the anchor",
+        }
+    }
+}
+
+impl fmt::Display for Param {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Param::Ax => "A_x",
+            Param::Ay => "A_y",
+            Param::Az => "A_z",
+            Param::L0 => "L0",
+        })
+    }
+}
+
+/// Why [`calibrate`] gave no result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CalibError {
+    /// Counts of cables disagree between recording, platform points and initial parameters.
+    CableCount {
+        /// Length columns in the recording.
+        recording: usize,
+        /// Platform points given.
+        platform_points: usize,
+        /// Cables in the initial parameters.
+        init: usize,
+    },
+    /// An initial parameter is NaN or infinite.
+    BadInit {
+        /// Cable index.
+        cable: usize,
+    },
+    /// Too few usable readings for a cable.
+    TooFewReadings {
+        /// Cable index.
+        cable: usize,
+        /// Readings usable.
+        used: usize,
+        /// Readings excluded as loose.
+        loose: usize,
+        /// Readings missing.
+        missing: usize,
+        /// Readings needed.
+        needed: usize,
+    },
+    /// The recording does not excite a parameter.
+    NotObservable {
+        /// Cable index.
+        cable: usize,
+        /// The parameter that dominates the weakest direction.
+        param: Param,
+        /// Smallest singular value of the weighted Jacobian.
+        singular_value: f64,
+        /// Largest singular value.
+        largest: f64,
+        /// One-sigma of `param`, m (possibly infinite).
+        sigma_m: f64,
+    },
+    /// The iteration produced non-finite parameters.
+    Diverged {
+        /// Cable index.
+        cable: usize,
+    },
+}
+
+impl fmt::Display for CalibError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            CalibError::CableCount { recording, platform_points, init } => write!(
+                f,
+                "the recording has {recording} cables, the configuration {platform_points} platform points and the initial estimate {init} cables; use the configuration of the robot that made the recording"
+            ),
+            CalibError::BadInit { cable } => {
+                write!(f, "cable {cable}: the initial anchor or offset is not a finite number; run the initialisation first")
+            }
+            CalibError::TooFewReadings { cable, used, loose, missing, needed } => write!(
+                f,
+                "cable {cable}: only {used} usable readings ({loose} loose, {missing} missing), at least {needed} needed; record with this cable under tension (>= min_tension_n) while the tracker sees the platform"
+            ),
+            CalibError::NotObservable { cable, param, singular_value, largest, sigma_m } => write!(
+                f,
+                "cable {cable}: {param} is not observable from this recording (singular value {singular_value:.1e} vs {largest:.1e}, 1-sigma {sigma_m:.1e} m): {}",
+                param.advice()
+            ),
+            CalibError::Diverged { cable } => write!(
+                f,
+                "cable {cable}: the calibration diverged (non-finite parameters); check the initial estimate and that the tracker and encoder columns belong together"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for CalibError {}
+
+/// Readings not used by the calibration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Excluded {
+    /// Loose: tension below `min_tension_n`.
+    pub loose: usize,
+    /// Missing position, orientation, length or tension.
+    pub missing: usize,
+}
+
+/// The result for one cable.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CableReport {
+    /// Why its LM stopped.
+    pub termination: Termination,
+    /// LM iterations (passes over its readings).
+    pub iterations: usize,
+    /// Final robust cost.
+    pub cost: f64,
+    /// Readings used.
+    pub used: usize,
+    /// Readings excluded.
+    pub excluded: Excluded,
+    /// Used readings the robust loss down-weighted (`|e| > k`).
+    pub downweighted: usize,
+    /// Used readings beyond `outlier_sigma` sigmas.
+    pub outliers: usize,
+    /// A-posteriori variance factor `chi2 / (m - 4)`.
+    pub variance_factor: f64,
+    /// Co-registration RMS and peak on the used readings, m.
+    pub rms_m: f64,
+    /// Peak |residual| on the used readings, m.
+    pub peak_m: f64,
+    /// RMS on the held-out block with parameters from the training block, m (NaN if none).
+    pub heldout_rms_m: f64,
+}
+
+/// What [`calibrate`] found, and how sure it is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibReport {
+    /// Calibrated parameters (all taut readings).
+    pub params: Params,
+    /// One-sigma of each anchor coordinate, m (scaled by the variance factor when above 1).
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// One-sigma of each offset, m.
+    pub l0_sigma: Vec<f64>,
+    /// Covariance of `(A_x, A_y, A_z, L0)` per cable, m^2.
+    pub covariance: Vec<[[f64; 4]; 4]>,
+    /// The worst termination over cables.
+    pub termination: Termination,
+    /// The largest iteration count over cables.
+    pub iterations: usize,
+    /// Total robust cost.
+    pub cost: f64,
+    /// Singular values of each cable's weighted Jacobian, largest first.
+    pub singular_values: Vec<[f64; 4]>,
+    /// Readings used (sample x cable).
+    pub samples_used: usize,
+    /// Readings not used: loose + missing.
+    pub samples_excluded: usize,
+    /// The excluded readings by reason.
+    pub excluded: Excluded,
+    /// Used readings the robust loss down-weighted.
+    pub downweighted: usize,
+    /// Used readings beyond `outlier_sigma` sigmas.
+    pub outliers: usize,
+    /// True when tensions entered the weights.
+    pub used_tensions: bool,
+    /// How readings were weighted.
+    pub weighting: Weighting,
+    /// Co-registration RMS on the used readings, m.
+    pub rms_m: f64,
+    /// Peak |co-registration error| on the used readings, m.
+    pub peak_m: f64,
+    /// Co-registration RMS on all present readings, loose ones included, m.
+    pub rms_all_m: f64,
+    /// Peak on all present readings, m.
+    pub peak_all_m: f64,
+    /// RMS on the used readings of the held-out block (the last `heldout_fraction` of the
+    /// recording in time), with parameters calibrated on the training block only, m. `None` when
+    /// disabled (`heldout_fraction` 0) or too short: NaN.
+    pub heldout_rms_m: f64,
+    /// Peak on the held-out block, m (NaN when there is none).
+    pub heldout_peak_m: f64,
+    /// Per-cable details.
+    pub per_cable: Vec<CableReport>,
+    /// Things a person should know (fallbacks, scaled sigmas, exclusions).
+    pub notes: Vec<String>,
+}
+
+impl CalibReport {
+    /// True when every cable converged.
+    pub fn was_successful(&self) -> bool {
+        self.termination.was_successful()
+    }
+}
+
+/// Calibrates anchors and encoder offsets from `rec`, starting at `init`.
+///
+/// `platform_points[j]` is `b_j`, the attachment point of cable `j` on the platform (zero for a
+/// point mass). The parameters come from all used readings; the held-out figures from a second
+/// solve on the training block only.
+pub fn calibrate(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    init: &Params,
+    opts: &CalibOptions,
+) -> Result<CalibReport, CalibError> {
+    let n = rec.n_cables;
+    if platform_points.len() != n || init.anchors.len() != n || init.l0.len() != n {
+        return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: init.anchors.len() });
+    }
+    for j in 0..n {
+        if !init.cable(j).iter().all(|v| v.is_finite()) {
+            return Err(CalibError::BadInit { cable: j });
+        }
+    }
+    let weighting = Weighting::of(rec, opts);
+    let nm = noise::NoiseModel::new(opts, weighting);
+    let data = noise::gather(rec, platform_points, opts, weighting);
+    let split = metrics::heldout_start(rec, opts.heldout_fraction);
+
+    let mut xs = Vec::with_capacity(n);
+    let mut per_cable = Vec::with_capacity(n);
+    let mut covariance = Vec::with_capacity(n);
+    let mut singular_values = Vec::with_capacity(n);
+    let mut notes = Vec::new();
+    let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
+    for (j, d) in data.iter().enumerate() {
+        let m = d.len();
+        if m < MIN_READINGS {
+            return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
+        }
+        let sol = solver::solve(d, 0, m, init.cable(j), &nm, opts.loss, opts.max_iterations);
+        if !sol.x.iter().all(|v| v.is_finite()) {
+            return Err(CalibError::Diverged { cable: j });
+        }
+        let h = sol.at_x.h_matrix();
+        let eig = nalgebra::SymmetricEigen::new(h);
+        let mut order: [usize; 4] = [0, 1, 2, 3];
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let sv = order.map(|k| eig.eigenvalues[k].max(0.0).sqrt());
+        let vf = sol.at_x.chi2 / (m as f64 - 4.0);
+        let scale = vf.max(1.0);
+        let cov = h.try_inverse().map(|c| c * scale);
+        let sig: [f64; 4] = match &cov {
+            Some(c) => [0, 1, 2, 3].map(|k| c[(k, k)].max(0.0).sqrt()),
+            None => [f64::INFINITY; 4],
+        };
+        // Observability: weakest direction relative to the strongest, and absurd sigmas.
+        let weakest = eig.eigenvectors.column(order[3]).into_owned();
+        if !(sv[3] >= opts.min_rel_singular_value * sv[0]) || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
+            let param = if sv[3] >= opts.min_rel_singular_value * sv[0] {
+                Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
+            } else {
+                dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
+            };
+            let k = param as usize;
+            return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k] });
+        }
+        // Residual statistics at the solution.
+        let st = residual_stats(d, 0, m, &sol.x, &nm, opts);
+        // Held-out: calibrate on the training block (starting from the full solution, so it
+        // costs a few passes), evaluate on the rest.
+        let ntrain = d.count_before(split);
+        let mut heldout = f64::NAN;
+        if split < rec.len() && ntrain >= MIN_READINGS && ntrain < m {
+            let tr = solver::solve(d, 0, ntrain, sol.x, &nm, opts.loss, opts.max_iterations);
+            if tr.x.iter().all(|v| v.is_finite()) {
+                let hs = residual_stats(d, ntrain, m, &tr.x, &nm, opts);
+                ho_sum += hs.sum_sq;
+                ho_n += m - ntrain;
+                ho_peak = ho_peak.max(hs.peak);
+                heldout = (hs.sum_sq / (m - ntrain) as f64).sqrt();
+            }
+        }
+        if d.loose > 0 {
+            notes.push(format!(
+                "cable {j}: {} loose readings excluded (tension < {} N)",
+                d.loose, opts.min_tension_n
+            ));
+        }
+        if vf > 1.5 {
+            notes.push(format!(
+                "cable {j}: residuals are {:.1}x larger than the noise model predicts (variance factor {vf:.2}); its sigmas are scaled up accordingly",
+                vf.sqrt()
+            ));
+        }
+        if !sol.termination.was_successful() {
+            notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
+        }
+        let mut c4 = [[0.0; 4]; 4];
+        if let Some(c) = &cov {
+            for a in 0..4 {
+                for b in 0..4 {
+                    c4[a][b] = c[(a, b)];
+                }
+            }
+        } else {
+            c4 = [[f64::INFINITY; 4]; 4];
+        }
+        covariance.push(c4);
+        singular_values.push(sv);
+        per_cable.push(CableReport {
+            termination: sol.termination,
+            iterations: sol.iterations,
+            cost: sol.at_x.cost,
+            used: m,
+            excluded: Excluded { loose: d.loose, missing: d.missing },
+            downweighted: st.downweighted,
+            outliers: st.outliers,
+            variance_factor: vf,
+            rms_m: (st.sum_sq / m as f64).sqrt(),
+            peak_m: st.peak,
+            heldout_rms_m: heldout,
+        });
+        xs.push(sol.x);
+    }
+    let params = Params::from_cables(&xs);
+    match weighting {
+        Weighting::UniformNoTensions => notes.insert(
+            0,
+            "the recording has no tensions: uniform weights, loose cables cannot be detected and are not excluded".into(),
+        ),
+        Weighting::UniformByOption => {
+            notes.insert(0, "force weighting switched off: uniform weights, loose readings not excluded".into())
+        }
+        Weighting::ForceAware => {}
+    }
+    let all = metrics::rms_peak(&metrics::co_registration(rec, platform_points, &params), &metrics::Mask::present(rec, platform_points.len()));
+    let used: usize = per_cable.iter().map(|c| c.used).sum();
+    let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
+    let worst = per_cable.iter().map(|c| c.termination).max_by_key(|t| t.severity()).unwrap_or(Termination::SmallStep);
+    Ok(CalibReport {
+        anchor_sigma: covariance.iter().map(|c| [c[0][0].sqrt(), c[1][1].sqrt(), c[2][2].sqrt()]).collect(),
+        l0_sigma: covariance.iter().map(|c| c[3][3].sqrt()).collect(),
+        covariance,
+        termination: worst,
+        iterations: per_cable.iter().map(|c| c.iterations).max().unwrap_or(0),
+        cost: per_cable.iter().map(|c| c.cost).sum(),
+        singular_values,
+        samples_used: used,
+        samples_excluded: per_cable.iter().map(|c| c.excluded.loose + c.excluded.missing).sum(),
+        excluded: Excluded {
+            loose: per_cable.iter().map(|c| c.excluded.loose).sum(),
+            missing: per_cable.iter().map(|c| c.excluded.missing).sum(),
+        },
+        downweighted: per_cable.iter().map(|c| c.downweighted).sum(),
+        outliers: per_cable.iter().map(|c| c.outliers).sum(),
+        used_tensions: weighting.uses_tensions(),
+        weighting,
+        rms_m: (sum_sq / used.max(1) as f64).sqrt(),
+        peak_m: per_cable.iter().map(|c| c.peak_m).fold(0.0, f64::max),
+        rms_all_m: all.rms,
+        peak_all_m: all.peak,
+        heldout_rms_m: if ho_n > 0 { (ho_sum / ho_n as f64).sqrt() } else { f64::NAN },
+        heldout_peak_m: if ho_n > 0 { ho_peak } else { f64::NAN },
+        per_cable,
+        params,
+        notes,
+    })
+}
+
+/// The parameter with the largest component in `v`, preferring an anchor coordinate over `L0`
+/// when they are comparable: an anchor coordinate is what motion can fix.
+fn dominant(v: &[f64; 4]) -> Param {
+    let a = (0..3).max_by(|&a, &b| v[a].abs().total_cmp(&v[b].abs())).unwrap_or(2);
+    if v[a].abs() >= 0.5 * v[3].abs() {
+        Param::from_index(a)
+    } else {
+        Param::L0
+    }
+}
+
+struct ResidualStats {
+    sum_sq: f64,
+    peak: f64,
+    downweighted: usize,
+    outliers: usize,
+}
+
+fn residual_stats(d: &noise::CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &noise::NoiseModel, opts: &CalibOptions) -> ResidualStats {
+    let mut s = ResidualStats { sum_sq: 0.0, peak: 0.0, downweighted: 0, outliers: 0 };
+    let a = [x[0], x[1], x[2]];
+    for k in lo..hi {
+        let (rho, u) = model::direction(d.point(k), a);
+        let r = d.l[k] - (rho + x[3]);
+        let e2 = r * r / nm.variance(u, rho, d.t[k]);
+        s.sum_sq += r * r;
+        s.peak = s.peak.max(r.abs());
+        if opts.loss.weight_cost(e2).0 < 1.0 {
+            s.downweighted += 1;
+        }
+        if e2 > opts.outlier_sigma * opts.outlier_sigma {
+            s.outliers += 1;
+        }
+    }
+    s
+}

@@ -1,0 +1,569 @@
+//! Initial anchors and offsets with no prior geometry: the paper's three-phase experiment, or
+//! algebraic multilateration from any sufficiently excited recording.
+//!
+//! # Three-phase (paper section III)
+//!
+//! In each phase two cables are held at fixed length and one is reeled in; the platform (a point
+//! mass) then moves on the circle where the spheres around the two held anchors intersect. So:
+//!
+//! ```text
+//! 1. held cables of phase k: the two whose encoder lengths vary least during the phase (robust
+//!    5..95% spread), reeled: the one that varies most; inferred, never assumed
+//! 2. circle fit of the phase's tracker path (plane + Kasa + geometric refinement, [circle])
+//! 3. the circle's axis (centre + t normal) passes through both held anchors; an anchor held in
+//!    two or more phases is the least-squares point closest to its axes:
+//!       (sum_k (I - n_k n_k^T)) A = sum_k (I - n_k n_k^T) c_k
+//! 4. sphere refinement: during phase k the held cable h has a constant reading l_hk, so
+//!       |X_i - A_h| + L0_h = l_hk   for all samples i of the phases where h is held
+//!    a four-parameter fit of exactly the calibration model to the held samples, started at the
+//!    line estimate. A short arc fixes its axis direction well but its radius (hence the axis
+//!    position) poorly (std(R) = 2 R^2 sigma sqrt(180/m) / L^2 for an arc of chord L); the sphere
+//!    fit uses the known constant length across both phases instead of intersecting two
+//!    separately fitted lines, which is far better conditioned.
+//! 5. L0_j = median_i (l_ij - |X_ij - A_j|) over the cable's taut readings.
+//! ```
+//!
+//! Anchors held in fewer than two phases (the fourth cable of a 4-cable robot with three phases)
+//! come from multilateration on all of that cable's readings in the recording.
+//!
+//! # Multilateration
+//!
+//! Squaring `l - L0 = |X - A|` and centring (`X = Xm + X'`, `A = Xm + A'`, `l = lm + l'`):
+//!
+//! ```text
+//! l^2 - |X'|^2 = -2 X'.A' + 2 l' L0 + c,     c = |A'|^2 - L0^2 + 2 lm L0
+//! ```
+//!
+//! linear in `(A', L0, c)`: one 5x5 least-squares solve. Each row's error is about
+//! `2 rho` times the length error, so the rows are then re-weighted by `1 / (2 rho)^2` and by a
+//! Huber weight of the length residual (scale: the larger of the noise model and 1.48 MAD), and
+//! solved again (a few closed-form rounds). Needs 3D motion: planar data leave `A` along the
+//! plane normal confounded with `c` (refused with [`InitError::NotExcited`]), and lengths that
+//! never change leave `L0` confounded with `c`.
+
+pub mod circle;
+
+pub use circle::{fit_circle, Circle3};
+
+use crate::noise::{self, CableData, NoiseModel, Weighting};
+use crate::{model, solver, CalibOptions, Param, Params, RobustLoss, MIN_READINGS};
+use nalgebra::{Matrix3, SMatrix, SVector, SymmetricEigen, Vector3};
+use std::fmt;
+use taut_config::recording::Recording;
+
+/// Fewer samples than this in a phase is an error.
+pub const MIN_PHASE_SAMPLES: usize = 20;
+
+/// How the initial estimate was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// The three-phase circle experiment (anchors held in < 2 phases by multilateration).
+    ThreePhase,
+    /// Algebraic multilateration on the whole recording.
+    Multilateration,
+}
+
+impl Method {
+    /// A stable identifier for JSON output.
+    pub fn json_name(self) -> &'static str {
+        match self {
+            Method::ThreePhase => "three-phase",
+            Method::Multilateration => "multilateration",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Method::ThreePhase => "three-phase circles (paper section III) with sphere refinement",
+            Method::Multilateration => "algebraic multilateration",
+        })
+    }
+}
+
+/// Where one cable's initial anchor came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AnchorSource {
+    /// Circle axes of the phases where it was held, refined by the sphere fit.
+    HeldPhases,
+    /// Multilateration on its readings.
+    Multilateration,
+}
+
+/// What the three-phase method found in one phase.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhaseDetail {
+    /// The phase value in the recording.
+    pub phase: i32,
+    /// Samples with a position in the phase.
+    pub samples: usize,
+    /// The two cables inferred as held (least length change).
+    pub held: [usize; 2],
+    /// The cable inferred as reeled (most length change).
+    pub reeled: usize,
+    /// 5..95% spread of the held cables' lengths, m.
+    pub held_spread_m: [f64; 2],
+    /// 5..95% spread of the reeled cable's length, m.
+    pub reeled_spread_m: f64,
+    /// The fitted circle of the platform path.
+    pub circle: Circle3,
+    /// RMS distance of the path from the circle, m.
+    pub circle_rms_m: f64,
+    /// Arc length covered, m (chord between the extreme points).
+    pub chord_m: f64,
+}
+
+/// What the initialisation did for one cable.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CableInit {
+    /// Where the anchor came from.
+    pub source: AnchorSource,
+    /// Phases in which the cable was held.
+    pub held_in: Vec<i32>,
+    /// The line-intersection anchor (three-phase, before the sphere refinement).
+    pub line_anchor: Option<[f64; 3]>,
+    /// RMS length residual of the initial parameters on the cable's taut readings, m.
+    pub rms_m: f64,
+    /// Readings used.
+    pub used: usize,
+}
+
+/// The result of an initialisation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InitResult {
+    /// The initial parameters.
+    pub params: Params,
+    /// The method used.
+    pub method: Method,
+    /// Per-phase details (three-phase only).
+    pub phases: Vec<PhaseDetail>,
+    /// Per-cable details.
+    pub cables: Vec<CableInit>,
+    /// Things a person should know.
+    pub notes: Vec<String>,
+}
+
+/// Why an initialisation failed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum InitError {
+    /// Platform points and recording disagree on the number of cables.
+    CableCount {
+        /// Length columns in the recording.
+        recording: usize,
+        /// Platform points given.
+        platform_points: usize,
+    },
+    /// No `phase` column, or no phase value >= 0, or fewer than two phases.
+    NoPhases {
+        /// Phases found.
+        found: usize,
+    },
+    /// A phase has too few samples with a position.
+    PhaseTooShort {
+        /// Phase value.
+        phase: i32,
+        /// Samples found.
+        samples: usize,
+        /// Samples needed.
+        needed: usize,
+    },
+    /// No two cables held still during a phase.
+    CannotInferHeld {
+        /// Phase value.
+        phase: i32,
+        /// Spread of the second-stillest cable, m.
+        held_spread_m: f64,
+        /// Spread of the most-changing cable, m.
+        reeled_spread_m: f64,
+    },
+    /// The phase's path is not a circle arc (too short, or a straight line).
+    CircleFit {
+        /// Phase value.
+        phase: i32,
+    },
+    /// Too few taut readings for a cable.
+    TooFewReadings {
+        /// Cable index.
+        cable: usize,
+        /// Readings usable.
+        used: usize,
+        /// Readings needed.
+        needed: usize,
+    },
+    /// The motion does not excite a parameter of a cable.
+    NotExcited {
+        /// Cable index.
+        cable: usize,
+        /// The unexcited parameter.
+        param: Param,
+        /// Excitation of the weakest direction relative to the strongest.
+        ratio: f64,
+    },
+}
+
+impl fmt::Display for InitError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            InitError::CableCount { recording, platform_points } => write!(
+                f,
+                "the recording has {recording} cables but {platform_points} platform points were given; use the configuration of the robot that made the recording"
+            ),
+            InitError::NoPhases { found } => write!(
+                f,
+                "the three-phase initialisation needs a `phase` column with at least two phases (values >= 0), found {found}; record the three-phase experiment or use multilateration"
+            ),
+            InitError::PhaseTooShort { phase, samples, needed } => write!(
+                f,
+                "phase {phase}: only {samples} samples with a tracker position, at least {needed} needed; record the phase longer"
+            ),
+            InitError::CannotInferHeld { phase, held_spread_m, reeled_spread_m } => write!(
+                f,
+                "phase {phase}: cannot tell which two cables were held (the second-stillest changed by {:.1} mm, the reeled one by {:.1} mm); hold two cables in position mode and reel only one",
+                held_spread_m * 1e3,
+                reeled_spread_m * 1e3
+            ),
+            InitError::CircleFit { phase } => write!(
+                f,
+                "phase {phase}: the platform path is not a circle arc; reel the cable further (at least 0.5 m of travel)"
+            ),
+            InitError::TooFewReadings { cable, used, needed } => write!(
+                f,
+                "cable {cable}: only {used} taut readings with a tracker position, at least {needed} needed; record with this cable under tension"
+            ),
+            InitError::NotExcited { cable, param, ratio } => write!(
+                f,
+                "cable {cable}: {param} is not excited by this recording (weakest direction {ratio:.1e} of the strongest): {}",
+                param.advice()
+            ),
+        }
+    }
+}
+
+impl std::error::Error for InitError {}
+
+/// Three-phase when the recording has a `phase` column with values >= 0 (falling back to
+/// multilateration, with a note, if the phases cannot be used), multilateration otherwise.
+pub fn initialise(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions) -> Result<InitResult, InitError> {
+    let has_phases = rec.phase.as_ref().is_some_and(|p| p.iter().any(|&v| v >= 0));
+    if !has_phases {
+        return multilateration(rec, platform_points, opts);
+    }
+    match three_phase(rec, platform_points, opts) {
+        Ok(r) => Ok(r),
+        Err(e) => {
+            let mut r = multilateration(rec, platform_points, opts).map_err(|_| e)?;
+            r.notes.insert(0, format!("three-phase initialisation not possible ({e}); used multilateration"));
+            Ok(r)
+        }
+    }
+}
+
+fn check_count(rec: &Recording, platform_points: &[[f64; 3]]) -> Result<(), InitError> {
+    if platform_points.len() != rec.n_cables {
+        return Err(InitError::CableCount { recording: rec.n_cables, platform_points: platform_points.len() });
+    }
+    Ok(())
+}
+
+/// Multilateration of every cable on all its taut readings.
+pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions) -> Result<InitResult, InitError> {
+    check_count(rec, platform_points)?;
+    let weighting = Weighting::of(rec, opts);
+    let data = noise::gather(rec, platform_points, opts, weighting);
+    let sigma = reading_sigma(opts);
+    let mut anchors = Vec::new();
+    let mut l0 = Vec::new();
+    let mut cables = Vec::new();
+    for (j, d) in data.iter().enumerate() {
+        let (a, o) = multilaterate(d, sigma, j)?;
+        anchors.push(a);
+        l0.push(o);
+        cables.push(CableInit {
+            source: AnchorSource::Multilateration,
+            held_in: vec![],
+            line_anchor: None,
+            rms_m: rms(d, a, o),
+            used: d.len(),
+        });
+    }
+    let mut notes = Vec::new();
+    if !weighting.uses_tensions() {
+        notes.push("no tensions used: loose readings cannot be excluded from the initialisation".into());
+    }
+    Ok(InitResult { params: Params { anchors, l0 }, method: Method::Multilateration, phases: vec![], cables, notes })
+}
+
+/// One-sigma of a length reading under the noise model, without stretch, m.
+fn reading_sigma(opts: &CalibOptions) -> f64 {
+    let nm = NoiseModel::new(opts, Weighting::UniformByOption);
+    nm.variance([1.0, 0.0, 0.0], 0.0, 0.0).sqrt().max(1e-9)
+}
+
+/// Closed-form anchor and offset of one cable from its readings `d` (see the module doc).
+pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
+    let m = d.len();
+    if m < MIN_READINGS {
+        return Err(InitError::TooFewReadings { cable, used: m, needed: MIN_READINGS });
+    }
+    let mf = m as f64;
+    let mut xm = [0.0; 3];
+    let mut lm = 0.0;
+    for k in 0..m {
+        let p = d.point(k);
+        for a in 0..3 {
+            xm[a] += p[a] / mf;
+        }
+        lm += d.l[k] / mf;
+    }
+    // Excitation: principal spreads of the path, and the spread of the lengths.
+    let mut cov = Matrix3::zeros();
+    let mut lvar = 0.0;
+    for k in 0..m {
+        let v = Vector3::from(model::sub(d.point(k), xm));
+        cov += v * v.transpose() / mf;
+        lvar += (d.l[k] - lm).powi(2) / mf;
+    }
+    let eig = SymmetricEigen::new(cov);
+    let (imin, imax) = {
+        let e = &eig.eigenvalues;
+        let mut o = [0usize, 1, 2];
+        o.sort_by(|&a, &b| e[a].total_cmp(&e[b]));
+        (o[0], o[2])
+    };
+    let spread_max = eig.eigenvalues[imax].max(0.0).sqrt();
+    let spread_min = eig.eigenvalues[imin].max(0.0).sqrt();
+    // 2%: a 4 m wide workspace needs 8 cm of motion along every direction.
+    const MIN_RATIO: f64 = 0.02;
+    if !(spread_min >= MIN_RATIO * spread_max) {
+        let v = eig.eigenvectors.column(imin);
+        let axis = (0..3).max_by(|&a, &b| v[a].abs().total_cmp(&v[b].abs())).unwrap_or(2);
+        return Err(InitError::NotExcited { cable, param: Param::from_index(axis), ratio: spread_min / spread_max });
+    }
+    if !(lvar.sqrt() >= MIN_RATIO * spread_max) {
+        return Err(InitError::NotExcited { cable, param: Param::L0, ratio: lvar.sqrt() / spread_max });
+    }
+    // Rows scaled so the four metre-valued columns are O(1).
+    let s = 2.0 * (eig.eigenvalues.iter().map(|v| v.max(0.0)).sum::<f64>()).sqrt();
+    let mut w = vec![1.0; m];
+    let mut theta = SVector::<f64, 5>::zeros();
+    let mut a_est = xm;
+    let mut l0_est = 0.0;
+    let mut resid = vec![0.0; m];
+    for round in 0..4 {
+        let mut nmat = SMatrix::<f64, 5, 5>::zeros();
+        let mut rhs = SVector::<f64, 5>::zeros();
+        for k in 0..m {
+            let x = model::sub(d.point(k), xm);
+            let row = SVector::<f64, 5>::from([-2.0 * x[0] / s, -2.0 * x[1] / s, -2.0 * x[2] / s, 2.0 * (d.l[k] - lm) / s, 1.0]);
+            let y = d.l[k] * d.l[k] - model::dot(x, x);
+            nmat += row * row.transpose() * w[k];
+            rhs += row * (y * w[k]);
+        }
+        theta = match nmat.cholesky() {
+            Some(c) => c.solve(&rhs),
+            None => return Err(InitError::NotExcited { cable, param: Param::L0, ratio: 0.0 }),
+        };
+        a_est = [xm[0] + theta[0] / s, xm[1] + theta[1] / s, xm[2] + theta[2] / s];
+        l0_est = theta[3] / s;
+        if round == 3 {
+            break;
+        }
+        // Re-weight: rows to length units, Huber on the length residual.
+        for k in 0..m {
+            let rho = model::norm(model::sub(d.point(k), a_est));
+            resid[k] = d.l[k] - l0_est - rho;
+            w[k] = 1.0 / (4.0 * rho * rho).max(1e-6);
+        }
+        let scale = sigma.max(1.4826 * median_abs(&resid));
+        for k in 0..m {
+            w[k] *= RobustLoss::Huber { k: 2.0 }.weight_cost((resid[k] / scale).powi(2)).0;
+        }
+    }
+    let _ = theta;
+    if !a_est.iter().all(|v| v.is_finite()) {
+        return Err(InitError::NotExcited { cable, param: Param::L0, ratio: 0.0 });
+    }
+    let _ = l0_est;
+    Ok((a_est, median_offset(d, a_est)))
+}
+
+/// `median |v|` (0 for an empty slice).
+fn median_abs(v: &[f64]) -> f64 {
+    let mut a: Vec<f64> = v.iter().map(|x| x.abs()).collect();
+    median_in_place(&mut a)
+}
+
+fn median_in_place(a: &mut [f64]) -> f64 {
+    if a.is_empty() {
+        return 0.0;
+    }
+    let mid = a.len() / 2;
+    let (_, m, _) = a.select_nth_unstable_by(mid, |x, y| x.total_cmp(y));
+    *m
+}
+
+/// `L0 = median(l - |X - A|)`: robust to the loose or outlying readings a fit would be pulled by.
+fn median_offset(d: &CableData, a: [f64; 3]) -> f64 {
+    let mut v: Vec<f64> = (0..d.len()).map(|k| d.l[k] - model::norm(model::sub(d.point(k), a))).collect();
+    median_in_place(&mut v)
+}
+
+fn rms(d: &CableData, a: [f64; 3], l0: f64) -> f64 {
+    let s: f64 = (0..d.len()).map(|k| (d.l[k] - l0 - model::norm(model::sub(d.point(k), a))).powi(2)).sum();
+    (s / d.len().max(1) as f64).sqrt()
+}
+
+/// 5..95% spread of the finite values.
+fn spread(mut v: Vec<f64>) -> f64 {
+    v.retain(|x| x.is_finite());
+    if v.len() < 2 {
+        return f64::INFINITY;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    q(0.95) - q(0.05)
+}
+
+/// The paper's three-phase initialisation (see the module doc).
+pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions) -> Result<InitResult, InitError> {
+    check_count(rec, platform_points)?;
+    let n = rec.n_cables;
+    let phase = match &rec.phase {
+        Some(p) => p,
+        None => return Err(InitError::NoPhases { found: 0 }),
+    };
+    let mut ids: Vec<i32> = phase.iter().copied().filter(|&v| v >= 0).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    if ids.len() < 2 {
+        return Err(InitError::NoPhases { found: ids.len() });
+    }
+    let mut notes = Vec::new();
+    if platform_points.iter().any(|b| b.iter().any(|v| *v != 0.0)) {
+        notes.push("the circle geometry assumes a point-mass platform; with platform points the line estimate is approximate (the sphere refinement is exact)".into());
+    }
+    let mut details = Vec::new();
+    for &id in &ids {
+        let idx: Vec<usize> =
+            (0..rec.len()).filter(|&i| phase[i] == id && rec.p[i].iter().all(|v| v.is_finite())).collect();
+        if idx.len() < MIN_PHASE_SAMPLES {
+            return Err(InitError::PhaseTooShort { phase: id, samples: idx.len(), needed: MIN_PHASE_SAMPLES });
+        }
+        let spreads: Vec<f64> = (0..n).map(|j| spread(idx.iter().map(|&i| rec.l[i * n + j]).collect())).collect();
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| spreads[a].total_cmp(&spreads[b]));
+        let held = [order[0], order[1]];
+        let reeled = order[n - 1];
+        // Held cables move only by encoder noise; 5% of the reeled cable's travel is generous.
+        if !(spreads[held[1]] < 0.05 * spreads[reeled]) {
+            return Err(InitError::CannotInferHeld { phase: id, held_spread_m: spreads[held[1]], reeled_spread_m: spreads[reeled] });
+        }
+        let pts: Vec<[f64; 3]> = idx.iter().map(|&i| rec.p[i]).collect();
+        let (c, crms) = fit_circle(&pts).ok_or(InitError::CircleFit { phase: id })?;
+        let chord = model::norm(model::sub(pts[0], pts[pts.len() - 1]));
+        details.push(PhaseDetail {
+            phase: id,
+            samples: idx.len(),
+            held: [held[0].min(held[1]), held[0].max(held[1])],
+            reeled,
+            held_spread_m: [spreads[held[0].min(held[1])], spreads[held[0].max(held[1])]],
+            reeled_spread_m: spreads[reeled],
+            circle: c,
+            circle_rms_m: crms,
+            chord_m: chord,
+        });
+    }
+    let weighting = Weighting::of(rec, opts);
+    let data = noise::gather(rec, platform_points, opts, weighting);
+    let sigma = reading_sigma(opts);
+    // Uniform weights for the sphere fit: the held cables are taut at moderate tension.
+    let nm = NoiseModel::new(opts, Weighting::UniformByOption);
+    let mut anchors = Vec::with_capacity(n);
+    let mut l0 = Vec::with_capacity(n);
+    let mut cables = Vec::with_capacity(n);
+    for (j, d) in data.iter().enumerate() {
+        let held_in: Vec<&PhaseDetail> = details.iter().filter(|p| p.held.contains(&j)).collect();
+        let line = if held_in.len() >= 2 { closest_point_to_axes(&held_in) } else { None };
+        let (a, source) = match line {
+            Some(a_line) => {
+                // Sphere refinement on the held samples only.
+                let phases_held: Vec<i32> = held_in.iter().map(|p| p.phase).collect();
+                let hd = subset(d, |s| phases_held.contains(&phase[s]));
+                let a = if hd.len() >= MIN_READINGS {
+                    let x0 = [a_line[0], a_line[1], a_line[2], median_offset(&hd, a_line)];
+                    let sol = solver::solve(&hd, 0, hd.len(), x0, &nm, opts.loss, opts.max_iterations);
+                    let moved = model::norm(model::sub([sol.x[0], sol.x[1], sol.x[2]], a_line));
+                    // Accept unless it ran away (a degenerate pair of phases): the line estimate
+                    // is good to a few cm, so a move of metres is not a refinement.
+                    if sol.x.iter().all(|v| v.is_finite()) && moved < 0.5 {
+                        [sol.x[0], sol.x[1], sol.x[2]]
+                    } else {
+                        notes.push(format!("cable {j}: the sphere refinement did not converge near the circle axes; kept the line estimate"));
+                        a_line
+                    }
+                } else {
+                    a_line
+                };
+                (a, AnchorSource::HeldPhases)
+            }
+            None => {
+                notes.push(format!(
+                    "cable {j}: held in {} phase(s); its anchor comes from multilateration on all its readings",
+                    held_in.len()
+                ));
+                (multilaterate(d, sigma, j)?.0, AnchorSource::Multilateration)
+            }
+        };
+        if d.len() < MIN_READINGS {
+            return Err(InitError::TooFewReadings { cable: j, used: d.len(), needed: MIN_READINGS });
+        }
+        let o = median_offset(d, a);
+        anchors.push(a);
+        l0.push(o);
+        cables.push(CableInit {
+            source,
+            held_in: held_in.iter().map(|p| p.phase).collect(),
+            line_anchor: line,
+            rms_m: rms(d, a, o),
+            used: d.len(),
+        });
+    }
+    Ok(InitResult { params: Params { anchors, l0 }, method: Method::ThreePhase, phases: details, cables, notes })
+}
+
+/// Least-squares point closest to the circle axes of `phases`; `None` when the axes are
+/// (nearly) parallel.
+fn closest_point_to_axes(phases: &[&PhaseDetail]) -> Option<[f64; 3]> {
+    let mut m = Matrix3::zeros();
+    let mut b = Vector3::zeros();
+    for p in phases {
+        let nv = Vector3::from(p.circle.normal);
+        let proj = Matrix3::identity() - nv * nv.transpose();
+        m += proj;
+        b += proj * Vector3::from(p.circle.centre);
+    }
+    // Two axes at angle theta: smallest eigenvalue 1 - cos(theta); require theta > ~2.5 deg.
+    let e = SymmetricEigen::new(m).eigenvalues;
+    if !(e.min() > 1e-3) {
+        return None;
+    }
+    let a = m.cholesky()?.solve(&b);
+    Some([a[0], a[1], a[2]])
+}
+
+/// The readings of `d` whose sample index satisfies `keep`.
+fn subset(d: &CableData, keep: impl Fn(usize) -> bool) -> CableData {
+    let mut out = CableData::default();
+    for k in 0..d.len() {
+        if keep(d.sample[k] as usize) {
+            out.x.push(d.x[k]);
+            out.y.push(d.y[k]);
+            out.z.push(d.z[k]);
+            out.l.push(d.l[k]);
+            out.t.push(d.t[k]);
+            out.sample.push(d.sample[k]);
+        }
+    }
+    out
+}

@@ -1,0 +1,421 @@
+//! Levenberg–Marquardt for one cable: four parameters `x = (A_x, A_y, A_z, L0)`.
+//!
+//! # Why per cable, and why it is fast
+//!
+//! The residual of reading `(i, j)` depends only on cable `j`'s anchor and offset, so the
+//! identification Jacobian of all `4n` parameters is block diagonal and the problem is `n`
+//! independent 4-parameter problems. For each, one pass over the cable's readings accumulates the
+//! 4x4 normal matrix `H = J^T W J` (10 distinct numbers), the gradient `g = J^T W r` (4) and the
+//! cost, directly from each reading's residual and Jacobian row: the `m x 4` Jacobian is never
+//! stored, memory traffic is five `f64` per reading (`x, y, z, l, T`, column-wise), and a
+//! step is a 4x4 Cholesky solve. A dense solver on the joint problem (e.g. MINPACK through
+//! `scipy.optimize.least_squares`) stores a `4n m x 4n` Jacobian and factorises it each iteration.
+//!
+//! # The iteration
+//!
+//! ```text
+//! r_i   = l_i - (|X_i - A| + L0)                residual, m
+//! J_i   = [-u_i^T, 1]                           d model / d x
+//! e_i   = r_i / sigma_i,  sigma_i^2 = var_i(x)  normalised residual (noise model, crate::noise)
+//! cost  = sum_i rho(e_i)                         rho = e^2/2 (least squares) or Huber / Cauchy
+//! w_i   = rho'(e_i) / e_i / sigma_i^2           IRLS weight (1/sigma^2 for least squares)
+//! H     = sum w_i J_i^T J_i,   g = sum w_i J_i r_i
+//! (H + lambda diag(H)) dx = g                   Marquardt's scaled damping (paper eq. 5)
+//! ```
+//!
+//! A trial point is evaluated in one pass that also accumulates its `H` and `g`; if the robust
+//! cost decreased the step is accepted and those are reused, so every iteration costs exactly
+//! one pass. `lambda` follows Nielsen's rule on the gain ratio (actual / predicted decrease).
+//! The variances and robust weights are re-evaluated at every point and held fixed for the
+//! derivative (IRLS): the fixed point is the weighted least-squares solution under the noise
+//! model, not a maximum of a likelihood that would also trade `log sigma(x)` against the fit.
+//!
+//! With a robust loss the solve runs in two stages: plain least squares first (fast, quadratic
+//! convergence from a poor start where all residuals would otherwise be "outliers"), then the
+//! robust loss from there.
+
+use crate::noise::{CableData, NoiseModel};
+use crate::RobustLoss;
+use nalgebra::{Matrix4, Vector4};
+
+/// Why the iteration stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Termination {
+    /// The step became smaller than the parameter tolerance.
+    SmallStep,
+    /// The actual and predicted cost decrease became smaller than the cost tolerance.
+    SmallCostChange,
+    /// The gradient vanished (e.g. a noise-free fit).
+    SmallGradient,
+    /// The iteration limit was reached before convergence.
+    MaxIterations,
+    /// No step decreases the cost any more although the tolerances are not met (round-off, or a
+    /// degenerate problem).
+    Stalled,
+}
+
+impl Termination {
+    /// True for the reasons that mean "converged".
+    pub fn was_successful(self) -> bool {
+        matches!(self, Termination::SmallStep | Termination::SmallCostChange | Termination::SmallGradient)
+    }
+
+    /// Orders reasons from good to bad, to report the worst over cables.
+    pub(crate) fn severity(self) -> u8 {
+        match self {
+            Termination::SmallStep | Termination::SmallCostChange | Termination::SmallGradient => 0,
+            Termination::Stalled => 1,
+            Termination::MaxIterations => 2,
+        }
+    }
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Termination::SmallStep => "converged (step below tolerance)",
+            Termination::SmallCostChange => "converged (cost change below tolerance)",
+            Termination::SmallGradient => "converged (gradient vanished)",
+            Termination::MaxIterations => "stopped at the iteration limit",
+            Termination::Stalled => "stalled (no step decreases the cost)",
+        })
+    }
+}
+
+/// Cost, normal equations and statistics of one pass.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Pass {
+    /// Robust cost `sum rho(e_i)`.
+    pub cost: f64,
+    /// Upper triangle of `H`, row-major: 00 01 02 03 11 12 13 22 23 33.
+    pub h: [f64; 10],
+    /// `g = J^T W r`.
+    pub g: [f64; 4],
+    /// `sum w_i^robust e_i^2`: the weighted chi-square for the a-posteriori variance factor.
+    pub chi2: f64,
+}
+
+impl Pass {
+    /// `H` as a matrix.
+    pub fn h_matrix(&self) -> Matrix4<f64> {
+        let h = &self.h;
+        Matrix4::new(
+            h[0], h[1], h[2], h[3], //
+            h[1], h[4], h[5], h[6], //
+            h[2], h[5], h[7], h[8], //
+            h[3], h[6], h[8], h[9],
+        )
+    }
+}
+
+/// A loss function `rho(e)` of the normalised residual, monomorphised into the pass.
+trait Loss: Copy {
+    /// `(w, rho)` for `e^2`: the IRLS weight `rho'(e)/e` and the loss.
+    fn weight_cost(self, e2: f64) -> (f64, f64);
+}
+
+#[derive(Clone, Copy)]
+struct Squares;
+impl Loss for Squares {
+    #[inline(always)]
+    fn weight_cost(self, e2: f64) -> (f64, f64) {
+        (1.0, 0.5 * e2)
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Huber(f64);
+impl Loss for Huber {
+    #[inline(always)]
+    fn weight_cost(self, e2: f64) -> (f64, f64) {
+        let k = self.0;
+        if e2 <= k * k {
+            (1.0, 0.5 * e2)
+        } else {
+            let e = e2.sqrt();
+            (k / e, k * e - 0.5 * k * k)
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Cauchy(f64);
+impl Loss for Cauchy {
+    #[inline(always)]
+    fn weight_cost(self, e2: f64) -> (f64, f64) {
+        let c2 = self.0 * self.0;
+        let s = 1.0 + e2 / c2;
+        (1.0 / s, 0.5 * c2 * s.ln())
+    }
+}
+
+impl RobustLoss {
+    /// `(w, rho)` for a normalised residual squared (outside the hot loop).
+    pub(crate) fn weight_cost(self, e2: f64) -> (f64, f64) {
+        match self {
+            RobustLoss::None => Squares.weight_cost(e2),
+            RobustLoss::Huber { k } => Huber(k).weight_cost(e2),
+            RobustLoss::Cauchy { c } => Cauchy(c).weight_cost(e2),
+        }
+    }
+}
+
+/// One pass over readings `lo..hi` of a cable at parameters `x`.
+pub fn pass(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &NoiseModel, loss: RobustLoss) -> Pass {
+    match loss {
+        RobustLoss::None => pass_with(d, lo, hi, x, nm, Squares),
+        RobustLoss::Huber { k } => pass_with(d, lo, hi, x, nm, Huber(k)),
+        RobustLoss::Cauchy { c } => pass_with(d, lo, hi, x, nm, Cauchy(c)),
+    }
+}
+
+#[inline(always)]
+fn pass_with<L: Loss>(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &NoiseModel, loss: L) -> Pass {
+    let [ax, ay, az, l0] = *x;
+    let (xs, ys, zs, ls, ts) = (&d.x[lo..hi], &d.y[lo..hi], &d.z[lo..hi], &d.l[lo..hi], &d.t[lo..hi]);
+    let mut h = [0.0f64; 10];
+    let mut g = [0.0f64; 4];
+    let mut cost = 0.0;
+    let mut chi2 = 0.0;
+    for k in 0..ls.len() {
+        let dx = xs[k] - ax;
+        let dy = ys[k] - ay;
+        let dz = zs[k] - az;
+        let rho = (dx * dx + dy * dy + dz * dz).sqrt();
+        let inv = 1.0 / rho;
+        let u = [dx * inv, dy * inv, dz * inv];
+        let r = ls[k] - (rho + l0);
+        let iv = 1.0 / nm.variance(u, rho, ts[k]);
+        let e2 = r * r * iv;
+        let (rw, c) = loss.weight_cost(e2);
+        cost += c;
+        chi2 += rw * e2;
+        let w = rw * iv;
+        // J = [-u, 1]
+        let (j0, j1, j2) = (-u[0], -u[1], -u[2]);
+        let wj0 = w * j0;
+        let wj1 = w * j1;
+        let wj2 = w * j2;
+        h[0] += wj0 * j0;
+        h[1] += wj0 * j1;
+        h[2] += wj0 * j2;
+        h[3] += wj0;
+        h[4] += wj1 * j1;
+        h[5] += wj1 * j2;
+        h[6] += wj1;
+        h[7] += wj2 * j2;
+        h[8] += wj2;
+        h[9] += w;
+        g[0] += wj0 * r;
+        g[1] += wj1 * r;
+        g[2] += wj2 * r;
+        g[3] += w * r;
+    }
+    Pass { cost, h, g, chi2 }
+}
+
+/// Tolerances of one solve.
+#[derive(Debug, Clone, Copy)]
+pub struct Tolerances {
+    /// Relative step tolerance: stop when `|dx| <= xtol (|x| + xtol)`.
+    pub xtol: f64,
+    /// Relative cost tolerance on both actual and predicted decrease.
+    pub ftol: f64,
+    /// Gradient tolerance: stop when `max_k |g_k| / sqrt(H_kk cost) <= gtol` (the cosine of the
+    /// angle between the residual and the Jacobian's columns, as in MINPACK).
+    pub gtol: f64,
+}
+
+impl Tolerances {
+    /// Tight tolerances for the final solve.
+    pub const FINAL: Tolerances = Tolerances { xtol: 1e-10, ftol: 1e-12, gtol: 1e-10 };
+    /// Loose tolerances for the least-squares stage before a robust one.
+    pub const COARSE: Tolerances = Tolerances { xtol: 1e-6, ftol: 1e-6, gtol: 1e-6 };
+}
+
+/// The result of one solve.
+#[derive(Debug, Clone, Copy)]
+pub struct Solution {
+    /// `(A_x, A_y, A_z, L0)`.
+    pub x: [f64; 4],
+    /// Why it stopped.
+    pub termination: Termination,
+    /// LM iterations (accepted and rejected steps; each is one pass).
+    pub iterations: usize,
+    /// The last pass at `x`.
+    pub at_x: Pass,
+}
+
+/// Solves one cable on readings `lo..hi` from `x0`, with a least-squares stage first when `loss`
+/// is robust.
+pub fn solve(
+    d: &CableData,
+    lo: usize,
+    hi: usize,
+    x0: [f64; 4],
+    nm: &NoiseModel,
+    loss: RobustLoss,
+    max_iterations: usize,
+) -> Solution {
+    if loss == RobustLoss::None {
+        return lm(d, lo, hi, x0, nm, loss, max_iterations, Tolerances::FINAL);
+    }
+    let first = lm(d, lo, hi, x0, nm, RobustLoss::None, max_iterations, Tolerances::COARSE);
+    let rest = max_iterations.saturating_sub(first.iterations).max(1);
+    let mut second = lm(d, lo, hi, first.x, nm, loss, rest, Tolerances::FINAL);
+    second.iterations += first.iterations;
+    second
+}
+
+/// Damped Gauss–Newton (Levenberg–Marquardt) with Nielsen's damping update.
+#[allow(clippy::too_many_arguments)]
+pub fn lm(
+    d: &CableData,
+    lo: usize,
+    hi: usize,
+    x0: [f64; 4],
+    nm: &NoiseModel,
+    loss: RobustLoss,
+    max_iterations: usize,
+    tol: Tolerances,
+) -> Solution {
+    let mut x = x0;
+    let mut cur = pass(d, lo, hi, &x, nm, loss);
+    let mut lambda = 1e-3;
+    let mut nu = 2.0;
+    let mut it = 0;
+    let done = |termination, iterations, x, at_x| Solution { x, termination, iterations, at_x };
+    while it < max_iterations {
+        // Gradient test (MINPACK's gtol): the residual is orthogonal to every column of J.
+        let gmax = (0..4)
+            .map(|k| cur.g[k].abs() / (cur.h[DIAG[k]] * 2.0 * cur.cost.max(f64::MIN_POSITIVE)).sqrt().max(f64::MIN_POSITIVE))
+            .fold(0.0, f64::max);
+        if gmax <= tol.gtol || cur.cost == 0.0 {
+            return done(Termination::SmallGradient, it, x, cur);
+        }
+        it += 1;
+        let h = cur.h_matrix();
+        let dmax = (0..4).map(|k| h[(k, k)]).fold(0.0, f64::max);
+        let mut a = h;
+        for k in 0..4 {
+            // Floor the scaling so an unexcited direction still gets damped.
+            a[(k, k)] += lambda * h[(k, k)].max(1e-12 * dmax).max(f64::MIN_POSITIVE);
+        }
+        let g = Vector4::from(cur.g);
+        let Some(chol) = a.cholesky() else {
+            lambda *= nu;
+            nu *= 2.0;
+            if lambda > 1e20 {
+                return done(Termination::Stalled, it, x, cur);
+            }
+            continue;
+        };
+        let dx = chol.solve(&g);
+        let xn_norm = (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
+        let step = dx.norm();
+        let xn = [x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3]];
+        let trial = pass(d, lo, hi, &xn, nm, loss);
+        // Predicted decrease of the local quadratic model: g.dx - dx^T H dx / 2.
+        let pred = dx.dot(&g) - 0.5 * dx.dot(&(h * dx));
+        let act = cur.cost - trial.cost;
+        if trial.cost.is_finite() && act > 0.0 {
+            let rho = act / pred.max(f64::MIN_POSITIVE);
+            let old_cost = cur.cost;
+            x = xn;
+            cur = trial;
+            lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
+            nu = 2.0;
+            if step <= tol.xtol * (xn_norm + tol.xtol) {
+                return done(Termination::SmallStep, it, x, cur);
+            }
+            if act <= tol.ftol * old_cost && pred <= tol.ftol * old_cost {
+                return done(Termination::SmallCostChange, it, x, cur);
+            }
+        } else {
+            // A step that cannot even change x (or whose predicted gain is at round-off) means
+            // we are at the minimum to machine precision.
+            if step <= tol.xtol * (xn_norm + tol.xtol) || pred.abs() <= 1e-15 * cur.cost {
+                return done(Termination::SmallStep, it, x, cur);
+            }
+            lambda *= nu;
+            nu *= 2.0;
+            if lambda > 1e20 {
+                return done(Termination::Stalled, it, x, cur);
+            }
+        }
+    }
+    done(Termination::MaxIterations, it, x, cur)
+}
+
+/// Index of `H_kk` in [`Pass::h`].
+const DIAG: [usize; 4] = [0, 4, 7, 9];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::noise::Weighting;
+    use crate::CalibOptions;
+
+    /// The normal equations accumulated in one pass equal J^T W J and J^T W r built from a
+    /// finite-difference Jacobian.
+    #[test]
+    fn pass_matches_finite_difference_normal_equations() {
+        let mut d = CableData::default();
+        let pts = [[0.1, 0.2, 1.0], [1.0, -0.5, 2.0], [-1.2, 0.7, 0.5], [0.4, 1.1, 1.7], [-0.3, -0.9, 2.4]];
+        let a_true = [3.0, -1.5, 4.0];
+        for (k, p) in pts.iter().enumerate() {
+            d.x.push(p[0]);
+            d.y.push(p[1]);
+            d.z.push(p[2]);
+            d.l.push(crate::model::cable_length(*p, a_true, 0.5) + 1e-3 * (k as f64 - 2.0));
+            d.t.push(10.0 * k as f64);
+            d.sample.push(k as u32);
+        }
+        let opts = CalibOptions::default();
+        let nm = NoiseModel::new(&opts, Weighting::ForceAware);
+        let x = [2.9, -1.4, 4.1, 0.45];
+        let p = pass(&d, 0, d.len(), &x, &nm, RobustLoss::None);
+        let hh = 1e-7;
+        let model = |x: &[f64; 4], k: usize| crate::model::cable_length(d.point(k), [x[0], x[1], x[2]], x[3]);
+        let mut h = [[0.0; 4]; 4];
+        let mut g = [0.0; 4];
+        for k in 0..d.len() {
+            let (rho, u) = crate::model::direction(d.point(k), [x[0], x[1], x[2]]);
+            let w = 1.0 / nm.variance(u, rho, d.t[k]);
+            let r = d.l[k] - model(&x, k);
+            let mut j = [0.0; 4];
+            for a in 0..4 {
+                let mut xp = x;
+                let mut xm = x;
+                xp[a] += hh;
+                xm[a] -= hh;
+                j[a] = (model(&xp, k) - model(&xm, k)) / (2.0 * hh);
+            }
+            for a in 0..4 {
+                g[a] += w * j[a] * r;
+                for b in 0..4 {
+                    h[a][b] += w * j[a] * j[b];
+                }
+            }
+        }
+        let hm = p.h_matrix();
+        for a in 0..4 {
+            assert!((p.g[a] - g[a]).abs() <= 1e-6 * g[a].abs().max(1.0), "g[{a}] {} vs {}", p.g[a], g[a]);
+            for b in 0..4 {
+                assert!((hm[(a, b)] - h[a][b]).abs() <= 1e-6 * h[a][b].abs().max(1.0), "H[{a}][{b}]");
+            }
+        }
+    }
+
+    #[test]
+    fn huber_and_cauchy_weights_are_derivative_over_residual() {
+        for loss in [RobustLoss::Huber { k: 1.5 }, RobustLoss::Cauchy { c: 2.0 }] {
+            for e in [0.3, 1.2, 1.6, 4.0, 30.0] {
+                let h = 1e-6;
+                let drho = (loss.weight_cost((e + h) * (e + h)).1 - loss.weight_cost((e - h) * (e - h)).1) / (2.0 * h);
+                let w = loss.weight_cost(e * e).0;
+                assert!((w * e - drho).abs() < 1e-6 * (1.0 + drho.abs()), "{loss:?} e={e}: {} vs {drho}", w * e);
+            }
+        }
+    }
+}
