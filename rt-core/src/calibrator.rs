@@ -1,0 +1,608 @@
+//! The calibrator thread: drains the sample ring, records every sample as a `cdpr-recording v1`
+//! file, collects the initialisation and excitation data sets, runs the calibration backend on a
+//! worker thread, validates the result and publishes it to the loop.
+//!
+//! It follows the loop through the states carried in the samples: the end of the three phases
+//! (`AwaitInitial`) starts the initial estimate; the end of an excitation starts a calibration;
+//! a fault during either abandons the run and says why.
+//!
+//! A calibrated set is published only when
+//! 1. its held-out co-registration RMS (on the last `calibration.heldout_fraction` of the
+//!    excitation, which the backend does not see) is lower than that of the running parameters;
+//! 2. every anchor moved less than `daemon.max_anchor_change_m` and every offset less than
+//!    `daemon.max_l0_change_m` from the running set;
+//! 3. its 1-sigma values are below `daemon.max_sigma_m` and the backend reports the problem
+//!    observable.
+//!
+//! Each published set is written atomically as `params/params-vNNNN.toml` (history, never
+//! overwritten) and `params/current.toml`.
+
+use crate::kin::LoopParams;
+use crate::motion::State;
+use crate::sample::{Sample, SampleRx};
+use crate::triple::Writer;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use taut_config::params::{ParamsFile, FORMAT};
+use taut_config::recording::Recording;
+use taut_config::RobotConfig;
+
+/// A parameter estimate from the calibration backend.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Anchors, m.
+    pub anchors: Vec<[f64; 3]>,
+    /// Encoder offsets, m.
+    pub l0: Vec<f64>,
+    /// 1-sigma of the anchors, m (NaN if unknown).
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// 1-sigma of the offsets, m (NaN if unknown).
+    pub l0_sigma: Vec<f64>,
+    /// Co-registration RMS on the data it was fitted to, m.
+    pub rms_m: f64,
+    /// False when the backend found the problem badly conditioned (with `note` saying why).
+    pub observable: bool,
+    /// Method and diagnostics, for people.
+    pub note: String,
+}
+
+/// The calibration backend (`taut-calib` in the daemon; tests may use their own).
+pub trait Calibrate: Send {
+    /// Initial estimate from the three-phase recording (it has a `phase` column).
+    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String>;
+    /// Calibration from an excitation recording, starting at `init`. The recording is the
+    /// training part only: the daemon keeps its own held-out block.
+    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, String>;
+}
+
+/// Kind of calibration outcome.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutcomeKind {
+    /// The initial estimate from the three phases.
+    Initial,
+    /// A calibration from an excitation run.
+    Calibration,
+}
+
+/// What became of one calibration.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// Calibration run (0: start-up).
+    pub run: u16,
+    /// Initial estimate or calibration.
+    pub kind: OutcomeKind,
+    /// Published to the loop.
+    pub accepted: bool,
+    /// Why not (empty when accepted).
+    pub reason: String,
+    /// Version written, when accepted.
+    pub version: u64,
+    /// The estimate, if the backend produced one.
+    pub estimate: Option<Estimate>,
+    /// Held-out RMS of the new set, m (NaN for the initial estimate).
+    pub heldout_rms_new_m: f64,
+    /// Held-out RMS of the running set, m.
+    pub heldout_rms_old_m: f64,
+    /// Samples in the data set.
+    pub samples: usize,
+}
+
+/// The calibrator's progress, shared with the control thread (never with the loop).
+#[derive(Debug, Clone, Default)]
+pub struct CalibStatus {
+    /// What it is doing: `waiting`, `collecting-init`, `initialising`, `collecting-excitation`,
+    /// `calibrating`, `idle`.
+    pub stage: String,
+    /// Samples written to the recording.
+    pub samples_recorded: u64,
+    /// Samples in the data set being collected.
+    pub dataset_samples: usize,
+    /// The recording's path.
+    pub recording: Option<PathBuf>,
+    /// Every outcome so far, oldest first.
+    pub outcomes: Vec<Outcome>,
+    /// The parameters in force (as written).
+    pub current: Option<ParamsFile>,
+    /// Recorder errors (disk full...), if any.
+    pub recorder_error: Option<String>,
+}
+
+/// Shared handle on the calibrator's status.
+pub type SharedCalibStatus = Arc<Mutex<CalibStatus>>;
+
+/// What the calibrator needs from the configuration.
+#[derive(Debug, Clone)]
+pub struct CalibratorConfig {
+    /// Robot name for parameter files.
+    pub robot: String,
+    /// Number of cables.
+    pub n: usize,
+    /// Platform points.
+    pub platform: Vec<[f64; 3]>,
+    /// Nominal anchors, if configured (bounds for the initial estimate).
+    pub nominal: Option<Vec<[f64; 3]>>,
+    /// Data directory.
+    pub data_dir: PathBuf,
+    /// Every k-th sample goes into a data set.
+    pub decimation: usize,
+    /// Held-out fraction.
+    pub heldout_fraction: f64,
+    /// Loose threshold for the co-registration comparison, N.
+    pub min_tension_n: f64,
+    /// Validation bounds, m.
+    pub max_anchor_change_m: f64,
+    /// Validation bounds, m.
+    pub max_l0_change_m: f64,
+    /// Validation bounds, m.
+    pub max_sigma_m: f64,
+    /// Tracker age limit: older poses are recorded as missing, s.
+    pub tracker_max_age_s: f64,
+    /// Tension age limit: older tensions are recorded as missing, s.
+    pub tension_max_age_s: f64,
+}
+
+impl CalibratorConfig {
+    /// From the robot configuration.
+    pub fn from_robot(cfg: &RobotConfig) -> CalibratorConfig {
+        CalibratorConfig {
+            robot: cfg.robot.name.clone(),
+            n: cfg.cables.len(),
+            platform: cfg.platform_points(),
+            nominal: cfg.anchors(),
+            data_dir: PathBuf::from(&cfg.daemon.data_dir),
+            decimation: cfg.daemon.calib_decimation,
+            heldout_fraction: cfg.calibration.heldout_fraction,
+            min_tension_n: cfg.calibration.min_tension_n,
+            max_anchor_change_m: cfg.daemon.max_anchor_change_m,
+            max_l0_change_m: cfg.daemon.max_l0_change_m,
+            max_sigma_m: cfg.daemon.max_sigma_m,
+            tracker_max_age_s: cfg.safety.tracker_max_age_s,
+            tension_max_age_s: cfg.safety.tension_max_age_s,
+        }
+    }
+}
+
+/// Writes samples as `cdpr-recording v1` rows as they come, flushed (and synced) at least once a
+/// second, so a crash loses at most the last second.
+pub struct Recorder {
+    file: std::io::BufWriter<std::fs::File>,
+    n: usize,
+    line: String,
+    last_flush: Instant,
+    tracker_max_age_s: f64,
+    tension_max_age_s: f64,
+    /// Rows written.
+    pub rows: u64,
+}
+
+impl Recorder {
+    /// Creates the file and writes the header.
+    pub fn create(path: &Path, n: usize, robot: &str, tracker_max_age_s: f64, tension_max_age_s: f64) -> std::io::Result<Recorder> {
+        if let Some(d) = path.parent() {
+            std::fs::create_dir_all(d)?;
+        }
+        let mut file = std::io::BufWriter::with_capacity(1 << 16, std::fs::File::create(path)?);
+        writeln!(file, "{}", taut_config::recording::MAGIC)?;
+        writeln!(file, "# robot: {robot}; written by taut start; state column: motion state of the loop")?;
+        let mut h = String::from("t,px,py,pz");
+        for j in 0..n {
+            let _ = write!(h, ",l{j}");
+        }
+        for j in 0..n {
+            let _ = write!(h, ",f{j}");
+        }
+        h.push_str(",phase,state");
+        writeln!(file, "{h}")?;
+        file.flush()?;
+        Ok(Recorder { file, n, line: String::with_capacity(512), last_flush: Instant::now(), tracker_max_age_s, tension_max_age_s, rows: 0 })
+    }
+
+    /// Appends one sample.
+    pub fn push(&mut self, s: &Sample) -> std::io::Result<()> {
+        let l = &mut self.line;
+        l.clear();
+        let _ = write!(l, "{:.6}", s.t);
+        let pose_ok = s.pose_age_s <= self.tracker_max_age_s;
+        for v in s.pose_m {
+            l.push(',');
+            if pose_ok && v.is_finite() {
+                let _ = write!(l, "{v:.6}");
+            }
+        }
+        for j in 0..self.n {
+            l.push(',');
+            if s.length_m[j].is_finite() {
+                let _ = write!(l, "{:.7}", s.length_m[j]);
+            }
+        }
+        for j in 0..self.n {
+            l.push(',');
+            if s.tension_age_s[j] <= self.tension_max_age_s && s.tension_n[j].is_finite() {
+                let _ = write!(l, "{:.3}", s.tension_n[j]);
+            }
+        }
+        let _ = writeln!(l, ",{},{}", s.phase, State::from_u8(s.state).name());
+        self.file.write_all(l.as_bytes())?;
+        self.rows += 1;
+        if self.last_flush.elapsed() >= Duration::from_millis(500) {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Flushes to the disk.
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.last_flush = Instant::now();
+        self.file.flush()?;
+        self.file.get_ref().sync_data()
+    }
+}
+
+/// Appends a sample to a data set (missing values as NaN).
+fn push_sample(rec: &mut Recording, s: &Sample, cfg: &CalibratorConfig) {
+    let n = cfg.n;
+    let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
+    let mut f = [f64::NAN; crate::MAX_CABLES];
+    for j in 0..n {
+        if s.tension_age_s[j] <= cfg.tension_max_age_s {
+            f[j] = s.tension_n[j];
+        }
+    }
+    rec.push(s.t, p, None, &s.length_m[..n], Some(&f[..n]), Some(i32::from(s.phase)));
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Highest version among `params-vNNNN.toml` files in `dir`.
+fn last_version(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_prefix("params-v")?.strip_suffix(".toml")?.parse::<u64>().ok()
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+enum Job {
+    Initial { rec: Recording, run: u16 },
+    Calibrate { train: Recording, heldout: Recording, init: Estimate, current: LoopParams, run: u16 },
+}
+
+struct JobResult {
+    kind: OutcomeKind,
+    run: u16,
+    samples: usize,
+    result: Result<Estimate, String>,
+    heldout: Option<(Recording, LoopParams)>,
+}
+
+/// The calibrator: owns the ring's consumer end and the parameter writer.
+pub struct Calibrator {
+    cfg: CalibratorConfig,
+    rx: SampleRx,
+    params_tx: Writer<LoopParams>,
+    status: SharedCalibStatus,
+    backend: Option<Box<dyn Calibrate>>,
+    recorder: Option<Recorder>,
+    init_set: Recording,
+    exc_set: Recording,
+    prev_state: State,
+    decim: usize,
+    current: Option<Estimate>,
+    current_params: LoopParams,
+    version: u64,
+    jobs: Option<(mpsc::Sender<(Job, Box<dyn Calibrate>)>, mpsc::Receiver<(JobResult, Box<dyn Calibrate>)>)>,
+    busy: bool,
+}
+
+impl Calibrator {
+    /// A calibrator recording to `recording` (None: no recording).
+    pub fn new(
+        cfg: CalibratorConfig,
+        rx: SampleRx,
+        params_tx: Writer<LoopParams>,
+        backend: Box<dyn Calibrate>,
+        recording: Option<PathBuf>,
+        status: SharedCalibStatus,
+    ) -> std::io::Result<Calibrator> {
+        let recorder = match &recording {
+            Some(p) => Some(Recorder::create(p, cfg.n, &cfg.robot, cfg.tracker_max_age_s, cfg.tension_max_age_s)?),
+            None => None,
+        };
+        let version = last_version(&cfg.data_dir.join("params"));
+        {
+            let mut st = status.lock().unwrap();
+            st.stage = "waiting".into();
+            st.recording = recording;
+        }
+        let n = cfg.n;
+        Ok(Calibrator {
+            init_set: Recording::with_capacity(n, 1 << 14, true, false, true),
+            exc_set: Recording::with_capacity(n, 1 << 15, true, false, true),
+            cfg,
+            rx,
+            params_tx,
+            status,
+            backend: Some(backend),
+            recorder,
+            prev_state: State::Idle,
+            decim: 0,
+            current: None,
+            current_params: LoopParams::invalid(n),
+            version,
+            jobs: None,
+            busy: false,
+        })
+    }
+
+    fn stage(&self, s: &str) {
+        self.status.lock().unwrap().stage = s.into();
+    }
+
+    /// Runs until `quit` is set: drains, records, calibrates. Returns when the ring is empty
+    /// after `quit`.
+    pub fn run(mut self, quit: Arc<AtomicBool>) {
+        let (job_tx, job_rx) = mpsc::channel::<(Job, Box<dyn Calibrate>)>();
+        let (res_tx, res_rx) = mpsc::channel();
+        let worker = std::thread::Builder::new()
+            .name("taut-calib-worker".into())
+            .spawn(move || {
+                for (job, mut backend) in job_rx {
+                    let r = run_job(job, backend.as_mut());
+                    if res_tx.send((r, backend)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .expect("spawn the calibration worker");
+        self.jobs = Some((job_tx, res_rx));
+        loop {
+            let mut got = 0;
+            while let Some(s) = self.rx.pop() {
+                self.on_sample(&s);
+                got += 1;
+            }
+            self.poll_results();
+            if let Some(r) = &mut self.recorder {
+                if r.last_flush.elapsed() >= Duration::from_millis(500) {
+                    if let Err(e) = r.flush() {
+                        self.status.lock().unwrap().recorder_error = Some(e.to_string());
+                    }
+                }
+            }
+            // Acquire: pairs with the daemon's Release store so the final drain sees every sample
+            // the loop pushed before it stopped.
+            if got == 0 && quit.load(Ordering::Acquire) && !self.busy {
+                break;
+            }
+            if got == 0 {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
+        if let Some(r) = &mut self.recorder {
+            let _ = r.flush();
+        }
+        self.jobs = None;
+        let _ = worker.join();
+    }
+
+    fn on_sample(&mut self, s: &Sample) {
+        if let Some(r) = &mut self.recorder {
+            match r.push(s) {
+                Ok(()) => self.status.lock().unwrap().samples_recorded = r.rows,
+                Err(e) => self.status.lock().unwrap().recorder_error = Some(e.to_string()),
+            }
+        }
+        let state = State::from_u8(s.state);
+        let prev = self.prev_state;
+        self.prev_state = state;
+        if state != prev {
+            self.on_transition(prev, state, s);
+        }
+        let keep = self.decim % self.cfg.decimation == 0;
+        self.decim += 1;
+        match state {
+            State::InitPhase if keep && s.phase >= 0 => {
+                push_sample(&mut self.init_set, s, &self.cfg);
+                self.status.lock().unwrap().dataset_samples = self.init_set.len();
+            }
+            State::Excitation if keep => {
+                push_sample(&mut self.exc_set, s, &self.cfg);
+                self.status.lock().unwrap().dataset_samples = self.exc_set.len();
+            }
+            _ => {}
+        }
+    }
+
+    fn on_transition(&mut self, prev: State, state: State, s: &Sample) {
+        match (prev, state) {
+            (_, State::InitPhase) if prev != State::InitPhase => {
+                self.init_set = Recording::with_capacity(self.cfg.n, 1 << 14, true, false, true);
+                self.stage("collecting-init");
+            }
+            (State::InitPhase, State::AwaitInitial) => {
+                let rec = std::mem::replace(&mut self.init_set, Recording::with_capacity(self.cfg.n, 0, true, false, true));
+                self.stage("initialising");
+                self.submit(Job::Initial { rec, run: s.run });
+            }
+            (_, State::Excitation) => {
+                self.exc_set = Recording::with_capacity(self.cfg.n, 1 << 15, true, false, true);
+                self.stage("collecting-excitation");
+            }
+            (State::Excitation, State::Operate) => {
+                let rec = std::mem::replace(&mut self.exc_set, Recording::with_capacity(self.cfg.n, 0, true, false, true));
+                let split = ((rec.len() as f64) * (1.0 - self.cfg.heldout_fraction)).round() as usize;
+                let (train, heldout) = (rec.slice(0..split), rec.slice(split..rec.len()));
+                match self.current.clone() {
+                    Some(init) => {
+                        self.stage("calibrating");
+                        self.submit(Job::Calibrate { train, heldout, init, current: self.current_params, run: s.run });
+                    }
+                    None => self.reject(OutcomeKind::Calibration, s.run, rec.len(), None, "no running parameters to start from".into()),
+                }
+            }
+            (State::InitPhase | State::Excitation, State::Faulted | State::Stopped) => {
+                let kind = if prev == State::InitPhase { OutcomeKind::Initial } else { OutcomeKind::Calibration };
+                let samples = if prev == State::InitPhase { self.init_set.len() } else { self.exc_set.len() };
+                self.reject(kind, s.run, samples, None, format!("{} interrupted: the loop went to {}", if prev == State::InitPhase { "initialisation" } else { "excitation" }, state.name()));
+                self.stage("idle");
+            }
+            _ => {}
+        }
+    }
+
+    fn submit(&mut self, job: Job) {
+        let Some(backend) = self.backend.take() else {
+            let (kind, run) = match &job {
+                Job::Initial { run, .. } => (OutcomeKind::Initial, *run),
+                Job::Calibrate { run, .. } => (OutcomeKind::Calibration, *run),
+            };
+            self.reject(kind, run, 0, None, "a calibration is already running".into());
+            return;
+        };
+        if let Some((tx, _)) = &self.jobs {
+            self.busy = true;
+            let _ = tx.send((job, backend));
+        }
+    }
+
+    fn poll_results(&mut self) {
+        let Some((_, rx)) = &self.jobs else { return };
+        let Ok((r, backend)) = rx.try_recv() else { return };
+        self.backend = Some(backend);
+        self.busy = false;
+        self.stage("idle");
+        match r.result {
+            Err(e) => self.reject(r.kind, r.run, r.samples, None, format!("the calibration failed: {e}")),
+            Ok(est) => match self.validate(r.kind, &est, r.heldout.as_ref()) {
+                Ok((new_rms, old_rms)) => self.publish(r.kind, r.run, r.samples, est, new_rms, old_rms),
+                Err(why) => self.reject(r.kind, r.run, r.samples, Some(est), why),
+            },
+        }
+    }
+
+    fn validate(&self, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), String> {
+        let c = &self.cfg;
+        if est.anchors.len() != c.n || est.l0.len() != c.n {
+            return Err(format!("{} anchors and {} offsets for {} cables", est.anchors.len(), est.l0.len(), c.n));
+        }
+        if est.anchors.iter().flatten().chain(&est.l0).any(|v| !v.is_finite()) {
+            return Err("non-finite parameters".into());
+        }
+        let reference: Option<(Vec<[f64; 3]>, Option<Vec<f64>>)> = match kind {
+            OutcomeKind::Initial => c.nominal.clone().map(|a| (a, None)),
+            OutcomeKind::Calibration => self.current.as_ref().map(|e| (e.anchors.clone(), Some(e.l0.clone()))),
+        };
+        let bound = match kind {
+            // The nominal anchors are a tape-measure guess: allow twice the change.
+            OutcomeKind::Initial => 2.0 * c.max_anchor_change_m,
+            OutcomeKind::Calibration => c.max_anchor_change_m,
+        };
+        if let Some((anchors, l0)) = reference {
+            for (j, (a, b)) in est.anchors.iter().zip(&anchors).enumerate() {
+                let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                if d > bound {
+                    return Err(format!("anchor {j} moved {d:.3} m, more than the plausible {bound:.3} m (daemon.max_anchor_change_m)"));
+                }
+            }
+            if let Some(l0) = l0 {
+                for (j, (a, b)) in est.l0.iter().zip(&l0).enumerate() {
+                    if (a - b).abs() > c.max_l0_change_m {
+                        return Err(format!("offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m", (a - b).abs(), c.max_l0_change_m));
+                    }
+                }
+            }
+        }
+        if kind == OutcomeKind::Initial {
+            return Ok((f64::NAN, f64::NAN));
+        }
+        if !est.observable {
+            return Err(format!("observability: {}", est.note));
+        }
+        let worst = est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
+        if worst > c.max_sigma_m {
+            return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
+        }
+        let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
+        let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform);
+        let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
+        let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
+        let old_rms = current.coregistration_rms(rows(), c.min_tension_n);
+        match (new_rms, old_rms) {
+            (Some(n), Some(o)) if n < o => Ok((n, o)),
+            (Some(n), Some(o)) => Err(format!("held-out co-registration RMS {:.2} mm is not lower than the running parameters' {:.2} mm", n * 1e3, o * 1e3)),
+            _ => Err("no usable held-out samples (tracker or taut cables missing)".into()),
+        }
+    }
+
+    fn publish(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Estimate, new_rms: f64, old_rms: f64) {
+        let version = self.version + 1;
+        let file = ParamsFile {
+            format: FORMAT.into(),
+            version,
+            created_unix_s: unix_now(),
+            robot: self.cfg.robot.clone(),
+            source: match kind {
+                OutcomeKind::Initial => format!("start-up initial estimate ({})", est.note),
+                OutcomeKind::Calibration if run == 0 => "start-up calibration".into(),
+                OutcomeKind::Calibration => format!("recalibration {run}"),
+            },
+            anchors_m: est.anchors.clone(),
+            l0_m: est.l0.clone(),
+            anchor_sigma_m: est.anchor_sigma.clone(),
+            l0_sigma_m: est.l0_sigma.clone(),
+            rms_m: est.rms_m,
+            heldout_rms_m: new_rms,
+        };
+        let dir = self.cfg.data_dir.join("params");
+        let written = std::fs::create_dir_all(&dir)
+            .and_then(|_| file.save_atomic(dir.join(format!("params-v{version:04}.toml"))))
+            .and_then(|_| file.save_atomic(dir.join("current.toml")));
+        if let Err(e) = written {
+            // Never run parameters that are not on disk: a restart would not know them.
+            self.reject(kind, run, samples, Some(est), format!("cannot write {}: {e}", dir.display()));
+            return;
+        }
+        self.version = version;
+        let lp = LoopParams::new(version, &est.anchors, &est.l0, &self.cfg.platform);
+        // The displaced value is Copy; it is dropped here, on the calibrator thread.
+        self.params_tx.write(lp);
+        self.current_params = lp;
+        self.current = Some(est.clone());
+        let mut st = self.status.lock().unwrap();
+        st.current = Some(file);
+        st.outcomes.push(Outcome { run, kind, accepted: true, reason: String::new(), version, estimate: Some(est), heldout_rms_new_m: new_rms, heldout_rms_old_m: old_rms, samples });
+    }
+
+    fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
+        let mut st = self.status.lock().unwrap();
+        st.outcomes.push(Outcome { run, kind, accepted: false, reason, version: 0, estimate: est, heldout_rms_new_m: f64::NAN, heldout_rms_old_m: f64::NAN, samples });
+    }
+}
+
+fn run_job(job: Job, backend: &mut dyn Calibrate) -> JobResult {
+    match job {
+        Job::Initial { rec, run } => {
+            let samples = rec.len();
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.initialise(&rec)))
+                .unwrap_or_else(|_| Err("the initialisation panicked".into()));
+            JobResult { kind: OutcomeKind::Initial, run, samples, result, heldout: None }
+        }
+        Job::Calibrate { train, heldout, init, current, run } => {
+            let samples = train.len() + heldout.len();
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.calibrate(&train, &init)))
+                .unwrap_or_else(|_| Err("the calibration panicked".into()));
+            JobResult { kind: OutcomeKind::Calibration, run, samples, result, heldout: Some((heldout, current)) }
+        }
+    }
+}

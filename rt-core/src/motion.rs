@@ -1,0 +1,813 @@
+//! The motion state machine and the safety checks: the `update` step of the loop.
+//!
+//! ```text
+//! Idle -> Enabling -> InitPhase 0 -> 1 -> 2 -> AwaitInitial -> Excitation -> Operate
+//!                                                                  ^            |  recalibrate
+//!                                                                  +------------+
+//! any state --(cause)--> Faulted {hold | quick stop | disable}  --reset--> Holding
+//! any state --stop--> Stopped
+//! ```
+//!
+//! In each initialisation phase two cables hold their length in position mode, one is reeled by
+//! `motion.init_reel_m` at `motion.init_reel_speed_m_s` and back, and every other cable follows in
+//! torque mode at `motion.init_follower_tension_n`. The phase is aborted (hold) when a held cable
+//! exceeds `safety.max_tension_n` or the reeled one goes loose. The calibrator watches the states
+//! in the sample stream: the end of the phases asks it for the initial estimate, the end of an
+//! excitation for a calibration; whatever it publishes is picked up at a cycle boundary and faded
+//! in by the swap ramp.
+//!
+//! Everything here is fixed size; `update` never allocates.
+
+use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Inputs, Outputs};
+use crate::kin::LoopParams;
+use crate::ramp::Ramp;
+use crate::safety::{Cause, Reaction};
+use crate::triple::Reader;
+use crate::MAX_CABLES;
+use crossbeam_channel::Receiver;
+
+/// Motion states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum State {
+    /// Not started.
+    Idle = 0,
+    /// Waiting for every drive to reach "operation enabled".
+    Enabling = 1,
+    /// One of the three initialisation phases ([`Controller::phase`]).
+    InitPhase = 2,
+    /// Holding while the calibrator computes the initial estimate.
+    AwaitInitial = 3,
+    /// Following the excitation trajectory.
+    Excitation = 4,
+    /// Following operator targets by inverse kinematics (also while a calibration runs).
+    Operate = 5,
+    /// Holding encoder lengths after a reset.
+    Holding = 6,
+    /// A safety reaction is latched ([`Controller::fault`]).
+    Faulted = 7,
+    /// Stopped by the operator; the loop ends.
+    Stopped = 8,
+}
+
+impl State {
+    /// From the `u8` carried in samples.
+    pub fn from_u8(v: u8) -> State {
+        match v {
+            1 => State::Enabling,
+            2 => State::InitPhase,
+            3 => State::AwaitInitial,
+            4 => State::Excitation,
+            5 => State::Operate,
+            6 => State::Holding,
+            7 => State::Faulted,
+            8 => State::Stopped,
+            _ => State::Idle,
+        }
+    }
+
+    /// Lower-case name for status output.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Idle => "idle",
+            State::Enabling => "enabling",
+            State::InitPhase => "init-phase",
+            State::AwaitInitial => "await-initial-estimate",
+            State::Excitation => "excitation",
+            State::Operate => "operate",
+            State::Holding => "holding",
+            State::Faulted => "faulted",
+            State::Stopped => "stopped",
+        }
+    }
+}
+
+/// Commands from the control side. `Copy`, sent over a bounded channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    /// Emergency stop (quick stop), in every state.
+    Estop,
+    /// Controlled stop: hold, disable, end the loop.
+    Stop,
+    /// Run the excitation again; the calibrator recalibrates from it.
+    Recalibrate,
+    /// Clear a latched safety reaction and hold.
+    Reset,
+    /// Move the platform to this position, m (in operate or holding).
+    MoveTo([f64; 3]),
+}
+
+/// The numbers the controller needs, resolved from the configuration at start-up.
+#[derive(Debug, Clone, Copy)]
+pub struct ControllerConfig {
+    /// Number of cables.
+    pub n: usize,
+    /// CANopen node id of each cable's drive (for causes).
+    pub node_ids: [u8; MAX_CABLES],
+    /// Cables that follow in torque mode outside the initialisation (redundant cables).
+    pub follower: [bool; MAX_CABLES],
+    /// Their tension, N.
+    pub follower_tension_n: f64,
+    /// `[held_a, held_b, reeled]` per phase.
+    pub phases: [[usize; 3]; 3],
+    /// Reel length, m (signed).
+    pub reel_m: f64,
+    /// Reel speed, m/s.
+    pub reel_speed_m_s: f64,
+    /// Torque-mode tension of followers in the phases, N.
+    pub init_follower_tension_n: f64,
+    /// Pause after each phase, s.
+    pub settle_s: f64,
+    /// Drive enable timeout, s.
+    pub enable_timeout_s: f64,
+    /// Excitation duration, s.
+    pub excitation_s: f64,
+    /// Excitation speed limit, m/s.
+    pub excitation_speed_m_s: f64,
+    /// Workspace box, m.
+    pub workspace: [[f64; 3]; 2],
+    /// Swap ramp time, s.
+    pub swap_ramp_s: f64,
+    /// Operator move speed, m/s.
+    pub move_speed_m_s: f64,
+    /// Tension limit, N.
+    pub max_tension_n: f64,
+    /// Loose threshold, N.
+    pub loose_tension_n: f64,
+    /// Tension age limit, s; infinite when the robot has no load cells.
+    pub tension_max_age_s: f64,
+    /// Tracker age limit, s.
+    pub tracker_max_age_s: f64,
+    /// Cable speed limit, m/s.
+    pub max_cable_speed_m_s: f64,
+    /// Workspace margin, m.
+    pub workspace_margin_m: f64,
+}
+
+impl ControllerConfig {
+    /// Resolves the configuration. Fails (with the key to set) when no workspace box is given and
+    /// none can be derived from nominal anchors.
+    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<ControllerConfig, String> {
+        let n = cfg.cables.len();
+        if n > MAX_CABLES {
+            return Err(format!("{n} cables: the real-time loop is built for at most {MAX_CABLES}"));
+        }
+        let m = &cfg.motion;
+        let s = &cfg.safety;
+        let workspace = match (m.workspace_min_m, m.workspace_max_m) {
+            (Some(lo), Some(hi)) => [lo, hi],
+            _ => {
+                let anchors = cfg.anchors().ok_or(
+                    "no workspace box: set motion.workspace_min_m and motion.workspace_max_m, or give every cable a nominal anchor",
+                )?;
+                let mut lo = [f64::INFINITY; 3];
+                let mut hi = [f64::NEG_INFINITY; 3];
+                for a in &anchors {
+                    for i in 0..3 {
+                        lo[i] = lo[i].min(a[i]);
+                        hi[i] = hi[i].max(a[i]);
+                    }
+                }
+                // Middle half of the anchors' footprint, 1 m to 3 m below the lowest anchor.
+                let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+                let h = [(hi[0] - lo[0]) / 4.0, (hi[1] - lo[1]) / 4.0];
+                [[c[0] - h[0], c[1] - h[1], lo[2] - 3.0], [c[0] + h[0], c[1] + h[1], lo[2] - 1.0]]
+            }
+        };
+        let mut node_ids = [0u8; MAX_CABLES];
+        let mut follower = [false; MAX_CABLES];
+        for (j, c) in cfg.cables.iter().enumerate() {
+            node_ids[j] = c.drive.as_ref().map_or(j as u8 + 1, |d| d.node_id);
+            // A point mass is fixed by three cables; the others follow in torque mode so that
+            // errors in the parameters do not make position-controlled cables fight.
+            follower[j] = j >= 3;
+        }
+        let mut phases = [[0usize; 3]; 3];
+        for (k, p) in m.init_phases.iter().take(3).enumerate() {
+            phases[k] = *p;
+        }
+        Ok(ControllerConfig {
+            n,
+            node_ids,
+            follower,
+            follower_tension_n: m.init_follower_tension_n.max(s.loose_tension_n * 2.0),
+            phases,
+            reel_m: m.init_reel_m,
+            reel_speed_m_s: m.init_reel_speed_m_s,
+            init_follower_tension_n: m.init_follower_tension_n,
+            settle_s: m.init_settle_s,
+            enable_timeout_s: m.enable_timeout_s,
+            excitation_s: m.excitation_s,
+            excitation_speed_m_s: m.excitation_speed_m_s,
+            workspace,
+            swap_ramp_s: m.swap_ramp_s,
+            move_speed_m_s: m.move_speed_m_s,
+            max_tension_n: s.max_tension_n,
+            loose_tension_n: s.loose_tension_n,
+            tension_max_age_s: if cfg.loadcells.is_some() || cfg.cables.iter().any(|c| c.loadcell.is_some()) {
+                s.tension_max_age_s
+            } else {
+                f64::INFINITY
+            },
+            tracker_max_age_s: s.tracker_max_age_s,
+            max_cable_speed_m_s: s.max_cable_speed_m_s,
+            workspace_margin_m: s.workspace_margin_m,
+        })
+    }
+}
+
+/// Segments of an initialisation phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Segment {
+    Reel,
+    Return,
+    Settle,
+}
+
+/// A snapshot for status output, published by the loop every cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct Snapshot {
+    /// Loop time, s.
+    pub t: f64,
+    /// Motion state.
+    pub state: State,
+    /// Initialisation phase, -1 outside.
+    pub phase: i8,
+    /// Phases completed so far.
+    pub phases_completed: u8,
+    /// Calibration run.
+    pub run: u16,
+    /// Latched cause and reaction.
+    pub fault: Option<(Cause, Reaction)>,
+    /// Version of the parameters in use.
+    pub params_version: u64,
+    /// True while a parameter swap is being faded in.
+    pub swap_active: bool,
+    /// Parameter swaps done.
+    pub swaps: u32,
+    /// Largest per-cycle change of a commanded length during any swap so far, m.
+    pub max_swap_step_m: f64,
+    /// Platform target (operate), m.
+    pub target_m: [f64; 3],
+    /// Latest inputs.
+    pub inputs: Inputs,
+    /// Latest commanded lengths (position mode cables), m.
+    pub cmd_m: [f64; MAX_CABLES],
+}
+
+/// The motion state machine and safety checks.
+pub struct Controller {
+    cfg: ControllerConfig,
+    commands: Receiver<Command>,
+    params_rx: Reader<LoopParams>,
+    params: LoopParams,
+    state: State,
+    state_t0: f64,
+    phase: i8,
+    phases_completed: u8,
+    segment: Segment,
+    segment_t0: f64,
+    reel_start_m: f64,
+    run: u16,
+    fault: Option<(Cause, Reaction)>,
+    hold_m: [f64; MAX_CABLES],
+    cmd: [f64; MAX_CABLES],
+    cmd_valid: bool,
+    // excitation
+    start_m: [f64; 3],
+    lissajous_start: [f64; 3],
+    approach_s: f64,
+    omega: [f64; 3],
+    amp: [f64; 3],
+    centre: [f64; 3],
+    // operate
+    target: [f64; 3],
+    goal: [f64; 3],
+    transfer: Ramp,
+    swap: Ramp,
+    swaps: u32,
+    awaited_version: u64,
+    stop_cycles: u32,
+}
+
+const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
+const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
+
+fn smoothstep(s: f64) -> f64 {
+    let s = s.clamp(0.0, 1.0);
+    s * s * (3.0 - 2.0 * s)
+}
+
+impl Controller {
+    /// A controller in `Idle`. The parameters come through `params_rx` (they may be invalid
+    /// until the calibrator publishes an estimate).
+    pub fn new(cfg: ControllerConfig, commands: Receiver<Command>, mut params_rx: Reader<LoopParams>) -> Controller {
+        let params = *params_rx.read();
+        let centre = [
+            (cfg.workspace[0][0] + cfg.workspace[1][0]) / 2.0,
+            (cfg.workspace[0][1] + cfg.workspace[1][1]) / 2.0,
+            (cfg.workspace[0][2] + cfg.workspace[1][2]) / 2.0,
+        ];
+        let mut amp = [0.0; 3];
+        let mut omega = [0.0; 3];
+        for i in 0..3 {
+            // 80% of the half-size; |a_i w_i| <= v / sqrt(3) keeps the speed under v.
+            amp[i] = 0.8 * (cfg.workspace[1][i] - cfg.workspace[0][i]) / 2.0;
+            omega[i] = LISSAJOUS_RATIO[i] * cfg.excitation_speed_m_s / (3f64.sqrt() * amp[i].max(1e-3));
+        }
+        Controller {
+            cfg,
+            commands,
+            params_rx,
+            params,
+            state: State::Idle,
+            state_t0: 0.0,
+            phase: -1,
+            phases_completed: 0,
+            segment: Segment::Reel,
+            segment_t0: 0.0,
+            reel_start_m: 0.0,
+            run: 0,
+            fault: None,
+            hold_m: [0.0; MAX_CABLES],
+            cmd: [0.0; MAX_CABLES],
+            cmd_valid: false,
+            start_m: centre,
+            lissajous_start: centre,
+            approach_s: 1.0,
+            omega,
+            amp,
+            centre,
+            target: centre,
+            goal: centre,
+            transfer: Ramp::new(cfg.swap_ramp_s),
+            swap: Ramp::new(cfg.swap_ramp_s),
+            swaps: 0,
+            awaited_version: 0,
+            stop_cycles: 0,
+        }
+    }
+
+    /// The current state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// The initialisation phase, -1 outside.
+    pub fn phase(&self) -> i8 {
+        self.phase
+    }
+
+    /// The calibration run (0: start-up).
+    pub fn run(&self) -> u16 {
+        self.run
+    }
+
+    /// The latched cause and reaction, if any.
+    pub fn fault(&self) -> Option<(Cause, Reaction)> {
+        self.fault
+    }
+
+    /// The parameters in use.
+    pub fn params(&self) -> &LoopParams {
+        &self.params
+    }
+
+    /// True once the loop may end (stopped and drives told to disable).
+    pub fn finished(&self) -> bool {
+        self.state == State::Stopped && self.stop_cycles >= 10
+    }
+
+    /// Largest per-cycle change of a commanded length during any parameter swap, m.
+    pub fn max_swap_step_m(&self) -> f64 {
+        self.swap.max_step_m
+    }
+
+    /// A snapshot for status output.
+    pub fn snapshot(&self, t: f64, inputs: &Inputs) -> Snapshot {
+        Snapshot {
+            t,
+            state: self.state,
+            phase: self.phase,
+            phases_completed: self.phases_completed,
+            run: self.run,
+            fault: self.fault,
+            params_version: self.params.version,
+            swap_active: self.swap.active(),
+            swaps: self.swaps,
+            max_swap_step_m: self.swap.max_step_m,
+            target_m: self.target,
+            inputs: *inputs,
+            cmd_m: self.cmd,
+        }
+    }
+
+    fn enter(&mut self, s: State, now: f64) {
+        self.state = s;
+        self.state_t0 = now;
+        if s != State::InitPhase {
+            self.phase = -1;
+        }
+    }
+
+    fn latch(&mut self, cause: Cause, inp: &Inputs, now: f64) {
+        let reaction = cause.reaction();
+        if self.state == State::Stopped {
+            return;
+        }
+        match self.fault {
+            Some((_, r)) if r >= reaction => return,
+            _ => {}
+        }
+        if self.fault.is_none() {
+            // Hold where the cables are, or where they were last commanded if not measured.
+            for j in 0..self.cfg.n {
+                self.hold_m[j] = if inp.length_m[j].is_finite() { inp.length_m[j] } else { self.cmd[j] };
+            }
+        }
+        self.fault = Some((cause, reaction));
+        self.transfer.cancel();
+        self.swap.cancel();
+        self.enter(State::Faulted, now);
+    }
+
+    fn hold_here(&mut self, inp: &Inputs) {
+        for j in 0..self.cfg.n {
+            self.hold_m[j] = if inp.length_m[j].is_finite() { inp.length_m[j] } else { self.cmd[j] };
+        }
+    }
+
+    fn handle_command(&mut self, c: Command, inp: &Inputs, now: f64) {
+        match c {
+            Command::Estop => self.latch(Cause::Estop, inp, now),
+            Command::Stop => {
+                if self.fault.is_none() {
+                    self.hold_here(inp);
+                }
+                self.transfer.cancel();
+                self.swap.cancel();
+                self.enter(State::Stopped, now);
+            }
+            Command::Recalibrate => {
+                if matches!(self.state, State::Operate | State::Holding) && self.params.valid && self.fault.is_none() {
+                    self.run = self.run.wrapping_add(1);
+                    self.start_excitation(inp, now);
+                }
+            }
+            Command::Reset => {
+                if self.state == State::Faulted {
+                    self.fault = None;
+                    self.hold_here(inp);
+                    self.enter(State::Holding, now);
+                }
+            }
+            Command::MoveTo(p) => {
+                let inside = (0..3).all(|i| p[i] >= self.cfg.workspace[0][i] && p[i] <= self.cfg.workspace[1][i]);
+                if !inside || !self.params.valid {
+                    return;
+                }
+                match self.state {
+                    State::Operate => self.goal = p,
+                    State::Holding => {
+                        self.target = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.goal };
+                        self.goal = p;
+                        self.enter_ik(State::Operate, now);
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    /// Switches to a state whose commands come from inverse kinematics; the difference to the
+    /// last command is faded out by the transfer ramp.
+    fn enter_ik(&mut self, s: State, now: f64) {
+        let mut next = [0.0; MAX_CABLES];
+        self.params.lengths(&self.target, &mut next);
+        if self.cmd_valid {
+            self.transfer.start(self.cfg.n, &self.cmd, &next);
+        }
+        self.enter(s, now);
+    }
+
+    fn start_excitation(&mut self, inp: &Inputs, now: f64) {
+        let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
+        self.start_m = p0;
+        for i in 0..3 {
+            self.lissajous_start[i] = self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin();
+        }
+        let d = (0..3).map(|i| (self.lissajous_start[i] - p0[i]).powi(2)).sum::<f64>().sqrt();
+        // Smoothstep peaks at 1.5 x the mean speed.
+        self.approach_s = (1.5 * d / self.cfg.excitation_speed_m_s).max(1.0);
+        self.target = p0;
+        self.enter_ik(State::Excitation, now);
+    }
+
+    fn excitation_point(&self, t: f64) -> [f64; 3] {
+        if t < self.approach_s {
+            let w = smoothstep(t / self.approach_s);
+            let mut p = [0.0; 3];
+            for i in 0..3 {
+                p[i] = self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]);
+            }
+            p
+        } else {
+            let tt = t - self.approach_s;
+            let mut p = [0.0; 3];
+            for i in 0..3 {
+                p[i] = self.centre[i] + self.amp[i] * (self.omega[i] * tt + LISSAJOUS_PHASE[i]).sin();
+            }
+            p
+        }
+    }
+
+    /// One cycle: `now` is the loop time, `dt` the measured period. Reads `inp`, writes `out`.
+    pub fn update(&mut self, now: f64, dt: f64, inp: &Inputs, out: &mut Outputs) {
+        let n = self.cfg.n;
+        while let Ok(c) = self.commands.try_recv() {
+            self.handle_command(c, inp, now);
+        }
+
+        // New parameters are taken at this cycle boundary only.
+        let mut swapped = false;
+        if self.params_rx.update() {
+            let p = *self.params_rx.current();
+            if p.valid && p.version != self.params.version {
+                self.params = p;
+                swapped = true;
+            }
+        }
+
+        self.check_devices(inp, now);
+        if !matches!(self.state, State::Idle | State::Faulted | State::Stopped) {
+            self.check_limits(inp, now);
+        }
+
+        let mut next = self.cmd;
+        let mut modes = [CableCommand::Idle; MAX_CABLES];
+        out.request = DriveRequest::Enable;
+        match self.state {
+            State::Idle => {
+                out.request = DriveRequest::Disable;
+                self.enter(State::Enabling, now);
+                for j in 0..n {
+                    next[j] = inp.length_m[j];
+                }
+            }
+            State::Enabling => {
+                for j in 0..n {
+                    next[j] = inp.length_m[j];
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+                let first_off = (0..n).find(|&j| inp.drive[j] != DriveStatus::Enabled);
+                match first_off {
+                    None if (0..n).all(|j| inp.length_m[j].is_finite()) => {
+                        self.hold_here(inp);
+                        self.start_phase(0, inp, now);
+                    }
+                    Some(j) if now - self.state_t0 > self.cfg.enable_timeout_s => {
+                        self.latch(Cause::EnableTimeout { cable: j as u8 }, inp, now)
+                    }
+                    _ => {}
+                }
+            }
+            State::InitPhase => {
+                let k = self.phase as usize;
+                let [a, b, r] = self.cfg.phases[k];
+                let ts = now - self.segment_t0;
+                let travel_s = self.cfg.reel_m.abs() / self.cfg.reel_speed_m_s;
+                let reel = match self.segment {
+                    Segment::Reel => {
+                        if ts >= travel_s {
+                            self.segment = Segment::Return;
+                            self.segment_t0 = now;
+                        }
+                        self.cfg.reel_m * (ts / travel_s).min(1.0)
+                    }
+                    Segment::Return => {
+                        if ts >= travel_s {
+                            self.segment = Segment::Settle;
+                            self.segment_t0 = now;
+                        }
+                        self.cfg.reel_m * (1.0 - (ts / travel_s).min(1.0))
+                    }
+                    Segment::Settle => 0.0,
+                };
+                for j in 0..n {
+                    if j == a || j == b {
+                        next[j] = self.hold_m[j];
+                        modes[j] = CableCommand::Position(next[j]);
+                    } else if j == r {
+                        next[j] = self.reel_start_m + reel;
+                        modes[j] = CableCommand::Position(next[j]);
+                    } else {
+                        next[j] = inp.length_m[j];
+                        modes[j] = CableCommand::Tension(self.cfg.init_follower_tension_n);
+                    }
+                }
+                if self.segment == Segment::Settle {
+                    // Everyone holds while the platform settles; the phase's data has ended.
+                    for j in 0..n {
+                        if j != a && j != b && j != r {
+                            modes[j] = CableCommand::Tension(self.cfg.init_follower_tension_n);
+                        }
+                    }
+                    if now - self.segment_t0 >= self.cfg.settle_s {
+                        self.phases_completed += 1;
+                        self.hold_here(inp);
+                        if k + 1 < 3 {
+                            self.start_phase(k + 1, inp, now);
+                        } else {
+                            self.awaited_version = self.params.version;
+                            self.enter(State::AwaitInitial, now);
+                        }
+                    }
+                }
+            }
+            State::AwaitInitial => {
+                for j in 0..n {
+                    next[j] = self.hold_m[j];
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+                if self.params.valid && self.params.version != self.awaited_version {
+                    swapped = false; // taken over by the transfer ramp below
+                    self.start_excitation(inp, now);
+                    next = self.ik_command(&mut modes);
+                }
+            }
+            State::Excitation => {
+                let t = now - self.state_t0;
+                self.target = self.excitation_point(t);
+                if t >= self.approach_s + self.cfg.excitation_s {
+                    self.goal = self.target;
+                    self.enter(State::Operate, now);
+                }
+                next = self.ik_command(&mut modes);
+            }
+            State::Operate => {
+                // Straight-line moves towards the goal at the configured speed.
+                let d: [f64; 3] = std::array::from_fn(|i| self.goal[i] - self.target[i]);
+                let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let step = self.cfg.move_speed_m_s * dt;
+                if dist > step {
+                    for i in 0..3 {
+                        self.target[i] += d[i] * step / dist;
+                    }
+                } else {
+                    self.target = self.goal;
+                }
+                next = self.ik_command(&mut modes);
+            }
+            State::Holding => {
+                for j in 0..n {
+                    next[j] = self.hold_m[j];
+                    modes[j] = if self.cfg.follower[j] {
+                        CableCommand::Tension(self.cfg.follower_tension_n)
+                    } else {
+                        CableCommand::Position(next[j])
+                    };
+                }
+            }
+            State::Faulted => {
+                let reaction = self.fault.map_or(Reaction::Hold, |f| f.1);
+                out.request = match reaction {
+                    Reaction::Hold => DriveRequest::Enable,
+                    Reaction::QuickStop => DriveRequest::QuickStop,
+                    Reaction::Disable => DriveRequest::Disable,
+                };
+                for j in 0..n {
+                    next[j] = self.hold_m[j];
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+            }
+            State::Stopped => {
+                self.stop_cycles = self.stop_cycles.saturating_add(1);
+                out.request = if self.stop_cycles > 2 { DriveRequest::Disable } else { DriveRequest::Enable };
+                for j in 0..n {
+                    next[j] = self.hold_m[j];
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+            }
+        }
+
+        // A new parameter set while commands come from inverse kinematics: fade the jump in.
+        let ik = matches!(self.state, State::Excitation | State::Operate);
+        if swapped {
+            self.swaps += 1;
+            if ik && self.cmd_valid {
+                self.swap.start(n, &self.cmd, &next);
+            }
+        }
+        if ik {
+            self.transfer.apply(n, dt, &mut next);
+            self.swap.apply(n, dt, &mut next);
+            for j in 0..n {
+                if let CableCommand::Position(_) = modes[j] {
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+            }
+            // Speed limit on what is about to be commanded.
+            if self.cmd_valid && dt > 0.0 {
+                for j in 0..n {
+                    if let CableCommand::Position(_) = modes[j] {
+                        let v = (next[j] - self.cmd[j]) / dt;
+                        if v.abs() > self.cfg.max_cable_speed_m_s {
+                            self.latch(Cause::SpeedLimit { cable: j as u8, speed_m_s: v as f32 }, inp, now);
+                            for jj in 0..n {
+                                next[jj] = self.hold_m[jj];
+                                modes[jj] = CableCommand::Position(next[jj]);
+                            }
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+        self.cmd = next;
+        self.cmd_valid = (0..n).all(|j| next[j].is_finite());
+        out.n = n;
+        out.cable = modes;
+    }
+
+    fn ik_command(&mut self, modes: &mut [CableCommand; MAX_CABLES]) -> [f64; MAX_CABLES] {
+        let mut next = [0.0; MAX_CABLES];
+        self.params.lengths(&self.target, &mut next);
+        for j in 0..self.cfg.n {
+            modes[j] = if self.cfg.follower[j] {
+                CableCommand::Tension(self.cfg.follower_tension_n)
+            } else {
+                CableCommand::Position(next[j])
+            };
+        }
+        next
+    }
+
+    fn start_phase(&mut self, k: usize, inp: &Inputs, now: f64) {
+        self.enter(State::InitPhase, now);
+        self.phase = k as i8;
+        self.segment = Segment::Reel;
+        self.segment_t0 = now;
+        let r = self.cfg.phases[k][2];
+        self.reel_start_m = if inp.length_m[r].is_finite() { inp.length_m[r] } else { self.hold_m[r] };
+    }
+
+    fn check_devices(&mut self, inp: &Inputs, now: f64) {
+        if let Some(f) = inp.fault {
+            let cause = match f {
+                DeviceFault::Emcy { node, code } => Cause::DriveFault { node, code },
+                DeviceFault::HeartbeatLost { node } => Cause::HeartbeatLost { node },
+                DeviceFault::BusOff => Cause::BusOff,
+            };
+            if self.state != State::Idle {
+                self.latch(cause, inp, now);
+            }
+        }
+        if matches!(self.state, State::InitPhase | State::AwaitInitial | State::Excitation | State::Operate | State::Holding) {
+            for j in 0..self.cfg.n {
+                if inp.drive[j] == DriveStatus::Fault {
+                    self.latch(Cause::DriveFault { node: self.cfg.node_ids[j], code: 0 }, inp, now);
+                    break;
+                }
+            }
+        }
+    }
+
+    fn check_limits(&mut self, inp: &Inputs, now: f64) {
+        let c = self.cfg;
+        for j in 0..c.n {
+            if inp.tension_age_s[j] > c.tension_max_age_s {
+                return self.latch(Cause::TensionStale { cable: j as u8 }, inp, now);
+            }
+            if inp.tension_n[j] > c.max_tension_n {
+                return self.latch(Cause::TensionHigh { cable: j as u8, tension_n: inp.tension_n[j] as f32 }, inp, now);
+            }
+        }
+        let tracker_needed = matches!(self.state, State::InitPhase | State::Excitation);
+        let pose_fresh = inp.pose_age_s <= c.tracker_max_age_s;
+        if tracker_needed && !pose_fresh {
+            return self.latch(Cause::TrackerStale, inp, now);
+        }
+        if self.state == State::InitPhase && self.segment != Segment::Settle && c.tension_max_age_s.is_finite() {
+            let r = c.phases[self.phase as usize][2];
+            // Give the reeled cable a moment after the phase starts before calling it loose.
+            if now - self.segment_t0 > 0.2 || self.segment == Segment::Return {
+                if inp.tension_n[r] < c.loose_tension_n {
+                    return self.latch(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 }, inp, now);
+                }
+            }
+        }
+        // The approach of the excitation may start outside the box; it leads into it.
+        let in_box_motion = match self.state {
+            State::Excitation => now - self.state_t0 >= self.approach_s,
+            State::Operate => true,
+            _ => false,
+        };
+        if in_box_motion && pose_fresh {
+            let m = c.workspace_margin_m;
+            let p = inp.pose_m;
+            if (0..3).any(|i| p[i] < c.workspace[0][i] - m || p[i] > c.workspace[1][i] + m) {
+                self.latch(Cause::Workspace, inp, now);
+            }
+        }
+    }
+}

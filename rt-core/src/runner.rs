@@ -1,0 +1,148 @@
+//! The periodic loop thread: `read -> update -> write -> push sample`, once per period.
+
+use crate::io::{Devices, Inputs, Outputs};
+use crate::motion::{Controller, Snapshot};
+use crate::rtsys::{monotonic_ns, setup_current_thread, Periodic, RtSetupReport};
+use crate::sample::{Sample, SampleTx};
+use crate::triple::Writer;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use taut_config::runtime::RtConfig;
+
+/// What the loop publishes for status output, every cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct LoopStatus {
+    /// The controller's view.
+    pub snap: Snapshot,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Periods missed.
+    pub overruns: u64,
+    /// Latest wake-up lateness, ns.
+    pub late_ns: i64,
+    /// Largest wake-up lateness, ns.
+    pub max_late_ns: i64,
+    /// Largest compute time of one cycle (read + update + write + push), ns.
+    pub max_compute_ns: i64,
+    /// Samples dropped because the ring was full.
+    pub dropped: u64,
+    /// `SCHED_FIFO` in effect.
+    pub realtime: bool,
+}
+
+/// One cycle's work without the clock: what the loop thread, the allocation test and the
+/// benchmarks run.
+pub struct LoopCore<D: Devices> {
+    /// The devices.
+    pub devices: D,
+    /// The controller.
+    pub controller: Controller,
+    /// Inputs, filled in place.
+    pub inputs: Inputs,
+    /// Outputs, filled in place.
+    pub outputs: Outputs,
+    tx: SampleTx,
+    sample: Sample,
+}
+
+impl<D: Devices> LoopCore<D> {
+    /// A core of `n` cables.
+    pub fn new(n: usize, devices: D, controller: Controller, tx: SampleTx) -> Self {
+        LoopCore { devices, controller, inputs: Inputs::new(n), outputs: Outputs::new(n), tx, sample: Sample::empty(n) }
+    }
+
+    /// read -> update -> write, then one sample into the ring.
+    #[inline]
+    pub fn cycle(&mut self, now: f64, dt: f64) {
+        self.inputs.fault = None;
+        self.devices.read(now, &mut self.inputs);
+        self.controller.update(now, dt, &self.inputs, &mut self.outputs);
+        self.devices.write(now, &self.outputs);
+        let s = &mut self.sample;
+        let i = &self.inputs;
+        s.t = now;
+        s.state = self.controller.state() as u8;
+        s.phase = self.controller.phase();
+        s.run = self.controller.run();
+        s.length_m = i.length_m;
+        s.length_age_s = i.length_age_s;
+        s.tension_n = i.tension_n;
+        s.tension_age_s = i.tension_age_s;
+        s.drive = i.drive;
+        s.pose_m = i.pose_m;
+        s.pose_age_s = i.pose_age_s;
+        self.tx.push(s);
+    }
+
+    /// Samples dropped so far.
+    pub fn dropped(&self) -> u64 {
+        self.tx.dropped()
+    }
+}
+
+/// How the loop ended.
+#[derive(Debug, Clone)]
+pub struct LoopReport {
+    /// What the real-time set-up achieved.
+    pub setup: RtSetupReport,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Periods missed.
+    pub overruns: u64,
+    /// Largest wake-up lateness, ns.
+    pub max_late_ns: i64,
+    /// Largest compute time of one cycle, ns.
+    pub max_compute_ns: i64,
+}
+
+/// Runs the loop on the calling thread until the controller has stopped or `quit` is set.
+/// Real-time set-up happens here, first; warnings go to `warn` once.
+pub fn run_loop<D: Devices>(
+    rt: &RtConfig,
+    mut core: LoopCore<D>,
+    mut status: Writer<LoopStatus>,
+    quit: Arc<AtomicBool>,
+    warn: &dyn Fn(&str),
+) -> LoopReport {
+    let setup = setup_current_thread(rt);
+    for w in &setup.warnings {
+        warn(w);
+    }
+    let period_ns = (1e9 / rt.rate_hz).round() as i64;
+    let mut timer = Periodic::new(period_ns);
+    let t0 = monotonic_ns();
+    let mut last = 0.0;
+    let mut st = LoopStatus {
+        snap: core.controller.snapshot(0.0, &core.inputs),
+        cycles: 0,
+        overruns: 0,
+        late_ns: 0,
+        max_late_ns: 0,
+        max_compute_ns: 0,
+        dropped: 0,
+        realtime: setup.realtime,
+    };
+    loop {
+        let late = timer.wait();
+        let c0 = monotonic_ns();
+        let now = (c0 - t0) as f64 * 1e-9;
+        let dt = if st.cycles == 0 { period_ns as f64 * 1e-9 } else { now - last };
+        last = now;
+        core.cycle(now, dt);
+        st.cycles += 1;
+        st.late_ns = late;
+        st.max_late_ns = st.max_late_ns.max(late);
+        st.overruns = timer.overruns;
+        st.dropped = core.dropped();
+        st.snap = core.controller.snapshot(now, &core.inputs);
+        // The displaced value is a Copy struct: nothing is freed here.
+        status.write(st);
+        let compute = monotonic_ns() - c0;
+        st.max_compute_ns = st.max_compute_ns.max(compute);
+        // Relaxed: a stop request needs no ordering with other data; a cycle's delay is fine.
+        if core.controller.finished() || quit.load(Ordering::Relaxed) {
+            break;
+        }
+    }
+    LoopReport { setup, cycles: st.cycles, overruns: st.overruns, max_late_ns: st.max_late_ns, max_compute_ns: st.max_compute_ns }
+}

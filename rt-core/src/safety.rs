@@ -1,0 +1,146 @@
+//! Safety causes and reactions. Each cause has one defined reaction; the worst reaction seen wins
+//! and stays latched until an operator resets it.
+//!
+//! | cause                          | reaction   |
+//! |--------------------------------|------------|
+//! | tension above `max_tension_n`  | hold       |
+//! | reeled cable loose (init)      | hold       |
+//! | stale tension / tracker data   | hold       |
+//! | speed or workspace limit       | hold       |
+//! | drive enable timeout           | disable    |
+//! | drive EMCY / drive in fault    | quick stop |
+//! | lost heartbeat                 | quick stop |
+//! | bus-off                        | disable    |
+//! | operator estop                 | quick stop |
+
+use std::fmt;
+
+/// What the loop does about a cause. Ordered: a worse reaction replaces a milder one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[repr(u8)]
+pub enum Reaction {
+    /// Every cable holds its current length in position mode.
+    Hold = 1,
+    /// CiA 402 quick stop on every drive.
+    QuickStop = 2,
+    /// Drives disabled.
+    Disable = 3,
+}
+
+impl Reaction {
+    /// Lower-case name for status output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Reaction::Hold => "hold",
+            Reaction::QuickStop => "quick-stop",
+            Reaction::Disable => "disable",
+        }
+    }
+}
+
+/// Why the loop stopped the motion. `Copy`, with the cable or node and the value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Cause {
+    /// A cable's tension exceeded the limit.
+    TensionHigh {
+        /// Cable index.
+        cable: u8,
+        /// Measured tension, N.
+        tension_n: f32,
+    },
+    /// The reeled cable of an initialisation phase went loose.
+    CableLoose {
+        /// Cable index.
+        cable: u8,
+        /// Measured tension, N.
+        tension_n: f32,
+    },
+    /// No fresh tension reading of a cable.
+    TensionStale {
+        /// Cable index.
+        cable: u8,
+    },
+    /// No fresh tracker pose while one is needed.
+    TrackerStale,
+    /// A commanded cable speed above the limit.
+    SpeedLimit {
+        /// Cable index.
+        cable: u8,
+        /// Commanded speed, m/s.
+        speed_m_s: f32,
+    },
+    /// The platform left the workspace box (plus margin).
+    Workspace,
+    /// Drives did not all reach "operation enabled" in time.
+    EnableTimeout {
+        /// First cable whose drive did not.
+        cable: u8,
+    },
+    /// A drive reported an emergency (EMCY) or is in fault.
+    DriveFault {
+        /// CANopen node id (0 when only the state showed it).
+        node: u8,
+        /// EMCY error code (0 when only the state showed it).
+        code: u16,
+    },
+    /// A drive's heartbeat was lost.
+    HeartbeatLost {
+        /// CANopen node id.
+        node: u8,
+    },
+    /// The CAN controller went bus-off.
+    BusOff,
+    /// The operator asked for an emergency stop.
+    Estop,
+}
+
+impl Cause {
+    /// The defined reaction to this cause.
+    pub fn reaction(self) -> Reaction {
+        match self {
+            Cause::TensionHigh { .. }
+            | Cause::CableLoose { .. }
+            | Cause::TensionStale { .. }
+            | Cause::TrackerStale
+            | Cause::SpeedLimit { .. }
+            | Cause::Workspace => Reaction::Hold,
+            Cause::DriveFault { .. } | Cause::HeartbeatLost { .. } | Cause::Estop => Reaction::QuickStop,
+            Cause::EnableTimeout { .. } | Cause::BusOff => Reaction::Disable,
+        }
+    }
+
+    /// A short machine-readable name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Cause::TensionHigh { .. } => "tension-high",
+            Cause::CableLoose { .. } => "cable-loose",
+            Cause::TensionStale { .. } => "tension-stale",
+            Cause::TrackerStale => "tracker-stale",
+            Cause::SpeedLimit { .. } => "speed-limit",
+            Cause::Workspace => "workspace",
+            Cause::EnableTimeout { .. } => "enable-timeout",
+            Cause::DriveFault { .. } => "drive-fault",
+            Cause::HeartbeatLost { .. } => "heartbeat-lost",
+            Cause::BusOff => "bus-off",
+            Cause::Estop => "estop",
+        }
+    }
+}
+
+impl fmt::Display for Cause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Cause::TensionHigh { cable, tension_n } => write!(f, "cable {cable} tension {tension_n:.1} N above the limit (safety.max_tension_n)"),
+            Cause::CableLoose { cable, tension_n } => write!(f, "reeled cable {cable} went loose ({tension_n:.1} N, safety.loose_tension_n)"),
+            Cause::TensionStale { cable } => write!(f, "no fresh tension reading of cable {cable}: check its load cell and the RS-485 bus"),
+            Cause::TrackerStale => write!(f, "no fresh tracker pose: check the tracker and its UDP stream"),
+            Cause::SpeedLimit { cable, speed_m_s } => write!(f, "cable {cable} commanded at {speed_m_s:.2} m/s, above safety.max_cable_speed_m_s"),
+            Cause::Workspace => write!(f, "platform outside the workspace box (motion.workspace_*_m plus safety.workspace_margin_m)"),
+            Cause::EnableTimeout { cable } => write!(f, "drive of cable {cable} did not enable within motion.enable_timeout_s"),
+            Cause::DriveFault { node, code } => write!(f, "drive node {node} fault, EMCY code 0x{code:04X}"),
+            Cause::HeartbeatLost { node } => write!(f, "heartbeat of drive node {node} lost: check its power and the CAN cable"),
+            Cause::BusOff => write!(f, "CAN bus-off: check wiring, termination and bitrate"),
+            Cause::Estop => write!(f, "emergency stop requested by the operator"),
+        }
+    }
+}
