@@ -1,1 +1,4 @@
 //! placeholder
+pub mod loadcell;
+pub mod modbus;
+pub mod tracker;
