@@ -38,5 +38,7 @@ pub mod testkit;
 pub mod sample;
 pub mod triple;
 
+pub use crossbeam_channel;
+
 /// Largest number of cables the loop is built for (fixed-size arrays, no allocation).
 pub const MAX_CABLES: usize = 8;
