@@ -64,6 +64,7 @@ pub struct Plant {
     tension_out: Vec<f64>,
     encoders: Vec<Encoder>,
     loadcells: Vec<LoadCell>,
+    loadcell_offsets: Vec<f64>,
     noisy: bool,
     rng: ChaCha8Rng,
     // Ring buffer of (time, drum lengths) for the time offset.
@@ -82,7 +83,7 @@ impl Plant {
     pub fn new(truth: &Truth, physics: &Physics, p0: [f64; 3]) -> Self {
         let n = truth.n_cables();
         let none = Noise::none();
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let rng = ChaCha8Rng::seed_from_u64(0);
         Plant {
             models: truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect(),
             offsets: truth.platform_points.clone(),
@@ -96,7 +97,8 @@ impl Plant {
             encoder_out: vec![0.0; n],
             tension_out: vec![0.0; n],
             encoders: (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none)).collect(),
-            loadcells: (0..n).map(|_| LoadCell::new(&none, &mut rng)).collect(),
+            loadcells: (0..n).map(|_| LoadCell::with_offset(0.0, &none)).collect(),
+            loadcell_offsets: truth.loadcell_offsets.clone(),
             noisy: false,
             rng,
             hist_t: vec![f64::NEG_INFINITY; HISTORY],
@@ -109,14 +111,14 @@ impl Plant {
         }
     }
 
-    /// Adds encoder and load-cell noise (the tracker is not part of the plant), seeded.
+    /// Adds encoder noise and quantisation, load-cell noise and the truth's load-cell offsets
+    /// (the tracker is not part of the plant), seeded.
     pub fn with_noise(mut self, noise: &Noise, seed: u64) -> Self {
-        let mut rng = crate::rng(seed, crate::STREAM_PLANT);
         for e in &mut self.encoders {
             *e = e.clone().with_noise(noise);
         }
-        self.loadcells = (0..self.models.len()).map(|_| LoadCell::new(noise, &mut rng)).collect();
-        self.rng = rng;
+        self.loadcells = self.loadcell_offsets.iter().map(|&o| LoadCell::with_offset(o, noise)).collect();
+        self.rng = crate::rng(seed, crate::STREAM_PLANT);
         self.noisy = true;
         self
     }
@@ -163,6 +165,23 @@ impl Plant {
                     .map_err(|e| SimError::Catenary(e.to_string()))
             })
             .collect()
+    }
+
+    /// Drum lengths that hold the platform at rest at `p` with the tensions a controller would
+    /// choose there (minimum norm, at least `min_tension_n`; see [`crate::tension`]).
+    pub fn lengths_at_rest(&self, p: [f64; 3], min_tension_n: f64) -> Result<Vec<f64>, SimError> {
+        let n = self.models.len();
+        let mut dirs = [[0.0; 3]; crate::tension::MAX_CABLES];
+        for j in 0..n {
+            let o = self.offsets[j];
+            dirs[j] = self.models[j].path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]).dir;
+        }
+        let mut t = vec![0.0; n];
+        let d = crate::tension::distribute(&dirs[..n], [0.0, 0.0, self.mass * crate::physics::G], min_tension_n, &mut t);
+        if d.loose != 0 || !d.feasible {
+            return Err(SimError::BadScenario("the cables cannot hold the platform at rest there with the minimum tension"));
+        }
+        self.lengths_holding(p, &t)
     }
 
     /// Advances by `dt` seconds under `commands` (one per cable).

@@ -16,7 +16,8 @@ use rand::Rng;
 use taut_config::recording::Recording;
 use taut_config::RobotConfig;
 
-use crate::physics::{CableModel, Physics, G};
+use crate::physics::{CableCommand, CableModel, Physics, G};
+use crate::plant::Plant;
 use crate::sensors::{Encoder, LoadCell, Noise, Tracker};
 use crate::tension::{distribute, Distribution, MAX_CABLES};
 use crate::three_phase::{self, ThreePhaseMotion, ThreePhasePlan};
@@ -107,6 +108,37 @@ impl Scenario {
             min_tension_n: 50.0,
             ..Scenario::aras_cam(seed)
         }
+    }
+}
+
+impl Scenario {
+    /// The true robot of this scenario (the same as [`simulate`] uses): anchors with the site
+    /// error, encoder offsets, scales, load-cell offsets.
+    pub fn truth(&self) -> Result<Truth, SimError> {
+        let mut truth = Truth::sample(&self.robot, &self.physics, self.site_error_m, self.l0_range_m, &mut rng(self.seed, STREAM_TRUTH))?;
+        let mut cell_rng = rng(self.seed, STREAM_LOADCELL);
+        truth.loadcell_offsets = (0..truth.n_cables()).map(|_| LoadCell::new(&self.noise, &mut cell_rng).offset).collect();
+        Ok(truth)
+    }
+
+    /// The workspace the motions are planned in (from the nominal anchors).
+    pub fn workspace(&self) -> Result<Workspace, SimError> {
+        Ok(Workspace::from_anchors(&self.robot.anchors().ok_or(SimError::MissingAnchors)?))
+    }
+
+    /// A [`Plant`] of this scenario's true robot with its physics and sensor noise, settled at
+    /// rest at the workspace centre, and the drum lengths that hold it there.
+    pub fn plant(&self) -> Result<(Plant, Vec<f64>), SimError> {
+        let truth = self.truth()?;
+        let c = self.workspace()?.center_point();
+        let mut plant = Plant::new(&truth, &self.physics, c).with_noise(&self.noise, self.seed);
+        let hold = plant.lengths_at_rest(c, self.min_tension_n)?;
+        let cmds: Vec<CableCommand> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+        let rep = plant.step(0.0, &cmds).report;
+        if !rep.converged {
+            return Err(SimError::Equilibrium { t: 0.0, residual_n: rep.residual_n });
+        }
+        Ok((plant, hold))
     }
 }
 
@@ -225,10 +257,10 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     if !(3..=MAX_CABLES).contains(&n) {
         return Err(SimError::BadScenario("the simulator handles 3 to 12 cables"));
     }
-    let mut truth = Truth::sample(&s.robot, &s.physics, s.site_error_m, s.l0_range_m, &mut rng(s.seed, STREAM_TRUTH))?;
+    let truth = s.truth()?;
+    // Load-cell noise continues the stream that drew the offsets.
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    truth.loadcell_offsets = cells.iter().map(|c| c.offset).collect();
     let models: Vec<CableModel> = truth.anchors.iter().map(|a| CableModel::new(*a, &s.physics)).collect();
     // The trajectory is planned on the nominal geometry, as a controller would.
     let ws = Workspace::from_anchors(&nominal);

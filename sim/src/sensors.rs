@@ -205,6 +205,11 @@ impl LoadCell {
         LoadCell { offset, sigma: noise.loadcell_sigma_n }
     }
 
+    /// A load cell with a known offset and the noise of `noise`.
+    pub fn with_offset(offset: f64, noise: &Noise) -> Self {
+        LoadCell { offset, sigma: noise.loadcell_sigma_n }
+    }
+
     /// The reading for tension `t`, N.
     pub fn read(&self, t: f64, rng: &mut ChaCha8Rng) -> f64 {
         t + self.offset + gauss(rng, self.sigma)

@@ -443,6 +443,18 @@ mod plant {
     }
 
     #[test]
+    fn scenario_plant_starts_at_rest_with_the_scenario_truth() {
+        let s = Scenario::aras_cam(81);
+        let (mut plant, hold) = s.plant().unwrap();
+        let c = s.workspace().unwrap().center_point();
+        let cmds: Vec<CableCommand> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+        let out = plant.step(0.01, &cmds);
+        assert!(norm(sub(out.position, c)) < 1e-5, "{:?}", out.position);
+        assert!(out.tension_n.iter().all(|&t| t > s.min_tension_n - 2.0), "{:?}", out.tension_n);
+        assert_eq!(s.truth().unwrap(), simulate(&Scenario { duration_s: 1.0, three_phase: None, ..s.clone() }).truth);
+    }
+
+    #[test]
     fn torque_mode_follower_reads_the_stretched_geometry() {
         let ea = 1e5;
         let physics = Physics { elasticity: Some(ea), ..Physics::ideal() };
