@@ -1,0 +1,364 @@
+//! Virtual Modbus RTU load cells: a server on one end of a pseudo-terminal pair, answering with
+//! the tensions the simulator sets, with faults to inject.
+//!
+//! The master under test opens [`VirtualLoadCells::path`], a symlink to the pseudo-terminal's
+//! slave end, exactly as it opens `/dev/taut-loadcells` (a udev symlink) on the robot.
+//! [`unplug`](VirtualLoadCells::unplug) closes the pseudo-terminal, so the master's open port
+//! fails as on a USB unplug and the path dangles; [`replug`](VirtualLoadCells::replug) makes a
+//! new pair behind the same path.
+//!
+//! Register map of each cell: its two registers at `register` in its table (`registers =
+//! "input"` or `"holding"`), encoded as its config says (int32/float32, word order, scale,
+//! offset). Other addresses answer exception 02, other function codes exception 01, a
+//! quantity of 0 or over 125 exception 03; requests with a bad CRC or for other unit ids get
+//! no answer, as on a real RS-485 line.
+//!
+//! ```no_run
+//! use taut_config::devices::LoadCellConfig;
+//! use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
+//! let tensions = TensionHandle::new(2);
+//! let server = VirtualLoadCells::spawn(vec![LoadCellConfig::new(1), LoadCellConfig::new(2)], tensions.clone()).unwrap();
+//! tensions.set(0, 42.0);
+//! server.inject(Some(2), Fault::BadCrc, 3);
+//! println!("master: open {}", server.path().display());
+//! ```
+
+use serialport::{SerialPort, TTYPort};
+use std::io::{self, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use taut_config::devices::{LoadCellConfig, RegisterKind};
+use taut_driver::modbus::rtu::{self, ExceptionCode, Function, Registers, Response, RtuError, MAX_FRAME};
+use taut_driver::modbus::value;
+
+/// Tensions of the simulated cells, N, shared between the simulator (writer) and the server.
+/// One `f64` per cell as atomic bits: each value stands alone, so `Relaxed` suffices.
+#[derive(Debug, Clone)]
+pub struct TensionHandle(Arc<[AtomicU64]>);
+
+impl TensionHandle {
+    /// `n` cells at 0 N.
+    pub fn new(n: usize) -> TensionHandle {
+        TensionHandle((0..n).map(|_| AtomicU64::new(0f64.to_bits())).collect())
+    }
+
+    /// Sets the tension of cell `i` (index in the server's cell list); ignored out of range.
+    pub fn set(&self, i: usize, newtons: f64) {
+        if let Some(a) = self.0.get(i) {
+            a.store(newtons.to_bits(), Ordering::Relaxed);
+        }
+    }
+
+    /// Sets all cells from a slice (extra values are ignored).
+    pub fn set_all(&self, newtons: &[f64]) {
+        for (i, n) in newtons.iter().enumerate() {
+            self.set(i, *n);
+        }
+    }
+
+    /// Tension of cell `i`.
+    pub fn get(&self, i: usize) -> f64 {
+        self.0.get(i).map_or(0.0, |a| f64::from_bits(a.load(Ordering::Relaxed)))
+    }
+}
+
+/// A fault for the next answers of a unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fault {
+    /// The answer with its CRC corrupted.
+    BadCrc,
+    /// No answer.
+    Silence,
+    /// Seven bytes of noise instead of the answer.
+    Garbage,
+    /// Noise, then the correct answer.
+    NoiseThenAnswer,
+    /// An exception response with this code.
+    Exception(u8),
+}
+
+#[derive(Debug)]
+struct Injected {
+    unit: Option<u8>,
+    fault: Fault,
+    left: u32,
+}
+
+/// Server counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ServerStats {
+    /// Valid requests addressed to one of our units.
+    pub requests: u64,
+    /// Normal answers sent.
+    pub answered: u64,
+    /// Faults applied.
+    pub faults: u64,
+    /// Received frames that were no valid request (bad CRC, noise): ignored.
+    pub bad_frames: u64,
+}
+
+#[derive(Default)]
+struct Shared {
+    stop: AtomicBool,
+    faults: Mutex<Vec<Injected>>,
+    plug: Mutex<Option<bool>>,
+    requests: AtomicU64,
+    answered: AtomicU64,
+    faults_applied: AtomicU64,
+    bad_frames: AtomicU64,
+}
+
+/// The running server; stops on drop.
+pub struct VirtualLoadCells {
+    shared: Arc<Shared>,
+    path: PathBuf,
+    dir: PathBuf,
+    thread: Option<JoinHandle<()>>,
+}
+
+struct Pty {
+    master: TTYPort,
+    /// Kept open so the master end never sees a hang-up while no client has the port open.
+    _slave: TTYPort,
+}
+
+fn open_pty(link: &Path) -> io::Result<Pty> {
+    let (mut master, slave) = TTYPort::pair().map_err(io::Error::from)?;
+    master.set_timeout(Duration::from_millis(5)).map_err(io::Error::from)?;
+    let target = slave.name().ok_or_else(|| io::Error::other("pseudo-terminal has no name"))?;
+    // Replace the symlink atomically: a client never sees a half-made path.
+    let tmp = link.with_extension("new");
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(&target, &tmp)?;
+    std::fs::rename(&tmp, link)?;
+    Ok(Pty { master, _slave: slave })
+}
+
+impl VirtualLoadCells {
+    /// Starts a server for `cells` (cell `i` reads tension `i` of `tensions`) behind a fresh
+    /// symlink in the temporary directory.
+    pub fn spawn(cells: Vec<LoadCellConfig>, tensions: TensionHandle) -> io::Result<VirtualLoadCells> {
+        static N: AtomicU64 = AtomicU64::new(0);
+        let dir = std::env::temp_dir().join(format!("taut-vlc-{}-{}", std::process::id(), N.fetch_add(1, Ordering::Relaxed)));
+        std::fs::create_dir_all(&dir)?;
+        let path = dir.join("ttyLOADCELLS");
+        let pty = open_pty(&path)?;
+        let shared = Arc::new(Shared::default());
+        let server = Server { cells, tensions, shared: shared.clone(), link: path.clone(), noise: 0x2545_F491 };
+        let thread = std::thread::Builder::new().name("taut-sim-loadcells".into()).spawn(move || server.run(Some(pty)))?;
+        Ok(VirtualLoadCells { shared, path, dir, thread: Some(thread) })
+    }
+
+    /// Path the master opens (a symlink to the pseudo-terminal's slave end).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Applies `fault` to the next `count` answers of `unit` (`None`: any unit).
+    pub fn inject(&self, unit: Option<u8>, fault: Fault, count: u32) {
+        self.shared.faults.lock().unwrap_or_else(|e| e.into_inner()).push(Injected { unit, fault, left: count });
+    }
+
+    /// Removes all pending faults.
+    pub fn clear_faults(&self) {
+        self.shared.faults.lock().unwrap_or_else(|e| e.into_inner()).clear();
+    }
+
+    /// Closes the pseudo-terminal and removes the path, as a USB unplug does.
+    pub fn unplug(&self) {
+        self.set_plug(false);
+    }
+
+    /// A new pseudo-terminal behind the same path, as plugging the adapter back in.
+    pub fn replug(&self) {
+        self.set_plug(true);
+    }
+
+    fn set_plug(&self, on: bool) {
+        *self.shared.plug.lock().unwrap_or_else(|e| e.into_inner()) = Some(on);
+        // Wait until the server thread has done it, so tests can act on the new state.
+        let t0 = Instant::now();
+        while self.shared.plug.lock().unwrap_or_else(|e| e.into_inner()).is_some() && t0.elapsed() < Duration::from_secs(2) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> ServerStats {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        ServerStats {
+            requests: l(&self.shared.requests),
+            answered: l(&self.shared.answered),
+            faults: l(&self.shared.faults_applied),
+            bad_frames: l(&self.shared.bad_frames),
+        }
+    }
+}
+
+impl Drop for VirtualLoadCells {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+struct Server {
+    cells: Vec<LoadCellConfig>,
+    tensions: TensionHandle,
+    shared: Arc<Shared>,
+    link: PathBuf,
+    noise: u32,
+}
+
+impl Server {
+    fn run(mut self, mut pty: Option<Pty>) {
+        let mut buf = [0u8; 2 * MAX_FRAME];
+        let mut len = 0usize;
+        let mut last_byte = Instant::now();
+        while !self.shared.stop.load(Ordering::Relaxed) {
+            let plug = self.shared.plug.lock().unwrap_or_else(|e| e.into_inner()).take();
+            match plug {
+                Some(false) => {
+                    pty = None;
+                    let _ = std::fs::remove_file(&self.link);
+                    len = 0;
+                }
+                Some(true) if pty.is_none() => pty = open_pty(&self.link).ok(),
+                _ => {}
+            }
+            let Some(p) = pty.as_mut() else {
+                std::thread::sleep(Duration::from_millis(2));
+                continue;
+            };
+            match p.master.read(&mut buf[len..]) {
+                Ok(n) if n > 0 => {
+                    len += n;
+                    last_byte = Instant::now();
+                }
+                Ok(_) => {}
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
+                Err(_) => std::thread::sleep(Duration::from_millis(2)),
+            }
+            // A read request is 8 bytes; anything else ends with silence (here 3 ms, above the
+            // spec's t3.5 at 19200 baud and up).
+            let frame_len = if len >= rtu::REQUEST_LEN && matches!(buf[1], 0x03 | 0x04) {
+                rtu::REQUEST_LEN
+            } else if len > 0 && (last_byte.elapsed() > Duration::from_millis(3) || len == buf.len()) {
+                len
+            } else {
+                continue;
+            };
+            let mut frame = [0u8; 2 * MAX_FRAME];
+            frame[..frame_len].copy_from_slice(&buf[..frame_len]);
+            buf.copy_within(frame_len..len, 0);
+            len -= frame_len;
+            if let Some((out, n)) = self.answer(&frame[..frame_len]) {
+                let _ = p.master.write_all(&out[..n]);
+            }
+        }
+    }
+
+    /// The bytes to send for one received frame, if any.
+    fn answer(&mut self, frame: &[u8]) -> Option<([u8; 2 * MAX_FRAME], usize)> {
+        let mut out = [0u8; 2 * MAX_FRAME];
+        let mut tx = [0u8; MAX_FRAME];
+        let exception = |unit, function, code| Response::Exception { unit, function, code };
+        let resp = match rtu::decode_request(frame) {
+            Ok(req) => {
+                let (i, cell) = self.cells.iter().enumerate().find(|(_, c)| c.unit_id == req.unit)?;
+                self.shared.requests.fetch_add(1, Ordering::Relaxed);
+                let table = match cell.registers {
+                    RegisterKind::Input => Function::ReadInputRegisters,
+                    RegisterKind::Holding => Function::ReadHoldingRegisters,
+                };
+                let (lo, hi) = (u32::from(req.address), u32::from(req.address) + u32::from(req.quantity));
+                let (r0, r1) = (u32::from(cell.register), u32::from(cell.register) + 2);
+                if req.function != table || lo < r0 || hi > r1 {
+                    exception(req.unit, req.function.code(), ExceptionCode::IllegalDataAddress)
+                } else {
+                    let regs = value::registers_for(self.tensions.get(i), cell);
+                    let vals = &regs[(lo - r0) as usize..(hi - r0) as usize];
+                    Response::Registers(Registers::new(req.unit, req.function, vals))
+                }
+            }
+            Err(RtuError::UnsupportedFunction { function }) if self.cells.iter().any(|c| c.unit_id == frame[0]) => {
+                self.shared.requests.fetch_add(1, Ordering::Relaxed);
+                exception(frame[0], function & 0x7F, ExceptionCode::IllegalFunction)
+            }
+            Err(RtuError::Quantity { .. }) if self.cells.iter().any(|c| c.unit_id == frame[0]) => {
+                self.shared.requests.fetch_add(1, Ordering::Relaxed);
+                exception(frame[0], frame[1], ExceptionCode::IllegalDataValue)
+            }
+            Err(_) => {
+                self.shared.bad_frames.fetch_add(1, Ordering::Relaxed);
+                return None;
+            }
+        };
+        let unit = resp.unit();
+        let fault = {
+            let mut faults = self.shared.faults.lock().unwrap_or_else(|e| e.into_inner());
+            let hit = faults.iter_mut().find(|f| f.left > 0 && f.unit.is_none_or(|u| u == unit));
+            let fault = hit.map(|f| {
+                f.left -= 1;
+                f.fault
+            });
+            faults.retain(|f| f.left > 0);
+            fault
+        };
+        let n = match fault {
+            None => {
+                if matches!(resp, Response::Registers(_)) {
+                    self.shared.answered.fetch_add(1, Ordering::Relaxed);
+                }
+                let n = rtu::encode_response(&resp, &mut tx);
+                out[..n].copy_from_slice(&tx[..n]);
+                n
+            }
+            Some(f) => {
+                self.shared.faults_applied.fetch_add(1, Ordering::Relaxed);
+                match f {
+                    Fault::Silence => return None,
+                    Fault::BadCrc => {
+                        let n = rtu::encode_response(&resp, &mut tx);
+                        out[..n].copy_from_slice(&tx[..n]);
+                        out[n - 1] ^= 0x5A;
+                        n
+                    }
+                    Fault::Garbage => {
+                        self.fill_noise(&mut out[..7]);
+                        7
+                    }
+                    Fault::NoiseThenAnswer => {
+                        self.fill_noise(&mut out[..3]);
+                        let n = rtu::encode_response(&resp, &mut tx);
+                        out[3..3 + n].copy_from_slice(&tx[..n]);
+                        3 + n
+                    }
+                    Fault::Exception(code) => {
+                        let function = frame.get(1).copied().unwrap_or(0) & 0x7F;
+                        let n = rtu::encode_response(&exception(unit, function, ExceptionCode::from_code(code)), &mut tx);
+                        out[..n].copy_from_slice(&tx[..n]);
+                        n
+                    }
+                }
+            }
+        };
+        Some((out, n))
+    }
+
+    /// Deterministic noise (xorshift32).
+    fn fill_noise(&mut self, out: &mut [u8]) {
+        for b in out {
+            self.noise ^= self.noise << 13;
+            self.noise ^= self.noise >> 17;
+            self.noise ^= self.noise << 5;
+            *b = self.noise as u8;
+        }
+    }
+}
