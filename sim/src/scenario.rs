@@ -165,6 +165,8 @@ pub struct SimRun {
     pub excitation_start: usize,
     /// Excursion duration chosen to reach `loose_fraction`, s.
     pub excursion_s: f64,
+    /// Where the three-phase motion rested between phases (and the excitation started), m.
+    pub three_phase_start: Option<[f64; 3]>,
 }
 
 impl SimRun {
@@ -300,6 +302,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
         drum_lengths: Vec::with_capacity(total * n),
         excitation_start: n_tp,
         excursion_s,
+        three_phase_start: tp.as_ref().map(|m| m.start),
     };
     let mut phases = Vec::with_capacity(total);
 

@@ -117,6 +117,8 @@ fn three_phase_paths_are_circles() {
         let plan = ThreePhasePlan { reel_m: 0.4, speed_m_s: 0.2, ..ThreePhasePlan::default() };
         s.three_phase = Some(plan.clone());
         let run = simulate(&s);
+        let start = run.three_phase_start.unwrap();
+        assert!(norm(sub(run.positions[0], start)) < 1e-5);
         let rec = &run.recording;
         let phase = rec.phase.as_ref().unwrap();
         let n = rec.n_cables;
