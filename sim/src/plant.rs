@@ -8,14 +8,13 @@
 //! [`Plant::new`]; a step does not allocate.
 //!
 //! ```no_run
-//! use taut_sim::{plant::Plant, CableCommand, Scenario};
-//! let s = Scenario::aras_cam(1);
-//! let truth = taut_sim::Truth::sample(&s.robot, &s.physics, 0.1, 2.0, &mut taut_sim::rng(1, 0)).unwrap();
-//! let mut plant = Plant::new(&truth, &s.physics, [0.0, 0.0, 1.8]);
-//! let hold = plant.lengths_holding([0.0, 0.0, 1.8], &[20.0; 4]).unwrap();
-//! let cmds: Vec<_> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+//! use taut_sim::{CableCommand, Scenario};
+//! // The scenario's true robot at rest at the workspace centre, with its physics and noise.
+//! let (mut plant, hold) = Scenario::aras_cam(1).plant().unwrap();
+//! let mut cmds: Vec<_> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+//! cmds[3] = CableCommand::Tension(10.0); // cable 3 in torque mode
 //! let out = plant.step(0.001, &cmds);
-//! println!("{:?} {:?}", out.position, out.encoder_m);
+//! println!("{:?} {:?} {:?}", out.position, out.encoder_m, out.tension_n);
 //! ```
 
 use std::cell::Cell;
