@@ -433,8 +433,7 @@ impl TrackerReceiver {
                 Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => continue,
                 Err(e) => return Err(e),
             };
-            self.on_datagram(&buf[..n], Instant::now());
-            if self.counters.accepted.load(Ordering::Relaxed) > 0 {
+            if self.on_datagram(&buf[..n], Instant::now()) {
                 accepted += 1;
             }
         }
