@@ -147,3 +147,22 @@ fn without_tensions_elasticity_is_not_claimed() {
     assert!(!d.used_tensions);
     assert!(!named(&d).iter().any(|e| e.needs_tension()), "{:#?}", summary(&d));
 }
+
+#[test]
+fn slow_recording_with_orientation_and_platform_points() {
+    let mut s = Scenario::aras_cam(19);
+    let pts = [[0.12, -0.06, 0.05], [0.12, 0.06, 0.05], [-0.12, 0.06, 0.05], [-0.12, -0.06, 0.05]];
+    for (c, p) in s.robot.cables.iter_mut().zip(pts) {
+        c.platform_point = p;
+    }
+    s.with_orientation = true;
+    s.rate_hz = 4.0;
+    s.physics = Physics { elasticity: Some(20_000.0), ..Physics::default() };
+    let (d, sim) = run(s, 400.0);
+    assert!(sim.recording.q.is_some());
+    assert_eq!(named(&d).first(), Some(&Effect::Elasticity), "{:#?}", summary(&d));
+    let f = finding(&d, Effect::Elasticity);
+    for (v, s) in f.values.iter().zip(&f.sigmas) {
+        assert_recovered("EA", *v, *s, 20_000.0, 0.1);
+    }
+}
