@@ -6,7 +6,16 @@
 
 use serde::{Deserialize, Serialize};
 
-/// The `[can]` table.
+/// The `[can]` table: the CANopen bus of the servo drives.
+///
+/// Only `interface` is required:
+///
+/// ```toml
+/// [can]
+/// interface = "can0"
+/// bitrate = 1000000     # bit/s; the adapter must be brought up at the same rate
+/// cycle_s = 0.002       # SYNC / PDO cycle
+/// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CanConfig {
@@ -18,6 +27,19 @@ pub struct CanConfig {
     /// SYNC / PDO cycle period, s.
     #[serde(default = "default_cycle")]
     pub cycle_s: f64,
+    /// Time to wait for one SDO response before the try counts as timed out, s.
+    #[serde(default = "default_sdo_timeout")]
+    pub sdo_timeout_s: f64,
+    /// Further tries of an SDO transfer after a timeout.
+    #[serde(default = "default_sdo_retries")]
+    pub sdo_retries: u8,
+    /// How long start-up waits for every drive to boot, be configured and become operational, s.
+    #[serde(default = "default_bringup_timeout")]
+    pub bringup_timeout_s: f64,
+    /// Send NMT "reset communication" to all nodes at start-up, so that every drive announces
+    /// itself with a boot-up message. Turn off only if another master shares the bus.
+    #[serde(default = "default_true")]
+    pub reset_on_start: bool,
 }
 
 fn default_bitrate() -> u32 {
@@ -26,20 +48,194 @@ fn default_bitrate() -> u32 {
 fn default_cycle() -> f64 {
     0.002
 }
+fn default_sdo_timeout() -> f64 {
+    0.1
+}
+fn default_sdo_retries() -> u8 {
+    2
+}
+fn default_bringup_timeout() -> f64 {
+    5.0
+}
+fn default_true() -> bool {
+    true
+}
+
+/// CAN bitrates that CiA 301 / CiA 102 define.
+pub const CAN_BITRATES: [u32; 9] = [10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000, 100_000];
+
+impl CanConfig {
+    /// Checks the values; returns the bad key and what is wrong.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        if self.interface.is_empty() || self.interface.len() > 15 || self.interface.contains(['/', ' ']) {
+            return Err((
+                "interface".into(),
+                format!("must be a network interface name such as `can0` (1..15 characters), got {:?}", self.interface),
+            ));
+        }
+        if !CAN_BITRATES.contains(&self.bitrate) {
+            return Err(("bitrate".into(), format!("must be one of the CiA bitrates {CAN_BITRATES:?} bit/s, got {}", self.bitrate)));
+        }
+        if !(self.cycle_s.is_finite() && self.cycle_s >= 0.0005 && self.cycle_s <= 1.0) {
+            return Err(("cycle_s".into(), format!("must be a cycle period in [0.0005, 1] s, got {}", self.cycle_s)));
+        }
+        if !(self.sdo_timeout_s.is_finite() && self.sdo_timeout_s > 0.0 && self.sdo_timeout_s <= 10.0) {
+            return Err(("sdo_timeout_s".into(), format!("must be in (0, 10] s, got {}", self.sdo_timeout_s)));
+        }
+        if !(self.bringup_timeout_s.is_finite() && self.bringup_timeout_s > 0.0) {
+            return Err(("bringup_timeout_s".into(), format!("must be a positive time in s, got {}", self.bringup_timeout_s)));
+        }
+        Ok(())
+    }
+}
+
+/// Which objects the drive's PDOs carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PdoMapping {
+    /// RPDO1: controlword, target position, target torque; TPDO1: statusword, position actual,
+    /// torque actual. One 8-byte frame each way per drive and cycle; the mode is set by SDO.
+    #[default]
+    Compact,
+    /// Compact plus RPDO2: mode of operation, TPDO2: mode display and error code.
+    WithMode,
+}
+
+/// The CiA 402 mode a drive runs in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DriveMode {
+    /// Cyclic synchronous position (8): holding and reeling a cable.
+    #[default]
+    Position,
+    /// Cyclic synchronous torque (10): a follower cable held at low tension.
+    Torque,
+}
 
 /// The `[cable.drive]` sub-table: the CiA 402 servo drive of one cable.
+///
+/// ```toml
+/// [cable.drive]
+/// node_id = 1
+/// drum_radius_m = 0.05      # to the cable's centre line
+/// gear_ratio = 10.0         # motor turns per drum turn
+/// counts_per_rev = 131072   # encoder counts per motor turn
+/// rated_torque_nm = 1.27    # the 1000 per mille of 0x6071 / 0x6077
+/// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DriveConfig {
     /// CANopen node id, 1..=127.
     pub node_id: u8,
+    /// Drum radius to the cable's centre line, m.
+    #[serde(default = "default_drum_radius")]
+    pub drum_radius_m: f64,
+    /// Motor revolutions per drum revolution.
+    #[serde(default = "default_gear_ratio")]
+    pub gear_ratio: f64,
+    /// Encoder counts per motor revolution.
+    #[serde(default = "default_counts_per_rev")]
+    pub counts_per_rev: u32,
+    /// Rated motor torque, N·m: the 1000 ‰ of the drive's torque objects.
+    #[serde(default = "default_rated_torque")]
+    pub rated_torque_nm: f64,
+    /// True when positive counts reel the cable in (shorten it).
+    #[serde(default)]
+    pub invert: bool,
+    /// Cyclic synchronous position or torque.
+    #[serde(default)]
+    pub mode: DriveMode,
+    /// PDO layout.
+    #[serde(default)]
+    pub pdo: PdoMapping,
+    /// Heartbeat period the drive is configured to produce (0x1017), ms.
+    #[serde(default = "default_heartbeat_ms")]
+    pub heartbeat_ms: u16,
+    /// Missing heartbeats for this long mean the drive is lost, ms. Default: 3 periods.
+    #[serde(default)]
+    pub heartbeat_timeout_ms: Option<u32>,
+    /// Largest tension the drive may be commanded to, N.
+    #[serde(default = "default_max_tension")]
+    pub max_tension_n: f64,
+    /// Expected vendor id (0x1018 sub 1); start-up refuses a different drive. Optional.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vendor_id: Option<u32>,
+    /// Expected product code (0x1018 sub 2). Optional.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub product_code: Option<u32>,
+}
+
+fn default_drum_radius() -> f64 {
+    0.05
+}
+fn default_gear_ratio() -> f64 {
+    1.0
+}
+fn default_counts_per_rev() -> u32 {
+    131_072
+}
+fn default_rated_torque() -> f64 {
+    1.0
+}
+fn default_heartbeat_ms() -> u16 {
+    100
+}
+fn default_max_tension() -> f64 {
+    500.0
 }
 
 impl DriveConfig {
+    /// A drive with every default and node id `node_id`.
+    pub fn with_node_id(node_id: u8) -> Self {
+        DriveConfig {
+            node_id,
+            drum_radius_m: default_drum_radius(),
+            gear_ratio: default_gear_ratio(),
+            counts_per_rev: default_counts_per_rev(),
+            rated_torque_nm: default_rated_torque(),
+            invert: false,
+            mode: DriveMode::default(),
+            pdo: PdoMapping::default(),
+            heartbeat_ms: default_heartbeat_ms(),
+            heartbeat_timeout_ms: None,
+            max_tension_n: default_max_tension(),
+            vendor_id: None,
+            product_code: None,
+        }
+    }
+
+    /// The heartbeat timeout, ms: as configured, or three heartbeat periods.
+    pub fn heartbeat_timeout(&self) -> u32 {
+        self.heartbeat_timeout_ms.unwrap_or(3 * u32::from(self.heartbeat_ms))
+    }
+
     /// Checks the values; returns the bad key and what is wrong.
     pub fn validate(&self) -> Result<(), (String, String)> {
         if !(1..=127).contains(&self.node_id) {
             return Err(("node_id".into(), format!("must be a CANopen node id in 1..=127, got {}", self.node_id)));
+        }
+        let positive = |k: &str, v: f64, unit: &str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((k.to_string(), format!("must be a positive number ({unit}), got {v}")))
+            }
+        };
+        positive("drum_radius_m", self.drum_radius_m, "m")?;
+        positive("gear_ratio", self.gear_ratio, "motor turns per drum turn")?;
+        positive("rated_torque_nm", self.rated_torque_nm, "N·m")?;
+        positive("max_tension_n", self.max_tension_n, "N")?;
+        if self.counts_per_rev == 0 {
+            return Err(("counts_per_rev".into(), "must be the encoder's counts per motor turn, > 0".into()));
+        }
+        if self.heartbeat_ms == 0 {
+            return Err(("heartbeat_ms".into(), "must be > 0: the master detects lost drives by their heartbeat".into()));
+        }
+        if self.heartbeat_timeout() <= u32::from(self.heartbeat_ms) {
+            return Err((
+                "heartbeat_timeout_ms".into(),
+                format!("must be longer than heartbeat_ms ({}), got {}", self.heartbeat_ms, self.heartbeat_timeout()),
+            ));
         }
         Ok(())
     }
