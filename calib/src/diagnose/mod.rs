@@ -790,3 +790,56 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
     })
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{self, Spec, Stretch};
+
+    fn box_rec(stretch: Stretch, ea: f64, tensions: bool, seed: u64) -> (Recording, Spec) {
+        let mut spec = Spec::new(synth::aras_cam());
+        spec.stretch = stretch;
+        spec.cable_ea_n = ea;
+        spec.loose_fraction = 0.03;
+        spec.tensions = tensions;
+        let rec = synth::box_recording(&spec, 3000, [-2.5, -1.2, 0.5], [2.5, 1.2, 2.8], seed);
+        (rec, spec)
+    }
+
+    #[test]
+    fn noise_only_names_nothing_but_slack() {
+        let (rec, spec) = box_rec(Stretch::None, 2e5, true, 3);
+        let d = diagnose(&rec, &spec.platform_points, None, &DiagnoseOptions::default()).unwrap();
+        let named: Vec<_> = d.effects.iter().filter(|f| f.effect != Effect::Slack).map(|f| (f.effect, f.evidence.clone())).collect();
+        assert!(named.is_empty(), "{named:#?}\n{:#?}", d.rejected);
+        assert!(d.effects.iter().any(|f| f.effect == Effect::Slack));
+    }
+
+    #[test]
+    fn elasticity_is_named_with_ea_and_heldout_falls() {
+        let (rec, spec) = box_rec(Stretch::Physical, 20_000.0, true, 4);
+        let d = diagnose(&rec, &spec.platform_points, None, &DiagnoseOptions::default()).unwrap();
+        let f = d.effects.iter().find(|f| f.effect == Effect::Elasticity).unwrap_or_else(|| panic!("{:#?}", d.rejected));
+        for (v, s) in f.values.iter().zip(&f.sigmas) {
+            assert!((v - 20_000.0).abs() < 6.0 * s, "EA {v} ± {s}");
+        }
+        // The rule: the held-out RMS falls 3x where the effect leaves more than 3x the
+        // noise; otherwise it falls to the noise.
+        let noise = (spec.tracker_sigma_m.powi(2) + spec.encoder_sigma_m.powi(2)).sqrt();
+        let (b, a) = (d.baseline.heldout_rms_m, d.final_fit.heldout_rms_m);
+        if b > 3.0 * noise {
+            assert!(3.0 * a <= b, "{b} -> {a}");
+        } else {
+            assert!(a < 1.1 * noise, "{b} -> {a}, noise {noise}");
+        }
+        assert!(f.evidence.contains("T*L"), "{}", f.evidence);
+    }
+
+    #[test]
+    fn without_tensions_elasticity_is_not_claimed() {
+        let (rec, spec) = box_rec(Stretch::Physical, 20_000.0, false, 5);
+        let d = diagnose(&rec, &spec.platform_points, None, &DiagnoseOptions::default()).unwrap();
+        assert!(!d.used_tensions);
+        assert!(d.effects.iter().all(|f| !f.effect.needs_tension()));
+    }
+}
