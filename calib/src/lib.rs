@@ -449,7 +449,7 @@ pub fn calibrate(
     }
     let weighting = Weighting::of(rec, opts);
     let nm = noise::NoiseModel::new(opts, weighting);
-    let data = noise::gather(rec, platform_points, opts, weighting);
+    let mut data = noise::gather(rec, platform_points, opts, weighting);
     let split = metrics::heldout_start(rec, opts.heldout_fraction);
 
     let mut xs = Vec::with_capacity(n);
@@ -458,15 +458,35 @@ pub fn calibrate(
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
-    for (j, d) in data.iter().enumerate() {
+    for (j, d) in data.iter_mut().enumerate() {
         let m = d.len();
         if m < MIN_READINGS {
             return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
         }
-        let sol = solver::solve(d, 0, m, init.cable(j), &nm, opts.loss, opts.max_iterations);
+        // The variances depend (weakly) on the geometry: fix them at the start, solve, re-evaluate
+        // them at the solution and refine if one moved by more than 10% (a start far off; 10% in
+        // a variance is 5% in a weight, which costs well under 1% of efficiency).
+        // With the variances held fixed during a solve the cost is one consistent function and
+        // LM's accept/reject test is exact.
+        d.set_variances(&init.cable(j), &nm);
+        let mut sol = solver::solve(d, 0, m, init.cable(j), opts.loss, opts.max_iterations);
+        let mut iterations = sol.iterations;
+        for _ in 0..3 {
+            if !sol.x.iter().all(|v| v.is_finite()) {
+                return Err(CalibError::Diverged { cable: j });
+            }
+            if d.set_variances(&sol.x, &nm) <= 0.1 {
+                break;
+            }
+            sol = solver::lm(d, 0, m, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+            iterations += sol.iterations;
+        }
         if !sol.x.iter().all(|v| v.is_finite()) {
             return Err(CalibError::Diverged { cable: j });
         }
+        sol.iterations = iterations;
+        let fin = solver::final_pass(d, 0, m, &sol.x, opts.loss, opts.outlier_sigma);
+        sol.at_x = fin.pass;
         let h = sol.at_x.h_matrix();
         let eig = nalgebra::SymmetricEigen::new(h);
         let mut order: [usize; 4] = [0, 1, 2, 3];
@@ -490,16 +510,14 @@ pub fn calibrate(
             let k = param as usize;
             return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k] });
         }
-        // Residual statistics at the solution.
-        let st = residual_stats(d, 0, m, &sol.x, &nm, opts);
         // Held-out: calibrate on the training block (starting from the full solution, so it
         // costs a few passes), evaluate on the rest.
         let ntrain = d.count_before(split);
         let mut heldout = f64::NAN;
         if split < rec.len() && ntrain >= MIN_READINGS && ntrain < m {
-            let tr = solver::solve(d, 0, ntrain, sol.x, &nm, opts.loss, opts.max_iterations);
+            let tr = solver::lm(d, 0, ntrain, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
             if tr.x.iter().all(|v| v.is_finite()) {
-                let hs = residual_stats(d, ntrain, m, &tr.x, &nm, opts);
+                let hs = solver::final_pass(d, ntrain, m, &tr.x, opts.loss, opts.outlier_sigma);
                 ho_sum += hs.sum_sq;
                 ho_n += m - ntrain;
                 ho_peak = ho_peak.max(hs.peak);
@@ -539,11 +557,11 @@ pub fn calibrate(
             cost: sol.at_x.cost,
             used: m,
             excluded: Excluded { loose: d.loose, missing: d.missing },
-            downweighted: st.downweighted,
-            outliers: st.outliers,
+            downweighted: fin.downweighted,
+            outliers: fin.outliers,
             variance_factor: vf,
-            rms_m: (st.sum_sq / m as f64).sqrt(),
-            peak_m: st.peak,
+            rms_m: (fin.sum_sq / m as f64).sqrt(),
+            peak_m: fin.peak,
             heldout_rms_m: heldout,
         });
         xs.push(sol.x);
@@ -559,7 +577,7 @@ pub fn calibrate(
         }
         Weighting::ForceAware => {}
     }
-    let all = metrics::rms_peak(&metrics::co_registration(rec, platform_points, &params), &metrics::Mask::present(rec, platform_points.len()));
+    let all = metrics::rms_peak_present(rec, platform_points, &params);
     let used: usize = per_cable.iter().map(|c| c.used).sum();
     let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
     let worst = per_cable.iter().map(|c| c.termination).max_by_key(|t| t.severity()).unwrap_or(Termination::SmallStep);
@@ -602,30 +620,4 @@ fn dominant(v: &[f64; 4]) -> Param {
     } else {
         Param::L0
     }
-}
-
-struct ResidualStats {
-    sum_sq: f64,
-    peak: f64,
-    downweighted: usize,
-    outliers: usize,
-}
-
-fn residual_stats(d: &noise::CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &noise::NoiseModel, opts: &CalibOptions) -> ResidualStats {
-    let mut s = ResidualStats { sum_sq: 0.0, peak: 0.0, downweighted: 0, outliers: 0 };
-    let a = [x[0], x[1], x[2]];
-    for k in lo..hi {
-        let (rho, u) = model::direction(d.point(k), a);
-        let r = d.l[k] - (rho + x[3]);
-        let e2 = r * r / nm.variance(u, rho, d.t[k]);
-        s.sum_sq += r * r;
-        s.peak = s.peak.max(r.abs());
-        if opts.loss.weight_cost(e2).0 < 1.0 {
-            s.downweighted += 1;
-        }
-        if e2 > opts.outlier_sigma * opts.outlier_sigma {
-            s.outliers += 1;
-        }
-    }
-    s
 }

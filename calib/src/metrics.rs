@@ -132,6 +132,33 @@ pub fn rms_peak(res: &Residuals, mask: &Mask) -> RmsPeak {
     stats(res.values.iter().zip(&mask.keep).filter(|(r, k)| **k && !r.is_nan()).map(|(r, _)| *r))
 }
 
+/// RMS and peak of the co-registration error over every present reading (loose ones included),
+/// without materialising the residuals.
+pub fn rms_peak_present(rec: &Recording, platform_points: &[[f64; 3]], params: &Params) -> RmsPeak {
+    let n = rec.n_cables;
+    let rot = noise::rotations(rec);
+    let (mut s, mut p, mut cnt) = (0.0, 0.0f64, 0usize);
+    for i in 0..rec.len() {
+        let rm = match &rot {
+            Some(v) => match &v[i] {
+                Some(m) => Some(m),
+                None => continue,
+            },
+            None => None,
+        };
+        for j in 0..n {
+            let x = model::attachment(rec.p[i], rm, platform_points[j]);
+            let r = rec.l[i * n + j] - model::cable_length(x, params.anchors[j], params.l0[j]);
+            if !r.is_nan() {
+                s += r * r;
+                p = p.max(r.abs());
+                cnt += 1;
+            }
+        }
+    }
+    RmsPeak { rms: if cnt > 0 { (s / cnt as f64).sqrt() } else { f64::NAN }, peak: p, n: cnt }
+}
+
 /// RMS and peak of cable `j` over the kept, non-NaN residuals.
 pub fn rms_peak_cable(res: &Residuals, mask: &Mask, j: usize) -> RmsPeak {
     let n = res.n_cables;
@@ -204,12 +231,13 @@ impl CrbReport {
 pub fn cramer_rao(rec: &Recording, platform_points: &[[f64; 3]], params: &Params, opts: &CalibOptions) -> CrbReport {
     let weighting = Weighting::of(rec, opts);
     let nm = NoiseModel::new(opts, weighting);
-    let data = noise::gather(rec, platform_points, opts, weighting);
+    let mut data = noise::gather(rec, platform_points, opts, weighting);
     let mut out = CrbReport { anchor_sigma: vec![], l0_sigma: vec![], covariance: vec![], fisher: vec![] };
-    for (j, d) in data.iter().enumerate() {
+    for (j, d) in data.iter_mut().enumerate() {
         let x = params.cable(j);
+        d.set_variances(&x, &nm);
         // The residual-free part of a least-squares pass is exactly F = sum J^T J / sigma^2.
-        let h = solver::pass(d, 0, d.len(), &x, &nm, RobustLoss::None).h_matrix();
+        let h = solver::pass(d, 0, d.len(), &x, RobustLoss::None).h_matrix();
         let mut f4 = [[0.0; 4]; 4];
         for a in 0..4 {
             for b in 0..4 {

@@ -133,6 +133,8 @@ pub struct CableData {
     pub l: Vec<f64>,
     /// Tension for the stretch term, N (0 when not used).
     pub t: Vec<f64>,
+    /// Inverse variance `1 / sigma^2` of each reading, 1/m^2, set by [`CableData::set_variances`].
+    pub iv: Vec<f64>,
     /// Index of the sample in the recording (increasing).
     pub sample: Vec<u32>,
     /// Readings excluded as loose.
@@ -157,10 +159,62 @@ impl CableData {
         [self.x[k], self.y[k], self.z[k]]
     }
 
+    /// Sets each reading's inverse variance from the noise model at parameters `x` (for the
+    /// direction `u` and length `rho` it depends on). Returns the largest relative change of a
+    /// variance, so a caller can tell whether a solve at the old variances is still right.
+    pub fn set_variances(&mut self, x: &[f64; 4], nm: &NoiseModel) -> f64 {
+        // A fresh buffer of zeros makes every relative change infinite, as it should be.
+        self.iv.resize(self.l.len(), 0.0);
+        let a = [x[0], x[1], x[2]];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the CPU supports the features `variances_avx2` is compiled for.
+                return unsafe { variances_avx2(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm) };
+            }
+        }
+        variances(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm)
+    }
+
     /// Number of used readings whose sample index is below `sample`.
     pub fn count_before(&self, sample: usize) -> usize {
         self.sample.partition_point(|&s| (s as usize) < sample)
     }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn variances_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> f64 {
+    variances(xs, ys, zs, ts, iv, a, nm)
+}
+
+/// Writes `1 / sigma^2` of every reading into `iv`; returns the largest relative change.
+/// Eight lanes of running maxima keep the loop free of a loop-carried dependence (SIMD).
+#[inline(always)]
+fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> f64 {
+    let mut mx = [0.0f64; 8];
+    let one = |k: usize, old: f64| -> (f64, f64) {
+        let d = [xs[k] - a[0], ys[k] - a[1], zs[k] - a[2]];
+        let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let inv = 1.0 / rho;
+        let v = 1.0 / nm.variance([d[0] * inv, d[1] * inv, d[2] * inv], rho, ts[k]);
+        (v, (v / old - 1.0).abs())
+    };
+    let full = iv.len() / 8 * 8;
+    for base in (0..full).step_by(8) {
+        for i in 0..8 {
+            let (v, c) = one(base + i, iv[base + i]);
+            iv[base + i] = v;
+            mx[i] = if c > mx[i] { c } else { mx[i] };
+        }
+    }
+    let mut change = mx.iter().fold(0.0f64, |m, &c| if c > m { c } else { m });
+    for k in full..iv.len() {
+        let (v, c) = one(k, iv[k]);
+        iv[k] = v;
+        change = if c > change { c } else { change };
+    }
+    change
 }
 
 /// Rotations of all samples (`None` for all when the recording has no orientation; a NaN entry
@@ -201,7 +255,8 @@ pub fn classify(
     ReadingClass::Used
 }
 
-/// Gathers the used readings of every cable.
+/// Gathers the used readings of every cable (one pass over the recording; the same
+/// classification as [`classify`], hoisted so the per-sample checks run once per sample).
 pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions, weighting: Weighting) -> Vec<CableData> {
     let n = rec.n_cables;
     let rot = rotations(rec);
@@ -213,28 +268,48 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
             z: Vec::with_capacity(m),
             l: Vec::with_capacity(m),
             t: Vec::with_capacity(m),
+            iv: Vec::new(),
             sample: Vec::with_capacity(m),
             loose: 0,
             missing: 0,
         })
         .collect();
+    let tensions = if weighting.uses_tensions() { rec.f.as_deref() } else { None };
+    let point_mass = platform_points.iter().all(|b| *b == [0.0; 3]);
     for i in 0..m {
-        for (j, d) in out.iter_mut().enumerate() {
-            match classify(rec, rot.as_deref(), i, j, opts, weighting) {
-                ReadingClass::Missing => d.missing += 1,
-                ReadingClass::Loose => d.loose += 1,
-                ReadingClass::Used => {
-                    let r = rot.as_ref().and_then(|r| r[i].as_ref());
-                    let x = model::attachment(rec.p[i], r, platform_points[j]);
-                    d.x.push(x[0]);
-                    d.y.push(x[1]);
-                    d.z.push(x[2]);
-                    d.l.push(rec.l[i * n + j]);
-                    let t = if weighting.uses_tensions() { rec.f.as_ref().map_or(0.0, |f| f[i * n + j]) } else { 0.0 };
-                    d.t.push(t);
-                    d.sample.push(i as u32);
-                }
+        let p = rec.p[i];
+        let r = match &rot {
+            Some(v) => v[i].as_ref(),
+            None => None,
+        };
+        if p.iter().any(|v| v.is_nan()) || (rot.is_some() && r.is_none()) {
+            for d in out.iter_mut() {
+                d.missing += 1;
             }
+            continue;
+        }
+        let ls = &rec.l[i * n..(i + 1) * n];
+        for (j, d) in out.iter_mut().enumerate() {
+            let l = ls[j];
+            let t = match tensions {
+                Some(f) => f[i * n + j],
+                None => 0.0,
+            };
+            if l.is_nan() || t.is_nan() {
+                d.missing += 1;
+                continue;
+            }
+            if tensions.is_some() && t < opts.min_tension_n {
+                d.loose += 1;
+                continue;
+            }
+            let x = if point_mass && r.is_none() { p } else { model::attachment(p, r, platform_points[j]) };
+            d.x.push(x[0]);
+            d.y.push(x[1]);
+            d.z.push(x[2]);
+            d.l.push(l);
+            d.t.push(t);
+            d.sample.push(i as u32);
         }
     }
     out

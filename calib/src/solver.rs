@@ -25,7 +25,8 @@
 //!
 //! A trial point is evaluated in one pass that also accumulates its `H` and `g`; if the robust
 //! cost decreased the step is accepted and those are reused, so every iteration costs exactly
-//! one pass. `lambda` follows Nielsen's rule on the gain ratio (actual / predicted decrease).
+//! one pass. `lambda` starts near Gauss–Newton (1e-9) and follows Nielsen's rule on the gain ratio
+//! (actual / predicted decrease).
 //! The variances and robust weights are re-evaluated at every point and held fixed for the
 //! derivative (IRLS): the fixed point is the weighted least-squares solution under the noise
 //! model, not a maximum of a likelihood that would also trade `log sigma(x)` against the fit.
@@ -34,7 +35,7 @@
 //! convergence from a poor start where all residuals would otherwise be "outliers"), then the
 //! robust loss from there.
 
-use crate::noise::{CableData, NoiseModel};
+use crate::noise::CableData;
 use crate::RobustLoss;
 use nalgebra::{Matrix4, Vector4};
 
@@ -108,6 +109,31 @@ impl Pass {
     }
 }
 
+/// [`Pass`] plus residual statistics ([`final_pass`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FinalPass {
+    /// The pass.
+    pub pass: Pass,
+    /// `sum r_i^2`, m^2.
+    pub sum_sq: f64,
+    /// `max |r_i|`, m.
+    pub peak: f64,
+    /// Readings the robust loss down-weighted.
+    pub downweighted: usize,
+    /// Readings with `|e_i| > outlier_sigma`.
+    pub outliers: usize,
+}
+
+/// A pass that also gathers the residual statistics of the report, in the same sweep.
+pub fn final_pass(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss, outlier_sigma: f64) -> FinalPass {
+    let o2 = outlier_sigma * outlier_sigma;
+    match loss {
+        RobustLoss::None => pass_with::<_, true>(d, lo, hi, x, Squares, o2),
+        RobustLoss::Huber { k } => pass_with::<_, true>(d, lo, hi, x, Huber(k), o2),
+        RobustLoss::Cauchy { c } => pass_with::<_, true>(d, lo, hi, x, Cauchy(c), o2),
+    }
+}
+
 /// A loss function `rho(e)` of the normalised residual, monomorphised into the pass.
 trait Loss: Copy {
     /// `(w, rho)` for `e^2`: the IRLS weight `rho'(e)/e` and the loss.
@@ -128,13 +154,13 @@ struct Huber(f64);
 impl Loss for Huber {
     #[inline(always)]
     fn weight_cost(self, e2: f64) -> (f64, f64) {
+        // Selects, not a branch, so the element-wise loop of a pass vectorises.
         let k = self.0;
-        if e2 <= k * k {
-            (1.0, 0.5 * e2)
-        } else {
-            let e = e2.sqrt();
-            (k / e, k * e - 0.5 * k * k)
-        }
+        let e = e2.sqrt();
+        let inside = e <= k;
+        let w = if inside { 1.0 } else { k / e };
+        let c = if inside { 0.5 * e2 } else { k * e - 0.5 * k * k };
+        (w, c)
     }
 }
 
@@ -160,58 +186,158 @@ impl RobustLoss {
     }
 }
 
-/// One pass over readings `lo..hi` of a cable at parameters `x`.
-pub fn pass(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &NoiseModel, loss: RobustLoss) -> Pass {
-    match loss {
-        RobustLoss::None => pass_with(d, lo, hi, x, nm, Squares),
-        RobustLoss::Huber { k } => pass_with(d, lo, hi, x, nm, Huber(k)),
-        RobustLoss::Cauchy { c } => pass_with(d, lo, hi, x, nm, Cauchy(c)),
+/// One pass over readings `lo..hi` of a cable at parameters `x`, with the inverse variances
+/// stored in the data ([`CableData::set_variances`]).
+///
+/// The readings are processed in blocks: first an element-wise loop computes each reading's
+/// Jacobian row, residual and weight into small stack buffers (no loop-carried dependence, so it
+/// compiles to SIMD square roots and divisions), then the sixteen sums are taken over the block
+/// with several independent partial sums each (SIMD again, without reassociating a
+/// floating-point sum the compiler would have to keep in order). On x86-64 CPUs with AVX2 and
+/// FMA the same code is compiled a second time for those features and chosen at run time.
+pub fn pass(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss) -> Pass {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU supports the features `pass_avx2` is compiled for (checked above).
+            return unsafe { pass_avx2(d, lo, hi, x, loss) };
+        }
     }
+    pass_dispatch(d, lo, hi, x, loss)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn pass_avx2(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss) -> Pass {
+    pass_dispatch(d, lo, hi, x, loss)
 }
 
 #[inline(always)]
-fn pass_with<L: Loss>(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], nm: &NoiseModel, loss: L) -> Pass {
-    let [ax, ay, az, l0] = *x;
-    let (xs, ys, zs, ls, ts) = (&d.x[lo..hi], &d.y[lo..hi], &d.z[lo..hi], &d.l[lo..hi], &d.t[lo..hi]);
+fn pass_dispatch(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss) -> Pass {
+    match loss {
+        RobustLoss::None => pass_with::<_, false>(d, lo, hi, x, Squares, 0.0).pass,
+        RobustLoss::Huber { k } => pass_with::<_, false>(d, lo, hi, x, Huber(k), 0.0).pass,
+        RobustLoss::Cauchy { c } => pass_with::<_, false>(d, lo, hi, x, Cauchy(c), 0.0).pass,
+    }
+}
+
+/// Readings per block: seven buffers of this many `f64` stay in L1.
+const BLOCK: usize = 256;
+
+/// `sum_k a_k b_k` with eight independent partial sums.
+#[inline(always)]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let (ac, bc) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ar, br) = (ac.remainder(), bc.remainder());
+    for (x, y) in ac.zip(bc) {
+        for i in 0..8 {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    let mut s = acc.iter().sum::<f64>();
+    for (x, y) in ar.iter().zip(br) {
+        s += x * y;
+    }
+    s
+}
+
+/// `sum_k a_k` with eight independent partial sums.
+#[inline(always)]
+fn total(a: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let ac = a.chunks_exact(8);
+    let ar = ac.remainder();
+    for x in ac {
+        for i in 0..8 {
+            acc[i] += x[i];
+        }
+    }
+    acc.iter().sum::<f64>() + ar.iter().sum::<f64>()
+}
+
+/// The pass; with `STATS` also the residual statistics of [`FinalPass`] (`o2`: outlier
+/// threshold on `e^2`).
+#[inline(always)]
+fn pass_with<L: Loss, const STATS: bool>(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: L, o2: f64) -> FinalPass {
+    let mut out = FinalPass::default();
+    let mut rv = [0.0f64; BLOCK];
+    let mut flags = [[0.0f64; BLOCK]; 2];
     let mut h = [0.0f64; 10];
     let mut g = [0.0f64; 4];
-    let mut cost = 0.0;
-    let mut chi2 = 0.0;
-    for k in 0..ls.len() {
-        let dx = xs[k] - ax;
-        let dy = ys[k] - ay;
-        let dz = zs[k] - az;
-        let rho = (dx * dx + dy * dy + dz * dz).sqrt();
-        let inv = 1.0 / rho;
-        let u = [dx * inv, dy * inv, dz * inv];
-        let r = ls[k] - (rho + l0);
-        let iv = 1.0 / nm.variance(u, rho, ts[k]);
-        let e2 = r * r * iv;
-        let (rw, c) = loss.weight_cost(e2);
-        cost += c;
-        chi2 += rw * e2;
-        let w = rw * iv;
-        // J = [-u, 1]
-        let (j0, j1, j2) = (-u[0], -u[1], -u[2]);
-        let wj0 = w * j0;
-        let wj1 = w * j1;
-        let wj2 = w * j2;
-        h[0] += wj0 * j0;
-        h[1] += wj0 * j1;
-        h[2] += wj0 * j2;
-        h[3] += wj0;
-        h[4] += wj1 * j1;
-        h[5] += wj1 * j2;
-        h[6] += wj1;
-        h[7] += wj2 * j2;
-        h[8] += wj2;
-        h[9] += w;
-        g[0] += wj0 * r;
-        g[1] += wj1 * r;
-        g[2] += wj2 * r;
-        g[3] += w * r;
+    let (mut cost, mut chi2) = (0.0, 0.0);
+    // Per-reading buffers: J = [-u, 1] as (jx, jy, jz), weight w, w r, loss, robust weight e^2.
+    let mut jx = [0.0f64; BLOCK];
+    let mut jy = [0.0f64; BLOCK];
+    let mut jz = [0.0f64; BLOCK];
+    let mut wv = [0.0f64; BLOCK];
+    let mut wr = [0.0f64; BLOCK];
+    let mut cv = [0.0f64; BLOCK];
+    let mut ch = [0.0f64; BLOCK];
+    let mut start = lo;
+    while start < hi {
+        let end = (start + BLOCK).min(hi);
+        let n = end - start;
+        let (xs, ys, zs, ls, ivs) = (&d.x[start..end], &d.y[start..end], &d.z[start..end], &d.l[start..end], &d.iv[start..end]);
+        for k in 0..n {
+            let dx = xs[k] - x[0];
+            let dy = ys[k] - x[1];
+            let dz = zs[k] - x[2];
+            let rho = (dx * dx + dy * dy + dz * dz).sqrt();
+            let inv = 1.0 / rho;
+            jx[k] = -dx * inv;
+            jy[k] = -dy * inv;
+            jz[k] = -dz * inv;
+            let r = ls[k] - (rho + x[3]);
+            let e2 = r * r * ivs[k];
+            let (rw, c) = loss.weight_cost(e2);
+            let w = rw * ivs[k];
+            wv[k] = w;
+            wr[k] = w * r;
+            cv[k] = c;
+            ch[k] = rw * e2;
+            if STATS {
+                rv[k] = r;
+                flags[0][k] = if rw < 1.0 { 1.0 } else { 0.0 };
+                flags[1][k] = if e2 > o2 { 1.0 } else { 0.0 };
+            }
+        }
+        if STATS {
+            let r = &rv[..n];
+            out.sum_sq += dot(r, r);
+            out.peak = r.iter().fold(out.peak, |m, v| m.max(v.abs()));
+            out.downweighted += total(&flags[0][..n]) as usize;
+            out.outliers += total(&flags[1][..n]) as usize;
+        }
+        let (jx, jy, jz, wv, wr) = (&jx[..n], &jy[..n], &jz[..n], &wv[..n], &wr[..n]);
+        // w j_a j_b = (w j_a) j_b: form w j once per column.
+        let mut wj = [[0.0f64; BLOCK]; 3];
+        for k in 0..n {
+            wj[0][k] = wv[k] * jx[k];
+            wj[1][k] = wv[k] * jy[k];
+            wj[2][k] = wv[k] * jz[k];
+        }
+        let (w0, w1, w2) = (&wj[0][..n], &wj[1][..n], &wj[2][..n]);
+        h[0] += dot(w0, jx);
+        h[1] += dot(w0, jy);
+        h[2] += dot(w0, jz);
+        h[3] += total(w0);
+        h[4] += dot(w1, jy);
+        h[5] += dot(w1, jz);
+        h[6] += total(w1);
+        h[7] += dot(w2, jz);
+        h[8] += total(w2);
+        h[9] += total(wv);
+        g[0] += dot(wr, jx);
+        g[1] += dot(wr, jy);
+        g[2] += dot(wr, jz);
+        g[3] += total(wr);
+        cost += total(&cv[..n]);
+        chi2 += total(&ch[..n]);
+        start = end;
     }
-    Pass { cost, h, g, chi2 }
+    out.pass = Pass { cost, h, g, chi2 };
+    out
 }
 
 /// Tolerances of one solve.
@@ -224,13 +350,18 @@ pub struct Tolerances {
     /// Gradient tolerance: stop when `max_k |g_k| / sqrt(H_kk cost) <= gtol` (the cosine of the
     /// angle between the residual and the Jacobian's columns, as in MINPACK).
     pub gtol: f64,
+    /// Statistical step tolerance: stop when `dx^T H dx <= step_sigma2`, i.e. when the step is
+    /// below `sqrt(step_sigma2)` standard deviations of the estimate. Scale-free, and the reason
+    /// the solve stops after a handful of passes instead of chasing nanometres.
+    pub step_sigma2: f64,
 }
 
 impl Tolerances {
-    /// Tight tolerances for the final solve.
-    pub const FINAL: Tolerances = Tolerances { xtol: 1e-10, ftol: 1e-12, gtol: 1e-10 };
-    /// Loose tolerances for the least-squares stage before a robust one.
-    pub const COARSE: Tolerances = Tolerances { xtol: 1e-6, ftol: 1e-6, gtol: 1e-6 };
+    /// Tolerances for the final solve: a step of 1e-3 standard deviations is converged.
+    pub const FINAL: Tolerances = Tolerances { xtol: 1e-12, ftol: 1e-14, gtol: 1e-10, step_sigma2: 1e-6 };
+    /// Loose tolerances for the least-squares stage before a robust one (within 0.1 sigma of
+    /// the least-squares solution; the robust stage moves further anyway).
+    pub const COARSE: Tolerances = Tolerances { xtol: 1e-9, ftol: 1e-10, gtol: 1e-8, step_sigma2: 1e-2 };
 }
 
 /// The result of one solve.
@@ -247,22 +378,21 @@ pub struct Solution {
 }
 
 /// Solves one cable on readings `lo..hi` from `x0`, with a least-squares stage first when `loss`
-/// is robust.
+/// is robust (use [`lm`] with the robust loss directly to refine from a point already close).
 pub fn solve(
     d: &CableData,
     lo: usize,
     hi: usize,
     x0: [f64; 4],
-    nm: &NoiseModel,
     loss: RobustLoss,
     max_iterations: usize,
 ) -> Solution {
     if loss == RobustLoss::None {
-        return lm(d, lo, hi, x0, nm, loss, max_iterations, Tolerances::FINAL);
+        return lm(d, lo, hi, x0, loss, max_iterations, Tolerances::FINAL);
     }
-    let first = lm(d, lo, hi, x0, nm, RobustLoss::None, max_iterations, Tolerances::COARSE);
+    let first = lm(d, lo, hi, x0, RobustLoss::None, max_iterations, Tolerances::COARSE);
     let rest = max_iterations.saturating_sub(first.iterations).max(1);
-    let mut second = lm(d, lo, hi, first.x, nm, loss, rest, Tolerances::FINAL);
+    let mut second = lm(d, lo, hi, first.x, loss, rest, Tolerances::FINAL);
     second.iterations += first.iterations;
     second
 }
@@ -274,14 +404,17 @@ pub fn lm(
     lo: usize,
     hi: usize,
     x0: [f64; 4],
-    nm: &NoiseModel,
     loss: RobustLoss,
     max_iterations: usize,
     tol: Tolerances,
 ) -> Solution {
     let mut x = x0;
-    let mut cur = pass(d, lo, hi, &x, nm, loss);
-    let mut lambda = 1e-3;
+    let mut cur = pass(d, lo, hi, &x, loss);
+    // Start almost at Gauss–Newton: J^T W J is ill-conditioned along (A along the mean cable
+    // direction, L0) (eigenvalue ratios 1e4..1e5), and a Marquardt damping of 1e-3 diag(H) would
+    // shrink the step along exactly that direction tenfold, turning quadratic convergence into
+    // a crawl. The gain ratio raises lambda when a step fails.
+    let mut lambda = 1e-9;
     let mut nu = 2.0;
     let mut it = 0;
     let done = |termination, iterations, x, at_x| Solution { x, termination, iterations, at_x };
@@ -314,18 +447,19 @@ pub fn lm(
         let xn_norm = (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
         let step = dx.norm();
         let xn = [x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3]];
-        let trial = pass(d, lo, hi, &xn, nm, loss);
+        let trial = pass(d, lo, hi, &xn, loss);
         // Predicted decrease of the local quadratic model: g.dx - dx^T H dx / 2.
-        let pred = dx.dot(&g) - 0.5 * dx.dot(&(h * dx));
+        let mstep = dx.dot(&(h * dx));
+        let pred = dx.dot(&g) - 0.5 * mstep;
         let act = cur.cost - trial.cost;
         if trial.cost.is_finite() && act > 0.0 {
             let rho = act / pred.max(f64::MIN_POSITIVE);
             let old_cost = cur.cost;
             x = xn;
             cur = trial;
-            lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
+            lambda = (lambda * (1.0 - (2.0 * rho - 1.0).powi(3)).max(0.1)).max(1e-12);
             nu = 2.0;
-            if step <= tol.xtol * (xn_norm + tol.xtol) {
+            if mstep <= tol.step_sigma2 || step <= tol.xtol * (xn_norm + tol.xtol) {
                 return done(Termination::SmallStep, it, x, cur);
             }
             if act <= tol.ftol * old_cost && pred <= tol.ftol * old_cost {
@@ -353,7 +487,7 @@ const DIAG: [usize; 4] = [0, 4, 7, 9];
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::noise::Weighting;
+    use crate::noise::{NoiseModel, Weighting};
     use crate::CalibOptions;
 
     /// The normal equations accumulated in one pass equal J^T W J and J^T W r built from a
@@ -374,7 +508,8 @@ mod tests {
         let opts = CalibOptions::default();
         let nm = NoiseModel::new(&opts, Weighting::ForceAware);
         let x = [2.9, -1.4, 4.1, 0.45];
-        let p = pass(&d, 0, d.len(), &x, &nm, RobustLoss::None);
+        d.set_variances(&x, &nm);
+        let p = pass(&d, 0, d.len(), &x, RobustLoss::None);
         let hh = 1e-7;
         let model = |x: &[f64; 4], k: usize| crate::model::cable_length(d.point(k), [x[0], x[1], x[2]], x[3]);
         let mut h = [[0.0; 4]; 4];
