@@ -110,12 +110,14 @@ pub struct Prediction {
 impl<'a> Joint<'a> {
     /// Attachment point of cable `j` at `t_i - delta` (linear interpolation inside the sample's
     /// segment, clamped at its ends) and its velocity.
-    fn shifted(&self, i: usize, j: usize, delta: f64) -> ([f64; 3], [f64; 3]) {
+    fn shifted(&self, i: usize, j: usize, delta: Option<f64>) -> ([f64; 3], [f64; 3]) {
         let p = self.prep;
         let xs = &p.x[j];
-        if delta == 0.0 {
+        // Without the effect no interpolation; with it, interpolate even at delta = 0 so the
+        // Jacobian (the velocity) is not zero at the start of the fit.
+        let Some(delta) = delta else {
             return (xs[i], [0.0; 3]);
-        }
+        };
         let tau = p.t[i] - delta;
         let seg = p.segment[i];
         let nn = p.t.len();
@@ -157,7 +159,7 @@ impl<'a> Joint<'a> {
         let tension = self.prep.f[j][i];
         let has_t = tension.is_finite();
         let delta = get(Effect::TimeOffset);
-        let (xp, vel) = self.shifted(i, j, delta.map_or(0.0, |d| d.1));
+        let (xp, vel) = self.shifted(i, j, delta.map(|d| d.1));
         // Geometry: straight or over the pulley.
         let mut g;
         let mut gx; // dG/dX

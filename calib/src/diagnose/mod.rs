@@ -11,7 +11,7 @@
 //! 4. **Name and model** it: forward selection over the effect library ([`effects`]). Each
 //!    candidate is fitted jointly with anchors and offsets ([`fit`], solved by [`lm`]) on a
 //!    subsample of the training blocks and judged on the held-out blocks. The best one is kept if
-//!    it lowers the held-out sum of squares by at least 2% and by more than 25 noise variances,
+//!    it lowers the held-out sum of squares by at least 5% and by more than 25 noise variances,
 //!    and if its parameters are physical (inside [`Effect::internal_range`]). Repeat while effects
 //!    still pay. Candidates whose held-out gain is within 20% of the winner's are reported as
 //!    explaining the data equally well: that is how time offset vs backlash, sag vs elasticity and
@@ -654,7 +654,7 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         let bg = gain(&cands[bi].1);
         let n_ho = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x).1 as f64;
         let _ = n_ho;
-        if !(bg > 0.02 * cur_ho && bg > 25.0 * cur_ms) {
+        if !(bg > 0.05 * cur_ho && bg > 25.0 * cur_ms) {
             for (e, c, ok) in &cands {
                 rejected.push(format!(
                     "{}: held-out sum of squares {:+.1}%{}",
