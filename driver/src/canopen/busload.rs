@@ -74,8 +74,8 @@ mod tests {
         let l = BusLoad::compute(4, PdoLayout::Compact, 0.002, 1_000_000, 100);
         assert_eq!(l.frames_per_cycle, 9);
         assert_eq!(l.bits_per_cycle, 55 + 8 * 135);
-        // 1135 bits / 2 ms = 567.5 kbit/s, plus 4 x 63 bits x 10/s of heartbeats.
-        assert!((l.load - (567_500.0 + 2_520.0) / 1e6).abs() < 1e-9, "{}", l.load);
+        // 1135 bits / 2 ms = 567.5 kbit/s, plus 4 x 65 bits x 10/s of heartbeats.
+        assert!((l.load - (567_500.0 + 2_600.0) / 1e6).abs() < 1e-9, "{}", l.load);
         assert!(!l.is_high());
         assert!(BusLoad::compute(8, PdoLayout::Compact, 0.002, 1_000_000, 100).is_high());
     }

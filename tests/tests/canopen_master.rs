@@ -1,0 +1,369 @@
+//! The CANopen master against virtual CiA 402 drives on the in-process virtual bus, in
+//! simulated time: every run sees the same frames in the same order.
+
+use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use taut_driver::canopen::cia402::{Mode, State};
+use taut_driver::canopen::master::{
+    CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem,
+};
+use taut_driver::canopen::pdo::PdoLayout;
+use taut_driver::transport::candump::{self, Recorder, Replay};
+use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
+use taut_driver::transport::{CanTransport, Frame};
+use taut_sim::devices::drive::{rack_filters, DriveRack};
+
+const NODES: [u8; 4] = [1, 2, 3, 4];
+const MS: Duration = Duration::from_millis(1);
+
+struct Rig<T: CanTransport> {
+    bus: VirtualBus,
+    t0: Instant,
+    t: Instant,
+    master: Master,
+    port: T,
+    rack: DriveRack<VirtualEndpoint>,
+    events: Vec<Event>,
+}
+
+fn config(nodes: &[u8]) -> MasterConfig {
+    MasterConfig::new(nodes.iter().enumerate().map(|(i, &n)| NodeConfig::new(n, i)).collect())
+}
+
+fn rig(cfg: MasterConfig) -> Rig<VirtualEndpoint> {
+    let bus = VirtualBus::new();
+    let port = bus.endpoint();
+    let nodes: Vec<u8> = cfg.nodes.iter().map(|n| n.node_id).collect();
+    let rack = DriveRack::with_nodes(bus.endpoint_with(1024, &rack_filters(&nodes)), &nodes);
+    let t0 = Instant::now();
+    Rig { bus, t0, t: t0, master: Master::new(cfg), port, rack, events: Vec::new() }
+}
+
+impl<T: CanTransport> Rig<T> {
+    /// One millisecond: master timers and TX, drives, master RX.
+    fn step(&mut self) {
+        self.t += MS;
+        self.master.poll(self.t);
+        while let Some(f) = self.master.poll_tx() {
+            self.port.send(&f).unwrap();
+        }
+        self.rack.step(self.t);
+        while let Ok(Some(f)) = self.port.try_recv() {
+            self.master.on_frame(&f, self.t);
+        }
+        while let Some(e) = self.master.poll_event() {
+            self.events.push(e);
+        }
+    }
+
+    fn run(&mut self, d: Duration) {
+        let end = self.t + d;
+        while self.t < end {
+            self.step();
+        }
+    }
+
+    /// Steps until `cond`, at most `max`; returns the time it took.
+    fn until(&mut self, max: Duration, what: &str, mut cond: impl FnMut(&mut Self) -> bool) -> Duration {
+        let start = self.t;
+        while !cond(self) {
+            assert!(self.t - start < max, "{what}: not within {max:?}; events: {:#?}", self.events);
+            self.step();
+        }
+        self.t - start
+    }
+
+    fn bring_up(&mut self) {
+        self.until(Duration::from_secs(2), "bring-up", |r| r.master.all_operational());
+    }
+
+    fn enable_all(&mut self) {
+        let n = self.master.len();
+        let mut op = self.master.operational().expect("operational");
+        for i in 0..n {
+            op.enable(i).unwrap();
+        }
+        self.until(Duration::from_secs(1), "enable", |r| r.master.all_enabled());
+    }
+
+    fn count(&self, f: impl Fn(&Event) -> bool) -> usize {
+        self.events.iter().filter(|e| f(e)).count()
+    }
+}
+
+#[test]
+fn bring_up_identifies_configures_and_starts_every_drive() {
+    let mut r = rig(config(&NODES));
+    let took = r.until(Duration::from_secs(2), "bring-up", |r| r.master.all_operational());
+    assert!(took < Duration::from_millis(500), "bring-up took {took:?} of simulated time");
+    for (i, s) in r.master.statuses().enumerate() {
+        assert_eq!(s.node, NODES[i]);
+        assert_eq!(s.phase, Phase::Operational);
+        assert_eq!(s.identity.device_type, Some(0x0002_0192));
+        assert_eq!(s.identity.vendor, Some(0xACE));
+        assert_eq!(s.identity.serial, Some(1000 + u32::from(NODES[i])));
+        // 0x1008 is 18 bytes: a segmented upload.
+        assert_eq!(s.name(), "taut virtual drive");
+        assert_eq!(s.boots, 1);
+    }
+    for n in NODES {
+        for want in [Event::Booted { node: n }, Event::Configured { node: n }, Event::Operational { node: n }] {
+            assert_eq!(r.count(|e| *e == want), 1, "{want:?}");
+        }
+    }
+    // The drives run what the master configured: 0x1017, PDO mapping, mode.
+    r.run(Duration::from_millis(50));
+    for s in r.master.statuses() {
+        assert!(s.axis.tpdos > 10, "TPDOs flow every SYNC");
+        assert_eq!(s.axis.state, Some(State::ReadyToSwitchOn), "held at ready to switch on until enabled");
+    }
+    for d in r.rack.drives() {
+        assert_eq!(d.target().mode, Mode::CyclicPosition);
+        assert!(d.counters().syncs > 10);
+    }
+    let c = r.master.counters();
+    assert_eq!((c.malformed, c.unknown_node, c.sdo_aborts, c.sdo_timeouts), (0, 0, 0, 0), "{c:?}");
+}
+
+#[test]
+fn csp_motion_moves_the_cable_by_the_commanded_metres() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    // Motion commands need operation enabled: refused before.
+    assert_eq!(
+        r.master.operational().unwrap().set_position_m(0, 0.1),
+        Err(CommandError::NotEnabled { node: 1 })
+    );
+    r.enable_all();
+    let start: Vec<f64> = r.master.statuses().map(|s| s.position_m).collect();
+    {
+        let mut op = r.master.operational().unwrap();
+        op.set_position_m(0, start[0] + 0.10).unwrap();
+        op.set_position_m(1, start[1] - 0.05).unwrap();
+        assert_eq!(op.set_tension_n(2, 10.0), Err(CommandError::WrongMode { node: 3 }));
+    }
+    r.run(Duration::from_millis(500));
+    let s0 = r.master.status(0).unwrap();
+    let s1 = r.master.status(1).unwrap();
+    let s2 = r.master.status(2).unwrap();
+    let count_m = NodeConfig::new(1, 0).scaling.metres_per_count();
+    assert!((s0.position_m - (start[0] + 0.10)).abs() <= 1.5 * count_m, "{} vs {}", s0.position_m, start[0] + 0.1);
+    assert!((s1.position_m - (start[1] - 0.05)).abs() <= 1.5 * count_m);
+    assert!((s2.position_m - start[2]).abs() <= 1.5 * count_m, "an enabled drive holds where it stood");
+    assert_eq!(s0.axis.state, Some(State::OperationEnabled));
+}
+
+#[test]
+fn cst_drive_follows_the_commanded_tension() {
+    let mut cfg = config(&[5, 6, 7]);
+    cfg.nodes[2].mode = Mode::CyclicTorque;
+    cfg.nodes[2].layout = PdoLayout::WithMode;
+    let scaling = cfg.nodes[2].scaling;
+    let mut r = rig(cfg);
+    r.bring_up();
+    r.enable_all();
+    r.master.operational().unwrap().set_tension_n(2, 20.0).unwrap();
+    // The maximum tension (500 N) limits the command.
+    r.run(Duration::from_millis(20));
+    let s = r.master.status(2).unwrap();
+    assert_eq!(s.axis.torque, scaling.n_to_permille(20.0));
+    assert!((s.tension_n - 20.0).abs() < 0.3, "{}", s.tension_n);
+    assert_eq!(s.axis.mode_display, Some(Mode::CyclicTorque), "mode travels in TPDO2 with this layout");
+    assert_eq!(r.rack.drive(7).unwrap().target().mode, Mode::CyclicTorque);
+}
+
+#[test]
+fn emcy_is_decoded_and_a_fault_is_reset_on_request_only() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.enable_all();
+    r.rack.drive(2).unwrap().inject_fault(0x2310);
+    r.until(Duration::from_millis(100), "fault seen", |r| r.master.status(1).unwrap().axis.state == Some(State::Fault));
+    let emcy = r.events.iter().find_map(|e| match e {
+        Event::Emergency { node: 2, emcy } => Some(*emcy),
+        _ => None,
+    });
+    let emcy = emcy.expect("EMCY event");
+    assert_eq!(emcy.code, 0x2310);
+    assert_eq!(emcy.name(), "continuous over-current (motor side)");
+    assert!(format!("{}", Event::Emergency { node: 2, emcy }).contains("over-current"));
+    assert_eq!(r.master.counters().emergencies, 1);
+    // No automatic reset, and no motion commands to the faulted drive.
+    r.run(Duration::from_millis(100));
+    assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::Fault));
+    assert_eq!(r.master.operational().unwrap().set_position_m(1, 0.0), Err(CommandError::NotEnabled { node: 2 }));
+    // The other drives stay enabled.
+    assert_eq!(r.master.status(0).unwrap().axis.state, Some(State::OperationEnabled));
+
+    r.master.operational().unwrap().fault_reset(1).unwrap();
+    r.until(Duration::from_millis(100), "fault reset", |r| r.master.status(1).unwrap().axis.state != Some(State::Fault));
+    assert!(r.events.iter().any(|e| matches!(e, Event::Emergency { node: 2, emcy } if emcy.is_reset())));
+    r.enable_all();
+}
+
+#[test]
+fn heartbeat_loss_is_detected_and_the_node_is_configured_again_when_it_returns() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.rack.drive(3).unwrap().set_heartbeat_off(true);
+    let took = r.until(Duration::from_secs(1), "heartbeat lost", |r| r.master.status(2).unwrap().phase == Phase::Lost);
+    // 100 ms period, 300 ms timeout.
+    assert!(took > Duration::from_millis(250) && took < Duration::from_millis(450), "{took:?}");
+    assert!(r.master.operational().is_none(), "no motion interface while a drive is lost");
+    assert_eq!(r.count(|e| *e == Event::HeartbeatLost { node: 3 }), 1);
+    assert_eq!(r.master.counters().heartbeat_losses, 1);
+
+    r.rack.drive(3).unwrap().set_heartbeat_off(false);
+    r.bring_up();
+    assert_eq!(r.count(|e| *e == Event::HeartbeatRecovered { node: 3 }), 1);
+    assert_eq!(r.count(|e| *e == Event::Configured { node: 3 }), 2, "configured again");
+}
+
+#[test]
+fn a_silent_node_is_lost_and_comes_back_after_a_power_cycle() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.rack.drive(1).unwrap().set_silent(true);
+    r.until(Duration::from_secs(1), "lost", |r| r.master.status(0).unwrap().phase == Phase::Lost);
+    let d = r.rack.drive(1).unwrap();
+    d.set_silent(false);
+    d.power_cycle();
+    r.bring_up();
+    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 1 }), 1);
+}
+
+#[test]
+fn a_node_rebooting_mid_run_is_noticed_and_configured_again() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.enable_all();
+    r.master.operational().unwrap().set_position_m(3, 0.02).unwrap();
+    r.run(Duration::from_millis(50));
+    r.rack.drive(4).unwrap().power_cycle();
+    r.run(Duration::from_millis(5));
+    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 4 }), 1);
+    assert!(r.master.operational().is_none(), "the set is not operational while node 4 is reconfigured");
+    r.bring_up();
+    let s = r.master.status(3).unwrap();
+    assert_eq!(s.boots, 2);
+    assert_eq!(r.master.counters().reboots, 1);
+    r.run(Duration::from_millis(20));
+    // Power-on state: disabled; the master does not re-enable by itself.
+    assert_eq!(r.master.status(3).unwrap().axis.state, Some(State::ReadyToSwitchOn));
+    // The absolute encoder kept its position.
+    assert!((r.master.status(3).unwrap().position_m - 0.02).abs() < 1e-3);
+    r.enable_all();
+}
+
+#[test]
+fn malformed_frames_and_unknown_nodes_are_counted_and_reported_once() {
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.rack.drive(2).unwrap().queue_malformed();
+    let junk = [
+        Frame::new(0x77F, &[0x05]),          // heartbeat of node 127: not configured
+        Frame::new(0x1FF, &[0; 8]),          // TPDO of an unknown node
+        Frame::new(0x0FE, &[0; 8]),          // EMCY of an unknown node
+        Frame::new(0x5A0, &[0x60, 0, 0, 0, 0, 0, 0, 0]), // SDO response of node 0x20
+        Frame::new(0x000, &[0x01, 0x00]),    // NMT from another master
+        Frame::new(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]), // SDO request of another client
+        Frame::new(0x7E5, &[0; 8]),          // LSS
+        Frame::try_new(0x1234_5678, true, &[1, 2]).unwrap(),
+        Frame::remote(0x181, false, 8).unwrap(),
+        Frame::new(0x581, &[0x60, 0, 0, 0, 0, 0, 0, 0]), // SDO response nobody asked for
+    ];
+    // A third node on the bus sends the junk.
+    let mut injector = r.bus.endpoint();
+    for f in &junk {
+        injector.send(f).unwrap();
+    }
+    r.run(Duration::from_millis(300));
+    assert!(r.master.all_operational(), "bad input does not disturb operation: {:#?}", r.events);
+    let c = r.master.counters();
+    assert!(c.malformed >= 5, "{c:?}");
+    assert_eq!(c.unknown_node, 4, "{c:?}");
+    assert_eq!(c.ignored, 5, "{c:?}");
+    // One from the junk, one from drive 1 answering the other client's request.
+    assert_eq!(c.unexpected_sdo, 2, "{c:?}");
+    for kind in [Problem::Malformed, Problem::UnknownNode, Problem::Ignored, Problem::UnexpectedSdo] {
+        assert_eq!(r.count(|e| matches!(e, Event::FirstOfKind { kind: k, .. } if *k == kind)), 1, "{kind:?} once");
+    }
+    assert!(r.rack.drives().iter().all(|d| d.counters().short_rpdos == 0), "the master never sends short RPDOs");
+}
+
+
+#[test]
+fn a_drive_with_the_wrong_identity_is_refused() {
+    let mut cfg = config(&[1, 2]);
+    cfg.nodes[1].vendor_id = Some(0x1234);
+    let mut r = rig(cfg);
+    r.run(Duration::from_millis(300));
+    let s = r.master.status(1).unwrap();
+    assert_eq!(s.phase, Phase::Failed(NodeFailure::WrongDevice { sub: 1, expected: 0x1234, found: 0xACE }));
+    assert!(r.master.operational().is_none());
+    assert_eq!(r.master.status(0).unwrap().phase, Phase::Operational);
+    let msg = r.events.iter().find(|e| matches!(e, Event::Failed { .. })).unwrap().to_string();
+    assert!(msg.contains("0x1018sub1") && msg.contains("wrong drive"), "{msg}");
+}
+
+#[test]
+fn sdo_timeouts_are_retried_then_the_node_fails() {
+    let mut r = rig(config(&[1, 2]));
+    // Node 2 boots, then says nothing more.
+    r.step();
+    r.step();
+    r.rack.drive(2).unwrap().set_silent(true);
+    r.run(Duration::from_millis(500));
+    let s = r.master.status(1).unwrap();
+    assert!(matches!(s.phase, Phase::Failed(NodeFailure::Sdo(a)) if !a.by_server), "{:?}", s.phase);
+    let c = r.master.counters();
+    assert_eq!(c.sdo_timeouts, 3, "first try and two retries: {c:?}");
+    assert_eq!(r.count(|e| matches!(e, Event::FirstOfKind { kind: Problem::SdoTimeout, .. })), 1);
+}
+
+#[test]
+fn candump_log_of_a_session_replays_to_the_same_state() {
+    let bus = VirtualBus::new();
+    let sim_us = Arc::new(AtomicU64::new(1_700_000_000_000_000));
+    let clock = sim_us.clone();
+    let port = Recorder::with_clock(bus.endpoint(), Vec::new(), "vcan0", Box::new(move || clock.load(Ordering::Relaxed)));
+    let rack = DriveRack::with_nodes(bus.endpoint_with(1024, &rack_filters(&NODES)), &NODES);
+    let t0 = Instant::now();
+    let mut r = Rig { bus, t0, t: t0, master: Master::new(config(&NODES)), port, rack, events: vec![] };
+    let tick = Cell::new(0u64);
+    while r.t - r.t0 < Duration::from_millis(400) {
+        tick.set(tick.get() + 1);
+        sim_us.store(1_700_000_000_000_000 + tick.get() * 1000, Ordering::Relaxed);
+        r.step();
+    }
+    assert!(r.master.all_operational());
+    let live: Vec<_> = r.master.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.position_m)).collect();
+    let (_, log, res) = r.port.finish();
+    res.unwrap();
+    let text = String::from_utf8(log).unwrap();
+    assert!(text.lines().count() > 400, "SYNC, PDOs, SDO, heartbeats: {} lines", text.lines().count());
+    for l in text.lines() {
+        candump::parse_line(l).unwrap_or_else(|e| panic!("{l}: {e}"));
+    }
+    assert!(text.contains(" 701#00\n"), "boot-up of node 1 recorded");
+
+    // Replay: a fresh master with the same configuration, fed the logged frames at the logged
+    // times, reaches the same state. Its own frames come back too and are ignored.
+    let mut m = Master::new(config(&NODES));
+    let mut replay = Replay::new(text.as_bytes());
+    let base = t0;
+    let first = 1_700_000_000_000_000u64;
+    while let Ok(Some(f)) = replay.try_recv() {
+        let t = base + Duration::from_micros(replay.last_t_us().unwrap() - first);
+        m.poll(t);
+        while m.poll_tx().is_some() {}
+        m.on_frame(&f, t);
+    }
+    assert_eq!(replay.stats().bad_lines, 0);
+    let replayed: Vec<_> = m.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.position_m)).collect();
+    assert_eq!(replayed, live);
+    assert!(m.counters().ignored > 0, "the master's own frames are ignored on replay");
+}
