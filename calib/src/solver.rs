@@ -447,9 +447,14 @@ pub fn lm(
         let xn_norm = (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
         let step = dx.norm();
         let xn = [x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3]];
+        let mstep = dx.dot(&(h * dx));
+        // The proposed step is already below the statistical tolerance: x is converged, and
+        // evaluating x + dx would cost a pass to learn nothing (x is returned, with its pass).
+        if mstep <= tol.step_sigma2 {
+            return done(Termination::SmallStep, it, x, cur);
+        }
         let trial = pass(d, lo, hi, &xn, loss);
         // Predicted decrease of the local quadratic model: g.dx - dx^T H dx / 2.
-        let mstep = dx.dot(&(h * dx));
         let pred = dx.dot(&g) - 0.5 * mstep;
         let act = cur.cost - trial.cost;
         if trial.cost.is_finite() && act > 0.0 {
