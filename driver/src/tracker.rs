@@ -146,7 +146,7 @@ pub fn parse_line(bytes: &[u8]) -> Result<PoseLine, ParseError> {
         8 => {
             let q = [v[4], v[5], v[6], v[7]];
             let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if !((norm - 1.0).abs() <= 0.01) {
+            if norm.is_nan() || (norm - 1.0).abs() > 0.01 {
                 return Err(ParseError::NotUnitQuaternion);
             }
             Some(q.map(|x| x / norm))

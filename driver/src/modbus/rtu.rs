@@ -210,6 +210,8 @@ impl fmt::Debug for Registers {
 }
 
 /// A decoded response frame.
+// Fixed size on purpose (no heap on the I/O path): the 250-byte register array is the point.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Response {
     /// Register values.
