@@ -4,11 +4,13 @@
 //! `main` only maps errors to exit codes; each subcommand lives in its own module.
 
 mod calibrate;
+mod ctl;
 mod demo;
 mod diagnose;
 mod plot;
 mod report;
 mod simulate;
+mod start;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -28,6 +30,10 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Calibrate anchors and encoder offsets from any recording, real or simulated.
     Calibrate(calibrate::CalibrateArgs),
+    /// Run the robot's controller: start-up calibration, hot-swap, operation (--sim: simulated robot).
+    Start(start::StartArgs),
+    /// Talk to a running `taut start`: status | recalibrate | stop | estop | reset | params | move X Y Z.
+    Ctl(ctl::CtlArgs),
     /// Find the physics the ideal model leaves out: name it, model it, show the fit improve.
     Diagnose(diagnose::DiagnoseArgs),
 }
@@ -38,6 +44,8 @@ fn main() -> ExitCode {
         Command::Demo(a) => demo::run(&a),
         Command::Simulate(a) => simulate::run(&a),
         Command::Calibrate(a) => calibrate::run(&a),
+        Command::Start(a) => start::run(&a),
+        Command::Ctl(a) => ctl::run(&a),
         Command::Diagnose(a) => diagnose::run(&a),
     };
     match result {

@@ -24,6 +24,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod calib_backend;
 pub mod calibrator;
 pub mod control;
 pub mod daemon;
@@ -36,6 +37,8 @@ pub mod runner;
 pub mod safety;
 pub mod testkit;
 pub mod sample;
+#[cfg(feature = "sim")]
+pub mod simrig;
 pub mod triple;
 
 pub use crossbeam_channel;

@@ -1,0 +1,114 @@
+//! The daemon's calibration backend: `taut-calib`'s initialisation and force-aware calibration.
+
+use crate::calibrator::{Calibrate, Estimate};
+use taut_calib::{init, CalibError, CalibOptions, Params};
+use taut_config::recording::Recording;
+use taut_config::RobotConfig;
+
+/// `taut-calib` with the robot's `[calibration]` options.
+pub struct TautCalib {
+    platform: Vec<[f64; 3]>,
+    nominal: Option<Vec<[f64; 3]>>,
+    opts: CalibOptions,
+}
+
+impl TautCalib {
+    /// From the robot configuration. The daemon validates on its own held-out block, so the
+    /// backend holds nothing out.
+    pub fn from_config(cfg: &RobotConfig) -> TautCalib {
+        let mut opts = CalibOptions::from_config(&cfg.calibration);
+        opts.heldout_fraction = 0.0;
+        TautCalib { platform: cfg.platform_points(), nominal: cfg.anchors(), opts }
+    }
+}
+
+impl Calibrate for TautCalib {
+    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String> {
+        let r = init::initialise(rec, &self.platform, &self.opts).map_err(|e| e.to_string())?;
+        let n = r.params.anchors.len();
+        let (mut anchors, mut l0) = (r.params.anchors, r.params.l0);
+        let mut note = r.method.json_name().to_string();
+        // A cable held in fewer than two phases (the followers) gets its anchor from
+        // multilateration on the phases' short arcs only, which can be far off. The followers are
+        // torque-controlled during the excitation, so their estimate does not steer the motion:
+        // start them at the nominal anchor and let the calibration find them.
+        if let Some(nominal) = &self.nominal {
+            for (j, c) in r.cables.iter().enumerate() {
+                if c.source != init::AnchorSource::HeldPhases {
+                    anchors[j] = nominal[j];
+                    l0[j] = median_offset(rec, &self.platform, j, nominal[j], self.opts.min_tension_n).unwrap_or(l0[j]);
+                    note.push_str(&format!("; cable {j}: nominal anchor"));
+                }
+            }
+        }
+        Ok(Estimate {
+            anchors,
+            l0,
+            anchor_sigma: vec![[f64::NAN; 3]; n],
+            l0_sigma: vec![f64::NAN; n],
+            rms_m: f64::NAN,
+            observable: true,
+            note,
+        })
+    }
+
+    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, String> {
+        let start = Params { anchors: init.anchors.clone(), l0: init.l0.clone() };
+        let r = match taut_calib::calibrate(rec, &self.platform, &start, &self.opts) {
+            Ok(r) => r,
+            Err(e @ CalibError::NotObservable { .. }) => {
+                return Ok(Estimate {
+                    anchors: init.anchors.clone(),
+                    l0: init.l0.clone(),
+                    anchor_sigma: vec![[f64::INFINITY; 3]; init.anchors.len()],
+                    l0_sigma: vec![f64::INFINITY; init.anchors.len()],
+                    rms_m: f64::NAN,
+                    observable: false,
+                    note: e.to_string(),
+                })
+            }
+            Err(e) => return Err(e.to_string()),
+        };
+        if !r.was_successful() {
+            return Err(format!("the solver did not converge ({:?})", r.termination));
+        }
+        let worst = r
+            .singular_values
+            .iter()
+            .map(|s| if s[0] > 0.0 { s[3] / s[0] } else { 0.0 })
+            .fold(f64::INFINITY, f64::min);
+        let observable = worst >= self.opts.min_rel_singular_value;
+        Ok(Estimate {
+            anchors: r.params.anchors,
+            l0: r.params.l0,
+            anchor_sigma: r.anchor_sigma,
+            l0_sigma: r.l0_sigma,
+            rms_m: r.rms_m,
+            observable,
+            note: if observable {
+                format!("{} readings, smallest relative singular value {worst:.2e}", r.samples_used)
+            } else {
+                format!("smallest relative singular value {worst:.2e} below {:.0e}: excite the robot more", self.opts.min_rel_singular_value)
+            },
+        })
+    }
+}
+
+/// Median of `l - |p + b - a|` over the taut readings of cable `j`.
+fn median_offset(rec: &Recording, platform: &[[f64; 3]], j: usize, a: [f64; 3], min_tension_n: f64) -> Option<f64> {
+    let b = platform[j];
+    let mut v: Vec<f64> = (0..rec.len())
+        .filter(|&i| rec.tensions(i).is_none_or(|f| f[j] >= min_tension_n))
+        .filter_map(|i| {
+            let p = rec.p[i];
+            let l = rec.lengths(i)[j];
+            let d = ((p[0] + b[0] - a[0]).powi(2) + (p[1] + b[1] - a[1]).powi(2) + (p[2] + b[2] - a[2]).powi(2)).sqrt();
+            (l - d).is_finite().then_some(l - d)
+        })
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(|x, y| x.total_cmp(y));
+    Some(v[v.len() / 2])
+}
