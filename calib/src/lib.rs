@@ -404,9 +404,9 @@ pub struct CalibReport {
     pub rms_m: f64,
     /// Peak |co-registration error| on the used readings, m.
     pub peak_m: f64,
-    /// Co-registration RMS on all present readings, loose ones included, m.
+    /// Co-registration RMS on the used and the loose readings (everything but missing values), m.
     pub rms_all_m: f64,
-    /// Peak on all present readings, m.
+    /// Peak on the used and the loose readings, m.
     pub peak_all_m: f64,
     /// RMS on the used readings of the held-out block (the last `heldout_fraction` of the
     /// recording in time), with parameters calibrated on the training block only, m. `None` when
@@ -458,6 +458,7 @@ pub fn calibrate(
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
+    let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
     for (j, d) in data.iter_mut().enumerate() {
         let m = d.len();
         if m < MIN_READINGS {
@@ -545,6 +546,16 @@ pub fn calibrate(
         if !sol.termination.was_successful() {
             notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
         }
+        // All readings, loose ones included.
+        let (mut ls, mut lp) = (0.0, 0.0f64);
+        for q in &d.loose_readings {
+            let r = q[3] - model::cable_length([q[0], q[1], q[2]], [sol.x[0], sol.x[1], sol.x[2]], sol.x[3]);
+            ls += r * r;
+            lp = lp.max(r.abs());
+        }
+        all_sum += fin.sum_sq + ls;
+        all_n += m + d.loose_readings.len();
+        all_peak = all_peak.max(fin.peak).max(lp);
         let mut c4 = [[0.0; 4]; 4];
         if let Some(c) = &cov {
             for a in 0..4 {
@@ -583,7 +594,6 @@ pub fn calibrate(
         }
         Weighting::ForceAware => {}
     }
-    let all = metrics::rms_peak_present(rec, platform_points, &params);
     let used: usize = per_cable.iter().map(|c| c.used).sum();
     let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
     let worst = per_cable.iter().map(|c| c.termination).max_by_key(|t| t.severity()).unwrap_or(Termination::SmallStep);
@@ -607,8 +617,8 @@ pub fn calibrate(
         weighting,
         rms_m: (sum_sq / used.max(1) as f64).sqrt(),
         peak_m: per_cable.iter().map(|c| c.peak_m).fold(0.0, f64::max),
-        rms_all_m: all.rms,
-        peak_all_m: all.peak,
+        rms_all_m: (all_sum / all_n.max(1) as f64).sqrt(),
+        peak_all_m: all_peak,
         heldout_rms_m: if ho_n > 0 { (ho_sum / ho_n as f64).sqrt() } else { f64::NAN },
         heldout_peak_m: if ho_n > 0 { ho_peak } else { f64::NAN },
         per_cable,

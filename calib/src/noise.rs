@@ -63,11 +63,24 @@ pub struct NoiseModel {
     pub cov: Mat3,
     /// `1 / EA`, 1/N; zero switches the stretch term off.
     pub inv_ea: f64,
+    /// `sigma_enc^2 + sigma^2` when the tracker covariance is isotropic (the projection is then
+    /// the same for every direction and need not be computed per reading).
+    pub iso: Option<f64>,
 }
 
 impl NoiseModel {
     /// The model `opts` describes under `weighting`.
     pub fn new(opts: &CalibOptions, weighting: Weighting) -> Self {
+        let mut nm = Self::new_general(opts, weighting);
+        let c = &nm.cov;
+        let off = [c[0][1], c[0][2], c[1][0], c[1][2], c[2][0], c[2][1]];
+        if off.iter().all(|v| *v == 0.0) && c[0][0] == c[1][1] && c[1][1] == c[2][2] {
+            nm.iso = Some(nm.enc2 + c[0][0]);
+        }
+        nm
+    }
+
+    fn new_general(opts: &CalibOptions, weighting: Weighting) -> Self {
         let cov = opts.tracker_cov_m2.unwrap_or_else(|| {
             let s2 = opts.tracker_sigma_m * opts.tracker_sigma_m;
             [[s2, 0.0, 0.0], [0.0, s2, 0.0], [0.0, 0.0, s2]]
@@ -77,11 +90,13 @@ impl NoiseModel {
                 enc2: opts.encoder_sigma_m * opts.encoder_sigma_m,
                 cov,
                 inv_ea: if opts.cable_ea_n > 0.0 && opts.cable_ea_n.is_finite() { 1.0 / opts.cable_ea_n } else { 0.0 },
+                iso: None,
             },
             Weighting::UniformNoTensions => NoiseModel {
                 enc2: opts.encoder_sigma_m * opts.encoder_sigma_m,
                 cov,
                 inv_ea: 0.0,
+                iso: None,
             },
             Weighting::UniformByOption => {
                 let s2 = (cov[0][0] + cov[1][1] + cov[2][2]) / 3.0;
@@ -89,6 +104,7 @@ impl NoiseModel {
                     enc2: opts.encoder_sigma_m * opts.encoder_sigma_m,
                     cov: [[s2, 0.0, 0.0], [0.0, s2, 0.0], [0.0, 0.0, s2]],
                     inv_ea: 0.0,
+                    iso: None,
                 }
             }
         }
@@ -139,6 +155,9 @@ pub struct CableData {
     pub sample: Vec<u32>,
     /// Readings excluded as loose.
     pub loose: usize,
+    /// The loose readings themselves, `(x, y, z, l)`, for the co-registration error of all
+    /// readings (a few percent of the data; kept out of the solver's arrays).
+    pub loose_readings: Vec<[f64; 4]>,
     /// Readings skipped as missing.
     pub missing: usize,
 }
@@ -163,7 +182,6 @@ impl CableData {
     /// direction `u` and length `rho` it depends on). Returns the largest relative change of a
     /// variance, so a caller can tell whether a solve at the old variances is still right.
     pub fn set_variances(&mut self, x: &[f64; 4], nm: &NoiseModel) -> f64 {
-        // A fresh buffer of zeros makes every relative change infinite, as it should be.
         self.iv.resize(self.l.len(), 0.0);
         let a = [x[0], x[1], x[2]];
         #[cfg(target_arch = "x86_64")]
@@ -188,17 +206,44 @@ unsafe fn variances_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mu
     variances(xs, ys, zs, ts, iv, a, nm)
 }
 
-/// Writes `1 / sigma^2` of every reading into `iv`; returns the largest relative change.
-/// Eight lanes of running maxima keep the loop free of a loop-carried dependence (SIMD).
+/// Writes `1 / sigma^2` of every reading into `iv`; returns the largest relative change of a
+/// variance (`|var_new / var_old - 1| = |var_new iv_old - 1|`, no division). Eight lanes of
+/// running maxima keep the loop free of a loop-carried dependence (SIMD).
 #[inline(always)]
 fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> f64 {
+    match nm.iso {
+        Some(c0) => {
+            let k = nm.inv_ea;
+            variances_with(xs, ys, zs, ts, iv, a, |_, rho, t| {
+                let s = t * rho * k;
+                c0 + s * s
+            })
+        }
+        None => variances_with(xs, ys, zs, ts, iv, a, |d: [f64; 3], rho, t| {
+            let inv = 1.0 / rho;
+            nm.variance([d[0] * inv, d[1] * inv, d[2] * inv], rho, t)
+        }),
+    }
+}
+
+#[inline(always)]
+fn variances_with(
+    xs: &[f64],
+    ys: &[f64],
+    zs: &[f64],
+    ts: &[f64],
+    iv: &mut [f64],
+    a: [f64; 3],
+    var: impl Fn([f64; 3], f64, f64) -> f64,
+) -> f64 {
     let mut mx = [0.0f64; 8];
     let one = |k: usize, old: f64| -> (f64, f64) {
         let d = [xs[k] - a[0], ys[k] - a[1], zs[k] - a[2]];
         let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let inv = 1.0 / rho;
-        let v = 1.0 / nm.variance([d[0] * inv, d[1] * inv, d[2] * inv], rho, ts[k]);
-        (v, (v / old - 1.0).abs())
+        let v = var(d, rho, ts[k]);
+        // A fresh buffer holds zeros: report an infinite change.
+        let c = if old > 0.0 { (v * old - 1.0).abs() } else { f64::INFINITY };
+        (1.0 / v, c)
     };
     let full = iv.len() / 8 * 8;
     for base in (0..full).step_by(8) {
@@ -271,11 +316,14 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
             iv: Vec::new(),
             sample: Vec::with_capacity(m),
             loose: 0,
+            loose_readings: Vec::new(),
             missing: 0,
         })
         .collect();
     let tensions = if weighting.uses_tensions() { rec.f.as_deref() } else { None };
     let point_mass = platform_points.iter().all(|b| *b == [0.0; 3]);
+    // Sample-major: the recording is read once, row by row (measured faster than cable-major,
+    // which reads it n times).
     for i in 0..m {
         let p = rec.p[i];
         let r = match &rot {
@@ -299,11 +347,12 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
                 d.missing += 1;
                 continue;
             }
+            let x = if point_mass && r.is_none() { p } else { model::attachment(p, r, platform_points[j]) };
             if tensions.is_some() && t < opts.min_tension_n {
                 d.loose += 1;
+                d.loose_readings.push([x[0], x[1], x[2], l]);
                 continue;
             }
-            let x = if point_mass && r.is_none() { p } else { model::attachment(p, r, platform_points[j]) };
             d.x.push(x[0]);
             d.y.push(x[1]);
             d.z.push(x[2]);

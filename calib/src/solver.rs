@@ -126,6 +126,24 @@ pub struct FinalPass {
 
 /// A pass that also gathers the residual statistics of the report, in the same sweep.
 pub fn final_pass(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss, outlier_sigma: f64) -> FinalPass {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU supports the features `final_pass_avx2` is compiled for.
+            return unsafe { final_pass_avx2(d, lo, hi, x, loss, outlier_sigma) };
+        }
+    }
+    final_pass_dispatch(d, lo, hi, x, loss, outlier_sigma)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn final_pass_avx2(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss, outlier_sigma: f64) -> FinalPass {
+    final_pass_dispatch(d, lo, hi, x, loss, outlier_sigma)
+}
+
+#[inline(always)]
+fn final_pass_dispatch(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: RobustLoss, outlier_sigma: f64) -> FinalPass {
     let o2 = outlier_sigma * outlier_sigma;
     match loss {
         RobustLoss::None => pass_with::<_, true>(d, lo, hi, x, Squares, o2),
