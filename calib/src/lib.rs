@@ -294,6 +294,9 @@ pub enum CalibError {
         largest: f64,
         /// One-sigma of `param`, m (possibly infinite).
         sigma_m: f64,
+        /// True when the weakest direction is (nearly) singular; false when it is excited but
+        /// too weakly for the one-sigma limit `max_sigma_m`.
+        singular: bool,
     },
     /// The iteration produced non-finite parameters.
     Diverged {
@@ -316,10 +319,15 @@ impl fmt::Display for CalibError {
                 f,
                 "cable {cable}: only {used} usable readings ({loose} loose, {missing} missing), at least {needed} needed; record with this cable under tension (>= min_tension_n) while the tracker sees the platform"
             ),
-            CalibError::NotObservable { cable, param, singular_value, largest, sigma_m } => write!(
+            CalibError::NotObservable { cable, param, singular_value, largest, sigma_m, singular: true } => write!(
                 f,
                 "cable {cable}: {param} is not observable from this recording (singular value {singular_value:.1e} vs {largest:.1e}, 1-sigma {sigma_m:.1e} m): {}",
                 param.advice()
+            ),
+            CalibError::NotObservable { cable, param, sigma_m, singular: false, .. } => write!(
+                f,
+                "cable {cable}: {param} is too weakly determined by this recording (1-sigma {:.1} mm, above max_sigma_m): move the platform over a larger part of the workspace, in all three directions, or record longer",
+                sigma_m * 1e3
             ),
             CalibError::Diverged { cable } => write!(
                 f,
@@ -509,7 +517,8 @@ pub fn calibrate(
                 dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
             };
             let k = param as usize;
-            return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k] });
+            let singular = !(sv[3] >= opts.min_rel_singular_value * sv[0]);
+            return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k], singular });
         }
         // Held-out: the parameters of the training block alone, evaluated on the rest. The
         // training optimum is within about a standard deviation of the full-data one, where the

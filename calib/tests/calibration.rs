@@ -170,7 +170,8 @@ fn refuses_when_the_platform_only_moves_along_a_line() {
     let e = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts_for(&spec)).unwrap_err();
     eprintln!("{e}");
     match e {
-        CalibError::NotObservable { param, singular_value, largest, .. } => {
+        CalibError::NotObservable { param, singular_value, largest, singular, .. } => {
+            assert!(singular, "{e}");
             assert!(matches!(param, Param::Ay | Param::Az), "{e}");
             assert!(singular_value < 1e-3 * largest, "{e}");
         }
@@ -200,6 +201,18 @@ fn planar_motion_observability() {
     let e = calibrate(&patch, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap_err();
     eprintln!("{e}");
     assert!(matches!(e, CalibError::NotObservable { .. }), "{e}");
+}
+
+#[test]
+fn refuses_when_a_sigma_exceeds_the_limit() {
+    // Well-excited data, but a one-sigma limit tighter than the data can give (0.1 mm).
+    let truth = synth::aras_cam();
+    let spec = Spec::new(truth.clone());
+    let rec = synth::box_recording(&spec, 1000, LO, HI, 9);
+    let opts = CalibOptions { max_sigma_m: 1e-4, ..opts_for(&spec) };
+    let e = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap_err();
+    assert!(matches!(e, CalibError::NotObservable { singular: false, .. }), "{e}");
+    assert!(e.to_string().contains("larger part of the workspace"), "{e}");
 }
 
 fn three_phase_case(truth: &Params, phases: &[PhaseSpec], n_per_phase: usize, seed: u64) -> (init::InitResult, f64, f64) {
@@ -311,4 +324,94 @@ fn heldout_rms_matches_a_full_solve_on_the_training_block() {
     let rel = (rep.heldout_rms_m - full.rms).abs() / full.rms;
     assert!(rel < 1e-3, "one-step {} vs full solve {} (rel {rel:.2e})", rep.heldout_rms_m, full.rms);
     assert_eq!(full.n, rep.per_cable.iter().map(|c| c.used).sum::<usize>() - train.samples_used);
+}
+
+#[test]
+fn missing_values_are_skipped_and_counted() {
+    let truth = synth::aras_cam();
+    let spec = Spec::new(truth.clone());
+    let mut rec = synth::box_recording(&spec, 3000, LO, HI, 51);
+    // Tracker dropouts (all four readings of the sample), lost encoder and load-cell readings.
+    let n = rec.n_cables;
+    let (mut dropouts, mut lengths, mut tensions) = (0, 0, 0);
+    for i in (0..rec.len()).step_by(37) {
+        rec.p[i][1] = f64::NAN;
+        dropouts += 1;
+    }
+    for i in (5..rec.len()).step_by(53) {
+        if !rec.p[i][1].is_nan() {
+            rec.l[i * n + 2] = f64::NAN;
+            lengths += 1;
+        }
+    }
+    for i in (7..rec.len()).step_by(41) {
+        if !rec.p[i][1].is_nan() && !rec.l[i * n].is_nan() {
+            rec.f.as_mut().unwrap()[i * n] = f64::NAN;
+            tensions += 1;
+        }
+    }
+    let opts = opts_for(&spec);
+    let rep = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.1), &opts).unwrap();
+    assert_eq!(rep.excluded.missing, dropouts * n + lengths + tensions);
+    assert_eq!(rep.samples_used, rec.len() * n - rep.excluded.missing);
+    assert_eq!(rep.per_cable[2].excluded.missing, dropouts + lengths);
+    let crb = metrics::cramer_rao(&rec, &spec.platform_points, &truth, &opts);
+    assert!(worst_z(&rep.params, &truth, &crb) < 4.0);
+    // The residuals are NaN exactly where a position or a length is missing.
+    let res = metrics::co_registration(&rec, &spec.platform_points, &rep.params);
+    let nan = res.values.iter().filter(|v| v.is_nan()).count();
+    assert_eq!(nan, dropouts * n + lengths);
+}
+
+#[test]
+fn huber_loss_rejects_tracker_outliers() {
+    // 1% of the samples carry a 5 cm tracker outlier (five times the rate the project expects,
+    // so that the effect is measurable on a small recording).
+    let truth = synth::aras_cam();
+    let mut spec = Spec::new(truth.clone());
+    spec.outlier_prob = 0.01;
+    let rec = synth::box_recording(&spec, 4000, LO, HI, 61);
+    let b = spec.platform_points.clone();
+    let huber = opts_for(&spec);
+    let ls = CalibOptions { loss: RobustLoss::None, ..huber.clone() };
+    let rh = calibrate(&rec, &b, &perturbed(&truth, 0.1), &huber).unwrap();
+    let rl = calibrate(&rec, &b, &perturbed(&truth, 0.1), &ls).unwrap();
+    let crb = metrics::cramer_rao(&rec, &b, &truth, &huber);
+    // Sum over cables of the squared Mahalanobis errors: chi-square with 16 dof (mean 16) for
+    // an efficient estimator. Outliers of 5 cm projected on a cable add about
+    // 0.01 * 0.05^2 / 3 = 8e-6 m^2 to a reading variance of 2.3e-6 m^2: least squares should be
+    // about 4.5 times worse; Huber caps their influence at 2 sigma.
+    let chi2 = |p: &Params| (0..4).map(|j| crb.normalised_error(j, p.cable(j), truth.cable(j)).powi(2)).sum::<f64>();
+    let (ch, cl) = (chi2(&rh.params), chi2(&rl.params));
+    eprintln!("outliers: chi2 huber {ch:.1}, least squares {cl:.1}; flagged {} readings", rh.outliers);
+    assert!(ch < 39.3, "huber chi2 {ch} (99.9% of chi2(16) is below 39.3)");
+    assert!(cl > ch, "least squares {cl} vs huber {ch}");
+    // ~40 outlier samples x 4 cables; a 5 cm error projected on a cable exceeds 6 sigma
+    // (1 cm) unless it is nearly perpendicular to it.
+    let expect = 0.01 * 4000.0 * 4.0;
+    assert!((rh.outliers as f64) > 0.6 * expect && (rh.outliers as f64) < 1.2 * expect, "{} outliers", rh.outliers);
+}
+
+#[test]
+fn platform_points_and_orientation() {
+    // A 40 cm x 30 cm platform tilting up to 10 degrees: the anchors are those of the cable exit
+    // points, the model uses P + R b_j.
+    let truth = synth::aras_cam();
+    let mut spec = Spec::new(truth.clone());
+    spec.platform_points = vec![[0.2, -0.15, 0.05], [0.2, 0.15, 0.05], [-0.2, 0.15, 0.05], [-0.2, -0.15, 0.05]];
+    spec.tilt_deg = 10.0;
+    let rec = synth::box_recording(&spec, 3000, LO, HI, 71);
+    assert!(rec.q.is_some());
+    let opts = opts_for(&spec);
+    let start = init::initialise(&rec, &spec.platform_points, &opts).unwrap();
+    let rep = calibrate(&rec, &spec.platform_points, &start.params, &opts).unwrap();
+    let crb = metrics::cramer_rao(&rec, &spec.platform_points, &truth, &opts);
+    let z = worst_z(&rep.params, &truth, &crb);
+    assert!(z < 4.0, "{z:.2} sigma");
+    // Ignoring the platform geometry instead leaves residuals well above the noise (the anchors
+    // and offsets absorb part of it).
+    let wrong = calibrate(&rec, &[[0.0; 3]; 4], &start.params, &opts);
+    if let Ok(w) = wrong {
+        assert!(w.rms_m > 3.0 * rep.rms_m, "{} vs {}", w.rms_m, rep.rms_m);
+    }
 }
