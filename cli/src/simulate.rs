@@ -70,12 +70,12 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
         let v: f64 = value.trim().parse().with_context(|| format!("--effect `{e}`: `{value}` is not a number"))?;
         let n = s.robot.cables.len();
         match name.trim() {
-            "elasticity" => s.physics.elasticity_ea_n = Some(vec![v; n]),
-            "sag" => s.physics.sag_w_n_per_m = Some(v),
-            "pulley" => s.physics.pulley_radius_m = Some(v),
+            "elasticity" => s.physics.elasticity = Some(v),
+            "sag" => s.physics.sag = Some(v),
+            "pulley" => s.physics.pulley = Some(v),
             "scale" => s.physics.scale = Some(vec![v; n]),
-            "time-offset" => s.physics.time_offset_s = Some(v),
-            "backlash" => s.physics.backlash_m = Some(v),
+            "time-offset" => s.physics.time_offset_s = v,
+            "backlash" => s.physics.backlash_m = v,
             other => bail!(
                 "--effect `{other}` is not a simulated effect; use one of elasticity, sag, pulley, scale, time-offset, backlash"
             ),
