@@ -8,6 +8,7 @@ mod ctl;
 mod demo;
 mod diagnose;
 mod plot;
+mod probe;
 mod report;
 mod simulate;
 mod start;
@@ -36,6 +37,8 @@ enum Command {
     Ctl(ctl::CtlArgs),
     /// Find the physics the ideal model leaves out: name it, model it, show the fit improve.
     Diagnose(diagnose::DiagnoseArgs),
+    /// Find every CAN drive, configure its PDOs, print nodes, states, positions and the bus load.
+    Probe(probe::ProbeArgs),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +50,7 @@ fn main() -> ExitCode {
         Command::Start(a) => start::run(&a),
         Command::Ctl(a) => ctl::run(&a),
         Command::Diagnose(a) => diagnose::run(&a),
+        Command::Probe(a) => probe::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

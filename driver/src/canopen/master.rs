@@ -545,6 +545,8 @@ pub struct NodeStatus {
     pub boots: u32,
     /// Last emergency (not counting "error reset").
     pub last_emcy: Option<Emcy>,
+    /// Configured mode of operation.
+    pub mode: Mode,
     name: [u8; 32],
     name_len: u8,
 }
@@ -630,6 +632,7 @@ impl Node {
             tension_n: self.cfg.scaling.permille_to_n(self.axis.torque),
             boots: self.boots,
             last_emcy: self.last_emcy,
+            mode: self.cfg.mode,
             name: self.name,
             name_len: self.name_len,
         }

@@ -24,7 +24,7 @@ impl SocketCanTransport {
     /// the interface.
     pub fn open(iface: &str) -> io::Result<Self> {
         let sock = CanSocket::open(iface).map_err(|e| {
-            io::Error::new(e.kind(), format!("cannot open CAN interface {iface}: {e} (is it up? `ip link set {iface} up type can bitrate ...`)"))
+            io::Error::new(e.kind(), format!("cannot open CAN interface {iface}: {e}; check `ip link show {iface}` (adapter plugged in? interface up at the configured bitrate?)"))
         })?;
         sock.set_error_filter_accept_all()?;
         sock.set_nonblocking(true)?;
