@@ -85,6 +85,10 @@
 //! - [`metrics`]: co-registration, held-out split, Cramér–Rao bound.
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
 #![deny(missing_docs)]
+// `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Index loops over parallel column arrays (x, y, z, l, ...) read clearer than zipped iterators.
+#![allow(clippy::needless_range_loop)]
 
 pub mod diagnose;
 pub mod init;

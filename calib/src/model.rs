@@ -196,6 +196,32 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        /// The parameter and position Jacobians match central differences for any geometry with
+        /// the cable at least 10 cm long.
+        #[test]
+        fn jacobians_match_finite_differences_anywhere(
+            x in proptest::array::uniform3(-3.0f64..3.0),
+            a in proptest::array::uniform3(-5.0f64..5.0),
+            l0 in -2.0f64..2.0,
+        ) {
+            proptest::prop_assume!(norm(sub(x, a)) > 0.1);
+            let jp = jacobian_params(x, a);
+            let jx = jacobian_position(x, a);
+            for k in 0..3 {
+                let (mut ap, mut am, mut xp, mut xm) = (a, a, x, x);
+                ap[k] += H;
+                am[k] -= H;
+                xp[k] += H;
+                xm[k] -= H;
+                let fa = (cable_length(x, ap, l0) - cable_length(x, am, l0)) / (2.0 * H);
+                let fx = (cable_length(xp, a, l0) - cable_length(xm, a, l0)) / (2.0 * H);
+                proptest::prop_assert!(close(jp[k], fa, 1e-6), "dA_{k}: {} vs {fa}", jp[k]);
+                proptest::prop_assert!(close(jx[k], fx, 1e-6), "dP_{k}: {} vs {fx}", jx[k]);
+            }
+        }
+    }
+
     #[test]
     fn quaternion_gives_a_rotation() {
         let r = rotation([2.0, 0.4, -0.2, 1.0]).unwrap(); // not normalised on purpose
