@@ -241,6 +241,41 @@ impl DriveConfig {
     }
 }
 
+#[cfg(test)]
+mod can_drive_tests {
+    use super::*;
+
+    #[test]
+    fn can_and_drive_defaults_and_enums_parse() {
+        let c: CanConfig = toml::from_str("interface = \"can0\"").unwrap();
+        assert_eq!((c.bitrate, c.cycle_s, c.sdo_retries, c.reset_on_start), (1_000_000, 0.002, 2, true));
+        c.validate().unwrap();
+        let d: DriveConfig = toml::from_str("node_id = 4\nmode = \"torque\"\npdo = \"with_mode\"\ninvert = true").unwrap();
+        assert_eq!(d, DriveConfig { mode: DriveMode::Torque, pdo: PdoMapping::WithMode, invert: true, ..DriveConfig::with_node_id(4) });
+        assert_eq!(d.heartbeat_timeout(), 300);
+        d.validate().unwrap();
+        assert!(toml::from_str::<DriveConfig>("node_id = 4\nmode = \"velocity\"").is_err());
+        assert!(toml::from_str::<DriveConfig>("node_id = 4\nradius = 1.0").is_err(), "unknown keys are refused");
+    }
+
+    #[test]
+    fn bad_can_and_drive_values_name_the_key() {
+        let can = |s: &str| toml::from_str::<CanConfig>(&format!("interface = \"can0\"\n{s}")).unwrap().validate();
+        assert_eq!(can("bitrate = 123456").unwrap_err().0, "bitrate");
+        assert_eq!(can("cycle_s = 0.0").unwrap_err().0, "cycle_s");
+        assert_eq!(can("sdo_timeout_s = -1.0").unwrap_err().0, "sdo_timeout_s");
+        assert_eq!(toml::from_str::<CanConfig>("interface = \"\"").unwrap().validate().unwrap_err().0, "interface");
+        let drive = |s: &str| toml::from_str::<DriveConfig>(&format!("node_id = 1\n{s}")).unwrap().validate();
+        assert_eq!(drive("drum_radius_m = 0.0").unwrap_err().0, "drum_radius_m");
+        assert_eq!(drive("gear_ratio = nan").unwrap_err().0, "gear_ratio");
+        assert_eq!(drive("counts_per_rev = 0").unwrap_err().0, "counts_per_rev");
+        assert_eq!(drive("heartbeat_ms = 0").unwrap_err().0, "heartbeat_ms");
+        assert_eq!(drive("heartbeat_ms = 100\nheartbeat_timeout_ms = 50").unwrap_err().0, "heartbeat_timeout_ms");
+        assert_eq!(DriveConfig::with_node_id(0).validate().unwrap_err().0, "node_id");
+        assert_eq!(DriveConfig::with_node_id(128).validate().unwrap_err().0, "node_id");
+    }
+}
+
 /// The `[loadcells]` table: the RS-485 bus of the load cells (Modbus RTU master side).
 ///
 /// Every field but `port` has a default, so the smallest table is `port = "/dev/taut-loadcells"`.

@@ -367,3 +367,31 @@ fn candump_log_of_a_session_replays_to_the_same_state() {
     assert_eq!(replayed, live);
     assert!(m.counters().ignored > 0, "the master's own frames are ignored on replay");
 }
+
+#[test]
+fn master_config_from_a_robot_file() {
+    let text = |drives: &str| {
+        format!(
+            "[robot]\nname = \"t\"\nmass_kg = 1.0\n[can]\ninterface = \"can0\"\ncycle_s = 0.004\n\
+             [[cable]]\n[cable.drive]\nnode_id = 3\ndrum_radius_m = 0.04\ngear_ratio = 5.0\ninvert = true\n\
+             [[cable]]\n{drives}\n[[cable]]\n[cable.drive]\nnode_id = 9\nmode = \"torque\"\n"
+        )
+    };
+    let cfg = taut_config::RobotConfig::from_toml_str(&text("")).unwrap();
+    let m = MasterConfig::from_robot(&cfg).unwrap();
+    assert_eq!(m.sync_period, Duration::from_millis(4));
+    assert_eq!(m.nodes.len(), 2, "the cable without a drive is skipped");
+    assert_eq!((m.nodes[0].node_id, m.nodes[0].cable, m.nodes[0].scaling.sign), (3, 0, -1.0));
+    assert_eq!((m.nodes[1].node_id, m.nodes[1].cable, m.nodes[1].mode), (9, 2, Mode::CyclicTorque));
+    assert!((m.nodes[0].scaling.metres_per_count() - 2.0 * std::f64::consts::PI * 0.04 / (131072.0 * 5.0)).abs() < 1e-15);
+    assert!(!m.bus_load().is_high());
+
+    let dup = taut_config::RobotConfig::from_toml_str(&text("[cable.drive]\nnode_id = 9")).unwrap();
+    let e = MasterConfig::from_robot(&dup).unwrap_err();
+    assert_eq!(e.key, "cable[2].drive.node_id");
+    assert!(e.message.contains("cable[1]"), "{e}");
+
+    let mut no_can = cfg.clone();
+    no_can.can = None;
+    assert_eq!(MasterConfig::from_robot(&no_can).unwrap_err().key, "can");
+}
