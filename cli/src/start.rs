@@ -46,12 +46,31 @@ name = "aras-cam-sim"
 mass_kg = 3.0
 [[cable]]
 anchor = [3.5, -1.75, 4.0]
+[cable.loadcell]
+unit_id = 1
 [[cable]]
 anchor = [3.5, 1.75, 4.0]
+[cable.loadcell]
+unit_id = 2
 [[cable]]
 anchor = [-3.5, 1.75, 4.0]
+[cable.loadcell]
+unit_id = 3
 [[cable]]
 anchor = [-3.5, -1.75, 4.0]
+[cable.loadcell]
+unit_id = 4
+[loadcells]
+port = "/dev/taut-loadcells"
+[motion]
+init_reel_m = -0.7
+init_reel_speed_m_s = 0.25
+init_settle_s = 0.3
+excitation_s = 30.0
+excitation_speed_m_s = 0.4
+swap_ramp_s = 1.0
+[daemon]
+max_sigma_m = 0.03
 "#;
 
 /// Runs `taut start`.
@@ -81,7 +100,9 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
     let w = ccfg.workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let sim = simrig::build(&cfg, p0, &SimOptions { seed: a.seed, ..Default::default() }).map_err(|e| anyhow::anyhow!(e))?;
+    let so = SimOptions { seed: a.seed, ..Default::default() };
+    let p0 = simrig::rest_position(&cfg, &so, p0);
+    let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
     let truth = sim.truth.clone();
     let daemon = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default())
         .map_err(|e| anyhow::anyhow!(e))?;

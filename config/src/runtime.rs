@@ -10,7 +10,7 @@
 //! lock_memory = true       # mlockall(MCL_CURRENT | MCL_FUTURE)
 //!
 //! [motion]
-//! init_reel_m = -0.3       # each phase reels its cable in by 0.3 m, then back out
+//! init_reel_m = -0.5       # each phase reels its cable in by 0.5 m, then back out
 //! init_reel_speed_m_s = 0.05
 //! excitation_s = 60
 //! workspace_min_m = [-1.5, -0.8, 1.0]
@@ -113,8 +113,8 @@ impl Default for MotionConfig {
         MotionConfig {
             enable_timeout_s: 5.0,
             init_phases: vec![[0, 1, 2], [1, 2, 0], [2, 0, 1]],
-            init_reel_m: -0.3,
-            init_reel_speed_m_s: 0.05,
+            init_reel_m: -0.5,
+            init_reel_speed_m_s: 0.1,
             init_follower_tension_n: 10.0,
             init_settle_s: 0.5,
             excitation_s: 60.0,
@@ -319,7 +319,7 @@ mod tests {
     fn partial_tables_parse() {
         let m: MotionConfig = toml::from_str("excitation_s = 20\nworkspace_min_m = [0,0,0]\nworkspace_max_m = [1,1,1]").unwrap();
         assert_eq!(m.excitation_s, 20.0);
-        assert_eq!(m.init_reel_m, -0.3);
+        assert_eq!(m.init_reel_m, -0.5);
         m.validate(3).unwrap();
         assert!(toml::from_str::<RtConfig>("rate = 3").is_err());
     }

@@ -412,7 +412,8 @@ impl Calibrator {
         let keep = self.decim % self.cfg.decimation == 0;
         self.decim += 1;
         match state {
-            State::InitPhase if keep && s.phase >= 0 => {
+            // The phases are short: every sample goes into the initialisation's data set.
+            State::InitPhase if s.phase >= 0 => {
                 push_sample(&mut self.init_set, s, &self.cfg);
                 self.status.lock().unwrap().dataset_samples = self.init_set.len();
             }

@@ -118,6 +118,9 @@ pub struct ControllerConfig {
     pub init_follower_tension_n: f64,
     /// Pause after each phase, s.
     pub settle_s: f64,
+    /// A held cable below this tension ends the reeling early (the platform would leave the
+    /// circle the three-phase method fits), N.
+    pub held_min_tension_n: f64,
     /// Drive enable timeout, s.
     pub enable_timeout_s: f64,
     /// Excitation duration, s.
@@ -196,6 +199,7 @@ impl ControllerConfig {
             reel_speed_m_s: m.init_reel_speed_m_s,
             init_follower_tension_n: m.init_follower_tension_n,
             settle_s: m.init_settle_s,
+            held_min_tension_n: 2.0 * cfg.calibration.min_tension_n,
             enable_timeout_s: m.enable_timeout_s,
             excitation_s: m.excitation_s,
             excitation_speed_m_s: m.excitation_speed_m_s,
@@ -219,6 +223,7 @@ impl ControllerConfig {
 /// Segments of an initialisation phase.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Segment {
+    Lead,
     Reel,
     Return,
     Settle,
@@ -268,6 +273,7 @@ pub struct Controller {
     segment: Segment,
     segment_t0: f64,
     reel_start_m: f64,
+    reel_peak_m: f64,
     run: u16,
     fault: Option<(Cause, Reaction)>,
     hold_m: [f64; MAX_CABLES],
@@ -327,6 +333,7 @@ impl Controller {
             segment: Segment::Reel,
             segment_t0: 0.0,
             reel_start_m: 0.0,
+            reel_peak_m: 0.0,
             run: 0,
             fault: None,
             hold_m: [0.0; MAX_CABLES],
@@ -356,6 +363,16 @@ impl Controller {
     /// The initialisation phase, -1 outside.
     pub fn phase(&self) -> i8 {
         self.phase
+    }
+
+    /// The phase label of this cycle's sample: the phase while its cable is reeled and returned,
+    /// -1 otherwise (settling before and after).
+    pub fn phase_label(&self) -> i8 {
+        if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) {
+            self.phase
+        } else {
+            -1
+        }
     }
 
     /// The calibration run (0: start-up).
@@ -577,19 +594,35 @@ impl Controller {
                 let ts = now - self.segment_t0;
                 let travel_s = self.cfg.reel_m.abs() / self.cfg.reel_speed_m_s;
                 let reel = match self.segment {
-                    Segment::Reel => {
-                        if ts >= travel_s {
-                            self.segment = Segment::Return;
+                    Segment::Lead => {
+                        // Let the platform settle with the followers in torque mode first.
+                        if ts >= self.cfg.settle_s {
+                            self.segment = Segment::Reel;
                             self.segment_t0 = now;
                         }
-                        self.cfg.reel_m * (ts / travel_s).min(1.0)
+                        0.0
+                    }
+                    Segment::Reel => {
+                        let r = self.cfg.reel_m * (ts / travel_s).min(1.0);
+                        // A held cable going slack ends the reeling early: the platform would
+                        // leave the circle about the held anchors.
+                        let slack = ts > 0.2
+                            && self.cfg.tension_max_age_s.is_finite()
+                            && (inp.tension_n[a] < self.cfg.held_min_tension_n || inp.tension_n[b] < self.cfg.held_min_tension_n);
+                        if ts >= travel_s || slack {
+                            self.segment = Segment::Return;
+                            self.segment_t0 = now;
+                            self.reel_peak_m = r;
+                        }
+                        r
                     }
                     Segment::Return => {
-                        if ts >= travel_s {
+                        let back_s = self.reel_peak_m.abs() / self.cfg.reel_speed_m_s;
+                        if ts >= back_s {
                             self.segment = Segment::Settle;
                             self.segment_t0 = now;
                         }
-                        self.cfg.reel_m * (1.0 - (ts / travel_s).min(1.0))
+                        self.reel_peak_m * (1.0 - (ts / back_s.max(1e-9)).min(1.0))
                     }
                     Segment::Settle => 0.0,
                 };
@@ -627,7 +660,7 @@ impl Controller {
             State::AwaitInitial => {
                 for j in 0..n {
                     next[j] = self.hold_m[j];
-                    modes[j] = CableCommand::Position(next[j]);
+                    modes[j] = self.hold_mode(j, next[j]);
                 }
                 if self.params.valid && self.params.version != self.awaited_version {
                     swapped = false; // taken over by the transfer ramp below
@@ -661,11 +694,7 @@ impl Controller {
             State::Holding => {
                 for j in 0..n {
                     next[j] = self.hold_m[j];
-                    modes[j] = if self.cfg.follower[j] {
-                        CableCommand::Tension(self.cfg.follower_tension_n)
-                    } else {
-                        CableCommand::Position(next[j])
-                    };
+                    modes[j] = self.hold_mode(j, next[j]);
                 }
             }
             State::Faulted => {
@@ -677,7 +706,7 @@ impl Controller {
                 };
                 for j in 0..n {
                     next[j] = self.hold_m[j];
-                    modes[j] = CableCommand::Position(next[j]);
+                    modes[j] = self.hold_mode(j, next[j]);
                 }
             }
             State::Stopped => {
@@ -685,7 +714,7 @@ impl Controller {
                 out.request = if self.stop_cycles > 2 { DriveRequest::Disable } else { DriveRequest::Enable };
                 for j in 0..n {
                     next[j] = self.hold_m[j];
-                    modes[j] = CableCommand::Position(next[j]);
+                    modes[j] = self.hold_mode(j, next[j]);
                 }
             }
         }
@@ -715,7 +744,7 @@ impl Controller {
                             self.latch(Cause::SpeedLimit { cable: j as u8, speed_m_s: v as f32 }, inp, now);
                             for jj in 0..n {
                                 next[jj] = self.hold_m[jj];
-                                modes[jj] = CableCommand::Position(next[jj]);
+                                modes[jj] = self.hold_mode(jj, next[jj]);
                             }
                             break;
                         }
@@ -727,6 +756,16 @@ impl Controller {
         self.cmd_valid = (0..n).all(|j| next[j].is_finite());
         out.n = n;
         out.cable = modes;
+    }
+
+    /// Holding: position mode at `len`, except the redundant cables, which keep their tension
+    /// (four rigid position-mode cables would fight over the platform).
+    fn hold_mode(&self, j: usize, len: f64) -> CableCommand {
+        if self.cfg.follower[j] {
+            CableCommand::Tension(self.cfg.follower_tension_n)
+        } else {
+            CableCommand::Position(len)
+        }
     }
 
     fn ik_command(&mut self, modes: &mut [CableCommand; MAX_CABLES]) -> [f64; MAX_CABLES] {
@@ -745,7 +784,7 @@ impl Controller {
     fn start_phase(&mut self, k: usize, inp: &Inputs, now: f64) {
         self.enter(State::InitPhase, now);
         self.phase = k as i8;
-        self.segment = Segment::Reel;
+        self.segment = Segment::Lead;
         self.segment_t0 = now;
         let r = self.cfg.phases[k][2];
         self.reel_start_m = if inp.length_m[r].is_finite() { inp.length_m[r] } else { self.hold_m[r] };
@@ -787,7 +826,7 @@ impl Controller {
         if tracker_needed && !pose_fresh {
             return self.latch(Cause::TrackerStale, inp, now);
         }
-        if self.state == State::InitPhase && self.segment != Segment::Settle && c.tension_max_age_s.is_finite() {
+        if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) && c.tension_max_age_s.is_finite() {
             let r = c.phases[self.phase as usize][2];
             // Give the reeled cable a moment after the phase starts before calling it loose.
             if now - self.segment_t0 > 0.2 || self.segment == Segment::Return {

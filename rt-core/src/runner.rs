@@ -62,7 +62,7 @@ impl<D: Devices> LoopCore<D> {
         let i = &self.inputs;
         s.t = now;
         s.state = self.controller.state() as u8;
-        s.phase = self.controller.phase();
+        s.phase = self.controller.phase_label();
         s.run = self.controller.run();
         s.length_m = i.length_m;
         s.length_age_s = i.length_age_s;

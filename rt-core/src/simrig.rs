@@ -56,6 +56,32 @@ impl Default for SimOptions {
     }
 }
 
+/// Where an operator would park the platform before the start-up: the simulator's rest position
+/// for the three-phase motion of `cfg.motion` (most tension margin for the held cables), or
+/// `fallback` if it finds none.
+pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -> [f64; 3] {
+    let physics = Physics::default();
+    let mut rng = taut_sim::rng(opts.seed, 0);
+    let Ok(truth) = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng) else { return fallback };
+    let m = &cfg.motion;
+    // Phase k of the plan reels cables[k]; ours reels init_phases[k][2].
+    let mut cables = [0usize; 3];
+    for (k, ph) in m.init_phases.iter().take(3).enumerate() {
+        cables[k] = ph[2];
+    }
+    let plan = taut_sim::ThreePhasePlan {
+        reel_m: m.init_reel_m.abs(),
+        speed_m_s: m.init_reel_speed_m_s,
+        follower_tension_n: m.init_follower_tension_n,
+        cables,
+        dwell_s: 0.5,
+        start: None,
+    };
+    let nominal = cfg.anchors().unwrap_or_else(|| truth.anchors.clone());
+    let ws = taut_sim::trajectory::Workspace::from_anchors(&nominal);
+    taut_sim::three_phase::simulate(&truth, &physics, &plan, &ws, 20.0).map_or(fallback, |mo| mo.start)
+}
+
 /// Builds the simulated robot of `cfg` (nominal anchors needed) with the platform at `p0`.
 pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, String> {
     let n = cfg.cables.len();

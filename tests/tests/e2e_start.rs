@@ -18,24 +18,35 @@ name = "e2e"
 mass_kg = 3.0
 [[cable]]
 anchor = [3.5, -1.75, 4.0]
+[cable.loadcell]
+unit_id = 1
 [[cable]]
 anchor = [3.5, 1.75, 4.0]
+[cable.loadcell]
+unit_id = 2
 [[cable]]
 anchor = [-3.5, 1.75, 4.0]
+[cable.loadcell]
+unit_id = 3
 [[cable]]
 anchor = [-3.5, -1.75, 4.0]
+[cable.loadcell]
+unit_id = 4
+[loadcells]
+port = "/dev/taut-loadcells"
 [rt]
 rate_hz = 500
 priority = 0
 lock_memory = false
 [motion]
-init_reel_m = -0.5
-init_reel_speed_m_s = 0.2
+init_reel_m = -0.7
+init_reel_speed_m_s = 0.25
 init_settle_s = 0.3
 excitation_s = 25.0
 excitation_speed_m_s = 0.4
 swap_ramp_s = 1.0
 [daemon]
+max_sigma_m = 0.03
 socket = "{}"
 data_dir = "{}"
 "#,
@@ -52,10 +63,13 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 #[test]
 fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     let dir = tempfile::tempdir().unwrap();
+    eprintln!("e2e files in {}", dir.path().display());
     let cfg = robot(dir.path());
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let sim = simrig::build(&cfg, p0, &SimOptions { seed: 3, ..Default::default() }).unwrap();
+    let so = SimOptions { seed: 3, ..Default::default() };
+    let p0 = simrig::rest_position(&cfg, &so, p0);
+    let sim = simrig::build(&cfg, p0, &so).unwrap();
     let truth = sim.truth.clone();
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     let sock = dir.path().join("taut.sock");
@@ -70,6 +84,10 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     });
     let l = d.loop_status();
     let c = d.calib_status();
+    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
+        // Keep the recording for a look after a failure.
+        let _ = std::fs::copy(&d.recording, std::env::temp_dir().join("taut-e2e-recording.csv"));
+    }
     assert!(ok, "start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
     assert!(l.snap.fault.is_none(), "fault {:?}", l.snap.fault);
     assert_eq!(l.snap.phases_completed, 3);
@@ -82,7 +100,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         assert!(dist(a, t) < 0.02, "initial anchor {j} off by {:.1} mm", dist(a, t) * 1e3);
     }
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
-    assert!(cal.accepted, "{}", cal.reason);
+    assert!(cal.accepted, "{} ({:?})", cal.reason, cal.estimate.as_ref().map(|e| (&e.anchor_sigma, &e.l0_sigma)));
     let ce = cal.estimate.as_ref().unwrap();
     for (j, ((a, t), s)) in ce.anchors.iter().zip(&truth.anchors).zip(&ce.anchor_sigma).enumerate() {
         for i in 0..3 {
