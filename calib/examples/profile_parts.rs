@@ -1,14 +1,8 @@
-//! CPU time of the parts of a calibration (gather, variances, one pass, metrics) on a recording.
-use taut_calib::{metrics, noise, solver, CalibOptions, RobustLoss};
+//! Wall time of the parts of a calibration (gather, variances, one pass, the final pass) on a
+//! recording, each repeated; run it alone (or under `chrt`) for stable figures.
+use std::time::Instant;
+use taut_calib::{noise, solver, CalibOptions, RobustLoss};
 use taut_config::recording::Recording;
-
-fn cpu_ms() -> f64 {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next().and_then(|v| v.parse::<f64>().ok()))
-        .unwrap_or(f64::NAN)
-        * 1e-6
-}
 
 fn main() {
     let path = std::env::args().nth(1).expect("REC.csv");
@@ -18,24 +12,36 @@ fn main() {
     let w = noise::Weighting::of(&rec, &opts);
     let nm = noise::NoiseModel::new(&opts, w);
     let x0 = [3.512 + 0.08, -1.738 - 0.05, 3.987 + 0.06, 0.812 - 0.07];
-    for _ in 0..3 {
-        let c0 = cpu_ms();
-        let mut data = noise::gather(&rec, &b, &opts, w);
-        let c1 = cpu_ms();
-        data[0].set_variances(&x0, &nm);
-        let c2 = cpu_ms();
-        let d = &data[0];
-        let mut c = 0.0;
-        for _ in 0..20 {
-            c += solver::pass(d, 0, d.len(), &x0, RobustLoss::Huber { k: 2.0 }).cost;
-        }
-        let c3 = cpu_ms();
-        let p = taut_calib::Params { anchors: vec![[3.5, -1.7, 4.0]; 4], l0: vec![0.0; 4] };
-        let rp = metrics::rms_peak_present(&rec, &b, &p);
-        let c4 = cpu_ms();
-        println!(
-            "cpu: gather {:.2} ms, set_variances {:.2} ms, pass {:.3} ms ({} readings), rms_peak_present {:.2} ms [{c:.0} {}]",
-            c1 - c0, c2 - c1, (c3 - c2) / 20.0, d.len(), c4 - c3, rp.n
-        );
+    let reps = 50;
+    let t = Instant::now();
+    let mut data = Vec::new();
+    for _ in 0..10 {
+        data = noise::gather(&rec, &b, &opts, w);
     }
+    let gather = t.elapsed().as_secs_f64() * 1e3 / 10.0;
+    let t = Instant::now();
+    for _ in 0..reps {
+        data[0].set_variances(&x0, &nm);
+    }
+    let var = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+    let d = &data[0];
+    let mut c = 0.0;
+    let mut time = |loss| {
+        let t = Instant::now();
+        for _ in 0..reps {
+            c += solver::pass(d, 0, d.len(), &x0, loss).cost;
+        }
+        t.elapsed().as_secs_f64() * 1e3 / reps as f64
+    };
+    let ls = time(RobustLoss::None);
+    let hub = time(RobustLoss::Huber { k: 2.0 });
+    let t = Instant::now();
+    for _ in 0..reps {
+        c += solver::final_pass(d, 0, d.len(), &x0, RobustLoss::Huber { k: 2.0 }, 6.0).pass.cost;
+    }
+    let fin = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+    println!(
+        "gather {gather:.2} ms (4 cables), set_variances {var:.3} ms, pass LS {ls:.3} ms, pass Huber {hub:.3} ms, final pass {fin:.3} ms ({} readings) [{c:.0}]",
+        d.len()
+    );
 }

@@ -156,6 +156,9 @@ fn final_pass_dispatch(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: 
 trait Loss: Copy {
     /// `(w, rho)` for `e^2`: the IRLS weight `rho'(e)/e` and the loss.
     fn weight_cost(self, e2: f64) -> (f64, f64);
+    /// Below this `e^2` the loss is `e^2 / 2` (weight 1): the pass computes those readings in
+    /// its SIMD loop and fixes up only the others.
+    fn quadratic_below(self) -> f64;
 }
 
 #[derive(Clone, Copy)]
@@ -165,6 +168,10 @@ impl Loss for Squares {
     fn weight_cost(self, e2: f64) -> (f64, f64) {
         (1.0, 0.5 * e2)
     }
+    #[inline(always)]
+    fn quadratic_below(self) -> f64 {
+        f64::INFINITY
+    }
 }
 
 #[derive(Clone, Copy)]
@@ -172,13 +179,17 @@ struct Huber(f64);
 impl Loss for Huber {
     #[inline(always)]
     fn weight_cost(self, e2: f64) -> (f64, f64) {
-        // Selects, not a branch, so the element-wise loop of a pass vectorises.
         let k = self.0;
-        let e = e2.sqrt();
-        let inside = e <= k;
-        let w = if inside { 1.0 } else { k / e };
-        let c = if inside { 0.5 * e2 } else { k * e - 0.5 * k * k };
-        (w, c)
+        if e2 <= k * k {
+            (1.0, 0.5 * e2)
+        } else {
+            let e = e2.sqrt();
+            (k / e, k * e - 0.5 * k * k)
+        }
+    }
+    #[inline(always)]
+    fn quadratic_below(self) -> f64 {
+        self.0 * self.0
     }
 }
 
@@ -190,6 +201,10 @@ impl Loss for Cauchy {
         let c2 = self.0 * self.0;
         let s = 1.0 + e2 / c2;
         (1.0 / s, 0.5 * c2 * s.ln())
+    }
+    #[inline(always)]
+    fn quadratic_below(self) -> f64 {
+        -1.0
     }
 }
 
@@ -239,7 +254,7 @@ fn pass_dispatch(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: Robust
     }
 }
 
-/// Readings per block: seven buffers of this many `f64` stay in L1.
+/// Readings per block: the per-reading buffers (about ten of this many `f64`) stay in L1.
 const BLOCK: usize = 256;
 
 /// `sum_k a_k b_k` with eight independent partial sums.
@@ -280,6 +295,7 @@ fn total(a: &[f64]) -> f64 {
 fn pass_with<L: Loss, const STATS: bool>(d: &CableData, lo: usize, hi: usize, x: &[f64; 4], loss: L, o2: f64) -> FinalPass {
     let mut out = FinalPass::default();
     let mut rv = [0.0f64; BLOCK];
+    let mut ev = [0.0f64; BLOCK];
     let mut flags = [[0.0f64; BLOCK]; 2];
     let mut h = [0.0f64; 10];
     let mut g = [0.0f64; 4];
@@ -308,16 +324,32 @@ fn pass_with<L: Loss, const STATS: bool>(d: &CableData, lo: usize, hi: usize, x:
             jz[k] = -dz * inv;
             let r = ls[k] - (rho + x[3]);
             let e2 = r * r * ivs[k];
-            let (rw, c) = loss.weight_cost(e2);
-            let w = rw * ivs[k];
+            // The quadratic part of the loss for every reading; the few beyond it are fixed up
+            // below (no square root or division per reading for the robust weight here).
+            let w = ivs[k];
+            rv[k] = r;
+            ev[k] = e2;
             wv[k] = w;
             wr[k] = w * r;
-            cv[k] = c;
-            ch[k] = rw * e2;
+            cv[k] = 0.5 * e2;
+            ch[k] = e2;
             if STATS {
-                rv[k] = r;
-                flags[0][k] = if rw < 1.0 { 1.0 } else { 0.0 };
+                flags[0][k] = 0.0;
                 flags[1][k] = if e2 > o2 { 1.0 } else { 0.0 };
+            }
+        }
+        let bound = loss.quadratic_below();
+        for k in 0..n {
+            if ev[k] > bound {
+                let (rw, c) = loss.weight_cost(ev[k]);
+                let w = rw * ivs[k];
+                wv[k] = w;
+                wr[k] = w * rv[k];
+                cv[k] = c;
+                ch[k] = rw * ev[k];
+                if STATS && rw < 1.0 {
+                    flags[0][k] = 1.0;
+                }
             }
         }
         if STATS {
@@ -377,9 +409,11 @@ pub struct Tolerances {
 impl Tolerances {
     /// Tolerances for the final solve: a step of 1e-3 standard deviations is converged.
     pub const FINAL: Tolerances = Tolerances { xtol: 1e-12, ftol: 1e-14, gtol: 1e-10, step_sigma2: 1e-6 };
-    /// Loose tolerances for the least-squares stage before a robust one (within 0.1 sigma of
-    /// the least-squares solution; the robust stage moves further anyway).
-    pub const COARSE: Tolerances = Tolerances { xtol: 1e-9, ftol: 1e-10, gtol: 1e-8, step_sigma2: 1e-2 };
+    /// Loose tolerances for the least-squares stage before a robust one: stop once the next
+    /// step would be below 10 sigma. The least-squares stage only has to bring the start into
+    /// the region where most residuals are inliers; the robust stage then converges in a few
+    /// Gauss–Newton steps.
+    pub const COARSE: Tolerances = Tolerances { xtol: 1e-9, ftol: 1e-10, gtol: 1e-8, step_sigma2: 1e2 };
 }
 
 /// The result of one solve.

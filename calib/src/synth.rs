@@ -93,6 +93,8 @@ pub struct Spec {
     pub tilt_deg: f64,
     /// Tracker noise, 1-sigma per axis, m.
     pub tracker_sigma_m: f64,
+    /// Per-axis factors on `tracker_sigma_m` (an anisotropic tracker, e.g. worse in depth).
+    pub tracker_axis_scale: [f64; 3],
     /// Probability of a gross tracker outlier per sample.
     pub outlier_prob: f64,
     /// Size of a gross tracker outlier (random direction), m.
@@ -127,6 +129,7 @@ impl Spec {
             platform_points: vec![[0.0; 3]; n],
             tilt_deg: 0.0,
             tracker_sigma_m: 1.5e-3,
+            tracker_axis_scale: [1.0; 3],
             outlier_prob: 0.0,
             outlier_m: 0.05,
             encoder_sigma_m: 0.05e-3,
@@ -224,7 +227,7 @@ impl SampleGen<'_> {
         }
         let mut pm = [0.0; 3];
         for k in 0..3 {
-            pm[k] = p[k] + s.tracker_sigma_m * self.rng.normal();
+            pm[k] = p[k] + s.tracker_sigma_m * s.tracker_axis_scale[k] * self.rng.normal();
         }
         if self.rng.uniform() < s.outlier_prob {
             let d = self.rng.unit_vector();

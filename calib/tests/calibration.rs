@@ -386,6 +386,12 @@ fn huber_loss_rejects_tracker_outliers() {
     eprintln!("outliers: chi2 huber {ch:.1}, least squares {cl:.1}; flagged {} readings", rh.outliers);
     assert!(ch < 39.3, "huber chi2 {ch} (99.9% of chi2(16) is below 39.3)");
     assert!(cl > ch, "least squares {cl} vs huber {ch}");
+    // Cauchy (redescending) from the Huber solution: also efficient.
+    let cauchy = CalibOptions { loss: RobustLoss::Cauchy { c: 2.5 }, ..huber.clone() };
+    let rc = calibrate(&rec, &b, &rh.params, &cauchy).unwrap();
+    let cc = chi2(&rc.params);
+    eprintln!("outliers: chi2 cauchy {cc:.1}");
+    assert!(cc < 39.3, "cauchy chi2 {cc}");
     // ~40 outlier samples x 4 cables; a 5 cm error projected on a cable exceeds 6 sigma
     // (1 cm) unless it is nearly perpendicular to it.
     let expect = 0.01 * 4000.0 * 4.0;
@@ -413,5 +419,50 @@ fn platform_points_and_orientation() {
     let wrong = calibrate(&rec, &[[0.0; 3]; 4], &start.params, &opts);
     if let Ok(w) = wrong {
         assert!(w.rms_m > 3.0 * rep.rms_m, "{} vs {}", w.rms_m, rep.rms_m);
+    }
+}
+
+#[test]
+fn converges_from_half_a_metre_off() {
+    // The paper's initialisation was ~50 cm off; the calibration must still find the optimum.
+    let truth = synth::aras_cam();
+    let mut spec = Spec::new(truth.clone());
+    spec.loose_fraction = 0.05;
+    spec.outlier_prob = 0.002;
+    let rec = synth::box_recording(&spec, 3000, LO, HI, 81);
+    let opts = opts_for(&spec);
+    let near = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.01), &opts).unwrap();
+    let far = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.5), &opts).unwrap();
+    assert!(far.was_successful(), "{:?}", far.termination);
+    // The same optimum: within 1e-2 sigma of each other.
+    for j in 0..4 {
+        for k in 0..3 {
+            let d = (far.params.anchors[j][k] - near.params.anchors[j][k]).abs();
+            assert!(d < 1e-2 * near.anchor_sigma[j][k], "cable {j} axis {k}: {d}");
+        }
+    }
+}
+
+#[test]
+fn anisotropic_tracker_noise_is_weighted_by_its_projection() {
+    // A tracker three times worse in z: vertical-ish cables see the depth noise. With the full
+    // covariance the estimate is as good as the bound under that covariance.
+    let truth = synth::aras_cam();
+    let mut spec = Spec::new(truth.clone());
+    spec.tracker_axis_scale = [1.0, 1.0, 3.0];
+    let rec = synth::box_recording(&spec, 3000, LO, HI, 91);
+    let s2 = spec.tracker_sigma_m.powi(2);
+    let opts = CalibOptions {
+        tracker_cov_m2: Some([[s2, 0.0, 0.0], [0.0, s2, 0.0], [0.0, 0.0, 9.0 * s2]]),
+        ..opts_for(&spec)
+    };
+    let rep = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.1), &opts).unwrap();
+    let crb = metrics::cramer_rao(&rec, &spec.platform_points, &truth, &opts);
+    let z = worst_z(&rep.params, &truth, &crb);
+    assert!(z < 4.0, "{z:.2} sigma");
+    // The residuals are as large as the model says: variance factor near 1 (m = 3000:
+    // its sampling sd is sqrt(2/m) = 0.026).
+    for c in &rep.per_cable {
+        assert!((c.variance_factor - 1.0).abs() < 0.1, "variance factor {}", c.variance_factor);
     }
 }
