@@ -493,19 +493,38 @@ pub fn calibrate(
         if m < MIN_READINGS {
             return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
         }
-        // The variances depend (weakly) on the geometry: fix them at the start, solve, re-evaluate
-        // them at the solution and refine if one moved by more than 10% (a start far off; 10% in
-        // a variance is 5% in a weight, which costs well under 1% of efficiency).
-        // With the variances held fixed during a solve the cost is one consistent function and
-        // LM's accept/reject test is exact.
-        d.set_variances(&init.cable(j), &nm);
-        let mut sol = solver::solve(d, 0, m, init.cable(j), opts.loss, opts.max_iterations);
-        let mut iterations = sol.iterations;
+        // The variances depend (weakly) on the geometry (stretch ~ rho, tracker projection ~ u).
+        // They are held fixed during a solve, so that LM's accept/reject test compares values of
+        // one cost function, and set: at the start, again at the least-squares solution (within
+        // a few sigma of the final one), and once more if the robust solve then moved the anchor
+        // by more than 0.5% of the shortest cable (an isotropic tracker's variances then change
+        // by under 1%; with an anisotropic one they are always re-checked).
+        let x0 = init.cable(j);
+        d.set_variances(&x0, &nm);
+        let mut x = x0;
+        let mut iterations = 0;
+        if opts.loss != RobustLoss::None {
+            let s1 = solver::lm(d, 0, m, x, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
+            iterations += s1.iterations;
+            if !s1.x.iter().all(|v| v.is_finite()) {
+                return Err(CalibError::Diverged { cable: j });
+            }
+            x = s1.x;
+            d.set_variances(&x, &nm);
+        }
+        let mut x_var = x;
+        let mut sol = solver::lm(d, 0, m, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+        iterations += sol.iterations;
         for _ in 0..3 {
             if !sol.x.iter().all(|v| v.is_finite()) {
                 return Err(CalibError::Diverged { cable: j });
             }
-            if d.set_variances(&sol.x, &nm) <= 0.1 {
+            let moved = model::norm(model::sub([sol.x[0], sol.x[1], sol.x[2]], [x_var[0], x_var[1], x_var[2]]));
+            if nm.iso.is_some() && moved <= 0.005 * d.rho_min {
+                break;
+            }
+            x_var = sol.x;
+            if d.set_variances(&sol.x, &nm) <= 0.01 {
                 break;
             }
             sol = solver::lm(d, 0, m, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);

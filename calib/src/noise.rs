@@ -151,6 +151,8 @@ pub struct CableData {
     pub t: Vec<f64>,
     /// Inverse variance `1 / sigma^2` of each reading, 1/m^2, set by [`CableData::set_variances`].
     pub iv: Vec<f64>,
+    /// Shortest cable (`min rho`) when the variances were last set, m.
+    pub rho_min: f64,
     /// Index of the sample in the recording (increasing).
     pub sample: Vec<u32>,
     /// Readings excluded as loose.
@@ -188,10 +190,14 @@ impl CableData {
         {
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the CPU supports the features `variances_avx2` is compiled for.
-                return unsafe { variances_avx2(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm) };
+                let (change, rho_min) = unsafe { variances_avx2(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm) };
+                self.rho_min = rho_min;
+                return change;
             }
         }
-        variances(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm)
+        let (change, rho_min) = variances(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm);
+        self.rho_min = rho_min;
+        change
     }
 
     /// Number of used readings whose sample index is below `sample`.
@@ -202,15 +208,15 @@ impl CableData {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn variances_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> f64 {
+unsafe fn variances_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
     variances(xs, ys, zs, ts, iv, a, nm)
 }
 
 /// Writes `1 / sigma^2` of every reading into `iv`; returns the largest relative change of a
-/// variance (`|var_new / var_old - 1| = |var_new iv_old - 1|`, no division). Eight lanes of
-/// running maxima keep the loop free of a loop-carried dependence (SIMD).
+/// variance (`|var_new / var_old - 1| = |var_new iv_old - 1|`, no division) and the shortest
+/// cable. Eight lanes of running extrema keep the loop free of a loop-carried dependence (SIMD).
 #[inline(always)]
-fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> f64 {
+fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
     match nm.iso {
         Some(c0) => {
             let k = nm.inv_ea;
@@ -235,31 +241,35 @@ fn variances_with(
     iv: &mut [f64],
     a: [f64; 3],
     var: impl Fn([f64; 3], f64, f64) -> f64,
-) -> f64 {
+) -> (f64, f64) {
     let mut mx = [0.0f64; 8];
-    let one = |k: usize, old: f64| -> (f64, f64) {
+    let mut mn = [f64::INFINITY; 8];
+    let one = |k: usize, old: f64| -> (f64, f64, f64) {
         let d = [xs[k] - a[0], ys[k] - a[1], zs[k] - a[2]];
         let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let v = var(d, rho, ts[k]);
         // A fresh buffer holds zeros: report an infinite change.
         let c = if old > 0.0 { (v * old - 1.0).abs() } else { f64::INFINITY };
-        (1.0 / v, c)
+        (1.0 / v, c, rho)
     };
     let full = iv.len() / 8 * 8;
     for base in (0..full).step_by(8) {
         for i in 0..8 {
-            let (v, c) = one(base + i, iv[base + i]);
+            let (v, c, rho) = one(base + i, iv[base + i]);
             iv[base + i] = v;
             mx[i] = if c > mx[i] { c } else { mx[i] };
+            mn[i] = if rho < mn[i] { rho } else { mn[i] };
         }
     }
     let mut change = mx.iter().fold(0.0f64, |m, &c| if c > m { c } else { m });
+    let mut rho_min = mn.iter().fold(f64::INFINITY, |m, &r| if r < m { r } else { m });
     for k in full..iv.len() {
-        let (v, c) = one(k, iv[k]);
+        let (v, c, rho) = one(k, iv[k]);
         iv[k] = v;
         change = if c > change { c } else { change };
+        rho_min = if rho < rho_min { rho } else { rho_min };
     }
-    change
+    (change, rho_min)
 }
 
 /// Rotations of all samples (`None` for all when the recording has no orientation; a NaN entry
@@ -314,6 +324,7 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
             l: Vec::with_capacity(m),
             t: Vec::with_capacity(m),
             iv: Vec::new(),
+            rho_min: f64::NAN,
             sample: Vec::with_capacity(m),
             loose: 0,
             loose_readings: Vec::new(),

@@ -434,11 +434,13 @@ fn converges_from_half_a_metre_off() {
     let near = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.01), &opts).unwrap();
     let far = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.5), &opts).unwrap();
     assert!(far.was_successful(), "{:?}", far.termination);
-    // The same optimum: within 1e-2 sigma of each other.
+    // The same optimum. The variances (hence weights) are evaluated at points that differ by a
+    // few sigma between the two runs, i.e. by well under 1% (relative change 2 drho / rho), and
+    // a weight change of 1% moves a weighted mean by at most ~1% of a sigma: within 0.02 sigma.
     for j in 0..4 {
         for k in 0..3 {
             let d = (far.params.anchors[j][k] - near.params.anchors[j][k]).abs();
-            assert!(d < 1e-2 * near.anchor_sigma[j][k], "cable {j} axis {k}: {d}");
+            assert!(d < 2e-2 * near.anchor_sigma[j][k], "cable {j} axis {k}: {d}");
         }
     }
 }
