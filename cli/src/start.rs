@@ -48,18 +48,22 @@ mass_kg = 3.0
 anchor = [3.5, -1.75, 4.0]
 [cable.loadcell]
 unit_id = 1
+scale = 0.001
 [[cable]]
 anchor = [3.5, 1.75, 4.0]
 [cable.loadcell]
 unit_id = 2
+scale = 0.001
 [[cable]]
 anchor = [-3.5, 1.75, 4.0]
 [cable.loadcell]
 unit_id = 3
+scale = 0.001
 [[cable]]
 anchor = [-3.5, -1.75, 4.0]
 [cable.loadcell]
 unit_id = 4
+scale = 0.001
 [loadcells]
 port = "/dev/taut-loadcells"
 [motion]
@@ -69,6 +73,9 @@ init_settle_s = 0.3
 excitation_s = 30.0
 excitation_speed_m_s = 0.4
 swap_ramp_s = 1.0
+[safety]
+tension_max_age_s = 0.25
+tracker_max_age_s = 0.25
 [daemon]
 max_sigma_m = 0.03
 "#;

@@ -241,8 +241,8 @@ pub struct DaemonConfig {
     pub socket: String,
     /// Directory for recordings and parameter files (`params/` history, `current.toml`).
     pub data_dir: String,
-    /// Every how many loop samples one goes into the calibrator's data set (the recording keeps
-    /// them all).
+    /// Every how many fresh tracker poses one goes into the calibrator's data set (the recording
+    /// keeps every loop sample).
     pub calib_decimation: usize,
     /// A new anchor may move at most this far from the running one to be accepted, m.
     pub max_anchor_change_m: f64,
@@ -257,7 +257,7 @@ impl Default for DaemonConfig {
         DaemonConfig {
             socket: "/run/taut/taut.sock".into(),
             data_dir: "/var/lib/taut".into(),
-            calib_decimation: 5,
+            calib_decimation: 1,
             max_anchor_change_m: 0.5,
             max_l0_change_m: 0.5,
             max_sigma_m: 0.01,

@@ -242,17 +242,30 @@ impl Recorder {
     }
 }
 
-/// Appends a sample to a data set (missing values as NaN).
-fn push_sample(rec: &mut Recording, s: &Sample, cfg: &CalibratorConfig) {
+/// Appends a sample to a data set (missing values as NaN). The encoder lengths are interpolated
+/// to the time the pose was measured (`t - pose_age`) between `prev` and `s`: a pose read a few
+/// milliseconds late against fresh lengths would be a systematic error along the motion.
+fn push_sample(rec: &mut Recording, prev: Option<&Sample>, s: &Sample, cfg: &CalibratorConfig) {
     let n = cfg.n;
     let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
+    let mut l = [f64::NAN; crate::MAX_CABLES];
+    l[..n].copy_from_slice(&s.length_m[..n]);
+    let tp = s.t - s.pose_age_s.max(0.0);
+    if let Some(q) = prev {
+        if s.t > q.t && tp < s.t {
+            let w = ((tp - q.t) / (s.t - q.t)).clamp(0.0, 1.0);
+            for j in 0..n {
+                l[j] = q.length_m[j] + w * (s.length_m[j] - q.length_m[j]);
+            }
+        }
+    }
     let mut f = [f64::NAN; crate::MAX_CABLES];
     for j in 0..n {
         if s.tension_age_s[j] <= cfg.tension_max_age_s {
             f[j] = s.tension_n[j];
         }
     }
-    rec.push(s.t, p, None, &s.length_m[..n], Some(&f[..n]), Some(i32::from(s.phase)));
+    rec.push(tp, p, None, &l[..n], Some(&f[..n]), Some(i32::from(s.phase)));
 }
 
 fn unix_now() -> f64 {
@@ -297,6 +310,7 @@ pub struct Calibrator {
     init_set: Recording,
     exc_set: Recording,
     prev_state: State,
+    prev_sample: Option<Sample>,
     decim: usize,
     current: Option<Estimate>,
     current_params: LoopParams,
@@ -336,6 +350,7 @@ impl Calibrator {
             backend: Some(backend),
             recorder,
             prev_state: State::Idle,
+            prev_sample: None,
             decim: 0,
             current: None,
             current_params: LoopParams::invalid(n),
@@ -409,16 +424,21 @@ impl Calibrator {
         if state != prev {
             self.on_transition(prev, state, s);
         }
+        // One data-set row per fresh tracker pose (every `decimation`-th one).
+        let prev = self.prev_sample.replace(*s);
+        let fresh = prev.as_ref().is_none_or(|q| q.pose_m != s.pose_m) && s.pose_age_s <= self.cfg.tracker_max_age_s;
+        if !fresh {
+            return;
+        }
         let keep = self.decim % self.cfg.decimation == 0;
         self.decim += 1;
         match state {
-            // The phases are short: every sample goes into the initialisation's data set.
             State::InitPhase if s.phase >= 0 => {
-                push_sample(&mut self.init_set, s, &self.cfg);
+                push_sample(&mut self.init_set, prev.as_ref(), s, &self.cfg);
                 self.status.lock().unwrap().dataset_samples = self.init_set.len();
             }
             State::Excitation if keep => {
-                push_sample(&mut self.exc_set, s, &self.cfg);
+                push_sample(&mut self.exc_set, prev.as_ref(), s, &self.cfg);
                 self.status.lock().unwrap().dataset_samples = self.exc_set.len();
             }
             _ => {}

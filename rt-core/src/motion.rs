@@ -577,7 +577,16 @@ impl Controller {
                     modes[j] = CableCommand::Position(next[j]);
                 }
                 let first_off = (0..n).find(|&j| inp.drive[j] != DriveStatus::Enabled);
+                // The phases need fresh tensions and poses: the I/O threads may still be starting.
+                let stale_tension = (0..n).find(|&j| inp.tension_age_s[j] > self.cfg.tension_max_age_s);
+                let stale_pose = inp.pose_age_s > self.cfg.tracker_max_age_s;
+                let waited = now - self.state_t0 > self.cfg.enable_timeout_s;
                 match first_off {
+                    None if waited && stale_tension.is_some() => {
+                        self.latch(Cause::TensionStale { cable: stale_tension.unwrap_or(0) as u8 }, inp, now)
+                    }
+                    None if waited && stale_pose => self.latch(Cause::TrackerStale, inp, now),
+                    None if stale_tension.is_some() || stale_pose => {}
                     None if (0..n).all(|j| inp.length_m[j].is_finite()) => {
                         self.hold_here(inp);
                         self.start_phase(0, inp, now);
@@ -814,7 +823,8 @@ impl Controller {
     fn check_limits(&mut self, inp: &Inputs, now: f64) {
         let c = self.cfg;
         for j in 0..c.n {
-            if inp.tension_age_s[j] > c.tension_max_age_s {
+            // While enabling, stale data delays the start instead (see Enabling).
+            if inp.tension_age_s[j] > c.tension_max_age_s && self.state != State::Enabling {
                 return self.latch(Cause::TensionStale { cable: j as u8 }, inp, now);
             }
             if inp.tension_n[j] > c.max_tension_n {

@@ -1,16 +1,25 @@
 //! The simulated robot for `taut start --sim`: `taut-sim`'s [`Plant`] stepped by the loop's own
 //! cycle, with its encoders, load cells and tracker, and faults a test can inject.
 //!
-//! The drives follow the loop's commands like CiA 402 drives in cyclic synchronous position
-//! (encoder length -> drum length through the true offset and scale) or torque mode; before they
-//! are enabled, and in quick stop, their brakes hold the drums. The tracker is sampled at 100 Hz
-//! with the simulator's noise, outliers and dropouts.
+//! The load cells are `taut-sim`'s virtual Modbus RTU cells on a pseudo-terminal, read by
+//! `taut-driver`'s load-cell I/O thread (the hardware code path); the tracker is the simulator's
+//! (100 Hz, with its noise, outliers and dropouts) sent as UDP datagrams over loopback to
+//! `taut-driver`'s tracker receiver. The drives follow the loop's commands like CiA 402 drives in
+//! cyclic synchronous position (encoder length -> drum length through the true offset and scale)
+//! or torque mode, coupled to the plant in-process; before they are enabled, and in quick stop,
+//! their brakes hold the drums.
 
 use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
 use crate::MAX_CABLES;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use taut_config::RobotConfig;
+use std::time::Instant;
+use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
+use taut_driver::loadcell::{LoadCellIo, TensionReader};
+use taut_driver::tracker::{PoseReader, TrackerReceiver};
+use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
+use taut_sim::devices::tracker::TrackerSender;
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand as SimCommand, Noise, Physics, Plant, Truth};
 
@@ -116,7 +125,32 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
     let mut scale = [1.0; MAX_CABLES];
     l0[..n].copy_from_slice(&truth.l0);
     scale[..n].copy_from_slice(&truth.scale);
+    // Load cells: virtual Modbus RTU server on a pty <- driver's I/O thread.
+    let cells: Vec<(usize, LoadCellConfig)> =
+        cfg.cables.iter().enumerate().map(|(j, c)| (j, c.loadcell.clone().unwrap_or_else(|| LoadCellConfig::new(j as u8 + 1)))).collect();
+    let handle = TensionHandle::new(n);
+    handle.set_all(&ten[..n]);
+    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone()).map_err(|e| format!("virtual load cells: {e}"))?;
+    let mut bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
+    bus.port = vlc.path().display().to_string();
+    bus.max_age_s = cfg.safety.tension_max_age_s;
+    let (lc_io, lc_reader) = taut_driver::loadcell::spawn(&bus, &cells, n).map_err(|e| e.to_string())?;
+    // Tracker: simulator -> UDP on loopback -> driver's receiver.
+    let mut tcfg = TrackerConfig::new("127.0.0.1:0");
+    tcfg.max_age_s = cfg.safety.tracker_max_age_s;
+    let receiver = TrackerReceiver::bind(&tcfg).map_err(|e| format!("tracker receiver: {e}"))?;
+    let pose_reader = receiver.reader();
+    let sender = TrackerSender::new(receiver.local_addr().map_err(|e| e.to_string())?).map_err(|e| format!("tracker sender: {e}"))?;
     let devices = PlantDevices {
+        handle,
+        vlc,
+        _lc_io: lc_io,
+        lc_reader,
+        receiver,
+        pose_reader,
+        sender,
+        epoch: Instant::now(),
+        silenced: false,
         n,
         plant,
         tracker: Tracker::new(&opts.noise),
@@ -141,6 +175,15 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
 }
 
 struct PlantDevices {
+    handle: TensionHandle,
+    vlc: VirtualLoadCells,
+    _lc_io: LoadCellIo,
+    lc_reader: TensionReader,
+    receiver: TrackerReceiver,
+    pose_reader: PoseReader,
+    sender: TrackerSender,
+    epoch: Instant,
+    silenced: bool,
     n: usize,
     plant: Plant,
     tracker: Tracker,
@@ -170,25 +213,31 @@ impl Devices for PlantDevices {
         let gone = self.faults.tracker_gone.load(Ordering::Relaxed);
         let emcy = self.faults.drive_emcy.load(Ordering::Relaxed);
         let hb = self.faults.heartbeat_lost.load(Ordering::Relaxed);
-        if !silent {
-            self.tension_t = now;
+        if silent && !self.silenced {
+            // Every cell stops answering: the driver's reader sees no fresh readings.
+            self.vlc.inject(None, Fault::Silence, u32::MAX);
+            self.silenced = true;
         }
-        // 100 Hz tracker.
-        if self.cycles % 5 == 0 && !gone {
-            let m = self.tracker.measure(self.pos, &mut self.rng);
-            if m.iter().all(|v| v.is_finite()) {
-                self.pose = m;
-                self.pose_t = now;
-            }
+        let _ = gone;
+        let wall = Instant::now();
+        self.lc_reader.update();
+        let _ = self.receiver.poll();
+        if let Some(p) = self.pose_reader.newest() {
+            self.pose = p.position;
+            self.pose_t = now - wall.saturating_duration_since(p.arrival).as_secs_f64();
         }
-        self.cycles += 1;
+        let _ = self.epoch;
+        let _ = self.tension_t;
         for j in 0..n {
             inp.length_m[j] = self.enc[j];
             inp.length_age_s[j] = 0.0;
-            if !silent {
-                inp.tension_n[j] = self.ten[j];
+            match self.lc_reader.latest(j) {
+                Some((f, at)) => {
+                    inp.tension_n[j] = f;
+                    inp.tension_age_s[j] = wall.saturating_duration_since(at).as_secs_f64();
+                }
+                None => inp.tension_age_s[j] = f64::INFINITY,
             }
-            inp.tension_age_s[j] = now - self.tension_t;
             inp.drive[j] = if self.enabled { DriveStatus::Enabled } else { DriveStatus::Disabled };
         }
         inp.pose_m = self.pose;
@@ -228,6 +277,16 @@ impl Devices for PlantDevices {
         self.enc[..n].copy_from_slice(o.encoder_m);
         self.ten[..n].copy_from_slice(o.tension_n);
         self.pos = o.position;
+        self.handle.set_all(&self.ten[..n]);
+        // 100 Hz tracker over UDP; dropouts send nothing.
+        // Relaxed: an independent switch.
+        if self.cycles % 5 == 0 && !self.faults.tracker_gone.load(Ordering::Relaxed) {
+            let m = self.tracker.measure(self.pos, &mut self.rng);
+            if m.iter().all(|v| v.is_finite()) {
+                let _ = self.sender.send_pose(now, m, None);
+            }
+        }
+        self.cycles += 1;
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];

@@ -20,18 +20,22 @@ mass_kg = 3.0
 anchor = [3.5, -1.75, 4.0]
 [cable.loadcell]
 unit_id = 1
+scale = 0.001
 [[cable]]
 anchor = [3.5, 1.75, 4.0]
 [cable.loadcell]
 unit_id = 2
+scale = 0.001
 [[cable]]
 anchor = [-3.5, 1.75, 4.0]
 [cable.loadcell]
 unit_id = 3
+scale = 0.001
 [[cable]]
 anchor = [-3.5, -1.75, 4.0]
 [cable.loadcell]
 unit_id = 4
+scale = 0.001
 [loadcells]
 port = "/dev/taut-loadcells"
 [rt]
@@ -45,6 +49,10 @@ init_settle_s = 0.3
 excitation_s = 25.0
 excitation_speed_m_s = 0.4
 swap_ramp_s = 1.0
+[safety]
+# Loaded CI machines: the load-cell and tracker threads may be late by a tenth of a second.
+tension_max_age_s = 0.5
+tracker_max_age_s = 0.5
 [daemon]
 max_sigma_m = 0.03
 socket = "{}"
