@@ -395,3 +395,63 @@ fn master_config_from_a_robot_file() {
     no_can.can = None;
     assert_eq!(MasterConfig::from_robot(&no_can).unwrap_err().key, "can");
 }
+
+#[test]
+fn nmt_reset_node_and_pre_operational_are_followed_by_reconfiguration_and_restart() {
+    use taut_driver::canopen::nmt::{NmtCommand, NmtState};
+    let mut r = rig(config(&NODES));
+    r.bring_up();
+    r.master.send_nmt(NmtCommand::ResetNode, 2);
+    r.run(Duration::from_millis(5));
+    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 2 }), 1);
+    r.bring_up();
+    assert_eq!(r.master.status(1).unwrap().boots, 2);
+
+    // Pre-operational: PDOs stop; the next heartbeat says so and the master starts it again.
+    r.master.send_nmt(NmtCommand::PreOperational, 3);
+    r.run(Duration::from_millis(5));
+    assert_eq!(r.rack.drive(3).unwrap().nmt_state(), NmtState::PreOperational);
+    r.until(Duration::from_millis(300), "restarted", |r| r.rack.drive(3).unwrap().nmt_state() == NmtState::Operational);
+    r.bring_up();
+    assert_eq!(r.count(|e| *e == Event::Operational { node: 3 }), 2);
+}
+
+#[test]
+fn segmented_sdo_download_and_upload_against_a_virtual_drive() {
+    use taut_driver::canopen::sdo::{SdoClient, SdoOutcome};
+    let mut r = rig(config(&[8]));
+    r.step();
+    let mut client = SdoClient::new(8, Duration::from_millis(100));
+    let payload: Vec<u8> = (100..125).collect();
+    let mut transfer = |r: &mut Rig<VirtualEndpoint>, c: &mut SdoClient| loop {
+        while let Some(f) = c.poll_tx() {
+            r.port.send(&f).unwrap();
+        }
+        r.t += MS;
+        r.rack.step(r.t);
+        while let Ok(Some(f)) = r.port.try_recv() {
+            if f.id == 0x588 {
+                if let Ok(Some(o)) = c.on_response(f.data(), r.t) {
+                    return o;
+                }
+            }
+        }
+        if let Some(o) = c.poll(r.t) {
+            return o;
+        }
+    };
+    client.download(0x2000, 0, &payload, false, r.t).unwrap();
+    assert_eq!(transfer(&mut r, &mut client), SdoOutcome::Downloaded { index: 0x2000, sub: 0 });
+    client.upload(0x2000, 0, r.t).unwrap();
+    assert_eq!(transfer(&mut r, &mut client), SdoOutcome::Uploaded { index: 0x2000, sub: 0, len: 25 });
+    assert_eq!(client.data(), &payload[..]);
+    // A 4-byte value may also go segmented.
+    client.download(0x2000, 0, &[1, 2, 3], true, r.t).unwrap();
+    assert_eq!(transfer(&mut r, &mut client), SdoOutcome::Downloaded { index: 0x2000, sub: 0 });
+    client.upload(0x2000, 0, r.t).unwrap();
+    assert_eq!(transfer(&mut r, &mut client), SdoOutcome::Uploaded { index: 0x2000, sub: 0, len: 3 });
+    // Too long for the object: the drive aborts, the abort is named.
+    client.download(0x2000, 0, &[0; 40], false, r.t).unwrap();
+    let SdoOutcome::Aborted(a) = transfer(&mut r, &mut client) else { panic!("expected an abort") };
+    assert!(a.by_server && a.to_string().contains("too high"), "{a}");
+}
