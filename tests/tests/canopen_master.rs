@@ -455,3 +455,21 @@ fn segmented_sdo_download_and_upload_against_a_virtual_drive() {
     let SdoOutcome::Aborted(a) = transfer(&mut r, &mut client) else { panic!("expected an abort") };
     assert!(a.by_server && a.to_string().contains("too high"), "{a}");
 }
+
+#[test]
+fn quick_stop_then_enable_again() {
+    let mut r = rig(config(&[1, 2]));
+    r.bring_up();
+    r.enable_all();
+    r.master.operational().unwrap().quick_stop(0).unwrap();
+    r.until(Duration::from_millis(50), "quick stop", |r| r.master.status(0).unwrap().axis.state == Some(State::QuickStopActive));
+    assert_eq!(r.master.operational().unwrap().set_position_m(0, 0.0), Err(CommandError::NotEnabled { node: 1 }));
+    assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::OperationEnabled), "the other drive is untouched");
+    r.enable_all();
+    let mut op = r.master.operational().unwrap();
+    op.disable(0).unwrap();
+    op.disable(1).unwrap();
+    r.until(Duration::from_millis(50), "disabled", |r| {
+        r.master.statuses().all(|s| s.axis.state == Some(State::ReadyToSwitchOn))
+    });
+}
