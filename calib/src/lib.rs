@@ -489,31 +489,29 @@ pub fn calibrate(
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
     for (j, d) in data.iter_mut().enumerate() {
-        let m = d.len();
+        // `m` readings used; the solver runs over all `slots` (unused ones weigh zero).
+        let (m, slots) = (d.used, d.len());
         if m < MIN_READINGS {
             return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
         }
         // The variances depend (weakly) on the geometry (stretch ~ rho, tracker projection ~ u).
         // They are held fixed during a solve, so that LM's accept/reject test compares values of
-        // one cost function, and set: at the start, again at the least-squares solution (within
-        // a few sigma of the final one), and once more if the robust solve then moved the anchor
-        // by more than 0.5% of the shortest cable (an isotropic tracker's variances then change
-        // by under 1%; with an anisotropic one they are always re-checked).
+        // one cost function: a least-squares stage with the uniform variance brings the start
+        // near the optimum, the variances are then set at that point (a few sigma from the final
+        // one) for the final solve, and re-checked once more if that solve moved the anchor by
+        // more than 0.5% of the shortest cable (an isotropic tracker's variances then change by
+        // under 1%; with an anisotropic one they are always re-checked).
         let x0 = init.cable(j);
-        d.set_variances(&x0, &nm);
-        let mut x = x0;
-        let mut iterations = 0;
-        if opts.loss != RobustLoss::None {
-            let s1 = solver::lm(d, 0, m, x, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
-            iterations += s1.iterations;
-            if !s1.x.iter().all(|v| v.is_finite()) {
-                return Err(CalibError::Diverged { cable: j });
-            }
-            x = s1.x;
-            d.set_variances(&x, &nm);
+        d.set_uniform_variance(nm.uniform_variance());
+        let s1 = solver::lm(d, 0, slots, x0, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
+        let mut iterations = s1.iterations;
+        if !s1.x.iter().all(|v| v.is_finite()) {
+            return Err(CalibError::Diverged { cable: j });
         }
+        let x = s1.x;
+        d.set_variances(&x, &nm);
         let mut x_var = x;
-        let mut sol = solver::lm(d, 0, m, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+        let mut sol = solver::lm(d, 0, slots, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
         iterations += sol.iterations;
         for _ in 0..3 {
             if !sol.x.iter().all(|v| v.is_finite()) {
@@ -527,14 +525,14 @@ pub fn calibrate(
             if d.set_variances(&sol.x, &nm) <= 0.01 {
                 break;
             }
-            sol = solver::lm(d, 0, m, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+            sol = solver::lm(d, 0, slots, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
             iterations += sol.iterations;
         }
         if !sol.x.iter().all(|v| v.is_finite()) {
             return Err(CalibError::Diverged { cable: j });
         }
         sol.iterations = iterations;
-        let fin = solver::final_pass(d, 0, m, &sol.x, opts.loss, opts.outlier_sigma);
+        let fin = solver::final_pass(d, 0, slots, &sol.x, opts.loss, opts.outlier_sigma);
         sol.at_x = fin.pass;
         let h = sol.at_x.h_matrix();
         let eig = nalgebra::SymmetricEigen::new(h);
@@ -565,14 +563,14 @@ pub fn calibrate(
         // cost is quadratic: one Gauss-Newton step from the full solution on the training block
         // lands on it to a small fraction of a sigma (checked against a full solve in the
         // tests), for one pass instead of a whole solve.
-        let ntrain = d.count_before(split);
+        let ntrain = d.used_in(0..split);
         let mut heldout = f64::NAN;
         if split < rec.len() && ntrain >= MIN_READINGS && ntrain < m {
-            let tp = solver::pass(d, 0, ntrain, &sol.x, opts.loss);
+            let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
             if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
                 let xt = [sol.x[0] + step[0], sol.x[1] + step[1], sol.x[2] + step[2], sol.x[3] + step[3]];
                 if xt.iter().all(|v| v.is_finite()) {
-                    let hs = solver::final_pass(d, ntrain, m, &xt, opts.loss, opts.outlier_sigma);
+                    let hs = solver::final_pass(d, split, slots, &xt, opts.loss, opts.outlier_sigma);
                     ho_sum += hs.sum_sq;
                     ho_n += m - ntrain;
                     ho_peak = ho_peak.max(hs.peak);
@@ -596,15 +594,9 @@ pub fn calibrate(
             notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
         }
         // All readings, loose ones included.
-        let (mut ls, mut lp) = (0.0, 0.0f64);
-        for q in &d.loose_readings {
-            let r = q[3] - model::cable_length([q[0], q[1], q[2]], [sol.x[0], sol.x[1], sol.x[2]], sol.x[3]);
-            ls += r * r;
-            lp = lp.max(r.abs());
-        }
-        all_sum += fin.sum_sq + ls;
-        all_n += m + d.loose_readings.len();
-        all_peak = all_peak.max(fin.peak).max(lp);
+        all_sum += fin.sum_sq_all;
+        all_n += m + d.loose;
+        all_peak = all_peak.max(fin.peak_all);
         let mut c4 = [[0.0; 4]; 4];
         if let Some(c) = &cov {
             for a in 0..4 {

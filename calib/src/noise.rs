@@ -22,6 +22,7 @@
 //! uniform `sigma_enc^2 + tr(Sigma_P) / 3`: ordinary least squares, the paper's baseline.
 
 use crate::model::{self, Mat3};
+use std::sync::Arc;
 use crate::CalibOptions;
 use taut_config::recording::Recording;
 
@@ -110,6 +111,12 @@ impl NoiseModel {
         }
     }
 
+    /// The variance without the geometry: encoder plus the mean tracker variance
+    /// (`tr(Sigma_P) / 3`), no stretch, m^2.
+    pub fn uniform_variance(&self) -> f64 {
+        self.enc2 + (self.cov[0][0] + self.cov[1][1] + self.cov[2][2]) / 3.0
+    }
+
     /// Variance of one reading, m^2: `u` the unit cable direction, `rho` the geometric length,
     /// `tension` in N (0 when unknown or unused).
     #[inline(always)]
@@ -135,97 +142,170 @@ pub enum ReadingClass {
     Missing,
 }
 
-/// The readings of one cable that enter the calibration, stored column-wise so that the solver's
-/// pass over them is a tight loop over contiguous arrays.
+/// [`CableData::class`]: the reading enters the calibration.
+pub const USED: u8 = 0;
+/// [`CableData::class`]: the reading is of a loose cable (excluded, kept for statistics).
+pub const LOOSE: u8 = 1;
+/// [`CableData::class`]: a value is missing (or the sample is outside a selection).
+pub const MISSING: u8 = 2;
+
+/// One cable's readings, one slot per sample of the recording, stored column-wise so that the
+/// solver's pass is a tight loop over contiguous arrays. Readings that do not enter the
+/// calibration keep their slot with weight zero (`iv = 0`): no compaction, so the attachment
+/// points of a point-mass platform are shared by all cables (`Arc`), the time order is the slot
+/// order, and a time block is a slot range.
 #[derive(Debug, Clone, Default)]
 pub struct CableData {
-    /// Attachment point x, y, z (tracker frame), m.
-    pub x: Vec<f64>,
+    /// Attachment point x per sample (tracker frame; 0 where missing), m.
+    pub x: Arc<[f64]>,
     /// Attachment point y, m.
-    pub y: Vec<f64>,
+    pub y: Arc<[f64]>,
     /// Attachment point z, m.
-    pub z: Vec<f64>,
-    /// Encoder reading, m.
+    pub z: Arc<[f64]>,
+    /// Encoder reading (0 where missing), m.
     pub l: Vec<f64>,
-    /// Tension for the stretch term, N (0 when not used).
+    /// Tension for the stretch term (0 when unknown or unused), N.
     pub t: Vec<f64>,
-    /// Inverse variance `1 / sigma^2` of each reading, 1/m^2, set by [`CableData::set_variances`].
+    /// [`USED`], [`LOOSE`] or [`MISSING`].
+    pub class: Vec<u8>,
+    /// Inverse variance `1 / sigma^2` of each used reading, 0 for the others, 1/m^2; set by
+    /// [`CableData::set_variances`].
     pub iv: Vec<f64>,
-    /// Shortest cable (`min rho`) when the variances were last set, m.
+    /// Shortest cable (`min rho` over used readings) when the variances were last set, m.
     pub rho_min: f64,
-    /// Index of the sample in the recording (increasing).
-    pub sample: Vec<u32>,
+    /// Readings used.
+    pub used: usize,
     /// Readings excluded as loose.
     pub loose: usize,
-    /// The loose readings themselves, `(x, y, z, l)`, for the co-registration error of all
-    /// readings (a few percent of the data; kept out of the solver's arrays).
-    pub loose_readings: Vec<[f64; 4]>,
     /// Readings skipped as missing.
     pub missing: usize,
 }
 
 impl CableData {
-    /// Number of used readings.
+    /// Readings from explicit points, lengths and tensions, all used (for tests and tools).
+    pub fn from_points(points: &[[f64; 3]], l: &[f64], t: &[f64]) -> Self {
+        let col = |k: usize| -> Arc<[f64]> { points.iter().map(|p| p[k]).collect() };
+        CableData {
+            x: col(0),
+            y: col(1),
+            z: col(2),
+            l: l.to_vec(),
+            t: t.to_vec(),
+            class: vec![USED; l.len()],
+            iv: Vec::new(),
+            rho_min: f64::NAN,
+            used: l.len(),
+            loose: 0,
+            missing: 0,
+        }
+    }
+
+    /// Number of slots (samples).
     pub fn len(&self) -> usize {
         self.l.len()
     }
 
-    /// True when no reading is used.
+    /// True when there are no slots.
     pub fn is_empty(&self) -> bool {
         self.l.is_empty()
     }
 
-    /// Attachment point of used reading `k`.
+    /// Attachment point of slot `k`.
     pub fn point(&self, k: usize) -> [f64; 3] {
         [self.x[k], self.y[k], self.z[k]]
     }
 
-    /// Sets each reading's inverse variance from the noise model at parameters `x` (for the
-    /// direction `u` and length `rho` it depends on). Returns the largest relative change of a
-    /// variance, so a caller can tell whether a solve at the old variances is still right.
+    /// True when slot `k` is used.
+    pub fn is_used(&self, k: usize) -> bool {
+        self.class[k] == USED
+    }
+
+    /// Slots of the used readings.
+    pub fn used_slots(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.len()).filter(|&k| self.class[k] == USED)
+    }
+
+    /// Used readings among slots `range`.
+    pub fn used_in(&self, range: std::ops::Range<usize>) -> usize {
+        self.class[range].iter().filter(|&&c| c == USED).count()
+    }
+
+    /// The same readings with only the slots where `keep(slot)` holds still used (the others
+    /// become [`MISSING`]); the point columns are shared, not copied.
+    pub fn restricted(&self, keep: impl Fn(usize) -> bool) -> Self {
+        let mut d = self.clone();
+        for k in 0..d.len() {
+            if d.class[k] == USED && !keep(k) {
+                d.class[k] = MISSING;
+                d.used -= 1;
+                d.missing += 1;
+            }
+        }
+        d.iv.clear();
+        d
+    }
+
+    /// Sets every used reading's inverse variance to `1 / var` (0 for the others): the weights
+    /// before the geometry is known well enough for the direction- and length-dependent terms.
+    pub fn set_uniform_variance(&mut self, var: f64) {
+        let iv = 1.0 / var;
+        self.iv.clear();
+        self.iv.extend(self.class.iter().map(|&c| if c == USED { iv } else { 0.0 }));
+    }
+
+    /// Sets each used reading's inverse variance from the noise model at parameters `x` (for
+    /// the direction `u` and length `rho` it depends on), 0 for the others. Returns the largest
+    /// relative change of a variance, so a caller can tell whether a solve at the old variances
+    /// is still right (infinite the first time).
     pub fn set_variances(&mut self, x: &[f64; 4], nm: &NoiseModel) -> f64 {
         self.iv.resize(self.l.len(), 0.0);
         let a = [x[0], x[1], x[2]];
+        let cols = Cols { x: &self.x, y: &self.y, z: &self.z, t: &self.t, class: &self.class };
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the CPU supports the features `variances_avx2` is compiled for.
-                let (change, rho_min) = unsafe { variances_avx2(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm) };
+                let (change, rho_min) = unsafe { variances_avx2(&cols, &mut self.iv, a, nm) };
                 self.rho_min = rho_min;
                 return change;
             }
         }
-        let (change, rho_min) = variances(&self.x, &self.y, &self.z, &self.t, &mut self.iv, a, nm);
+        let (change, rho_min) = variances(&cols, &mut self.iv, a, nm);
         self.rho_min = rho_min;
         change
     }
+}
 
-    /// Number of used readings whose sample index is below `sample`.
-    pub fn count_before(&self, sample: usize) -> usize {
-        self.sample.partition_point(|&s| (s as usize) < sample)
-    }
+/// The columns the variance computation reads.
+struct Cols<'a> {
+    x: &'a [f64],
+    y: &'a [f64],
+    z: &'a [f64],
+    t: &'a [f64],
+    class: &'a [u8],
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn variances_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
-    variances(xs, ys, zs, ts, iv, a, nm)
+unsafe fn variances_avx2(c: &Cols, iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
+    variances(c, iv, a, nm)
 }
 
-/// Writes `1 / sigma^2` of every reading into `iv`; returns the largest relative change of a
-/// variance (`|var_new / var_old - 1| = |var_new iv_old - 1|`, no division) and the shortest
-/// cable. Eight lanes of running extrema keep the loop free of a loop-carried dependence (SIMD).
+/// Writes `1 / sigma^2` of every used reading into `iv` (0 for the others); returns the largest
+/// relative change of a variance (`|var_new / var_old - 1| = |var_new iv_old - 1|`, no
+/// division) and the shortest cable. Eight lanes of running extrema keep the loop free of a
+/// loop-carried dependence (SIMD).
 #[inline(always)]
-fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
+fn variances(c: &Cols, iv: &mut [f64], a: [f64; 3], nm: &NoiseModel) -> (f64, f64) {
     match nm.iso {
         Some(c0) => {
             let k = nm.inv_ea;
-            variances_with(xs, ys, zs, ts, iv, a, |_, rho, t| {
+            variances_with(c, iv, a, |_, rho, t| {
                 let s = t * rho * k;
                 c0 + s * s
             })
         }
-        None => variances_with(xs, ys, zs, ts, iv, a, |d: [f64; 3], rho, t| {
+        None => variances_with(c, iv, a, |d: [f64; 3], rho, t| {
             let inv = 1.0 / rho;
             nm.variance([d[0] * inv, d[1] * inv, d[2] * inv], rho, t)
         }),
@@ -233,40 +313,33 @@ fn variances(xs: &[f64], ys: &[f64], zs: &[f64], ts: &[f64], iv: &mut [f64], a: 
 }
 
 #[inline(always)]
-fn variances_with(
-    xs: &[f64],
-    ys: &[f64],
-    zs: &[f64],
-    ts: &[f64],
-    iv: &mut [f64],
-    a: [f64; 3],
-    var: impl Fn([f64; 3], f64, f64) -> f64,
-) -> (f64, f64) {
+fn variances_with(c: &Cols, iv: &mut [f64], a: [f64; 3], var: impl Fn([f64; 3], f64, f64) -> f64) -> (f64, f64) {
     let mut mx = [0.0f64; 8];
     let mut mn = [f64::INFINITY; 8];
     let one = |k: usize, old: f64| -> (f64, f64, f64) {
-        let d = [xs[k] - a[0], ys[k] - a[1], zs[k] - a[2]];
+        let d = [c.x[k] - a[0], c.y[k] - a[1], c.z[k] - a[2]];
         let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let v = var(d, rho, ts[k]);
-        // A fresh buffer holds zeros: report an infinite change.
-        let c = if old > 0.0 { (v * old - 1.0).abs() } else { f64::INFINITY };
-        (1.0 / v, c, rho)
+        let v = var(d, rho, c.t[k]);
+        let used = c.class[k] == USED;
+        // A fresh buffer holds zeros: an infinite change.
+        let ch = if !used { 0.0 } else if old > 0.0 { (v * old - 1.0).abs() } else { f64::INFINITY };
+        (if used { 1.0 / v } else { 0.0 }, ch, if used { rho } else { f64::INFINITY })
     };
     let full = iv.len() / 8 * 8;
     for base in (0..full).step_by(8) {
         for i in 0..8 {
-            let (v, c, rho) = one(base + i, iv[base + i]);
+            let (v, ch, rho) = one(base + i, iv[base + i]);
             iv[base + i] = v;
-            mx[i] = if c > mx[i] { c } else { mx[i] };
+            mx[i] = if ch > mx[i] { ch } else { mx[i] };
             mn[i] = if rho < mn[i] { rho } else { mn[i] };
         }
     }
     let mut change = mx.iter().fold(0.0f64, |m, &c| if c > m { c } else { m });
     let mut rho_min = mn.iter().fold(f64::INFINITY, |m, &r| if r < m { r } else { m });
     for k in full..iv.len() {
-        let (v, c, rho) = one(k, iv[k]);
+        let (v, ch, rho) = one(k, iv[k]);
         iv[k] = v;
-        change = if c > change { c } else { change };
+        change = if ch > change { ch } else { change };
         rho_min = if rho < rho_min { rho } else { rho_min };
     }
     (change, rho_min)
@@ -310,69 +383,66 @@ pub fn classify(
     ReadingClass::Used
 }
 
-/// Gathers the used readings of every cable (one pass over the recording; the same
-/// classification as [`classify`], hoisted so the per-sample checks run once per sample).
+/// Every cable's readings, classified as [`classify`] does (one pass over the recording per
+/// column; the point columns are built once and shared when the platform is a point mass
+/// without orientation).
 pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions, weighting: Weighting) -> Vec<CableData> {
     let n = rec.n_cables;
-    let rot = rotations(rec);
     let m = rec.len();
-    let mut out: Vec<CableData> = (0..n)
-        .map(|_| CableData {
-            x: Vec::with_capacity(m),
-            y: Vec::with_capacity(m),
-            z: Vec::with_capacity(m),
-            l: Vec::with_capacity(m),
-            t: Vec::with_capacity(m),
-            iv: Vec::new(),
-            rho_min: f64::NAN,
-            sample: Vec::with_capacity(m),
-            loose: 0,
-            loose_readings: Vec::new(),
-            missing: 0,
-        })
-        .collect();
+    let rot = rotations(rec);
     let tensions = if weighting.uses_tensions() { rec.f.as_deref() } else { None };
-    let point_mass = platform_points.iter().all(|b| *b == [0.0; 3]);
-    // Sample-major: the recording is read once, row by row (measured faster than cable-major,
-    // which reads it n times).
-    for i in 0..m {
-        let p = rec.p[i];
-        let r = match &rot {
-            Some(v) => v[i].as_ref(),
-            None => None,
+    let pose_ok: Vec<bool> =
+        (0..m).map(|i| !rec.p[i].iter().any(|v| v.is_nan()) && rot.as_ref().is_none_or(|r| r[i].is_some())).collect();
+    let columns = |b: [f64; 3]| -> [Arc<[f64]>; 3] {
+        let pt = |i: usize| -> [f64; 3] {
+            if !pose_ok[i] {
+                return [0.0; 3];
+            }
+            model::attachment(rec.p[i], rot.as_ref().and_then(|r| r[i].as_ref()), b)
         };
-        if p.iter().any(|v| v.is_nan()) || (rot.is_some() && r.is_none()) {
-            for d in out.iter_mut() {
-                d.missing += 1;
-            }
-            continue;
+        let (mut x, mut y, mut z) = (Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m));
+        for i in 0..m {
+            let p = pt(i);
+            x.push(p[0]);
+            y.push(p[1]);
+            z.push(p[2]);
         }
-        let ls = &rec.l[i * n..(i + 1) * n];
-        for (j, d) in out.iter_mut().enumerate() {
-            let l = ls[j];
-            let t = match tensions {
-                Some(f) => f[i * n + j],
-                None => 0.0,
+        [x.into(), y.into(), z.into()]
+    };
+    let shared = (rot.is_none() && platform_points.iter().all(|b| *b == [0.0; 3])).then(|| columns([0.0; 3]));
+    (0..n)
+        .map(|j| {
+            let [x, y, z] = match &shared {
+                Some(c) => c.clone(),
+                None => columns(platform_points[j]),
             };
-            if l.is_nan() || t.is_nan() {
-                d.missing += 1;
-                continue;
+            let mut l = Vec::with_capacity(m);
+            let mut t = Vec::with_capacity(m);
+            let mut class = Vec::with_capacity(m);
+            let (mut used, mut loose, mut missing) = (0, 0, 0);
+            for i in 0..m {
+                let li = rec.l[i * n + j];
+                let ti = match tensions {
+                    Some(f) => f[i * n + j],
+                    None => 0.0,
+                };
+                let c = if !pose_ok[i] || li.is_nan() || ti.is_nan() {
+                    missing += 1;
+                    MISSING
+                } else if tensions.is_some() && ti < opts.min_tension_n {
+                    loose += 1;
+                    LOOSE
+                } else {
+                    used += 1;
+                    USED
+                };
+                l.push(if li.is_nan() { 0.0 } else { li });
+                t.push(if c == USED { ti } else { 0.0 });
+                class.push(c);
             }
-            let x = if point_mass && r.is_none() { p } else { model::attachment(p, r, platform_points[j]) };
-            if tensions.is_some() && t < opts.min_tension_n {
-                d.loose += 1;
-                d.loose_readings.push([x[0], x[1], x[2], l]);
-                continue;
-            }
-            d.x.push(x[0]);
-            d.y.push(x[1]);
-            d.z.push(x[2]);
-            d.l.push(l);
-            d.t.push(t);
-            d.sample.push(i as u32);
-        }
-    }
-    out
+            CableData { x, y, z, l, t, class, iv: Vec::new(), rho_min: f64::NAN, used, loose, missing }
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -296,7 +296,7 @@ pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &Cal
             line_anchor: None,
             geometric_anchor: None,
             rms_m: rms(d, a, o),
-            used: d.len(),
+            used: d.used,
         });
     }
     let mut notes = Vec::new();
@@ -314,14 +314,15 @@ fn reading_sigma(opts: &CalibOptions) -> f64 {
 
 /// Closed-form anchor and offset of one cable from its readings `d` (see the module doc).
 pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
-    let m = d.len();
+    let slots: Vec<usize> = d.used_slots().collect();
+    let m = slots.len();
     if m < MIN_READINGS {
         return Err(InitError::TooFewReadings { cable, used: m, needed: MIN_READINGS });
     }
     let mf = m as f64;
     let mut xm = [0.0; 3];
     let mut lm = 0.0;
-    for k in 0..m {
+    for &k in &slots {
         let p = d.point(k);
         for a in 0..3 {
             xm[a] += p[a] / mf;
@@ -331,7 +332,7 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
     // Excitation: principal spreads of the path, and the spread of the lengths.
     let mut cov = Matrix3::zeros();
     let mut lvar = 0.0;
-    for k in 0..m {
+    for &k in &slots {
         let v = Vector3::from(model::sub(d.point(k), xm));
         cov += v * v.transpose() / mf;
         lvar += (d.l[k] - lm).powi(2) / mf;
@@ -365,12 +366,12 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
     for round in 0..4 {
         let mut nmat = SMatrix::<f64, 5, 5>::zeros();
         let mut rhs = SVector::<f64, 5>::zeros();
-        for k in 0..m {
+        for (i, &k) in slots.iter().enumerate() {
             let x = model::sub(d.point(k), xm);
             let row = SVector::<f64, 5>::from([-2.0 * x[0] / s, -2.0 * x[1] / s, -2.0 * x[2] / s, 2.0 * (d.l[k] - lm) / s, 1.0]);
             let y = d.l[k] * d.l[k] - model::dot(x, x);
-            nmat += row * row.transpose() * w[k];
-            rhs += row * (y * w[k]);
+            nmat += row * row.transpose() * w[i];
+            rhs += row * (y * w[i]);
         }
         theta = match nmat.cholesky() {
             Some(c) => c.solve(&rhs),
@@ -382,14 +383,14 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
             break;
         }
         // Re-weight: rows to length units, Huber on the length residual.
-        for k in 0..m {
+        for (i, &k) in slots.iter().enumerate() {
             let rho = model::norm(model::sub(d.point(k), a_est));
-            resid[k] = d.l[k] - l0_est - rho;
-            w[k] = 1.0 / (4.0 * rho * rho).max(1e-6);
+            resid[i] = d.l[k] - l0_est - rho;
+            w[i] = 1.0 / (4.0 * rho * rho).max(1e-6);
         }
         let scale = sigma.max(1.4826 * median_abs(&resid));
-        for k in 0..m {
-            w[k] *= RobustLoss::Huber { k: 2.0 }.weight_cost((resid[k] / scale).powi(2)).0;
+        for i in 0..m {
+            w[i] *= RobustLoss::Huber { k: 2.0 }.weight_cost((resid[i] / scale).powi(2)).0;
         }
     }
     let _ = theta;
@@ -417,13 +418,13 @@ fn median_in_place(a: &mut [f64]) -> f64 {
 
 /// `L0 = median(l - |X - A|)`: robust to the loose or outlying readings a fit would be pulled by.
 fn median_offset(d: &CableData, a: [f64; 3]) -> f64 {
-    let mut v: Vec<f64> = (0..d.len()).map(|k| d.l[k] - model::norm(model::sub(d.point(k), a))).collect();
+    let mut v: Vec<f64> = d.used_slots().map(|k| d.l[k] - model::norm(model::sub(d.point(k), a))).collect();
     median_in_place(&mut v)
 }
 
 fn rms(d: &CableData, a: [f64; 3], l0: f64) -> f64 {
-    let s: f64 = (0..d.len()).map(|k| (d.l[k] - l0 - model::norm(model::sub(d.point(k), a))).powi(2)).sum();
-    (s / d.len().max(1) as f64).sqrt()
+    let s: f64 = d.used_slots().map(|k| (d.l[k] - l0 - model::norm(model::sub(d.point(k), a))).powi(2)).sum();
+    (s / d.used.max(1) as f64).sqrt()
 }
 
 /// 5..95% spread of the finite values.
@@ -514,8 +515,8 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
             Some(a_line) => {
                 // Sphere refinement on the held samples only.
                 let phases_held: Vec<i32> = held_in.iter().map(|p| p.phase).collect();
-                let mut hd = subset(d, |s| phases_held.contains(&phase[s]));
-                let a = if hd.len() >= MIN_READINGS {
+                let mut hd = d.restricted(|s| phases_held.contains(&phase[s]));
+                let a = if hd.used >= MIN_READINGS {
                     let x0 = [a_line[0], a_line[1], a_line[2], median_offset(&hd, a_line)];
                     hd.set_variances(&x0, &nm);
                     let sol = solver::solve(&hd, 0, hd.len(), x0, opts.loss, opts.max_iterations);
@@ -541,8 +542,8 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
                 (multilaterate(d, sigma, j)?.0, AnchorSource::Multilateration)
             }
         };
-        if d.len() < MIN_READINGS {
-            return Err(InitError::TooFewReadings { cable: j, used: d.len(), needed: MIN_READINGS });
+        if d.used < MIN_READINGS {
+            return Err(InitError::TooFewReadings { cable: j, used: d.used, needed: MIN_READINGS });
         }
         // Final fit of the model to all of the cable's taut readings in the recording (held,
         // reeled and following), from the geometric estimate: the geometry supplies a start in
@@ -569,7 +570,7 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
             line_anchor: line,
             geometric_anchor: Some(geometric),
             rms_m: rms(&d, a, o),
-            used: d.len(),
+            used: d.used,
         });
     }
     Ok(InitResult { params: Params { anchors, l0 }, method: Method::ThreePhase, phases: details, cables, notes })
@@ -593,20 +594,4 @@ fn closest_point_to_axes(phases: &[&PhaseDetail]) -> Option<[f64; 3]> {
     }
     let a = m.cholesky()?.solve(&b);
     Some([a[0], a[1], a[2]])
-}
-
-/// The readings of `d` whose sample index satisfies `keep`.
-fn subset(d: &CableData, keep: impl Fn(usize) -> bool) -> CableData {
-    let mut out = CableData::default();
-    for k in 0..d.len() {
-        if keep(d.sample[k] as usize) {
-            out.x.push(d.x[k]);
-            out.y.push(d.y[k]);
-            out.z.push(d.z[k]);
-            out.l.push(d.l[k]);
-            out.t.push(d.t[k]);
-            out.sample.push(d.sample[k]);
-        }
-    }
-    out
 }
