@@ -151,8 +151,9 @@ impl System<'_> {
         }
         let (r, _) = self.evaluate(p, Some(loads));
         let rn = Vector3::from(r).norm();
-        // A line search that stalls at a residual this small has hit round-off, not a wall.
-        converged = converged || rn < 100.0 * tol;
+        // A line search that stalls at a residual this small has hit round-off, not a wall:
+        // 1e-3 m g against position-mode cables of ~1e7 N/m is a few nanometres of position.
+        converged = converged || rn < 1e3 * tol;
         let stable = self.stiffness(p, r).cholesky().is_some();
         (p, EquilibriumReport { iterations: it, residual_n: rn, converged, stable })
     }
