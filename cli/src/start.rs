@@ -178,6 +178,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "truth_anchors_m": truth.anchors,
         "truth_l0_m": truth.l0,
         "initial_anchor_error_max_m": init_est.map(|e| err(&e.anchors)),
+        "initial_held_anchor_error_max_m": init_est.map(|e| err(&e.anchors[..3.min(e.anchors.len())])),
         "anchor_error_max_m": final_est.map(|e| err(&e.anchors)),
         "samples_recorded": c.samples_recorded,
         "samples_dropped": l.dropped,
@@ -204,7 +205,8 @@ pub fn run(a: &StartArgs) -> Result<()> {
     }
     println!("phases completed   {}", l.snap.phases_completed);
     if let Some(e) = init_est {
-        println!("initial estimate   max anchor error {:.1} mm ({})", err(&e.anchors) * 1e3, e.note);
+        let held = err(&e.anchors[..3.min(e.anchors.len())]);
+        println!("initial estimate   max anchor error {:.1} mm on the held cables, {:.1} mm on all ({})", held * 1e3, err(&e.anchors) * 1e3, e.note);
     }
     if let Some(e) = final_est {
         println!("calibrated         max anchor error {:.2} mm", err(&e.anchors) * 1e3);

@@ -737,8 +737,9 @@ impl Controller {
             }
         }
         if ik {
-            self.transfer.apply(n, dt, &mut next);
-            self.swap.apply(n, dt, &mut next);
+            let positional: [bool; MAX_CABLES] = std::array::from_fn(|j| matches!(modes[j], CableCommand::Position(_)));
+            self.transfer.apply(n, dt, &mut next, &positional);
+            self.swap.apply(n, dt, &mut next, &positional);
             for j in 0..n {
                 if let CableCommand::Position(_) = modes[j] {
                     modes[j] = CableCommand::Position(next[j]);

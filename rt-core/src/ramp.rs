@@ -57,7 +57,8 @@ impl Ramp {
     }
 
     /// Applies the fading offset to this cycle's command `cmd` in place and advances by `dt_s`.
-    pub fn apply(&mut self, n: usize, dt_s: f64, cmd: &mut [f64; MAX_CABLES]) {
+    /// Only cables with `measured[j]` (the position-mode ones) count towards `max_step_m`.
+    pub fn apply(&mut self, n: usize, dt_s: f64, cmd: &mut [f64; MAX_CABLES], measured: &[bool; MAX_CABLES]) {
         if !self.active {
             return;
         }
@@ -65,7 +66,7 @@ impl Ramp {
         let w = 1.0 - self.s * self.s * (3.0 - 2.0 * self.s);
         for j in 0..n {
             cmd[j] += self.offset[j] * w;
-            if self.have_last {
+            if self.have_last && measured[j] {
                 let step = (cmd[j] - self.last[j]).abs();
                 if step > self.max_step_m {
                     self.max_step_m = step;
@@ -101,7 +102,7 @@ mod tests {
         let mut steps = 0;
         while r.active() {
             let mut c = next;
-            r.apply(3, dt, &mut c);
+            r.apply(3, dt, &mut c, &[true; MAX_CABLES]);
             steps += 1;
         }
         assert_eq!(steps, 1000);
@@ -109,7 +110,7 @@ mod tests {
         assert!(r.max_step_m <= bound * 1.001, "{} > {bound}", r.max_step_m);
         assert!(r.max_step_m > bound * 0.99);
         let mut c = next;
-        r.apply(3, dt, &mut c);
+        r.apply(3, dt, &mut c, &[true; MAX_CABLES]);
         assert_eq!(c, next);
     }
 }
