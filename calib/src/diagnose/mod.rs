@@ -705,7 +705,20 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
             let mut s2 = spec.clone();
             s2.effects.push(e);
             let x0 = s2.extend(n, &spec, &cur_train.x);
-            let r = ctx.fit(&s2, &ctx.screen_train, &x0, 30);
+            let mut r = ctx.fit(&s2, &ctx.screen_train, &x0, 30);
+            if e == Effect::Sag {
+                // The sag excess grows as w^2: near a small start the gradient in w all but
+                // vanishes and the fit stays there. Try heavier cables too; keep the best.
+                let o = s2.offset(e, n).expect("active");
+                for w in [0.5, 2.0, 8.0] {
+                    let mut xs = x0.clone();
+                    xs[o] = w;
+                    let rs = ctx.fit(&s2, &ctx.screen_train, &xs, 30);
+                    if rs.x.iter().all(|v| v.is_finite()) && (rs.cost < r.cost || !r.cost.is_finite()) {
+                        r = rs;
+                    }
+                }
+            }
             if !r.x.iter().all(|v| v.is_finite()) {
                 continue;
             }
