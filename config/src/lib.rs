@@ -259,6 +259,30 @@ impl RobotConfig {
                 l.validate().map_err(|(k, m)| err(line, format!("cable[{i}].loadcell.{k}"), m))?;
             }
         }
+        let section = |name: &str| table_header_lines(text, &format!("[{name}]")).first().copied();
+        if let Some(c) = &self.can {
+            c.validate().map_err(|(k, m)| err(section("can"), format!("can.{k}"), m))?;
+        }
+        if let Some(l) = &self.loadcells {
+            l.validate().map_err(|(k, m)| err(section("loadcells"), format!("loadcells.{k}"), m))?;
+        }
+        if let Some(t) = &self.tracker {
+            t.validate().map_err(|(k, m)| err(section("tracker"), format!("tracker.{k}"), m))?;
+        }
+        devices::validate_unit_ids(self.cables.iter().map(|c| c.loadcell.as_ref()))
+            .map_err(|(i, m)| err(cable_lines.get(i).copied(), format!("cable[{i}].loadcell.unit_id"), m))?;
+        let mut node_seen = [None::<usize>; 128];
+        for (i, c) in self.cables.iter().enumerate() {
+            if let Some(d) = &c.drive {
+                if let Some(first) = node_seen[d.node_id as usize & 127].replace(i) {
+                    return Err(err(
+                        cable_lines.get(i).copied(),
+                        format!("cable[{i}].drive.node_id"),
+                        format!("node id {} is already used by cable[{first}]; every drive needs its own", d.node_id),
+                    ));
+                }
+            }
+        }
         let cal = &self.calibration;
         let cal_line = table_header_lines(text, "[calibration]").first().copied();
         for (k, v) in [
@@ -364,6 +388,19 @@ mod tests {
         let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n";
         let e = RobotConfig::from_toml_str(text).unwrap_err();
         assert!(e.message.contains("at least 3"), "{e}");
+    }
+
+    #[test]
+    fn device_sections_are_validated_with_their_key() {
+        let base = "[robot]\nname = \"x\"\nmass_kg = 3.0\n";
+        let cables = "[[cable]]\n[cable.drive]\nnode_id = 1\n[[cable]]\n[cable.drive]\nnode_id = 1\n[[cable]]\n";
+        let e = RobotConfig::from_toml_str(&format!("{base}{cables}")).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("cable[1].drive.node_id"), "{e}");
+        assert_eq!(e.line, Some(7), "{e}");
+        let e = RobotConfig::from_toml_str(&format!("{base}[tracker]\nlisten = \"not an address\"\n[[cable]]\n[[cable]]\n[[cable]]\n"))
+            .unwrap_err();
+        assert!(e.key.as_deref().is_some_and(|k| k.starts_with("tracker.")), "{e}");
+        assert_eq!(e.line, Some(4), "{e}");
     }
 
     #[test]
