@@ -146,6 +146,7 @@ fn pulley_is_named() {
 fn sag_is_named_on_the_outdoor_robot() {
     let mut s = Scenario::outdoor(16);
     s.physics = Physics { sag: Some(1.2), ..Physics::default() };
+    // 60 s: at 40 s the held-out blocks do not cover enough of the workspace to name sag.
     let (d, _) = run(s, 60.0);
     assert_eq!(named(&d).first(), Some(&Effect::Sag), "{:#?}", summary(&d));
     let f = finding(&d, Effect::Sag);
