@@ -70,7 +70,7 @@ impl ModelSpec {
             let w = width(e, n);
             match prev.offset(e, n) {
                 Some(o) => out.extend_from_slice(&x[o..o + w]),
-                None => out.extend(std::iter::repeat(e.start()).take(w)),
+                None => out.extend(std::iter::repeat_n(e.start(), w)),
             }
         }
         out

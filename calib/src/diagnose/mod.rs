@@ -441,8 +441,8 @@ impl Ctx<'_> {
             // Plausible: inside the range, or not distinguishable from its edge.
             let inside = x >= lo - 3.0 * s && x <= hi + 3.0 * s && x.abs() < 0.999 * (hi - lo).abs().max(hi.abs());
             plausible.push(inside && x >= lo - 3.0 * s);
-            let zero = if e == Effect::Scale { 0.0 } else { 0.0 };
-            significant.push((x - zero).abs() > 4.0 * s && x >= lo && x <= hi && change[k] >= NEGLIGIBLE * self.sigma);
+            // Every effect's internal parameter is 0 at its null (scale is stored as scale - 1).
+            significant.push(x.abs() > 4.0 * s && x >= lo && x <= hi && change[k] >= NEGLIGIBLE * self.sigma);
         }
         (vals, sigs, plausible, significant)
     }
