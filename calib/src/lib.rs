@@ -90,10 +90,12 @@
 //!   several cm as outliers).
 //! - Three-phase initialisation on 1 m arcs, no prior geometry: anchors within 4-6 mm (the
 //!   paper: ~50 cm); the circle-axis estimates alone are 1-4 cm off.
-//! - 100 000 samples x 4 cables: about 40 ms for the whole [`calibrate`] (including the
-//!   held-out solve and the statistics) on one core of a shared 2-core Xeon VM, 50-90x faster
-//!   than `scipy.optimize.least_squares` on the same problem (`bench/run-calib-bench`), with
-//!   the same result to 0.1 µm.
+//! - 100 000 samples x 4 cables from a start 5-10 cm off: 40-60 ms wall for the whole
+//!   [`calibrate`] (gather, least-squares and Huber stages, covariance, statistics, held-out
+//!   estimate), 35-45 ms without the held-out estimate, on one core of a 2-vCPU Xeon VM shared
+//!   with other builds (run under SCHED_FIFO; the spread is the neighbours' memory traffic).
+//!   `scipy.optimize.least_squares` (trf, Huber, analytic Jacobian, per cable) takes 11-15 s on
+//!   the same data: 150-200x slower, same parameters to about 1 µm (`bench/run-calib-bench`).
 //!
 //! # Modules
 //!
