@@ -79,10 +79,34 @@ fn toml_can(interface: String) -> anyhow::Result<CanConfig> {
 
 /// Tensions from the load cells, in cable order, where a load cell reading is available.
 ///
-/// Load cells (Modbus RTU, `taut_driver::modbus`) are read by their own driver; until it is
-/// wired in here this returns no readings and the table shows "-".
+/// Load cells (Modbus RTU on RS-485) are read by the driver's own I/O thread: start it on the
+/// configured port, give it up to 1.5 s to read every cell once, then stop it. Cables without a
+/// reading (no `[cable.loadcell]`, no `[loadcells]`, or no answer) show "-".
 fn loadcell_tensions(cfg: &RobotConfig) -> Vec<Option<f64>> {
-    vec![None; cfg.cables.len()]
+    let n = cfg.cables.len();
+    if cfg.loadcells.is_none() || cfg.cables.iter().all(|c| c.loadcell.is_none()) {
+        return vec![None; n];
+    }
+    let (io, mut reader) = match taut_driver::loadcell::spawn_from_config(cfg) {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("warning: load cells not read: {e}");
+            return vec![None; n];
+        }
+    };
+    let wanted: Vec<usize> = (0..n).filter(|&j| cfg.cables[j].loadcell.is_some()).collect();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_millis(1500);
+    while std::time::Instant::now() < deadline {
+        reader.update();
+        if wanted.iter().all(|&j| reader.latest(j).is_some()) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let c = io.counters();
+    eprintln!("load cells: {c:?}");
+    io.stop();
+    (0..n).map(|j| reader.latest(j).map(|(v, _)| v)).collect()
 }
 
 /// Runs `taut probe`.

@@ -386,10 +386,10 @@ fn master_config_from_a_robot_file() {
     assert!((m.nodes[0].scaling.metres_per_count() - 2.0 * std::f64::consts::PI * 0.04 / (131072.0 * 5.0)).abs() < 1e-15);
     assert!(!m.bus_load().is_high());
 
-    let dup = taut_config::RobotConfig::from_toml_str(&text("[cable.drive]\nnode_id = 9")).unwrap();
-    let e = MasterConfig::from_robot(&dup).unwrap_err();
-    assert_eq!(e.key, "cable[2].drive.node_id");
-    assert!(e.message.contains("cable[1]"), "{e}");
+    // A duplicate node id is refused when the file is loaded, with its line and key.
+    let e = taut_config::RobotConfig::from_toml_str(&text("[cable.drive]\nnode_id = 9")).unwrap_err();
+    assert_eq!(e.key.as_deref(), Some("cable[2].drive.node_id"));
+    assert!(e.line.is_some() && e.message.contains("cable[1]"), "{e}");
 
     let mut no_can = cfg.clone();
     no_can.can = None;
