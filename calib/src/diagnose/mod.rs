@@ -230,18 +230,7 @@ pub struct Diagnosis {
     pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
 }
 
-fn rotation(q: [f64; 4]) -> Option<[[f64; 3]; 3]> {
-    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    if !(n.is_finite() && n > 1e-9) {
-        return None;
-    }
-    let [w, x, y, z] = q.map(|v| v / n);
-    Some([
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ])
-}
+use crate::model::rotation;
 
 /// Builds the per-cable columns, velocities, directions and masks.
 fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &DiagnoseOptions) -> Prepared {
