@@ -12,7 +12,10 @@ use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::runner::LoopStatus;
+use taut_rt_core::io::Devices;
+use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_rt_core::simrig::{self, SimOptions};
+use taut_sim::Truth;
 
 /// Arguments of `taut start`.
 #[derive(clap::Args)]
@@ -38,52 +41,14 @@ pub struct StartArgs {
     /// Override `daemon.socket`.
     #[arg(long)]
     socket: Option<PathBuf>,
+    /// With --sim: put the virtual drives and the CANopen master on this SocketCAN interface
+    /// (e.g. `vcan0`) instead of an in-process virtual bus.
+    #[arg(long, requires = "sim")]
+    can: Option<String>,
 }
 
-const DEFAULT_SIM_ROBOT: &str = r#"
-[robot]
-name = "aras-cam-sim"
-mass_kg = 3.0
-[[cable]]
-anchor = [3.5, -1.75, 4.0]
-[cable.loadcell]
-unit_id = 1
-scale = 0.001
-[[cable]]
-anchor = [3.5, 1.75, 4.0]
-[cable.loadcell]
-unit_id = 2
-scale = 0.001
-[[cable]]
-anchor = [-3.5, 1.75, 4.0]
-[cable.loadcell]
-unit_id = 3
-scale = 0.001
-[[cable]]
-anchor = [-3.5, -1.75, 4.0]
-[cable.loadcell]
-unit_id = 4
-scale = 0.001
-[loadcells]
-port = "/dev/taut-loadcells"
-[rt]
-# The simulated plant is stepped inside the loop's device calls: no real-time priority for it.
-priority = 0
-lock_memory = false
-[motion]
-init_reel_m = -0.7
-init_reel_speed_m_s = 0.25
-init_settle_s = 0.3
-excitation_s = 30.0
-excitation_speed_m_s = 0.4
-swap_ramp_s = 1.0
-[safety]
-# The simulator shares two cores with everything else: allow its I/O threads some lateness.
-tension_max_age_s = 0.5
-tracker_max_age_s = 0.5
-[daemon]
-max_sigma_m = 0.03
-"#;
+/// The simulated robot `taut start --sim` runs without --config (also loaded by the tests).
+const DEFAULT_SIM_ROBOT: &str = include_str!("../../config/examples/aras-cam-sim.toml");
 
 /// Runs `taut start`.
 pub fn run(a: &StartArgs) -> Result<()> {
@@ -103,20 +68,18 @@ pub fn run(a: &StartArgs) -> Result<()> {
     } else if a.sim && a.config.is_none() {
         cfg.daemon.socket = PathBuf::from(&cfg.daemon.data_dir).join("taut.sock").display().to_string();
     }
-    if !a.sim {
-        bail!(
-            "hardware start-up needs the CANopen drive set, which is not wired into the daemon yet; \
-             run `taut start --sim` for the simulated robot"
-        );
-    }
-    let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
-    let w = ccfg.workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let so = SimOptions { seed: a.seed, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
-    let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
-    let truth = sim.truth.clone();
-    let daemon = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default())
+    let (devices, truth): (Box<dyn Devices>, Option<Truth>) = if a.sim {
+        let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
+        let w = ccfg.workspace;
+        let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+        let so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
+        let p0 = simrig::rest_position(&cfg, &so, p0);
+        let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
+        (sim.devices, Some(sim.truth))
+    } else {
+        (hardware_devices(&cfg)?, None)
+    };
+    let daemon = Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default())
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
 
@@ -160,9 +123,10 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let calibrated = c_final.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration && o.run == 0);
     let accepted = calibrated.filter(|o| o.accepted);
     let hot_swapped = accepted.is_some_and(|o| l.snap.params_version == o.version && !l.snap.swap_active);
+    let truth_anchors = truth.as_ref().map_or(&[][..], |t| &t.anchors[..]);
     let err = |a: &[[f64; 3]]| -> f64 {
         a.iter()
-            .zip(&truth.anchors)
+            .zip(truth_anchors)
             .map(|(x, t)| ((x[0] - t[0]).powi(2) + (x[1] - t[1]).powi(2) + (x[2] - t[2]).powi(2)).sqrt())
             .fold(0.0, f64::max)
     };
@@ -175,11 +139,11 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "anchors_m": final_est.map(|e| e.anchors.clone()),
         "l0_m": final_est.map(|e| e.l0.clone()),
         "anchor_sigma_m": final_est.map(|e| e.anchor_sigma.clone()),
-        "truth_anchors_m": truth.anchors,
-        "truth_l0_m": truth.l0,
-        "initial_anchor_error_max_m": init_est.map(|e| err(&e.anchors)),
-        "initial_held_anchor_error_max_m": init_est.map(|e| err(&e.anchors[..3.min(e.anchors.len())])),
-        "anchor_error_max_m": final_est.map(|e| err(&e.anchors)),
+        "truth_anchors_m": truth.as_ref().map(|t| &t.anchors),
+        "truth_l0_m": truth.as_ref().map(|t| &t.l0),
+        "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
+        "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors[..3.min(e.anchors.len())])),
+        "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
         "samples_recorded": c.samples_recorded,
         "samples_dropped": l.dropped,
         "hot_swapped": hot_swapped,
@@ -204,12 +168,18 @@ pub fn run(a: &StartArgs) -> Result<()> {
         std::fs::write(p, serde_json::to_string_pretty(&summary)? + "\n").with_context(|| format!("writing {}", p.display()))?;
     }
     println!("phases completed   {}", l.snap.phases_completed);
-    if let Some(e) = init_est {
+    if let Some(e) = init_est.filter(|_| truth.is_some()) {
         let held = err(&e.anchors[..3.min(e.anchors.len())]);
         println!("initial estimate   max anchor error {:.1} mm on the held cables, {:.1} mm on all ({})", held * 1e3, err(&e.anchors) * 1e3, e.note);
     }
     if let Some(e) = final_est {
-        println!("calibrated         max anchor error {:.2} mm", err(&e.anchors) * 1e3);
+        if truth.is_some() {
+            println!("calibrated         max anchor error {:.2} mm", err(&e.anchors) * 1e3);
+        } else {
+            for (j, a) in e.anchors.iter().enumerate() {
+                println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.l0[j]);
+            }
+        }
     }
     for o in c.outcomes.iter().filter(|o| !o.accepted) {
         println!("rejected           {}", o.reason);
@@ -223,6 +193,29 @@ pub fn run(a: &StartArgs) -> Result<()> {
         bail!("the start-up calibration did not finish with a hot-swap (see above)");
     }
     Ok(())
+}
+
+/// The robot's own devices: the CiA 402 drives on the `[can]` interface through SocketCAN, the
+/// load cells on `[loadcells]`, the tracker on `[tracker]`.
+fn hardware_devices(cfg: &RobotConfig) -> Result<Box<dyn Devices>> {
+    let Some(can) = &cfg.can else {
+        bail!("the configuration has no [can] table: add one with the drives' interface, e.g. interface = \"can0\"");
+    };
+    #[cfg(target_os = "linux")]
+    {
+        use taut_driver::transport::socketcan::SocketCanTransport;
+        let bus = SocketCanTransport::open(&can.interface).with_context(|| {
+            format!("opening CAN interface {} (can.interface): is it up? `ip link set {} up type can bitrate {}`", can.interface, can.interface, can.bitrate)
+        })?;
+        let peripherals = Peripherals::from_config(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+        eprintln!("taut start: bringing up the drives on {}", can.interface);
+        let d = RobotDevices::bring_up(cfg, bus, peripherals).map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(Box::new(d))
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        bail!("CAN interface {}: SocketCAN needs Linux", can.interface)
+    }
 }
 
 /// True when the start-up is over, well or badly.

@@ -181,6 +181,10 @@ pub struct Pose {
     pub orientation: Option<[f64; 4]>,
     /// When the datagram arrived, our clock.
     pub arrival: Instant,
+    /// When the pose was measured, our clock: the tracker's time stamp plus the clock offset
+    /// estimated from the fastest datagram (transit jitter removed; the fixed part of the
+    /// transit, unknowable from one side, is counted as zero). Never after `arrival`.
+    pub measured: Instant,
 }
 
 /// Why an accepted-format datagram was dropped.
@@ -264,7 +268,8 @@ impl PoseFilter {
         if latency_s > self.max_age_s {
             return Err(Drop::Late { latency_s });
         }
-        Ok(Pose { t: line.t, position: line.position, orientation: line.orientation, arrival })
+        let measured = self.epoch + Duration::from_secs_f64((line.t + min).clamp(0.0, a));
+        Ok(Pose { t: line.t, position: line.position, orientation: line.orientation, arrival, measured })
     }
 }
 
@@ -274,8 +279,9 @@ impl PoseFilter {
 pub struct PoseSlot {
     epoch: Instant,
     seq: AtomicU64,
-    /// t, px, py, pz, qw, qx, qy, qz as f64 bits; arrival in ns since `epoch`; flags.
-    words: [AtomicU64; 10],
+    /// t, px, py, pz, qw, qx, qy, qz as f64 bits; arrival in ns since `epoch`; flags; measured
+    /// in ns since `epoch`.
+    words: [AtomicU64; 11],
 }
 
 impl PoseSlot {
@@ -299,6 +305,8 @@ impl PoseSlot {
         let ns = p.arrival.saturating_duration_since(self.epoch).as_nanos() as u64;
         self.words[8].store(ns, Ordering::Relaxed);
         self.words[9].store(1 | (u64::from(p.orientation.is_some()) << 1), Ordering::Relaxed);
+        let ns = p.measured.saturating_duration_since(self.epoch).as_nanos() as u64;
+        self.words[10].store(ns, Ordering::Relaxed);
         // Release: a reader that sees the even value sees all data stores above.
         self.seq.store(s.wrapping_add(2), Ordering::Release);
     }
@@ -312,7 +320,7 @@ impl PoseSlot {
                 std::hint::spin_loop();
                 continue;
             }
-            let w: [u64; 10] = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
+            let w: [u64; 11] = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
             // Acquire fence: the data loads above complete before the re-check below.
             fence(Ordering::Acquire);
             if self.seq.load(Ordering::Relaxed) != s1 {
@@ -327,6 +335,7 @@ impl PoseSlot {
                 position: [f(1), f(2), f(3)],
                 orientation: (w[9] & 2 != 0).then(|| [f(4), f(5), f(6), f(7)]),
                 arrival: self.epoch + Duration::from_nanos(w[8]),
+                measured: self.epoch + Duration::from_nanos(w[10]),
             });
         }
     }
@@ -633,7 +642,7 @@ mod tests {
         let e = Instant::now();
         let s = PoseSlot::new(e);
         assert_eq!(s.load(), None);
-        let p = Pose { t: 1.5, position: [1.0, 2.0, 3.0], orientation: Some([1.0, 0.0, 0.0, 0.0]), arrival: e + Duration::from_millis(7) };
+        let p = Pose { t: 1.5, position: [1.0, 2.0, 3.0], orientation: Some([1.0, 0.0, 0.0, 0.0]), arrival: e + Duration::from_millis(7), measured: e + Duration::from_millis(5) };
         s.store(&p);
         assert_eq!(s.load(), Some(p));
         let p2 = Pose { orientation: None, ..p };
@@ -650,7 +659,7 @@ mod tests {
         let h = std::thread::spawn(move || {
             for k in 0..100_000u32 {
                 let x = f64::from(k);
-                w.store(&Pose { t: x, position: [x; 3], orientation: Some([x; 4]), arrival: e });
+                w.store(&Pose { t: x, position: [x; 3], orientation: Some([x; 4]), arrival: e, measured: e });
             }
         });
         let mut seen = 0;

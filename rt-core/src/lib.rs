@@ -32,6 +32,7 @@ pub mod io;
 pub mod kin;
 pub mod motion;
 pub mod ramp;
+pub mod robot_io;
 pub mod rtsys;
 pub mod runner;
 pub mod safety;

@@ -1,23 +1,39 @@
-//! The simulated robot for `taut start --sim`: `taut-sim`'s [`Plant`] stepped by the loop's own
-//! cycle, with its encoders, load cells and tracker, and faults a test can inject.
+//! The simulated robot for `taut start --sim`: `taut-sim`'s [`Plant`] behind the same device
+//! interfaces as the real robot, so the loop runs [`RobotDevices`] — the hardware code path —
+//! against it:
 //!
-//! The load cells are `taut-sim`'s virtual Modbus RTU cells on a pseudo-terminal, read by
-//! `taut-driver`'s load-cell I/O thread (the hardware code path); the tracker is the simulator's
-//! (100 Hz, with its noise, outliers and dropouts) sent as UDP datagrams over loopback to
-//! `taut-driver`'s tracker receiver. The drives follow the loop's commands like CiA 402 drives in
-//! cyclic synchronous position (encoder length -> drum length through the true offset and scale)
-//! or torque mode, coupled to the plant in-process; before they are enabled, and in quick stop,
-//! their brakes hold the drums.
+//! ```text
+//!  loop ── RobotDevices ──CANopen master── CAN (virtual bus, or vcan via SocketCAN) ──┐
+//!   │                                                                                 │
+//!   │     ┌──────────────── "sim-robot" thread (1 kHz, wall clock) ─────────────────┐ │
+//!   │     │ virtual CiA 402 drives (taut-sim) <── targets / actuals ──> Plant        │◄┘
+//!   │     │ tensions ──> virtual Modbus RTU load cells on a pty                      │
+//!   │     │ tracker (100 Hz, noise, outliers, dropouts) ──> UDP on loopback          │
+//!   │     └──────────────────────────────────────────────────────────────────────────┘
+//!   ├── Modbus RTU master I/O thread (taut-driver) <── pty
+//!   └── tracker receiver thread (taut-driver) <── UDP
+//! ```
+//!
+//! The drives run in cyclic synchronous position (target counts -> encoder length -> drum
+//! length through the site's true offset and scale) or torque (target torque -> cable
+//! tension) as the master switches them; before they are enabled, in quick stop and in fault,
+//! their brakes hold the drums. The unit conversions here are the simulator's own (from the
+//! `[cable.drive]` tables), not the driver's.
 
-use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use crate::io::{Devices, Inputs, Outputs};
+use crate::robot_io::{Peripherals, RobotDevices};
 use crate::MAX_CABLES;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use taut_config::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_config::RobotConfig;
-use std::time::Instant;
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
-use taut_driver::loadcell::{LoadCellIo, TensionReader};
-use taut_driver::tracker::{PoseReader, TrackerReceiver};
+use taut_driver::canopen::cia402::Mode;
+use taut_driver::canopen::NodeId;
+use taut_driver::transport::virtual_bus::VirtualBus;
+use taut_driver::transport::CanTransport;
+use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
 use taut_sim::devices::tracker::TrackerSender;
 use taut_sim::sensors::Tracker;
@@ -57,11 +73,14 @@ pub struct SimOptions {
     pub l0_range_m: f64,
     /// Sensor noise.
     pub noise: Noise,
+    /// SocketCAN interface (e.g. `vcan0`) for the virtual drives and the master; `None`: an
+    /// in-process virtual CAN bus.
+    pub can: Option<String>,
 }
 
 impl Default for SimOptions {
     fn default() -> Self {
-        SimOptions { seed: 1, site_error_m: 0.2, l0_range_m: 2.0, noise: Noise::default() }
+        SimOptions { seed: 1, site_error_m: 0.2, l0_range_m: 2.0, noise: Noise::default(), can: None }
     }
 }
 
@@ -91,12 +110,74 @@ pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -
     taut_sim::three_phase::simulate(&truth, &physics, &plan, &ws, 20.0).map_or(fallback, |mo| mo.start)
 }
 
-/// Builds the simulated robot of `cfg` (nominal anchors needed) with the platform at `p0`.
+/// Builds the simulated robot of `cfg` (nominal anchors and a `[cable.drive]` per cable
+/// needed) with the platform at `p0`, starts it, and brings its drives up through the CANopen
+/// master: on an in-process virtual CAN bus, or on the SocketCAN interface `opts.can`.
 pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, String> {
+    match &opts.can {
+        None => {
+            let bus = VirtualBus::new();
+            let nodes = node_ids(cfg)?;
+            let rack_end = bus.endpoint_with(1024, &rack_filters(&nodes));
+            build_on(cfg, p0, opts, rack_end, bus.endpoint_with(1024, &[]))
+        }
+        Some(iface) => {
+            #[cfg(target_os = "linux")]
+            {
+                use taut_driver::transport::socketcan::SocketCanTransport;
+                let open = |who: &str| {
+                    SocketCanTransport::open(iface).map_err(|e| format!("{who} on CAN interface {iface}: {e} (is it up? `ip link set {iface} up`)"))
+                };
+                build_on(cfg, p0, opts, open("virtual drives")?, open("CANopen master")?)
+            }
+            #[cfg(not(target_os = "linux"))]
+            {
+                Err(format!("CAN interface {iface}: SocketCAN needs Linux"))
+            }
+        }
+    }
+}
+
+fn node_ids(cfg: &RobotConfig) -> Result<Vec<NodeId>, String> {
+    cfg.cables
+        .iter()
+        .enumerate()
+        .map(|(j, c)| c.drive.as_ref().map(|d| d.node_id).ok_or_else(|| format!("cable[{j}]: the simulated robot needs a [cable.drive] table with a node_id")))
+        .collect()
+}
+
+/// The simulator's view of a drive's units (its own arithmetic, from the configuration).
+#[derive(Debug, Clone, Copy)]
+struct DriveUnits {
+    /// Encoder counts per metre of cable (signed).
+    counts_per_m: f64,
+    /// Cable tension, N, per ‰ of rated torque (signed: a motor pulling the cable in gives
+    /// negative torque with `invert = false`).
+    n_per_permille: f64,
+}
+
+impl DriveUnits {
+    fn of(d: &DriveConfig) -> DriveUnits {
+        let sign = if d.invert { -1.0 } else { 1.0 };
+        let drum_circumference = std::f64::consts::TAU * d.drum_radius_m;
+        DriveUnits {
+            counts_per_m: sign * f64::from(d.counts_per_rev) * d.gear_ratio / drum_circumference,
+            n_per_permille: -sign * d.rated_torque_nm / 1000.0 * d.gear_ratio / d.drum_radius_m,
+        }
+    }
+}
+
+fn build_on<R, M>(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, rack_bus: R, master_bus: M) -> Result<SimRobot, String>
+where
+    R: CanTransport + Send + 'static,
+    M: CanTransport + Send + 'static,
+{
     let n = cfg.cables.len();
     if n > MAX_CABLES {
         return Err(format!("{n} cables: at most {MAX_CABLES}"));
     }
+    let nodes = node_ids(cfg)?;
+    let units: Vec<DriveUnits> = cfg.cables.iter().map(|c| DriveUnits::of(c.drive.as_ref().expect("checked by node_ids"))).collect();
     let physics = Physics::default();
     let mut rng = taut_sim::rng(opts.seed, 0);
     let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
@@ -104,192 +185,226 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
     let tensions = rest_tensions(&truth.anchors, p0, truth.mass_kg, cfg.motion.init_follower_tension_n)
         .ok_or_else(|| format!("simulated site: the platform cannot rest at {p0:?} with positive tensions"))?;
     let brake = plant.lengths_holding(p0, &tensions).map_err(|e| format!("simulated site: no rest position at {p0:?}: {e}"))?;
-    let mut drum = [0.0; MAX_CABLES];
-    drum[..n].copy_from_slice(&brake);
-    let mut cmds = [SimCommand::Length(0.0); MAX_CABLES];
-    for j in 0..n {
-        cmds[j] = SimCommand::Length(drum[j]);
-    }
     // Settle on the brakes before anything is read.
-    let mut enc = [0.0; MAX_CABLES];
-    let mut ten = [0.0; MAX_CABLES];
-    let mut pos = p0;
+    let cmds: Vec<SimCommand> = brake.iter().map(|&d| SimCommand::Length(d)).collect();
+    let mut enc = vec![0.0; n];
+    let mut ten = vec![0.0; n];
     for _ in 0..5 {
-        let out = plant.step(0.002, &cmds[..n]);
-        enc[..n].copy_from_slice(out.encoder_m);
-        ten[..n].copy_from_slice(out.tension_n);
-        pos = out.position;
+        let out = plant.step(0.002, &cmds);
+        enc.copy_from_slice(out.encoder_m);
+        ten.copy_from_slice(out.tension_n);
     }
-    let faults = Arc::new(SimFaults::default());
-    let mut l0 = [0.0; MAX_CABLES];
-    let mut scale = [1.0; MAX_CABLES];
-    l0[..n].copy_from_slice(&truth.l0);
-    scale[..n].copy_from_slice(&truth.scale);
-    // Load cells: virtual Modbus RTU server on a pty <- driver's I/O thread.
+    // Drives: the plant owns their position and torque.
+    let drives: Vec<VirtualDrive> = nodes
+        .iter()
+        .zip(&units)
+        .zip(&enc)
+        .map(|((&id, u), &e)| {
+            let mut d = VirtualDrive::new(DriveParams::new(id));
+            d.set_external(true);
+            d.set_actual(counts(e * u.counts_per_m), 0);
+            d
+        })
+        .collect();
+    // Load cells: virtual Modbus RTU server on a pty.
     let cells: Vec<(usize, LoadCellConfig)> =
         cfg.cables.iter().enumerate().map(|(j, c)| (j, c.loadcell.clone().unwrap_or_else(|| LoadCellConfig::new(j as u8 + 1)))).collect();
     let handle = TensionHandle::new(n);
-    handle.set_all(&ten[..n]);
+    handle.set_all(&ten);
     let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone()).map_err(|e| format!("virtual load cells: {e}"))?;
-    let mut bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
-    bus.port = vlc.path().display().to_string();
-    bus.max_age_s = cfg.safety.tension_max_age_s;
-    let (lc_io, lc_reader) = taut_driver::loadcell::spawn(&bus, &cells, n).map_err(|e| e.to_string())?;
-    // Tracker: simulator -> UDP on loopback -> driver's receiver.
+    let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
+    lc_bus.port = vlc.path().display().to_string();
+    lc_bus.max_age_s = cfg.safety.tension_max_age_s;
+    // The robot side of the load cells and the tracker, as on hardware but on the pty and on
+    // a loopback port.
+    let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(|e| e.to_string())?;
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
-    let receiver = TrackerReceiver::bind(&tcfg).map_err(|e| format!("tracker receiver: {e}"))?;
-    let pose_reader = receiver.reader();
-    let sender = TrackerSender::new(receiver.local_addr().map_err(|e| e.to_string())?).map_err(|e| format!("tracker sender: {e}"))?;
-    let devices = PlantDevices {
-        handle,
-        vlc,
-        _lc_io: lc_io,
-        lc_reader,
-        receiver,
-        pose_reader,
-        sender,
-        epoch: Instant::now(),
-        silenced: false,
-        n,
+    let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| format!("tracker receiver: {e}"))?;
+    let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| format!("tracker sender: {e}"))?;
+
+    let faults = Arc::new(SimFaults::default());
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut site = Site {
+        rack: DriveRack::new(rack_bus, drives),
         plant,
+        units,
+        l0: truth.l0.clone(),
+        scale: truth.scale.clone(),
+        drum: brake,
+        cmds,
+        vlc,
+        handle,
+        sender,
         tracker: Tracker::new(&opts.noise),
         rng: taut_sim::rng(opts.seed, 7),
         faults: faults.clone(),
-        cmds,
-        drum,
-        l0,
-        scale,
-        enc,
-        ten,
-        pos,
-        enabled: false,
-        last_now: 0.0,
-        pose: [f64::NAN; 3],
-        pose_t: f64::NEG_INFINITY,
-        tension_t: 0.0,
-        cycles: 0,
-        node_ids: std::array::from_fn(|j| cfg.cables.get(j).and_then(|c| c.drive.as_ref()).map_or(j as u8 + 1, |d| d.node_id)),
+        stop: stop.clone(),
+        silenced: false,
+        emcy_sent: false,
+        hb_off: false,
     };
-    Ok(SimRobot { truth, faults, devices: Box::new(devices) })
+    let thread = std::thread::Builder::new()
+        .name("sim-robot".into())
+        .spawn(move || site.run())
+        .map_err(|e| format!("starting the simulated robot: {e}"))?;
+    let site = SiteThread { stop, thread: Some(thread) };
+    let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
+    let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }) })
 }
 
-struct PlantDevices {
-    handle: TensionHandle,
-    vlc: VirtualLoadCells,
-    _lc_io: LoadCellIo,
-    lc_reader: TensionReader,
-    receiver: TrackerReceiver,
-    pose_reader: PoseReader,
-    sender: TrackerSender,
-    epoch: Instant,
-    silenced: bool,
-    n: usize,
+fn counts(x: f64) -> i32 {
+    x.round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+}
+
+fn permille(x: f64) -> i16 {
+    x.round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+}
+
+/// The loop's devices plus the simulated site they talk to (stopped after them).
+struct SimDevices<T: CanTransport> {
+    devices: RobotDevices<T>,
+    _site: SiteThread,
+}
+
+impl<T: CanTransport + Send> Devices for SimDevices<T> {
+    fn read(&mut self, now_s: f64, inputs: &mut Inputs) {
+        self.devices.read(now_s, inputs)
+    }
+    fn write(&mut self, now_s: f64, outputs: &Outputs) {
+        self.devices.write(now_s, outputs)
+    }
+}
+
+struct SiteThread {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Drop for SiteThread {
+    fn drop(&mut self) {
+        // Relaxed: the flag carries no data; join() synchronises.
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Everything on the simulator's side of the wires.
+struct Site<R: CanTransport> {
+    rack: DriveRack<R>,
     plant: Plant,
+    units: Vec<DriveUnits>,
+    l0: Vec<f64>,
+    scale: Vec<f64>,
+    drum: Vec<f64>,
+    cmds: Vec<SimCommand>,
+    vlc: VirtualLoadCells,
+    handle: TensionHandle,
+    sender: TrackerSender,
     tracker: Tracker,
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
-    cmds: [SimCommand; MAX_CABLES],
-    drum: [f64; MAX_CABLES],
-    l0: [f64; MAX_CABLES],
-    scale: [f64; MAX_CABLES],
-    enc: [f64; MAX_CABLES],
-    ten: [f64; MAX_CABLES],
-    pos: [f64; 3],
-    enabled: bool,
-    last_now: f64,
-    pose: [f64; 3],
-    pose_t: f64,
-    tension_t: f64,
-    cycles: u64,
-    node_ids: [u8; MAX_CABLES],
+    stop: Arc<AtomicBool>,
+    silenced: bool,
+    emcy_sent: bool,
+    hb_off: bool,
 }
 
-impl Devices for PlantDevices {
-    fn read(&mut self, now: f64, inp: &mut Inputs) {
-        let n = self.n;
-        // Relaxed: independent switches polled each cycle; no data travels with them.
-        let silent = self.faults.loadcell_silent.load(Ordering::Relaxed);
-        let gone = self.faults.tracker_gone.load(Ordering::Relaxed);
-        let emcy = self.faults.drive_emcy.load(Ordering::Relaxed);
-        let hb = self.faults.heartbeat_lost.load(Ordering::Relaxed);
-        if silent && !self.silenced {
-            // Every cell stops answering: the driver's reader sees no fresh readings.
-            self.vlc.inject(None, Fault::Silence, u32::MAX);
-            self.silenced = true;
-        }
-        let _ = gone;
-        let wall = Instant::now();
-        self.lc_reader.update();
-        let _ = self.receiver.poll();
-        if let Some(p) = self.pose_reader.newest() {
-            self.pose = p.position;
-            self.pose_t = now - wall.saturating_duration_since(p.arrival).as_secs_f64();
-        }
-        let _ = self.epoch;
-        let _ = self.tension_t;
-        for j in 0..n {
-            inp.length_m[j] = self.enc[j];
-            inp.length_age_s[j] = 0.0;
-            match self.lc_reader.latest(j) {
-                Some((f, at)) => {
-                    inp.tension_n[j] = f;
-                    inp.tension_age_s[j] = wall.saturating_duration_since(at).as_secs_f64();
+/// Plant step period of the simulated site.
+const SITE_PERIOD: Duration = Duration::from_millis(1);
+/// Tracker period (100 Hz).
+const TRACKER_EVERY: u64 = 10;
+
+impl<R: CanTransport> Site<R> {
+    fn run(&mut self) {
+        let t0 = Instant::now();
+        let mut next = t0;
+        let mut last = t0;
+        let mut ticks = 0u64;
+        // Relaxed: the flag carries no data.
+        while !self.stop.load(Ordering::Relaxed) {
+            // Frames as they come (SDO answers and TPDOs without waiting for the tick)...
+            if let Ok(Some(f)) = self.rack.transport().recv_deadline(next) {
+                let now = Instant::now();
+                for d in self.rack.drives() {
+                    d.on_frame(&f, now);
                 }
-                None => inp.tension_age_s[j] = f64::INFINITY,
             }
-            inp.drive[j] = if self.enabled { DriveStatus::Enabled } else { DriveStatus::Disabled };
-        }
-        inp.pose_m = self.pose;
-        inp.pose_age_s = now - self.pose_t;
-        inp.fault = None;
-        if emcy {
-            inp.drive[1.min(n - 1)] = DriveStatus::Fault;
-            inp.fault = Some(DeviceFault::Emcy { node: self.node_ids[1.min(n - 1)], code: 0x2310 });
-        } else if hb {
-            inp.fault = Some(DeviceFault::HeartbeatLost { node: self.node_ids[1.min(n - 1)] });
+            let now = Instant::now();
+            self.rack.step(now);
+            if now < next {
+                continue;
+            }
+            // ...and the physics on the tick, with the wall time that passed.
+            let dt = now.saturating_duration_since(last).as_secs_f64().clamp(1e-4, 0.02);
+            last = now;
+            next += SITE_PERIOD;
+            if next < now {
+                // Starved (loaded machine): skip ahead rather than run a burst of steps.
+                next = now + SITE_PERIOD;
+            }
+            self.inject_faults();
+            self.step_plant(dt);
+            if ticks % TRACKER_EVERY == 0 && !self.faults.tracker_gone.load(Ordering::Relaxed) {
+                let t = now.saturating_duration_since(t0).as_secs_f64();
+                let m = self.tracker.measure(self.plant_position(), &mut self.rng);
+                if m.iter().all(|v| v.is_finite()) {
+                    let _ = self.sender.send_pose(t, m, None);
+                }
+            }
+            ticks += 1;
         }
     }
 
-    fn write(&mut self, now: f64, out: &Outputs) {
-        let n = self.n;
-        let dt = (now - self.last_now).clamp(1e-4, 0.05);
-        self.last_now = now;
-        // Relaxed: as in read.
-        let emcy = self.faults.drive_emcy.load(Ordering::Relaxed);
-        self.enabled = out.request == DriveRequest::Enable && !emcy;
+    fn plant_position(&self) -> [f64; 3] {
+        self.plant.position()
+    }
+
+    fn inject_faults(&mut self) {
+        // Relaxed: independent switches polled each tick.
+        if self.faults.loadcell_silent.load(Ordering::Relaxed) && !self.silenced {
+            self.vlc.inject(None, Fault::Silence, u32::MAX);
+            self.silenced = true;
+        }
+        let second = 1.min(self.units.len() - 1);
+        if self.faults.drive_emcy.load(Ordering::Relaxed) && !self.emcy_sent {
+            // Continuous over-current on the second cable's drive.
+            self.rack.drives()[second].inject_fault(0x2310);
+            self.emcy_sent = true;
+        }
+        if self.faults.heartbeat_lost.load(Ordering::Relaxed) && !self.hb_off {
+            self.rack.drives()[second].set_heartbeat_off(true);
+            self.hb_off = true;
+        }
+    }
+
+    fn step_plant(&mut self, dt: f64) {
+        let n = self.units.len();
         for j in 0..n {
-            self.cmds[j] = if self.enabled {
-                match out.cable[j] {
-                    CableCommand::Position(l) if l.is_finite() => {
-                        self.drum[j] = (l - self.l0[j]) / self.scale[j];
-                        SimCommand::Length(self.drum[j])
-                    }
-                    CableCommand::Tension(t) => SimCommand::Tension(t),
-                    _ => SimCommand::Length(self.drum[j]),
+            let t = self.rack.drives()[j].target();
+            let u = self.units[j];
+            self.cmds[j] = match (t.enabled, t.mode) {
+                (true, Mode::CyclicPosition) => {
+                    let encoder_m = f64::from(t.position) / u.counts_per_m;
+                    self.drum[j] = (encoder_m - self.l0[j]) / self.scale[j];
+                    SimCommand::Length(self.drum[j])
                 }
-            } else {
+                (true, Mode::CyclicTorque) => SimCommand::Tension((f64::from(t.torque) * u.n_per_permille).max(0.0)),
                 // Brakes hold the drum where it is.
-                SimCommand::Length(self.drum[j])
+                _ => SimCommand::Length(self.drum[j]),
             };
         }
-        let o = self.plant.step(dt, &self.cmds[..n]);
-        self.enc[..n].copy_from_slice(o.encoder_m);
-        self.ten[..n].copy_from_slice(o.tension_n);
-        self.pos = o.position;
-        self.handle.set_all(&self.ten[..n]);
-        // 100 Hz tracker over UDP; dropouts send nothing.
-        // Relaxed: an independent switch.
-        if self.cycles % 5 == 0 && !self.faults.tracker_gone.load(Ordering::Relaxed) {
-            let m = self.tracker.measure(self.pos, &mut self.rng);
-            if m.iter().all(|v| v.is_finite()) {
-                let _ = self.sender.send_pose(now, m, None);
-            }
-        }
-        self.cycles += 1;
+        let o = self.plant.step(dt, &self.cmds);
+        self.handle.set_all(o.tension_n);
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];
+            let u = self.units[j];
+            let torque = permille(o.tension_n[j] / u.n_per_permille);
+            self.rack.drives()[j].set_actual(counts(o.encoder_m[j] * u.counts_per_m), torque);
         }
     }
 }

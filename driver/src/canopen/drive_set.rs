@@ -285,6 +285,13 @@ impl<T: CanTransport> DriveSet<T, Configuring> {
 }
 
 impl<T: CanTransport> DriveSet<T, Operational> {
+    /// The transport and the master, for an application that runs the cycle from its own
+    /// periodic loop (the real-time loop: [`Master::poll_timers`], [`Master::sync_cycle`]).
+    /// Only a brought-up set comes apart, so the loop starts with every drive operational.
+    pub fn into_parts(self) -> (T, Master) {
+        (self.bus, self.master)
+    }
+
     /// Enables every drive (holding position) and waits until all are in operation enabled.
     pub fn enable(mut self, timeout: Duration) -> Result<DriveSet<T, Enabled>, Refused<Self>> {
         let n = self.master.len();

@@ -498,6 +498,9 @@ pub struct Axis {
     pub error_code: u16,
     /// TPDOs received.
     pub tpdos: u64,
+    /// Mode of operation commanded now (the configured one, or the last
+    /// [`Operational::set_mode`] with the `with_mode` layout).
+    pub mode: Mode,
     want: Want,
     reset_fault: u16,
     target_position: i32,
@@ -505,8 +508,9 @@ pub struct Axis {
 }
 
 impl Axis {
-    fn new() -> Self {
+    fn new(mode: Mode) -> Self {
         Axis {
+            mode,
             statusword: 0,
             state: None,
             position: 0,
@@ -545,7 +549,7 @@ pub struct NodeStatus {
     pub boots: u32,
     /// Last emergency (not counting "error reset").
     pub last_emcy: Option<Emcy>,
-    /// Configured mode of operation.
+    /// Mode of operation commanded now.
     pub mode: Mode,
     name: [u8; 32],
     name_len: u8,
@@ -600,6 +604,7 @@ impl Node {
         for (k, p) in cfg.layout.pdos().iter().filter(|p| p.dir == pdo::Direction::Tx).enumerate().take(4) {
             tpdo_ids[k] = p.cob_id(n);
         }
+        let axis = Axis::new(cfg.mode);
         Node {
             hb: HeartbeatConsumer::new(cfg.heartbeat_timeout),
             sdo: SdoClient::new(n, sdo_timeout),
@@ -613,7 +618,7 @@ impl Node {
             identity: Identity::default(),
             name: [0; 32],
             name_len: 0,
-            axis: Axis::new(),
+            axis,
             boots: 0,
             last_emcy: None,
             tpdo_ids,
@@ -632,7 +637,7 @@ impl Node {
             tension_n: self.cfg.scaling.permille_to_n(self.axis.torque),
             boots: self.boots,
             last_emcy: self.last_emcy,
-            mode: self.cfg.mode,
+            mode: self.axis.mode,
             name: self.name,
             name_len: self.name_len,
         }
@@ -979,7 +984,7 @@ impl Master {
         n.step = 0;
         n.tries = 0;
         n.identity = Identity::default();
-        n.axis = Axis::new();
+        n.axis = Axis::new(n.cfg.mode);
         self.next_step(k, now);
     }
 
@@ -1111,6 +1116,15 @@ impl Master {
     /// Runs the timers: start-up reset, SDO timeouts, heartbeat timeouts, and the SYNC cycle
     /// (SYNC, then the RPDOs of every operational drive).
     pub fn poll(&mut self, now: Instant) {
+        self.poll_timers(now);
+        if self.sync.poll(now) {
+            self.cycle();
+        }
+    }
+
+    /// Runs the timers of [`poll`](Self::poll) without the SYNC cycle: for an application
+    /// whose own periodic loop is the SYNC clock and calls [`sync_cycle`](Self::sync_cycle).
+    pub fn poll_timers(&mut self, now: Instant) {
         if !self.started {
             self.started = true;
             if self.reset_on_start {
@@ -1132,21 +1146,23 @@ impl Master {
                 self.event(Event::HeartbeatLost { node });
             }
         }
-        if self.sync.poll(now) {
-            self.cycle();
-        }
+    }
+
+    /// One SYNC cycle now: the RPDOs of every operational drive, then SYNC (synchronous RPDOs
+    /// take effect at the SYNC that follows them, CiA 301 7.2.2.3).
+    pub fn sync_cycle(&mut self) {
+        self.cycle();
     }
 
     fn cycle(&mut self) {
         self.counters.sync_cycles += 1;
-        self.push_tx(sync::frame());
         for k in 0..self.nodes.len() {
             if self.nodes[k].phase != Phase::Operational {
                 continue;
             }
             let node = self.nodes[k].cfg.node_id;
-            let mode = self.nodes[k].cfg.mode.code();
             let ax = &mut self.nodes[k].axis;
+            let mode = ax.mode.code();
             let state = ax.state.unwrap_or(State::SwitchOnDisabled);
             let reset = ax.reset_fault > 0;
             if reset {
@@ -1173,6 +1189,7 @@ impl Master {
                 self.push_tx(Frame::new(p.cob_id(node), &data[..usize::from(dlc)]));
             }
         }
+        self.push_tx(sync::frame());
     }
 
     /// The motion interface, only while every drive is operational (NMT) — so code that has not
@@ -1197,6 +1214,11 @@ pub enum CommandError {
         /// Node.
         node: NodeId,
     },
+    /// The drive's PDO layout does not carry the mode of operation, so it cannot switch.
+    ModeNotMapped {
+        /// Node.
+        node: NodeId,
+    },
 }
 
 impl fmt::Display for CommandError {
@@ -1205,6 +1227,9 @@ impl fmt::Display for CommandError {
             CommandError::NoSuchDrive(i) => write!(f, "no drive with index {i}"),
             CommandError::NotEnabled { node } => write!(f, "node {node}: drive is not in operation enabled"),
             CommandError::WrongMode { node } => write!(f, "node {node}: command does not match the drive's mode"),
+            CommandError::ModeNotMapped { node } => {
+                write!(f, "node {node}: the compact PDO layout cannot switch the mode of operation; configure pdo = \"with_mode\"")
+            }
         }
     }
 }
@@ -1254,10 +1279,28 @@ impl Operational<'_> {
         if ax.state != Some(State::OperationEnabled) {
             return Err(CommandError::NotEnabled { node: cfg.node_id });
         }
-        if cfg.mode != mode {
+        if ax.mode != mode {
             return Err(CommandError::WrongMode { node: cfg.node_id });
         }
         Ok((ax, cfg))
+    }
+
+    /// Switches drive `i` to `mode` (CSP or CST). Only drives with the `with_mode` PDO layout,
+    /// which carries 0x6060 in an RPDO, switch; with the compact layout the configured mode is
+    /// the only one ([`CommandError::ModeNotMapped`] otherwise). On a switch the targets restart
+    /// from where the drive stands (position) and from zero (torque), so nothing jumps.
+    pub fn set_mode(&mut self, i: usize, mode: Mode) -> Result<(), CommandError> {
+        let n = self.m.nodes.get_mut(i).ok_or(CommandError::NoSuchDrive(i))?;
+        if n.axis.mode == mode {
+            return Ok(());
+        }
+        if !n.cfg.layout.maps_mode() {
+            return Err(CommandError::ModeNotMapped { node: n.cfg.node_id });
+        }
+        n.axis.mode = mode;
+        n.axis.target_position = n.axis.position;
+        n.axis.target_torque = 0;
+        Ok(())
     }
 
     /// Target position of drive `i`, counts (CSP).

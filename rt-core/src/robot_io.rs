@@ -1,0 +1,339 @@
+//! The robot's devices as the loop sees them ([`Devices`]): CiA 402 drives through
+//! `taut-driver`'s CANopen [`Master`] on any [`CanTransport`] (SocketCAN on the robot, the
+//! virtual bus or vcan in simulation), load cells through the driver's Modbus RTU I/O thread,
+//! and the tracker through the driver's UDP receiver. The same code runs on hardware and
+//! against the simulated robot (`taut start --sim`); only the transport and the device paths
+//! differ.
+//!
+//! The loop is the SYNC clock: every cycle ends with the RPDOs of every drive and one SYNC
+//! ([`Master::sync_cycle`]), and the TPDOs the drives answer with are read at the start of the
+//! next cycle. Bring-up (SDO configuration, NMT start) runs before the loop with
+//! [`DriveSet::bring_up`], so the loop only ever sees operational drives.
+//!
+//! ```text
+//! read:  drain CAN -> master.on_frame; events -> DeviceFault; positions, drive states;
+//!        newest tensions (Modbus thread); newest pose (UDP receiver)
+//! write: enable / disable / quick stop, mode (CSP or CST) and target per drive;
+//!        master timers; RPDOs + SYNC -> CAN
+//! ```
+//!
+//! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
+//! (`heapless`), frames are `Copy`, readers are lock-free.
+
+use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use crate::MAX_CABLES;
+use std::fmt;
+use std::time::{Duration, Instant};
+use taut_config::RobotConfig;
+use taut_driver::canopen::cia402::{Mode, State};
+use taut_driver::canopen::drive_set::DriveSet;
+use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
+use taut_driver::loadcell::{LoadCellIo, TensionReader};
+use taut_driver::tracker::{PoseReader, TrackerThread};
+use taut_driver::transport::{BusEvent, CanTransport, TransportError};
+
+/// Why the devices could not be brought up. Each names the configuration key or device.
+#[derive(Debug)]
+pub struct BringUpError {
+    /// What failed (`can`, `cable[2].drive.pdo`, `loadcells`, `tracker`, ...).
+    pub what: String,
+    /// The error and what to do.
+    pub message: String,
+}
+
+impl fmt::Display for BringUpError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.what, self.message)
+    }
+}
+
+impl std::error::Error for BringUpError {}
+
+fn err(what: impl Into<String>, message: impl Into<String>) -> BringUpError {
+    BringUpError { what: what.into(), message: message.into() }
+}
+
+/// Where the load cells and the tracker are (usually from the configuration; the simulator
+/// puts them on a pseudo-terminal and a loopback port).
+pub struct Peripherals {
+    /// The load-cell I/O thread and its reader (`None`: tensions from the drives' torque).
+    pub loadcells: Option<(LoadCellIo, TensionReader)>,
+    /// The tracker receiver (`None`: no tracker, the pose is never fresh).
+    pub tracker: Option<TrackerThread>,
+    /// Reader of that receiver's newest pose.
+    pub pose: Option<PoseReader>,
+}
+
+impl Peripherals {
+    /// Opens the load-cell bus and the tracker port of `cfg` (either may be absent).
+    pub fn from_config(cfg: &RobotConfig) -> Result<Peripherals, BringUpError> {
+        let loadcells = match &cfg.loadcells {
+            Some(_) => Some(taut_driver::loadcell::spawn_from_config(cfg).map_err(|e| err("loadcells", e.to_string()))?),
+            None => None,
+        };
+        let (tracker, pose) = match &cfg.tracker {
+            Some(t) => {
+                let (th, reader) = taut_driver::tracker::spawn(t)
+                    .map_err(|e| err("tracker.listen", format!("{e}; check the address and that no other program uses the port")))?;
+                (Some(th), Some(reader))
+            }
+            None => (None, None),
+        };
+        Ok(Peripherals { loadcells, tracker, pose })
+    }
+}
+
+/// Which modes each cable's drive must run in, for the controller's motions: followers in
+/// torque (CST), held and reeled cables in position (CSP). `(position, torque)` per cable.
+pub fn modes_needed(cfg: &RobotConfig) -> Vec<(bool, bool)> {
+    let n = cfg.cables.len();
+    let mut need = vec![(false, false); n];
+    for (j, nd) in need.iter_mut().enumerate() {
+        // The controller: cables 0..3 fix the point mass in position mode, the rest follow in
+        // torque mode (motion.rs, ControllerConfig::from_robot); in the phases, cables outside
+        // a phase's three follow in torque mode.
+        if j < 3 {
+            nd.0 = true;
+        } else {
+            nd.1 = true;
+        }
+        for ph in &cfg.motion.init_phases {
+            if ph.contains(&j) {
+                nd.0 = true;
+            } else {
+                nd.1 = true;
+            }
+        }
+    }
+    need
+}
+
+/// The robot's devices for the loop. See the module documentation.
+pub struct RobotDevices<T: CanTransport> {
+    bus: T,
+    master: Master,
+    n: usize,
+    /// Master index of each cable's drive.
+    drive: [Option<usize>; MAX_CABLES],
+    /// TPDOs counted at the last read, and when the count last moved.
+    tpdos: [u64; MAX_CABLES],
+    fresh_at: [Option<Instant>; MAX_CABLES],
+    loadcells: Option<(LoadCellIo, TensionReader)>,
+    _tracker: Option<TrackerThread>,
+    pose: Option<PoseReader>,
+    /// Loop time 0 on the wall clock (set at the first read).
+    epoch: Option<Instant>,
+    transport_errors: u64,
+    bus_off: bool,
+}
+
+impl<T: CanTransport> RobotDevices<T> {
+    /// Brings the drives of `cfg` up on `bus` (identify, configure PDOs and heartbeats, NMT
+    /// start; within `can.bringup_timeout_s`), checks that every drive can run the modes the
+    /// start-up motion needs, and combines them with `peripherals`.
+    pub fn bring_up(cfg: &RobotConfig, bus: T, peripherals: Peripherals) -> Result<Self, BringUpError> {
+        let n = cfg.cables.len();
+        if n > MAX_CABLES {
+            return Err(err("cable", format!("{n} cables: the loop is built for at most {MAX_CABLES}")));
+        }
+        let mcfg = MasterConfig::from_robot(cfg).map_err(|p| err(p.key, p.message))?;
+        let mut drive = [None; MAX_CABLES];
+        let need = modes_needed(cfg);
+        for (j, c) in cfg.cables.iter().enumerate() {
+            let Some(i) = mcfg.nodes.iter().position(|nc| nc.cable == j) else {
+                return Err(err(format!("cable[{j}].drive"), "every cable needs a drive: add [cable.drive] with its node_id"));
+            };
+            drive[j] = Some(i);
+            let nc = &mcfg.nodes[i];
+            let (pos, tq) = need[j];
+            if !nc.layout.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
+                let node = c.drive.as_ref().map_or(0, |d| d.node_id);
+                return Err(err(
+                    format!("cable[{j}].drive.pdo"),
+                    format!(
+                        "node {node} must run in {} for the start-up motion, but the compact PDO layout fixes its mode; \
+                         set pdo = \"with_mode\" (mode of operation in RPDO2)",
+                        if pos && tq { "position and torque mode" } else if pos { "position mode" } else { "torque mode" }
+                    ),
+                ));
+            }
+        }
+        let set = DriveSet::new(bus, mcfg);
+        let set = set.bring_up().map_err(|r| err("can", format!("drive bring-up failed: {}", r.error)))?;
+        let (bus, master) = set.into_parts();
+        Ok(RobotDevices {
+            bus,
+            master,
+            n,
+            drive,
+            tpdos: [0; MAX_CABLES],
+            fresh_at: [None; MAX_CABLES],
+            loadcells: peripherals.loadcells,
+            _tracker: peripherals.tracker,
+            pose: peripherals.pose,
+            epoch: None,
+            transport_errors: 0,
+            bus_off: false,
+        })
+    }
+
+    /// The master (status and counters, for logs).
+    pub fn master(&self) -> &Master {
+        &self.master
+    }
+
+    /// Transport errors seen (closed socket, I/O errors); bus problems are in the master's
+    /// counters.
+    pub fn transport_errors(&self) -> u64 {
+        self.transport_errors
+    }
+
+    fn drain(&mut self, wall: Instant) {
+        loop {
+            match self.bus.try_recv() {
+                Ok(Some(f)) => self.master.on_frame(&f, wall),
+                Ok(None) => return,
+                Err(TransportError::Bus(b)) => self.master.on_bus_event(b),
+                Err(TransportError::Full(_)) => {}
+                Err(TransportError::Closed | TransportError::Io(_)) => {
+                    // The interface is gone (unplugged USB adapter, interface down): for the
+                    // loop that is a bus-off.
+                    self.transport_errors += 1;
+                    self.bus_off = true;
+                    return;
+                }
+            }
+        }
+    }
+
+    fn flush(&mut self) {
+        while let Some(f) = self.master.poll_tx() {
+            match self.bus.send(&f) {
+                Ok(()) | Err(TransportError::Full(_)) => {}
+                Err(TransportError::Bus(b)) => self.master.on_bus_event(b),
+                Err(TransportError::Closed | TransportError::Io(_)) => {
+                    self.transport_errors += 1;
+                    self.bus_off = true;
+                }
+            }
+        }
+    }
+}
+
+fn status_of(state: Option<State>) -> DriveStatus {
+    match state {
+        None => DriveStatus::Unknown,
+        Some(State::OperationEnabled) => DriveStatus::Enabled,
+        Some(State::QuickStopActive) => DriveStatus::QuickStop,
+        Some(State::Fault | State::FaultReactionActive) => DriveStatus::Fault,
+        Some(_) => DriveStatus::Disabled,
+    }
+}
+
+impl<T: CanTransport + Send> Devices for RobotDevices<T> {
+    fn read(&mut self, now_s: f64, inp: &mut Inputs) {
+        let wall = Instant::now();
+        let epoch = *self.epoch.get_or_insert_with(|| wall - Duration::from_secs_f64(now_s.max(0.0)));
+        self.drain(wall);
+        inp.fault = None;
+        while let Some(e) = self.master.poll_event() {
+            let f = match e {
+                // "Error reset / no error" (0x0000) clears, it does not fault.
+                Event::Emergency { node, emcy } if emcy.code != 0 => Some(DeviceFault::Emcy { node, code: emcy.code }),
+                Event::HeartbeatLost { node } | Event::Rebooted { node } => Some(DeviceFault::HeartbeatLost { node }),
+                Event::Bus(BusEvent::BusOff) => Some(DeviceFault::BusOff),
+                _ => None,
+            };
+            if inp.fault.is_none() {
+                inp.fault = f;
+            }
+        }
+        if self.bus_off && inp.fault.is_none() {
+            inp.fault = Some(DeviceFault::BusOff);
+        }
+        if let Some((_, r)) = &mut self.loadcells {
+            r.update();
+        }
+        for j in 0..self.n {
+            let Some(i) = self.drive[j] else { continue };
+            let Some(s) = self.master.status(i) else { continue };
+            if s.axis.tpdos != self.tpdos[j] {
+                self.tpdos[j] = s.axis.tpdos;
+                self.fresh_at[j] = Some(wall);
+            }
+            let operational = s.phase == Phase::Operational;
+            match self.fresh_at[j] {
+                Some(at) if operational => {
+                    inp.length_m[j] = s.position_m;
+                    inp.length_age_s[j] = wall.saturating_duration_since(at).as_secs_f64();
+                }
+                _ => inp.length_age_s[j] = f64::INFINITY,
+            }
+            inp.drive[j] = if operational { status_of(s.axis.state) } else { DriveStatus::Unknown };
+            match &self.loadcells {
+                Some((_, r)) => match r.latest(j) {
+                    Some((t, at)) => {
+                        inp.tension_n[j] = t;
+                        inp.tension_age_s[j] = wall.saturating_duration_since(at).as_secs_f64();
+                    }
+                    None => inp.tension_age_s[j] = f64::INFINITY,
+                },
+                None => {
+                    // No load cells: the drive's torque is the tension estimate.
+                    inp.tension_n[j] = s.tension_n;
+                    inp.tension_age_s[j] = inp.length_age_s[j];
+                }
+            }
+        }
+        if let Some(p) = self.pose.as_ref().and_then(PoseReader::newest) {
+            inp.pose_m = p.position;
+            // Age from when the tracker measured it, not from when the datagram arrived.
+            let measured_s = if p.measured >= epoch {
+                p.measured.duration_since(epoch).as_secs_f64()
+            } else {
+                -epoch.duration_since(p.measured).as_secs_f64()
+            };
+            inp.pose_age_s = now_s - measured_s;
+        } else {
+            inp.pose_age_s = f64::INFINITY;
+        }
+    }
+
+    fn write(&mut self, _now_s: f64, out: &Outputs) {
+        let wall = Instant::now();
+        if let Some(mut op) = self.master.operational() {
+            for j in 0..self.n.min(out.n) {
+                let Some(i) = self.drive[j] else { continue };
+                // Refusals (not yet enabled, mode not mapped: checked at bring-up) leave the
+                // drive where it is; the loop sees its state next cycle.
+                match out.request {
+                    DriveRequest::Disable => {
+                        let _ = op.disable(i);
+                    }
+                    DriveRequest::QuickStop => {
+                        let _ = op.quick_stop(i);
+                    }
+                    DriveRequest::Enable => {
+                        let _ = op.enable(i);
+                        match out.cable[j] {
+                            CableCommand::Position(l) if l.is_finite() => {
+                                if op.set_mode(i, Mode::CyclicPosition).is_ok() {
+                                    let _ = op.set_position_m(i, l);
+                                }
+                            }
+                            CableCommand::Tension(t) if t.is_finite() => {
+                                if op.set_mode(i, Mode::CyclicTorque).is_ok() {
+                                    let _ = op.set_tension_n(i, t);
+                                }
+                            }
+                            _ => {}
+                        }
+                    }
+                }
+            }
+        }
+        self.master.poll_timers(wall);
+        self.master.sync_cycle();
+        self.flush();
+    }
+}
