@@ -242,22 +242,64 @@ impl Recorder {
     }
 }
 
-/// Appends a sample to a data set (missing values as NaN). The encoder lengths are interpolated
-/// to the time the pose was measured (`t - pose_age`) between `prev` and `s`: a pose read a few
-/// milliseconds late against fresh lengths would be a systematic error along the motion.
-fn push_sample(rec: &mut Recording, prev: Option<&Sample>, s: &Sample, cfg: &CalibratorConfig) {
+/// The recent encoder lengths with the times they were measured (`t - length_age`), to read
+/// them at the instant a tracker pose was measured.
+#[derive(Debug, Default)]
+struct LengthHistory {
+    rows: std::collections::VecDeque<([f64; crate::MAX_CABLES], [f64; crate::MAX_CABLES])>,
+}
+
+/// Rows kept: 128 loop cycles (a quarter of a second at 500 Hz), far more than any pose age
+/// the loop accepts as fresh.
+const HISTORY: usize = 128;
+
+impl LengthHistory {
+    fn push(&mut self, s: &Sample, n: usize) {
+        let mut t = [f64::NAN; crate::MAX_CABLES];
+        for j in 0..n {
+            t[j] = s.t - s.length_age_s[j].max(0.0);
+        }
+        if self.rows.back().is_some_and(|(tb, _)| tb[..n] == t[..n]) {
+            return;
+        }
+        if self.rows.len() == HISTORY {
+            self.rows.pop_front();
+        }
+        self.rows.push_back((t, s.length_m));
+    }
+
+    /// Cable `j`'s length at time `at`, interpolated between the two readings around it (the
+    /// nearest reading when `at` is outside the history).
+    fn at(&self, j: usize, at: f64) -> f64 {
+        let mut later: Option<(f64, f64)> = None;
+        for (t, l) in self.rows.iter().rev() {
+            let (tj, lj) = (t[j], l[j]);
+            if !tj.is_finite() || !lj.is_finite() {
+                continue;
+            }
+            if tj <= at {
+                return match later {
+                    Some((t1, l1)) if t1 > tj => lj + (at - tj) / (t1 - tj) * (l1 - lj),
+                    _ => lj,
+                };
+            }
+            later = Some((tj, lj));
+        }
+        later.map_or(f64::NAN, |(_, l)| l)
+    }
+}
+
+/// Appends a sample to a data set (missing values as NaN). The encoder lengths are read at the
+/// time the pose was measured (`t - pose_age`) from the recent history: a pose a few
+/// milliseconds older than the lengths would be a systematic error along the motion, which
+/// the anchors would absorb (a 2 ms shift doubles the anchor error of a 25 s excitation).
+fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &CalibratorConfig) {
     let n = cfg.n;
     let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
-    let mut l = [f64::NAN; crate::MAX_CABLES];
-    l[..n].copy_from_slice(&s.length_m[..n]);
     let tp = s.t - s.pose_age_s.max(0.0);
-    if let Some(q) = prev {
-        if s.t > q.t && tp < s.t {
-            let w = ((tp - q.t) / (s.t - q.t)).clamp(0.0, 1.0);
-            for j in 0..n {
-                l[j] = q.length_m[j] + w * (s.length_m[j] - q.length_m[j]);
-            }
-        }
+    let mut l = [f64::NAN; crate::MAX_CABLES];
+    for (j, x) in l.iter_mut().enumerate().take(n) {
+        *x = hist.at(j, tp);
     }
     let mut f = [f64::NAN; crate::MAX_CABLES];
     for j in 0..n {
@@ -311,6 +353,7 @@ pub struct Calibrator {
     exc_set: Recording,
     prev_state: State,
     prev_sample: Option<Sample>,
+    lengths: LengthHistory,
     decim: usize,
     current: Option<Estimate>,
     current_params: LoopParams,
@@ -351,6 +394,7 @@ impl Calibrator {
             recorder,
             prev_state: State::Idle,
             prev_sample: None,
+            lengths: LengthHistory::default(),
             decim: 0,
             current: None,
             current_params: LoopParams::invalid(n),
@@ -426,6 +470,7 @@ impl Calibrator {
         }
         // One data-set row per fresh tracker pose (every `decimation`-th one).
         let prev = self.prev_sample.replace(*s);
+        self.lengths.push(s, self.cfg.n);
         let fresh = prev.as_ref().is_none_or(|q| q.pose_m != s.pose_m) && s.pose_age_s <= self.cfg.tracker_max_age_s;
         if !fresh {
             return;
@@ -434,11 +479,11 @@ impl Calibrator {
         self.decim += 1;
         match state {
             State::InitPhase if s.phase >= 0 => {
-                push_sample(&mut self.init_set, prev.as_ref(), s, &self.cfg);
+                push_sample(&mut self.init_set, &self.lengths, s, &self.cfg);
                 self.status.lock().unwrap().dataset_samples = self.init_set.len();
             }
             State::Excitation if keep => {
-                push_sample(&mut self.exc_set, prev.as_ref(), s, &self.cfg);
+                push_sample(&mut self.exc_set, &self.lengths, s, &self.cfg);
                 self.status.lock().unwrap().dataset_samples = self.exc_set.len();
             }
             _ => {}

@@ -125,6 +125,9 @@ pub struct RobotDevices<T: CanTransport> {
     epoch: Option<Instant>,
     transport_errors: u64,
     bus_off: bool,
+    /// When the last SYNC went out: the drives latch their actual values at SYNC, so the
+    /// TPDOs that answer it carry values of that instant.
+    last_sync: Option<Instant>,
 }
 
 impl<T: CanTransport> RobotDevices<T> {
@@ -174,6 +177,7 @@ impl<T: CanTransport> RobotDevices<T> {
             epoch: None,
             transport_errors: 0,
             bus_off: false,
+            last_sync: None,
         })
     }
 
@@ -259,7 +263,8 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
             let Some(s) = self.master.status(i) else { continue };
             if s.axis.tpdos != self.tpdos[j] {
                 self.tpdos[j] = s.axis.tpdos;
-                self.fresh_at[j] = Some(wall);
+                // Synchronous TPDOs carry what the drive latched at the SYNC (CiA 301).
+                self.fresh_at[j] = Some(self.last_sync.unwrap_or(wall));
             }
             let operational = s.phase == Phase::Operational;
             match self.fresh_at[j] {
@@ -335,5 +340,6 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         self.master.poll_timers(wall);
         self.master.sync_cycle();
         self.flush();
+        self.last_sync = Some(Instant::now());
     }
 }

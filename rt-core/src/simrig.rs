@@ -76,11 +76,13 @@ pub struct SimOptions {
     /// SocketCAN interface (e.g. `vcan0`) for the virtual drives and the master; `None`: an
     /// in-process virtual CAN bus.
     pub can: Option<String>,
+    /// Physics step of the simulated site (wall clock); also stepped at every SYNC.
+    pub site_period: Duration,
 }
 
 impl Default for SimOptions {
     fn default() -> Self {
-        SimOptions { seed: 1, site_error_m: 0.2, l0_range_m: 2.0, noise: Noise::default(), can: None }
+        SimOptions { seed: 1, site_error_m: 0.2, l0_range_m: 2.0, noise: Noise::default(), can: None, site_period: Duration::from_millis(1) }
     }
 }
 
@@ -240,6 +242,7 @@ where
         rng: taut_sim::rng(opts.seed, 7),
         faults: faults.clone(),
         stop: stop.clone(),
+        period: opts.site_period,
         silenced: false,
         emcy_sent: false,
         hb_off: false,
@@ -308,54 +311,64 @@ struct Site<R: CanTransport> {
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
     stop: Arc<AtomicBool>,
+    period: Duration,
     silenced: bool,
     emcy_sent: bool,
     hb_off: bool,
 }
 
-/// Plant step period of the simulated site.
-const SITE_PERIOD: Duration = Duration::from_millis(1);
-/// Tracker period (100 Hz).
-const TRACKER_EVERY: u64 = 10;
+/// Tracker period, s (100 Hz).
+const TRACKER_PERIOD_S: f64 = 0.01;
 
 impl<R: CanTransport> Site<R> {
     fn run(&mut self) {
         let t0 = Instant::now();
         let mut next = t0;
         let mut last = t0;
-        let mut ticks = 0u64;
+        let mut next_pose = 0.0;
         // Relaxed: the flag carries no data.
         while !self.stop.load(Ordering::Relaxed) {
             // Frames as they come (SDO answers and TPDOs without waiting for the tick)...
+            let mut sync = false;
             if let Ok(Some(f)) = self.rack.transport().recv_deadline(next) {
                 let now = Instant::now();
+                if f.std_id() == Some(0x080) {
+                    // A SYNC: the drives latch their actual values now, so the physics is
+                    // brought up to now first (as a real drive samples its encoder at SYNC).
+                    sync = true;
+                    let dt = now.saturating_duration_since(last).as_secs_f64();
+                    if dt > 1e-4 {
+                        last = now;
+                        self.step_plant(dt.min(0.02));
+                    }
+                }
                 for d in self.rack.drives() {
                     d.on_frame(&f, now);
                 }
             }
             let now = Instant::now();
             self.rack.step(now);
-            if now < next {
+            if now < next || sync {
                 continue;
             }
             // ...and the physics on the tick, with the wall time that passed.
             let dt = now.saturating_duration_since(last).as_secs_f64().clamp(1e-4, 0.02);
             last = now;
-            next += SITE_PERIOD;
+            next += self.period;
             if next < now {
                 // Starved (loaded machine): skip ahead rather than run a burst of steps.
-                next = now + SITE_PERIOD;
+                next = now + self.period;
             }
             self.inject_faults();
             self.step_plant(dt);
-            if ticks % TRACKER_EVERY == 0 && !self.faults.tracker_gone.load(Ordering::Relaxed) {
-                let t = now.saturating_duration_since(t0).as_secs_f64();
+            let t = now.saturating_duration_since(t0).as_secs_f64();
+            if t >= next_pose && !self.faults.tracker_gone.load(Ordering::Relaxed) {
+                next_pose = (next_pose + TRACKER_PERIOD_S).max(t);
                 let m = self.tracker.measure(self.plant_position(), &mut self.rng);
                 if m.iter().all(|v| v.is_finite()) {
                     let _ = self.sender.send_pose(t, m, None);
                 }
             }
-            ticks += 1;
         }
     }
 

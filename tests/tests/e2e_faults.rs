@@ -11,17 +11,14 @@ use taut_rt_core::safety::{Cause, Reaction};
 use taut_rt_core::simrig::{self, SimFaults, SimOptions};
 
 fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let mut t = String::from("[robot]\nname = \"faults\"\nmass_kg = 3.0\n[loadcells]\nport = \"/dev/taut-loadcells\"\n");
-    for (j, a) in [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]].iter().enumerate() {
-        t += &format!("[[cable]]\nanchor = [{}, {}, {}]\n[cable.loadcell]\nunit_id = {}\nscale = 0.001\n[cable.drive]\nnode_id = {}\n", a[0], a[1], a[2], j + 1, j + 1);
-    }
-    t += &format!(
-        "[rt]\npriority = 0\nlock_memory = false\n[motion]\ninit_reel_m = -0.7\ninit_reel_speed_m_s = 0.5\ninit_settle_s = 0.3\n\
-         excitation_s = 20.0\nexcitation_speed_m_s = 0.4\n[safety]\ntension_max_age_s = 0.5\ntracker_max_age_s = 0.5\n[daemon]\nsocket = \"{}\"\ndata_dir = \"{}\"\n",
-        dir.join("s.sock").display(),
-        dir.join("data").display()
-    );
-    taut_config::RobotConfig::from_toml_str(&t).unwrap()
+    // The simulated robot of `taut start --sim`, with faster phases and a shorter excitation.
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.motion.init_reel_speed_m_s = 0.5;
+    cfg.motion.excitation_s = 20.0;
+    cfg.daemon.socket = dir.join("s.sock").display().to_string();
+    cfg.daemon.data_dir = dir.join("data").display().to_string();
+    cfg
 }
 
 /// Runs the start-up until `when` holds, injects the fault, and returns the latched cause and

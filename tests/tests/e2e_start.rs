@@ -9,59 +9,15 @@ use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::simrig::{self, SimOptions};
 
-/// ARAS-CAM-like robot with start-up motions short enough for a test.
+/// The simulated robot `taut start --sim` runs (config/examples/aras-cam-sim.toml), with its
+/// files in `dir` and an excitation short enough for a test.
 pub fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let t = format!(
-        r#"
-[robot]
-name = "e2e"
-mass_kg = 3.0
-[[cable]]
-anchor = [3.5, -1.75, 4.0]
-[cable.loadcell]
-unit_id = 1
-scale = 0.001
-[[cable]]
-anchor = [3.5, 1.75, 4.0]
-[cable.loadcell]
-unit_id = 2
-scale = 0.001
-[[cable]]
-anchor = [-3.5, 1.75, 4.0]
-[cable.loadcell]
-unit_id = 3
-scale = 0.001
-[[cable]]
-anchor = [-3.5, -1.75, 4.0]
-[cable.loadcell]
-unit_id = 4
-scale = 0.001
-[loadcells]
-port = "/dev/taut-loadcells"
-[rt]
-rate_hz = 500
-priority = 0
-lock_memory = false
-[motion]
-init_reel_m = -0.7
-init_reel_speed_m_s = 0.25
-init_settle_s = 0.3
-excitation_s = 25.0
-excitation_speed_m_s = 0.4
-swap_ramp_s = 1.0
-[safety]
-# Loaded CI machines: the load-cell and tracker threads may be late by a tenth of a second.
-tension_max_age_s = 0.5
-tracker_max_age_s = 0.5
-[daemon]
-max_sigma_m = 0.03
-socket = "{}"
-data_dir = "{}"
-"#,
-        dir.join("taut.sock").display(),
-        dir.join("data").display()
-    );
-    taut_config::RobotConfig::from_toml_str(&t).unwrap()
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.motion.excitation_s = 25.0;
+    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.join("data").display().to_string();
+    cfg
 }
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
