@@ -365,7 +365,7 @@ impl LeastSquares for Joint<'_> {
     fn n_params(&self) -> usize {
         self.spec.n_params(self.prep.n)
     }
-    fn rows(&self, x: &[f64], jacobian: bool, visit: &mut dyn FnMut(f64, &[(usize, f64)])) {
+    fn rows(&self, x: &[f64], jacobian: bool, visit: &mut lm::RowVisitor<'_>) {
         let inv = 1.0 / self.sigma;
         let mut buf = [(0usize, 0.0f64); 10];
         for &i in self.samples {
