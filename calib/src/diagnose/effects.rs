@@ -9,10 +9,14 @@
 //! G      = |X - A|          or  r*beta + sqrt(|X - C|^2 - r^2)      pulley (swivel, radius r)
 //! G     += s(a, h, w, T) - sqrt(a^2 + h^2)             sag: catenary arc minus chord
 //! U      = G / (1 + T c),   c = 1/EA                   elasticity: encoder sees unstretched length
-//! l_hat  = (1 + k) U + L0 - (w_b / 2) sigma_i          scale k = scale - 1; backlash width w_b,
-//!                                                      sigma_i = direction of the last motion
-//!                                                      (the reading lags by half the play)
+//! v      = (1 + k) U + L0                              scale k = scale - 1
+//! l_hat  = play(v; w_b)                                backlash: play operator of width w_b
 //! ```
+//!
+//! The play runs over the samples in time order (see [`super::fit::Joint::play`]): the reading
+//! stays put while `v` moves inside `[l_hat - w_b/2, l_hat + w_b/2]` and is pushed along once `v`
+//! leaves it, so `l_hat_i = v_c - sigma w_b / 2` with `c` the last sample that pushed and
+//! `sigma = +1` paying out, `-1` reeling in.
 //!
 //! Loose cables (`slack`) are not modelled: their samples are found and excluded.
 
@@ -121,7 +125,8 @@ impl Effect {
             Effect::Elasticity => 1e-6,
             Effect::Sag => 0.05,
             Effect::Pulley => 0.02,
-            Effect::Backlash => 0.0,
+            // Not 0: with no play every sample pushes, and the side follows the tracker noise.
+            Effect::Backlash => 1e-3,
             _ => 0.0,
         }
     }

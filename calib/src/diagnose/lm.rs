@@ -13,13 +13,16 @@
 
 use nalgebra::{DMatrix, DVector};
 
+/// Receives one residual and its sparse Jacobian row `(parameter, dr/dx_k)`.
+pub type RowVisitor<'a> = dyn FnMut(f64, &[(usize, f64)]) + 'a;
+
 /// A least-squares problem.
 pub trait LeastSquares {
     /// Number of parameters.
     fn n_params(&self) -> usize;
     /// Calls `visit(r_i, row_i)` for every residual, `row_i` listing `(parameter, dr_i/dx_k)`.
     /// With `jacobian == false` the rows may be empty (only the cost is needed).
-    fn rows(&self, x: &[f64], jacobian: bool, visit: &mut dyn FnMut(f64, &[(usize, f64)]));
+    fn rows(&self, x: &[f64], jacobian: bool, visit: &mut RowVisitor<'_>);
     /// Projects `x` onto the feasible set (bounds); the default does nothing.
     fn project(&self, _x: &mut [f64]) {}
 }
@@ -207,7 +210,7 @@ mod tests {
         fn n_params(&self) -> usize {
             3
         }
-        fn rows(&self, x: &[f64], _jac: bool, visit: &mut dyn FnMut(f64, &[(usize, f64)])) {
+        fn rows(&self, x: &[f64], _jac: bool, visit: &mut RowVisitor<'_>) {
             for (t, y) in self.t.iter().zip(&self.y) {
                 let e = (x[1] * t).exp();
                 visit(x[0] * e + x[2] - y, &[(0, e), (1, x[0] * t * e), (2, 1.0)]);
@@ -232,7 +235,7 @@ mod tests {
             fn n_params(&self) -> usize {
                 1
             }
-            fn rows(&self, x: &[f64], _j: bool, visit: &mut dyn FnMut(f64, &[(usize, f64)])) {
+            fn rows(&self, x: &[f64], _j: bool, visit: &mut RowVisitor<'_>) {
                 for y in &self.0 {
                     visit(x[0] - y, &[(0, 1.0)]);
                 }

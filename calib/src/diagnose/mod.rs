@@ -246,6 +246,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
         f: vec![Vec::with_capacity(m); n],
         vel: vec![vec![0.0; m]; n],
         dir: vec![vec![0.0; m]; n],
+        play: fit::PlayState::default(),
         usable: vec![Vec::with_capacity(m); n],
         loose: vec![Vec::with_capacity(m); n],
         segment: rows.iter().map(|&i| masks.segment[i]).collect(),
@@ -302,6 +303,10 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
             prep.dir[j][i] = last;
         }
     }
+    // Play pattern: a reading has moved when it leaves a band of 6 difference sigmas (at least
+    // 0.1 mm, a few encoder quanta) around where it last moved.
+    let thr = (6.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m).max(1e-4);
+    prep.play = fit::PlayState::from_readings(&prep.l, thr);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
@@ -610,6 +615,7 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
             base = fit::fit(&prep, &ideal, &train, &base.x, sigma, opts.max_iterations);
         }
     }
+    prep.play.settle(&prep.usable);
     let prep = prep; // frozen from here on
     let mut ctx = Ctx { prep: &prep, sigma, train, heldout, screen_train: vec![], screen_heldout: vec![] };
     let frac = opts.screen_samples as f64 / m.max(1) as f64;
