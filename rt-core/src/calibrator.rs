@@ -252,6 +252,8 @@ struct LengthHistory {
 /// Rows kept: 128 loop cycles (a quarter of a second at 500 Hz), far more than any pose age
 /// the loop accepts as fresh.
 const HISTORY: usize = 128;
+/// Longest extrapolation of the lengths past the newest reading, s (a few loop cycles).
+const MAX_EXTRAPOLATION_S: f64 = 0.01;
 
 impl LengthHistory {
     fn push(&mut self, s: &Sample, n: usize) {
@@ -268,24 +270,27 @@ impl LengthHistory {
         self.rows.push_back((t, s.length_m));
     }
 
-    /// Cable `j`'s length at time `at`, interpolated between the two readings around it (the
-    /// nearest reading when `at` is outside the history).
+    /// Cable `j`'s length at time `at`, interpolated between the two readings around it. A pose
+    /// newer than the newest reading (measured after the last SYNC) is common: the length is
+    /// extrapolated from the last two readings, up to [`MAX_EXTRAPOLATION_S`]; older than the
+    /// history, the oldest reading.
     fn at(&self, j: usize, at: f64) -> f64 {
-        let mut later: Option<(f64, f64)> = None;
-        for (t, l) in self.rows.iter().rev() {
-            let (tj, lj) = (t[j], l[j]);
-            if !tj.is_finite() || !lj.is_finite() {
-                continue;
-            }
-            if tj <= at {
-                return match later {
-                    Some((t1, l1)) if t1 > tj => lj + (at - tj) / (t1 - tj) * (l1 - lj),
-                    _ => lj,
-                };
-            }
-            later = Some((tj, lj));
+        // Cable j's readings, newest first.
+        let mut it = self.rows.iter().rev().filter_map(|(t, l)| (t[j].is_finite() && l[j].is_finite()).then_some((t[j], l[j])));
+        let Some(mut b) = it.next() else { return f64::NAN };
+        if at >= b.0 {
+            return match it.next() {
+                Some(a) if b.0 > a.0 && at - b.0 <= MAX_EXTRAPOLATION_S => b.1 + (at - b.0) / (b.0 - a.0) * (b.1 - a.1),
+                _ => b.1,
+            };
         }
-        later.map_or(f64::NAN, |(_, l)| l)
+        for a in it {
+            if a.0 <= at {
+                return if b.0 > a.0 { a.1 + (at - a.0) / (b.0 - a.0) * (b.1 - a.1) } else { a.1 };
+            }
+            b = a;
+        }
+        b.1
     }
 }
 
@@ -670,5 +675,37 @@ fn run_job(job: Job, backend: &mut dyn Calibrate) -> JobResult {
                 .unwrap_or_else(|_| Err("the calibration panicked".into()));
             JobResult { kind: OutcomeKind::Calibration, run, samples, result, heldout: Some((heldout, current)) }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(t: f64, age: f64, l: f64) -> Sample {
+        let mut s = Sample::empty(1);
+        s.t = t;
+        s.length_age_s[0] = age;
+        s.length_m[0] = l;
+        s
+    }
+
+    #[test]
+    fn lengths_are_read_at_the_pose_time() {
+        // A cable paying out at 1 m/s, read every 2 ms, each reading 1.5 ms old.
+        let mut h = LengthHistory::default();
+        for k in 0..10 {
+            let t = 0.002 * f64::from(k);
+            h.push(&sample(t, 0.0015, t - 0.0015), 1);
+        }
+        // Between readings: interpolated; after the newest: extrapolated; long after: held.
+        assert!((h.at(0, 0.0101) - 0.0101).abs() < 1e-12);
+        assert!((h.at(0, 0.0180) - 0.0180).abs() < 1e-12);
+        assert!((h.at(0, 0.5) - 0.0165).abs() < 1e-12);
+        // Before the history: the oldest reading.
+        assert!((h.at(0, -1.0) + 0.0015).abs() < 1e-12);
+        // A repeated reading (no new TPDO) is not a second point.
+        h.push(&sample(0.020, 0.0035, 0.0165), 1);
+        assert_eq!(h.rows.len(), 10);
     }
 }
