@@ -175,3 +175,64 @@ fn the_counter_sees_allocations() {
     WATCHING.with(|w| w.set(false));
     assert!(ALLOCS.with(|a| a.get()) >= 1 && FREES.with(|a| a.get()) >= 1);
 }
+
+/// The hardware device path allocates nothing per cycle either: `RobotDevices` (CANopen master
+/// on a transport, mode switches, EMCY and heartbeat handling) against virtual CiA 402 drives on
+/// their own thread, 20,000 cycles with commands in both modes and faults.
+#[test]
+fn robot_devices_allocate_nothing_per_cycle() {
+    use taut_driver::transport::virtual_bus::VirtualBus;
+    use taut_rt_core::io::{CableCommand, DriveRequest, Devices, Inputs, Outputs};
+    use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+    use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
+
+    let mut t = String::from("[robot]\nname = \"alloc\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\n");
+    for (j, a) in [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]].iter().enumerate() {
+        t += &format!("[[cable]]\nanchor = [{}, {}, {}]\n[cable.drive]\nnode_id = {}\npdo = \"with_mode\"\n", a[0], a[1], a[2], j + 1);
+    }
+    let cfg = taut_config::RobotConfig::from_toml_str(&t).unwrap();
+    let bus = VirtualBus::new();
+    let nodes = [1u8, 2, 3, 4];
+    let master_end = bus.endpoint_with(1024, &[]);
+    let rack = spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
+    let mut dev = RobotDevices::bring_up(&cfg, master_end, Peripherals { loadcells: None, tracker: None, pose: None }).unwrap();
+    let mut inp = Inputs::new(4);
+    let mut out = Outputs::new(4);
+    let t0 = std::time::Instant::now();
+    let cycle = |dev: &mut RobotDevices<_>, out: &Outputs, inp: &mut Inputs| {
+        let now = t0.elapsed().as_secs_f64();
+        WATCHING.with(|w| w.set(true));
+        dev.read(now, inp);
+        dev.write(now, out);
+        WATCHING.with(|w| w.set(false));
+        std::thread::sleep(std::time::Duration::from_micros(200));
+    };
+    let mut enabled = 0;
+    let mut faults = 0;
+    out.request = DriveRequest::Enable;
+    for k in 0..20_000u32 {
+        let x = f64::from(k) * 1e-5;
+        for j in 0..4 {
+            // Cables 0..2 in position mode, cable 3 switching between torque and position.
+            out.cable[j] = if j == 3 && (k / 2000) % 2 == 0 { CableCommand::Tension(10.0) } else { CableCommand::Position(1.0 + x) };
+        }
+        match k {
+            12_000 => {
+                rack.with_drive(2, |d| d.inject_fault(0x2310));
+            }
+            14_000 => out.request = DriveRequest::Disable,
+            16_000 => {
+                rack.with_drive(3, |d| d.set_heartbeat_off(true));
+            }
+            _ => {}
+        }
+        cycle(&mut dev, &out, &mut inp);
+        enabled += usize::from(inp.drive[..4].iter().all(|d| *d == taut_rt_core::io::DriveStatus::Enabled));
+        faults += usize::from(inp.fault.is_some());
+    }
+    rack.stop();
+    assert!(enabled > 5_000, "drives enabled in only {enabled} cycles");
+    assert!(faults >= 2, "EMCY and heartbeat loss not both reported ({faults})");
+    let (allocs, frees) = (ALLOCS.with(|a| a.get()), FREES.with(|a| a.get()));
+    assert_eq!((allocs, frees), (0, 0), "RobotDevices allocated {allocs} times and freed {frees} times");
+}
