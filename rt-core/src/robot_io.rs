@@ -343,3 +343,39 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         self.last_sync = Some(Instant::now());
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use taut_driver::transport::virtual_bus::VirtualBus;
+
+    fn robot(pdo: &str, mode3: &str) -> RobotConfig {
+        let mut t = String::from("[robot]\nname = \"t\"\nmass_kg = 3.0\n[can]\ninterface = \"can0\"\n");
+        for (j, a) in [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]].iter().enumerate() {
+            let mode = if j == 3 { mode3 } else { "position" };
+            t += &format!("[[cable]]\nanchor = [{}, {}, {}]\n[cable.drive]\nnode_id = {}\npdo = \"{pdo}\"\nmode = \"{mode}\"\n", a[0], a[1], a[2], j + 1);
+        }
+        RobotConfig::from_toml_str(&t).unwrap()
+    }
+
+    #[test]
+    fn a_follower_with_a_fixed_position_mode_is_refused_by_key() {
+        let none = || Peripherals { loadcells: None, tracker: None, pose: None };
+        let e = RobotDevices::bring_up(&robot("compact", "position"), VirtualBus::new().endpoint(), none()).err().unwrap();
+        assert_eq!(e.what, "cable[3].drive.pdo");
+        assert!(e.message.contains("with_mode"), "{e}");
+        // The follower in torque mode is fine with compact PDOs: the bring-up itself then fails
+        // (nobody on the bus), naming the CAN side.
+        let mut cfg = robot("compact", "torque");
+        cfg.can.as_mut().unwrap().bringup_timeout_s = 0.2;
+        let e = RobotDevices::bring_up(&cfg, VirtualBus::new().endpoint(), none()).err().unwrap();
+        assert_eq!(e.what, "can", "{e}");
+        assert!(e.message.contains("no boot-up or heartbeat seen"), "{e}");
+    }
+
+    #[test]
+    fn modes_follow_the_phases() {
+        let need = modes_needed(&robot("with_mode", "position"));
+        assert_eq!(need, vec![(true, false), (true, false), (true, false), (false, true)]);
+    }
+}
