@@ -423,7 +423,7 @@ fn segmented_sdo_download_and_upload_against_a_virtual_drive() {
     r.step();
     let mut client = SdoClient::new(8, Duration::from_millis(100));
     let payload: Vec<u8> = (100..125).collect();
-    let mut transfer = |r: &mut Rig<VirtualEndpoint>, c: &mut SdoClient| loop {
+    let transfer = |r: &mut Rig<VirtualEndpoint>, c: &mut SdoClient| loop {
         while let Some(f) = c.poll_tx() {
             r.port.send(&f).unwrap();
         }
