@@ -109,6 +109,7 @@
 // Index loops over parallel column arrays (x, y, z, l, ...) read clearer than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+pub mod bundle;
 pub mod diagnose;
 pub mod init;
 pub mod metrics;

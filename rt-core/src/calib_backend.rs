@@ -22,6 +22,23 @@ impl TautCalib {
     }
 }
 
+impl TautCalib {
+    /// The errors-in-variables refinement of `taut_calib::bundle`, if it converges near the start
+    /// with a tracker residual that matches the tracker's noise.
+    fn refine(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64]) -> Option<taut_calib::bundle::BundleResult> {
+        let o = taut_calib::bundle::BundleOptions {
+            length_sigma_m: (4.0 * self.opts.encoder_sigma_m).max(2e-4),
+            tracker_sigma_m: self.opts.tracker_sigma_m,
+            min_tension_n: self.opts.min_tension_n,
+            ..Default::default()
+        };
+        let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
+        let moved = b.anchors.iter().zip(anchors).map(|(a, s)| ((a[0] - s[0]).powi(2) + (a[1] - s[1]).powi(2) + (a[2] - s[2]).powi(2)).sqrt()).fold(0.0, f64::max);
+        let sane = b.anchors.iter().flatten().chain(&b.l0).all(|v| v.is_finite());
+        (sane && moved < 0.15 && b.tracker_rms_m < 3.0 * self.opts.tracker_sigma_m).then_some(b)
+    }
+}
+
 impl Calibrate for TautCalib {
     fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String> {
         let r = init::initialise(rec, &self.platform, &self.opts).map_err(|e| e.to_string())?;
@@ -40,6 +57,13 @@ impl Calibrate for TautCalib {
                     note.push_str(&format!("; cable {j}: nominal anchor"));
                 }
             }
+        }
+        // Every taut cable's length at once, with the platform positions as unknowns: the
+        // redundant cables (the follower too) pin the geometry better than the tracker alone.
+        if let Some(b) = self.refine(rec, &anchors, &l0) {
+            anchors = b.anchors;
+            l0 = b.l0;
+            note.push_str(&format!("; refined on all cables ({} samples, errors-in-variables)", b.samples));
         }
         Ok(Estimate {
             anchors,

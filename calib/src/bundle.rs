@@ -1,0 +1,390 @@
+//! Errors-in-variables refinement ("bundle adjustment") of anchors and encoder offsets.
+//!
+//! The force-aware calibration treats the tracker's platform position as exact and the cable
+//! lengths as noisy, one cable at a time. On a robot with more than three taut cables the
+//! opposite is closer to the truth: the encoders resolve micrometres, the tracker millimetres,
+//! and every sample has one or more redundant cables. Here the platform position of every
+//! sample is an unknown too, tied to the tracker reading by its noise and to every taut cable
+//! by its length:
+//!
+//! ```text
+//! minimise  sum_i [ sum_j rho( (|p_i + b_j - A_j| + L0_j - l_ij) / s_l )  +  |p_i - P_i|^2 / s_t^2 ]
+//!   over    A_j, L0_j (all cables)  and  p_i (every sample)
+//! ```
+//!
+//! with `s_l` the length noise (encoder plus model error), `s_t` the tracker noise, `rho` a
+//! Huber loss (slack and outliers). The tracker readings fix the frame (no gauge freedom); the
+//! redundant lengths pin each `p_i` far better than the tracker, and through them the anchors.
+//! The normal equations are block-arrowhead (3x3 per sample, `4n` global): each LM step
+//! eliminates the samples' blocks (Schur complement) and solves a small dense system, so a
+//! step costs O(samples x n^2).
+//!
+//! Point-mass platforms or platforms without orientation data (`platform_points` as fixed
+//! offsets). A sample is used when at least four cables are taut and its pose is known.
+
+use crate::model;
+use taut_config::recording::Recording;
+
+/// Settings of the refinement.
+#[derive(Debug, Clone, Copy)]
+pub struct BundleOptions {
+    /// Length noise (encoder and unmodelled effects), m.
+    pub length_sigma_m: f64,
+    /// Tracker noise per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Cables below this tension are not used, N.
+    pub min_tension_n: f64,
+    /// Huber threshold, in sigmas.
+    pub huber_k: f64,
+    /// Iterations at most.
+    pub max_iterations: usize,
+}
+
+impl Default for BundleOptions {
+    fn default() -> Self {
+        BundleOptions { length_sigma_m: 2e-4, tracker_sigma_m: 1.5e-3, min_tension_n: 2.0, huber_k: 3.0, max_iterations: 30 }
+    }
+}
+
+/// What the refinement found.
+#[derive(Debug, Clone)]
+pub struct BundleResult {
+    /// Anchors, m.
+    pub anchors: Vec<[f64; 3]>,
+    /// Encoder offsets, m.
+    pub l0: Vec<f64>,
+    /// 1-sigma of each anchor coordinate (from the reduced normal matrix), m.
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// 1-sigma of each offset, m.
+    pub l0_sigma: Vec<f64>,
+    /// Samples used.
+    pub samples: usize,
+    /// RMS of the length residuals at the solution, m.
+    pub length_rms_m: f64,
+    /// RMS of the tracker residuals (tracker minus refined position) at the solution, m.
+    pub tracker_rms_m: f64,
+    /// Iterations run.
+    pub iterations: usize,
+}
+
+struct Row {
+    /// Tracker position.
+    pos: [f64; 3],
+    /// Lengths (NaN: not used).
+    l: Vec<f64>,
+}
+
+fn rows(rec: &Recording, opts: &BundleOptions) -> Vec<Row> {
+    let n = rec.n_cables;
+    (0..rec.len())
+        .filter_map(|i| {
+            let pos = rec.p[i];
+            if !pos.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            let f = rec.tensions(i);
+            let l: Vec<f64> = (0..n)
+                .map(|j| {
+                    let x = rec.lengths(i)[j];
+                    let taut = f.is_none_or(|f| f[j] >= opts.min_tension_n);
+                    if taut && x.is_finite() { x } else { f64::NAN }
+                })
+                .collect();
+            (l.iter().filter(|x| x.is_finite()).count() >= 4).then_some(Row { pos, l })
+        })
+        .collect()
+}
+
+fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+fn huber_w(r: f64, k: f64) -> f64 {
+    if r.abs() <= k { 1.0 } else { k / r.abs() }
+}
+
+fn huber_cost(r: f64, k: f64) -> f64 {
+    if r.abs() <= k { 0.5 * r * r } else { k * (r.abs() - 0.5 * k) }
+}
+
+/// Solves the symmetric positive definite `a x = b` (dense, row-major `m x m`) by Cholesky.
+fn cholesky_solve(a: &[f64], b: &[f64], m: usize) -> Option<(Vec<f64>, Vec<f64>)> {
+    let mut l = vec![0.0; m * m];
+    for i in 0..m {
+        for j in 0..=i {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= l[i * m + k] * l[j * m + k];
+            }
+            if i == j {
+                if !(s > 0.0) {
+                    return None;
+                }
+                l[i * m + i] = s.sqrt();
+            } else {
+                l[i * m + j] = s / l[j * m + j];
+            }
+        }
+    }
+    let solve = |b: &[f64]| {
+        let mut y = vec![0.0; m];
+        for i in 0..m {
+            let mut s = b[i];
+            for k in 0..i {
+                s -= l[i * m + k] * y[k];
+            }
+            y[i] = s / l[i * m + i];
+        }
+        for i in (0..m).rev() {
+            let mut s = y[i];
+            for k in i + 1..m {
+                s -= l[k * m + i] * y[k];
+            }
+            y[i] = s / l[i * m + i];
+        }
+        y
+    };
+    let x = solve(b);
+    // Diagonal of the inverse, for the sigmas.
+    let mut diag = vec![0.0; m];
+    for (c, d) in diag.iter_mut().enumerate() {
+        let mut e = vec![0.0; m];
+        e[c] = 1.0;
+        *d = solve(&e)[c];
+    }
+    Some((x, diag))
+}
+
+fn inv3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if !(det.abs() > 1e-300) {
+        return None;
+    }
+    let c = |r0: usize, c0: usize, r1: usize, c1: usize| m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0];
+    Some([
+        [c(1, 1, 2, 2) / det, -c(0, 1, 2, 2) / det, c(0, 1, 1, 2) / det],
+        [-c(1, 0, 2, 2) / det, c(0, 0, 2, 2) / det, -c(0, 0, 1, 2) / det],
+        [c(1, 0, 2, 1) / det, -c(0, 0, 2, 1) / det, c(0, 0, 1, 1) / det],
+    ])
+}
+
+/// Refines `anchors` and `l0` (a start within a few centimetres) on the recording. `None` if
+/// fewer than 20 samples have four taut cables, or the platform has orientation data.
+pub fn refine(rec: &Recording, platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &[f64], opts: &BundleOptions) -> Option<BundleResult> {
+    let n = rec.n_cables;
+    if rec.q.is_some() || anchors.len() != n || l0.len() != n || n < 4 {
+        return None;
+    }
+    let b = |j: usize| platform_points.get(j).copied().unwrap_or([0.0; 3]);
+    let data = rows(rec, opts);
+    if data.len() < 20 {
+        return None;
+    }
+    let m = 4 * n;
+    let (sl, st, k) = (opts.length_sigma_m, opts.tracker_sigma_m, opts.huber_k);
+    let mut g: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j]]).collect();
+    let mut p: Vec<[f64; 3]> = data.iter().map(|r| r.pos).collect();
+    let cost = |g: &[f64], p: &[[f64; 3]]| -> f64 {
+        let mut c = 0.0;
+        for (r, pi) in data.iter().zip(p) {
+            for j in 0..n {
+                if r.l[j].is_finite() {
+                    let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                    let d = model::norm(model::sub(add(*pi, b(j)), a));
+                    c += huber_cost((d + g[4 * j + 3] - r.l[j]) / sl, k);
+                }
+            }
+            let e = model::sub(*pi, r.pos);
+            c += 0.5 * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / (st * st);
+        }
+        c
+    };
+    let mut lambda = 1e-3;
+    let mut current = cost(&g, &p);
+    let mut iterations = 0;
+    let mut diag_inv = vec![f64::NAN; m];
+    for it in 0..opts.max_iterations {
+        iterations = it + 1;
+        // Normal equations, samples eliminated on the fly.
+        let mut s = vec![0.0; m * m];
+        let mut rhs = vec![0.0; m];
+        // Per sample: Hpp (3x3), Hpg (3 x m, sparse: 4 columns per used cable), bp.
+        struct Blk {
+            hpp_inv: [[f64; 3]; 3],
+            bp: [f64; 3],
+            cols: Vec<(usize, [f64; 3])>, // (global column, Hpg column)
+        }
+        let mut blocks = Vec::with_capacity(data.len());
+        for (r, pi) in data.iter().zip(&p) {
+            let mut hpp = [[0.0; 3]; 3];
+            let mut bp = [0.0; 3];
+            let mut cols: Vec<(usize, [f64; 3])> = Vec::with_capacity(4 * n);
+            let e = model::sub(*pi, r.pos);
+            for a in 0..3 {
+                hpp[a][a] += 1.0 / (st * st);
+                bp[a] -= e[a] / (st * st);
+            }
+            for j in 0..n {
+                if !r.l[j].is_finite() {
+                    continue;
+                }
+                let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                let v = model::sub(add(*pi, b(j)), a);
+                let d = model::norm(v);
+                let u = [v[0] / d, v[1] / d, v[2] / d];
+                let res = (d + g[4 * j + 3] - r.l[j]) / sl;
+                let w = huber_w(res, k) / (sl * sl);
+                let rr = res * sl;
+                // d res / d p = u, d res / d A = -u, d res / d L0 = 1 (times 1/sl, folded in w).
+                let jg = [-u[0], -u[1], -u[2], 1.0];
+                for x in 0..3 {
+                    for y in 0..3 {
+                        hpp[x][y] += w * u[x] * u[y];
+                    }
+                    bp[x] -= w * u[x] * rr;
+                }
+                for (c, &jc) in jg.iter().enumerate() {
+                    let col = 4 * j + c;
+                    for (c2, &jc2) in jg.iter().enumerate() {
+                        s[col * m + 4 * j + c2] += w * jc * jc2;
+                    }
+                    rhs[col] -= w * jc * rr;
+                    cols.push((col, [w * u[0] * jc, w * u[1] * jc, w * u[2] * jc]));
+                }
+            }
+            for (x, row) in hpp.iter_mut().enumerate() {
+                row[x] *= 1.0 + lambda;
+            }
+            let hpp_inv = inv3(&hpp)?;
+            // Schur: S -= Hgp Hpp^-1 Hpg; rhs -= Hgp Hpp^-1 bp.
+            let t: Vec<[f64; 3]> = cols
+                .iter()
+                .map(|(_, h)| {
+                    [
+                        hpp_inv[0][0] * h[0] + hpp_inv[0][1] * h[1] + hpp_inv[0][2] * h[2],
+                        hpp_inv[1][0] * h[0] + hpp_inv[1][1] * h[1] + hpp_inv[1][2] * h[2],
+                        hpp_inv[2][0] * h[0] + hpp_inv[2][1] * h[1] + hpp_inv[2][2] * h[2],
+                    ]
+                })
+                .collect();
+            for (a, (ca, _)) in cols.iter().enumerate() {
+                let ta = t[a];
+                rhs[*ca] -= ta[0] * bp[0] + ta[1] * bp[1] + ta[2] * bp[2];
+                for (cb, hb) in &cols {
+                    s[ca * m + cb] -= ta[0] * hb[0] + ta[1] * hb[1] + ta[2] * hb[2];
+                }
+            }
+            blocks.push(Blk { hpp_inv, bp, cols });
+        }
+        for x in 0..m {
+            s[x * m + x] *= 1.0 + lambda;
+            s[x * m + x] += 1e-12;
+        }
+        let (dg, dinv) = cholesky_solve(&s, &rhs, m)?;
+        diag_inv = dinv;
+        let mut g2 = g.clone();
+        for (x, d) in g2.iter_mut().zip(&dg) {
+            *x += d;
+        }
+        let p2: Vec<[f64; 3]> = blocks
+            .iter()
+            .zip(&p)
+            .map(|(bk, pi)| {
+                // dp = Hpp^-1 (bp - Hpg dg)
+                let mut r = bk.bp;
+                for (col, h) in &bk.cols {
+                    for x in 0..3 {
+                        r[x] -= h[x] * dg[*col];
+                    }
+                }
+                let h = &bk.hpp_inv;
+                [
+                    pi[0] + h[0][0] * r[0] + h[0][1] * r[1] + h[0][2] * r[2],
+                    pi[1] + h[1][0] * r[0] + h[1][1] * r[1] + h[1][2] * r[2],
+                    pi[2] + h[2][0] * r[0] + h[2][1] * r[1] + h[2][2] * r[2],
+                ]
+            })
+            .collect();
+        let c2 = cost(&g2, &p2);
+        if c2.is_finite() && c2 <= current {
+            let rel = (current - c2) / current.max(1e-300);
+            g = g2;
+            p = p2;
+            current = c2;
+            lambda = (lambda / 3.0).max(1e-9);
+            let step = dg.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+            if step < 1e-7 || rel < 1e-10 {
+                break;
+            }
+        } else {
+            lambda *= 10.0;
+            if lambda > 1e8 {
+                break;
+            }
+        }
+    }
+    // Residual statistics at the solution.
+    let (mut sl2, mut nl, mut st2) = (0.0, 0usize, 0.0);
+    for (r, pi) in data.iter().zip(&p) {
+        for j in 0..n {
+            if r.l[j].is_finite() {
+                let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                let d = model::norm(model::sub(add(*pi, b(j)), a));
+                sl2 += (d + g[4 * j + 3] - r.l[j]).powi(2);
+                nl += 1;
+            }
+        }
+        let e = model::sub(*pi, r.pos);
+        st2 += e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+    }
+    let sigma = |x: usize| diag_inv[x].max(0.0).sqrt();
+    Some(BundleResult {
+        anchors: (0..n).map(|j| [g[4 * j], g[4 * j + 1], g[4 * j + 2]]).collect(),
+        l0: (0..n).map(|j| g[4 * j + 3]).collect(),
+        anchor_sigma: (0..n).map(|j| [sigma(4 * j), sigma(4 * j + 1), sigma(4 * j + 2)]).collect(),
+        l0_sigma: (0..n).map(|j| sigma(4 * j + 3)).collect(),
+        samples: data.len(),
+        length_rms_m: (sl2 / nl.max(1) as f64).sqrt(),
+        tracker_rms_m: (st2 / (3 * data.len()) as f64).sqrt(),
+        iterations,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::Rng;
+
+    #[test]
+    fn redundant_cables_refine_the_anchors_beyond_the_calibration() {
+        let truth = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+        let l0 = [1.0, -0.5, 0.25, 2.0];
+        let mut rng = Rng::new(5);
+        let mut rec = Recording::with_capacity(4, 2000, true, false, false);
+        for i in 0..2000 {
+            let p = [rng.range(-1.0, 1.0), rng.range(-0.6, 0.6), rng.range(1.5, 2.5)];
+            let l: Vec<f64> = (0..4).map(|j| model::norm(model::sub(p, truth[j])) + l0[j] + 5e-5 * rng.normal()).collect();
+            let m = [p[0] + 1.5e-3 * rng.normal(), p[1] + 1.5e-3 * rng.normal(), p[2] + 1.5e-3 * rng.normal()];
+            rec.push(i as f64 * 0.01, m, None, &l, Some(&[20.0; 4]), None);
+        }
+        // Start 2 cm off.
+        let start: Vec<[f64; 3]> = truth.iter().map(|a| [a[0] + 0.02, a[1] - 0.015, a[2] + 0.01]).collect();
+        let r = refine(&rec, &[[0.0; 3]; 4], &start, &[1.02, -0.48, 0.23, 2.01], &BundleOptions::default()).unwrap();
+        // The force-aware calibration on the same data, for comparison.
+        let mut o = crate::CalibOptions::default();
+        o.heldout_fraction = 0.0;
+        let c = crate::calibrate(&rec, &[[0.0; 3]; 4], &crate::Params { anchors: start.clone(), l0: vec![1.02, -0.48, 0.23, 2.01] }, &o).unwrap();
+        let worst = |a: &[[f64; 3]]| a.iter().zip(&truth).map(|(a, t)| model::norm(model::sub(*a, *t))).fold(0.0, f64::max);
+        let (eb, ec) = (worst(&r.anchors), worst(&c.params.anchors));
+        assert!(eb < 0.5 * ec, "bundle {:.2} mm, calibration {:.2} mm", eb * 1e3, ec * 1e3);
+        assert!(eb < 2.5e-3, "bundle worst anchor {:.2} mm", eb * 1e3);
+        for (j, (a, t)) in r.anchors.iter().zip(&truth).enumerate() {
+            for x in 0..3 {
+                assert!((a[x] - t[x]).abs() < 5.0 * r.anchor_sigma[j][x] + 1e-5, "anchor {j}[{x}] beyond 5 sigma");
+            }
+        }
+        assert!(r.length_rms_m < 1e-4, "length rms {}", r.length_rms_m);
+        assert!(r.tracker_rms_m > 1.0e-3 && r.tracker_rms_m < 2.0e-3, "tracker rms {}", r.tracker_rms_m);
+    }
+}
