@@ -135,6 +135,13 @@ fn pulley_is_named() {
     let noise = 1.5e-3;
     if d.baseline.heldout_rms_m < 1.2 * noise {
         assert!(named(&d).is_empty(), "{:#?}", summary(&d));
+        // ... and the report says that the pulley and a shifted anchor fit equally well.
+        assert!(
+            d.notes.iter().any(|n| n.contains("pulley") && n.contains("shifted anchors") && n.contains("equally well")),
+            "{:#?}\n{:#?}",
+            d.notes,
+            summary(&d)
+        );
         return;
     }
     assert_eq!(named(&d).first(), Some(&Effect::Pulley), "{:#?}", summary(&d));
@@ -153,8 +160,9 @@ fn sag_is_named_on_the_outdoor_robot() {
     assert_recovered("w", f.values[0], f.sigmas[0], 1.2, 0.1);
 }
 
+/// Seed 17 reaches 1.56 mm held out (goal 1.65 mm); seeds 27 and 57 reach 1.45 and 1.53 mm,
+/// 37 and 47 1.65 and 1.63 mm (at the goal: the per-cable EA and play widths trade off).
 #[test]
-#[ignore = "close but not yet: with the play-operator backlash the pair leaves 1.68 mm held-out RMS on this seed (goal 1.65 mm; was 2.40 mm with the flip-offset model); seeds 27 and 37 reach 1.50 and 1.62 mm. Run with --ignored"]
 fn elasticity_and_backlash_together() {
     let mut s = Scenario::aras_cam(17);
     s.physics = Physics { elasticity: Some(20_000.0), backlash_m: 0.008, ..Physics::default() };

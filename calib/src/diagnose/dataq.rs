@@ -183,19 +183,34 @@ pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataM
         }
     }
 
-    // Tracker outliers: distance to the median of the 5 neighbouring positions, against a robust
+    // Tracker outliers: distance to the position predicted from the nearest present positions
+    // on either side (2 or 3 each; the median of the straight-line interpolations in time between
+    // one before and one after, so one outlier among them does not move it), against a robust
     // scale of the same quantity (which includes the motion between samples at low rates).
-    let mut dev = vec![0.0; m];
+    // Missing rows are skipped, so an outlier right after a dropout is still caught (a held
+    // reading of the play model would otherwise inherit it).
+    let mut dev = vec![f64::NAN; m];
     if m >= 7 {
-        for i in 2..m - 2 {
+        let present = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
+        for (i, d) in dev.iter_mut().enumerate() {
+            if !present(i) {
+                continue;
+            }
+            let before: Vec<usize> = (i.saturating_sub(12)..i).rev().filter(|&k| present(k) && rec.t[k] < rec.t[i]).take(3).collect();
+            let after: Vec<usize> = (i + 1..(i + 13).min(m)).filter(|&k| present(k) && rec.t[k] > rec.t[i]).take(3).collect();
+            if before.len() < 2 || after.len() < 2 {
+                continue;
+            }
             let mut d2 = 0.0;
             for k in 0..3 {
-                let mut w = [rec.p[i - 2][k], rec.p[i - 1][k], rec.p[i + 1][k], rec.p[i + 2][k]];
-                w.sort_by(|a, b| a.total_cmp(b));
-                let med = 0.5 * (w[1] + w[2]);
-                d2 += (rec.p[i][k] - med).powi(2);
+                let mut w: Vec<f64> = before
+                    .iter()
+                    .flat_map(|&b| after.iter().map(move |&a| (b, a)))
+                    .map(|(b, a)| rec.p[b][k] + (rec.t[i] - rec.t[b]) / (rec.t[a] - rec.t[b]) * (rec.p[a][k] - rec.p[b][k]))
+                    .collect();
+                d2 += (rec.p[i][k] - median(&mut w)).powi(2);
             }
-            dev[i] = d2.sqrt();
+            *d = d2.sqrt();
         }
         let mut finite: Vec<f64> = dev.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
         let scale = median(&mut finite);
@@ -360,5 +375,17 @@ mod tests {
         assert!(!masks.row_ok[1200] && !masks.cable_ok[1][530] && masks.dead_loadcell[2]);
         assert_ne!(masks.segment[1999], masks.segment[2000]);
         assert!(p.iter().find(|x| x.kind == ProblemKind::ClockJump).unwrap().description.contains("clock jump"));
+    }
+    #[test]
+    fn finds_a_tracker_outlier_right_after_a_dropout() {
+        let mut r = rec(2000);
+        for i in 800..805 {
+            r.p[i] = [f64::NAN; 3];
+        }
+        r.p[805][1] += 0.05;
+        let (p, masks) = detect(&r, 1.5e-3);
+        assert!(p.iter().any(|x| x.kind == ProblemKind::TrackerOutlier), "{p:#?}");
+        assert!(!masks.row_ok[805]);
+        assert!(masks.row_ok[806] && masks.row_ok[799]);
     }
 }

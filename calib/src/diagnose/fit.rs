@@ -277,6 +277,10 @@ impl<'a> Joint<'a> {
     }
 }
 
+/// Readings after which a hold's mean level, rather than the reading at the last push, also has
+/// to be left for a new push (see [`PlayState::from_readings`]).
+pub const HOLD_SAMPLES: usize = 10;
+
 /// When and which way the play (backlash) in each cable's drive train last pushed the encoder.
 ///
 /// A play of width `w` between the drum (input `v`) and the encoder (output `y`): the output stays
@@ -308,26 +312,41 @@ impl PlayState {
     /// has moved by more than `threshold` from where it was last pushed (NaN readings hold).
     /// `threshold` must be well above the encoder noise: a noise spike taken for a push would move
     /// the held output to the input, an error of up to `w`.
+    ///
+    /// A slow push that ends moves the reading by less than `threshold` after the last detected
+    /// push, so the reading it was pushed to can differ from the reading at that push by nearly
+    /// `threshold`; over a long hold, noise then takes it across. Once a hold has lasted
+    /// [`HOLD_SAMPLES`] readings, a push must also leave the band around the mean of the held
+    /// readings (on the same side).
     pub fn from_readings(l: &[Vec<f64>], threshold: f64) -> PlayState {
         let mut st = PlayState::default();
         for col in l {
             let m = col.len();
             let (mut contact, mut side) = (vec![0u32; m], vec![0i8; m]);
-            let mut last: Option<(usize, f64)> = None;
+            // (last push, sum and count of the finite readings since it)
+            let mut last: Option<(usize, f64, usize)> = None;
             let mut sd = 0i8;
             for (i, &y) in col.iter().enumerate() {
                 if y.is_finite() {
                     match last {
-                        None => last = Some((i, y)),
-                        Some((_, y0)) if (y - y0).abs() > threshold => {
-                            sd = if y > y0 { 1 } else { -1 };
-                            last = Some((i, y));
+                        None => last = Some((i, 0.0, 0)),
+                        Some((c, sum, k)) => {
+                            let d = y - col[c];
+                            let held_ok = k < HOLD_SAMPLES || {
+                                let e = y - sum / k as f64;
+                                e.abs() > threshold && e.signum() == d.signum()
+                            };
+                            if d.abs() > threshold && held_ok {
+                                sd = if d > 0.0 { 1 } else { -1 };
+                                last = Some((i, 0.0, 0));
+                            } else {
+                                last = Some((c, sum + y, k + 1));
+                            }
                         }
-                        Some(_) => {}
                     }
                 }
                 // Until the reading first moves it holds the first input (side 0).
-                contact[i] = last.map_or(i, |(c, _)| c) as u32;
+                contact[i] = last.map_or(i, |(c, _, _)| c) as u32;
                 side[i] = sd;
             }
             st.contact.push(contact);
@@ -567,6 +586,24 @@ mod tests {
         let usable = vec![vec![true, true, true, false, false, true, true, true, true]];
         p.settle(&usable);
         assert_eq!(p.contact[0], [0, 1, 2, 3, 4, 5, 6, 6, 6]);
+    }
+
+    #[test]
+    fn play_pattern_is_not_fooled_by_a_slow_push_end_and_noise_over_a_long_hold() {
+        // Pushed out to 2.0; the push ends with a creep to 2.3 that stays under the threshold
+        // (0.42); a long hold at 2.3 with noise, one reading 0.45 from the last push but not from
+        // the hold; then a real push to 3.0.
+        let mut col = vec![0.0, 1.0, 2.0, 2.15, 2.3];
+        for k in 0..30 {
+            col.push(if k == 20 { 2.45 } else { 2.3 + if k % 2 == 0 { 0.03 } else { -0.03 } });
+        }
+        col.push(3.0);
+        let p = PlayState::from_readings(&[col.clone()], 0.42);
+        let last = col.len() - 1;
+        for i in 3..last {
+            assert_eq!(p.contact[0][i], 2, "sample {i}");
+        }
+        assert_eq!((p.contact[0][last], p.side[0][last]), (last as u32, 1));
     }
 
     #[test]

@@ -368,6 +368,9 @@ struct Candidate {
     spec: ModelSpec,
     report: lm::LmReport,
     ho_ss: f64,
+    /// Physical parameter values and sigmas on the screening fit.
+    values: Vec<f64>,
+    sigmas: Vec<f64>,
 }
 
 impl Ctx<'_> {
@@ -682,7 +685,7 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
     let mut rejected = vec![];
     let plot_samples = stride(&all_rows, 1500);
     while spec.effects.len() < opts.max_effects {
-        let cur_ho = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x).0;
+        let (cur_ho, n_screen_ho) = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x);
         let cur_ms = {
             let (s, c) = fit::sum_squares(&prep, &spec, &ctx.screen_train, &cur_train.x);
             s / c.max(1) as f64
@@ -718,12 +721,26 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
                 continue;
             }
             let ho = fit::sum_squares(&prep, &s2, &ctx.screen_heldout, &r.x).0;
-            let (_, _, plausible, significant) = ctx.values(e, &s2, &r, &has_t, &ctx.screen_train);
+            let (values, sigmas, plausible, significant) = ctx.values(e, &s2, &r, &has_t, &ctx.screen_train);
             let ok = plausible.iter().all(|p| *p) && significant.iter().any(|s| *s);
-            cands.push((e, Candidate { spec: s2, report: r, ho_ss: ho }, ok));
+            cands.push((e, Candidate { spec: s2, report: r, ho_ss: ho, values, sigmas }, ok));
         }
         let gain = |c: &Candidate| cur_ho - c.ho_ss;
+        let ho_rms = |ss: f64| (ss / n_screen_ho.max(1) as f64).sqrt();
+        // A pulley whose radius is clearly not zero but which gains nothing on held-out data: the
+        // ideal model's anchors, shifted, absorb it (on many geometries the two are nearly the
+        // same model). Say so rather than stay silent.
+        let absorbed_pulley = cands.iter().find(|(e, c, ok)| *e == Effect::Pulley && *ok && gain(c).abs() <= 0.05 * cur_ho).map(|(_, c, _)| {
+            format!(
+                "a swivel pulley of radius {:.3} ± {:.3} m and the ideal model with shifted anchors fit equally well (held-out RMS {:.2} vs {:.2} mm): this recording cannot tell them apart; measure the pulley radius or the anchor positions to decide",
+                c.values[0],
+                c.sigmas[0],
+                ho_rms(c.ho_ss) * 1e3,
+                ho_rms(cur_ho) * 1e3
+            )
+        });
         let Some(best) = cands.iter().filter(|c| c.2).max_by(|a, b| gain(&a.1).total_cmp(&gain(&b.1))).map(|c| c.0) else {
+            notes.extend(absorbed_pulley);
             for (e, c, _) in &cands {
                 rejected.push(format!("{}: parameters not physical or not significant (held-out change {:+.1}%)", e.name(), -100.0 * gain(c) / cur_ho));
             }
@@ -731,9 +748,8 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         };
         let bi = cands.iter().position(|c| c.0 == best).expect("present");
         let bg = gain(&cands[bi].1);
-        let n_ho = fit::sum_squares(&prep, &spec, &ctx.screen_heldout, &cur_train.x).1 as f64;
-        let _ = n_ho;
         if !(bg > 0.05 * cur_ho && bg > 25.0 * cur_ms) {
+            notes.extend(absorbed_pulley);
             for (e, c, ok) in &cands {
                 rejected.push(format!(
                     "{}: held-out sum of squares {:+.1}%{}",
