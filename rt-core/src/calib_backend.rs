@@ -102,15 +102,21 @@ impl Calibrate for TautCalib {
             .map(|s| if s[0] > 0.0 { s[3] / s[0] } else { 0.0 })
             .fold(f64::INFINITY, f64::min);
         let observable = worst >= self.opts.min_rel_singular_value;
+        // Then all taut cables at once with the platform positions as unknowns (see
+        // `taut_calib::bundle`): the force-aware fit is its start and its fallback.
+        let (anchors, l0, anchor_sigma, l0_sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
+            Some(b) => (b.anchors, b.l0, b.anchor_sigma, b.l0_sigma, format!(", refined on all cables ({} samples, errors-in-variables)", b.samples)),
+            None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
+        };
         Ok(Estimate {
-            anchors: r.params.anchors,
-            l0: r.params.l0,
-            anchor_sigma: r.anchor_sigma,
-            l0_sigma: r.l0_sigma,
+            anchors,
+            l0,
+            anchor_sigma,
+            l0_sigma,
             rms_m: r.rms_m,
             observable,
             note: if observable {
-                format!("{} readings, smallest relative singular value {worst:.2e}", r.samples_used)
+                format!("{} readings, smallest relative singular value {worst:.2e}{how}", r.samples_used)
             } else {
                 format!("smallest relative singular value {worst:.2e} below {:.0e}: excite the robot more", self.opts.min_rel_singular_value)
             },
