@@ -35,7 +35,7 @@ impl TautCalib {
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
         let moved = b.anchors.iter().zip(anchors).map(|(a, s)| ((a[0] - s[0]).powi(2) + (a[1] - s[1]).powi(2) + (a[2] - s[2]).powi(2)).sqrt()).fold(0.0, f64::max);
         let sane = b.anchors.iter().flatten().chain(&b.l0).all(|v| v.is_finite());
-        (sane && moved < 0.15 && b.tracker_rms_m < 3.0 * self.opts.tracker_sigma_m).then_some(b)
+        (sane && moved < 0.5 && b.tracker_rms_m < 3.0 * self.opts.tracker_sigma_m).then_some(b)
     }
 }
 
