@@ -322,16 +322,12 @@ fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_
     let clip = |e: f64| (e * e).min(1e-4);
     let mut d = Vec::new();
     for i in 0..rec.len() {
-        let p = &rec.p[i];
-        if !p.iter().all(|x| x.is_finite()) {
-            continue;
-        }
-        let (l, f) = (rec.lengths(i), rec.tensions(i));
+        let (p, l, f) = (&rec.p[i], rec.lengths(i), rec.tensions(i));
         for j in 0..new.n {
-            if !l[j].is_finite() || f.is_some_and(|f| !(f[j] >= min_tension_n)) {
-                continue;
+            // Same reading for both: a paired difference.
+            if let (Some(a), Some(b)) = (new.coregistration_error(j, p, l, f, min_tension_n), old.coregistration_error(j, p, l, f, min_tension_n)) {
+                d.push(clip(a) - clip(b));
             }
-            d.push(clip(l[j] - new.length(j, p)) - clip(l[j] - old.length(j, p)));
         }
     }
     if d.len() < 2 {

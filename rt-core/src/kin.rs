@@ -68,19 +68,21 @@ impl LoopParams {
     ) -> Option<f64> {
         let (mut sum, mut count) = (0.0, 0usize);
         for (p, l, f) in samples {
-            if !p.iter().all(|x| x.is_finite()) {
-                continue;
-            }
             for j in 0..self.n {
-                if !l[j].is_finite() || f.is_some_and(|f| !(f[j] >= min_tension_n)) {
-                    continue;
+                if let Some(e) = self.coregistration_error(j, p, l, f, min_tension_n) {
+                    sum += e * e;
+                    count += 1;
                 }
-                let e = l[j] - self.length(j, p);
-                sum += e * e;
-                count += 1;
             }
         }
         (count > 0).then(|| (sum / count as f64).sqrt())
+    }
+
+    /// Measured minus modelled length of cable `j` at pose `p`; `None` without a pose, a
+    /// length, or with a tension below `min_tension_n` (loose cable).
+    pub fn coregistration_error(&self, j: usize, p: &[f64; 3], l: &[f64], f: Option<&[f64]>, min_tension_n: f64) -> Option<f64> {
+        let usable = p.iter().all(|x| x.is_finite()) && l[j].is_finite() && !f.is_some_and(|f| !(f[j] >= min_tension_n));
+        usable.then(|| l[j] - self.length(j, p))
     }
 }
 

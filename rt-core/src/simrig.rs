@@ -364,16 +364,12 @@ impl<R: CanTransport> Site<R> {
             let t = now.saturating_duration_since(t0).as_secs_f64();
             if t >= next_pose && !self.faults.tracker_gone.load(Ordering::Relaxed) {
                 next_pose = (next_pose + TRACKER_PERIOD_S).max(t);
-                let m = self.tracker.measure(self.plant_position(), &mut self.rng);
+                let m = self.tracker.measure(self.plant.position(), &mut self.rng);
                 if m.iter().all(|v| v.is_finite()) {
                     let _ = self.sender.send_pose(t, m, None);
                 }
             }
         }
-    }
-
-    fn plant_position(&self) -> [f64; 3] {
-        self.plant.position()
     }
 
     fn inject_faults(&mut self) {
