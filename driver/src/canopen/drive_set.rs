@@ -66,6 +66,14 @@ pub enum DriveSetError {
         /// Its phase.
         phase: Phase,
     },
+    /// A drive left "operation enabled" while the set was enabled: it rebooted (and came back
+    /// configured but disabled) or was disabled locally (enable input, drive panel).
+    Disabled {
+        /// Node.
+        node: NodeId,
+        /// Its drive state now, if known.
+        state: Option<State>,
+    },
     /// A command was refused.
     Command(CommandError),
     /// The transport failed.
@@ -92,6 +100,11 @@ impl fmt::Display for DriveSetError {
                 write!(f, "node {node}: drive fault 0x{code:04X} ({})", super::emcy::error_code_name(*code))
             }
             DriveSetError::NotOperational { node, phase } => write!(f, "node {node}: no longer operational ({})", phase.name()),
+            DriveSetError::Disabled { node, state } => write!(
+                f,
+                "node {node}: left operation enabled (now {}); it rebooted or was disabled locally: disable the set and enable it again",
+                state.map_or("unknown", |s| s.name())
+            ),
             DriveSetError::Command(e) => write!(f, "{e}"),
             DriveSetError::Transport(e) => write!(f, "{e}"),
         }
@@ -342,6 +355,11 @@ impl<T: CanTransport> DriveSet<T, Enabled> {
         for s in self.master.statuses() {
             if matches!(s.axis.state, Some(State::Fault | State::FaultReactionActive)) {
                 return Err(DriveSetError::Fault { node: s.node, code: s.axis.error_code });
+            }
+            // A drive that rebooted fast enough to be configured and operational again between
+            // two checks is only seen here: its power stage came back off.
+            if s.axis.state != Some(State::OperationEnabled) {
+                return Err(DriveSetError::Disabled { node: s.node, state: s.axis.state });
             }
         }
         Ok(())
