@@ -615,9 +615,10 @@ impl Controller {
                         let r = self.cfg.reel_m * (ts / travel_s).min(1.0);
                         // A held cable going slack ends the reeling early: the platform would
                         // leave the circle about the held anchors.
-                        let slack = ts > 0.2
-                            && self.cfg.tension_max_age_s.is_finite()
-                            && (inp.tension_n[a] < self.cfg.held_min_tension_n || inp.tension_n[b] < self.cfg.held_min_tension_n);
+                        // Only readings taken during the reel count (see `measured_after`).
+                        let slack = self.cfg.tension_max_age_s.is_finite()
+                            && ((measured_after(inp, a, ts, REEL_GRACE_S) && inp.tension_n[a] < self.cfg.held_min_tension_n)
+                                || (measured_after(inp, b, ts, REEL_GRACE_S) && inp.tension_n[b] < self.cfg.held_min_tension_n));
                         if ts >= travel_s || slack {
                             self.segment = Segment::Return;
                             self.segment_t0 = now;
@@ -839,8 +840,10 @@ impl Controller {
         }
         if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) && c.tension_max_age_s.is_finite() {
             let r = c.phases[self.phase as usize][2];
-            // Give the reeled cable a moment after the phase starts before calling it loose.
-            if now - self.segment_t0 > 0.2 || self.segment == Segment::Return {
+            // Give the reeled cable a moment after the phase starts before calling it loose, and
+            // judge it only on a reading taken since then.
+            let grace = if self.segment == Segment::Return { 0.0 } else { REEL_GRACE_S };
+            if measured_after(inp, r, now - self.segment_t0, grace) {
                 if inp.tension_n[r] < c.loose_tension_n {
                     return self.latch(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 }, inp, now);
                 }
@@ -859,5 +862,74 @@ impl Controller {
                 self.latch(Cause::Workspace, inp, now);
             }
         }
+    }
+}
+
+/// Time after the start of a reel before the reeled and the held cables' tensions are judged, s.
+const REEL_GRACE_S: f64 = 0.2;
+
+/// Whether cable `j`'s tension reading was measured more than `grace` s after a segment that
+/// began `since_start` s ago. A reading from before a reel began says nothing about the reel:
+/// after a stall of the loop (or of the load-cell thread) the newest reading can be old, still
+/// within `safety.tension_max_age_s`, and from a moment when the cable was loose at rest.
+fn measured_after(inp: &Inputs, j: usize, since_start: f64, grace: f64) -> bool {
+    since_start - inp.tension_age_s[j] > grace
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runner::LoopCore;
+    use crate::sample::sample_ring;
+    use crate::testkit::{quick_config, truth_params, KinematicRobot};
+    use crate::triple::triple_buffer;
+
+    fn core(dir: &std::path::Path) -> LoopCore<KinematicRobot> {
+        let mut cfg = quick_config(4, dir);
+        cfg.safety.tension_max_age_s = 5.0;
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+        let truth = truth_params(4, 0.1);
+        let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+        let (_cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
+        let (sample_tx, _sample_rx) = sample_ring(64);
+        LoopCore::new(4, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, cmd_rx, params_rx), sample_tx)
+    }
+
+    /// A loose reading taken before the reel began (the newest one after a stall of the
+    /// load-cell thread, still within the tension age limit) does not stop the phase as a loose
+    /// reeled cable; a loose reading taken during the reel does.
+    #[test]
+    fn a_reeled_cable_is_judged_loose_only_on_readings_taken_during_the_reel() {
+        // Nothing is written: the directory only names the socket and data paths.
+        let mut c = core(&std::env::temp_dir());
+        let dt = 0.002;
+        let mut t = 0.0;
+        let mut step = |c: &mut LoopCore<KinematicRobot>, k: usize| {
+            for _ in 0..k {
+                t += dt;
+                c.cycle(t, dt);
+            }
+        };
+        for _ in 0..5000 {
+            step(&mut c, 1);
+            if c.controller.state() == State::InitPhase {
+                break;
+            }
+        }
+        assert_eq!(c.controller.state(), State::InitPhase, "{:?}", c.controller.fault());
+        assert_eq!(c.controller.phase_label(), -1, "settling before the reel");
+        // Loose at rest, then the load cells go quiet: the reel starts on that old reading.
+        c.devices.tension_n = 0.3;
+        step(&mut c, 1);
+        c.devices.inject.loadcells_silent = true;
+        step(&mut c, 100);
+        assert_eq!(c.controller.phase_label(), 0, "reeling");
+        step(&mut c, 100);
+        assert_eq!(c.controller.fault(), None, "judged on a reading from before the reel");
+        // A reading taken during the reel says loose: the phase stops.
+        c.devices.inject.loadcells_silent = false;
+        step(&mut c, 1);
+        let (cause, _) = c.controller.fault().expect("a loose reeled cable latches");
+        assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
     }
 }

@@ -74,7 +74,16 @@ pub struct Plant {
     lagged: Vec<f64>,
     warm: Vec<Cell<Option<Catenary>>>,
     last_report: EquilibriumReport,
+    // The last converged step: its commands and loads (see `step`).
+    good_cmds: Vec<CableCommand>,
+    good_loads: Vec<CableLoad>,
+    have_good: bool,
+    sub_cmds: Vec<CableCommand>,
+    failed_steps: u64,
 }
+
+/// Substeps tried when a step's equilibrium search fails from the last equilibrium.
+const SUBSTEPS: usize = 8;
 
 impl Plant {
     /// A plant of the true robot with the cable `physics`, platform at `p0` (a starting guess:
@@ -107,6 +116,11 @@ impl Plant {
             lagged: vec![0.0; n],
             warm: vec![Cell::new(None); n],
             last_report: EquilibriumReport { iterations: 0, residual_n: f64::NAN, converged: false, stable: false },
+            good_cmds: vec![CableCommand::Tension(0.0); n],
+            good_loads: vec![CableLoad { force: [0.0; 3], energy: 0.0, tension: 0.0, drum_length: 0.0, slack: false }; n],
+            have_good: false,
+            sub_cmds: vec![CableCommand::Tension(0.0); n],
+            failed_steps: 0,
         }
     }
 
@@ -190,12 +204,26 @@ impl Plant {
     pub fn step(&mut self, dt: f64, commands: &[CableCommand]) -> StepOutput<'_> {
         assert_eq!(commands.len(), self.models.len(), "one command per cable");
         self.t += dt;
-        let sys = System { models: &self.models, offsets: &self.offsets, commands, mass: self.mass, warm: &self.warm };
-        let (p, rep) = sys.solve(self.p, &mut self.loads);
-        // Keep the last good position if the search failed (no equilibrium: e.g. every cable
-        // slack); the report says so.
+        let p_before = self.p;
+        let mut rep = self.solve_for(commands);
+        if !rep.converged && self.have_good {
+            // A large change of the commands since the last equilibrium (a stalled caller):
+            // walk there in substeps from the last equilibrium.
+            self.p = p_before;
+            rep = self.solve_in_substeps(commands);
+        }
         if rep.converged {
-            self.p = p;
+            self.good_cmds.copy_from_slice(commands);
+            self.good_loads.copy_from_slice(&self.loads);
+            self.have_good = true;
+        } else {
+            // No equilibrium (e.g. every cable slack): keep the last one, position and loads
+            // together; the loads of the failed search describe a platform somewhere else.
+            self.failed_steps += 1;
+            self.p = p_before;
+            if self.have_good {
+                self.loads.copy_from_slice(&self.good_loads);
+            }
         }
         self.last_report = rep;
         for (j, l) in self.loads.iter().enumerate() {
@@ -216,6 +244,46 @@ impl Plant {
             drum_m: &self.drum,
             report: rep,
         }
+    }
+
+    /// Steps whose equilibrium search failed even in substeps (the plant kept the last
+    /// equilibrium).
+    pub fn failed_steps(&self) -> u64 {
+        self.failed_steps
+    }
+
+    /// One equilibrium search from the current position under `commands`; moves there if it
+    /// converged. Fills `self.loads` either way.
+    fn solve_for(&mut self, commands: &[CableCommand]) -> EquilibriumReport {
+        let sys = System { models: &self.models, offsets: &self.offsets, commands, mass: self.mass, warm: &self.warm };
+        let (p, rep) = sys.solve(self.p, &mut self.loads);
+        if rep.converged {
+            self.p = p;
+        }
+        rep
+    }
+
+    /// From the last converged commands to `commands` in [`SUBSTEPS`] equal steps (lengths and
+    /// tensions interpolated; a mode change takes the new command at once).
+    fn solve_in_substeps(&mut self, commands: &[CableCommand]) -> EquilibriumReport {
+        let mut sub = std::mem::take(&mut self.sub_cmds);
+        let mut rep = self.last_report;
+        for k in 1..=SUBSTEPS {
+            let s = k as f64 / SUBSTEPS as f64;
+            for (j, c) in sub.iter_mut().enumerate() {
+                *c = match (self.good_cmds[j], commands[j]) {
+                    (CableCommand::Length(a), CableCommand::Length(b)) => CableCommand::Length(a + s * (b - a)),
+                    (CableCommand::Tension(a), CableCommand::Tension(b)) => CableCommand::Tension(a + s * (b - a)),
+                    (_, now) => now,
+                };
+            }
+            rep = self.solve_for(&sub);
+            if !rep.converged {
+                break;
+            }
+        }
+        self.sub_cmds = sub;
+        rep
     }
 
     fn push_history(&mut self) {

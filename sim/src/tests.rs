@@ -504,6 +504,40 @@ mod plant {
         }
     }
 
+    #[test]
+    fn a_step_without_equilibrium_keeps_the_last_position_and_tensions_together() {
+        let physics = Physics::ideal();
+        let truth = truth(&physics);
+        let p0 = [0.3, 0.2, 1.8];
+        let mut plant = Plant::new(&truth, &physics, p0);
+        let hold = balanced_hold(&plant, &truth, p0);
+        let mut cmds: Vec<CableCommand> = hold.iter().map(|&l| CableCommand::Length(l)).collect();
+        cmds[3] = CableCommand::Tension(10.0);
+        let good = plant.step(0.01, &cmds);
+        assert!(good.report.converged);
+        let (p, t) = (good.position, good.tension_n.to_vec());
+        // Every drive lets go (torque mode, no tension): nothing holds the platform up.
+        let slack = vec![CableCommand::Tension(0.0); hold.len()];
+        let out = plant.step(0.01, &slack);
+        assert!(!out.report.converged);
+        assert_eq!(out.position, p);
+        assert_eq!(out.tension_n, &t[..], "tensions of the kept equilibrium, not of the failed search");
+        assert_eq!(plant.failed_steps(), 1);
+        // A large jump that has an equilibrium is reached (in substeps if need be) and matches
+        // the same change made in small steps.
+        let mut fine = plant.clone();
+        let mut jump = cmds.clone();
+        jump[2] = CableCommand::Length(hold[2] + 0.3);
+        let big = plant.step(0.01, &jump).position;
+        let mut small = p;
+        for k in 1..=30 {
+            let mut c = cmds.clone();
+            c[2] = CableCommand::Length(hold[2] + 0.01 * k as f64);
+            small = fine.step(0.01, &c).position;
+        }
+        assert!(norm(sub(big, small)) < 1e-6, "{big:?} vs {small:?}");
+    }
+
     /// Drum lengths that hold the platform at `p`: cable 3 at 10 N, cables 0-2 balancing.
     fn balanced_hold(plant: &Plant, truth: &Truth, p: [f64; 3]) -> Vec<f64> {
         let u: Vec<[f64; 3]> = truth.anchors.iter().map(|a| sub(*a, p).map(|x| x / norm(sub(*a, p)))).collect();

@@ -69,6 +69,22 @@ fn start_up_over_socketcan_runs_every_stage() {
         c.samples_recorded,
         c.outcomes.iter().map(|o| (o.kind, o.accepted, o.reason.clone())).collect::<Vec<_>>()
     );
+    if !finished || l.snap.fault.is_some() {
+        // What the loop saw before it stopped: overruns and the recording's last samples.
+        eprintln!("cycles {}, overruns {}, max lateness {:.1} ms, max compute {:.1} ms", l.cycles, l.overruns, l.max_late_ns as f64 / 1e6, l.max_compute_ns as f64 / 1e6);
+        if let Some(text) = c.recording.as_ref().and_then(|p| std::fs::read_to_string(p).ok()) {
+            let lines: Vec<&str> = text.lines().collect();
+            let header = lines.iter().take_while(|l| l.starts_with('#')).count();
+            eprintln!("{}", lines.get(header).copied().unwrap_or(""));
+            // Every 10th sample, then the last 20.
+            let tail = lines.len().saturating_sub(20).max(header + 1);
+            for (k, line) in lines.iter().enumerate().skip(header + 1) {
+                if k >= tail || (k - header) % 10 == 1 {
+                    eprintln!("{line}");
+                }
+            }
+        }
+    }
     assert!(finished, "the start-up did not reach the calibration in time");
     assert!(l.snap.fault.is_none(), "safety reaction: {:?}", l.snap.fault);
     assert_eq!(l.snap.phases_completed, 3);
