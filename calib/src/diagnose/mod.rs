@@ -679,6 +679,9 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         });
     }
 
+    /// LM iterations from each starting weight of the sag candidate before the best goes on.
+    const SAG_START_ITERATIONS: usize = 6;
+
     // Forward selection.
     let mut spec = ideal.clone();
     let mut cur_train = base.clone();
@@ -703,20 +706,29 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
             let mut s2 = spec.clone();
             s2.effects.push(e);
             let x0 = s2.extend(n, &spec, &cur_train.x);
-            let mut r = ctx.fit(&s2, &ctx.screen_train, &x0, 30);
-            if e == Effect::Sag {
+            let r = if e == Effect::Sag {
                 // The sag excess grows as w^2: near a small start the gradient in w all but
-                // vanishes and the fit stays there. Try heavier cables too; keep the best.
+                // vanishes and the fit stays there. Try heavier cables too: a few iterations from
+                // each start, then the best one fitted to the end (each catenary is a Newton
+                // solve: four full fits were most of a diagnosis's time).
                 let o = s2.offset(e, n).expect("active");
+                let mut best = ctx.fit(&s2, &ctx.screen_train, &x0, SAG_START_ITERATIONS);
                 for w in [0.5, 2.0, 8.0] {
                     let mut xs = x0.clone();
                     xs[o] = w;
-                    let rs = ctx.fit(&s2, &ctx.screen_train, &xs, 30);
-                    if rs.x.iter().all(|v| v.is_finite()) && (rs.cost < r.cost || !r.cost.is_finite()) {
-                        r = rs;
+                    let rs = ctx.fit(&s2, &ctx.screen_train, &xs, SAG_START_ITERATIONS);
+                    if rs.x.iter().all(|v| v.is_finite()) && (rs.cost < best.cost || !best.cost.is_finite()) {
+                        best = rs;
                     }
                 }
-            }
+                if best.x.iter().all(|v| v.is_finite()) {
+                    ctx.fit(&s2, &ctx.screen_train, &best.x, 30)
+                } else {
+                    best
+                }
+            } else {
+                ctx.fit(&s2, &ctx.screen_train, &x0, 30)
+            };
             if !r.x.iter().all(|v| v.is_finite()) {
                 continue;
             }
