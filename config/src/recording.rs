@@ -100,7 +100,7 @@ impl Recording {
                     assert_eq!(f.len(), self.n_cables, "one tension per cable");
                     fs.extend_from_slice(f);
                 }
-                None => fs.extend(std::iter::repeat(f64::NAN).take(self.n_cables)),
+                None => fs.extend(std::iter::repeat_n(f64::NAN, self.n_cables)),
             }
         }
         if let Some(ph) = &mut self.phase {
@@ -439,9 +439,9 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
         if line.trim().is_empty() {
             continue;
         }
-        if line.starts_with('#') {
+        if let Some(comment) = line.strip_prefix('#') {
             if cols.is_none() {
-                comments.push(line[1..].to_string());
+                comments.push(comment.to_string());
             }
             continue;
         }

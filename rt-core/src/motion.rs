@@ -843,10 +843,8 @@ impl Controller {
             // Give the reeled cable a moment after the phase starts before calling it loose, and
             // judge it only on a reading taken since then.
             let grace = if self.segment == Segment::Return { 0.0 } else { REEL_GRACE_S };
-            if measured_after(inp, r, now - self.segment_t0, grace) {
-                if inp.tension_n[r] < c.loose_tension_n {
-                    return self.latch(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 }, inp, now);
-                }
+            if measured_after(inp, r, now - self.segment_t0, grace) && inp.tension_n[r] < c.loose_tension_n {
+                return self.latch(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 }, inp, now);
             }
         }
         // The approach of the excitation may start outside the box; it leads into it.
