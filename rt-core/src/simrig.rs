@@ -23,7 +23,7 @@
 use crate::io::{Devices, Inputs, Outputs};
 use crate::robot_io::{Peripherals, RobotDevices};
 use crate::MAX_CABLES;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -50,6 +50,9 @@ pub struct SimFaults {
     pub drive_emcy: AtomicBool,
     /// Drive of cable 1 stops sending heartbeats.
     pub heartbeat_lost: AtomicBool,
+    /// Plant steps that found no equilibrium (the plant kept the last one): a statistic the
+    /// site thread writes, for tests to print when a start-up fails.
+    pub plant_failed_steps: AtomicU64,
 }
 
 /// A simulated robot ready for the daemon.
@@ -408,6 +411,9 @@ impl<R: CanTransport> Site<R> {
         }
         let o = self.plant.step(dt, &self.cmds);
         self.handle.set_all(o.tension_n);
+        if !o.report.converged {
+            self.faults.plant_failed_steps.fetch_add(1, Ordering::Relaxed);
+        }
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];

@@ -55,6 +55,7 @@ fn start_up_over_socketcan_runs_every_stage() {
     let so = SimOptions { seed: 3, can: Some(iface.to_string()), site_period: Duration::from_millis(5), ..Default::default() };
     let p0 = simrig::rest_position(&cfg, &so, p0);
     let sim = simrig::build(&cfg, p0, &so).expect("bring-up over vcan0");
+    let site = sim.faults.clone();
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() }).unwrap();
     let finished = d.wait_until(Duration::from_secs(480), |l, c| {
         l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration) || l.snap.state == State::Stopped
@@ -71,7 +72,14 @@ fn start_up_over_socketcan_runs_every_stage() {
     );
     if !finished || l.snap.fault.is_some() {
         // What the loop saw before it stopped: overruns and the recording's last samples.
-        eprintln!("cycles {}, overruns {}, max lateness {:.1} ms, max compute {:.1} ms", l.cycles, l.overruns, l.max_late_ns as f64 / 1e6, l.max_compute_ns as f64 / 1e6);
+        eprintln!(
+            "cycles {}, overruns {}, max lateness {:.1} ms, max compute {:.1} ms, plant steps without equilibrium {}",
+            l.cycles,
+            l.overruns,
+            l.max_late_ns as f64 / 1e6,
+            l.max_compute_ns as f64 / 1e6,
+            site.plant_failed_steps.load(std::sync::atomic::Ordering::Relaxed)
+        );
         if let Some(text) = c.recording.as_ref().and_then(|p| std::fs::read_to_string(p).ok()) {
             let lines: Vec<&str> = text.lines().collect();
             let header = lines.iter().take_while(|l| l.starts_with('#')).count();
