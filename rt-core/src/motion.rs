@@ -616,9 +616,8 @@ impl Controller {
                         // A held cable going slack ends the reeling early: the platform would
                         // leave the circle about the held anchors.
                         // Only readings taken during the reel count (see `measured_after`).
-                        let slack = self.cfg.tension_max_age_s.is_finite()
-                            && ((measured_after(inp, a, ts, REEL_GRACE_S) && inp.tension_n[a] < self.cfg.held_min_tension_n)
-                                || (measured_after(inp, b, ts, REEL_GRACE_S) && inp.tension_n[b] < self.cfg.held_min_tension_n));
+                        let slackened = |j: usize| measured_after(inp, j, ts, REEL_GRACE_S) && inp.tension_n[j] < self.cfg.held_min_tension_n;
+                        let slack = self.cfg.tension_max_age_s.is_finite() && (slackened(a) || slackened(b));
                         if ts >= travel_s || slack {
                             self.segment = Segment::Return;
                             self.segment_t0 = now;

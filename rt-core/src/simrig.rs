@@ -50,8 +50,8 @@ pub struct SimFaults {
     pub drive_emcy: AtomicBool,
     /// Drive of cable 1 stops sending heartbeats.
     pub heartbeat_lost: AtomicBool,
-    /// Plant steps that found no equilibrium (the plant kept the last one): a statistic the
-    /// site thread writes, for tests to print when a start-up fails.
+    /// Plant steps that found no equilibrium (the plant kept the last one): the plant's own
+    /// count, mirrored by the site thread for tests to print when a start-up fails.
     pub plant_failed_steps: AtomicU64,
 }
 
@@ -411,9 +411,6 @@ impl<R: CanTransport> Site<R> {
         }
         let o = self.plant.step(dt, &self.cmds);
         self.handle.set_all(o.tension_n);
-        if !o.report.converged {
-            self.faults.plant_failed_steps.fetch_add(1, Ordering::Relaxed);
-        }
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];
@@ -421,6 +418,7 @@ impl<R: CanTransport> Site<R> {
             let torque = permille(o.tension_n[j] / u.n_per_permille);
             self.rack.drives()[j].set_actual(counts(o.encoder_m[j] * u.counts_per_m), torque);
         }
+        self.faults.plant_failed_steps.store(self.plant.failed_steps(), Ordering::Relaxed);
     }
 }
 

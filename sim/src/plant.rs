@@ -208,8 +208,7 @@ impl Plant {
         let mut rep = self.solve_for(commands);
         if !rep.converged && self.have_good {
             // A large change of the commands since the last equilibrium (a stalled caller):
-            // walk there in substeps from the last equilibrium.
-            self.p = p_before;
+            // walk there in substeps from the last equilibrium (a failed search leaves `p`).
             rep = self.solve_in_substeps(commands);
         }
         if rep.converged {
@@ -217,8 +216,9 @@ impl Plant {
             self.good_loads.copy_from_slice(&self.loads);
             self.have_good = true;
         } else {
-            // No equilibrium (e.g. every cable slack): keep the last one, position and loads
-            // together; the loads of the failed search describe a platform somewhere else.
+            // No equilibrium (e.g. every cable slack): keep the last one, position (substeps
+            // may have moved it part way) and loads together; the loads of the failed search
+            // describe a platform somewhere else.
             self.failed_steps += 1;
             self.p = p_before;
             if self.have_good {
