@@ -26,8 +26,15 @@ pub fn run(a: &CtlArgs) -> Result<()> {
         (None, None) => PathBuf::from(taut_config::runtime::DaemonConfig::default().socket),
     };
     let req = a.request.join(" ");
-    let reply = taut_rt_core::control::request(&socket, &req, Duration::from_secs(5))
-        .map_err(|e| anyhow!("{}: {e} (is `taut start` running? give --socket or --config)", socket.display()))?;
+    let reply = taut_rt_core::control::request(&socket, &req, Duration::from_secs(5)).map_err(|e| {
+        use std::io::ErrorKind::{ConnectionRefused, NotFound};
+        match e.kind() {
+            // Nothing serves the socket: the daemon is not running, or this is not its socket.
+            NotFound | ConnectionRefused => anyhow!("{}: {e} (is `taut start` running? give --socket or --config)", socket.display()),
+            // It is running: say what went wrong without suggesting otherwise.
+            _ => anyhow!("{}: {e}", socket.display()),
+        }
+    })?;
     println!("{}", serde_json::to_string_pretty(&reply)?);
     if reply.get("ok").and_then(|v| v.as_bool()) != Some(true) {
         bail!("{}", reply.get("error").and_then(|v| v.as_str()).unwrap_or("request refused"));

@@ -1,30 +1,40 @@
-//! Operator control over a Unix domain socket: one request line in, one JSON line out.
+//! Operator control over a Unix domain socket: request lines in, one JSON line out for each.
 //!
 //! ```text
 //! request         reply
 //! status          {"ok":true,"state":"operate","phase":-1,"fault":null,"calibration":{...},...}
 //! params          {"ok":true,"params":{"version":3,"anchors_m":[[..]],...}}
 //! recalibrate     {"ok":true,"accepted":"recalibrate"}   (progress: see status)
-//! stop | estop | reset
-//! move X Y Z      {"ok":true,...}
+//! estop | stop    {"ok":true,"accepted":"estop"}         (urgent: a flag the loop tests every cycle)
+//! reset           {"ok":true,"accepted":"reset"}
+//! move X Y Z      {"ok":true,"accepted":"move","target_m":[X,Y,Z]}
+//! anything else   {"ok":false,"error":"<what was wrong and what to send>"}
 //! ```
 //!
-//! The socket is created with mode 0660, so the operator group may use it; the loop sees only
-//! [`Command`]s from a bounded channel.
+//! A refused request says why: `move` is refused when a coordinate is not a finite number, when
+//! the point is outside the workspace box, or when the robot is not operating (a latched fault,
+//! a state other than operate/holding, no calibrated parameters yet). "Accepted" means handed to
+//! the loop, which may still decline a move if its state changed in between.
+//!
+//! The server ([`ControlServer`], `ctl_server.rs`) serves many clients at once with a line
+//! length limit and a deadline per request. The socket is created with mode 0660, so the
+//! operator group may use it; the loop sees only [`Command`]s from a bounded channel and the
+//! [`Urgent`] flags.
 
 use crate::calibrator::{OutcomeKind, SharedCalibStatus};
-use crate::motion::Command;
+use crate::motion::{Command, State};
 use crate::runner::LoopStatus;
 use crate::triple::Reader;
+use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
-use std::os::unix::fs::PermissionsExt;
-use std::os::unix::net::{UnixListener, UnixStream};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::os::unix::net::UnixStream;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+pub use crate::ctl_server::{ControlServer, ServerLimits, ServerStats};
 
 /// Shared handle on the loop's status reader.
 pub type SharedLoopStatus = Arc<Mutex<Reader<LoopStatus>>>;
@@ -93,76 +103,157 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
     })
 }
 
-/// The control server; runs on its own thread.
-pub struct ControlServer {
-    listener: UnixListener,
-    path: PathBuf,
-    commands: Sender<Command>,
-    loop_status: SharedLoopStatus,
-    calib: SharedCalibStatus,
+/// A parsed request line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Request {
+    /// `status`
+    Status,
+    /// `params`
+    Params,
+    /// `recalibrate`
+    Recalibrate,
+    /// `stop` (urgent: bypasses the command queue)
+    Stop,
+    /// `estop` (urgent: bypasses the command queue)
+    Estop,
+    /// `reset`
+    Reset,
+    /// `move X Y Z`, finite coordinates, m
+    Move([f64; 3]),
 }
 
-impl ControlServer {
-    /// Binds the socket at `path` (replacing a stale one) with mode 0660.
-    pub fn bind(path: &Path, commands: Sender<Command>, loop_status: SharedLoopStatus, calib: SharedCalibStatus) -> std::io::Result<ControlServer> {
-        if let Some(d) = path.parent() {
-            std::fs::create_dir_all(d)?;
-        }
-        if path.exists() {
-            // A socket nobody answers on is left over from a crash; a live one means a second daemon.
-            if UnixStream::connect(path).is_ok() {
-                return Err(std::io::Error::new(std::io::ErrorKind::AddrInUse, format!("{} is in use: is taut start already running?", path.display())));
-            }
-            std::fs::remove_file(path)?;
-        }
-        let listener = UnixListener::bind(path)?;
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
-        listener.set_nonblocking(true)?;
-        Ok(ControlServer { listener, path: path.to_path_buf(), commands, loop_status, calib })
+impl Request {
+    /// Estop and stop are answered ahead of everything else.
+    pub fn is_urgent(self) -> bool {
+        matches!(self, Request::Estop | Request::Stop)
     }
+}
 
-    /// Serves until `quit`; removes the socket file at the end.
-    pub fn run(self, quit: Arc<AtomicBool>) {
-        // Relaxed: only ends the polling; no data is handed over with it.
-        while !quit.load(Ordering::Relaxed) {
-            match self.listener.accept() {
-                Ok((stream, _)) => {
-                    let _ = self.serve(stream);
+const VERBS: &str = "status | params | recalibrate | stop | estop | reset | move X Y Z";
+
+/// At most `n` characters of `s` for an error message, with `...` when cut.
+fn excerpt(s: &str, n: usize) -> String {
+    match s.char_indices().nth(n) {
+        Some((i, _)) => format!("{}...", &s[..i]),
+        None => s.to_string(),
+    }
+}
+
+/// Parses one request line (without its line end). The error is the reply's message.
+pub fn parse_request(line: &[u8]) -> Result<Request, String> {
+    let text = std::str::from_utf8(line).map_err(|e| {
+        format!(
+            "the request is not UTF-8 text (bad byte at offset {})",
+            e.valid_up_to()
+        )
+    })?;
+    if let Some((i, c)) = text
+        .char_indices()
+        .find(|&(_, c)| c.is_control() && c != '\t')
+    {
+        return Err(format!("the request has a control character {:?} at offset {i}; send one line of text: {VERBS}", c));
+    }
+    let mut words = text.split_whitespace();
+    let verb = match words.next() {
+        Some(v) => v,
+        None => return Err(format!("empty request; send one of: {VERBS}")),
+    };
+    let rest: Vec<&str> = words.take(5).collect();
+    let simple = |r: Request| {
+        if rest.is_empty() {
+            Ok(r)
+        } else {
+            Err(format!(
+                "{verb} takes no arguments, got {:?}",
+                excerpt(&rest.join(" "), 40)
+            ))
+        }
+    };
+    match verb {
+        "status" => simple(Request::Status),
+        "params" => simple(Request::Params),
+        "recalibrate" => simple(Request::Recalibrate),
+        "stop" => simple(Request::Stop),
+        "estop" => simple(Request::Estop),
+        "reset" => simple(Request::Reset),
+        "move" => {
+            if rest.len() != 3 {
+                return Err(format!(
+                    "move needs exactly three numbers: move X Y Z (m), got {}{}",
+                    rest.len().min(4),
+                    if rest.len() > 3 { " or more" } else { "" }
+                ));
+            }
+            let mut p = [0.0; 3];
+            for (i, w) in rest.iter().enumerate() {
+                let axis = ["X", "Y", "Z"][i];
+                let v: f64 = w
+                    .parse()
+                    .map_err(|_| format!("move: {axis} = {:?} is not a number", excerpt(w, 40)))?;
+                if !v.is_finite() {
+                    return Err(format!(
+                        "move refused: {axis} = {:?} is not a finite number (m)",
+                        excerpt(w, 40)
+                    ));
                 }
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(10)),
-                Err(_) => std::thread::sleep(Duration::from_millis(10)),
+                p[i] = v;
             }
+            Ok(Request::Move(p))
         }
-        let _ = std::fs::remove_file(&self.path);
+        _ => Err(format!("unknown request {:?}: {VERBS}", excerpt(verb, 40))),
     }
+}
 
-    fn serve(&self, stream: UnixStream) -> std::io::Result<()> {
-        stream.set_nonblocking(false)?;
-        stream.set_read_timeout(Some(Duration::from_secs(2)))?;
-        let mut reader = BufReader::new(stream.try_clone()?);
-        let mut line = String::new();
-        reader.read_line(&mut line)?;
-        let reply = self.handle(line.trim());
-        let mut w = stream;
-        writeln!(w, "{reply}")?;
-        w.flush()
-    }
+/// What requests act on: the loop's inputs and the status readers.
+#[derive(Clone)]
+pub struct ControlLinks {
+    /// Commands to the loop (bounded; a full queue refuses the request).
+    pub commands: Sender<Command>,
+    /// Estop and stop, without the queue.
+    pub urgent: Arc<Urgent>,
+    /// The loop's status.
+    pub loop_status: SharedLoopStatus,
+    /// The calibrator's status.
+    pub calib: SharedCalibStatus,
+    /// The workspace box a move must stay in, m (`motion.workspace_min_m` / `workspace_max_m`).
+    pub workspace: [[f64; 3]; 2],
+}
 
-    /// Handles one request line.
-    pub fn handle(&self, req: &str) -> Value {
-        let words: Vec<&str> = req.split_whitespace().collect();
+/// A poisoned lock only means another thread panicked while holding it; the data is plain
+/// status, still worth showing.
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl ControlLinks {
+    /// Answers one parsed request. Never blocks on the loop: urgent requests set a flag, others
+    /// go through the bounded queue with `try_send`.
+    pub fn handle(&self, req: Request) -> Value {
         let send = |c: Command, what: &str| match self.commands.try_send(c) {
             Ok(()) => json!({"ok": true, "accepted": what}),
-            Err(_) => json!({"ok": false, "error": "the loop's command queue is full or closed; try again"}),
+            Err(crossbeam_channel::TrySendError::Full(_)) => {
+                json!({"ok": false, "error": format!("{what} refused: the loop's command queue is full; try again")})
+            }
+            Err(crossbeam_channel::TrySendError::Disconnected(_)) => {
+                json!({"ok": false, "error": format!("{what} refused: the loop has ended")})
+            }
         };
-        match words.as_slice() {
-            ["status"] => {
-                let ls = *self.loop_status.lock().unwrap().read();
-                let cs = self.calib.lock().unwrap().clone();
+        match req {
+            Request::Estop => {
+                self.urgent.estop();
+                json!({"ok": true, "accepted": "estop"})
+            }
+            Request::Stop => {
+                self.urgent.stop();
+                json!({"ok": true, "accepted": "stop"})
+            }
+            Request::Status => {
+                let ls = *lock(&self.loop_status).read();
+                let cs = lock(&self.calib).clone();
                 status_json(&ls, &cs)
             }
-            ["params"] => {
-                let cs = self.calib.lock().unwrap();
+            Request::Params => {
+                let cs = lock(&self.calib);
                 match &cs.current {
                     Some(p) => json!({"ok": true, "params": {
                         "version": p.version, "created_unix_s": p.created_unix_s, "source": p.source,
@@ -171,32 +262,86 @@ impl ControlServer {
                     None => json!({"ok": true, "params": null}),
                 }
             }
-            ["recalibrate"] => {
-                let ls = *self.loop_status.lock().unwrap().read();
-                use crate::motion::State;
-                if !matches!(ls.snap.state, State::Operate | State::Holding) || ls.snap.fault.is_some() {
-                    return json!({"ok": false, "error": format!("recalibrate needs the robot operating without a fault; it is {}", ls.snap.state.name())});
+            Request::Recalibrate => {
+                let ls = *lock(&self.loop_status).read();
+                if !matches!(ls.snap.state, State::Operate | State::Holding)
+                    || ls.snap.fault.is_some()
+                {
+                    return json!({"ok": false, "error": format!("recalibrate refused: it needs the robot operating without a fault; it is {}", ls.snap.state.name())});
                 }
                 send(Command::Recalibrate, "recalibrate")
             }
-            ["stop"] => send(Command::Stop, "stop"),
-            ["estop"] => send(Command::Estop, "estop"),
-            ["reset"] => send(Command::Reset, "reset"),
-            ["move", x, y, z] => match (x.parse::<f64>(), y.parse::<f64>(), z.parse::<f64>()) {
-                (Ok(x), Ok(y), Ok(z)) => send(Command::MoveTo([x, y, z]), "move"),
-                _ => json!({"ok": false, "error": "move needs three numbers: move X Y Z (m)"}),
-            },
-            _ => json!({"ok": false, "error": format!("unknown request {req:?}: status | params | recalibrate | stop | estop | reset | move X Y Z")}),
+            Request::Reset => send(Command::Reset, "reset"),
+            Request::Move(p) => {
+                let w = &self.workspace;
+                if (0..3).any(|i| p[i] < w[0][i] || p[i] > w[1][i]) {
+                    return json!({"ok": false, "error": format!(
+                        "move refused: {p:?} m is outside the workspace box {:?} .. {:?} m (motion.workspace_min_m / workspace_max_m)", w[0], w[1])});
+                }
+                let s = lock(&self.loop_status).read().snap;
+                if let Some((cause, _)) = s.fault {
+                    return json!({"ok": false, "error": format!("move refused: the robot is not operating: a safety reaction is latched ({cause}); `reset` first")});
+                }
+                if !matches!(s.state, State::Operate | State::Holding) {
+                    return json!({"ok": false, "error": format!("move refused: the robot is not operating (state {}); moves are taken in operate or holding", s.state.name())});
+                }
+                if s.params_version == 0 {
+                    return json!({"ok": false, "error": "move refused: the robot is not operating: no calibrated parameters yet"});
+                }
+                match send(Command::MoveTo(p), "move") {
+                    v if v["ok"] == true => json!({"ok": true, "accepted": "move", "target_m": p}),
+                    v => v,
+                }
+            }
+        }
+    }
+
+    /// Parses and answers one request line (a convenience for tests and one-shot callers).
+    pub fn handle_line(&self, line: &str) -> Value {
+        match parse_request(line.trim().as_bytes()) {
+            Ok(r) => self.handle(r),
+            Err(e) => json!({"ok": false, "error": e}),
         }
     }
 }
 
-/// Sends one request and returns the reply (client side of `taut ctl`).
+/// Sends one request and returns the reply (client side of `taut ctl`). Errors say which step
+/// failed: connecting (kind `NotFound` / `ConnectionRefused`: nothing serves the socket), no reply
+/// within `timeout` (`TimedOut`), the connection closed without a reply (`UnexpectedEof`), or a
+/// reply that is not JSON (`InvalidData`).
 pub fn request(path: &Path, req: &str, timeout: Duration) -> std::io::Result<Value> {
+    use std::io::{Error, ErrorKind};
     let mut s = UnixStream::connect(path)?;
     s.set_read_timeout(Some(timeout))?;
-    writeln!(s, "{req}")?;
+    s.set_write_timeout(Some(timeout))?;
+    writeln!(s, "{req}").map_err(|e| Error::new(e.kind(), format!("sending the request: {e}")))?;
     let mut line = String::new();
-    BufReader::new(s).read_line(&mut line)?;
-    serde_json::from_str(&line).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+    match BufReader::new(s).read_line(&mut line) {
+        Ok(0) => {
+            return Err(Error::new(
+                ErrorKind::UnexpectedEof,
+                "the daemon closed the connection without a reply",
+            ))
+        }
+        Ok(_) => {}
+        Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+            return Err(Error::new(
+                ErrorKind::TimedOut,
+                format!(
+                    "the daemon accepted the connection but sent no reply within {:.1} s",
+                    timeout.as_secs_f64()
+                ),
+            ))
+        }
+        Err(e) => return Err(Error::new(e.kind(), format!("reading the reply: {e}"))),
+    }
+    serde_json::from_str(&line).map_err(|e| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!(
+                "the reply is not JSON ({e}): {:?}",
+                excerpt(line.trim_end(), 80)
+            ),
+        )
+    })
 }

@@ -2,7 +2,8 @@
 //! channel, starts the loop, calibrator and control threads, and stops them in order.
 
 use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
-use crate::control::{ControlServer, SharedLoopStatus};
+use crate::control::{ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
+use crate::urgent::Urgent;
 use crate::io::Devices;
 use crate::kin::LoopParams;
 use crate::motion::{Command, Controller, ControllerConfig};
@@ -51,6 +52,7 @@ pub struct Daemon {
     pub calib_status: SharedCalibStatus,
     /// The recording being written.
     pub recording: PathBuf,
+    urgent: Arc<Urgent>,
 }
 
 impl Daemon {
@@ -61,7 +63,8 @@ impl Daemon {
         let (params_tx, params_rx) = triple_buffer(LoopParams::invalid(n));
         let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(cfg.rt.command_capacity);
         let (sample_tx, sample_rx) = sample_ring(cfg.rt.ring_capacity);
-        let controller = Controller::new(ccfg, cmd_rx, params_rx);
+        let urgent = Arc::new(Urgent::default());
+        let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
         let init_status = LoopStatus {
             snap: controller.snapshot(0.0, &crate::io::Inputs::new(n)),
             cycles: 0,
@@ -80,6 +83,23 @@ impl Daemon {
             let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
             data_dir.join("recordings").join(format!("start-{t}.csv"))
         });
+        // The socket first: a second daemon is refused here, before it creates any file.
+        let control = if opts.control {
+            let path = PathBuf::from(&cfg.daemon.socket);
+            let links = ControlLinks {
+                commands: cmd_tx.clone(),
+                urgent: urgent.clone(),
+                loop_status: loop_status.clone(),
+                calib: calib_status.clone(),
+                workspace: ccfg.workspace,
+            };
+            Some(
+                ControlServer::bind(&path, links, ServerLimits::default())
+                    .map_err(|e| format!("cannot serve the control socket {}: {e} (daemon.socket)", path.display()))?,
+            )
+        } else {
+            None
+        };
         let calibrator = Calibrator::new(
             CalibratorConfig::from_robot(cfg),
             sample_rx,
@@ -89,15 +109,6 @@ impl Daemon {
             calib_status.clone(),
         )
         .map_err(|e| format!("cannot create the recording {}: {e} (daemon.data_dir)", recording.display()))?;
-        let control = if opts.control {
-            let path = PathBuf::from(&cfg.daemon.socket);
-            Some(
-                ControlServer::bind(&path, cmd_tx.clone(), loop_status.clone(), calib_status.clone())
-                    .map_err(|e| format!("cannot serve the control socket {}: {e} (daemon.socket)", path.display()))?,
-            )
-        } else {
-            None
-        };
         let quit = Arc::new(AtomicBool::new(false));
         let loop_quit = Arc::new(AtomicBool::new(false));
         let calib_quit = quit.clone();
@@ -128,6 +139,7 @@ impl Daemon {
             loop_status,
             calib_status,
             recording,
+            urgent,
         })
     }
 
@@ -167,6 +179,8 @@ impl Daemon {
     /// Controlled stop: asks the loop to stop, waits for it, drains the calibrator, closes the
     /// socket.
     pub fn shutdown(mut self) -> Option<LoopReport> {
+        // The flag as well: the queue may be full.
+        self.urgent.stop();
         let _ = self.commands.try_send(Command::Stop);
         let r = self.loop_thread.take().and_then(|t| t.join().ok());
         self.finish();
@@ -189,6 +203,7 @@ impl Daemon {
 impl Drop for Daemon {
     fn drop(&mut self) {
         if self.loop_thread.is_some() {
+            self.urgent.stop();
             let _ = self.commands.try_send(Command::Stop);
             if let Some(t) = self.loop_thread.take() {
                 let _ = t.join();

@@ -27,6 +27,7 @@
 pub mod calib_backend;
 pub mod calibrator;
 pub mod control;
+pub mod ctl_server;
 pub mod daemon;
 pub mod io;
 pub mod kin;
@@ -41,6 +42,7 @@ pub mod sample;
 #[cfg(feature = "sim")]
 pub mod simrig;
 pub mod triple;
+pub mod urgent;
 
 pub use crossbeam_channel;
 

@@ -24,7 +24,9 @@ use crate::ramp::Ramp;
 use crate::safety::{Cause, Reaction};
 use crate::triple::Reader;
 use crate::MAX_CABLES;
+use crate::urgent::Urgent;
 use crossbeam_channel::Receiver;
+use std::sync::Arc;
 
 /// Motion states.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -294,6 +296,7 @@ pub struct Controller {
     swaps: u32,
     awaited_version: u64,
     stop_cycles: u32,
+    urgent: Option<Arc<Urgent>>,
 }
 
 const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
@@ -352,6 +355,35 @@ impl Controller {
             swaps: 0,
             awaited_version: 0,
             stop_cycles: 0,
+            urgent: None,
+        }
+    }
+
+    /// Takes estop and stop also from `urgent` (set by the control server without the command
+    /// queue), tested every cycle and before each queued command.
+    pub fn with_urgent(mut self, urgent: Arc<Urgent>) -> Controller {
+        self.urgent = Some(urgent);
+        self
+    }
+
+    fn take_urgent(&mut self, inp: &Inputs, now: f64) {
+        let (estop, stop) = match &self.urgent {
+            Some(u) => (u.take_estop(), u.take_stop()),
+            None => return,
+        };
+        if estop {
+            self.handle_command(Command::Estop, inp, now);
+            // What is queued was sent before the estop or just with it: a reset or a move must
+            // not undo or follow an estop the operator has not seen latched. Only a stop (it ends
+            // the loop, which is what shutdown waits for) is still honoured.
+            while let Ok(c) = self.commands.try_recv() {
+                if c == Command::Stop {
+                    self.handle_command(c, inp, now);
+                }
+            }
+        }
+        if stop {
+            self.handle_command(Command::Stop, inp, now);
         }
     }
 
@@ -541,7 +573,10 @@ impl Controller {
     /// One cycle: `now` is the loop time, `dt` the measured period. Reads `inp`, writes `out`.
     pub fn update(&mut self, now: f64, dt: f64, inp: &Inputs, out: &mut Outputs) {
         let n = self.cfg.n;
+        self.take_urgent(inp, now);
         while let Ok(c) = self.commands.try_recv() {
+            // An estop set before this command was sent is acted on first (see urgent.rs).
+            self.take_urgent(inp, now);
             self.handle_command(c, inp, now);
         }
 
