@@ -16,6 +16,7 @@ use taut_rt_core::io::Devices;
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_rt_core::simrig::{self, SimOptions};
 use taut_sim::Truth;
+use taut_driver::tracker::TrackerStatsHandle;
 
 /// Arguments of `taut start`.
 #[derive(clap::Args)]
@@ -68,18 +69,19 @@ pub fn run(a: &StartArgs) -> Result<()> {
     } else if a.sim && a.config.is_none() {
         cfg.daemon.socket = PathBuf::from(&cfg.daemon.data_dir).join("taut.sock").display().to_string();
     }
-    let (devices, truth): (Box<dyn Devices>, Option<Truth>) = if a.sim {
+    let (devices, truth, tracker): (Box<dyn Devices>, Option<Truth>, _) = if a.sim {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
         let w = ccfg.workspace;
         let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
         let so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
         let p0 = simrig::rest_position(&cfg, &so, p0);
         let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
-        (sim.devices, Some(sim.truth))
+        (sim.devices, Some(sim.truth), Some(sim.tracker_stats))
     } else {
-        (hardware_devices(&cfg)?, None)
+        let (d, t) = hardware_devices(&cfg)?;
+        (d, None, t)
     };
-    let daemon = Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default())
+    let daemon = Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
 
@@ -197,7 +199,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
 
 /// The robot's own devices: the CiA 402 drives on the `[can]` interface through SocketCAN, the
 /// load cells on `[loadcells]`, the tracker on `[tracker]`.
-fn hardware_devices(cfg: &RobotConfig) -> Result<Box<dyn Devices>> {
+fn hardware_devices(cfg: &RobotConfig) -> Result<(Box<dyn Devices>, Option<TrackerStatsHandle>)> {
     let Some(can) = &cfg.can else {
         bail!("the configuration has no [can] table: add one with the drives' interface, e.g. interface = \"can0\"");
     };
@@ -208,9 +210,10 @@ fn hardware_devices(cfg: &RobotConfig) -> Result<Box<dyn Devices>> {
             format!("opening CAN interface {} (can.interface): is it up? `ip link set {} up type can bitrate {}`", can.interface, can.interface, can.bitrate)
         })?;
         let peripherals = Peripherals::from_config(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let tracker = peripherals.pose.as_ref().map(|p| p.stats_handle());
         eprintln!("taut start: bringing up the drives on {}", can.interface);
         let d = RobotDevices::bring_up(cfg, bus, peripherals).map_err(|e| anyhow::anyhow!("{e}"))?;
-        Ok(Box::new(d))
+        Ok((Box::new(d), tracker))
     }
     #[cfg(not(target_os = "linux"))]
     {

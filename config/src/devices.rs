@@ -530,16 +530,35 @@ pub fn validate_unit_ids<'a>(cells: impl IntoIterator<Item = Option<&'a LoadCell
     Ok(())
 }
 
+/// One entry of `[tracker] sources`: an IP address (any port) or an address and port.
+pub fn parse_tracker_source(s: &str) -> Option<std::net::SocketAddr> {
+    match s.trim().parse::<std::net::SocketAddr>() {
+        Ok(a) => Some(a),
+        // Port 0 stands for "any port": no sender can send from port 0.
+        Err(_) => s.trim().parse::<std::net::IpAddr>().ok().map(|ip| std::net::SocketAddr::new(ip, 0)),
+    }
+}
+
 /// The `[tracker]` table: where the external position tracker's UDP pose datagrams arrive.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrackerConfig {
-    /// UDP address to listen on for pose datagrams, e.g. `0.0.0.0:5005`.
+    /// UDP address to listen on for pose datagrams: the controller's address on the tracker's
+    /// network, e.g. `192.168.10.1:5005`.
     pub listen: String,
     /// A pose older than this is late: dropped on arrival if it spent longer than this in
     /// transit, and missing in the loop once it is this old, s.
     #[serde(default = "default_tracker_max_age")]
     pub max_age_s: f64,
+    /// Senders whose datagrams are taken: IP addresses (any port) or `address:port`. Datagrams
+    /// from anyone else are dropped and counted. Empty: any sender, which is refused when
+    /// `listen` is on every interface (`0.0.0.0`, `::`) unless `allow_any_source = true`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sources: Vec<String>,
+    /// Take poses from any sender although `listen` is on every interface (a forged pose
+    /// stream goes into the calibration that moves the robot: say so only on a closed network).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub allow_any_source: bool,
 }
 
 fn default_tracker_max_age() -> f64 {
@@ -549,7 +568,7 @@ fn default_tracker_max_age() -> f64 {
 impl TrackerConfig {
     /// Listening on `listen` with the default age limit.
     pub fn new(listen: impl Into<String>) -> Self {
-        TrackerConfig { listen: listen.into(), max_age_s: default_tracker_max_age() }
+        TrackerConfig { listen: listen.into(), max_age_s: default_tracker_max_age(), sources: Vec::new(), allow_any_source: false }
     }
 
     /// Checks the values; returns the bad key and what is wrong.
@@ -557,11 +576,34 @@ impl TrackerConfig {
         if self.listen.parse::<std::net::SocketAddr>().is_err() {
             return Err((
                 "listen".into(),
-                format!("must be an IP address and UDP port such as \"0.0.0.0:5005\", got {:?}", self.listen),
+                format!("must be an IP address and UDP port such as \"192.168.10.1:5005\", got {:?}", self.listen),
             ));
         }
         if !(self.max_age_s.is_finite() && self.max_age_s > 0.0) {
             return Err(("max_age_s".into(), format!("must be a positive time in seconds, got {}", self.max_age_s)));
+        }
+        for (i, src) in self.sources.iter().enumerate() {
+            if parse_tracker_source(src).is_none() {
+                return Err((
+                    format!("sources[{i}]"),
+                    format!("must be the tracker's IP address (\"192.168.10.20\") or address and port (\"192.168.10.20:5005\"), got {src:?}"),
+                ));
+            }
+        }
+        let everywhere = self.listen.parse::<std::net::SocketAddr>().is_ok_and(|a| a.ip().is_unspecified());
+        if everywhere && self.sources.is_empty() && !self.allow_any_source {
+            return Err((
+                "sources".into(),
+                format!(
+                    "listen = {:?} takes datagrams on every interface and no sources are listed, so anyone who can reach \
+                     the controller could send poses: list the tracker's address (sources = [\"192.168.10.20\"]), \
+                     listen on the tracker network's address only, or set allow_any_source = true",
+                    self.listen
+                ),
+            ));
+        }
+        if self.allow_any_source && !self.sources.is_empty() {
+            return Err(("allow_any_source".into(), "is true but sources are listed: remove one of the two".into()));
         }
         Ok(())
     }

@@ -21,6 +21,8 @@
 //!
 //! # What is dropped, and counted
 //!
+//! - **foreign**: from a sender not in `[tracker] sources` (when the list is not empty); the
+//!   datagram is not even parsed;
 //! - **malformed**: not ASCII, wrong field count, a number that does not parse or is not finite,
 //!   a quaternion whose norm is off 1 by more than 1 % (accepted ones are normalised);
 //! - **out of order**: `t` not later than the last accepted pose's (UDP may reorder and
@@ -35,7 +37,8 @@
 //! on our clock counts as missing.
 //!
 //! ```no_run
-//! let cfg = taut_config::devices::TrackerConfig::new("0.0.0.0:5005");
+//! let mut cfg = taut_config::devices::TrackerConfig::new("192.168.10.1:5005");
+//! cfg.sources = vec!["192.168.10.20".into()];
 //! let (rx, mut poses) = taut_driver::tracker::spawn(&cfg).unwrap();
 //! if let Some(p) = poses.latest(std::time::Instant::now()) {
 //!     println!("platform at {:?}", p.position);
@@ -45,7 +48,7 @@
 
 use std::fmt;
 use std::io;
-use std::net::{SocketAddr, UdpSocket};
+use std::net::{IpAddr, SocketAddr, UdpSocket};
 use std::sync::atomic::{fence, AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -350,6 +353,7 @@ pub struct TrackerCounters {
     late: AtomicU64,
     out_of_order: AtomicU64,
     restarts: AtomicU64,
+    foreign: AtomicU64,
     logged: AtomicU64,
 }
 
@@ -368,6 +372,8 @@ pub struct TrackerStats {
     pub out_of_order: u64,
     /// Tracker clock restarts seen.
     pub restarts: u64,
+    /// Datagrams from senders not in `[tracker] sources`, dropped.
+    pub foreign: u64,
 }
 
 impl TrackerCounters {
@@ -381,6 +387,7 @@ impl TrackerCounters {
             late: l(&self.late),
             out_of_order: l(&self.out_of_order),
             restarts: l(&self.restarts),
+            foreign: l(&self.foreign),
         }
     }
 
@@ -392,6 +399,43 @@ impl TrackerCounters {
     }
 }
 
+/// Which senders are taken (`[tracker] sources`): an empty list takes any.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct SourceFilter {
+    /// Allowed senders; port 0 means any port of that address.
+    allowed: Vec<SocketAddr>,
+}
+
+/// IPv4-mapped IPv6 (`::ffff:a.b.c.d`, what a dual-stack socket reports) compares as IPv4.
+fn canonical(ip: IpAddr) -> IpAddr {
+    match ip {
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
+        v4 => v4,
+    }
+}
+
+impl SourceFilter {
+    /// From the configuration's `sources` (checked by `TrackerConfig::validate`).
+    pub fn from_config(cfg: &TrackerConfig) -> io::Result<SourceFilter> {
+        let allowed = cfg
+            .sources
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                taut_config::devices::parse_tracker_source(s)
+                    .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("tracker.sources[{i}]: {s:?} is not an address")))
+            })
+            .collect::<io::Result<Vec<_>>>()?;
+        Ok(SourceFilter { allowed })
+    }
+
+    /// True if a datagram from `from` is taken. No allocation.
+    pub fn allows(&self, from: SocketAddr) -> bool {
+        self.allowed.is_empty()
+            || self.allowed.iter().any(|a| canonical(a.ip()) == canonical(from.ip()) && (a.port() == 0 || a.port() == from.port()))
+    }
+}
+
 /// The receiving end: a non-blocking UDP socket, the filter, the slot. Drive it with
 /// [`poll`](Self::poll) from any loop, or let [`spawn`] run it on its own thread.
 pub struct TrackerReceiver {
@@ -400,6 +444,7 @@ pub struct TrackerReceiver {
     slot: Arc<PoseSlot>,
     counters: Arc<TrackerCounters>,
     max_age: Duration,
+    sources: SourceFilter,
 }
 
 impl TrackerReceiver {
@@ -407,6 +452,7 @@ impl TrackerReceiver {
     pub fn bind(cfg: &TrackerConfig) -> io::Result<TrackerReceiver> {
         cfg.validate().map_err(|(k, m)| io::Error::new(io::ErrorKind::InvalidInput, format!("tracker.{k}: {m}")))?;
         let addr: SocketAddr = cfg.listen.parse().map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        let sources = SourceFilter::from_config(cfg)?;
         let socket = UdpSocket::bind(addr)?;
         socket.set_nonblocking(true)?;
         let epoch = Instant::now();
@@ -416,6 +462,7 @@ impl TrackerReceiver {
             slot: Arc::new(PoseSlot::new(epoch)),
             counters: Arc::new(TrackerCounters::default()),
             max_age: Duration::from_secs_f64(cfg.max_age_s),
+            sources,
         })
     }
 
@@ -434,21 +481,33 @@ impl TrackerReceiver {
         let mut buf = [0u8; MAX_LINE + 1];
         let mut accepted = 0;
         loop {
-            let n = match self.socket.recv(&mut buf) {
-                Ok(n) => n,
+            let (n, from) = match self.socket.recv_from(&mut buf) {
+                Ok(x) => x,
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(accepted),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 // ICMP port unreachable from an earlier send etc.: not fatal for a receiver.
                 Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => continue,
                 Err(e) => return Err(e),
             };
-            if self.on_datagram(&buf[..n], Instant::now()) {
+            if self.on_datagram_from(&buf[..n], from, Instant::now()) {
                 accepted += 1;
             }
         }
     }
 
-    /// Handles one datagram that arrived at `arrival`; `true` if accepted.
+    /// Handles one datagram from `from` that arrived at `arrival`; `true` if accepted. One
+    /// from a sender outside `[tracker] sources` is counted as foreign and not parsed.
+    pub fn on_datagram_from(&mut self, bytes: &[u8], from: SocketAddr, arrival: Instant) -> bool {
+        if !self.sources.allows(from) {
+            let c = &self.counters;
+            c.received.fetch_add(1, Ordering::Relaxed);
+            c.bump(&c.foreign, 4, format_args!("datagram from {from} dropped: not in tracker.sources"));
+            return false;
+        }
+        self.on_datagram(bytes, arrival)
+    }
+
+    /// Handles one datagram that arrived at `arrival`, whoever sent it; `true` if accepted.
     pub fn on_datagram(&mut self, bytes: &[u8], arrival: Instant) -> bool {
         let c = &self.counters;
         c.received.fetch_add(1, Ordering::Relaxed);
@@ -521,6 +580,22 @@ impl PoseReader {
     /// Receiver counters.
     pub fn stats(&self) -> TrackerStats {
         self.counters.snapshot()
+    }
+
+    /// A handle on the receiver's counters for status output (another thread).
+    pub fn stats_handle(&self) -> TrackerStatsHandle {
+        TrackerStatsHandle(self.counters.clone())
+    }
+}
+
+/// Shared read access to a tracker receiver's counters.
+#[derive(Debug, Clone)]
+pub struct TrackerStatsHandle(Arc<TrackerCounters>);
+
+impl TrackerStatsHandle {
+    /// The counters now.
+    pub fn stats(&self) -> TrackerStats {
+        self.0.snapshot()
     }
 }
 

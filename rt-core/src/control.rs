@@ -27,6 +27,7 @@ use crate::runner::LoopStatus;
 use crate::triple::Reader;
 use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
+use taut_driver::tracker::TrackerStatsHandle;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
@@ -217,6 +218,8 @@ pub struct ControlLinks {
     pub calib: SharedCalibStatus,
     /// The workspace box a move must stay in, m (`motion.workspace_min_m` / `workspace_max_m`).
     pub workspace: [[f64; 3]; 2],
+    /// The tracker receiver's counters, for `status` (`None`: no tracker).
+    pub tracker: Option<TrackerStatsHandle>,
 }
 
 /// A poisoned lock only means another thread panicked while holding it; the data is plain
@@ -250,7 +253,15 @@ impl ControlLinks {
             Request::Status => {
                 let ls = *lock(&self.loop_status).read();
                 let cs = lock(&self.calib).clone();
-                status_json(&ls, &cs)
+                let mut v = status_json(&ls, &cs);
+                if let Some(t) = &self.tracker {
+                    let s = t.stats();
+                    v["tracker"] = json!({
+                        "received": s.received, "accepted": s.accepted, "malformed": s.malformed, "late": s.late,
+                        "out_of_order": s.out_of_order, "restarts": s.restarts, "foreign": s.foreign,
+                    });
+                }
+                v
             }
             Request::Params => {
                 let cs = lock(&self.calib);

@@ -30,11 +30,13 @@ pub struct DaemonOptions {
     pub control: bool,
     /// Warning sink.
     pub warn: WarnFn,
+    /// The tracker receiver's counters, shown by `status` (foreign senders included).
+    pub tracker: Option<taut_driver::tracker::TrackerStatsHandle>,
 }
 
 impl Default for DaemonOptions {
     fn default() -> Self {
-        DaemonOptions { recording: None, control: true, warn: Arc::new(|w| eprintln!("warning: {w}")) }
+        DaemonOptions { recording: None, control: true, warn: Arc::new(|w| eprintln!("warning: {w}")), tracker: None }
     }
 }
 
@@ -92,6 +94,7 @@ impl Daemon {
                 loop_status: loop_status.clone(),
                 calib: calib_status.clone(),
                 workspace: ccfg.workspace,
+                tracker: opts.tracker.clone(),
             };
             Some(
                 ControlServer::bind(&path, links, ServerLimits::default())

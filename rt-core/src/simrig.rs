@@ -63,6 +63,8 @@ pub struct SimRobot {
     pub faults: Arc<SimFaults>,
     /// The devices to hand to the daemon.
     pub devices: Box<dyn Devices>,
+    /// The tracker receiver's counters.
+    pub tracker_stats: taut_driver::tracker::TrackerStatsHandle,
 }
 
 /// Options of the simulated site.
@@ -255,9 +257,10 @@ where
         .spawn(move || site.run())
         .map_err(|e| format!("starting the simulated robot: {e}"))?;
     let site = SiteThread { stop, thread: Some(thread) };
+    let tracker_stats = pose.stats_handle();
     let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
-    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }) })
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats })
 }
 
 fn counts(x: f64) -> i32 {

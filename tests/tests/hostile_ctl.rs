@@ -79,6 +79,7 @@ impl Rig {
             loop_status: loop_status.clone(),
             calib,
             workspace: ccfg.workspace,
+            tracker: None,
         };
         let server = ControlServer::bind(&sock, links, limits).unwrap();
         let quit = Arc::new(AtomicBool::new(false));
@@ -710,6 +711,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
         loop_status: Arc::new(Mutex::new(srx)),
         calib: Arc::new(Mutex::new(CalibStatus::default())),
         workspace: ccfg.workspace,
+        tracker: None,
     };
     assert_eq!(links.handle_line("reset")["ok"], true);
     assert_eq!(links.handle_line("reset")["ok"], true);
