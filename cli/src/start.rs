@@ -58,16 +58,12 @@ pub fn run(a: &StartArgs) -> Result<()> {
         None if a.sim => RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).map_err(|e| anyhow::anyhow!("{e}"))?,
         None => bail!("give the robot configuration: taut start --config robot.toml (or --sim for the simulated robot)"),
     };
-    if a.sim && a.config.is_none() && a.data_dir.is_none() {
-        cfg.daemon.data_dir = "taut-sim-data".into();
-    }
-    if let Some(d) = &a.data_dir {
-        cfg.daemon.data_dir = d.display().to_string();
-    }
-    if let Some(s) = &a.socket {
-        cfg.daemon.socket = s.display().to_string();
-    } else if a.sim && a.config.is_none() {
-        cfg.daemon.socket = PathBuf::from(&cfg.daemon.data_dir).join("taut.sock").display().to_string();
+    let text = match (&a.config, a.sim) {
+        (Some(p), true) => Some(std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?),
+        _ => None,
+    };
+    for note in daemon_paths(&mut cfg, a.sim, text.as_deref(), a.data_dir.as_deref(), a.socket.as_deref()) {
+        eprintln!("taut start: {note}");
     }
     let (devices, truth, tracker): (Box<dyn Devices>, Option<Truth>, _) = if a.sim {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
@@ -195,6 +191,69 @@ pub fn run(a: &StartArgs) -> Result<()> {
         bail!("the start-up calibration did not finish with a hot-swap (see above)");
     }
     Ok(())
+}
+
+/// Where the daemon's files go. The options win; otherwise the configuration's `[daemon]` keys.
+/// With --sim, a key the file does not set (or no file) does not fall back to the hardware
+/// defaults `/run/taut` and `/var/lib/taut` (a simulation has no business there, and they need
+/// root): the data go to `taut-sim-data` in the current directory and the socket into it.
+/// Returns notes saying so.
+fn daemon_paths(cfg: &mut RobotConfig, sim: bool, config_text: Option<&str>, data_dir: Option<&std::path::Path>, socket: Option<&std::path::Path>) -> Vec<String> {
+    let set_in_file = |key: &str| {
+        config_text
+            .and_then(|t| t.parse::<toml::Table>().ok())
+            .is_some_and(|t| t.get("daemon").and_then(|d| d.as_table()).is_some_and(|d| d.contains_key(key)))
+    };
+    let mut notes = Vec::new();
+    match data_dir {
+        Some(d) => cfg.daemon.data_dir = d.display().to_string(),
+        None if sim && !set_in_file("data_dir") => {
+            cfg.daemon.data_dir = "taut-sim-data".into();
+            notes.push("simulated robot: recordings and parameters go to ./taut-sim-data (set daemon.data_dir or give --data-dir for elsewhere)".into());
+        }
+        None => {}
+    }
+    match socket {
+        Some(s) => cfg.daemon.socket = s.display().to_string(),
+        None if sim && !set_in_file("socket") => {
+            cfg.daemon.socket = PathBuf::from(&cfg.daemon.data_dir).join("taut.sock").display().to_string();
+            notes.push(format!("simulated robot: control socket {} (set daemon.socket or give --socket for elsewhere)", cfg.daemon.socket));
+        }
+        None => {}
+    }
+    notes
+}
+
+#[cfg(test)]
+mod daemon_path_tests {
+    use super::*;
+
+    fn cfg() -> RobotConfig {
+        RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).unwrap()
+    }
+
+    #[test]
+    fn sim_without_daemon_keys_stays_out_of_run_and_var_lib() {
+        let text = "[robot]\nname = \"x\"\n";
+        let mut c = cfg();
+        let notes = daemon_paths(&mut c, true, Some(text), None, None);
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("taut-sim-data", "taut-sim-data/taut.sock"));
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        // The file's own keys are kept, and so are the options.
+        let mut c = cfg();
+        let text = "[daemon]\ndata_dir = \"/srv/sim\"\n";
+        c.daemon.data_dir = "/srv/sim".into();
+        daemon_paths(&mut c, true, Some(text), None, None);
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("/srv/sim", "/srv/sim/taut.sock"));
+        let mut c = cfg();
+        daemon_paths(&mut c, true, None, Some(std::path::Path::new("d")), Some(std::path::Path::new("s.sock")));
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("d", "s.sock"));
+        // Hardware: the configuration (or its defaults) as written.
+        let mut c = cfg();
+        let before = c.daemon.clone();
+        assert!(daemon_paths(&mut c, false, None, None, None).is_empty());
+        assert_eq!(c.daemon, before);
+    }
 }
 
 /// The robot's own devices: the CiA 402 drives on the `[can]` interface through SocketCAN, the
