@@ -746,3 +746,52 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     th.join().unwrap();
     assert!(!sock.exists(), "socket removed on exit");
 }
+
+/// A second `taut start` on the same socket is refused before it creates anything: the first
+/// daemon's recording is neither truncated nor joined by an empty one, and the first keeps
+/// serving.
+#[test]
+fn a_refused_second_daemon_leaves_no_file_behind() {
+    use taut_rt_core::calib_backend::TautCalib;
+    use taut_rt_core::daemon::{Daemon, DaemonOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = quick_config(4, dir.path());
+    let robot = || Box::new(KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]));
+    let first = Daemon::start(
+        &cfg,
+        robot(),
+        Box::new(TautCalib::from_config(&cfg)),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let recordings = dir.path().join("data/recordings");
+    let listing = || {
+        let mut v: Vec<_> = std::fs::read_dir(&recordings)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        v.sort();
+        v
+    };
+    let before = listing();
+    assert_eq!(before.len(), 1, "{before:?}");
+    // Same configuration, same second: the old order created (truncated) the recording first.
+    let e = Daemon::start(
+        &cfg,
+        robot(),
+        Box::new(TautCalib::from_config(&cfg)),
+        DaemonOptions::default(),
+    )
+    .err()
+    .expect("refused");
+    assert!(e.contains("in use") && e.contains("daemon.socket"), "{e}");
+    assert_eq!(listing(), before, "no new or replaced recording");
+    let r = control::request(&dir.path().join("taut.sock"), "status", T).unwrap();
+    assert_eq!(r["ok"], true);
+    let rec = first.recording.clone();
+    first.shutdown();
+    assert!(
+        std::fs::metadata(&rec).unwrap().len() > 0,
+        "the first daemon's recording is intact"
+    );
+}
