@@ -775,7 +775,8 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     };
     let before = listing();
     assert_eq!(before.len(), 1, "{before:?}");
-    // Same configuration, same second: the old order created (truncated) the recording first.
+    // Same configuration (in the same second the default name is the first one's: the old order
+    // truncated it), and one with its own recording path.
     let e = Daemon::start(
         &cfg,
         robot(),
@@ -785,6 +786,20 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     .err()
     .expect("refused");
     assert!(e.contains("in use") && e.contains("daemon.socket"), "{e}");
+    let own = recordings.join("second.csv");
+    let opts = DaemonOptions {
+        recording: Some(own.clone()),
+        ..Default::default()
+    };
+    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts)
+        .err()
+        .expect("refused");
+    assert!(e.contains("in use"), "{e}");
+    assert!(
+        !own.exists(),
+        "the refused daemon created {}",
+        own.display()
+    );
     assert_eq!(listing(), before, "no new or replaced recording");
     let r = control::request(&dir.path().join("taut.sock"), "status", T).unwrap();
     assert_eq!(r["ok"], true);
