@@ -156,6 +156,18 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
         None => transport,
     };
 
+    // The tracker listens while the drives come up: its counters show whether poses arrive, and
+    // whether anyone outside `tracker.sources` sends some.
+    let tracker = match (&cfg.tracker, args.sim) {
+        (Some(t), false) => match taut_driver::tracker::spawn(t) {
+            Ok(x) => Some((t.listen.clone(), x)),
+            Err(e) => {
+                eprintln!("warning: tracker not watched: tracker.listen {}: {e}", t.listen);
+                None
+            }
+        },
+        _ => None,
+    };
     let set = DriveSet::new(transport, mcfg);
     let (statuses, counters, events, result) = match set.bring_up() {
         Ok(mut set) => {
@@ -173,6 +185,16 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     }
     print_table(&statuses, &loadcell_tensions(&cfg));
     print_counters(&counters);
+    if let Some((listen, (_thread, reader))) = &tracker {
+        let s = reader.stats();
+        println!(
+            "tracker on {listen}: {} datagrams, {} poses accepted, {} from senders not in tracker.sources, {} malformed, {} late, {} out of order",
+            s.received, s.accepted, s.foreign, s.malformed, s.late, s.out_of_order
+        );
+        if let Some(p) = reader.newest() {
+            println!("tracker: newest pose t = {} s at [{:.4}, {:.4}, {:.4}] m", p.t, p.position[0], p.position[1], p.position[2]);
+        }
+    }
     let missing: Vec<&NodeStatus> = statuses.iter().filter(|s| s.phase != Phase::Operational).collect();
     if !missing.is_empty() {
         let ids: Vec<String> = missing.iter().map(|s| format!("{} ({})", s.node, s.phase.name())).collect();

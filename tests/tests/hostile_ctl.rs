@@ -810,3 +810,22 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
         "the first daemon's recording is intact"
     );
 }
+
+proptest::proptest! {
+    /// Any bytes at all: a request or a refusal with a message, never a panic.
+    #[test]
+    fn arbitrary_request_bytes_are_parsed_or_refused(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..300)) {
+        match taut_rt_core::control::parse_request(&bytes) {
+            Ok(_) => {}
+            Err(e) => proptest::prop_assert!(!e.is_empty() && e.len() < 400, "{e}"),
+        }
+    }
+
+    /// Any text made of request words and numbers, finite or not.
+    #[test]
+    fn request_like_text_is_parsed_or_refused(s in "(move|status|estop|stop|reset|params|x| |\t|nan|-?inf|1e30[0-9]|-?[0-9]{1,4}(\\.[0-9]{1,3})?){0,8}") {
+        if let Ok(taut_rt_core::control::Request::Move(p)) = taut_rt_core::control::parse_request(s.as_bytes()) {
+            proptest::prop_assert!(p.iter().all(|v| v.is_finite()), "{s:?} -> {p:?}");
+        }
+    }
+}
