@@ -224,38 +224,6 @@ fn daemon_paths(cfg: &mut RobotConfig, sim: bool, config_text: Option<&str>, dat
     notes
 }
 
-#[cfg(test)]
-mod daemon_path_tests {
-    use super::*;
-
-    fn cfg() -> RobotConfig {
-        RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).unwrap()
-    }
-
-    #[test]
-    fn sim_without_daemon_keys_stays_out_of_run_and_var_lib() {
-        let text = "[robot]\nname = \"x\"\n";
-        let mut c = cfg();
-        let notes = daemon_paths(&mut c, true, Some(text), None, None);
-        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("taut-sim-data", "taut-sim-data/taut.sock"));
-        assert_eq!(notes.len(), 2, "{notes:?}");
-        // The file's own keys are kept, and so are the options.
-        let mut c = cfg();
-        let text = "[daemon]\ndata_dir = \"/srv/sim\"\n";
-        c.daemon.data_dir = "/srv/sim".into();
-        daemon_paths(&mut c, true, Some(text), None, None);
-        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("/srv/sim", "/srv/sim/taut.sock"));
-        let mut c = cfg();
-        daemon_paths(&mut c, true, None, Some(std::path::Path::new("d")), Some(std::path::Path::new("s.sock")));
-        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("d", "s.sock"));
-        // Hardware: the configuration (or its defaults) as written.
-        let mut c = cfg();
-        let before = c.daemon.clone();
-        assert!(daemon_paths(&mut c, false, None, None, None).is_empty());
-        assert_eq!(c.daemon, before);
-    }
-}
-
 /// The robot's own devices: the CiA 402 drives on the `[can]` interface through SocketCAN, the
 /// load cells on `[loadcells]`, the tracker on `[tracker]`.
 fn hardware_devices(cfg: &RobotConfig) -> Result<(Box<dyn Devices>, Option<TrackerStatsHandle>)> {
@@ -298,4 +266,36 @@ fn progress_line(l: &LoopStatus, c: &CalibStatus) -> String {
     let phase = if l.snap.phase >= 0 { format!(" {}", l.snap.phase) } else { String::new() };
     let fault = l.snap.fault.map_or(String::new(), |(cause, r)| format!(" [{}: {}]", r.name(), cause));
     format!("state {}{phase}; calibrator {}; params v{}{fault}", l.snap.state.name(), c.stage, l.snap.params_version)
+}
+
+#[cfg(test)]
+mod daemon_path_tests {
+    use super::*;
+
+    fn cfg() -> RobotConfig {
+        RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).unwrap()
+    }
+
+    #[test]
+    fn sim_without_daemon_keys_stays_out_of_run_and_var_lib() {
+        let text = "[robot]\nname = \"x\"\n";
+        let mut c = cfg();
+        let notes = daemon_paths(&mut c, true, Some(text), None, None);
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("taut-sim-data", "taut-sim-data/taut.sock"));
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        // The file's own keys are kept, and so are the options.
+        let mut c = cfg();
+        let text = "[daemon]\ndata_dir = \"/srv/sim\"\n";
+        c.daemon.data_dir = "/srv/sim".into();
+        daemon_paths(&mut c, true, Some(text), None, None);
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("/srv/sim", "/srv/sim/taut.sock"));
+        let mut c = cfg();
+        daemon_paths(&mut c, true, None, Some(std::path::Path::new("d")), Some(std::path::Path::new("s.sock")));
+        assert_eq!((c.daemon.data_dir.as_str(), c.daemon.socket.as_str()), ("d", "s.sock"));
+        // Hardware: the configuration (or its defaults) as written.
+        let mut c = cfg();
+        let before = c.daemon.clone();
+        assert!(daemon_paths(&mut c, false, None, None, None).is_empty());
+        assert_eq!(c.daemon, before);
+    }
 }

@@ -829,3 +829,99 @@ proptest::proptest! {
         }
     }
 }
+
+/// End to end on the simulated robot (`taut start --sim` in-process: CANopen drives, Modbus
+/// load cells, UDP tracker): hostile clients while it initialises, refusals that name the state,
+/// the tracker's counters in status, and estop latching through the flag.
+#[test]
+fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
+    use taut_rt_core::calib_backend::TautCalib;
+    use taut_rt_core::daemon::{Daemon, DaemonOptions};
+    use taut_rt_core::simrig::{self, SimOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/examples/aras-cam-sim.toml"
+    );
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
+    let centre: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
+    let so = SimOptions {
+        seed: 2,
+        ..Default::default()
+    };
+    let p0 = simrig::rest_position(&cfg, &so, centre);
+    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let opts = DaemonOptions {
+        tracker: Some(sim.tracker_stats.clone()),
+        ..Default::default()
+    };
+    let d = Daemon::start(
+        &cfg,
+        sim.devices,
+        Box::new(TautCalib::from_config(&cfg)),
+        opts,
+    )
+    .unwrap();
+    let sock = dir.path().join("taut.sock");
+    assert!(
+        d.wait_until(Duration::from_secs(60), |l, _| l.snap.state
+            == State::InitPhase),
+        "{:?}",
+        d.loop_status().snap.state
+    );
+
+    let idle: Vec<UnixStream> = (0..50)
+        .map(|_| UnixStream::connect(&sock).unwrap())
+        .collect();
+    let mut garbage = UnixStream::connect(&sock).unwrap();
+    let _ = garbage.write_all(&[0u8, 0xFF, b'\n', 0x80, b'x', b'\n']);
+    let req = |line: &str| control::request(&sock, line, T).unwrap();
+    let e = req("move nan nan nan");
+    assert!(error_of(&e).contains("not a finite number"), "{e}");
+    let e = req(&format!("move {} {} {}", centre[0], centre[1], centre[2]));
+    assert!(
+        error_of(&e).contains("not operating (state init-phase)"),
+        "{e}"
+    );
+    let e = req("move 0 0 1e308");
+    assert!(error_of(&e).contains("outside the workspace box"), "{e}");
+    let e = req("recalibrate");
+    assert!(error_of(&e).contains("recalibrate refused"), "{e}");
+    // The tracker's poses arrive; nobody else sends any.
+    let t0 = Instant::now();
+    let st = loop {
+        let st = req("status");
+        if st["tracker"]["accepted"].as_u64().unwrap_or(0) > 10 {
+            break st;
+        }
+        assert!(t0.elapsed() < T, "no tracker poses: {}", st["tracker"]);
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(st["tracker"]["foreign"], 0, "{}", st["tracker"]);
+    assert!(
+        st["control"]["open"].as_u64().unwrap() >= 50,
+        "{}",
+        st["control"]
+    );
+    assert_eq!(req("estop")["accepted"], "estop");
+    assert!(
+        d.wait_until(T, |l, _| l.snap.state == State::Faulted),
+        "{:?}",
+        d.loop_status().snap
+    );
+    let st = req("status");
+    assert_eq!(st["fault"]["cause"], "estop", "{}", st["fault"]);
+    let e = req(&format!("move {} {} {}", centre[0], centre[1], centre[2]));
+    assert!(
+        error_of(&e).contains("safety reaction is latched") && error_of(&e).contains("reset"),
+        "{e}"
+    );
+    drop((idle, garbage));
+    assert_eq!(req("stop")["accepted"], "stop");
+    let rep = d.wait().expect("the loop ended on stop");
+    assert!(rep.cycles > 10, "{} cycles, {} overruns", rep.cycles, rep.overruns);
+    assert!(!sock.exists(), "socket removed");
+}

@@ -86,7 +86,7 @@ fn address_and_port_entries_match_the_port_too() {
 
 #[test]
 fn the_receiver_thread_filters_too() {
-    let (th, mut reader) =
+    let (th, reader) =
         tracker::spawn(&cfg("127.0.0.1:0", &["127.0.0.4", "127.0.0.5"])).unwrap();
     let to = th.local_addr();
     let a = UdpSocket::bind("127.0.0.5:0").unwrap();
