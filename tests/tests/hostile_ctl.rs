@@ -25,6 +25,14 @@ use taut_rt_core::urgent::Urgent;
 
 const T: Duration = Duration::from_secs(10);
 
+/// Held by the memory test and by the tests that allocate much (a daemon with its calibrator):
+/// the memory test reads this process's resident size.
+static MEMORY: Mutex<()> = Mutex::new(());
+
+fn memory_lock() -> std::sync::MutexGuard<'static, ()> {
+    MEMORY.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// A control server serving a running loop.
 struct Rig {
     _dir: tempfile::TempDir,
@@ -465,6 +473,7 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
 /// closes; the sender is cut off long before the end; memory stays flat; the server lives.
 #[test]
 fn huge_line_is_cut_off_and_memory_stays_bounded() {
+    let _m = memory_lock();
     let rig = Rig::new(ServerLimits::default());
     let rss0 = rss_kib();
     let mut s = rig.connect();
@@ -576,8 +585,10 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
         let r = rig.req("status");
         assert_eq!(r["ok"], true);
         let dt = t0.elapsed();
+        // The old server let each slow client hold it for a whole deadline (8 of them: 12 s);
+        // the bound leaves room for a loaded 2-core test machine (measured: milliseconds).
         assert!(
-            dt < Duration::from_millis(750),
+            dt < Duration::from_millis(1500),
             "status {k} took {dt:?} with slow and idle clients connected"
         );
         std::thread::sleep(Duration::from_millis(50));
@@ -586,7 +597,7 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
     assert_eq!(rig.req("estop")["accepted"], "estop");
     rig.wait_state(|s| s == State::Faulted, "estop under load");
     assert!(
-        t0.elapsed() < Duration::from_secs(1),
+        t0.elapsed() < Duration::from_secs(2),
         "estop took {:?}",
         t0.elapsed()
     );
@@ -654,7 +665,7 @@ fn garbage_floods_and_clients_that_never_read_do_not_block_estop() {
         assert_eq!(rig.req("estop")["accepted"], "estop");
         rig.wait_state(|s| s == State::Faulted, "estop during the flood");
         assert!(
-            t0.elapsed() < Duration::from_secs(1),
+            t0.elapsed() < Duration::from_secs(2),
             "estop took {:?}",
             t0.elapsed()
         );
@@ -752,6 +763,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
 /// serving.
 #[test]
 fn a_refused_second_daemon_leaves_no_file_behind() {
+    let _m = memory_lock();
     use taut_rt_core::calib_backend::TautCalib;
     use taut_rt_core::daemon::{Daemon, DaemonOptions};
     let dir = tempfile::tempdir().unwrap();
@@ -835,6 +847,7 @@ proptest::proptest! {
 /// the tracker's counters in status, and estop latching through the flag.
 #[test]
 fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
+    let _m = memory_lock();
     use taut_rt_core::calib_backend::TautCalib;
     use taut_rt_core::daemon::{Daemon, DaemonOptions};
     use taut_rt_core::simrig::{self, SimOptions};
@@ -922,6 +935,11 @@ fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
     drop((idle, garbage));
     assert_eq!(req("stop")["accepted"], "stop");
     let rep = d.wait().expect("the loop ended on stop");
-    assert!(rep.cycles > 10, "{} cycles, {} overruns", rep.cycles, rep.overruns);
+    assert!(
+        rep.cycles > 10,
+        "{} cycles, {} overruns",
+        rep.cycles,
+        rep.overruns
+    );
     assert!(!sock.exists(), "socket removed");
 }
