@@ -943,3 +943,38 @@ fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
     );
     assert!(!sock.exists(), "socket removed");
 }
+
+/// The client's errors say what happened: nothing serving the socket, a daemon that accepted
+/// but did not answer, one that closed without a reply (what `taut ctl` prints).
+#[test]
+fn client_errors_tell_not_running_from_not_answering() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("taut.sock");
+    let e = control::request(&sock, "status", Duration::from_millis(300)).unwrap_err();
+    assert_eq!(e.kind(), std::io::ErrorKind::NotFound, "{e}");
+    let listener = std::os::unix::net::UnixListener::bind(&sock).unwrap();
+    // Accepted by the kernel (backlog), never answered.
+    let e = control::request(&sock, "status", Duration::from_millis(300)).unwrap_err();
+    assert_eq!(e.kind(), std::io::ErrorKind::TimedOut, "{e}");
+    assert!(
+        e.to_string()
+            .contains("accepted the connection but sent no reply within 0.3 s"),
+        "{e}"
+    );
+    let closer = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        let mut b = [0u8; 16];
+        let _ = s.read(&mut b);
+    });
+    // One connection is accepted and closed unanswered, then the listener goes away with the
+    // rest pending: the client is told the connection closed, not that it timed out.
+    let e = control::request(&sock, "status", T).unwrap_err();
+    closer.join().unwrap();
+    assert!(
+        matches!(
+            e.kind(),
+            std::io::ErrorKind::UnexpectedEof | std::io::ErrorKind::ConnectionReset
+        ),
+        "{e}"
+    );
+}
