@@ -158,15 +158,15 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
 
     // The tracker listens while the drives come up: its counters show whether poses arrive, and
     // whether anyone outside `tracker.sources` sends some.
-    let tracker = match (&cfg.tracker, args.sim) {
-        (Some(t), false) => match taut_driver::tracker::spawn(t) {
+    let tracker = match &cfg.tracker {
+        Some(t) => match taut_driver::tracker::spawn(t) {
             Ok(x) => Some((t.listen.clone(), x)),
             Err(e) => {
                 eprintln!("warning: tracker not watched: tracker.listen {}: {e}", t.listen);
                 None
             }
         },
-        _ => None,
+        None => None,
     };
     let set = DriveSet::new(transport, mcfg);
     let (statuses, counters, events, result) = match set.bring_up() {
