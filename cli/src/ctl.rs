@@ -14,7 +14,8 @@ pub struct CtlArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// status | recalibrate | stop | estop | reset | params | move X Y Z
-    #[arg(required = true, num_args = 1..)]
+    // Negative coordinates (`move -1 0 2`) are values, not options.
+    #[arg(required = true, num_args = 1.., allow_negative_numbers = true)]
     request: Vec<String>,
 }
 
