@@ -319,6 +319,8 @@ impl ControlServer {
             if fds[0].revents & libc::POLLIN != 0 {
                 accept_paused_until = self.accept(&mut conns, now);
             }
+            // Counted before answering, so a status reply includes its own connection.
+            self.stats.open = conns.len() as u64;
 
             // At most one request per connection this round.
             ready.clear();
