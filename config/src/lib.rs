@@ -10,6 +10,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod atomic;
 pub mod devices;
 pub mod params;
 pub mod recording;
@@ -18,6 +19,8 @@ pub mod runtime;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
+
+pub use atomic::write_atomic;
 
 /// A robot description as read from a TOML file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -325,30 +328,6 @@ fn table_header_lines(text: &str, header: &str) -> Vec<usize> {
         .filter(|(_, l)| l.trim_start().starts_with(header))
         .map(|(i, _)| i + 1)
         .collect()
-}
-
-/// Writes `bytes` to `path` atomically: a temporary file in the same directory, fsync, rename.
-/// A reader sees either the old file or the new one, never a torn one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path.file_name().ok_or_else(|| {
-        std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
-    })?;
-    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 #[cfg(test)]
