@@ -187,10 +187,7 @@ pub fn write_atomic_with(
     })?;
     let tmp = temp_name(&dir, name);
     let result = (|| {
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)?;
+        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
         // Keep the permissions of the file being replaced (a params file may be group-readable on
         // purpose); a new file gets the default mode.
         if let Ok(m) = std::fs::metadata(path) {
@@ -237,14 +234,12 @@ impl Staging {
                 )))
             }
             Ok(_) => {}
-            Err(_) => std::fs::create_dir_all(target).map_err(|e| {
-                std::io::Error::new(e.kind(), format!("creating {}: {e}", target.display()))
-            })?,
+            Err(_) => std::fs::create_dir_all(target)
+                .map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", target.display())))?,
         }
         let stage = temp_name(target, std::ffi::OsStr::new("taut-staging"));
-        std::fs::create_dir(&stage).map_err(|e| {
-            std::io::Error::new(e.kind(), format!("creating {}: {e}", stage.display()))
-        })?;
+        std::fs::create_dir(&stage)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", stage.display())))?;
         Ok(Staging {
             target: target.to_path_buf(),
             stage,
@@ -331,10 +326,7 @@ mod tests {
         std::os::unix::fs::symlink(&target, &link).unwrap();
         let e = write_atomic(&link, b"x").unwrap_err();
         assert!(e.to_string().contains("symlink"), "{e}");
-        assert!(std::fs::symlink_metadata(&link)
-            .unwrap()
-            .file_type()
-            .is_symlink());
+        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
         let e = write_atomic(&d, b"x").unwrap_err();
         assert!(e.to_string().contains("directory"), "{e}");
         let e = write_atomic(Path::new("/dev/null"), b"x").unwrap_err();
