@@ -102,6 +102,11 @@ pub fn progress(steps: u64) -> indicatif::ProgressBar {
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
+    let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
+    let files: Vec<crate::outputs::Output> =
+        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).collect();
+    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
+    crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let pb = progress(4);
@@ -114,7 +119,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             .with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
-        report::plots(dir, &rec, &cfg, &out)?;
+        report::plots(dir, &inputs, &rec, &cfg, &out)?;
         eprintln!("figures written to {}", dir.display());
     }
     if let Some(p) = &a.out {
