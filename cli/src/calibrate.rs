@@ -58,7 +58,8 @@ pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
     };
     anyhow::ensure!(
         cfg.cables.len() == rec.n_cables,
-        "the configuration has {} [[cable]] tables but the recording has {} length columns (l0..l{}); use the configuration of the robot that made the recording",
+        "{}: the configuration has {} [[cable]] tables but the recording has {} length columns (l0..l{}); use the configuration of the robot that made the recording",
+        path.map_or("(no --config)".into(), |p| p.display().to_string()),
         cfg.cables.len(),
         rec.n_cables,
         rec.n_cables - 1

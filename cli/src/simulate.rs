@@ -68,6 +68,16 @@ pub const EFFECTS: [(&str, &str, f64, f64, &str); 6] = [
     ("backlash", "m", 0.0, 0.05, "play in the drive train"),
 ];
 
+/// A number for a message: plain when of an everyday size, else in e-notation (1e300 is not
+/// three hundred digits).
+fn human(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-3..1e6).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// Builds the scenario the arguments describe.
 pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     let mut s = Scenario::aras_cam(a.seed);
@@ -82,14 +92,14 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     anyhow::ensure!(
         a.rate.is_finite() && (RATE_HZ.0..=RATE_HZ.1).contains(&a.rate),
         "--rate {}: the sample rate must be {} to {} Hz",
-        a.rate,
+        human(a.rate),
         RATE_HZ.0,
         RATE_HZ.1
     );
     anyhow::ensure!(
         a.duration.is_finite() && a.duration > 0.0 && a.duration <= MAX_DURATION_S,
         "--duration {}: the excitation must last more than 0 and at most {MAX_DURATION_S} s",
-        a.duration
+        human(a.duration)
     );
     anyhow::ensure!(
         a.duration * a.rate <= MAX_SAMPLES,
@@ -127,7 +137,10 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
             .map_err(|_| anyhow::anyhow!("--effect `{shown}`: `{}` is not a number", taut_config::recording::excerpt(value)))?;
         anyhow::ensure!(
             v.is_finite() && v >= lo && v <= hi,
-            "--effect {name}={v}: the {what} must be {lo:e} to {hi:e}{}{unit}",
+            "--effect {name}={}: the {what} must be {} to {}{}{unit}",
+            human(v),
+            human(lo),
+            human(hi),
             if unit.is_empty() { "" } else { " " }
         );
         anyhow::ensure!(!seen.contains(&name), "--effect {name} is given twice; give each effect once");

@@ -230,7 +230,7 @@ impl RobotConfig {
             return Err(err(
                 key_line(text, "[robot]", "mass_kg"),
                 "robot.mass_kg".into(),
-                format!("must be the platform's mass in kg, {m_lo} to {m_hi}, got {}", self.robot.mass_kg),
+                format!("must be the platform's mass in kg, {m_lo} to {m_hi}, got {:e}", self.robot.mass_kg),
             ));
         }
         if self.cables.len() > geometry::MAX_CABLES {

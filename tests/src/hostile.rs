@@ -318,6 +318,9 @@ pub fn run_suite(suite: &str, cases: Vec<Case>) -> Tally {
         let r = run_with_deadline(cmd, DEADLINE);
         let after = snapshot(&dir);
         let tag = format!("[{suite} #{k} {}]", case.name);
+        if std::env::var_os("HOSTILE_VERBOSE").is_some() {
+            eprintln!("{tag} exit {:?}: {}", r.code, r.stderr.trim().replace('\n', " | "));
+        }
         let mut bad = false;
         let mut flag = |t: &mut Tally, what: &str, detail: String| {
             t.problems.push(format!("{tag} {what}: {detail}\n  stderr: {}", r.stderr.trim().replace('\n', "\n          ")));
