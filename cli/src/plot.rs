@@ -64,17 +64,22 @@ pub const LOOSE: RGBColor = RGBColor(220, 30, 30);
 pub fn write_panels(set: &mut Staging, stem: &str, panels: &[Panel]) -> Result<()> {
     register_font();
     let h = 260 * panels.len() as u32 + 20;
+    // Messages name the figure's final place; the staged file is an implementation detail, and
+    // on an error the old figures there are kept.
+    let name = |ext: &str| set.target().join(format!("{stem}.{ext}")).display().to_string();
+    let (svg_name, png_name) = (name("svg"), name("png"));
+    let kept = "the figures already there are kept";
     let svg = set.path(&format!("{stem}.svg"))?;
     {
         let root = SVGBackend::new(&svg, (1000, h)).into_drawing_area();
-        draw_panels(&root, panels).with_context(|| format!("drawing {}", svg.display()))?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {}", svg.display()))?;
+        draw_panels(&root, panels).with_context(|| format!("drawing {svg_name} ({kept})"))?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {svg_name} ({kept})"))?;
     }
     let png = set.path(&format!("{stem}.png"))?;
     {
         let root = BitMapBackend::new(&png, (1000, h)).into_drawing_area();
-        draw_panels(&root, panels).with_context(|| format!("drawing {}", png.display()))?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {}", png.display()))?;
+        draw_panels(&root, panels).with_context(|| format!("drawing {png_name} ({kept})"))?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {png_name} ({kept})"))?;
     }
     Ok(())
 }

@@ -248,6 +248,11 @@ impl Staging {
         })
     }
 
+    /// The directory the set goes into.
+    pub fn target(&self) -> &Path {
+        &self.target
+    }
+
     /// Where to write the file `name` of the set (inside the staging directory). Refuses a name
     /// whose final place holds something that must not be replaced.
     pub fn path(&mut self, name: &str) -> std::io::Result<PathBuf> {
