@@ -56,8 +56,7 @@ const ECHO_CHARS: usize = 40;
 /// escaped, and the length said when cut.
 pub fn excerpt(s: &str) -> String {
     let mut out = String::new();
-    let mut n = 0;
-    for c in s.chars() {
+    for (n, c) in s.chars().enumerate() {
         if n == ECHO_CHARS {
             out.push_str(&format!("… ({} bytes)", s.len()));
             return out;
@@ -67,7 +66,6 @@ pub fn excerpt(s: &str) -> String {
         } else {
             out.push(c);
         }
-        n += 1;
     }
     out
 }
@@ -552,7 +550,7 @@ enum Line {
     /// End of input.
     Eof,
     /// A line (without its newline) is in the buffer.
-    Line,
+    Complete,
     /// The line is longer than [`MAX_LINE_BYTES`]; the buffer holds its first bytes.
     TooLong,
 }
@@ -567,7 +565,7 @@ fn read_line_capped<R: BufRead>(r: &mut R, buf: &mut Vec<u8>) -> std::io::Result
             Err(e) => return Err(e),
         };
         if avail.is_empty() {
-            return Ok(if buf.is_empty() { Line::Eof } else { Line::Line });
+            return Ok(if buf.is_empty() { Line::Eof } else { Line::Complete });
         }
         let (take, newline) = match avail.iter().position(|&b| b == b'\n') {
             Some(i) => (i, true),
@@ -581,7 +579,7 @@ fn read_line_capped<R: BufRead>(r: &mut R, buf: &mut Vec<u8>) -> std::io::Result
         buf.extend_from_slice(&avail[..take]);
         r.consume(take + newline as usize);
         if newline {
-            return Ok(Line::Line);
+            return Ok(Line::Complete);
         }
     }
 }
@@ -612,7 +610,7 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
         match read {
             Line::Eof => break,
             Line::TooLong => return Err(at(lineno, ErrorKind::LineTooLong)),
-            Line::Line => {}
+            Line::Complete => {}
         }
         if lineno > MAX_LINES {
             return Err(at(lineno, ErrorKind::TooLarge(format!("more than {MAX_LINES} lines; split the recording into runs"))));
