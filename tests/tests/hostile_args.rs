@@ -77,6 +77,9 @@ fn cases() -> Vec<Case> {
         Case::err("unknown subcommand", &["calibrat", "rec.csv"], &["calibrat"]),
         Case::err("unknown flag", &["calibrate", "rec.csv", "--outt", "p.toml"], &["--outt"]).file("rec.csv", good_recording()),
         Case::err("unknown: a replacement character as a number", &["simulate", "--rate", "\u{FFFD}"], &["--rate"]),
+        Case::err("probe --watch-s inf", &["probe", "--sim", "--watch-s", "inf"], &["--watch-s inf", "0 to 86400 s"]),
+        Case::err("probe --watch-s 1e300", &["probe", "--sim", "--watch-s", "1e300"], &["--watch-s", "0 to 86400 s"]),
+        Case::err("probe --watch-s nan", &["probe", "--sim", "--watch-s", "nan"], &["--watch-s NaN"]),
         // The control: good arguments are accepted.
         Case::ok("good arguments", &["simulate", "--no-three-phase", "--duration", "1", "--rate", "50", "--effect", "elasticity=20000", "-o", "out.csv"], &["wrote out.csv: 50 samples"])
             .writes("out.csv"),

@@ -83,6 +83,10 @@ fn cases() -> Vec<Case> {
         Case::err("diagnose --json the input", &["diagnose", "rec.csv", "--json", "rec.csv"], &["--json: rec.csv", "is the input file"]).file("rec.csv", good_recording()),
         Case::err("diagnose --plot a file", &["diagnose", "rec.csv", "--plot", "rec.csv"], &["--plot: rec.csv is not a directory"]).file("rec.csv", good_recording()),
         Case::err("demo -o /dev/full", &["demo", "--duration", "1", "-o", "/dev/full"], &["/dev/full: is a device node"]).after(dev_full_is_a_device),
+        Case::err("probe --log /dev/full", &["probe", "--sim", "--log", "/dev/full"], &["--log: /dev/full: is a device node"]).after(dev_full_is_a_device),
+        Case::err("probe --log a symlink", &["probe", "--sim", "--log", "bus.log"], &["--log: bus.log: is a symlink"])
+            .file("precious.txt", "keep")
+            .entry("bus.log", Entry::Symlink("precious.txt".into())),
         // A write that fails midway (file size limit; SIGXFSZ ignored so write(2) fails with
         // EFBIG) leaves the old file as it was and no temporary file.
         Case::err("interrupted simulate -o keeps the old recording", &[], &["writing old.csv", "File too large"])
