@@ -21,7 +21,8 @@ pub struct DemoArgs {
 
 pub fn run(a: &DemoArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = a.sim.config.iter().map(|p| p.as_path()).collect();
-    let files: Vec<crate::outputs::Output> = [("--output", Some(&a.sim.output)), ("--json", a.json.as_ref())]
+    let files: Vec<crate::outputs::Output> =
+        [("--output", Some(&a.sim.output)), ("--json", a.json.as_ref()), ("--truth", a.sim.truth.as_ref())]
         .into_iter()
         .filter_map(|(f, p)| p.map(|p| (f, p.as_path())))
         .collect();
@@ -45,6 +46,9 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     run.recording
         .save_atomic(&a.sim.output)
         .with_context(|| format!("writing {}", a.sim.output.display()))?;
+    if let Some(t) = &a.sim.truth {
+        crate::simulate::write_truth(t, &s, a.sim.seed, &run)?;
+    }
     // Read back what was written: the demo calibrates the file, as `taut calibrate` would.
     let (rec_file, parse) = taut_config::recording::Recording::load(&a.sim.output)?;
     debug_assert_eq!(rec_file.len(), rec.len());

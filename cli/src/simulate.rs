@@ -177,13 +177,21 @@ pub fn run(a: &SimulateArgs) -> Result<()> {
         run.loose_samples
     );
     if let Some(t) = &a.truth {
+        write_truth(t, &s, a.seed, &run)?;
+    }
+    Ok(())
+}
+
+/// Writes the simulation truth (anchors, offsets) as a taut-params file.
+pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim::SimRun) -> Result<()> {
+    {
         let n = run.truth.anchors.len();
         let p = taut_config::params::ParamsFile {
             format: taut_config::params::FORMAT.into(),
             version: 0,
             created_unix_s: 0.0,
             robot: s.robot.robot.name.clone(),
-            source: format!("simulation truth, seed {}", a.seed),
+            source: format!("simulation truth, seed {seed}"),
             anchors_m: run.truth.anchors.clone(),
             l0_m: run.truth.l0.clone(),
             anchor_sigma_m: vec![[0.0; 3]; n],
