@@ -24,10 +24,14 @@ use std::time::{Duration, Instant};
 pub const DEADLINE: Duration = Duration::from_secs(180);
 
 /// The `taut` binary, built once per test process (`cargo build -p taut-cli`, a no-op when it is
-/// up to date) next to this test's own executable.
+/// up to date) next to this test's own executable; or `$TAUT_HOSTILE_BIN`.
 pub fn taut_bin() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
+        // To count what another build does (e.g. the code before issue 13): TAUT_HOSTILE_BIN=path.
+        if let Some(p) = std::env::var_os("TAUT_HOSTILE_BIN") {
+            return PathBuf::from(p);
+        }
         let exe = std::env::current_exe().expect("test executable path");
         // target/<profile>/deps/<test> -> target/debug/taut (the cli is built with the dev profile).
         let target = exe.parent().and_then(Path::parent).and_then(Path::parent).expect("target directory");
@@ -295,7 +299,13 @@ pub fn run_suite(suite: &str, cases: Vec<Case>) -> Tally {
     let bin = taut_bin();
     let root = tempfile::Builder::new().prefix(&format!("taut-hostile-{suite}-")).tempdir().unwrap();
     let mut t = Tally::default();
+    // HOSTILE_SKIP=a,b: leave out cases whose name contains a or b (for running the suite against
+    // an old build, where some cases would exhaust the machine's memory).
+    let skip: Vec<String> = std::env::var("HOSTILE_SKIP").map(|s| s.split(',').map(str::to_string).collect()).unwrap_or_default();
     for (k, case) in cases.into_iter().enumerate() {
+        if skip.iter().any(|x| !x.is_empty() && case.name.contains(x.as_str())) {
+            continue;
+        }
         t.cases += 1;
         let dir = root.path().join(format!("{k:03}"));
         std::fs::create_dir_all(&dir).unwrap();

@@ -83,6 +83,20 @@ fn cases() -> Vec<Case> {
         Case::err("diagnose: mass nan", &["diagnose", "rec.csv", "--config", "cfg.toml"], &["cfg.toml:3", "robot.mass_kg"])
             .file("rec.csv", good_recording())
             .file("cfg.toml", line(3, "mass_kg = nan")),
+        // At the bounds: the simulator either simulates or says why it cannot, never panics.
+        sim("mass 0.01 kg: three-phase infeasible", &line(3, "mass_kg = 0.01"), &["cannot simulate this robot", "three-phase plan"]),
+        sim("0.35 m frame: no equilibrium", &cables(&["[0.2, 0, 1]", "[-0.1, 0.17, 1]", "[-0.1, -0.17, 1]"]), &["cannot simulate this robot"]),
+        sim(
+            "8 cables: three-phase infeasible",
+            &cables(&["[3.5, -1.75, 4]", "[3.5, 1.75, 4]", "[-3.5, 1.75, 4]", "[-3.5, -1.75, 4]", "[0, 2, 4]", "[0, -2, 4]", "[2, 0, 4]", "[-2, 0, 4]"]),
+            &["cannot simulate this robot"],
+        ),
+        Case::ok("mass 5000 kg", &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], &["wrote out.csv"])
+            .file("cfg.toml", line(3, "mass_kg = 5000.0"))
+            .writes("out.csv"),
+        Case::ok("a 1 km frame", &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], &["wrote out.csv"])
+            .file("cfg.toml", cables(&["[500, 0, 900]", "[-250, 433, 900]", "[-250, -433, 900]"]))
+            .writes("out.csv"),
         // The good configuration is accepted (the suite's control).
         Case::ok("good configuration", &["simulate", "--config", "cfg.toml", "--duration", "1", "--no-three-phase", "-o", "out.csv"], &["wrote out.csv"])
             .file("cfg.toml", GOOD_CONFIG)
