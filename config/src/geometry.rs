@@ -107,8 +107,14 @@ pub fn check(anchors: &[Option<[f64; 3]>], points: &[[f64; 3]]) -> Result<(), (u
         .flat_map(|a| points.iter().map(move |b| dist(a, b)))
         .fold(0.0, f64::max);
     if pspan >= span {
+        // Blame the point farthest from the platform origin: the likely typo.
+        let far = points
+            .iter()
+            .enumerate()
+            .max_by(|a, b| dist(a.1, &[0.0; 3]).total_cmp(&dist(b.1, &[0.0; 3])))
+            .map_or(0, |(j, _)| j);
         return Err((
-            0,
+            far,
             "platform_point",
             format!("the platform points span {pspan:.3} m, no less than the frame's {span:.3} m: the platform cannot fit inside its frame"),
         ));
