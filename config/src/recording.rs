@@ -767,8 +767,10 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
 fn check_version(comment: &str) -> Result<(), ErrorKind> {
     const TAG: &str = "cdpr-recording";
     let c = comment.trim();
-    if c.len() >= TAG.len() && c.is_char_boundary(TAG.len()) && c[..TAG.len()].eq_ignore_ascii_case(TAG) {
-        let version = c[TAG.len()..].trim();
+    // The tag is the word `cdpr-recording` on its own (`# cdpr-recordings of May` is a comment).
+    let rest = c.get(TAG.len()..).filter(|_| c.get(..TAG.len()).is_some_and(|h| h.eq_ignore_ascii_case(TAG)));
+    if let Some(rest) = rest.filter(|r| r.is_empty() || r.starts_with(char::is_whitespace)) {
+        let version = rest.trim();
         if version != "v1" {
             return Err(ErrorKind::UnknownVersion(if version.is_empty() { "(none)".into() } else { version.into() }));
         }
@@ -920,6 +922,7 @@ mod tests {
         assert!(matches!(e.kind, ErrorKind::Quoted(_)), "{e}");
         let e = err_of(&format!("{head}{}\"0.5\",0,0,1,2,2,2,5,6,7\n", rows(2)));
         assert!(matches!(e.kind, ErrorKind::Quoted(_)) && e.line == 4, "{e}");
+        parse_str(&format!("# cdpr-recordings of May\n#cdpr-recording v1\n{head}{}", rows(12))).unwrap();
         let e = err_of(&format!("# cdpr-recording v2\n{head}{}", rows(12)));
         assert!(matches!(e.kind, ErrorKind::UnknownVersion(ref v) if v == "v2") && e.line == 1, "{e}");
         // Non-UTF-8.
