@@ -220,12 +220,16 @@ pub struct Staging {
     stage: PathBuf,
     files: Vec<std::ffi::OsString>,
     inputs: Vec<PathBuf>,
+    /// The target directory was made for this set: removed again (if empty) when the set fails.
+    created: bool,
+    committed: bool,
 }
 
 impl Staging {
     /// Starts a set for directory `target` (created if missing, parents too); `inputs` are the
     /// command's input files, which no file of the set may replace.
     pub fn new(target: &Path, inputs: &[&Path]) -> std::io::Result<Self> {
+        let mut created = false;
         match std::fs::metadata(target) {
             Ok(m) if !m.is_dir() => {
                 return Err(std::io::Error::other(format!(
@@ -234,8 +238,11 @@ impl Staging {
                 )))
             }
             Ok(_) => {}
-            Err(_) => std::fs::create_dir_all(target)
-                .map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", target.display())))?,
+            Err(_) => {
+                std::fs::create_dir_all(target)
+                    .map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", target.display())))?;
+                created = true;
+            }
         }
         let stage = temp_name(target, std::ffi::OsStr::new("taut-staging"));
         std::fs::create_dir(&stage)
@@ -245,6 +252,8 @@ impl Staging {
             stage,
             files: Vec::new(),
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
+            created,
+            committed: false,
         })
     }
 
@@ -270,6 +279,7 @@ impl Staging {
             std::fs::File::open(self.stage.join(f))?.sync_all()?;
             check_output(&self.target.join(f), &inputs)?;
         }
+        self.committed = true;
         for f in std::mem::take(&mut self.files) {
             std::fs::rename(self.stage.join(&f), self.target.join(&f))?;
         }
@@ -281,6 +291,10 @@ impl Staging {
 impl Drop for Staging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.stage);
+        if self.created && !self.committed {
+            // Only an empty directory goes: anything else in it is not ours.
+            let _ = std::fs::remove_dir(&self.target);
+        }
     }
 }
 
@@ -380,6 +394,13 @@ mod tests {
         assert_eq!(std::fs::read_to_string(d.join("a.svg")).unwrap(), "new a");
         assert_eq!(std::fs::read_to_string(d.join("b.svg")).unwrap(), "new b");
         assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
+        // A directory made for a set that fails is removed again.
+        let fresh = d.join("new/figs");
+        {
+            let mut s = Staging::new(&fresh, &[]).unwrap();
+            std::fs::write(s.path("a.svg").unwrap(), "x").unwrap();
+        }
+        assert!(!fresh.exists());
         std::fs::remove_dir_all(&d).unwrap();
     }
 }

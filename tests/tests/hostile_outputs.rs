@@ -232,6 +232,11 @@ fn cases() -> Vec<Case> {
         .file("rec.csv", good_recording())
         .file("figs/fig7-lengths.svg", "<svg>old 7</svg>")
         .file("figs/fig8-errors.svg", "<svg>old 8</svg>"),
+        Case::err("interrupted --plot into a new directory leaves no directory", &[], &["writing newfigs/fig7-lengths.svg", "File too large"])
+            .shell("trap '' XFSZ; ulimit -f 2; exec \"$TAUT\" calibrate rec.csv --plot newfigs")
+            .file("rec.csv", good_recording()),
+        Case::err("demo --truth /dev/full", &["demo", "--duration", "1", "--truth", "/dev/full"], &["--truth: /dev/full: is a device node"])
+            .after(dev_full_is_a_device),
         // The controls: an existing regular file is replaced, a new one created.
         Case::ok(
             "simulate -o over a regular file",
