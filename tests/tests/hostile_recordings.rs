@@ -221,6 +221,11 @@ fn cases() -> Vec<Case> {
             &["calibrate", "missing.csv"],
             &["missing.csv", "cannot read"],
         ),
+        Case::err("a fifo nobody writes to", &["calibrate", "rec.fifo"], &["rec.fifo", "is a fifo and nothing has written to it"])
+            .entry("rec.fifo", Entry::Fifo),
+        Case::ok("a pipe from a command", &[], &[])
+            .shell("\"$TAUT\" calibrate /dev/fd/3 3< rec.csv && cat rec.csv | \"$TAUT\" calibrate /dev/stdin")
+            .file("rec.csv", good.clone()),
         Case::ok("CRLF line endings are accepted", &["calibrate", "rec.csv"], &[])
             .file("rec.csv", good.replace('\n', "\r\n")),
         // diagnose reads with the same reader.
