@@ -14,6 +14,7 @@ pub mod atomic;
 pub mod devices;
 mod exact;
 pub mod geometry;
+pub mod input;
 pub mod params;
 pub mod recording;
 pub mod runtime;
@@ -152,7 +153,7 @@ impl RobotConfig {
     /// Reads and validates a configuration file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        let text = input::read_text(path).map_err(|e| ConfigError {
             file: Some(path.to_path_buf()),
             line: None,
             key: None,

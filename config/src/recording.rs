@@ -234,7 +234,7 @@ impl Recording {
     pub fn load(path: impl AsRef<Path>) -> Result<(Recording, ParseReport), RecordingError> {
         let path = path.as_ref();
         let err = |kind| RecordingError { file: Some(path.display().to_string()), line: 0, column: None, kind };
-        let file = open_input(path).map_err(|e| err(ErrorKind::Io(e)))?;
+        let file = crate::input::open(path).map_err(|e| err(ErrorKind::Io(e)))?;
         if let Ok(m) = file.metadata() {
             if m.is_dir() {
                 return Err(err(ErrorKind::Io("is a directory; give the path of a recording (CSV)".into())));
@@ -251,33 +251,6 @@ impl Recording {
             e.file = Some(path.display().to_string());
             e
         })
-    }
-}
-
-/// How long to wait for a writer when the recording is a fifo.
-const FIFO_OPEN_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
-
-/// Opens an input file. Opening a fifo blocks until something writes to it: a pipe from a running
-/// command (`<(zcat rec.csv.gz)`) opens at once, a fifo nobody writes to is an error after
-/// [`FIFO_OPEN_WAIT`] instead of a hang.
-fn open_input(path: &Path) -> Result<std::fs::File, String> {
-    use std::os::unix::fs::FileTypeExt;
-    let is_fifo = std::fs::metadata(path).is_ok_and(|m| m.file_type().is_fifo());
-    if !is_fifo {
-        return std::fs::File::open(path).map_err(|e| e.to_string());
-    }
-    let (tx, rx) = std::sync::mpsc::channel();
-    let p = path.to_path_buf();
-    // The thread stays blocked in open(2) if nothing ever writes; the command ends with the error.
-    std::thread::spawn(move || {
-        let _ = tx.send(std::fs::File::open(&p));
-    });
-    match rx.recv_timeout(FIFO_OPEN_WAIT) {
-        Ok(r) => r.map_err(|e| e.to_string()),
-        Err(_) => Err(format!(
-            "is a fifo and nothing has written to it for {} s; give a recording file, or start the command that feeds the fifo",
-            FIFO_OPEN_WAIT.as_secs()
-        )),
     }
 }
 

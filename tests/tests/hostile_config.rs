@@ -184,6 +184,14 @@ fn cases() -> Vec<Case> {
             &["cfg", "cannot read"],
         )
         .entry("cfg", Entry::Dir),
+        Case::err("config /dev/zero", &["simulate", "--config", "/dev/zero", "-o", "out.csv"], &["/dev/zero: cannot read the file", "NUL byte"]),
+        Case::err("config /dev/urandom", &["simulate", "--config", "/dev/urandom", "-o", "out.csv"], &["/dev/urandom: cannot read the file"]),
+        Case::err("config a fifo nobody writes to", &["simulate", "--config", "cfg.fifo", "-o", "out.csv"], &["cfg.fifo", "is a fifo"])
+            .entry("cfg.fifo", Entry::Fifo),
+        Case::err("config of 2 MB", &["simulate", "--config", "cfg.toml", "-o", "out.csv"], &["cfg.toml: cannot read the file", "larger than 1024 KiB"])
+            .file("cfg.toml", format!("{GOOD_CONFIG}# {}\n", "x".repeat(2 << 20))),
+        Case::err("a recording given as the config", &["calibrate", "rec.csv", "--config", "rec.csv"], &["rec.csv:"])
+            .file("rec.csv", good_recording()),
         Case::err(
             "config missing",
             &["simulate", "--config", "nope.toml", "-o", "out.csv"],
