@@ -46,6 +46,13 @@ pub enum OutputError {
         /// The output path.
         path: PathBuf,
     },
+    /// The path cannot be looked at (too long, a file where a directory should be, ...).
+    Unusable {
+        /// The output path.
+        path: PathBuf,
+        /// What the system said.
+        reason: String,
+    },
     /// Not a file path (empty, `..`, `/`).
     NotAFilePath {
         /// The output path.
@@ -71,6 +78,7 @@ impl fmt::Display for OutputError {
                 write!(f, "{}: its directory does not exist; create it first", path.display())
             }
             OutputError::NotAFilePath { path } => write!(f, "`{}` is not a file path", path.display()),
+            OutputError::Unusable { path, reason } => write!(f, "{}: cannot write there: {reason}", path.display()),
         }
     }
 }
@@ -126,7 +134,8 @@ pub fn check_output(path: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
     }
     let meta = match std::fs::symlink_metadata(path) {
         Ok(m) => m,
-        Err(_) => return Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(OutputError::Unusable { path: path.to_path_buf(), reason: e.to_string() }),
     };
     if let Some(what) = kind_of(meta.file_type()) {
         return Err(OutputError::NotRegular {

@@ -202,6 +202,8 @@ fn cases() -> Vec<Case> {
         )
         .file("precious.txt", "keep")
         .entry("bus.log", Entry::Symlink("precious.txt".into())),
+        cal("--out a 300-character name", &["--out", &"p".repeat(300)], &["--out: ppp", "File name too long"]),
+        cal("--out under a file", &["--out", "rec.csv/p.toml"], &["--out: rec.csv/p.toml: its directory does not exist"]),
         // A write that fails midway (file size limit; SIGXFSZ ignored so write(2) fails with
         // EFBIG) leaves the old file as it was and no temporary file.
         Case::err(
