@@ -58,7 +58,8 @@ pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
     };
     anyhow::ensure!(
         cfg.cables.len() == rec.n_cables,
-        "the configuration has {} [[cable]] tables but the recording has {} length columns (l0..l{}); use the configuration of the robot that made the recording",
+        "{}: the configuration has {} [[cable]] tables but the recording has {} length columns (l0..l{}); use the configuration of the robot that made the recording",
+        path.map_or("(no --config)".into(), |p| p.display().to_string()),
         cfg.cables.len(),
         rec.n_cables,
         rec.n_cables - 1
@@ -102,6 +103,11 @@ pub fn progress(steps: u64) -> indicatif::ProgressBar {
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
+    let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
+    let files: Vec<crate::outputs::Output> =
+        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).collect();
+    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
+    crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let pb = progress(4);
@@ -114,7 +120,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             .with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
-        report::plots(dir, &rec, &cfg, &out)?;
+        report::plots(dir, &inputs, &rec, &cfg, &out)?;
         eprintln!("figures written to {}", dir.display());
     }
     if let Some(p) = &a.out {

@@ -20,6 +20,14 @@ pub struct DemoArgs {
 }
 
 pub fn run(a: &DemoArgs) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = a.sim.config.iter().map(|p| p.as_path()).collect();
+    let files: Vec<crate::outputs::Output> =
+        [("--output", Some(&a.sim.output)), ("--json", a.json.as_ref()), ("--truth", a.sim.truth.as_ref())]
+        .into_iter()
+        .filter_map(|(f, p)| p.map(|p| (f, p.as_path())))
+        .collect();
+    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
+    crate::outputs::check(&files, &dirs, &inputs)?;
     let s = scenario(&a.sim)?;
     println!(
         "taut demo: simulated {} ({} cables), seed {}, {:.0} s excitation at {:.0} Hz, loose-cable excursions {:.0}%",
@@ -32,12 +40,15 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     );
     let pb = progress(5);
     pb.set_message("simulating");
-    let run = taut_sim::simulate(&s);
+    let run = taut_sim::try_simulate(&s).map_err(|e| anyhow::anyhow!("cannot simulate this robot: {e}"))?;
     pb.inc(1);
     let rec = &run.recording;
     run.recording
         .save_atomic(&a.sim.output)
         .with_context(|| format!("writing {}", a.sim.output.display()))?;
+    if let Some(t) = &a.sim.truth {
+        crate::simulate::write_truth(t, &s, a.sim.seed, &run)?;
+    }
     // Read back what was written: the demo calibrates the file, as `taut calibrate` would.
     let (rec_file, parse) = taut_config::recording::Recording::load(&a.sim.output)?;
     debug_assert_eq!(rec_file.len(), rec.len());
@@ -60,7 +71,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
             .with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
-        report::plots(dir, &rec_file, &s.robot, &out)?;
+        report::plots(dir, &inputs, &rec_file, &s.robot, &out)?;
         println!("figures written to {}", dir.display());
     }
     Ok(())

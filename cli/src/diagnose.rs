@@ -175,7 +175,13 @@ pub fn print(d: &Diagnosis) {
 
 /// Figures: the residual against time, before and after; and per effect the residual against
 /// the quantity that revealed it, before and after, per cable.
-pub fn plots(dir: &Path, d: &Diagnosis) -> Result<()> {
+pub fn plots(dir: &Path, inputs: &[&Path], d: &Diagnosis) -> Result<()> {
+    let mut set = crate::outputs::figures(dir, inputs)?;
+    draw_figures(&mut set, d)?;
+    Ok(set.commit()?)
+}
+
+fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result<()> {
     let pts = |t: &[f64], r: &[f64]| -> Vec<(f64, f64)> { t.iter().zip(r).map(|(a, b)| (*a, b * 1e3)).collect() };
     let before: Vec<Vec<(f64, f64)>> = d.baseline_residuals.iter().map(|(t, r)| pts(t, r)).collect();
     let after: Vec<Vec<(f64, f64)>> = d.final_residuals.iter().map(|(t, r)| pts(t, r)).collect();
@@ -190,7 +196,7 @@ pub fn plots(dir: &Path, d: &Diagnosis) -> Result<()> {
             ],
         })
         .collect();
-    write_panels(dir, "diagnose-residual-vs-time", &panels)?;
+    write_panels(set, "diagnose-residual-vs-time", &panels)?;
     for f in &d.effects {
         let Some(p) = &f.plot else { continue };
         let data: Vec<(Vec<(f64, f64)>, Vec<(f64, f64)>)> = p
@@ -212,12 +218,16 @@ pub fn plots(dir: &Path, d: &Diagnosis) -> Result<()> {
                 ],
             })
             .collect();
-        write_panels(dir, &format!("diagnose-{}", f.effect.name()), &panels)?;
+        write_panels(set, &format!("diagnose-{}", f.effect.name()), &panels)?;
     }
     Ok(())
 }
 
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
+    let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
+    let files: Vec<crate::outputs::Output> = a.json.iter().map(|p| ("--json", p.as_path())).collect();
+    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
+    crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, _parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let mut opts = DiagnoseOptions::from_config(&cfg.calibration);
@@ -234,7 +244,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
             .with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
-        plots(dir, &d)?;
+        plots(dir, &inputs, &d)?;
         eprintln!("figures written to {}", dir.display());
     }
     Ok(())

@@ -9,6 +9,7 @@ mod demo;
 mod diagnose;
 mod plot;
 mod probe;
+mod outputs;
 mod report;
 mod simulate;
 mod start;

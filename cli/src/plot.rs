@@ -6,8 +6,8 @@
 use anyhow::{Context, Result};
 use plotters::coord::Shift;
 use plotters::prelude::*;
-use std::path::Path;
 use std::sync::Once;
+use taut_config::atomic::Staging;
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
@@ -59,22 +59,27 @@ pub fn color(k: usize) -> RGBColor {
 /// Red used for loose-cable samples, as in the paper's Fig. 8.
 pub const LOOSE: RGBColor = RGBColor(220, 30, 30);
 
-/// Writes `stem.svg` and `stem.png` in `dir` with the panels stacked vertically.
-pub fn write_panels(dir: &Path, stem: &str, panels: &[Panel]) -> Result<()> {
+/// Writes `stem.svg` and `stem.png` into the figure set `set` with the panels stacked
+/// vertically; they go into place when the set is committed.
+pub fn write_panels(set: &mut Staging, stem: &str, panels: &[Panel]) -> Result<()> {
     register_font();
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let h = 260 * panels.len() as u32 + 20;
-    let svg = dir.join(format!("{stem}.svg"));
+    // Messages name the figure's final place; the staged file is an implementation detail, and
+    // on an error the old figures there are kept.
+    let name = |ext: &str| set.target().join(format!("{stem}.{ext}")).display().to_string();
+    let (svg_name, png_name) = (name("svg"), name("png"));
+    let kept = "the figures already there are kept";
+    let svg = set.path(&format!("{stem}.svg"))?;
     {
         let root = SVGBackend::new(&svg, (1000, h)).into_drawing_area();
-        draw_panels(&root, panels).with_context(|| format!("drawing {}", svg.display()))?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {}", svg.display()))?;
+        draw_panels(&root, panels).with_context(|| format!("drawing {svg_name} ({kept})"))?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {svg_name} ({kept})"))?;
     }
-    let png = dir.join(format!("{stem}.png"));
+    let png = set.path(&format!("{stem}.png"))?;
     {
         let root = BitMapBackend::new(&png, (1000, h)).into_drawing_area();
-        draw_panels(&root, panels).with_context(|| format!("drawing {}", png.display()))?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {}", png.display()))?;
+        draw_panels(&root, panels).with_context(|| format!("drawing {png_name} ({kept})"))?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}")).with_context(|| format!("writing {png_name} ({kept})"))?;
     }
     Ok(())
 }
@@ -154,7 +159,7 @@ where
 }
 
 /// A histogram of several data sets on a shared bin grid, as step outlines (Fig. 9).
-pub fn write_histograms(dir: &Path, stem: &str, title: &str, x_label: &str, sets: &[(String, Vec<f64>)]) -> Result<()> {
+pub fn write_histograms(set: &mut Staging, stem: &str, title: &str, x_label: &str, sets: &[(String, Vec<f64>)]) -> Result<()> {
     let all: Vec<f64> = sets.iter().flat_map(|s| s.1.iter().copied()).filter(|v| v.is_finite()).collect();
     // Robust range: the 0.5 and 99.5 percentiles, so a few outliers do not squash the shape.
     let mut sorted = all.clone();
@@ -191,7 +196,7 @@ pub fn write_histograms(dir: &Path, stem: &str, title: &str, x_label: &str, sets
         .enumerate()
         .map(|(k, ((label, _), pts))| Series { label: label.clone(), points: pts, color: color(k), markers: false })
         .collect();
-    write_panels(dir, stem, &[Panel { title: title.into(), x_label, y_label: "samples", series }])
+    write_panels(set, stem, &[Panel { title: title.into(), x_label, y_label: "samples", series }])
 }
 
 #[cfg(test)]
@@ -202,8 +207,9 @@ mod tests {
     fn writes_svg_and_png_with_text() {
         let dir = std::env::temp_dir().join(format!("taut-plot-{}", std::process::id()));
         let pts: Vec<(f64, f64)> = (0..100).map(|i| (i as f64, (i as f64 * 0.1).sin())).collect();
+        let mut set = Staging::new(&dir, &[]).unwrap();
         write_panels(
-            &dir,
+            &mut set,
             "t",
             &[Panel {
                 title: "test".into(),
@@ -213,7 +219,9 @@ mod tests {
             }],
         )
         .unwrap();
-        write_histograms(&dir, "h", "hist", "e", &[("a".into(), pts.iter().map(|p| p.1).collect())]).unwrap();
+        write_histograms(&mut set, "h", "hist", "e", &[("a".into(), pts.iter().map(|p| p.1).collect())]).unwrap();
+        assert!(std::fs::metadata(dir.join("t.svg")).is_err(), "nothing in place before the commit");
+        set.commit().unwrap();
         for f in ["t.svg", "t.png", "h.svg", "h.png"] {
             assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 1000, "{f}");
         }

@@ -111,6 +111,16 @@ fn loadcell_tensions(cfg: &RobotConfig) -> Vec<Option<f64>> {
 
 /// Runs `taut probe`.
 pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
+    // Duration::from_secs_f64 panics on inf or an overflow: bound it before it gets there.
+    anyhow::ensure!(
+        args.watch_s.is_finite() && (0.0..=86_400.0).contains(&args.watch_s),
+        "--watch-s {}: watch the bus for 0 to 86400 s",
+        args.watch_s
+    );
+    if let Some(log) = &args.log {
+        let inputs: Vec<&std::path::Path> = args.config.iter().map(|p| p.as_path()).collect();
+        crate::outputs::check(&[("--log", log.as_path())], &[], &inputs)?;
+    }
     let cfg = load(args)?;
     let mcfg = MasterConfig::from_robot(&cfg).map_err(|e| match &args.config {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),

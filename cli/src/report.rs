@@ -212,7 +212,14 @@ pub fn params_file(cfg: &RobotConfig, source: &str, r: &CalibReport) -> ParamsFi
 
 /// Figures like the paper's Fig. 7 (measured vs modelled before/after), Fig. 8 (error with loose
 /// samples marked, with and without force weighting) and Fig. 9 (error histograms).
-pub fn plots(dir: &Path, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Result<()> {
+/// Figures 7-9 into `dir`, all or nothing (none of them may replace one of `inputs`).
+pub fn plots(dir: &Path, inputs: &[&Path], rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Result<()> {
+    let mut set = crate::outputs::figures(dir, inputs)?;
+    draw_figures(&mut set, rec, cfg, out)?;
+    Ok(set.commit()?)
+}
+
+fn draw_figures(set: &mut taut_config::atomic::Staging, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Result<()> {
     let b = cfg.platform_points();
     let n = rec.n_cables;
     let opts = CalibOptions::from_config(&cfg.calibration);
@@ -242,7 +249,7 @@ pub fn plots(dir: &Path, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> R
             ],
         })
         .collect();
-    plot::write_panels(dir, "fig7-lengths", &panels)?;
+    plot::write_panels(set, "fig7-lengths", &panels)?;
     // Fig. 8: co-registration error with loose samples marked.
     let mut fig8 = Vec::new();
     for j in 0..n {
@@ -265,7 +272,7 @@ pub fn plots(dir: &Path, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> R
             Panel { title: format!("cable {j}: co-registration error"), x_label: "t, s", y_label: "error, mm", series }
         })
         .collect();
-    plot::write_panels(dir, "fig8-errors", &panels)?;
+    plot::write_panels(set, "fig8-errors", &panels)?;
     // Fig. 9: histograms of the taut-sample errors.
     let collect = |r: &metrics::Residuals| -> Vec<f64> {
         (0..rec.len() * n).filter(|&k| taut[k]).map(|k| r.values[k] * 1e3).collect()
@@ -274,6 +281,6 @@ pub fn plots(dir: &Path, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> R
     if let Some(p) = &plain {
         sets.push(("without force weighting".to_string(), collect(p)));
     }
-    plot::write_histograms(dir, "fig9-histogram", "co-registration error, taut samples", "error, mm", &sets)?;
+    plot::write_histograms(set, "fig9-histogram", "co-registration error, taut samples", "error, mm", &sets)?;
     Ok(())
 }

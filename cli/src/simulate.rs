@@ -43,6 +43,41 @@ pub struct SimulateArgs {
     pub effects: Vec<String>,
 }
 
+/// Sample rates the simulator accepts, Hz: the loop's own range (`[rt] rate_hz`).
+pub const RATE_HZ: (f64, f64) = (1.0, 10_000.0);
+
+/// Longest excitation, s (a day).
+pub const MAX_DURATION_S: f64 = 86_400.0;
+
+/// Most excitation samples (`duration x rate`), checked before anything is allocated: 2 million
+/// samples is 5.5 h at 100 Hz, a few hundred MB in memory.
+pub const MAX_SAMPLES: f64 = 2.0e6;
+
+/// The simulated effects, their unit and the physical range of their value.
+pub const EFFECTS: [(&str, &str, f64, f64, &str); 6] = [
+    // EA of a real cable: 1 kN (an elastic cord) to 100 MN (a 35 mm steel rope); stiffer cables
+    // are rigid for the plant's equilibrium search.
+    ("elasticity", "N", 1e3, 1e8, "axial stiffness EA"),
+    // Weight per length: 0 to 20 N/m (a 20 mm steel rope). Heavy cables on a light platform can
+    // still have no catenary solution: the simulator then says so.
+    ("sag", "N/m", 0.0, 20.0, "cable weight per length"),
+    ("pulley", "m", 0.0, 0.5, "pulley radius"),
+    // A drum radius error of +-10 %.
+    ("scale", "", 0.9, 1.1, "encoder scale"),
+    ("time-offset", "s", -1.0, 1.0, "encoder lag behind the tracker"),
+    ("backlash", "m", 0.0, 0.05, "play in the drive train"),
+];
+
+/// A number for a message: plain when of an everyday size, else in e-notation (1e300 is not
+/// three hundred digits).
+fn human(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-3..1e6).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// Builds the scenario the arguments describe.
 pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     let mut s = Scenario::aras_cam(a.seed);
@@ -54,8 +89,27 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
             p.display()
         );
     }
-    anyhow::ensure!(a.duration > 0.0 && a.rate > 0.0, "--duration and --rate must be positive");
-    anyhow::ensure!((0.0..0.9).contains(&a.loose_fraction), "--loose-fraction must be in [0, 0.9)");
+    anyhow::ensure!(
+        a.rate.is_finite() && (RATE_HZ.0..=RATE_HZ.1).contains(&a.rate),
+        "--rate {}: the sample rate must be {} to {} Hz",
+        human(a.rate),
+        RATE_HZ.0,
+        RATE_HZ.1
+    );
+    anyhow::ensure!(
+        a.duration.is_finite() && a.duration > 0.0 && a.duration <= MAX_DURATION_S,
+        "--duration {}: the excitation must last more than 0 and at most {MAX_DURATION_S} s",
+        human(a.duration)
+    );
+    anyhow::ensure!(
+        a.duration * a.rate <= MAX_SAMPLES,
+        "--duration {} s at --rate {} Hz is {:.3e} samples, more than the {MAX_SAMPLES:.0e} a simulated recording may have; \
+         shorten it or lower the rate",
+        a.duration,
+        a.rate,
+        a.duration * a.rate
+    );
+    anyhow::ensure!((0.0..0.9).contains(&a.loose_fraction), "--loose-fraction {}: must be in [0, 0.9)", a.loose_fraction);
     s.duration_s = a.duration;
     s.rate_hz = a.rate;
     s.loose_fraction = a.loose_fraction;
@@ -63,30 +117,57 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     if a.no_three_phase {
         s.three_phase = None;
     }
+    let mut seen = Vec::new();
     for e in &a.effects {
+        let shown = taut_config::recording::excerpt(e);
         let (name, value) = e
             .split_once('=')
-            .with_context(|| format!("--effect `{e}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
-        let v: f64 = value.trim().parse().with_context(|| format!("--effect `{e}`: `{value}` is not a number"))?;
+            .with_context(|| format!("--effect `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
+        let name = name.trim();
+        let Some(&(_, unit, lo, hi, what)) = EFFECTS.iter().find(|x| x.0 == name) else {
+            bail!(
+                "--effect `{}` is not a simulated effect; use one of {}",
+                taut_config::recording::excerpt(name),
+                EFFECTS.map(|x| x.0).join(", ")
+            )
+        };
+        let v: f64 = value
+            .trim()
+            .parse()
+            .map_err(|_| anyhow::anyhow!("--effect `{shown}`: `{}` is not a number", taut_config::recording::excerpt(value)))?;
+        anyhow::ensure!(
+            v.is_finite() && v >= lo && v <= hi,
+            "--effect {name}={}: the {what} must be {} to {}{}{unit}",
+            human(v),
+            human(lo),
+            human(hi),
+            if unit.is_empty() { "" } else { " " }
+        );
+        anyhow::ensure!(!seen.contains(&name), "--effect {name} is given twice; give each effect once");
+        seen.push(name);
         let n = s.robot.cables.len();
-        match name.trim() {
+        match name {
             "elasticity" => s.physics.elasticity = Some(v),
             "sag" => s.physics.sag = Some(v),
             "pulley" => s.physics.pulley = Some(v),
             "scale" => s.physics.scale = Some(vec![v; n]),
             "time-offset" => s.physics.time_offset_s = v,
             "backlash" => s.physics.backlash_m = v,
-            other => bail!(
-                "--effect `{other}` is not a simulated effect; use one of elasticity, sag, pulley, scale, time-offset, backlash"
-            ),
+            _ => unreachable!("every name in EFFECTS is matched"),
         }
     }
     Ok(s)
 }
 
 pub fn run(a: &SimulateArgs) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = a.config.iter().map(|p| p.as_path()).collect();
+    let files: Vec<crate::outputs::Output> = [("--output", Some(&a.output)), ("--truth", a.truth.as_ref())]
+        .into_iter()
+        .filter_map(|(f, p)| p.map(|p| (f, p.as_path())))
+        .collect();
+    crate::outputs::check(&files, &[], &inputs)?;
     let s = scenario(a)?;
-    let run = taut_sim::simulate(&s);
+    let run = taut_sim::try_simulate(&s).map_err(|e| anyhow::anyhow!("cannot simulate this robot: {e}"))?;
     run.recording.save_atomic(&a.output).with_context(|| format!("writing {}", a.output.display()))?;
     eprintln!(
         "wrote {}: {} samples, {} cables, {} samples with a loose cable",
@@ -96,21 +177,26 @@ pub fn run(a: &SimulateArgs) -> Result<()> {
         run.loose_samples
     );
     if let Some(t) = &a.truth {
-        let n = run.truth.anchors.len();
-        let p = taut_config::params::ParamsFile {
-            format: taut_config::params::FORMAT.into(),
-            version: 0,
-            created_unix_s: 0.0,
-            robot: s.robot.robot.name.clone(),
-            source: format!("simulation truth, seed {}", a.seed),
-            anchors_m: run.truth.anchors.clone(),
-            l0_m: run.truth.l0.clone(),
-            anchor_sigma_m: vec![[0.0; 3]; n],
-            l0_sigma_m: vec![0.0; n],
-            rms_m: 0.0,
-            heldout_rms_m: f64::NAN,
-        };
-        p.save_atomic(t).with_context(|| format!("writing {}", t.display()))?;
+        write_truth(t, &s, a.seed, &run)?;
     }
     Ok(())
+}
+
+/// Writes the simulation truth (anchors, offsets) as a taut-params file.
+pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim::SimRun) -> Result<()> {
+    let n = run.truth.anchors.len();
+    let p = taut_config::params::ParamsFile {
+        format: taut_config::params::FORMAT.into(),
+        version: 0,
+        created_unix_s: 0.0,
+        robot: s.robot.robot.name.clone(),
+        source: format!("simulation truth, seed {seed}"),
+        anchors_m: run.truth.anchors.clone(),
+        l0_m: run.truth.l0.clone(),
+        anchor_sigma_m: vec![[0.0; 3]; n],
+        l0_sigma_m: vec![0.0; n],
+        rms_m: 0.0,
+        heldout_rms_m: f64::NAN,
+    };
+    p.save_atomic(t).with_context(|| format!("writing {}", t.display()))
 }

@@ -163,7 +163,8 @@ pub fn run(a: &StartArgs) -> Result<()> {
         },
     });
     if let Some(p) = &a.json {
-        std::fs::write(p, serde_json::to_string_pretty(&summary)? + "\n").with_context(|| format!("writing {}", p.display()))?;
+        taut_config::write_atomic(p, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     println!("phases completed   {}", l.snap.phases_completed);
     if let Some(e) = init_est.filter(|_| truth.is_some()) {

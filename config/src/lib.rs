@@ -10,7 +10,11 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod atomic;
 pub mod devices;
+mod exact;
+pub mod geometry;
+pub mod input;
 pub mod params;
 pub mod recording;
 pub mod runtime;
@@ -18,6 +22,8 @@ pub mod runtime;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
+
+pub use atomic::write_atomic;
 
 /// A robot description as read from a TOML file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -70,10 +76,10 @@ pub struct Robot {
 pub struct Cable {
     /// Nominal anchor (cable exit point) in the tracker frame, m. Optional: the calibration does
     /// not need it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::opt_three")]
     pub anchor: Option<[f64; 3]>,
     /// Attachment point `b_j` on the platform, m, platform frame.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact::three")]
     pub platform_point: [f64; 3],
     /// The `[cable.drive]` sub-table: the servo drive that winds this cable (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -147,7 +153,7 @@ impl RobotConfig {
     /// Reads and validates a configuration file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        let text = input::read_text(path).map_err(|e| ConfigError {
             file: Some(path.to_path_buf()),
             line: None,
             key: None,
@@ -166,7 +172,7 @@ impl RobotConfig {
             ConfigError {
                 file: None,
                 line,
-                key: None,
+                key: line.and_then(|l| key_path_at(text, l)),
                 // toml's message names the key and what was expected; drop its own
                 // "TOML parse error at line.." preamble and source excerpt, we print the line.
                 message: e.message().trim().to_string(),
@@ -220,11 +226,23 @@ impl RobotConfig {
             key: Some(key),
             message,
         };
-        if !(self.robot.mass_kg.is_finite() && self.robot.mass_kg > 0.0) {
+        let (m_lo, m_hi) = geometry::MASS_KG;
+        if !(self.robot.mass_kg.is_finite() && self.robot.mass_kg >= m_lo && self.robot.mass_kg <= m_hi) {
             return Err(err(
-                table_header_lines(text, "[robot]").first().copied(),
+                key_line(text, "[robot]", "mass_kg"),
                 "robot.mass_kg".into(),
-                format!("must be a positive mass in kg, got {}", self.robot.mass_kg),
+                format!("must be the platform's mass in kg, {m_lo} to {m_hi}, got {:e}", self.robot.mass_kg),
+            ));
+        }
+        if self.cables.len() > geometry::MAX_CABLES {
+            return Err(err(
+                cable_lines.get(geometry::MAX_CABLES).copied(),
+                "cable".into(),
+                format!(
+                    "{} [[cable]] tables; taut drives at most {} cables (the real-time loop's fixed arrays)",
+                    self.cables.len(),
+                    geometry::MAX_CABLES
+                ),
             ));
         }
         if self.cables.len() < 3 {
@@ -259,6 +277,9 @@ impl RobotConfig {
                 l.validate().map_err(|(k, m)| err(line, format!("cable[{i}].loadcell.{k}"), m))?;
             }
         }
+        let anchors: Vec<Option<[f64; 3]>> = self.cables.iter().map(|c| c.anchor).collect();
+        geometry::check(&anchors, &self.platform_points())
+            .map_err(|(i, k, m)| err(cable_lines.get(i).copied(), format!("cable[{i}].{k}"), m))?;
         let section = |name: &str| table_header_lines(text, &format!("[{name}]")).first().copied();
         if let Some(c) = &self.can {
             c.validate().map_err(|(k, m)| err(section("can"), format!("can.{k}"), m))?;
@@ -318,6 +339,44 @@ pub fn line_of(text: &str, pos: usize) -> usize {
     text[..pos.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
 }
 
+/// 1-based line of `key = ...` in the first table `header`, or of the header if the key is not
+/// written there.
+fn key_line(text: &str, header: &str, key: &str) -> Option<usize> {
+    let start = *table_header_lines(text, header).first()?;
+    for (i, l) in text.lines().enumerate().skip(start) {
+        let l = l.trim_start();
+        if l.starts_with('[') {
+            break;
+        }
+        if l.split('=').next().is_some_and(|k| k.trim() == key) {
+            return Some(i + 1);
+        }
+    }
+    Some(start)
+}
+
+/// The key path (`cable[2].anchor`, `robot.mass_kg`) of a `key = value` line, from the table
+/// headers above it; for errors the TOML parser reports with a place but no key.
+fn key_path_at(text: &str, line: usize) -> Option<String> {
+    let lines: Vec<&str> = text.lines().collect();
+    let this = lines.get(line.checked_sub(1)?)?.trim_start();
+    let key = this.split_once('=').map(|(k, _)| k.trim()).filter(|k| !k.is_empty() && !k.starts_with('['))?;
+    let mut cables = 0usize;
+    let mut table = String::new();
+    for l in &lines[..line - 1] {
+        let l = l.trim();
+        if l.starts_with("[[cable]]") {
+            cables += 1;
+            table = format!("cable[{}]", cables - 1);
+        } else if let Some(sub) = l.strip_prefix("[cable.").and_then(|r| r.split(']').next()) {
+            table = format!("cable[{}].{sub}", cables.saturating_sub(1));
+        } else if let Some(name) = l.strip_prefix('[').and_then(|r| r.split(']').next()) {
+            table = name.trim_start_matches('[').to_string();
+        }
+    }
+    Some(if table.is_empty() { key.to_string() } else { format!("{table}.{key}") })
+}
+
 /// 1-based lines on which a table header such as `[[cable]]` appears.
 fn table_header_lines(text: &str, header: &str) -> Vec<usize> {
     text.lines()
@@ -325,30 +384,6 @@ fn table_header_lines(text: &str, header: &str) -> Vec<usize> {
         .filter(|(_, l)| l.trim_start().starts_with(header))
         .map(|(i, _)| i + 1)
         .collect()
-}
-
-/// Writes `bytes` to `path` atomically: a temporary file in the same directory, fsync, rename.
-/// A reader sees either the old file or the new one, never a torn one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path.file_name().ok_or_else(|| {
-        std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
-    })?;
-    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 #[cfg(test)]
@@ -401,6 +436,30 @@ mod tests {
             .unwrap_err();
         assert!(e.key.as_deref().is_some_and(|k| k.starts_with("tracker.")), "{e}");
         assert_eq!(e.line, Some(4), "{e}");
+    }
+
+    #[test]
+    fn physical_bounds_name_the_key() {
+        let robot = |m: &str| format!("[robot]\nname = \"x\"\nmass_kg = {m}\n");
+        let cables = |anchors: &[&str]| -> String { anchors.iter().map(|a| format!("[[cable]]\nanchor = {a}\n")).collect() };
+        let good = ["[3, -2, 4]", "[3, 2, 4]", "[-3, 2, 4]", "[-3, -2, 4]"];
+        RobotConfig::from_toml_str(&format!("{}{}", robot("3.0"), cables(&good))).unwrap();
+        let long = format!("[{}]", vec!["1.0"; 1000].join(", "));
+        for (text, key, line, words) in [
+            (format!("{}{}", robot("3.0"), cables(&["[3, -2, 4, 9]", "[3, 2, 4]", "[-3, 2, 4]"])), "cable[0].anchor", 5, "found 4"),
+            (format!("{}{}", robot("3.0"), cables(&["[3, -2, 4]", &long, "[-3, 2, 4]"])), "cable[1].anchor", 7, "found 1000"),
+            (format!("{}{}", robot("1e-9"), cables(&good)), "robot.mass_kg", 3, "0.01 to 5000"),
+            (format!("{}{}", robot("1e308"), cables(&good)), "robot.mass_kg", 3, "0.01 to 5000"),
+            (format!("{}{}", robot("3.0"), cables(&["[3, -2, 4]", "[3, -2, 4]", "[-3, 2, 4]"])), "cable[1].anchor", 6, "apart"),
+            (format!("{}{}", robot("3.0"), cables(&["[0, 0, 1]", "[0.1, 0, 1]", "[0, 0.1, 1]"])), "cable[0].anchor", 4, "span only"),
+            (format!("{}{}", robot("3.0"), cables(&["[0, 0, 4]", "[1, 0, 4]", "[2, 0, 4]"])), "cable[0].anchor", 4, "one line"),
+            (format!("{}{}", robot("3.0"), cables(&["[1e6, 0, 4]", "[1, 0, 4]", "[2, 1, 4]"])), "cable[0].anchor", 4, "1000 m"),
+            (format!("{}{}", robot("3.0"), cables(&good.repeat(3)[..9])), "cable", 20, "at most 8"),
+        ] {
+            let e = RobotConfig::from_toml_str(&text).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(line)), "{e}\n{text}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
     }
 
     #[test]

@@ -54,7 +54,7 @@ impl ParamsFile {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, crate::ConfigError> {
         let path = path.as_ref();
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
-        let text = std::fs::read_to_string(path).map_err(|e| err(None, format!("cannot read the file: {e}")))?;
+        let text = crate::input::read_text(path).map_err(|e| err(None, format!("cannot read the file: {e}")))?;
         let p: ParamsFile = toml::from_str(&text)
             .map_err(|e| err(e.span().map(|s| crate::line_of(&text, s.start)), e.message().trim().to_string()))?;
         if p.format != FORMAT {

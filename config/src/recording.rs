@@ -28,6 +28,48 @@ pub const MAGIC: &str = "# cdpr-recording v1";
 /// Fewer usable samples (rows with a position and at least one length) than this is an error.
 pub const MIN_USABLE_SAMPLES: usize = 10;
 
+/// Longest line the reader accepts, bytes. A row of 64 cables with 20-character numbers is under
+/// 3 KiB; anything this long is not a recording (`/dev/zero`, a binary file, a lost newline).
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Most lines (rows, comments and blank lines) the reader accepts: 10 million, a 1 kHz recording of
+/// 2.7 hours, about 2 GB in memory at 12 cables.
+pub const MAX_LINES: usize = 10_000_000;
+
+/// Largest file `Recording::load` opens, bytes (checked before reading a regular file).
+pub const MAX_FILE_BYTES: u64 = 4 << 30;
+
+/// Most cables (`l` columns) a recording may have.
+pub const MAX_RECORDING_CABLES: usize = 64;
+
+/// Largest plausible sample time, s: seconds from the start of a run or Unix time (1.8e9 in 2027)
+/// both fit; 1e308 does not.
+pub const MAX_TIME_S: f64 = 1e10;
+
+/// Comment lines kept for provenance; further ones are counted in a note.
+const MAX_COMMENTS: usize = 200;
+
+/// Characters of a field echoed in a message; longer fields are cut with "…".
+const ECHO_CHARS: usize = 40;
+
+/// A field as it may be shown to a person: at most [`ECHO_CHARS`] characters, control characters
+/// escaped, and the length said when cut.
+pub fn excerpt(s: &str) -> String {
+    let mut out = String::new();
+    for (n, c) in s.chars().enumerate() {
+        if n == ECHO_CHARS {
+            out.push_str(&format!("… ({} bytes)", s.len()));
+            return out;
+        }
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
 /// A recording in memory, column-wise. Missing values are NaN.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Recording {
@@ -191,12 +233,20 @@ impl Recording {
     /// Reads a recording from a file; errors name the file, line and column.
     pub fn load(path: impl AsRef<Path>) -> Result<(Recording, ParseReport), RecordingError> {
         let path = path.as_ref();
-        let file = std::fs::File::open(path).map_err(|e| RecordingError {
-            file: Some(path.display().to_string()),
-            line: 0,
-            column: None,
-            kind: ErrorKind::Io(e.to_string()),
-        })?;
+        let err = |kind| RecordingError { file: Some(path.display().to_string()), line: 0, column: None, kind };
+        let file = crate::input::open(path).map_err(|e| err(ErrorKind::Io(e)))?;
+        if let Ok(m) = file.metadata() {
+            if m.is_dir() {
+                return Err(err(ErrorKind::Io("is a directory; give the path of a recording (CSV)".into())));
+            }
+            if m.is_file() && m.len() > MAX_FILE_BYTES {
+                return Err(err(ErrorKind::TooLarge(format!(
+                    "{} bytes, more than the {} GiB a recording may have; split it into runs",
+                    m.len(),
+                    MAX_FILE_BYTES >> 30
+                ))));
+            }
+        }
         parse(std::io::BufReader::new(file)).map_err(|mut e| {
             e.file = Some(path.display().to_string());
             e
@@ -254,6 +304,24 @@ pub enum ErrorKind {
     },
     /// A field is not a number.
     NotANumber(String),
+    /// A field is a number but not finite (`inf`, `1e400`).
+    NotFinite(String),
+    /// A `phase` field is not an integer phase id.
+    Phase(String),
+    /// A line longer than [`MAX_LINE_BYTES`].
+    LineTooLong,
+    /// A NUL byte at this 1-based byte of the line: a binary file.
+    Binary(usize),
+    /// Not UTF-8 text: the first bad byte, 1-based within the line.
+    NotUtf8(usize),
+    /// A `# cdpr-recording vN` tag with a version this reader does not know.
+    UnknownVersion(String),
+    /// The header is separated by something other than commas (named).
+    Separator(&'static str),
+    /// Quoted fields (`"t"`), which the format does not have.
+    Quoted(String),
+    /// More than the reader's size limits.
+    TooLarge(String),
     /// Time is missing, or earlier than on the previous row.
     Time(String),
     /// Too few rows with a position and a length.
@@ -285,16 +353,44 @@ impl fmt::Display for RecordingError {
             write!(f, ":{}", self.line)?;
         }
         if let Some(c) = &self.column {
-            write!(f, ": column `{c}`")?;
+            write!(f, ": column `{}`", excerpt(c))?;
         }
         match &self.kind {
             ErrorKind::Io(e) => write!(f, ": cannot read: {e}"),
             ErrorKind::NoHeader => write!(f, ": no header line; expected e.g. `t,px,py,pz,l0,l1,l2,f0,f1,f2`"),
             ErrorKind::MissingColumn(c) => write!(f, ": the header has no `{c}` column; a cdpr-recording v1 needs t, px, py, pz and l0..l(n-1)"),
-            ErrorKind::DuplicateColumn(c) => write!(f, ": column `{c}` appears twice in the header"),
+            ErrorKind::DuplicateColumn(c) => write!(f, ": column `{}` appears twice in the header", excerpt(c)),
             ErrorKind::CableColumns(m) => write!(f, ": {m}"),
             ErrorKind::FieldCount { expected, found } => write!(f, ": {found} fields, but the header has {expected}; check for a stray or missing comma"),
-            ErrorKind::NotANumber(s) => write!(f, ": `{s}` is not a number (a missing value is an empty field or `nan`)"),
+            ErrorKind::NotANumber(s) => write!(f, ": `{}` is not a number (a missing value is an empty field or `nan`)", excerpt(s)),
+            ErrorKind::NotFinite(s) => write!(f, ": `{}` is not a finite number (a missing value is an empty field or `nan`)", excerpt(s)),
+            ErrorKind::Phase(s) => write!(
+                f,
+                ": `{}` is not a phase id; `phase` is an integer: 0, 1, 2, ... in the initialisation, -1 or empty outside",
+                excerpt(s)
+            ),
+            ErrorKind::LineTooLong => write!(
+                f,
+                ": line longer than {} KiB; a recording row is a few hundred bytes (is this a recording? a lost newline?)",
+                MAX_LINE_BYTES / 1024
+            ),
+            ErrorKind::Binary(b) => write!(f, ": NUL byte at byte {b}: this is a binary file, not a CSV recording"),
+            ErrorKind::NotUtf8(b) => write!(f, ": byte {b} is not UTF-8 text; save the recording as UTF-8 (plain ASCII numbers)"),
+            ErrorKind::UnknownVersion(v) => write!(
+                f,
+                ": format version `{}` is not known; this reader reads `{MAGIC}` only (use the taut that wrote the file, or convert it)",
+                excerpt(v)
+            ),
+            ErrorKind::Separator(sep) => write!(
+                f,
+                ": the fields are separated by {sep}; a cdpr-recording separates fields with commas and uses `.` for decimals"
+            ),
+            ErrorKind::Quoted(s) => write!(
+                f,
+                ": quoted field `{}`; a cdpr-recording has no quotes: write names and numbers bare, separated by commas",
+                excerpt(s)
+            ),
+            ErrorKind::TooLarge(m) => write!(f, ": too large: {m}"),
             ErrorKind::Time(m) => write!(f, ": {m}"),
             ErrorKind::TooFewSamples { usable, needed } => write!(f, ": only {usable} usable samples (rows with a position and a length), at least {needed} needed"),
         }
@@ -316,6 +412,21 @@ struct Columns {
 
 fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Result<Columns, RecordingError> {
     let err = |column: Option<String>, kind| RecordingError { file: None, line, column, kind };
+    // What a spreadsheet export does to a CSV, named before "no `t` column" could mislead.
+    if let Some(q) = fields.iter().find(|f| f.starts_with(['"', '\'']) || f.ends_with(['"', '\''])) {
+        return Err(err(None, ErrorKind::Quoted(q.to_string())));
+    }
+    if !fields.contains(&"t") {
+        let joined = fields.join(",");
+        for (sep, name) in [(';', "semicolons (`;`)"), ('\t', "tabs"), ('|', "`|`")] {
+            if joined.split(sep).any(|f| f.trim() == "t") {
+                return Err(err(None, ErrorKind::Separator(name)));
+            }
+        }
+        if joined.split_whitespace().any(|f| f == "t") && joined.split_whitespace().any(|f| f == "px") {
+            return Err(err(None, ErrorKind::Separator("spaces")));
+        }
+    }
     let mut seen = std::collections::HashSet::new();
     for f in fields {
         if !seen.insert(*f) {
@@ -356,6 +467,12 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
     fs.sort();
     if ls.is_empty() {
         return Err(err(None, ErrorKind::MissingColumn("l0".into())));
+    }
+    if ls.len() > MAX_RECORDING_CABLES {
+        return Err(err(
+            None,
+            ErrorKind::CableColumns(format!("{} length columns; a recording may have at most {MAX_RECORDING_CABLES} cables", ls.len())),
+        ));
     }
     for (k, (idx, _)) in ls.iter().enumerate() {
         if *idx != k {
@@ -398,7 +515,10 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
         }
     }
     if !report.ignored_columns.is_empty() {
-        report.notes.push(format!("ignored unknown columns: {}", report.ignored_columns.join(", ")));
+        let k = report.ignored_columns.len();
+        let shown: Vec<String> = report.ignored_columns.iter().take(10).map(|c| excerpt(c)).collect();
+        let more = if k > 10 { format!(" and {} more", k - 10) } else { String::new() };
+        report.notes.push(format!("ignored unknown columns: {}{more}", shown.join(", ")));
     }
     Ok(Columns {
         t,
@@ -412,36 +532,109 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
 }
 
 /// Parses one field: empty or `nan` (any case) is missing (NaN).
-fn field(s: &str) -> Result<f64, ()> {
+fn field(s: &str) -> Result<f64, ErrorKind> {
     let s = s.trim();
     if s.is_empty() || s.eq_ignore_ascii_case("nan") {
         return Ok(f64::NAN);
     }
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
-        _ => Err(()),
+        Ok(_) => Err(ErrorKind::NotFinite(s.to_string())),
+        Err(_) if s.starts_with(['"', '\'']) => Err(ErrorKind::Quoted(s.to_string())),
+        Err(_) => Err(ErrorKind::NotANumber(s.to_string())),
     }
 }
 
-/// Parses a `cdpr-recording v1` from a reader.
-pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), RecordingError> {
+/// One line read with [`read_line_capped`].
+enum Line {
+    /// End of input.
+    Eof,
+    /// A line (without its newline) is in the buffer.
+    Complete,
+    /// The line is longer than [`MAX_LINE_BYTES`]; the buffer holds its first bytes.
+    TooLong,
+}
+
+/// Reads one line into `buf` without ever holding more than [`MAX_LINE_BYTES`] of it.
+fn read_line_capped<R: BufRead>(r: &mut R, buf: &mut Vec<u8>) -> std::io::Result<Line> {
+    buf.clear();
+    loop {
+        let avail = match r.fill_buf() {
+            Ok(a) => a,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        if avail.is_empty() {
+            return Ok(if buf.is_empty() { Line::Eof } else { Line::Complete });
+        }
+        let (take, newline) = match avail.iter().position(|&b| b == b'\n') {
+            Some(i) => (i, true),
+            None => (avail.len(), false),
+        };
+        let room = MAX_LINE_BYTES - buf.len();
+        if take > room {
+            buf.extend_from_slice(&avail[..room]);
+            return Ok(Line::TooLong);
+        }
+        buf.extend_from_slice(&avail[..take]);
+        r.consume(take + newline as usize);
+        if newline {
+            return Ok(Line::Complete);
+        }
+    }
+}
+
+/// Parses a `cdpr-recording v1` from a reader. Lines are capped at [`MAX_LINE_BYTES`] and the
+/// input at [`MAX_LINES`], so no input makes the reader allocate without bound.
+pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), RecordingError> {
     let mut report = ParseReport::default();
     let mut comments = Vec::new();
+    let mut dropped_comments = 0usize;
     let mut cols: Option<Columns> = None;
     let mut rec = Recording::default();
+    // The last two rows' times and the last row's line, to blame a time outlier on its own row.
     let mut last_t = f64::NEG_INFINITY;
+    let mut before_last_t = f64::NEG_INFINITY;
+    let mut last_line = 0usize;
     let mut lvals = Vec::new();
     let mut fvals = Vec::new();
-    for (i, line) in reader.lines().enumerate() {
-        let lineno = i + 1;
-        let line = line.map_err(|e| RecordingError { file: None, line: lineno, column: None, kind: ErrorKind::Io(e.to_string()) })?;
+    let mut buf = Vec::with_capacity(1024);
+    let mut lineno = 0usize;
+    loop {
+        let at = |line: usize, kind| RecordingError { file: None, line, column: None, kind };
+        let read = read_line_capped(&mut reader, &mut buf).map_err(|e| at(lineno + 1, ErrorKind::Io(e.to_string())))?;
+        lineno += 1;
+        if let Some(i) = buf.iter().position(|&b| b == 0) {
+            return Err(at(lineno, ErrorKind::Binary(i + 1)));
+        }
+        match read {
+            Line::Eof => break,
+            Line::TooLong => return Err(at(lineno, ErrorKind::LineTooLong)),
+            Line::Complete => {}
+        }
+        if lineno > MAX_LINES {
+            return Err(at(lineno, ErrorKind::TooLarge(format!("more than {MAX_LINES} lines; split the recording into runs"))));
+        }
+        let mut bytes = &buf[..];
+        if lineno == 1 {
+            if let Some(rest) = bytes.strip_prefix(b"\xEF\xBB\xBF") {
+                bytes = rest;
+                report.notes.push("the file starts with a UTF-8 byte-order mark; ignored".into());
+            }
+        }
+        let line = std::str::from_utf8(bytes).map_err(|e| at(lineno, ErrorKind::NotUtf8(e.valid_up_to() + 1)))?;
         let line = line.trim_end_matches('\r');
         if line.trim().is_empty() {
             continue;
         }
         if let Some(comment) = line.strip_prefix('#') {
             if cols.is_none() {
-                comments.push(comment.to_string());
+                check_version(comment).map_err(|k| at(lineno, k))?;
+                if comments.len() < MAX_COMMENTS {
+                    comments.push(comment.to_string());
+                } else {
+                    dropped_comments += 1;
+                }
             }
             continue;
         }
@@ -458,6 +651,9 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
             Some(c) => c,
         };
         if fields.len() != c.width {
+            if let Some(q) = fields.iter().find(|f| f.starts_with(['"', '\''])) {
+                return Err(at(lineno, ErrorKind::Quoted(q.to_string())));
+            }
             return Err(RecordingError {
                 file: None,
                 line: lineno,
@@ -466,22 +662,32 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
             });
         }
         let get = |col: usize| -> Result<f64, RecordingError> {
-            field(fields[col]).map_err(|_| RecordingError {
-                file: None,
-                line: lineno,
-                column: Some(header_name(c, col)),
-                kind: ErrorKind::NotANumber(fields[col].to_string()),
-            })
+            field(fields[col]).map_err(|kind| RecordingError { file: None, line: lineno, column: Some(header_name(c, col)), kind })
         };
         let t = get(c.t)?;
-        let terr = |m: String| RecordingError { file: None, line: lineno, column: Some("t".into()), kind: ErrorKind::Time(m) };
+        let terr = |line: usize, m: String| RecordingError { file: None, line, column: Some("t".into()), kind: ErrorKind::Time(m) };
         if t.is_nan() {
-            return Err(terr("time is missing; every row needs a time".into()));
+            return Err(terr(lineno, "time is missing; every row needs a time in s (`nan` and empty are not allowed here)".into()));
+        }
+        if t.abs() > MAX_TIME_S {
+            return Err(terr(
+                lineno,
+                format!("t = {t:e} s is not a plausible sample time; times are seconds from the start or Unix time, at most {MAX_TIME_S:e}"),
+            ));
         }
         if t < last_t {
-            return Err(terr(format!("time goes backwards: {t} after {last_t}")));
+            // One row far ahead of both neighbours is that row's fault, not the next one's.
+            if t >= before_last_t && before_last_t.is_finite() {
+                return Err(terr(
+                    last_line,
+                    format!("time jumps ahead to {last_t} s between {before_last_t} s on the row before and {t} s on the row after"),
+                ));
+            }
+            return Err(terr(lineno, format!("time goes backwards: {t} after {last_t}")));
         }
+        before_last_t = last_t;
         last_t = t;
+        last_line = lineno;
         let p = [get(c.p[0])?, get(c.p[1])?, get(c.p[2])?];
         let q = match c.q {
             Some(qc) => Some([get(qc[0])?, get(qc[1])?, get(qc[2])?, get(qc[3])?]),
@@ -501,12 +707,11 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
                 if s.is_empty() {
                     Some(-1)
                 } else {
-                    Some(s.parse::<i32>().map_err(|_| RecordingError {
-                        file: None,
-                        line: lineno,
-                        column: Some("phase".into()),
-                        kind: ErrorKind::NotANumber(s.to_string()),
-                    })?)
+                    let perr = || RecordingError { file: None, line: lineno, column: Some("phase".into()), kind: ErrorKind::Phase(s.to_string()) };
+                    match s.parse::<i32>() {
+                        Ok(k) if k >= -1 => Some(k),
+                        _ => return Err(perr()),
+                    }
                 }
             }
             None => None,
@@ -526,6 +731,9 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
     }
     if cols.is_none() {
         return Err(RecordingError { file: None, line: 0, column: None, kind: ErrorKind::NoHeader });
+    }
+    if dropped_comments > 0 {
+        report.notes.push(format!("{dropped_comments} comment lines after the first {MAX_COMMENTS} not kept"));
     }
     if report.usable_rows < MIN_USABLE_SAMPLES {
         return Err(RecordingError {
@@ -553,6 +761,21 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
         report.notes.push(format!("{} missing tension readings", report.missing_tension));
     }
     Ok((rec, report))
+}
+
+/// Refuses a `# cdpr-recording vN` tag of another version than this reader's.
+fn check_version(comment: &str) -> Result<(), ErrorKind> {
+    const TAG: &str = "cdpr-recording";
+    let c = comment.trim();
+    // The tag is the word `cdpr-recording` on its own (`# cdpr-recordings of May` is a comment).
+    let rest = c.get(TAG.len()..).filter(|_| c.get(..TAG.len()).is_some_and(|h| h.eq_ignore_ascii_case(TAG)));
+    if let Some(rest) = rest.filter(|r| r.is_empty() || r.starts_with(char::is_whitespace)) {
+        let version = rest.trim();
+        if version != "v1" {
+            return Err(ErrorKind::UnknownVersion(if version.is_empty() { "(none)".into() } else { version.into() }));
+        }
+    }
+    Ok(())
 }
 
 fn header_name(c: &Columns, col: usize) -> String {
@@ -675,6 +898,65 @@ mod tests {
         // infinite values are not numbers
         let e = err_of(&format!("{head}{}0.5,inf,0,1,2,2,2,5,6,7\n", rows(1)));
         assert_eq!(e.column.as_deref(), Some("px"));
+    }
+
+    #[test]
+    fn hostile_bytes_are_named() {
+        let head = "t,px,py,pz,l0,l1,l2,f0,f1,f2\n";
+        // A file of NUL bytes without a newline (`/dev/zero`) ends at the first line.
+        let zeros = std::io::Read::take(std::io::repeat(0), 10 * MAX_LINE_BYTES as u64);
+        let e = parse(std::io::BufReader::new(zeros)).unwrap_err();
+        assert!(matches!(e.kind, ErrorKind::Binary(1)) && e.line == 1, "{e}");
+        let long = std::io::Read::take(std::io::repeat(b'7'), 10 * MAX_LINE_BYTES as u64);
+        let e = parse(std::io::BufReader::new(long)).unwrap_err();
+        assert!(matches!(e.kind, ErrorKind::LineTooLong) && e.line == 1, "{e}");
+        // A BOM is accepted and noted.
+        let (_, rep) = parse_str(&format!("\u{feff}{head}{}", rows(12))).unwrap();
+        assert!(rep.notes.iter().any(|n| n.contains("byte-order mark")));
+        // Separators, quotes, versions.
+        let e = err_of(&format!("{}\n", head.trim().replace(',', ";")));
+        assert!(matches!(e.kind, ErrorKind::Separator(_)), "{e}");
+        let e = err_of(&format!("{}\n", head.trim().replace(',', "\t")));
+        assert!(matches!(e.kind, ErrorKind::Separator(_)), "{e}");
+        let e = err_of("\"t\",\"px\",\"py\",\"pz\",\"l0\"\n");
+        assert!(matches!(e.kind, ErrorKind::Quoted(_)), "{e}");
+        let e = err_of(&format!("{head}{}\"0.5\",0,0,1,2,2,2,5,6,7\n", rows(2)));
+        assert!(matches!(e.kind, ErrorKind::Quoted(_)) && e.line == 4, "{e}");
+        parse_str(&format!("# cdpr-recordings of May\n#cdpr-recording v1\n{head}{}", rows(12))).unwrap();
+        let e = err_of(&format!("# cdpr-recording v2\n{head}{}", rows(12)));
+        assert!(matches!(e.kind, ErrorKind::UnknownVersion(ref v) if v == "v2") && e.line == 1, "{e}");
+        // Non-UTF-8.
+        let mut bytes = format!("{head}{}", rows(3)).into_bytes();
+        bytes.extend_from_slice(b"0.5,0,0,1,2,\xff,2,5,6,7\n");
+        let e = parse(std::io::Cursor::new(bytes)).unwrap_err();
+        assert!(matches!(e.kind, ErrorKind::NotUtf8(13)) && e.line == 5, "{e}");
+    }
+
+    #[test]
+    fn field_errors_say_what_is_allowed() {
+        let head = "t,px,py,pz,l0,l1,l2,phase\n";
+        let ok = |i: usize| format!("{},0,0,1,2,2,2,0\n", i as f64 * 0.01);
+        let body: String = (0..12).map(ok).collect();
+        for (bad, want) in [("1.5", "integer"), ("nan", "integer"), ("-7", "integer"), ("1e3", "integer")] {
+            let e = err_of(&format!("{head}{body}0.2,0,0,1,2,2,2,{bad}\n"));
+            assert!(matches!(e.kind, ErrorKind::Phase(_)) && e.column.as_deref() == Some("phase"), "{e}");
+            assert!(e.to_string().contains(want), "{e}");
+        }
+        let e = err_of(&format!("{head}{body}nan,0,0,1,2,2,2,0\n"));
+        assert!(matches!(e.kind, ErrorKind::Time(_)) && e.line == 14, "{e}");
+        // A time outlier is blamed on its own row, not the good row after it.
+        let e = err_of(&format!("{head}{body}1e9,0,0,1,2,2,2,0\n0.13,0,0,1,2,2,2,0\n"));
+        assert_eq!((e.line, e.column.as_deref()), (14, Some("t")), "{e}");
+        let e = err_of(&format!("{head}{body}1e308,0,0,1,2,2,2,0\n"));
+        assert_eq!(e.line, 14, "{e}");
+        assert!(e.to_string().contains("plausible"), "{e}");
+        // A long field is cut in the message.
+        let long = "x".repeat(50_000);
+        let e = err_of(&format!("{head}{body}0.2,{long},0,1,2,2,2,0\n"));
+        let m = e.to_string();
+        assert!(m.len() < 300 && m.contains('…') && m.contains("50000 bytes"), "{m}");
+        let e = err_of(&format!("{head}{body}0.2,0,0,1,2,inf,2,0\n"));
+        assert!(matches!(e.kind, ErrorKind::NotFinite(_)) && e.column.as_deref() == Some("l1"), "{e}");
     }
 
     #[test]

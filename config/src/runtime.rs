@@ -81,6 +81,7 @@ pub struct MotionConfig {
     pub enable_timeout_s: f64,
     /// The three initialisation phases, each `[held_a, held_b, reeled]` (cable indices). Every
     /// other cable follows in torque mode.
+    #[serde(deserialize_with = "crate::exact::triples")]
     pub init_phases: Vec<[usize; 3]>,
     /// Length by which the reeled cable's commanded length changes in a phase, m (negative: reel
     /// in). The cable then returns to where it started.
@@ -97,10 +98,10 @@ pub struct MotionConfig {
     pub excitation_speed_m_s: f64,
     /// Lower corner of the workspace box, m, tracker frame. Default: derived from the nominal
     /// anchors (middle half of their footprint, 1 m to 3 m below them).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none", deserialize_with = "crate::exact::opt_three")]
     pub workspace_min_m: Option<[f64; 3]>,
     /// Upper corner of the workspace box, m.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none", deserialize_with = "crate::exact::opt_three")]
     pub workspace_max_m: Option<[f64; 3]>,
     /// Time over which a change of the commanded lengths caused by new parameters is ramped in, s.
     pub swap_ramp_s: f64,
