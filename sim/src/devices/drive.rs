@@ -64,6 +64,10 @@ pub struct DriveParams {
     pub time_constant_s: f64,
     /// Torque (‰) per count of following error in the internal model.
     pub torque_per_count: f64,
+    /// Producer heartbeat time stored in the drive's non-volatile memory, ms: the value 0x1017
+    /// takes at power-on and at every NMT reset communication (CiA 301 7.2.8.3.2.2). Real drives
+    /// usually ship with one (100 ms is common), so they heartbeat before any master speaks.
+    pub stored_heartbeat_ms: u16,
 }
 
 impl DriveParams {
@@ -79,6 +83,7 @@ impl DriveParams {
             max_speed_counts_s: 400_000.0,
             time_constant_s: 0.01,
             torque_per_count: 0.01,
+            stored_heartbeat_ms: 0,
         }
     }
 }
@@ -308,7 +313,7 @@ impl VirtualDrive {
 
     fn reset_communication(&mut self) {
         let n = u32::from(self.p.node_id);
-        self.heartbeat_ms = 0;
+        self.heartbeat_ms = self.p.stored_heartbeat_ms;
         self.next_hb = None;
         // Power-on PDOs: RPDO1 controlword, TPDO1 statusword on every SYNC (like many drives).
         for k in 0..4 {
