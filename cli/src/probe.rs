@@ -231,4 +231,8 @@ fn print_counters(c: &Counters) {
         "problems: {} SDO aborts ({} timeouts), {} EMCY, {} heartbeat losses, {} reboots, {} bus errors, {} frames dropped",
         c.sdo_aborts, c.sdo_timeouts, c.emergencies, c.heartbeat_losses, c.reboots, c.bus_errors, c.tx_dropped
     );
+    println!(
+        "SDO: {} retries, {} late or duplicated responses dropped; {} node(s) configured without a boot-up",
+        c.sdo_retries, c.sdo_discarded, c.boot_ups_missing
+    );
 }

@@ -157,8 +157,8 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
         f.run(Duration::from_millis(300));
         let c = f.counters();
         assert_eq!(
-            (c.sdo_aborts, c.sdo_timeouts),
-            (0, 0),
+            (c.sdo_aborts, c.sdo_timeouts, c.sdo_retries, c.sdo_discarded, c.boot_ups_missing),
+            (0, 0, 0, 0, 0),
             "startup {startup_ms} ms: {c:?}; events {:#?}",
             f.events
         );

@@ -21,7 +21,7 @@ use super::emcy::{self, Emcy};
 use super::heartbeat::{self, HeartbeatConsumer};
 use super::nmt::{self, NmtCommand, NmtState};
 use super::pdo::{self, PdoDef, PdoLayout, SdoWrite};
-use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoOutcome};
+use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoDiscard, SdoOutcome};
 use super::sync::{self, SyncProducer};
 use super::{function_code, node_of, od, NodeId};
 use crate::transport::{BusEvent, Frame};
@@ -32,6 +32,9 @@ use std::time::{Duration, Instant};
 pub const TX_QUEUE: usize = 256;
 /// Capacity of the event queue.
 pub const EVENT_QUEUE: usize = 128;
+/// How long a node heard after taut's reset communication may take to boot (CiA 301 leaves the
+/// reset time to the device; drives take milliseconds to a few hundred).
+pub const DEFAULT_BOOT_WAIT: Duration = Duration::from_millis(1000);
 /// Cycles a fault reset is held before giving up.
 const FAULT_RESET_CYCLES: u16 = 100;
 
@@ -95,6 +98,10 @@ pub struct MasterConfig {
     pub bitrate: u32,
     /// How long bring-up may take.
     pub bringup_timeout: Duration,
+    /// After taut's reset communication, how long a node that heartbeats may take to send its
+    /// boot-up before it is configured without one (its boot-up was lost, or it ignores the
+    /// reset). Heartbeats alone never start configuration before that: the boot-up does.
+    pub boot_wait: Duration,
 }
 
 /// A configuration that cannot drive a bus: the key and what is wrong.
@@ -125,6 +132,7 @@ impl MasterConfig {
             reset_on_start: true,
             bitrate: 1_000_000,
             bringup_timeout: Duration::from_secs(5),
+            boot_wait: DEFAULT_BOOT_WAIT,
         }
     }
 
@@ -183,6 +191,7 @@ impl MasterConfig {
             reset_on_start: can.reset_on_start,
             bitrate: can.bitrate,
             bringup_timeout: Duration::from_secs_f64(can.bringup_timeout_s),
+            boot_wait: DEFAULT_BOOT_WAIT,
         })
     }
 
@@ -293,6 +302,10 @@ pub enum Problem {
     SdoTimeout,
     /// An SDO response when none was expected.
     UnexpectedSdo,
+    /// An SDO response that does not answer the request in flight (late, duplicated, stale).
+    StaleSdo,
+    /// A node heartbeating after taut's reset communication sent no boot-up in time.
+    BootUpMissing,
     /// A TPDO shorter than its mapping.
     PdoLength,
     /// The CAN interface reported a bus problem.
@@ -313,6 +326,8 @@ impl Problem {
             Problem::SdoAbort => "SDO transfer aborted",
             Problem::SdoTimeout => "SDO transfer timed out",
             Problem::UnexpectedSdo => "SDO response with no transfer in progress",
+            Problem::StaleSdo => "SDO response that does not answer the request in flight (late or duplicated), dropped",
+            Problem::BootUpMissing => "node heartbeats but sent no boot-up after the reset communication; configuring it anyway",
             Problem::PdoLength => "TPDO shorter than its mapping",
             Problem::Bus => "CAN bus problem reported by the interface",
             Problem::TxOverflow => "transmit queue full, frames dropped",
@@ -333,6 +348,14 @@ pub enum Event {
     Rebooted {
         /// Node.
         node: NodeId,
+    },
+    /// A drive was found with its power stage on (left so by a previous run, or holding after
+    /// its own master-loss reaction) and is being switched off before configuration.
+    FoundPowered {
+        /// Node.
+        node: NodeId,
+        /// The state it was found in.
+        state: State,
     },
     /// Identity read.
     Identified {
@@ -412,6 +435,9 @@ impl fmt::Display for Event {
                 i.vendor.unwrap_or(0),
                 i.product.unwrap_or(0)
             ),
+            Event::FoundPowered { node, state } => {
+                write!(f, "node {node}: found {} (left by a previous run); switching the power stage off", state.name())
+            }
             Event::Configured { node } => write!(f, "node {node}: configured, starting"),
             Event::Operational { node } => write!(f, "node {node}: operational"),
             Event::Failed { node, failure } => write!(f, "node {node}: configuration failed: {failure}"),
@@ -449,6 +475,14 @@ pub struct Counters {
     pub sdo_timeouts: u64,
     /// SDO responses with no transfer.
     pub unexpected_sdo: u64,
+    /// SDO responses dropped because they do not answer the request in flight (late,
+    /// duplicated, malformed): never taken as the answer, never answered with an abort.
+    pub sdo_discarded: u64,
+    /// SDO transfers tried again after the client gave up on them (timeout, oversize).
+    pub sdo_retries: u64,
+    /// Nodes configured without a boot-up: they heartbeat, but their boot-up after taut's reset
+    /// communication never came (lost on the bus, or the node ignores the reset).
+    pub boot_ups_missing: u64,
     /// Short TPDOs.
     pub pdo_length: u64,
     /// EMCY messages (not counting "error reset").
@@ -473,12 +507,22 @@ enum Field {
     Revision,
     Serial,
     Name,
+    /// 0x6041: the CiA 402 state a previous run left the drive in.
+    Statusword,
+    /// 0x6064: where it stands, so that the first target is that.
+    Position,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Step {
     Upload { index: u16, sub: u8, field: Field, required: bool },
     Download(SdoWrite),
+    /// Brings a drive found powered (left enabled by a previous run, or stopped by its own
+    /// master-loss reaction) to a power stage off, by SDO before anything else is written:
+    /// CiA 402 transition 8 (shutdown) from switched on / operation enabled, 12 (disable
+    /// voltage) from quick stop active. Skipped for drives already off or in fault (a fault
+    /// stays until the operator resets it).
+    PowerOff,
 }
 
 /// The CiA 402 side of a node, as the master sees it.
@@ -576,6 +620,8 @@ struct Node {
     name_len: u8,
     axis: Axis,
     boots: u32,
+    /// When a heartbeat (not a boot-up) was first seen after taut's reset communication.
+    heard_since_reset: Option<Instant>,
     last_emcy: Option<Emcy>,
     pdos: &'static [PdoDef],
     /// TPDO COB-IDs, for matching received frames.
@@ -592,6 +638,9 @@ impl Node {
             Step::Upload { index: od::IDENTITY, sub: 3, field: Field::Revision, required: false },
             Step::Upload { index: od::IDENTITY, sub: 4, field: Field::Serial, required: false },
             Step::Upload { index: od::DEVICE_NAME, sub: 0, field: Field::Name, required: false },
+            Step::Upload { index: od::STATUSWORD, sub: 0, field: Field::Statusword, required: true },
+            Step::Upload { index: od::POSITION_ACTUAL, sub: 0, field: Field::Position, required: true },
+            Step::PowerOff,
             Step::Download(SdoWrite::u16(od::HEARTBEAT_PRODUCER, 0, cfg.heartbeat_ms)),
         ];
         for p in cfg.layout.pdos() {
@@ -620,6 +669,7 @@ impl Node {
             name_len: 0,
             axis,
             boots: 0,
+            heard_since_reset: None,
             last_emcy: None,
             tpdo_ids,
         }
@@ -653,6 +703,8 @@ pub struct Master {
     cfg_retries: u8,
     reset_on_start: bool,
     started: bool,
+    /// How long a node heard after taut's reset communication may take to send its boot-up.
+    boot_wait: Duration,
     tx: heapless::Deque<Frame, TX_QUEUE>,
     events: heapless::Deque<Event, EVENT_QUEUE>,
     counters: Counters,
@@ -679,6 +731,7 @@ impl Master {
             cfg_retries: cfg.sdo_retries,
             reset_on_start: cfg.reset_on_start,
             started: false,
+            boot_wait: cfg.boot_wait,
             tx: heapless::Deque::new(),
             events: heapless::Deque::new(),
             counters: Counters::default(),
@@ -743,7 +796,8 @@ impl Master {
     pub fn next_deadline(&self) -> Option<Instant> {
         let mut t = self.sync.next_deadline();
         for n in &self.nodes {
-            for d in [n.sdo.next_deadline(), n.hb.deadline()].into_iter().flatten() {
+            let boot = if n.phase == Phase::Waiting { n.heard_since_reset.map(|t| t + self.boot_wait) } else { None };
+            for d in [n.sdo.next_deadline(), n.hb.deadline(), boot].into_iter().flatten() {
                 t = Some(t.map_or(d, |x| x.min(d)));
             }
         }
@@ -917,9 +971,13 @@ impl Master {
         match self.nodes[k].sdo.on_response(f.data(), now) {
             Ok(Some(outcome)) => self.on_sdo_outcome(k, outcome, now),
             Ok(None) => self.flush_sdo(k),
-            Err(_) => {
+            Err(SdoDiscard::Idle) => {
                 self.counters.unexpected_sdo += 1;
                 self.problem(Problem::UnexpectedSdo, f.id);
+            }
+            Err(SdoDiscard::Mismatch { .. } | SdoDiscard::Malformed(_)) => {
+                self.counters.sdo_discarded += 1;
+                self.problem(Problem::StaleSdo, f.id);
             }
         }
         self.flush_sdo(k);
@@ -949,6 +1007,13 @@ impl Master {
         }
         n.nmt = Some(state);
         match n.phase {
+            // After taut's own reset communication the node is configured at its boot-up: a
+            // heartbeat may have been sent before the reset took effect, and configuring on it
+            // would start a second configuration (and a second answer to every request) when the
+            // boot-up follows. A node whose boot-up never comes is configured after boot_wait.
+            Phase::Waiting if self.reset_on_start => {
+                n.heard_since_reset.get_or_insert(now);
+            }
             Phase::Waiting => self.begin_config(k, now),
             Phase::Configuring | Phase::Failed(_) => {}
             Phase::Lost => {
@@ -978,6 +1043,7 @@ impl Master {
 
     fn begin_config(&mut self, k: usize, now: Instant) {
         let n = &mut self.nodes[k];
+        n.heard_since_reset = None;
         n.sdo.cancel();
         n.hb.reset();
         n.phase = Phase::Configuring;
@@ -997,6 +1063,19 @@ impl Master {
         match n.steps.get(n.step).copied() {
             Some(Step::Upload { index, sub, .. }) => {
                 let _ = n.sdo.upload(index, sub, now);
+            }
+            Some(Step::PowerOff) => {
+                let cw = match n.axis.state {
+                    Some(s @ (State::OperationEnabled | State::SwitchedOn)) => Some((s, cia402::CW_SHUTDOWN)),
+                    Some(s @ State::QuickStopActive) => Some((s, cia402::CW_DISABLE_VOLTAGE)),
+                    _ => None,
+                };
+                let Some((state, cw)) = cw else {
+                    n.step += 1;
+                    return self.next_step(k, now);
+                };
+                let _ = n.sdo.download(od::CONTROLWORD, 0, &cw.to_le_bytes(), false, now);
+                self.event(Event::FoundPowered { node, state });
             }
             Some(Step::Download(w)) => {
                 let (b, len) = w.bytes();
@@ -1034,6 +1113,15 @@ impl Master {
                         Field::Product => n.identity.product = Some(v),
                         Field::Revision => n.identity.revision = Some(v),
                         Field::Serial => n.identity.serial = Some(v),
+                        Field::Statusword => {
+                            n.axis.statusword = v as u16;
+                            n.axis.state = State::from_statusword(v as u16);
+                        }
+                        Field::Position => {
+                            // The first RPDO commands where the drive stands.
+                            n.axis.position = v as i32;
+                            n.axis.target_position = v as i32;
+                        }
                         Field::Name => {
                             let m = len.min(32);
                             n.name[..m].copy_from_slice(&d[..m]);
@@ -1076,7 +1164,7 @@ impl Master {
                         }
                         required
                     }
-                    Step::Download(_) => true,
+                    Step::Download(_) | Step::PowerOff => true,
                 };
                 if a.code == AbortCode::TIMEOUT && !a.by_server {
                     self.counters.sdo_timeouts += 1;
@@ -1089,6 +1177,7 @@ impl Master {
                 // trying again would get the same answer.
                 if !a.by_server && self.nodes[k].tries < self.cfg_retries {
                     self.nodes[k].tries += 1;
+                    self.counters.sdo_retries += 1;
                     self.next_step(k, now);
                 } else if required {
                     self.fail(k, NodeFailure::Sdo(a));
@@ -1137,6 +1226,14 @@ impl Master {
                 self.on_sdo_outcome(k, o, now);
             }
             self.flush_sdo(k);
+            let n = &mut self.nodes[k];
+            if n.phase == Phase::Waiting && n.heard_since_reset.is_some_and(|t| now >= t + self.boot_wait) {
+                let id = n.cfg.node_id;
+                self.counters.boot_ups_missing += 1;
+                self.problem(Problem::BootUpMissing, 0x700 + u32::from(id));
+                self.begin_config(k, now);
+                continue;
+            }
             let n = &mut self.nodes[k];
             if matches!(n.phase, Phase::Starting | Phase::Operational) && n.hb.check(now) {
                 n.phase = Phase::Lost;
