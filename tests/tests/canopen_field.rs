@@ -5,7 +5,9 @@
 
 use std::time::{Duration, Instant};
 
+use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::master::{Counters, Event, Master, MasterConfig, NodeConfig, Phase};
+use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::CanTransport;
 use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
@@ -178,5 +180,181 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
             );
         }
         assert!(f.master().statuses().all(|s| s.phase == Phase::Operational));
+    }
+}
+
+fn params(n: u8, f: impl Fn(&mut DriveParams)) -> DriveParams {
+    let mut p = DriveParams::new(n);
+    p.stored_heartbeat_ms = 100;
+    f(&mut p);
+    p
+}
+
+/// A restarted taut finds drive 2 still in operation enabled (the previous run's drives had
+/// 0x6007 = 0: nothing noticed it go) and drive 3 in fault. Drive 2 is switched off by SDO
+/// before anything else is written and never moves; drive 3 stays in fault: only the operator
+/// resets a fault.
+#[test]
+fn a_drive_left_enabled_is_switched_off_without_moving_and_a_faulted_one_stays_in_fault() {
+    const NODES: [u8; 4] = [1, 2, 3, 4];
+    let mut f = Field::new(heartbeating(&NODES, 100));
+    f.run(Duration::from_millis(500));
+    {
+        let d2 = f.rack.drive(2).unwrap();
+        d2.set_actual(50_000, 0);
+        d2.left_by_previous_run(State::OperationEnabled, 0);
+        f.rack.drive(3).unwrap().left_by_previous_run(State::Fault, 0x2310);
+    }
+    f.run(Duration::from_millis(300));
+    f.start_master_after(config(&NODES), Duration::from_millis(40));
+    let mut moved = 0i32;
+    f.until(Duration::from_secs(3), "bring-up", |f| {
+        moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
+        assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault, "fault left alone");
+        f.master().all_operational()
+    });
+    f.run(Duration::from_millis(300));
+    assert_eq!(f.count(|e| *e == Event::FoundPowered { node: 2, state: State::OperationEnabled }), 1, "{:#?}", f.events);
+    assert_eq!(f.count(|e| matches!(e, Event::FoundPowered { .. })), 1);
+    assert_eq!(f.rack.drive(2).unwrap().state(), State::ReadyToSwitchOn);
+    assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault);
+    assert_eq!(f.master().status(2).unwrap().axis.state, Some(State::Fault));
+    assert_eq!(f.master().status(1).unwrap().axis.position, 50_000);
+    // Enabled again on request, drive 2 holds where it stood; drive 3 needs a fault reset.
+    {
+        let mut op = f.master().operational().unwrap();
+        for i in 0..4 {
+            op.enable(i).unwrap();
+        }
+    }
+    f.until(Duration::from_secs(1), "enable", |f| {
+        moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
+        f.rack.drive(2).unwrap().state() == State::OperationEnabled
+    });
+    f.run(Duration::from_millis(300));
+    moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
+    assert_eq!(moved, 0, "drive 2 moved by {moved} counts");
+    assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault, "no automatic fault reset");
+    f.master().operational().unwrap().fault_reset(2).unwrap();
+    f.until(Duration::from_secs(1), "fault reset on request", |f| f.rack.drive(3).unwrap().state() != State::Fault);
+    let c = f.counters();
+    assert_eq!((c.sdo_aborts, c.sdo_retries), (0, 0), "{c:?}");
+}
+
+/// Drives that answer SDO requests 30 ms late, and send answers twice: every answer, or every
+/// third. The duplicates are dropped and counted; nothing is aborted or retried.
+#[test]
+fn slow_and_duplicated_sdo_answers_do_not_desynchronise_bring_up() {
+    const NODES: [u8; 4] = [1, 2, 3, 4];
+    for every in [1u32, 3] {
+        let drives = NODES
+            .iter()
+            .map(|&n| {
+                VirtualDrive::new(params(n, |p| {
+                    p.sdo_delay = Duration::from_millis(30);
+                    p.sdo_duplicate_every = every;
+                }))
+            })
+            .collect();
+        let mut f = Field::new(drives);
+        f.run(Duration::from_secs(1));
+        f.start_master_after(config(&NODES), Duration::from_millis(20));
+        f.until(Duration::from_secs(10), "bring-up", |f| f.master().all_operational());
+        f.run(Duration::from_millis(200));
+        let c = f.counters();
+        let dups: u64 = f.rack.drives().iter().map(|d| d.counters().sdo_duplicates).sum();
+        assert!(dups > 20, "every {every}: {dups} duplicates sent");
+        assert_eq!((c.sdo_aborts, c.sdo_timeouts, c.sdo_retries), (0, 0, 0), "every {every}: {c:?}");
+        // A duplicate arrives while the next request is in flight (dropped as stale) or after
+        // the last one (no transfer: unexpected).
+        assert_eq!(c.sdo_discarded + c.unexpected_sdo, dups, "every {every}: {c:?}");
+        for n in NODES {
+            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "every {every}: node {n}");
+        }
+        for d in f.rack.drives() {
+            assert_eq!(d.counters().sdo_aborts, 0, "every {every}: node {} got a request it refused", d.node_id());
+        }
+        assert!(f.master().statuses().all(|s| s.name() == "taut virtual drive"), "segmented upload through duplicates");
+    }
+}
+
+/// Drive 3's boot-up after taut's reset communication is lost on the bus. It heartbeats, so
+/// taut configures it once, `boot_wait` after its first heartbeat, and counts the missing
+/// boot-up; the others are configured at their boot-up.
+#[test]
+fn a_lost_boot_up_is_configured_once_after_the_boot_wait() {
+    const NODES: [u8; 4] = [1, 2, 3, 4];
+    let mut f = Field::new(heartbeating(&NODES, 100));
+    f.run(Duration::from_millis(500));
+    f.rack.drive(3).unwrap().lose_boot_ups(1);
+    let cfg = config(&NODES);
+    let wait = cfg.boot_wait;
+    f.start_master_after(cfg, Duration::from_millis(10));
+    let took = f.until(Duration::from_secs(5), "bring-up", |f| f.master().all_operational());
+    assert!(took >= wait, "node 3 configured after the boot wait, not before: {took:?}");
+    assert!(took < wait + Duration::from_millis(500), "{took:?}");
+    let c = f.counters();
+    assert_eq!(c.boot_ups_missing, 1, "{c:?}");
+    assert_eq!(f.rack.drive(3).unwrap().counters().boots_lost, 1);
+    assert_eq!((c.sdo_aborts, c.sdo_retries, c.sdo_discarded), (0, 0, 0), "{c:?}");
+    for n in NODES {
+        assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "node {n}");
+    }
+    assert_eq!(f.count(|e| *e == Event::Booted { node: 3 }), 0);
+}
+
+/// taut configures each drive's heartbeat consumer for its own heartbeat and the abort
+/// connection option; when taut stops (here: the master is no longer called), every drive
+/// leaves operation enabled within the consumer time, by the configured reaction.
+#[test]
+fn drives_leave_operation_enabled_when_the_master_stops() {
+    const NODES: [u8; 4] = [1, 2, 3, 4];
+    for (code, want) in [(3i16, State::QuickStopActive), (1, State::Fault), (2, State::SwitchOnDisabled)] {
+        let mut f = Field::new(heartbeating(&NODES, 100));
+        f.run(Duration::from_millis(300));
+        let mut cfg = config(&NODES);
+        cfg.supervision.abort_connection = code;
+        let consumer = Duration::from_millis(u64::from(cfg.supervision.consumer_time_ms()));
+        let period = cfg.supervision.heartbeat;
+        f.start_master_after(cfg, Duration::from_millis(5));
+        f.until(Duration::from_secs(3), "bring-up", |f| f.master().all_operational());
+        {
+            let mut op = f.master().operational().unwrap();
+            for i in 0..NODES.len() {
+                op.enable(i).unwrap();
+            }
+        }
+        f.until(Duration::from_secs(1), "enable", |f| f.master().all_enabled());
+        f.run(Duration::from_millis(500));
+        for d in f.rack.drives() {
+            assert_eq!(d.heartbeat_consumer(), 127 << 16 | 300, "0x1016 sub 1");
+            assert_eq!(d.abort_connection_option(), code);
+            assert_eq!(d.counters().consumer_timeouts, 0, "no timeout while taut runs");
+        }
+        let held: Vec<i32> = f.rack.drives().iter().map(|d| d.position()).collect();
+        // taut stops: killed between two cycles.
+        let gone = f.master.take();
+        let stopped = f.t;
+        let took = f.until(consumer + period, "drives leave operation enabled", |f| {
+            f.rack.drives().iter().all(|d| d.state() != State::OperationEnabled)
+        });
+        assert!(took + period > consumer, "code {code}: not before the consumer time: {took:?}");
+        for (d, p) in f.rack.drives().iter().zip(&held) {
+            assert_eq!(d.state(), want, "code {code}");
+            assert_eq!(d.counters().consumer_timeouts, 1);
+            assert_eq!(d.counters().abort_connection_actions, 1);
+            assert_eq!(d.nmt_state(), NmtState::PreOperational, "CiA 301 error behaviour 0x1029 = 0");
+            assert_eq!(d.position(), *p, "code {code}: node {} held", d.node_id());
+        }
+        // The drives' EMCY 0x8130 (heartbeat error) is waiting in taut's socket.
+        let (_, mut port) = gone.unwrap();
+        let mut emcy = 0;
+        while let Ok(Some(fr)) = port.try_recv() {
+            if fr.id & !0x7F == 0x080 && fr.data()[..2] == [0x30, 0x81] {
+                emcy += 1;
+            }
+        }
+        assert_eq!(emcy, NODES.len(), "code {code}");
+        let _ = stopped;
     }
 }

@@ -102,6 +102,37 @@ pub struct MasterConfig {
     /// boot-up before it is configured without one (its boot-up was lost, or it ignores the
     /// reset). Heartbeats alone never start configuration before that: the boot-up does.
     pub boot_wait: Duration,
+    /// taut's own heartbeat and what the drives do when it stops.
+    pub supervision: Supervision,
+}
+
+/// Master supervision the CiA 301 way: taut produces a heartbeat, and every drive's heartbeat
+/// consumer (0x1016) watches it; when it stops for `consumer_time` the drive raises EMCY 0x8130
+/// and applies the abort connection option (0x6007, CiA 402), so a drive never holds "operation
+/// enabled" for a master that is gone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Supervision {
+    /// taut's node id (heartbeat COB-ID 0x700 + id).
+    pub node_id: NodeId,
+    /// Heartbeat period.
+    pub heartbeat: Duration,
+    /// 0x6007: 1 fault, 2 disable voltage, 3 quick stop.
+    pub abort_connection: i16,
+}
+
+impl Supervision {
+    /// The consumer time written to the drives: 3 heartbeat periods, so one lost or late
+    /// heartbeat (a bus-off recovery, a stalled scheduler) does not stop the robot, and two do.
+    pub fn consumer_time_ms(&self) -> u16 {
+        u16::try_from(self.heartbeat.as_millis().saturating_mul(3)).unwrap_or(u16::MAX)
+    }
+}
+
+impl Default for Supervision {
+    /// Node 127, 100 ms, quick stop.
+    fn default() -> Self {
+        Supervision { node_id: 127, heartbeat: Duration::from_millis(100), abort_connection: 3 }
+    }
 }
 
 /// A configuration that cannot drive a bus: the key and what is wrong.
@@ -133,6 +164,7 @@ impl MasterConfig {
             bitrate: 1_000_000,
             bringup_timeout: Duration::from_secs(5),
             boot_wait: DEFAULT_BOOT_WAIT,
+            supervision: Supervision::default(),
         }
     }
 
@@ -183,6 +215,12 @@ impl MasterConfig {
         if nodes.is_empty() {
             return Err(problem("cable.drive".into(), "no [cable.drive] table: give each driven cable a drive with a node_id".into()));
         }
+        if let Some(n) = nodes.iter().find(|n| n.node_id == can.master_node_id) {
+            return Err(problem(
+                "can.master_node_id".into(),
+                format!("node id {} is taut's own (its heartbeat) and also cable[{}]'s drive; give taut a free id", n.node_id, n.cable),
+            ));
+        }
         Ok(MasterConfig {
             nodes,
             sync_period: Duration::from_secs_f64(can.cycle_s),
@@ -192,6 +230,11 @@ impl MasterConfig {
             bitrate: can.bitrate,
             bringup_timeout: Duration::from_secs_f64(can.bringup_timeout_s),
             boot_wait: DEFAULT_BOOT_WAIT,
+            supervision: Supervision {
+                node_id: can.master_node_id,
+                heartbeat: Duration::from_millis(u64::from(can.master_heartbeat_ms)),
+                abort_connection: can.abort_connection.code(),
+            },
         })
     }
 
@@ -629,7 +672,7 @@ struct Node {
 }
 
 impl Node {
-    fn new(cfg: NodeConfig, sdo_timeout: Duration) -> Node {
+    fn new(cfg: NodeConfig, sdo_timeout: Duration, sup: Supervision) -> Node {
         let n = cfg.node_id;
         let mut steps = vec![
             Step::Upload { index: od::DEVICE_TYPE, sub: 0, field: Field::DeviceType, required: true },
@@ -642,6 +685,14 @@ impl Node {
             Step::Upload { index: od::POSITION_ACTUAL, sub: 0, field: Field::Position, required: true },
             Step::PowerOff,
             Step::Download(SdoWrite::u16(od::HEARTBEAT_PRODUCER, 0, cfg.heartbeat_ms)),
+            // Supervision of taut by the drive: abort connection option first, then the consumer
+            // (which starts watching at taut's next heartbeat).
+            Step::Download(SdoWrite::u16(od::ABORT_CONNECTION, 0, sup.abort_connection as u16)),
+            Step::Download(SdoWrite::u32(
+                od::HEARTBEAT_CONSUMER,
+                1,
+                u32::from(sup.node_id & 0x7F) << 16 | u32::from(sup.consumer_time_ms()),
+            )),
         ];
         for p in cfg.layout.pdos() {
             steps.extend(p.config_writes(n).map(Step::Download));
@@ -705,6 +756,9 @@ pub struct Master {
     started: bool,
     /// How long a node heard after taut's reset communication may take to send its boot-up.
     boot_wait: Duration,
+    supervision: Supervision,
+    /// When taut's next heartbeat is due.
+    next_heartbeat: Option<Instant>,
     tx: heapless::Deque<Frame, TX_QUEUE>,
     events: heapless::Deque<Event, EVENT_QUEUE>,
     counters: Counters,
@@ -721,7 +775,7 @@ impl Master {
             if id == 0 || by_id[id] != 0 {
                 continue; // validated by MasterConfig::from_robot; skipped here rather than panic
             }
-            nodes.push(Node::new(n, cfg.sdo_timeout));
+            nodes.push(Node::new(n, cfg.sdo_timeout, cfg.supervision));
             by_id[id] = nodes.len() as u8;
         }
         Master {
@@ -732,6 +786,8 @@ impl Master {
             reset_on_start: cfg.reset_on_start,
             started: false,
             boot_wait: cfg.boot_wait,
+            supervision: cfg.supervision,
+            next_heartbeat: None,
             tx: heapless::Deque::new(),
             events: heapless::Deque::new(),
             counters: Counters::default(),
@@ -795,6 +851,9 @@ impl Master {
     /// The earliest time at which [`poll`](Self::poll) has something to do.
     pub fn next_deadline(&self) -> Option<Instant> {
         let mut t = self.sync.next_deadline();
+        if let Some(h) = self.next_heartbeat {
+            t = Some(t.map_or(h, |x| x.min(h)));
+        }
         for n in &self.nodes {
             let boot = if n.phase == Phase::Waiting { n.heard_since_reset.map(|t| t + self.boot_wait) } else { None };
             for d in [n.sdo.next_deadline(), n.hb.deadline(), boot].into_iter().flatten() {
@@ -1216,8 +1275,20 @@ impl Master {
     pub fn poll_timers(&mut self, now: Instant) {
         if !self.started {
             self.started = true;
+            // taut is a CANopen node too (CiA 302): boot-up, then its heartbeat.
+            let id = self.supervision.node_id;
+            self.push_tx(heartbeat::encode(id, NmtState::BootUp));
+            self.next_heartbeat = Some(now + self.supervision.heartbeat);
             if self.reset_on_start {
                 self.send_nmt(NmtCommand::ResetCommunication, 0);
+            }
+        }
+        if let Some(t) = self.next_heartbeat {
+            if now >= t {
+                let p = self.supervision.heartbeat;
+                // After a stall, the next one a full period from now, not a burst.
+                self.next_heartbeat = Some(if now - t > p { now + p } else { t + p });
+                self.push_tx(heartbeat::encode(self.supervision.node_id, NmtState::Operational));
             }
         }
         for k in 0..self.nodes.len() {
