@@ -358,3 +358,30 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
         let _ = stopped;
     }
 }
+
+/// A drive slower than the SDO timeout: every transfer times out once. Each abort taut decides
+/// to send is on the bus (before the retry that follows it), and the late answers are dropped
+/// or, when they answer the same request again, taken: bring-up still succeeds.
+#[test]
+fn every_client_abort_reaches_the_bus() {
+    use taut_driver::transport::virtual_bus::Filter;
+    let mut f = Field::new(vec![VirtualDrive::new(params(1, |p| p.sdo_delay = Duration::from_millis(150)))]);
+    let mut monitor = f.bus.endpoint_with(65_536, &[Filter { id: 0x600, mask: 0x780, extended: false }]);
+    f.run(Duration::from_millis(300));
+    f.start_master_after(config(&[1]), Duration::from_millis(5));
+    f.until(Duration::from_secs(20), "bring-up", |f| f.master().all_operational());
+    let c = f.counters();
+    let mut aborts = 0;
+    while let Ok(Some(fr)) = monitor.try_recv() {
+        if fr.data()[0] == 0x80 {
+            aborts += 1;
+            assert_eq!(fr.data()[4..8], 0x0504_0000u32.to_le_bytes(), "SDO protocol timed out");
+        }
+    }
+    assert!(c.sdo_timeouts > 10, "{c:?}");
+    assert_eq!(aborts, c.sdo_timeouts, "{c:?}");
+    // A timeout is retried unless its tries are used up (the optional device name, whose
+    // segments are all late, is given up after 2 retries).
+    assert!(c.sdo_retries > 10 && c.sdo_retries <= c.sdo_timeouts, "{c:?}");
+    assert_eq!(f.count(|e| *e == Event::Configured { node: 1 }), 1);
+}

@@ -27,6 +27,8 @@ const IFACE: &str = "vcan0";
 /// Set in the child process that plays taut in [`drives_stop_when_taut_is_killed_over_vcan`].
 const CHILD_ENV: &str = "TAUT_FIELD_MASTER_NODES";
 static BUS: Mutex<()> = Mutex::new(());
+/// What the child prints once the drives are enabled.
+const ENABLED: &str = "TAUT-FIELD-MASTER-ENABLED";
 
 fn lock() -> MutexGuard<'static, ()> {
     BUS.lock().unwrap_or_else(|e| e.into_inner())
@@ -196,7 +198,8 @@ fn field_master_child() {
     cfg.supervision.heartbeat = Duration::from_millis(500);
     let set = up(DriveSet::new(port, cfg));
     let mut set = set.enable(Duration::from_secs(60)).unwrap_or_else(|r| panic!("child: enable: {}", r.error));
-    println!("ENABLED");
+    // On its own line: the harness has already printed "test field_master_child ... ".
+    println!("\n{ENABLED}");
     let t = Instant::now();
     while t.elapsed() < Duration::from_secs(300) {
         set.cycle().expect("child: cycle");
@@ -229,7 +232,7 @@ fn drives_stop_when_taut_is_killed_over_vcan() {
         line.clear();
         let n = out.read_line(&mut line).unwrap();
         assert!(n > 0, "the taut child exited before enabling the drives: {:?}", child.wait());
-        if line.trim() == "ENABLED" {
+        if line.trim() == ENABLED {
             break;
         }
     }
