@@ -706,7 +706,7 @@ impl VirtualDrive {
             self.counters.sdo_aborts += 1;
         }
         self.sdo_answers = self.sdo_answers.wrapping_add(1);
-        let twice = self.p.sdo_duplicate_every > 0 && self.sdo_answers % self.p.sdo_duplicate_every == 0;
+        let twice = self.p.sdo_duplicate_every > 0 && self.sdo_answers.is_multiple_of(self.p.sdo_duplicate_every);
         let f = r.encode(self.p.node_id);
         for _ in 0..1 + usize::from(twice) {
             match self.clock {
