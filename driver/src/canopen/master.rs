@@ -9,7 +9,12 @@
 //!    └──────────────────────── Failed (abort/mismatch)        Lost (heartbeat timeout) <──┘
 //! ```
 //! A boot-up message in any phase restarts configuration (the node lost its PDO mapping), and a
-//! lost node that comes back is configured again too. Per SYNC cycle the master sends SYNC, then
+//! lost node that comes back is configured again too. After the master's own NMT reset
+//! communication a heartbeat does not start configuration, the boot-up does (a heartbeat can
+//! predate the reset); a node that heartbeats but never boots is configured after
+//! [`MasterConfig::boot_wait`]. Configuration first reads the statusword and position and switches
+//! off a drive found powered, and it sets each drive's heartbeat consumer (0x1016) for the
+//! master's own heartbeat and the abort connection option (0x6007), see [`Supervision`]. Per SYNC cycle the master sends SYNC, then
 //! one RPDO set per operational drive; drives answer with their TPDOs.
 //!
 //! Bad input never panics: frames that are malformed, from unknown nodes or not meant for a
