@@ -139,8 +139,18 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     let transport: Box<dyn CanTransport> = if args.sim {
         let bus = VirtualBus::new();
         let nodes: Vec<u8> = mcfg.nodes.iter().map(|n| n.node_id).collect();
-        let drives = nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect();
+        // As drives in the field: heartbeating (100 ms stored in 0x1017) before taut speaks, so
+        // the probe starts on a bus that is already busy.
+        let drives = nodes
+            .iter()
+            .map(|&n| {
+                let mut p = DriveParams::new(n);
+                p.stored_heartbeat_ms = 100;
+                VirtualDrive::new(p)
+            })
+            .collect();
         _rack = Some(spawn_rack(bus.endpoint_with(4096, &rack_filters(&nodes)), drives));
+        std::thread::sleep(Duration::from_millis(250));
         println!("bus: in-process virtual bus with {} virtual drives (--sim)", nodes.len());
         Box::new(bus.endpoint())
     } else {

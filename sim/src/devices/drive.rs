@@ -1195,6 +1195,37 @@ mod tests {
     }
 
     #[test]
+    fn heartbeat_consumer_and_abort_connection_objects_are_strict() {
+        let t = Instant::now();
+        let mut d = VirtualDrive::new(DriveParams::new(3));
+        d.poll(t);
+        let _ = d.poll_tx();
+        let w = |index: u16, sub: u8, v: u32, len: u8| SdoRequest::InitiateDownload { index, sub, kind: Initiate::Expedited { data: v.to_le_bytes(), len } };
+        let abort = |index: u16, sub: u8, code: AbortCode| SdoResponse::Abort { index, sub, code };
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 4, 2), t), abort(0x6007, 0, AbortCode::INVALID_VALUE), "0..=3 only");
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 3, 1), t), abort(0x6007, 0, AbortCode::LENGTH_MISMATCH), "INTEGER16");
+        assert_eq!(sdo(&mut d, w(0x1016, 0, 2, 1), t), abort(0x1016, 0, AbortCode::READ_ONLY));
+        assert_eq!(sdo(&mut d, w(0x1016, 2, 0, 4), t), abort(0x1016, 2, AbortCode::NO_SUBINDEX));
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 1 << 24 | 127 << 16 | 300, 4), t), abort(0x1016, 1, AbortCode::INVALID_VALUE), "reserved bits");
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 300, 4), t), abort(0x1016, 1, AbortCode::INVALID_VALUE), "node 0 with a time");
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 127 << 16 | 300, 4), t), SdoResponse::DownloadInitiated { index: 0x1016, sub: 1 });
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 3, 2), t), SdoResponse::DownloadInitiated { index: 0x6007, sub: 0 });
+        // Not watching before the producer's first heartbeat.
+        d.poll(t + Duration::from_secs(5));
+        assert_eq!(d.counters().consumer_timeouts, 0);
+        d.on_frame(&heartbeat::encode(127, NmtState::Operational), t + Duration::from_secs(5));
+        d.poll(t + Duration::from_millis(5300));
+        assert_eq!(d.counters().consumer_timeouts, 0, "on time");
+        d.poll(t + Duration::from_millis(5301));
+        assert_eq!(d.counters().consumer_timeouts, 1);
+        assert_eq!(d.poll_tx(), Some(emcy::encode(3, &Emcy { code: 0x8130, register: 0x11, vendor: [0; 5] })));
+        assert_eq!(d.counters().abort_connection_actions, 0, "not enabled: nothing to stop");
+        // Reset communication: 0x1016 back to its power-on value, 0x6007 kept (application).
+        d.on_frame(&nmt::encode(NmtCommand::ResetCommunication, 0), t + Duration::from_secs(6));
+        assert_eq!((d.heartbeat_consumer(), d.abort_connection_option()), (0, 3));
+    }
+
+    #[test]
     fn garbage_sdo_is_aborted_not_panicked() {
         let t = Instant::now();
         let mut d = VirtualDrive::new(DriveParams::new(3));
