@@ -183,6 +183,39 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
     }
 }
 
+/// The same race without any queueing in taut's socket: the drives take 20 ms to act on the
+/// NMT reset and answer SDO 5 ms late, so a heartbeat sent in that window reaches taut after its
+/// reset, and answers to requests made before the reset arrive after the boot-up.
+#[test]
+fn heartbeats_sent_while_the_reset_takes_effect_do_not_start_configuration() {
+    const NODES: [u8; 8] = [1, 2, 3, 4, 5, 6, 7, 8];
+    for offset_ms in [0u64, 3, 7, 11, 17, 45, 81, 95] {
+        let drives = NODES
+            .iter()
+            .map(|&n| {
+                VirtualDrive::new(params(n, |p| {
+                    p.reset_latency = Duration::from_millis(20);
+                    p.sdo_delay = Duration::from_millis(5);
+                }))
+            })
+            .collect();
+        let mut f = Field::new(drives);
+        f.run(Duration::from_millis(1000 + offset_ms));
+        f.start_master_after(config(&NODES), Duration::ZERO);
+        f.until(Duration::from_secs(3), "bring-up", |f| f.master().all_operational());
+        f.run(Duration::from_millis(200));
+        let c = f.counters();
+        assert_eq!(
+            (c.sdo_aborts, c.sdo_timeouts, c.sdo_retries, c.sdo_discarded, c.boot_ups_missing, c.reboots),
+            (0, 0, 0, 0, 0, 0),
+            "offset {offset_ms} ms: {c:?}"
+        );
+        for n in NODES {
+            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "offset {offset_ms} ms: node {n}");
+        }
+    }
+}
+
 fn params(n: u8, f: impl Fn(&mut DriveParams)) -> DriveParams {
     let mut p = DriveParams::new(n);
     p.stored_heartbeat_ms = 100;

@@ -95,7 +95,12 @@ fn eight_heartbeating_drives_come_up_without_sdo_aborts_or_retries_over_vcan() {
     let Some(_) = vcan::iface_or_skip(IFACE, TEST) else { return };
     let _g = lock();
     let nodes = [71, 72, 73, 74, 75, 76, 77, 78];
-    let (set, rack) = field(&nodes, drives(&nodes, |_| {}), |_| {});
+    // NMT resets take effect 20 ms late and SDO answers leave 5 ms late, as in slow firmware.
+    let slow = |p: &mut DriveParams| {
+        p.reset_latency = Duration::from_millis(20);
+        p.sdo_delay = Duration::from_millis(5);
+    };
+    let (set, rack) = field(&nodes, drives(&nodes, slow), |_| {});
     let mut set = up(set);
     set.run_for(Duration::from_millis(500)).unwrap();
     let c = set.master().counters();

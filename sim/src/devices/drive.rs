@@ -80,6 +80,10 @@ pub struct DriveParams {
     /// 2 disable voltage, 3 quick stop. 0 is what the drives of issue 9 did: nothing on the
     /// drive side noticed that the master had gone.
     pub abort_connection_default: i16,
+    /// How long an NMT reset (communication or node) takes to take effect: until then the drive
+    /// goes on as before (its heartbeat timer may fire, SDO requests are answered), as firmware
+    /// that handles NMT in its main loop does.
+    pub reset_latency: Duration,
 }
 
 impl DriveParams {
@@ -99,6 +103,7 @@ impl DriveParams {
             sdo_delay: Duration::ZERO,
             sdo_duplicate_every: 0,
             abort_connection_default: 0,
+            reset_latency: Duration::ZERO,
         }
     }
 }
@@ -205,6 +210,8 @@ pub struct VirtualDrive {
     consumer_lost: bool,
     /// 0x6007.
     abort_option: i16,
+    /// An NMT reset waiting for [`DriveParams::reset_latency`].
+    pending_reset: Option<(NmtCommand, Instant)>,
 }
 
 impl VirtualDrive {
@@ -245,6 +252,7 @@ impl VirtualDrive {
             consumer_last: None,
             consumer_lost: false,
             abort_option: 0,
+            pending_reset: None,
         };
         d.abort_option = d.p.abort_connection_default;
         d.reset_communication();
@@ -443,6 +451,12 @@ impl VirtualDrive {
             return;
         }
         self.clock = Some(now);
+        if let Some((cmd, t)) = self.pending_reset {
+            if now >= t {
+                self.pending_reset = None;
+                self.on_nmt(cmd);
+            }
+        }
         while self.delayed.front().is_some_and(|(t, _)| *t <= now) {
             let (_, f) = self.delayed.pop_front().expect("checked");
             self.send(f);
@@ -504,7 +518,12 @@ impl VirtualDrive {
 
     /// When [`poll`](Self::poll) has something to do next.
     pub fn next_deadline(&self) -> Option<Instant> {
-        [self.next_hb, self.delayed.front().map(|(t, _)| *t), self.consumer_deadline().map(|t| t + Duration::from_millis(1))]
+        [
+            self.next_hb,
+            self.delayed.front().map(|(t, _)| *t),
+            self.consumer_deadline().map(|t| t + Duration::from_millis(1)),
+            self.pending_reset.map(|(_, t)| t),
+        ]
             .into_iter()
             .flatten()
             .min()
@@ -528,7 +547,12 @@ impl VirtualDrive {
         }
         if let Some((cmd, target)) = nmt::decode(f) {
             if target == 0 || target == self.p.node_id {
-                self.on_nmt(cmd);
+                let reset = matches!(cmd, NmtCommand::ResetNode | NmtCommand::ResetCommunication);
+                if reset && !self.p.reset_latency.is_zero() {
+                    self.pending_reset.get_or_insert((cmd, now + self.p.reset_latency));
+                } else {
+                    self.on_nmt(cmd);
+                }
             }
         } else if sync::is_sync(f) {
             if self.nmt == NmtState::Operational {
