@@ -380,7 +380,7 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
             assert_eq!(d.position(), *p, "code {code}: node {} held", d.node_id());
         }
         // The drives' EMCY 0x8130 (heartbeat error) is waiting in taut's socket.
-        let (_, mut port) = gone.unwrap();
+        let (m, mut port) = gone.unwrap();
         let mut emcy = 0;
         while let Ok(Some(fr)) = port.try_recv() {
             if fr.id & !0x7F == 0x080 && fr.data()[..2] == [0x30, 0x81] {
@@ -389,6 +389,16 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
         }
         assert_eq!(emcy, NODES.len(), "code {code}");
         let _ = stopped;
+        // taut comes back (a stalled process resumes): it starts the drives again, but does
+        // not enable them by itself.
+        f.master = Some((m, port));
+        f.until(Duration::from_secs(2), "operational again", |f| f.rack.drives().iter().all(|d| d.nmt_state() == NmtState::Operational));
+        f.run(Duration::from_millis(500));
+        for (d, p) in f.rack.drives().iter().zip(&held) {
+            assert_ne!(d.state(), State::OperationEnabled, "code {code}: node {} enabled again without a request", d.node_id());
+            assert_eq!(d.position(), *p);
+        }
+        assert!(f.master().all_operational() && !f.master().all_enabled());
     }
 }
 

@@ -1097,7 +1097,11 @@ impl Master {
             Phase::Operational => {
                 n.hb.on_heartbeat(now);
                 if state != NmtState::Operational {
-                    // Someone stopped it or it fell back to pre-operational: start it again.
+                    // Someone stopped it or it fell back to pre-operational (e.g. its heartbeat
+                    // consumer lost taut and it applied 0x6007): start it again, but never
+                    // enabled again by itself; that is the application's decision, as after a
+                    // fault or a reboot.
+                    n.axis.want = Want::Disabled;
                     n.phase = Phase::Starting;
                     self.send_nmt(NmtCommand::Start, node);
                 }
