@@ -149,8 +149,18 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     let transport: Box<dyn CanTransport> = if args.sim {
         let bus = VirtualBus::new();
         let nodes: Vec<u8> = mcfg.nodes.iter().map(|n| n.node_id).collect();
-        let drives = nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect();
+        // As drives in the field: heartbeating (100 ms stored in 0x1017) before taut speaks, so
+        // the probe starts on a bus that is already busy.
+        let drives = nodes
+            .iter()
+            .map(|&n| {
+                let mut p = DriveParams::new(n);
+                p.stored_heartbeat_ms = 100;
+                VirtualDrive::new(p)
+            })
+            .collect();
         _rack = Some(spawn_rack(bus.endpoint_with(4096, &rack_filters(&nodes)), drives));
+        std::thread::sleep(Duration::from_millis(250));
         println!("bus: in-process virtual bus with {} virtual drives (--sim)", nodes.len());
         Box::new(bus.endpoint())
     } else {
@@ -262,5 +272,9 @@ fn print_counters(c: &Counters) {
     println!(
         "problems: {} SDO aborts ({} timeouts), {} EMCY, {} heartbeat losses, {} reboots, {} bus errors, {} frames dropped",
         c.sdo_aborts, c.sdo_timeouts, c.emergencies, c.heartbeat_losses, c.reboots, c.bus_errors, c.tx_dropped
+    );
+    println!(
+        "SDO: {} retries, {} late or duplicated responses dropped; {} node(s) configured without a boot-up",
+        c.sdo_retries, c.sdo_discarded, c.boot_ups_missing
     );
 }

@@ -40,6 +40,46 @@ pub struct CanConfig {
     /// itself with a boot-up message. Turn off only if another master shares the bus.
     #[serde(default = "default_true")]
     pub reset_on_start: bool,
+    /// taut's own node id on the bus: its heartbeat is 0x700 + this id. Must differ from every
+    /// drive's node id.
+    #[serde(default = "default_master_node_id")]
+    pub master_node_id: u8,
+    /// Period of taut's heartbeat, ms. Each drive's heartbeat consumer (0x1016) is set to 3
+    /// periods: a drive that hears nothing from taut for that long applies `abort_connection`.
+    #[serde(default = "default_master_heartbeat_ms")]
+    pub master_heartbeat_ms: u16,
+    /// What a drive does when taut is gone (0x6007, CiA 402): see [`AbortConnection`].
+    #[serde(default)]
+    pub abort_connection: AbortConnection,
+}
+
+/// The abort connection option code (0x6007) taut writes into every drive: the drive's own
+/// reaction when taut's heartbeat stops (taut killed, crashed, cable cut) or taut stops or
+/// resets it. CiA 402 applies it from "operation enabled". See docs/canopen.md for the choice.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AbortConnection {
+    /// 3: quick stop: the drive stops on its quick-stop ramp under position control, so the
+    /// hanging platform is never left unsupported; what follows (hold, or brake and disable)
+    /// is the drive's quick stop option code 0x605A.
+    #[default]
+    QuickStop,
+    /// 1: fault: the drive's fault reaction (0x605E), then FAULT until the operator resets it.
+    Fault,
+    /// 2: disable voltage: power stage off at once; the load is held only if the motor brake
+    /// engages in time. Not for suspended loads without a fast brake.
+    DisableVoltage,
+}
+
+impl AbortConnection {
+    /// The 0x6007 value.
+    pub fn code(&self) -> i16 {
+        match self {
+            AbortConnection::Fault => 1,
+            AbortConnection::DisableVoltage => 2,
+            AbortConnection::QuickStop => 3,
+        }
+    }
 }
 
 fn default_bitrate() -> u32 {
@@ -59,6 +99,12 @@ fn default_bringup_timeout() -> f64 {
 }
 fn default_true() -> bool {
     true
+}
+fn default_master_node_id() -> u8 {
+    127
+}
+fn default_master_heartbeat_ms() -> u16 {
+    100
 }
 
 /// CAN bitrates that CiA 301 / CiA 102 define.
@@ -84,6 +130,15 @@ impl CanConfig {
         }
         if !(self.bringup_timeout_s.is_finite() && self.bringup_timeout_s > 0.0) {
             return Err(("bringup_timeout_s".into(), format!("must be a positive time in s, got {}", self.bringup_timeout_s)));
+        }
+        if !(1..=127).contains(&self.master_node_id) {
+            return Err(("master_node_id".into(), format!("must be a CANopen node id 1..=127, got {}", self.master_node_id)));
+        }
+        if !(10..=5000).contains(&self.master_heartbeat_ms) {
+            return Err((
+                "master_heartbeat_ms".into(),
+                format!("must be in 10..=5000 ms (drives stop 3 periods after taut's last heartbeat), got {}", self.master_heartbeat_ms),
+            ));
         }
         Ok(())
     }
@@ -249,6 +304,7 @@ mod can_drive_tests {
     fn can_and_drive_defaults_and_enums_parse() {
         let c: CanConfig = toml::from_str("interface = \"can0\"").unwrap();
         assert_eq!((c.bitrate, c.cycle_s, c.sdo_retries, c.reset_on_start), (1_000_000, 0.002, 2, true));
+        assert_eq!((c.master_node_id, c.master_heartbeat_ms, c.abort_connection), (127, 100, AbortConnection::QuickStop));
         c.validate().unwrap();
         let d: DriveConfig = toml::from_str("node_id = 4\nmode = \"torque\"\npdo = \"with_mode\"\ninvert = true").unwrap();
         assert_eq!(d, DriveConfig { mode: DriveMode::Torque, pdo: PdoMapping::WithMode, invert: true, ..DriveConfig::with_node_id(4) });
@@ -264,6 +320,12 @@ mod can_drive_tests {
         assert_eq!(can("bitrate = 123456").unwrap_err().0, "bitrate");
         assert_eq!(can("cycle_s = 0.0").unwrap_err().0, "cycle_s");
         assert_eq!(can("sdo_timeout_s = -1.0").unwrap_err().0, "sdo_timeout_s");
+        assert_eq!(can("master_node_id = 0").unwrap_err().0, "master_node_id");
+        assert_eq!(can("master_node_id = 128").unwrap_err().0, "master_node_id");
+        assert_eq!(can("master_heartbeat_ms = 5").unwrap_err().0, "master_heartbeat_ms");
+        assert!(toml::from_str::<CanConfig>("interface = \"can0\"\nabort_connection = \"none\"").is_err(), "no 'no action' on master loss");
+        let c: CanConfig = toml::from_str("interface = \"can0\"\nabort_connection = \"fault\"").unwrap();
+        assert_eq!(c.abort_connection.code(), 1);
         assert_eq!(toml::from_str::<CanConfig>("interface = \"\"").unwrap().validate().unwrap_err().0, "interface");
         let drive = |s: &str| toml::from_str::<DriveConfig>(&format!("node_id = 1\n{s}")).unwrap().validate();
         assert_eq!(drive("drum_radius_m = 0.0").unwrap_err().0, "drum_radius_m");

@@ -302,6 +302,16 @@ impl RobotConfig {
                         format!("node id {} is already used by cable[{first}]; every drive needs its own", d.node_id),
                     ));
                 }
+                if let Some(can) = self.can.as_ref().filter(|can| can.master_node_id == d.node_id) {
+                    return Err(err(
+                        cable_lines.get(i).copied(),
+                        format!("cable[{i}].drive.node_id"),
+                        format!(
+                            "node id {} is taut's own ([can] master_node_id, its heartbeat); give the drive or taut another id",
+                            can.master_node_id
+                        ),
+                    ));
+                }
             }
         }
         let cal = &self.calibration;
@@ -432,6 +442,11 @@ mod tests {
         let e = RobotConfig::from_toml_str(&format!("{base}{cables}")).unwrap_err();
         assert_eq!(e.key.as_deref(), Some("cable[1].drive.node_id"), "{e}");
         assert_eq!(e.line, Some(7), "{e}");
+        // A drive on taut's own node id (127 by default) is refused with its line.
+        let e = RobotConfig::from_toml_str(&format!("{base}[can]\ninterface = \"can0\"\n[[cable]]\n[cable.drive]\nnode_id = 127\n[[cable]]\n[[cable]]\n"))
+            .unwrap_err();
+        assert_eq!((e.key.as_deref(), e.line), (Some("cable[0].drive.node_id"), Some(6)), "{e}");
+        assert!(e.message.contains("master_node_id"), "{e}");
         let e = RobotConfig::from_toml_str(&format!("{base}[tracker]\nlisten = \"not an address\"\n[[cable]]\n[[cable]]\n[[cable]]\n"))
             .unwrap_err();
         assert!(e.key.as_deref().is_some_and(|k| k.starts_with("tracker.")), "{e}");

@@ -48,6 +48,9 @@ fn config(nodes: &[u8]) -> MasterConfig {
     // The drives below start after the master's socket is open, so their boot-up is seen;
     // a broadcast reset would also reset drives of other processes on the bus.
     cfg.reset_on_start = false;
+    // Consumer time 6 s in the drives: a TCG stall of the test thread (spawning cangen or
+    // candump) must not look like a dead master.
+    cfg.supervision.heartbeat = Duration::from_secs(2);
     cfg
 }
 

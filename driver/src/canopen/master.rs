@@ -9,7 +9,12 @@
 //!    └──────────────────────── Failed (abort/mismatch)        Lost (heartbeat timeout) <──┘
 //! ```
 //! A boot-up message in any phase restarts configuration (the node lost its PDO mapping), and a
-//! lost node that comes back is configured again too. Per SYNC cycle the master sends SYNC, then
+//! lost node that comes back is configured again too. After the master's own NMT reset
+//! communication a heartbeat does not start configuration, the boot-up does (a heartbeat can
+//! predate the reset); a node that heartbeats but never boots is configured after
+//! [`MasterConfig::boot_wait`]. Configuration first reads the statusword and position and switches
+//! off a drive found powered, and it sets each drive's heartbeat consumer (0x1016) for the
+//! master's own heartbeat and the abort connection option (0x6007), see [`Supervision`]. Per SYNC cycle the master sends SYNC, then
 //! one RPDO set per operational drive; drives answer with their TPDOs.
 //!
 //! Bad input never panics: frames that are malformed, from unknown nodes or not meant for a
@@ -21,7 +26,7 @@ use super::emcy::{self, Emcy};
 use super::heartbeat::{self, HeartbeatConsumer};
 use super::nmt::{self, NmtCommand, NmtState};
 use super::pdo::{self, PdoDef, PdoLayout, SdoWrite};
-use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoOutcome};
+use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoDiscard, SdoOutcome};
 use super::sync::{self, SyncProducer};
 use super::{function_code, node_of, od, NodeId};
 use crate::transport::{BusEvent, Frame};
@@ -32,6 +37,9 @@ use std::time::{Duration, Instant};
 pub const TX_QUEUE: usize = 256;
 /// Capacity of the event queue.
 pub const EVENT_QUEUE: usize = 128;
+/// How long a node heard after taut's reset communication may take to boot (CiA 301 leaves the
+/// reset time to the device; drives take milliseconds to a few hundred).
+pub const DEFAULT_BOOT_WAIT: Duration = Duration::from_millis(1000);
 /// Cycles a fault reset is held before giving up.
 const FAULT_RESET_CYCLES: u16 = 100;
 
@@ -95,6 +103,41 @@ pub struct MasterConfig {
     pub bitrate: u32,
     /// How long bring-up may take.
     pub bringup_timeout: Duration,
+    /// After taut's reset communication, how long a node that heartbeats may take to send its
+    /// boot-up before it is configured without one (its boot-up was lost, or it ignores the
+    /// reset). Heartbeats alone never start configuration before that: the boot-up does.
+    pub boot_wait: Duration,
+    /// taut's own heartbeat and what the drives do when it stops.
+    pub supervision: Supervision,
+}
+
+/// Master supervision the CiA 301 way: taut produces a heartbeat, and every drive's heartbeat
+/// consumer (0x1016) watches it; when it stops for `consumer_time` the drive raises EMCY 0x8130
+/// and applies the abort connection option (0x6007, CiA 402), so a drive never holds "operation
+/// enabled" for a master that is gone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Supervision {
+    /// taut's node id (heartbeat COB-ID 0x700 + id).
+    pub node_id: NodeId,
+    /// Heartbeat period.
+    pub heartbeat: Duration,
+    /// 0x6007: 1 fault, 2 disable voltage, 3 quick stop.
+    pub abort_connection: i16,
+}
+
+impl Supervision {
+    /// The consumer time written to the drives: 3 heartbeat periods, so one lost or late
+    /// heartbeat (a bus-off recovery, a stalled scheduler) does not stop the robot, and two do.
+    pub fn consumer_time_ms(&self) -> u16 {
+        u16::try_from(self.heartbeat.as_millis().saturating_mul(3)).unwrap_or(u16::MAX)
+    }
+}
+
+impl Default for Supervision {
+    /// Node 127, 100 ms, quick stop.
+    fn default() -> Self {
+        Supervision { node_id: 127, heartbeat: Duration::from_millis(100), abort_connection: 3 }
+    }
 }
 
 /// A configuration that cannot drive a bus: the key and what is wrong.
@@ -125,6 +168,8 @@ impl MasterConfig {
             reset_on_start: true,
             bitrate: 1_000_000,
             bringup_timeout: Duration::from_secs(5),
+            boot_wait: DEFAULT_BOOT_WAIT,
+            supervision: Supervision::default(),
         }
     }
 
@@ -175,6 +220,12 @@ impl MasterConfig {
         if nodes.is_empty() {
             return Err(problem("cable.drive".into(), "no [cable.drive] table: give each driven cable a drive with a node_id".into()));
         }
+        if let Some(n) = nodes.iter().find(|n| n.node_id == can.master_node_id) {
+            return Err(problem(
+                "can.master_node_id".into(),
+                format!("node id {} is taut's own (its heartbeat) and also cable[{}]'s drive; give taut a free id", n.node_id, n.cable),
+            ));
+        }
         Ok(MasterConfig {
             nodes,
             sync_period: Duration::from_secs_f64(can.cycle_s),
@@ -183,6 +234,12 @@ impl MasterConfig {
             reset_on_start: can.reset_on_start,
             bitrate: can.bitrate,
             bringup_timeout: Duration::from_secs_f64(can.bringup_timeout_s),
+            boot_wait: DEFAULT_BOOT_WAIT,
+            supervision: Supervision {
+                node_id: can.master_node_id,
+                heartbeat: Duration::from_millis(u64::from(can.master_heartbeat_ms)),
+                abort_connection: can.abort_connection.code(),
+            },
         })
     }
 
@@ -293,6 +350,10 @@ pub enum Problem {
     SdoTimeout,
     /// An SDO response when none was expected.
     UnexpectedSdo,
+    /// An SDO response that does not answer the request in flight (late, duplicated, stale).
+    StaleSdo,
+    /// A node heartbeating after taut's reset communication sent no boot-up in time.
+    BootUpMissing,
     /// A TPDO shorter than its mapping.
     PdoLength,
     /// The CAN interface reported a bus problem.
@@ -313,6 +374,8 @@ impl Problem {
             Problem::SdoAbort => "SDO transfer aborted",
             Problem::SdoTimeout => "SDO transfer timed out",
             Problem::UnexpectedSdo => "SDO response with no transfer in progress",
+            Problem::StaleSdo => "SDO response that does not answer the request in flight (late or duplicated), dropped",
+            Problem::BootUpMissing => "node heartbeats but sent no boot-up after the reset communication; configuring it anyway",
             Problem::PdoLength => "TPDO shorter than its mapping",
             Problem::Bus => "CAN bus problem reported by the interface",
             Problem::TxOverflow => "transmit queue full, frames dropped",
@@ -333,6 +396,14 @@ pub enum Event {
     Rebooted {
         /// Node.
         node: NodeId,
+    },
+    /// A drive was found with its power stage on (left so by a previous run, or holding after
+    /// its own master-loss reaction) and is being switched off before configuration.
+    FoundPowered {
+        /// Node.
+        node: NodeId,
+        /// The state it was found in.
+        state: State,
     },
     /// Identity read.
     Identified {
@@ -412,6 +483,9 @@ impl fmt::Display for Event {
                 i.vendor.unwrap_or(0),
                 i.product.unwrap_or(0)
             ),
+            Event::FoundPowered { node, state } => {
+                write!(f, "node {node}: found {} (left by a previous run); switching the power stage off", state.name())
+            }
             Event::Configured { node } => write!(f, "node {node}: configured, starting"),
             Event::Operational { node } => write!(f, "node {node}: operational"),
             Event::Failed { node, failure } => write!(f, "node {node}: configuration failed: {failure}"),
@@ -449,6 +523,14 @@ pub struct Counters {
     pub sdo_timeouts: u64,
     /// SDO responses with no transfer.
     pub unexpected_sdo: u64,
+    /// SDO responses dropped because they do not answer the request in flight (late,
+    /// duplicated, malformed): never taken as the answer, never answered with an abort.
+    pub sdo_discarded: u64,
+    /// SDO transfers tried again after the client gave up on them (timeout, oversize).
+    pub sdo_retries: u64,
+    /// Nodes configured without a boot-up: they heartbeat, but their boot-up after taut's reset
+    /// communication never came (lost on the bus, or the node ignores the reset).
+    pub boot_ups_missing: u64,
     /// Short TPDOs.
     pub pdo_length: u64,
     /// EMCY messages (not counting "error reset").
@@ -473,12 +555,22 @@ enum Field {
     Revision,
     Serial,
     Name,
+    /// 0x6041: the CiA 402 state a previous run left the drive in.
+    Statusword,
+    /// 0x6064: where it stands, so that the first target is that.
+    Position,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Step {
     Upload { index: u16, sub: u8, field: Field, required: bool },
     Download(SdoWrite),
+    /// Brings a drive found powered (left enabled by a previous run, or stopped by its own
+    /// master-loss reaction) to a power stage off, by SDO before anything else is written:
+    /// CiA 402 transition 8 (shutdown) from switched on / operation enabled, 12 (disable
+    /// voltage) from quick stop active. Skipped for drives already off or in fault (a fault
+    /// stays until the operator resets it).
+    PowerOff,
 }
 
 /// The CiA 402 side of a node, as the master sees it.
@@ -576,6 +668,8 @@ struct Node {
     name_len: u8,
     axis: Axis,
     boots: u32,
+    /// When a heartbeat (not a boot-up) was first seen after taut's reset communication.
+    heard_since_reset: Option<Instant>,
     last_emcy: Option<Emcy>,
     pdos: &'static [PdoDef],
     /// TPDO COB-IDs, for matching received frames.
@@ -583,7 +677,7 @@ struct Node {
 }
 
 impl Node {
-    fn new(cfg: NodeConfig, sdo_timeout: Duration) -> Node {
+    fn new(cfg: NodeConfig, sdo_timeout: Duration, sup: Supervision) -> Node {
         let n = cfg.node_id;
         let mut steps = vec![
             Step::Upload { index: od::DEVICE_TYPE, sub: 0, field: Field::DeviceType, required: true },
@@ -592,7 +686,18 @@ impl Node {
             Step::Upload { index: od::IDENTITY, sub: 3, field: Field::Revision, required: false },
             Step::Upload { index: od::IDENTITY, sub: 4, field: Field::Serial, required: false },
             Step::Upload { index: od::DEVICE_NAME, sub: 0, field: Field::Name, required: false },
+            Step::Upload { index: od::STATUSWORD, sub: 0, field: Field::Statusword, required: true },
+            Step::Upload { index: od::POSITION_ACTUAL, sub: 0, field: Field::Position, required: true },
+            Step::PowerOff,
             Step::Download(SdoWrite::u16(od::HEARTBEAT_PRODUCER, 0, cfg.heartbeat_ms)),
+            // Supervision of taut by the drive: abort connection option first, then the consumer
+            // (which starts watching at taut's next heartbeat).
+            Step::Download(SdoWrite::u16(od::ABORT_CONNECTION, 0, sup.abort_connection as u16)),
+            Step::Download(SdoWrite::u32(
+                od::HEARTBEAT_CONSUMER,
+                1,
+                u32::from(sup.node_id & 0x7F) << 16 | u32::from(sup.consumer_time_ms()),
+            )),
         ];
         for p in cfg.layout.pdos() {
             steps.extend(p.config_writes(n).map(Step::Download));
@@ -620,6 +725,7 @@ impl Node {
             name_len: 0,
             axis,
             boots: 0,
+            heard_since_reset: None,
             last_emcy: None,
             tpdo_ids,
         }
@@ -653,6 +759,11 @@ pub struct Master {
     cfg_retries: u8,
     reset_on_start: bool,
     started: bool,
+    /// How long a node heard after taut's reset communication may take to send its boot-up.
+    boot_wait: Duration,
+    supervision: Supervision,
+    /// When taut's next heartbeat is due.
+    next_heartbeat: Option<Instant>,
     tx: heapless::Deque<Frame, TX_QUEUE>,
     events: heapless::Deque<Event, EVENT_QUEUE>,
     counters: Counters,
@@ -669,7 +780,7 @@ impl Master {
             if id == 0 || by_id[id] != 0 {
                 continue; // validated by MasterConfig::from_robot; skipped here rather than panic
             }
-            nodes.push(Node::new(n, cfg.sdo_timeout));
+            nodes.push(Node::new(n, cfg.sdo_timeout, cfg.supervision));
             by_id[id] = nodes.len() as u8;
         }
         Master {
@@ -679,6 +790,9 @@ impl Master {
             cfg_retries: cfg.sdo_retries,
             reset_on_start: cfg.reset_on_start,
             started: false,
+            boot_wait: cfg.boot_wait,
+            supervision: cfg.supervision,
+            next_heartbeat: None,
             tx: heapless::Deque::new(),
             events: heapless::Deque::new(),
             counters: Counters::default(),
@@ -742,8 +856,12 @@ impl Master {
     /// The earliest time at which [`poll`](Self::poll) has something to do.
     pub fn next_deadline(&self) -> Option<Instant> {
         let mut t = self.sync.next_deadline();
+        if let Some(h) = self.next_heartbeat {
+            t = Some(t.map_or(h, |x| x.min(h)));
+        }
         for n in &self.nodes {
-            for d in [n.sdo.next_deadline(), n.hb.deadline()].into_iter().flatten() {
+            let boot = if n.phase == Phase::Waiting { n.heard_since_reset.map(|t| t + self.boot_wait) } else { None };
+            for d in [n.sdo.next_deadline(), n.hb.deadline(), boot].into_iter().flatten() {
                 t = Some(t.map_or(d, |x| x.min(d)));
             }
         }
@@ -917,9 +1035,13 @@ impl Master {
         match self.nodes[k].sdo.on_response(f.data(), now) {
             Ok(Some(outcome)) => self.on_sdo_outcome(k, outcome, now),
             Ok(None) => self.flush_sdo(k),
-            Err(_) => {
+            Err(SdoDiscard::Idle) => {
                 self.counters.unexpected_sdo += 1;
                 self.problem(Problem::UnexpectedSdo, f.id);
+            }
+            Err(SdoDiscard::Mismatch { .. } | SdoDiscard::Malformed(_)) => {
+                self.counters.sdo_discarded += 1;
+                self.problem(Problem::StaleSdo, f.id);
             }
         }
         self.flush_sdo(k);
@@ -949,6 +1071,13 @@ impl Master {
         }
         n.nmt = Some(state);
         match n.phase {
+            // After taut's own reset communication the node is configured at its boot-up: a
+            // heartbeat may have been sent before the reset took effect, and configuring on it
+            // would start a second configuration (and a second answer to every request) when the
+            // boot-up follows. A node whose boot-up never comes is configured after boot_wait.
+            Phase::Waiting if self.reset_on_start => {
+                n.heard_since_reset.get_or_insert(now);
+            }
             Phase::Waiting => self.begin_config(k, now),
             Phase::Configuring | Phase::Failed(_) => {}
             Phase::Lost => {
@@ -968,7 +1097,11 @@ impl Master {
             Phase::Operational => {
                 n.hb.on_heartbeat(now);
                 if state != NmtState::Operational {
-                    // Someone stopped it or it fell back to pre-operational: start it again.
+                    // Someone stopped it or it fell back to pre-operational (e.g. its heartbeat
+                    // consumer lost taut and it applied 0x6007): start it again, but never
+                    // enabled again by itself; that is the application's decision, as after a
+                    // fault or a reboot.
+                    n.axis.want = Want::Disabled;
                     n.phase = Phase::Starting;
                     self.send_nmt(NmtCommand::Start, node);
                 }
@@ -978,6 +1111,7 @@ impl Master {
 
     fn begin_config(&mut self, k: usize, now: Instant) {
         let n = &mut self.nodes[k];
+        n.heard_since_reset = None;
         n.sdo.cancel();
         n.hb.reset();
         n.phase = Phase::Configuring;
@@ -997,6 +1131,19 @@ impl Master {
         match n.steps.get(n.step).copied() {
             Some(Step::Upload { index, sub, .. }) => {
                 let _ = n.sdo.upload(index, sub, now);
+            }
+            Some(Step::PowerOff) => {
+                let cw = match n.axis.state {
+                    Some(s @ (State::OperationEnabled | State::SwitchedOn)) => Some((s, cia402::CW_SHUTDOWN)),
+                    Some(s @ State::QuickStopActive) => Some((s, cia402::CW_DISABLE_VOLTAGE)),
+                    _ => None,
+                };
+                let Some((state, cw)) = cw else {
+                    n.step += 1;
+                    return self.next_step(k, now);
+                };
+                let _ = n.sdo.download(od::CONTROLWORD, 0, &cw.to_le_bytes(), false, now);
+                self.event(Event::FoundPowered { node, state });
             }
             Some(Step::Download(w)) => {
                 let (b, len) = w.bytes();
@@ -1034,6 +1181,15 @@ impl Master {
                         Field::Product => n.identity.product = Some(v),
                         Field::Revision => n.identity.revision = Some(v),
                         Field::Serial => n.identity.serial = Some(v),
+                        Field::Statusword => {
+                            n.axis.statusword = v as u16;
+                            n.axis.state = State::from_statusword(v as u16);
+                        }
+                        Field::Position => {
+                            // The first RPDO commands where the drive stands.
+                            n.axis.position = v as i32;
+                            n.axis.target_position = v as i32;
+                        }
                         Field::Name => {
                             let m = len.min(32);
                             n.name[..m].copy_from_slice(&d[..m]);
@@ -1076,7 +1232,7 @@ impl Master {
                         }
                         required
                     }
-                    Step::Download(_) => true,
+                    Step::Download(_) | Step::PowerOff => true,
                 };
                 if a.code == AbortCode::TIMEOUT && !a.by_server {
                     self.counters.sdo_timeouts += 1;
@@ -1089,6 +1245,7 @@ impl Master {
                 // trying again would get the same answer.
                 if !a.by_server && self.nodes[k].tries < self.cfg_retries {
                     self.nodes[k].tries += 1;
+                    self.counters.sdo_retries += 1;
                     self.next_step(k, now);
                 } else if required {
                     self.fail(k, NodeFailure::Sdo(a));
@@ -1127,8 +1284,20 @@ impl Master {
     pub fn poll_timers(&mut self, now: Instant) {
         if !self.started {
             self.started = true;
+            // taut is a CANopen node too (CiA 302): boot-up, then its heartbeat.
+            let id = self.supervision.node_id;
+            self.push_tx(heartbeat::encode(id, NmtState::BootUp));
+            self.next_heartbeat = Some(now + self.supervision.heartbeat);
             if self.reset_on_start {
                 self.send_nmt(NmtCommand::ResetCommunication, 0);
+            }
+        }
+        if let Some(t) = self.next_heartbeat {
+            if now >= t {
+                let p = self.supervision.heartbeat;
+                // After a stall, the next one a full period from now, not a burst.
+                self.next_heartbeat = Some(if now - t > p { now + p } else { t + p });
+                self.push_tx(heartbeat::encode(self.supervision.node_id, NmtState::Operational));
             }
         }
         for k in 0..self.nodes.len() {
@@ -1137,6 +1306,14 @@ impl Master {
                 self.on_sdo_outcome(k, o, now);
             }
             self.flush_sdo(k);
+            let n = &mut self.nodes[k];
+            if n.phase == Phase::Waiting && n.heard_since_reset.is_some_and(|t| now >= t + self.boot_wait) {
+                let id = n.cfg.node_id;
+                self.counters.boot_ups_missing += 1;
+                self.problem(Problem::BootUpMissing, 0x700 + u32::from(id));
+                self.begin_config(k, now);
+                continue;
+            }
             let n = &mut self.nodes[k];
             if matches!(n.phase, Phase::Starting | Phase::Operational) && n.hb.check(now) {
                 n.phase = Phase::Lost;

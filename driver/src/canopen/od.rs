@@ -4,12 +4,14 @@
 //! index   sub   type  access  meaning                                      unit
 //! 0x1000  0     u32   ro      device type (0x00020192: CiA 402 servo)
 //! 0x1008  0     str   ro      manufacturer device name
+//! 0x1016  1     u32   rw      consumer heartbeat: node id << 16 | time   ms
 //! 0x1017  0     u16   rw      producer heartbeat time                     ms
 //! 0x1018  1..4  u32   ro      identity: vendor, product, revision, serial
 //! 0x1400+ 1..2  u32/u8 rw     RPDO communication: COB-ID, transmission type
 //! 0x1600+ 0..8  u32   rw      RPDO mapping: count, entries (index<<16 | sub<<8 | bits)
 //! 0x1800+ 1..2  u32/u8 rw     TPDO communication: COB-ID, transmission type
 //! 0x1A00+ 0..8  u32   rw      TPDO mapping
+//! 0x6007  0     i16   rw      abort connection option code (0..3)
 //! 0x603F  0     u16   ro      error code (last fault)
 //! 0x6040  0     u16   rw      controlword
 //! 0x6041  0     u16   ro      statusword
@@ -25,6 +27,8 @@
 pub const DEVICE_TYPE: u16 = 0x1000;
 /// Manufacturer device name (visible string; read with a segmented upload).
 pub const DEVICE_NAME: u16 = 0x1008;
+/// Consumer heartbeat time (sub 1..: node id << 16 | time in ms).
+pub const HEARTBEAT_CONSUMER: u16 = 0x1016;
 /// Producer heartbeat time, ms.
 pub const HEARTBEAT_PRODUCER: u16 = 0x1017;
 /// Identity object.
@@ -37,6 +41,8 @@ pub const RPDO_MAP: u16 = 0x1600;
 pub const TPDO_COMM: u16 = 0x1800;
 /// First TPDO mapping parameter.
 pub const TPDO_MAP: u16 = 0x1A00;
+/// Abort connection option code (CiA 402): 0 none, 1 fault, 2 disable voltage, 3 quick stop.
+pub const ABORT_CONNECTION: u16 = 0x6007;
 /// Error code (CiA 402).
 pub const ERROR_CODE: u16 = 0x603F;
 /// Controlword.

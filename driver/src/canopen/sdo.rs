@@ -432,6 +432,25 @@ impl fmt::Display for SdoAbort {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SdoBusy;
 
+/// Why a frame from the server was not taken as the answer: it is dropped and counted, never
+/// answered (an abort for a stale reply would kill the transfer it does not belong to).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SdoDiscard {
+    /// Not a valid SDO response.
+    Malformed(SdoParseError),
+    /// No transfer in flight.
+    Idle,
+    /// A response that does not match the request in flight (command specifier, index,
+    /// sub-index or toggle bit): a late, duplicated or stale reply.
+    Mismatch {
+        /// Its first byte (the command specifier).
+        command: u8,
+    },
+}
+
+/// Frames the client may have queued at once: an abort and the request that follows it.
+const CLIENT_TX: usize = 4;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
     Idle,
@@ -446,6 +465,13 @@ enum Phase {
 /// Start a transfer with [`download`](Self::download) or [`upload`](Self::upload), send what
 /// [`poll_tx`](Self::poll_tx) returns, feed responses to [`on_response`](Self::on_response) and
 /// call [`poll`](Self::poll) for the timeout. Every path ends in exactly one [`SdoOutcome`].
+///
+/// A response is taken only if it answers the request in flight: the matching command
+/// specifier, the same index and sub-index for initiate responses and aborts, and the expected
+/// toggle bit for segments. Anything else ([`SdoDiscard`]) is dropped without a reply, so a
+/// late or duplicated answer can neither be taken for the next one nor abort it; a transfer
+/// whose answer never comes ends in the timeout. Frames the client sends (requests and its own
+/// aborts) go through a small queue, so an abort is never overwritten by the next request.
 #[derive(Debug, Clone)]
 pub struct SdoClient {
     node: NodeId,
@@ -459,7 +485,7 @@ pub struct SdoClient {
     toggle: bool,
     expedited: bool,
     deadline: Option<Instant>,
-    tx: Option<Frame>,
+    tx: heapless::Deque<Frame, CLIENT_TX>,
 }
 
 impl SdoClient {
@@ -477,7 +503,7 @@ impl SdoClient {
             toggle: false,
             expedited: false,
             deadline: None,
-            tx: None,
+            tx: heapless::Deque::new(),
         }
     }
 
@@ -491,11 +517,11 @@ impl SdoClient {
         &self.buf[..self.len]
     }
 
-    /// Cancels any transfer without a message (the node was reset).
+    /// Cancels any transfer without a message (the node was reset: it has forgotten the
+    /// transfer). Frames already queued, such as an abort, are still sent.
     pub fn cancel(&mut self) {
         self.phase = Phase::Idle;
         self.deadline = None;
-        self.tx = None;
     }
 
     /// Starts writing `data` to `index:sub`: expedited up to 4 bytes unless `segmented`.
@@ -536,14 +562,22 @@ impl SdoClient {
         Ok(())
     }
 
+    fn queue(&mut self, f: Frame) {
+        if self.tx.is_full() {
+            // Only reachable if the owner never drains poll_tx: the oldest frame is stale.
+            let _ = self.tx.pop_front();
+        }
+        let _ = self.tx.push_back(f);
+    }
+
     fn send(&mut self, r: SdoRequest, now: Instant) {
-        self.tx = Some(r.encode(self.node));
+        self.queue(r.encode(self.node));
         self.deadline = Some(now + self.timeout);
     }
 
-    /// The next frame to send, if any.
+    /// The next frame to send, if any (call until `None`).
     pub fn poll_tx(&mut self) -> Option<Frame> {
-        self.tx.take()
+        self.tx.pop_front()
     }
 
     /// When the current transfer times out.
@@ -553,9 +587,7 @@ impl SdoClient {
 
     fn abort(&mut self, code: AbortCode, by_server: bool) -> SdoOutcome {
         if !by_server {
-            self.tx = Some(SdoRequest::Abort { index: self.index, sub: self.sub, code }.encode(self.node));
-        } else {
-            self.tx = None;
+            self.queue(SdoRequest::Abort { index: self.index, sub: self.sub, code }.encode(self.node));
         }
         self.phase = Phase::Idle;
         self.deadline = None;
@@ -578,25 +610,35 @@ impl SdoClient {
         self.send(SdoRequest::DownloadSegment(Segment { toggle: self.toggle, data, len: n as u8, last }), now);
     }
 
-    /// Handles the payload of a `0x580 + node` frame. Responses that do not fit the transfer
-    /// abort it (the server is told); a response when idle is ignored and reported as `Err`.
-    pub fn on_response(&mut self, payload: &[u8], now: Instant) -> Result<Option<SdoOutcome>, SdoParseError> {
-        let r = match SdoResponse::decode(payload) {
-            Ok(r) => r,
-            Err(e) => {
-                if self.is_busy() {
-                    return Ok(Some(self.abort(e.abort_code(), false)));
-                }
-                return Err(e);
-            }
-        };
-        if !self.is_busy() {
-            return Err(SdoParseError::Invalid(payload[0]));
-        }
+    /// True if `r` answers the request in flight (CiA 301 7.2.4.3: the server echoes the
+    /// multiplexer in initiate responses and aborts, and the toggle bit in segments).
+    fn matches(&self, r: &SdoResponse) -> bool {
         let same = |i: u16, s: u8| i == self.index && s == self.sub;
-        Ok(Some(match (self.phase, r) {
-            (_, SdoResponse::Abort { code, .. }) => self.abort(code, true),
-            (Phase::DownloadInit, SdoResponse::DownloadInitiated { index, sub }) if same(index, sub) => {
+        match (self.phase, r) {
+            (Phase::Idle, _) => false,
+            (_, SdoResponse::Abort { index, sub, .. }) => same(*index, *sub),
+            (Phase::DownloadInit, SdoResponse::DownloadInitiated { index, sub }) => same(*index, *sub),
+            (Phase::DownloadSeg, SdoResponse::DownloadSegmentAck { toggle }) => *toggle == self.toggle,
+            (Phase::UploadInit, SdoResponse::UploadInitiated { index, sub, .. }) => same(*index, *sub),
+            (Phase::UploadSeg, SdoResponse::UploadSegment(s)) => s.toggle == self.toggle,
+            _ => false,
+        }
+    }
+
+    /// Handles the payload of a `0x580 + node` frame: `Ok(Some(_))` when the transfer ended,
+    /// `Ok(None)` when it goes on (the next request is queued), `Err` when the frame is not the
+    /// answer to the request in flight and was dropped (see [`SdoDiscard`]).
+    pub fn on_response(&mut self, payload: &[u8], now: Instant) -> Result<Option<SdoOutcome>, SdoDiscard> {
+        let r = SdoResponse::decode(payload).map_err(SdoDiscard::Malformed)?;
+        if !self.is_busy() {
+            return Err(SdoDiscard::Idle);
+        }
+        if !self.matches(&r) {
+            return Err(SdoDiscard::Mismatch { command: payload[0] });
+        }
+        Ok(Some(match r {
+            SdoResponse::Abort { code, .. } => self.abort(code, true),
+            SdoResponse::DownloadInitiated { .. } => {
                 if self.expedited {
                     self.finish_download()
                 } else {
@@ -605,21 +647,17 @@ impl SdoClient {
                     return Ok(None);
                 }
             }
-            (Phase::DownloadSeg, SdoResponse::DownloadSegmentAck { toggle }) => {
-                if toggle != self.toggle {
-                    self.abort(AbortCode::TOGGLE, false)
+            SdoResponse::DownloadSegmentAck { .. } => {
+                self.pos += (self.len - self.pos).min(7);
+                self.toggle = !self.toggle;
+                if self.pos == self.len {
+                    self.finish_download()
                 } else {
-                    self.pos += (self.len - self.pos).min(7);
-                    self.toggle = !self.toggle;
-                    if self.pos == self.len {
-                        self.finish_download()
-                    } else {
-                        self.next_download_segment(now);
-                        return Ok(None);
-                    }
+                    self.next_download_segment(now);
+                    return Ok(None);
                 }
             }
-            (Phase::UploadInit, SdoResponse::UploadInitiated { index, sub, kind }) if same(index, sub) => match kind {
+            SdoResponse::UploadInitiated { kind, .. } => match kind {
                 Initiate::Expedited { data, len } => {
                     let n = usize::from(len);
                     self.buf[..n].copy_from_slice(&data[..n]);
@@ -636,11 +674,9 @@ impl SdoClient {
                     }
                 }
             },
-            (Phase::UploadSeg, SdoResponse::UploadSegment(s)) => {
+            SdoResponse::UploadSegment(s) => {
                 let n = usize::from(s.len);
-                if s.toggle != self.toggle {
-                    self.abort(AbortCode::TOGGLE, false)
-                } else if self.len + n > SDO_BUF {
+                if self.len + n > SDO_BUF {
                     self.abort(AbortCode::OUT_OF_MEMORY, false)
                 } else {
                     self.buf[self.len..self.len + n].copy_from_slice(&s.data[..n]);
@@ -654,7 +690,6 @@ impl SdoClient {
                     }
                 }
             }
-            _ => self.abort(AbortCode::COMMAND, false),
         }))
     }
 
@@ -827,7 +862,7 @@ mod tests {
     }
 
     #[test]
-    fn wrong_toggle_aborts() {
+    fn a_segment_with_the_wrong_toggle_is_discarded_not_aborted() {
         let t0 = Instant::now();
         let mut c = SdoClient::new(5, Duration::from_millis(50));
         c.upload(0x1008, 0, t0).unwrap();
@@ -835,8 +870,60 @@ mod tests {
         let r = SdoResponse::UploadInitiated { index: 0x1008, sub: 0, kind: Initiate::Segmented { size: None } };
         assert_eq!(c.on_response(r.encode(5).data(), t0).unwrap(), None);
         let _ = c.poll_tx();
+        // A duplicate of a segment the client already took (toggle 1 while 0 is expected).
         let s = SdoResponse::UploadSegment(Segment { toggle: true, data: [0; 7], len: 7, last: false });
-        let o = c.on_response(s.encode(5).data(), t0).unwrap().unwrap();
-        assert!(matches!(o, SdoOutcome::Aborted(SdoAbort { code: AbortCode::TOGGLE, .. })));
+        assert_eq!(c.on_response(s.encode(5).data(), t0), Err(SdoDiscard::Mismatch { command: 0x10 }));
+        assert_eq!(c.poll_tx(), None, "nothing is sent for a discarded frame");
+        assert!(c.is_busy());
+        let s = SdoResponse::UploadSegment(Segment { toggle: false, data: *b"abc\0\0\0\0", len: 3, last: true });
+        assert_eq!(c.on_response(s.encode(5).data(), t0).unwrap(), Some(SdoOutcome::Uploaded { index: 0x1008, sub: 0, len: 3 }));
+        assert_eq!(c.data(), b"abc");
+    }
+
+    /// The issue 9 sequence: the same upload sent twice, the server answers both. The second
+    /// answer arrives while the next request is in flight and must not be taken for it.
+    #[test]
+    fn a_stale_answer_is_neither_taken_nor_answered() {
+        let t0 = Instant::now();
+        let mut c = SdoClient::new(5, Duration::from_millis(50));
+        let dt = |v: u32| SdoResponse::UploadInitiated { index: 0x1000, sub: 0, kind: Initiate::Expedited { data: v.to_le_bytes(), len: 4 } };
+        c.upload(0x1000, 0, t0).unwrap();
+        let _ = c.poll_tx();
+        assert_eq!(c.on_response(dt(0x20192).encode(5).data(), t0).unwrap(), Some(SdoOutcome::Uploaded { index: 0x1000, sub: 0, len: 4 }));
+        c.upload(0x1018, 1, t0).unwrap();
+        let _ = c.poll_tx();
+        // Stale: the answer to the earlier request, a duplicate, a download response, an abort
+        // of another object, a truncated frame.
+        for f in [
+            dt(0x20192).encode(5),
+            SdoResponse::DownloadInitiated { index: 0x1018, sub: 1 }.encode(5),
+            SdoResponse::Abort { index: 0x1017, sub: 0, code: AbortCode::COMMAND }.encode(5),
+            SdoResponse::UploadInitiated { index: 0x1018, sub: 2, kind: Initiate::Expedited { data: [0; 4], len: 4 } }.encode(5),
+        ] {
+            assert!(matches!(c.on_response(f.data(), t0), Err(SdoDiscard::Mismatch { .. })), "{f:?}");
+        }
+        assert!(matches!(c.on_response(&[0x43, 0x18], t0), Err(SdoDiscard::Malformed(_))));
+        assert_eq!(c.poll_tx(), None, "no abort is sent for a stale answer");
+        let v = SdoResponse::UploadInitiated { index: 0x1018, sub: 1, kind: Initiate::Expedited { data: 0xACEu32.to_le_bytes(), len: 4 } };
+        assert_eq!(c.on_response(v.encode(5).data(), t0).unwrap(), Some(SdoOutcome::Uploaded { index: 0x1018, sub: 1, len: 4 }));
+        assert_eq!(c.data(), &0xACEu32.to_le_bytes());
+        assert_eq!(c.on_response(v.encode(5).data(), t0), Err(SdoDiscard::Idle));
+    }
+
+    #[test]
+    fn a_timeout_abort_is_sent_before_the_retry() {
+        let t0 = Instant::now();
+        let mut c = SdoClient::new(5, Duration::from_millis(50));
+        c.download(0x1017, 0, &[100, 0], false, t0).unwrap();
+        let _ = c.poll_tx();
+        let t1 = t0 + Duration::from_millis(50);
+        assert!(matches!(c.poll(t1), Some(SdoOutcome::Aborted(SdoAbort { code: AbortCode::TIMEOUT, .. }))));
+        // The owner retries at once, before draining poll_tx: the abort must still go out first.
+        c.download(0x1017, 0, &[100, 0], false, t1).unwrap();
+        let first = SdoRequest::decode(c.poll_tx().unwrap().data()).unwrap();
+        assert_eq!(first, SdoRequest::Abort { index: 0x1017, sub: 0, code: AbortCode::TIMEOUT });
+        let second = SdoRequest::decode(c.poll_tx().unwrap().data()).unwrap();
+        assert!(matches!(second, SdoRequest::InitiateDownload { index: 0x1017, sub: 0, .. }));
+        assert_eq!(c.poll_tx(), None);
     }
 }

@@ -10,6 +10,7 @@
 //!
 //! ```text
 //! 0x1000 device type (0x00020192)     0x1008 device name (segmented upload)   0x1017 heartbeat ms
+//! 0x1016 sub 1 heartbeat consumer     0x6007 abort connection option code (on master loss)
 //! 0x1018 identity 1..4                0x1400..3 / 0x1800..3 PDO comm (1 COB-ID, 2 transmission type)
 //! 0x1600..3 / 0x1A00..3 PDO mapping   0x2000 scratch domain, 32 bytes (segmented download tests)
 //! 0x603F error code   0x6040 controlword   0x6041 statusword   0x6060/0x6061 mode / display
@@ -64,6 +65,25 @@ pub struct DriveParams {
     pub time_constant_s: f64,
     /// Torque (‰) per count of following error in the internal model.
     pub torque_per_count: f64,
+    /// Producer heartbeat time stored in the drive's non-volatile memory, ms: the value 0x1017
+    /// takes at power-on and at every NMT reset communication (CiA 301 7.2.8.3.2.2). Real drives
+    /// usually ship with one (100 ms is common), so they heartbeat before any master speaks.
+    pub stored_heartbeat_ms: u16,
+    /// How long the drive takes to answer an SDO request (slow firmware: tens of ms are common).
+    /// Answers leave in request order; one computed before a reset is still sent after it, as
+    /// a frame already in the controller's transmit buffer would be.
+    pub sdo_delay: Duration,
+    /// Every n-th SDO answer is sent twice (0: never), as a drive whose CAN controller retries
+    /// a frame it wrongly believes lost does.
+    pub sdo_duplicate_every: u32,
+    /// Power-on value of 0x6007 abort connection option code (CiA 402): 0 no action, 1 fault,
+    /// 2 disable voltage, 3 quick stop. 0 is what the drives of issue 9 did: nothing on the
+    /// drive side noticed that the master had gone.
+    pub abort_connection_default: i16,
+    /// How long an NMT reset (communication or node) takes to take effect: until then the drive
+    /// goes on as before (its heartbeat timer may fire, SDO requests are answered), as firmware
+    /// that handles NMT in its main loop does.
+    pub reset_latency: Duration,
 }
 
 impl DriveParams {
@@ -79,6 +99,11 @@ impl DriveParams {
             max_speed_counts_s: 400_000.0,
             time_constant_s: 0.01,
             torque_per_count: 0.01,
+            stored_heartbeat_ms: 0,
+            sdo_delay: Duration::ZERO,
+            sdo_duplicate_every: 0,
+            abort_connection_default: 0,
+            reset_latency: Duration::ZERO,
         }
     }
 }
@@ -117,7 +142,7 @@ impl PdoSlot {
 enum SdoServer {
     Idle,
     Download { index: u16, sub: u8, buf: [u8; SDO_MAX], len: usize, toggle: bool },
-    Upload { buf: [u8; SDO_MAX], len: usize, pos: usize, toggle: bool },
+    Upload { index: u16, sub: u8, buf: [u8; SDO_MAX], len: usize, pos: usize, toggle: bool },
 }
 
 /// Counters of a virtual drive.
@@ -135,6 +160,14 @@ pub struct DriveCounters {
     pub sdo_aborts: u64,
     /// Boot-ups sent.
     pub boots: u64,
+    /// Boot-ups lost on the bus (fault injection).
+    pub boots_lost: u64,
+    /// SDO answers sent twice.
+    pub sdo_duplicates: u64,
+    /// Heartbeat consumer timeouts (the master's heartbeat stopped).
+    pub consumer_timeouts: u64,
+    /// Abort connection actions applied (0x6007).
+    pub abort_connection_actions: u64,
 }
 
 /// One virtual CiA 402 drive. See the module documentation.
@@ -165,6 +198,20 @@ pub struct VirtualDrive {
     silent: bool,
     heartbeat_off: bool,
     counters: DriveCounters,
+    /// The time of the last frame or poll, for delayed SDO answers.
+    clock: Option<Instant>,
+    /// SDO answers waiting for their time.
+    delayed: VecDeque<(Instant, Frame)>,
+    sdo_answers: u32,
+    lose_boot_ups: u32,
+    /// 0x1016 sub 1: consumer heartbeat time, node id in bits 16..23, time (ms) in 0..16.
+    hb_consumer: u32,
+    consumer_last: Option<Instant>,
+    consumer_lost: bool,
+    /// 0x6007.
+    abort_option: i16,
+    /// An NMT reset waiting for [`DriveParams::reset_latency`].
+    pending_reset: Option<(NmtCommand, Instant)>,
 }
 
 impl VirtualDrive {
@@ -197,7 +244,17 @@ impl VirtualDrive {
             silent: false,
             heartbeat_off: false,
             counters: DriveCounters::default(),
+            clock: None,
+            delayed: VecDeque::new(),
+            sdo_answers: 0,
+            lose_boot_ups: 0,
+            hb_consumer: 0,
+            consumer_last: None,
+            consumer_lost: false,
+            abort_option: 0,
+            pending_reset: None,
         };
+        d.abort_option = d.p.abort_connection_default;
         d.reset_communication();
         d
     }
@@ -252,8 +309,12 @@ impl VirtualDrive {
     pub fn power_cycle(&mut self) {
         let keep_pos = self.position;
         let p = self.p.clone();
-        let (silent, external, counters) = (self.silent, self.external, self.counters);
+        let (silent, external, counters, lose) = (self.silent, self.external, self.counters, self.lose_boot_ups);
+        let delayed = std::mem::take(&mut self.delayed);
         *self = VirtualDrive::new(p);
+        self.lose_boot_ups = lose;
+        // Answers already in the transmit buffer still leave.
+        self.delayed = delayed;
         // The encoder is absolute (multi-turn): the position survives a power cycle.
         self.position = keep_pos;
         self.silent = silent;
@@ -267,6 +328,35 @@ impl VirtualDrive {
         self.state = State::Fault;
         self.torque = 0;
         self.send(emcy::encode(self.p.node_id, &Emcy { code, register: error_register(code), vendor: [0; 5] }));
+    }
+
+    /// The drive as a previous run left it: its CiA 402 `state` (e.g. operation enabled in CSP,
+    /// or fault with `error_code`) and NMT operational, with the power-on PDOs. A restarted
+    /// master finds drives like this; power cycles and NMT commands do not change the CiA 402
+    /// state (that is the application's, CiA 402 6.3), except through 0x6007.
+    pub fn left_by_previous_run(&mut self, state: State, error_code: u16) {
+        self.state = state;
+        self.error_code = error_code;
+        self.mode = Mode::CyclicPosition.code();
+        self.target_position = self.position();
+        self.nmt = NmtState::Operational;
+        self.boot_pending = false;
+        self.next_hb = None;
+    }
+
+    /// Fault injection: the next `n` boot-up messages are lost on the bus.
+    pub fn lose_boot_ups(&mut self, n: u32) {
+        self.lose_boot_ups = n;
+    }
+
+    /// 0x6007 abort connection option code now.
+    pub fn abort_connection_option(&self) -> i16 {
+        self.abort_option
+    }
+
+    /// 0x1016 sub 1 now (consumer heartbeat time).
+    pub fn heartbeat_consumer(&self) -> u32 {
+        self.hb_consumer
     }
 
     /// Fault injection: stop (or resume) the heartbeat only; PDOs and SDO go on.
@@ -308,7 +398,7 @@ impl VirtualDrive {
 
     fn reset_communication(&mut self) {
         let n = u32::from(self.p.node_id);
-        self.heartbeat_ms = 0;
+        self.heartbeat_ms = self.p.stored_heartbeat_ms;
         self.next_hb = None;
         // Power-on PDOs: RPDO1 controlword, TPDO1 statusword on every SYNC (like many drives).
         for k in 0..4 {
@@ -325,6 +415,34 @@ impl VirtualDrive {
         self.sdo = SdoServer::Idle;
         self.nmt = NmtState::PreOperational;
         self.boot_pending = true;
+        // 0x1016 is a communication parameter: back to its power-on value, no consumer.
+        self.hb_consumer = 0;
+        self.consumer_last = None;
+        self.consumer_lost = false;
+    }
+
+    /// CiA 402 0x6007: what the drive does when its connection to the master is lost
+    /// (heartbeat consumer timeout, NMT stop, reset communication, reset node), applied only
+    /// from operation enabled (the power stage holding the load).
+    fn abort_connection(&mut self) {
+        if self.state != State::OperationEnabled || self.abort_option == 0 {
+            return;
+        }
+        self.counters.abort_connection_actions += 1;
+        self.state = match self.abort_option {
+            1 => {
+                // Fault signal: the fault reaction, then FAULT until the operator resets it.
+                self.error_code = 0x8130;
+                State::Fault
+            }
+            2 => State::SwitchOnDisabled,
+            _ => State::QuickStopActive,
+        };
+        // Stop where the motor stands (quick stop holds there; the others drop torque).
+        self.target_position = self.position();
+        if self.state != State::QuickStopActive {
+            self.torque = 0;
+        }
     }
 
     /// Runs the heartbeat producer and sends a pending boot-up.
@@ -332,10 +450,27 @@ impl VirtualDrive {
         if self.silent {
             return;
         }
+        self.clock = Some(now);
+        if let Some((cmd, t)) = self.pending_reset {
+            if now >= t {
+                self.pending_reset = None;
+                self.on_nmt(cmd);
+            }
+        }
+        while self.delayed.front().is_some_and(|(t, _)| *t <= now) {
+            let (_, f) = self.delayed.pop_front().expect("checked");
+            self.send(f);
+        }
+        self.poll_consumer(now);
         if self.boot_pending {
             self.boot_pending = false;
             self.counters.boots += 1;
-            self.send(heartbeat::encode(self.p.node_id, NmtState::BootUp));
+            if self.lose_boot_ups > 0 {
+                self.lose_boot_ups -= 1;
+                self.counters.boots_lost += 1;
+            } else {
+                self.send(heartbeat::encode(self.p.node_id, NmtState::BootUp));
+            }
             self.next_hb = (self.heartbeat_ms > 0).then(|| now + Duration::from_millis(u64::from(self.heartbeat_ms)));
         }
         if self.heartbeat_ms == 0 {
@@ -355,9 +490,43 @@ impl VirtualDrive {
         }
     }
 
+    /// The heartbeat consumer (CiA 301 7.2.8.3.2.2, 0x1016): watching starts at the first
+    /// heartbeat of the configured producer; a timeout raises EMCY 0x8130 (heartbeat error),
+    /// applies 0x6007, and (0x1029 error behaviour, default 0) falls back from operational to
+    /// pre-operational.
+    fn poll_consumer(&mut self, now: Instant) {
+        let Some(deadline) = self.consumer_deadline() else { return };
+        if now <= deadline {
+            return;
+        }
+        self.consumer_lost = true;
+        self.counters.consumer_timeouts += 1;
+        self.send(emcy::encode(self.p.node_id, &Emcy { code: 0x8130, register: 0x11, vendor: [0; 5] }));
+        self.abort_connection();
+        if self.nmt == NmtState::Operational {
+            self.nmt = NmtState::PreOperational;
+        }
+    }
+
+    fn consumer_deadline(&self) -> Option<Instant> {
+        let ms = self.hb_consumer & 0xFFFF;
+        match self.consumer_last {
+            Some(t) if ms > 0 && !self.consumer_lost => Some(t + Duration::from_millis(u64::from(ms))),
+            _ => None,
+        }
+    }
+
     /// When [`poll`](Self::poll) has something to do next.
     pub fn next_deadline(&self) -> Option<Instant> {
-        self.next_hb
+        [
+            self.next_hb,
+            self.delayed.front().map(|(t, _)| *t),
+            self.consumer_deadline().map(|t| t + Duration::from_millis(1)),
+            self.pending_reset.map(|(_, t)| t),
+        ]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     /// Handles one frame from the bus.
@@ -367,10 +536,23 @@ impl VirtualDrive {
         }
         let Some(id) = f.std_id() else { return };
         self.counters.rx += 1;
+        self.clock = Some(now);
         let n = u16::from(self.p.node_id);
+        let producer = ((self.hb_consumer >> 16) & 0x7F) as u16;
+        if producer != 0 && self.hb_consumer & 0xFFFF != 0 && id == 0x700 + producer && producer != n {
+            // Any heartbeat state counts; a boot-up of the master too (it restarted).
+            self.consumer_last = Some(now);
+            self.consumer_lost = false;
+            return;
+        }
         if let Some((cmd, target)) = nmt::decode(f) {
             if target == 0 || target == self.p.node_id {
-                self.on_nmt(cmd);
+                let reset = matches!(cmd, NmtCommand::ResetNode | NmtCommand::ResetCommunication);
+                if reset && !self.p.reset_latency.is_zero() {
+                    self.pending_reset.get_or_insert((cmd, now + self.p.reset_latency));
+                } else {
+                    self.on_nmt(cmd);
+                }
             }
         } else if sync::is_sync(f) {
             if self.nmt == NmtState::Operational {
@@ -391,6 +573,9 @@ impl VirtualDrive {
     }
 
     fn on_nmt(&mut self, cmd: NmtCommand) {
+        if matches!(cmd, NmtCommand::Stop | NmtCommand::ResetNode | NmtCommand::ResetCommunication) {
+            self.abort_connection();
+        }
         match cmd {
             NmtCommand::Start => self.nmt = NmtState::Operational,
             NmtCommand::Stop => self.nmt = NmtState::Stopped,
@@ -544,7 +729,18 @@ impl VirtualDrive {
         if let SdoResponse::Abort { .. } = r {
             self.counters.sdo_aborts += 1;
         }
-        self.send(r.encode(self.p.node_id));
+        self.sdo_answers = self.sdo_answers.wrapping_add(1);
+        let twice = self.p.sdo_duplicate_every > 0 && self.sdo_answers.is_multiple_of(self.p.sdo_duplicate_every);
+        let f = r.encode(self.p.node_id);
+        for _ in 0..1 + usize::from(twice) {
+            match self.clock {
+                Some(now) if !self.p.sdo_delay.is_zero() => self.delayed.push_back((now + self.p.sdo_delay, f)),
+                _ => self.send(f),
+            }
+        }
+        if twice {
+            self.counters.sdo_duplicates += 1;
+        }
     }
 
     fn on_sdo(&mut self, data: &[u8]) {
@@ -568,21 +764,21 @@ impl VirtualDrive {
                         self.respond(SdoResponse::UploadInitiated { index, sub, kind: Initiate::Expedited { data: d, len: len as u8 } })
                     }
                     Ok((buf, len)) => {
-                        self.sdo = SdoServer::Upload { buf, len, pos: 0, toggle: false };
+                        self.sdo = SdoServer::Upload { index, sub, buf, len, pos: 0, toggle: false };
                         self.respond(SdoResponse::UploadInitiated { index, sub, kind: Initiate::Segmented { size: Some(len as u32) } })
                     }
                 }
             }
-            (SdoRequest::UploadSegment { toggle }, SdoServer::Upload { buf, len, pos, toggle: t }) => {
+            (SdoRequest::UploadSegment { toggle }, SdoServer::Upload { index, sub, buf, len, pos, toggle: t }) => {
                 if toggle != t {
                     self.sdo = SdoServer::Idle;
-                    return self.respond(SdoResponse::Abort { index: 0, sub: 0, code: AbortCode::TOGGLE });
+                    return self.respond(SdoResponse::Abort { index, sub, code: AbortCode::TOGGLE });
                 }
                 let n = (len - pos).min(7);
                 let mut d = [0u8; 7];
                 d[..n].copy_from_slice(&buf[pos..pos + n]);
                 let last = pos + n == len;
-                self.sdo = if last { SdoServer::Idle } else { SdoServer::Upload { buf, len, pos: pos + n, toggle: !t } };
+                self.sdo = if last { SdoServer::Idle } else { SdoServer::Upload { index, sub, buf, len, pos: pos + n, toggle: !t } };
                 self.respond(SdoResponse::UploadSegment(Segment { toggle, data: d, len: n as u8, last }))
             }
             (SdoRequest::InitiateDownload { index, sub, kind }, _) => {
@@ -643,6 +839,9 @@ impl VirtualDrive {
                 put(&self.p.name.as_bytes()[..n])
             }
             (od::HEARTBEAT_PRODUCER, 0) => put(&self.heartbeat_ms.to_le_bytes()),
+            (od::HEARTBEAT_CONSUMER, 0) => put(&[1]),
+            (od::HEARTBEAT_CONSUMER, 1) => put(&self.hb_consumer.to_le_bytes()),
+            (od::ABORT_CONNECTION, 0) => put(&self.abort_option.to_le_bytes()),
             (od::IDENTITY, 0) => put(&[4]),
             (od::IDENTITY, 1) => put(&self.p.vendor_id.to_le_bytes()),
             (od::IDENTITY, 2) => put(&self.p.product_code.to_le_bytes()),
@@ -675,7 +874,9 @@ impl VirtualDrive {
             (od::TARGET_TORQUE, 0) => put(&self.target_torque.to_le_bytes()),
             (od::TORQUE_ACTUAL, 0) => put(&self.torque.to_le_bytes()),
             (od::TARGET_POSITION, 0) => put(&self.target_position.to_le_bytes()),
-            (0x1000 | 0x1008 | 0x1017 | 0x1018 | 0x2000 | 0x603F..=0x607A, _) if self.exists(index) => Err(AbortCode::NO_SUBINDEX),
+            (0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F..=0x607A, _) if self.exists(index) => {
+                Err(AbortCode::NO_SUBINDEX)
+            }
             _ => Err(AbortCode::NO_OBJECT),
         }
     }
@@ -683,7 +884,7 @@ impl VirtualDrive {
     fn exists(&self, index: u16) -> bool {
         matches!(
             index,
-            0x1000 | 0x1008 | 0x1017 | 0x1018 | 0x2000 | 0x603F | 0x6040 | 0x6041 | 0x6060 | 0x6061 | 0x6064 | 0x6071 | 0x6077 | 0x607A
+            0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F | 0x6040 | 0x6041 | 0x6060 | 0x6061 | 0x6064 | 0x6071 | 0x6077 | 0x607A
         )
     }
 
@@ -700,6 +901,28 @@ impl VirtualDrive {
             (od::HEARTBEAT_PRODUCER, 0) => {
                 self.heartbeat_ms = u(d, 2)? as u16;
                 self.next_hb = None;
+                Ok(())
+            }
+            (od::HEARTBEAT_CONSUMER, 1) => {
+                let v = u(d, 4)?;
+                // Bits 24..31 reserved, node id 1..=127 when a time is given (CiA 301 7.5.2.36).
+                let node = (v >> 16) & 0xFF;
+                if v >> 24 != 0 || (v & 0xFFFF != 0 && !(1..=127).contains(&node)) {
+                    return Err(AbortCode::INVALID_VALUE);
+                }
+                self.hb_consumer = v;
+                // Monitoring starts again at the producer's next heartbeat.
+                self.consumer_last = None;
+                self.consumer_lost = false;
+                Ok(())
+            }
+            (od::HEARTBEAT_CONSUMER, 0) => Err(AbortCode::READ_ONLY),
+            (od::ABORT_CONNECTION, 0) => {
+                let v = u(d, 2)? as u16 as i16;
+                if !(0..=3).contains(&v) {
+                    return Err(AbortCode::INVALID_VALUE);
+                }
+                self.abort_option = v;
                 Ok(())
             }
             (0x1400..=0x1403, _) | (0x1800..=0x1803, _) => {
@@ -882,7 +1105,8 @@ impl<T: CanTransport> DriveRack<T> {
 /// Acceptance filters for a rack of these node ids on a virtual bus: NMT, SYNC, and each
 /// node's RPDOs and SDO requests, as a drive's CAN controller would filter.
 pub fn rack_filters(nodes: &[NodeId]) -> Vec<Filter> {
-    let mut f = vec![Filter::exact(0x000), Filter::exact(0x080)];
+    // NMT, SYNC, and every heartbeat (0x700..0x77F): the heartbeat consumer needs the master's.
+    let mut f = vec![Filter::exact(0x000), Filter::exact(0x080), Filter { id: 0x700, mask: 0x780, extended: false }];
     for &n in nodes {
         for base in [0x200u16, 0x300, 0x400, 0x500, 0x600] {
             f.push(Filter::exact(base + u16::from(n)));
@@ -992,6 +1216,37 @@ mod tests {
         // Mapping a valid PDO is refused, as CiA 301 requires.
         let r = sdo(&mut d, SdoRequest::InitiateDownload { index: 0x1A00, sub: 0, kind: Initiate::Expedited { data: [0; 4], len: 1 } }, t);
         assert_eq!(r, SdoResponse::Abort { index: 0x1A00, sub: 0, code: AbortCode::DEVICE_STATE });
+    }
+
+    #[test]
+    fn heartbeat_consumer_and_abort_connection_objects_are_strict() {
+        let t = Instant::now();
+        let mut d = VirtualDrive::new(DriveParams::new(3));
+        d.poll(t);
+        let _ = d.poll_tx();
+        let w = |index: u16, sub: u8, v: u32, len: u8| SdoRequest::InitiateDownload { index, sub, kind: Initiate::Expedited { data: v.to_le_bytes(), len } };
+        let abort = |index: u16, sub: u8, code: AbortCode| SdoResponse::Abort { index, sub, code };
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 4, 2), t), abort(0x6007, 0, AbortCode::INVALID_VALUE), "0..=3 only");
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 3, 1), t), abort(0x6007, 0, AbortCode::LENGTH_MISMATCH), "INTEGER16");
+        assert_eq!(sdo(&mut d, w(0x1016, 0, 2, 1), t), abort(0x1016, 0, AbortCode::READ_ONLY));
+        assert_eq!(sdo(&mut d, w(0x1016, 2, 0, 4), t), abort(0x1016, 2, AbortCode::NO_SUBINDEX));
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 1 << 24 | 127 << 16 | 300, 4), t), abort(0x1016, 1, AbortCode::INVALID_VALUE), "reserved bits");
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 300, 4), t), abort(0x1016, 1, AbortCode::INVALID_VALUE), "node 0 with a time");
+        assert_eq!(sdo(&mut d, w(0x1016, 1, 127 << 16 | 300, 4), t), SdoResponse::DownloadInitiated { index: 0x1016, sub: 1 });
+        assert_eq!(sdo(&mut d, w(0x6007, 0, 3, 2), t), SdoResponse::DownloadInitiated { index: 0x6007, sub: 0 });
+        // Not watching before the producer's first heartbeat.
+        d.poll(t + Duration::from_secs(5));
+        assert_eq!(d.counters().consumer_timeouts, 0);
+        d.on_frame(&heartbeat::encode(127, NmtState::Operational), t + Duration::from_secs(5));
+        d.poll(t + Duration::from_millis(5300));
+        assert_eq!(d.counters().consumer_timeouts, 0, "on time");
+        d.poll(t + Duration::from_millis(5301));
+        assert_eq!(d.counters().consumer_timeouts, 1);
+        assert_eq!(d.poll_tx(), Some(emcy::encode(3, &Emcy { code: 0x8130, register: 0x11, vendor: [0; 5] })));
+        assert_eq!(d.counters().abort_connection_actions, 0, "not enabled: nothing to stop");
+        // Reset communication: 0x1016 back to its power-on value, 0x6007 kept (application).
+        d.on_frame(&nmt::encode(NmtCommand::ResetCommunication, 0), t + Duration::from_secs(6));
+        assert_eq!((d.heartbeat_consumer(), d.abort_connection_option()), (0, 3));
     }
 
     #[test]
