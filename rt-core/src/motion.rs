@@ -4,9 +4,20 @@
 //! Idle -> Enabling -> InitPhase 0 -> 1 -> 2 -> AwaitInitial -> Excitation -> Operate
 //!                                                                  ^            |  recalibrate
 //!                                                                  +------------+
-//! any state --(cause)--> Faulted {hold | quick stop | disable}  --reset--> Holding
+//! any state --(cause)--> Faulted {hold | quick stop | disable}
+//! Faulted --reset--> Resetting --(drives operational, faults reset, all enabled)--> Holding
+//!                       └──(bus off, a drive still in fault / away / not enabled in time,
+//!                           a new cause)--> Faulted, the refusal in `last_reset`
 //! any state --stop--> Stopped
 //! ```
+//!
+//! A reset is the only way out of a latched reaction, and it happens only on the operator's
+//! request ([`Command::Reset`], `taut ctl reset`): the drives' faults are reset (CiA 402 fault
+//! reset), rebooted drives (configured again by the master) and stopped ones are enabled again,
+//! and each cable is held where its drive stands when it comes back, so nothing jumps; the
+//! parameters in use are not touched. [`Snapshot::reenable_step_m`] is the largest per-cycle
+//! change of a commanded length from the reset on (the first step measured from where the
+//! drive stood), until the operator moves the robot again.
 //!
 //! In each initialisation phase two cables hold their length in position mode, one is reeled by
 //! `motion.init_reel_m` at `motion.init_reel_speed_m_s` and back, and every other cable follows in
@@ -18,7 +29,7 @@
 //!
 //! Everything here is fixed size; `update` never allocates.
 
-use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Inputs, Outputs};
+use crate::io::{BusState, CableCommand, DeviceFault, DriveRequest, DriveStatus, Inputs, Outputs};
 use crate::kin::LoopParams;
 use crate::ramp::Ramp;
 use crate::safety::{Cause, Reaction};
@@ -48,6 +59,8 @@ pub enum State {
     Faulted = 7,
     /// Stopped by the operator; the loop ends.
     Stopped = 8,
+    /// Bringing the drives back after a latched reaction, on the operator's reset.
+    Resetting = 9,
 }
 
 impl State {
@@ -62,6 +75,7 @@ impl State {
             6 => State::Holding,
             7 => State::Faulted,
             8 => State::Stopped,
+            9 => State::Resetting,
             _ => State::Idle,
         }
     }
@@ -78,6 +92,7 @@ impl State {
             State::Holding => "holding",
             State::Faulted => "faulted",
             State::Stopped => "stopped",
+            State::Resetting => "resetting",
         }
     }
 }
@@ -91,10 +106,83 @@ pub enum Command {
     Stop,
     /// Run the excitation again; the calibrator recalibrates from it.
     Recalibrate,
-    /// Clear a latched safety reaction and hold.
+    /// Clear a latched safety reaction: reset drive faults, enable the drives again and hold
+    /// where they stand (see the module documentation).
     Reset,
     /// Move the platform to this position, m (in operate or holding).
     MoveTo([f64; 3]),
+}
+
+/// Why a reset did not bring the robot back. The reaction stays latched.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ResetRefusal {
+    /// There is no latched reaction to reset.
+    NothingToReset,
+    /// The CAN bus is still off: nothing can reach the drives.
+    BusOff {
+        /// The interface.
+        iface: crate::io::IfName,
+    },
+    /// A drive did not come back to NMT operational in time (still rebooting or lost).
+    NotOperational {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+    },
+    /// A drive is still in fault after the fault reset: its cause is still there.
+    StillInFault {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+        /// The last EMCY code it sent (0: none seen).
+        code: u16,
+    },
+    /// A drive did not reach "operation enabled" in time.
+    NotEnabled {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+    },
+    /// A new cause appeared during the reset.
+    NewCause(Cause),
+}
+
+impl std::fmt::Display for ResetRefusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            ResetRefusal::NothingToReset => write!(f, "nothing to reset: no safety reaction is latched"),
+            ResetRefusal::BusOff { iface } => write!(
+                f,
+                "{iface} is still bus-off: fix the bus (wiring, termination, bitrate), let the controller restart (restart-ms), then reset again"
+            ),
+            ResetRefusal::NotOperational { cable, node } => write!(
+                f,
+                "drive node {node} (cable {cable}) is not operational: it is still booting or being configured, or its heartbeat is lost; check its power and CAN cable, then reset again"
+            ),
+            ResetRefusal::StillInFault { cable, node, code } => write!(
+                f,
+                "drive node {node} (cable {cable}) is still in fault after a fault reset (last EMCY 0x{code:04X}): its cause is still present; see the drive's error, then reset again"
+            ),
+            ResetRefusal::NotEnabled { cable, node } => {
+                write!(f, "drive node {node} (cable {cable}) did not reach operation enabled within motion.enable_timeout_s")
+            }
+            ResetRefusal::NewCause(c) => write!(f, "a new cause during the reset: {c}"),
+        }
+    }
+}
+
+/// What became of the last [`Command::Reset`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ResetOutcome {
+    /// Under way.
+    InProgress,
+    /// The robot is back, holding.
+    Done,
+    /// Refused; the reaction stays latched.
+    Refused(ResetRefusal),
 }
 
 /// The numbers the controller needs, resolved from the configuration at start-up.
@@ -258,6 +346,13 @@ pub struct Snapshot {
     pub inputs: Inputs,
     /// Latest commanded lengths (position mode cables), m.
     pub cmd_m: [f64; MAX_CABLES],
+    /// The last reset and how it ended.
+    pub last_reset: Option<ResetOutcome>,
+    /// Resets that brought the robot back.
+    pub resets: u32,
+    /// Largest per-cycle change of a commanded length since the last reset, m (see the module
+    /// documentation).
+    pub reenable_step_m: f64,
 }
 
 /// The motion state machine and safety checks.
@@ -294,6 +389,39 @@ pub struct Controller {
     swaps: u32,
     awaited_version: u64,
     stop_cycles: u32,
+    reset: ResetRun,
+}
+
+/// The bookkeeping of the operator's reset.
+#[derive(Debug, Clone, Copy)]
+struct ResetRun {
+    last: Option<ResetOutcome>,
+    done: u32,
+    /// Faults have been reset; the drives are being enabled.
+    enabling: bool,
+    /// Cable's drive has been seen enabled during this reset (its hold length is fixed then).
+    back: [bool; MAX_CABLES],
+    /// Last EMCY code per cable.
+    emcy: [u16; MAX_CABLES],
+    /// Step measurement: the previous command per cable (NaN: not measured).
+    prev: [f64; MAX_CABLES],
+    measuring: bool,
+    max_step_m: f64,
+}
+
+impl ResetRun {
+    fn new() -> Self {
+        ResetRun {
+            last: None,
+            done: 0,
+            enabling: false,
+            back: [false; MAX_CABLES],
+            emcy: [0; MAX_CABLES],
+            prev: [f64::NAN; MAX_CABLES],
+            measuring: false,
+            max_step_m: 0.0,
+        }
+    }
 }
 
 const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
@@ -352,6 +480,7 @@ impl Controller {
             swaps: 0,
             awaited_version: 0,
             stop_cycles: 0,
+            reset: ResetRun::new(),
         }
     }
 
@@ -416,6 +545,9 @@ impl Controller {
             target_m: self.target,
             inputs: *inputs,
             cmd_m: self.cmd,
+            last_reset: self.reset.last,
+            resets: self.reset.done,
+            reenable_step_m: self.reset.max_step_m,
         }
     }
 
@@ -431,6 +563,13 @@ impl Controller {
         let reaction = cause.reaction();
         if self.state == State::Stopped {
             return;
+        }
+        // Commands come from the reaction now, not from the re-enable.
+        self.reset.measuring = false;
+        if self.state == State::Resetting {
+            // The reset is over: the reaction comes back, the worse of the two.
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::NewCause(cause)));
+            self.enter(State::Faulted, now);
         }
         match self.fault {
             Some((_, r)) if r >= reaction => return,
@@ -467,18 +606,15 @@ impl Controller {
             }
             Command::Recalibrate => {
                 if matches!(self.state, State::Operate | State::Holding) && self.params.valid && self.fault.is_none() {
+                    self.reset.measuring = false;
                     self.run = self.run.wrapping_add(1);
                     self.start_excitation(inp, now);
                 }
             }
-            Command::Reset => {
-                if self.state == State::Faulted {
-                    self.fault = None;
-                    self.hold_here(inp);
-                    self.enter(State::Holding, now);
-                }
-            }
+            Command::Reset => self.start_reset(inp, now),
             Command::MoveTo(p) => {
+                // The operator moves the robot: the re-enable is over.
+                self.reset.measuring = false;
                 let inside = (0..3).all(|i| p[i] >= self.cfg.workspace[0][i] && p[i] <= self.cfg.workspace[1][i]);
                 if !inside || !self.params.valid {
                     return;
@@ -706,6 +842,15 @@ impl Controller {
                     modes[j] = self.hold_mode(j, next[j]);
                 }
             }
+            State::Resetting => {
+                out.request = self.step_reset(inp, now);
+                for j in 0..n {
+                    // Position mode at the hold length while coming back; the followers go
+                    // back to torque mode in Holding, once every drive is enabled.
+                    next[j] = self.hold_m[j];
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+            }
             State::Faulted => {
                 let reaction = self.fault.map_or(Reaction::Hold, |f| f.1);
                 out.request = match reaction {
@@ -762,10 +907,127 @@ impl Controller {
                 }
             }
         }
+        if self.reset.measuring {
+            self.measure_reenable_step(inp, &next, &modes);
+        }
         self.cmd = next;
         self.cmd_valid = (0..n).all(|j| next[j].is_finite());
         out.n = n;
         out.cable = modes;
+    }
+
+    /// The operator's reset: checks what can be checked at once, then runs
+    /// [`step_reset`](Self::step_reset) each cycle.
+    fn start_reset(&mut self, inp: &Inputs, now: f64) {
+        if self.state == State::Resetting {
+            return; // already under way
+        }
+        if self.state != State::Faulted || self.fault.is_none() {
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::NothingToReset));
+            return;
+        }
+        if inp.bus.state == BusState::Off {
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::BusOff { iface: inp.bus.iface }));
+            return;
+        }
+        self.reset.last = Some(ResetOutcome::InProgress);
+        self.reset.enabling = false;
+        self.reset.measuring = true;
+        self.reset.max_step_m = 0.0;
+        for j in 0..self.cfg.n {
+            // A drive that stayed enabled (hold reaction) keeps its command; the others are
+            // measured from where they stand once they are back.
+            let on = inp.drive[j] == DriveStatus::Enabled;
+            self.reset.back[j] = on;
+            self.reset.prev[j] = if on { self.cmd[j] } else { f64::NAN };
+        }
+        self.transfer.cancel();
+        self.swap.cancel();
+        self.enter(State::Resetting, now);
+    }
+
+    /// One cycle of the reset: the request to the drives. Stage 1 resets the faults of drives
+    /// in fault (and waits for rebooted ones to be operational again); stage 2 enables every
+    /// drive and fixes each cable's hold length at the first cycle its drive is enabled.
+    fn step_reset(&mut self, inp: &Inputs, now: f64) -> DriveRequest {
+        let n = self.cfg.n;
+        let waited = now - self.state_t0 > self.cfg.enable_timeout_s;
+        let node = |j: usize| self.cfg.node_ids[j];
+        if inp.bus.state == BusState::Off {
+            self.refuse_reset(ResetRefusal::BusOff { iface: inp.bus.iface }, now);
+            return DriveRequest::Disable;
+        }
+        if !self.reset.enabling {
+            let away = (0..n).find(|&j| inp.drive[j] == DriveStatus::Unknown);
+            let faulted = (0..n).find(|&j| inp.drive[j] == DriveStatus::Fault);
+            match (away, faulted) {
+                (None, None) => self.reset.enabling = true,
+                (Some(j), _) if waited => {
+                    self.refuse_reset(ResetRefusal::NotOperational { cable: j as u8, node: node(j) }, now);
+                    return DriveRequest::Disable;
+                }
+                (None, Some(j)) if waited => {
+                    let code = self.reset.emcy[j];
+                    self.refuse_reset(ResetRefusal::StillInFault { cable: j as u8, node: node(j), code }, now);
+                    return DriveRequest::Disable;
+                }
+                _ => return DriveRequest::FaultReset,
+            }
+        }
+        for j in 0..n {
+            if !self.reset.back[j] && inp.drive[j] == DriveStatus::Enabled {
+                // Back: hold where it stands (its target is its position when it enables).
+                self.reset.back[j] = true;
+                if inp.length_m[j].is_finite() {
+                    self.hold_m[j] = inp.length_m[j];
+                }
+            }
+        }
+        match (0..n).find(|&j| !self.reset.back[j] || inp.drive[j] != DriveStatus::Enabled) {
+            None => {
+                self.fault = None;
+                self.reset.last = Some(ResetOutcome::Done);
+                self.reset.done += 1;
+                self.enter(State::Holding, now);
+            }
+            Some(j) if waited => {
+                let why = match inp.drive[j] {
+                    DriveStatus::Unknown => ResetRefusal::NotOperational { cable: j as u8, node: node(j) },
+                    DriveStatus::Fault => ResetRefusal::StillInFault { cable: j as u8, node: node(j), code: self.reset.emcy[j] },
+                    _ => ResetRefusal::NotEnabled { cable: j as u8, node: node(j) },
+                };
+                self.refuse_reset(why, now);
+                return DriveRequest::Disable;
+            }
+            Some(_) => {}
+        }
+        DriveRequest::Enable
+    }
+
+    /// The reset did not succeed: back to the latched reaction, with the reason.
+    fn refuse_reset(&mut self, why: ResetRefusal, now: f64) {
+        self.reset.last = Some(ResetOutcome::Refused(why));
+        self.reset.measuring = false;
+        self.enter(State::Faulted, now);
+    }
+
+    /// Per-cycle step of the position commands after a reset: from the command before, or for
+    /// a drive just back, from where it stands.
+    fn measure_reenable_step(&mut self, inp: &Inputs, next: &[f64; MAX_CABLES], modes: &[CableCommand; MAX_CABLES]) {
+        for j in 0..self.cfg.n {
+            let positional = matches!(modes[j], CableCommand::Position(_));
+            if !positional || inp.drive[j] != DriveStatus::Enabled {
+                // Not commanded in position (refused while not enabled; followers in torque).
+                self.reset.prev[j] = f64::NAN;
+                continue;
+            }
+            let prev = if self.reset.prev[j].is_finite() { self.reset.prev[j] } else { inp.length_m[j] };
+            let step = (next[j] - prev).abs();
+            if step.is_finite() {
+                self.reset.max_step_m = self.reset.max_step_m.max(step);
+            }
+            self.reset.prev[j] = next[j];
+        }
     }
 
     /// Holding: position mode at `len`, except the redundant cables, which keep their tension
@@ -803,9 +1065,15 @@ impl Controller {
     fn check_devices(&mut self, inp: &Inputs, now: f64) {
         if let Some(f) = inp.fault {
             let cause = match f {
-                DeviceFault::Emcy { node, code } => Cause::DriveFault { node, code },
+                DeviceFault::Emcy { node, code } => {
+                    if let Some(j) = (0..self.cfg.n).find(|&j| self.cfg.node_ids[j] == node) {
+                        self.reset.emcy[j] = code;
+                    }
+                    Cause::DriveFault { node, code }
+                }
                 DeviceFault::HeartbeatLost { node } => Cause::HeartbeatLost { node },
-                DeviceFault::BusOff => Cause::BusOff,
+                DeviceFault::Rebooted { node } => Cause::DriveRebooted { node },
+                DeviceFault::Bus { iface, event } => Cause::Bus { iface, event },
             };
             if self.state != State::Idle {
                 self.latch(cause, inp, now);

@@ -31,7 +31,7 @@ use taut_config::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, Track
 use taut_config::RobotConfig;
 use taut_driver::canopen::cia402::Mode;
 use taut_driver::canopen::NodeId;
-use taut_driver::transport::virtual_bus::VirtualBus;
+use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
 use taut_driver::transport::CanTransport;
 use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
@@ -50,6 +50,12 @@ pub struct SimFaults {
     pub drive_emcy: AtomicBool,
     /// Drive of cable 1 stops sending heartbeats.
     pub heartbeat_lost: AtomicBool,
+    /// Drive of cable 1 is power cycled (once per `true`; the switch goes back to `false`):
+    /// it boots with its power-on settings and keeps its absolute position.
+    pub drive_power_cycle: AtomicBool,
+    /// Drive of cable 1 has a fault whose cause stays while this is set: it faults (EMCY
+    /// 0x2310), and after each fault reset it faults again at once.
+    pub drive_fault_persists: AtomicBool,
     /// Plant steps that found no equilibrium (the plant kept the last one): the plant's own
     /// count, mirrored by the site thread for tests to print when a start-up fails.
     pub plant_failed_steps: AtomicU64,
@@ -63,6 +69,9 @@ pub struct SimRobot {
     pub faults: Arc<SimFaults>,
     /// The devices to hand to the daemon.
     pub devices: Box<dyn Devices>,
+    /// The CAN controller of the master's endpoint on the in-process bus, to inject error
+    /// frames, bus-off and restart (`None` on SocketCAN: there the kernel reports them).
+    pub can: Option<CanController>,
 }
 
 /// Options of the simulated site.
@@ -121,10 +130,14 @@ pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -
 pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, String> {
     match &opts.can {
         None => {
-            let bus = VirtualBus::new();
+            let bus = VirtualBus::named("vcan-sim");
             let nodes = node_ids(cfg)?;
             let rack_end = bus.endpoint_with(1024, &rack_filters(&nodes));
-            build_on(cfg, p0, opts, rack_end, bus.endpoint_with(1024, &[]))
+            let master_end = bus.endpoint_with(1024, &[]);
+            let can = master_end.controller();
+            let mut sim = build_on(cfg, p0, opts, rack_end, master_end)?;
+            sim.can = Some(can);
+            Ok(sim)
         }
         Some(iface) => {
             #[cfg(target_os = "linux")]
@@ -257,7 +270,7 @@ where
     let site = SiteThread { stop, thread: Some(thread) };
     let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
-    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }) })
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), can: None })
 }
 
 fn counts(x: f64) -> i32 {
@@ -390,6 +403,16 @@ impl<R: CanTransport> Site<R> {
         if self.faults.heartbeat_lost.load(Ordering::Relaxed) && !self.hb_off {
             self.rack.drives()[second].set_heartbeat_off(true);
             self.hb_off = true;
+        }
+        if self.faults.drive_power_cycle.swap(false, Ordering::Relaxed) {
+            self.rack.drives()[second].power_cycle();
+        }
+        let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
+        let d = &mut self.rack.drives()[second];
+        if persists && d.state() != taut_driver::canopen::cia402::State::Fault {
+            // The cause is still there: a fault reset is followed by the same fault at once,
+            // as on a drive whose over-current condition persists.
+            d.inject_fault(0x2310);
         }
     }
 
