@@ -845,9 +845,11 @@ impl Controller {
             State::Resetting => {
                 out.request = self.step_reset(inp, now);
                 for j in 0..n {
-                    // Position mode at the hold length while coming back; the followers go
-                    // back to torque mode in Holding, once every drive is enabled.
-                    next[j] = self.hold_m[j];
+                    // Position mode where the drive stands while it comes back, then at the
+                    // length fixed when it was back; the followers go back to torque mode in
+                    // Holding, once every drive is enabled.
+                    let here = inp.length_m[j];
+                    next[j] = if self.reset.back[j] || !here.is_finite() { self.hold_m[j] } else { here };
                     modes[j] = CableCommand::Position(next[j]);
                 }
             }
@@ -1196,5 +1198,57 @@ mod tests {
         step(&mut c, 1);
         let (cause, _) = c.controller.fault().expect("a loose reeled cable latches");
         assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
+    }
+
+    /// A drum that turned while the drives were stopped (a quick stop's ramp, a brake that
+    /// slipped): after the reset the cable is held where it now stands, not where it was when
+    /// the reaction latched.
+    #[test]
+    fn a_reset_holds_where_the_drives_stand_now() {
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
+        let mut cfg = quick_config(4, &std::env::temp_dir());
+        cfg.safety.tension_max_age_s = 5.0;
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+        let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+        let (sample_tx, _sample_rx) = sample_ring(64);
+        let robot = KinematicRobot::new(truth_params(4, 0.1), [0.2, 0.1, 2.0]);
+        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
+        let mut t = 0.0;
+        let mut step = |c: &mut LoopCore<KinematicRobot>, k: usize| {
+            for _ in 0..k {
+                t += 0.002;
+                c.cycle(t, 0.002);
+            }
+        };
+        step(&mut c, 300);
+        assert_eq!(c.controller.state(), State::InitPhase, "{:?}", c.controller.fault());
+        cmd_tx.send(Command::Estop).unwrap();
+        step(&mut c, 10);
+        assert_eq!(c.controller.fault().map(|f| f.1), Some(Reaction::QuickStop));
+        // The drum of cable 0 turns by 5 mm while the drives are stopped.
+        c.devices.len[0] += 0.005;
+        let moved = c.devices.len[0];
+        step(&mut c, 10);
+        // A reset that is not asked for does not happen.
+        assert_eq!(c.controller.state(), State::Faulted);
+        cmd_tx.send(Command::Reset).unwrap();
+        step(&mut c, 20);
+        assert_eq!(c.controller.state(), State::Holding, "{:?}", c.controller.snapshot(0.0, &c.inputs).last_reset);
+        let s = c.controller.snapshot(0.0, &c.inputs);
+        assert_eq!(s.last_reset, Some(ResetOutcome::Done));
+        assert_eq!(s.resets, 1);
+        // (The stand-in robot re-levels the platform over the four cables when they are
+        // enabled, so cable 0 ends a little short of `moved`; what matters is that it is not
+        // pulled back the 5 mm to where it was when the reaction latched.)
+        let latched = moved - 0.005;
+        assert!((s.cmd_m[0] - latched).abs() > 0.003, "held at {} m, the stale {latched} m, the drum at {moved} m", s.cmd_m[0]);
+        assert!((s.cmd_m[0] - s.inputs.length_m[0]).abs() < 1e-9, "holds where it stands");
+        assert!(s.reenable_step_m < 1e-6, "step {} m", s.reenable_step_m);
+        // A second reset with nothing latched is refused with the reason.
+        cmd_tx.send(Command::Reset).unwrap();
+        step(&mut c, 2);
+        let s = c.controller.snapshot(0.0, &c.inputs);
+        assert_eq!(s.last_reset, Some(ResetOutcome::Refused(ResetRefusal::NothingToReset)));
+        assert_eq!(s.state, State::Holding);
     }
 }
