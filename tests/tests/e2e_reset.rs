@@ -131,8 +131,8 @@ fn reset_and_move(r: &Rig) -> f64 {
     std::thread::sleep(Duration::from_millis(500));
     let l = r.d.loop_status();
     assert_eq!(l.snap.state, State::Holding, "{:?}", l.snap.fault);
-    for j in 0..3 {
-        let d = (l.snap.inputs.length_m[j] - before[j]).abs();
+    for (j, (now, then)) in l.snap.inputs.length_m.iter().zip(&before).enumerate().take(3) {
+        let d = (now - then).abs();
         assert!(d < 1e-3, "cable {j} moved {:.3} mm while holding after the reset", d * 1e3);
     }
     let step = l.snap.reenable_step_m;
