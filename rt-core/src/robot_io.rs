@@ -128,6 +128,11 @@ pub struct RobotDevices<T: CanTransport> {
     bus_status: BusStatus,
     /// A bus event that is a fault, not yet handed to the loop.
     bus_fault: Option<DeviceFault>,
+    /// The request of the last write (a fault reset is sent once per reset request).
+    last_request: DriveRequest,
+    /// A fault reset asked for and not yet handed to the drives (they were not all
+    /// operational).
+    fault_reset_pending: bool,
     /// When the last SYNC went out: the drives latch their actual values at SYNC, so the
     /// TPDOs that answer it carry values of that instant.
     last_sync: Option<Instant>,
@@ -182,6 +187,8 @@ impl<T: CanTransport> RobotDevices<T> {
             transport_errors: 0,
             bus_status: BusStatus { iface: bus_iface, ..BusStatus::default() },
             bus_fault: None,
+            last_request: DriveRequest::Disable,
+            fault_reset_pending: false,
             last_sync: None,
         })
     }
@@ -345,6 +352,12 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
 
     fn write(&mut self, _now_s: f64, out: &Outputs) {
         let wall = Instant::now();
+        if out.request == DriveRequest::FaultReset && self.last_request != DriveRequest::FaultReset {
+            // One fault reset per operator request: the rising edge of bit 7 goes out once
+            // (the master holds it until the drive leaves FAULT or gives up).
+            self.fault_reset_pending = true;
+        }
+        self.last_request = out.request;
         if !self.master.all_operational() && matches!(out.request, DriveRequest::QuickStop | DriveRequest::Disable) {
             // A drive is away (rebooting, lost): stop the others anyway.
             self.master.stop_reachable(out.request == DriveRequest::QuickStop);
@@ -362,9 +375,10 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                         let _ = op.quick_stop(i);
                     }
                     DriveRequest::FaultReset => {
-                        // Only drives in fault; the request repeats each cycle of the reset,
-                        // the master makes one rising edge of bit 7 per try.
-                        let _ = op.fault_reset(i);
+                        // Only drives in fault (the master ignores the others).
+                        if self.fault_reset_pending {
+                            let _ = op.fault_reset(i);
+                        }
                     }
                     DriveRequest::Enable => {
                         let _ = op.enable(i);
@@ -384,6 +398,11 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                     }
                 }
             }
+        }
+        // Handed over once every drive could take it: all operational, none still braking in
+        // "fault reaction active" (it takes a fault reset only once in FAULT).
+        if self.master.all_operational() && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive)) {
+            self.fault_reset_pending = false;
         }
         self.master.poll_timers(wall);
         self.master.sync_cycle();
