@@ -401,7 +401,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         }
         // Handed over once every drive could take it: all operational, none still braking in
         // "fault reaction active" (it takes a fault reset only once in FAULT).
-        if self.master.all_operational() && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive)) {
+        if self.fault_reset_pending && self.master.all_operational() && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive)) {
             self.fault_reset_pending = false;
         }
         self.master.poll_timers(wall);
