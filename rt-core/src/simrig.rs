@@ -48,7 +48,7 @@ pub struct SimFaults {
     pub tracker_gone: AtomicBool,
     /// Drive of cable 1 reports an EMCY (0x2310, continuous over-current) and faults.
     pub drive_emcy: AtomicBool,
-    /// Drive of cable 1 stops sending heartbeats.
+    /// Drive of cable 1 stops sending heartbeats (and sends them again when cleared).
     pub heartbeat_lost: AtomicBool,
     /// Drive of cable 1 is power cycled (once per `true`; the switch goes back to `false`):
     /// it boots with its power-on settings and keeps its absolute position.
@@ -400,9 +400,10 @@ impl<R: CanTransport> Site<R> {
             self.rack.drives()[second].inject_fault(0x2310);
             self.emcy_sent = true;
         }
-        if self.faults.heartbeat_lost.load(Ordering::Relaxed) && !self.hb_off {
-            self.rack.drives()[second].set_heartbeat_off(true);
-            self.hb_off = true;
+        let hb_lost = self.faults.heartbeat_lost.load(Ordering::Relaxed);
+        if hb_lost != self.hb_off {
+            self.rack.drives()[second].set_heartbeat_off(hb_lost);
+            self.hb_off = hb_lost;
         }
         if self.faults.drive_power_cycle.swap(false, Ordering::Relaxed) {
             self.rack.drives()[second].power_cycle();

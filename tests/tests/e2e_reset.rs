@@ -219,6 +219,26 @@ fn bus_off_then_reset() {
     reset_and_move(&r);
 }
 
+/// A drive that is away (heartbeat lost) cannot be brought back: the reset says which, after
+/// `motion.enable_timeout_s`; once its heartbeat is back the master configures it again and
+/// the next reset succeeds.
+#[test]
+fn heartbeat_lost_reset_refused_until_the_drive_is_back() {
+    let r = rig();
+    r.faults.heartbeat_lost.store(true, Ordering::Relaxed);
+    expect_reaction(&r, |c| c == Cause::HeartbeatLost { node: 2 }, Reaction::QuickStop);
+    ctl(&r, "reset");
+    let l = wait(&r, Duration::from_secs(30), "refusal", |l| matches!(l.snap.last_reset, Some(ResetOutcome::Refused(_))));
+    let Some(ResetOutcome::Refused(why)) = l.snap.last_reset else { unreachable!() };
+    assert_eq!(why, ResetRefusal::NotOperational { cable: 1, node: 2 });
+    assert_eq!(l.snap.state, State::Faulted);
+    assert_eq!(l.snap.fault.map(|f| f.0), Some(Cause::HeartbeatLost { node: 2 }));
+    assert_eq!(l.snap.inputs.drive[1], taut_rt_core::io::DriveStatus::Unknown);
+    r.faults.heartbeat_lost.store(false, Ordering::Relaxed);
+    wait(&r, Duration::from_secs(20), "drive back", |l| l.snap.inputs.drive[1] != taut_rt_core::io::DriveStatus::Unknown);
+    reset_and_move(&r);
+}
+
 #[test]
 fn a_reset_that_cannot_succeed_says_why_and_stays_safe() {
     let r = rig();
