@@ -1,7 +1,7 @@
 //! SocketCAN (Linux) through the `socketcan` crate: real adapters (`can0`) and `vcan`.
 //!
 //! Frames are read and written as the kernel's `struct can_frame` bytes through
-//! [`kernel`](super::kernel), the parser the virtual bus shares. The socket is non-blocking;
+//! [`kernel`], the parser the virtual bus shares. The socket is non-blocking;
 //! [`CanTransport::recv_deadline`] waits in `poll(2)`. Error frames are enabled
 //! (`CAN_RAW_ERR_FILTER` = all classes), so bus-off, error-passive, overflows and controller
 //! restarts come back as [`TransportError::Bus`] events instead of silence.
