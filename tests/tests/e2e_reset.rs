@@ -227,6 +227,13 @@ fn heartbeat_lost_reset_refused_until_the_drive_is_back() {
     let r = rig();
     r.faults.heartbeat_lost.store(true, Ordering::Relaxed);
     expect_reaction(&r, |c| c == Cause::HeartbeatLost { node: 2 }, Reaction::QuickStop);
+    // The reaction reaches the drives that can be reached while node 2 is away.
+    let l = r.d.loop_status();
+    use taut_rt_core::io::DriveStatus;
+    assert_eq!(l.snap.inputs.drive[1], DriveStatus::Unknown);
+    for j in [0, 2, 3] {
+        assert_eq!(l.snap.inputs.drive[j], DriveStatus::QuickStop, "cable {j}: {:?}", &l.snap.inputs.drive[..4]);
+    }
     ctl(&r, "reset");
     let l = wait(&r, Duration::from_secs(30), "refusal", |l| matches!(l.snap.last_reset, Some(ResetOutcome::Refused(_))));
     let Some(ResetOutcome::Refused(why)) = l.snap.last_reset else { unreachable!() };
