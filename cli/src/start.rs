@@ -266,7 +266,14 @@ fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
 fn progress_line(l: &LoopStatus, c: &CalibStatus) -> String {
     let phase = if l.snap.phase >= 0 { format!(" {}", l.snap.phase) } else { String::new() };
     let fault = l.snap.fault.map_or(String::new(), |(cause, r)| format!(" [{}: {}]", r.name(), cause));
-    format!("state {}{phase}; calibrator {}; params v{}{fault}", l.snap.state.name(), c.stage, l.snap.params_version)
+    // Bus trouble and recoveries are reported as they happen (the reaction is in `fault`).
+    let b = &l.snap.inputs.bus;
+    let bus = if b.state != taut_rt_core::io::BusState::Active || b.recoveries > 0 {
+        format!("; {} {} ({} recoveries)", b.iface, b.state.name(), b.recoveries)
+    } else {
+        String::new()
+    };
+    format!("state {}{phase}; calibrator {}; params v{}{fault}{bus}", l.snap.state.name(), c.stage, l.snap.params_version)
 }
 
 #[cfg(test)]

@@ -22,7 +22,7 @@
 //! [`Urgent`] flags.
 
 use crate::calibrator::{OutcomeKind, SharedCalibStatus};
-use crate::motion::{Command, State};
+use crate::motion::{Command, ResetOutcome, State};
 use crate::runner::LoopStatus;
 use crate::triple::Reader;
 use crate::urgent::Urgent;
@@ -69,9 +69,18 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
             })
         })
         .collect();
+    let reset = s.last_reset.map(|r| match r {
+        ResetOutcome::InProgress => json!({"outcome": "in-progress"}),
+        ResetOutcome::Done => json!({"outcome": "done"}),
+        ResetOutcome::Refused(why) => json!({"outcome": "refused", "message": why.to_string()}),
+    });
+    let bus = &s.inputs.bus;
     json!({
         "ok": true,
         "t_s": s.t,
+        "reset": {"last": reset, "resets": s.resets, "reenable_step_m": s.reenable_step_m},
+        "bus": {"iface": bus.iface.as_str(), "state": bus.state.name(), "last": bus.last.map(|e| e.to_string()),
+                "events": bus.events, "recoveries": bus.recoveries},
         "state": s.state.name(),
         "phase": s.phase,
         "phases_completed": s.phases_completed,

@@ -5,6 +5,7 @@
 //! place and never allocates.
 
 use crate::MAX_CABLES;
+pub use taut_driver::transport::{BusEvent, IfName};
 
 /// State of one drive as the loop needs it (collapsed from the CiA 402 state machine).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -38,8 +39,78 @@ pub enum DeviceFault {
         /// CANopen node id.
         node: u8,
     },
-    /// The CAN controller went bus-off.
-    BusOff,
+    /// A configured drive booted again (power cycle, watchdog): it was configured again and
+    /// comes back disabled.
+    Rebooted {
+        /// CANopen node id.
+        node: u8,
+    },
+    /// The CAN interface reported a problem the loop reacts to (bus-off, error-passive,
+    /// frames lost, transceiver fault; see [`bus_event_is_fault`]).
+    Bus {
+        /// The interface.
+        iface: IfName,
+        /// What it reported.
+        event: BusEvent,
+    },
+}
+
+/// Whether a bus event is a fault for the loop. Bus-off (nothing gets through), error-passive
+/// (error counter above 127: the next step is bus-off), controller buffer overflows (frames were
+/// lost) and transceiver faults are. Error-warning, single protocol errors, missing ACKs, TX
+/// timeouts and lost arbitration are counted in [`BusStatus`] only: they happen on healthy
+/// buses, and their consequences (stale TPDOs, lost heartbeats) have causes of their own.
+pub fn bus_event_is_fault(e: BusEvent) -> bool {
+    matches!(e, BusEvent::BusOff | BusEvent::ErrorPassive { .. } | BusEvent::Overflow | BusEvent::Transceiver)
+}
+
+/// Error state of the CAN controller (CAN 2.0 fault confinement).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
+#[repr(u8)]
+pub enum BusState {
+    /// Error-active: normal.
+    #[default]
+    Active = 0,
+    /// An error counter above 96.
+    Warning = 1,
+    /// An error counter above 127.
+    Passive = 2,
+    /// Bus-off (or the interface is gone): nothing is sent or received until a restart.
+    Off = 3,
+}
+
+impl BusState {
+    /// Lower-case name for status output.
+    pub fn name(self) -> &'static str {
+        match self {
+            BusState::Active => "error-active",
+            BusState::Warning => "error-warning",
+            BusState::Passive => "error-passive",
+            BusState::Off => "bus-off",
+        }
+    }
+}
+
+/// The CAN bus as the loop sees it: the controller's error state and what it reported.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BusStatus {
+    /// The interface.
+    pub iface: IfName,
+    /// Error state now.
+    pub state: BusState,
+    /// The last event the interface reported.
+    pub last: Option<BusEvent>,
+    /// Events (error frames) reported so far.
+    pub events: u32,
+    /// Times the bus came back: restarted after bus-off, or back to error-active after
+    /// error-passive.
+    pub recoveries: u32,
+}
+
+impl Default for BusStatus {
+    fn default() -> Self {
+        BusStatus { iface: IfName::new("can"), state: BusState::Active, last: None, events: 0, recoveries: 0 }
+    }
 }
 
 /// What the devices delivered for one cycle. Ages are seconds since the value was measured;
@@ -64,6 +135,8 @@ pub struct Inputs {
     pub pose_age_s: f64,
     /// A device problem seen this cycle (the first one, if several).
     pub fault: Option<DeviceFault>,
+    /// The CAN bus.
+    pub bus: BusStatus,
 }
 
 impl Inputs {
@@ -80,6 +153,7 @@ impl Inputs {
             pose_m: [f64::NAN; 3],
             pose_age_s: f64::INFINITY,
             fault: None,
+            bus: BusStatus::default(),
         }
     }
 }
@@ -106,6 +180,9 @@ pub enum DriveRequest {
     Enable,
     /// CiA 402 quick stop.
     QuickStop,
+    /// Operator reset: a fault reset (rising edge of controlword bit 7, CiA 402 6.3.1) for
+    /// every drive in fault; the others stay as they are (disabled or in quick stop).
+    FaultReset,
 }
 
 /// What the loop writes each cycle.

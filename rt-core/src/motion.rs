@@ -4,9 +4,20 @@
 //! Idle -> Enabling -> InitPhase 0 -> 1 -> 2 -> AwaitInitial -> Excitation -> Operate
 //!                                                                  ^            |  recalibrate
 //!                                                                  +------------+
-//! any state --(cause)--> Faulted {hold | quick stop | disable}  --reset--> Holding
+//! any state --(cause)--> Faulted {hold | quick stop | disable}
+//! Faulted --reset--> Resetting --(drives operational, faults reset, all enabled)--> Holding
+//!                       └──(bus off, a drive still in fault / away / not enabled in time,
+//!                           a new cause)--> Faulted, the refusal in `last_reset`
 //! any state --stop--> Stopped
 //! ```
+//!
+//! A reset is the only way out of a latched reaction, and it happens only on the operator's
+//! request ([`Command::Reset`], `taut ctl reset`): the drives' faults are reset (CiA 402 fault
+//! reset), rebooted drives (configured again by the master) and stopped ones are enabled again,
+//! and each cable is held where its drive stands when it comes back, so nothing jumps; the
+//! parameters in use are not touched. [`Snapshot::reenable_step_m`] is the largest per-cycle
+//! change of a commanded length from the reset on (the first step measured from where the
+//! drive stood), until the operator moves the robot again.
 //!
 //! In each initialisation phase two cables hold their length in position mode, one is reeled by
 //! `motion.init_reel_m` at `motion.init_reel_speed_m_s` and back, and every other cable follows in
@@ -18,7 +29,7 @@
 //!
 //! Everything here is fixed size; `update` never allocates.
 
-use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Inputs, Outputs};
+use crate::io::{BusState, CableCommand, DeviceFault, DriveRequest, DriveStatus, Inputs, Outputs};
 use crate::kin::LoopParams;
 use crate::ramp::Ramp;
 use crate::safety::{Cause, Reaction};
@@ -50,6 +61,8 @@ pub enum State {
     Faulted = 7,
     /// Stopped by the operator; the loop ends.
     Stopped = 8,
+    /// Bringing the drives back after a latched reaction, on the operator's reset.
+    Resetting = 9,
 }
 
 impl State {
@@ -64,6 +77,7 @@ impl State {
             6 => State::Holding,
             7 => State::Faulted,
             8 => State::Stopped,
+            9 => State::Resetting,
             _ => State::Idle,
         }
     }
@@ -80,6 +94,7 @@ impl State {
             State::Holding => "holding",
             State::Faulted => "faulted",
             State::Stopped => "stopped",
+            State::Resetting => "resetting",
         }
     }
 }
@@ -93,10 +108,83 @@ pub enum Command {
     Stop,
     /// Run the excitation again; the calibrator recalibrates from it.
     Recalibrate,
-    /// Clear a latched safety reaction and hold.
+    /// Clear a latched safety reaction: reset drive faults, enable the drives again and hold
+    /// where they stand (see the module documentation).
     Reset,
     /// Move the platform to this position, m (in operate or holding).
     MoveTo([f64; 3]),
+}
+
+/// Why a reset did not bring the robot back. The reaction stays latched.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ResetRefusal {
+    /// There is no latched reaction to reset.
+    NothingToReset,
+    /// The CAN bus is still off: nothing can reach the drives.
+    BusOff {
+        /// The interface.
+        iface: crate::io::IfName,
+    },
+    /// A drive did not come back to NMT operational in time (still rebooting or lost).
+    NotOperational {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+    },
+    /// A drive is still in fault after the fault reset: its cause is still there.
+    StillInFault {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+        /// The last EMCY code it sent (0: none seen).
+        code: u16,
+    },
+    /// A drive did not reach "operation enabled" in time.
+    NotEnabled {
+        /// Cable.
+        cable: u8,
+        /// CANopen node id.
+        node: u8,
+    },
+    /// A new cause appeared during the reset.
+    NewCause(Cause),
+}
+
+impl std::fmt::Display for ResetRefusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            ResetRefusal::NothingToReset => write!(f, "nothing to reset: no safety reaction is latched"),
+            ResetRefusal::BusOff { iface } => write!(
+                f,
+                "{iface} is still bus-off: fix the bus (wiring, termination, bitrate), let the controller restart (restart-ms), then reset again"
+            ),
+            ResetRefusal::NotOperational { cable, node } => write!(
+                f,
+                "drive node {node} (cable {cable}) is not operational: it is still booting or being configured, or its heartbeat is lost; check its power and CAN cable, then reset again"
+            ),
+            ResetRefusal::StillInFault { cable, node, code } => write!(
+                f,
+                "drive node {node} (cable {cable}) is still in fault after a fault reset (last EMCY 0x{code:04X}): its cause is still present; see the drive's error, then reset again"
+            ),
+            ResetRefusal::NotEnabled { cable, node } => {
+                write!(f, "drive node {node} (cable {cable}) did not reach operation enabled within motion.enable_timeout_s")
+            }
+            ResetRefusal::NewCause(c) => write!(f, "a new cause during the reset: {c}"),
+        }
+    }
+}
+
+/// What became of the last [`Command::Reset`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ResetOutcome {
+    /// Under way.
+    InProgress,
+    /// The robot is back, holding.
+    Done,
+    /// Refused; the reaction stays latched.
+    Refused(ResetRefusal),
 }
 
 /// The numbers the controller needs, resolved from the configuration at start-up.
@@ -260,6 +348,13 @@ pub struct Snapshot {
     pub inputs: Inputs,
     /// Latest commanded lengths (position mode cables), m.
     pub cmd_m: [f64; MAX_CABLES],
+    /// The last reset and how it ended.
+    pub last_reset: Option<ResetOutcome>,
+    /// Resets that brought the robot back.
+    pub resets: u32,
+    /// Largest per-cycle change of a commanded length since the last reset, m (see the module
+    /// documentation).
+    pub reenable_step_m: f64,
 }
 
 /// The motion state machine and safety checks.
@@ -297,6 +392,39 @@ pub struct Controller {
     awaited_version: u64,
     stop_cycles: u32,
     urgent: Option<Arc<Urgent>>,
+    reset: ResetRun,
+}
+
+/// The bookkeeping of the operator's reset.
+#[derive(Debug, Clone, Copy)]
+struct ResetRun {
+    last: Option<ResetOutcome>,
+    done: u32,
+    /// Faults have been reset; the drives are being enabled.
+    enabling: bool,
+    /// Cable's drive has been seen enabled during this reset (its hold length is fixed then).
+    back: [bool; MAX_CABLES],
+    /// Last EMCY code per cable.
+    emcy: [u16; MAX_CABLES],
+    /// Step measurement: the previous command per cable (NaN: not measured).
+    prev: [f64; MAX_CABLES],
+    measuring: bool,
+    max_step_m: f64,
+}
+
+impl ResetRun {
+    fn new() -> Self {
+        ResetRun {
+            last: None,
+            done: 0,
+            enabling: false,
+            back: [false; MAX_CABLES],
+            emcy: [0; MAX_CABLES],
+            prev: [f64::NAN; MAX_CABLES],
+            measuring: false,
+            max_step_m: 0.0,
+        }
+    }
 }
 
 const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
@@ -355,6 +483,7 @@ impl Controller {
             swaps: 0,
             awaited_version: 0,
             stop_cycles: 0,
+            reset: ResetRun::new(),
             urgent: None,
         }
     }
@@ -448,6 +577,9 @@ impl Controller {
             target_m: self.target,
             inputs: *inputs,
             cmd_m: self.cmd,
+            last_reset: self.reset.last,
+            resets: self.reset.done,
+            reenable_step_m: self.reset.max_step_m,
         }
     }
 
@@ -463,6 +595,13 @@ impl Controller {
         let reaction = cause.reaction();
         if self.state == State::Stopped {
             return;
+        }
+        // Commands come from the reaction now, not from the re-enable.
+        self.reset.measuring = false;
+        if self.state == State::Resetting {
+            // The reset is over: the reaction comes back, the worse of the two.
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::NewCause(cause)));
+            self.enter(State::Faulted, now);
         }
         match self.fault {
             Some((_, r)) if r >= reaction => return,
@@ -499,18 +638,15 @@ impl Controller {
             }
             Command::Recalibrate => {
                 if matches!(self.state, State::Operate | State::Holding) && self.params.valid && self.fault.is_none() {
+                    self.reset.measuring = false;
                     self.run = self.run.wrapping_add(1);
                     self.start_excitation(inp, now);
                 }
             }
-            Command::Reset => {
-                if self.state == State::Faulted {
-                    self.fault = None;
-                    self.hold_here(inp);
-                    self.enter(State::Holding, now);
-                }
-            }
+            Command::Reset => self.start_reset(inp, now),
             Command::MoveTo(p) => {
+                // The operator moves the robot: the re-enable is over.
+                self.reset.measuring = false;
                 let inside = (0..3).all(|i| p[i] >= self.cfg.workspace[0][i] && p[i] <= self.cfg.workspace[1][i]);
                 if !inside || !self.params.valid {
                     return;
@@ -741,6 +877,17 @@ impl Controller {
                     modes[j] = self.hold_mode(j, next[j]);
                 }
             }
+            State::Resetting => {
+                out.request = self.step_reset(inp, now);
+                for j in 0..n {
+                    // Position mode where the drive stands while it comes back, then at the
+                    // length fixed when it was back; the followers go back to torque mode in
+                    // Holding, once every drive is enabled.
+                    let here = inp.length_m[j];
+                    next[j] = if self.reset.back[j] || !here.is_finite() { self.hold_m[j] } else { here };
+                    modes[j] = CableCommand::Position(next[j]);
+                }
+            }
             State::Faulted => {
                 let reaction = self.fault.map_or(Reaction::Hold, |f| f.1);
                 out.request = match reaction {
@@ -797,10 +944,127 @@ impl Controller {
                 }
             }
         }
+        if self.reset.measuring {
+            self.measure_reenable_step(inp, &next, &modes);
+        }
         self.cmd = next;
         self.cmd_valid = (0..n).all(|j| next[j].is_finite());
         out.n = n;
         out.cable = modes;
+    }
+
+    /// The operator's reset: checks what can be checked at once, then runs
+    /// [`step_reset`](Self::step_reset) each cycle.
+    fn start_reset(&mut self, inp: &Inputs, now: f64) {
+        if self.state == State::Resetting {
+            return; // already under way
+        }
+        if self.state != State::Faulted || self.fault.is_none() {
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::NothingToReset));
+            return;
+        }
+        if inp.bus.state == BusState::Off {
+            self.reset.last = Some(ResetOutcome::Refused(ResetRefusal::BusOff { iface: inp.bus.iface }));
+            return;
+        }
+        self.reset.last = Some(ResetOutcome::InProgress);
+        self.reset.enabling = false;
+        self.reset.measuring = true;
+        self.reset.max_step_m = 0.0;
+        for j in 0..self.cfg.n {
+            // A drive that stayed enabled (hold reaction) keeps its command; the others are
+            // measured from where they stand once they are back.
+            let on = inp.drive[j] == DriveStatus::Enabled;
+            self.reset.back[j] = on;
+            self.reset.prev[j] = if on { self.cmd[j] } else { f64::NAN };
+        }
+        self.transfer.cancel();
+        self.swap.cancel();
+        self.enter(State::Resetting, now);
+    }
+
+    /// One cycle of the reset: the request to the drives. Stage 1 resets the faults of drives
+    /// in fault (and waits for rebooted ones to be operational again); stage 2 enables every
+    /// drive and fixes each cable's hold length at the first cycle its drive is enabled.
+    fn step_reset(&mut self, inp: &Inputs, now: f64) -> DriveRequest {
+        let n = self.cfg.n;
+        let waited = now - self.state_t0 > self.cfg.enable_timeout_s;
+        let node = |j: usize| self.cfg.node_ids[j];
+        if inp.bus.state == BusState::Off {
+            self.refuse_reset(ResetRefusal::BusOff { iface: inp.bus.iface }, now);
+            return DriveRequest::Disable;
+        }
+        if !self.reset.enabling {
+            let away = (0..n).find(|&j| inp.drive[j] == DriveStatus::Unknown);
+            let faulted = (0..n).find(|&j| inp.drive[j] == DriveStatus::Fault);
+            match (away, faulted) {
+                (None, None) => self.reset.enabling = true,
+                (Some(j), _) if waited => {
+                    self.refuse_reset(ResetRefusal::NotOperational { cable: j as u8, node: node(j) }, now);
+                    return DriveRequest::Disable;
+                }
+                (None, Some(j)) if waited => {
+                    let code = self.reset.emcy[j];
+                    self.refuse_reset(ResetRefusal::StillInFault { cable: j as u8, node: node(j), code }, now);
+                    return DriveRequest::Disable;
+                }
+                _ => return DriveRequest::FaultReset,
+            }
+        }
+        for j in 0..n {
+            if !self.reset.back[j] && inp.drive[j] == DriveStatus::Enabled {
+                // Back: hold where it stands (its target is its position when it enables).
+                self.reset.back[j] = true;
+                if inp.length_m[j].is_finite() {
+                    self.hold_m[j] = inp.length_m[j];
+                }
+            }
+        }
+        match (0..n).find(|&j| !self.reset.back[j] || inp.drive[j] != DriveStatus::Enabled) {
+            None => {
+                self.fault = None;
+                self.reset.last = Some(ResetOutcome::Done);
+                self.reset.done += 1;
+                self.enter(State::Holding, now);
+            }
+            Some(j) if waited => {
+                let why = match inp.drive[j] {
+                    DriveStatus::Unknown => ResetRefusal::NotOperational { cable: j as u8, node: node(j) },
+                    DriveStatus::Fault => ResetRefusal::StillInFault { cable: j as u8, node: node(j), code: self.reset.emcy[j] },
+                    _ => ResetRefusal::NotEnabled { cable: j as u8, node: node(j) },
+                };
+                self.refuse_reset(why, now);
+                return DriveRequest::Disable;
+            }
+            Some(_) => {}
+        }
+        DriveRequest::Enable
+    }
+
+    /// The reset did not succeed: back to the latched reaction, with the reason.
+    fn refuse_reset(&mut self, why: ResetRefusal, now: f64) {
+        self.reset.last = Some(ResetOutcome::Refused(why));
+        self.reset.measuring = false;
+        self.enter(State::Faulted, now);
+    }
+
+    /// Per-cycle step of the position commands after a reset: from the command before, or for
+    /// a drive just back, from where it stands.
+    fn measure_reenable_step(&mut self, inp: &Inputs, next: &[f64; MAX_CABLES], modes: &[CableCommand; MAX_CABLES]) {
+        for j in 0..self.cfg.n {
+            let positional = matches!(modes[j], CableCommand::Position(_));
+            if !positional || inp.drive[j] != DriveStatus::Enabled {
+                // Not commanded in position (refused while not enabled; followers in torque).
+                self.reset.prev[j] = f64::NAN;
+                continue;
+            }
+            let prev = if self.reset.prev[j].is_finite() { self.reset.prev[j] } else { inp.length_m[j] };
+            let step = (next[j] - prev).abs();
+            if step.is_finite() {
+                self.reset.max_step_m = self.reset.max_step_m.max(step);
+            }
+            self.reset.prev[j] = next[j];
+        }
     }
 
     /// Holding: position mode at `len`, except the redundant cables, which keep their tension
@@ -838,9 +1102,15 @@ impl Controller {
     fn check_devices(&mut self, inp: &Inputs, now: f64) {
         if let Some(f) = inp.fault {
             let cause = match f {
-                DeviceFault::Emcy { node, code } => Cause::DriveFault { node, code },
+                DeviceFault::Emcy { node, code } => {
+                    if let Some(j) = (0..self.cfg.n).find(|&j| self.cfg.node_ids[j] == node) {
+                        self.reset.emcy[j] = code;
+                    }
+                    Cause::DriveFault { node, code }
+                }
                 DeviceFault::HeartbeatLost { node } => Cause::HeartbeatLost { node },
-                DeviceFault::BusOff => Cause::BusOff,
+                DeviceFault::Rebooted { node } => Cause::DriveRebooted { node },
+                DeviceFault::Bus { iface, event } => Cause::Bus { iface, event },
             };
             if self.state != State::Idle {
                 self.latch(cause, inp, now);
@@ -963,5 +1233,57 @@ mod tests {
         step(&mut c, 1);
         let (cause, _) = c.controller.fault().expect("a loose reeled cable latches");
         assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
+    }
+
+    /// A drum that turned while the drives were stopped (a quick stop's ramp, a brake that
+    /// slipped): after the reset the cable is held where it now stands, not where it was when
+    /// the reaction latched.
+    #[test]
+    fn a_reset_holds_where_the_drives_stand_now() {
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
+        let mut cfg = quick_config(4, &std::env::temp_dir());
+        cfg.safety.tension_max_age_s = 5.0;
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+        let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+        let (sample_tx, _sample_rx) = sample_ring(64);
+        let robot = KinematicRobot::new(truth_params(4, 0.1), [0.2, 0.1, 2.0]);
+        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
+        let mut t = 0.0;
+        let mut step = |c: &mut LoopCore<KinematicRobot>, k: usize| {
+            for _ in 0..k {
+                t += 0.002;
+                c.cycle(t, 0.002);
+            }
+        };
+        step(&mut c, 300);
+        assert_eq!(c.controller.state(), State::InitPhase, "{:?}", c.controller.fault());
+        cmd_tx.send(Command::Estop).unwrap();
+        step(&mut c, 10);
+        assert_eq!(c.controller.fault().map(|f| f.1), Some(Reaction::QuickStop));
+        // The drum of cable 0 turns by 5 mm while the drives are stopped.
+        c.devices.len[0] += 0.005;
+        let moved = c.devices.len[0];
+        step(&mut c, 10);
+        // A reset that is not asked for does not happen.
+        assert_eq!(c.controller.state(), State::Faulted);
+        cmd_tx.send(Command::Reset).unwrap();
+        step(&mut c, 20);
+        assert_eq!(c.controller.state(), State::Holding, "{:?}", c.controller.snapshot(0.0, &c.inputs).last_reset);
+        let s = c.controller.snapshot(0.0, &c.inputs);
+        assert_eq!(s.last_reset, Some(ResetOutcome::Done));
+        assert_eq!(s.resets, 1);
+        // (The stand-in robot re-levels the platform over the four cables when they are
+        // enabled, so cable 0 ends a little short of `moved`; what matters is that it is not
+        // pulled back the 5 mm to where it was when the reaction latched.)
+        let latched = moved - 0.005;
+        assert!((s.cmd_m[0] - latched).abs() > 0.003, "held at {} m, the stale {latched} m, the drum at {moved} m", s.cmd_m[0]);
+        assert!((s.cmd_m[0] - s.inputs.length_m[0]).abs() < 1e-9, "holds where it stands");
+        assert!(s.reenable_step_m < 1e-6, "step {} m", s.reenable_step_m);
+        // A second reset with nothing latched is refused with the reason.
+        cmd_tx.send(Command::Reset).unwrap();
+        step(&mut c, 2);
+        let s = c.controller.snapshot(0.0, &c.inputs);
+        assert_eq!(s.last_reset, Some(ResetOutcome::Refused(ResetRefusal::NothingToReset)));
+        assert_eq!(s.state, State::Holding);
     }
 }

@@ -20,7 +20,7 @@
 //! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
 //! (`heapless`), frames are `Copy`, readers are lock-free.
 
-use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
 use crate::MAX_CABLES;
 use std::fmt;
 use std::time::{Duration, Instant};
@@ -124,7 +124,15 @@ pub struct RobotDevices<T: CanTransport> {
     /// Loop time 0 on the wall clock (set at the first read).
     epoch: Option<Instant>,
     transport_errors: u64,
-    bus_off: bool,
+    /// The bus as the interface reported it.
+    bus_status: BusStatus,
+    /// A bus event that is a fault, not yet handed to the loop.
+    bus_fault: Option<DeviceFault>,
+    /// The request of the last write (a fault reset is sent once per reset request).
+    last_request: DriveRequest,
+    /// A fault reset asked for and not yet handed to the drives (they were not all
+    /// operational).
+    fault_reset_pending: bool,
     /// When the last SYNC went out: the drives latch their actual values at SYNC, so the
     /// TPDOs that answer it carry values of that instant.
     last_sync: Option<Instant>,
@@ -164,6 +172,7 @@ impl<T: CanTransport> RobotDevices<T> {
         let set = DriveSet::new(bus, mcfg);
         let set = set.bring_up().map_err(|r| err("can", format!("drive bring-up failed: {}", r.error)))?;
         let (bus, master) = set.into_parts();
+        let bus_iface = bus.iface();
         Ok(RobotDevices {
             bus,
             master,
@@ -176,7 +185,10 @@ impl<T: CanTransport> RobotDevices<T> {
             pose: peripherals.pose,
             epoch: None,
             transport_errors: 0,
-            bus_off: false,
+            bus_status: BusStatus { iface: bus_iface, ..BusStatus::default() },
+            bus_fault: None,
+            last_request: DriveRequest::Disable,
+            fault_reset_pending: false,
             last_sync: None,
         })
     }
@@ -192,20 +204,56 @@ impl<T: CanTransport> RobotDevices<T> {
         self.transport_errors
     }
 
+    /// The CAN bus as the interface reported it.
+    pub fn bus(&self) -> BusStatus {
+        self.bus_status
+    }
+
+    /// Tracks the controller's error state from its error frames; keeps the first fault for
+    /// the next read.
+    fn on_bus_event(&mut self, e: BusEvent) {
+        self.master.on_bus_event(e);
+        let b = &mut self.bus_status;
+        b.events = b.events.saturating_add(1);
+        b.last = Some(e);
+        let was = b.state;
+        b.state = match e {
+            BusEvent::BusOff => BusState::Off,
+            // A restarted controller starts error-active with its counters at 0.
+            BusEvent::Restarted | BusEvent::ErrorActive => BusState::Active,
+            // Error frames of a controller that is off are stale reports: it stays off.
+            _ if was == BusState::Off => BusState::Off,
+            BusEvent::ErrorPassive { .. } => BusState::Passive,
+            BusEvent::ErrorWarning { .. } => BusState::Warning,
+            _ => was,
+        };
+        if b.state == BusState::Active && was >= BusState::Passive {
+            b.recoveries = b.recoveries.saturating_add(1);
+        }
+        if bus_event_is_fault(e) && self.bus_fault.is_none() {
+            self.bus_fault = Some(DeviceFault::Bus { iface: b.iface, event: e });
+        }
+    }
+
+    /// The interface is gone (unplugged USB adapter, interface down): for the loop that is a
+    /// bus-off, and it stays off (no restart will be reported).
+    fn on_transport_gone(&mut self) {
+        self.transport_errors += 1;
+        if self.bus_status.state != BusState::Off {
+            self.on_bus_event(BusEvent::BusOff);
+        }
+    }
+
     fn drain(&mut self, wall: Instant) {
         loop {
             match self.bus.try_recv() {
                 Ok(Some(f)) => self.master.on_frame(&f, wall),
                 Ok(None) => return,
-                Err(TransportError::Bus(b)) => self.master.on_bus_event(b),
+                Err(TransportError::Bus(b)) => self.on_bus_event(b),
                 Err(TransportError::Full(_)) => {}
-                Err(TransportError::Closed | TransportError::Io(_)) => {
-                    // The interface is gone (unplugged USB adapter, interface down): for the
-                    // loop that is a bus-off.
-                    self.transport_errors += 1;
-                    self.bus_off = true;
-                    return;
-                }
+                // Bytes that are no CAN frame: counted, the bus goes on.
+                Err(TransportError::Io(std::io::ErrorKind::InvalidData)) => self.transport_errors += 1,
+                Err(TransportError::Closed | TransportError::Io(_)) => return self.on_transport_gone(),
             }
         }
     }
@@ -214,11 +262,8 @@ impl<T: CanTransport> RobotDevices<T> {
         while let Some(f) = self.master.poll_tx() {
             match self.bus.send(&f) {
                 Ok(()) | Err(TransportError::Full(_)) => {}
-                Err(TransportError::Bus(b)) => self.master.on_bus_event(b),
-                Err(TransportError::Closed | TransportError::Io(_)) => {
-                    self.transport_errors += 1;
-                    self.bus_off = true;
-                }
+                Err(TransportError::Bus(b)) => self.on_bus_event(b),
+                Err(TransportError::Closed | TransportError::Io(_)) => self.on_transport_gone(),
             }
         }
     }
@@ -239,22 +284,23 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         let wall = Instant::now();
         let epoch = *self.epoch.get_or_insert_with(|| wall - Duration::from_secs_f64(now_s.max(0.0)));
         self.drain(wall);
-        inp.fault = None;
+        inp.fault = self.bus_fault.take();
         while let Some(e) = self.master.poll_event() {
             let f = match e {
                 // "Error reset / no error" (0x0000) clears, it does not fault.
                 Event::Emergency { node, emcy } if emcy.code != 0 => Some(DeviceFault::Emcy { node, code: emcy.code }),
-                Event::HeartbeatLost { node } | Event::Rebooted { node } => Some(DeviceFault::HeartbeatLost { node }),
-                Event::Bus(BusEvent::BusOff) => Some(DeviceFault::BusOff),
+                Event::HeartbeatLost { node } => Some(DeviceFault::HeartbeatLost { node }),
+                Event::Rebooted { node } => Some(DeviceFault::Rebooted { node }),
                 _ => None,
             };
             if inp.fault.is_none() {
                 inp.fault = f;
             }
         }
-        if self.bus_off && inp.fault.is_none() {
-            inp.fault = Some(DeviceFault::BusOff);
+        if self.bus_status.state == BusState::Off && inp.fault.is_none() {
+            inp.fault = Some(DeviceFault::Bus { iface: self.bus_status.iface, event: BusEvent::BusOff });
         }
+        inp.bus = self.bus_status;
         if let Some((_, r)) = &mut self.loadcells {
             r.update();
         }
@@ -306,6 +352,16 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
 
     fn write(&mut self, _now_s: f64, out: &Outputs) {
         let wall = Instant::now();
+        if out.request == DriveRequest::FaultReset && self.last_request != DriveRequest::FaultReset {
+            // One fault reset per operator request: the rising edge of bit 7 goes out once
+            // (the master holds it until the drive leaves FAULT or gives up).
+            self.fault_reset_pending = true;
+        }
+        self.last_request = out.request;
+        if !self.master.all_operational() && matches!(out.request, DriveRequest::QuickStop | DriveRequest::Disable) {
+            // A drive is away (rebooting, lost): stop the others anyway.
+            self.master.stop_reachable(out.request == DriveRequest::QuickStop);
+        }
         if let Some(mut op) = self.master.operational() {
             for j in 0..self.n.min(out.n) {
                 let Some(i) = self.drive[j] else { continue };
@@ -317,6 +373,12 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                     }
                     DriveRequest::QuickStop => {
                         let _ = op.quick_stop(i);
+                    }
+                    DriveRequest::FaultReset => {
+                        // Only drives in fault (the master ignores the others).
+                        if self.fault_reset_pending {
+                            let _ = op.fault_reset(i);
+                        }
                     }
                     DriveRequest::Enable => {
                         let _ = op.enable(i);
@@ -336,6 +398,11 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                     }
                 }
             }
+        }
+        // Handed over once every drive could take it: all operational, none still braking in
+        // "fault reaction active" (it takes a fault reset only once in FAULT).
+        if self.fault_reset_pending && self.master.all_operational() && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive)) {
+            self.fault_reset_pending = false;
         }
         self.master.poll_timers(wall);
         self.master.sync_cycle();

@@ -10,9 +10,18 @@
 //! | drive enable timeout           | disable    |
 //! | drive EMCY / drive in fault    | quick stop |
 //! | lost heartbeat                 | quick stop |
-//! | bus-off                        | disable    |
+//! | drive rebooted                 | quick stop |
+//! | CAN bus-off                    | disable    |
+//! | CAN error-passive, overflow,   | hold       |
+//! | transceiver fault              |            |
 //! | operator estop                 | quick stop |
+//!
+//! A CAN cause names the interface ("can0: bus-off"). Bus-off disables: the drives cannot be
+//! reached, and once the bus is back nothing may move before the operator says so. The milder
+//! bus problems hold: the bus still works but is degraded, so motion stops while the drives stay
+//! enabled and keep the platform where it is.
 
+use crate::io::{BusEvent, IfName};
 use std::fmt;
 
 /// What the loop does about a cause. Ordered: a worse reaction replaces a milder one.
@@ -88,8 +97,18 @@ pub enum Cause {
         /// CANopen node id.
         node: u8,
     },
-    /// The CAN controller went bus-off.
-    BusOff,
+    /// A drive booted again (power cycle, watchdog) and came back disabled.
+    DriveRebooted {
+        /// CANopen node id.
+        node: u8,
+    },
+    /// The CAN interface reported a problem: bus-off, error-passive, frames lost, transceiver.
+    Bus {
+        /// The interface.
+        iface: IfName,
+        /// What it reported.
+        event: BusEvent,
+    },
     /// The operator asked for an emergency stop.
     Estop,
 }
@@ -104,8 +123,12 @@ impl Cause {
             | Cause::TrackerStale
             | Cause::SpeedLimit { .. }
             | Cause::Workspace => Reaction::Hold,
-            Cause::DriveFault { .. } | Cause::HeartbeatLost { .. } | Cause::Estop => Reaction::QuickStop,
-            Cause::EnableTimeout { .. } | Cause::BusOff => Reaction::Disable,
+            Cause::DriveFault { .. } | Cause::HeartbeatLost { .. } | Cause::DriveRebooted { .. } | Cause::Estop => {
+                Reaction::QuickStop
+            }
+            Cause::Bus { event: BusEvent::BusOff, .. } => Reaction::Disable,
+            Cause::Bus { .. } => Reaction::Hold,
+            Cause::EnableTimeout { .. } => Reaction::Disable,
         }
     }
 
@@ -121,7 +144,9 @@ impl Cause {
             Cause::EnableTimeout { .. } => "enable-timeout",
             Cause::DriveFault { .. } => "drive-fault",
             Cause::HeartbeatLost { .. } => "heartbeat-lost",
-            Cause::BusOff => "bus-off",
+            Cause::DriveRebooted { .. } => "drive-rebooted",
+            Cause::Bus { event: BusEvent::BusOff, .. } => "bus-off",
+            Cause::Bus { .. } => "can-bus",
             Cause::Estop => "estop",
         }
     }
@@ -139,7 +164,11 @@ impl fmt::Display for Cause {
             Cause::EnableTimeout { cable } => write!(f, "drive of cable {cable} did not enable within motion.enable_timeout_s"),
             Cause::DriveFault { node, code } => write!(f, "drive node {node} fault, EMCY code 0x{code:04X}"),
             Cause::HeartbeatLost { node } => write!(f, "heartbeat of drive node {node} lost: check its power and the CAN cable"),
-            Cause::BusOff => write!(f, "CAN bus-off: check wiring, termination and bitrate"),
+            Cause::DriveRebooted { node } => write!(
+                f,
+                "drive node {node} rebooted (power cycle or watchdog); it was configured again and is disabled: `taut ctl reset` enables it"
+            ),
+            Cause::Bus { iface, event } => write!(f, "{iface}: {event}"),
             Cause::Estop => write!(f, "emergency stop requested by the operator"),
         }
     }

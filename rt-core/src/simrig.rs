@@ -31,7 +31,7 @@ use taut_config::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, Track
 use taut_config::RobotConfig;
 use taut_driver::canopen::cia402::Mode;
 use taut_driver::canopen::NodeId;
-use taut_driver::transport::virtual_bus::VirtualBus;
+use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
 use taut_driver::transport::CanTransport;
 use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
@@ -48,8 +48,14 @@ pub struct SimFaults {
     pub tracker_gone: AtomicBool,
     /// Drive of cable 1 reports an EMCY (0x2310, continuous over-current) and faults.
     pub drive_emcy: AtomicBool,
-    /// Drive of cable 1 stops sending heartbeats.
+    /// Drive of cable 1 stops sending heartbeats (and sends them again when cleared).
     pub heartbeat_lost: AtomicBool,
+    /// Drive of cable 1 is power cycled (once per `true`; the switch goes back to `false`):
+    /// it boots with its power-on settings and keeps its absolute position.
+    pub drive_power_cycle: AtomicBool,
+    /// Drive of cable 1 has a fault whose cause stays while this is set: it faults (EMCY
+    /// 0x2310), and after each fault reset it faults again at once.
+    pub drive_fault_persists: AtomicBool,
     /// Plant steps that found no equilibrium (the plant kept the last one): the plant's own
     /// count, mirrored by the site thread for tests to print when a start-up fails.
     pub plant_failed_steps: AtomicU64,
@@ -65,6 +71,9 @@ pub struct SimRobot {
     pub devices: Box<dyn Devices>,
     /// The tracker receiver's counters.
     pub tracker_stats: taut_driver::tracker::TrackerStatsHandle,
+    /// The CAN controller of the master's endpoint on the in-process bus, to inject error
+    /// frames, bus-off and restart (`None` on SocketCAN: there the kernel reports them).
+    pub can: Option<CanController>,
 }
 
 /// Options of the simulated site.
@@ -123,10 +132,14 @@ pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -
 pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, String> {
     match &opts.can {
         None => {
-            let bus = VirtualBus::new();
+            let bus = VirtualBus::named("vcan-sim");
             let nodes = node_ids(cfg)?;
             let rack_end = bus.endpoint_with(1024, &rack_filters(&nodes));
-            build_on(cfg, p0, opts, rack_end, bus.endpoint_with(1024, &[]))
+            let master_end = bus.endpoint_with(1024, &[]);
+            let can = master_end.controller();
+            let mut sim = build_on(cfg, p0, opts, rack_end, master_end)?;
+            sim.can = Some(can);
+            Ok(sim)
         }
         Some(iface) => {
             #[cfg(target_os = "linux")]
@@ -260,7 +273,7 @@ where
     let tracker_stats = pose.stats_handle();
     let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
-    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats })
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None })
 }
 
 fn counts(x: f64) -> i32 {
@@ -390,9 +403,20 @@ impl<R: CanTransport> Site<R> {
             self.rack.drives()[second].inject_fault(0x2310);
             self.emcy_sent = true;
         }
-        if self.faults.heartbeat_lost.load(Ordering::Relaxed) && !self.hb_off {
-            self.rack.drives()[second].set_heartbeat_off(true);
-            self.hb_off = true;
+        let hb_lost = self.faults.heartbeat_lost.load(Ordering::Relaxed);
+        if hb_lost != self.hb_off {
+            self.rack.drives()[second].set_heartbeat_off(hb_lost);
+            self.hb_off = hb_lost;
+        }
+        if self.faults.drive_power_cycle.swap(false, Ordering::Relaxed) {
+            self.rack.drives()[second].power_cycle();
+        }
+        let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
+        let d = &mut self.rack.drives()[second];
+        if persists && d.state() != taut_driver::canopen::cia402::State::Fault {
+            // The cause is still there: a fault reset is followed by the same fault at once,
+            // as on a drive whose over-current condition persists.
+            d.inject_fault(0x2310);
         }
     }
 

@@ -4,7 +4,7 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use taut_rt_core::io::DeviceFault;
+use taut_rt_core::io::{BusEvent, DeviceFault, IfName};
 use taut_rt_core::kin::LoopParams;
 use taut_rt_core::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt_core::runner::LoopCore;
@@ -135,7 +135,7 @@ fn loop_allocates_nothing_in_any_state() {
     cmd_tx.send(Command::Reset).unwrap();
     core.devices.inject.fault = Some(DeviceFault::Emcy { node: 2, code: 0x2310 });
     run(&mut core, 200, &mut seen);
-    core.devices.inject.fault = Some(DeviceFault::BusOff);
+    core.devices.inject.fault = Some(DeviceFault::Bus { iface: IfName::new("can0"), event: BusEvent::BusOff });
     run(&mut core, 200, &mut seen);
     core.devices.inject.fault = None;
     cmd_tx.send(Command::Reset).unwrap();

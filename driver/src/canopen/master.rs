@@ -1374,6 +1374,15 @@ impl Master {
     pub fn operational(&mut self) -> Option<Operational<'_>> {
         self.all_operational().then_some(Operational { m: self })
     }
+
+    /// Quick stop (`quick`) or disable every drive that is operational now, also while others
+    /// are not: a safety reaction reaches every drive that can be reached. Enabling stays with
+    /// [`Operational`], which needs them all.
+    pub fn stop_reachable(&mut self, quick: bool) {
+        for n in self.nodes.iter_mut().filter(|n| n.phase == Phase::Operational) {
+            n.axis.want = if quick { Want::QuickStop } else { Want::Disabled };
+        }
+    }
 }
 
 /// Why a motion command was not taken.

@@ -275,6 +275,9 @@ impl<T: CanTransport, W: Write> CanTransport for Recorder<T, W> {
         }
         Ok(r)
     }
+    fn iface(&self) -> super::IfName {
+        self.inner.iface()
+    }
 }
 
 /// Counts kept by a [`Replay`].

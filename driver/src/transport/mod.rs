@@ -6,8 +6,11 @@
 //! benchmarks) and [`candump`] (record a session to a `candump -l` log, replay a log).
 
 pub mod candump;
+pub mod kernel;
 pub mod socketcan;
 pub mod virtual_bus;
+
+pub use kernel::IfName;
 
 use std::fmt;
 use std::time::Instant;
@@ -240,6 +243,11 @@ pub trait CanTransport {
     fn try_recv(&mut self) -> Result<Option<Frame>, TransportError>;
     /// Waits for a frame until `deadline`; `Ok(None)` when the deadline passed without one.
     fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError>;
+    /// The interface's name, for messages about it ("can0: bus-off"). Transports without one
+    /// say `can`.
+    fn iface(&self) -> IfName {
+        IfName::new("can")
+    }
 }
 
 impl<T: CanTransport + ?Sized> CanTransport for Box<T> {
@@ -251,6 +259,9 @@ impl<T: CanTransport + ?Sized> CanTransport for Box<T> {
     }
     fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError> {
         (**self).recv_deadline(deadline)
+    }
+    fn iface(&self) -> IfName {
+        (**self).iface()
     }
 }
 

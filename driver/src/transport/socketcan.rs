@@ -1,10 +1,12 @@
 //! SocketCAN (Linux) through the `socketcan` crate: real adapters (`can0`) and `vcan`.
 //!
-//! The socket is non-blocking; [`CanTransport::recv_deadline`] waits in `poll(2)`. Error frames
-//! are enabled (`CAN_RAW_ERR_FILTER` = all classes), so bus-off, error-passive, overflows and
-//! controller restarts come back as [`TransportError::Bus`] events instead of silence.
+//! Frames are read and written as the kernel's `struct can_frame` bytes through
+//! [`kernel`], the parser the virtual bus shares. The socket is non-blocking;
+//! [`CanTransport::recv_deadline`] waits in `poll(2)`. Error frames are enabled
+//! (`CAN_RAW_ERR_FILTER` = all classes), so bus-off, error-passive, overflows and controller
+//! restarts come back as [`TransportError::Bus`] events instead of silence.
 
-use super::{BusEvent, CanTransport, Frame, TransportError};
+use super::{kernel, BusEvent, CanTransport, Frame, IfName, TransportError};
 use ::socketcan::{CanFrame, CanSocket, EmbeddedFrame, Socket, SocketOptions};
 use ::socketcan::{ExtendedId, Id, StandardId};
 use std::io;
@@ -42,12 +44,19 @@ impl SocketCanTransport {
     }
 
     fn read_one(&mut self) -> Result<Option<Frame>, TransportError> {
-        match self.sock.read_frame() {
-            Ok(f) => from_socketcan(&f).map(Some),
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(None),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => Ok(None),
-            Err(e) => Err(TransportError::Io(e.kind())),
+        // Read `struct can_frame` as bytes and decode it with the one parser the virtual bus
+        // uses too (kernel.rs), so error frames injected in tests take the path real ones take.
+        let mut b = [0u8; kernel::CAN_MTU];
+        // SAFETY: reads at most b.len() bytes into a buffer we own, on an fd we own.
+        let r = unsafe { libc::read(self.sock.as_raw_fd(), b.as_mut_ptr().cast(), b.len()) };
+        if r < 0 {
+            let e = io::Error::last_os_error();
+            return match e.kind() {
+                io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted => Ok(None),
+                k => Err(TransportError::Io(k)),
+            };
         }
+        kernel::decode(&b[..r as usize]).map(Some)
     }
 }
 
@@ -95,14 +104,19 @@ pub fn to_socketcan(f: &Frame) -> Option<CanFrame> {
 
 impl CanTransport for SocketCanTransport {
     fn send(&mut self, frame: &Frame) -> Result<(), TransportError> {
-        let f = to_socketcan(frame).ok_or(TransportError::Io(io::ErrorKind::InvalidInput))?;
-        match self.sock.write_frame(&f) {
-            Ok(()) => Ok(()),
+        let b = kernel::encode(frame);
+        // SAFETY: writes b.len() bytes from a buffer we own to an fd we own.
+        let r = unsafe { libc::write(self.sock.as_raw_fd(), b.as_ptr().cast(), b.len()) };
+        if r == b.len() as isize {
+            return Ok(());
+        }
+        let e = io::Error::last_os_error();
+        match e.kind() {
             // ENOBUFS: the interface's TX queue is full (bus-off or a saturated bus).
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.raw_os_error() == Some(libc::ENOBUFS) => {
-                Err(TransportError::Full(*frame))
-            }
-            Err(e) => Err(TransportError::Io(e.kind())),
+            _ if r >= 0 => Err(TransportError::Io(io::ErrorKind::WriteZero)),
+            io::ErrorKind::WouldBlock => Err(TransportError::Full(*frame)),
+            _ if e.raw_os_error() == Some(libc::ENOBUFS) => Err(TransportError::Full(*frame)),
+            k => Err(TransportError::Io(k)),
         }
     }
 
@@ -132,6 +146,10 @@ impl CanTransport for SocketCanTransport {
                 }
             }
         }
+    }
+
+    fn iface(&self) -> IfName {
+        IfName::new(&self.iface)
     }
 }
 

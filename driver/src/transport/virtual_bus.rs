@@ -6,6 +6,12 @@
 //! Queues are allocated when an endpoint is made; a full receive queue drops the new frame and
 //! counts it, like a SocketCAN socket whose buffer is full.
 //!
+//! Frames travel as the kernel's `struct can_frame` bytes and are decoded on receipt by
+//! [`kernel::decode`], the parser SocketCAN reads go through. Each endpoint has a
+//! [`CanController`] handle through which a test injects error frames (bytes of
+//! `linux/can/error.h`) and puts the endpoint's controller bus-off and restarts it, as the
+//! kernel's CAN drivers report them.
+//!
 //! ```
 //! use taut_driver::transport::{virtual_bus::VirtualBus, CanTransport, Frame};
 //! let bus = VirtualBus::new();
@@ -15,7 +21,8 @@
 //! assert_eq!(a.try_recv().unwrap(), None); // no echo to the sender
 //! ```
 
-use super::{CanTransport, Frame, TransportError};
+use super::kernel::{self, err, CAN_MTU};
+use super::{CanTransport, Frame, IfName, TransportError};
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
@@ -48,7 +55,12 @@ impl Filter {
 
 struct Slot {
     alive: bool,
-    queue: VecDeque<Frame>,
+    /// `struct can_frame` bytes, decoded on receipt.
+    queue: VecDeque<[u8; CAN_MTU]>,
+    /// The endpoint's controller is bus-off: it neither sends nor receives.
+    bus_off: bool,
+    /// Frames not sent because the controller was bus-off.
+    tx_lost: u64,
     capacity: usize,
     filters: Vec<Filter>,
     dropped: u64,
@@ -60,6 +72,7 @@ struct State {
     /// single-threaded (test, benchmark) case makes no futex call.
     waiters: usize,
     sent: u64,
+    name: IfName,
 }
 
 struct Shared {
@@ -80,11 +93,16 @@ impl Default for VirtualBus {
 }
 
 impl VirtualBus {
-    /// An empty bus.
+    /// An empty bus named `virtual`.
     pub fn new() -> VirtualBus {
+        Self::named("virtual")
+    }
+
+    /// An empty bus whose endpoints call their interface `name` (at most 15 bytes are kept).
+    pub fn named(name: &str) -> VirtualBus {
         VirtualBus {
             shared: Arc::new(Shared {
-                state: Mutex::new(State { slots: Vec::new(), waiters: 0, sent: 0 }),
+                state: Mutex::new(State { slots: Vec::new(), waiters: 0, sent: 0, name: IfName::new(name) }),
                 cv: Condvar::new(),
             }),
         }
@@ -105,6 +123,8 @@ impl VirtualBus {
             capacity,
             filters: filters.to_vec(),
             dropped: 0,
+            bus_off: false,
+            tx_lost: 0,
         });
         VirtualEndpoint { shared: self.shared.clone(), idx: st.slots.len() - 1 }
     }
@@ -142,6 +162,66 @@ impl VirtualEndpoint {
     pub fn pending(&self) -> usize {
         lock(&self.shared).slots[self.idx].queue.len()
     }
+
+    /// A handle on this endpoint's CAN controller, for fault injection from another thread.
+    pub fn controller(&self) -> CanController {
+        CanController { shared: self.shared.clone(), idx: self.idx }
+    }
+
+}
+
+/// The CAN controller of one endpoint, as a test drives it: error frames in the kernel's
+/// format, bus-off and restart. Cheap to clone; `Send`.
+#[derive(Clone)]
+pub struct CanController {
+    shared: Arc<Shared>,
+    idx: usize,
+}
+
+impl CanController {
+    /// Delivers an error frame (`struct can_frame` bytes with `CAN_ERR_FLAG`, see
+    /// [`kernel::error_frame`]) to the endpoint, as its driver would. Error frames pass the
+    /// acceptance filters (SocketCAN filters them by `CAN_RAW_ERR_FILTER`, which taut's
+    /// transports open to all classes) and reach a bus-off endpoint. Any 16 bytes are taken:
+    /// the endpoint's reader decodes them, as it would decode what a socket hands out.
+    pub fn inject(&self, frame: [u8; CAN_MTU]) {
+        let mut st = lock(&self.shared);
+        let slot = &mut st.slots[self.idx];
+        if slot.queue.len() >= slot.capacity {
+            slot.dropped += 1;
+        } else {
+            slot.queue.push_back(frame);
+        }
+        if st.waiters > 0 {
+            self.shared.cv.notify_all();
+        }
+    }
+
+    /// The controller goes bus-off (TX error counter above 255): from now on the endpoint
+    /// sends nothing (its sends fail with [`TransportError::Full`], as a socket's queue fills
+    /// when the controller is off) and receives nothing but error frames; the driver reports
+    /// `CAN_ERR_BUSOFF` with the counters.
+    pub fn bus_off(&self) {
+        lock(&self.shared).slots[self.idx].bus_off = true;
+        self.inject(kernel::error_frame(err::BUSOFF | err::CNT, [0, 0, 0, 0, 0, 0, 255, 0]));
+    }
+
+    /// The controller is restarted after bus-off (`restart-ms`, or `ip link set can0 type can
+    /// restart`): it takes part in traffic again, and the driver reports `CAN_ERR_RESTARTED`.
+    pub fn restart(&self) {
+        lock(&self.shared).slots[self.idx].bus_off = false;
+        self.inject(kernel::error_frame(err::RESTARTED, [0; 8]));
+    }
+
+    /// True while the controller is bus-off.
+    pub fn is_bus_off(&self) -> bool {
+        lock(&self.shared).slots[self.idx].bus_off
+    }
+
+    /// Frames the endpoint could not send because its controller was bus-off.
+    pub fn tx_lost(&self) -> u64 {
+        lock(&self.shared).slots[self.idx].tx_lost
+    }
 }
 
 impl Drop for VirtualEndpoint {
@@ -156,9 +236,14 @@ impl Drop for VirtualEndpoint {
 impl CanTransport for VirtualEndpoint {
     fn send(&mut self, frame: &Frame) -> Result<(), TransportError> {
         let mut st = lock(&self.shared);
+        if st.slots[self.idx].bus_off {
+            st.slots[self.idx].tx_lost += 1;
+            return Err(TransportError::Full(*frame));
+        }
         st.sent += 1;
+        let bytes = kernel::encode(frame);
         for (i, slot) in st.slots.iter_mut().enumerate() {
-            if i == self.idx || !slot.alive {
+            if i == self.idx || !slot.alive || slot.bus_off {
                 continue;
             }
             if !slot.filters.is_empty() && !slot.filters.iter().any(|f| f.accepts(frame)) {
@@ -167,7 +252,7 @@ impl CanTransport for VirtualEndpoint {
             if slot.queue.len() >= slot.capacity {
                 slot.dropped += 1;
             } else {
-                slot.queue.push_back(*frame);
+                slot.queue.push_back(bytes);
             }
         }
         if st.waiters > 0 {
@@ -177,14 +262,14 @@ impl CanTransport for VirtualEndpoint {
     }
 
     fn try_recv(&mut self) -> Result<Option<Frame>, TransportError> {
-        Ok(lock(&self.shared).slots[self.idx].queue.pop_front())
+        lock(&self.shared).slots[self.idx].queue.pop_front().map(|b| kernel::decode(&b)).transpose()
     }
 
     fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError> {
         let mut st = lock(&self.shared);
         loop {
-            if let Some(f) = st.slots[self.idx].queue.pop_front() {
-                return Ok(Some(f));
+            if let Some(b) = st.slots[self.idx].queue.pop_front() {
+                return kernel::decode(&b).map(Some);
             }
             let now = Instant::now();
             if now >= deadline {
@@ -199,6 +284,10 @@ impl CanTransport for VirtualEndpoint {
             st = guard;
             st.waiters -= 1;
         }
+    }
+
+    fn iface(&self) -> IfName {
+        lock(&self.shared).name
     }
 }
 
@@ -252,5 +341,31 @@ mod tests {
         assert_eq!(got, Some(Frame::new(0x7, &[7])));
         t.join().unwrap();
         assert_eq!(rx.recv_deadline(Instant::now() + Duration::from_millis(5)).unwrap(), None);
+    }
+
+    #[test]
+    fn a_bus_off_endpoint_neither_sends_nor_receives_until_restarted() {
+        use crate::transport::BusEvent;
+        let bus = VirtualBus::named("can7");
+        let mut master = bus.endpoint_with(16, &[Filter::exact(0x181)]);
+        let mut drive = bus.endpoint();
+        assert_eq!(master.iface().as_str(), "can7");
+        let ctl = master.controller();
+        ctl.bus_off();
+        // The error frame passes the id filters and comes out through the kernel-frame parser.
+        assert_eq!(master.try_recv(), Err(TransportError::Bus(BusEvent::BusOff)));
+        drive.send(&Frame::new(0x181, &[1])).unwrap();
+        assert_eq!(master.try_recv().unwrap(), None, "nothing received while off");
+        let f = Frame::new(0x201, &[2]);
+        assert_eq!(master.send(&f), Err(TransportError::Full(f)));
+        assert_eq!(drive.try_recv().unwrap(), None, "nothing sent while off");
+        assert_eq!(ctl.tx_lost(), 1);
+        ctl.restart();
+        assert_eq!(master.try_recv(), Err(TransportError::Bus(BusEvent::Restarted)));
+        master.send(&f).unwrap();
+        assert_eq!(drive.try_recv().unwrap(), Some(f));
+        // Garbage bytes injected as a frame are refused by the parser, not trusted.
+        ctl.inject([0xFF; 16]);
+        assert!(matches!(master.try_recv(), Err(TransportError::Bus(_)) | Err(TransportError::Io(_))));
     }
 }
