@@ -739,7 +739,16 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     assert!(!urgent.estop_pending(), "the loop took the estop");
     // A reset sent after the estop was seen latched clears it.
     assert_eq!(links.handle_line("reset")["ok"], true);
-    core.cycle(0.004, 0.002);
+    // The reset passes through `Resetting` (drives operational, faults reset, enabled where they
+    // stand) before the robot holds.
+    let mut t = 0.004;
+    for _ in 0..1000 {
+        core.cycle(t, 0.002);
+        t += 0.002;
+        if core.controller.state() != State::Resetting {
+            break;
+        }
+    }
     assert_eq!(core.controller.state(), State::Holding);
     // A second daemon on the same socket is refused and the first one's socket is untouched.
     let sock = dir.path().join("taut.sock");
