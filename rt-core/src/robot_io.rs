@@ -149,7 +149,7 @@ impl<T: CanTransport> RobotDevices<T> {
             drive[j] = Some(i);
             let nc = &mcfg.nodes[i];
             let (pos, tq) = need[j];
-            if !nc.layout.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
+            if !nc.pdos.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
                 let node = c.drive.as_ref().map_or(0, |d| d.node_id);
                 return Err(err(
                     format!("cable[{j}].drive.pdo"),

@@ -20,7 +20,7 @@ use super::cia402::{self, Mode, Scaling, State, Want};
 use super::emcy::{self, Emcy};
 use super::heartbeat::{self, HeartbeatConsumer};
 use super::nmt::{self, NmtCommand, NmtState};
-use super::pdo::{self, PdoDef, PdoLayout, SdoWrite};
+use super::pdo::{self, PdoLayout, PdoSet, SdoWrite};
 use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoOutcome};
 use super::sync::{self, SyncProducer};
 use super::{function_code, node_of, od, NodeId};
@@ -42,8 +42,8 @@ pub struct NodeConfig {
     pub node_id: NodeId,
     /// Index of the cable this drive winds.
     pub cable: usize,
-    /// PDO layout.
-    pub layout: PdoLayout,
+    /// The PDOs and their maps (a preset or the configuration's tables).
+    pub pdos: PdoSet,
     /// Mode of operation.
     pub mode: Mode,
     /// Heartbeat period configured into 0x1017, ms.
@@ -66,7 +66,7 @@ impl NodeConfig {
         NodeConfig {
             node_id,
             cable,
-            layout: PdoLayout::Compact,
+            pdos: PdoLayout::Compact.pdos(),
             mode: Mode::CyclicPosition,
             heartbeat_ms: 100,
             heartbeat_timeout: Duration::from_millis(300),
@@ -131,7 +131,7 @@ impl MasterConfig {
     /// Builds the master's configuration from the robot description: the `[can]` table and
     /// every `[cable.drive]`.
     pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<Self, ConfigProblem> {
-        use taut_config::devices::{DriveMode, PdoMapping};
+        use taut_config::devices::DriveMode;
         let problem = |key: String, message: String| ConfigProblem { key, message };
         let can = cfg.can.as_ref().ok_or_else(|| {
             problem("can".into(), "the configuration has no [can] table; add one with `interface = \"can0\"`".into())
@@ -150,10 +150,7 @@ impl MasterConfig {
             nodes.push(NodeConfig {
                 node_id: d.node_id,
                 cable: i,
-                layout: match d.pdo {
-                    PdoMapping::Compact => PdoLayout::Compact,
-                    PdoMapping::WithMode => PdoLayout::WithMode,
-                },
+                pdos: PdoSet::from_maps(&d.pdo_maps().map_err(|(k, _, m)| problem(format!("cable[{i}].drive.{k}"), m))?),
                 mode: match d.mode {
                     DriveMode::Position => Mode::CyclicPosition,
                     DriveMode::Torque => Mode::CyclicTorque,
@@ -190,9 +187,9 @@ impl MasterConfig {
     pub fn bus_load(&self) -> super::busload::BusLoad {
         // Layouts may differ per node: sum them node by node.
         let cycle = self.sync_period.as_secs_f64();
-        let mut load = super::busload::BusLoad::compute(0, PdoLayout::Compact, cycle, self.bitrate, 0);
+        let mut load = super::busload::BusLoad::compute(0, &[], cycle, self.bitrate, 0);
         for n in &self.nodes {
-            let one = super::busload::BusLoad::compute(1, n.layout, cycle, self.bitrate, n.heartbeat_ms);
+            let one = super::busload::BusLoad::compute(1, &n.pdos, cycle, self.bitrate, n.heartbeat_ms);
             let sync_bits = super::busload::frame_bits(0, false);
             load.frames_per_cycle += one.frames_per_cycle - 1;
             load.bits_per_cycle += one.bits_per_cycle - sync_bits;
@@ -223,6 +220,17 @@ pub struct Identity {
 pub enum NodeFailure {
     /// The node refused a required SDO transfer.
     Sdo(SdoAbort),
+    /// Read back after writing, an object of the PDO configuration did not hold what was written.
+    Readback {
+        /// Object index.
+        index: u16,
+        /// Sub-index.
+        sub: u8,
+        /// Value written.
+        expected: u32,
+        /// Value read back.
+        found: u32,
+    },
     /// The identity does not match the configuration.
     WrongDevice {
         /// Object checked (0x1018 sub 1 or 2).
@@ -238,6 +246,10 @@ impl fmt::Display for NodeFailure {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             NodeFailure::Sdo(a) => write!(f, "{a}"),
+            NodeFailure::Readback { index, sub, expected, found } => write!(
+                f,
+                "PDO configuration read back from 0x{index:04X}sub{sub} is 0x{found:08X}, 0x{expected:08X} was written: the drive did not take the mapping"
+            ),
             NodeFailure::WrongDevice { sub, expected, found } => write!(
                 f,
                 "identity 0x1018sub{sub} is 0x{found:08X}, the configuration expects 0x{expected:08X}: wrong drive on this node id?"
@@ -479,6 +491,10 @@ enum Field {
 enum Step {
     Upload { index: u16, sub: u8, field: Field, required: bool },
     Download(SdoWrite),
+    /// A download a drive may refuse because the object does not exist (an unused PDO).
+    Optional(SdoWrite),
+    /// Upload and compare with the value: the read-back of the PDO configuration.
+    Verify(SdoWrite),
 }
 
 /// The CiA 402 side of a node, as the master sees it.
@@ -492,6 +508,8 @@ pub struct Axis {
     pub position: i32,
     /// Torque actual value, ‰ of rated torque.
     pub torque: i16,
+    /// Velocity actual value 0x606C, counts/s (0 unless the map carries it).
+    pub velocity: i32,
     /// Mode display (with the `with_mode` layout).
     pub mode_display: Option<Mode>,
     /// Error code 0x603F (with the `with_mode` layout) or from the last EMCY.
@@ -515,6 +533,7 @@ impl Axis {
             state: None,
             position: 0,
             torque: 0,
+            velocity: 0,
             mode_display: None,
             error_code: 0,
             tpdos: 0,
@@ -562,6 +581,27 @@ impl NodeStatus {
     }
 }
 
+/// The PDO part of a node's configuration steps: every PDO of the map the CiA 301 way, the
+/// unused PDOs of the predefined connection set off, the PDO configuration read back, and the
+/// mode by SDO when no RPDO carries it.
+fn pdo_steps(cfg: &NodeConfig, steps: &mut Vec<Step>) {
+    let n = cfg.node_id;
+    for p in cfg.pdos.iter() {
+        steps.extend(p.config_writes(n).map(Step::Download));
+    }
+    for dir in [pdo::Direction::Rx, pdo::Direction::Tx] {
+        for num in (0..4).filter(|&k| !cfg.pdos.has(dir, k)) {
+            steps.push(Step::Optional(pdo::disable_write(dir, num, n)));
+        }
+    }
+    for p in cfg.pdos.iter() {
+        steps.extend(p.readback(n).map(Step::Verify));
+    }
+    if !cfg.pdos.maps_mode() {
+        steps.push(Step::Download(SdoWrite::u8(od::MODES_OF_OPERATION, 0, cfg.mode.code() as u8)));
+    }
+}
+
 struct Node {
     cfg: NodeConfig,
     phase: Phase,
@@ -577,7 +617,6 @@ struct Node {
     axis: Axis,
     boots: u32,
     last_emcy: Option<Emcy>,
-    pdos: &'static [PdoDef],
     /// TPDO COB-IDs, for matching received frames.
     tpdo_ids: [u16; 4],
 }
@@ -594,21 +633,15 @@ impl Node {
             Step::Upload { index: od::DEVICE_NAME, sub: 0, field: Field::Name, required: false },
             Step::Download(SdoWrite::u16(od::HEARTBEAT_PRODUCER, 0, cfg.heartbeat_ms)),
         ];
-        for p in cfg.layout.pdos() {
-            steps.extend(p.config_writes(n).map(Step::Download));
-        }
-        if !cfg.layout.maps_mode() {
-            steps.push(Step::Download(SdoWrite::u8(od::MODES_OF_OPERATION, 0, cfg.mode.code() as u8)));
-        }
+        pdo_steps(&cfg, &mut steps);
         let mut tpdo_ids = [0u16; 4];
-        for (k, p) in cfg.layout.pdos().iter().filter(|p| p.dir == pdo::Direction::Tx).enumerate().take(4) {
+        for (k, p) in cfg.pdos.iter().filter(|p| p.dir == pdo::Direction::Tx).enumerate().take(4) {
             tpdo_ids[k] = p.cob_id(n);
         }
         let axis = Axis::new(cfg.mode);
         Node {
             hb: HeartbeatConsumer::new(cfg.heartbeat_timeout),
             sdo: SdoClient::new(n, sdo_timeout),
-            pdos: cfg.layout.pdos(),
             cfg,
             phase: Phase::Waiting,
             nmt: None,
@@ -855,16 +888,17 @@ impl Master {
 
     fn on_tpdo(&mut self, k: usize, id: u16, f: &Frame) {
         let n = &mut self.nodes[k];
-        let Some(def) = n.pdos.iter().find(|p| p.dir == pdo::Direction::Tx && p.cob_id(n.cfg.node_id) == id) else {
+        let Some(def) = n.cfg.pdos.iter().find(|p| p.dir == pdo::Direction::Tx && p.cob_id(n.cfg.node_id) == id) else {
             return self.ignore(f);
         };
         if !n.tpdo_ids.contains(&id) {
             return self.ignore(f);
         }
         let ax = &mut n.axis;
-        let r = pdo::unpack(def.entries, f.data(), |index, _sub, raw, bits| match index {
+        let r = pdo::unpack(def.entries(), f.data(), |index, _sub, raw, bits| match index {
             od::STATUSWORD => ax.statusword = raw as u16,
             od::POSITION_ACTUAL => ax.position = pdo::sign_extend(raw, bits) as i32,
+            od::VELOCITY_ACTUAL => ax.velocity = pdo::sign_extend(raw, bits) as i32,
             od::TORQUE_ACTUAL => ax.torque = pdo::sign_extend(raw, bits) as i16,
             od::MODES_OF_OPERATION_DISPLAY => ax.mode_display = Some(Mode::from_code(raw as u8 as i8)),
             od::ERROR_CODE => ax.error_code = raw as u16,
@@ -995,10 +1029,10 @@ impl Master {
         }
         let node = n.cfg.node_id;
         match n.steps.get(n.step).copied() {
-            Some(Step::Upload { index, sub, .. }) => {
+            Some(Step::Upload { index, sub, .. } | Step::Verify(SdoWrite { index, sub, .. })) => {
                 let _ = n.sdo.upload(index, sub, now);
             }
-            Some(Step::Download(w)) => {
+            Some(Step::Download(w) | Step::Optional(w)) => {
                 let (b, len) = w.bytes();
                 let _ = n.sdo.download(w.index, w.sub, &b[..len], false, now);
             }
@@ -1027,6 +1061,13 @@ impl Master {
                 let mut b = [0u8; 4];
                 b[..len.min(4)].copy_from_slice(&d[..len.min(4)]);
                 let v = u32::from_le_bytes(b);
+                if let Step::Verify(w) = step {
+                    // Compare what the drive holds with what was written, over the written width.
+                    let mask = if w.len >= 4 { u32::MAX } else { (1u32 << (8 * u32::from(w.len))) - 1 };
+                    if len != usize::from(w.len) || v & mask != w.value {
+                        return self.fail(k, NodeFailure::Readback { index: w.index, sub: w.sub, expected: w.value, found: v });
+                    }
+                }
                 if let Step::Upload { field, .. } = step {
                     match field {
                         Field::DeviceType => n.identity.device_type = Some(v),
@@ -1076,7 +1117,9 @@ impl Master {
                         }
                         required
                     }
-                    Step::Download(_) => true,
+                    Step::Download(_) | Step::Verify(_) => true,
+                    // An unused PDO the drive does not have need not be switched off.
+                    Step::Optional(_) => !(a.by_server && matches!(a.code, AbortCode::NO_OBJECT | AbortCode::NO_SUBINDEX)),
                 };
                 if a.code == AbortCode::TIMEOUT && !a.by_server {
                     self.counters.sdo_timeouts += 1;
@@ -1173,12 +1216,14 @@ impl Master {
             }
             let cw = cia402::next_controlword(state, ax.want, reset);
             let (tp, tt) = (ax.target_position, ax.target_torque);
-            for p in self.nodes[k].pdos {
+            for j in 0..self.nodes[k].cfg.pdos.len() {
+                // A copy (no allocation) so that the queue can be pushed to in the loop.
+                let p = self.nodes[k].cfg.pdos[j];
                 if p.dir != pdo::Direction::Rx {
                     continue;
                 }
                 let mut data = [0u8; 8];
-                let dlc = pdo::pack(p.entries, &mut data, |index, _| match index {
+                let dlc = pdo::pack(p.entries(), &mut data, |index, _| match index {
                     od::CONTROLWORD => u64::from(cw),
                     od::TARGET_POSITION => tp as u32 as u64,
                     od::TARGET_TORQUE => tt as u16 as u64,
@@ -1214,7 +1259,7 @@ pub enum CommandError {
         /// Node.
         node: NodeId,
     },
-    /// The drive's PDO layout does not carry the mode of operation, so it cannot switch.
+    /// The drive's PDO map does not carry the mode of operation, so it cannot switch.
     ModeNotMapped {
         /// Node.
         node: NodeId,
@@ -1228,7 +1273,7 @@ impl fmt::Display for CommandError {
             CommandError::NotEnabled { node } => write!(f, "node {node}: drive is not in operation enabled"),
             CommandError::WrongMode { node } => write!(f, "node {node}: command does not match the drive's mode"),
             CommandError::ModeNotMapped { node } => {
-                write!(f, "node {node}: the compact PDO layout cannot switch the mode of operation; configure pdo = \"with_mode\"")
+                write!(f, "node {node}: no RPDO carries the mode of operation 0x6060, so it cannot switch modes; configure pdo = \"with_mode\" or map 0x6060")
             }
         }
     }
@@ -1294,7 +1339,7 @@ impl Operational<'_> {
         if n.axis.mode == mode {
             return Ok(());
         }
-        if !n.cfg.layout.maps_mode() {
+        if !n.cfg.pdos.maps_mode() {
             return Err(CommandError::ModeNotMapped { node: n.cfg.node_id });
         }
         n.axis.mode = mode;
