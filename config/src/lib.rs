@@ -11,6 +11,7 @@
 #![deny(missing_docs)]
 
 pub mod devices;
+pub mod eds;
 pub mod params;
 pub mod pdo;
 pub mod recording;

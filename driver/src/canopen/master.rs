@@ -78,6 +78,81 @@ impl NodeConfig {
     }
 }
 
+/// How the master uses an object (see [`NodeConfig::object_uses`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Use {
+    /// Read by SDO.
+    Read,
+    /// Written by SDO, `bytes` long.
+    Write {
+        /// Bytes written.
+        bytes: u8,
+    },
+    /// Written every cycle in an RPDO.
+    Rpdo {
+        /// Mapped length.
+        bits: u8,
+    },
+    /// Received every cycle in a TPDO.
+    Tpdo {
+        /// Mapped length.
+        bits: u8,
+    },
+}
+
+impl Use {
+    /// "reads it", "writes it", "maps it into an RPDO", "maps it into a TPDO".
+    pub fn verb(&self) -> &'static str {
+        match self {
+            Use::Read => "reads it",
+            Use::Write { .. } => "writes it",
+            Use::Rpdo { .. } => "maps it into an RPDO",
+            Use::Tpdo { .. } => "maps it into a TPDO",
+        }
+    }
+}
+
+/// One object the master uses on a drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ObjectUse {
+    /// Index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// How.
+    pub kind: Use,
+    /// True if bring-up goes on when the drive does not have it.
+    pub optional: bool,
+}
+
+impl NodeConfig {
+    /// Every object bring-up reads or writes (from the same steps the master runs) and every
+    /// mapped object, in order, each once per use.
+    pub fn object_uses(&self) -> Vec<ObjectUse> {
+        let mut out: Vec<ObjectUse> = Vec::new();
+        let mut add = |u: ObjectUse| {
+            if !out.contains(&u) {
+                out.push(u);
+            }
+        };
+        for s in Node::new(self.clone(), Duration::ZERO).steps {
+            match s {
+                Step::Upload { index, sub, required, .. } => add(ObjectUse { index, sub, kind: Use::Read, optional: !required }),
+                Step::Verify(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Read, optional: false }),
+                Step::Download(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Write { bytes: w.len }, optional: false }),
+                Step::Optional(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Write { bytes: w.len }, optional: true }),
+            }
+        }
+        for p in self.pdos.iter() {
+            for e in p.entries() {
+                let kind = if p.dir == pdo::Direction::Rx { Use::Rpdo { bits: e.bits } } else { Use::Tpdo { bits: e.bits } };
+                add(ObjectUse { index: e.index, sub: e.sub, kind, optional: false });
+            }
+        }
+        out
+    }
+}
+
 /// Settings of the master.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MasterConfig {
@@ -147,7 +222,7 @@ impl MasterConfig {
                     format!("node id {} is also used by cable[{}]; every drive needs its own", d.node_id, other.cable),
                 ));
             }
-            nodes.push(NodeConfig {
+            let node = NodeConfig {
                 node_id: d.node_id,
                 cable: i,
                 pdos: PdoSet::from_maps(&d.pdo_maps().map_err(|(k, _, m)| problem(format!("cable[{i}].drive.{k}"), m))?),
@@ -167,7 +242,18 @@ impl MasterConfig {
                 max_tension_n: d.max_tension_n,
                 vendor_id: d.vendor_id,
                 product_code: d.product_code,
-            });
+            };
+            if let Some(path) = &d.eds {
+                // CiA 306: every object bring-up touches must be in the drive's EDS, checked
+                // before a frame is sent.
+                let key = format!("cable[{i}].drive.eds");
+                let eds = taut_config::eds::Eds::load(path).map_err(|e| problem(key.clone(), e.to_string()))?;
+                super::eds_check::check(&node, &eds).map_err(|p| {
+                    let at = p.line.map_or(String::new(), |l| format!(":{l}"));
+                    problem(key.clone(), format!("{path}{at}: {p}"))
+                })?;
+            }
+            nodes.push(node);
         }
         if nodes.is_empty() {
             return Err(problem("cable.drive".into(), "no [cable.drive] table: give each driven cable a drive with a node_id".into()));
