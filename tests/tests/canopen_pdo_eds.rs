@@ -34,6 +34,9 @@ fn robot_text(drive0_extra: &str) -> String {
     )
 }
 
+/// Changes a frame on its way from the drives to the master.
+type Tamper = Box<dyn FnMut(&mut Frame)>;
+
 struct Rig {
     t: Instant,
     master: Master,
@@ -44,7 +47,7 @@ struct Rig {
     /// Frames the drives sent, by id.
     seen: Vec<Frame>,
     /// Changes SDO answers on their way to the master (fault injection).
-    tamper: Option<Box<dyn FnMut(&mut Frame)>>,
+    tamper: Option<Tamper>,
 }
 
 fn rig(cfg: MasterConfig) -> Rig {
