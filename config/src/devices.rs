@@ -341,6 +341,19 @@ mod can_drive_tests {
     }
 
     #[test]
+    fn pdo_tables_parse_and_survive_a_save() {
+        let text = "node_id = 2\n[[rpdo]]\nmap = [\"0x6040:0/16\", \"0x607A\"]\n[[tpdo]]\nmap = [\"0x6041\", \"0x6064:0/32\"]\n";
+        let d: DriveConfig = toml::from_str(text).unwrap();
+        let m = d.pdo_maps().unwrap();
+        assert_eq!((m.rx[0].len(), m.tx[0][1]), (2, PdoObject::new(0x6064, 0, 32)));
+        assert_eq!(&text[d.rpdo[0].map.get_ref()[1].span()], "\"0x607A\"");
+        let back: DriveConfig = toml::from_str(&toml::to_string(&d).unwrap()).unwrap();
+        assert_eq!(back, d);
+        let t = DriveConfig { rpdo: vec![PdoTable::new(["0x6040"])], ..d };
+        assert_eq!(t.validate().unwrap_err().0, "rpdo", "target position missing in position mode");
+    }
+
+    #[test]
     fn bad_can_and_drive_values_name_the_key() {
         let can = |s: &str| toml::from_str::<CanConfig>(&format!("interface = \"can0\"\n{s}")).unwrap().validate();
         assert_eq!(can("bitrate = 123456").unwrap_err().0, "bitrate");
