@@ -1,4 +1,5 @@
-//! PDO maps from the configuration over real SocketCAN (`vcan0`): a drive with a map of its own
+//! PDO maps from the configuration over real SocketCAN (`vcan0`), and the virtual drive's CiA 301
+//! mapping rules answered over the bus. The map test: a drive with a map of its own
 //! (velocity actual value 0x606C in TPDO2), checked against the virtual drive's EDS, and a
 //! compact drive, brought up by the master on one socket against virtual drives on another,
 //! with a third socket watching what crosses the bus.
@@ -15,6 +16,7 @@ use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
 use taut_driver::canopen::drive_set::DriveSet;
 use taut_driver::canopen::master::MasterConfig;
+use taut_driver::canopen::sdo::{Initiate, SdoRequest, SdoResponse};
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
 use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
@@ -97,4 +99,47 @@ fn custom_pdo_map_brings_up_and_runs_cycles_over_vcan() {
     assert_eq!(get(0x1AA), [8].into());
     assert_eq!(get(0x22A), [8].into());
     assert!(get(0x2AA).is_empty(), "node 42's factory TPDO2 still sending");
+}
+
+/// One expedited SDO download over the socket; the drive's answer.
+fn sdo_write(port: &mut SocketCanTransport, node: u8, index: u16, sub: u8, v: u32, len: u8) -> SdoResponse {
+    let req = SdoRequest::InitiateDownload { index, sub, kind: Initiate::Expedited { data: v.to_le_bytes(), len } };
+    port.send(&req.encode(node)).unwrap();
+    let end = Instant::now() + Duration::from_secs(20);
+    loop {
+        match port.recv_deadline(end) {
+            Ok(Some(f)) if f.id == 0x580 + u32::from(node) => return SdoResponse::decode(f.data()).unwrap(),
+            Ok(Some(_)) => {}
+            other => panic!("no SDO answer from node {node} for 0x{index:04X}sub{sub}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn virtual_drive_mapping_rules_over_vcan() {
+    let Some(_) = vcan::iface_or_skip(IFACE, "virtual_drive_mapping_rules_over_vcan") else { return };
+    let mut port = SocketCanTransport::open(IFACE).expect("open vcan0 for the SDO client");
+    let drive_port = SocketCanTransport::open(IFACE).expect("open vcan0 for the drive");
+    let rack = spawn_rack(drive_port, vec![VirtualDrive::new(DriveParams::new(45))]);
+    let abort = |r: SdoResponse| match r {
+        SdoResponse::Abort { code, .. } => Some(code.0),
+        _ => None,
+    };
+    let n = 45;
+    // Factory TPDO2 is valid: no new COB-ID, no mapping change.
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1801, 1, 0x0000_03AD, 4)), Some(0x0609_0030));
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 0, 0, 1)), Some(0x0601_0000));
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1801, 1, 0x8000_02AD, 4)), None);
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 1, 0x606C_0020, 4)), Some(0x0601_0000), "entry while sub 0 != 0");
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 0, 0, 1)), None);
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 1, 0x4321_0020, 4)), Some(0x0602_0000));
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 1, 0x6040_0010, 4)), Some(0x0604_0041));
+    for (s, e) in [(1, 0x6064_0020u32), (2, 0x606C_0020), (3, 0x6041_0010)] {
+        assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, s, e, 4)), None);
+    }
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 0, 3, 1)), Some(0x0604_0042));
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 0, 5, 1)), Some(0x0604_0043), "entries 4 and 5 are empty");
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1A01, 0, 2, 1)), None);
+    assert_eq!(abort(sdo_write(&mut port, n, 0x1801, 1, 0x0000_02AD, 4)), None);
+    rack.stop();
 }
