@@ -257,6 +257,15 @@ fn a_bad_pdo_table_names_file_line_and_key() {
     // A preset and tables together.
     let e = RobotConfig::from_toml_str(&robot_text("pdo = \"compact\"")).unwrap_err();
     assert_eq!(e.key.as_deref(), Some("cable[0].drive.pdo"), "{e}");
+
+    // A configuration built in code skips the file check: bring-up refuses it all the same,
+    // naming the key, before a frame is sent.
+    let mut cfg = RobotConfig::from_toml_str(&robot_text("")).unwrap();
+    cfg.cables[0].drive.as_mut().unwrap().tpdo[1] = taut_config::devices::PdoTable::new(["0x606C:0/32", "0x606C:0/32"]);
+    let bus = VirtualBus::new();
+    let e = RobotDevices::bring_up(&cfg, bus.endpoint(), Peripherals { loadcells: None, tracker: None, pose: None }).err().unwrap();
+    assert_eq!(e.what, "cable[0].drive.tpdo[1].map[1]", "{e}");
+    assert_eq!(bus.frames_sent(), 0);
 }
 
 /// The robot with an `eds` for cable 0, written beside the configuration; bring-up on a virtual
