@@ -154,6 +154,23 @@ fn a_drive_that_does_not_hold_the_mapping_fails_naming_the_object() {
     assert!(r.seen.iter().all(|f| f.id != 0x185), "a node that failed is never started");
 }
 
+#[test]
+fn a_tpdo_cob_id_read_back_with_bit_30_is_the_same_cob_id() {
+    // CiA 301: bit 30 of a TPDO COB-ID says "no RTR"; drives that implement it report it set.
+    let cfg = RobotConfig::from_toml_str(&robot_text("")).unwrap();
+    let mut r = rig(MasterConfig::from_robot(&cfg).unwrap());
+    r.tamper = Some(Box::new(|f: &mut Frame| {
+        let d = f.data();
+        if (0x585..=0x587).contains(&f.id) && d.len() == 8 && d[0] == 0x43 && d[2] == 0x18 && d[3] == 1 {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(d);
+            b[7] |= 0x40;
+            *f = Frame::new(f.id as u16, &b);
+        }
+    }));
+    r.until(Duration::from_secs(3), "bring-up", |r| r.master.all_operational());
+}
+
 fn sdo(d: &mut VirtualDrive, t: Instant, index: u16, sub: u8, v: u32, len: u8) -> SdoResponse {
     let req = SdoRequest::InitiateDownload { index, sub, kind: Initiate::Expedited { data: v.to_le_bytes(), len } };
     d.on_frame(&req.encode(d.node_id()), t);

@@ -1148,9 +1148,17 @@ impl Master {
                 b[..len.min(4)].copy_from_slice(&d[..len.min(4)]);
                 let v = u32::from_le_bytes(b);
                 if let Step::Verify(w) = step {
-                    // Compare what the drive holds with what was written, over the written width.
-                    let mask = if w.len >= 4 { u32::MAX } else { (1u32 << (8 * u32::from(w.len))) - 1 };
-                    if len != usize::from(w.len) || v & mask != w.value {
+                    // Compare what the drive holds with what was written, over the written width
+                    // (a drive may answer an expedited upload without the size, as 4 bytes). Of a
+                    // COB-ID only the valid bit and the 11-bit id count: CiA 301 lets a drive
+                    // report bit 30 (no RTR) and bit 29 as it implements them.
+                    let cob = w.sub == 1 && matches!(w.index, 0x1400..=0x15FF | 0x1800..=0x19FF);
+                    let mask = match (cob, w.len) {
+                        (true, _) => pdo::COB_ID_INVALID | 0x7FF,
+                        (false, 4..) => u32::MAX,
+                        (false, n) => (1u32 << (8 * u32::from(n))) - 1,
+                    };
+                    if len < usize::from(w.len) || v & mask != w.value & mask {
                         return self.fail(k, NodeFailure::Readback { index: w.index, sub: w.sub, expected: w.value, found: v });
                     }
                 }
