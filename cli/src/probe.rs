@@ -38,6 +38,29 @@ pub struct ProbeArgs {
     /// Record the session to this file in `candump -l` format.
     #[arg(long)]
     pub log: Option<PathBuf>,
+    /// Write, before touching the bus, every object taut reads, writes or maps on each drive with
+    /// an `eds` as its EDS describes it (checked: exists, access, PDO mapping, length).
+    #[arg(long, value_name = "FILE")]
+    pub eds_summary: Option<PathBuf>,
+}
+
+/// The EDS-checked summary of every drive with an `eds` (the check itself already passed in
+/// `MasterConfig::from_robot`).
+fn eds_summary(cfg: &RobotConfig, mcfg: &MasterConfig) -> anyhow::Result<String> {
+    use taut_driver::canopen::eds_check;
+    let mut out = String::from("# taut probe --eds-summary: objects taut uses on each drive, as its EDS describes them\n");
+    let mut any = false;
+    for n in &mcfg.nodes {
+        let Some(path) = cfg.cables[n.cable].drive.as_ref().and_then(|d| d.eds.as_ref()) else { continue };
+        any = true;
+        let eds = taut_config::eds::Eds::load(path)?;
+        let uses = eds_check::check(n, &eds).map_err(|p| anyhow::anyhow!("{path}: {p}"))?;
+        out += &eds_check::summary(n.node_id, path, &uses);
+    }
+    if !any {
+        bail!("--eds-summary: no [cable.drive] has an `eds = \"FILE\"`; add the drives' EDS files to the configuration");
+    }
+    Ok(out)
 }
 
 /// A robot with `n` cables and drives 1..=n, for `--sim` without a configuration.
@@ -127,6 +150,11 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
         None => anyhow::anyhow!("{e}"),
     })?;
     let can = cfg.can.as_ref().expect("from_robot checked [can]");
+    if let Some(out) = &args.eds_summary {
+        let text = eds_summary(&cfg, &mcfg)?;
+        taut_config::write_atomic(out, text.as_bytes()).with_context(|| format!("writing {}", out.display()))?;
+        println!("EDS summary (every object checked against its EDS) written to {}", out.display());
+    }
 
     let load = mcfg.bus_load();
     println!(

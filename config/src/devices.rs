@@ -4,7 +4,9 @@
 //! Each `validate` returns `(key, message)` for the first bad field; the caller adds the file, line
 //! and the path of the enclosing table.
 
+use crate::pdo::{Dir, PdoMaps, PdoObject};
 use serde::{Deserialize, Serialize};
+use toml::Spanned;
 
 /// The `[can]` table: the CANopen bus of the servo drives.
 ///
@@ -156,6 +158,22 @@ pub enum PdoMapping {
     WithMode,
 }
 
+/// One `[[cable.drive.rpdo]]` / `[[cable.drive.tpdo]]` table: the objects of one PDO, in order
+/// (see [`crate::pdo`] for the syntax and the rules).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PdoTable {
+    /// Objects, e.g. `["0x6040:0/16", "0x607A:0/32"]`.
+    pub map: Spanned<Vec<Spanned<String>>>,
+}
+
+impl PdoTable {
+    /// A table of these objects (no file position).
+    pub fn new<S: Into<String>>(objects: impl IntoIterator<Item = S>) -> Self {
+        PdoTable { map: Spanned::new(0..0, objects.into_iter().map(|s| Spanned::new(0..0, s.into())).collect()) }
+    }
+}
+
 /// The CiA 402 mode a drive runs in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -200,9 +218,19 @@ pub struct DriveConfig {
     /// Cyclic synchronous position or torque.
     #[serde(default)]
     pub mode: DriveMode,
-    /// PDO layout.
-    #[serde(default)]
-    pub pdo: PdoMapping,
+    /// PDO preset (`compact` when neither this nor `rpdo`/`tpdo` tables are given).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pdo: Option<PdoMapping>,
+    /// `[[cable.drive.rpdo]]` tables: the objects of RPDO1.. (instead of a preset).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rpdo: Vec<PdoTable>,
+    /// `[[cable.drive.tpdo]]` tables: the objects of TPDO1.. (instead of a preset).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tpdo: Vec<PdoTable>,
+    /// The drive's EDS file (CiA 306), relative to the configuration file: every object taut
+    /// reads, writes or maps is checked against it before the bus is touched.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eds: Option<String>,
     /// Heartbeat period the drive is configured to produce (0x1017), ms.
     #[serde(default = "default_heartbeat_ms")]
     pub heartbeat_ms: u16,
@@ -250,12 +278,60 @@ impl DriveConfig {
             rated_torque_nm: default_rated_torque(),
             invert: false,
             mode: DriveMode::default(),
-            pdo: PdoMapping::default(),
+            pdo: None,
+            rpdo: Vec::new(),
+            tpdo: Vec::new(),
+            eds: None,
             heartbeat_ms: default_heartbeat_ms(),
             heartbeat_timeout_ms: None,
             max_tension_n: default_max_tension(),
             vendor_id: None,
             product_code: None,
+        }
+    }
+
+    /// The PDO maps: the `rpdo`/`tpdo` tables, or the preset. Checked against the rules of
+    /// [`crate::pdo`]; an error carries the span of the bad text where the tables came from a file.
+    pub fn pdo_maps(&self) -> Result<PdoMaps, (String, Option<std::ops::Range<usize>>, String)> {
+        if self.rpdo.is_empty() && self.tpdo.is_empty() {
+            let m = PdoMaps::preset(self.pdo.unwrap_or_default());
+            m.check(self.mode).map_err(|p| ("pdo".to_string(), None, format!("preset: {}", p.message)))?;
+            return Ok(m);
+        }
+        if self.pdo.is_some() {
+            return Err((
+                "pdo".into(),
+                None,
+                "give either a preset (pdo = \"compact\" / \"with_mode\") or [[cable.drive.rpdo]] / [[cable.drive.tpdo]] tables, not both".into(),
+            ));
+        }
+        let mut maps = PdoMaps::default();
+        for (dir, tables) in [(Dir::Rx, &self.rpdo), (Dir::Tx, &self.tpdo)] {
+            let out = if dir == Dir::Rx { &mut maps.rx } else { &mut maps.tx };
+            for (p, t) in tables.iter().enumerate() {
+                let mut objs = Vec::with_capacity(t.map.get_ref().len());
+                for (e, s) in t.map.get_ref().iter().enumerate() {
+                    let o = PdoObject::parse(s.get_ref()).map_err(|m| (format!("{}[{p}].map[{e}]", dir.key()), Some(s.span()), m))?;
+                    objs.push(o);
+                }
+                out.push(objs);
+            }
+        }
+        maps.check(self.mode).map_err(|p| {
+            let span = match (p.pdo, p.entry) {
+                (Some(k), Some(e)) => self.tables(p.dir).get(k).and_then(|t| t.map.get_ref().get(e)).map(|s| s.span()),
+                (Some(k), None) => self.tables(p.dir).get(k).map(|t| t.map.span()),
+                _ => self.tables(p.dir).first().or(self.rpdo.first()).map(|t| t.map.span()),
+            };
+            (p.key(), span, p.message)
+        })?;
+        Ok(maps)
+    }
+
+    fn tables(&self, d: Dir) -> &[PdoTable] {
+        match d {
+            Dir::Rx => &self.rpdo,
+            Dir::Tx => &self.tpdo,
         }
     }
 
@@ -292,6 +368,12 @@ impl DriveConfig {
                 format!("must be longer than heartbeat_ms ({}), got {}", self.heartbeat_ms, self.heartbeat_timeout()),
             ));
         }
+        if let Some(e) = &self.eds {
+            if e.trim().is_empty() {
+                return Err(("eds".into(), "must name the drive's EDS file, e.g. \"drive.eds\" beside the configuration".into()));
+            }
+        }
+        self.pdo_maps().map_err(|(k, _, m)| (k, m))?;
         Ok(())
     }
 }
@@ -307,11 +389,24 @@ mod can_drive_tests {
         assert_eq!((c.master_node_id, c.master_heartbeat_ms, c.abort_connection), (127, 100, AbortConnection::QuickStop));
         c.validate().unwrap();
         let d: DriveConfig = toml::from_str("node_id = 4\nmode = \"torque\"\npdo = \"with_mode\"\ninvert = true").unwrap();
-        assert_eq!(d, DriveConfig { mode: DriveMode::Torque, pdo: PdoMapping::WithMode, invert: true, ..DriveConfig::with_node_id(4) });
+        assert_eq!(d, DriveConfig { mode: DriveMode::Torque, pdo: Some(PdoMapping::WithMode), invert: true, ..DriveConfig::with_node_id(4) });
         assert_eq!(d.heartbeat_timeout(), 300);
         d.validate().unwrap();
         assert!(toml::from_str::<DriveConfig>("node_id = 4\nmode = \"velocity\"").is_err());
         assert!(toml::from_str::<DriveConfig>("node_id = 4\nradius = 1.0").is_err(), "unknown keys are refused");
+    }
+
+    #[test]
+    fn pdo_tables_parse_and_survive_a_save() {
+        let text = "node_id = 2\n[[rpdo]]\nmap = [\"0x6040:0/16\", \"0x607A\"]\n[[tpdo]]\nmap = [\"0x6041\", \"0x6064:0/32\"]\n";
+        let d: DriveConfig = toml::from_str(text).unwrap();
+        let m = d.pdo_maps().unwrap();
+        assert_eq!((m.rx[0].len(), m.tx[0][1]), (2, PdoObject::new(0x6064, 0, 32)));
+        assert_eq!(&text[d.rpdo[0].map.get_ref()[1].span()], "\"0x607A\"");
+        let back: DriveConfig = toml::from_str(&toml::to_string(&d).unwrap()).unwrap();
+        assert_eq!(back, d);
+        let t = DriveConfig { rpdo: vec![PdoTable::new(["0x6040"])], ..d };
+        assert_eq!(t.validate().unwrap_err().0, "rpdo", "target position missing in position mode");
     }
 
     #[test]

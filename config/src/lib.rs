@@ -12,10 +12,12 @@
 
 pub mod atomic;
 pub mod devices;
+pub mod eds;
 mod exact;
 pub mod geometry;
 pub mod input;
 pub mod params;
+pub mod pdo;
 pub mod recording;
 pub mod runtime;
 
@@ -159,10 +161,20 @@ impl RobotConfig {
             key: None,
             message: format!("cannot read the file: {e}"),
         })?;
-        Self::from_toml_str(&text).map_err(|mut e| {
+        let mut cfg = Self::from_toml_str(&text).map_err(|mut e| {
             e.file = Some(path.to_path_buf());
             e
-        })
+        })?;
+        // `eds` paths are relative to the configuration file.
+        let dir = path.parent().unwrap_or(Path::new(""));
+        for d in cfg.cables.iter_mut().filter_map(|c| c.drive.as_mut()) {
+            if let Some(e) = &mut d.eds {
+                if Path::new(e.as_str()).is_relative() {
+                    *e = dir.join(&*e).to_string_lossy().into_owned();
+                }
+            }
+        }
+        Ok(cfg)
     }
 
     /// Parses and validates configuration text.
@@ -271,6 +283,11 @@ impl RobotConfig {
                 ));
             }
             if let Some(d) = &c.drive {
+                // The PDO tables first: their errors point at the bad object's own line.
+                d.pdo_maps().map_err(|(k, span, m)| {
+                    let at = span.filter(|s| !s.is_empty()).map(|s| line_of(text, s.start)).or(line);
+                    err(at, format!("cable[{i}].drive.{k}"), m)
+                })?;
                 d.validate().map_err(|(k, m)| err(line, format!("cable[{i}].drive.{k}"), m))?;
             }
             if let Some(l) = &c.loadcell {

@@ -157,13 +157,13 @@ impl<T: CanTransport> RobotDevices<T> {
             drive[j] = Some(i);
             let nc = &mcfg.nodes[i];
             let (pos, tq) = need[j];
-            if !nc.layout.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
+            if !nc.pdos.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
                 let node = c.drive.as_ref().map_or(0, |d| d.node_id);
                 return Err(err(
                     format!("cable[{j}].drive.pdo"),
                     format!(
-                        "node {node} must run in {} for the start-up motion, but the compact PDO layout fixes its mode; \
-                         set pdo = \"with_mode\" (mode of operation in RPDO2)",
+                        "node {node} must run in {} for the start-up motion, but no RPDO of its map carries the mode of \
+                         operation 0x6060, so its mode is fixed; set pdo = \"with_mode\" (0x6060 in RPDO2) or map 0x6060",
                         if pos && tq { "position and torque mode" } else if pos { "position mode" } else { "torque mode" }
                     ),
                 ));

@@ -160,7 +160,7 @@ fn csp_motion_moves_the_cable_by_the_commanded_metres() {
 fn cst_drive_follows_the_commanded_tension() {
     let mut cfg = config(&[5, 6, 7]);
     cfg.nodes[2].mode = Mode::CyclicTorque;
-    cfg.nodes[2].layout = PdoLayout::WithMode;
+    cfg.nodes[2].pdos = PdoLayout::WithMode.pdos();
     let scaling = cfg.nodes[2].scaling;
     let mut r = rig(cfg);
     r.bring_up();

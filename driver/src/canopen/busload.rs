@@ -7,7 +7,9 @@
 //! `floor((34 + 8n - 1) / 4)` stuff bits (Davis, Burns, Bril, Lukkien 2007, eq. 2). So an 8-byte
 //! PDO is at most 135 bits, a SYNC 55.
 
-use super::pdo::{byte_len, PdoLayout};
+use super::pdo::{byte_len, PdoDef};
+#[cfg(test)]
+use super::pdo::PdoLayout;
 
 /// Worst-case length of a frame on the wire, bits.
 pub fn frame_bits(data_bytes: u8, extended: bool) -> u32 {
@@ -34,13 +36,13 @@ pub struct BusLoad {
 }
 
 impl BusLoad {
-    /// Load of `drives` drives with `layout`, a SYNC every `cycle_s`, heartbeats every
+    /// Load of `drives` drives with the PDOs `pdos`, a SYNC every `cycle_s`, heartbeats every
     /// `heartbeat_ms` (0: none), at `bitrate` bit/s.
-    pub fn compute(drives: usize, layout: PdoLayout, cycle_s: f64, bitrate: u32, heartbeat_ms: u16) -> BusLoad {
+    pub fn compute(drives: usize, pdos: &[PdoDef], cycle_s: f64, bitrate: u32, heartbeat_ms: u16) -> BusLoad {
         let mut bits = frame_bits(0, false);
         let mut frames = 1;
-        for p in layout.pdos() {
-            bits += drives as u32 * frame_bits(byte_len(p.entries), false);
+        for p in pdos {
+            bits += drives as u32 * frame_bits(byte_len(p.entries()), false);
             frames += drives as u32;
         }
         let hb = if heartbeat_ms > 0 {
@@ -71,12 +73,12 @@ mod tests {
 
     #[test]
     fn four_drives_at_500_hz_on_1_mbit() {
-        let l = BusLoad::compute(4, PdoLayout::Compact, 0.002, 1_000_000, 100);
+        let l = BusLoad::compute(4, &PdoLayout::Compact.pdos(), 0.002, 1_000_000, 100);
         assert_eq!(l.frames_per_cycle, 9);
         assert_eq!(l.bits_per_cycle, 55 + 8 * 135);
         // 1135 bits / 2 ms = 567.5 kbit/s, plus 4 x 65 bits x 10/s of heartbeats.
         assert!((l.load - (567_500.0 + 2_600.0) / 1e6).abs() < 1e-9, "{}", l.load);
         assert!(!l.is_high());
-        assert!(BusLoad::compute(8, PdoLayout::Compact, 0.002, 1_000_000, 100).is_high());
+        assert!(BusLoad::compute(8, &PdoLayout::Compact.pdos(), 0.002, 1_000_000, 100).is_high());
     }
 }

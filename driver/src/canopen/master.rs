@@ -25,7 +25,7 @@ use super::cia402::{self, Mode, Scaling, State, Want};
 use super::emcy::{self, Emcy};
 use super::heartbeat::{self, HeartbeatConsumer};
 use super::nmt::{self, NmtCommand, NmtState};
-use super::pdo::{self, PdoDef, PdoLayout, SdoWrite};
+use super::pdo::{self, PdoLayout, PdoSet, SdoWrite};
 use super::sdo::{AbortCode, SdoAbort, SdoClient, SdoDiscard, SdoOutcome};
 use super::sync::{self, SyncProducer};
 use super::{function_code, node_of, od, NodeId};
@@ -50,8 +50,8 @@ pub struct NodeConfig {
     pub node_id: NodeId,
     /// Index of the cable this drive winds.
     pub cable: usize,
-    /// PDO layout.
-    pub layout: PdoLayout,
+    /// The PDOs and their maps (a preset or the configuration's tables).
+    pub pdos: PdoSet,
     /// Mode of operation.
     pub mode: Mode,
     /// Heartbeat period configured into 0x1017, ms.
@@ -74,7 +74,7 @@ impl NodeConfig {
         NodeConfig {
             node_id,
             cable,
-            layout: PdoLayout::Compact,
+            pdos: PdoLayout::Compact.pdos(),
             mode: Mode::CyclicPosition,
             heartbeat_ms: 100,
             heartbeat_timeout: Duration::from_millis(300),
@@ -83,6 +83,83 @@ impl NodeConfig {
             vendor_id: None,
             product_code: None,
         }
+    }
+}
+
+/// How the master uses an object (see [`NodeConfig::object_uses`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Use {
+    /// Read by SDO.
+    Read,
+    /// Written by SDO, `bytes` long.
+    Write {
+        /// Bytes written.
+        bytes: u8,
+    },
+    /// Written every cycle in an RPDO.
+    Rpdo {
+        /// Mapped length.
+        bits: u8,
+    },
+    /// Received every cycle in a TPDO.
+    Tpdo {
+        /// Mapped length.
+        bits: u8,
+    },
+}
+
+impl Use {
+    /// "reads it", "writes it", "maps it into an RPDO", "maps it into a TPDO".
+    pub fn verb(&self) -> &'static str {
+        match self {
+            Use::Read => "reads it",
+            Use::Write { .. } => "writes it",
+            Use::Rpdo { .. } => "maps it into an RPDO",
+            Use::Tpdo { .. } => "maps it into a TPDO",
+        }
+    }
+}
+
+/// One object the master uses on a drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ObjectUse {
+    /// Index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// How.
+    pub kind: Use,
+    /// True if bring-up goes on when the drive does not have it.
+    pub optional: bool,
+}
+
+impl NodeConfig {
+    /// Every object bring-up reads or writes (from the same steps the master runs) and every
+    /// mapped object, in order, each once per use.
+    pub fn object_uses(&self) -> Vec<ObjectUse> {
+        let mut out: Vec<ObjectUse> = Vec::new();
+        let mut add = |u: ObjectUse| {
+            if !out.contains(&u) {
+                out.push(u);
+            }
+        };
+        for s in Node::new(self.clone(), Duration::ZERO, Supervision::default()).steps {
+            match s {
+                Step::Upload { index, sub, required, .. } => add(ObjectUse { index, sub, kind: Use::Read, optional: !required }),
+                Step::Verify(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Read, optional: false }),
+                Step::Download(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Write { bytes: w.len }, optional: false }),
+                Step::Optional(w) => add(ObjectUse { index: w.index, sub: w.sub, kind: Use::Write { bytes: w.len }, optional: true }),
+                // Written only to a drive found powered, but then it must be writable.
+                Step::PowerOff => add(ObjectUse { index: od::CONTROLWORD, sub: 0, kind: Use::Write { bytes: 2 }, optional: false }),
+            }
+        }
+        for p in self.pdos.iter() {
+            for e in p.entries() {
+                let kind = if p.dir == pdo::Direction::Rx { Use::Rpdo { bits: e.bits } } else { Use::Tpdo { bits: e.bits } };
+                add(ObjectUse { index: e.index, sub: e.sub, kind, optional: false });
+            }
+        }
+        out
     }
 }
 
@@ -176,7 +253,7 @@ impl MasterConfig {
     /// Builds the master's configuration from the robot description: the `[can]` table and
     /// every `[cable.drive]`.
     pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<Self, ConfigProblem> {
-        use taut_config::devices::{DriveMode, PdoMapping};
+        use taut_config::devices::DriveMode;
         let problem = |key: String, message: String| ConfigProblem { key, message };
         let can = cfg.can.as_ref().ok_or_else(|| {
             problem("can".into(), "the configuration has no [can] table; add one with `interface = \"can0\"`".into())
@@ -192,13 +269,10 @@ impl MasterConfig {
                     format!("node id {} is also used by cable[{}]; every drive needs its own", d.node_id, other.cable),
                 ));
             }
-            nodes.push(NodeConfig {
+            let node = NodeConfig {
                 node_id: d.node_id,
                 cable: i,
-                layout: match d.pdo {
-                    PdoMapping::Compact => PdoLayout::Compact,
-                    PdoMapping::WithMode => PdoLayout::WithMode,
-                },
+                pdos: PdoSet::from_maps(&d.pdo_maps().map_err(|(k, _, m)| problem(format!("cable[{i}].drive.{k}"), m))?),
                 mode: match d.mode {
                     DriveMode::Position => Mode::CyclicPosition,
                     DriveMode::Torque => Mode::CyclicTorque,
@@ -215,7 +289,18 @@ impl MasterConfig {
                 max_tension_n: d.max_tension_n,
                 vendor_id: d.vendor_id,
                 product_code: d.product_code,
-            });
+            };
+            if let Some(path) = &d.eds {
+                // CiA 306: every object bring-up touches must be in the drive's EDS, checked
+                // before a frame is sent.
+                let key = format!("cable[{i}].drive.eds");
+                let eds = taut_config::eds::Eds::load(path).map_err(|e| problem(key.clone(), e.to_string()))?;
+                super::eds_check::check(&node, &eds).map_err(|p| {
+                    let at = p.line.map_or(String::new(), |l| format!(":{l}"));
+                    problem(key.clone(), format!("{path}{at}: {p}"))
+                })?;
+            }
+            nodes.push(node);
         }
         if nodes.is_empty() {
             return Err(problem("cable.drive".into(), "no [cable.drive] table: give each driven cable a drive with a node_id".into()));
@@ -247,9 +332,9 @@ impl MasterConfig {
     pub fn bus_load(&self) -> super::busload::BusLoad {
         // Layouts may differ per node: sum them node by node.
         let cycle = self.sync_period.as_secs_f64();
-        let mut load = super::busload::BusLoad::compute(0, PdoLayout::Compact, cycle, self.bitrate, 0);
+        let mut load = super::busload::BusLoad::compute(0, &[], cycle, self.bitrate, 0);
         for n in &self.nodes {
-            let one = super::busload::BusLoad::compute(1, n.layout, cycle, self.bitrate, n.heartbeat_ms);
+            let one = super::busload::BusLoad::compute(1, &n.pdos, cycle, self.bitrate, n.heartbeat_ms);
             let sync_bits = super::busload::frame_bits(0, false);
             load.frames_per_cycle += one.frames_per_cycle - 1;
             load.bits_per_cycle += one.bits_per_cycle - sync_bits;
@@ -280,6 +365,17 @@ pub struct Identity {
 pub enum NodeFailure {
     /// The node refused a required SDO transfer.
     Sdo(SdoAbort),
+    /// Read back after writing, an object of the PDO configuration did not hold what was written.
+    Readback {
+        /// Object index.
+        index: u16,
+        /// Sub-index.
+        sub: u8,
+        /// Value written.
+        expected: u32,
+        /// Value read back.
+        found: u32,
+    },
     /// The identity does not match the configuration.
     WrongDevice {
         /// Object checked (0x1018 sub 1 or 2).
@@ -295,6 +391,10 @@ impl fmt::Display for NodeFailure {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             NodeFailure::Sdo(a) => write!(f, "{a}"),
+            NodeFailure::Readback { index, sub, expected, found } => write!(
+                f,
+                "PDO configuration read back from 0x{index:04X}sub{sub} is 0x{found:08X}, 0x{expected:08X} was written: the drive did not take the mapping"
+            ),
             NodeFailure::WrongDevice { sub, expected, found } => write!(
                 f,
                 "identity 0x1018sub{sub} is 0x{found:08X}, the configuration expects 0x{expected:08X}: wrong drive on this node id?"
@@ -571,6 +671,10 @@ enum Step {
     /// voltage) from quick stop active. Skipped for drives already off or in fault (a fault
     /// stays until the operator resets it).
     PowerOff,
+    /// A download a drive may refuse because the object does not exist (an unused PDO).
+    Optional(SdoWrite),
+    /// Upload and compare with the value: the read-back of the PDO configuration.
+    Verify(SdoWrite),
 }
 
 /// The CiA 402 side of a node, as the master sees it.
@@ -584,6 +688,8 @@ pub struct Axis {
     pub position: i32,
     /// Torque actual value, ‰ of rated torque.
     pub torque: i16,
+    /// Velocity actual value 0x606C, counts/s (0 unless the map carries it).
+    pub velocity: i32,
     /// Mode display (with the `with_mode` layout).
     pub mode_display: Option<Mode>,
     /// Error code 0x603F (with the `with_mode` layout) or from the last EMCY.
@@ -607,6 +713,7 @@ impl Axis {
             state: None,
             position: 0,
             torque: 0,
+            velocity: 0,
             mode_display: None,
             error_code: 0,
             tpdos: 0,
@@ -654,6 +761,27 @@ impl NodeStatus {
     }
 }
 
+/// The PDO part of a node's configuration steps: every PDO of the map the CiA 301 way, the
+/// unused PDOs of the predefined connection set off, the PDO configuration read back, and the
+/// mode by SDO when no RPDO carries it.
+fn pdo_steps(cfg: &NodeConfig, steps: &mut Vec<Step>) {
+    let n = cfg.node_id;
+    for p in cfg.pdos.iter() {
+        steps.extend(p.config_writes(n).map(Step::Download));
+    }
+    for dir in [pdo::Direction::Rx, pdo::Direction::Tx] {
+        for num in (0..4).filter(|&k| !cfg.pdos.has(dir, k)) {
+            steps.push(Step::Optional(pdo::disable_write(dir, num, n)));
+        }
+    }
+    for p in cfg.pdos.iter() {
+        steps.extend(p.readback(n).map(Step::Verify));
+    }
+    if !cfg.pdos.maps_mode() {
+        steps.push(Step::Download(SdoWrite::u8(od::MODES_OF_OPERATION, 0, cfg.mode.code() as u8)));
+    }
+}
+
 struct Node {
     cfg: NodeConfig,
     phase: Phase,
@@ -671,7 +799,6 @@ struct Node {
     /// When a heartbeat (not a boot-up) was first seen after taut's reset communication.
     heard_since_reset: Option<Instant>,
     last_emcy: Option<Emcy>,
-    pdos: &'static [PdoDef],
     /// TPDO COB-IDs, for matching received frames.
     tpdo_ids: [u16; 4],
 }
@@ -699,21 +826,15 @@ impl Node {
                 u32::from(sup.node_id & 0x7F) << 16 | u32::from(sup.consumer_time_ms()),
             )),
         ];
-        for p in cfg.layout.pdos() {
-            steps.extend(p.config_writes(n).map(Step::Download));
-        }
-        if !cfg.layout.maps_mode() {
-            steps.push(Step::Download(SdoWrite::u8(od::MODES_OF_OPERATION, 0, cfg.mode.code() as u8)));
-        }
+        pdo_steps(&cfg, &mut steps);
         let mut tpdo_ids = [0u16; 4];
-        for (k, p) in cfg.layout.pdos().iter().filter(|p| p.dir == pdo::Direction::Tx).enumerate().take(4) {
+        for (k, p) in cfg.pdos.iter().filter(|p| p.dir == pdo::Direction::Tx).enumerate().take(4) {
             tpdo_ids[k] = p.cob_id(n);
         }
         let axis = Axis::new(cfg.mode);
         Node {
             hb: HeartbeatConsumer::new(cfg.heartbeat_timeout),
             sdo: SdoClient::new(n, sdo_timeout),
-            pdos: cfg.layout.pdos(),
             cfg,
             phase: Phase::Waiting,
             nmt: None,
@@ -973,16 +1094,17 @@ impl Master {
 
     fn on_tpdo(&mut self, k: usize, id: u16, f: &Frame) {
         let n = &mut self.nodes[k];
-        let Some(def) = n.pdos.iter().find(|p| p.dir == pdo::Direction::Tx && p.cob_id(n.cfg.node_id) == id) else {
+        let Some(def) = n.cfg.pdos.iter().find(|p| p.dir == pdo::Direction::Tx && p.cob_id(n.cfg.node_id) == id) else {
             return self.ignore(f);
         };
         if !n.tpdo_ids.contains(&id) {
             return self.ignore(f);
         }
         let ax = &mut n.axis;
-        let r = pdo::unpack(def.entries, f.data(), |index, _sub, raw, bits| match index {
+        let r = pdo::unpack(def.entries(), f.data(), |index, _sub, raw, bits| match index {
             od::STATUSWORD => ax.statusword = raw as u16,
             od::POSITION_ACTUAL => ax.position = pdo::sign_extend(raw, bits) as i32,
+            od::VELOCITY_ACTUAL => ax.velocity = pdo::sign_extend(raw, bits) as i32,
             od::TORQUE_ACTUAL => ax.torque = pdo::sign_extend(raw, bits) as i16,
             od::MODES_OF_OPERATION_DISPLAY => ax.mode_display = Some(Mode::from_code(raw as u8 as i8)),
             od::ERROR_CODE => ax.error_code = raw as u16,
@@ -1129,7 +1251,7 @@ impl Master {
         }
         let node = n.cfg.node_id;
         match n.steps.get(n.step).copied() {
-            Some(Step::Upload { index, sub, .. }) => {
+            Some(Step::Upload { index, sub, .. } | Step::Verify(SdoWrite { index, sub, .. })) => {
                 let _ = n.sdo.upload(index, sub, now);
             }
             Some(Step::PowerOff) => {
@@ -1145,7 +1267,7 @@ impl Master {
                 let _ = n.sdo.download(od::CONTROLWORD, 0, &cw.to_le_bytes(), false, now);
                 self.event(Event::FoundPowered { node, state });
             }
-            Some(Step::Download(w)) => {
+            Some(Step::Download(w) | Step::Optional(w)) => {
                 let (b, len) = w.bytes();
                 let _ = n.sdo.download(w.index, w.sub, &b[..len], false, now);
             }
@@ -1174,6 +1296,21 @@ impl Master {
                 let mut b = [0u8; 4];
                 b[..len.min(4)].copy_from_slice(&d[..len.min(4)]);
                 let v = u32::from_le_bytes(b);
+                if let Step::Verify(w) = step {
+                    // Compare what the drive holds with what was written, over the written width
+                    // (a drive may answer an expedited upload without the size, as 4 bytes). Of a
+                    // COB-ID only the valid bit and the 11-bit id count: CiA 301 lets a drive
+                    // report bit 30 (no RTR) and bit 29 as it implements them.
+                    let cob = w.sub == 1 && matches!(w.index, 0x1400..=0x15FF | 0x1800..=0x19FF);
+                    let mask = match (cob, w.len) {
+                        (true, _) => pdo::COB_ID_INVALID | 0x7FF,
+                        (false, 4..) => u32::MAX,
+                        (false, n) => (1u32 << (8 * u32::from(n))) - 1,
+                    };
+                    if len < usize::from(w.len) || v & mask != w.value & mask {
+                        return self.fail(k, NodeFailure::Readback { index: w.index, sub: w.sub, expected: w.value, found: v });
+                    }
+                }
                 if let Step::Upload { field, .. } = step {
                     match field {
                         Field::DeviceType => n.identity.device_type = Some(v),
@@ -1232,7 +1369,9 @@ impl Master {
                         }
                         required
                     }
-                    Step::Download(_) | Step::PowerOff => true,
+                    Step::Download(_) | Step::PowerOff | Step::Verify(_) => true,
+                    // An unused PDO the drive does not have need not be switched off.
+                    Step::Optional(_) => !(a.by_server && matches!(a.code, AbortCode::NO_OBJECT | AbortCode::NO_SUBINDEX)),
                 };
                 if a.code == AbortCode::TIMEOUT && !a.by_server {
                     self.counters.sdo_timeouts += 1;
@@ -1350,12 +1489,14 @@ impl Master {
             }
             let cw = cia402::next_controlword(state, ax.want, reset);
             let (tp, tt) = (ax.target_position, ax.target_torque);
-            for p in self.nodes[k].pdos {
+            for j in 0..self.nodes[k].cfg.pdos.len() {
+                // A copy (no allocation) so that the queue can be pushed to in the loop.
+                let p = self.nodes[k].cfg.pdos[j];
                 if p.dir != pdo::Direction::Rx {
                     continue;
                 }
                 let mut data = [0u8; 8];
-                let dlc = pdo::pack(p.entries, &mut data, |index, _| match index {
+                let dlc = pdo::pack(p.entries(), &mut data, |index, _| match index {
                     od::CONTROLWORD => u64::from(cw),
                     od::TARGET_POSITION => tp as u32 as u64,
                     od::TARGET_TORQUE => tt as u16 as u64,
@@ -1400,7 +1541,7 @@ pub enum CommandError {
         /// Node.
         node: NodeId,
     },
-    /// The drive's PDO layout does not carry the mode of operation, so it cannot switch.
+    /// The drive's PDO map does not carry the mode of operation, so it cannot switch.
     ModeNotMapped {
         /// Node.
         node: NodeId,
@@ -1414,7 +1555,7 @@ impl fmt::Display for CommandError {
             CommandError::NotEnabled { node } => write!(f, "node {node}: drive is not in operation enabled"),
             CommandError::WrongMode { node } => write!(f, "node {node}: command does not match the drive's mode"),
             CommandError::ModeNotMapped { node } => {
-                write!(f, "node {node}: the compact PDO layout cannot switch the mode of operation; configure pdo = \"with_mode\"")
+                write!(f, "node {node}: no RPDO carries the mode of operation 0x6060, so it cannot switch modes; configure pdo = \"with_mode\" or map 0x6060")
             }
         }
     }
@@ -1480,7 +1621,7 @@ impl Operational<'_> {
         if n.axis.mode == mode {
             return Ok(());
         }
-        if !n.cfg.layout.maps_mode() {
+        if !n.cfg.pdos.maps_mode() {
             return Err(CommandError::ModeNotMapped { node: n.cfg.node_id });
         }
         n.axis.mode = mode;

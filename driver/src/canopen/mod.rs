@@ -18,6 +18,7 @@
 pub mod busload;
 pub mod cia402;
 pub mod drive_set;
+pub mod eds_check;
 pub mod emcy;
 pub mod heartbeat;
 pub mod master;

@@ -18,6 +18,7 @@
 //! 0x6060  0     i8    rw      modes of operation (8 CSP, 10 CST)
 //! 0x6061  0     i8    ro      modes of operation display
 //! 0x6064  0     i32   ro      position actual value                       counts
+//! 0x606C  0     i32   ro      velocity actual value                       counts/s
 //! 0x6071  0     i16   rw      target torque                               ‰ of rated torque
 //! 0x6077  0     i16   ro      torque actual value                         ‰ of rated torque
 //! 0x607A  0     i32   rw      target position                             counts
@@ -55,6 +56,8 @@ pub const MODES_OF_OPERATION: u16 = 0x6060;
 pub const MODES_OF_OPERATION_DISPLAY: u16 = 0x6061;
 /// Position actual value, counts.
 pub const POSITION_ACTUAL: u16 = 0x6064;
+/// Velocity actual value, counts/s.
+pub const VELOCITY_ACTUAL: u16 = 0x606C;
 /// Target torque, per mille of rated torque.
 pub const TARGET_TORQUE: u16 = 0x6071;
 /// Torque actual value, per mille of rated torque.

@@ -9,7 +9,8 @@
 //!   n-th SYNC, 254/255 = event driven)
 //! payload: mapped objects back to back, little-endian, starting at bit 0 of byte 0
 //! ```
-//! Layouts ([`PdoLayout`]):
+//! Presets ([`PdoLayout`]; any other map comes from `[[cable.drive.rpdo]]` / `tpdo` tables and
+//! is held, like these, in a [`PdoSet`]):
 //!
 //! ```text
 //! compact    RPDO1 0x200+n: controlword 0x6040 (16) | target position 0x607A (32) | target torque 0x6071 (16)
@@ -152,43 +153,46 @@ pub enum Direction {
     Tx,
 }
 
-/// One PDO of a layout.
+/// One PDO of a drive: its number and mapping (fixed capacity, so a set of them is built once
+/// at configuration and read, never allocated, in the cycle).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PdoDef {
     /// RPDO or TPDO.
     pub dir: Direction,
     /// PDO number 0..=3 (RPDO1 is 0).
     pub num: u8,
-    /// The mapping.
-    pub entries: &'static [MapEntry],
+    map: [MapEntry; 8],
+    count: u8,
 }
 
 impl PdoDef {
+    /// PDO `num` (0 = first) of direction `dir` mapping `entries` (at most 8; more are dropped:
+    /// the configuration refuses such maps before they get here).
+    pub fn new(dir: Direction, num: u8, entries: &[MapEntry]) -> Self {
+        let mut map = [MapEntry::new(0, 0, 0); 8];
+        let n = entries.len().min(8);
+        map[..n].copy_from_slice(&entries[..n]);
+        PdoDef { dir, num, map, count: n as u8 }
+    }
+
+    /// The mapped objects, in order.
+    pub fn entries(&self) -> &[MapEntry] {
+        &self.map[..usize::from(self.count)]
+    }
+
     /// Default COB-ID of this PDO for `node` (predefined connection set).
     pub fn cob_id(&self, node: NodeId) -> u16 {
-        let base = match self.dir {
-            Direction::Tx => 0x180,
-            Direction::Rx => 0x200,
-        };
-        base + 0x100 * u16::from(self.num) + u16::from(node & 0x7F)
+        default_cob_id(self.dir, self.num, node)
     }
 
     /// Communication parameter object.
     pub fn comm_index(&self) -> u16 {
-        let base = match self.dir {
-            Direction::Rx => od::RPDO_COMM,
-            Direction::Tx => od::TPDO_COMM,
-        };
-        base + u16::from(self.num)
+        comm_index(self.dir, self.num)
     }
 
     /// Mapping parameter object.
     pub fn map_index(&self) -> u16 {
-        let base = match self.dir {
-            Direction::Rx => od::RPDO_MAP,
-            Direction::Tx => od::TPDO_MAP,
-        };
-        base + u16::from(self.num)
+        map_index(self.dir, self.num)
     }
 
     /// The SDO writes that configure this PDO on `node`, in the order CiA 301 7.2.2.4 asks:
@@ -196,11 +200,109 @@ impl PdoDef {
     pub fn config_writes(&self, node: NodeId) -> impl Iterator<Item = SdoWrite> + '_ {
         let cob = u32::from(self.cob_id(node));
         let (comm, map) = (self.comm_index(), self.map_index());
-        let n = self.entries.len() as u32;
+        let n = self.count;
         [SdoWrite::u32(comm, 1, cob | COB_ID_INVALID), SdoWrite::u8(map, 0, 0)]
             .into_iter()
-            .chain(self.entries.iter().enumerate().map(move |(i, e)| SdoWrite::u32(map, i as u8 + 1, e.encode())))
-            .chain([SdoWrite::u8(map, 0, n as u8), SdoWrite::u8(comm, 2, TRANSMISSION_SYNC_EVERY), SdoWrite::u32(comm, 1, cob)])
+            .chain(self.entries().iter().enumerate().map(move |(i, e)| SdoWrite::u32(map, i as u8 + 1, e.encode())))
+            .chain([SdoWrite::u8(map, 0, n), SdoWrite::u8(comm, 2, TRANSMISSION_SYNC_EVERY), SdoWrite::u32(comm, 1, cob)])
+    }
+
+    /// What a drive must answer when the configuration is read back (the values
+    /// [`config_writes`](Self::config_writes) left): count, entries, transmission type, COB-ID.
+    pub fn readback(&self, node: NodeId) -> impl Iterator<Item = SdoWrite> + '_ {
+        let (comm, map) = (self.comm_index(), self.map_index());
+        [SdoWrite::u8(map, 0, self.count)]
+            .into_iter()
+            .chain(self.entries().iter().enumerate().map(move |(i, e)| SdoWrite::u32(map, i as u8 + 1, e.encode())))
+            .chain([SdoWrite::u8(comm, 2, TRANSMISSION_SYNC_EVERY), SdoWrite::u32(comm, 1, u32::from(self.cob_id(node)))])
+    }
+}
+
+/// Default COB-ID of PDO `num` (0 = first) of `dir` for `node` (predefined connection set).
+pub fn default_cob_id(dir: Direction, num: u8, node: NodeId) -> u16 {
+    let base = match dir {
+        Direction::Tx => 0x180,
+        Direction::Rx => 0x200,
+    };
+    base + 0x100 * u16::from(num) + u16::from(node & 0x7F)
+}
+
+/// Communication parameter object of PDO `num` of `dir`.
+pub fn comm_index(dir: Direction, num: u8) -> u16 {
+    let base = match dir {
+        Direction::Rx => od::RPDO_COMM,
+        Direction::Tx => od::TPDO_COMM,
+    };
+    base + u16::from(num)
+}
+
+/// Mapping parameter object of PDO `num` of `dir`.
+pub fn map_index(dir: Direction, num: u8) -> u16 {
+    let base = match dir {
+        Direction::Rx => od::RPDO_MAP,
+        Direction::Tx => od::TPDO_MAP,
+    };
+    base + u16::from(num)
+}
+
+/// The write that switches off PDO `num` of `dir` on `node` (COB-ID bit 31), for PDOs of the
+/// predefined connection set that the map does not use: a drive's factory mapping may have them
+/// valid, and a TPDO nobody asked for costs bus time every SYNC.
+pub fn disable_write(dir: Direction, num: u8, node: NodeId) -> SdoWrite {
+    SdoWrite::u32(comm_index(dir, num), 1, u32::from(default_cob_id(dir, num, node)) | COB_ID_INVALID)
+}
+
+/// The PDOs of one drive, at most 4 RPDOs and 4 TPDOs, built once at configuration.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct PdoSet {
+    pdos: heapless::Vec<PdoDef, 8>,
+}
+
+impl PdoSet {
+    /// The PDOs of checked configuration maps (see `taut_config::pdo`).
+    pub fn from_maps(m: &taut_config::pdo::PdoMaps) -> PdoSet {
+        let mut pdos = heapless::Vec::new();
+        for (dir, list) in [(Direction::Rx, &m.rx), (Direction::Tx, &m.tx)] {
+            for (k, objs) in list.iter().enumerate().take(4) {
+                let e: heapless::Vec<MapEntry, 8> = objs.iter().take(8).map(|o| MapEntry::new(o.index, o.sub, o.bits)).collect();
+                let _ = pdos.push(PdoDef::new(dir, k as u8, &e));
+            }
+        }
+        PdoSet { pdos }
+    }
+
+    /// The PDOs.
+    pub fn pdos(&self) -> &[PdoDef] {
+        &self.pdos
+    }
+
+    /// True if `index` (sub 0) travels in a PDO of `dir`.
+    pub fn maps(&self, dir: Direction, index: u16) -> bool {
+        self.pdos.iter().filter(|p| p.dir == dir).flat_map(|p| p.entries()).any(|e| e.index == index && e.sub == 0)
+    }
+
+    /// True if the mode of operation is mapped into an RPDO (so it is not written by SDO at
+    /// start-up, and the drive can switch modes while running).
+    pub fn maps_mode(&self) -> bool {
+        self.maps(Direction::Rx, od::MODES_OF_OPERATION)
+    }
+
+    /// True if PDO `num` of `dir` is used.
+    pub fn has(&self, dir: Direction, num: u8) -> bool {
+        self.pdos.iter().any(|p| p.dir == dir && p.num == num)
+    }
+}
+
+impl std::ops::Deref for PdoSet {
+    type Target = [PdoDef];
+    fn deref(&self) -> &[PdoDef] {
+        &self.pdos
+    }
+}
+
+impl From<PdoLayout> for PdoSet {
+    fn from(l: PdoLayout) -> PdoSet {
+        l.pdos()
     }
 }
 
@@ -236,20 +338,8 @@ impl SdoWrite {
     }
 }
 
-const RPDO1: &[MapEntry] = &[
-    MapEntry::new(od::CONTROLWORD, 0, 16),
-    MapEntry::new(od::TARGET_POSITION, 0, 32),
-    MapEntry::new(od::TARGET_TORQUE, 0, 16),
-];
-const TPDO1: &[MapEntry] = &[
-    MapEntry::new(od::STATUSWORD, 0, 16),
-    MapEntry::new(od::POSITION_ACTUAL, 0, 32),
-    MapEntry::new(od::TORQUE_ACTUAL, 0, 16),
-];
-const RPDO2: &[MapEntry] = &[MapEntry::new(od::MODES_OF_OPERATION, 0, 8)];
-const TPDO2: &[MapEntry] = &[MapEntry::new(od::MODES_OF_OPERATION_DISPLAY, 0, 8), MapEntry::new(od::ERROR_CODE, 0, 16)];
-
-/// Which objects travel in PDOs (see the module doc).
+/// The two named presets of the configuration (`pdo = "compact"` / `"with_mode"`); the maps
+/// themselves are `taut_config::pdo::PdoMaps::preset`, the one place they are written down.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PdoLayout {
     /// One RPDO and one TPDO of 8 bytes per drive; the mode is set by SDO.
@@ -260,27 +350,18 @@ pub enum PdoLayout {
 }
 
 impl PdoLayout {
-    /// The PDOs of this layout.
-    pub fn pdos(&self) -> &'static [PdoDef] {
-        const COMPACT: &[PdoDef] = &[
-            PdoDef { dir: Direction::Rx, num: 0, entries: RPDO1 },
-            PdoDef { dir: Direction::Tx, num: 0, entries: TPDO1 },
-        ];
-        const WITH_MODE: &[PdoDef] = &[
-            PdoDef { dir: Direction::Rx, num: 0, entries: RPDO1 },
-            PdoDef { dir: Direction::Tx, num: 0, entries: TPDO1 },
-            PdoDef { dir: Direction::Rx, num: 1, entries: RPDO2 },
-            PdoDef { dir: Direction::Tx, num: 1, entries: TPDO2 },
-        ];
-        match self {
-            PdoLayout::Compact => COMPACT,
-            PdoLayout::WithMode => WITH_MODE,
-        }
+    /// The PDOs of this preset.
+    pub fn pdos(&self) -> PdoSet {
+        use taut_config::devices::PdoMapping;
+        PdoSet::from_maps(&taut_config::pdo::PdoMaps::preset(match self {
+            PdoLayout::Compact => PdoMapping::Compact,
+            PdoLayout::WithMode => PdoMapping::WithMode,
+        }))
     }
 
     /// True if the mode of operation is mapped (so it is not written by SDO at start-up).
     pub fn maps_mode(&self) -> bool {
-        matches!(self, PdoLayout::WithMode)
+        self.pdos().maps_mode()
     }
 }
 
@@ -301,10 +382,28 @@ mod tests {
         assert_eq!(w.last(), Some(&SdoWrite::u32(0x1400, 1, 0x203)));
         assert_eq!(PdoLayout::WithMode.pdos()[3].cob_id(3), 0x283);
         for l in [PdoLayout::Compact, PdoLayout::WithMode] {
-            for p in l.pdos() {
-                assert!(total_bits(p.entries) <= 64);
+            for p in l.pdos().iter() {
+                assert!(total_bits(p.entries()) <= 64);
             }
         }
+        // Exactly the maps of the two fixed layouts taut had before maps came from the
+        // configuration.
+        let e = |p: &PdoDef| p.entries().iter().map(|e| e.encode()).collect::<Vec<_>>();
+        let w = PdoLayout::WithMode.pdos();
+        assert_eq!(w.len(), 4);
+        assert_eq!((w[0].dir, w[0].num, e(&w[0])), (Direction::Rx, 0, vec![0x6040_0010, 0x607A_0020, 0x6071_0010]));
+        assert_eq!((w[1].dir, w[1].num, e(&w[1])), (Direction::Rx, 1, vec![0x6060_0008]));
+        assert_eq!((w[2].dir, w[2].num, e(&w[2])), (Direction::Tx, 0, vec![0x6041_0010, 0x6064_0020, 0x6077_0010]));
+        assert_eq!((w[3].dir, w[3].num, e(&w[3])), (Direction::Tx, 1, vec![0x6061_0008, 0x603F_0010]));
+        let compact: Vec<PdoDef> = w[..1].iter().chain(&w[2..3]).copied().collect();
+        assert_eq!(PdoLayout::Compact.pdos()[..], compact[..]);
+        let r: Vec<_> = w[0].readback(3).collect();
+        let m = |sub, v| SdoWrite::u32(0x1600, sub, v);
+        assert_eq!(
+            r,
+            vec![SdoWrite::u8(0x1600, 0, 3), m(1, 0x6040_0010), m(2, 0x607A_0020), m(3, 0x6071_0010), SdoWrite::u8(0x1400, 2, 1), SdoWrite::u32(0x1400, 1, 0x203)]
+        );
+        assert_eq!(disable_write(Direction::Tx, 2, 3), SdoWrite::u32(0x1802, 1, 0x8000_0383));
     }
 
     fn arb_entries() -> impl Strategy<Value = Vec<MapEntry>> {

@@ -17,7 +17,20 @@
 //! 0x6064 position actual   0x6071 target torque   0x6077 torque actual   0x607A target position
 //! ```
 //! The PDO mapping can only be changed the CiA 301 way (PDO invalid, count 0, entries, count,
-//! valid), so a master that skips a step gets the abort a real drive would give.
+//! valid), so a master that skips a step gets the abort a real drive would give:
+//!
+//! ```text
+//! 0x14xx/0x18xx sub 1  COB-ID changed while valid, bits 11..29 set, enabled with count 0  0x06090030
+//!               sub 2  transmission type 241..=251 (reserved)                             0x06090030
+//! 0x16xx/0x1Axx        written while the PDO is valid, or an entry while sub 0 != 0        0x06010000
+//!               entry  object does not exist                                              0x06020000
+//!                      sub-index does not exist                                           0x06090011
+//!                      object not mappable in this direction, or length not its size      0x06040041
+//!               sub 0  more than 8 entries, or more than 64 bits                          0x06040042
+//!                      an entry in 1..=n is empty                                         0x06040043
+//! ```
+//! Like a real drive, its factory mapping is not taut's (see `factory_pdos`), so a master that
+//! does not write its own gets other objects, on other COB-IDs.
 //!
 //! Motion: without the plant, CSP follows the target as a first-order lag with a speed limit,
 //! and CST reports the target torque. With the plant coupled ([`VirtualDrive::set_external`]),
@@ -121,6 +134,27 @@ pub struct Target {
     pub enabled: bool,
 }
 
+/// CiA 301: general parameter incompatibility (here: sub 0 counts an empty mapping entry).
+const PARAM_INCOMPATIBLE: AbortCode = AbortCode(0x0604_0043);
+
+/// Following error actual value, counts.
+const FOLLOWING_ERROR: u16 = 0x60F4;
+
+/// The drive's mappable objects: index, sub-index, bits, mappable into an RPDO, into a TPDO.
+const MAPPABLE: &[(u16, u8, u8, bool, bool)] = &[
+    (od::ERROR_CODE, 0, 16, false, true),
+    (od::CONTROLWORD, 0, 16, true, false),
+    (od::STATUSWORD, 0, 16, false, true),
+    (od::MODES_OF_OPERATION, 0, 8, true, false),
+    (od::MODES_OF_OPERATION_DISPLAY, 0, 8, false, true),
+    (od::POSITION_ACTUAL, 0, 32, false, true),
+    (od::VELOCITY_ACTUAL, 0, 32, false, true),
+    (od::TARGET_TORQUE, 0, 16, true, false),
+    (od::TORQUE_ACTUAL, 0, 16, false, true),
+    (od::TARGET_POSITION, 0, 32, true, true),
+    (FOLLOWING_ERROR, 0, 32, false, true),
+];
+
 #[derive(Debug, Clone, Copy)]
 struct PdoSlot {
     cob_id: u32,
@@ -136,6 +170,111 @@ impl PdoSlot {
     fn entries(&self) -> heapless::Vec<MapEntry, 8> {
         self.map[..usize::from(self.count.min(8))].iter().filter_map(|&v| MapEntry::decode(v)).collect()
     }
+
+    fn with(cob_id: u32, trans_type: u8, entries: &[MapEntry]) -> PdoSlot {
+        let mut map = [0u32; 8];
+        for (m, e) in map.iter_mut().zip(entries) {
+            *m = e.encode();
+        }
+        PdoSlot { cob_id, trans_type, map, count: entries.len() as u8 }
+    }
+
+    /// CiA 301 7.5.2.35 / 7.5.2.37: a write to the communication parameter.
+    fn write_comm(&mut self, sub: u8, v: u32) -> Result<(), AbortCode> {
+        match sub {
+            1 => {
+                let valid = v & COB_ID_INVALID == 0;
+                // 11-bit ids only (bit 29 = extended frame), the id fixed while valid, and no
+                // valid PDO without a mapping.
+                if v & 0x3FFF_F800 != 0 || (valid && self.valid() && (v & 0x7FF) != (self.cob_id & 0x7FF)) || (valid && self.count == 0) {
+                    return Err(AbortCode::INVALID_VALUE);
+                }
+                self.cob_id = v;
+                Ok(())
+            }
+            2 => {
+                let t = v as u8;
+                if (241..=251).contains(&t) {
+                    return Err(AbortCode::INVALID_VALUE);
+                }
+                self.trans_type = t;
+                Ok(())
+            }
+            0 => Err(AbortCode::READ_ONLY),
+            _ => Err(AbortCode::NO_SUBINDEX),
+        }
+    }
+
+    /// CiA 301 7.5.2.36 / 7.5.2.38: a write to the mapping parameter.
+    fn write_map(&mut self, rx: bool, sub: u8, v: u32) -> Result<(), AbortCode> {
+        if sub > 8 {
+            return Err(AbortCode::NO_SUBINDEX);
+        }
+        // The mapping changes only while the PDO is invalid, and entries only while sub 0 is 0.
+        if self.valid() || (sub > 0 && self.count != 0) {
+            return Err(AbortCode::UNSUPPORTED_ACCESS);
+        }
+        if sub == 0 {
+            let n = v as u8;
+            if n > 8 {
+                return Err(AbortCode::PDO_TOO_LONG);
+            }
+            let mut bits = 0u32;
+            for &m in &self.map[..usize::from(n)] {
+                if MapEntry::decode(m).is_none() {
+                    return Err(PARAM_INCOMPATIBLE);
+                }
+                bits += m & 0xFF;
+            }
+            if bits > 64 {
+                return Err(AbortCode::PDO_TOO_LONG);
+            }
+            self.count = n;
+            return Ok(());
+        }
+        if v != 0 {
+            let e = MapEntry::decode(v).ok_or(AbortCode::NOT_MAPPABLE)?;
+            mapping_check(rx, e)?;
+        }
+        self.map[usize::from(sub - 1)] = v;
+        Ok(())
+    }
+}
+
+/// Whether `e` may be mapped into an RPDO (`rx`) or a TPDO of this drive.
+fn mapping_check(rx: bool, e: MapEntry) -> Result<(), AbortCode> {
+    match MAPPABLE.iter().find(|m| m.0 == e.index && m.1 == e.sub) {
+        Some(&(_, _, bits, r, t)) if bits == e.bits && if rx { r } else { t } => Ok(()),
+        Some(_) => Err(AbortCode::NOT_MAPPABLE),
+        None if MAPPABLE.iter().any(|m| m.0 == e.index) => Err(AbortCode::NO_SUBINDEX),
+        None if object_exists(e.index) => Err(AbortCode::NOT_MAPPABLE),
+        None => Err(AbortCode::NO_OBJECT),
+    }
+}
+
+fn object_exists(index: u16) -> bool {
+    matches!(index, 0x1000 | 0x1008 | 0x1017 | 0x1018 | 0x1400..=0x1403 | 0x1600..=0x1603 | 0x1800..=0x1803 | 0x1A00..=0x1A03 | 0x2000)
+        || MAPPABLE.iter().any(|m| m.0 == index)
+}
+
+/// The factory PDO configuration (what reset communication restores): deliberately not taut's,
+/// as on real drives. RPDO1 0x200+n controlword + mode, RPDO2 0x300+n controlword + target
+/// position, TPDO1 0x180+n statusword + mode display (event driven), TPDO2 0x280+n statusword +
+/// position actual on every SYNC; PDOs 3 and 4 invalid and empty.
+fn factory_pdos(node: NodeId) -> ([PdoSlot; 4], [PdoSlot; 4]) {
+    let n = u32::from(node);
+    let e = MapEntry::new;
+    let mut rpdo = [PdoSlot { cob_id: COB_ID_INVALID, trans_type: 255, map: [0; 8], count: 0 }; 4];
+    let mut tpdo = rpdo;
+    for k in 0..4u32 {
+        rpdo[k as usize].cob_id = (0x200 + 0x100 * k + n) | COB_ID_INVALID;
+        tpdo[k as usize].cob_id = (0x180 + 0x100 * k + n) | COB_ID_INVALID;
+    }
+    rpdo[0] = PdoSlot::with(0x200 + n, 255, &[e(od::CONTROLWORD, 0, 16), e(od::MODES_OF_OPERATION, 0, 8)]);
+    rpdo[1] = PdoSlot::with(0x300 + n, 255, &[e(od::CONTROLWORD, 0, 16), e(od::TARGET_POSITION, 0, 32)]);
+    tpdo[0] = PdoSlot::with(0x180 + n, 255, &[e(od::STATUSWORD, 0, 16), e(od::MODES_OF_OPERATION_DISPLAY, 0, 8)]);
+    tpdo[1] = PdoSlot::with(0x280 + n, 1, &[e(od::STATUSWORD, 0, 16), e(od::POSITION_ACTUAL, 0, 32)]);
+    (rpdo, tpdo)
 }
 
 #[derive(Debug, Clone)]
@@ -186,6 +325,7 @@ pub struct VirtualDrive {
     mode: i8,
     position: f64,
     torque: i16,
+    velocity: i32,
     target_position: i32,
     target_torque: i16,
     error_code: u16,
@@ -232,6 +372,7 @@ impl VirtualDrive {
             mode: 0,
             position: 0.0,
             torque: 0,
+            velocity: 0,
             target_position: 0,
             target_torque: 0,
             error_code: 0,
@@ -397,19 +538,9 @@ impl VirtualDrive {
     }
 
     fn reset_communication(&mut self) {
-        let n = u32::from(self.p.node_id);
         self.heartbeat_ms = self.p.stored_heartbeat_ms;
         self.next_hb = None;
-        // Power-on PDOs: RPDO1 controlword, TPDO1 statusword on every SYNC (like many drives).
-        for k in 0..4 {
-            let (rc, tc) = (0x200 + 0x100 * k as u32 + n, 0x180 + 0x100 * k as u32 + n);
-            self.rpdo[k] = PdoSlot { cob_id: rc | if k == 0 { 0 } else { COB_ID_INVALID }, trans_type: 255, map: [0; 8], count: 0 };
-            self.tpdo[k] = PdoSlot { cob_id: tc | if k == 0 { 0 } else { COB_ID_INVALID }, trans_type: 1, map: [0; 8], count: 0 };
-        }
-        self.rpdo[0].map[0] = MapEntry::new(od::CONTROLWORD, 0, 16).encode();
-        self.rpdo[0].count = 1;
-        self.tpdo[0].map[0] = MapEntry::new(od::STATUSWORD, 0, 16).encode();
-        self.tpdo[0].count = 1;
+        (self.rpdo, self.tpdo) = factory_pdos(self.p.node_id);
         self.latched = [None; 4];
         self.sync_count = [0; 4];
         self.sdo = SdoServer::Idle;
@@ -661,8 +792,13 @@ impl VirtualDrive {
         }
         let dt = self.last_sync.map_or(0.0, |t| now.saturating_duration_since(t).as_secs_f64().min(0.1));
         self.last_sync = Some(now);
+        let before = self.position;
         if !self.external {
             self.step_motion(dt);
+        }
+        // Velocity over the last SYNC period (also when the plant owns the position).
+        if dt > 0.0 {
+            self.velocity = ((self.position - before) / dt).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
         }
         for k in 0..4 {
             let slot = self.tpdo[k];
@@ -685,6 +821,8 @@ impl VirtualDrive {
                 od::MODES_OF_OPERATION_DISPLAY => mode,
                 od::ERROR_CODE => u64::from(err),
                 od::TARGET_POSITION => self.target_position as u32 as u64,
+                od::VELOCITY_ACTUAL => self.velocity as u32 as u64,
+                FOLLOWING_ERROR => (self.target_position.wrapping_sub(self.position())) as u32 as u64,
                 _ => 0,
             }) {
                 self.send(Frame::new((slot.cob_id & 0x7FF) as u16, &data[..usize::from(dlc)]));
@@ -874,7 +1012,9 @@ impl VirtualDrive {
             (od::TARGET_TORQUE, 0) => put(&self.target_torque.to_le_bytes()),
             (od::TORQUE_ACTUAL, 0) => put(&self.torque.to_le_bytes()),
             (od::TARGET_POSITION, 0) => put(&self.target_position.to_le_bytes()),
-            (0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F..=0x607A, _) if self.exists(index) => {
+            (od::VELOCITY_ACTUAL, 0) => put(&self.velocity.to_le_bytes()),
+            (FOLLOWING_ERROR, 0) => put(&self.target_position.wrapping_sub(self.position()).to_le_bytes()),
+            (0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F..=0x60F4, _) if self.exists(index) => {
                 Err(AbortCode::NO_SUBINDEX)
             }
             _ => Err(AbortCode::NO_OBJECT),
@@ -884,7 +1024,7 @@ impl VirtualDrive {
     fn exists(&self, index: u16) -> bool {
         matches!(
             index,
-            0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F | 0x6040 | 0x6041 | 0x6060 | 0x6061 | 0x6064 | 0x6071 | 0x6077 | 0x607A
+            0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F | 0x6040 | 0x6041 | 0x6060 | 0x6061 | 0x6064 | 0x606C | 0x6071 | 0x6077 | 0x607A | 0x60F4
         )
     }
 
@@ -928,65 +1068,22 @@ impl VirtualDrive {
             (0x1400..=0x1403, _) | (0x1800..=0x1803, _) => {
                 let rx = index < 0x1800;
                 let slot = if rx { &mut self.rpdo[usize::from(index - 0x1400)] } else { &mut self.tpdo[usize::from(index - 0x1800)] };
-                match sub {
-                    1 => {
-                        let v = u(d, 4)?;
-                        // CiA 301: the COB-ID may only change while the PDO is invalid.
-                        if slot.valid() && v & COB_ID_INVALID == 0 && v != slot.cob_id {
-                            return Err(AbortCode::INVALID_VALUE);
-                        }
-                        slot.cob_id = v;
-                        Ok(())
-                    }
-                    2 => {
-                        slot.trans_type = u(d, 1)? as u8;
-                        Ok(())
-                    }
-                    0 => Err(AbortCode::READ_ONLY),
-                    _ => Err(AbortCode::NO_SUBINDEX),
-                }
+                let v = match sub {
+                    1 => u(d, 4)?,
+                    2 => u(d, 1)?,
+                    _ => 0,
+                };
+                slot.write_comm(sub, v)
             }
             (0x1600..=0x1603, _) | (0x1A00..=0x1A03, _) => {
                 let rx = index < 0x1A00;
                 let slot = if rx { &mut self.rpdo[usize::from(index - 0x1600)] } else { &mut self.tpdo[usize::from(index - 0x1A00)] };
-                if slot.valid() {
-                    return Err(AbortCode::DEVICE_STATE);
-                }
-                match sub {
-                    0 => {
-                        let n = u(d, 1)? as u8;
-                        if n > 8 {
-                            return Err(AbortCode::PDO_TOO_LONG);
-                        }
-                        let bits: u32 = slot.map[..usize::from(n)].iter().map(|v| v & 0xFF).sum();
-                        if bits > 64 {
-                            return Err(AbortCode::PDO_TOO_LONG);
-                        }
-                        slot.count = n;
-                        Ok(())
-                    }
-                    1..=8 => {
-                        if slot.count != 0 {
-                            return Err(AbortCode::DEVICE_STATE);
-                        }
-                        let v = u(d, 4)?;
-                        let e = MapEntry::decode(v).ok_or(AbortCode::NOT_MAPPABLE)?;
-                        let ok = if rx {
-                            matches!((e.index, e.bits), (od::CONTROLWORD, 16) | (od::TARGET_POSITION, 32) | (od::TARGET_TORQUE, 16) | (od::MODES_OF_OPERATION, 8))
-                        } else {
-                            matches!(
-                                (e.index, e.bits),
-                                (od::STATUSWORD, 16) | (od::POSITION_ACTUAL, 32) | (od::TORQUE_ACTUAL, 16) | (od::MODES_OF_OPERATION_DISPLAY, 8) | (od::ERROR_CODE, 16) | (od::TARGET_POSITION, 32)
-                            )
-                        };
-                        if !ok || e.sub != 0 {
-                            return Err(AbortCode::NOT_MAPPABLE);
-                        }
-                        slot.map[usize::from(sub - 1)] = v;
-                        Ok(())
-                    }
-                    _ => Err(AbortCode::NO_SUBINDEX),
-                }
+                let v = match sub {
+                    0 => u(d, 1)?,
+                    1..=8 => u(d, 4)?,
+                    _ => 0,
+                };
+                slot.write_map(rx, sub, v)
             }
             (0x2000, 0) => {
                 if d.len() > self.scratch.len() {
@@ -1017,7 +1114,7 @@ impl VirtualDrive {
                 self.target_position = u(d, 4)? as i32;
                 Ok(())
             }
-            (0x1000 | 0x1008 | 0x1018 | 0x603F | 0x6041 | 0x6061 | 0x6064 | 0x6077, _) => Err(AbortCode::READ_ONLY),
+            (0x1000 | 0x1008 | 0x1018 | 0x603F | 0x6041 | 0x6061 | 0x6064 | 0x606C | 0x6077 | 0x60F4, _) => Err(AbortCode::READ_ONLY),
             _ if self.exists(index) => Err(AbortCode::NO_SUBINDEX),
             _ => Err(AbortCode::NO_OBJECT),
         }
@@ -1215,7 +1312,7 @@ mod tests {
         assert_eq!(r, SdoResponse::Abort { index: 0x5555, sub: 0, code: AbortCode::NO_OBJECT });
         // Mapping a valid PDO is refused, as CiA 301 requires.
         let r = sdo(&mut d, SdoRequest::InitiateDownload { index: 0x1A00, sub: 0, kind: Initiate::Expedited { data: [0; 4], len: 1 } }, t);
-        assert_eq!(r, SdoResponse::Abort { index: 0x1A00, sub: 0, code: AbortCode::DEVICE_STATE });
+        assert_eq!(r, SdoResponse::Abort { index: 0x1A00, sub: 0, code: AbortCode::UNSUPPORTED_ACCESS });
     }
 
     #[test]
