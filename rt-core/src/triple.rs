@@ -7,6 +7,8 @@
 //! fresh. A value the reader gives up goes back to the writer, whose next `write` replaces it and
 //! drops it there, on the writer's thread. That is why this is used for parameters and not
 //! `arc-swap` (whose first `load` on a thread allocates and whose guards may free on the reader).
+//! Its atomics and slots switch to `loom`'s under `cfg(loom)`; the model tests are in
+//! `loom_tests.rs` (`scripts/loom`).
 //!
 //! ```
 //! let (mut w, mut r) = taut_rt_core::triple::triple_buffer(0u32);
