@@ -41,6 +41,10 @@ pub mod testkit;
 pub mod sample;
 #[cfg(feature = "sim")]
 pub mod simrig;
+pub mod spsc;
+mod sync;
+#[cfg(all(test, loom))]
+mod loom_tests;
 pub mod triple;
 pub mod urgent;
 

@@ -1,12 +1,12 @@
 //! The samples the loop hands to the calibrator, and the lock-free ring that carries them.
 //!
-//! The ring is `ringbuf`'s fixed-capacity single-producer single-consumer buffer, allocated once
-//! at start-up. A full ring never blocks the loop: the sample is dropped and counted.
+//! The ring is taut's own fixed-capacity single-producer single-consumer ring ([`crate::spsc`]),
+//! allocated once at start-up and checked under `loom` (`scripts/loom`). A full ring never blocks
+//! the loop: the sample is dropped and counted.
 
 use crate::io::DriveStatus;
 use crate::MAX_CABLES;
-use ringbuf::traits::{Consumer, Producer, Split};
-use ringbuf::{HeapCons, HeapProd, HeapRb};
+use crate::spsc::{self, Consumer, Producer};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
@@ -61,21 +61,24 @@ impl Sample {
 
 /// The loop's end of the ring.
 pub struct SampleTx {
-    prod: HeapProd<Sample>,
+    prod: Producer<Sample>,
     dropped: Arc<AtomicU64>,
     pushed: Arc<AtomicU64>,
 }
 
 /// The calibrator's end of the ring.
 pub struct SampleRx {
-    cons: HeapCons<Sample>,
+    cons: Consumer<Sample>,
     dropped: Arc<AtomicU64>,
     pushed: Arc<AtomicU64>,
 }
 
 /// A ring of `capacity` samples (allocated here, once).
+///
+/// # Panics
+/// If `capacity` is 0 (the runtime configuration refuses fewer than 16).
 pub fn sample_ring(capacity: usize) -> (SampleTx, SampleRx) {
-    let (prod, cons) = HeapRb::<Sample>::new(capacity).split();
+    let (prod, cons) = spsc::ring::<Sample>(capacity);
     let dropped = Arc::new(AtomicU64::new(0));
     let pushed = Arc::new(AtomicU64::new(0));
     (SampleTx { prod, dropped: dropped.clone(), pushed: pushed.clone() }, SampleRx { cons, dropped, pushed })
@@ -85,9 +88,9 @@ impl SampleTx {
     /// Pushes a sample; a full ring drops it and counts it. Never blocks, never allocates.
     #[inline]
     pub fn push(&mut self, s: &Sample) -> bool {
-        match self.prod.try_push(*s) {
+        match self.prod.push(*s) {
             Ok(()) => {
-                // Relaxed: a statistic; the sample itself is published by the ring's own ordering.
+                // Relaxed: a statistic; the sample itself is published by the ring's Release store.
                 self.pushed.fetch_add(1, Ordering::Relaxed);
                 true
             }
@@ -110,7 +113,7 @@ impl SampleRx {
     /// Takes the oldest sample, if any.
     #[inline]
     pub fn pop(&mut self) -> Option<Sample> {
-        self.cons.try_pop()
+        self.cons.pop()
     }
 
     /// Samples dropped so far because the ring was full.
@@ -131,7 +134,7 @@ impl SampleRx {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, not(loom)))]
 mod tests {
     use super::*;
 

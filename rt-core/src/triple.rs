@@ -7,6 +7,8 @@
 //! fresh. A value the reader gives up goes back to the writer, whose next `write` replaces it and
 //! drops it there, on the writer's thread. That is why this is used for parameters and not
 //! `arc-swap` (whose first `load` on a thread allocates and whose guards may free on the reader).
+//! Its atomics and slots switch to `loom`'s under `cfg(loom)`; the model tests are in
+//! `loom_tests.rs` (`scripts/loom`).
 //!
 //! ```
 //! let (mut w, mut r) = taut_rt_core::triple::triple_buffer(0u32);
@@ -15,9 +17,7 @@
 //! assert!(!r.update()); // nothing new
 //! ```
 
-use std::cell::UnsafeCell;
-use std::sync::atomic::{AtomicU8, Ordering};
-use std::sync::Arc;
+use crate::sync::{Arc, AtomicU8, Ordering, UnsafeCell};
 
 const INDEX: u8 = 0b011;
 const FRESH: u8 = 0b100;
@@ -61,7 +61,7 @@ impl<T: Send> Writer<T> {
     /// reader has given up), so that it is dropped here, not on the reader.
     pub fn write(&mut self, value: T) -> T {
         // SAFETY: the slot at `self.index` belongs to the writer until the swap below.
-        let old = std::mem::replace(unsafe { &mut *self.shared.slots[usize::from(self.index)].get() }, value);
+        let old = self.shared.slots[usize::from(self.index)].with_mut(|p| std::mem::replace(unsafe { &mut *p }, value));
         // AcqRel: Release publishes the slot contents written above to the reader's Acquire swap;
         // Acquire makes the reader's last use of the slot we get back happen-before our next write.
         let prev = self.shared.back.swap(self.index | FRESH, Ordering::AcqRel);
@@ -94,11 +94,11 @@ impl<T: Send> Reader<T> {
     pub fn current(&self) -> &T {
         // SAFETY: the slot at `self.index` belongs to the reader until its next swap, which needs
         // `&mut self`.
-        unsafe { &*self.shared.slots[usize::from(self.index)].get() }
+        self.shared.slots[usize::from(self.index)].with(|p| unsafe { &*p })
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, not(loom)))]
 mod tests {
     use super::*;
 
