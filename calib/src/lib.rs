@@ -153,10 +153,7 @@ impl Params {
     }
 
     fn from_cables(x: &[[f64; 4]]) -> Self {
-        Params {
-            anchors: x.iter().map(|v| [v[0], v[1], v[2]]).collect(),
-            l0: x.iter().map(|v| v[3]).collect(),
-        }
+        Params { anchors: x.iter().map(|v| [v[0], v[1], v[2]]).collect(), l0: x.iter().map(|v| v[3]).collect() }
     }
 }
 
@@ -477,11 +474,7 @@ pub fn calibrate(
 ) -> Result<CalibReport, CalibError> {
     let n = rec.n_cables;
     if platform_points.len() != n || init.anchors.len() != n || init.l0.len() != n {
-        return Err(CalibError::CableCount {
-            recording: n,
-            platform_points: platform_points.len(),
-            init: init.anchors.len(),
-        });
+        return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: init.anchors.len() });
     }
     for j in 0..n {
         if !init.cable(j).iter().all(|v| v.is_finite()) {
@@ -504,13 +497,7 @@ pub fn calibrate(
         // `m` readings used; the solver runs over all `slots` (unused ones weigh zero).
         let (m, slots) = (d.used, d.len());
         if m < MIN_READINGS {
-            return Err(CalibError::TooFewReadings {
-                cable: j,
-                used: m,
-                loose: d.loose,
-                missing: d.missing,
-                needed: MIN_READINGS,
-            });
+            return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
         }
         // The variances depend (weakly) on the geometry (stretch ~ rho, tracker projection ~ u).
         // They are held fixed during a solve, so that LM's accept/reject test compares values of
@@ -521,15 +508,7 @@ pub fn calibrate(
         // under 1%; with an anisotropic one they are always re-checked).
         let x0 = init.cable(j);
         d.set_uniform_variance(nm.uniform_variance());
-        let s1 = solver::lm(
-            d,
-            0,
-            slots,
-            x0,
-            RobustLoss::None,
-            opts.max_iterations,
-            solver::Tolerances::COARSE,
-        );
+        let s1 = solver::lm(d, 0, slots, x0, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
         let mut iterations = s1.iterations;
         if !s1.x.iter().all(|v| v.is_finite()) {
             return Err(CalibError::Diverged { cable: j });
@@ -537,24 +516,13 @@ pub fn calibrate(
         let x = s1.x;
         d.set_variances(&x, &nm);
         let mut x_var = x;
-        let mut sol = solver::lm(
-            d,
-            0,
-            slots,
-            x,
-            opts.loss,
-            opts.max_iterations,
-            solver::Tolerances::FINAL,
-        );
+        let mut sol = solver::lm(d, 0, slots, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
         iterations += sol.iterations;
         for _ in 0..3 {
             if !sol.x.iter().all(|v| v.is_finite()) {
                 return Err(CalibError::Diverged { cable: j });
             }
-            let moved = model::norm(model::sub(
-                [sol.x[0], sol.x[1], sol.x[2]],
-                [x_var[0], x_var[1], x_var[2]],
-            ));
+            let moved = model::norm(model::sub([sol.x[0], sol.x[1], sol.x[2]], [x_var[0], x_var[1], x_var[2]]));
             if nm.iso.is_some() && moved <= 0.005 * d.rho_min {
                 break;
             }
@@ -562,15 +530,7 @@ pub fn calibrate(
             if d.set_variances(&sol.x, &nm) <= 0.01 {
                 break;
             }
-            sol = solver::lm(
-                d,
-                0,
-                slots,
-                sol.x,
-                opts.loss,
-                opts.max_iterations,
-                solver::Tolerances::FINAL,
-            );
+            sol = solver::lm(d, 0, slots, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
             iterations += sol.iterations;
         }
         if !sol.x.iter().all(|v| v.is_finite()) {
@@ -593,28 +553,15 @@ pub fn calibrate(
         };
         // Observability: weakest direction relative to the strongest, and absurd sigmas.
         let weakest = eig.eigenvectors.column(order[3]).into_owned();
-        if !(sv[3] >= opts.min_rel_singular_value * sv[0])
-            || sig.iter().any(|s| !(*s <= opts.max_sigma_m))
-        {
+        if !(sv[3] >= opts.min_rel_singular_value * sv[0]) || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
             let param = if sv[3] >= opts.min_rel_singular_value * sv[0] {
-                Param::from_index(
-                    (0..4)
-                        .max_by(|&a, &b| sig[a].total_cmp(&sig[b]))
-                        .unwrap_or(0),
-                )
+                Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
             } else {
                 dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
             };
             let k = param as usize;
             let singular = !(sv[3] >= opts.min_rel_singular_value * sv[0]);
-            return Err(CalibError::NotObservable {
-                cable: j,
-                param,
-                singular_value: sv[3],
-                largest: sv[0],
-                sigma_m: sig[k],
-                singular,
-            });
+            return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k], singular });
         }
         // Held-out: the parameters of the training block alone, evaluated on the rest. The
         // training optimum is within about a standard deviation of the full-data one, where the
@@ -625,20 +572,10 @@ pub fn calibrate(
         let mut heldout = f64::NAN;
         if split < rec.len() && ntrain >= MIN_READINGS && ntrain < m {
             let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
-            if let Some(step) = tp
-                .h_matrix()
-                .cholesky()
-                .map(|c| c.solve(&nalgebra::Vector4::from(tp.g)))
-            {
-                let xt = [
-                    sol.x[0] + step[0],
-                    sol.x[1] + step[1],
-                    sol.x[2] + step[2],
-                    sol.x[3] + step[3],
-                ];
+            if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
+                let xt = [sol.x[0] + step[0], sol.x[1] + step[1], sol.x[2] + step[2], sol.x[3] + step[3]];
                 if xt.iter().all(|v| v.is_finite()) {
-                    let hs =
-                        solver::final_pass(d, split, slots, &xt, opts.loss, opts.outlier_sigma);
+                    let hs = solver::final_pass(d, split, slots, &xt, opts.loss, opts.outlier_sigma);
                     ho_sum += hs.sum_sq;
                     ho_n += m - ntrain;
                     ho_peak = ho_peak.max(hs.peak);
@@ -659,10 +596,7 @@ pub fn calibrate(
             ));
         }
         if !sol.termination.was_successful() {
-            notes.push(format!(
-                "cable {j}: {} after {} iterations",
-                sol.termination, sol.iterations
-            ));
+            notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
         }
         // All readings, loose ones included.
         all_sum += fin.sum_sq_all;
@@ -685,10 +619,7 @@ pub fn calibrate(
             iterations: sol.iterations,
             cost: sol.at_x.cost,
             used: m,
-            excluded: Excluded {
-                loose: d.loose,
-                missing: d.missing,
-            },
+            excluded: Excluded { loose: d.loose, missing: d.missing },
             downweighted: fin.downweighted,
             outliers: fin.outliers,
             variance_factor: vf,
@@ -710,20 +641,10 @@ pub fn calibrate(
         Weighting::ForceAware => {}
     }
     let used: usize = per_cable.iter().map(|c| c.used).sum();
-    let sum_sq: f64 = per_cable
-        .iter()
-        .map(|c| c.rms_m * c.rms_m * c.used as f64)
-        .sum();
-    let worst = per_cable
-        .iter()
-        .map(|c| c.termination)
-        .max_by_key(|t| t.severity())
-        .unwrap_or(Termination::SmallStep);
+    let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
+    let worst = per_cable.iter().map(|c| c.termination).max_by_key(|t| t.severity()).unwrap_or(Termination::SmallStep);
     Ok(CalibReport {
-        anchor_sigma: covariance
-            .iter()
-            .map(|c| [c[0][0].sqrt(), c[1][1].sqrt(), c[2][2].sqrt()])
-            .collect(),
+        anchor_sigma: covariance.iter().map(|c| [c[0][0].sqrt(), c[1][1].sqrt(), c[2][2].sqrt()]).collect(),
         l0_sigma: covariance.iter().map(|c| c[3][3].sqrt()).collect(),
         covariance,
         termination: worst,
@@ -731,10 +652,7 @@ pub fn calibrate(
         cost: per_cable.iter().map(|c| c.cost).sum(),
         singular_values,
         samples_used: used,
-        samples_excluded: per_cable
-            .iter()
-            .map(|c| c.excluded.loose + c.excluded.missing)
-            .sum(),
+        samples_excluded: per_cable.iter().map(|c| c.excluded.loose + c.excluded.missing).sum(),
         excluded: Excluded {
             loose: per_cable.iter().map(|c| c.excluded.loose).sum(),
             missing: per_cable.iter().map(|c| c.excluded.missing).sum(),
@@ -747,11 +665,7 @@ pub fn calibrate(
         peak_m: per_cable.iter().map(|c| c.peak_m).fold(0.0, f64::max),
         rms_all_m: (all_sum / all_n.max(1) as f64).sqrt(),
         peak_all_m: all_peak,
-        heldout_rms_m: if ho_n > 0 {
-            (ho_sum / ho_n as f64).sqrt()
-        } else {
-            f64::NAN
-        },
+        heldout_rms_m: if ho_n > 0 { (ho_sum / ho_n as f64).sqrt() } else { f64::NAN },
         heldout_peak_m: if ho_n > 0 { ho_peak } else { f64::NAN },
         per_cable,
         params,
@@ -762,9 +676,7 @@ pub fn calibrate(
 /// The parameter with the largest component in `v`, preferring an anchor coordinate over `L0`
 /// when they are comparable: an anchor coordinate is what motion can fix.
 fn dominant(v: &[f64; 4]) -> Param {
-    let a = (0..3)
-        .max_by(|&a, &b| v[a].abs().total_cmp(&v[b].abs()))
-        .unwrap_or(2);
+    let a = (0..3).max_by(|&a, &b| v[a].abs().total_cmp(&v[b].abs())).unwrap_or(2);
     if v[a].abs() >= 0.5 * v[3].abs() {
         Param::from_index(a)
     } else {
