@@ -730,6 +730,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             w.cable.is_none(),
             w.kind == WildKind::ImpossibleTension,
             w.cable,
+            w.kind.name(),
             w.row,
         )
     });
