@@ -284,14 +284,23 @@ struct Channel<'a> {
     out: Vec<bool>,
     /// Largest time between neighbours used by a prediction, s.
     gap: f64,
+    /// Segment of each row (the phase column, when there is one): predictions do not cross
+    /// from one phase of the experiment to the next, where the motion may restart elsewhere.
+    seg: &'a [i32],
 }
 
 const REACH: usize = 8;
 
 impl Channel<'_> {
-    fn new<'a>(t: &'a [f64], y: Vec<f64>, gap: f64) -> Channel<'a> {
+    fn new<'a>(t: &'a [f64], y: Vec<f64>, gap: f64, seg: &'a [i32]) -> Channel<'a> {
         let out = y.iter().map(|v| v.is_nan()).collect();
-        Channel { t, y, out, gap }
+        Channel {
+            t,
+            y,
+            out,
+            gap,
+            seg,
+        }
     }
 
     /// Up to `want` present neighbours of `i` on one side, nearest first.
@@ -313,7 +322,8 @@ impl Channel<'_> {
             if self.out[k] {
                 continue;
             }
-            if !((self.t[k] - self.t[prev]).abs() <= self.gap) {
+            if !((self.t[k] - self.t[prev]).abs() <= self.gap) || self.seg.get(k) != self.seg.get(i)
+            {
                 break;
             }
             buf[cnt] = k;
@@ -326,13 +336,28 @@ impl Channel<'_> {
         cnt
     }
 
-    /// `(prediction, z)` at `i` from two present neighbours either side; NaN if there are not.
+    /// `(prediction, z)` at `i` from two present neighbours either side (or four on one side at an
+    /// end); NaN if there are not.
     fn z(&self, i: usize) -> (f64, f64) {
         let (mut a, mut b) = ([0; REACH], [0; REACH]);
-        if self.out[i] || self.side(i, false, 2, &mut a) < 2 || self.side(i, true, 2, &mut b) < 2 {
+        if self.out[i] {
             return (f64::NAN, f64::NAN);
         }
-        let nodes = [a[1], a[0], b[0], b[1]];
+        let (na, nb) = (
+            self.side(i, false, 2, &mut a),
+            self.side(i, true, 2, &mut b),
+        );
+        // At an end of the recording or a gap: extrapolate from four on the other side (the
+        // normalisation below accounts for the larger weights, so the test stays exact).
+        let nodes = if na == 2 && nb == 2 {
+            [a[1], a[0], b[0], b[1]]
+        } else if na < 2 && self.side(i, true, 4, &mut b) == 4 {
+            [b[0], b[1], b[2], b[3]]
+        } else if nb < 2 && self.side(i, false, 4, &mut a) == 4 {
+            [a[3], a[2], a[1], a[0]]
+        } else {
+            return (f64::NAN, f64::NAN);
+        };
         let ti = self.t[i];
         let (mut pred, mut w2) = (0.0, 0.0);
         for (p, &kp) in nodes.iter().enumerate() {
@@ -563,6 +588,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     } else {
         f64::INFINITY
     };
+    let seg: &[i32] = rec.phase.as_deref().unwrap_or(&[]);
     // The Bonferroni count: every reading of every channel (encoders, tracker axes, load cells).
     let tests = m * (n + 3 + if rec.f.is_some() { n } else { 0 });
     let k = normal_upper_quantile(opts.false_alarm / (2.0 * tests.max(1) as f64));
@@ -572,7 +598,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let mut changed = false;
     // Encoders.
     for j in 0..n {
-        let mut ch = Channel::new(&rec.t, (0..m).map(|i| rec.l[i * n + j]).collect(), gap);
+        let mut ch = Channel::new(&rec.t, (0..m).map(|i| rec.l[i * n + j]).collect(), gap, seg);
         let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true);
         for e in ev {
             changed = true;
@@ -611,7 +637,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     if let Some(f) = &rec.f {
         for j in 0..n {
             let col: Vec<f64> = (0..m).map(|i| f[i * n + j]).collect();
-            let mut ch = Channel::new(&rec.t, col.clone(), gap);
+            let mut ch = Channel::new(&rec.t, col.clone(), gap, seg);
             let mut zs = vec![f64::NAN; m];
             for i in 0..m {
                 if !ch.y[i].is_nan() && !(ch.y[i].abs() <= ABSURD_N) {
@@ -679,7 +705,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     // Tracker.
     let mut removed_rows = vec![false; m];
     for a in 0..3 {
-        let mut ch = Channel::new(&rec.t, rec.p.iter().map(|p| p[a]).collect(), gap);
+        let mut ch = Channel::new(&rec.t, rec.p.iter().map(|p| p[a]).collect(), gap, seg);
         let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true);
         for e in ev {
             changed = true;
@@ -894,6 +920,24 @@ mod tests {
                 .all(|x| c.l[x] == clean.l[x]);
             assert!(others, "only the wild reading changes");
         }
+    }
+
+    #[test]
+    fn spikes_at_the_ends_of_the_recording_are_found() {
+        let truth = synth::tri3();
+        let mut rec = smooth(&truth, 2000, 100.0, 1.5e-3, 5e-5, 80);
+        let n = rec.n_cables;
+        rec.l[1] += 0.05;
+        rec.l[1999 * n + 2] -= 0.005;
+        let sc = screen(&rec, &ScreenOptions::new(3.0));
+        let got: Vec<(usize, Option<usize>)> =
+            sc.findings.iter().map(|w| (w.row, w.cable)).collect();
+        assert_eq!(
+            got,
+            vec![(0, Some(1)), (1999, Some(2))],
+            "{:#?}",
+            sc.findings
+        );
     }
 
     #[test]
