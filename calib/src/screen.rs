@@ -25,6 +25,13 @@
 //!
 //! `NaN` is a missing value, not a wild one: the readers and the calibration skip it already.
 //!
+//! A slack cable's encoder (tension below twice `min_tension_n`, and two readings either side)
+//! follows its winch, which may change speed within a sample, not the geometry: those readings
+//! are only checked for absurd values. The calibration and the diagnosis exclude them anyway, so
+//! a moderate spike there changes nothing; a jump hidden in a slack stretch is not found by
+//! this local test. Without tensions slack cannot be seen, and a winch's sudden payout may be
+//! reported as a jump.
+//!
 //! # The test
 //!
 //! For each reading `y_i` of a channel (one cable's encoder, one tracker axis, one load cell)
@@ -564,6 +571,38 @@ fn screen_channel(
     (ev, tested)
 }
 
+/// Segments of cable `j`'s encoder readings for the local test: runs of taut readings within a
+/// phase. A reading of a slack cable, and the two readings either side of a slack stretch, get
+/// a segment of their own (not tested, no prediction across them): there the encoder follows
+/// the winch paying out or reeling in, not the geometry, and a winch can change speed within
+/// one sample. The calibration excludes those readings anyway.
+fn encoder_segments(rec: &Recording, j: usize, phase: &[i32], min_tension_n: f64) -> Vec<i32> {
+    let (n, m) = (rec.n_cables, rec.len());
+    let Some(f) = &rec.f else {
+        return phase.to_vec();
+    };
+    let slack: Vec<bool> = (0..m).map(|i| f[i * n + j] < 2.0 * min_tension_n).collect();
+    let near = |i: usize| {
+        slack[i.saturating_sub(2)..(i + 3).min(m)]
+            .iter()
+            .any(|x| *x)
+    };
+    let mut out = Vec::with_capacity(m);
+    let mut run = 0i32;
+    for i in 0..m {
+        let ph = phase.get(i).copied().unwrap_or(0);
+        if near(i) {
+            out.push(-1 - i as i32);
+            continue;
+        }
+        if i > 0 && (out[i - 1] < 0 || phase.get(i - 1).copied().unwrap_or(0) != ph) {
+            run += 1;
+        }
+        out.push(run);
+    }
+    out
+}
+
 /// Screens `rec`: see the module documentation.
 pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let n = rec.n_cables;
@@ -598,7 +637,13 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let mut changed = false;
     // Encoders.
     for j in 0..n {
-        let mut ch = Channel::new(&rec.t, (0..m).map(|i| rec.l[i * n + j]).collect(), gap, seg);
+        let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
+        let mut ch = Channel::new(
+            &rec.t,
+            (0..m).map(|i| rec.l[i * n + j]).collect(),
+            gap,
+            &eseg,
+        );
         let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true);
         for e in ev {
             changed = true;
