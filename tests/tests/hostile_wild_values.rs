@@ -96,8 +96,8 @@ fn cases() -> Vec<Case> {
 }
 
 /// The row a case hits: the first at or after `at` (in the excitation; `1.0` is the last row)
-/// whose values are all present and, for an encoder, where its cable is taut (over 20 N at the
-/// row, over 10 N three rows either side). A slack cable's encoder follows its winch, not the
+/// whose values are all present and, for an encoder, where its cable is taut (over 10 N at the
+/// row, over 8 N three rows either side; slack is below 2 x 3 N). A slack cable's encoder follows its winch, not the
 /// geometry: the screen does not test it locally (see `taut_calib::screen`).
 fn row_of(rec: &Recording, first_exc: usize, at: f64, target: Target) -> usize {
     let m = rec.len();
@@ -116,7 +116,7 @@ fn row_of(rec: &Recording, first_exc: usize, at: f64, target: Target) -> usize {
     let taut = |i: usize| match target {
         Target::Encoder(j) => {
             let f = rec.f.as_ref().unwrap();
-            f[i * n + j] > 20.0 && (i.saturating_sub(3)..(i + 4).min(m)).all(|k| f[k * n + j] > 10.0)
+            f[i * n + j] > 10.0 && (i.saturating_sub(3)..(i + 4).min(m)).all(|k| f[k * n + j] > 8.0)
         }
         _ => true,
     };
@@ -125,7 +125,11 @@ fn row_of(rec: &Recording, first_exc: usize, at: f64, target: Target) -> usize {
     } else {
         first_exc.max((at * m as f64) as usize)
     };
-    (start..m).find(|&i| present(i) && (at == 0.0 || taut(i))).expect("a complete row")
+    let ok = |i: &usize| present(*i) && (at == 0.0 || taut(*i));
+    (start..m)
+        .find(ok)
+        .or_else(|| (first_exc..start).rev().find(ok))
+        .expect("a complete row")
 }
 
 fn apply(rec: &mut Recording, case: &Case, row: usize) {
