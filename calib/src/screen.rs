@@ -25,6 +25,10 @@
 //!
 //! `NaN` is a missing value, not a wild one: the readers and the calibration skip it already.
 //!
+//! The scale is never below the channel's quantum (its smallest change between two readings):
+//! a quantised encoder that stands still has a MAD of zero. Runs of four or more identical
+//! encoder readings (frozen, or held still) are not tested either: their end is no jump.
+//!
 //! A slack cable's encoder (tension below twice `min_tension_n`, and two readings either side)
 //! follows its winch, which may change speed within a sample, not the geometry: those readings
 //! are only checked for absurd values. The calibration and the diagnosis exclude them anyway, so
@@ -60,8 +64,10 @@
 //!
 //! A flagged reading is then classified by a local fit: over up to 8 present readings either
 //! side, a cubic in time plus either one excluded reading (a spike, at the flagged sample or a
-//! neighbour) or a step (at one of the four boundaries around it). Both kinds of model have the
-//! same degrees of freedom, so the smaller residual sum of squares decides. The largest flag is
+//! neighbour), a step (at one of the four boundaries around it) or a kink (a change of slope at
+//! one of five readings around it). All have the same degrees of freedom, so the smallest
+//! residual sum of squares decides. A kink is motion (backlash taken up, a winch reversing),
+//! not a wild value: those readings are left alone. The largest flag is
 //! handled first and its neighbours are re-tested without it (a 1e308 must not make its
 //! neighbours look wild), until no reading is beyond `k σ`.
 //!
@@ -394,6 +400,19 @@ fn local_fit(
     step: Option<usize>,
     at: usize,
 ) -> (f64, f64, f64) {
+    local_fit_with(ch, idx, drop, step, None, at)
+}
+
+/// [`local_fit`], optionally with a kink (a change of slope, `max(0, t - t_k)`) at position
+/// `kink` instead of a step.
+fn local_fit_with(
+    ch: &Channel,
+    idx: &[usize],
+    drop: Option<usize>,
+    step: Option<usize>,
+    kink: Option<usize>,
+    at: usize,
+) -> (f64, f64, f64) {
     use nalgebra::{SMatrix, SVector};
     let t0 = ch.t[idx[idx.len() / 2]];
     let span = idx
@@ -407,10 +426,10 @@ fn local_fit(
             u,
             u * u,
             u * u * u,
-            if step.is_some_and(|s| p >= s) {
-                1.0
-            } else {
-                0.0
+            match (step, kink) {
+                (Some(s), _) if p >= s => 1.0,
+                (_, Some(k)) => (u - (ch.t[idx[k]] - t0) / span).max(0.0),
+                _ => 0.0,
             },
         ])
     };
@@ -425,7 +444,7 @@ fn local_fit(
         a += r * r.transpose();
         g += r * (ch.y[idx[p]] - y0);
     }
-    if step.is_none() {
+    if step.is_none() && kink.is_none() {
         a[(4, 4)] = 1.0;
     }
     let Some(c) = a.lu().solve(&g) else {
@@ -461,6 +480,18 @@ enum Event {
 
 /// The channel's noise scale (robust) and the `z` of every reading.
 fn scale(ch: &Channel, zs: &mut [f64], floor: f64) -> (f64, usize) {
+    // A quantised channel that mostly stands still has a MAD of zero: one quantum is then the
+    // smallest change that can be told from none.
+    let quantum =
+        ch.y.windows(2)
+            .map(|w| (w[1] - w[0]).abs())
+            .filter(|d| *d > 0.0 && d.is_finite())
+            .fold(f64::INFINITY, f64::min);
+    let floor = if quantum.is_finite() {
+        floor.max(quantum)
+    } else {
+        floor
+    };
     let mut a: Vec<f64> = Vec::with_capacity(zs.len());
     for (i, z) in zs.iter_mut().enumerate() {
         *z = ch.z(i).1;
@@ -502,6 +533,7 @@ fn screen_channel(
     let thr = thr_of(tested) * s;
     let mut cand: Vec<usize> = (0..m).filter(|&i| zs[i].abs() > thr).collect();
     let mut seen = vec![];
+    let mut explained: Vec<usize> = vec![];
     for _ in 0..m {
         cand.retain(|&i| zs[i].abs() > thr && !ch.out[i]);
         let Some(&i) = cand
@@ -535,8 +567,46 @@ fn screen_channel(
                     }
                 }
             }
+            // A change of slope (backlash taken up, a winch reversing, stick-slip) is motion,
+            // not a wild value: when a kink fits the window better than any spike or step, the
+            // readings around it are left alone.
+            if nl >= 3 && nh >= 3 {
+                let kinked = (pi.saturating_sub(2)..=(pi + 2).min(idx.len() - 1))
+                    .any(|k| local_fit_with(ch, &idx, None, None, Some(k), k).0 < best.0);
+                if kinked {
+                    for &k in &idx[pi.saturating_sub(3)..(pi + 4).min(idx.len())] {
+                        explained.push(k);
+                    }
+                    cand.retain(|k| !explained.contains(k));
+                    continue;
+                }
+            }
         }
         seen.push(i);
+        // A jump of lost counts is one isolated step. Another event within reach of an
+        // accepted step means a burst of fast motion (backlash taken up over a few samples),
+        // not a jump: the step is undone and the readings left alone.
+        let near_step = ev
+            .iter()
+            .rposition(|e| matches!(e, Event::Step(r, _, _) if r.abs_diff(i) <= REACH));
+        if let Some(k) = near_step {
+            if let Event::Step(r, d, _) = ev.remove(k) {
+                for y in ch.y[..r].iter_mut() {
+                    *y -= d;
+                }
+                for x in r.saturating_sub(REACH)..(r + REACH + 1).min(m) {
+                    explained.push(x);
+                }
+                for x in r.saturating_sub(REACH + 2)..(r + REACH + 3).min(m) {
+                    zs[x] = ch.z(x).1;
+                }
+            }
+            for &k in &idx {
+                explained.push(k);
+            }
+            cand.retain(|k| !explained.contains(k));
+            continue;
+        }
         let touched = match best {
             (_, _, Some(st)) => {
                 let (_, _, d) = local_fit(ch, &idx, None, Some(st), st);
@@ -563,7 +633,7 @@ fn screen_channel(
         };
         for k in touched.saturating_sub(REACH + 2)..(touched + REACH + 3).min(m) {
             zs[k] = ch.z(k).1;
-            if zs[k].abs() > thr && !cand.contains(&k) {
+            if zs[k].abs() > thr && !cand.contains(&k) && !explained.contains(&k) {
                 cand.push(k);
             }
         }
@@ -578,15 +648,25 @@ fn screen_channel(
 /// one sample. The calibration excludes those readings anyway.
 fn encoder_segments(rec: &Recording, j: usize, phase: &[i32], min_tension_n: f64) -> Vec<i32> {
     let (n, m) = (rec.n_cables, rec.len());
-    let Some(f) = &rec.f else {
-        return phase.to_vec();
+    let mut skip: Vec<bool> = match &rec.f {
+        Some(f) => (0..m).map(|i| f[i * n + j] < 2.0 * min_tension_n).collect(),
+        None => vec![false; m],
     };
-    let slack: Vec<bool> = (0..m).map(|i| f[i * n + j] < 2.0 * min_tension_n).collect();
-    let near = |i: usize| {
-        slack[i.saturating_sub(2)..(i + 3).min(m)]
-            .iter()
-            .any(|x| *x)
-    };
+    // Runs of four or more identical readings: frozen (found and reported by the diagnosis's
+    // data-quality pass) or held still; their end is not a jump of the encoder.
+    let mut i = 0;
+    while i < m {
+        let v = rec.l[i * n + j];
+        let mut e = i + 1;
+        while e < m && rec.l[e * n + j] == v {
+            e += 1;
+        }
+        if e - i >= 4 {
+            skip[i..e].iter_mut().for_each(|x| *x = true);
+        }
+        i = e;
+    }
+    let near = |i: usize| skip[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x);
     let mut out = Vec::with_capacity(m);
     let mut run = 0i32;
     for i in 0..m {
@@ -972,14 +1052,22 @@ mod tests {
         let truth = synth::tri3();
         let mut rec = smooth(&truth, 2000, 100.0, 1.5e-3, 5e-5, 80);
         let n = rec.n_cables;
-        rec.l[1] += 0.05;
-        rec.l[1999 * n + 2] -= 0.005;
+        // Cables taut at the ends (a slack cable's encoder is not tested locally).
+        let f = rec.f.clone().unwrap();
+        let taut = |rows: std::ops::Range<usize>| {
+            (0..n)
+                .find(|&j| rows.clone().all(|i| f[i * n + j] > 10.0))
+                .unwrap()
+        };
+        let (a, b) = (taut(0..6), taut(1994..2000));
+        rec.l[a] += 0.05;
+        rec.l[1999 * n + b] -= 0.005;
         let sc = screen(&rec, &ScreenOptions::new(3.0));
         let got: Vec<(usize, Option<usize>)> =
             sc.findings.iter().map(|w| (w.row, w.cable)).collect();
         assert_eq!(
             got,
-            vec![(0, Some(1)), (1999, Some(2))],
+            vec![(0, Some(a)), (1999, Some(b))],
             "{:#?}",
             sc.findings
         );
