@@ -158,7 +158,8 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
     for i in 1..m {
         let d = rec.t[i] - rec.t[i - 1];
         let bad = !(d > 0.0) || d > 5.0 * dt;
-        if bad || missing[i] != missing[i - 1] {
+        // A row the screen removed is excluded but does not cut the time series (as an outlier).
+        if bad || dropout[i] != dropout[i - 1] {
             seg += 1;
         }
         if bad {
