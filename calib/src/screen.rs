@@ -77,7 +77,7 @@
 //! neighbours look wild), until no reading is beyond `k σ`.
 //!
 //! Measured (`tests` below, `tests/tests/hostile_wild_values.rs`): no flag on 60 clean
-//! synthetic recordings (three geometries, two noise levels, 50 and 100 Hz) nor on 18 clean
+//! synthetic recordings (three geometries, two noise levels, 50 and 100 Hz) nor on 17 clean
 //! simulator recordings (ARAS-CAM, three cables); spikes of 1.5 k σ and up are found at their
 //! row, as are `1e308`, `1e160`, `-1e308`, `inf`, 2 mm-5 cm spikes, 5 mm-2 cm jumps, impossible
 //! tensions and tracker jumps. Known limits: a slack cable's readings are only checked for
@@ -104,6 +104,11 @@ pub struct ScreenOptions {
     pub min_tension_n: f64,
     /// The largest tension a load cell can physically read, N (e.g. its range), if known.
     pub max_tension_n: Option<f64>,
+    /// Classify encoder steps as jumps and re-reference them. Off, a step's readings are
+    /// taken for spikes (a few excluded) and nothing is shifted: the daemon's data sets
+    /// (lengths interpolated at the pose time of a tracker slower than the loop) show steps of
+    /// a few mm that are no lost counts, and re-referencing them would cost more than it saves.
+    pub jumps: bool,
 }
 
 impl ScreenOptions {
@@ -113,6 +118,7 @@ impl ScreenOptions {
             false_alarm: FALSE_ALARM,
             min_tension_n,
             max_tension_n: None,
+            jumps: true,
         }
     }
 }
@@ -822,7 +828,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             ABSURD_M,
             1e-7,
             thr_of,
-            true,
+            opts.jumps,
             &tension_quiet[j],
             tension_cols.get(j).map(|(c, s)| (&c[..], *s)),
         );

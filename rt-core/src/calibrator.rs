@@ -727,7 +727,7 @@ pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recor
 /// Screens a data set for wild values ([`taut_calib::screen`]): the cleaned recording (wild
 /// readings missing, encoder jumps re-referenced) and one line per wild value, saying where.
 fn screened(rec: Recording, min_tension_n: f64, part: &str, out: &mut Vec<String>) -> Recording {
-    let sc = taut_calib::screen::screen(&rec, &taut_calib::screen::ScreenOptions::new(min_tension_n));
+    let sc = taut_calib::screen::screen(&rec, &taut_calib::screen::ScreenOptions { jumps: false, ..taut_calib::screen::ScreenOptions::new(min_tension_n) });
     out.extend(sc.findings.iter().map(|w| format!("{part}: {} {w}", w.kind.name())));
     sc.cleaned.unwrap_or(rec)
 }
