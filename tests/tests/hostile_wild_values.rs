@@ -680,7 +680,8 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
 }
 
 /// The screen's false-alarm rate on the simulator (independent of the synthetic generator of the
-/// unit tests): 18 clean recordings of ARAS-CAM and the three-cable robot, three-phase motion,
+/// unit tests): up to 18 clean recordings of ARAS-CAM and the three-cable robot (a scenario the
+/// simulator cannot run is skipped: 17 today), three-phase motion,
 /// slack excursions, dropouts and load-cell offsets included, gross tracker outliers off. At the
 /// stated 1e-3 per recording, a flag in any of them would be a 1.8% event. Not the 20 m outdoor
 /// robot: its heavy cables' sag follows the tension faster than the encoder noise allows, and
