@@ -102,7 +102,9 @@
 //! - [`model`]: geometry and Jacobians. [`noise`]: which readings are used, their variance.
 //! - [`solver`]: per-cable LM. [`init`]: three-phase and multilateration initialisation.
 //! - [`metrics`]: co-registration, held-out split, Cramér–Rao bound.
+//! - [`screen`]: wild values (encoder spikes and jumps, impossible tensions, tracker jumps), found and excluded before any fit.
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
+//! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -115,8 +117,10 @@ pub mod init;
 pub mod metrics;
 pub mod model;
 pub mod noise;
+pub mod screen;
 pub mod solver;
 pub mod synth;
+pub mod trust;
 
 use std::fmt;
 use taut_config::recording::Recording;

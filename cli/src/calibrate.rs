@@ -39,6 +39,8 @@ pub struct Outcome {
     pub before: metrics::RmsPeak,
     /// Cramér–Rao bound at the force-aware estimate.
     pub crb: metrics::CrbReport,
+    /// The wild values found and excluded before everything else.
+    pub screen: taut_calib::screen::Screen,
 }
 
 /// Loads a recording and says what was skipped.
@@ -67,10 +69,14 @@ pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
     Ok(cfg)
 }
 
-/// Initialises and calibrates (force-aware, and unweighted for comparison).
+/// Screens out wild values, then initialises and calibrates (force-aware, and unweighted for
+/// comparison) on the cleaned recording (`Outcome::screen.recording(rec)`).
 pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::ProgressBar) -> Result<Outcome> {
     let b = cfg.platform_points();
     let opts = CalibOptions::from_config(&cfg.calibration);
+    progress.set_message("screening for wild values");
+    let screen = taut_calib::screen::screen(rec, &taut_calib::screen::ScreenOptions::new(opts.min_tension_n));
+    let rec = screen.recording(rec);
     progress.set_message("initialising");
     let init = init::initialise(rec, &b, &opts).context("initialisation failed")?;
     progress.inc(1);
@@ -88,7 +94,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::Progre
     let before = metrics::rms_peak(&metrics::co_registration(rec, &b, &init.params), &metrics::taut_mask(rec, &opts));
     let crb = metrics::cramer_rao(rec, &b, &force.params, &opts);
     progress.inc(1);
-    Ok(Outcome { init, force, plain, before, crb })
+    Ok(Outcome { init, force, plain, before, crb, screen })
 }
 
 /// A progress bar on a terminal; hidden when stderr is piped.
@@ -113,14 +119,22 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let pb = progress(4);
     let out = pipeline(&rec, &cfg, &pb)?;
     pb.finish_and_clear();
-    report::print_calibration(&rec, &parse, &out, None);
+    let rec = out.screen.recording(&rec);
+    print_wild(&out.screen);
+    report::print_calibration(rec, &parse, &out, None);
+    // Nothing is written from a set that cannot be trusted.
+    let nominal = cfg.anchors();
+    let limit = 2.0 * cfg.daemon.max_anchor_change_m;
+    taut_calib::trust::check(&taut_calib::trust::Candidate::of(&out.force), rec, nominal.as_deref().map(|n| (n, limit)))
+        .map_err(|e| anyhow::anyhow!("calibration refused, nothing written: {e}"))?;
     if let Some(j) = &a.json {
-        let v = report::json(&rec, &parse, &out, None);
+        let mut v = report::json(rec, &parse, &out, None);
+        v["data_problems"] = wild_json(&out.screen);
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes())
             .with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
-        report::plots(dir, &inputs, &rec, &cfg, &out)?;
+        report::plots(dir, &inputs, rec, &cfg, &out)?;
         eprintln!("figures written to {}", dir.display());
     }
     if let Some(p) = &a.out {
@@ -130,4 +144,28 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         eprintln!("parameters written to {}", p.display());
     }
     Ok(())
+}
+
+/// Prints the wild values the screen excluded, one line each (the first 20).
+pub fn print_wild(sc: &taut_calib::screen::Screen) {
+    for w in sc.findings.iter().take(20) {
+        println!("data problem ({}): {w}", w.kind.name());
+    }
+    if sc.findings.len() > 20 {
+        println!("data problem: and {} more wild values", sc.findings.len() - 20);
+    }
+}
+
+/// The wild values as JSON (rows 0-based, as in the messages).
+pub fn wild_json(sc: &taut_calib::screen::Screen) -> serde_json::Value {
+    let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+    sc.findings
+        .iter()
+        .map(|w| {
+            serde_json::json!({
+                "problem": w.kind.name(), "row": w.row, "t_s": num(w.t), "cable": w.cable, "axis": w.axis,
+                "value": num(w.value), "description": w.to_string(),
+            })
+        })
+        .collect()
 }

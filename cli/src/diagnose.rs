@@ -239,6 +239,17 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     let d = diagnose(&rec, &cfg.platform_points(), None, &opts)
         .with_context(|| format!("diagnosing {}", a.recording.display()))?;
     print(&d);
+    // The wild values are excluded before the fit; should the model still come out non-finite
+    // or absurd, say so and fail rather than hand out such numbers.
+    let fin = &d.final_fit;
+    let cand = taut_calib::trust::Candidate {
+        anchors: &fin.anchors_m,
+        l0: &fin.l0_m,
+        anchor_sigma: &fin.anchor_sigma_m,
+        l0_sigma: &fin.l0_sigma_m,
+        rms_m: fin.rms_m,
+    };
+    taut_calib::trust::check(&cand, &rec, None).map_err(|e| anyhow::anyhow!("diagnosis refused, nothing written: {e}"))?;
     if let Some(j) = &a.json {
         taut_config::write_atomic(j, serde_json::to_string_pretty(&to_json(&d))?.as_bytes())
             .with_context(|| format!("writing {}", j.display()))?;

@@ -108,6 +108,9 @@ impl Calibrate for TautCalib {
             Some(b) => (b.anchors, b.l0, b.anchor_sigma, b.l0_sigma, format!(", refined on all cables ({} samples, errors-in-variables)", b.samples)),
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
+        // Nothing non-finite or absurd is offered as the robot's parameters.
+        let cand = taut_calib::trust::Candidate { anchors: &anchors, l0: &l0, anchor_sigma: &anchor_sigma, l0_sigma: &l0_sigma, rms_m: r.rms_m };
+        taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
         Ok(Estimate {
             anchors,
             l0,

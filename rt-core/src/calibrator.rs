@@ -89,6 +89,8 @@ pub struct Outcome {
     pub heldout_rms_old_m: f64,
     /// Samples in the data set.
     pub samples: usize,
+    /// Wild values found in the data set and excluded ([`taut_calib::screen`]), one line each.
+    pub data_problems: Vec<String>,
 }
 
 /// The calibrator's progress, shared with the control thread (never with the loop).
@@ -367,6 +369,7 @@ struct JobResult {
     samples: usize,
     result: Result<Estimate, String>,
     heldout: Option<(Recording, LoopParams)>,
+    data_problems: Vec<String>,
 }
 
 /// The calibrator: owns the ring's consumer end and the parameter writer.
@@ -441,11 +444,12 @@ impl Calibrator {
     pub fn run(mut self, quit: Arc<AtomicBool>) {
         let (job_tx, job_rx) = mpsc::channel::<(Job, Box<dyn Calibrate>)>();
         let (res_tx, res_rx) = mpsc::channel();
+        let min_tension_n = self.cfg.min_tension_n;
         let worker = std::thread::Builder::new()
             .name("taut-calib-worker".into())
             .spawn(move || {
                 for (job, mut backend) in job_rx {
-                    let r = run_job(job, backend.as_mut());
+                    let r = run_job(job, backend.as_mut(), min_tension_n);
                     if res_tx.send((r, backend)).is_err() {
                         break;
                     }
@@ -583,64 +587,13 @@ impl Calibrator {
                 Err(why) => self.reject(r.kind, r.run, r.samples, Some(est), why),
             },
         }
+        if let Some(o) = self.status.lock().unwrap().outcomes.last_mut() {
+            o.data_problems = r.data_problems;
+        }
     }
 
     fn validate(&self, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), String> {
-        let c = &self.cfg;
-        if est.anchors.len() != c.n || est.l0.len() != c.n {
-            return Err(format!("{} anchors and {} offsets for {} cables", est.anchors.len(), est.l0.len(), c.n));
-        }
-        if est.anchors.iter().flatten().chain(&est.l0).any(|v| !v.is_finite()) {
-            return Err("non-finite parameters".into());
-        }
-        let reference: Option<(Vec<[f64; 3]>, Option<Vec<f64>>)> = match kind {
-            OutcomeKind::Initial => c.nominal.clone().map(|a| (a, None)),
-            OutcomeKind::Calibration => self.current.as_ref().map(|e| (e.anchors.clone(), Some(e.l0.clone()))),
-        };
-        let bound = match kind {
-            // The nominal anchors are a tape-measure guess: allow twice the change.
-            OutcomeKind::Initial => 2.0 * c.max_anchor_change_m,
-            OutcomeKind::Calibration => c.max_anchor_change_m,
-        };
-        if let Some((anchors, l0)) = reference {
-            for (j, (a, b)) in est.anchors.iter().zip(&anchors).enumerate() {
-                let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-                if d > bound {
-                    return Err(format!("anchor {j} moved {d:.3} m, more than the plausible {bound:.3} m (daemon.max_anchor_change_m)"));
-                }
-            }
-            if let Some(l0) = l0 {
-                for (j, (a, b)) in est.l0.iter().zip(&l0).enumerate() {
-                    if (a - b).abs() > c.max_l0_change_m {
-                        return Err(format!("offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m", (a - b).abs(), c.max_l0_change_m));
-                    }
-                }
-            }
-        }
-        if kind == OutcomeKind::Initial {
-            return Ok((f64::NAN, f64::NAN));
-        }
-        if !est.observable {
-            return Err(format!("observability: {}", est.note));
-        }
-        let worst = est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
-        if worst > c.max_sigma_m {
-            return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
-        }
-        let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
-        let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform);
-        let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
-        let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
-        let old_rms = current.coregistration_rms(rows(), c.min_tension_n);
-        match (new_rms, old_rms) {
-            (Some(n), Some(o)) if n < o => Ok((n, o)),
-            // Both at the tracker's noise floor: the difference is noise. Take the new set if it is
-            // not significantly worse (paired test on the same readings), so a start-up whose
-            // initial estimate was already good still ends with the calibrated set.
-            (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n) => Ok((n, o)),
-            (Some(n), Some(o)) => Err(format!("held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm", n * 1e3, o * 1e3)),
-            _ => Err("no usable held-out samples (tracker or taut cables missing)".into()),
-        }
+        validate(&self.cfg, self.current.as_ref(), kind, est, heldout)
     }
 
     fn publish(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Estimate, new_rms: f64, old_rms: f64) {
@@ -679,28 +632,125 @@ impl Calibrator {
         self.current = Some(est.clone());
         let mut st = self.status.lock().unwrap();
         st.current = Some(file);
-        st.outcomes.push(Outcome { run, kind, accepted: true, reason: String::new(), version, estimate: Some(est), heldout_rms_new_m: new_rms, heldout_rms_old_m: old_rms, samples });
+        st.outcomes.push(Outcome { run, kind, accepted: true, reason: String::new(), version, estimate: Some(est), heldout_rms_new_m: new_rms, heldout_rms_old_m: old_rms, samples, data_problems: vec![] });
     }
 
     fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
         let mut st = self.status.lock().unwrap();
-        st.outcomes.push(Outcome { run, kind, accepted: false, reason, version: 0, estimate: est, heldout_rms_new_m: f64::NAN, heldout_rms_old_m: f64::NAN, samples });
+        st.outcomes.push(Outcome { run, kind, accepted: false, reason, version: 0, estimate: est, heldout_rms_new_m: f64::NAN, heldout_rms_old_m: f64::NAN, samples, data_problems: vec![] });
     }
 }
 
-fn run_job(job: Job, backend: &mut dyn Calibrate) -> JobResult {
+/// The daemon's acceptance rules (module documentation) for an estimate, given the
+/// configuration, the running estimate and the held-out block with the running parameters.
+/// Returns the held-out RMS of the new and the running set.
+fn validate(c: &CalibratorConfig, current: Option<&Estimate>, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), String> {
+    if est.anchors.len() != c.n || est.l0.len() != c.n {
+        return Err(format!("{} anchors and {} offsets for {} cables", est.anchors.len(), est.l0.len(), c.n));
+    }
+    if est.anchors.iter().flatten().chain(&est.l0).any(|v| !v.is_finite()) {
+        return Err("non-finite parameters".into());
+    }
+    // Unknown (NaN) uncertainty is allowed for an initial estimate; infinite only with the
+    // backend's own verdict that the problem is not observable (refused below, with its reason).
+    if est.observable && est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).chain([&est.rms_m]).any(|v| v.is_infinite()) {
+        return Err("infinite uncertainty or RMS: the statistics broke down".into());
+    }
+    let reference: Option<(Vec<[f64; 3]>, Option<Vec<f64>>)> = match kind {
+        OutcomeKind::Initial => c.nominal.clone().map(|a| (a, None)),
+        OutcomeKind::Calibration => current.map(|e| (e.anchors.clone(), Some(e.l0.clone()))),
+    };
+    let bound = match kind {
+        // The nominal anchors are a tape-measure guess: allow twice the change.
+        OutcomeKind::Initial => 2.0 * c.max_anchor_change_m,
+        OutcomeKind::Calibration => c.max_anchor_change_m,
+    };
+    if let Some((anchors, l0)) = reference {
+        for (j, (a, b)) in est.anchors.iter().zip(&anchors).enumerate() {
+            let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+            if d > bound {
+                return Err(format!("anchor {j} moved {d:.3} m, more than the plausible {bound:.3} m (daemon.max_anchor_change_m)"));
+            }
+        }
+        if let Some(l0) = l0 {
+            for (j, (a, b)) in est.l0.iter().zip(&l0).enumerate() {
+                if (a - b).abs() > c.max_l0_change_m {
+                    return Err(format!("offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m", (a - b).abs(), c.max_l0_change_m));
+                }
+            }
+        }
+    }
+    if kind == OutcomeKind::Initial {
+        return Ok((f64::NAN, f64::NAN));
+    }
+    if !est.observable {
+        return Err(format!("observability: {}", est.note));
+    }
+    let worst = est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
+    if worst > c.max_sigma_m {
+        return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
+    }
+    let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
+    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform);
+    let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
+    let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
+    let old_rms = current.coregistration_rms(rows(), c.min_tension_n);
+    match (new_rms, old_rms) {
+        (Some(n), Some(o)) if n < o => Ok((n, o)),
+        // Both at the tracker's noise floor: the difference is noise. Take the new set if it is
+        // not significantly worse (paired test on the same readings), so a start-up whose
+        // initial estimate was already good still ends with the calibrated set.
+        (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n) => Ok((n, o)),
+        (Some(n), Some(o)) => Err(format!("held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm", n * 1e3, o * 1e3)),
+        _ => Err("no usable held-out samples (tracker or taut cables missing)".into()),
+    }
+}
+
+/// One calibration of a data set as the daemon runs it, without publishing: the excitation
+/// `rec` split into training and held-out rows, both screened for wild values, the backend's
+/// calibration from `init`, and the acceptance rules against `current` (the running set). The
+/// outcome says whether the daemon would publish the result, and why not.
+pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recording, init: &Estimate, current: LoopParams) -> Outcome {
+    let split = ((rec.len() as f64) * (1.0 - cfg.heldout_fraction)).round() as usize;
+    let job = Job::Calibrate { train: rec.slice(0..split), heldout: rec.slice(split..rec.len()), init: init.clone(), current, run: 1 };
+    let r = run_job(job, backend, cfg.min_tension_n);
+    let (accepted, reason, estimate, rms) = match r.result {
+        Err(e) => (false, format!("the calibration failed: {e}"), None, (f64::NAN, f64::NAN)),
+        Ok(est) => match validate(cfg, Some(init), r.kind, &est, r.heldout.as_ref()) {
+            Ok(rms) => (true, String::new(), Some(est), rms),
+            Err(why) => (false, why, Some(est), (f64::NAN, f64::NAN)),
+        },
+    };
+    Outcome { run: r.run, kind: r.kind, accepted, reason, version: 0, estimate, heldout_rms_new_m: rms.0, heldout_rms_old_m: rms.1, samples: r.samples, data_problems: r.data_problems }
+}
+
+/// Screens a data set for wild values ([`taut_calib::screen`]): the cleaned recording (wild
+/// readings missing, encoder jumps re-referenced) and one line per wild value, saying where.
+fn screened(rec: Recording, min_tension_n: f64, part: &str, out: &mut Vec<String>) -> Recording {
+    let sc = taut_calib::screen::screen(&rec, &taut_calib::screen::ScreenOptions { jumps: false, ..taut_calib::screen::ScreenOptions::new(min_tension_n) });
+    out.extend(sc.findings.iter().map(|w| format!("{part}: {} {w}", w.kind.name())));
+    sc.cleaned.unwrap_or(rec)
+}
+
+fn run_job(job: Job, backend: &mut dyn Calibrate, min_tension_n: f64) -> JobResult {
+    let mut data_problems = vec![];
     match job {
         Job::Initial { rec, run } => {
             let samples = rec.len();
+            let rec = screened(rec, min_tension_n, "initialisation data", &mut data_problems);
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.initialise(&rec)))
                 .unwrap_or_else(|_| Err("the initialisation panicked".into()));
-            JobResult { kind: OutcomeKind::Initial, run, samples, result, heldout: None }
+            JobResult { kind: OutcomeKind::Initial, run, samples, result, heldout: None, data_problems }
         }
         Job::Calibrate { train, heldout, init, current, run } => {
             let samples = train.len() + heldout.len();
+            // The held-out block is screened too: it decides whether the new set replaces the
+            // running one, and a single 1e308 would make both RMS values infinite.
+            let train = screened(train, min_tension_n, "excitation (training rows)", &mut data_problems);
+            let heldout = screened(heldout, min_tension_n, "excitation (held-out rows)", &mut data_problems);
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.calibrate(&train, &init)))
                 .unwrap_or_else(|_| Err("the calibration panicked".into()));
-            JobResult { kind: OutcomeKind::Calibration, run, samples, result, heldout: Some((heldout, current)) }
+            JobResult { kind: OutcomeKind::Calibration, run, samples, result, heldout: Some((heldout, current)), data_problems }
         }
     }
 }

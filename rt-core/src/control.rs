@@ -66,6 +66,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
                 "samples": o.samples,
                 "heldout_rms_new_m": finite(o.heldout_rms_new_m),
                 "heldout_rms_old_m": finite(o.heldout_rms_old_m),
+                "data_problems": o.data_problems,
             })
         })
         .collect();

@@ -19,6 +19,13 @@ pub enum ProblemKind {
     ClockJump,
     /// A load cell that reads nothing (all missing, stuck at zero or constant).
     DeadLoadCell,
+    /// Single encoder readings far from their neighbours, or absurd ([`crate::screen`]).
+    EncoderSpike,
+    /// An encoder step that stays: lost counts ([`crate::screen`]).
+    EncoderJump,
+    /// Tensions that cannot be: not finite, negative beyond noise, above the maximum
+    /// ([`crate::screen`]).
+    ImpossibleTension,
 }
 
 impl ProblemKind {
@@ -31,6 +38,9 @@ impl ProblemKind {
             ProblemKind::TrackerDropout => "tracker-dropout",
             ProblemKind::ClockJump => "clock-jump",
             ProblemKind::DeadLoadCell => "dead-load-cell",
+            ProblemKind::EncoderSpike => "encoder-spike",
+            ProblemKind::EncoderJump => "encoder-jump",
+            ProblemKind::ImpossibleTension => "impossible-tension",
         }
     }
 }
@@ -118,6 +128,13 @@ fn summarise(kind: ProblemKind, cable: Option<usize>, t: &[f64], flags: &[bool],
 /// Finds the data problems of `rec`. `tracker_sigma_m` sets the smallest tracker jump that can be
 /// called an outlier.
 pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
+    detect_screened(rec, tracker_sigma_m, &[])
+}
+
+/// [`detect`] on a recording the wild-value screen has cleaned: `removed[i]` marks rows whose
+/// position the screen removed (already reported as wild), which are excluded but not reported
+/// again as tracker dropouts.
+pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) -> (Vec<DataProblem>, DataMasks) {
     let n = rec.n_cables;
     let m = rec.len();
     let mut problems = vec![];
@@ -128,7 +145,8 @@ pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataM
                 || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite()))
         })
         .collect();
-    problems.extend(summarise(ProblemKind::TrackerDropout, None, &rec.t, &missing, "tracker dropout (no position)"));
+    let dropout: Vec<bool> = (0..m).map(|i| missing[i] && !removed.get(i).copied().unwrap_or(false)).collect();
+    problems.extend(summarise(ProblemKind::TrackerDropout, None, &rec.t, &dropout, "tracker dropout (no position)"));
     let mut row_ok: Vec<bool> = missing.iter().map(|x| !x).collect();
 
     // Clock.
@@ -140,7 +158,8 @@ pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataM
     for i in 1..m {
         let d = rec.t[i] - rec.t[i - 1];
         let bad = !(d > 0.0) || d > 5.0 * dt;
-        if bad || missing[i] != missing[i - 1] {
+        // A row the screen removed is excluded but does not cut the time series (as an outlier).
+        if bad || dropout[i] != dropout[i - 1] {
             seg += 1;
         }
         if bad {
@@ -327,6 +346,45 @@ pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataM
         }
     }
     (problems, DataMasks { row_ok, cable_ok, dead_loadcell, segment, dt })
+}
+
+/// The wild values of [`crate::screen`] as data problems: one per kind and cable (the tracker:
+/// one), listing where the first few are.
+pub fn from_screen(sc: &crate::screen::Screen) -> Vec<DataProblem> {
+    use crate::screen::{Action, WildKind};
+    let mut out: Vec<DataProblem> = vec![];
+    let mut k = 0;
+    let f = &sc.findings;
+    while k < f.len() {
+        let (kind, cable) = (f[k].kind, f[k].cable);
+        let e = k + f[k..].iter().take_while(|w| w.kind == kind && w.cable == cable).count();
+        let group = &f[k..e];
+        let samples: usize = group
+            .iter()
+            .map(|w| match w.action {
+                Action::Excluded => 1,
+                Action::ReReferenced { rows, .. } | Action::RowsExcluded { rows, .. } => rows,
+            })
+            .sum();
+        let (pk, what) = match kind {
+            WildKind::EncoderSpike => (ProblemKind::EncoderSpike, "wild encoder readings"),
+            WildKind::EncoderJump => (ProblemKind::EncoderJump, "encoder jumps (lost counts)"),
+            WildKind::ImpossibleTension => (ProblemKind::ImpossibleTension, "impossible tensions"),
+            WildKind::TrackerJump => (ProblemKind::TrackerOutlier, "wild tracker positions"),
+        };
+        let more = if group.len() > 4 { format!("; and {} more", group.len() - 4) } else { String::new() };
+        let list: Vec<String> = group.iter().take(4).map(|w| w.to_string()).collect();
+        out.push(DataProblem {
+            kind: pk,
+            cable,
+            t_start: group[0].t,
+            t_end: group[group.len() - 1].t,
+            samples,
+            description: format!("{} {what} (beyond {:.1} noise sigmas of their neighbours): {}{more}", group.len(), sc.threshold_sigmas, list.join("; ")),
+        });
+        k = e;
+    }
+    out
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Diagnosis: when the ideal model and a recording disagree, find out why.
 //!
-//! 1. **Data problems** that are not physics ([`dataq`]): frozen readings, tracker outliers and
+//! 1. **Data problems** that are not physics ([`dataq`]): wild values ([`crate::screen`]: encoder
+//!    spikes and jumps, impossible tensions, tracker jumps), frozen readings, tracker outliers and
 //!    dropouts, clock jumps, dead load cells. Found first, reported with where they are, excluded.
 //! 2. **Baseline**: the ideal model `l = |P + R b - A| + L0` fitted on the training blocks (loose
 //!    readings excluded: `T < min_tension_n`, or without tensions, readings whose encoder shows
@@ -534,7 +535,11 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         return Err(DiagnoseError::CableCount { recording: n, platform_points: platform_points.len() });
     }
     let mut notes = vec![];
-    let (data_problems, masks) = dataq::detect(rec, opts.tracker_sigma_m);
+    // Wild values first: a single 1e308 must neither move the fit nor pass for physics.
+    let screen = crate::screen::screen(rec, &crate::screen::ScreenOptions::new(opts.min_tension_n));
+    let rec = screen.recording(rec);
+    let (mut data_problems, masks) = dataq::detect_screened(rec, opts.tracker_sigma_m, &screen.removed_rows);
+    data_problems.splice(0..0, dataq::from_screen(&screen));
     let mut prep = prepare(rec, platform_points, &masks, opts);
     let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();
     let used_tensions = has_t.iter().any(|x| *x);
