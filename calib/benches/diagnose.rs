@@ -16,9 +16,7 @@ fn bench(c: &mut Criterion) {
     let opts = DiagnoseOptions::default();
     let mut g = c.benchmark_group("diagnose");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
-    g.bench_function("4 cables x 12000 samples", |b| {
-        b.iter(|| diagnose(&rec, &spec.platform_points, None, &opts).expect("diagnosis"))
-    });
+    g.bench_function("4 cables x 12000 samples", |b| b.iter(|| diagnose(&rec, &spec.platform_points, None, &opts).expect("diagnosis")));
     g.finish();
 }
 

@@ -15,10 +15,12 @@ fn main() {
     let n: usize = args.next().map(|s| s.parse().expect("SAMPLES must be a number")).unwrap_or(100_000);
     let (rec, init) = bench_recording(n);
     rec.save_atomic(&out).unwrap_or_else(|e| panic!("writing {out}: {e}"));
-    let text: String = (0..init.n_cables()).map(|j| {
-        let c = init.cable(j);
-        format!("{:.9} {:.9} {:.9} {:.9}\n", c[0], c[1], c[2], c[3])
-    }).collect();
+    let text: String = (0..init.n_cables())
+        .map(|j| {
+            let c = init.cable(j);
+            format!("{:.9} {:.9} {:.9} {:.9}\n", c[0], c[1], c[2], c[3])
+        })
+        .collect();
     std::fs::write(format!("{out}.init"), text).unwrap_or_else(|e| panic!("writing {out}.init: {e}"));
     eprintln!("wrote {out} ({n} samples x {} cables) and {out}.init", rec.n_cables);
 }

@@ -20,10 +20,8 @@ fn main() {
     let opts = CalibOptions::default();
     let start = match std::fs::read_to_string(format!("{path}.init")) {
         Ok(text) => {
-            let rows: Vec<Vec<f64>> = text
-                .lines()
-                .map(|l| l.split_whitespace().map(|v| v.parse().expect("number in .init")).collect())
-                .collect();
+            let rows: Vec<Vec<f64>> =
+                text.lines().map(|l| l.split_whitespace().map(|v| v.parse().expect("number in .init")).collect()).collect();
             Params { anchors: rows.iter().map(|r| [r[0], r[1], r[2]]).collect(), l0: rows.iter().map(|r| r[3]).collect() }
         }
         Err(_) => init::initialise(&rec, &b, &opts).unwrap_or_else(|e| panic!("{e}")).params,
@@ -51,7 +49,13 @@ fn main() {
     println!("calibrate_median_cpu_ms={full_cpu:.3}");
     println!("calibrate_no_heldout_median_ms={solve_ms:.3}");
     println!("calibrate_no_heldout_median_cpu_ms={solve_cpu:.3}");
-    println!("iterations_max={} termination={:?} rms_mm={:.3} heldout_rms_mm={:.3}", rep.iterations, rep.termination, rep.rms_m * 1e3, rep.heldout_rms_m * 1e3);
+    println!(
+        "iterations_max={} termination={:?} rms_mm={:.3} heldout_rms_mm={:.3}",
+        rep.iterations,
+        rep.termination,
+        rep.rms_m * 1e3,
+        rep.heldout_rms_m * 1e3
+    );
     println!("iterations_per_cable={:?}", rep.per_cable.iter().map(|c| c.iterations).collect::<Vec<_>>());
     for j in 0..rec.n_cables {
         let c = rep.params.cable(j);

@@ -87,7 +87,11 @@ fn rows(rec: &Recording, opts: &BundleOptions) -> Vec<Row> {
                 .map(|j| {
                     let x = rec.lengths(i)[j];
                     let taut = f.is_none_or(|f| f[j] >= opts.min_tension_n);
-                    if taut && x.is_finite() { x } else { f64::NAN }
+                    if taut && x.is_finite() {
+                        x
+                    } else {
+                        f64::NAN
+                    }
                 })
                 .collect();
             (l.iter().filter(|x| x.is_finite()).count() >= 4).then_some(Row { pos, l })
@@ -100,11 +104,19 @@ fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn huber_w(r: f64, k: f64) -> f64 {
-    if r.abs() <= k { 1.0 } else { k / r.abs() }
+    if r.abs() <= k {
+        1.0
+    } else {
+        k / r.abs()
+    }
 }
 
 fn huber_cost(r: f64, k: f64) -> f64 {
-    if r.abs() <= k { 0.5 * r * r } else { k * (r.abs() - 0.5 * k) }
+    if r.abs() <= k {
+        0.5 * r * r
+    } else {
+        k * (r.abs() - 0.5 * k)
+    }
 }
 
 /// Solves the symmetric positive definite `a x = b` (dense, row-major `m x m`) by Cholesky.
@@ -171,7 +183,13 @@ fn inv3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
 
 /// Refines `anchors` and `l0` (a start within a few centimetres) on the recording. `None` if
 /// fewer than 20 samples have four taut cables, or the platform has orientation data.
-pub fn refine(rec: &Recording, platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &[f64], opts: &BundleOptions) -> Option<BundleResult> {
+pub fn refine(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    anchors: &[[f64; 3]],
+    l0: &[f64],
+    opts: &BundleOptions,
+) -> Option<BundleResult> {
     let n = rec.n_cables;
     if rec.q.is_some() || anchors.len() != n || l0.len() != n || n < 4 {
         return None;
@@ -374,7 +392,8 @@ mod tests {
         // The force-aware calibration on the same data, for comparison.
         let mut o = crate::CalibOptions::default();
         o.heldout_fraction = 0.0;
-        let c = crate::calibrate(&rec, &[[0.0; 3]; 4], &crate::Params { anchors: start.clone(), l0: vec![1.02, -0.48, 0.23, 2.01] }, &o).unwrap();
+        let c = crate::calibrate(&rec, &[[0.0; 3]; 4], &crate::Params { anchors: start.clone(), l0: vec![1.02, -0.48, 0.23, 2.01] }, &o)
+            .unwrap();
         let worst = |a: &[[f64; 3]]| a.iter().zip(&truth).map(|(a, t)| model::norm(model::sub(*a, *t))).fold(0.0, f64::max);
         let (eb, ec) = (worst(&r.anchors), worst(&c.params.anchors));
         assert!(eb < 0.5 * ec, "bundle {:.2} mm, calibration {:.2} mm", eb * 1e3, ec * 1e3);

@@ -468,12 +468,7 @@ impl CalibReport {
 /// `platform_points[j]` is `b_j`, the attachment point of cable `j` on the platform (zero for a
 /// point mass). The parameters come from all used readings; the held-out figures from a second
 /// solve on the training block only.
-pub fn calibrate(
-    rec: &Recording,
-    platform_points: &[[f64; 3]],
-    init: &Params,
-    opts: &CalibOptions,
-) -> Result<CalibReport, CalibError> {
+pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, opts: &CalibOptions) -> Result<CalibReport, CalibError> {
     let n = rec.n_cables;
     if platform_points.len() != n || init.anchors.len() != n || init.l0.len() != n {
         return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: init.anchors.len() });
@@ -586,10 +581,7 @@ pub fn calibrate(
             }
         }
         if d.loose > 0 {
-            notes.push(format!(
-                "cable {j}: {} loose readings excluded (tension < {} N)",
-                d.loose, opts.min_tension_n
-            ));
+            notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
         }
         if vf > 1.5 {
             notes.push(format!(
@@ -633,13 +625,10 @@ pub fn calibrate(
     }
     let params = Params::from_cables(&xs);
     match weighting {
-        Weighting::UniformNoTensions => notes.insert(
-            0,
-            "the recording has no tensions: uniform weights, loose cables cannot be detected and are not excluded".into(),
-        ),
-        Weighting::UniformByOption => {
-            notes.insert(0, "force weighting switched off: uniform weights, loose readings not excluded".into())
+        Weighting::UniformNoTensions => {
+            notes.insert(0, "the recording has no tensions: uniform weights, loose cables cannot be detected and are not excluded".into())
         }
+        Weighting::UniformByOption => notes.insert(0, "force weighting switched off: uniform weights, loose readings not excluded".into()),
         Weighting::ForceAware => {}
     }
     let used: usize = per_cable.iter().map(|c| c.used).sum();

@@ -188,9 +188,7 @@ mod tests {
                 tm[k] = -H;
                 let rp = mat_mul(&small_rotation(tp), &r0);
                 let rm = mat_mul(&small_rotation(tm), &r0);
-                let fd = (cable_length(attachment(p, Some(&rp), b), a, l0)
-                    - cable_length(attachment(p, Some(&rm), b), a, l0))
-                    / (2.0 * H);
+                let fd = (cable_length(attachment(p, Some(&rp), b), a, l0) - cable_length(attachment(p, Some(&rm), b), a, l0)) / (2.0 * H);
                 assert!(close(j[k], fd, 1e-7), "rot axis {k}: analytic {} vs fd {fd}", j[k]);
             }
         }

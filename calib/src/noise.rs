@@ -22,8 +22,8 @@
 //! uniform `sigma_enc^2 + tr(Sigma_P) / 3`: ordinary least squares, the paper's baseline.
 
 use crate::model::{self, Mat3};
-use std::sync::Arc;
 use crate::CalibOptions;
+use std::sync::Arc;
 use taut_config::recording::Recording;
 
 /// How the readings were weighted.
@@ -93,12 +93,7 @@ impl NoiseModel {
                 inv_ea: if opts.cable_ea_n > 0.0 && opts.cable_ea_n.is_finite() { 1.0 / opts.cable_ea_n } else { 0.0 },
                 iso: None,
             },
-            Weighting::UniformNoTensions => NoiseModel {
-                enc2: opts.encoder_sigma_m * opts.encoder_sigma_m,
-                cov,
-                inv_ea: 0.0,
-                iso: None,
-            },
+            Weighting::UniformNoTensions => NoiseModel { enc2: opts.encoder_sigma_m * opts.encoder_sigma_m, cov, inv_ea: 0.0, iso: None },
             Weighting::UniformByOption => {
                 let s2 = (cov[0][0] + cov[1][1] + cov[2][2]) / 3.0;
                 NoiseModel {
@@ -322,7 +317,13 @@ fn variances_with(c: &Cols, iv: &mut [f64], a: [f64; 3], var: impl Fn([f64; 3], 
         let v = var(d, rho, c.t[k]);
         let used = c.class[k] == USED;
         // A fresh buffer holds zeros: an infinite change.
-        let ch = if !used { 0.0 } else if old > 0.0 { (v * old - 1.0).abs() } else { f64::INFINITY };
+        let ch = if !used {
+            0.0
+        } else if old > 0.0 {
+            (v * old - 1.0).abs()
+        } else {
+            f64::INFINITY
+        };
         (if used { 1.0 / v } else { 0.0 }, ch, if used { rho } else { f64::INFINITY })
     };
     let full = iv.len() / 8 * 8;
@@ -391,8 +392,7 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
     let m = rec.len();
     let rot = rotations(rec);
     let tensions = if weighting.uses_tensions() { rec.f.as_deref() } else { None };
-    let pose_ok: Vec<bool> =
-        (0..m).map(|i| !rec.p[i].iter().any(|v| v.is_nan()) && rot.as_ref().is_none_or(|r| r[i].is_some())).collect();
+    let pose_ok: Vec<bool> = (0..m).map(|i| !rec.p[i].iter().any(|v| v.is_nan()) && rot.as_ref().is_none_or(|r| r[i].is_some())).collect();
     let columns = |b: [f64; 3]| -> [Arc<[f64]>; 3] {
         let pt = |i: usize| -> [f64; 3] {
             if !pose_ok[i] {
@@ -436,7 +436,13 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
                 let miss = !*ok || li.is_nan() || ti.is_nan();
                 let is_loose = !miss && has_t && ti < min_t;
                 let is_used = !miss && !is_loose;
-                *co = if miss { MISSING } else if is_loose { LOOSE } else { USED };
+                *co = if miss {
+                    MISSING
+                } else if is_loose {
+                    LOOSE
+                } else {
+                    USED
+                };
                 *lo = if li.is_nan() { 0.0 } else { li };
                 *to = if is_used { ti } else { 0.0 };
                 used += is_used as usize;

@@ -114,12 +114,7 @@ pub struct ScreenOptions {
 impl ScreenOptions {
     /// The default false-alarm rate and no configured tension maximum.
     pub fn new(min_tension_n: f64) -> Self {
-        ScreenOptions {
-            false_alarm: FALSE_ALARM,
-            min_tension_n,
-            max_tension_n: None,
-            jumps: true,
-        }
+        ScreenOptions { false_alarm: FALSE_ALARM, min_tension_n, max_tension_n: None, jumps: true }
     }
 }
 
@@ -202,33 +197,16 @@ impl fmt::Display for WildValue {
             (None, None) => "tracker".to_string(),
         };
         write!(f, "row {} (t = {:.3} s), {who}: ", self.row, self.t)?;
-        let sig = if self.sigmas.is_finite() {
-            format!("{:.1} noise sigmas", self.sigmas)
-        } else {
-            "absurd".to_string()
-        };
+        let sig = if self.sigmas.is_finite() { format!("{:.1} noise sigmas", self.sigmas) } else { "absurd".to_string() };
         match self.kind {
             WildKind::EncoderSpike | WildKind::TrackerJump => {
-                write!(
-                    f,
-                    "{} {:e} m",
-                    if self.kind == WildKind::EncoderSpike {
-                        "encoder reading"
-                    } else {
-                        "position"
-                    },
-                    self.value
-                )?;
+                write!(f, "{} {:e} m", if self.kind == WildKind::EncoderSpike { "encoder reading" } else { "position" }, self.value)?;
                 if self.expected.is_finite() {
                     write!(f, " where its neighbours give {:.4} m", self.expected)?;
                 }
                 write!(f, " ({sig})")?;
             }
-            WildKind::EncoderJump => write!(
-                f,
-                "encoder steps by {:+.2} mm and stays ({sig})",
-                self.value * 1e3
-            )?,
+            WildKind::EncoderJump => write!(f, "encoder steps by {:+.2} mm and stays ({sig})", self.value * 1e3)?,
             WildKind::ImpossibleTension => {
                 write!(f, "tension {:e} N", self.value)?;
                 if self.expected.is_finite() {
@@ -242,11 +220,7 @@ impl fmt::Display for WildValue {
             Action::ReReferenced { by_m, rows } => {
                 write!(f, "; the {rows} earlier readings re-referenced by {:+.2} mm to the encoder's later count", by_m * 1e3)
             }
-            Action::RowsExcluded { first, rows } => write!(
-                f,
-                "; rows {first}..{} (the shorter side) excluded",
-                first + rows - 1
-            ),
+            Action::RowsExcluded { first, rows } => write!(f, "; rows {first}..{} (the shorter side) excluded", first + rows - 1),
         }
     }
 }
@@ -283,10 +257,7 @@ fn normal_sf(x: f64) -> f64 {
         + t * (1.00002368
             + t * (0.37409196
                 + t * (0.09678418
-                    + t * (-0.18628806
-                        + t * (0.27886807
-                            + t * (-1.13520398
-                                + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
+                    + t * (-0.18628806 + t * (0.27886807 + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
     0.5 * t * p.exp()
 }
 
@@ -322,13 +293,7 @@ const REACH: usize = 8;
 impl Channel<'_> {
     fn new<'a>(t: &'a [f64], y: Vec<f64>, gap: f64, seg: &'a [i32]) -> Channel<'a> {
         let out = y.iter().map(|v| v.is_nan()).collect();
-        Channel {
-            t,
-            y,
-            out,
-            gap,
-            seg,
-        }
+        Channel { t, y, out, gap, seg }
     }
 
     /// Up to `want` present neighbours of `i` on one side, nearest first.
@@ -350,8 +315,7 @@ impl Channel<'_> {
             if self.out[k] {
                 continue;
             }
-            if !((self.t[k] - self.t[prev]).abs() <= self.gap) || self.seg.get(k) != self.seg.get(i)
-            {
+            if !((self.t[k] - self.t[prev]).abs() <= self.gap) || self.seg.get(k) != self.seg.get(i) {
                 break;
             }
             buf[cnt] = k;
@@ -371,10 +335,7 @@ impl Channel<'_> {
         if self.out[i] {
             return (f64::NAN, f64::NAN);
         }
-        let (na, nb) = (
-            self.side(i, false, 2, &mut a),
-            self.side(i, true, 2, &mut b),
-        );
+        let (na, nb) = (self.side(i, false, 2, &mut a), self.side(i, true, 2, &mut b));
         // At an end of the recording or a gap: extrapolate from four on the other side (the
         // normalisation below accounts for the larger weights, so the test stays exact).
         let nodes = if na == 2 && nb == 2 {
@@ -408,13 +369,7 @@ impl Channel<'_> {
 /// A local fit: cubic in time (centred and scaled) over `idx`, optionally without the reading
 /// at position `drop`, optionally with a step starting at position `step`. Returns the residual
 /// sum of squares, the prediction at position `at`, and the step.
-fn local_fit(
-    ch: &Channel,
-    idx: &[usize],
-    drop: Option<usize>,
-    step: Option<usize>,
-    at: usize,
-) -> (f64, f64, f64) {
+fn local_fit(ch: &Channel, idx: &[usize], drop: Option<usize>, step: Option<usize>, at: usize) -> (f64, f64, f64) {
     local_fit_with(ch, idx, drop, step, None, at)
 }
 
@@ -430,10 +385,7 @@ fn local_fit_with(
 ) -> (f64, f64, f64) {
     use nalgebra::{SMatrix, SVector};
     let t0 = ch.t[idx[idx.len() / 2]];
-    let span = idx
-        .iter()
-        .map(|&k| (ch.t[k] - t0).abs())
-        .fold(1e-9, f64::max);
+    let span = idx.iter().map(|&k| (ch.t[k] - t0).abs()).fold(1e-9, f64::max);
     let basis = |p: usize| -> SVector<f64, 5> {
         let u = (ch.t[idx[p]] - t0) / span;
         SVector::from([
@@ -473,16 +425,7 @@ fn local_fit_with(
     }
     let mut b = basis(at);
     b[4] = 0.0;
-    (
-        rss,
-        y0 + b.dot(&c)
-            + if step.is_some_and(|s| at >= s) {
-                c[4]
-            } else {
-                0.0
-            },
-        c[4],
-    )
+    (rss, y0 + b.dot(&c) + if step.is_some_and(|s| at >= s) { c[4] } else { 0.0 }, c[4])
 }
 
 /// A channel event.
@@ -497,16 +440,8 @@ enum Event {
 fn scale(ch: &Channel, zs: &mut [f64], floor: f64) -> (f64, usize) {
     // A quantised channel that mostly stands still has a MAD of zero: one quantum is then the
     // smallest change that can be told from none.
-    let quantum =
-        ch.y.windows(2)
-            .map(|w| (w[1] - w[0]).abs())
-            .filter(|d| *d > 0.0 && d.is_finite())
-            .fold(f64::INFINITY, f64::min);
-    let floor = if quantum.is_finite() {
-        floor.max(quantum)
-    } else {
-        floor
-    };
+    let quantum = ch.y.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|d| *d > 0.0 && d.is_finite()).fold(f64::INFINITY, f64::min);
+    let floor = if quantum.is_finite() { floor.max(quantum) } else { floor };
     let mut a: Vec<f64> = Vec::with_capacity(zs.len());
     for (i, z) in zs.iter_mut().enumerate() {
         *z = ch.z(i).1;
@@ -552,20 +487,9 @@ fn screen_channel(
     // the 4th power of the spacing. If the decimated scale is more than 1.5x, this channel's
     // local test would judge the motion, not the readings: only absurd values are flagged.
     let dec: Vec<usize> = (0..m).step_by(2).collect();
-    let (td, yd): (Vec<f64>, Vec<f64>) = dec
-        .iter()
-        .map(|&i| (ch.t[i], if ch.out[i] { f64::NAN } else { ch.y[i] }))
-        .unzip();
-    let sd: Vec<i32> = dec
-        .iter()
-        .map(|&i| ch.seg.get(i).copied().unwrap_or(0))
-        .collect();
-    let half = Channel::new(
-        &td,
-        yd,
-        2.0 * ch.gap,
-        if ch.seg.is_empty() { &[] } else { &sd },
-    );
+    let (td, yd): (Vec<f64>, Vec<f64>) = dec.iter().map(|&i| (ch.t[i], if ch.out[i] { f64::NAN } else { ch.y[i] })).unzip();
+    let sd: Vec<i32> = dec.iter().map(|&i| ch.seg.get(i).copied().unwrap_or(0)).collect();
+    let half = Channel::new(&td, yd, 2.0 * ch.gap, if ch.seg.is_empty() { &[] } else { &sd });
     let (s2, _) = scale(&half, &mut vec![f64::NAN; td.len()], floor);
     if !(s2 <= 1.5 * s) {
         return (ev, tested);
@@ -574,15 +498,10 @@ fn screen_channel(
     let mut cand: Vec<usize> = (0..m).filter(|&i| zs[i].abs() > thr).collect();
     let mut seen = vec![];
     // Rows where an event is explained by motion (a kink, a burst) or by the tension (`quiet`).
-    let mut explained: Vec<bool> = (0..m)
-        .map(|i| quiet.get(i).copied().unwrap_or(false))
-        .collect();
+    let mut explained: Vec<bool> = (0..m).map(|i| quiet.get(i).copied().unwrap_or(false)).collect();
     for _ in 0..m {
         cand.retain(|&i| zs[i].abs() > thr && !ch.out[i] && !explained[i]);
-        let Some(&i) = cand
-            .iter()
-            .max_by(|&&a, &&b| zs[a].abs().total_cmp(&zs[b].abs()))
-        else {
+        let Some(&i) = cand.iter().max_by(|&&a, &&b| zs[a].abs().total_cmp(&zs[b].abs())) else {
             break;
         };
         // The window: up to REACH present readings either side.
@@ -602,11 +521,7 @@ fn screen_channel(
         let mut best: (f64, Option<usize>, Option<usize>) = (f64::INFINITY, Some(pi), None);
         if idx.len() >= 8 {
             // One-sided (at an end) the fit cannot tell which reading is off: the flagged one.
-            let (d0, d1) = if nl < 3 || nh < 3 {
-                (pi, pi)
-            } else {
-                (pi.saturating_sub(1), (pi + 1).min(idx.len() - 1))
-            };
+            let (d0, d1) = if nl < 3 || nh < 3 { (pi, pi) } else { (pi.saturating_sub(1), (pi + 1).min(idx.len() - 1)) };
             for d in d0..=d1 {
                 let r = local_fit(ch, &idx, Some(d), None, d).0;
                 if r < best.0 {
@@ -640,9 +555,7 @@ fn screen_channel(
         // A jump of lost counts is one isolated step. Another event within reach of an
         // accepted step means a burst of fast motion (backlash taken up over a few samples),
         // not a jump: the step is undone and the readings left alone.
-        let near_step = ev
-            .iter()
-            .rposition(|e| matches!(e, Event::Step(r, _, _) if r.abs_diff(i) <= REACH));
+        let near_step = ev.iter().rposition(|e| matches!(e, Event::Step(r, _, _) if r.abs_diff(i) <= REACH));
         if let Some(k) = near_step {
             if let Event::Step(r, d, _) = ev.remove(k) {
                 for y in ch.y[..r].iter_mut() {
@@ -693,11 +606,7 @@ fn screen_channel(
             }
             (_, Some(d), _) => {
                 let row = idx[d];
-                let expected = if idx.len() >= 8 {
-                    local_fit(ch, &idx, Some(d), None, d).1
-                } else {
-                    ch.z(row).0
-                };
+                let expected = if idx.len() >= 8 { local_fit(ch, &idx, Some(d), None, d).1 } else { ch.z(row).0 };
                 ev.push(Event::Spike(row, ch.y[row], expected, zs[row].abs() / s));
                 ch.out[row] = true;
                 row
@@ -761,12 +670,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let n = rec.n_cables;
     let m = rec.len();
     let dt = {
-        let mut d: Vec<f64> = rec
-            .t
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .filter(|d| *d > 0.0)
-            .collect();
+        let mut d: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
         if d.is_empty() {
             f64::NAN
         } else {
@@ -775,11 +679,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             d[k]
         }
     };
-    let gap = if dt.is_finite() {
-        5.0 * dt
-    } else {
-        f64::INFINITY
-    };
+    let gap = if dt.is_finite() { 5.0 * dt } else { f64::INFINITY };
     let seg: &[i32] = rec.phase.as_deref().unwrap_or(&[]);
     // The Bonferroni count: every reading of every channel (encoders, tracker axes, load cells).
     let tests = m * (n + 3 + if rec.f.is_some() { n } else { 0 });
@@ -797,10 +697,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             let Some(f) = &rec.f else { return vec![] };
             let ch = Channel::new(
                 &rec.t,
-                (0..m)
-                    .map(|i| f[i * n + j])
-                    .map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN })
-                    .collect(),
+                (0..m).map(|i| f[i * n + j]).map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN }).collect(),
                 gap,
                 seg,
             );
@@ -809,29 +706,15 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             let thr = thr_of(nc) * s;
             let ev: Vec<bool> = zs.iter().map(|z| z.abs() > thr).collect();
             tension_cols.push((ch.y.clone(), s));
-            (0..m)
-                .map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x))
-                .collect()
+            (0..m).map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x)).collect()
         })
         .collect();
     // Encoders.
     for j in 0..n {
         let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
-        let mut ch = Channel::new(
-            &rec.t,
-            (0..m).map(|i| rec.l[i * n + j]).collect(),
-            gap,
-            &eseg,
-        );
-        let (ev, _) = screen_channel(
-            &mut ch,
-            ABSURD_M,
-            1e-7,
-            thr_of,
-            opts.jumps,
-            &tension_quiet[j],
-            tension_cols.get(j).map(|(c, s)| (&c[..], *s)),
-        );
+        let mut ch = Channel::new(&rec.t, (0..m).map(|i| rec.l[i * n + j]).collect(), gap, &eseg);
+        let (ev, _) =
+            screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension_cols.get(j).map(|(c, s)| (&c[..], *s)));
         for e in ev {
             changed = true;
             match e {
@@ -877,27 +760,16 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                 }
             }
             let (s, nc) = scale(&ch, &mut zs, 1e-3);
-            let mut loose: Vec<f64> = col
-                .iter()
-                .copied()
-                .filter(|v| v.is_finite() && v.abs() <= ABSURD_N && *v < opts.min_tension_n)
-                .collect();
+            let mut loose: Vec<f64> =
+                col.iter().copied().filter(|v| v.is_finite() && v.abs() <= ABSURD_N && *v < opts.min_tension_n).collect();
             let z0 = if loose.len() >= 20 {
                 let k = loose.len() / 2;
                 *loose.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
             } else {
                 0.0
             };
-            let low = if s.is_finite() {
-                z0.min(0.0) - thr_of(nc) * s
-            } else {
-                f64::NEG_INFINITY
-            };
-            let high = opts
-                .max_tension_n
-                .filter(|h| *h > 0.0)
-                .unwrap_or(ABSURD_N)
-                .min(ABSURD_N);
+            let low = if s.is_finite() { z0.min(0.0) - thr_of(nc) * s } else { f64::NEG_INFINITY };
+            let high = opts.max_tension_n.filter(|h| *h > 0.0).unwrap_or(ABSURD_N).min(ABSURD_N);
             for (i, &v) in col.iter().enumerate() {
                 if v.is_nan() {
                     continue;
@@ -919,11 +791,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                         axis: None,
                         value: v,
                         expected: limit,
-                        sigmas: if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 {
-                            (v - z0.min(0.0)).abs() / s
-                        } else {
-                            f64::INFINITY
-                        },
+                        sigmas: if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY },
                         action: Action::Excluded,
                     });
                     if let Some(cf) = cleaned.f.as_mut() {
@@ -971,9 +839,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                         sigmas: s,
                         action: Action::RowsExcluded { first, rows },
                     });
-                    removed_rows[first..first + rows]
-                        .iter_mut()
-                        .for_each(|r| *r = true);
+                    removed_rows[first..first + rows].iter_mut().for_each(|r| *r = true);
                 }
             }
         }
@@ -983,22 +849,8 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             cleaned.p[i] = [f64::NAN; 3];
         }
     }
-    findings.sort_by_key(|w| {
-        (
-            w.cable.is_none(),
-            w.kind == WildKind::ImpossibleTension,
-            w.cable,
-            w.kind.name(),
-            w.row,
-        )
-    });
-    Screen {
-        findings,
-        cleaned: changed.then_some(cleaned),
-        removed_rows,
-        tests,
-        threshold_sigmas: k,
-    }
+    findings.sort_by_key(|w| (w.cable.is_none(), w.kind == WildKind::ImpossibleTension, w.cable, w.kind.name(), w.row));
+    Screen { findings, cleaned: changed.then_some(cleaned), removed_rows, tests, threshold_sigmas: k }
 }
 
 #[cfg(test)]
@@ -1019,24 +871,13 @@ mod tests {
     /// A smooth synthetic recording: the platform on a random sum of sinusoids (Lissajous-like,
     /// up to `speed` m/s) inside the robot, Gaussian tracker, encoder and load-cell noise,
     /// tensions that vary smoothly with a few loose stretches near zero.
-    pub(crate) fn smooth(
-        truth: &Params,
-        m: usize,
-        rate: f64,
-        tracker_sigma: f64,
-        enc_sigma: f64,
-        seed: u64,
-    ) -> Recording {
+    pub(crate) fn smooth(truth: &Params, m: usize, rate: f64, tracker_sigma: f64, enc_sigma: f64, seed: u64) -> Recording {
         let n = truth.n_cables();
         let mut rng = Rng::new(seed);
-        let c: [f64; 3] =
-            std::array::from_fn(|k| truth.anchors.iter().map(|a| a[k]).sum::<f64>() / n as f64);
+        let c: [f64; 3] = std::array::from_fn(|k| truth.anchors.iter().map(|a| a[k]).sum::<f64>() / n as f64);
         let span: [f64; 3] = [1.0, 0.8, 0.6];
-        let comps: Vec<[(f64, f64, f64); 3]> = (0..3)
-            .map(|_| {
-                std::array::from_fn(|k| (span[k] / 3.0, rng.range(0.1, 0.6), rng.range(0.0, 6.3)))
-            })
-            .collect();
+        let comps: Vec<[(f64, f64, f64); 3]> =
+            (0..3).map(|_| std::array::from_fn(|k| (span[k] / 3.0, rng.range(0.1, 0.6), rng.range(0.0, 6.3)))).collect();
         let mut rec = Recording::with_capacity(n, m, true, false, false);
         let (mut l, mut f) = (vec![0.0; n], vec![0.0; n]);
         let off: Vec<f64> = (0..n).map(|_| 0.5 * rng.normal()).collect();
@@ -1064,12 +905,7 @@ mod tests {
 
     fn geometries() -> Vec<Params> {
         let big = Params {
-            anchors: vec![
-                [10.0, -10.0, 12.0],
-                [10.0, 10.0, 12.0],
-                [-10.0, 10.0, 12.0],
-                [-10.0, -10.0, 12.0],
-            ],
+            anchors: vec![[10.0, -10.0, 12.0], [10.0, 10.0, 12.0], [-10.0, 10.0, 12.0], [-10.0, -10.0, 12.0]],
             l0: vec![1.0, -2.0, 0.5, 3.0],
         };
         vec![synth::aras_cam(), synth::tri3(), big]
@@ -1082,20 +918,13 @@ mod tests {
         let mut total = 0;
         for (g, truth) in geometries().iter().enumerate() {
             for s in 0..20u64 {
-                let (ts, es, rate) = if s % 2 == 0 {
-                    (1.5e-3, 5e-5, 100.0)
-                } else {
-                    (0.5e-3, 2e-5, 50.0)
-                };
+                let (ts, es, rate) = if s % 2 == 0 { (1.5e-3, 5e-5, 100.0) } else { (0.5e-3, 2e-5, 50.0) };
                 let rec = smooth(truth, 3000, rate, ts, es, 1000 * g as u64 + s);
                 let sc = screen(&rec, &ScreenOptions::new(3.0));
                 assert!(
                     sc.findings.is_empty(),
                     "geometry {g} seed {s}: {:#?}",
-                    sc.findings
-                        .iter()
-                        .map(|w| w.to_string())
-                        .collect::<Vec<_>>()
+                    sc.findings.iter().map(|w| w.to_string()).collect::<Vec<_>>()
                 );
                 assert!(sc.cleaned.is_none());
                 total += 1;
@@ -1112,15 +941,7 @@ mod tests {
         assert!(base.findings.is_empty());
         let k = base.threshold_sigmas;
         // Encoder noise scale of the interpolation residual is the encoder sigma.
-        for (q, v) in [
-            (0usize, 1.5 * k * 5e-5),
-            (1, 4.0 * k * 5e-5),
-            (2, 0.05),
-            (3, 1e308),
-            (1, 1e160),
-            (2, -1e308),
-            (0, f64::INFINITY),
-        ] {
+        for (q, v) in [(0usize, 1.5 * k * 5e-5), (1, 4.0 * k * 5e-5), (2, 0.05), (3, 1e308), (1, 1e160), (2, -1e308), (0, f64::INFINITY)] {
             let mut rec = clean.clone();
             let row = 1234 + 17 * q;
             let n = rec.n_cables;
@@ -1130,26 +951,12 @@ mod tests {
                 rec.l[row * n + q] = v;
             }
             let sc = screen(&rec, &ScreenOptions::new(3.0));
-            assert_eq!(
-                sc.findings.len(),
-                1,
-                "{v:e}: {:#?}",
-                sc.findings
-                    .iter()
-                    .map(|w| w.to_string())
-                    .collect::<Vec<_>>()
-            );
+            assert_eq!(sc.findings.len(), 1, "{v:e}: {:#?}", sc.findings.iter().map(|w| w.to_string()).collect::<Vec<_>>());
             let w = sc.findings[0];
-            assert_eq!(
-                (w.kind, w.row, w.cable),
-                (WildKind::EncoderSpike, row, Some(q)),
-                "{w}"
-            );
+            assert_eq!((w.kind, w.row, w.cable), (WildKind::EncoderSpike, row, Some(q)), "{w}");
             let c = sc.cleaned.as_ref().unwrap();
             assert!(c.l[row * n + q].is_nan());
-            let others = (0..rec.l.len())
-                .filter(|&x| x != row * n + q)
-                .all(|x| c.l[x] == clean.l[x]);
+            let others = (0..rec.l.len()).filter(|&x| x != row * n + q).all(|x| c.l[x] == clean.l[x]);
             assert!(others, "only the wild reading changes");
         }
     }
@@ -1161,24 +968,14 @@ mod tests {
         let n = rec.n_cables;
         // Cables taut at the ends (a slack cable's encoder is not tested locally).
         let f = rec.f.clone().unwrap();
-        let taut = |rows: std::ops::Range<usize>| {
-            (0..n)
-                .find(|&j| rows.clone().all(|i| f[i * n + j] > 10.0))
-                .unwrap()
-        };
+        let taut = |rows: std::ops::Range<usize>| (0..n).find(|&j| rows.clone().all(|i| f[i * n + j] > 10.0)).unwrap();
         let (a, b) = (taut(0..6), taut(1994..2000));
         rec.l[a] += 0.05;
         rec.l[1999 * n + b] -= 0.05;
         let sc = screen(&rec, &ScreenOptions::new(3.0));
-        let mut got: Vec<(usize, Option<usize>)> =
-            sc.findings.iter().map(|w| (w.row, w.cable)).collect();
+        let mut got: Vec<(usize, Option<usize>)> = sc.findings.iter().map(|w| (w.row, w.cable)).collect();
         got.sort();
-        assert_eq!(
-            got,
-            vec![(0, Some(a)), (1999, Some(b))],
-            "{:#?}",
-            sc.findings
-        );
+        assert_eq!(got, vec![(0, Some(a)), (1999, Some(b))], "{:#?}", sc.findings);
     }
 
     #[test]
@@ -1193,11 +990,7 @@ mod tests {
         let sc = screen(&rec, &ScreenOptions::new(3.0));
         assert_eq!(sc.findings.len(), 1, "{:#?}", sc.findings);
         let w = sc.findings[0];
-        assert_eq!(
-            (w.kind, w.row, w.cable),
-            (WildKind::EncoderJump, 2000, Some(2)),
-            "{w}"
-        );
+        assert_eq!((w.kind, w.row, w.cable), (WildKind::EncoderJump, 2000, Some(2)), "{w}");
         assert!((w.value - 0.02).abs() < 1e-4, "{w}");
         let c = sc.cleaned.unwrap();
         // Earlier readings moved onto the later reference to the step's local precision.
@@ -1218,11 +1011,7 @@ mod tests {
         f[1100 * n] = -50.0;
         f[1300 * n + 2] = 1e200;
         let sc = screen(&rec, &ScreenOptions::new(3.0));
-        let got: Vec<(WildKind, usize, Option<usize>)> = sc
-            .findings
-            .iter()
-            .map(|w| (w.kind, w.row, w.cable))
-            .collect();
+        let got: Vec<(WildKind, usize, Option<usize>)> = sc.findings.iter().map(|w| (w.kind, w.row, w.cable)).collect();
         assert_eq!(
             got,
             vec![
@@ -1233,10 +1022,7 @@ mod tests {
                 (WildKind::TrackerJump, 1500, None),
             ],
             "{:#?}",
-            sc.findings
-                .iter()
-                .map(|w| w.to_string())
-                .collect::<Vec<_>>()
+            sc.findings.iter().map(|w| w.to_string()).collect::<Vec<_>>()
         );
         let c = sc.cleaned.unwrap();
         assert!(c.p[700][0].is_nan() && c.p[1500][0].is_nan() && c.l[900 * n + 1].is_nan());

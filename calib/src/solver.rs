@@ -476,14 +476,7 @@ pub struct Solution {
 
 /// Solves one cable on readings `lo..hi` from `x0`, with a least-squares stage first when `loss`
 /// is robust (use [`lm`] with the robust loss directly to refine from a point already close).
-pub fn solve(
-    d: &CableData,
-    lo: usize,
-    hi: usize,
-    x0: [f64; 4],
-    loss: RobustLoss,
-    max_iterations: usize,
-) -> Solution {
+pub fn solve(d: &CableData, lo: usize, hi: usize, x0: [f64; 4], loss: RobustLoss, max_iterations: usize) -> Solution {
     if loss == RobustLoss::None {
         return lm(d, lo, hi, x0, loss, max_iterations, Tolerances::FINAL);
     }
@@ -496,15 +489,7 @@ pub fn solve(
 
 /// Damped Gauss–Newton (Levenberg–Marquardt) with Nielsen's damping update.
 #[allow(clippy::too_many_arguments)]
-pub fn lm(
-    d: &CableData,
-    lo: usize,
-    hi: usize,
-    x0: [f64; 4],
-    loss: RobustLoss,
-    max_iterations: usize,
-    tol: Tolerances,
-) -> Solution {
+pub fn lm(d: &CableData, lo: usize, hi: usize, x0: [f64; 4], loss: RobustLoss, max_iterations: usize, tol: Tolerances) -> Solution {
     let mut x = x0;
     let mut cur = pass(d, lo, hi, &x, loss);
     // Start almost at Gauss–Newton: J^T W J is ill-conditioned along (A along the mean cable
@@ -598,7 +583,8 @@ mod tests {
     fn pass_matches_finite_difference_normal_equations() {
         let pts = [[0.1, 0.2, 1.0], [1.0, -0.5, 2.0], [-1.2, 0.7, 0.5], [0.4, 1.1, 1.7], [-0.3, -0.9, 2.4]];
         let a_true = [3.0, -1.5, 4.0];
-        let l: Vec<f64> = pts.iter().enumerate().map(|(k, p)| crate::model::cable_length(*p, a_true, 0.5) + 1e-3 * (k as f64 - 2.0)).collect();
+        let l: Vec<f64> =
+            pts.iter().enumerate().map(|(k, p)| crate::model::cable_length(*p, a_true, 0.5) + 1e-3 * (k as f64 - 2.0)).collect();
         let t: Vec<f64> = (0..pts.len()).map(|k| 10.0 * k as f64).collect();
         let mut d = CableData::from_points(&pts, &l, &t);
         let opts = CalibOptions::default();

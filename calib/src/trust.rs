@@ -85,66 +85,39 @@ pub struct Candidate<'a> {
 impl<'a> Candidate<'a> {
     /// The parameters and uncertainty of a calibration report.
     pub fn of(r: &'a CalibReport) -> Self {
-        Candidate {
-            anchors: &r.params.anchors,
-            l0: &r.params.l0,
-            anchor_sigma: &r.anchor_sigma,
-            l0_sigma: &r.l0_sigma,
-            rms_m: r.rms_m,
-        }
+        Candidate { anchors: &r.params.anchors, l0: &r.params.l0, anchor_sigma: &r.anchor_sigma, l0_sigma: &r.l0_sigma, rms_m: r.rms_m }
     }
 }
 
 /// Checks `c` against the positions of `rec` and, if given, the nominal anchors with the
 /// largest plausible distance from them.
-pub fn check(
-    c: &Candidate,
-    rec: &Recording,
-    nominal: Option<(&[[f64; 3]], f64)>,
-) -> Result<(), Untrusted> {
+pub fn check(c: &Candidate, rec: &Recording, nominal: Option<(&[[f64; 3]], f64)>) -> Result<(), Untrusted> {
     for (j, a) in c.anchors.iter().enumerate() {
         if !a.iter().all(|v| v.is_finite()) {
-            return Err(Untrusted::NonFinite {
-                cable: Some(j),
-                what: "anchor",
-            });
+            return Err(Untrusted::NonFinite { cable: Some(j), what: "anchor" });
         }
     }
     for (j, v) in c.l0.iter().enumerate() {
         if !v.is_finite() {
-            return Err(Untrusted::NonFinite {
-                cable: Some(j),
-                what: "encoder offset",
-            });
+            return Err(Untrusted::NonFinite { cable: Some(j), what: "encoder offset" });
         }
     }
     for (j, s) in c.anchor_sigma.iter().enumerate() {
         if !s.iter().all(|v| v.is_finite()) {
-            return Err(Untrusted::NonFinite {
-                cable: Some(j),
-                what: "anchor 1-sigma",
-            });
+            return Err(Untrusted::NonFinite { cable: Some(j), what: "anchor 1-sigma" });
         }
     }
     for (j, v) in c.l0_sigma.iter().enumerate() {
         if !v.is_finite() {
-            return Err(Untrusted::NonFinite {
-                cable: Some(j),
-                what: "encoder offset 1-sigma",
-            });
+            return Err(Untrusted::NonFinite { cable: Some(j), what: "encoder offset 1-sigma" });
         }
     }
     if !c.rms_m.is_finite() {
-        return Err(Untrusted::NonFinite {
-            cable: None,
-            what: "co-registration RMS",
-        });
+        return Err(Untrusted::NonFinite { cable: None, what: "co-registration RMS" });
     }
     let (mut sum, mut cnt) = ([0.0; 3], 0usize);
     for p in &rec.p {
-        if p.iter()
-            .all(|v| v.is_finite() && v.abs() <= crate::screen::ABSURD_M)
-        {
+        if p.iter().all(|v| v.is_finite() && v.abs() <= crate::screen::ABSURD_M) {
             for k in 0..3 {
                 sum[k] += p[k];
             }
@@ -158,21 +131,13 @@ pub fn check(
     for (j, a) in c.anchors.iter().enumerate() {
         let d = crate::model::norm(crate::model::sub(*a, centroid));
         if !(d <= crate::screen::ABSURD_M) {
-            return Err(Untrusted::AnchorAbsurd {
-                cable: j,
-                distance_m: d,
-                limit_m: crate::screen::ABSURD_M,
-            });
+            return Err(Untrusted::AnchorAbsurd { cable: j, distance_m: d, limit_m: crate::screen::ABSURD_M });
         }
         if let Some((nom, limit)) = nominal {
             if let Some(n) = nom.get(j) {
                 let d = crate::model::norm(crate::model::sub(*a, *n));
                 if !(d <= limit) {
-                    return Err(Untrusted::FarFromNominal {
-                        cable: j,
-                        distance_m: d,
-                        limit_m: limit,
-                    });
+                    return Err(Untrusted::FarFromNominal { cable: j, distance_m: d, limit_m: limit });
                 }
             }
         }
@@ -188,73 +153,20 @@ mod tests {
     #[test]
     fn refuses_non_finite_and_absurd_sets() {
         let truth = synth::aras_cam();
-        let rec = synth::box_recording(
-            &synth::Spec::new(truth.clone()),
-            200,
-            [-1.0; 3],
-            [1.0; 3],
-            1,
-        );
+        let rec = synth::box_recording(&synth::Spec::new(truth.clone()), 200, [-1.0; 3], [1.0; 3], 1);
         let s3 = vec![[1e-4; 3]; 4];
         let s1 = vec![1e-4; 4];
-        let ok = Candidate {
-            anchors: &truth.anchors,
-            l0: &truth.l0,
-            anchor_sigma: &s3,
-            l0_sigma: &s1,
-            rms_m: 1e-3,
-        };
+        let ok = Candidate { anchors: &truth.anchors, l0: &truth.l0, anchor_sigma: &s3, l0_sigma: &s1, rms_m: 1e-3 };
         assert_eq!(check(&ok, &rec, Some((&truth.anchors, 1.0))), Ok(()));
-        assert!(matches!(
-            check(
-                &Candidate {
-                    rms_m: f64::INFINITY,
-                    ..ok
-                },
-                &rec,
-                None
-            ),
-            Err(Untrusted::NonFinite { cable: None, .. })
-        ));
+        assert!(matches!(check(&Candidate { rms_m: f64::INFINITY, ..ok }, &rec, None), Err(Untrusted::NonFinite { cable: None, .. })));
         let nan = vec![[1e-4, f64::NAN, 1e-4]; 4];
-        assert!(matches!(
-            check(
-                &Candidate {
-                    anchor_sigma: &nan,
-                    ..ok
-                },
-                &rec,
-                None
-            ),
-            Err(Untrusted::NonFinite { cable: Some(0), .. })
-        ));
+        assert!(matches!(check(&Candidate { anchor_sigma: &nan, ..ok }, &rec, None), Err(Untrusted::NonFinite { cable: Some(0), .. })));
         let mut far = truth.anchors.clone();
         far[2] = [1e6, 0.0, 0.0];
-        assert!(matches!(
-            check(
-                &Candidate {
-                    anchors: &far,
-                    ..ok
-                },
-                &rec,
-                None
-            ),
-            Err(Untrusted::AnchorAbsurd { cable: 2, .. })
-        ));
+        assert!(matches!(check(&Candidate { anchors: &far, ..ok }, &rec, None), Err(Untrusted::AnchorAbsurd { cable: 2, .. })));
         far[2] = [-3.0, 1.7, 6.0];
-        let e = check(
-            &Candidate {
-                anchors: &far,
-                ..ok
-            },
-            &rec,
-            Some((&truth.anchors, 1.0)),
-        )
-        .unwrap_err();
-        assert!(
-            matches!(e, Untrusted::FarFromNominal { cable: 2, .. }),
-            "{e}"
-        );
+        let e = check(&Candidate { anchors: &far, ..ok }, &rec, Some((&truth.anchors, 1.0))).unwrap_err();
+        assert!(matches!(e, Untrusted::FarFromNominal { cable: 2, .. }), "{e}");
         assert!(e.to_string().contains("cable[2].anchor"));
     }
 }

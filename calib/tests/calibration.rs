@@ -137,8 +137,14 @@ fn force_aware_beats_unweighted_with_loose_cables() {
         assert_eq!(rp.weighting, Weighting::UniformByOption);
         assert!(rp.notes.iter().any(|n| n.contains("switched off")));
         let (ef, ep) = (err(&rf.params), err(&rp.params));
-        eprintln!("loss {loss:?}: force-aware worst anchor error {:.2} mm, unweighted {:.2} mm, ratio {:.1}; rms {:.2} vs {:.2} mm",
-            ef * 1e3, ep * 1e3, ep / ef, rf.rms_m * 1e3, rp.rms_m * 1e3);
+        eprintln!(
+            "loss {loss:?}: force-aware worst anchor error {:.2} mm, unweighted {:.2} mm, ratio {:.1}; rms {:.2} vs {:.2} mm",
+            ef * 1e3,
+            ep * 1e3,
+            ep / ef,
+            rf.rms_m * 1e3,
+            rp.rms_m * 1e3
+        );
         if loss == RobustLoss::None {
             // The paper's comparison (least squares with and without force weighting).
             assert!(ep >= 3.0 * ef, "{loss:?}: unweighted {ep} vs force-aware {ef}");
@@ -240,18 +246,10 @@ fn three_phase_case(truth: &Params, phases: &[PhaseSpec], n_per_phase: usize, se
         assert_eq!(d.reeled, p.reeled, "phase {k}: reeled cable inferred wrongly");
     }
     let worst = (0..truth.n_cables()).map(|j| anchor_error(r.params.anchors[j], truth.anchors[j])).fold(0.0, f64::max);
-    let worst_line = r
-        .cables
-        .iter()
-        .enumerate()
-        .filter_map(|(j, c)| c.line_anchor.map(|a| anchor_error(a, truth.anchors[j])))
-        .fold(0.0, f64::max);
-    let worst_geo = r
-        .cables
-        .iter()
-        .enumerate()
-        .filter_map(|(j, c)| c.geometric_anchor.map(|a| anchor_error(a, truth.anchors[j])))
-        .fold(0.0, f64::max);
+    let worst_line =
+        r.cables.iter().enumerate().filter_map(|(j, c)| c.line_anchor.map(|a| anchor_error(a, truth.anchors[j]))).fold(0.0, f64::max);
+    let worst_geo =
+        r.cables.iter().enumerate().filter_map(|(j, c)| c.geometric_anchor.map(|a| anchor_error(a, truth.anchors[j]))).fold(0.0, f64::max);
     eprintln!(
         "three-phase: worst anchor error {:.2} mm (line estimates {:.2} mm, geometric {:.2} mm), l0 errors {:?} mm, sources {:?}",
         worst * 1e3,
@@ -328,7 +326,8 @@ fn heldout_rms_matches_a_full_solve_on_the_training_block() {
     let rep = calibrate(&rec, &b, &perturbed(&truth, 0.1), &opts).unwrap();
     let split = metrics::heldout_start(&rec, opts.heldout_fraction);
     assert_eq!(split, 2400, "the last 20% in time");
-    let train = calibrate(&rec.slice(0..split), &b, &perturbed(&truth, 0.1), &CalibOptions { heldout_fraction: 0.0, ..opts.clone() }).unwrap();
+    let train =
+        calibrate(&rec.slice(0..split), &b, &perturbed(&truth, 0.1), &CalibOptions { heldout_fraction: 0.0, ..opts.clone() }).unwrap();
     let res = metrics::co_registration(&rec, &b, &train.params);
     let mask = metrics::taut_mask(&rec, &opts).within(split..rec.len());
     let full = metrics::rms_peak(&res, &mask);
@@ -467,10 +466,7 @@ fn anisotropic_tracker_noise_is_weighted_by_its_projection() {
     spec.tracker_axis_scale = [1.0, 1.0, 3.0];
     let rec = synth::box_recording(&spec, 3000, LO, HI, 91);
     let s2 = spec.tracker_sigma_m.powi(2);
-    let opts = CalibOptions {
-        tracker_cov_m2: Some([[s2, 0.0, 0.0], [0.0, s2, 0.0], [0.0, 0.0, 9.0 * s2]]),
-        ..opts_for(&spec)
-    };
+    let opts = CalibOptions { tracker_cov_m2: Some([[s2, 0.0, 0.0], [0.0, s2, 0.0], [0.0, 0.0, 9.0 * s2]]), ..opts_for(&spec) };
     let rep = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.1), &opts).unwrap();
     let crb = metrics::cramer_rao(&rec, &spec.platform_points, &truth, &opts);
     let z = worst_z(&rep.params, &truth, &crb);

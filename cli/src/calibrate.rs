@@ -101,9 +101,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::Progre
 pub fn progress(steps: u64) -> indicatif::ProgressBar {
     let pb = indicatif::ProgressBar::with_draw_target(Some(steps), indicatif::ProgressDrawTarget::stderr());
     pb.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} [{bar:30}] {pos}/{len} {msg}")
-            .expect("static template")
-            .progress_chars("=> "),
+        indicatif::ProgressStyle::with_template("{spinner} [{bar:30}] {pos}/{len} {msg}").expect("static template").progress_chars("=> "),
     );
     pb
 }
@@ -130,8 +128,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
-        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes())
-            .with_context(|| format!("writing {}", j.display()))?;
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
         report::plots(dir, &inputs, rec, &cfg, &out)?;

@@ -52,7 +52,8 @@ fn wait_for_reset(socket: &std::path::Path) -> Result<()> {
     let t0 = std::time::Instant::now();
     loop {
         std::thread::sleep(Duration::from_millis(100));
-        let st = taut_rt_core::control::request(socket, "status", Duration::from_secs(5)).map_err(|e| anyhow!("{}: {e}", socket.display()))?;
+        let st =
+            taut_rt_core::control::request(socket, "status", Duration::from_secs(5)).map_err(|e| anyhow!("{}: {e}", socket.display()))?;
         // The loop takes the request within a cycle; from then on the state is "resetting"
         // until the reset is done or refused.
         if st["state"] == "resetting" {
@@ -64,7 +65,10 @@ fn wait_for_reset(socket: &std::path::Path) -> Result<()> {
         let last = &st["reset"]["last"];
         match last["outcome"].as_str() {
             Some("done") => {
-                println!("reset: done, holding (largest per-cycle step {:.3} mm)", st["reset"]["reenable_step_m"].as_f64().unwrap_or(0.0) * 1e3);
+                println!(
+                    "reset: done, holding (largest per-cycle step {:.3} mm)",
+                    st["reset"]["reenable_step_m"].as_f64().unwrap_or(0.0) * 1e3
+                );
                 return Ok(());
             }
             Some("refused") => bail!("reset refused: {}", last["message"].as_str().unwrap_or("see `taut ctl status`")),

@@ -23,9 +23,9 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = a.sim.config.iter().map(|p| p.as_path()).collect();
     let files: Vec<crate::outputs::Output> =
         [("--output", Some(&a.sim.output)), ("--json", a.json.as_ref()), ("--truth", a.sim.truth.as_ref())]
-        .into_iter()
-        .filter_map(|(f, p)| p.map(|p| (f, p.as_path())))
-        .collect();
+            .into_iter()
+            .filter_map(|(f, p)| p.map(|p| (f, p.as_path())))
+            .collect();
     let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
     crate::outputs::check(&files, &dirs, &inputs)?;
     let s = scenario(&a.sim)?;
@@ -43,9 +43,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     let run = taut_sim::try_simulate(&s).map_err(|e| anyhow::anyhow!("cannot simulate this robot: {e}"))?;
     pb.inc(1);
     let rec = &run.recording;
-    run.recording
-        .save_atomic(&a.sim.output)
-        .with_context(|| format!("writing {}", a.sim.output.display()))?;
+    run.recording.save_atomic(&a.sim.output).with_context(|| format!("writing {}", a.sim.output.display()))?;
     if let Some(t) = &a.sim.truth {
         crate::simulate::write_truth(t, &s, a.sim.seed, &run)?;
     }
@@ -67,8 +65,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     report::print_calibration(&rec_file, &parse, &out, Some(&truth));
     if let Some(j) = &a.json {
         let v = report::json(&rec_file, &parse, &out, Some(&truth));
-        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes())
-            .with_context(|| format!("writing {}", j.display()))?;
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
         report::plots(dir, &inputs, &rec_file, &s.robot, &out)?;

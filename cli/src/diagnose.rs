@@ -123,11 +123,7 @@ pub fn print(d: &Diagnosis) {
     for p in &d.data_problems {
         println!("data problem ({}): {}", p.kind.name(), p.description);
     }
-    println!(
-        "ideal model: RMS {:.2} mm, held out {:.2} mm",
-        mm(d.baseline.rms_m),
-        mm(d.baseline.heldout_rms_m)
-    );
+    println!("ideal model: RMS {:.2} mm, held out {:.2} mm", mm(d.baseline.rms_m), mm(d.baseline.heldout_rms_m));
     for w in &d.mismatch.words {
         println!("  {w}");
     }
@@ -145,11 +141,7 @@ pub fn print(d: &Diagnosis) {
         );
         println!("  {}", f.evidence);
     }
-    println!(
-        "final model: RMS {:.2} mm, held out {:.2} mm",
-        mm(d.final_fit.rms_m),
-        mm(d.final_fit.heldout_rms_m)
-    );
+    println!("final model: RMS {:.2} mm, held out {:.2} mm", mm(d.final_fit.rms_m), mm(d.final_fit.heldout_rms_m));
     for (j, (a, s)) in d.final_fit.anchors_m.iter().zip(&d.final_fit.anchor_sigma_m).enumerate() {
         println!(
             "  cable {j}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
@@ -199,11 +191,7 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
     write_panels(set, "diagnose-residual-vs-time", &panels)?;
     for f in &d.effects {
         let Some(p) = &f.plot else { continue };
-        let data: Vec<(Vec<(f64, f64)>, Vec<(f64, f64)>)> = p
-            .cables
-            .iter()
-            .map(|(x, b, a)| (pts(x, b), pts(x, a)))
-            .collect();
+        let data: Vec<(Vec<(f64, f64)>, Vec<(f64, f64)>)> = p.cables.iter().map(|(x, b, a)| (pts(x, b), pts(x, a))).collect();
         let x_label = format!("{} ({})", p.regressor.name(), p.regressor.unit());
         let panels: Vec<Panel> = data
             .iter()
@@ -236,8 +224,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
         "platform" => TensionEnd::Platform,
         other => anyhow::bail!("--tension-at `{other}`: use `anchor` (load cell at the winch) or `platform`"),
     };
-    let d = diagnose(&rec, &cfg.platform_points(), None, &opts)
-        .with_context(|| format!("diagnosing {}", a.recording.display()))?;
+    let d = diagnose(&rec, &cfg.platform_points(), None, &opts).with_context(|| format!("diagnosing {}", a.recording.display()))?;
     print(&d);
     // The wild values are excluded before the fit; should the model still come out non-finite
     // or absurd, say so and fail rather than hand out such numbers.

@@ -18,21 +18,14 @@ pub fn check(files: &[Output], figure_dirs: &[Output], inputs: &[&Path]) -> Resu
     for (k, (fa, a)) in files.iter().enumerate() {
         for (fb, b) in &files[k + 1..] {
             if same_place(a, b) {
-                bail!(
-                    "{fa} and {fb} name the same file {}; give each output its own path",
-                    a.display()
-                );
+                bail!("{fa} and {fb} name the same file {}; give each output its own path", a.display());
             }
         }
     }
     for (flag, d) in figure_dirs {
         if let Ok(m) = std::fs::symlink_metadata(d) {
             if !std::fs::metadata(d).is_ok_and(|m| m.is_dir()) {
-                let what = if m.file_type().is_symlink() {
-                    "a symlink to something that is not a directory"
-                } else {
-                    "not a directory"
-                };
+                let what = if m.file_type().is_symlink() { "a symlink to something that is not a directory" } else { "not a directory" };
                 bail!("{flag}: {} is {what}; give a directory for the figures", d.display());
             }
         }
@@ -53,9 +46,7 @@ fn same_place(a: &Path, b: &Path) -> bool {
 fn absolute(p: &Path) -> PathBuf {
     let p = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     // `a/./b` and `a/b` are one place; `..` is left alone (it may cross a symlink).
-    p.components()
-        .filter(|c| !matches!(c, std::path::Component::CurDir))
-        .collect()
+    p.components().filter(|c| !matches!(c, std::path::Component::CurDir)).collect()
 }
 
 /// Starts a figure set in `dir` (see `taut_config::atomic::Staging`).

@@ -127,9 +127,7 @@ where
             let c = s.color;
             if s.markers {
                 chart
-                    .draw_series(
-                        s.points.iter().filter(|p| p.1.is_finite()).map(|&(x, y)| Cross::new((x, y), 3, c.stroke_width(1))),
-                    )
+                    .draw_series(s.points.iter().filter(|p| p.1.is_finite()).map(|&(x, y)| Cross::new((x, y), 3, c.stroke_width(1))))
                     .map_err(|e| anyhow::anyhow!("{e}"))?
                     .label(&s.label)
                     .legend(move |(x, y)| Cross::new((x + 8, y), 3, c.stroke_width(1)));
@@ -137,9 +135,8 @@ where
                 // Split at NaN so gaps stay gaps.
                 let mut first = true;
                 for seg in s.points.split(|p| !p.1.is_finite()).filter(|seg| seg.len() > 1) {
-                    let a = chart
-                        .draw_series(LineSeries::new(seg.iter().copied(), c.stroke_width(1)))
-                        .map_err(|e| anyhow::anyhow!("{e}"))?;
+                    let a =
+                        chart.draw_series(LineSeries::new(seg.iter().copied(), c.stroke_width(1))).map_err(|e| anyhow::anyhow!("{e}"))?;
                     if first {
                         a.label(&s.label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c));
                         first = false;

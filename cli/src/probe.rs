@@ -260,7 +260,19 @@ fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
     println!();
     println!(
         "{:>4} {:>5}  {:<15} {:<12} {:<18} {:>4} {:>11} {:>10} {:>10}  {:<10} {:<10} {:>8}  {}",
-        "node", "cable", "NMT", "phase", "drive", "mode", "position m", "drive N", "cell N", "vendor", "product", "serial", "name / last EMCY"
+        "node",
+        "cable",
+        "NMT",
+        "phase",
+        "drive",
+        "mode",
+        "position m",
+        "drive N",
+        "cell N",
+        "vendor",
+        "product",
+        "serial",
+        "name / last EMCY"
     );
     for s in statuses {
         let opt = |v: Option<u32>| v.map_or("-".to_string(), |v| format!("0x{v:08X}"));
@@ -289,10 +301,7 @@ fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
 
 fn print_counters(c: &Counters) {
     println!();
-    println!(
-        "frames: {} received, {} sent, {} SYNC cycles",
-        c.rx_frames, c.tx_frames, c.sync_cycles
-    );
+    println!("frames: {} received, {} sent, {} SYNC cycles", c.rx_frames, c.tx_frames, c.sync_cycles);
     println!(
         "ignored input: {} malformed, {} from unknown node ids, {} not for a master, {} unexpected SDO responses",
         c.malformed, c.unknown_node, c.ignored, c.unexpected_sdo

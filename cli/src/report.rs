@@ -96,13 +96,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     println!();
     println!("encoder offsets L0_j, m");
     for j in 0..n {
-        print!(
-            "  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm",
-            j,
-            out.init.params.l0[j],
-            f.params.l0[j],
-            mm(f.l0_sigma[j])
-        );
+        print!("  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm", j, out.init.params.l0[j], f.params.l0[j], mm(f.l0_sigma[j]));
         if let Some(t) = truth {
             print!("   truth {:9.4}  error {} mm", t.l0[j], mm((f.params.l0[j] - t.l0[j]).abs()));
         }
@@ -195,10 +189,7 @@ pub fn params_file(cfg: &RobotConfig, source: &str, r: &CalibReport) -> ParamsFi
     ParamsFile {
         format: taut_config::params::FORMAT.into(),
         version: 1,
-        created_unix_s: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs_f64())
-            .unwrap_or(0.0),
+        created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0),
         robot: cfg.robot.name.clone(),
         source: source.into(),
         anchors_m: r.params.anchors.clone(),
@@ -256,8 +247,7 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, rec: &Recording, cfg: &R
         let err_force: Vec<(f64, f64)> = (0..rec.len()).map(|i| (rec.t[i], after.get(i, j) * 1e3)).collect();
         let err_plain: Vec<(f64, f64)> =
             plain.as_ref().map(|p| (0..rec.len()).map(|i| (rec.t[i], p.get(i, j) * 1e3)).collect()).unwrap_or_default();
-        let loose: Vec<(f64, f64)> =
-            (0..rec.len()).filter(|&i| !taut[i * n + j]).map(|i| (rec.t[i], after.get(i, j) * 1e3)).collect();
+        let loose: Vec<(f64, f64)> = (0..rec.len()).filter(|&i| !taut[i * n + j]).map(|i| (rec.t[i], after.get(i, j) * 1e3)).collect();
         fig8.push((err_force, err_plain, loose));
     }
     let panels: Vec<Panel> = fig8
@@ -274,9 +264,7 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, rec: &Recording, cfg: &R
         .collect();
     plot::write_panels(set, "fig8-errors", &panels)?;
     // Fig. 9: histograms of the taut-sample errors.
-    let collect = |r: &metrics::Residuals| -> Vec<f64> {
-        (0..rec.len() * n).filter(|&k| taut[k]).map(|k| r.values[k] * 1e3).collect()
-    };
+    let collect = |r: &metrics::Residuals| -> Vec<f64> { (0..rec.len() * n).filter(|&k| taut[k]).map(|k| r.values[k] * 1e3).collect() };
     let mut sets = vec![("before calibration".to_string(), collect(&before)), ("force-aware".to_string(), collect(&after))];
     if let Some(p) = &plain {
         sets.push(("without force weighting".to_string(), collect(p)));

@@ -83,11 +83,7 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     let mut s = Scenario::aras_cam(a.seed);
     if let Some(p) = &a.config {
         s.robot = RobotConfig::load(p)?;
-        anyhow::ensure!(
-            s.robot.anchors().is_some(),
-            "{}: every [[cable]] needs a nominal `anchor` to simulate the robot",
-            p.display()
-        );
+        anyhow::ensure!(s.robot.anchors().is_some(), "{}: every [[cable]] needs a nominal `anchor` to simulate the robot", p.display());
     }
     anyhow::ensure!(
         a.rate.is_finite() && (RATE_HZ.0..=RATE_HZ.1).contains(&a.rate),
@@ -120,9 +116,7 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     let mut seen = Vec::new();
     for e in &a.effects {
         let shown = taut_config::recording::excerpt(e);
-        let (name, value) = e
-            .split_once('=')
-            .with_context(|| format!("--effect `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
+        let (name, value) = e.split_once('=').with_context(|| format!("--effect `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
         let name = name.trim();
         let Some(&(_, unit, lo, hi, what)) = EFFECTS.iter().find(|x| x.0 == name) else {
             bail!(

@@ -7,16 +7,16 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Duration;
 use taut_config::RobotConfig;
+use taut_driver::tracker::TrackerStatsHandle;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::io::Devices;
+use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::simrig::{self, SimOptions};
 use taut_sim::Truth;
-use taut_driver::tracker::TrackerStatsHandle;
 
 /// Arguments of `taut start`.
 #[derive(clap::Args)]
@@ -77,8 +77,9 @@ pub fn run(a: &StartArgs) -> Result<()> {
         let (d, t) = hardware_devices(&cfg)?;
         (d, None, t)
     };
-    let daemon = Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
-        .map_err(|e| anyhow::anyhow!(e))?;
+    let daemon =
+        Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
+            .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
 
     if !a.once {
@@ -169,7 +170,12 @@ pub fn run(a: &StartArgs) -> Result<()> {
     println!("phases completed   {}", l.snap.phases_completed);
     if let Some(e) = init_est.filter(|_| truth.is_some()) {
         let held = err(&e.anchors[..3.min(e.anchors.len())]);
-        println!("initial estimate   max anchor error {:.1} mm on the held cables, {:.1} mm on all ({})", held * 1e3, err(&e.anchors) * 1e3, e.note);
+        println!(
+            "initial estimate   max anchor error {:.1} mm on the held cables, {:.1} mm on all ({})",
+            held * 1e3,
+            err(&e.anchors) * 1e3,
+            e.note
+        );
     }
     if let Some(e) = final_est {
         if truth.is_some() {
@@ -199,7 +205,13 @@ pub fn run(a: &StartArgs) -> Result<()> {
 /// defaults `/run/taut` and `/var/lib/taut` (a simulation has no business there, and they need
 /// root): the data go to `taut-sim-data` in the current directory and the socket into it.
 /// Returns notes saying so.
-fn daemon_paths(cfg: &mut RobotConfig, sim: bool, config_text: Option<&str>, data_dir: Option<&std::path::Path>, socket: Option<&std::path::Path>) -> Vec<String> {
+fn daemon_paths(
+    cfg: &mut RobotConfig,
+    sim: bool,
+    config_text: Option<&str>,
+    data_dir: Option<&std::path::Path>,
+    socket: Option<&std::path::Path>,
+) -> Vec<String> {
     let set_in_file = |key: &str| {
         config_text
             .and_then(|t| t.parse::<toml::Table>().ok())
@@ -210,7 +222,10 @@ fn daemon_paths(cfg: &mut RobotConfig, sim: bool, config_text: Option<&str>, dat
         Some(d) => cfg.daemon.data_dir = d.display().to_string(),
         None if sim && !set_in_file("data_dir") => {
             cfg.daemon.data_dir = "taut-sim-data".into();
-            notes.push("simulated robot: recordings and parameters go to ./taut-sim-data (set daemon.data_dir or give --data-dir for elsewhere)".into());
+            notes.push(
+                "simulated robot: recordings and parameters go to ./taut-sim-data (set daemon.data_dir or give --data-dir for elsewhere)"
+                    .into(),
+            );
         }
         None => {}
     }
@@ -235,7 +250,10 @@ fn hardware_devices(cfg: &RobotConfig) -> Result<(Box<dyn Devices>, Option<Track
     {
         use taut_driver::transport::socketcan::SocketCanTransport;
         let bus = SocketCanTransport::open(&can.interface).with_context(|| {
-            format!("opening CAN interface {} (can.interface): is it up? `ip link set {} up type can bitrate {}`", can.interface, can.interface, can.bitrate)
+            format!(
+                "opening CAN interface {} (can.interface): is it up? `ip link set {} up type can bitrate {}`",
+                can.interface, can.interface, can.bitrate
+            )
         })?;
         let peripherals = Peripherals::from_config(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
         let tracker = peripherals.pose.as_ref().map(|p| p.stats_handle());

@@ -113,9 +113,7 @@ fn kind_of(ft: std::fs::FileType) -> Option<&'static str> {
 /// The directory a file path lives in (`.` for a bare name).
 fn dir_of(path: &Path) -> Result<PathBuf, OutputError> {
     if path.file_name().is_none() {
-        return Err(OutputError::NotAFilePath {
-            path: path.to_path_buf(),
-        });
+        return Err(OutputError::NotAFilePath { path: path.to_path_buf() });
     }
     Ok(match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -128,9 +126,7 @@ fn dir_of(path: &Path) -> Result<PathBuf, OutputError> {
 pub fn check_output(path: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
     let dir = dir_of(path)?;
     if !std::fs::metadata(&dir).is_ok_and(|m| m.is_dir()) {
-        return Err(OutputError::NoDirectory {
-            path: path.to_path_buf(),
-        });
+        return Err(OutputError::NoDirectory { path: path.to_path_buf() });
     }
     let meta = match std::fs::symlink_metadata(path) {
         Ok(m) => m,
@@ -138,20 +134,14 @@ pub fn check_output(path: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
         Err(e) => return Err(OutputError::Unusable { path: path.to_path_buf(), reason: e.to_string() }),
     };
     if let Some(what) = kind_of(meta.file_type()) {
-        return Err(OutputError::NotRegular {
-            path: path.to_path_buf(),
-            what,
-        });
+        return Err(OutputError::NotRegular { path: path.to_path_buf(), what });
     }
     use std::os::unix::fs::MetadataExt;
     for input in inputs {
         // `metadata` follows symlinks: an input given through a link is still the same file.
         if let Ok(m) = std::fs::metadata(input) {
             if m.dev() == meta.dev() && m.ino() == meta.ino() {
-                return Err(OutputError::IsInput {
-                    path: path.to_path_buf(),
-                    input: input.to_path_buf(),
-                });
+                return Err(OutputError::IsInput { path: path.to_path_buf(), input: input.to_path_buf() });
             }
         }
     }
@@ -163,9 +153,7 @@ fn temp_name(dir: &Path, name: &std::ffi::OsStr) -> PathBuf {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     // Relaxed: only uniqueness matters, not ordering with other memory.
     let k = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
     let mut stem = name.to_string_lossy().into_owned();
     // Keep the temporary name within NAME_MAX however long the target's name is.
     if stem.len() > 160 {
@@ -185,15 +173,10 @@ pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
 
 /// Writes `path` atomically with what `fill` writes into the temporary file; see the module doc.
 /// On any error the target is untouched and the temporary file removed.
-pub fn write_atomic_with(
-    path: &Path,
-    fill: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>,
-) -> std::io::Result<()> {
+pub fn write_atomic_with(path: &Path, fill: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) -> std::io::Result<()> {
     check_output(path, &[])?;
     let dir = dir_of(path)?;
-    let name = path.file_name().ok_or_else(|| OutputError::NotAFilePath {
-        path: path.to_path_buf(),
-    })?;
+    let name = path.file_name().ok_or_else(|| OutputError::NotAFilePath { path: path.to_path_buf() })?;
     let tmp = temp_name(&dir, name);
     let result = (|| {
         let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
@@ -254,8 +237,7 @@ impl Staging {
             }
         }
         let stage = temp_name(target, std::ffi::OsStr::new("taut-staging"));
-        std::fs::create_dir(&stage)
-            .map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", stage.display())))?;
+        std::fs::create_dir(&stage).map_err(|e| std::io::Error::new(e.kind(), format!("creating {}: {e}", stage.display())))?;
         Ok(Staging {
             target: target.to_path_buf(),
             stage,
@@ -374,11 +356,7 @@ mod tests {
         std::fs::hard_link(&rec, &hard).unwrap();
         let dotted = d.join(".").join("rec.csv");
         for out in [&rec, &hard, &dotted] {
-            assert!(
-                matches!(check_output(out, &[&rec]), Err(OutputError::IsInput { .. })),
-                "{}",
-                out.display()
-            );
+            assert!(matches!(check_output(out, &[&rec]), Err(OutputError::IsInput { .. })), "{}", out.display());
         }
         assert!(check_output(&d.join("other.csv"), &[&rec]).is_ok());
         std::fs::remove_dir_all(&d).unwrap();

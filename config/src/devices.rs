@@ -302,7 +302,8 @@ impl DriveConfig {
             return Err((
                 "pdo".into(),
                 None,
-                "give either a preset (pdo = \"compact\" / \"with_mode\") or [[cable.drive.rpdo]] / [[cable.drive.tpdo]] tables, not both".into(),
+                "give either a preset (pdo = \"compact\" / \"with_mode\") or [[cable.drive.rpdo]] / [[cable.drive.tpdo]] tables, not both"
+                    .into(),
             ));
         }
         let mut maps = PdoMaps::default();
@@ -389,7 +390,10 @@ mod can_drive_tests {
         assert_eq!((c.master_node_id, c.master_heartbeat_ms, c.abort_connection), (127, 100, AbortConnection::QuickStop));
         c.validate().unwrap();
         let d: DriveConfig = toml::from_str("node_id = 4\nmode = \"torque\"\npdo = \"with_mode\"\ninvert = true").unwrap();
-        assert_eq!(d, DriveConfig { mode: DriveMode::Torque, pdo: Some(PdoMapping::WithMode), invert: true, ..DriveConfig::with_node_id(4) });
+        assert_eq!(
+            d,
+            DriveConfig { mode: DriveMode::Torque, pdo: Some(PdoMapping::WithMode), invert: true, ..DriveConfig::with_node_id(4) }
+        );
         assert_eq!(d.heartbeat_timeout(), 300);
         d.validate().unwrap();
         assert!(toml::from_str::<DriveConfig>("node_id = 4\nmode = \"velocity\"").is_err());
@@ -743,7 +747,9 @@ impl TrackerConfig {
             if parse_tracker_source(src).is_none() {
                 return Err((
                     format!("sources[{i}]"),
-                    format!("must be the tracker's IP address (\"192.168.10.20\") or address and port (\"192.168.10.20:5005\"), got {src:?}"),
+                    format!(
+                        "must be the tracker's IP address (\"192.168.10.20\") or address and port (\"192.168.10.20:5005\"), got {src:?}"
+                    ),
                 ));
             }
         }
@@ -772,7 +778,8 @@ mod loadcell_tracker_tests {
 
     #[test]
     fn loadcell_defaults_and_enums_parse() {
-        let c: LoadCellConfig = toml::from_str("unit_id = 3\nformat = \"float32\"\nword_order = \"little\"\nregisters = \"holding\"").unwrap();
+        let c: LoadCellConfig =
+            toml::from_str("unit_id = 3\nformat = \"float32\"\nword_order = \"little\"\nregisters = \"holding\"").unwrap();
         assert_eq!(c.format, ValueFormat::Float32);
         assert_eq!(c.word_order, WordOrder::Little);
         assert_eq!(c.registers, RegisterKind::Holding);

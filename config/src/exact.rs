@@ -5,12 +5,8 @@ use serde::de::{Deserializer, Error};
 use serde::Deserialize;
 
 fn point<E: Error>(v: Vec<f64>) -> Result<[f64; 3], E> {
-    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
-        E::custom(format!(
-            "expected exactly three numbers [x, y, z] in m, found {} numbers",
-            v.len()
-        ))
-    })
+    <[f64; 3]>::try_from(v.as_slice())
+        .map_err(|_| E::custom(format!("expected exactly three numbers [x, y, z] in m, found {} numbers", v.len())))
 }
 
 /// `[x, y, z]`: exactly three numbers.
@@ -30,10 +26,7 @@ pub fn triples<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[usize; 3]>, D::Er
         .enumerate()
         .map(|(k, v)| {
             <[usize; 3]>::try_from(v.as_slice()).map_err(|_| {
-                D::Error::custom(format!(
-                    "entry {k}: expected exactly three cable indices [held, held, reeled], found {}",
-                    v.len()
-                ))
+                D::Error::custom(format!("entry {k}: expected exactly three cable indices [held, held, reeled], found {}", v.len()))
             })
         })
         .collect()

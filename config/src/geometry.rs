@@ -21,33 +21,20 @@ pub const MIN_FRAME_SPAN_M: f64 = 0.3;
 /// Checks the geometry of nominal anchors and platform points. Errors are
 /// `(cable index, key, message)`.
 pub fn check(anchors: &[Option<[f64; 3]>], points: &[[f64; 3]]) -> Result<(), (usize, &'static str, String)> {
-    let dist =
-        |a: &[f64; 3], b: &[f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let dist = |a: &[f64; 3], b: &[f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
     for (j, p) in points.iter().enumerate() {
         if p.iter().any(|v| v.abs() > MAX_COORD_M) {
-            return Err((
-                j,
-                "platform_point",
-                format!("{p:?} is more than {MAX_COORD_M} m from the platform origin"),
-            ));
+            return Err((j, "platform_point", format!("{p:?} is more than {MAX_COORD_M} m from the platform origin")));
         }
     }
     for (j, a) in anchors.iter().enumerate() {
         if let Some(a) = a {
             if a.iter().any(|v| v.abs() > MAX_COORD_M) {
-                return Err((
-                    j,
-                    "anchor",
-                    format!("{a:?} is more than {MAX_COORD_M} m from the tracker origin; anchors are in m"),
-                ));
+                return Err((j, "anchor", format!("{a:?} is more than {MAX_COORD_M} m from the tracker origin; anchors are in m")));
             }
         }
     }
-    let given: Vec<(usize, [f64; 3])> = anchors
-        .iter()
-        .enumerate()
-        .filter_map(|(j, a)| a.map(|a| (j, a)))
-        .collect();
+    let given: Vec<(usize, [f64; 3])> = anchors.iter().enumerate().filter_map(|(j, a)| a.map(|a| (j, a))).collect();
     for (k, (i, a)) in given.iter().enumerate() {
         for (j, b) in &given[k + 1..] {
             let d = dist(a, b);
@@ -55,7 +42,11 @@ pub fn check(anchors: &[Option<[f64; 3]>], points: &[[f64; 3]]) -> Result<(), (u
                 return Err((
                     *j,
                     "anchor",
-                    format!("{b:?} is {:.1} mm from the anchor of cable[{i}]; two cables need two anchors at least {} mm apart", d * 1e3, MIN_ANCHOR_SEPARATION_M * 1e3),
+                    format!(
+                        "{b:?} is {:.1} mm from the anchor of cable[{i}]; two cables need two anchors at least {} mm apart",
+                        d * 1e3,
+                        MIN_ANCHOR_SEPARATION_M * 1e3
+                    ),
                 ));
             }
         }
@@ -64,10 +55,7 @@ pub fn check(anchors: &[Option<[f64; 3]>], points: &[[f64; 3]]) -> Result<(), (u
         // The calibration does not need anchors; the checks of a frame need all of them.
         return Ok(());
     }
-    let span = given
-        .iter()
-        .flat_map(|(_, a)| given.iter().map(move |(_, b)| dist(a, b)))
-        .fold(0.0, f64::max);
+    let span = given.iter().flat_map(|(_, a)| given.iter().map(move |(_, b)| dist(a, b))).fold(0.0, f64::max);
     if span < MIN_FRAME_SPAN_M {
         return Err((
             0,
@@ -86,37 +74,24 @@ pub fn check(anchors: &[Option<[f64; 3]>], points: &[[f64; 3]]) -> Result<(), (u
             for (_, c) in given.iter().skip(y + 1) {
                 let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
                 let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-                let cr = [
-                    u[1] * v[2] - u[2] * v[1],
-                    u[2] * v[0] - u[0] * v[2],
-                    u[0] * v[1] - u[1] * v[0],
-                ];
+                let cr = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
                 area = area.max(0.5 * (cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]).sqrt());
             }
         }
     }
     if area < 1e-3 * span * span {
-        return Err((
-            0,
-            "anchor",
-            "the anchors lie on one line; a cable robot needs anchors that span a plane or a volume".into(),
-        ));
+        return Err((0, "anchor", "the anchors lie on one line; a cable robot needs anchors that span a plane or a volume".into()));
     }
-    let pspan = points
-        .iter()
-        .flat_map(|a| points.iter().map(move |b| dist(a, b)))
-        .fold(0.0, f64::max);
+    let pspan = points.iter().flat_map(|a| points.iter().map(move |b| dist(a, b))).fold(0.0, f64::max);
     if pspan >= span {
         // Blame the point farthest from the platform origin: the likely typo.
-        let far = points
-            .iter()
-            .enumerate()
-            .max_by(|a, b| dist(a.1, &[0.0; 3]).total_cmp(&dist(b.1, &[0.0; 3])))
-            .map_or(0, |(j, _)| j);
+        let far = points.iter().enumerate().max_by(|a, b| dist(a.1, &[0.0; 3]).total_cmp(&dist(b.1, &[0.0; 3]))).map_or(0, |(j, _)| j);
         return Err((
             far,
             "platform_point",
-            format!("the platform points span {pspan:.3} m, no less than the frame's {span:.3} m: the platform cannot fit inside its frame"),
+            format!(
+                "the platform points span {pspan:.3} m, no less than the frame's {span:.3} m: the platform cannot fit inside its frame"
+            ),
         ));
     }
     Ok(())

@@ -199,9 +199,7 @@ impl RobotConfig {
     pub fn point_mass(n: usize) -> Self {
         RobotConfig {
             robot: Robot { name: "unnamed".into(), mass_kg: 1.0 },
-            cables: (0..n)
-                .map(|_| Cable { anchor: None, platform_point: [0.0; 3], drive: None, loadcell: None })
-                .collect(),
+            cables: (0..n).map(|_| Cable { anchor: None, platform_point: [0.0; 3], drive: None, loadcell: None }).collect(),
             calibration: CalibrationConfig::default(),
             can: None,
             loadcells: None,
@@ -225,19 +223,13 @@ impl RobotConfig {
 
     /// Writes the configuration as TOML, atomically (temporary file + rename).
     pub fn save_atomic(&self, path: impl AsRef<Path>) -> std::io::Result<()> {
-        let text = toml::to_string_pretty(self)
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+        let text = toml::to_string_pretty(self).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
         write_atomic(path.as_ref(), text.as_bytes())
     }
 
     fn validate(&self, text: &str) -> Result<(), ConfigError> {
         let cable_lines = table_header_lines(text, "[[cable]]");
-        let err = |line: Option<usize>, key: String, message: String| ConfigError {
-            file: None,
-            line,
-            key: Some(key),
-            message,
-        };
+        let err = |line: Option<usize>, key: String, message: String| ConfigError { file: None, line, key: Some(key), message };
         let (m_lo, m_hi) = geometry::MASS_KG;
         if !(self.robot.mass_kg.is_finite() && self.robot.mass_kg >= m_lo && self.robot.mass_kg <= m_hi) {
             return Err(err(
@@ -261,10 +253,7 @@ impl RobotConfig {
             return Err(err(
                 None,
                 "cable".into(),
-                format!(
-                    "a suspended cable robot needs at least 3 [[cable]] tables, found {}",
-                    self.cables.len()
-                ),
+                format!("a suspended cable robot needs at least 3 [[cable]] tables, found {}", self.cables.len()),
             ));
         }
         for (i, c) in self.cables.iter().enumerate() {
@@ -276,11 +265,7 @@ impl RobotConfig {
                 }
             }
             if !finite(&c.platform_point) {
-                return Err(err(
-                    line,
-                    format!("cable[{i}].platform_point"),
-                    "must be three finite numbers (m)".into(),
-                ));
+                return Err(err(line, format!("cable[{i}].platform_point"), "must be three finite numbers (m)".into()));
             }
             if let Some(d) = &c.drive {
                 // The PDO tables first: their errors point at the bad object's own line.
@@ -344,17 +329,11 @@ impl RobotConfig {
             }
         }
         if !(cal.heldout_fraction >= 0.0 && cal.heldout_fraction < 0.9) {
-            return Err(err(
-                cal_line,
-                "calibration.heldout_fraction".into(),
-                format!("must be in [0, 0.9), got {}", cal.heldout_fraction),
-            ));
+            return Err(err(cal_line, "calibration.heldout_fraction".into(), format!("must be in [0, 0.9), got {}", cal.heldout_fraction)));
         }
         let first_line = |h: &str| table_header_lines(text, h).first().copied();
         self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;
-        self.motion
-            .validate(self.cables.len())
-            .map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
+        self.motion.validate(self.cables.len()).map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
         self.safety.validate().map_err(|(k, m)| err(first_line("[safety]"), format!("safety.{k}"), m))?;
         self.daemon.validate().map_err(|(k, m)| err(first_line("[daemon]"), format!("daemon.{k}"), m))?;
         Ok(())
@@ -406,11 +385,7 @@ fn key_path_at(text: &str, line: usize) -> Option<String> {
 
 /// 1-based lines on which a table header such as `[[cable]]` appears.
 fn table_header_lines(text: &str, header: &str) -> Vec<usize> {
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| l.trim_start().starts_with(header))
-        .map(|(i, _)| i + 1)
-        .collect()
+    text.lines().enumerate().filter(|(_, l)| l.trim_start().starts_with(header)).map(|(i, _)| i + 1).collect()
 }
 
 #[cfg(test)]
@@ -460,8 +435,10 @@ mod tests {
         assert_eq!(e.key.as_deref(), Some("cable[1].drive.node_id"), "{e}");
         assert_eq!(e.line, Some(7), "{e}");
         // A drive on taut's own node id (127 by default) is refused with its line.
-        let e = RobotConfig::from_toml_str(&format!("{base}[can]\ninterface = \"can0\"\n[[cable]]\n[cable.drive]\nnode_id = 127\n[[cable]]\n[[cable]]\n"))
-            .unwrap_err();
+        let e = RobotConfig::from_toml_str(&format!(
+            "{base}[can]\ninterface = \"can0\"\n[[cable]]\n[cable.drive]\nnode_id = 127\n[[cable]]\n[[cable]]\n"
+        ))
+        .unwrap_err();
         assert_eq!((e.key.as_deref(), e.line), (Some("cable[0].drive.node_id"), Some(6)), "{e}");
         assert!(e.message.contains("master_node_id"), "{e}");
         let e = RobotConfig::from_toml_str(&format!("{base}[tracker]\nlisten = \"not an address\"\n[[cable]]\n[[cable]]\n[[cable]]\n"))

@@ -73,8 +73,8 @@ impl ParamsFile {
         let path = path.as_ref();
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let text = crate::input::read_text(path).map_err(|e| err(None, format!("cannot read the file: {e}")))?;
-        let p: ParamsFile = toml::from_str(&text)
-            .map_err(|e| err(e.span().map(|s| crate::line_of(&text, s.start)), e.message().trim().to_string()))?;
+        let p: ParamsFile =
+            toml::from_str(&text).map_err(|e| err(e.span().map(|s| crate::line_of(&text, s.start)), e.message().trim().to_string()))?;
         if p.format != FORMAT {
             return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}`", p.format)));
         }
@@ -122,7 +122,8 @@ impl ParamsFile {
     /// Writes the file atomically (temporary file + rename). Refuses (`InvalidData`, naming the
     /// key) a set with a non-finite anchor or offset, or an infinite sigma or RMS.
     pub fn save_atomic(&self, path: impl AsRef<Path>) -> std::io::Result<()> {
-        self.check_finite().map_err(|m| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("refusing to write a parameter file: {m}")))?;
+        self.check_finite()
+            .map_err(|m| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("refusing to write a parameter file: {m}")))?;
         let text = toml::to_string(self).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
         crate::write_atomic(path.as_ref(), text.as_bytes())
     }
@@ -155,7 +156,13 @@ mod tests {
         std::fs::write(&f, "format = \"other\"\n").unwrap();
         assert!(ParamsFile::load(&f).is_err());
         // Unknown values are NaN in memory and absent from the file; nothing non-finite is written.
-        let unknown = ParamsFile { anchor_sigma_m: vec![[f64::NAN; 3]; 3], l0_sigma_m: vec![f64::NAN; 3], rms_m: f64::NAN, heldout_rms_m: f64::NAN, ..p.clone() };
+        let unknown = ParamsFile {
+            anchor_sigma_m: vec![[f64::NAN; 3]; 3],
+            l0_sigma_m: vec![f64::NAN; 3],
+            rms_m: f64::NAN,
+            heldout_rms_m: f64::NAN,
+            ..p.clone()
+        };
         unknown.save_atomic(&f).unwrap();
         let text = std::fs::read_to_string(&f).unwrap();
         assert!(!text.contains("nan") && !text.contains("inf"), "{text}");

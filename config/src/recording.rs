@@ -358,10 +358,14 @@ impl fmt::Display for RecordingError {
         match &self.kind {
             ErrorKind::Io(e) => write!(f, ": cannot read: {e}"),
             ErrorKind::NoHeader => write!(f, ": no header line; expected e.g. `t,px,py,pz,l0,l1,l2,f0,f1,f2`"),
-            ErrorKind::MissingColumn(c) => write!(f, ": the header has no `{c}` column; a cdpr-recording v1 needs t, px, py, pz and l0..l(n-1)"),
+            ErrorKind::MissingColumn(c) => {
+                write!(f, ": the header has no `{c}` column; a cdpr-recording v1 needs t, px, py, pz and l0..l(n-1)")
+            }
             ErrorKind::DuplicateColumn(c) => write!(f, ": column `{}` appears twice in the header", excerpt(c)),
             ErrorKind::CableColumns(m) => write!(f, ": {m}"),
-            ErrorKind::FieldCount { expected, found } => write!(f, ": {found} fields, but the header has {expected}; check for a stray or missing comma"),
+            ErrorKind::FieldCount { expected, found } => {
+                write!(f, ": {found} fields, but the header has {expected}; check for a stray or missing comma")
+            }
             ErrorKind::NotANumber(s) => write!(f, ": `{}` is not a number (a missing value is an empty field or `nan`)", excerpt(s)),
             ErrorKind::NotFinite(s) => write!(f, ": `{}` is not a finite number (a missing value is an empty field or `nan`)", excerpt(s)),
             ErrorKind::Phase(s) => write!(
@@ -381,10 +385,9 @@ impl fmt::Display for RecordingError {
                 ": format version `{}` is not known; this reader reads `{MAGIC}` only (use the taut that wrote the file, or convert it)",
                 excerpt(v)
             ),
-            ErrorKind::Separator(sep) => write!(
-                f,
-                ": the fields are separated by {sep}; a cdpr-recording separates fields with commas and uses `.` for decimals"
-            ),
+            ErrorKind::Separator(sep) => {
+                write!(f, ": the fields are separated by {sep}; a cdpr-recording separates fields with commas and uses `.` for decimals")
+            }
             ErrorKind::Quoted(s) => write!(
                 f,
                 ": quoted field `{}`; a cdpr-recording has no quotes: write names and numbers bare, separated by commas",
@@ -392,7 +395,9 @@ impl fmt::Display for RecordingError {
             ),
             ErrorKind::TooLarge(m) => write!(f, ": too large: {m}"),
             ErrorKind::Time(m) => write!(f, ": {m}"),
-            ErrorKind::TooFewSamples { usable, needed } => write!(f, ": only {usable} usable samples (rows with a position and a length), at least {needed} needed"),
+            ErrorKind::TooFewSamples { usable, needed } => {
+                write!(f, ": only {usable} usable samples (rows with a position and a length), at least {needed} needed")
+            }
         }
     }
 }
@@ -441,12 +446,7 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
     let q = match qn {
         [Some(a), Some(b), Some(c), Some(d)] => Some([a, b, c, d]),
         [None, None, None, None] => None,
-        _ => {
-            return Err(err(
-                None,
-                ErrorKind::CableColumns("an orientation needs all four columns qw, qx, qy, qz".into()),
-            ))
-        }
+        _ => return Err(err(None, ErrorKind::CableColumns("an orientation needs all four columns qw, qx, qy, qz".into()))),
     };
     let numbered = |prefix: char| -> Vec<(usize, usize)> {
         fields
@@ -520,15 +520,7 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
         let more = if k > 10 { format!(" and {} more", k - 10) } else { String::new() };
         report.notes.push(format!("ignored unknown columns: {}{more}", shown.join(", ")));
     }
-    Ok(Columns {
-        t,
-        p,
-        q,
-        l: ls.into_iter().map(|x| x.1).collect(),
-        f: fs.into_iter().map(|x| x.1).collect(),
-        phase,
-        width: fields.len(),
-    })
+    Ok(Columns { t, p, q, l: ls.into_iter().map(|x| x.1).collect(), f: fs.into_iter().map(|x| x.1).collect(), phase, width: fields.len() })
 }
 
 /// Parses one field: empty or `nan` (any case) is missing (NaN).
@@ -672,7 +664,9 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
         if t.abs() > MAX_TIME_S {
             return Err(terr(
                 lineno,
-                format!("t = {t:e} s is not a plausible sample time; times are seconds from the start or Unix time, at most {MAX_TIME_S:e}"),
+                format!(
+                    "t = {t:e} s is not a plausible sample time; times are seconds from the start or Unix time, at most {MAX_TIME_S:e}"
+                ),
             ));
         }
         if t < last_t {
@@ -707,7 +701,8 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
                 if s.is_empty() {
                     Some(-1)
                 } else {
-                    let perr = || RecordingError { file: None, line: lineno, column: Some("phase".into()), kind: ErrorKind::Phase(s.to_string()) };
+                    let perr =
+                        || RecordingError { file: None, line: lineno, column: Some("phase".into()), kind: ErrorKind::Phase(s.to_string()) };
                     match s.parse::<i32>() {
                         Ok(k) if k >= -1 => Some(k),
                         _ => return Err(perr()),
@@ -961,7 +956,8 @@ mod tests {
 
     #[test]
     fn error_message_is_readable() {
-        let e = RecordingError { file: Some("rec.csv".into()), line: 12, column: Some("l2".into()), kind: ErrorKind::NotANumber("x".into()) };
+        let e =
+            RecordingError { file: Some("rec.csv".into()), line: 12, column: Some("l2".into()), kind: ErrorKind::NotANumber("x".into()) };
         assert_eq!(e.to_string(), "rec.csv:12: column `l2`: `x` is not a number (a missing value is an empty field or `nan`)");
     }
 }

@@ -61,7 +61,10 @@ impl RtConfig {
             return Err(("rate_hz".into(), format!("must be a loop rate in 1..=10000 Hz, got {}", self.rate_hz)));
         }
         if !(0..=99).contains(&self.priority) {
-            return Err(("priority".into(), format!("must be a SCHED_FIFO priority in 1..=99 (0: normal scheduler), got {}", self.priority)));
+            return Err((
+                "priority".into(),
+                format!("must be a SCHED_FIFO priority in 1..=99 (0: normal scheduler), got {}", self.priority),
+            ));
         }
         if self.ring_capacity < 16 {
             return Err(("ring_capacity".into(), format!("must be at least 16 samples, got {}", self.ring_capacity)));

@@ -17,7 +17,7 @@
 #![deny(missing_docs)]
 
 pub mod canopen;
-pub mod transport;
 pub mod loadcell;
 pub mod modbus;
 pub mod tracker;
+pub mod transport;

@@ -197,7 +197,11 @@ where
             RegisterKind::Input => Function::ReadInputRegisters,
             RegisterKind::Holding => Function::ReadHoldingRegisters,
         };
-        polled.push(Cell { cable: *cable as u16, cfg: c.clone(), req: Request { unit: c.unit_id, function, address: c.register, quantity: 2 } });
+        polled.push(Cell {
+            cable: *cable as u16,
+            cfg: c.clone(),
+            req: Request { unit: c.unit_id, function, address: c.register, quantity: 2 },
+        });
     }
     taut_config::devices::validate_unit_ids(cells.iter().map(|(_, c)| Some(c)))
         .map_err(|(i, m)| SpawnError::Config(format!("cable[{}].loadcell.unit_id", cells[i].0), m))?;
@@ -206,24 +210,12 @@ where
     let (prod, cons) = rb.split();
     let stop = Arc::new(AtomicBool::new(false));
     let counters = Arc::new(Counters::default());
-    let worker = Worker {
-        bus: bus.clone(),
-        mcfg: MasterConfig::from_bus(bus),
-        cells: polled,
-        prod,
-        stop: stop.clone(),
-        counters: counters.clone(),
-    };
-    let thread = std::thread::Builder::new()
-        .name("taut-loadcells".into())
-        .spawn(move || worker.run(open))
-        .map_err(|_| SpawnError::Thread)?;
-    let reader = TensionReader {
-        cons,
-        latest: vec![None; cables].into_boxed_slice(),
-        max_age: Duration::from_secs_f64(bus.max_age_s),
-        missing: 0,
-    };
+    let worker =
+        Worker { bus: bus.clone(), mcfg: MasterConfig::from_bus(bus), cells: polled, prod, stop: stop.clone(), counters: counters.clone() };
+    let thread =
+        std::thread::Builder::new().name("taut-loadcells".into()).spawn(move || worker.run(open)).map_err(|_| SpawnError::Thread)?;
+    let reader =
+        TensionReader { cons, latest: vec![None; cables].into_boxed_slice(), max_age: Duration::from_secs_f64(bus.max_age_s), missing: 0 };
     Ok((LoadCellIo { stop, counters, thread: Some(thread) }, reader))
 }
 
@@ -254,10 +246,8 @@ impl Worker {
     }
 
     fn run<L: SerialLink, F: FnMut() -> Result<L, LinkError>>(mut self, mut open: F) {
-        let mut backoff = Backoff::new(
-            Duration::from_secs_f64(self.bus.reconnect_min_s),
-            Duration::from_secs_f64(self.bus.reconnect_max_s),
-        );
+        let mut backoff =
+            Backoff::new(Duration::from_secs_f64(self.bus.reconnect_min_s), Duration::from_secs_f64(self.bus.reconnect_max_s));
         let period = Duration::from_secs_f64(self.bus.poll_period_s);
         let mut was_connected = false;
         while !self.stopped() {
@@ -288,10 +278,13 @@ impl Worker {
                             match value::newtons([v[0], v[1]], &cell.cfg) {
                                 Some(newtons) => {
                                     if self.prod.try_push(TensionSample { cable: cell.cable, newtons, t }).is_err() {
-                                        self.counters.count(Event::Overflow, format_args!("tension ring full: the real-time loop is not reading"));
+                                        self.counters
+                                            .count(Event::Overflow, format_args!("tension ring full: the real-time loop is not reading"));
                                     }
                                 }
-                                None => self.counters.count(Event::InvalidValue, format_args!("unit {}: reading is NaN or infinite", cell.cfg.unit_id)),
+                                None => self
+                                    .counters
+                                    .count(Event::InvalidValue, format_args!("unit {}: reading is NaN or infinite", cell.cfg.unit_id)),
                             }
                         }
                         Err(crate::modbus::master::TransactionError::Link(e)) => {

@@ -717,7 +717,13 @@ mod tests {
         let e = Instant::now();
         let s = PoseSlot::new(e);
         assert_eq!(s.load(), None);
-        let p = Pose { t: 1.5, position: [1.0, 2.0, 3.0], orientation: Some([1.0, 0.0, 0.0, 0.0]), arrival: e + Duration::from_millis(7), measured: e + Duration::from_millis(5) };
+        let p = Pose {
+            t: 1.5,
+            position: [1.0, 2.0, 3.0],
+            orientation: Some([1.0, 0.0, 0.0, 0.0]),
+            arrival: e + Duration::from_millis(7),
+            measured: e + Duration::from_millis(5),
+        };
         s.store(&p);
         assert_eq!(s.load(), Some(p));
         let p2 = Pose { orientation: None, ..p };

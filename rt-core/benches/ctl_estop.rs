@@ -163,10 +163,7 @@ fn run(name: &str, sock: &Path, urgent: &Arc<Urgent>, hostile: &Hostile) {
             if let Some(t) = *taken_at.lock().unwrap() {
                 break t;
             }
-            assert!(
-                t_wait.elapsed() < Duration::from_secs(5),
-                "the loop side never took the estop"
-            );
+            assert!(t_wait.elapsed() < Duration::from_secs(5), "the loop side never took the estop");
             std::thread::sleep(Duration::from_micros(200));
         };
         loop_ms.push((taken - t0).as_secs_f64() * 1e3);
@@ -230,71 +227,23 @@ fn main() {
         let stop = Arc::new(AtomicBool::new(false));
         let reconnects = Arc::new(AtomicU64::new(0));
         let threads = vec![
-            clients(
-                &sock,
-                200,
-                Duration::from_millis(50),
-                &stop,
-                &reconnects,
-                idle,
-            ),
-            clients(
-                &sock,
-                20,
-                Duration::from_millis(100),
-                &stop,
-                &reconnects,
-                slow,
-            ),
-            clients(
-                &sock,
-                20,
-                Duration::from_millis(10),
-                &stop,
-                &reconnects,
-                garbage,
-            ),
+            clients(&sock, 200, Duration::from_millis(50), &stop, &reconnects, idle),
+            clients(&sock, 20, Duration::from_millis(100), &stop, &reconnects, slow),
+            clients(&sock, 20, Duration::from_millis(10), &stop, &reconnects, garbage),
         ];
-        let h = Hostile {
-            stop,
-            threads,
-            reconnects,
-        };
+        let h = Hostile { stop, threads, reconnects };
         run("200 idle + 20 slow + 20 garbage", &sock, &urgent, &h);
     }
     {
         let stop = Arc::new(AtomicBool::new(false));
         let reconnects = Arc::new(AtomicU64::new(0));
         let mut threads = vec![
-            clients(
-                &sock,
-                200,
-                Duration::from_millis(50),
-                &stop,
-                &reconnects,
-                idle,
-            ),
-            clients(
-                &sock,
-                20,
-                Duration::from_millis(100),
-                &stop,
-                &reconnects,
-                slow,
-            ),
+            clients(&sock, 200, Duration::from_millis(50), &stop, &reconnects, idle),
+            clients(&sock, 20, Duration::from_millis(100), &stop, &reconnects, slow),
         ];
         threads.extend((0..4).map(|k| flood(&sock, &stop, 0x9E37_79B9 * (k + 1))));
-        let h = Hostile {
-            stop,
-            threads,
-            reconnects,
-        };
-        run(
-            "200 idle + 20 slow + 4 flat-out garbage floods",
-            &sock,
-            &urgent,
-            &h,
-        );
+        let h = Hostile { stop, threads, reconnects };
+        run("200 idle + 20 slow + 4 flat-out garbage floods", &sock, &urgent, &h);
     }
     quit.store(true, Ordering::Relaxed);
     server_thread.join().unwrap();

@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use taut_config::runtime::RtConfig;
-use taut_rt_core::io::{CableCommand, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use taut_rt_core::io::{CableCommand, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt_core::kin::LoopParams;
 use taut_rt_core::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt_core::rtsys::{monotonic_ns, setup_current_thread, Periodic};
@@ -146,7 +146,15 @@ fn lateness_bench(fifo: bool, seconds: f64) {
         (setup, late, p.overruns)
     });
     let (setup, mut late, overruns) = h.join().unwrap();
-    let label = if fifo { if setup.realtime { "SCHED_FIFO 80" } else { "SCHED_FIFO refused -> normal" } } else { "normal scheduler" };
+    let label = if fifo {
+        if setup.realtime {
+            "SCHED_FIFO 80"
+        } else {
+            "SCHED_FIFO refused -> normal"
+        }
+    } else {
+        "normal scheduler"
+    };
     println!(
         "wake-up lateness at 1 kHz, {label}: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us, overruns {overruns} in {} cycles",
         pct(&mut late.clone(), 0.5),
@@ -170,7 +178,8 @@ fn soak(seconds: f64) {
     let (_ctx, crx) = taut_rt_core::crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(cfg.rt.ring_capacity);
     let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus {
-        snap: Controller::new(ccfg, taut_rt_core::crossbeam_channel::bounded(1).1, triple_buffer(LoopParams::invalid(n)).1).snapshot(0.0, &Inputs::new(n)),
+        snap: Controller::new(ccfg, taut_rt_core::crossbeam_channel::bounded(1).1, triple_buffer(LoopParams::invalid(n)).1)
+            .snapshot(0.0, &Inputs::new(n)),
         cycles: 0,
         overruns: 0,
         late_ns: 0,
@@ -251,13 +260,21 @@ fn canopen_io_bench(n: usize, cycles: usize) {
     let mut t = String::from("[robot]\nname = \"bench\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\ncycle_s = 0.001\n");
     for j in 0..n {
         let a = std::f64::consts::TAU * j as f64 / n as f64;
-        t += &format!("[[cable]]\nanchor = [{}, {}, 4.0]\n[cable.drive]\nnode_id = {}\npdo = \"with_mode\"\n", 3.0 * a.cos(), 3.0 * a.sin(), j + 1);
+        t += &format!(
+            "[[cable]]\nanchor = [{}, {}, 4.0]\n[cable.drive]\nnode_id = {}\npdo = \"with_mode\"\n",
+            3.0 * a.cos(),
+            3.0 * a.sin(),
+            j + 1
+        );
     }
     let cfg = taut_config::RobotConfig::from_toml_str(&t).unwrap();
     let bus = VirtualBus::new();
     let nodes: Vec<u8> = (1..=n as u8).collect();
     let master_end = bus.endpoint_with(1024, &[]);
-    let rack = spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&id| VirtualDrive::new(DriveParams::new(id))).collect());
+    let rack = spawn_rack(
+        bus.endpoint_with(1024, &rack_filters(&nodes)),
+        nodes.iter().map(|&id| VirtualDrive::new(DriveParams::new(id))).collect(),
+    );
     let mut dev = RobotDevices::bring_up(&cfg, master_end, Peripherals { loadcells: None, tracker: None, pose: None }).unwrap();
     let mut inp = Inputs::new(n);
     let mut out = Outputs::new(n);

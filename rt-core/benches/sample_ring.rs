@@ -35,19 +35,13 @@ fn push_pop(c: &mut Criterion) {
     // rings side by side, then `SampleTx::push`, which also counts the drop.
     let (mut tx, _rx) = taut_rt_core::spsc::ring::<Sample>(16);
     while tx.push(s).is_ok() {}
-    g.bench_function("taut spsc, full", |b| {
-        b.iter(|| assert!(tx.push(*black_box(&s)).is_err()))
-    });
+    g.bench_function("taut spsc, full", |b| b.iter(|| assert!(tx.push(*black_box(&s)).is_err())));
     let (mut tx, _rx) = sample_ring(16);
     while tx.push(&s) {}
-    g.bench_function("taut SampleTx, full (drop counted)", |b| {
-        b.iter(|| assert!(!tx.push(black_box(&s))))
-    });
+    g.bench_function("taut SampleTx, full (drop counted)", |b| b.iter(|| assert!(!tx.push(black_box(&s)))));
     let (mut prod, _cons) = HeapRb::<Sample>::new(16).split();
     while prod.try_push(s).is_ok() {}
-    g.bench_function("ringbuf HeapRb, full", |b| {
-        b.iter(|| assert!(prod.try_push(*black_box(&s)).is_err()))
-    });
+    g.bench_function("ringbuf HeapRb, full", |b| b.iter(|| assert!(prod.try_push(*black_box(&s)).is_err())));
     g.finish();
 }
 

@@ -33,7 +33,12 @@ impl TautCalib {
             ..Default::default()
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
-        let moved = b.anchors.iter().zip(anchors).map(|(a, s)| ((a[0] - s[0]).powi(2) + (a[1] - s[1]).powi(2) + (a[2] - s[2]).powi(2)).sqrt()).fold(0.0, f64::max);
+        let moved = b
+            .anchors
+            .iter()
+            .zip(anchors)
+            .map(|(a, s)| ((a[0] - s[0]).powi(2) + (a[1] - s[1]).powi(2) + (a[2] - s[2]).powi(2)).sqrt())
+            .fold(0.0, f64::max);
         let sane = b.anchors.iter().flatten().chain(&b.l0).all(|v| v.is_finite());
         (sane && moved < 0.5 && b.tracker_rms_m < 3.0 * self.opts.tracker_sigma_m).then_some(b)
     }
@@ -96,20 +101,23 @@ impl Calibrate for TautCalib {
         if !r.was_successful() {
             return Err(format!("the solver did not converge ({:?})", r.termination));
         }
-        let worst = r
-            .singular_values
-            .iter()
-            .map(|s| if s[0] > 0.0 { s[3] / s[0] } else { 0.0 })
-            .fold(f64::INFINITY, f64::min);
+        let worst = r.singular_values.iter().map(|s| if s[0] > 0.0 { s[3] / s[0] } else { 0.0 }).fold(f64::INFINITY, f64::min);
         let observable = worst >= self.opts.min_rel_singular_value;
         // Then all taut cables at once with the platform positions as unknowns (see
         // `taut_calib::bundle`): the force-aware fit is its start and its fallback.
         let (anchors, l0, anchor_sigma, l0_sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
-            Some(b) => (b.anchors, b.l0, b.anchor_sigma, b.l0_sigma, format!(", refined on all cables ({} samples, errors-in-variables)", b.samples)),
+            Some(b) => (
+                b.anchors,
+                b.l0,
+                b.anchor_sigma,
+                b.l0_sigma,
+                format!(", refined on all cables ({} samples, errors-in-variables)", b.samples),
+            ),
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
         // Nothing non-finite or absurd is offered as the robot's parameters.
-        let cand = taut_calib::trust::Candidate { anchors: &anchors, l0: &l0, anchor_sigma: &anchor_sigma, l0_sigma: &l0_sigma, rms_m: r.rms_m };
+        let cand =
+            taut_calib::trust::Candidate { anchors: &anchors, l0: &l0, anchor_sigma: &anchor_sigma, l0_sigma: &l0_sigma, rms_m: r.rms_m };
         taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
         Ok(Estimate {
             anchors,
@@ -121,7 +129,10 @@ impl Calibrate for TautCalib {
             note: if observable {
                 format!("{} readings, smallest relative singular value {worst:.2e}{how}", r.samples_used)
             } else {
-                format!("smallest relative singular value {worst:.2e} below {:.0e}: excite the robot more", self.opts.min_rel_singular_value)
+                format!(
+                    "smallest relative singular value {worst:.2e} below {:.0e}: excite the robot more",
+                    self.opts.min_rel_singular_value
+                )
             },
         })
     }

@@ -200,7 +200,15 @@ impl Recorder {
         h.push_str(",phase,state");
         writeln!(file, "{h}")?;
         file.flush()?;
-        Ok(Recorder { file, n, line: String::with_capacity(512), last_flush: Instant::now(), tracker_max_age_s, tension_max_age_s, rows: 0 })
+        Ok(Recorder {
+            file,
+            n,
+            line: String::with_capacity(512),
+            last_flush: Instant::now(),
+            tracker_max_age_s,
+            tension_max_age_s,
+            rows: 0,
+        })
     }
 
     /// Appends one sample.
@@ -327,7 +335,9 @@ fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_
         let (p, l, f) = (&rec.p[i], rec.lengths(i), rec.tensions(i));
         for j in 0..new.n {
             // Same reading for both: a paired difference.
-            if let (Some(a), Some(b)) = (new.coregistration_error(j, p, l, f, min_tension_n), old.coregistration_error(j, p, l, f, min_tension_n)) {
+            if let (Some(a), Some(b)) =
+                (new.coregistration_error(j, p, l, f, min_tension_n), old.coregistration_error(j, p, l, f, min_tension_n))
+            {
                 d.push(clip(a) - clip(b));
             }
         }
@@ -552,7 +562,17 @@ impl Calibrator {
             (State::InitPhase | State::Excitation, State::Faulted | State::Stopped) => {
                 let kind = if prev == State::InitPhase { OutcomeKind::Initial } else { OutcomeKind::Calibration };
                 let samples = if prev == State::InitPhase { self.init_set.len() } else { self.exc_set.len() };
-                self.reject(kind, s.run, samples, None, format!("{} interrupted: the loop went to {}", if prev == State::InitPhase { "initialisation" } else { "excitation" }, state.name()));
+                self.reject(
+                    kind,
+                    s.run,
+                    samples,
+                    None,
+                    format!(
+                        "{} interrupted: the loop went to {}",
+                        if prev == State::InitPhase { "initialisation" } else { "excitation" },
+                        state.name()
+                    ),
+                );
                 self.stage("idle");
             }
             _ => {}
@@ -632,19 +652,47 @@ impl Calibrator {
         self.current = Some(est.clone());
         let mut st = self.status.lock().unwrap();
         st.current = Some(file);
-        st.outcomes.push(Outcome { run, kind, accepted: true, reason: String::new(), version, estimate: Some(est), heldout_rms_new_m: new_rms, heldout_rms_old_m: old_rms, samples, data_problems: vec![] });
+        st.outcomes.push(Outcome {
+            run,
+            kind,
+            accepted: true,
+            reason: String::new(),
+            version,
+            estimate: Some(est),
+            heldout_rms_new_m: new_rms,
+            heldout_rms_old_m: old_rms,
+            samples,
+            data_problems: vec![],
+        });
     }
 
     fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
         let mut st = self.status.lock().unwrap();
-        st.outcomes.push(Outcome { run, kind, accepted: false, reason, version: 0, estimate: est, heldout_rms_new_m: f64::NAN, heldout_rms_old_m: f64::NAN, samples, data_problems: vec![] });
+        st.outcomes.push(Outcome {
+            run,
+            kind,
+            accepted: false,
+            reason,
+            version: 0,
+            estimate: est,
+            heldout_rms_new_m: f64::NAN,
+            heldout_rms_old_m: f64::NAN,
+            samples,
+            data_problems: vec![],
+        });
     }
 }
 
 /// The daemon's acceptance rules (module documentation) for an estimate, given the
 /// configuration, the running estimate and the held-out block with the running parameters.
 /// Returns the held-out RMS of the new and the running set.
-fn validate(c: &CalibratorConfig, current: Option<&Estimate>, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), String> {
+fn validate(
+    c: &CalibratorConfig,
+    current: Option<&Estimate>,
+    kind: OutcomeKind,
+    est: &Estimate,
+    heldout: Option<&(Recording, LoopParams)>,
+) -> Result<(f64, f64), String> {
     if est.anchors.len() != c.n || est.l0.len() != c.n {
         return Err(format!("{} anchors and {} offsets for {} cables", est.anchors.len(), est.l0.len(), c.n));
     }
@@ -675,7 +723,11 @@ fn validate(c: &CalibratorConfig, current: Option<&Estimate>, kind: OutcomeKind,
         if let Some(l0) = l0 {
             for (j, (a, b)) in est.l0.iter().zip(&l0).enumerate() {
                 if (a - b).abs() > c.max_l0_change_m {
-                    return Err(format!("offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m", (a - b).abs(), c.max_l0_change_m));
+                    return Err(format!(
+                        "offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m",
+                        (a - b).abs(),
+                        c.max_l0_change_m
+                    ));
                 }
             }
         }
@@ -686,7 +738,8 @@ fn validate(c: &CalibratorConfig, current: Option<&Estimate>, kind: OutcomeKind,
     if !est.observable {
         return Err(format!("observability: {}", est.note));
     }
-    let worst = est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
+    let worst =
+        est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
     if worst > c.max_sigma_m {
         return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
     }
@@ -701,7 +754,11 @@ fn validate(c: &CalibratorConfig, current: Option<&Estimate>, kind: OutcomeKind,
         // not significantly worse (paired test on the same readings), so a start-up whose
         // initial estimate was already good still ends with the calibrated set.
         (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n) => Ok((n, o)),
-        (Some(n), Some(o)) => Err(format!("held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm", n * 1e3, o * 1e3)),
+        (Some(n), Some(o)) => Err(format!(
+            "held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm",
+            n * 1e3,
+            o * 1e3
+        )),
         _ => Err("no usable held-out samples (tracker or taut cables missing)".into()),
     }
 }
@@ -721,13 +778,27 @@ pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recor
             Err(why) => (false, why, Some(est), (f64::NAN, f64::NAN)),
         },
     };
-    Outcome { run: r.run, kind: r.kind, accepted, reason, version: 0, estimate, heldout_rms_new_m: rms.0, heldout_rms_old_m: rms.1, samples: r.samples, data_problems: r.data_problems }
+    Outcome {
+        run: r.run,
+        kind: r.kind,
+        accepted,
+        reason,
+        version: 0,
+        estimate,
+        heldout_rms_new_m: rms.0,
+        heldout_rms_old_m: rms.1,
+        samples: r.samples,
+        data_problems: r.data_problems,
+    }
 }
 
 /// Screens a data set for wild values ([`taut_calib::screen`]): the cleaned recording (wild
 /// readings missing, encoder jumps re-referenced) and one line per wild value, saying where.
 fn screened(rec: Recording, min_tension_n: f64, part: &str, out: &mut Vec<String>) -> Recording {
-    let sc = taut_calib::screen::screen(&rec, &taut_calib::screen::ScreenOptions { jumps: false, ..taut_calib::screen::ScreenOptions::new(min_tension_n) });
+    let sc = taut_calib::screen::screen(
+        &rec,
+        &taut_calib::screen::ScreenOptions { jumps: false, ..taut_calib::screen::ScreenOptions::new(min_tension_n) },
+    );
     out.extend(sc.findings.iter().map(|w| format!("{part}: {} {w}", w.kind.name())));
     sc.cleaned.unwrap_or(rec)
 }

@@ -27,13 +27,13 @@ use crate::runner::LoopStatus;
 use crate::triple::Reader;
 use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
-use taut_driver::tracker::TrackerStatsHandle;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use taut_driver::tracker::TrackerStatsHandle;
 
 pub use crate::ctl_server::{ControlServer, ServerLimits, ServerStats};
 
@@ -152,16 +152,8 @@ fn excerpt(s: &str, n: usize) -> String {
 
 /// Parses one request line (without its line end). The error is the reply's message.
 pub fn parse_request(line: &[u8]) -> Result<Request, String> {
-    let text = std::str::from_utf8(line).map_err(|e| {
-        format!(
-            "the request is not UTF-8 text (bad byte at offset {})",
-            e.valid_up_to()
-        )
-    })?;
-    if let Some((i, c)) = text
-        .char_indices()
-        .find(|&(_, c)| c.is_control() && c != '\t')
-    {
+    let text = std::str::from_utf8(line).map_err(|e| format!("the request is not UTF-8 text (bad byte at offset {})", e.valid_up_to()))?;
+    if let Some((i, c)) = text.char_indices().find(|&(_, c)| c.is_control() && c != '\t') {
         return Err(format!("the request has a control character {:?} at offset {i}; send one line of text: {VERBS}", c));
     }
     let mut words = text.split_whitespace();
@@ -174,10 +166,7 @@ pub fn parse_request(line: &[u8]) -> Result<Request, String> {
         if rest.is_empty() {
             Ok(r)
         } else {
-            Err(format!(
-                "{verb} takes no arguments, got {:?}",
-                excerpt(&rest.join(" "), 40)
-            ))
+            Err(format!("{verb} takes no arguments, got {:?}", excerpt(&rest.join(" "), 40)))
         }
     };
     match verb {
@@ -198,14 +187,9 @@ pub fn parse_request(line: &[u8]) -> Result<Request, String> {
             let mut p = [0.0; 3];
             for (i, w) in rest.iter().enumerate() {
                 let axis = ["X", "Y", "Z"][i];
-                let v: f64 = w
-                    .parse()
-                    .map_err(|_| format!("move: {axis} = {:?} is not a number", excerpt(w, 40)))?;
+                let v: f64 = w.parse().map_err(|_| format!("move: {axis} = {:?} is not a number", excerpt(w, 40)))?;
                 if !v.is_finite() {
-                    return Err(format!(
-                        "move refused: {axis} = {:?} is not a finite number (m)",
-                        excerpt(w, 40)
-                    ));
+                    return Err(format!("move refused: {axis} = {:?} is not a finite number (m)", excerpt(w, 40)));
                 }
                 p[i] = v;
             }
@@ -285,9 +269,7 @@ impl ControlLinks {
             }
             Request::Recalibrate => {
                 let ls = *lock(&self.loop_status).read();
-                if !matches!(ls.snap.state, State::Operate | State::Holding)
-                    || ls.snap.fault.is_some()
-                {
+                if !matches!(ls.snap.state, State::Operate | State::Holding) || ls.snap.fault.is_some() {
                     return json!({"ok": false, "error": format!("recalibrate refused: it needs the robot operating without a fault; it is {}", ls.snap.state.name())});
                 }
                 send(Command::Recalibrate, "recalibrate")
@@ -338,31 +320,16 @@ pub fn request(path: &Path, req: &str, timeout: Duration) -> std::io::Result<Val
     writeln!(s, "{req}").map_err(|e| Error::new(e.kind(), format!("sending the request: {e}")))?;
     let mut line = String::new();
     match BufReader::new(s).read_line(&mut line) {
-        Ok(0) => {
-            return Err(Error::new(
-                ErrorKind::UnexpectedEof,
-                "the daemon closed the connection without a reply",
-            ))
-        }
+        Ok(0) => return Err(Error::new(ErrorKind::UnexpectedEof, "the daemon closed the connection without a reply")),
         Ok(_) => {}
         Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
             return Err(Error::new(
                 ErrorKind::TimedOut,
-                format!(
-                    "the daemon accepted the connection but sent no reply within {:.1} s",
-                    timeout.as_secs_f64()
-                ),
+                format!("the daemon accepted the connection but sent no reply within {:.1} s", timeout.as_secs_f64()),
             ))
         }
         Err(e) => return Err(Error::new(e.kind(), format!("reading the reply: {e}"))),
     }
-    serde_json::from_str(&line).map_err(|e| {
-        Error::new(
-            ErrorKind::InvalidData,
-            format!(
-                "the reply is not JSON ({e}): {:?}",
-                excerpt(line.trim_end(), 80)
-            ),
-        )
-    })
+    serde_json::from_str(&line)
+        .map_err(|e| Error::new(ErrorKind::InvalidData, format!("the reply is not JSON ({e}): {:?}", excerpt(line.trim_end(), 80))))
 }

@@ -57,11 +57,7 @@ impl Default for ServerLimits {
     fn default() -> Self {
         // 256 connections of 4 KiB: at most ~1 MiB of request buffers, and well under the usual
         // 1024 open files (the daemon's own files and devices need a few dozen).
-        ServerLimits {
-            max_line: 4096,
-            deadline: Duration::from_secs(2),
-            max_connections: 256,
-        }
+        ServerLimits { max_line: 4096, deadline: Duration::from_secs(2), max_connections: 256 }
     }
 }
 
@@ -123,12 +119,7 @@ impl Conn {
     }
 
     fn wants_read(&self) -> bool {
-        !self.eof
-            && !self.closing
-            && !self.dead
-            && !self.pending_out()
-            && self.buf.len() < self.buf.capacity()
-            && !self.has_line()
+        !self.eof && !self.closing && !self.dead && !self.pending_out() && self.buf.len() < self.buf.capacity() && !self.has_line()
     }
 
     /// One non-blocking read into the free part of the line buffer.
@@ -145,10 +136,7 @@ impl Conn {
             Ok(n) => self.buf.truncate(start + n),
             Err(e) => {
                 self.buf.truncate(start);
-                if !matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted
-                ) {
+                if !matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted) {
                     self.dead = true;
                 }
             }
@@ -169,14 +157,7 @@ impl Conn {
         while self.pending_out() && !self.dead {
             let rest = &self.out[self.out_pos..];
             // SAFETY: a valid buffer of `rest.len()` bytes and an open socket for the call.
-            let r = unsafe {
-                libc::send(
-                    self.stream.as_raw_fd(),
-                    rest.as_ptr().cast(),
-                    rest.len(),
-                    libc::MSG_NOSIGNAL,
-                )
-            };
+            let r = unsafe { libc::send(self.stream.as_raw_fd(), rest.as_ptr().cast(), rest.len(), libc::MSG_NOSIGNAL) };
             if r >= 0 {
                 self.out_pos += r as usize;
             } else {
@@ -210,11 +191,7 @@ pub struct ControlServer {
 impl ControlServer {
     /// Binds the socket at `path` (replacing a stale one) with mode 0660. A socket someone
     /// answers on means another daemon: refused, nothing touched.
-    pub fn bind(
-        path: &Path,
-        links: ControlLinks,
-        limits: ServerLimits,
-    ) -> std::io::Result<ControlServer> {
+    pub fn bind(path: &Path, links: ControlLinks, limits: ServerLimits) -> std::io::Result<ControlServer> {
         if let Some(d) = path.parent() {
             std::fs::create_dir_all(d)?;
         }
@@ -223,10 +200,7 @@ impl ControlServer {
             if UnixStream::connect(path).is_ok() {
                 return Err(std::io::Error::new(
                     std::io::ErrorKind::AddrInUse,
-                    format!(
-                        "{} is in use: is taut start already running?",
-                        path.display()
-                    ),
+                    format!("{} is in use: is taut start already running?", path.display()),
                 ));
             }
             std::fs::remove_file(path)?;
@@ -234,13 +208,7 @@ impl ControlServer {
         let listener = UnixListener::bind(path)?;
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
         listener.set_nonblocking(true)?;
-        Ok(ControlServer {
-            listener,
-            path: path.to_path_buf(),
-            links,
-            limits,
-            stats: ServerStats::default(),
-        })
+        Ok(ControlServer { listener, path: path.to_path_buf(), links, limits, stats: ServerStats::default() })
     }
 
     /// The estop/stop flags the server sets.
@@ -252,19 +220,14 @@ impl ControlServer {
     pub fn run(mut self, quit: Arc<AtomicBool>) {
         let mut conns: Vec<Conn> = Vec::with_capacity(self.limits.max_connections);
         let mut fds: Vec<libc::pollfd> = Vec::with_capacity(self.limits.max_connections + 1);
-        let mut ready: Vec<(usize, Result<Request, String>)> =
-            Vec::with_capacity(self.limits.max_connections);
+        let mut ready: Vec<(usize, Result<Request, String>)> = Vec::with_capacity(self.limits.max_connections);
         let mut accept_paused_until: Option<Instant> = None;
         // Relaxed: only ends the serving; no data is handed over with it.
         while !quit.load(Ordering::Relaxed) {
             let now = Instant::now();
             let listen = accept_paused_until.is_none_or(|t| now >= t);
             fds.clear();
-            fds.push(libc::pollfd {
-                fd: self.listener.as_raw_fd(),
-                events: if listen { libc::POLLIN } else { 0 },
-                revents: 0,
-            });
+            fds.push(libc::pollfd { fd: self.listener.as_raw_fd(), events: if listen { libc::POLLIN } else { 0 }, revents: 0 });
             let mut work_now = false;
             let mut next = now + Duration::from_millis(50);
             for c in &conns {
@@ -275,28 +238,15 @@ impl ControlServer {
                 if c.pending_out() {
                     ev |= libc::POLLOUT;
                 }
-                fds.push(libc::pollfd {
-                    fd: c.stream.as_raw_fd(),
-                    events: ev,
-                    revents: 0,
-                });
+                fds.push(libc::pollfd { fd: c.stream.as_raw_fd(), events: ev, revents: 0 });
                 // A buffered line (pipelined requests) or a half-closed client is work for now.
-                work_now |= !c.pending_out()
-                    && (c.has_line()
-                        || c.eof
-                        || c.closing
-                        || c.dead
-                        || c.buf.len() == c.buf.capacity());
+                work_now |= !c.pending_out() && (c.has_line() || c.eof || c.closing || c.dead || c.buf.len() == c.buf.capacity());
                 next = next.min(c.deadline);
             }
             if let Some(t) = accept_paused_until {
                 next = next.min(t);
             }
-            let timeout_ms = if work_now {
-                0
-            } else {
-                next.saturating_duration_since(now).as_millis().min(50) as i32 + 1
-            };
+            let timeout_ms = if work_now { 0 } else { next.saturating_duration_since(now).as_millis().min(50) as i32 + 1 };
             // SAFETY: `fds` is a valid array of `fds.len()` pollfds for the duration of the call.
             let r = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, timeout_ms) };
             if r < 0 {

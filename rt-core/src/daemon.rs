@@ -3,13 +3,13 @@
 
 use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
 use crate::control::{ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
-use crate::urgent::Urgent;
 use crate::io::Devices;
 use crate::kin::LoopParams;
 use crate::motion::{Command, Controller, ControllerConfig};
 use crate::runner::{run_loop, LoopCore, LoopReport, LoopStatus};
 use crate::sample::sample_ring;
 use crate::triple::triple_buffer;
+use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};

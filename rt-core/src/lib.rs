@@ -31,20 +31,20 @@ pub mod ctl_server;
 pub mod daemon;
 pub mod io;
 pub mod kin;
+#[cfg(all(test, loom))]
+mod loom_tests;
 pub mod motion;
 pub mod ramp;
 pub mod robot_io;
 pub mod rtsys;
 pub mod runner;
 pub mod safety;
-pub mod testkit;
 pub mod sample;
 #[cfg(feature = "sim")]
 pub mod simrig;
 pub mod spsc;
 mod sync;
-#[cfg(all(test, loom))]
-mod loom_tests;
+pub mod testkit;
 pub mod triple;
 pub mod urgent;
 

@@ -32,10 +32,7 @@ fn loom_triple_reader_sees_whole_fresh_monotonic_written_values() {
             for v in 1..=3u64 {
                 let displaced = w.write([v, v]);
                 // What comes back is an older value the reader has given up, never the new one.
-                assert_eq!(
-                    displaced[0], displaced[1],
-                    "torn value returned to the writer"
-                );
+                assert_eq!(displaced[0], displaced[1], "torn value returned to the writer");
                 assert!(displaced[0] < v, "write {v} displaced {displaced:?}");
                 // Release: orders the write above before a reader's Acquire load of `done`.
                 done_w.store(v as usize, Ordering::Release);
@@ -74,10 +71,7 @@ fn loom_triple_update_then_current_holds_the_taken_value() {
             let b = *r.current();
             assert_eq!(a, b, "current changed without update");
             assert_eq!(a[0], a[1], "torn read {a:?}");
-            assert!(
-                a[0] >= last && (fresh || a[0] == last),
-                "update said {fresh}, value {a:?}, before {last}"
-            );
+            assert!(a[0] >= last && (fresh || a[0] == last), "update said {fresh}, value {a:?}, before {last}");
             last = a[0];
         }
         writer.join().unwrap();
@@ -118,15 +112,9 @@ fn spsc_case(cap: usize, n: u64, tries: usize) {
             assert!(v.iter().all(|&x| x == v[0]), "torn value {v:?}");
         }
         let got: Vec<u64> = got.iter().map(|v| v[0]).collect();
-        assert_eq!(
-            got, accepted,
-            "cap {cap}: popped values differ from accepted pushes"
-        );
+        assert_eq!(got, accepted, "cap {cap}: popped values differ from accepted pushes");
         // The first `cap` pushes always fit.
-        assert!(
-            accepted.len() >= cap.min(n as usize),
-            "cap {cap}: only {accepted:?} accepted"
-        );
+        assert!(accepted.len() >= cap.min(n as usize), "cap {cap}: only {accepted:?} accepted");
     });
 }
 
@@ -169,20 +157,12 @@ fn loom_sample_ring_counts_drops_and_keeps_order() {
         let (accepted, dropped_tx) = producer.join().unwrap();
         got.extend(std::iter::from_fn(|| rx.pop()));
         for s in &got {
-            assert!(
-                s.length_m.iter().chain(&s.tension_n).all(|&x| x == s.t),
-                "torn sample at t={}",
-                s.t
-            );
+            assert!(s.length_m.iter().chain(&s.tension_n).all(|&x| x == s.t), "torn sample at t={}", s.t);
         }
         let got: Vec<f64> = got.iter().map(|s| s.t).collect();
         assert_eq!(got, accepted);
         assert_eq!(rx.pushed(), accepted.len() as u64);
         assert_eq!(rx.dropped(), dropped_tx);
-        assert_eq!(
-            rx.pushed() + rx.dropped(),
-            3,
-            "every push is either carried or counted as dropped"
-        );
+        assert_eq!(rx.pushed() + rx.dropped(), 3, "every push is either carried or counted as dropped");
     });
 }

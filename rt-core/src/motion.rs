@@ -34,8 +34,8 @@ use crate::kin::LoopParams;
 use crate::ramp::Ramp;
 use crate::safety::{Cause, Reaction};
 use crate::triple::Reader;
-use crate::MAX_CABLES;
 use crate::urgent::Urgent;
+use crate::MAX_CABLES;
 use crossbeam_channel::Receiver;
 use std::sync::Arc;
 
@@ -787,7 +787,8 @@ impl Controller {
                         // A held cable going slack ends the reeling early: the platform would
                         // leave the circle about the held anchors.
                         // Only readings taken during the reel count (see `measured_after`).
-                        let slackened = |j: usize| measured_after(inp, j, ts, REEL_GRACE_S) && inp.tension_n[j] < self.cfg.held_min_tension_n;
+                        let slackened =
+                            |j: usize| measured_after(inp, j, ts, REEL_GRACE_S) && inp.tension_n[j] < self.cfg.held_min_tension_n;
                         let slack = self.cfg.tension_max_age_s.is_finite() && (slackened(a) || slackened(b));
                         if ts >= travel_s || slack {
                             self.segment = Segment::Return;
@@ -1081,11 +1082,8 @@ impl Controller {
         let mut next = [0.0; MAX_CABLES];
         self.params.lengths(&self.target, &mut next);
         for j in 0..self.cfg.n {
-            modes[j] = if self.cfg.follower[j] {
-                CableCommand::Tension(self.cfg.follower_tension_n)
-            } else {
-                CableCommand::Position(next[j])
-            };
+            modes[j] =
+                if self.cfg.follower[j] { CableCommand::Tension(self.cfg.follower_tension_n) } else { CableCommand::Position(next[j]) };
         }
         next
     }

@@ -20,7 +20,7 @@
 //! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
 //! (`heapless`), frames are `Copy`, readers are lock-free.
 
-use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use crate::MAX_CABLES;
 use std::fmt;
 use std::time::{Duration, Instant};
@@ -164,7 +164,13 @@ impl<T: CanTransport> RobotDevices<T> {
                     format!(
                         "node {node} must run in {} for the start-up motion, but no RPDO of its map carries the mode of \
                          operation 0x6060, so its mode is fixed; set pdo = \"with_mode\" (0x6060 in RPDO2) or map 0x6060",
-                        if pos && tq { "position and torque mode" } else if pos { "position mode" } else { "torque mode" }
+                        if pos && tq {
+                            "position and torque mode"
+                        } else if pos {
+                            "position mode"
+                        } else {
+                            "torque mode"
+                        }
                     ),
                 ));
             }
@@ -401,7 +407,10 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         }
         // Handed over once every drive could take it: all operational, none still braking in
         // "fault reaction active" (it takes a fault reset only once in FAULT).
-        if self.fault_reset_pending && self.master.all_operational() && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive)) {
+        if self.fault_reset_pending
+            && self.master.all_operational()
+            && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive))
+        {
             self.fault_reset_pending = false;
         }
         self.master.poll_timers(wall);
@@ -420,7 +429,13 @@ mod tests {
         let mut t = String::from("[robot]\nname = \"t\"\nmass_kg = 3.0\n[can]\ninterface = \"can0\"\n");
         for (j, a) in [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]].iter().enumerate() {
             let mode = if j == 3 { mode3 } else { "position" };
-            t += &format!("[[cable]]\nanchor = [{}, {}, {}]\n[cable.drive]\nnode_id = {}\npdo = \"{pdo}\"\nmode = \"{mode}\"\n", a[0], a[1], a[2], j + 1);
+            t += &format!(
+                "[[cable]]\nanchor = [{}, {}, {}]\n[cable.drive]\nnode_id = {}\npdo = \"{pdo}\"\nmode = \"{mode}\"\n",
+                a[0],
+                a[1],
+                a[2],
+                j + 1
+            );
         }
         RobotConfig::from_toml_str(&t).unwrap()
     }

@@ -61,7 +61,8 @@ pub fn setup_current_thread(cfg: &RtConfig) -> RtSetupReport {
             }
         }
         if !r.pinned {
-            r.warnings.push(format!("cannot pin the loop to CPU {cpu} ({}): rt.cpu must name an online CPU", std::io::Error::last_os_error()));
+            r.warnings
+                .push(format!("cannot pin the loop to CPU {cpu} ({}): rt.cpu must name an online CPU", std::io::Error::last_os_error()));
         }
     }
     r

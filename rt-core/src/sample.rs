@@ -5,8 +5,8 @@
 //! the loop: the sample is dropped and counted.
 
 use crate::io::DriveStatus;
-use crate::MAX_CABLES;
 use crate::spsc::{self, Consumer, Producer};
+use crate::MAX_CABLES;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 

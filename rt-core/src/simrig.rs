@@ -96,7 +96,14 @@ pub struct SimOptions {
 
 impl Default for SimOptions {
     fn default() -> Self {
-        SimOptions { seed: 1, site_error_m: 0.2, l0_range_m: 2.0, noise: Noise::default(), can: None, site_period: Duration::from_millis(1) }
+        SimOptions {
+            seed: 1,
+            site_error_m: 0.2,
+            l0_range_m: 2.0,
+            noise: Noise::default(),
+            can: None,
+            site_period: Duration::from_millis(1),
+        }
     }
 }
 
@@ -146,7 +153,8 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
             {
                 use taut_driver::transport::socketcan::SocketCanTransport;
                 let open = |who: &str| {
-                    SocketCanTransport::open(iface).map_err(|e| format!("{who} on CAN interface {iface}: {e} (is it up? `ip link set {iface} up`)"))
+                    SocketCanTransport::open(iface)
+                        .map_err(|e| format!("{who} on CAN interface {iface}: {e} (is it up? `ip link set {iface} up`)"))
                 };
                 build_on(cfg, p0, opts, open("virtual drives")?, open("CANopen master")?)
             }
@@ -162,7 +170,12 @@ fn node_ids(cfg: &RobotConfig) -> Result<Vec<NodeId>, String> {
     cfg.cables
         .iter()
         .enumerate()
-        .map(|(j, c)| c.drive.as_ref().map(|d| d.node_id).ok_or_else(|| format!("cable[{j}]: the simulated robot needs a [cable.drive] table with a node_id")))
+        .map(|(j, c)| {
+            c.drive
+                .as_ref()
+                .map(|d| d.node_id)
+                .ok_or_else(|| format!("cable[{j}]: the simulated robot needs a [cable.drive] table with a node_id"))
+        })
         .collect()
 }
 
@@ -231,7 +244,8 @@ where
         cfg.cables.iter().enumerate().map(|(j, c)| (j, c.loadcell.clone().unwrap_or_else(|| LoadCellConfig::new(j as u8 + 1)))).collect();
     let handle = TensionHandle::new(n);
     handle.set_all(&ten);
-    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone()).map_err(|e| format!("virtual load cells: {e}"))?;
+    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone())
+        .map_err(|e| format!("virtual load cells: {e}"))?;
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
     lc_bus.max_age_s = cfg.safety.tension_max_age_s;

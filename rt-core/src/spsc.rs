@@ -96,30 +96,10 @@ pub struct Consumer<T> {
 /// # Panics
 /// If `capacity` is 0 or `2 * capacity` overflows `usize`.
 pub fn ring<T: Copy + Send>(capacity: usize) -> (Producer<T>, Consumer<T>) {
-    assert!(
-        capacity > 0 && capacity <= usize::MAX / 2,
-        "ring capacity must be in 1..=usize::MAX/2, got {capacity}"
-    );
-    let slots = (0..capacity)
-        .map(|_| UnsafeCell::new(MaybeUninit::uninit()))
-        .collect();
-    let ring = Arc::new(Ring {
-        head: Padded(AtomicUsize::new(0)),
-        tail: Padded(AtomicUsize::new(0)),
-        slots,
-    });
-    (
-        Producer {
-            ring: ring.clone(),
-            tail: 0,
-            head: 0,
-        },
-        Consumer {
-            ring,
-            head: 0,
-            tail: 0,
-        },
-    )
+    assert!(capacity > 0 && capacity <= usize::MAX / 2, "ring capacity must be in 1..=usize::MAX/2, got {capacity}");
+    let slots = (0..capacity).map(|_| UnsafeCell::new(MaybeUninit::uninit())).collect();
+    let ring = Arc::new(Ring { head: Padded(AtomicUsize::new(0)), tail: Padded(AtomicUsize::new(0)), slots });
+    (Producer { ring: ring.clone(), tail: 0, head: 0 }, Consumer { ring, head: 0, tail: 0 })
 }
 
 impl<T: Copy + Send> Producer<T> {
@@ -135,8 +115,7 @@ impl<T: Copy + Send> Producer<T> {
             }
         }
         // SAFETY: the slot at `tail` is outside head..tail, so it is ours until the store below.
-        ring.slot(self.tail)
-            .with_mut(|p| unsafe { (*p).write(value) });
+        ring.slot(self.tail).with_mut(|p| unsafe { (*p).write(value) });
         self.tail = ring.next(self.tail);
         // Release: publishes the slot contents written above to the consumer's Acquire load.
         ring.tail.0.store(self.tail, Ordering::Release);
@@ -163,9 +142,7 @@ impl<T: Copy + Send> Consumer<T> {
         }
         // SAFETY: the slot at `head` is inside head..tail: the producer has initialised it and will
         // not touch it until the store below gives it back.
-        let value = ring
-            .slot(self.head)
-            .with(|p| unsafe { (*p).assume_init_read() });
+        let value = ring.slot(self.head).with(|p| unsafe { (*p).assume_init_read() });
         self.head = ring.next(self.head);
         // Release: our read of the slot above happens-before the producer's Acquire load and reuse.
         ring.head.0.store(self.head, Ordering::Release);
@@ -193,11 +170,7 @@ mod tests {
                 while tx.push(next_in).is_ok() {
                     next_in += 1;
                 }
-                assert_eq!(
-                    next_in - next_out,
-                    cap as u64,
-                    "cap {cap}: full at exactly capacity"
-                );
+                assert_eq!(next_in - next_out, cap as u64, "cap {cap}: full at exactly capacity");
                 assert_eq!(tx.push(u64::MAX), Err(u64::MAX));
                 for _ in 0..=(round as usize % cap) {
                     assert_eq!(rx.pop(), Some(next_out));
@@ -236,10 +209,7 @@ mod tests {
         let mut expect = 0;
         while expect < N {
             if let Some(v) = rx.pop() {
-                assert!(
-                    v.iter().all(|&x| x == expect),
-                    "expected {expect}, got {v:?}"
-                );
+                assert!(v.iter().all(|&x| x == expect), "expected {expect}, got {v:?}");
                 expect += 1;
             } else {
                 std::hint::spin_loop();

@@ -5,7 +5,7 @@
 //! It is not the simulator (`taut-sim` has the physics and the virtual devices on the real
 //! driver code paths); it exists so that the loop can be exercised without any I/O.
 
-use crate::io::{CableCommand, DeviceFault, DriveRequest, DriveStatus, Devices, Inputs, Outputs};
+use crate::io::{CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use crate::kin::LoopParams;
 use crate::MAX_CABLES;
 
@@ -45,7 +45,17 @@ impl KinematicRobot {
     pub fn new(truth: LoopParams, p: [f64; 3]) -> KinematicRobot {
         let mut len = [0.0; MAX_CABLES];
         truth.lengths(&p, &mut len);
-        KinematicRobot { truth, p, len, tension_n: 30.0, inject: Injected::default(), enabled: false, last_tension_t: 0.0, last_pose_t: 0.0, tension: [30.0; MAX_CABLES] }
+        KinematicRobot {
+            truth,
+            p,
+            len,
+            tension_n: 30.0,
+            inject: Injected::default(),
+            enabled: false,
+            last_tension_t: 0.0,
+            last_pose_t: 0.0,
+            tension: [30.0; MAX_CABLES],
+        }
     }
 
     /// Moves the platform so that the cables in position mode have the commanded lengths
@@ -172,7 +182,16 @@ pub fn quick_config(n: usize, dir: &std::path::Path) -> taut_config::RobotConfig
 /// Nominal anchors of `n` cables: four top corners of a 7 m x 3.5 m x 4 m frame, then (for
 /// n > 4) the mid-points of its long sides and so on.
 pub fn nominal_anchors(n: usize) -> Vec<[f64; 3]> {
-    let corners = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0], [0.0, -1.75, 4.0], [0.0, 1.75, 4.0], [3.5, 0.0, 3.9], [-3.5, 0.0, 3.9]];
+    let corners = [
+        [3.5, -1.75, 4.0],
+        [3.5, 1.75, 4.0],
+        [-3.5, 1.75, 4.0],
+        [-3.5, -1.75, 4.0],
+        [0.0, -1.75, 4.0],
+        [0.0, 1.75, 4.0],
+        [3.5, 0.0, 3.9],
+        [-3.5, 0.0, 3.9],
+    ];
     corners[..n].to_vec()
 }
 

@@ -394,8 +394,15 @@ fn tension_inner(h: f64, v: f64, t: f64, end: End, c: &CableSpec, guess: Option<
             }
         };
         let m = nalgebra::Matrix3::new(
-            je[0][0], je[0][1], je[0][2], je[1][0], je[1][1], je[1][2],
-            jt[0] / t * chord, jt[1] / t * chord, jt[2] / t * chord,
+            je[0][0],
+            je[0][1],
+            je[0][2],
+            je[1][0],
+            je[1][1],
+            je[1][2],
+            jt[0] / t * chord,
+            jt[1] / t * chord,
+            jt[2] / t * chord,
         );
         let Some(d) = m.lu().solve(&nalgebra::Vector3::new(-r[0], -r[1], -r[2])) else {
             break;

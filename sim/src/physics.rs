@@ -59,15 +59,7 @@ pub struct Physics {
 
 impl Default for Physics {
     fn default() -> Self {
-        Physics {
-            elasticity: None,
-            sag: None,
-            pulley: None,
-            scale: None,
-            time_offset_s: 0.0,
-            backlash_m: 0.0,
-            slack: true,
-        }
+        Physics { elasticity: None, sag: None, pulley: None, scale: None, time_offset_s: 0.0, backlash_m: 0.0, slack: true }
     }
 }
 
@@ -276,13 +268,7 @@ impl CableModel {
             }
             CableCommand::Tension(t) => {
                 let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
-                CableLoad {
-                    force: scale3(path.dir, t),
-                    energy: t * ell,
-                    tension: t,
-                    drum_length: ell / (1.0 + k),
-                    slack: false,
-                }
+                CableLoad { force: scale3(path.dir, t), energy: t * ell, tension: t, drum_length: ell / (1.0 + k), slack: false }
             }
         }
     }

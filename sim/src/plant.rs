@@ -173,9 +173,7 @@ impl Plant {
             .zip(&self.offsets)
             .zip(tensions)
             .map(|((m, o), &t)| {
-                m.taut([p[0] + o[0], p[1] + o[1], p[2] + o[2]], t)
-                    .map(|c| c.unstretched)
-                    .map_err(|e| SimError::Catenary(e.to_string()))
+                m.taut([p[0] + o[0], p[1] + o[1], p[2] + o[2]], t).map(|c| c.unstretched).map_err(|e| SimError::Catenary(e.to_string()))
             })
             .collect()
     }
@@ -237,13 +235,7 @@ impl Plant {
             let t = self.loads[j].tension;
             self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
         }
-        StepOutput {
-            position: self.p,
-            encoder_m: &self.encoder_out,
-            tension_n: &self.tension_out,
-            drum_m: &self.drum,
-            report: rep,
-        }
+        StepOutput { position: self.p, encoder_m: &self.encoder_out, tension_n: &self.tension_out, drum_m: &self.drum, report: rep }
     }
 
     /// Steps whose equilibrium search failed even in substeps (the plant kept the last

@@ -90,10 +90,7 @@ impl Scenario {
 
     /// A small 3-cable robot (anchors on a triangle 3 m up, 2 kg), as `config/examples`.
     pub fn three_cable(seed: u64) -> Self {
-        Scenario {
-            robot: robot("tri-3", 2.0, &[[2.0, 0.0, 3.0], [-1.0, 1.732, 3.0], [-1.0, -1.732, 3.0]]),
-            ..Scenario::aras_cam(seed)
-        }
+        Scenario { robot: robot("tri-3", 2.0, &[[2.0, 0.0, 3.0], [-1.0, 1.732, 3.0], [-1.0, -1.732, 3.0]]), ..Scenario::aras_cam(seed) }
     }
 
     /// A large outdoor robot: masts 12 m high on a 20 m x 20 m square, 40 kg platform, heavy steel
@@ -278,13 +275,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     if let Some(m) = &tp {
         ex.set_start(m.start);
     }
-    let mut exm = ExcitationModel {
-        ex,
-        models: &models,
-        truth: &truth,
-        t_min: s.min_tension_n,
-        with_orientation: s.with_orientation,
-    };
+    let mut exm = ExcitationModel { ex, models: &models, truth: &truth, t_min: s.min_tension_n, with_orientation: s.with_orientation };
     let excursion_s = if s.physics.slack && s.loose_fraction > 0.0 && n_ex > 0 {
         tune_excursions(&mut exm, s.loose_fraction * total as f64 / n_ex as f64, n_ex, dt, s.rate_hz)
     } else {

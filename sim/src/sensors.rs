@@ -161,13 +161,7 @@ pub struct Encoder {
 impl Encoder {
     /// An encoder reading `scale x length + offset` through a play of `backlash_m`.
     pub fn new(scale: f64, offset: f64, backlash_m: f64, noise: &Noise) -> Self {
-        Encoder {
-            scale,
-            offset,
-            backlash: Backlash::new(backlash_m),
-            sigma: noise.encoder_sigma_m,
-            quantum: noise.encoder_quantum_m,
-        }
+        Encoder { scale, offset, backlash: Backlash::new(backlash_m), sigma: noise.encoder_sigma_m, quantum: noise.encoder_quantum_m }
     }
 
     /// The same encoder with the noise and quantisation of `noise`.

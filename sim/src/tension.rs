@@ -182,7 +182,11 @@ mod tests {
             .map(|j| {
                 let cols: Vec<usize> = (0..4).filter(|&c| c != j).collect();
                 let m = Matrix3::from_fn(|r, c| u[cols[c]][r]);
-                if j % 2 == 0 { m.determinant() } else { -m.determinant() }
+                if j % 2 == 0 {
+                    m.determinant()
+                } else {
+                    -m.determinant()
+                }
             })
             .collect();
         assert!(balance(&u, &null, [0.0; 3]) < 1e-12);

@@ -472,7 +472,8 @@ mod plant {
         t[..3].copy_from_slice(x.as_slice());
         t[3] = 15.0;
         let hold = plant.lengths_holding(p0, &t).unwrap();
-        let cmds = [CableCommand::Length(hold[0]), CableCommand::Length(hold[1]), CableCommand::Length(hold[2]), CableCommand::Tension(15.0)];
+        let cmds =
+            [CableCommand::Length(hold[0]), CableCommand::Length(hold[1]), CableCommand::Length(hold[2]), CableCommand::Tension(15.0)];
         let out = plant.step(0.01, &cmds);
         assert!(out.report.was_successful());
         assert!(norm(sub(out.position, p0)) < 1e-6);
@@ -549,4 +550,3 @@ mod plant {
         plant.lengths_holding(p, &t).unwrap()
     }
 }
-

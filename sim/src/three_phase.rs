@@ -76,9 +76,10 @@ fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f6
             rhs -= plan.follower_tension_n * nalgebra::Vector3::from(dirs[j]);
         }
         let m = nalgebra::Matrix3::from_fn(|r, k| dirs[plan.cables[k]][r]);
-        let x = m.lu().solve(&rhs).ok_or(SimError::ThreePhaseInfeasible {
-            reason: "the three position-mode cables are coplanar at the centre",
-        })?;
+        let x = m
+            .lu()
+            .solve(&rhs)
+            .ok_or(SimError::ThreePhaseInfeasible { reason: "the three position-mode cables are coplanar at the centre" })?;
         for k in 0..3 {
             t[plan.cables[k]] = x[k];
         }
@@ -104,7 +105,13 @@ fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f6
 /// position-mode cables keep the most tension during the whole motion: on a rectangle the
 /// follower's pull unbalances the reeled cable's phase, and the centre itself leaves little
 /// margin.
-pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, ws: &Workspace, rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
+pub fn simulate(
+    truth: &Truth,
+    physics: &Physics,
+    plan: &ThreePhasePlan,
+    ws: &Workspace,
+    rate_hz: f64,
+) -> Result<ThreePhaseMotion, SimError> {
     if let Some(c) = plan.start {
         return run(truth, physics, plan, c, rate_hz);
     }
@@ -113,7 +120,9 @@ pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, ws: &Wo
     let mut first_err = None;
     // The centre first: on ties it wins.
     for (fz, fx, fy) in [(0.425, 0.0, 0.0)].into_iter().chain(
-        [0.425, 0.3, 0.55].into_iter().flat_map(|fz| [0.0, -0.3, 0.3].into_iter().flat_map(move |fx| [0.0, -0.3, 0.3].map(|fy| (fz, fx, fy)))),
+        [0.425, 0.3, 0.55]
+            .into_iter()
+            .flat_map(|fz| [0.0, -0.3, 0.3].into_iter().flat_map(move |fx| [0.0, -0.3, 0.3].map(|fy| (fz, fx, fy)))),
     ) {
         let p = [c[0] + fx * ws.semi[0], c[1] + fy * ws.semi[1], fz * ws.z_top];
         match run(truth, physics, plan, p, 4.0) {
@@ -136,7 +145,11 @@ pub fn simulate(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, ws: &Wo
 /// Simulates the motion at `rate_hz` from the rest position `c`.
 fn run(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3], rate_hz: f64) -> Result<ThreePhaseMotion, SimError> {
     let n = truth.n_cables();
-    if plan.cables.iter().any(|&j| j >= n) || plan.cables[0] == plan.cables[1] || plan.cables[1] == plan.cables[2] || plan.cables[0] == plan.cables[2] {
+    if plan.cables.iter().any(|&j| j >= n)
+        || plan.cables[0] == plan.cables[1]
+        || plan.cables[1] == plan.cables[2]
+        || plan.cables[0] == plan.cables[2]
+    {
         return Err(SimError::ThreePhaseInfeasible { reason: "the plan needs three distinct cables of the robot" });
     }
     if !(plan.reel_m.is_finite() && plan.speed_m_s > 0.0 && rate_hz > 0.0) {

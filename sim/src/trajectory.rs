@@ -46,8 +46,8 @@ impl Workspace {
             let cur = *hull.last().unwrap();
             let mut next = (cur + 1) % pts.len();
             for k in 0..pts.len() {
-                let cross = (pts[next][0] - pts[cur][0]) * (pts[k][1] - pts[cur][1])
-                    - (pts[next][1] - pts[cur][1]) * (pts[k][0] - pts[cur][0]);
+                let cross =
+                    (pts[next][0] - pts[cur][0]) * (pts[k][1] - pts[cur][1]) - (pts[next][1] - pts[cur][1]) * (pts[k][0] - pts[cur][0]);
                 if cross < 0.0 {
                     next = k;
                 }
@@ -140,11 +140,8 @@ impl Excitation {
     /// [`Excitation::set_excursion_duration`].
     pub fn new(ws: &Workspace, duration_s: f64, rng: &mut ChaCha8Rng) -> Self {
         let tau = std::f64::consts::TAU;
-        let mut wave = |amp: f64, period: (f64, f64)| Wave {
-            amp,
-            omega: tau / rng.gen_range(period.0..period.1),
-            phase: rng.gen_range(0.0..tau),
-        };
+        let mut wave =
+            |amp: f64, period: (f64, f64)| Wave { amp, omega: tau / rng.gen_range(period.0..period.1), phase: rng.gen_range(0.0..tau) };
         // Sum of amplitudes 1 per axis: the normalised coordinate stays in [-1, 1].
         let base = std::array::from_fn(|_| [wave(0.65, (25.0, 45.0)), wave(0.28, (14.0, 22.0)), wave(0.07, (8.0, 12.0))]);
         let deg = std::f64::consts::PI / 180.0;
@@ -160,11 +157,7 @@ impl Excitation {
                 let lambda = rng.gen_range(0.25..0.75);
                 let inset = rng.gen_range(0.06..0.14) * r;
                 let z = rng.gen_range(0.2..0.45) * ws.z_top;
-                let target = [
-                    a[0] + lambda * (b[0] - a[0]) - inset * normal[0],
-                    a[1] + lambda * (b[1] - a[1]) - inset * normal[1],
-                    z,
-                ];
+                let target = [a[0] + lambda * (b[0] - a[0]) - inset * normal[0], a[1] + lambda * (b[1] - a[1]) - inset * normal[1], z];
                 let amp = 0.6 * inset;
                 let peak_acc = rng.gen_range(2.5..4.5);
                 Excursion {
@@ -175,7 +168,17 @@ impl Excitation {
                 }
             })
             .collect();
-        Excitation { ws: ws.clone(), base, tilt, excursions, excursion_s: 0.0, slot_s, duration_s, start: ws.center_point(), accel_scale: 1.0 }
+        Excitation {
+            ws: ws.clone(),
+            base,
+            tilt,
+            excursions,
+            excursion_s: 0.0,
+            slot_s,
+            duration_s,
+            start: ws.center_point(),
+            accel_scale: 1.0,
+        }
     }
 
     /// Starts the motion (at rest) from `p` instead of the workspace centre.
@@ -258,12 +261,7 @@ impl Excitation {
         let (cr, sr) = ((0.5 * roll).cos(), (0.5 * roll).sin());
         let (cp, sp) = ((0.5 * pitch).cos(), (0.5 * pitch).sin());
         let (cy, sy) = ((0.5 * yaw).cos(), (0.5 * yaw).sin());
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
+        [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy]
     }
 }
 

@@ -34,11 +34,7 @@ pub fn taut_bin() -> &'static Path {
         }
         let exe = std::env::current_exe().expect("test executable path");
         // target/<profile>/deps/<test> -> target/debug/taut (the cli is built with the dev profile).
-        let target = exe
-            .parent()
-            .and_then(Path::parent)
-            .and_then(Path::parent)
-            .expect("target directory");
+        let target = exe.parent().and_then(Path::parent).and_then(Path::parent).expect("target directory");
         let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let status = Command::new(cargo)
@@ -107,10 +103,7 @@ impl Case {
 
     /// A case that expects success.
     pub fn ok(name: impl Into<String>, args: &[&str], expect: &[&str]) -> Self {
-        Case {
-            code: 0,
-            ..Case::err(name, args, expect)
-        }
+        Case { code: 0, ..Case::err(name, args, expect) }
     }
 
     /// Adds a regular file.
@@ -184,11 +177,7 @@ impl Tally {
         let s = self.summary(suite);
         println!("{s}");
         eprintln!("{s}");
-        assert!(
-            self.problems.is_empty(),
-            "{} problems in the hostile suite {suite}",
-            self.problems.len()
-        );
+        assert!(self.problems.is_empty(), "{} problems in the hostile suite {suite}", self.problems.len());
     }
 }
 
@@ -209,13 +198,8 @@ pub struct Run {
 /// Runs `cmd` with a deadline, collecting its output on threads so a full pipe cannot stall it.
 pub fn run_with_deadline(mut cmd: Command, deadline: Duration) -> Run {
     use std::os::unix::process::ExitStatusExt;
-    let mut child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .env("RUST_BACKTRACE", "0")
-        .spawn()
-        .expect("spawning taut");
+    let mut child =
+        cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).env("RUST_BACKTRACE", "0").spawn().expect("spawning taut");
     let mut out = child.stdout.take().unwrap();
     let mut err = child.stderr.take().unwrap();
     // Read at most 1 MiB of each: a hostile input must not make the suite itself grow.
@@ -267,12 +251,7 @@ fn snapshot(dir: &Path) -> BTreeMap<String, (String, Vec<u8>)> {
             };
             let ft = meta.file_type();
             let v = if ft.is_symlink() {
-                (
-                    "symlink".into(),
-                    std::fs::read_link(&p)
-                        .map(|t| t.into_os_string().into_encoded_bytes())
-                        .unwrap_or_default(),
-                )
+                ("symlink".into(), std::fs::read_link(&p).map(|t| t.into_os_string().into_encoded_bytes()).unwrap_or_default())
             } else if ft.is_dir() {
                 stack.push(p.clone());
                 ("dir".into(), Vec::new())
@@ -315,16 +294,11 @@ extern "C" {
 /// Runs every case of a suite and tallies them.
 pub fn run_suite(suite: &str, cases: Vec<Case>) -> Tally {
     let bin = taut_bin();
-    let root = tempfile::Builder::new()
-        .prefix(&format!("taut-hostile-{suite}-"))
-        .tempdir()
-        .unwrap();
+    let root = tempfile::Builder::new().prefix(&format!("taut-hostile-{suite}-")).tempdir().unwrap();
     let mut t = Tally::default();
     // HOSTILE_SKIP=a,b: leave out cases whose name contains a or b (for running the suite against
     // an old build, where some cases would exhaust the machine's memory).
-    let skip: Vec<String> = std::env::var("HOSTILE_SKIP")
-        .map(|s| s.split(',').map(str::to_string).collect())
-        .unwrap_or_default();
+    let skip: Vec<String> = std::env::var("HOSTILE_SKIP").map(|s| s.split(',').map(str::to_string).collect()).unwrap_or_default();
     for (k, case) in cases.into_iter().enumerate() {
         if skip.iter().any(|x| !x.is_empty() && case.name.contains(x.as_str())) {
             continue;
@@ -356,10 +330,7 @@ pub fn run_suite(suite: &str, cases: Vec<Case>) -> Tally {
         }
         let mut bad = false;
         let mut flag = |t: &mut Tally, what: &str, detail: String| {
-            t.problems.push(format!(
-                "{tag} {what}: {detail}\n  stderr: {}",
-                r.stderr.trim().replace('\n', "\n          ")
-            ));
+            t.problems.push(format!("{tag} {what}: {detail}\n  stderr: {}", r.stderr.trim().replace('\n', "\n          ")));
             bad = true;
         };
         if r.timed_out {
@@ -370,11 +341,7 @@ pub fn run_suite(suite: &str, cases: Vec<Case>) -> Tally {
             flag(&mut t, "PANIC", format!("exit {:?}, signal {:?}", r.code, r.signal));
         } else if r.code != Some(case.code) {
             t.wrong_exits += 1;
-            flag(
-                &mut t,
-                "WRONG EXIT",
-                format!("exit {:?}, expected {}", r.code, case.code),
-            );
+            flag(&mut t, "WRONG EXIT", format!("exit {:?}, expected {}", r.code, case.code));
         }
         let missing: Vec<&String> = case.expect.iter().filter(|s| !r.stderr.contains(s.as_str())).collect();
         if !missing.is_empty() {

@@ -31,10 +31,7 @@ const ARPHRD_CAN: u32 = 280;
 /// True when [`REQUIRED_ENV`] is `1` (or `true`/`yes`): missing CAN
 /// interfaces or tools must fail the test.
 pub fn required() -> bool {
-    matches!(
-        env::var(REQUIRED_ENV).as_deref().map(str::trim),
-        Ok("1") | Ok("true") | Ok("yes")
-    )
+    matches!(env::var(REQUIRED_ENV).as_deref().map(str::trim), Ok("1") | Ok("true") | Ok("yes"))
 }
 
 /// Why `iface` cannot be used, or `None` if it is an existing, up, CAN
@@ -46,12 +43,7 @@ pub fn iface_problem(iface: &str) -> Option<String> {
     }
     match fs::read_to_string(dir.join("type")) {
         Ok(t) if t.trim().parse::<u32>().ok() == Some(ARPHRD_CAN) => {}
-        Ok(t) => {
-            return Some(format!(
-                "{iface} is not a CAN interface (link type {})",
-                t.trim()
-            ))
-        }
+        Ok(t) => return Some(format!("{iface} is not a CAN interface (link type {})", t.trim())),
         Err(e) => return Some(format!("cannot read the link type of {iface}: {e}")),
     }
     // IFF_UP is bit 0 of the flags.
@@ -80,10 +72,7 @@ pub fn iface_or_skip<'a>(iface: &'a str, test: &str) -> Option<&'a str> {
 }
 
 /// Like [`iface_or_skip`] for several interfaces at once.
-pub fn ifaces_or_skip<'a, const N: usize>(
-    ifaces: [&'a str; N],
-    test: &str,
-) -> Option<[&'a str; N]> {
+pub fn ifaces_or_skip<'a, const N: usize>(ifaces: [&'a str; N], test: &str) -> Option<[&'a str; N]> {
     for iface in ifaces {
         iface_or_skip(iface, test)?;
     }
@@ -93,9 +82,7 @@ pub fn ifaces_or_skip<'a, const N: usize>(
 /// Looks up an executable (e.g. `candump`) in `PATH`.
 pub fn find_tool(name: &str) -> Option<PathBuf> {
     let path = env::var_os("PATH")?;
-    env::split_paths(&path)
-        .map(|dir| dir.join(name))
-        .find(|p| is_executable(p))
+    env::split_paths(&path).map(|dir| dir.join(name)).find(|p| is_executable(p))
 }
 
 /// Skip-or-fail gate for an external tool such as `candump`.
@@ -120,7 +107,5 @@ pub fn skip_or_fail<T>(test: &str, why: &str) -> Option<T> {
 
 fn is_executable(p: &Path) -> bool {
     use std::os::unix::fs::PermissionsExt;
-    fs::metadata(p)
-        .map(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
-        .unwrap_or(false)
+    fs::metadata(p).map(|m| m.is_file() && m.permissions().mode() & 0o111 != 0).unwrap_or(false)
 }

@@ -15,7 +15,8 @@ fn bus_faults_reach_the_loop_on_the_virtual_bus() {
     let nodes = [1u8, 2, 3, 4];
     let master = bus.endpoint_with(1024, &[]);
     let ctl = master.controller();
-    let rack = spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
+    let rack =
+        spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     busfault::bus_faults_reach_the_loop(master, "can3", |b| ctl.inject(b), Duration::from_secs(20));
     rack.stop();
 }
@@ -32,7 +33,8 @@ fn a_bus_off_master_reaches_nobody_until_restarted() {
     let nodes = [1u8, 2, 3, 4];
     let master = bus.endpoint_with(1024, &[]);
     let ctl = master.controller();
-    let rack = spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
+    let rack =
+        spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     let mut dev = RobotDevices::bring_up(&busfault::robot(), master, Peripherals { loadcells: None, tracker: None, pose: None }).unwrap();
     let (mut inp, mut out) = (Inputs::new(4), Outputs::new(4));
     let t0 = Instant::now();

@@ -28,13 +28,7 @@ impl Field {
         let bus = VirtualBus::new();
         let nodes: Vec<u8> = drives.iter().map(|d| d.node_id()).collect();
         let rack = DriveRack::new(bus.endpoint_with(4096, &rack_filters(&nodes)), drives);
-        Field {
-            bus,
-            t: Instant::now(),
-            rack,
-            master: None,
-            events: Vec::new(),
-        }
+        Field { bus, t: Instant::now(), rack, master: None, events: Vec::new() }
     }
 
     /// Opens the master's socket now; the master itself runs from the next [`step`].
@@ -87,25 +81,13 @@ impl Field {
     }
 
     /// Steps until `cond`, at most `max`; returns the time it took.
-    fn until(
-        &mut self,
-        max: Duration,
-        what: &str,
-        mut cond: impl FnMut(&mut Self) -> bool,
-    ) -> Duration {
+    fn until(&mut self, max: Duration, what: &str, mut cond: impl FnMut(&mut Self) -> bool) -> Duration {
         let start = self.t;
         while !cond(self) {
             if self.t - start >= max {
                 let c = self.counters();
-                let st: Vec<_> = self
-                    .master()
-                    .statuses()
-                    .map(|s| (s.node, s.phase))
-                    .collect();
-                panic!(
-                    "{what}: not within {max:?}; counters {c:?}; phases {st:?}; events: {:#?}",
-                    self.events
-                );
+                let st: Vec<_> = self.master().statuses().map(|s| (s.node, s.phase)).collect();
+                panic!("{what}: not within {max:?}; counters {c:?}; phases {st:?}; events: {:#?}", self.events);
             }
             self.step();
         }
@@ -118,13 +100,7 @@ impl Field {
 }
 
 fn config(nodes: &[u8]) -> MasterConfig {
-    MasterConfig::new(
-        nodes
-            .iter()
-            .enumerate()
-            .map(|(i, &n)| NodeConfig::new(n, i))
-            .collect(),
-    )
+    MasterConfig::new(nodes.iter().enumerate().map(|(i, &n)| NodeConfig::new(n, i)).collect())
 }
 
 /// Drives that come out of power-on (and every reset communication) heartbeating every
@@ -153,9 +129,7 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
         let mut f = Field::new(heartbeating(&NODES, 100));
         f.run(Duration::from_secs(2)); // powered long before taut starts
         f.start_master_after(config(&NODES), Duration::from_millis(startup_ms));
-        f.until(Duration::from_secs(3), "bring-up", |f| {
-            f.master().all_operational()
-        });
+        f.until(Duration::from_secs(3), "bring-up", |f| f.master().all_operational());
         f.run(Duration::from_millis(300));
         let c = f.counters();
         assert_eq!(
@@ -165,19 +139,10 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
             f.events
         );
         for n in NODES {
-            assert_eq!(
-                f.count(|e| *e == Event::Configured { node: n }),
-                1,
-                "startup {startup_ms} ms: node {n} configured once"
-            );
+            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "startup {startup_ms} ms: node {n} configured once");
         }
         for d in f.rack.drives() {
-            assert_eq!(
-                d.counters().sdo_aborts,
-                0,
-                "startup {startup_ms} ms: node {} answered a request with an abort",
-                d.node_id()
-            );
+            assert_eq!(d.counters().sdo_aborts, 0, "startup {startup_ms} ms: node {} answered a request with an abort", d.node_id());
         }
         assert!(f.master().statuses().all(|s| s.phase == Phase::Operational));
     }

@@ -90,8 +90,7 @@ impl Rig {
 fn arb_frame() -> impl Strategy<Value = Frame> {
     prop_oneof![
         (0u16..0x800, proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(|(id, d)| Frame::new(id, &d)),
-        (0u32..=0x1FFF_FFFF, proptest::collection::vec(any::<u8>(), 0..=8))
-            .prop_map(|(id, d)| Frame::try_new(id, true, &d).unwrap()),
+        (0u32..=0x1FFF_FFFF, proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(|(id, d)| Frame::try_new(id, true, &d).unwrap()),
         (0u32..0x800, 0u8..=8).prop_map(|(id, n)| Frame::remote(id, false, n).unwrap()),
     ]
 }

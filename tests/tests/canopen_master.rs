@@ -7,9 +7,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use taut_driver::canopen::cia402::{Mode, State};
-use taut_driver::canopen::master::{
-    CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem,
-};
+use taut_driver::canopen::master::{CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem};
 use taut_driver::canopen::pdo::PdoLayout;
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
@@ -133,10 +131,7 @@ fn csp_motion_moves_the_cable_by_the_commanded_metres() {
     let mut r = rig(config(&NODES));
     r.bring_up();
     // Motion commands need operation enabled: refused before.
-    assert_eq!(
-        r.master.operational().unwrap().set_position_m(0, 0.1),
-        Err(CommandError::NotEnabled { node: 1 })
-    );
+    assert_eq!(r.master.operational().unwrap().set_position_m(0, 0.1), Err(CommandError::NotEnabled { node: 1 }));
     r.enable_all();
     let start: Vec<f64> = r.master.statuses().map(|s| s.position_m).collect();
     {
@@ -264,13 +259,13 @@ fn malformed_frames_and_unknown_nodes_are_counted_and_reported_once() {
     r.bring_up();
     r.rack.drive(2).unwrap().queue_malformed();
     let junk = [
-        Frame::new(0x77F, &[0x05]),          // heartbeat of node 127: not configured
-        Frame::new(0x1FF, &[0; 8]),          // TPDO of an unknown node
-        Frame::new(0x0FE, &[0; 8]),          // EMCY of an unknown node
-        Frame::new(0x5A0, &[0x60, 0, 0, 0, 0, 0, 0, 0]), // SDO response of node 0x20
-        Frame::new(0x000, &[0x01, 0x00]),    // NMT from another master
+        Frame::new(0x77F, &[0x05]),                         // heartbeat of node 127: not configured
+        Frame::new(0x1FF, &[0; 8]),                         // TPDO of an unknown node
+        Frame::new(0x0FE, &[0; 8]),                         // EMCY of an unknown node
+        Frame::new(0x5A0, &[0x60, 0, 0, 0, 0, 0, 0, 0]),    // SDO response of node 0x20
+        Frame::new(0x000, &[0x01, 0x00]),                   // NMT from another master
         Frame::new(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]), // SDO request of another client
-        Frame::new(0x7E5, &[0; 8]),          // LSS
+        Frame::new(0x7E5, &[0; 8]),                         // LSS
         Frame::try_new(0x1234_5678, true, &[1, 2]).unwrap(),
         Frame::remote(0x181, false, 8).unwrap(),
         Frame::new(0x581, &[0x60, 0, 0, 0, 0, 0, 0, 0]), // SDO response nobody asked for
@@ -293,7 +288,6 @@ fn malformed_frames_and_unknown_nodes_are_counted_and_reported_once() {
     }
     assert!(r.rack.drives().iter().all(|d| d.counters().short_rpdos == 0), "the master never sends short RPDOs");
 }
-
 
 #[test]
 fn a_drive_with_the_wrong_identity_is_refused() {
@@ -469,9 +463,7 @@ fn quick_stop_then_enable_again() {
     let mut op = r.master.operational().unwrap();
     op.disable(0).unwrap();
     op.disable(1).unwrap();
-    r.until(Duration::from_millis(50), "disabled", |r| {
-        r.master.statuses().all(|s| s.axis.state == Some(State::ReadyToSwitchOn))
-    });
+    r.until(Duration::from_millis(50), "disabled", |r| r.master.statuses().all(|s| s.axis.state == Some(State::ReadyToSwitchOn)));
 }
 
 /// The typed drive set, in wall-clock time with the drives on their own thread: a drive that
@@ -488,10 +480,8 @@ fn drive_set_reports_a_drive_that_rebooted_while_enabled() {
     let mut cfg = config(&nodes);
     cfg.sync_period = Duration::from_millis(2);
     let set = DriveSet::new(bus.endpoint(), cfg);
-    let rack = spawn_rack(
-        bus.endpoint_with(1024, &rack_filters(&nodes)),
-        nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect(),
-    );
+    let rack =
+        spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     let set = set.bring_up().unwrap_or_else(|r| panic!("bring-up: {}", r.error));
     let mut set = set.enable(Duration::from_secs(10)).unwrap_or_else(|r| panic!("enable: {}", r.error));
     set.cycle().unwrap();

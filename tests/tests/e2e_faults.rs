@@ -34,7 +34,9 @@ fn inject(when: fn(State, i8) -> bool, fault: fn(&SimFaults)) -> (Cause, Reactio
     let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
     let sim = simrig::build(&cfg, p0, &so).unwrap();
     let faults = sim.faults.clone();
-    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() }).unwrap();
+    let d =
+        Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() })
+            .unwrap();
     assert!(d.wait_until(Duration::from_secs(120), |l, _| when(l.snap.state, l.snap.phase) || l.snap.fault.is_some()), "stage not reached");
     assert!(d.loop_status().snap.fault.is_none(), "fault before injection: {:?}", d.loop_status().snap.fault);
     let before = d.loop_status().snap.params_version;
@@ -48,7 +50,8 @@ fn inject(when: fn(State, i8) -> bool, fault: fn(&SimFaults)) -> (Cause, Reactio
     assert_eq!(l.snap.state, State::Faulted);
     let reasons = c.outcomes.iter().filter(|o| !o.accepted).map(|o| o.reason.clone()).collect();
     let after = l.snap.params_version;
-    let files = std::fs::read_dir(dir.path().join("data/params")).map_or(0, |r| r.filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with("params-v")).count());
+    let files = std::fs::read_dir(dir.path().join("data/params"))
+        .map_or(0, |r| r.filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with("params-v")).count());
     assert_eq!(files as u64, after, "parameter files written after the fault");
     d.shutdown();
     (cause, reaction, before, after, reasons)
@@ -75,8 +78,7 @@ fn heartbeat_lost_during_the_phases_quick_stops() {
 
 #[test]
 fn drive_emcy_during_the_excitation_quick_stops() {
-    let (cause, reaction, before, after, reasons) =
-        inject(|s, _| s == State::Excitation, |f| f.drive_emcy.store(true, Ordering::Relaxed));
+    let (cause, reaction, before, after, reasons) = inject(|s, _| s == State::Excitation, |f| f.drive_emcy.store(true, Ordering::Relaxed));
     assert_eq!(cause, Cause::DriveFault { node: 2, code: 0x2310 });
     assert_eq!(reaction, Reaction::QuickStop);
     assert_eq!(before, 1, "the initial estimate was running");

@@ -12,6 +12,7 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use std::time::{Duration, Instant};
+use taut_driver::transport::virtual_bus::CanController;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
@@ -21,7 +22,6 @@ use taut_rt_core::motion::{ControllerConfig, ResetOutcome, ResetRefusal, State};
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::safety::{Cause, Reaction};
 use taut_rt_core::simrig::{self, SimFaults, SimOptions};
-use taut_driver::transport::virtual_bus::CanController;
 
 /// Largest per-cycle change of a commanded cable length after a re-enable, m (issue 9).
 const MAX_STEP_M: f64 = 1e-4;
@@ -55,13 +55,19 @@ fn start() -> Rig {
     let ok = d.wait_until(Duration::from_secs(300), |l, c| {
         l.snap.fault.is_some()
             || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes.iter().any(|o| {
-                o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active
-            })
+            || c.outcomes
+                .iter()
+                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
     });
     let l = d.loop_status();
     let c = d.calib_status();
-    assert!(ok && l.snap.fault.is_none(), "start-up did not end calibrated: state {:?}, fault {:?}, stage {}", l.snap.state, l.snap.fault, c.stage);
+    assert!(
+        ok && l.snap.fault.is_none(),
+        "start-up did not end calibrated: state {:?}, fault {:?}, stage {}",
+        l.snap.state,
+        l.snap.fault,
+        c.stage
+    );
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
     assert!(cal.accepted, "{}", cal.reason);
     assert_eq!(l.snap.state, State::Operate);
@@ -94,7 +100,11 @@ fn ctl(r: &Rig, req: &str) -> serde_json::Value {
 fn wait(r: &Rig, timeout: Duration, what: &str, mut pred: impl FnMut(&LoopStatus) -> bool) -> LoopStatus {
     let ok = r.d.wait_until(timeout, |l, _| pred(l));
     let l = r.d.loop_status();
-    assert!(ok, "{what}: not within {timeout:?}; state {:?}, fault {:?}, last reset {:?}, bus {:?}", l.snap.state, l.snap.fault, l.snap.last_reset, l.snap.inputs.bus);
+    assert!(
+        ok,
+        "{what}: not within {timeout:?}; state {:?}, fault {:?}, last reset {:?}, bus {:?}",
+        l.snap.state, l.snap.fault, l.snap.last_reset, l.snap.inputs.bus
+    );
     l
 }
 

@@ -44,7 +44,9 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     let ok = d.wait_until(Duration::from_secs(240), |l, c| {
         l.snap.fault.is_some()
             || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
+            || c.outcomes
+                .iter()
+                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
     });
     let l = d.loop_status();
     let c = d.calib_status();
@@ -71,7 +73,12 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     for (j, ((a, t), s)) in ce.anchors.iter().zip(&truth.anchors).zip(&ce.anchor_sigma).enumerate() {
         for i in 0..3 {
             // Within 4 sigma of the calibrator's own uncertainty (plus encoder quantisation).
-            assert!((a[i] - t[i]).abs() < 4.0 * s[i] + 2e-4, "anchor {j}[{i}] off by {:.2} mm, sigma {:.2} mm", (a[i] - t[i]).abs() * 1e3, s[i] * 1e3);
+            assert!(
+                (a[i] - t[i]).abs() < 4.0 * s[i] + 2e-4,
+                "anchor {j}[{i}] off by {:.2} mm, sigma {:.2} mm",
+                (a[i] - t[i]).abs() * 1e3,
+                s[i] * 1e3
+            );
         }
     }
     // Accepted: lower held-out RMS, or (both at the tracker's noise floor) not significantly

@@ -18,11 +18,7 @@ fn sim(name: &str, extra: &[&str], expect: &[&str]) -> Case {
 }
 
 fn effect(value: &str, expect: &[&str]) -> Case {
-    sim(
-        &format!("--effect {}", &value[..value.len().min(40)]),
-        &["--effect", value],
-        expect,
-    )
+    sim(&format!("--effect {}", &value[..value.len().min(40)]), &["--effect", value], expect)
 }
 
 fn cases() -> Vec<Case> {
@@ -37,35 +33,15 @@ fn cases() -> Vec<Case> {
         sim("--rate=-100", &["--rate=-100"], &["--rate -100", "Hz"]),
         sim("--rate abc", &["--rate", "abc"], &["--rate", "abc"]),
         sim("--rate 0.001", &["--rate", "0.001"], &["--rate 0.001", "Hz"]),
-        sim(
-            "--duration 1e12",
-            &["--duration", "1e12"],
-            &["--duration 1e12", "86400 s"],
-        ),
+        sim("--duration 1e12", &["--duration", "1e12"], &["--duration 1e12", "86400 s"]),
         sim("--duration 0", &["--duration", "0"], &["--duration 0", "more than 0"]),
         sim("--duration nan", &["--duration", "nan"], &["--duration NaN"]),
         sim("--duration=-5", &["--duration=-5"], &["--duration -5"]),
         sim("--duration inf", &["--duration", "inf"], &["--duration inf"]),
-        sim(
-            "a day at 100 Hz is too many samples",
-            &["--duration", "86400"],
-            &["8.640e6 samples", "shorten it or lower the rate"],
-        ),
-        sim(
-            "an hour at 10 kHz",
-            &["--duration", "3600", "--rate", "10000"],
-            &["samples", "lower the rate"],
-        ),
-        sim(
-            "--loose-fraction 2",
-            &["--loose-fraction", "2"],
-            &["--loose-fraction 2", "[0, 0.9)"],
-        ),
-        sim(
-            "--loose-fraction nan",
-            &["--loose-fraction", "nan"],
-            &["--loose-fraction NaN"],
-        ),
+        sim("a day at 100 Hz is too many samples", &["--duration", "86400"], &["8.640e6 samples", "shorten it or lower the rate"]),
+        sim("an hour at 10 kHz", &["--duration", "3600", "--rate", "10000"], &["samples", "lower the rate"]),
+        sim("--loose-fraction 2", &["--loose-fraction", "2"], &["--loose-fraction 2", "[0, 0.9)"]),
+        sim("--loose-fraction nan", &["--loose-fraction", "nan"], &["--loose-fraction NaN"]),
         sim("--seed -1", &["--seed=-1"], &["--seed"]),
         sim("--seed 2^64", &["--seed", "18446744073709551616"], &["--seed"]),
         // Effects.
@@ -74,10 +50,7 @@ fn cases() -> Vec<Case> {
         effect("elasticity=nan", &["--effect elasticity=NaN"]),
         effect("elasticity=inf", &["--effect elasticity=inf"]),
         effect("elasticity=1e300", &["elasticity", "1000 to 1e8 N"]),
-        effect(
-            "elasticity=abc",
-            &["--effect `elasticity=abc`", "`abc` is not a number"],
-        ),
+        effect("elasticity=abc", &["--effect `elasticity=abc`", "`abc` is not a number"]),
         effect("elasticity=", &["--effect `elasticity=`", "not a number"]),
         effect("elasticity", &["--effect `elasticity`", "NAME=VALUE"]),
         effect("=5", &["is not a simulated effect"]),
@@ -91,31 +64,13 @@ fn cases() -> Vec<Case> {
         effect("time-offset=nan", &["--effect time-offset=NaN"]),
         effect("backlash=-1", &["--effect backlash=-1", "play in the drive train"]),
         effect("backlash=1", &["--effect backlash=1"]),
-        effect(
-            "gravity=2",
-            &[
-                "--effect `gravity` is not a simulated effect",
-                "elasticity, sag, pulley",
-            ],
-        ),
+        effect("gravity=2", &["--effect `gravity` is not a simulated effect", "elasticity, sag, pulley"]),
         effect(&long_name, &["is not a simulated effect", "…", "50000 bytes"]),
         effect(&long_value, &["--effect sag=inf", "0 to 20 N/m"]),
-        sim(
-            "an effect given twice",
-            &["--effect", "sag=0.5", "--effect", "sag=1.0"],
-            &["--effect sag is given twice"],
-        ),
+        sim("an effect given twice", &["--effect", "sag=0.5", "--effect", "sag=1.0"], &["--effect sag is given twice"]),
         // Other commands.
-        Case::err(
-            "demo --rate 1e9",
-            &["demo", "--rate", "1e9", "-o", "out.csv"],
-            &["--rate", "Hz"],
-        ),
-        Case::err(
-            "demo --effect elasticity=0",
-            &["demo", "--effect", "elasticity=0", "-o", "out.csv"],
-            &["elasticity"],
-        ),
+        Case::err("demo --rate 1e9", &["demo", "--rate", "1e9", "-o", "out.csv"], &["--rate", "Hz"]),
+        Case::err("demo --effect elasticity=0", &["demo", "--effect", "elasticity=0", "-o", "out.csv"], &["elasticity"]),
         Case::err(
             "diagnose --tension-at sideways",
             &["diagnose", "rec.csv", "--tension-at", "sideways"],
@@ -124,47 +79,15 @@ fn cases() -> Vec<Case> {
         .file("rec.csv", good_recording()),
         Case::err("calibrate without a recording", &["calibrate"], &["RECORDING"]),
         Case::err("unknown subcommand", &["calibrat", "rec.csv"], &["calibrat"]),
-        Case::err(
-            "unknown flag",
-            &["calibrate", "rec.csv", "--outt", "p.toml"],
-            &["--outt"],
-        )
-        .file("rec.csv", good_recording()),
-        Case::err(
-            "unknown: a replacement character as a number",
-            &["simulate", "--rate", "\u{FFFD}"],
-            &["--rate"],
-        ),
-        Case::err(
-            "probe --watch-s inf",
-            &["probe", "--sim", "--watch-s", "inf"],
-            &["--watch-s inf", "0 to 86400 s"],
-        ),
-        Case::err(
-            "probe --watch-s 1e300",
-            &["probe", "--sim", "--watch-s", "1e300"],
-            &["--watch-s", "0 to 86400 s"],
-        ),
-        Case::err(
-            "probe --watch-s nan",
-            &["probe", "--sim", "--watch-s", "nan"],
-            &["--watch-s NaN"],
-        ),
+        Case::err("unknown flag", &["calibrate", "rec.csv", "--outt", "p.toml"], &["--outt"]).file("rec.csv", good_recording()),
+        Case::err("unknown: a replacement character as a number", &["simulate", "--rate", "\u{FFFD}"], &["--rate"]),
+        Case::err("probe --watch-s inf", &["probe", "--sim", "--watch-s", "inf"], &["--watch-s inf", "0 to 86400 s"]),
+        Case::err("probe --watch-s 1e300", &["probe", "--sim", "--watch-s", "1e300"], &["--watch-s", "0 to 86400 s"]),
+        Case::err("probe --watch-s nan", &["probe", "--sim", "--watch-s", "nan"], &["--watch-s NaN"]),
         // The control: good arguments are accepted.
         Case::ok(
             "good arguments",
-            &[
-                "simulate",
-                "--no-three-phase",
-                "--duration",
-                "1",
-                "--rate",
-                "50",
-                "--effect",
-                "elasticity=20000",
-                "-o",
-                "out.csv",
-            ],
+            &["simulate", "--no-three-phase", "--duration", "1", "--rate", "50", "--effect", "elasticity=20000", "-o", "out.csv"],
             &["wrote out.csv: 50 samples"],
         )
         .writes("out.csv"),

@@ -8,21 +8,12 @@ use hostile::{good_recording, run_suite, Case, Entry, GOOD_CONFIG};
 
 /// `taut simulate --config cfg.toml` on `text`.
 fn sim(name: &str, text: &str, expect: &[&str]) -> Case {
-    Case::err(
-        name,
-        &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"],
-        expect,
-    )
-    .file("cfg.toml", text)
+    Case::err(name, &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], expect).file("cfg.toml", text)
 }
 
 /// The good configuration with line `line` (1-based) replaced.
 fn line(k: usize, new: &str) -> String {
-    GOOD_CONFIG
-        .lines()
-        .enumerate()
-        .map(|(i, l)| format!("{}\n", if i + 1 == k { new } else { l }))
-        .collect()
+    GOOD_CONFIG.lines().enumerate().map(|(i, l)| format!("{}\n", if i + 1 == k { new } else { l })).collect()
 }
 
 fn cases() -> Vec<Case> {
@@ -43,41 +34,13 @@ fn cases() -> Vec<Case> {
     let nine: Vec<&str> = nine.iter().map(String::as_str).collect();
     vec![
         // Points of exactly three numbers.
-        sim(
-            "anchor of 4 numbers",
-            &line(5, "anchor = [3.5, -1.75, 4.0, 9.0]"),
-            &["cfg.toml:5", "cable[0].anchor", "found 4"],
-        ),
-        sim(
-            "anchor of 1000 numbers",
-            &line(7, &format!("anchor = {many}")),
-            &["cfg.toml:7", "cable[1].anchor", "found 1000"],
-        ),
-        sim(
-            "anchor of 2 numbers",
-            &line(9, "anchor = [3.5, 1.75]"),
-            &["cfg.toml:9", "cable[2].anchor", "found 2"],
-        ),
-        sim(
-            "anchor empty",
-            &line(11, "anchor = []"),
-            &["cfg.toml:11", "cable[3].anchor", "found 0"],
-        ),
-        sim(
-            "anchor a string",
-            &line(5, "anchor = \"north-east\""),
-            &["cfg.toml:5", "cable[0].anchor"],
-        ),
-        sim(
-            "anchor nan",
-            &line(5, "anchor = [nan, 0.0, 4.0]"),
-            &["cfg.toml:4", "cable[0].anchor", "finite"],
-        ),
-        sim(
-            "anchor inf",
-            &line(7, "anchor = [3.5, inf, 4.0]"),
-            &["cfg.toml:6", "cable[1].anchor", "finite"],
-        ),
+        sim("anchor of 4 numbers", &line(5, "anchor = [3.5, -1.75, 4.0, 9.0]"), &["cfg.toml:5", "cable[0].anchor", "found 4"]),
+        sim("anchor of 1000 numbers", &line(7, &format!("anchor = {many}")), &["cfg.toml:7", "cable[1].anchor", "found 1000"]),
+        sim("anchor of 2 numbers", &line(9, "anchor = [3.5, 1.75]"), &["cfg.toml:9", "cable[2].anchor", "found 2"]),
+        sim("anchor empty", &line(11, "anchor = []"), &["cfg.toml:11", "cable[3].anchor", "found 0"]),
+        sim("anchor a string", &line(5, "anchor = \"north-east\""), &["cfg.toml:5", "cable[0].anchor"]),
+        sim("anchor nan", &line(5, "anchor = [nan, 0.0, 4.0]"), &["cfg.toml:4", "cable[0].anchor", "finite"]),
+        sim("anchor inf", &line(7, "anchor = [3.5, inf, 4.0]"), &["cfg.toml:6", "cable[1].anchor", "finite"]),
         sim(
             "platform point of 4",
             &format!("{GOOD_CONFIG}platform_point = [0, 0, 0, 1]\n"),
@@ -94,26 +57,10 @@ fn cases() -> Vec<Case> {
             &["cfg.toml:13", "motion.init_phases", "found 4"],
         ),
         // Geometry.
-        sim(
-            "coincident anchors",
-            &line(7, "anchor = [3.5, -1.75, 4.0]"),
-            &["cfg.toml:6", "cable[1].anchor", "apart"],
-        ),
-        sim(
-            "anchors 1 mm apart",
-            &line(7, "anchor = [3.501, -1.75, 4.0]"),
-            &["cfg.toml:6", "cable[1].anchor", "apart"],
-        ),
-        sim(
-            "tiny frame",
-            &cables(&["[0, 0, 1]", "[0.1, 0, 1]", "[0, 0.1, 1]", "[0.1, 0.1, 1]"]),
-            &["cfg.toml:4", "span only"],
-        ),
-        sim(
-            "collinear anchors",
-            &cables(&["[0, 0, 4]", "[1, 0, 4]", "[2, 0, 4]", "[3, 0, 4]"]),
-            &["cfg.toml:4", "one line"],
-        ),
+        sim("coincident anchors", &line(7, "anchor = [3.5, -1.75, 4.0]"), &["cfg.toml:6", "cable[1].anchor", "apart"]),
+        sim("anchors 1 mm apart", &line(7, "anchor = [3.501, -1.75, 4.0]"), &["cfg.toml:6", "cable[1].anchor", "apart"]),
+        sim("tiny frame", &cables(&["[0, 0, 1]", "[0.1, 0, 1]", "[0, 0.1, 1]", "[0.1, 0.1, 1]"]), &["cfg.toml:4", "span only"]),
+        sim("collinear anchors", &cables(&["[0, 0, 4]", "[1, 0, 4]", "[2, 0, 4]", "[3, 0, 4]"]), &["cfg.toml:4", "one line"]),
         sim(
             "anchors in mm",
             &cables(&["[3500, -1750, 4000]", "[3500, 1750, 4000]", "[-3500, 1750, 4000]"]),
@@ -125,39 +72,15 @@ fn cases() -> Vec<Case> {
             &["cfg.toml:10", "cable[3].platform_point", "cannot fit inside its frame"],
         ),
         sim("9 cables", &cables(&nine), &["cfg.toml:20", "at most 8 cables"]),
-        sim(
-            "2 cables",
-            &cables(&["[1, 0, 3]", "[-1, 0, 3]"]),
-            &["cfg.toml", "at least 3"],
-        ),
-        sim(
-            "no anchors to simulate",
-            "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n",
-            &["cfg.toml", "anchor"],
-        ),
+        sim("2 cables", &cables(&["[1, 0, 3]", "[-1, 0, 3]"]), &["cfg.toml", "at least 3"]),
+        sim("no anchors to simulate", "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n", &["cfg.toml", "anchor"]),
         // Mass.
-        sim(
-            "mass 1e-9 kg",
-            &line(3, "mass_kg = 1e-9"),
-            &["cfg.toml:3", "robot.mass_kg", "0.01 to 5000"],
-        ),
-        sim(
-            "mass 1e308 kg",
-            &line(3, "mass_kg = 1e308"),
-            &["cfg.toml:3", "robot.mass_kg", "got 1e308"],
-        ),
+        sim("mass 1e-9 kg", &line(3, "mass_kg = 1e-9"), &["cfg.toml:3", "robot.mass_kg", "0.01 to 5000"]),
+        sim("mass 1e308 kg", &line(3, "mass_kg = 1e308"), &["cfg.toml:3", "robot.mass_kg", "got 1e308"]),
         sim("mass 0", &line(3, "mass_kg = 0.0"), &["cfg.toml:3", "robot.mass_kg"]),
-        sim(
-            "mass negative",
-            &line(3, "mass_kg = -3.0"),
-            &["cfg.toml:3", "robot.mass_kg"],
-        ),
+        sim("mass negative", &line(3, "mass_kg = -3.0"), &["cfg.toml:3", "robot.mass_kg"]),
         sim("mass nan", &line(3, "mass_kg = nan"), &["cfg.toml:3", "robot.mass_kg"]),
-        sim(
-            "mass a string",
-            &line(3, "mass_kg = \"3 kg\""),
-            &["cfg.toml:3", "robot.mass_kg"],
-        ),
+        sim("mass a string", &line(3, "mass_kg = \"3 kg\""), &["cfg.toml:3", "robot.mass_kg"]),
         // Other tables.
         sim("unknown key", &line(3, "mas_kg = 3.0"), &["cfg.toml", "mas_kg"]),
         sim(
@@ -170,41 +93,37 @@ fn cases() -> Vec<Case> {
             &format!("{GOOD_CONFIG}[calibration]\ntracker_sigma_m = -1.0\n"),
             &["cfg.toml:12", "calibration.tracker_sigma_m"],
         ),
-        sim(
-            "loop rate 1e9",
-            &format!("{GOOD_CONFIG}[rt]\nrate_hz = 1e9\n"),
-            &["cfg.toml:12", "rt.rate_hz"],
-        ),
+        sim("loop rate 1e9", &format!("{GOOD_CONFIG}[rt]\nrate_hz = 1e9\n"), &["cfg.toml:12", "rt.rate_hz"]),
         sim("not TOML", "this is = = not toml\n", &["cfg.toml:1"]),
         sim("binary config", "\u{0}\u{1}\u{2}garbage", &["cfg.toml"]),
         sim("empty config", "", &["cfg.toml", "robot"]),
+        Case::err("config is a directory", &["simulate", "--config", "cfg", "-o", "out.csv"], &["cfg", "cannot read"])
+            .entry("cfg", Entry::Dir),
         Case::err(
-            "config is a directory",
-            &["simulate", "--config", "cfg", "-o", "out.csv"],
-            &["cfg", "cannot read"],
-        )
-        .entry("cfg", Entry::Dir),
-        Case::err("config /dev/zero", &["simulate", "--config", "/dev/zero", "-o", "out.csv"], &["/dev/zero: cannot read the file", "NUL byte"]),
-        Case::err("config /dev/urandom", &["simulate", "--config", "/dev/urandom", "-o", "out.csv"], &["/dev/urandom: cannot read the file"]),
+            "config /dev/zero",
+            &["simulate", "--config", "/dev/zero", "-o", "out.csv"],
+            &["/dev/zero: cannot read the file", "NUL byte"],
+        ),
+        Case::err(
+            "config /dev/urandom",
+            &["simulate", "--config", "/dev/urandom", "-o", "out.csv"],
+            &["/dev/urandom: cannot read the file"],
+        ),
         Case::err("config a fifo nobody writes to", &["simulate", "--config", "cfg.fifo", "-o", "out.csv"], &["cfg.fifo", "is a fifo"])
             .entry("cfg.fifo", Entry::Fifo),
-        Case::err("config of 2 MB", &["simulate", "--config", "cfg.toml", "-o", "out.csv"], &["cfg.toml: cannot read the file", "larger than 1024 KiB"])
-            .file("cfg.toml", format!("{GOOD_CONFIG}# {}\n", "x".repeat(2 << 20))),
+        Case::err(
+            "config of 2 MB",
+            &["simulate", "--config", "cfg.toml", "-o", "out.csv"],
+            &["cfg.toml: cannot read the file", "larger than 1024 KiB"],
+        )
+        .file("cfg.toml", format!("{GOOD_CONFIG}# {}\n", "x".repeat(2 << 20))),
         Case::err("a recording given as the config", &["calibrate", "rec.csv", "--config", "rec.csv"], &["rec.csv:"])
             .file("rec.csv", good_recording()),
-        Case::err(
-            "config missing",
-            &["simulate", "--config", "nope.toml", "-o", "out.csv"],
-            &["nope.toml", "cannot read"],
-        ),
+        Case::err("config missing", &["simulate", "--config", "nope.toml", "-o", "out.csv"], &["nope.toml", "cannot read"]),
         // calibrate and diagnose read the same configurations.
-        Case::err(
-            "calibrate: anchor of 4",
-            &["calibrate", "rec.csv", "--config", "cfg.toml"],
-            &["cfg.toml:5", "cable[0].anchor"],
-        )
-        .file("rec.csv", good_recording())
-        .file("cfg.toml", line(5, "anchor = [3.5, -1.75, 4.0, 9.0]")),
+        Case::err("calibrate: anchor of 4", &["calibrate", "rec.csv", "--config", "cfg.toml"], &["cfg.toml:5", "cable[0].anchor"])
+            .file("rec.csv", good_recording())
+            .file("cfg.toml", line(5, "anchor = [3.5, -1.75, 4.0, 9.0]")),
         Case::err(
             "calibrate: 3 cables for a 4-cable recording",
             &["calibrate", "rec.csv", "--config", "cfg.toml"],
@@ -212,19 +131,11 @@ fn cases() -> Vec<Case> {
         )
         .file("rec.csv", good_recording())
         .file("cfg.toml", cables(&["[2, 0, 3]", "[-1, 1.7, 3]", "[-1, -1.7, 3]"])),
-        Case::err(
-            "diagnose: mass nan",
-            &["diagnose", "rec.csv", "--config", "cfg.toml"],
-            &["cfg.toml:3", "robot.mass_kg"],
-        )
-        .file("rec.csv", good_recording())
-        .file("cfg.toml", line(3, "mass_kg = nan")),
+        Case::err("diagnose: mass nan", &["diagnose", "rec.csv", "--config", "cfg.toml"], &["cfg.toml:3", "robot.mass_kg"])
+            .file("rec.csv", good_recording())
+            .file("cfg.toml", line(3, "mass_kg = nan")),
         // At the bounds: the simulator either simulates or says why it cannot, never panics.
-        sim(
-            "mass 0.01 kg: three-phase infeasible",
-            &line(3, "mass_kg = 0.01"),
-            &["cannot simulate this robot", "three-phase plan"],
-        ),
+        sim("mass 0.01 kg: three-phase infeasible", &line(3, "mass_kg = 0.01"), &["cannot simulate this robot", "three-phase plan"]),
         sim(
             "0.35 m frame: no equilibrium",
             &cables(&["[0.2, 0, 1]", "[-0.1, 0.17, 1]", "[-0.1, -0.17, 1]"]),
@@ -244,36 +155,16 @@ fn cases() -> Vec<Case> {
             ]),
             &["cannot simulate this robot"],
         ),
-        Case::ok(
-            "mass 5000 kg",
-            &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"],
-            &["wrote out.csv"],
-        )
-        .file("cfg.toml", line(3, "mass_kg = 5000.0"))
-        .writes("out.csv"),
-        Case::ok(
-            "a 1 km frame",
-            &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"],
-            &["wrote out.csv"],
-        )
-        .file(
-            "cfg.toml",
-            cables(&["[500, 0, 900]", "[-250, 433, 900]", "[-250, -433, 900]"]),
-        )
-        .writes("out.csv"),
+        Case::ok("mass 5000 kg", &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], &["wrote out.csv"])
+            .file("cfg.toml", line(3, "mass_kg = 5000.0"))
+            .writes("out.csv"),
+        Case::ok("a 1 km frame", &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], &["wrote out.csv"])
+            .file("cfg.toml", cables(&["[500, 0, 900]", "[-250, 433, 900]", "[-250, -433, 900]"]))
+            .writes("out.csv"),
         // The good configuration is accepted (the suite's control).
         Case::ok(
             "good configuration",
-            &[
-                "simulate",
-                "--config",
-                "cfg.toml",
-                "--duration",
-                "1",
-                "--no-three-phase",
-                "-o",
-                "out.csv",
-            ],
+            &["simulate", "--config", "cfg.toml", "--duration", "1", "--no-three-phase", "-o", "out.csv"],
             &["wrote out.csv"],
         )
         .file("cfg.toml", GOOD_CONFIG)

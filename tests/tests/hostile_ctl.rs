@@ -53,20 +53,12 @@ impl Rig {
         let truth = truth_params(4, 0.0);
         // Valid parameters from the start: after estop + reset the robot holds and takes moves.
         let (mut params_tx, params_rx) = triple_buffer(LoopParams::invalid(4));
-        params_tx.write(LoopParams {
-            version: 1,
-            ..truth
-        });
+        params_tx.write(LoopParams { version: 1, ..truth });
         let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(cfg.rt.command_capacity);
         let (sample_tx, _sample_rx) = sample_ring(1024);
         let urgent = Arc::new(Urgent::default());
         let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
-        let core = LoopCore::new(
-            4,
-            KinematicRobot::new(truth, [0.2, 0.1, 2.0]),
-            controller,
-            sample_tx,
-        );
+        let core = LoopCore::new(4, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), controller, sample_tx);
         let init = LoopStatus {
             snap: core.controller.snapshot(0.0, &core.inputs),
             cycles: 0,
@@ -81,14 +73,8 @@ impl Rig {
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
         let calib: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
         let sock = dir.path().join("taut.sock");
-        let links = ControlLinks {
-            commands: cmd_tx,
-            urgent,
-            loop_status: loop_status.clone(),
-            calib,
-            workspace: ccfg.workspace,
-            tracker: None,
-        };
+        let links =
+            ControlLinks { commands: cmd_tx, urgent, loop_status: loop_status.clone(), calib, workspace: ccfg.workspace, tracker: None };
         let server = ControlServer::bind(&sock, links, limits).unwrap();
         let quit = Arc::new(AtomicBool::new(false));
         let q = quit.clone();
@@ -155,8 +141,7 @@ impl Rig {
 
     /// The daemon answers status and estop still works.
     fn alive(&self, case: &str) {
-        let r = control::request(&self.sock, "status", T)
-            .unwrap_or_else(|e| panic!("after {case}: status: {e}"));
+        let r = control::request(&self.sock, "status", T).unwrap_or_else(|e| panic!("after {case}: status: {e}"));
         assert_eq!(r["ok"], true, "after {case}: {r}");
         self.estop_works();
     }
@@ -186,15 +171,8 @@ fn read_to_close(s: &mut UnixStream) -> (String, bool) {
         match s.read(&mut buf) {
             Ok(0) => return (String::from_utf8_lossy(&all).into_owned(), true),
             Ok(n) => all.extend_from_slice(&buf[..n]),
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => {
-                return (String::from_utf8_lossy(&all).into_owned(), true)
-            }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return (String::from_utf8_lossy(&all).into_owned(), true),
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
                 return (String::from_utf8_lossy(&all).into_owned(), false)
             }
             Err(e) => panic!("read: {e}"),
@@ -203,25 +181,18 @@ fn read_to_close(s: &mut UnixStream) -> (String, bool) {
 }
 
 fn replies(text: &str) -> Vec<Value> {
-    text.lines()
-        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l:?}")))
-        .collect()
+    text.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l:?}"))).collect()
 }
 
 fn error_of(v: &Value) -> &str {
     assert_eq!(v["ok"], false, "expected a refusal: {v}");
-    v["error"]
-        .as_str()
-        .unwrap_or_else(|| panic!("no error text: {v}"))
+    v["error"].as_str().unwrap_or_else(|| panic!("no error text: {v}"))
 }
 
 fn one_error(rig: &Rig, line: &str, contains: &str) {
     let r = rig.req(line);
     let e = error_of(&r);
-    assert!(
-        e.contains(contains),
-        "{line:?}: {e:?} should contain {contains:?}"
-    );
+    assert!(e.contains(contains), "{line:?}: {e:?} should contain {contains:?}");
 }
 
 macro_rules! case {
@@ -242,11 +213,7 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
 
     let c = case!(n, "status answers");
     let r = rig.req("status");
-    assert_eq!(
-        (r["ok"].clone(), r["state"].clone()),
-        (Value::Bool(true), Value::from("holding")),
-        "{c}: {r}"
-    );
+    assert_eq!((r["ok"].clone(), r["state"].clone()), (Value::Bool(true), Value::from("holding")), "{c}: {r}");
     assert_eq!(r["control"]["max_line"], 4096);
     rig.alive(c);
 
@@ -260,65 +227,21 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
         ("non-ASCII verb", "stätus", "unknown request"),
         ("empty line", "", "empty request"),
         ("blank line", " \t  ", "empty request"),
-        (
-            "too many words",
-            "status now please",
-            "status takes no arguments",
-        ),
-        (
-            "estop with arguments",
-            "estop now",
-            "estop takes no arguments",
-        ),
+        ("too many words", "status now please", "status takes no arguments"),
+        ("estop with arguments", "estop now", "estop takes no arguments"),
         ("move with two numbers", "move 1 2", "exactly three numbers"),
-        (
-            "move with four numbers",
-            "move 0 0 2 4",
-            "exactly three numbers",
-        ),
-        (
-            "move with many words",
-            &"move 1 ".repeat(300),
-            "exactly three numbers",
-        ),
-        (
-            "move nan nan nan",
-            "move nan nan nan",
-            "X = \"nan\" is not a finite number",
-        ),
-        (
-            "move inf 0 0",
-            "move inf 0 0",
-            "X = \"inf\" is not a finite number",
-        ),
-        (
-            "move 0 -inf 0",
-            "move 0 -inf 0",
-            "Y = \"-inf\" is not a finite number",
-        ),
-        (
-            "move overflowing to inf",
-            "move 0 0 1e400",
-            "Z = \"1e400\" is not a finite number",
-        ),
+        ("move with four numbers", "move 0 0 2 4", "exactly three numbers"),
+        ("move with many words", &"move 1 ".repeat(300), "exactly three numbers"),
+        ("move nan nan nan", "move nan nan nan", "X = \"nan\" is not a finite number"),
+        ("move inf 0 0", "move inf 0 0", "X = \"inf\" is not a finite number"),
+        ("move 0 -inf 0", "move 0 -inf 0", "Y = \"-inf\" is not a finite number"),
+        ("move overflowing to inf", "move 0 0 1e400", "Z = \"1e400\" is not a finite number"),
         ("move 1e308", "move 1e308 0 2", "outside the workspace box"),
         ("move hex", "move 0x10 0 2", "X = \"0x10\" is not a number"),
         ("move words", "move a b c", "X = \"a\" is not a number"),
-        (
-            "move far outside",
-            "move 100 0 2",
-            "outside the workspace box",
-        ),
-        (
-            "move below the box",
-            "move 0 0 -5",
-            "outside the workspace box",
-        ),
-        (
-            "recalibrate while holding without a calibrator run",
-            "recalibrate now",
-            "takes no arguments",
-        ),
+        ("move far outside", "move 100 0 2", "outside the workspace box"),
+        ("move below the box", "move 0 0 -5", "outside the workspace box"),
+        ("recalibrate while holding without a calibrator run", "recalibrate now", "takes no arguments"),
     ] {
         let c = case!(n, name);
         one_error(&rig, line, want);
@@ -328,11 +251,7 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
     let c = case!(n, "move just outside the box on one axis");
     let mut p = rig.centre();
     p[2] = rig.workspace[1][2] + 1e-6;
-    one_error(
-        &rig,
-        &format!("move {} {} {}", p[0], p[1], p[2]),
-        "outside the workspace box",
-    );
+    one_error(&rig, &format!("move {} {} {}", p[0], p[1], p[2]), "outside the workspace box");
     rig.alive(c);
 
     let c = case!(n, "move inside the box is accepted and the loop operates");
@@ -346,29 +265,17 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
     let c = case!(n, "move while faulted says why");
     assert_eq!(rig.req("estop")["ok"], true);
     rig.wait_state(|s| s == State::Faulted, c);
-    one_error(
-        &rig,
-        &format!("move {} {} {}", p[0], p[1], p[2]),
-        "safety reaction is latched",
-    );
+    one_error(&rig, &format!("move {} {} {}", p[0], p[1], p[2]), "safety reaction is latched");
     one_error(&rig, "recalibrate", "recalibrate refused");
     assert_eq!(rig.req("reset")["ok"], true);
     rig.wait_state(|s| s == State::Holding, c);
     rig.alive(c);
 
     for (name, bytes, want) in [
-        (
-            "NUL byte",
-            &b"status\0\n"[..],
-            "control character '\\0' at offset 6",
-        ),
+        ("NUL byte", &b"status\0\n"[..], "control character '\\0' at offset 6"),
         ("escape sequence", b"\x1b[31mstatus\n", "control character"),
         ("invalid UTF-8", b"\xff\xfestatus\n", "not UTF-8 text"),
-        (
-            "lone continuation byte",
-            b"move \x80 0 0\n",
-            "not UTF-8 text",
-        ),
+        ("lone continuation byte", b"move \x80 0 0\n", "not UTF-8 text"),
     ] {
         let c = case!(n, name);
         let (text, closed) = rig.exchange(bytes, true);
@@ -388,10 +295,7 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
     let c = case!(n, "half-closed after a line without its line end");
     let (text, closed) = rig.exchange(b"status", true);
     let v = replies(&text);
-    assert!(
-        closed && v.len() == 1 && v[0]["ok"] == true,
-        "{c}: {text:?}"
-    );
+    assert!(closed && v.len() == 1 && v[0]["ok"] == true, "{c}: {text:?}");
     rig.alive(c);
 
     let c = case!(n, "half-closed with nothing sent");
@@ -418,15 +322,10 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
     let mut s = rig.connect();
     let mut rd = std::io::BufReader::new(s.try_clone().unwrap());
     for k in 0..100 {
-        s.write_all(if k % 2 == 0 { b"status\n" } else { b"params\n" })
-            .unwrap();
+        s.write_all(if k % 2 == 0 { b"status\n" } else { b"params\n" }).unwrap();
         let mut line = String::new();
         std::io::BufRead::read_line(&mut rd, &mut line).unwrap();
-        assert_eq!(
-            serde_json::from_str::<Value>(&line).unwrap()["ok"],
-            true,
-            "{c}: reply {k}"
-        );
+        assert_eq!(serde_json::from_str::<Value>(&line).unwrap()["ok"], true, "{c}: reply {k}");
     }
     drop((s, rd));
     rig.alive(c);
@@ -439,29 +338,21 @@ fn hostile_requests_get_clear_replies_and_estop_keeps_working() {
     assert_eq!(replies(&text)[0]["ok"], true, "{c}: {text:?}");
     rig.alive(c);
 
-    let c = case!(
-        n,
-        "a line of 4097 bytes is refused and the connection closed"
-    );
+    let c = case!(n, "a line of 4097 bytes is refused and the connection closed");
     let mut s = rig.connect();
     let mut line = b"status".to_vec();
     line.resize(4097, b' ');
     s.write_all(&line).unwrap();
     let (text, closed) = read_to_close(&mut s);
     assert!(closed, "{c}");
-    assert!(
-        error_of(&replies(&text)[0]).contains("longer than 4096 bytes"),
-        "{c}: {text}"
-    );
+    assert!(error_of(&replies(&text)[0]).contains("longer than 4096 bytes"), "{c}: {text}");
     rig.alive(c);
 
     let c = case!(n, "status reports what the server refused");
     let r = rig.req("status");
     let ctl = &r["control"];
     assert!(
-        ctl["malformed"].as_u64().unwrap() >= 20
-            && ctl["too_long"].as_u64().unwrap() >= 1
-            && ctl["urgent"].as_u64().unwrap() >= 30,
+        ctl["malformed"].as_u64().unwrap() >= 20 && ctl["too_long"].as_u64().unwrap() >= 1 && ctl["urgent"].as_u64().unwrap() >= 30,
         "{c}: {ctl}"
     );
     rig.alive(c);
@@ -487,18 +378,9 @@ fn huge_line_is_cut_off_and_memory_stays_bounded() {
         }
         assert!(sent < 64 << 20, "the server took all of a 64 MiB line");
     };
-    assert!(
-        matches!(
-            err.kind(),
-            std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset
-        ),
-        "{err}"
-    );
+    assert!(matches!(err.kind(), std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset), "{err}");
     // What the kernel buffers on the way plus the 4 KiB the server read.
-    assert!(
-        sent < 8 << 20,
-        "{sent} bytes went in before the server closed"
-    );
+    assert!(sent < 8 << 20, "{sent} bytes went in before the server closed");
     let grown = rss_kib().saturating_sub(rss0);
     assert!(grown < 16 * 1024, "resident memory grew by {grown} KiB");
     let r = rig.req("status");
@@ -517,11 +399,7 @@ fn rss_kib() -> u64 {
 /// and estop answer within a fraction of the deadline throughout.
 #[test]
 fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
-    let limits = ServerLimits {
-        deadline: Duration::from_millis(1500),
-        max_connections: 64,
-        ..Default::default()
-    };
+    let limits = ServerLimits { deadline: Duration::from_millis(1500), max_connections: 64, ..Default::default() };
     let rig = Rig::new(limits);
 
     // An idle client: error at the deadline, then closed.
@@ -529,14 +407,8 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
     let t0 = Instant::now();
     let (text, closed) = read_to_close(&mut idle);
     let waited = t0.elapsed();
-    assert!(
-        closed && error_of(&replies(&text)[0]).contains("no complete request line within 1.5 s"),
-        "{text:?}"
-    );
-    assert!(
-        waited >= Duration::from_millis(1400) && waited < Duration::from_secs(6),
-        "closed after {waited:?}"
-    );
+    assert!(closed && error_of(&replies(&text)[0]).contains("no complete request line within 1.5 s"), "{text:?}");
+    assert!(waited >= Duration::from_millis(1400) && waited < Duration::from_secs(6), "closed after {waited:?}");
 
     // A slow client: a byte per 100 ms of "status\n" takes 700 ms, within the deadline: served.
     let mut slow = rig.connect();
@@ -547,11 +419,7 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
     let mut rd = std::io::BufReader::new(slow.try_clone().unwrap());
     let mut line = String::new();
     std::io::BufRead::read_line(&mut rd, &mut line).unwrap();
-    assert_eq!(
-        serde_json::from_str::<Value>(&line).unwrap()["ok"],
-        true,
-        "{line}"
-    );
+    assert_eq!(serde_json::from_str::<Value>(&line).unwrap()["ok"], true, "{line}");
 
     // Slow clients that never finish, and 100 idle ones (over the cap of 64), while the
     // operator asks for status and estop.
@@ -577,9 +445,7 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
             })
         })
         .collect();
-    let idle: Vec<UnixStream> = (0..100)
-        .map(|_| UnixStream::connect(&rig.sock).unwrap())
-        .collect();
+    let idle: Vec<UnixStream> = (0..100).map(|_| UnixStream::connect(&rig.sock).unwrap()).collect();
     for k in 0..20 {
         let t0 = Instant::now();
         let r = rig.req("status");
@@ -587,31 +453,16 @@ fn idle_slow_and_flooding_clients_do_not_starve_status_or_estop() {
         let dt = t0.elapsed();
         // The old server let each slow client hold it for a whole deadline (8 of them: 12 s);
         // the bound leaves room for a loaded 2-core test machine (measured: milliseconds).
-        assert!(
-            dt < Duration::from_millis(1500),
-            "status {k} took {dt:?} with slow and idle clients connected"
-        );
+        assert!(dt < Duration::from_millis(1500), "status {k} took {dt:?} with slow and idle clients connected");
         std::thread::sleep(Duration::from_millis(50));
     }
     let t0 = Instant::now();
     assert_eq!(rig.req("estop")["accepted"], "estop");
     rig.wait_state(|s| s == State::Faulted, "estop under load");
-    assert!(
-        t0.elapsed() < Duration::from_secs(2),
-        "estop took {:?}",
-        t0.elapsed()
-    );
+    assert!(t0.elapsed() < Duration::from_secs(2), "estop took {:?}", t0.elapsed());
     let r = rig.req("status");
-    assert!(
-        r["control"]["evicted"].as_u64().unwrap() >= 36,
-        "{}",
-        r["control"]
-    );
-    assert!(
-        r["control"]["open"].as_u64().unwrap() <= 64,
-        "{}",
-        r["control"]
-    );
+    assert!(r["control"]["evicted"].as_u64().unwrap() >= 36, "{}", r["control"]);
+    assert!(r["control"]["open"].as_u64().unwrap() <= 64, "{}", r["control"]);
     stop.store(true, Ordering::Relaxed);
     for t in slow_threads {
         t.join().unwrap();
@@ -656,19 +507,14 @@ fn garbage_floods_and_clients_that_never_read_do_not_block_estop() {
         .collect();
     // Requests without reading a reply: the server stops taking them once a reply is pending.
     let mut deaf = rig.connect();
-    deaf.set_write_timeout(Some(Duration::from_millis(500)))
-        .unwrap();
+    deaf.set_write_timeout(Some(Duration::from_millis(500))).unwrap();
     let line = b"status\n".repeat(20_000);
     let _ = deaf.write_all(&line);
     for _ in 0..10 {
         let t0 = Instant::now();
         assert_eq!(rig.req("estop")["accepted"], "estop");
         rig.wait_state(|s| s == State::Faulted, "estop during the flood");
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "estop took {:?}",
-            t0.elapsed()
-        );
+        assert!(t0.elapsed() < Duration::from_secs(2), "estop took {:?}", t0.elapsed());
         assert_eq!(rig.req("reset")["ok"], true);
         rig.wait_state(|s| s == State::Holding, "reset during the flood");
     }
@@ -677,12 +523,7 @@ fn garbage_floods_and_clients_that_never_read_do_not_block_estop() {
         t.join().unwrap();
     }
     let r = rig.req("status");
-    assert!(
-        r["control"]["malformed"].as_u64().unwrap() + r["control"]["too_long"].as_u64().unwrap()
-            > 0,
-        "{}",
-        r["control"]
-    );
+    assert!(r["control"]["malformed"].as_u64().unwrap() + r["control"]["too_long"].as_u64().unwrap() > 0, "{}", r["control"]);
     drop(deaf);
     rig.alive("garbage floods");
 }
@@ -699,12 +540,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     let urgent = Arc::new(Urgent::default());
     let (sample_tx, _rx) = sample_ring(64);
     let controller = Controller::new(ccfg, cmd_rx, prx).with_urgent(urgent.clone());
-    let mut core = LoopCore::new(
-        4,
-        KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]),
-        controller,
-        sample_tx,
-    );
+    let mut core = LoopCore::new(4, KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]), controller, sample_tx);
     let init = LoopStatus {
         snap: core.controller.snapshot(0.0, &core.inputs),
         cycles: 0,
@@ -731,11 +567,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     assert_eq!(links.handle_line("estop")["accepted"], "estop");
     assert!(urgent.estop_pending());
     core.cycle(0.002, 0.002);
-    assert_eq!(
-        core.controller.state(),
-        State::Faulted,
-        "the resets queued before the estop do not clear it"
-    );
+    assert_eq!(core.controller.state(), State::Faulted, "the resets queued before the estop do not clear it");
     assert!(!urgent.estop_pending(), "the loop took the estop");
     // A reset sent after the estop was seen latched clears it.
     assert_eq!(links.handle_line("reset")["ok"], true);
@@ -757,10 +589,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     let q = quit.clone();
     let th = std::thread::spawn(move || server.run(q));
     let second = ControlServer::bind(&sock, links, ServerLimits::default());
-    assert_eq!(
-        second.err().map(|e| e.kind()),
-        Some(std::io::ErrorKind::AddrInUse)
-    );
+    assert_eq!(second.err().map(|e| e.kind()), Some(std::io::ErrorKind::AddrInUse));
     assert_eq!(control::request(&sock, "params", T).unwrap()["ok"], true);
     quit.store(true, Ordering::Relaxed);
     th.join().unwrap();
@@ -778,19 +607,10 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = quick_config(4, dir.path());
     let robot = || Box::new(KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]));
-    let first = Daemon::start(
-        &cfg,
-        robot(),
-        Box::new(TautCalib::from_config(&cfg)),
-        DaemonOptions::default(),
-    )
-    .unwrap();
+    let first = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     let recordings = dir.path().join("data/recordings");
     let listing = || {
-        let mut v: Vec<_> = std::fs::read_dir(&recordings)
-            .unwrap()
-            .map(|e| e.unwrap().file_name())
-            .collect();
+        let mut v: Vec<_> = std::fs::read_dir(&recordings).unwrap().map(|e| e.unwrap().file_name()).collect();
         v.sort();
         v
     };
@@ -798,38 +618,19 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     assert_eq!(before.len(), 1, "{before:?}");
     // Same configuration (in the same second the default name is the first one's: the old order
     // truncated it), and one with its own recording path.
-    let e = Daemon::start(
-        &cfg,
-        robot(),
-        Box::new(TautCalib::from_config(&cfg)),
-        DaemonOptions::default(),
-    )
-    .err()
-    .expect("refused");
+    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).err().expect("refused");
     assert!(e.contains("in use") && e.contains("daemon.socket"), "{e}");
     let own = recordings.join("second.csv");
-    let opts = DaemonOptions {
-        recording: Some(own.clone()),
-        ..Default::default()
-    };
-    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts)
-        .err()
-        .expect("refused");
+    let opts = DaemonOptions { recording: Some(own.clone()), ..Default::default() };
+    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts).err().expect("refused");
     assert!(e.contains("in use"), "{e}");
-    assert!(
-        !own.exists(),
-        "the refused daemon created {}",
-        own.display()
-    );
+    assert!(!own.exists(), "the refused daemon created {}", own.display());
     assert_eq!(listing(), before, "no new or replaced recording");
     let r = control::request(&dir.path().join("taut.sock"), "status", T).unwrap();
     assert_eq!(r["ok"], true);
     let rec = first.recording.clone();
     first.shutdown();
-    assert!(
-        std::fs::metadata(&rec).unwrap().len() > 0,
-        "the first daemon's recording is intact"
-    );
+    assert!(std::fs::metadata(&rec).unwrap().len() > 0, "the first daemon's recording is intact");
 }
 
 proptest::proptest! {
@@ -861,53 +662,28 @@ fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
     use taut_rt_core::daemon::{Daemon, DaemonOptions};
     use taut_rt_core::simrig::{self, SimOptions};
     let dir = tempfile::tempdir().unwrap();
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../config/examples/aras-cam-sim.toml"
-    );
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
     let mut cfg = taut_config::RobotConfig::load(path).unwrap();
     cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.path().join("data").display().to_string();
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let centre: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
-    let so = SimOptions {
-        seed: 2,
-        ..Default::default()
-    };
+    let so = SimOptions { seed: 2, ..Default::default() };
     let p0 = simrig::rest_position(&cfg, &so, centre);
     let sim = simrig::build(&cfg, p0, &so).unwrap();
-    let opts = DaemonOptions {
-        tracker: Some(sim.tracker_stats.clone()),
-        ..Default::default()
-    };
-    let d = Daemon::start(
-        &cfg,
-        sim.devices,
-        Box::new(TautCalib::from_config(&cfg)),
-        opts,
-    )
-    .unwrap();
+    let opts = DaemonOptions { tracker: Some(sim.tracker_stats.clone()), ..Default::default() };
+    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), opts).unwrap();
     let sock = dir.path().join("taut.sock");
-    assert!(
-        d.wait_until(Duration::from_secs(60), |l, _| l.snap.state
-            == State::InitPhase),
-        "{:?}",
-        d.loop_status().snap.state
-    );
+    assert!(d.wait_until(Duration::from_secs(60), |l, _| l.snap.state == State::InitPhase), "{:?}", d.loop_status().snap.state);
 
-    let idle: Vec<UnixStream> = (0..50)
-        .map(|_| UnixStream::connect(&sock).unwrap())
-        .collect();
+    let idle: Vec<UnixStream> = (0..50).map(|_| UnixStream::connect(&sock).unwrap()).collect();
     let mut garbage = UnixStream::connect(&sock).unwrap();
     let _ = garbage.write_all(&[0u8, 0xFF, b'\n', 0x80, b'x', b'\n']);
     let req = |line: &str| control::request(&sock, line, T).unwrap();
     let e = req("move nan nan nan");
     assert!(error_of(&e).contains("not a finite number"), "{e}");
     let e = req(&format!("move {} {} {}", centre[0], centre[1], centre[2]));
-    assert!(
-        error_of(&e).contains("not operating (state init-phase)"),
-        "{e}"
-    );
+    assert!(error_of(&e).contains("not operating (state init-phase)"), "{e}");
     let e = req("move 0 0 1e308");
     assert!(error_of(&e).contains("outside the workspace box"), "{e}");
     let e = req("recalibrate");
@@ -923,33 +699,17 @@ fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert_eq!(st["tracker"]["foreign"], 0, "{}", st["tracker"]);
-    assert!(
-        st["control"]["open"].as_u64().unwrap() >= 50,
-        "{}",
-        st["control"]
-    );
+    assert!(st["control"]["open"].as_u64().unwrap() >= 50, "{}", st["control"]);
     assert_eq!(req("estop")["accepted"], "estop");
-    assert!(
-        d.wait_until(T, |l, _| l.snap.state == State::Faulted),
-        "{:?}",
-        d.loop_status().snap
-    );
+    assert!(d.wait_until(T, |l, _| l.snap.state == State::Faulted), "{:?}", d.loop_status().snap);
     let st = req("status");
     assert_eq!(st["fault"]["cause"], "estop", "{}", st["fault"]);
     let e = req(&format!("move {} {} {}", centre[0], centre[1], centre[2]));
-    assert!(
-        error_of(&e).contains("safety reaction is latched") && error_of(&e).contains("reset"),
-        "{e}"
-    );
+    assert!(error_of(&e).contains("safety reaction is latched") && error_of(&e).contains("reset"), "{e}");
     drop((idle, garbage));
     assert_eq!(req("stop")["accepted"], "stop");
     let rep = d.wait().expect("the loop ended on stop");
-    assert!(
-        rep.cycles > 10,
-        "{} cycles, {} overruns",
-        rep.cycles,
-        rep.overruns
-    );
+    assert!(rep.cycles > 10, "{} cycles, {} overruns", rep.cycles, rep.overruns);
     assert!(!sock.exists(), "socket removed");
 }
 
@@ -965,11 +725,7 @@ fn client_errors_tell_not_running_from_not_answering() {
     // Accepted by the kernel (backlog), never answered.
     let e = control::request(&sock, "status", Duration::from_millis(300)).unwrap_err();
     assert_eq!(e.kind(), std::io::ErrorKind::TimedOut, "{e}");
-    assert!(
-        e.to_string()
-            .contains("accepted the connection but sent no reply within 0.3 s"),
-        "{e}"
-    );
+    assert!(e.to_string().contains("accepted the connection but sent no reply within 0.3 s"), "{e}");
     let closer = std::thread::spawn(move || {
         let (mut s, _) = listener.accept().unwrap();
         let mut b = [0u8; 16];
@@ -979,11 +735,5 @@ fn client_errors_tell_not_running_from_not_answering() {
     // rest pending: the client is told the connection closed, not that it timed out.
     let e = control::request(&sock, "status", T).unwrap_err();
     closer.join().unwrap();
-    assert!(
-        matches!(
-            e.kind(),
-            std::io::ErrorKind::UnexpectedEof | std::io::ErrorKind::ConnectionReset
-        ),
-        "{e}"
-    );
+    assert!(matches!(e.kind(), std::io::ErrorKind::UnexpectedEof | std::io::ErrorKind::ConnectionReset), "{e}");
 }

@@ -43,12 +43,7 @@ struct Case {
 fn cases() -> Vec<Case> {
     use Change::*;
     use Target::*;
-    let c = |name, target, at, change| Case {
-        name,
-        target,
-        at,
-        change,
-    };
+    let c = |name, target, at, change| Case { name, target, at, change };
     vec![
         c("encoder 1e308", Encoder(0), 0.37, Set(1e308)),
         c("encoder 1e160", Encoder(1), 0.52, Set(1e160)),
@@ -65,18 +60,8 @@ fn cases() -> Vec<Case> {
         c("encoder 2 cm jump", Encoder(0), 0.5, StepFrom(0.02)),
         c("encoder -2 cm jump", Encoder(1), 0.35, StepFrom(-0.02)),
         c("encoder 5 mm jump", Encoder(2), 0.75, StepFrom(0.005)),
-        c(
-            "encoder 1e308 in the first row",
-            Encoder(3),
-            0.0,
-            Set(1e308),
-        ),
-        c(
-            "encoder 5 cm spike in the last row",
-            Encoder(1),
-            1.0,
-            Add(0.05),
-        ),
+        c("encoder 1e308 in the first row", Encoder(3), 0.0, Set(1e308)),
+        c("encoder 5 cm spike in the last row", Encoder(1), 1.0, Add(0.05)),
         c("tension inf", Tension(0), 0.4, Set(f64::INFINITY)),
         c("tension 1e308", Tension(1), 0.45, Set(1e308)),
         c("tension -50 N", Tension(2), 0.5, Set(-50.0)),
@@ -108,10 +93,7 @@ fn row_of(rec: &Recording, first_exc: usize, at: f64, target: Target) -> usize {
     let present = |i: usize| {
         rec.p[i].iter().all(|v| v.is_finite())
             && rec.lengths(i).iter().all(|v| v.is_finite())
-            && rec
-                .f
-                .as_ref()
-                .is_none_or(|f| f[i * n..(i + 1) * n].iter().all(|v| v.is_finite()))
+            && rec.f.as_ref().is_none_or(|f| f[i * n..(i + 1) * n].iter().all(|v| v.is_finite()))
     };
     let taut = |i: usize| match target {
         Target::Encoder(j) => {
@@ -120,16 +102,9 @@ fn row_of(rec: &Recording, first_exc: usize, at: f64, target: Target) -> usize {
         }
         _ => true,
     };
-    let start = if at == 0.0 {
-        0
-    } else {
-        first_exc.max((at * m as f64) as usize)
-    };
+    let start = if at == 0.0 { 0 } else { first_exc.max((at * m as f64) as usize) };
     let ok = |i: &usize| present(*i) && (at == 0.0 || taut(*i));
-    (start..m)
-        .find(ok)
-        .or_else(|| (first_exc..start).rev().find(ok))
-        .expect("a complete row")
+    (start..m).find(ok).or_else(|| (first_exc..start).rev().find(ok)).expect("a complete row")
 }
 
 fn apply(rec: &mut Recording, case: &Case, row: usize) {
@@ -162,21 +137,9 @@ fn expected_problem(t: Target, change: Change) -> (&'static str, &'static str, O
 
 /// The `taut` binary, built with the profile of this test (the library crates optimised).
 fn taut_bin() -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf();
     let st = Command::new(env!("CARGO"))
-        .args([
-            "build",
-            "--quiet",
-            "--profile",
-            "test",
-            "-p",
-            "taut-cli",
-            "--bin",
-            "taut",
-        ])
+        .args(["build", "--quiet", "--profile", "test", "-p", "taut-cli", "--bin", "taut"])
         .current_dir(&root)
         .status()
         .expect("run cargo build");
@@ -193,12 +156,7 @@ struct Run {
 
 /// Runs `taut` with a deadline (a hang is a failure, not a stuck test).
 fn run(bin: &Path, args: &[&str]) -> Run {
-    let mut child = Command::new(bin)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn taut");
+    let mut child = Command::new(bin).args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("spawn taut");
     let out_pipe = child.stdout.take().unwrap();
     let err_pipe = child.stderr.take().unwrap();
     let read = |mut p: Box<dyn std::io::Read + Send>| {
@@ -224,20 +182,13 @@ fn run(bin: &Path, args: &[&str]) -> Run {
     let stdout = to.join().unwrap();
     let stderr = te.join().unwrap();
     assert!(status.is_some(), "taut {args:?} hung for 600 s");
-    Run {
-        code: status.unwrap().code(),
-        stdout,
-        stderr,
-    }
+    Run { code: status.unwrap().code(), stdout, stderr }
 }
 
 /// The 1-based line of data row `row` in a CSV file (after the comments and the header).
 fn line_of_row(csv: &str, row: usize) -> usize {
     let text = std::fs::read_to_string(csv).unwrap();
-    let header = text
-        .lines()
-        .position(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .unwrap();
+    let header = text.lines().position(|l| !l.starts_with('#') && !l.trim().is_empty()).unwrap();
     header + 2 + row
 }
 
@@ -301,69 +252,23 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
     let sim = simulate(&s);
     let clean = sim.recording;
     let m = clean.len();
-    let first_exc = clean
-        .phase
-        .as_ref()
-        .and_then(|p| p.iter().rposition(|&k| k >= 0))
-        .map_or(0, |i| i + 1);
-    eprintln!(
-        "clean recording: {m} rows x {} cables, excitation from row {first_exc}",
-        clean.n_cables
-    );
+    let first_exc = clean.phase.as_ref().and_then(|p| p.iter().rposition(|&k| k >= 0)).map_or(0, |i| i + 1);
+    eprintln!("clean recording: {m} rows x {} cables, excitation from row {first_exc}", clean.n_cables);
     let dir = tempfile::tempdir().unwrap();
     let bin = taut_bin();
     let path = |name: &str| dir.path().join(name).display().to_string();
 
     // The clean recording: no data problem at all, and the reference results.
     clean.save_atomic(path("clean.csv")).unwrap();
-    let r = run(
-        &bin,
-        &[
-            "calibrate",
-            &path("clean.csv"),
-            "--out",
-            &path("clean.toml"),
-            "--json",
-            &path("clean.json"),
-        ],
-    );
-    assert_eq!(
-        r.code,
-        Some(0),
-        "clean calibrate: {}\n{}",
-        r.stdout,
-        r.stderr
-    );
-    assert!(
-        !r.stdout.contains("data problem"),
-        "a clean simulator recording has no wild value: {}",
-        r.stdout
-    );
+    let r = run(&bin, &["calibrate", &path("clean.csv"), "--out", &path("clean.toml"), "--json", &path("clean.json")]);
+    assert_eq!(r.code, Some(0), "clean calibrate: {}\n{}", r.stdout, r.stderr);
+    assert!(!r.stdout.contains("data problem"), "a clean simulator recording has no wild value: {}", r.stdout);
     let clean_p = ParamsFile::load(path("clean.toml")).unwrap();
-    let r = run(
-        &bin,
-        &[
-            "diagnose",
-            &path("clean.csv"),
-            "--json",
-            &path("clean-d.json"),
-        ],
-    );
-    assert_eq!(
-        r.code,
-        Some(0),
-        "clean diagnose: {}\n{}",
-        r.stdout,
-        r.stderr
-    );
-    let clean_d: Value =
-        serde_json::from_str(&std::fs::read_to_string(path("clean-d.json")).unwrap()).unwrap();
-    let clean_effects: Vec<String> = clean_d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|e| e["effect"].as_str().unwrap().to_string())
-        .collect();
+    let r = run(&bin, &["diagnose", &path("clean.csv"), "--json", &path("clean-d.json")]);
+    assert_eq!(r.code, Some(0), "clean diagnose: {}\n{}", r.stdout, r.stderr);
+    let clean_d: Value = serde_json::from_str(&std::fs::read_to_string(path("clean-d.json")).unwrap()).unwrap();
+    let clean_effects: Vec<String> =
+        clean_d["effects"].as_array().unwrap().iter().map(|e| e["effect"].as_str().unwrap().to_string()).collect();
     let clean_d_anchors = anchors_of(&clean_d["final"]["anchors_m"]);
     let clean_d_sigma = anchors_of(&clean_d["final"]["anchor_sigma_m"]);
     assert!(
@@ -371,10 +276,7 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             .as_array()
             .unwrap()
             .iter()
-            .any(|p| matches!(
-                p["problem"].as_str(),
-                Some("encoder-spike" | "encoder-jump" | "impossible-tension" | "tracker-outlier")
-            )),
+            .any(|p| matches!(p["problem"].as_str(), Some("encoder-spike" | "encoder-jump" | "impossible-tension" | "tracker-outlier"))),
         "{}",
         clean_d["data_problems"]
     );
@@ -423,8 +325,7 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             if wrong {
                 t.wrong_successes += 1;
             }
-            t.failures
-                .push(format!("{} (row {row}): {what}", case.name));
+            t.failures.push(format!("{} (row {row}): {what}", case.name));
         };
 
         // 1. taut calibrate --out --json.
@@ -437,72 +338,36 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             // The recording format has no infinite values: the reader refuses the file, naming the
             // line (comment lines + header + row) and the column, and nothing is written.
             let line = line_of_row(&csv, row);
-            let line_ok = r.stderr.contains(&format!("line {line}"))
-                || r.stderr.contains(&format!(":{line}"));
+            let line_ok = r.stderr.contains(&format!("line {line}")) || r.stderr.contains(&format!(":{line}"));
             if r.code != Some(0) && line_ok && !Path::new(&out).exists() {
                 t.clean_errors += 1;
             } else {
-                fail(
-                    &mut t,
-                    r.code == Some(0),
-                    format!(
-                        "calibrate on a file with inf: exit {:?}, {}",
-                        r.code, r.stderr
-                    ),
-                );
+                fail(&mut t, r.code == Some(0), format!("calibrate on a file with inf: exit {:?}, {}", r.code, r.stderr));
             }
         } else if r.code != Some(0) {
             let refused = r.stderr.contains("refused") || r.stderr.contains("failed");
             if refused && !Path::new(&out).exists() {
                 t.clean_errors += 1;
             } else {
-                fail(
-                    &mut t,
-                    false,
-                    format!("calibrate failed unclearly: {}", r.stderr),
-                );
+                fail(&mut t, false, format!("calibrate failed unclearly: {}", r.stderr));
             }
         } else {
             let text = std::fs::read_to_string(&out).unwrap_or_default();
-            let v: Value = serde_json::from_str(&std::fs::read_to_string(&js).unwrap_or_default())
-                .unwrap_or(Value::Null);
+            let v: Value = serde_json::from_str(&std::fs::read_to_string(&js).unwrap_or_default()).unwrap_or(Value::Null);
             let reported = v["data_problems"].as_array().is_some_and(|a| {
-                a.iter().any(|p| {
-                    p["problem"] == kind_cal
-                        && p["row"] == row
-                        && p["cable"].as_u64().map(|c| c as usize) == cable
-                })
+                a.iter().any(|p| p["problem"] == kind_cal && p["row"] == row && p["cable"].as_u64().map(|c| c as usize) == cable)
             });
             let p = ParamsFile::load(&out);
             match p {
-                Err(e) => fail(
-                    &mut t,
-                    true,
-                    format!("calibrate wrote an unreadable file: {e}"),
-                ),
+                Err(e) => fail(&mut t, true, format!("calibrate wrote an unreadable file: {e}")),
                 Ok(p) => {
                     let w = worst_sigmas(&p.anchors_m, &clean_p.anchors_m, &clean_p.anchor_sigma_m);
                     if !no_non_finite_token(&text) {
-                        fail(
-                            &mut t,
-                            true,
-                            format!("non-finite number in the parameters: {text}"),
-                        );
+                        fail(&mut t, true, format!("non-finite number in the parameters: {text}"));
                     } else if !(w <= SIGMAS) {
-                        fail(
-                            &mut t,
-                            true,
-                            format!("anchors {w:.1} sigma from the clean calibration"),
-                        );
+                        fail(&mut t, true, format!("anchors {w:.1} sigma from the clean calibration"));
                     } else if !reported {
-                        fail(
-                            &mut t,
-                            true,
-                            format!(
-                                "{kind_cal} at row {row} not reported: {}",
-                                v["data_problems"]
-                            ),
-                        );
+                        fail(&mut t, true, format!("{kind_cal} at row {row} not reported: {}", v["data_problems"]));
                     }
                 }
             }
@@ -516,19 +381,11 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             fail(&mut t, false, format!("diagnose panicked: {}", r.stderr));
         } else if !finite_value {
             let line = line_of_row(&csv, row);
-            let line_ok = r.stderr.contains(&format!("line {line}"))
-                || r.stderr.contains(&format!(":{line}"));
+            let line_ok = r.stderr.contains(&format!("line {line}")) || r.stderr.contains(&format!(":{line}"));
             if r.code != Some(0) && line_ok {
                 t.clean_errors += 1;
             } else {
-                fail(
-                    &mut t,
-                    r.code == Some(0),
-                    format!(
-                        "diagnose on a file with inf: exit {:?}, {}",
-                        r.code, r.stderr
-                    ),
-                );
+                fail(&mut t, r.code == Some(0), format!("diagnose on a file with inf: exit {:?}, {}", r.code, r.stderr));
             }
         } else if r.code != Some(0) {
             if r.stderr.contains("refused") {
@@ -543,43 +400,22 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
                 a.iter().any(|p| {
                     p["problem"] == kind_diag
                         && p["cable"].as_u64().map(|c| c as usize) == cable
-                        && p["description"]
-                            .as_str()
-                            .is_some_and(|s| s.contains(&format!("row {row} ")))
+                        && p["description"].as_str().is_some_and(|s| s.contains(&format!("row {row} ")))
                 })
             });
             let effects: Vec<String> = d["effects"]
                 .as_array()
-                .map(|a| {
-                    a.iter()
-                        .map(|e| e["effect"].as_str().unwrap_or("").to_string())
-                        .collect()
-                })
+                .map(|a| a.iter().map(|e| e["effect"].as_str().unwrap_or("").to_string()).collect())
                 .unwrap_or_default();
             let anchors = anchors_of(&d["final"]["anchors_m"]);
             let sig = anchors_of(&d["final"]["anchor_sigma_m"]);
             let w = worst_sigmas(&anchors, &clean_d_anchors, &clean_d_sigma);
             if !reported {
-                fail(
-                    &mut t,
-                    true,
-                    format!(
-                        "diagnose did not report {kind_diag} at row {row}: {}",
-                        d["data_problems"]
-                    ),
-                );
+                fail(&mut t, true, format!("diagnose did not report {kind_diag} at row {row}: {}", d["data_problems"]));
             } else if effects != clean_effects {
-                fail(
-                    &mut t,
-                    true,
-                    format!("diagnose named {effects:?}, the clean recording {clean_effects:?}"),
-                );
+                fail(&mut t, true, format!("diagnose named {effects:?}, the clean recording {clean_effects:?}"));
             } else if !(w <= SIGMAS) || sig.iter().flatten().any(|v| !v.is_finite()) {
-                fail(
-                    &mut t,
-                    true,
-                    format!("diagnose anchors {w:.1} sigma from the clean ones, sigmas {sig:?}"),
-                );
+                fail(&mut t, true, format!("diagnose anchors {w:.1} sigma from the clean ones, sigmas {sig:?}"));
             }
         }
 
@@ -599,31 +435,20 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
         }
         let mut erec = exc.clone();
         apply(&mut erec, &Case { at: 0.0, ..case }, row - first_exc);
-        let o = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            evaluate(&ccfg, &mut backend, &erec, &init, current)
-        }));
+        let o = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| evaluate(&ccfg, &mut backend, &erec, &init, current)));
         let Ok(o) = o else {
             t.panics += 1;
             fail(&mut t, false, "the daemon's calibration panicked".into());
             continue;
         };
-        let (part, r) = if row - first_exc < split {
-            ("training", row - first_exc)
-        } else {
-            ("held-out", row - first_exc - split)
-        };
+        let (part, r) = if row - first_exc < split { ("training", row - first_exc) } else { ("held-out", row - first_exc - split) };
         // The daemon does not re-reference jumps (`ScreenOptions::jumps`): a jump shows there as
         // the readings it excluded, or the result is refused.
-        let kind_daemon = if kind_cal == "encoder-jump" {
-            "encoder-"
-        } else {
-            kind_cal
-        };
-        let reported = o.data_problems.iter().any(|p| {
-            p.contains(part)
-                && p.contains(kind_daemon)
-                && (kind_cal == "encoder-jump" || p.contains(&format!("row {r} ")))
-        });
+        let kind_daemon = if kind_cal == "encoder-jump" { "encoder-" } else { kind_cal };
+        let reported = o
+            .data_problems
+            .iter()
+            .any(|p| p.contains(part) && p.contains(kind_daemon) && (kind_cal == "encoder-jump" || p.contains(&format!("row {r} "))));
         if !o.accepted {
             if o.reason.is_empty() {
                 fail(&mut t, false, "refused without a reason".into());
@@ -634,36 +459,15 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
         } else {
             let e = o.estimate.as_ref().unwrap();
             let w = worst_sigmas(&e.anchors, &base_est.anchors, &base_est.anchor_sigma);
-            let finite = e
-                .anchors
-                .iter()
-                .flatten()
-                .chain(&e.l0)
-                .chain(e.anchor_sigma.iter().flatten())
-                .chain(&e.l0_sigma)
-                .all(|v| v.is_finite())
-                && e.rms_m.is_finite();
+            let finite =
+                e.anchors.iter().flatten().chain(&e.l0).chain(e.anchor_sigma.iter().flatten()).chain(&e.l0_sigma).all(|v| v.is_finite())
+                    && e.rms_m.is_finite();
             if !finite {
-                fail(
-                    &mut t,
-                    true,
-                    "the daemon accepted non-finite numbers".into(),
-                );
+                fail(&mut t, true, "the daemon accepted non-finite numbers".into());
             } else if !(w <= SIGMAS) {
-                fail(
-                    &mut t,
-                    true,
-                    format!("the daemon's anchors {w:.1} sigma from the clean excitation's"),
-                );
+                fail(&mut t, true, format!("the daemon's anchors {w:.1} sigma from the clean excitation's"));
             } else if !reported {
-                fail(
-                    &mut t,
-                    true,
-                    format!(
-                        "the daemon did not report {kind_cal} at {part} row {r}: {:#?}",
-                        o.data_problems
-                    ),
-                );
+                fail(&mut t, true, format!("the daemon did not report {kind_cal} at {part} row {r}: {:#?}", o.data_problems));
             }
         }
     }
@@ -692,10 +496,7 @@ fn clean_simulator_recordings_have_no_wild_value() {
     let mut flagged = vec![];
     let mut count = 0;
     for seed in 0..9u64 {
-        for mut s in [
-            Scenario::aras_cam(100 + seed),
-            Scenario::three_cable(200 + seed),
-        ] {
+        for mut s in [Scenario::aras_cam(100 + seed), Scenario::three_cable(200 + seed)] {
             s.noise.tracker_outlier_prob = 0.0;
             s.duration_s = 40.0;
             // A scenario the simulator cannot run (no static equilibrium) is skipped.
@@ -710,10 +511,7 @@ fn clean_simulator_recordings_have_no_wild_value() {
             }
         }
     }
-    eprintln!(
-        "screen on clean simulator recordings: {count} recordings, {} flags",
-        flagged.len()
-    );
+    eprintln!("screen on clean simulator recordings: {count} recordings, {} flags", flagged.len());
     assert!(count >= 15, "only {count} recordings simulated");
     assert!(flagged.is_empty(), "{flagged:#?}");
 }

@@ -241,7 +241,8 @@ fn mbpoll_against_our_server() {
             .unwrap();
         let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
         // mbpoll prints each value as "[ref]: \tvalue".
-        let v: Vec<String> = text.lines().filter(|l| l.starts_with('[')).filter_map(|l| l.split(':').nth(1)).map(|s| s.trim().to_string()).collect();
+        let v: Vec<String> =
+            text.lines().filter(|l| l.starts_with('[')).filter_map(|l| l.split(':').nth(1)).map(|s| s.trim().to_string()).collect();
         (v, text)
     };
     let (v, text) = run(&["-a", "1", "-r", "0", "-c", "1", "-t", "3:int", "-B"]);

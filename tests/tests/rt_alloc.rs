@@ -160,7 +160,16 @@ fn loop_allocates_nothing_in_any_state() {
     let frees = FREES.with(|a| a.get());
     let cycles = cycles.get();
     assert!(cycles >= 100_000);
-    for s in [State::Enabling, State::InitPhase, State::AwaitInitial, State::Excitation, State::Operate, State::Holding, State::Faulted, State::Stopped] {
+    for s in [
+        State::Enabling,
+        State::InitPhase,
+        State::AwaitInitial,
+        State::Excitation,
+        State::Operate,
+        State::Holding,
+        State::Faulted,
+        State::Stopped,
+    ] {
         assert!(seen.contains(&(s as u8)), "state {s:?} not visited");
     }
     assert!(core.dropped() > 0, "the ring never filled");
@@ -182,7 +191,7 @@ fn the_counter_sees_allocations() {
 #[test]
 fn robot_devices_allocate_nothing_per_cycle() {
     use taut_driver::transport::virtual_bus::VirtualBus;
-    use taut_rt_core::io::{CableCommand, DriveRequest, Devices, Inputs, Outputs};
+    use taut_rt_core::io::{CableCommand, Devices, DriveRequest, Inputs, Outputs};
     use taut_rt_core::robot_io::{Peripherals, RobotDevices};
     use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
@@ -194,7 +203,8 @@ fn robot_devices_allocate_nothing_per_cycle() {
     let bus = VirtualBus::new();
     let nodes = [1u8, 2, 3, 4];
     let master_end = bus.endpoint_with(1024, &[]);
-    let rack = spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
+    let rack =
+        spawn_rack(bus.endpoint_with(1024, &rack_filters(&nodes)), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     let mut dev = RobotDevices::bring_up(&cfg, master_end, Peripherals { loadcells: None, tracker: None, pose: None }).unwrap();
     let mut inp = Inputs::new(4);
     let mut out = Outputs::new(4);

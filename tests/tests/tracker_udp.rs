@@ -35,7 +35,9 @@ fn drops_and_counts_bad_datagrams() {
     assert_eq!((p.t, p.position, p.orientation), (1000.01, [0.2, 0.2, 1.5], Some([1.0, 0.0, 0.0, 0.0])));
 
     // Malformed: every kind, none of them changes the pose.
-    for bad in [&b""[..], b"garbage", b"1000.02 1 2", b"1000.02 1 2 3 4", b"1000.02 NaN 0 0", b"1000.02 0 0 0 2 0 0 0", &[0xFF; 40], &[b'1'; 600]] {
+    for bad in
+        [&b""[..], b"garbage", b"1000.02 1 2", b"1000.02 1 2 3 4", b"1000.02 NaN 0 0", b"1000.02 0 0 0 2 0 0 0", &[0xFF; 40], &[b'1'; 600]]
+    {
         tx.send_raw(bad).unwrap();
     }
     // Out of order and duplicate.
@@ -85,7 +87,8 @@ fn threaded_receiver_follows_a_stream() {
     let (rx, mut reader) = tracker::spawn(&loopback(0.05)).unwrap();
     let target: SocketAddr = rx.local_addr();
     // A circle at 200 Hz for a moment.
-    let stream = TrackerStream::spawn(target, Duration::from_millis(5), 42.0, |t| ([t.cos(), t.sin(), 1.0], Some([1.0, 0.0, 0.0, 0.0]))).unwrap();
+    let stream =
+        TrackerStream::spawn(target, Duration::from_millis(5), 42.0, |t| ([t.cos(), t.sin(), 1.0], Some([1.0, 0.0, 0.0, 0.0]))).unwrap();
     let t0 = Instant::now();
     let mut seen = 0;
     let mut last_t = f64::NEG_INFINITY;

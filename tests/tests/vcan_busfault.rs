@@ -7,11 +7,11 @@
 
 mod busfault;
 
+use socketcan::Socket;
 use std::io::Write;
 use std::mem::ManuallyDrop;
 use std::os::fd::{AsRawFd, FromRawFd};
 use std::time::Duration;
-use socketcan::Socket;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
 use taut_tests::vcan;
@@ -26,7 +26,8 @@ fn bus_faults_reach_the_loop_over_socketcan() {
     for (c, &n) in cfg.cables.iter_mut().zip(&nodes) {
         c.drive.as_mut().unwrap().node_id = n;
     }
-    let rack = spawn_rack(SocketCanTransport::open(iface).unwrap(), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
+    let rack =
+        spawn_rack(SocketCanTransport::open(iface).unwrap(), nodes.iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     let master = SocketCanTransport::open(iface).unwrap();
     let injector = socketcan::CanSocket::open(iface).unwrap();
     // SAFETY: the File only borrows the socket's fd for write(2); ManuallyDrop keeps it from

@@ -170,7 +170,11 @@ fn node_rebooting_mid_run_over_vcan() {
         if t.elapsed() > Duration::from_secs(30) {
             let ev = events(&mut set);
             let drive = rack.with_drive(41, |d| format!("nmt {:?}, state {:?}, {:?}", d.nmt_state(), d.state(), d.counters()));
-            panic!("reboot not noticed; counters {:?}; events {ev:#?}; statuses {:#?}; drive {drive:?}", set.master().counters(), set.statuses());
+            panic!(
+                "reboot not noticed; counters {:?}; events {ev:#?}; statuses {:#?}; drive {drive:?}",
+                set.master().counters(),
+                set.statuses()
+            );
         }
     };
     // Still being configured again (NotOperational), or already back but disabled (Disabled):
@@ -233,11 +237,8 @@ fn wait_exit(child: &mut Child, timeout: Duration, what: &str) {
 }
 
 fn only_log(dir: &Path) -> PathBuf {
-    let logs: Vec<PathBuf> = fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "log"))
-        .collect();
+    let logs: Vec<PathBuf> =
+        fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "log")).collect();
     assert_eq!(logs.len(), 1, "{logs:?}");
     logs.into_iter().next().unwrap()
 }

@@ -72,7 +72,11 @@ fn drives(nodes: &[u8], f: impl Fn(&mut DriveParams)) -> Vec<VirtualDrive> {
 
 /// The drives are powered first and heartbeat on the bus; taut's socket opens later and taut
 /// starts 150 ms after that (frames queue in its socket meanwhile).
-fn field(nodes: &[u8], drives: Vec<VirtualDrive>, prepare: impl FnOnce(&RackHandle)) -> (DriveSet<SocketCanTransport, Configuring>, RackHandle) {
+fn field(
+    nodes: &[u8],
+    drives: Vec<VirtualDrive>,
+    prepare: impl FnOnce(&RackHandle),
+) -> (DriveSet<SocketCanTransport, Configuring>, RackHandle) {
     let rack = spawn_rack(SocketCanTransport::open(IFACE).expect("open vcan0 for the drives"), drives);
     thread::sleep(Duration::from_millis(500));
     prepare(&rack);

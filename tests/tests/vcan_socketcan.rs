@@ -16,8 +16,7 @@ use std::time::{Duration, Instant};
 use socketcan::dump::Reader as DumpReader;
 use socketcan::errors::{ErrorCause, CAN_ERR_ACK, CAN_ERR_BUSOFF};
 use socketcan::{
-    CanAnyFrame, CanErrorFrame, CanFilter, CanFrame, CanSocket, EmbeddedFrame, ExtendedId, Frame,
-    Id, Socket, SocketOptions, StandardId,
+    CanAnyFrame, CanErrorFrame, CanFilter, CanFrame, CanSocket, EmbeddedFrame, ExtendedId, Frame, Id, Socket, SocketOptions, StandardId,
 };
 use taut_tests::vcan;
 
@@ -46,13 +45,11 @@ fn open(iface: &str) -> CanSocket {
 }
 
 fn read(sock: &CanSocket, what: &str) -> CanFrame {
-    sock.read_frame_timeout(RX_WAIT)
-        .unwrap_or_else(|e| panic!("waiting for {what}: {e}"))
+    sock.read_frame_timeout(RX_WAIT).unwrap_or_else(|e| panic!("waiting for {what}: {e}"))
 }
 
 fn send_fence(sock: &CanSocket) {
-    sock.write_frame(&data_frame(sid(FENCE_ID), &[0xFE]))
-        .expect("send fence");
+    sock.write_frame(&data_frame(sid(FENCE_ID), &[0xFE])).expect("send fence");
 }
 
 fn is_fence(f: &CanFrame) -> bool {
@@ -74,13 +71,7 @@ fn read_until_fence(sock: &CanSocket, what: &str) -> Vec<CanFrame> {
 
 /// The comparable content of a frame: (raw id with flags, dlc, data).
 fn key(f: &CanFrame) -> (u32, bool, bool, usize, Vec<u8>) {
-    (
-        f.id_word(),
-        f.is_extended(),
-        f.is_remote_frame(),
-        f.dlc(),
-        f.data().to_vec(),
-    )
+    (f.id_word(), f.is_extended(), f.is_remote_frame(), f.dlc(), f.data().to_vec())
 }
 
 #[test]
@@ -102,8 +93,7 @@ fn standard_and_extended_frames_roundtrip() {
         CanFrame::new_remote(eid(0x0012_3456), 0).expect("remote frame"),
     ];
     for f in &sent {
-        tx.write_frame(f)
-            .unwrap_or_else(|e| panic!("send {f:?}: {e}"));
+        tx.write_frame(f).unwrap_or_else(|e| panic!("send {f:?}: {e}"));
     }
     let got: Vec<CanFrame> = (0..sent.len()).map(|_| read(&rx, "echoed frame")).collect();
 
@@ -127,30 +117,22 @@ fn standard_and_extended_frames_roundtrip() {
 
 #[test]
 fn receive_timeout_expires_then_frames_still_arrive() {
-    let Some(iface) =
-        vcan::iface_or_skip(VCAN0, "receive_timeout_expires_then_frames_still_arrive")
-    else {
+    let Some(iface) = vcan::iface_or_skip(VCAN0, "receive_timeout_expires_then_frames_still_arrive") else {
         return;
     };
     let tx = open(iface);
     let rx = open(iface);
 
     // Poll-based timeout of the crate.
-    let err = rx
-        .read_frame_timeout(Duration::from_millis(100))
-        .expect_err("nothing was sent, the read must time out");
+    let err = rx.read_frame_timeout(Duration::from_millis(100)).expect_err("nothing was sent, the read must time out");
     assert_eq!(err.kind(), std::io::ErrorKind::TimedOut, "{err}");
 
     // SO_RCVTIMEO based timeout: a plain blocking read returns EAGAIN.
-    rx.set_read_timeout(Duration::from_millis(100))
-        .expect("set read timeout");
+    rx.set_read_timeout(Duration::from_millis(100)).expect("set read timeout");
     let start = Instant::now();
     let err = rx.read_frame().expect_err("read must time out");
     assert!(
-        matches!(
-            err.kind(),
-            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-        ),
+        matches!(err.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut),
         "unexpected error kind {:?}: {err}",
         err.kind()
     );
@@ -166,9 +148,7 @@ fn receive_timeout_expires_then_frames_still_arrive() {
 
 #[test]
 fn error_frames_reach_only_sockets_that_enable_them() {
-    let Some(iface) =
-        vcan::iface_or_skip(VCAN0, "error_frames_reach_only_sockets_that_enable_them")
-    else {
+    let Some(iface) = vcan::iface_or_skip(VCAN0, "error_frames_reach_only_sockets_that_enable_them") else {
         return;
     };
     let tx = open(iface);
@@ -176,13 +156,8 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     let rx_none = open(iface);
     let rx_ack_only = open(iface);
     rx_all.set_error_filter_accept_all().expect("error filter");
-    assert_eq!(
-        rx_all.error_filter().expect("read error filter"),
-        0x1FFF_FFFF /* CAN_ERR_MASK */
-    );
-    rx_ack_only
-        .set_error_filter(CAN_ERR_ACK)
-        .expect("error filter");
+    assert_eq!(rx_all.error_filter().expect("read error filter"), 0x1FFF_FFFF /* CAN_ERR_MASK */);
+    rx_ack_only.set_error_filter(CAN_ERR_ACK).expect("error filter");
 
     // vcan has no controller that would raise errors, but a raw socket may
     // inject an error frame; the CAN core routes it by error mask.
@@ -191,11 +166,7 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     send_fence(&tx);
 
     let got = read_until_fence(&rx_all, "error frame");
-    assert_eq!(
-        got.len(),
-        1,
-        "expected exactly the error frame, got {got:?}"
-    );
+    assert_eq!(got.len(), 1, "expected exactly the error frame, got {got:?}");
     match got[0] {
         CanFrame::Error(e) => {
             assert_ne!(e.error_bits() & CAN_ERR_BUSOFF, 0, "{e:?}");
@@ -205,15 +176,9 @@ fn error_frames_reach_only_sockets_that_enable_them() {
     }
 
     let got = read_until_fence(&rx_none, "fence on socket without error mask");
-    assert!(
-        got.is_empty(),
-        "error frames must be filtered by default: {got:?}"
-    );
+    assert!(got.is_empty(), "error frames must be filtered by default: {got:?}");
     let got = read_until_fence(&rx_ack_only, "fence on socket with ACK-only mask");
-    assert!(
-        got.is_empty(),
-        "bus-off must not pass an ACK-only mask: {got:?}"
-    );
+    assert!(got.is_empty(), "bus-off must not pass an ACK-only mask: {got:?}");
 }
 
 #[test]
@@ -234,12 +199,7 @@ fn id_filters_select_frames() {
     // Mask without CAN_EFF_FLAG: 0x100 matches the standard *and* the
     // extended id 0x100 (kernel semantics, easy to get wrong in a master).
     let rx_loose = open(iface);
-    rx_loose
-        .set_filters(&[
-            CanFilter::new(0x100, 0x7FF),
-            CanFilter::new(FENCE_ID as u32, 0x7FF | CAN_EFF_FLAG),
-        ])
-        .expect("set filters");
+    rx_loose.set_filters(&[CanFilter::new(0x100, 0x7FF), CanFilter::new(FENCE_ID as u32, 0x7FF | CAN_EFF_FLAG)]).expect("set filters");
 
     for (id, data) in [
         (sid(0x0FF), &[1u8][..]),
@@ -252,20 +212,9 @@ fn id_filters_select_frames() {
         tx.write_frame(&data_frame(id, data)).expect("send");
     }
     send_fence(&tx);
-    let ids = |sock: &CanSocket, what: &str| -> Vec<Id> {
-        read_until_fence(sock, what)
-            .iter()
-            .map(|f| f.id())
-            .collect()
-    };
-    assert_eq!(
-        ids(&rx_strict, "strictly filtered frames"),
-        vec![sid(0x100), eid(0x1800_0001)]
-    );
-    assert_eq!(
-        ids(&rx_loose, "loosely filtered frames"),
-        vec![sid(0x100), eid(0x100)]
-    );
+    let ids = |sock: &CanSocket, what: &str| -> Vec<Id> { read_until_fence(sock, what).iter().map(|f| f.id()).collect() };
+    assert_eq!(ids(&rx_strict, "strictly filtered frames"), vec![sid(0x100), eid(0x1800_0001)]);
+    assert_eq!(ids(&rx_loose, "loosely filtered frames"), vec![sid(0x100), eid(0x100)]);
 }
 
 /// `CAN_EFF_FLAG` from `<linux/can.h>`.
@@ -273,8 +222,7 @@ const CAN_EFF_FLAG: u32 = 0x8000_0000;
 
 #[test]
 fn vcan0_and_vcan1_are_separate_buses() {
-    let Some([a, b]) = vcan::ifaces_or_skip([VCAN0, VCAN1], "vcan0_and_vcan1_are_separate_buses")
-    else {
+    let Some([a, b]) = vcan::ifaces_or_skip([VCAN0, VCAN1], "vcan0_and_vcan1_are_separate_buses") else {
         return;
     };
     let tx_a = open(a);
@@ -282,21 +230,13 @@ fn vcan0_and_vcan1_are_separate_buses() {
     let tx_b = open(b);
     let rx_b = open(b);
 
-    tx_b.write_frame(&data_frame(sid(0x0B0), &[0xB]))
-        .expect("send on b");
-    tx_a.write_frame(&data_frame(sid(0x0A0), &[0xA]))
-        .expect("send on a");
+    tx_b.write_frame(&data_frame(sid(0x0B0), &[0xB])).expect("send on b");
+    tx_a.write_frame(&data_frame(sid(0x0A0), &[0xA])).expect("send on a");
     send_fence(&tx_a);
     send_fence(&tx_b);
 
-    let on_a: Vec<Id> = read_until_fence(&rx_a, "vcan0")
-        .iter()
-        .map(|f| f.id())
-        .collect();
-    let on_b: Vec<Id> = read_until_fence(&rx_b, "vcan1")
-        .iter()
-        .map(|f| f.id())
-        .collect();
+    let on_a: Vec<Id> = read_until_fence(&rx_a, "vcan0").iter().map(|f| f.id()).collect();
+    let on_b: Vec<Id> = read_until_fence(&rx_b, "vcan1").iter().map(|f| f.id()).collect();
     assert_eq!(on_a, vec![sid(0x0A0)]);
     assert_eq!(on_b, vec![sid(0x0B0)]);
 }
@@ -320,11 +260,7 @@ fn wait_child(child: &mut Child, timeout: Duration, what: &str) -> std::process:
 
 /// Runs a can-utils tool to completion; panics with its output on failure.
 fn run_tool(tool: &Path, args: &[&str]) {
-    let out = Command::new(tool)
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .unwrap_or_else(|e| panic!("run {}: {e}", tool.display()));
+    let out = Command::new(tool).args(args).stdin(Stdio::null()).output().unwrap_or_else(|e| panic!("run {}: {e}", tool.display()));
     assert!(
         out.status.success(),
         "{} {args:?} failed ({}): {}{}",
@@ -343,19 +279,12 @@ fn can_receivers(iface: &str) -> Option<usize> {
     let mut seen = false;
     for entry in fs::read_dir(dir).ok()? {
         let path = entry.ok()?.path();
-        if !path
-            .file_name()
-            .and_then(|s| s.to_str())
-            .is_some_and(|s| s.starts_with("rcvlist_"))
-        {
+        if !path.file_name().and_then(|s| s.to_str()).is_some_and(|s| s.starts_with("rcvlist_")) {
             continue;
         }
         seen = true;
         let text = fs::read_to_string(&path).ok()?;
-        n += text
-            .lines()
-            .filter(|l| l.split_whitespace().next() == Some(iface) && !l.contains("no entry"))
-            .count();
+        n += text.lines().filter(|l| l.split_whitespace().next() == Some(iface) && !l.contains("no entry")).count();
     }
     seen.then_some(n)
 }
@@ -382,17 +311,9 @@ fn candump_log(dir: &Path) -> PathBuf {
     let logs: Vec<PathBuf> = fs::read_dir(dir)
         .expect("read temp dir")
         .map(|e| e.expect("dir entry").path())
-        .filter(|p| {
-            p.file_name()
-                .and_then(|s| s.to_str())
-                .is_some_and(|s| s.starts_with("candump") && s.ends_with(".log"))
-        })
+        .filter(|p| p.file_name().and_then(|s| s.to_str()).is_some_and(|s| s.starts_with("candump") && s.ends_with(".log")))
         .collect();
-    assert_eq!(
-        logs.len(),
-        1,
-        "expected one candump log file, found {logs:?}"
-    );
+    assert_eq!(logs.len(), 1, "expected one candump log file, found {logs:?}");
     logs.into_iter().next().unwrap()
 }
 
@@ -403,15 +324,11 @@ fn cangen_frames_seen_by_candump_log_and_socket() {
     let Some(iface) = vcan::iface_or_skip(VCAN0, TEST) else {
         return;
     };
-    let (Some(candump), Some(cangen)) = (
-        vcan::tool_or_skip("candump", TEST),
-        vcan::tool_or_skip("cangen", TEST),
-    ) else {
+    let (Some(candump), Some(cangen)) = (vcan::tool_or_skip("candump", TEST), vcan::tool_or_skip("cangen", TEST)) else {
         return;
     };
     let rx = open(iface);
-    rx.set_filters(&[CanFilter::new(0x42A, 0x7FF)])
-        .expect("filter");
+    rx.set_filters(&[CanFilter::new(0x42A, 0x7FF)]).expect("filter");
     let dir = tempfile::tempdir().expect("tempdir");
 
     // candump -l: log to candump-<date>.log in the cwd; -n: exit after N frames.
@@ -429,22 +346,7 @@ fn cangen_frames_seen_by_candump_log_and_socket() {
     wait_for_new_receiver(iface, before, &mut dump);
 
     // Fixed id 0x42A, 8 bytes, incrementing payload, 1 ms gap.
-    run_tool(
-        &cangen,
-        &[
-            iface,
-            "-n",
-            &N.to_string(),
-            "-I",
-            "42A",
-            "-L",
-            "8",
-            "-D",
-            "i",
-            "-g",
-            "1",
-        ],
-    );
+    run_tool(&cangen, &[iface, "-n", &N.to_string(), "-I", "42A", "-L", "8", "-D", "i", "-g", "1"]);
 
     let from_socket: Vec<CanFrame> = (0..N).map(|_| read(&rx, "cangen frame")).collect();
     let st = wait_child(&mut dump, RX_WAIT * 3, "candump -n");
@@ -466,11 +368,7 @@ fn cangen_frames_seen_by_candump_log_and_socket() {
         assert_eq!(f.id(), sid(0x42A));
         assert_eq!(f.dlc(), 8);
         // -D i: the first byte counts up.
-        assert_eq!(
-            f.data()[0],
-            from_socket[0].data()[0].wrapping_add(i as u8),
-            "record {i}: incrementing payload"
-        );
+        assert_eq!(f.data()[0], from_socket[0].data()[0].wrapping_add(i as u8), "record {i}: incrementing payload");
     }
 }
 

@@ -56,7 +56,9 @@ fn start_up_over_socketcan_runs_every_stage() {
     let p0 = simrig::rest_position(&cfg, &so, p0);
     let sim = simrig::build(&cfg, p0, &so).expect("bring-up over vcan0");
     let site = sim.faults.clone();
-    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() }).unwrap();
+    let d =
+        Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() })
+            .unwrap();
     let finished = d.wait_until(Duration::from_secs(480), |l, c| {
         l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration) || l.snap.state == State::Stopped
     });

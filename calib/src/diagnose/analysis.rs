@@ -217,10 +217,8 @@ pub fn analyse(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], anchors: &[
         }
     }
     let total: (f64, usize) = oct.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let region = (0..8)
-        .filter(|&o| oct[o].1 > 20)
-        .max_by(|&a, &b| (oct[a].0 / oct[a].1 as f64).total_cmp(&(oct[b].0 / oct[b].1 as f64)))
-        .map(|o| {
+    let region =
+        (0..8).filter(|&o| oct[o].1 > 20).max_by(|&a, &b| (oct[a].0 / oct[a].1 as f64).total_cmp(&(oct[b].0 / oct[b].1 as f64))).map(|o| {
             let inside = (oct[o].0 / oct[o].1 as f64).sqrt();
             let rest_n = total.1 - oct[o].1;
             let outside = if rest_n > 0 { ((total.0 - oct[o].0) / rest_n as f64).sqrt() } else { f64::NAN };
@@ -241,11 +239,7 @@ pub fn analyse(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], anchors: &[
         v.sort_by(|a, b| a.total_cmp(b));
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
     };
-    words.push(format!(
-        "residual {:.2} mm RMS against a sample-to-sample noise level of {:.2} mm",
-        overall * 1e3,
-        noise * 1e3
-    ));
+    words.push(format!("residual {:.2} mm RMS against a sample-to-sample noise level of {:.2} mm", overall * 1e3, noise * 1e3));
     let worst = (0..n).max_by(|&a, &b| per_cable_rms_m[a].total_cmp(&per_cable_rms_m[b]));
     let best = (0..n).min_by(|&a, &b| per_cable_rms_m[a].total_cmp(&per_cable_rms_m[b]));
     if let (Some(w), Some(b)) = (worst, best) {
@@ -261,13 +255,7 @@ pub fn analyse(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], anchors: &[
     tb.sort_by(|a, b| a.total_cmp(b));
     if let Some(&mid) = tb.get(tb.len() / 2) {
         if let Some(b) = time_blocks.iter().filter(|b| b.2 > 2.0 * mid).max_by(|a, b| a.2.total_cmp(&b.2)) {
-            words.push(format!(
-                "largest in t = {:.1}-{:.1} s ({:.2} mm RMS, {:.2} mm typical)",
-                b.0,
-                b.1,
-                b.2 * 1e3,
-                mid * 1e3
-            ));
+            words.push(format!("largest in t = {:.1}-{:.1} s ({:.2} mm RMS, {:.2} mm typical)", b.0, b.1, b.2 * 1e3, mid * 1e3));
         }
     }
     if let Some((d, inside, outside)) = &region {

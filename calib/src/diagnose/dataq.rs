@@ -121,7 +121,7 @@ fn summarise(kind: ProblemKind, cable: Option<usize>, t: &[f64], flags: &[bool],
         t_start: t[first.0],
         t_end: t[last.1 - 1],
         samples,
-        description: format!("{who}{what}: {samples} samples in {} stretch(es) ({}{more}); excluded", rs.len(), places.join(", "), ),
+        description: format!("{who}{what}: {samples} samples in {} stretch(es) ({}{more}); excluded", rs.len(), places.join(", "),),
     })
 }
 
@@ -140,10 +140,7 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
     let mut problems = vec![];
     // Dropouts: position (or orientation) missing.
     let missing: Vec<bool> = (0..m)
-        .map(|i| {
-            !rec.p[i].iter().all(|v| v.is_finite())
-                || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite()))
-        })
+        .map(|i| !rec.p[i].iter().all(|v| v.is_finite()) || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite())))
         .collect();
     let dropout: Vec<bool> = (0..m).map(|i| missing[i] && !removed.get(i).copied().unwrap_or(false)).collect();
     problems.extend(summarise(ProblemKind::TrackerDropout, None, &rec.t, &dropout, "tracker dropout (no position)"));
@@ -174,7 +171,12 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
             .take(4)
             .map(|&(i, d, moved)| {
                 if d <= 0.0 {
-                    format!("row {i} at t = {:.3} s goes {} by {:.3} s", rec.t[i], if d < 0.0 { "back" } else { "nowhere (repeated time)" }, -d)
+                    format!(
+                        "row {i} at t = {:.3} s goes {} by {:.3} s",
+                        rec.t[i],
+                        if d < 0.0 { "back" } else { "nowhere (repeated time)" },
+                        -d
+                    )
                 } else if moved.is_finite() && moved < 20.0 * tracker_sigma_m.max(1e-4) {
                     format!("time jumps by {:.3} s at t = {:.3} s while the data continue (clock jump)", d, rec.t[i - 1])
                 } else {
@@ -189,10 +191,7 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
             t_start: rec.t[clock_events[0].0],
             t_end: rec.t[clock_events[clock_events.len() - 1].0],
             samples: clock_events.len(),
-            description: format!(
-                "{}{more}; the time-offset model does not interpolate across them",
-                descr.join("; ")
-            ),
+            description: format!("{}{more}; the time-offset model does not interpolate across them", descr.join("; ")),
         });
         // A sample whose time went backwards or repeated cannot be placed in time: exclude it.
         for &(i, d, _) in &clock_events {
@@ -277,7 +276,13 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
                 cable_ok[j][i] = false;
             }
         }
-        problems.extend(summarise(ProblemKind::FrozenEncoder, Some(j), &rec.t, &frozen, "encoder frozen (same reading repeated while the platform moves)"));
+        problems.extend(summarise(
+            ProblemKind::FrozenEncoder,
+            Some(j),
+            &rec.t,
+            &frozen,
+            "encoder frozen (same reading repeated while the platform moves)",
+        ));
     }
     {
         let mut frozen = vec![false; m];
@@ -296,7 +301,13 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
             }
             i += 1;
         }
-        problems.extend(summarise(ProblemKind::FrozenTracker, None, &rec.t, &frozen, "tracker frozen (same position repeated while the cables move)"));
+        problems.extend(summarise(
+            ProblemKind::FrozenTracker,
+            None,
+            &rec.t,
+            &frozen,
+            "tracker frozen (same position repeated while the cables move)",
+        ));
         for (f, ok) in frozen.iter().zip(row_ok.iter_mut()) {
             if *f {
                 *ok = false;
@@ -380,7 +391,12 @@ pub fn from_screen(sc: &crate::screen::Screen) -> Vec<DataProblem> {
             t_start: group[0].t,
             t_end: group[group.len() - 1].t,
             samples,
-            description: format!("{} {what} (beyond {:.1} noise sigmas of their neighbours): {}{more}", group.len(), sc.threshold_sigmas, list.join("; ")),
+            description: format!(
+                "{} {what} (beyond {:.1} noise sigmas of their neighbours): {}{more}",
+                group.len(),
+                sc.threshold_sigmas,
+                list.join("; ")
+            ),
         });
         k = e;
     }

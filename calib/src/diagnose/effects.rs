@@ -52,8 +52,7 @@ pub enum Sharing {
 
 impl Effect {
     /// The effects that are fitted (everything but `slack`), in a fixed order.
-    pub const FITTED: [Effect; 6] =
-        [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash];
+    pub const FITTED: [Effect; 6] = [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash];
 
     /// The name in the `taut-diagnosis v1` output.
     pub fn name(self) -> &'static str {

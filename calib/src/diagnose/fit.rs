@@ -449,11 +449,7 @@ pub fn sum_squares(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f6
 /// Per-cable residuals `reading - model` on `samples` (NaN where a sample is not usable).
 pub fn residuals(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> Vec<Vec<f64>> {
     let p = Joint { prep, spec, samples, sigma: 1.0 };
-    (0..prep.n)
-        .map(|j| {
-            samples.iter().map(|&i| if prep.usable[j][i] { p.residual(x, i, j) } else { f64::NAN }).collect()
-        })
-        .collect()
+    (0..prep.n).map(|j| samples.iter().map(|&i| if prep.usable[j][i] { p.residual(x, i, j) } else { f64::NAN }).collect()).collect()
 }
 
 #[cfg(test)]
@@ -569,7 +565,11 @@ mod tests {
                     xp[k] += h;
                     xm[k] -= h;
                     let num = (p.predict(&xp, i, j).value - p.predict(&xm, i, j).value) / (2.0 * h);
-                    assert!((num - dense[k]).abs() < 1e-6 * (1.0 + num.abs()), "sample {i} cable {j} param {k}: analytic {} numeric {num}", dense[k]);
+                    assert!(
+                        (num - dense[k]).abs() < 1e-6 * (1.0 + num.abs()),
+                        "sample {i} cable {j} param {k}: analytic {} numeric {num}",
+                        dense[k]
+                    );
                 }
             }
         }
@@ -635,7 +635,7 @@ mod tests {
                     dense[pr.row[k].0] += pr.row[k].1;
                 }
                 for k in 0..x.len() {
-                    let h = 1e-6 * (1.0 + x[k].abs()).min(1e-3 / 1e-6) ;
+                    let h = 1e-6 * (1.0 + x[k].abs()).min(1e-3 / 1e-6);
                     let h = if k >= 16 { (x[k].abs() * 1e-4).max(1e-9) } else { h };
                     let mut xp = x.clone();
                     xp[k] += h;
@@ -660,7 +660,10 @@ mod tests {
         check_jacobian(&ModelSpec { effects: vec![Effect::Elasticity], tension_end: end }, &[5e-5, 4e-5, 6e-5, 5e-5]);
         check_jacobian(&ModelSpec { effects: vec![Effect::Sag, Effect::Scale], tension_end: end }, &[0.8, 1e-3, -2e-3, 0.0, 5e-4]);
         check_jacobian(&ModelSpec { effects: vec![Effect::Pulley, Effect::Backlash], tension_end: end }, &[0.05, 2e-3, 1e-3, 3e-3, 2e-3]);
-        check_jacobian(&ModelSpec { effects: vec![Effect::TimeOffset, Effect::Elasticity], tension_end: end }, &[0.023, 5e-5, 4e-5, 6e-5, 5e-5]);
+        check_jacobian(
+            &ModelSpec { effects: vec![Effect::TimeOffset, Effect::Elasticity], tension_end: end },
+            &[0.023, 5e-5, 4e-5, 6e-5, 5e-5],
+        );
     }
 
     #[test]

@@ -407,7 +407,14 @@ impl Ctx<'_> {
     /// predicted length change (RMS over `samples`, the fitted model with and without the
     /// parameter) is at least `NEGLIGIBLE` of the measurement noise: a parameter that moves
     /// the predicted lengths by far less than the noise names no physics.
-    fn values(&self, e: Effect, spec: &ModelSpec, r: &lm::LmReport, has_t: &[bool], samples: &[usize]) -> (Vec<f64>, Vec<f64>, Vec<bool>, Vec<bool>) {
+    fn values(
+        &self,
+        e: Effect,
+        spec: &ModelSpec,
+        r: &lm::LmReport,
+        has_t: &[bool],
+        samples: &[usize],
+    ) -> (Vec<f64>, Vec<f64>, Vec<bool>, Vec<bool>) {
         let n = self.prep.n;
         let o = spec.offset(e, n).expect("active");
         let mut sig = r.sigmas();
@@ -529,7 +536,12 @@ fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: u
 
 /// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used
 /// as the starting point of the baseline fit; without it the calibration's initialisation runs.
-pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Params>, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+pub fn diagnose(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    start: Option<&Params>,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis, DiagnoseError> {
     let n = rec.n_cables;
     if platform_points.len() != n {
         return Err(DiagnoseError::CableCount { recording: n, platform_points: platform_points.len() });
@@ -544,7 +556,9 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
     let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();
     let used_tensions = has_t.iter().any(|x| *x);
     if !used_tensions {
-        notes.push("the recording has no tensions: elasticity and sag cannot be claimed; loose cables are found from the residual alone".into());
+        notes.push(
+            "the recording has no tensions: elasticity and sag cannot be claimed; loose cables are found from the residual alone".into(),
+        );
     }
     let sigma = (opts.tracker_sigma_m.powi(2) + opts.encoder_sigma_m.powi(2)).sqrt().max(1e-6);
     let m = prep.t.len();
@@ -554,9 +568,8 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
             return Err(DiagnoseError::TooFewSamples { cable: j, usable: u });
         }
     }
-    let loose_by_tension: usize = (0..n)
-        .map(|j| (0..m).filter(|&i| prep.f[j][i].is_finite() && prep.f[j][i] < opts.min_tension_n).count())
-        .sum();
+    let loose_by_tension: usize =
+        (0..n).map(|j| (0..m).filter(|&i| prep.f[j][i].is_finite() && prep.f[j][i] < opts.min_tension_n).count()).sum();
 
     // Start: given, or the calibration's initialisation + force-aware calibration.
     let all_rows: Vec<usize> = (0..m).collect();
@@ -645,7 +658,8 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         let mut cnt = 0usize;
         let mut ss_ho = 0.0;
         let mut cnt_ho = 0usize;
-        let probe = Prepared { usable: (0..n).map(|j| (0..m).map(|i| prep.usable[j][i] || prep.loose[j][i]).collect()).collect(), ..prep.clone() };
+        let probe =
+            Prepared { usable: (0..n).map(|j| (0..m).map(|i| prep.usable[j][i] || prep.loose[j][i]).collect()).collect(), ..prep.clone() };
         for i in 0..m {
             for j in 0..n {
                 if probe.usable[j][i] {
@@ -660,9 +674,7 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
                 }
             }
         }
-        let cables: Vec<usize> = (0..n)
-            .filter(|&j| (0..m).any(|i| probe.usable[j][i] && !prep.usable[j][i]))
-            .collect();
+        let cables: Vec<usize> = (0..n).filter(|&j| (0..m).any(|i| probe.usable[j][i] && !prep.usable[j][i])).collect();
         let samples = loose_by_tension + loose_by_residual;
         effects.push(Finding {
             effect: Effect::Slack,
@@ -759,7 +771,11 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         let Some(best) = cands.iter().filter(|c| c.2).max_by(|a, b| gain(&a.1).total_cmp(&gain(&b.1))).map(|c| c.0) else {
             notes.extend(absorbed_pulley);
             for (e, c, _) in &cands {
-                rejected.push(format!("{}: parameters not physical or not significant (held-out change {:+.1}%)", e.name(), -100.0 * gain(c) / cur_ho));
+                rejected.push(format!(
+                    "{}: parameters not physical or not significant (held-out change {:+.1}%)",
+                    e.name(),
+                    -100.0 * gain(c) / cur_ho
+                ));
             }
             break;
         };
@@ -805,8 +821,14 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         } else {
             let lo = fin.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = fin.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            let which = if strong.len() == n { "every cable".to_string() } else if strong.is_empty() { "no cable clearly".to_string() } else { format!("cables {strong:?}") };
-            format!("residual follows {} on {which} (r = {lo:.2} .. {hi:.2}); ", best.signature(), )
+            let which = if strong.len() == n {
+                "every cable".to_string()
+            } else if strong.is_empty() {
+                "no cable clearly".to_string()
+            } else {
+                format!("cables {strong:?}")
+            };
+            format!("residual follows {} on {which} (r = {lo:.2} .. {hi:.2}); ", best.signature(),)
         };
         let rms_before = rms_of(&prep, &spec, &ctx.train, &cur_train.x);
         let rms_after = rms_of(&prep, &new_spec, &ctx.train, &full.x);
@@ -825,11 +847,7 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
             .filter(|(_, c, ok)| *ok && gain(c) >= 0.8 * bg)
             .map(|(e, c, _)| (*e, (c.ho_ss / fit::sum_squares(&prep, &c.spec, &ctx.screen_heldout, &c.report.x).1.max(1) as f64).sqrt()))
             .collect();
-        let mut evidence = format!(
-            "{follows}held-out RMS {:.2} -> {:.2} mm; {param_text}",
-            ho_before * 1e3,
-            ho_after * 1e3
-        );
+        let mut evidence = format!("{follows}held-out RMS {:.2} -> {:.2} mm; {param_text}", ho_before * 1e3, ho_after * 1e3);
         if !equally_good.is_empty() {
             evidence.push_str(&format!(
                 "; explains the held-out data about as well as {}",
@@ -901,7 +919,6 @@ pub fn diagnose(rec: &Recording, platform_points: &[[f64; 3]], start: Option<&Pa
         final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
     })
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -54,7 +54,10 @@ pub fn fit_circle(points: &[[f64; 3]]) -> Option<(Circle3, f64)> {
     if !(eig.eigenvalues[idx[1]] > 0.0) {
         return None; // collinear points
     }
-    let col = |k: usize| -> [f64; 3] { let c = eig.eigenvectors.column(k); [c[0], c[1], c[2]] };
+    let col = |k: usize| -> [f64; 3] {
+        let c = eig.eigenvectors.column(k);
+        [c[0], c[1], c[2]]
+    };
     let e1 = col(idx[0]);
     let n = col(idx[2]);
     let e2 = cross(n, e1);
@@ -98,10 +101,7 @@ pub fn jacobian(p: [f64; 3], c: &Circle3, e1: [f64; 3], e2: [f64; 3]) -> [[f64; 
     let q = sub(d, n.map(|v| v * a));
     let qn = norm(q);
     let qh = q.map(|v| v / qn);
-    [
-        [-n[0], -n[1], -n[2], dot(d, e1), dot(d, e2), 0.0],
-        [-qh[0], -qh[1], -qh[2], -a * dot(qh, e1), -a * dot(qh, e2), -1.0],
-    ]
+    [[-n[0], -n[1], -n[2], dot(d, e1), dot(d, e2), 0.0], [-qh[0], -qh[1], -qh[2], -a * dot(qh, e1), -a * dot(qh, e2), -1.0]]
 }
 
 /// A plane basis `(e1, e2)` orthogonal to unit `n`.
@@ -117,11 +117,7 @@ pub fn plane_basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
 pub fn step(c: &Circle3, dx: &[f64; 6], e1: [f64; 3], e2: [f64; 3]) -> Circle3 {
     let n: [f64; 3] = std::array::from_fn(|k| c.normal[k] + dx[3] * e1[k] + dx[4] * e2[k]);
     let l = norm(n);
-    Circle3 {
-        centre: std::array::from_fn(|k| c.centre[k] + dx[k]),
-        normal: n.map(|v| v / l),
-        radius: c.radius + dx[5],
-    }
+    Circle3 { centre: std::array::from_fn(|k| c.centre[k] + dx[k]), normal: n.map(|v| v / l), radius: c.radius + dx[5] }
 }
 
 fn cost(points: &[[f64; 3]], c: &Circle3) -> f64 {
@@ -220,9 +216,7 @@ mod tests {
         let pts: Vec<[f64; 3]> = (0..m)
             .map(|i| {
                 let phi = 1.0 / 3.6 * (i as f64 / m as f64 - 0.3);
-                std::array::from_fn(|k| {
-                    truth.centre[k] + truth.radius * (phi.cos() * e1[k] + phi.sin() * e2[k]) + 1.5e-3 * rng.normal()
-                })
+                std::array::from_fn(|k| truth.centre[k] + truth.radius * (phi.cos() * e1[k] + phi.sin() * e2[k]) + 1.5e-3 * rng.normal())
             })
             .collect();
         let (c, rms) = fit_circle(&pts).unwrap();

@@ -458,8 +458,7 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
     }
     let mut details = Vec::new();
     for &id in &ids {
-        let idx: Vec<usize> =
-            (0..rec.len()).filter(|&i| phase[i] == id && rec.p[i].iter().all(|v| v.is_finite())).collect();
+        let idx: Vec<usize> = (0..rec.len()).filter(|&i| phase[i] == id && rec.p[i].iter().all(|v| v.is_finite())).collect();
         if idx.len() < MIN_PHASE_SAMPLES {
             return Err(InitError::PhaseTooShort { phase: id, samples: idx.len(), needed: MIN_PHASE_SAMPLES });
         }
@@ -474,7 +473,11 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
             Some(f) => {
                 let med = |j: usize| {
                     let mut v: Vec<f64> = idx.iter().map(|&i| f[i * n + j]).filter(|t| t.is_finite()).collect();
-                    if v.is_empty() { f64::NEG_INFINITY } else { median_in_place(&mut v) }
+                    if v.is_empty() {
+                        f64::NEG_INFINITY
+                    } else {
+                        median_in_place(&mut v)
+                    }
                 };
                 (0..n).filter(|j| !held.contains(j)).max_by(|&a, &b| med(a).total_cmp(&med(b))).unwrap_or(order[n - 1])
             }
@@ -526,7 +529,9 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
                     if sol.x.iter().all(|v| v.is_finite()) && moved < 0.5 {
                         [sol.x[0], sol.x[1], sol.x[2]]
                     } else {
-                        notes.push(format!("cable {j}: the sphere refinement did not converge near the circle axes; kept the line estimate"));
+                        notes.push(format!(
+                            "cable {j}: the sphere refinement did not converge near the circle axes; kept the line estimate"
+                        ));
                         a_line
                     }
                 } else {
@@ -558,7 +563,9 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
         let a = if sol.x.iter().all(|v| v.is_finite()) && sol.termination.was_successful() && model::norm(model::sub(fitted, a)) < 1.0 {
             fitted
         } else {
-            notes.push(format!("cable {j}: the fit on all readings did not converge near the geometric estimate; kept the geometric estimate"));
+            notes.push(format!(
+                "cable {j}: the fit on all readings did not converge near the geometric estimate; kept the geometric estimate"
+            ));
             a
         };
         let o = median_offset(&d, a);

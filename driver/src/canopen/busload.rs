@@ -7,9 +7,9 @@
 //! `floor((34 + 8n - 1) / 4)` stuff bits (Davis, Burns, Bril, Lukkien 2007, eq. 2). So an 8-byte
 //! PDO is at most 135 bits, a SYNC 55.
 
-use super::pdo::{byte_len, PdoDef};
 #[cfg(test)]
 use super::pdo::PdoLayout;
+use super::pdo::{byte_len, PdoDef};
 
 /// Worst-case length of a frame on the wire, bits.
 pub fn frame_bits(data_bytes: u8, extended: bool) -> u32 {
@@ -45,11 +45,7 @@ impl BusLoad {
             bits += drives as u32 * frame_bits(byte_len(p.entries()), false);
             frames += drives as u32;
         }
-        let hb = if heartbeat_ms > 0 {
-            drives as f64 * f64::from(frame_bits(1, false)) * 1000.0 / f64::from(heartbeat_ms)
-        } else {
-            0.0
-        };
+        let hb = if heartbeat_ms > 0 { drives as f64 * f64::from(frame_bits(1, false)) * 1000.0 / f64::from(heartbeat_ms) } else { 0.0 };
         let per_s = f64::from(bits) / cycle_s + hb;
         BusLoad { frames_per_cycle: frames, bits_per_cycle: bits, heartbeat_bits_per_s: hb, load: per_s / f64::from(bitrate) }
     }

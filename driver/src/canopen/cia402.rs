@@ -321,8 +321,20 @@ mod tests {
     }
 
     fn scaling() -> impl Strategy<Value = Scaling> {
-        (0.005f64..0.5, 1.0f64..100.0, prop_oneof![Just(4096.0), Just(131072.0), Just(1048576.0)], 0.1f64..20.0, prop_oneof![Just(1.0), Just(-1.0)])
-            .prop_map(|(drum_radius_m, gear_ratio, counts_per_rev, rated_torque_nm, sign)| Scaling { drum_radius_m, gear_ratio, counts_per_rev, rated_torque_nm, sign })
+        (
+            0.005f64..0.5,
+            1.0f64..100.0,
+            prop_oneof![Just(4096.0), Just(131072.0), Just(1048576.0)],
+            0.1f64..20.0,
+            prop_oneof![Just(1.0), Just(-1.0)],
+        )
+            .prop_map(|(drum_radius_m, gear_ratio, counts_per_rev, rated_torque_nm, sign)| Scaling {
+                drum_radius_m,
+                gear_ratio,
+                counts_per_rev,
+                rated_torque_nm,
+                sign,
+            })
     }
 
     proptest! {

@@ -257,11 +257,8 @@ impl<T: CanTransport, S> DriveSet<T, S> {
     }
 
     fn not_ready(&self) -> DriveSetError {
-        let bad: Vec<NodeStatus> = self
-            .master
-            .statuses()
-            .filter(|s| s.phase != Phase::Operational || s.axis.state != Some(State::OperationEnabled))
-            .collect();
+        let bad: Vec<NodeStatus> =
+            self.master.statuses().filter(|s| s.phase != Phase::Operational || s.axis.state != Some(State::OperationEnabled)).collect();
         let first = bad.iter().find(|s| s.phase != Phase::Operational).or(bad.first());
         match first {
             Some(s) => DriveSetError::Timeout { node: s.node, phase: s.phase, state: s.axis.state, count: bad.len() },

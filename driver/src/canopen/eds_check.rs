@@ -78,10 +78,7 @@ pub fn check(cfg: &NodeConfig, eds: &Eds) -> Result<Vec<CheckedUse>, EdsProblem>
         }
         if matches!(u.kind, Use::Rpdo { .. } | Use::Tpdo { .. }) {
             if !v.pdo_mapping {
-                return Err(bad(
-                    line,
-                    format!("PDOMapping=0, but the configuration {}: map another object or remove it", u.kind.verb()),
-                ));
+                return Err(bad(line, format!("PDOMapping=0, but the configuration {}: map another object or remove it", u.kind.verb())));
             }
             if v.bits().is_none() {
                 return Err(bad(line, format!("DataType=0x{:04X} has no fixed length and cannot be mapped", v.data_type)));

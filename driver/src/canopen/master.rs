@@ -255,9 +255,10 @@ impl MasterConfig {
     pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<Self, ConfigProblem> {
         use taut_config::devices::DriveMode;
         let problem = |key: String, message: String| ConfigProblem { key, message };
-        let can = cfg.can.as_ref().ok_or_else(|| {
-            problem("can".into(), "the configuration has no [can] table; add one with `interface = \"can0\"`".into())
-        })?;
+        let can = cfg
+            .can
+            .as_ref()
+            .ok_or_else(|| problem("can".into(), "the configuration has no [can] table; add one with `interface = \"can0\"`".into()))?;
         can.validate().map_err(|(k, m)| problem(format!("can.{k}"), m))?;
         let mut nodes = Vec::new();
         for (i, c) in cfg.cables.iter().enumerate() {
@@ -663,7 +664,12 @@ enum Field {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Step {
-    Upload { index: u16, sub: u8, field: Field, required: bool },
+    Upload {
+        index: u16,
+        sub: u8,
+        field: Field,
+        required: bool,
+    },
     Download(SdoWrite),
     /// Brings a drive found powered (left enabled by a previous run, or stopped by its own
     /// master-loss reaction) to a power stage off, by SDO before anything else is written:

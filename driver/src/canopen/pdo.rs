@@ -401,7 +401,14 @@ mod tests {
         let m = |sub, v| SdoWrite::u32(0x1600, sub, v);
         assert_eq!(
             r,
-            vec![SdoWrite::u8(0x1600, 0, 3), m(1, 0x6040_0010), m(2, 0x607A_0020), m(3, 0x6071_0010), SdoWrite::u8(0x1400, 2, 1), SdoWrite::u32(0x1400, 1, 0x203)]
+            vec![
+                SdoWrite::u8(0x1600, 0, 3),
+                m(1, 0x6040_0010),
+                m(2, 0x607A_0020),
+                m(3, 0x6071_0010),
+                SdoWrite::u8(0x1400, 2, 1),
+                SdoWrite::u32(0x1400, 1, 0x203)
+            ]
         );
         assert_eq!(disable_write(Direction::Tx, 2, 3), SdoWrite::u32(0x1802, 1, 0x8000_0383));
     }

@@ -417,14 +417,7 @@ pub struct SdoAbort {
 
 impl fmt::Display for SdoAbort {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "{} abort accessing 0x{:04X}sub{}: {}",
-            if self.by_server { "server" } else { "client" },
-            self.index,
-            self.sub,
-            self.code
-        )
+        write!(f, "{} abort accessing 0x{:04X}sub{}: {}", if self.by_server { "server" } else { "client" }, self.index, self.sub, self.code)
     }
 }
 
@@ -714,7 +707,9 @@ mod tests {
     fn arb_initiate() -> impl Strategy<Value = Initiate> {
         prop_oneof![
             (any::<[u8; 4]>(), 1u8..=4).prop_map(|(mut data, len)| {
-                for b in &mut data[usize::from(len)..] { *b = 0; }
+                for b in &mut data[usize::from(len)..] {
+                    *b = 0;
+                }
                 Initiate::Expedited { data, len }
             }),
             proptest::option::of(any::<u32>()).prop_map(|size| Initiate::Segmented { size }),
@@ -723,7 +718,9 @@ mod tests {
 
     fn arb_segment() -> impl Strategy<Value = Segment> {
         (any::<bool>(), any::<[u8; 7]>(), 0u8..=7, any::<bool>()).prop_map(|(toggle, mut data, len, last)| {
-            for b in &mut data[usize::from(len)..] { *b = 0; }
+            for b in &mut data[usize::from(len)..] {
+                *b = 0;
+            }
             Segment { toggle, data, len, last }
         })
     }
@@ -886,7 +883,8 @@ mod tests {
     fn a_stale_answer_is_neither_taken_nor_answered() {
         let t0 = Instant::now();
         let mut c = SdoClient::new(5, Duration::from_millis(50));
-        let dt = |v: u32| SdoResponse::UploadInitiated { index: 0x1000, sub: 0, kind: Initiate::Expedited { data: v.to_le_bytes(), len: 4 } };
+        let dt =
+            |v: u32| SdoResponse::UploadInitiated { index: 0x1000, sub: 0, kind: Initiate::Expedited { data: v.to_le_bytes(), len: 4 } };
         c.upload(0x1000, 0, t0).unwrap();
         let _ = c.poll_tx();
         assert_eq!(c.on_response(dt(0x20192).encode(5).data(), t0).unwrap(), Some(SdoOutcome::Uploaded { index: 0x1000, sub: 0, len: 4 }));

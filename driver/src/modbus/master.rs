@@ -304,11 +304,7 @@ impl<'c, L: SerialLink> Master<'c, L> {
         };
         self.last_activity = Some(Instant::now());
         let Some((start, flen)) = result else {
-            return Err(if len == 0 {
-                TransactionError::Timeout { unit }
-            } else {
-                TransactionError::Garbage { unit, len, error: None }
-            });
+            return Err(if len == 0 { TransactionError::Timeout { unit } } else { TransactionError::Garbage { unit, len, error: None } });
         };
         match rtu::decode(&self.rx[start..start + flen]) {
             Ok(Response::Registers(r)) if r.function == req.function && r.values().len() == usize::from(req.quantity) => Ok(r),
@@ -454,7 +450,8 @@ mod tests {
     #[test]
     fn garbage_is_retried_and_counted() {
         let r = enc_req(&req());
-        let mut s = Script::new(vec![(r.clone(), vec![vec![0x55; 7]]), (r.clone(), vec![vec![0x02, 0x04, 0x04, 1]]), (r, vec![b"GONE".to_vec()])]);
+        let mut s =
+            Script::new(vec![(r.clone(), vec![vec![0x55; 7]]), (r.clone(), vec![vec![0x02, 0x04, 0x04, 1]]), (r, vec![b"GONE".to_vec()])]);
         let c = Counters::default();
         let mut m = Master::new(&mut s, cfg(), &c);
         assert!(matches!(m.read(&req()), Err(TransactionError::Link(LinkError::Gone(_)))));

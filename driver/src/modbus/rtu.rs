@@ -201,11 +201,7 @@ impl Registers {
 
 impl fmt::Debug for Registers {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Registers")
-            .field("unit", &self.unit)
-            .field("function", &self.function)
-            .field("values", &self.values())
-            .finish()
+        f.debug_struct("Registers").field("unit", &self.unit).field("function", &self.function).field("values", &self.values()).finish()
     }
 }
 

@@ -413,16 +413,10 @@ mod tests {
         let l = parse_line("(1.5) vcan0 1ABCDEF0#0102 R").unwrap();
         assert_eq!(l.t_us, 1_500_000);
         assert_eq!(l.frame, LoggedFrame::Can(Frame::try_new(0x1ABC_DEF0, true, &[1, 2]).unwrap()));
-        assert_eq!(
-            parse_line("(0.000001) can0 321#R4").unwrap().frame,
-            LoggedFrame::Can(Frame::remote(0x321, false, 4).unwrap())
-        );
+        assert_eq!(parse_line("(0.000001) can0 321#R4").unwrap().frame, LoggedFrame::Can(Frame::remote(0x321, false, 4).unwrap()));
         assert_eq!(parse_line("(0.0) c 080#").unwrap().frame, LoggedFrame::Can(Frame::new(0x80, &[])));
         assert_eq!(parse_line("(0.0) c 123#11.22").unwrap().frame, LoggedFrame::Can(Frame::new(0x123, &[0x11, 0x22])));
-        assert!(matches!(
-            parse_line("(0.0) c 20000040#0000000000000000").unwrap().frame,
-            LoggedFrame::Error { class: 0x40, .. }
-        ));
+        assert!(matches!(parse_line("(0.0) c 20000040#0000000000000000").unwrap().frame, LoggedFrame::Error { class: 0x40, .. }));
         assert_eq!(parse_line("(0.0) c 123##1AA"), Err(CandumpError::CanFd));
         assert_eq!(parse_line("(0.0) c 1234#AA"), Err(CandumpError::BadId));
         assert_eq!(parse_line("(0.0) c 800#AA"), Err(CandumpError::BadId));
@@ -477,10 +471,8 @@ mod tests {
 
     fn arb_frame() -> impl Strategy<Value = Frame> {
         prop_oneof![
-            (0u32..=0x7FF, proptest::collection::vec(any::<u8>(), 0..=8))
-                .prop_map(|(id, d)| Frame::try_new(id, false, &d).unwrap()),
-            (0u32..=0x1FFF_FFFF, proptest::collection::vec(any::<u8>(), 0..=8))
-                .prop_map(|(id, d)| Frame::try_new(id, true, &d).unwrap()),
+            (0u32..=0x7FF, proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(|(id, d)| Frame::try_new(id, false, &d).unwrap()),
+            (0u32..=0x1FFF_FFFF, proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(|(id, d)| Frame::try_new(id, true, &d).unwrap()),
             (0u32..=0x7FF, 0u8..=8).prop_map(|(id, n)| Frame::remote(id, false, n).unwrap()),
         ]
     }

@@ -69,9 +69,7 @@ pub fn from_socketcan(f: &CanFrame) -> Result<Frame, TransportError> {
             data[..d.len().min(8)].copy_from_slice(&d[..d.len().min(8)]);
             Err(TransportError::Bus(BusEvent::from_error_frame(e.error_bits(), &data)))
         }
-        CanFrame::Remote(_) => {
-            Ok(Frame { id: raw_id(f.id()), extended: f.is_extended(), rtr: true, dlc: f.dlc().min(8) as u8, data })
-        }
+        CanFrame::Remote(_) => Ok(Frame { id: raw_id(f.id()), extended: f.is_extended(), rtr: true, dlc: f.dlc().min(8) as u8, data }),
         CanFrame::Data(_) => {
             let d = f.data();
             let n = d.len().min(8);
@@ -90,11 +88,7 @@ fn raw_id(id: Id) -> u32 {
 
 /// Converts a frame for sending; `None` if the id does not fit its format.
 pub fn to_socketcan(f: &Frame) -> Option<CanFrame> {
-    let id: Id = if f.extended {
-        Id::Extended(ExtendedId::new(f.id)?)
-    } else {
-        Id::Standard(StandardId::new(u16::try_from(f.id).ok()?)?)
-    };
+    let id: Id = if f.extended { Id::Extended(ExtendedId::new(f.id)?) } else { Id::Standard(StandardId::new(u16::try_from(f.id).ok()?)?) };
     if f.rtr {
         CanFrame::new_remote(id, usize::from(f.dlc.min(8)))
     } else {

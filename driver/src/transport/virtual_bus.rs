@@ -167,7 +167,6 @@ impl VirtualEndpoint {
     pub fn controller(&self) -> CanController {
         CanController { shared: self.shared.clone(), idx: self.idx }
     }
-
 }
 
 /// The CAN controller of one endpoint, as a test drives it: error frames in the kernel's
@@ -276,11 +275,7 @@ impl CanTransport for VirtualEndpoint {
                 return Ok(None);
             }
             st.waiters += 1;
-            let (guard, _) = self
-                .shared
-                .cv
-                .wait_timeout(st, deadline - now)
-                .unwrap_or_else(|e| e.into_inner());
+            let (guard, _) = self.shared.cv.wait_timeout(st, deadline - now).unwrap_or_else(|e| e.into_inner());
             st = guard;
             st.waiters -= 1;
         }

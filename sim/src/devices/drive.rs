@@ -655,9 +655,9 @@ impl VirtualDrive {
             self.consumer_deadline().map(|t| t + Duration::from_millis(1)),
             self.pending_reset.map(|(_, t)| t),
         ]
-            .into_iter()
-            .flatten()
-            .min()
+        .into_iter()
+        .flatten()
+        .min()
     }
 
     /// Handles one frame from the bus.
@@ -1024,7 +1024,24 @@ impl VirtualDrive {
     fn exists(&self, index: u16) -> bool {
         matches!(
             index,
-            0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F | 0x6040 | 0x6041 | 0x6060 | 0x6061 | 0x6064 | 0x606C | 0x6071 | 0x6077 | 0x607A | 0x60F4
+            0x1000
+                | 0x1008
+                | 0x1016
+                | 0x1017
+                | 0x1018
+                | 0x2000
+                | 0x6007
+                | 0x603F
+                | 0x6040
+                | 0x6041
+                | 0x6060
+                | 0x6061
+                | 0x6064
+                | 0x606C
+                | 0x6071
+                | 0x6077
+                | 0x607A
+                | 0x60F4
         )
     }
 
@@ -1305,7 +1322,14 @@ mod tests {
         d.poll(t);
         assert_eq!(d.poll_tx(), Some(Frame::new(0x703, &[0])));
         let r = sdo(&mut d, SdoRequest::InitiateUpload { index: 0x1000, sub: 0 }, t);
-        assert_eq!(r, SdoResponse::UploadInitiated { index: 0x1000, sub: 0, kind: Initiate::Expedited { data: 0x0002_0192u32.to_le_bytes(), len: 4 } });
+        assert_eq!(
+            r,
+            SdoResponse::UploadInitiated {
+                index: 0x1000,
+                sub: 0,
+                kind: Initiate::Expedited { data: 0x0002_0192u32.to_le_bytes(), len: 4 }
+            }
+        );
         let r = sdo(&mut d, SdoRequest::InitiateDownload { index: 0x6041, sub: 0, kind: Initiate::Expedited { data: [0; 4], len: 2 } }, t);
         assert_eq!(r, SdoResponse::Abort { index: 0x6041, sub: 0, code: AbortCode::READ_ONLY });
         let r = sdo(&mut d, SdoRequest::InitiateUpload { index: 0x5555, sub: 0 }, t);
@@ -1321,7 +1345,11 @@ mod tests {
         let mut d = VirtualDrive::new(DriveParams::new(3));
         d.poll(t);
         let _ = d.poll_tx();
-        let w = |index: u16, sub: u8, v: u32, len: u8| SdoRequest::InitiateDownload { index, sub, kind: Initiate::Expedited { data: v.to_le_bytes(), len } };
+        let w = |index: u16, sub: u8, v: u32, len: u8| SdoRequest::InitiateDownload {
+            index,
+            sub,
+            kind: Initiate::Expedited { data: v.to_le_bytes(), len },
+        };
         let abort = |index: u16, sub: u8, code: AbortCode| SdoResponse::Abort { index, sub, code };
         assert_eq!(sdo(&mut d, w(0x6007, 0, 4, 2), t), abort(0x6007, 0, AbortCode::INVALID_VALUE), "0..=3 only");
         assert_eq!(sdo(&mut d, w(0x6007, 0, 3, 1), t), abort(0x6007, 0, AbortCode::LENGTH_MISMATCH), "INTEGER16");

@@ -84,7 +84,10 @@ pub fn bus_faults_reach_the_loop_with<T: CanTransport + Send>(
     let passive = DeviceFault::Bus { iface: inp.bus.iface, event: BusEvent::ErrorPassive { tx: 128, rx: 0 } };
     assert_eq!(s.faults[0], passive);
     assert_eq!(inp.bus.state, BusState::Passive);
-    assert_eq!(taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::ErrorPassive { tx: 128, rx: 0 } }.to_string(), format!("{iface}: error-passive (tx errors 128, rx errors 0)"));
+    assert_eq!(
+        taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::ErrorPassive { tx: 128, rx: 0 } }.to_string(),
+        format!("{iface}: error-passive (tx errors 128, rx errors 0)")
+    );
     // Back to error-active: a recovery.
     inject(error_frame(err::CRTL, [0, err::CRTL_ACTIVE, 0, 0, 0, 0, 0, 0]));
     let s = run_until(&mut dev, &mut inp, &|s| s.last.is_some_and(|b| b.recoveries == 1));
@@ -97,7 +100,10 @@ pub fn bus_faults_reach_the_loop_with<T: CanTransport + Send>(
     let off = DeviceFault::Bus { iface: inp.bus.iface, event: BusEvent::BusOff };
     assert!(s.faults.iter().all(|f| *f == off), "{s:?}");
     assert_eq!(inp.bus.state, BusState::Off);
-    assert_eq!(taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::BusOff }.to_string()[..iface.len() + 9], format!("{iface}: bus-off"));
+    assert_eq!(
+        taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::BusOff }.to_string()[..iface.len() + 9],
+        format!("{iface}: bus-off")
+    );
     // Bytes that are no frame are not trusted and change nothing.
     let mut junk = error_frame(0, [0; 8]);
     junk[..4].copy_from_slice(&0x0000_0800u32.to_ne_bytes()); // an 11-bit id with bit 11 set
