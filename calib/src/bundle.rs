@@ -390,8 +390,7 @@ mod tests {
         let start: Vec<[f64; 3]> = truth.iter().map(|a| [a[0] + 0.02, a[1] - 0.015, a[2] + 0.01]).collect();
         let r = refine(&rec, &[[0.0; 3]; 4], &start, &[1.02, -0.48, 0.23, 2.01], &BundleOptions::default()).unwrap();
         // The force-aware calibration on the same data, for comparison.
-        let mut o = crate::CalibOptions::default();
-        o.heldout_fraction = 0.0;
+        let o = crate::CalibOptions { heldout_fraction: 0.0, ..Default::default() };
         let c = crate::calibrate(&rec, &[[0.0; 3]; 4], &crate::Params { anchors: start.clone(), l0: vec![1.02, -0.48, 0.23, 2.01] }, &o)
             .unwrap();
         let worst = |a: &[[f64; 3]]| a.iter().zip(&truth).map(|(a, t)| model::norm(model::sub(*a, *t))).fold(0.0, f64::max);

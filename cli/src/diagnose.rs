@@ -191,7 +191,9 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
     write_panels(set, "diagnose-residual-vs-time", &panels)?;
     for f in &d.effects {
         let Some(p) = &f.plot else { continue };
-        let data: Vec<(Vec<(f64, f64)>, Vec<(f64, f64)>)> = p.cables.iter().map(|(x, b, a)| (pts(x, b), pts(x, a))).collect();
+        // Each cable's points before and after the correction.
+        type Points = Vec<(f64, f64)>;
+        let data: Vec<(Points, Points)> = p.cables.iter().map(|(x, b, a)| (pts(x, b), pts(x, a))).collect();
         let x_label = format!("{} ({})", p.regressor.name(), p.regressor.unit());
         let panels: Vec<Panel> = data
             .iter()

@@ -78,11 +78,9 @@ fn load(args: &ProbeArgs) -> anyhow::Result<RobotConfig> {
         None if args.sim => sim_robot(4),
         None => bail!("give the robot configuration with --config FILE (or --sim to probe the simulated drives)"),
     };
-    if args.sim {
-        if cfg.cables.iter().all(|c| c.drive.is_none()) {
-            let n = cfg.cables.len();
-            cfg = RobotConfig { cables: sim_robot(n).cables, ..cfg };
-        }
+    if args.sim && cfg.cables.iter().all(|c| c.drive.is_none()) {
+        let n = cfg.cables.len();
+        cfg = RobotConfig { cables: sim_robot(n).cables, ..cfg };
     }
     let name = args.interface.clone();
     match (&mut cfg.can, name) {
@@ -252,27 +250,15 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     result
 }
 
-fn drain(mut next: impl FnMut() -> Option<Event>) -> Vec<Event> {
-    std::iter::from_fn(|| next()).collect()
+fn drain(next: impl FnMut() -> Option<Event>) -> Vec<Event> {
+    std::iter::from_fn(next).collect()
 }
 
 fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
     println!();
     println!(
-        "{:>4} {:>5}  {:<15} {:<12} {:<18} {:>4} {:>11} {:>10} {:>10}  {:<10} {:<10} {:>8}  {}",
-        "node",
-        "cable",
-        "NMT",
-        "phase",
-        "drive",
-        "mode",
-        "position m",
-        "drive N",
-        "cell N",
-        "vendor",
-        "product",
-        "serial",
-        "name / last EMCY"
+        "{:>4} {:>5}  {:<15} {:<12} {:<18} {:>4} {:>11} {:>10} {:>10}  {:<10} {:<10} {:>8}  name / last EMCY",
+        "node", "cable", "NMT", "phase", "drive", "mode", "position m", "drive N", "cell N", "vendor", "product", "serial",
     );
     for s in statuses {
         let opt = |v: Option<u32>| v.map_or("-".to_string(), |v| format!("0x{v:08X}"));

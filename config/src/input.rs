@@ -12,7 +12,7 @@ pub const MAX_TEXT_BYTES: u64 = 1 << 20;
 
 /// Opens an input file. Opening a fifo blocks until something writes to it: a pipe from a running
 /// command (`<(zcat rec.csv.gz)`) opens at once, a fifo nobody writes to is an error after
-/// [`FIFO_OPEN_WAIT`] instead of a hang.
+/// `FIFO_OPEN_WAIT` (10 s) instead of a hang.
 pub fn open(path: &Path) -> Result<std::fs::File, String> {
     use std::os::unix::fs::FileTypeExt;
     let is_fifo = std::fs::metadata(path).is_ok_and(|m| m.file_type().is_fifo());

@@ -52,7 +52,7 @@ const MAX_COMMENTS: usize = 200;
 /// Characters of a field echoed in a message; longer fields are cut with "…".
 const ECHO_CHARS: usize = 40;
 
-/// A field as it may be shown to a person: at most [`ECHO_CHARS`] characters, control characters
+/// A field as it may be shown to a person: at most `ECHO_CHARS` (40) characters, control characters
 /// escaped, and the length said when cut.
 pub fn excerpt(s: &str) -> String {
     let mut out = String::new();

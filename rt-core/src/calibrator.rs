@@ -268,8 +268,8 @@ const MAX_EXTRAPOLATION_S: f64 = 0.01;
 impl LengthHistory {
     fn push(&mut self, s: &Sample, n: usize) {
         let mut t = [f64::NAN; crate::MAX_CABLES];
-        for j in 0..n {
-            t[j] = s.t - s.length_age_s[j].max(0.0);
+        for (tj, age) in t[..n].iter_mut().zip(&s.length_age_s[..n]) {
+            *tj = s.t - age.max(0.0);
         }
         if self.rows.back().is_some_and(|(tb, _)| tb[..n] == t[..n]) {
             return;
@@ -317,9 +317,9 @@ fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &Cali
         *x = hist.at(j, tp);
     }
     let mut f = [f64::NAN; crate::MAX_CABLES];
-    for j in 0..n {
-        if s.tension_age_s[j] <= cfg.tension_max_age_s {
-            f[j] = s.tension_n[j];
+    for ((fj, &age), &tension) in f[..n].iter_mut().zip(&s.tension_age_s[..n]).zip(&s.tension_n[..n]) {
+        if age <= cfg.tension_max_age_s {
+            *fj = tension;
         }
     }
     rec.push(tp, p, None, &l[..n], Some(&f[..n]), Some(i32::from(s.phase)));
@@ -368,6 +368,9 @@ fn last_version(dir: &Path) -> u64 {
         .unwrap_or(0)
 }
 
+// A job is built once per calibration run and moved once into the worker's channel: boxing the
+// recordings would only add an allocation.
+#[allow(clippy::large_enum_variant)]
 enum Job {
     Initial { rec: Recording, run: u16 },
     Calibrate { train: Recording, heldout: Recording, init: Estimate, current: LoopParams, run: u16 },
@@ -381,6 +384,9 @@ struct JobResult {
     heldout: Option<(Recording, LoopParams)>,
     data_problems: Vec<String>,
 }
+
+/// The calibrator's ends of the worker's channels: jobs out, results back (each with the backend).
+type JobChannels = (mpsc::Sender<(Job, Box<dyn Calibrate>)>, mpsc::Receiver<(JobResult, Box<dyn Calibrate>)>);
 
 /// The calibrator: owns the ring's consumer end and the parameter writer.
 pub struct Calibrator {
@@ -399,7 +405,7 @@ pub struct Calibrator {
     current: Option<Estimate>,
     current_params: LoopParams,
     version: u64,
-    jobs: Option<(mpsc::Sender<(Job, Box<dyn Calibrate>)>, mpsc::Receiver<(JobResult, Box<dyn Calibrate>)>)>,
+    jobs: Option<JobChannels>,
     busy: bool,
 }
 
@@ -517,6 +523,8 @@ impl Calibrator {
         if !fresh {
             return;
         }
+        // `%` keeps the panic on a zero decimation (`is_multiple_of(0)` would not) and the MSRV 1.80.
+        #[allow(clippy::manual_is_multiple_of)]
         let keep = self.decim % self.cfg.decimation == 0;
         self.decim += 1;
         match state {
@@ -704,7 +712,9 @@ fn validate(
     if est.observable && est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).chain([&est.rms_m]).any(|v| v.is_infinite()) {
         return Err("infinite uncertainty or RMS: the statistics broke down".into());
     }
-    let reference: Option<(Vec<[f64; 3]>, Option<Vec<f64>>)> = match kind {
+    // Anchors, and the zero lengths when there is a previous estimate.
+    type Reference = (Vec<[f64; 3]>, Option<Vec<f64>>);
+    let reference: Option<Reference> = match kind {
         OutcomeKind::Initial => c.nominal.clone().map(|a| (a, None)),
         OutcomeKind::Calibration => current.map(|e| (e.anchors.clone(), Some(e.l0.clone()))),
     };

@@ -81,7 +81,7 @@ impl LoopParams {
     /// Measured minus modelled length of cable `j` at pose `p`; `None` without a pose, a
     /// length, or with a tension below `min_tension_n` (loose cable).
     pub fn coregistration_error(&self, j: usize, p: &[f64; 3], l: &[f64], f: Option<&[f64]>, min_tension_n: f64) -> Option<f64> {
-        let usable = p.iter().all(|x| x.is_finite()) && l[j].is_finite() && !f.is_some_and(|f| !(f[j] >= min_tension_n));
+        let usable = p.iter().all(|x| x.is_finite()) && l[j].is_finite() && f.is_none_or(|f| f[j] >= min_tension_n);
         usable.then(|| l[j] - self.length(j, p))
     }
 }

@@ -678,9 +678,7 @@ impl Controller {
     fn start_excitation(&mut self, inp: &Inputs, now: f64) {
         let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
         self.start_m = p0;
-        for i in 0..3 {
-            self.lissajous_start[i] = self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin();
-        }
+        self.lissajous_start = std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin());
         let d = (0..3).map(|i| (self.lissajous_start[i] - p0[i]).powi(2)).sum::<f64>().sqrt();
         // Smoothstep peaks at 1.5 x the mean speed.
         self.approach_s = (1.5 * d / self.cfg.excitation_speed_m_s).max(1.0);
@@ -691,11 +689,7 @@ impl Controller {
     fn excitation_point(&self, t: f64) -> [f64; 3] {
         if t < self.approach_s {
             let w = smoothstep(t / self.approach_s);
-            let mut p = [0.0; 3];
-            for i in 0..3 {
-                p[i] = self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]);
-            }
-            p
+            std::array::from_fn(|i| self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]))
         } else {
             let tt = t - self.approach_s;
             let mut p = [0.0; 3];
@@ -738,9 +732,7 @@ impl Controller {
             State::Idle => {
                 out.request = DriveRequest::Disable;
                 self.enter(State::Enabling, now);
-                for j in 0..n {
-                    next[j] = inp.length_m[j];
-                }
+                next[..n].copy_from_slice(&inp.length_m[..n]);
             }
             State::Enabling => {
                 for j in 0..n {
@@ -821,9 +813,9 @@ impl Controller {
                 }
                 if self.segment == Segment::Settle {
                     // Everyone holds while the platform settles; the phase's data has ended.
-                    for j in 0..n {
+                    for (j, mode) in modes[..n].iter_mut().enumerate() {
                         if j != a && j != b && j != r {
-                            modes[j] = CableCommand::Tension(self.cfg.init_follower_tension_n);
+                            *mode = CableCommand::Tension(self.cfg.init_follower_tension_n);
                         }
                     }
                     if now - self.segment_t0 >= self.cfg.settle_s {
@@ -864,8 +856,8 @@ impl Controller {
                 let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 let step = self.cfg.move_speed_m_s * dt;
                 if dist > step {
-                    for i in 0..3 {
-                        self.target[i] += d[i] * step / dist;
+                    for (x, di) in self.target.iter_mut().zip(d) {
+                        *x += di * step / dist;
                     }
                 } else {
                     self.target = self.goal;

@@ -389,15 +389,11 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                     DriveRequest::Enable => {
                         let _ = op.enable(i);
                         match out.cable[j] {
-                            CableCommand::Position(l) if l.is_finite() => {
-                                if op.set_mode(i, Mode::CyclicPosition).is_ok() {
-                                    let _ = op.set_position_m(i, l);
-                                }
+                            CableCommand::Position(l) if l.is_finite() && op.set_mode(i, Mode::CyclicPosition).is_ok() => {
+                                let _ = op.set_position_m(i, l);
                             }
-                            CableCommand::Tension(t) if t.is_finite() => {
-                                if op.set_mode(i, Mode::CyclicTorque).is_ok() {
-                                    let _ = op.set_tension_n(i, t);
-                                }
+                            CableCommand::Tension(t) if t.is_finite() && op.set_mode(i, Mode::CyclicTorque).is_ok() => {
+                                let _ = op.set_tension_n(i, t);
                             }
                             _ => {}
                         }

@@ -125,6 +125,29 @@ impl Periodic {
     }
 }
 
+static STOP_SIGNAL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+extern "C" fn on_stop_signal(_: libc::c_int) {
+    // Relaxed: async-signal-safe store; the poller only needs to see it eventually.
+    STOP_SIGNAL.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Makes SIGINT and SIGTERM set a flag instead of killing the process, so the daemon can hold and
+/// disable the drives before it exits. Poll with [`stop_requested`].
+pub fn install_stop_signals() {
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, on_stop_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_stop_signal as *const () as libc::sighandler_t);
+    }
+}
+
+/// True once SIGINT or SIGTERM arrived (after [`install_stop_signals`]).
+pub fn stop_requested() -> bool {
+    // Relaxed: see on_stop_signal.
+    STOP_SIGNAL.load(std::sync::atomic::Ordering::Relaxed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -147,27 +170,4 @@ mod tests {
         assert!(r.warnings.is_empty());
         assert!(!r.realtime);
     }
-}
-
-static STOP_SIGNAL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-
-extern "C" fn on_stop_signal(_: libc::c_int) {
-    // Relaxed: async-signal-safe store; the poller only needs to see it eventually.
-    STOP_SIGNAL.store(true, std::sync::atomic::Ordering::Relaxed);
-}
-
-/// Makes SIGINT and SIGTERM set a flag instead of killing the process, so the daemon can hold and
-/// disable the drives before it exits. Poll with [`stop_requested`].
-pub fn install_stop_signals() {
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-    unsafe {
-        libc::signal(libc::SIGINT, on_stop_signal as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_stop_signal as *const () as libc::sighandler_t);
-    }
-}
-
-/// True once SIGINT or SIGTERM arrived (after [`install_stop_signals`]).
-pub fn stop_requested() -> bool {
-    // Relaxed: see on_stop_signal.
-    STOP_SIGNAL.load(std::sync::atomic::Ordering::Relaxed)
 }

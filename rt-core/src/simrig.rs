@@ -492,6 +492,6 @@ fn rest_tensions(anchors: &[[f64; 3]], p: [f64; 3], mass_kg: f64, follower_n: f6
         return None;
     }
     let mut out = t.to_vec();
-    out.extend(std::iter::repeat(follower_n).take(anchors.len() - 3));
+    out.extend(std::iter::repeat_n(follower_n, anchors.len() - 3));
     Some(out)
 }

@@ -90,8 +90,8 @@ impl KinematicRobot {
                 row[u] += 1e-9;
             }
             if let Some(dx) = solve3(&jtj, &jtr) {
-                for u in 0..3 {
-                    self.p[u] += dx[u];
+                for (x, d) in self.p.iter_mut().zip(dx) {
+                    *x += d;
                 }
             }
         }
@@ -154,9 +154,7 @@ impl Devices for KinematicRobot {
         let n = self.truth.n;
         let mut geo = [0.0; MAX_CABLES];
         self.truth.lengths(&self.p, &mut geo);
-        for j in 0..n {
-            self.len[j] = geo[j];
-        }
+        self.len[..n].copy_from_slice(&geo[..n]);
     }
 }
 

@@ -13,7 +13,7 @@
 //! l_hat  = play(v; w_b)                                backlash: play operator of width w_b
 //! ```
 //!
-//! The play runs over the samples in time order (see [`super::fit::Joint::play`]): the reading
+//! The play runs over the samples in time order (see [`super::fit::PlayState`]): the reading
 //! stays put while `v` moves inside `[l_hat - w_b/2, l_hat + w_b/2]` and is pushed along once `v`
 //! leaves it, so `l_hat_i = v_c - sigma w_b / 2` with `c` the last sample that pushed and
 //! `sigma = +1` paying out, `-1` reeling in.

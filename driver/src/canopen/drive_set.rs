@@ -285,6 +285,8 @@ impl<T: CanTransport> DriveSet<T, Configuring> {
 
     /// Finds, identifies and configures every drive and starts them (NMT operational), within
     /// the configured bring-up timeout.
+    // The refusal hands the whole set back, as large as the Ok value: boxing it would save nothing.
+    #[allow(clippy::result_large_err)]
     pub fn bring_up(mut self) -> Result<DriveSet<T, Operational>, Refused<Self>> {
         let t = self.bringup_timeout;
         match self.wait_for(t, |m| Ok(m.all_operational())) {
@@ -303,6 +305,8 @@ impl<T: CanTransport> DriveSet<T, Operational> {
     }
 
     /// Enables every drive (holding position) and waits until all are in operation enabled.
+    // The refusal hands the whole set back, as large as the Ok value: boxing it would save nothing.
+    #[allow(clippy::result_large_err)]
     pub fn enable(mut self, timeout: Duration) -> Result<DriveSet<T, Enabled>, Refused<Self>> {
         let n = self.master.len();
         if let Some(mut op) = self.master.operational() {
