@@ -192,16 +192,7 @@ fn main() {
     let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(64);
     let (_ptx, prx) = triple_buffer(LoopParams::invalid(4));
     let controller = Controller::new(ccfg, cmd_rx, prx);
-    let init = LoopStatus {
-        snap: controller.snapshot(0.0, &Inputs::new(4)),
-        cycles: 0,
-        overruns: 0,
-        late_ns: 0,
-        max_late_ns: 0,
-        max_compute_ns: 0,
-        dropped: 0,
-        realtime: false,
-    };
+    let init = LoopStatus::initial(controller.snapshot(0.0, &Inputs::new(4)));
     let (_stx, srx) = triple_buffer(init);
     let urgent = Arc::new(Urgent::default());
     let links = ControlLinks {

@@ -177,17 +177,10 @@ fn soak(seconds: f64) {
     let (mut ptx, prx) = triple_buffer(LoopParams::invalid(n));
     let (_ctx, crx) = taut_rt_core::crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(cfg.rt.ring_capacity);
-    let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus {
-        snap: Controller::new(ccfg, taut_rt_core::crossbeam_channel::bounded(1).1, triple_buffer(LoopParams::invalid(n)).1)
+    let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus::initial(
+        Controller::new(ccfg, taut_rt_core::crossbeam_channel::bounded(1).1, triple_buffer(LoopParams::invalid(n)).1)
             .snapshot(0.0, &Inputs::new(n)),
-        cycles: 0,
-        overruns: 0,
-        late_ns: 0,
-        max_late_ns: 0,
-        max_compute_ns: 0,
-        dropped: 0,
-        realtime: false,
-    });
+    ));
     let core = LoopCore::new(n, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, crx, prx), stx);
     let quit = Arc::new(AtomicBool::new(false));
     let q2 = quit.clone();

@@ -67,16 +67,7 @@ impl Daemon {
         let (sample_tx, sample_rx) = sample_ring(cfg.rt.ring_capacity);
         let urgent = Arc::new(Urgent::default());
         let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
-        let init_status = LoopStatus {
-            snap: controller.snapshot(0.0, &crate::io::Inputs::new(n)),
-            cycles: 0,
-            overruns: 0,
-            late_ns: 0,
-            max_late_ns: 0,
-            max_compute_ns: 0,
-            dropped: 0,
-            realtime: false,
-        };
+        let init_status = LoopStatus::initial(controller.snapshot(0.0, &crate::io::Inputs::new(n)));
         let (status_tx, status_rx) = triple_buffer(init_status);
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
         let calib_status: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));

@@ -30,6 +30,13 @@ pub struct LoopStatus {
     pub realtime: bool,
 }
 
+impl LoopStatus {
+    /// The status before the first cycle: the controller's first snapshot, no counts yet.
+    pub fn initial(snap: Snapshot) -> LoopStatus {
+        LoopStatus { snap, cycles: 0, overruns: 0, late_ns: 0, max_late_ns: 0, max_compute_ns: 0, dropped: 0, realtime: false }
+    }
+}
+
 /// One cycle's work without the clock: what the loop thread, the allocation test and the
 /// benchmarks run.
 pub struct LoopCore<D: Devices> {
@@ -112,16 +119,7 @@ pub fn run_loop<D: Devices>(
     let mut timer = Periodic::new(period_ns);
     let t0 = monotonic_ns();
     let mut last = 0.0;
-    let mut st = LoopStatus {
-        snap: core.controller.snapshot(0.0, &core.inputs),
-        cycles: 0,
-        overruns: 0,
-        late_ns: 0,
-        max_late_ns: 0,
-        max_compute_ns: 0,
-        dropped: 0,
-        realtime: setup.realtime,
-    };
+    let mut st = LoopStatus { realtime: setup.realtime, ..LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs)) };
     loop {
         let late = timer.wait();
         let c0 = monotonic_ns();

@@ -59,16 +59,7 @@ impl Rig {
         let urgent = Arc::new(Urgent::default());
         let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
         let core = LoopCore::new(4, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), controller, sample_tx);
-        let init = LoopStatus {
-            snap: core.controller.snapshot(0.0, &core.inputs),
-            cycles: 0,
-            overruns: 0,
-            late_ns: 0,
-            max_late_ns: 0,
-            max_compute_ns: 0,
-            dropped: 0,
-            realtime: false,
-        };
+        let init = LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs));
         let (status_tx, status_rx) = triple_buffer(init);
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
         let calib: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
@@ -541,16 +532,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     let (sample_tx, _rx) = sample_ring(64);
     let controller = Controller::new(ccfg, cmd_rx, prx).with_urgent(urgent.clone());
     let mut core = LoopCore::new(4, KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]), controller, sample_tx);
-    let init = LoopStatus {
-        snap: core.controller.snapshot(0.0, &core.inputs),
-        cycles: 0,
-        overruns: 0,
-        late_ns: 0,
-        max_late_ns: 0,
-        max_compute_ns: 0,
-        dropped: 0,
-        realtime: false,
-    };
+    let init = LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs));
     let (_stx, srx) = triple_buffer(init);
     let links = ControlLinks {
         commands: cmd_tx,
