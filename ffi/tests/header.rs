@@ -1,0 +1,28 @@
+//! The checked-in `include/taut.h` is what cbindgen generates from the source today (CI catches a
+//! stale header). `TAUT_BLESS_HEADER=1` rewrites it instead of failing.
+
+use std::path::Path;
+
+#[test]
+fn checked_in_header_matches_the_source() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let config = cbindgen::Config::from_file(dir.join("cbindgen.toml")).expect("ffi/cbindgen.toml");
+    let bindings = cbindgen::Builder::new().with_crate(dir).with_config(config).generate().expect("cbindgen could not generate the header");
+    let mut fresh = Vec::new();
+    bindings.write(&mut fresh);
+    let path = dir.join("include/taut.h");
+    let on_disk = std::fs::read(&path).unwrap_or_default();
+    if fresh == on_disk {
+        return;
+    }
+    if std::env::var_os("TAUT_BLESS_HEADER").is_some() {
+        std::fs::write(&path, &fresh).expect("write ffi/include/taut.h");
+        return;
+    }
+    panic!(
+        "ffi/include/taut.h is not what cbindgen generates from ffi/src ({} bytes on disk, {} generated): regenerate it with \
+         `TAUT_BLESS_HEADER=1 cargo test -p taut-ffi --test header` and commit it",
+        on_disk.len(),
+        fresh.len()
+    );
+}
