@@ -1,19 +1,19 @@
-//! `taut start` without the command line: builds the ring, the triple buffers and the command
-//! channel, starts the loop, calibrator and control threads, and stops them in order.
+//! `taut start` without the command line: a host of the [`Plugin`] (plugin-owned devices)
+//! with a real-time thread calling `update`, the control socket and the files. The plugin
+//! builds the ring, the triple buffers and the command channel and runs the calibrator thread;
+//! the daemon adds the loop thread and the control thread, and stops them in order.
 
-use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
-use crate::control::{ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
+use crate::calibrator::{CalibStatus, Calibrate, SharedCalibStatus};
+use crate::control::{ControlServer, ServerLimits, SharedLoopStatus};
 use crate::io::Devices;
-use crate::kin::LoopParams;
-use crate::motion::{Command, Controller, ControllerConfig};
-use crate::runner::{run_loop, LoopCore, LoopReport, LoopStatus};
-use crate::sample::sample_ring;
-use crate::triple::triple_buffer;
-use crate::urgent::Urgent;
+use crate::motion::Command;
+use crate::plugin::{DeviceMode, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath};
+use crate::runner::{run_periodic, LoopReport, LoopStatus};
 use crossbeam_channel::Sender;
+use std::fmt;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
@@ -40,12 +40,60 @@ impl Default for DaemonOptions {
     }
 }
 
+/// Why the daemon did not start.
+#[derive(Debug)]
+pub enum DaemonError {
+    /// The plugin refused the configuration or could not be configured or activated.
+    Plugin(PluginError),
+    /// The control socket could not be served (another daemon on it, no permission, ...).
+    ControlSocket {
+        /// `daemon.socket`.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// A thread could not be started.
+    Thread {
+        /// Its name.
+        name: &'static str,
+        /// The error.
+        source: std::io::Error,
+    },
+}
+
+impl fmt::Display for DaemonError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DaemonError::Plugin(e) => e.fmt(f),
+            DaemonError::ControlSocket { path, source } => {
+                write!(f, "cannot serve the control socket {}: {source} (daemon.socket)", path.display())
+            }
+            DaemonError::Thread { name, source } => write!(f, "cannot start the {name} thread: {source}"),
+        }
+    }
+}
+
+impl std::error::Error for DaemonError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            DaemonError::Plugin(e) => Some(e),
+            DaemonError::ControlSocket { source, .. } | DaemonError::Thread { source, .. } => Some(source),
+        }
+    }
+}
+
+impl From<PluginError> for DaemonError {
+    fn from(e: PluginError) -> Self {
+        DaemonError::Plugin(e)
+    }
+}
+
 /// A running daemon.
 pub struct Daemon {
     quit: Arc<AtomicBool>,
-    loop_thread: Option<JoinHandle<LoopReport>>,
-    calib_thread: Option<JoinHandle<()>>,
+    loop_thread: Option<JoinHandle<(LoopReport, Plugin)>>,
     control_thread: Option<JoinHandle<()>>,
+    plugin: Option<Plugin>,
     /// Commands to the loop.
     pub commands: Sender<Command>,
     /// The loop's status.
@@ -54,87 +102,85 @@ pub struct Daemon {
     pub calib_status: SharedCalibStatus,
     /// The recording being written.
     pub recording: PathBuf,
-    urgent: Arc<Urgent>,
+    handle: PluginHandle,
 }
 
 impl Daemon {
-    /// Starts everything. Errors name the configuration key or path to fix.
-    pub fn start(cfg: &RobotConfig, devices: Box<dyn Devices>, backend: Box<dyn Calibrate>, opts: DaemonOptions) -> Result<Daemon, String> {
-        let ccfg = ControllerConfig::from_robot(cfg)?;
-        let n = ccfg.n;
-        let (params_tx, params_rx) = triple_buffer(LoopParams::invalid(n));
-        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(cfg.rt.command_capacity);
-        let (sample_tx, sample_rx) = sample_ring(cfg.rt.ring_capacity);
-        let urgent = Arc::new(Urgent::default());
-        let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
-        let init_status = LoopStatus::initial(controller.snapshot(0.0, &crate::io::Inputs::new(n)));
-        let (status_tx, status_rx) = triple_buffer(init_status);
-        let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
-        let calib_status: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
-        let data_dir = PathBuf::from(&cfg.daemon.data_dir);
-        let recording = opts.recording.clone().unwrap_or_else(|| {
-            let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-            data_dir.join("recordings").join(format!("start-{t}.csv"))
-        });
+    /// Configures the plugin with `devices` (already up), serves the control socket, activates
+    /// the plugin (the drives are enabled, holding) and starts the loop thread. Errors name the
+    /// configuration key or path to fix.
+    pub fn start(
+        cfg: &RobotConfig,
+        devices: Box<dyn Devices>,
+        backend: Box<dyn Calibrate>,
+        opts: DaemonOptions,
+    ) -> Result<Daemon, DaemonError> {
+        let popts = PluginOptions {
+            recording: opts.recording.clone().map_or(RecordingPath::Default, RecordingPath::At),
+            backend: Some(backend),
+            ..PluginOptions::default()
+        };
+        let builder = Plugin::builder(cfg, DeviceMode::ready(devices), popts)?;
+        let handle = builder.handle().clone();
         // The socket first: a second daemon is refused here, before it creates any file.
         let control = if opts.control {
             let path = PathBuf::from(&cfg.daemon.socket);
-            let links = ControlLinks {
-                commands: cmd_tx.clone(),
-                urgent: urgent.clone(),
-                loop_status: loop_status.clone(),
-                calib: calib_status.clone(),
-                workspace: ccfg.workspace,
-                tracker: opts.tracker.clone(),
-            };
-            Some(
-                ControlServer::bind(&path, links, ServerLimits::default())
-                    .map_err(|e| format!("cannot serve the control socket {}: {e} (daemon.socket)", path.display()))?,
-            )
+            let links = handle.control_links(opts.tracker.clone());
+            Some(ControlServer::bind(&path, links, ServerLimits::default()).map_err(|source| DaemonError::ControlSocket { path, source })?)
         } else {
             None
         };
-        let calibrator = Calibrator::new(
-            CalibratorConfig::from_robot(cfg),
-            sample_rx,
-            params_tx,
-            backend,
-            Some(recording.clone()),
-            calib_status.clone(),
-        )
-        .map_err(|e| format!("cannot create the recording {}: {e} (daemon.data_dir)", recording.display()))?;
+        let mut plugin = builder.build()?;
+        let recording = plugin.recording().map(PathBuf::from).unwrap_or_default();
         let quit = Arc::new(AtomicBool::new(false));
-        let loop_quit = Arc::new(AtomicBool::new(false));
-        let calib_quit = quit.clone();
-        let calib_thread = std::thread::Builder::new()
-            .name("taut-calibrator".into())
-            .spawn(move || calibrator.run(calib_quit))
-            .map_err(|e| e.to_string())?;
         let control_thread = match control {
             Some(c) => {
                 let q = quit.clone();
-                Some(std::thread::Builder::new().name("taut-control".into()).spawn(move || c.run(q)).map_err(|e| e.to_string())?)
+                Some(
+                    std::thread::Builder::new()
+                        .name("taut-control".into())
+                        .spawn(move || c.run(q))
+                        .map_err(|source| DaemonError::Thread { name: "taut-control", source })?,
+                )
             }
             None => None,
         };
+        let links = handle.control_links(None);
+        let mut d = Daemon {
+            quit,
+            loop_thread: None,
+            control_thread,
+            plugin: None,
+            commands: links.commands,
+            loop_status: links.loop_status,
+            calib_status: links.calib,
+            recording,
+            handle,
+        };
+        // From here a failure stops the control thread and the calibrator on drop.
+        plugin.activate()?;
         let rt = cfg.rt.clone();
         let warn = opts.warn.clone();
-        let core = LoopCore::new(n, devices, controller, sample_tx);
-        let loop_thread = std::thread::Builder::new()
-            .name("taut-rt".into())
-            .spawn(move || run_loop(&rt, core, status_tx, loop_quit, &*warn))
-            .map_err(|e| e.to_string())?;
-        Ok(Daemon {
-            quit,
-            loop_thread: Some(loop_thread),
-            calib_thread: Some(calib_thread),
-            control_thread,
-            commands: cmd_tx,
-            loop_status,
-            calib_status,
-            recording,
-            urgent,
-        })
+        let loop_quit = Arc::new(AtomicBool::new(false));
+        let spawned = std::thread::Builder::new().name("taut-rt".into()).spawn(move || {
+            let report = run_periodic(&rt, loop_quit, &*warn, |now, dt, timing| {
+                plugin.set_timing(*timing);
+                // Update errors are lifecycle and time errors: the plugin is active and the
+                // clock monotonic here, so none can happen; end the loop if one does.
+                plugin.update(now, dt).map_or(true, |t| t.finished)
+            });
+            (report, plugin)
+        });
+        match spawned {
+            Ok(t) => d.loop_thread = Some(t),
+            Err(source) => return Err(DaemonError::Thread { name: "taut-rt", source }),
+        }
+        Ok(d)
+    }
+
+    /// The operator's handle on the plugin the daemon hosts.
+    pub fn handle(&self) -> &PluginHandle {
+        &self.handle
     }
 
     /// The latest loop status.
@@ -165,7 +211,7 @@ impl Daemon {
 
     /// Blocks until the loop ends (a `stop` command), then stops the other threads.
     pub fn wait(mut self) -> Option<LoopReport> {
-        let r = self.loop_thread.take().and_then(|t| t.join().ok());
+        let r = self.join_loop();
         self.finish();
         r
     }
@@ -174,20 +220,28 @@ impl Daemon {
     /// socket.
     pub fn shutdown(mut self) -> Option<LoopReport> {
         // The flag as well: the queue may be full.
-        self.urgent.stop();
+        self.handle.stop();
         let _ = self.commands.try_send(Command::Stop);
-        let r = self.loop_thread.take().and_then(|t| t.join().ok());
+        let r = self.join_loop();
         self.finish();
         r
     }
 
+    fn join_loop(&mut self) -> Option<LoopReport> {
+        let (report, plugin) = self.loop_thread.take()?.join().ok()?;
+        self.plugin = Some(plugin);
+        Some(report)
+    }
+
     fn finish(&mut self) {
-        // Release: the calibrator's Acquire load then sees every sample pushed before the loop
-        // ended.
-        self.quit.store(true, Ordering::Release);
-        if let Some(t) = self.calib_thread.take() {
-            let _ = t.join();
+        if let Some(mut p) = self.plugin.take() {
+            // The loop has ended (the controller stopped): deactivate runs no further cycle;
+            // cleanup drains the calibrator and joins it.
+            let _ = p.deactivate();
+            let _ = p.cleanup();
         }
+        // Relaxed: the control thread only needs to see the flag eventually.
+        self.quit.store(true, Ordering::Relaxed);
         if let Some(t) = self.control_thread.take() {
             let _ = t.join();
         }
@@ -197,11 +251,9 @@ impl Daemon {
 impl Drop for Daemon {
     fn drop(&mut self) {
         if self.loop_thread.is_some() {
-            self.urgent.stop();
+            self.handle.stop();
             let _ = self.commands.try_send(Command::Stop);
-            if let Some(t) = self.loop_thread.take() {
-                let _ = t.join();
-            }
+            self.join_loop();
         }
         self.finish();
     }

@@ -237,22 +237,45 @@ pub struct ControllerConfig {
     pub workspace_margin_m: f64,
 }
 
+/// Why a configuration cannot drive the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ControllerConfigError {
+    /// More cables than the loop is built for.
+    TooManyCables {
+        /// Cables configured.
+        n: usize,
+    },
+    /// No workspace box and no nominal anchors to derive one from.
+    NoWorkspace,
+}
+
+impl std::fmt::Display for ControllerConfigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ControllerConfigError::TooManyCables { n } => write!(f, "{n} cables: the real-time loop is built for at most {MAX_CABLES}"),
+            ControllerConfigError::NoWorkspace => {
+                f.write_str("no workspace box: set motion.workspace_min_m and motion.workspace_max_m, or give every cable a nominal anchor")
+            }
+        }
+    }
+}
+
+impl std::error::Error for ControllerConfigError {}
+
 impl ControllerConfig {
     /// Resolves the configuration. Fails (with the key to set) when no workspace box is given and
     /// none can be derived from nominal anchors.
-    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<ControllerConfig, String> {
+    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<ControllerConfig, ControllerConfigError> {
         let n = cfg.cables.len();
         if n > MAX_CABLES {
-            return Err(format!("{n} cables: the real-time loop is built for at most {MAX_CABLES}"));
+            return Err(ControllerConfigError::TooManyCables { n });
         }
         let m = &cfg.motion;
         let s = &cfg.safety;
         let workspace = match (m.workspace_min_m, m.workspace_max_m) {
             (Some(lo), Some(hi)) => [lo, hi],
             _ => {
-                let anchors = cfg.anchors().ok_or(
-                    "no workspace box: set motion.workspace_min_m and motion.workspace_max_m, or give every cable a nominal anchor",
-                )?;
+                let anchors = cfg.anchors().ok_or(ControllerConfigError::NoWorkspace)?;
                 let mut lo = [f64::INFINITY; 3];
                 let mut hi = [f64::NEG_INFINITY; 3];
                 for a in &anchors {
@@ -514,6 +537,23 @@ impl Controller {
         if stop {
             self.handle_command(Command::Stop, inp, now);
         }
+    }
+
+    /// Back to `Idle`, as before the first cycle, keeping the parameters in use: the plugin's
+    /// retry after a failed activation and its re-activation after a deactivation. The latched
+    /// reaction is cleared (the caller has left the drives disabled or stopped); the next
+    /// `update` asks for the drives to be enabled again and runs the start-up from its first
+    /// phase.
+    pub fn rearm(&mut self) {
+        self.state = State::Idle;
+        self.phase = -1;
+        self.fault = None;
+        self.stop_cycles = 0;
+        self.cmd_valid = false;
+        self.phases_completed = 0;
+        self.reset.measuring = false;
+        self.transfer.cancel();
+        self.swap.cancel();
     }
 
     /// The current state.

@@ -61,8 +61,21 @@ impl<D: Devices> LoopCore<D> {
     /// read -> update -> write, then one sample into the ring.
     #[inline]
     pub fn cycle(&mut self, now: f64, dt: f64) {
+        self.read(now);
+        self.step(now, dt);
+    }
+
+    /// The read of a cycle: this cycle's inputs from the devices.
+    #[inline]
+    pub fn read(&mut self, now: f64) {
         self.inputs.fault = None;
         self.devices.read(now, &mut self.inputs);
+    }
+
+    /// The rest of a cycle after [`LoopCore::read`]: update -> write, then one sample into the
+    /// ring.
+    #[inline]
+    pub fn step(&mut self, now: f64, dt: f64) {
         self.controller.update(now, dt, &self.inputs, &mut self.outputs);
         self.devices.write(now, &self.outputs);
         let s = &mut self.sample;
@@ -111,6 +124,58 @@ pub fn run_loop<D: Devices>(
     quit: Arc<AtomicBool>,
     warn: &dyn Fn(&str),
 ) -> LoopReport {
+    let mut st = LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs));
+    run_periodic(rt, quit, warn, |now, dt, timing| {
+        core.cycle(now, dt);
+        st = LoopStatus { snap: core.controller.snapshot(now, &core.inputs), dropped: core.dropped(), ..timing.apply(st) };
+        // The displaced value is a Copy struct: nothing is freed here.
+        status.write(st);
+        core.controller.finished()
+    })
+}
+
+/// The host's view of the loop's timing, handed to each cycle: what [`LoopStatus`] shows
+/// beside the controller's snapshot.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LoopTiming {
+    /// Cycles run before this one.
+    pub cycles: u64,
+    /// Periods missed.
+    pub overruns: u64,
+    /// This cycle's wake-up lateness, ns.
+    pub late_ns: i64,
+    /// Largest wake-up lateness, ns.
+    pub max_late_ns: i64,
+    /// Largest compute time of one cycle so far (the previous cycles), ns.
+    pub max_compute_ns: i64,
+    /// `SCHED_FIFO` in effect.
+    pub realtime: bool,
+}
+
+impl LoopTiming {
+    /// `st` with this timing (cycles counted with this one).
+    pub fn apply(&self, st: LoopStatus) -> LoopStatus {
+        LoopStatus {
+            cycles: self.cycles + 1,
+            overruns: self.overruns,
+            late_ns: self.late_ns,
+            max_late_ns: self.max_late_ns,
+            max_compute_ns: self.max_compute_ns,
+            realtime: self.realtime,
+            ..st
+        }
+    }
+}
+
+/// The periodic loop every host of the controller shares: real-time set-up of the calling
+/// thread, then `cycle(now_s, period_s, timing)` once per period until it returns true
+/// (finished) or `quit` is set. `now_s` counts from the first wake-up's period start.
+pub fn run_periodic(
+    rt: &RtConfig,
+    quit: Arc<AtomicBool>,
+    warn: &dyn Fn(&str),
+    mut cycle: impl FnMut(f64, f64, &LoopTiming) -> bool,
+) -> LoopReport {
     let setup = setup_current_thread(rt);
     for w in &setup.warnings {
         warn(w);
@@ -119,28 +184,24 @@ pub fn run_loop<D: Devices>(
     let mut timer = Periodic::new(period_ns);
     let t0 = monotonic_ns();
     let mut last = 0.0;
-    let mut st = LoopStatus { realtime: setup.realtime, ..LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs)) };
+    let mut tm = LoopTiming { realtime: setup.realtime, ..LoopTiming::default() };
     loop {
         let late = timer.wait();
         let c0 = monotonic_ns();
         let now = (c0 - t0) as f64 * 1e-9;
-        let dt = if st.cycles == 0 { period_ns as f64 * 1e-9 } else { now - last };
+        let dt = if tm.cycles == 0 { period_ns as f64 * 1e-9 } else { now - last };
         last = now;
-        core.cycle(now, dt);
-        st.cycles += 1;
-        st.late_ns = late;
-        st.max_late_ns = st.max_late_ns.max(late);
-        st.overruns = timer.overruns;
-        st.dropped = core.dropped();
-        st.snap = core.controller.snapshot(now, &core.inputs);
-        // The displaced value is a Copy struct: nothing is freed here.
-        status.write(st);
+        tm.late_ns = late;
+        tm.max_late_ns = tm.max_late_ns.max(late);
+        tm.overruns = timer.overruns;
+        let finished = cycle(now, dt, &tm);
+        tm.cycles += 1;
         let compute = monotonic_ns() - c0;
-        st.max_compute_ns = st.max_compute_ns.max(compute);
+        tm.max_compute_ns = tm.max_compute_ns.max(compute);
         // Relaxed: a stop request needs no ordering with other data; a cycle's delay is fine.
-        if core.controller.finished() || quit.load(Ordering::Relaxed) {
+        if finished || quit.load(Ordering::Relaxed) {
             break;
         }
     }
-    LoopReport { setup, cycles: st.cycles, overruns: st.overruns, max_late_ns: st.max_late_ns, max_compute_ns: st.max_compute_ns }
+    LoopReport { setup, cycles: tm.cycles, overruns: tm.overruns, max_late_ns: tm.max_late_ns, max_compute_ns: tm.max_compute_ns }
 }

@@ -600,11 +600,12 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     assert_eq!(before.len(), 1, "{before:?}");
     // Same configuration (in the same second the default name is the first one's: the old order
     // truncated it), and one with its own recording path.
-    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).err().expect("refused");
+    let e =
+        Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).err().expect("refused").to_string();
     assert!(e.contains("in use") && e.contains("daemon.socket"), "{e}");
     let own = recordings.join("second.csv");
     let opts = DaemonOptions { recording: Some(own.clone()), ..Default::default() };
-    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts).err().expect("refused");
+    let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts).err().expect("refused").to_string();
     assert!(e.contains("in use"), "{e}");
     assert!(!own.exists(), "the refused daemon created {}", own.display());
     assert_eq!(listing(), before, "no new or replaced recording");

@@ -1,0 +1,649 @@
+//! taut as a controller plugin: the loop, the start-up routine and the calibrator behind a
+//! lifecycle a robot's own controller drives, the way ros2_control's controller manager drives
+//! a hardware component.
+//!
+//! ```text
+//!   Plugin::configure ──> Inactive ──activate──> Active ──deactivate──> Inactive ──cleanup──> Finalized
+//!   (parse, validate,        ^    (devices up,      | update(now, period)   |
+//!    allocate, start the     |     drives enabled    | every cycle         |
+//!    calibrator thread;      |     holding)          v                     |
+//!    no bus traffic)         └───── a failed activate stays Inactive ──────┘ (retry)
+//! ```
+//!
+//! Devices are met in one of two ways, chosen at configure time ([`DeviceMode`]):
+//! - **plugin-owned** ([`DeviceMode::Owned`]): taut's CANopen master, Modbus load cells and
+//!   tracker input (or the simulated robot) behind [`Devices`]; `activate` brings them up and
+//!   enables the drives, each [`Plugin::update`] reads, computes and writes.
+//! - **host-owned** ([`DeviceMode::Host`]): the host reads its devices, passes the readings
+//!   in and applies the commands: [`Plugin::update_with`] with the plain C-shaped structs of
+//!   [`host`]. `activate` only arms the loop: the first cycles ask for the drives to be enabled
+//!   (`request = REQUEST_ENABLE`, each cable commanded where it stands) and the start-up begins
+//!   once the host reports them enabled.
+//!
+//! The start-up routine (three initialisation phases, initial estimate, excitation,
+//! calibration, bumpless hot-swap) runs inside `update` exactly as in `taut start`, which is
+//! itself a host of this plugin ([`crate::daemon`]).
+//!
+//! # What may run in the real-time thread
+//!
+//! Only [`Plugin::update`] / [`Plugin::update_with`] (and [`Plugin::set_timing`],
+//! [`Plugin::finished`]). They allocate nothing, free nothing, take no lock and make no
+//! blocking call: parameters arrive through a triple buffer that hands old values back to the
+//! writer, samples leave through a fixed-capacity single-producer ring (full: dropped and
+//! counted), commands come from a bounded queue read with `try_recv`, estop and stop are
+//! atomic flags, status goes out through a triple buffer of a `Copy` struct, events through a
+//! bounded array queue written with `try_send` (full: dropped and counted). In plugin-owned
+//! mode the devices obey the same rule ([`Devices`]: drain queues, non-blocking sockets). The
+//! counting-allocator tests `tests/tests/plugin_alloc.rs` prove it for a whole simulated
+//! start-up in both modes.
+//!
+//! Everything else is for non-real-time threads: `configure` (allocates, creates the recording,
+//! starts the calibrator thread), `activate` (may block: bus configuration by SDO, waiting for
+//! the drives to enable), `deactivate` (runs the stop cycles in plugin-owned mode), `cleanup`
+//! (joins the calibrator thread), and every [`PluginHandle`] method (they take the status
+//! mutexes, which only other non-real-time threads hold: the loop writes status lock-free).
+//!
+//! ```no_run
+//! use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginOptions};
+//! let cfg = taut_config::RobotConfig::load("robot.toml").unwrap();
+//! let mut p = Plugin::configure(&cfg, DeviceMode::Host, PluginOptions::default()).unwrap();
+//! let operator = p.handle().clone(); // to a non-real-time thread
+//! p.activate().unwrap();
+//! let (mut inp, mut out) = (HostInputs::default(), HostOutputs::default());
+//! for k in 0..1000 {
+//!     // ... fill `inp` from the drives, load cells and tracker ...
+//!     let tick = p.update_with(k as f64 * 0.002, 0.002, &inp, &mut out).unwrap();
+//!     // ... send `out` to the drives ...
+//!     if tick.finished { break; }
+//! }
+//! p.deactivate().unwrap();
+//! p.cleanup().unwrap();
+//! ```
+
+mod error;
+mod handle;
+pub mod host;
+
+pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
+pub use handle::{Event, PluginHandle, Status};
+pub use host::{BadInput, HostInputs, HostOutputs};
+
+use crate::calib_backend::TautCalib;
+use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
+use crate::control::SharedLoopStatus;
+use crate::io::{DriveStatus, Inputs, Outputs};
+use crate::kin::LoopParams;
+use crate::motion::{Controller, ControllerConfig, ResetOutcome, Snapshot, State};
+use crate::robot_io::BringUpError;
+use crate::rtsys::Periodic;
+use crate::runner::{LoopCore, LoopStatus, LoopTiming};
+use crate::sample::{sample_ring, SampleRx};
+use crate::triple::{triple_buffer, Writer};
+use crate::urgent::Urgent;
+use handle::EventTx;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use taut_config::runtime::RtConfig;
+use taut_config::RobotConfig;
+
+pub use crate::io::Devices;
+
+/// Brings plugin-owned devices up. Called by [`Plugin::activate`] on the host's non-real-time
+/// thread (it may block: CANopen configuration by SDO, opening ports), and again on a retry
+/// after it failed. Once it has succeeded the plugin keeps the devices until `cleanup`.
+pub trait DeviceSource: Send {
+    /// The devices, up (configured, operational, drives not enabled).
+    fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError>;
+}
+
+/// Devices that are already up (the simulated robot, or a bus the host configured itself).
+struct Ready(Option<Box<dyn Devices>>);
+
+impl DeviceSource for Ready {
+    fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError> {
+        self.0.take().ok_or_else(|| BringUpError { what: "devices".into(), message: "already handed to the plugin once".into() })
+    }
+}
+
+/// Who owns the devices.
+pub enum DeviceMode {
+    /// The plugin: `activate` brings them up through the source, `update` reads and writes
+    /// them.
+    Owned(Box<dyn DeviceSource>),
+    /// The host: it passes each cycle's readings to `update_with` and applies the commands.
+    Host,
+}
+
+impl DeviceMode {
+    /// Plugin-owned devices that are already up.
+    pub fn ready(devices: Box<dyn Devices>) -> DeviceMode {
+        DeviceMode::Owned(Box::new(Ready(Some(devices))))
+    }
+
+    fn kind(&self) -> ModeKind {
+        match self {
+            DeviceMode::Owned(_) => ModeKind::Owned,
+            DeviceMode::Host => ModeKind::Host,
+        }
+    }
+}
+
+/// Where the calibrator records the sample stream.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub enum RecordingPath {
+    /// `daemon.data_dir/recordings/start-<unix time>.csv`.
+    #[default]
+    Default,
+    /// This file.
+    At(PathBuf),
+    /// No recording.
+    Off,
+}
+
+/// Options beyond the configuration.
+pub struct PluginOptions {
+    /// The recording.
+    pub recording: RecordingPath,
+    /// The calibration backend (default: taut-calib, [`TautCalib`]).
+    pub backend: Option<Box<dyn Calibrate>>,
+    /// Capacity of the event queue (full: events are dropped and counted).
+    pub event_capacity: usize,
+}
+
+impl Default for PluginOptions {
+    fn default() -> Self {
+        PluginOptions { recording: RecordingPath::Default, backend: None, event_capacity: 256 }
+    }
+}
+
+/// What one cycle did. `Copy`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tick {
+    /// Motion state after the cycle.
+    pub state: State,
+    /// Initialisation phase (-1 outside).
+    pub phase: i8,
+    /// A safety reaction is latched.
+    pub faulted: bool,
+    /// The loop has stopped (an operator stop): the drives were told to disable; deactivate.
+    pub finished: bool,
+    /// The first malformed host input of this cycle (host-owned mode; it was taken as
+    /// missing, see [`host`]).
+    pub bad_input: Option<BadInput>,
+}
+
+/// The devices inside the loop core.
+enum PluginDevices {
+    /// Plugin-owned, not up yet.
+    Down,
+    /// Plugin-owned, up.
+    Owned(Box<dyn Devices>),
+    /// Host-owned: this cycle's readings, staged by `update_with`.
+    Host(Box<Inputs>),
+}
+
+impl Devices for PluginDevices {
+    fn read(&mut self, now_s: f64, inputs: &mut Inputs) {
+        match self {
+            PluginDevices::Down => {}
+            PluginDevices::Owned(d) => d.read(now_s, inputs),
+            PluginDevices::Host(staged) => *inputs = **staged,
+        }
+    }
+    fn write(&mut self, now_s: f64, outputs: &Outputs) {
+        if let PluginDevices::Owned(d) = self {
+            d.write(now_s, outputs)
+        }
+    }
+}
+
+/// What the previous cycle published, for events.
+#[derive(Clone, Copy)]
+struct Seen {
+    state: State,
+    phase: i8,
+    fault: Option<(crate::safety::Cause, crate::safety::Reaction)>,
+    version: u64,
+    reset: Option<ResetOutcome>,
+}
+
+impl Seen {
+    fn of(s: &Snapshot) -> Seen {
+        Seen { state: s.state, phase: s.phase, fault: s.fault, version: s.params_version, reset: s.last_reset }
+    }
+}
+
+/// A configured plugin whose handle exists but which has created no file and started no thread
+/// yet: a host can claim its own resources first (the daemon binds the control socket here, so
+/// that a refused second daemon leaves no file behind).
+pub struct PluginBuilder {
+    ccfg: ControllerConfig,
+    rt: RtConfig,
+    mode: DeviceMode,
+    core: LoopCore<PluginDevices>,
+    status_tx: Writer<LoopStatus>,
+    init_status: LoopStatus,
+    events: EventTx,
+    handle: PluginHandle,
+    calib_cfg: CalibratorConfig,
+    calib_status: SharedCalibStatus,
+    sample_rx: SampleRx,
+    params_tx: Writer<LoopParams>,
+    backend: Box<dyn Calibrate>,
+    recording: Option<PathBuf>,
+}
+
+impl PluginBuilder {
+    /// The operator's handle.
+    pub fn handle(&self) -> &PluginHandle {
+        &self.handle
+    }
+
+    /// Where the recording will be.
+    pub fn recording(&self) -> Option<&Path> {
+        self.recording.as_deref()
+    }
+
+    /// Creates the recording and starts the calibrator thread: the plugin, inactive.
+    pub fn build(self) -> Result<Plugin, PluginError> {
+        let b = self;
+        let calibrator = Calibrator::new(b.calib_cfg, b.sample_rx, b.params_tx, b.backend, b.recording.clone(), b.calib_status)
+            .map_err(|source| PluginError::Recording { path: b.recording.clone().unwrap_or_default(), source })?;
+        let calib_quit = Arc::new(AtomicBool::new(false));
+        let q = calib_quit.clone();
+        let calib_thread = std::thread::Builder::new()
+            .name("taut-calibrator".into())
+            .spawn(move || calibrator.run(q))
+            .map_err(|source| PluginError::Thread { name: "taut-calibrator", source })?;
+        let seen = Seen::of(&b.init_status.snap);
+        Ok(Plugin {
+            state: Lifecycle::Inactive,
+            mode: b.mode.kind(),
+            source: match b.mode {
+                DeviceMode::Owned(s) => Some(s),
+                DeviceMode::Host => None,
+            },
+            ccfg: b.ccfg,
+            rt: b.rt,
+            core: b.core,
+            status_tx: b.status_tx,
+            st: b.init_status,
+            events: b.events,
+            seen,
+            handle: b.handle,
+            calib_thread: Some(calib_thread),
+            calib_quit,
+            recording: b.recording,
+            t_last: 0.0,
+            offset: None,
+            timing: LoopTiming::default(),
+            rearm: false,
+        })
+    }
+}
+
+/// The plugin. See the module documentation for the lifecycle and the real-time rule.
+pub struct Plugin {
+    state: Lifecycle,
+    mode: ModeKind,
+    source: Option<Box<dyn DeviceSource>>,
+    ccfg: ControllerConfig,
+    rt: RtConfig,
+    core: LoopCore<PluginDevices>,
+    status_tx: Writer<LoopStatus>,
+    st: LoopStatus,
+    events: EventTx,
+    seen: Seen,
+    handle: PluginHandle,
+    calib_thread: Option<JoinHandle<()>>,
+    calib_quit: Arc<AtomicBool>,
+    recording: Option<PathBuf>,
+    /// Plugin time of the last cycle, s.
+    t_last: f64,
+    /// Plugin time minus the host's `now_s`, fixed at the first cycle after each activation so
+    /// that plugin time runs on by one period.
+    offset: Option<f64>,
+    timing: LoopTiming,
+    /// The controller must go back to Idle before the next activation.
+    rearm: bool,
+}
+
+impl Plugin {
+    /// Parses and validates `cfg`, allocates everything, creates the recording and starts the
+    /// calibrator thread. No bus traffic.
+    pub fn configure(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<Plugin, PluginError> {
+        Plugin::builder(cfg, devices, opts)?.build()
+    }
+
+    /// The first half of [`Plugin::configure`]: validated and allocated, nothing created or
+    /// started ([`PluginBuilder::build`] does that).
+    pub fn builder(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<PluginBuilder, PluginError> {
+        let ccfg = ControllerConfig::from_robot(cfg)?;
+        let n = ccfg.n;
+        let rt = cfg.rt.clone();
+        if !(rt.rate_hz.is_finite() && rt.rate_hz >= 1.0) {
+            return Err(PluginError::ConfigValue { key: "rt.rate_hz", must: "a loop rate of at least 1 Hz" });
+        }
+        if rt.ring_capacity < 16 {
+            return Err(PluginError::ConfigValue { key: "rt.ring_capacity", must: "at least 16 samples" });
+        }
+        if rt.command_capacity == 0 {
+            return Err(PluginError::ConfigValue { key: "rt.command_capacity", must: "at least 1" });
+        }
+        if n == 0 {
+            return Err(PluginError::ConfigValue { key: "cable", must: "at least one [[cable]] table" });
+        }
+        let (params_tx, params_rx) = triple_buffer(LoopParams::invalid(n));
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(rt.command_capacity);
+        let (sample_tx, sample_rx) = sample_ring(rt.ring_capacity);
+        let urgent = Arc::new(Urgent::default());
+        let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
+        let init_status = LoopStatus::initial(controller.snapshot(0.0, &Inputs::new(n)));
+        let (status_tx, status_rx) = triple_buffer(init_status);
+        let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
+        let calib_status: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
+        let (handle, events) = PluginHandle::new(cmd_tx, urgent, loop_status, calib_status.clone(), opts.event_capacity, ccfg.workspace);
+        let recording = match opts.recording {
+            RecordingPath::Off => None,
+            RecordingPath::At(p) => Some(p),
+            RecordingPath::Default => {
+                let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+                Some(PathBuf::from(&cfg.daemon.data_dir).join("recordings").join(format!("start-{t}.csv")))
+            }
+        };
+        let devs = match devices {
+            DeviceMode::Owned(_) => PluginDevices::Down,
+            DeviceMode::Host => PluginDevices::Host(Box::new(Inputs::new(n))),
+        };
+        Ok(PluginBuilder {
+            ccfg,
+            rt,
+            mode: devices,
+            core: LoopCore::new(n, devs, controller, sample_tx),
+            status_tx,
+            init_status,
+            events,
+            handle,
+            calib_cfg: CalibratorConfig::from_robot(cfg),
+            calib_status,
+            sample_rx,
+            params_tx,
+            backend: opts.backend.unwrap_or_else(|| Box::new(TautCalib::from_config(cfg))),
+            recording,
+        })
+    }
+
+    /// The operator's handle (clone it for other threads).
+    pub fn handle(&self) -> &PluginHandle {
+        &self.handle
+    }
+
+    /// The lifecycle state.
+    pub fn lifecycle(&self) -> Lifecycle {
+        self.state
+    }
+
+    /// The device mode.
+    pub fn mode(&self) -> ModeKind {
+        self.mode
+    }
+
+    /// Number of cables.
+    pub fn cables(&self) -> usize {
+        self.ccfg.n
+    }
+
+    /// The recording, if any.
+    pub fn recording(&self) -> Option<&Path> {
+        self.recording.as_deref()
+    }
+
+    /// The loop rate the configuration asks for, Hz (`rt.rate_hz`).
+    pub fn rate_hz(&self) -> f64 {
+        self.rt.rate_hz
+    }
+
+    /// The real-time settings of the configuration (for a host that runs the thread).
+    pub fn rt_config(&self) -> &RtConfig {
+        &self.rt
+    }
+
+    /// True once the loop has stopped (an operator stop).
+    pub fn finished(&self) -> bool {
+        self.core.controller.finished()
+    }
+
+    /// The host's timing of the cycle about to run (wake-up lateness, overruns, compute time),
+    /// shown in status. Optional; real-time safe.
+    pub fn set_timing(&mut self, t: LoopTiming) {
+        self.timing = t;
+    }
+
+    /// Inactive -> Active. Plugin-owned: brings the devices up if they are not yet, then runs
+    /// cycles on the calling thread (at `rt.rate_hz`) until every drive reports operation
+    /// enabled, each cable commanded where it stands. Host-owned: arms the loop (the drives
+    /// are enabled by the first `update_with` cycles). On failure the plugin stays inactive,
+    /// the drives are left disabled or stopped, and `activate` may be called again.
+    pub fn activate(&mut self) -> Result<(), PluginError> {
+        if self.state != Lifecycle::Inactive {
+            return Err(PluginError::Lifecycle { op: Op::Activate, state: self.state });
+        }
+        if self.rearm {
+            self.core.controller.rearm();
+            self.rearm = false;
+        }
+        if self.mode == ModeKind::Owned {
+            if matches!(self.core.devices, PluginDevices::Down) {
+                let src = self.source.as_mut().expect("plugin-owned mode has a device source");
+                self.core.devices = PluginDevices::Owned(src.bring_up().map_err(PluginError::BringUp)?);
+            }
+            if let Err(e) = self.enable_owned() {
+                self.rearm = true;
+                return Err(e);
+            }
+        }
+        self.state = Lifecycle::Active;
+        Ok(())
+    }
+
+    /// Cycles on the calling thread until the drives are enabled (plugin-owned activation).
+    fn enable_owned(&mut self) -> Result<(), PluginError> {
+        let period = 1.0 / self.rt.rate_hz;
+        let mut timer = Periodic::new((period * 1e9).round() as i64);
+        let n = self.ccfg.n;
+        loop {
+            timer.wait();
+            let t = self.t_last + period;
+            self.core.read(t);
+            let inp = &self.core.inputs;
+            let up = (0..n).all(|j| inp.drive[j] == DriveStatus::Enabled && inp.length_m[j].is_finite());
+            if up && self.core.controller.state() == State::Enabling {
+                // The next cycle (the host's first update) starts the first phase; until then
+                // the drives hold the positions last commanded.
+                self.offset = None;
+                return Ok(());
+            }
+            self.cycle_owned_step(t, period);
+            if let Some((cause, reaction)) = self.core.controller.fault() {
+                self.settle_after_failure(&mut timer, period);
+                return Err(PluginError::Activation { cause, reaction });
+            }
+            if self.core.controller.finished() {
+                return Err(PluginError::Stopped);
+            }
+        }
+    }
+
+    /// After a reaction latched during activation: keep cycling (the reaction's commands) until
+    /// no drive reports enabled, at most 0.5 s, so that the drives have taken the reaction
+    /// before the plugin stops writing.
+    fn settle_after_failure(&mut self, timer: &mut Periodic, period: f64) {
+        let until = Instant::now() + Duration::from_millis(500);
+        while Instant::now() < until {
+            timer.wait();
+            let t = self.t_last + period;
+            self.core.read(t);
+            self.cycle_owned_step(t, period);
+            let inp = &self.core.inputs;
+            if (0..self.ccfg.n).all(|j| inp.drive[j] != DriveStatus::Enabled) {
+                break;
+            }
+        }
+    }
+
+    fn cycle_owned_step(&mut self, t: f64, period: f64) {
+        self.core.step(t, period);
+        self.t_last = t;
+        self.publish(t);
+    }
+
+    /// Active -> Inactive. Plugin-owned: stops the loop (hold, then disable) running the stop
+    /// cycles on the calling thread. Host-owned: the host disables its drives (the last
+    /// outputs stand until it does). The next `activate` runs the start-up from its first phase.
+    pub fn deactivate(&mut self) -> Result<(), PluginError> {
+        if self.state != Lifecycle::Active {
+            return Err(PluginError::Lifecycle { op: Op::Deactivate, state: self.state });
+        }
+        if self.mode == ModeKind::Owned && !self.core.controller.finished() {
+            self.handle.stop();
+            let period = 1.0 / self.rt.rate_hz;
+            let mut timer = Periodic::new((period * 1e9).round() as i64);
+            let until = Instant::now() + Duration::from_secs(2);
+            while !self.core.controller.finished() && Instant::now() < until {
+                timer.wait();
+                let t = self.t_last + period;
+                self.core.read(t);
+                self.cycle_owned_step(t, period);
+            }
+        }
+        self.state = Lifecycle::Inactive;
+        self.rearm = true;
+        Ok(())
+    }
+
+    /// Inactive -> Finalized: stops the calibrator (it drains the samples already pushed,
+    /// finishes the recording) and joins its thread; releases plugin-owned devices.
+    pub fn cleanup(&mut self) -> Result<(), PluginError> {
+        if self.state != Lifecycle::Inactive {
+            return Err(PluginError::Lifecycle { op: Op::Cleanup, state: self.state });
+        }
+        self.stop_calibrator();
+        self.core.devices = PluginDevices::Down;
+        self.source = None;
+        self.state = Lifecycle::Finalized;
+        Ok(())
+    }
+
+    fn stop_calibrator(&mut self) {
+        // Release: the calibrator's Acquire load then sees every sample pushed before.
+        self.calib_quit.store(true, Ordering::Release);
+        if let Some(t) = self.calib_thread.take() {
+            let _ = t.join();
+        }
+    }
+
+    fn clock(&mut self, now_s: f64, period_s: f64) -> Result<f64, UpdateError> {
+        if !(now_s.is_finite() && period_s.is_finite() && period_s > 0.0) {
+            return Err(UpdateError::BadTime);
+        }
+        let off = *self.offset.get_or_insert(self.t_last + period_s - now_s);
+        let t = now_s + off;
+        if t < self.t_last {
+            return Err(UpdateError::BadTime);
+        }
+        Ok(t)
+    }
+
+    fn check(&self, mode: ModeKind) -> Result<(), UpdateError> {
+        if self.state != Lifecycle::Active {
+            return Err(UpdateError::NotActive { state: self.state });
+        }
+        if self.mode != mode {
+            return Err(UpdateError::WrongMode { mode: self.mode });
+        }
+        Ok(())
+    }
+
+    /// One cycle with plugin-owned devices: read -> update -> write. `now_s` is the host's
+    /// monotonic time (any origin), `period_s` the measured period. Real-time safe.
+    pub fn update(&mut self, now_s: f64, period_s: f64) -> Result<Tick, UpdateError> {
+        self.check(ModeKind::Owned)?;
+        let t = self.clock(now_s, period_s)?;
+        self.core.read(t);
+        self.cycle_owned_step(t, period_s);
+        Ok(self.tick(None))
+    }
+
+    /// One cycle with host-owned devices: `inputs` are this cycle's readings, `outputs` receive
+    /// the commands. Real-time safe.
+    pub fn update_with(&mut self, now_s: f64, period_s: f64, inputs: &HostInputs, outputs: &mut HostOutputs) -> Result<Tick, UpdateError> {
+        self.check(ModeKind::Host)?;
+        let t = self.clock(now_s, period_s)?;
+        let bad = match &mut self.core.devices {
+            PluginDevices::Host(staged) => inputs.load_into(staged),
+            _ => None,
+        };
+        self.core.read(t);
+        self.cycle_owned_step(t, period_s);
+        outputs.store(&self.core.outputs);
+        Ok(self.tick(bad))
+    }
+
+    fn tick(&self, bad_input: Option<BadInput>) -> Tick {
+        let c = &self.core.controller;
+        Tick { state: c.state(), phase: c.phase(), faulted: c.fault().is_some(), finished: c.finished(), bad_input }
+    }
+
+    /// Status and events after a cycle. No allocation: `Copy` values into a triple buffer and
+    /// a bounded queue.
+    fn publish(&mut self, t: f64) {
+        let snap = self.core.controller.snapshot(t, &self.core.inputs);
+        let tm = self.timing;
+        self.st = LoopStatus {
+            snap,
+            cycles: self.st.cycles + 1,
+            overruns: tm.overruns,
+            late_ns: tm.late_ns,
+            max_late_ns: tm.max_late_ns,
+            max_compute_ns: tm.max_compute_ns,
+            dropped: self.core.dropped(),
+            realtime: tm.realtime,
+        };
+        // The displaced value is a Copy struct: nothing is freed here.
+        self.status_tx.write(self.st);
+        let now = Seen::of(&snap);
+        let was = self.seen;
+        if now.state != was.state {
+            self.events.push(Event::State { t_s: t, from: was.state, to: now.state });
+        }
+        if now.phase >= 0 && now.phase != was.phase {
+            self.events.push(Event::Phase { t_s: t, phase: now.phase });
+        }
+        if let Some((cause, reaction)) = now.fault {
+            if was.fault != now.fault {
+                self.events.push(Event::Fault { t_s: t, cause, reaction });
+            }
+        }
+        if now.version != was.version {
+            self.events.push(Event::ParamsSwapped { t_s: t, version: now.version });
+        }
+        if let Some(outcome) = now.reset {
+            if was.reset != now.reset && outcome != ResetOutcome::InProgress {
+                self.events.push(Event::Reset { t_s: t, outcome });
+            }
+        }
+        self.seen = now;
+    }
+}
+
+impl Drop for Plugin {
+    fn drop(&mut self) {
+        if self.state == Lifecycle::Active {
+            let _ = self.deactivate();
+        }
+        self.stop_calibrator();
+    }
+}
