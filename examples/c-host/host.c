@@ -15,7 +15,6 @@
  *
  * Build (see ffi/tests/hosts.rs): cc -std=c11 -I ffi/include host.c -L target/debug -ltaut
  */
-#define TAUT_SIM 1
 #include "taut.h"
 
 #include <math.h>

@@ -9,7 +9,6 @@
 // write() would send the controlword intent and the CSP/CST targets.
 //
 //   cpp-host CONFIG.toml DATA_DIR [SEED [SPEED]]   (exit status 0: hot-swapped, anchors near the truth)
-#define TAUT_SIM 1
 #include "taut.h"
 
 #include <array>

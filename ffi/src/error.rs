@@ -20,7 +20,8 @@ pub enum TautError {
     InvalidArgument = 2,
     /// The robot configuration was refused (the message names the file, line and key).
     Config = 3,
-    /// The call is not allowed in the plugin's lifecycle state (e.g. update before activate).
+    /// The call is not allowed in the plugin's lifecycle state or device mode (e.g. update
+    /// before activate).
     WrongState = 4,
     /// Another thread is inside a real-time or lifecycle call on this handle.
     Busy = 5,
@@ -28,8 +29,9 @@ pub enum TautError {
     Refused = 6,
     /// A file or thread could not be created (the message names it).
     Io = 7,
-    /// The requested mode is not available in this build.
-    Unsupported = 8,
+    /// Plugin-owned devices could not be brought up, or the drives did not enable (the message
+    /// says which and why; the robot is left safe and `taut_activate` may be retried).
+    Device = 8,
     /// A panic inside taut was caught at the boundary; the handle is unusable (only
     /// `taut_cleanup` may follow).
     Panic = 9,

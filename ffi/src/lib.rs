@@ -47,12 +47,11 @@
 //! ```
 #![deny(missing_docs)]
 
-mod engine;
 mod error;
+mod owned;
 #[cfg(feature = "sim")]
 pub mod sim;
 
-use engine::{ConfigureError, Engine, EngineOptions};
 pub use error::TautError;
 use std::ffi::{c_char, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -61,9 +60,10 @@ use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Mutex;
 use taut_config::RobotConfig;
 use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::control::Request;
-use taut_rt_core::io::{BusEvent, BusState, CableCommand, DeviceFault, DriveRequest, DriveStatus, IfName, Inputs, Outputs};
-use taut_rt_core::motion::State;
+use taut_rt_core::motion::{ResetOutcome, State};
+use taut_rt_core::plugin::{
+    DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
+};
 
 /// Largest number of cables (the size of every per-cable array).
 pub const TAUT_MAX_CABLES: usize = 8;
@@ -82,7 +82,7 @@ pub const TAUT_DEVICES_HOST: u32 = 0;
 /// `TautOptions::devices`: taut owns the devices (CANopen master, Modbus load cells, tracker).
 pub const TAUT_DEVICES_PLUGIN: u32 = 1;
 
-/// State of one drive (`TautInputs::drive_state`), collapsed from the CiA 402 state machine.
+/// State of one drive (`TautInputs::drive`), collapsed from the CiA 402 state machine.
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TautDriveState {
@@ -168,6 +168,8 @@ pub enum TautLifecycle {
     Inactive = 1,
     /// Activated: `taut_update` runs the loop.
     Active = 2,
+    /// Cleaned up (only while `taut_cleanup` runs).
+    Finalized = 3,
 }
 
 /// Configure-time options. Initialise with [`taut_options_init`]; NULL means the defaults.
@@ -249,6 +251,18 @@ pub struct TautCommands {
     pub mode: [u8; TAUT_MAX_CABLES],
     /// The drives' controlword intent, a `TautDriveRequest`.
     pub request: u8,
+    /// Motion state after the cycle (`taut_motion_state_name`).
+    pub motion_state: u8,
+    /// Initialisation phase (-1 outside).
+    pub phase: i8,
+    /// 1 while a safety reaction is latched (the commands are the reaction's).
+    pub faulted: u8,
+    /// 1 once the loop has stopped (an operator stop): the drives were told to disable;
+    /// deactivate.
+    pub finished: u8,
+    /// 1 if a reading of this cycle was malformed (a negative or NaN age, a fresh value that is
+    /// not finite, an unknown code) and was taken as missing; `taut_last_error` names the first.
+    pub bad_input: u8,
 }
 
 /// What the operator sees. Motion states are rt-core's (`taut_motion_state_name` names them).
@@ -290,6 +304,10 @@ pub struct TautStatus {
     pub anchor_sigma_max_m: f64,
     /// Largest encoder-offset 1-sigma of the parameters in force, m (NaN: none).
     pub l0_sigma_max_m: f64,
+    /// Samples the calibrator has recorded.
+    pub samples_recorded: u64,
+    /// Events dropped because nobody polled them in time.
+    pub events_dropped: u64,
 }
 
 /// The parameters in force.
@@ -318,15 +336,19 @@ pub struct TautParams {
 #[repr(u8)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TautEventKind {
-    /// The motion state changed (`motion_state`).
+    /// The motion state changed (`from_state` -> `motion_state`).
     MotionState = 1,
-    /// A calibration finished (`value`: its parameter version, 0 if refused; `accepted`;
-    /// `initial` 1 for the start-up's initial estimate).
-    Calibration = 2,
-    /// The loop took a new parameter set (`value`: its version).
-    ParamsSwapped = 3,
+    /// An initialisation phase began (`phase`).
+    Phase = 2,
+    /// A calibration finished (`accepted`; `initial` 1 for the start-up's initial estimate;
+    /// `value` its parameter version, 0 if refused).
+    Calibration = 3,
+    /// The loop took a new parameter set into use (`value`: its version); the swap ramp starts.
+    ParamsSwapped = 4,
     /// A safety reaction latched (`taut_status_json` says which).
-    Fault = 4,
+    Fault = 5,
+    /// A reset ended (`accepted` 1: the robot is back, holding; 0: refused).
+    Reset = 6,
 }
 
 /// An event for the operator, from [`taut_poll_event`].
@@ -335,11 +357,15 @@ pub enum TautEventKind {
 pub struct TautEvent {
     /// A `TautEventKind`.
     pub kind: u8,
-    /// The motion state at the event.
+    /// The motion state after the event.
     pub motion_state: u8,
-    /// 1 if the calibration was accepted.
+    /// The motion state before (`TAUT_EVENT_KIND_MOTION_STATE`).
+    pub from_state: u8,
+    /// Initialisation phase (`TAUT_EVENT_KIND_PHASE`), else -1.
+    pub phase: i8,
+    /// See the kinds.
     pub accepted: u8,
-    /// 1 for the initial estimate.
+    /// 1 for the initial estimate (`TAUT_EVENT_KIND_CALIBRATION`).
     pub initial: u8,
     /// Parameter version (see the kinds).
     pub value: u64,
@@ -347,41 +373,27 @@ pub struct TautEvent {
     pub t_s: f64,
 }
 
-/// What the operator's event poll has reported so far.
-#[derive(Default)]
-struct EventCursor {
-    state: u8,
-    params_version: u64,
-    outcomes: usize,
-    fault: bool,
-}
-
 /// The opaque handle.
 pub struct TautPlugin {
-    /// The real-time half, touched only by the thread holding `busy`.
-    engine: std::cell::UnsafeCell<Engine>,
+    /// The plugin, touched only by the thread holding `busy`.
+    plugin: std::cell::UnsafeCell<Plugin>,
+    /// The operator's handle (any thread).
+    handle: PluginHandle,
     /// Set while a real-time or lifecycle call runs.
     busy: AtomicBool,
-    /// Set when a panic was caught: the engine may be half-updated.
+    /// Set when a panic was caught: the plugin may be half-updated.
     poisoned: AtomicBool,
-    /// A `TautLifecycle`, written under `busy`, read by operator calls.
+    /// The plugin's `Lifecycle` as a `TautLifecycle`, written under `busy`, read by operator calls.
     lifecycle: AtomicU8,
-    events: Mutex<EventCursor>,
+    /// Cables.
+    n: usize,
+    /// Calibration outcomes already reported by `taut_poll_event`.
+    outcomes_seen: Mutex<usize>,
 }
 
-// SAFETY: the real-time half (`engine.rt`) is only touched under the `busy` flag, by one thread
-// at a time; the operator half is `Sync` (channels, atomics, mutexes).
+// SAFETY: the plugin is only touched under the `busy` flag, by one thread at a time, and it is
+// `Send`; the rest is `Sync` (the operator handle, atomics, a mutex).
 unsafe impl Sync for TautPlugin {}
-// SAFETY: as above; the engine's parts are `Send`.
-unsafe impl Send for TautPlugin {}
-
-impl TautPlugin {
-    /// The operator half (shared, any thread).
-    fn op(&self) -> &engine::Operator {
-        // SAFETY: `op` is never borrowed mutably after configure; `Rt` is a disjoint field.
-        unsafe { &(*self.engine.get()).op }
-    }
-}
 
 /// Runs `f` with no panic escaping.
 fn guard(name: &str, f: impl FnOnce() -> TautError) -> TautError {
@@ -394,11 +406,27 @@ fn guard(name: &str, f: impl FnOnce() -> TautError) -> TautError {
     }
 }
 
-/// Runs the real-time or lifecycle call `f` on the engine, one thread at a time.
+/// The C code of a plugin error kind.
+fn code(k: ErrorKind) -> TautError {
+    match k {
+        ErrorKind::Config => TautError::Config,
+        ErrorKind::Lifecycle | ErrorKind::Mode => TautError::WrongState,
+        ErrorKind::Device => TautError::Device,
+        ErrorKind::Io | ErrorKind::Thread => TautError::Io,
+        ErrorKind::Refused => TautError::Refused,
+        ErrorKind::Input => TautError::InvalidArgument,
+    }
+}
+
+fn plugin_error(name: &str, e: &PluginError) -> TautError {
+    error::fail(code(e.kind()), format_args!("{name}: {e}"))
+}
+
+/// Runs the real-time or lifecycle call `f` on the plugin, one thread at a time.
 ///
 /// # Safety
 /// `h` is NULL or a live handle from `taut_configure`.
-unsafe fn with_rt(h: *const TautPlugin, name: &str, f: impl FnOnce(&mut Engine, &AtomicU8) -> TautError) -> TautError {
+unsafe fn with_rt(h: *const TautPlugin, name: &str, f: impl FnOnce(&mut Plugin) -> TautError) -> TautError {
     let Some(p) = (unsafe { h.as_ref() }) else {
         return error::fail(TautError::NullPointer, format_args!("{name}: the handle is NULL"));
     };
@@ -410,12 +438,14 @@ unsafe fn with_rt(h: *const TautPlugin, name: &str, f: impl FnOnce(&mut Engine, 
     let r = if p.poisoned.load(Ordering::Relaxed) {
         error::fail(TautError::Panic, format_args!("{name}: an earlier call panicked; the handle is unusable, call taut_cleanup"))
     } else {
-        // SAFETY: the busy flag gives this thread the only access to the real-time half;
-        // operator calls touch only `op`, which `f` does not move or replace.
-        let e = unsafe { &mut *p.engine.get() };
-        let r = guard(name, || f(e, &p.lifecycle));
+        // SAFETY: the busy flag gives this thread the only access to the plugin.
+        let plugin = unsafe { &mut *p.plugin.get() };
+        let r = guard(name, || f(plugin));
         if r == TautError::Panic {
             p.poisoned.store(true, Ordering::Relaxed);
+        } else {
+            // Relaxed: informational for operator calls.
+            p.lifecycle.store(plugin.lifecycle() as u8, Ordering::Relaxed);
         }
         r
     };
@@ -441,13 +471,13 @@ unsafe fn c_str<'a>(s: *const c_char, name: &str, what: &str) -> Result<Option<&
     if s.is_null() {
         return Ok(None);
     }
-    unsafe { CStr::from_ptr(s) }
-        .to_str()
-        .map(Some)
-        .map_err(|e| error::fail(TautError::InvalidArgument, format_args!("{name}: {what} is not UTF-8 (bad byte at offset {})", e.valid_up_to())))
+    unsafe { CStr::from_ptr(s) }.to_str().map(Some).map_err(|e| {
+        error::fail(TautError::InvalidArgument, format_args!("{name}: {what} is not UTF-8 (bad byte at offset {})", e.valid_up_to()))
+    })
 }
 
-/// Fills `options` with the defaults: host-owned devices, the configuration's data directory.
+/// Fills `options` with the defaults: host-owned devices, the configuration's data directory,
+/// the default recording path.
 ///
 /// # Safety
 /// `options` is NULL or points to a writable `TautOptions`.
@@ -467,11 +497,14 @@ pub unsafe extern "C" fn taut_options_init(options: *mut TautOptions) -> TautErr
     })
 }
 
-/// Parses and validates the robot configuration, allocates everything and starts the
-/// calibrator thread (no bus traffic). On success `*out` is the new handle, inactive.
+/// Parses and validates the robot configuration, allocates everything, creates the recording
+/// and starts the calibrator thread (no bus traffic). On success `*out` is the new handle,
+/// inactive; on failure `*out` is NULL.
 ///
 /// `config` is a path (`config_kind = TAUT_CONFIG_PATH`) or TOML text (`TAUT_CONFIG_TEXT`);
-/// `options` may be NULL for the defaults. Lifecycle call: not real-time safe.
+/// `options` may be NULL for the defaults. With `TAUT_DEVICES_PLUGIN` taut owns the devices of
+/// the configuration (`[can]` interface, `[loadcells]`, `[tracker]`), brought up by
+/// `taut_activate`. Lifecycle call: not real-time safe.
 ///
 /// # Safety
 /// `config` is a NUL-terminated string; `options` is NULL or an initialised `TautOptions`
@@ -505,57 +538,57 @@ pub unsafe extern "C" fn taut_configure(
                 )
             }
         };
-        let cfg = match cfg {
+        let mut cfg = match cfg {
             Ok(c) => c,
-            Err(e) => return error::fail(TautError::Config, format_args!("{e}")),
+            Err(e) => return error::fail(TautError::Config, format_args!("{NAME}: {e}")),
         };
-        let mut opts = EngineOptions { data_dir: None, recording: None };
+        let mut devices = TAUT_DEVICES_HOST;
+        let mut popts = PluginOptions::default();
         if let Some(o) = unsafe { options.as_ref() } {
             if o.struct_size as usize != std::mem::size_of::<TautOptions>() {
                 return error::fail(
                     TautError::InvalidArgument,
                     format_args!(
-                        "{NAME}: options.struct_size is {}, this library's TautOptions has {} bytes: initialise with taut_options_init and build against this taut.h (ABI {TAUT_ABI_VERSION})",
+                        "{NAME}: options.struct_size is {}, this library's TautOptions has {} bytes: initialise it with taut_options_init and build against this taut.h (ABI {TAUT_ABI_VERSION})",
                         o.struct_size,
                         std::mem::size_of::<TautOptions>()
                     ),
                 );
             }
-            match o.devices {
-                TAUT_DEVICES_HOST => {}
-                TAUT_DEVICES_PLUGIN => {
-                    return error::fail(
-                        TautError::Unsupported,
-                        format_args!("{NAME}: options.devices = TAUT_DEVICES_PLUGIN is not available through the C ABI of this build; use TAUT_DEVICES_HOST or `taut start`"),
-                    )
-                }
-                d => {
-                    return error::fail(
-                        TautError::InvalidArgument,
-                        format_args!("{NAME}: options.devices = {d} is neither TAUT_DEVICES_HOST (0) nor TAUT_DEVICES_PLUGIN (1)"),
-                    )
-                }
-            }
+            devices = o.devices;
             match unsafe { c_str(o.data_dir, NAME, "options.data_dir") } {
-                Ok(d) => opts.data_dir = d.map(PathBuf::from),
+                Ok(Some(d)) => cfg.daemon.data_dir = d.to_string(),
+                Ok(None) => {}
                 Err(e) => return e,
             }
             match unsafe { c_str(o.recording_path, NAME, "options.recording_path") } {
-                Ok(d) => opts.recording = d.map(PathBuf::from),
+                Ok(Some(r)) => popts.recording = RecordingPath::At(PathBuf::from(r)),
+                Ok(None) => {}
                 Err(e) => return e,
             }
         }
-        let engine = match Engine::configure(&cfg, opts) {
-            Ok(e) => e,
-            Err(ConfigureError::Config(m)) => return error::fail(TautError::Config, format_args!("{m}")),
-            Err(ConfigureError::Io(m)) => return error::fail(TautError::Io, format_args!("{m}")),
+        let mode = match devices {
+            TAUT_DEVICES_HOST => DeviceMode::Host,
+            TAUT_DEVICES_PLUGIN => DeviceMode::Owned(Box::new(owned::ConfigDevices::new(&cfg))),
+            d => {
+                return error::fail(
+                    TautError::InvalidArgument,
+                    format_args!("{NAME}: options.devices = {d} is neither TAUT_DEVICES_HOST (0) nor TAUT_DEVICES_PLUGIN (1)"),
+                )
+            }
+        };
+        let plugin = match Plugin::configure(&cfg, mode, popts) {
+            Ok(p) => p,
+            Err(e) => return plugin_error(NAME, &e),
         };
         let p = Box::new(TautPlugin {
-            engine: std::cell::UnsafeCell::new(engine),
+            handle: plugin.handle().clone(),
+            n: plugin.cables(),
+            lifecycle: AtomicU8::new(plugin.lifecycle() as u8),
+            plugin: std::cell::UnsafeCell::new(plugin),
             busy: AtomicBool::new(false),
             poisoned: AtomicBool::new(false),
-            lifecycle: AtomicU8::new(TautLifecycle::Inactive as u8),
-            events: Mutex::new(EventCursor::default()),
+            outcomes_seen: Mutex::new(0),
         });
         // SAFETY: checked non-NULL above.
         unsafe { *out = Box::into_raw(p) };
@@ -563,168 +596,108 @@ pub unsafe extern "C" fn taut_configure(
     })
 }
 
-/// Activates the plugin: from now on `taut_update` runs the loop, whose first job is enabling
-/// the drives (the commands ask for `TAUT_DRIVE_REQUEST_ENABLE` and hold position). Lifecycle
-/// call. Activating an active plugin is `TAUT_ERROR_WRONG_STATE`.
+/// Inactive -> active. Host-owned: arms the loop; the first `taut_update` cycles ask for the
+/// drives to be enabled (`TAUT_DRIVE_REQUEST_ENABLE`, each cable commanded where it stands) and
+/// the start-up begins once the inputs report them enabled. Plugin-owned: brings the devices up
+/// and runs cycles on the calling thread until the drives are enabled. On failure the plugin
+/// stays inactive, the robot is left safe, and the call may be retried. Lifecycle call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle.
 #[no_mangle]
 pub unsafe extern "C" fn taut_activate(h: *mut TautPlugin) -> TautError {
     unsafe {
-        with_rt(h, "taut_activate", |_, life| {
-            // Relaxed: written only under the busy flag; operator reads are informational.
-            if life.load(Ordering::Relaxed) == TautLifecycle::Active as u8 {
-                return error::fail(TautError::WrongState, format_args!("taut_activate: the plugin is already active"));
-            }
-            life.store(TautLifecycle::Active as u8, Ordering::Relaxed);
-            TautError::Ok
+        with_rt(h, "taut_activate", |p| match p.activate() {
+            Ok(()) => TautError::Ok,
+            Err(e) => plugin_error("taut_activate", &e),
         })
     }
 }
 
-/// Deactivates: `taut_update` is refused until the next `taut_activate`. The host keeps its
-/// drives safe from here (disable or hold them). Lifecycle call.
+/// Active -> inactive. Host-owned: the host disables its drives (the last commands stand until
+/// it does). Plugin-owned: runs the stop cycles (hold, then disable) on the calling thread. The
+/// next `taut_activate` runs the start-up from its first phase. Lifecycle call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle.
 #[no_mangle]
 pub unsafe extern "C" fn taut_deactivate(h: *mut TautPlugin) -> TautError {
     unsafe {
-        with_rt(h, "taut_deactivate", |_, life| {
-            // Relaxed: as in taut_activate.
-            if life.load(Ordering::Relaxed) != TautLifecycle::Active as u8 {
-                return error::fail(TautError::WrongState, format_args!("taut_deactivate: the plugin is not active"));
-            }
-            life.store(TautLifecycle::Inactive as u8, Ordering::Relaxed);
-            TautError::Ok
+        with_rt(h, "taut_deactivate", |p| match p.deactivate() {
+            Ok(()) => TautError::Ok,
+            Err(e) => plugin_error("taut_deactivate", &e),
         })
     }
 }
 
-/// Stops the calibrator thread (after it has recorded every sample) and frees the handle. NULL
-/// is allowed (nothing happens). No other call on `h` may be in progress or follow.
+/// Stops the calibrator thread (after it has recorded every sample and finished the
+/// recording), releases plugin-owned devices and frees the handle. An active plugin is
+/// deactivated first. NULL is allowed. No other call on `h` may be in progress or follow.
 ///
 /// # Safety
 /// `h` is NULL or a live handle, not used after this call.
 #[no_mangle]
 pub unsafe extern "C" fn taut_cleanup(h: *mut TautPlugin) -> TautError {
     guard("taut_cleanup", || {
-        if !h.is_null() {
-            // SAFETY: the caller hands back ownership of a handle from taut_configure.
-            drop(unsafe { Box::from_raw(h) });
+        if h.is_null() {
+            return TautError::Ok;
         }
-        TautError::Ok
+        // SAFETY: the caller hands back ownership of a handle from taut_configure.
+        let mut b = unsafe { Box::from_raw(h) };
+        let p = b.plugin.get_mut();
+        if p.lifecycle() == taut_rt_core::plugin::Lifecycle::Active {
+            if let Err(e) = p.deactivate() {
+                return plugin_error("taut_cleanup", &e);
+            }
+        }
+        match p.cleanup() {
+            Ok(()) => TautError::Ok,
+            Err(e) => plugin_error("taut_cleanup", &e),
+        }
     })
 }
 
-fn drive_state(v: u8) -> Option<DriveStatus> {
-    Some(match v {
-        0 => DriveStatus::Unknown,
-        1 => DriveStatus::Disabled,
-        2 => DriveStatus::Enabled,
-        3 => DriveStatus::QuickStop,
-        4 => DriveStatus::Fault,
-        _ => return None,
-    })
-}
-
-/// The host's readings as rt-core's `Inputs`, or the first bad field. Allocates nothing.
-fn to_inputs(i: &TautInputs, n: usize, into: &mut Inputs) -> Result<(), TautError> {
-    const NAME: &str = "taut_update";
-    if i.n_cables as usize != n {
-        return Err(error::fail(
-            TautError::InvalidArgument,
-            format_args!("{NAME}: inputs.n_cables is {}, the configuration has {n} cables", i.n_cables),
-        ));
-    }
-    let age_ok = |a: f64| a >= 0.0;
-    for j in 0..n {
-        for (what, a) in [("length_age_s", i.length_age_s[j]), ("tension_age_s", i.tension_age_s[j])] {
-            if !age_ok(a) {
-                return Err(error::fail(
-                    TautError::InvalidArgument,
-                    format_args!("{NAME}: inputs.{what}[{j}] = {a} s; an age is >= 0, or INFINITY for never"),
-                ));
-            }
-        }
-        into.drive[j] = match drive_state(i.drive[j]) {
-            Some(d) => d,
-            None => {
-                return Err(error::fail(
-                    TautError::InvalidArgument,
-                    format_args!("{NAME}: inputs.drive[{j}] = {} is not a TautDriveState (0..=4)", i.drive[j]),
-                ))
-            }
-        };
-    }
-    if !age_ok(i.pose_age_s) {
-        return Err(error::fail(
-            TautError::InvalidArgument,
-            format_args!("{NAME}: inputs.pose_age_s = {} s; an age is >= 0, or INFINITY for never", i.pose_age_s),
-        ));
-    }
-    into.fault = match i.fault_kind {
-        0 => None,
-        1 => Some(DeviceFault::Emcy { node: i.fault_node, code: i.fault_code }),
-        2 => Some(DeviceFault::HeartbeatLost { node: i.fault_node }),
-        3 => Some(DeviceFault::Rebooted { node: i.fault_node }),
-        4..=7 => Some(DeviceFault::Bus {
-            iface: IfName::new("host-bus"),
-            event: match i.fault_kind {
-                4 => BusEvent::BusOff,
-                5 => BusEvent::ErrorPassive { tx: 128, rx: 0 },
-                6 => BusEvent::Overflow,
-                _ => BusEvent::Transceiver,
-            },
-        }),
-        k => {
-            return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: inputs.fault_kind = {k} is not a TautFaultKind (0..=7)")))
-        }
-    };
-    into.bus.state = match i.bus_state {
-        0 => BusState::Active,
-        1 => BusState::Warning,
-        2 => BusState::Passive,
-        3 => BusState::Off,
-        b => return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: inputs.bus_state = {b} is not a TautBusState (0..=3)"))),
-    };
-    into.n = n;
-    into.length_m = i.length_m;
-    into.length_age_s = i.length_age_s;
-    into.tension_n = i.tension_n;
-    into.tension_age_s = i.tension_age_s;
-    into.pose_m = i.pose_m;
-    into.pose_age_s = i.pose_age_s;
-    Ok(())
-}
-
-fn to_commands(o: &Outputs, c: &mut TautCommands) {
-    c.n_cables = o.n as u32;
-    c.request = match o.request {
-        DriveRequest::Disable => TautDriveRequest::Disable,
-        DriveRequest::Enable => TautDriveRequest::Enable,
-        DriveRequest::QuickStop => TautDriveRequest::QuickStop,
-        DriveRequest::FaultReset => TautDriveRequest::FaultReset,
-    } as u8;
-    for j in 0..TAUT_MAX_CABLES {
-        let (m, p) = match o.cable[j] {
-            CableCommand::Position(x) if j < o.n => (TautCableMode::Position, x),
-            CableCommand::Tension(f) if j < o.n => (TautCableMode::Tension, f),
-            _ => (TautCableMode::Idle, f64::NAN),
-        };
-        c.mode[j] = m as u8;
-        c.setpoint[j] = p;
+/// The host's readings as the plugin's `HostInputs`.
+fn host_inputs(i: &TautInputs) -> HostInputs {
+    HostInputs {
+        length_m: i.length_m,
+        length_age_s: i.length_age_s,
+        tension_n: i.tension_n,
+        tension_age_s: i.tension_age_s,
+        pose_m: i.pose_m,
+        pose_age_s: i.pose_age_s,
+        drive: i.drive,
+        fault_kind: i.fault_kind,
+        fault_node: i.fault_node,
+        fault_code: i.fault_code,
+        bus_state: i.bus_state,
     }
 }
 
-/// One control cycle: the readings in, the commands out. `now_s` is the host's monotonic time
-/// in seconds (any origin, never decreasing), `period_s` the time since the previous cycle
-/// (> 0; the nominal period on the first).
+fn store_commands(o: &HostOutputs, t: &Tick, c: &mut TautCommands) {
+    c.n_cables = u32::from(o.n_cables);
+    c.setpoint = o.setpoint;
+    c.mode = o.mode;
+    c.request = o.request;
+    c.motion_state = t.state as u8;
+    c.phase = t.phase;
+    c.faulted = t.faulted as u8;
+    c.finished = t.finished as u8;
+    c.bad_input = t.bad_input.is_some() as u8;
+}
+
+/// One control cycle. `now_s` is the host's monotonic time in seconds (any origin, never going
+/// back), `period_s` the measured time since the previous cycle (> 0; the nominal period on the
+/// first).
 ///
-/// **Real-time safe**: allocates nothing, takes no lock, makes no blocking call. On an error the
-/// commands are not written: the host keeps its last safe output (e.g. holds or quick-stops)
-/// and reports `taut_last_error`.
+/// Host-owned devices: `inputs` are this cycle's readings, `commands` receive what to send to
+/// the drives. A malformed reading is taken as missing for this cycle (the loop's own checks
+/// react to a missing reading) and flagged in `commands->bad_input`, with the field named by
+/// `taut_last_error`. Plugin-owned devices: `inputs` must be NULL; `commands` may be NULL, or
+/// receives the cycle's state fields.
+///
+/// **Real-time safe**: allocates nothing, takes no lock, makes no blocking call. On an error
+/// the commands are not written: the host keeps its drives safe (hold or quick stop).
 ///
 /// # Safety
 /// `h` is NULL or a live handle; `inputs` NULL or a readable `TautInputs`; `commands` NULL or a
@@ -738,35 +711,57 @@ pub unsafe extern "C" fn taut_update(
     commands: *mut TautCommands,
 ) -> TautError {
     const NAME: &str = "taut_update";
+    let n = match unsafe { h.as_ref() } {
+        Some(p) => p.n,
+        None => 0,
+    };
     unsafe {
-        with_rt(h, NAME, |e, life| {
-            let (Some(i), Some(c)) = (inputs.as_ref(), commands.as_mut()) else {
-                return error::fail(TautError::NullPointer, format_args!("{NAME}: inputs or commands is NULL"));
-            };
-            // Relaxed: written under the busy flag this thread holds.
-            if life.load(Ordering::Relaxed) != TautLifecycle::Active as u8 {
-                return error::fail(TautError::WrongState, format_args!("{NAME}: the plugin is not active (taut_activate first)"));
+        with_rt(h, NAME, |p| {
+            let (inputs, commands) = (inputs.as_ref(), commands.as_mut());
+            if p.mode() == ModeKind::Owned {
+                if inputs.is_some() {
+                    return error::fail(
+                        TautError::WrongState,
+                        format_args!("{NAME}: the plugin owns the devices (TAUT_DEVICES_PLUGIN): pass NULL inputs"),
+                    );
+                }
+                return match p.update(now_s, period_s) {
+                    Ok(t) => {
+                        if let Some(c) = commands {
+                            store_commands(&HostOutputs::default(), &t, c);
+                        }
+                        TautError::Ok
+                    }
+                    Err(e) => error::fail(code(e.kind()), format_args!("{NAME}: {e}")),
+                };
             }
-            update(e, now_s, period_s, i, c)
+            let (Some(i), Some(c)) = (inputs, commands) else {
+                return error::fail(TautError::NullPointer, format_args!("{NAME}: inputs or commands is NULL (host-owned devices)"));
+            };
+            update_host(p, n, now_s, period_s, i, c)
         })
     }
 }
 
-fn update(e: &mut Engine, now_s: f64, period_s: f64, i: &TautInputs, c: &mut TautCommands) -> TautError {
+fn update_host(p: &mut Plugin, n: usize, now_s: f64, period_s: f64, i: &TautInputs, c: &mut TautCommands) -> TautError {
     const NAME: &str = "taut_update";
-    if !now_s.is_finite() || !(period_s.is_finite() && period_s > 0.0) {
+    if i.n_cables as usize != n {
         return error::fail(
             TautError::InvalidArgument,
-            format_args!("{NAME}: now_s = {now_s}, period_s = {period_s}: both finite and the period > 0 s"),
+            format_args!("{NAME}: inputs.n_cables is {}, the configuration has {n} cables", i.n_cables),
         );
     }
-    let mut inp = e.rt.core.inputs;
-    if let Err(err) = to_inputs(i, e.rt.n, &mut inp) {
-        return err;
+    let mut out = HostOutputs::default();
+    match p.update_with(now_s, period_s, &host_inputs(i), &mut out) {
+        Ok(t) => {
+            store_commands(&out, &t, c);
+            if let Some(b) = t.bad_input {
+                error::fail(TautError::InvalidArgument, format_args!("{NAME}: inputs.{b}; taken as missing this cycle"));
+            }
+            TautError::Ok
+        }
+        Err(e) => error::fail(code(e.kind()), format_args!("{NAME}: {e}")),
     }
-    let out = e.rt.cycle(now_s, period_s, &inp);
-    to_commands(&out, c);
-    TautError::Ok
 }
 
 fn max_of<'a>(v: impl Iterator<Item = &'a f64>) -> f64 {
@@ -792,34 +787,35 @@ pub unsafe extern "C" fn taut_status(h: *const TautPlugin, out: *mut TautStatus)
 }
 
 fn status_of(p: &TautPlugin) -> TautStatus {
-    let op = p.op();
-    let l = op.loop_status();
-    let c = op.calib_status();
+    let st = p.handle.status();
+    let l = p.handle.loop_status();
+    let c = p.handle.calib_status();
     let s = &l.snap;
-    let current = c.current.as_ref();
     TautStatus {
         // Relaxed: informational.
         lifecycle: p.lifecycle.load(Ordering::Relaxed),
-        motion_state: s.state as u8,
-        phase: s.phase,
-        phases_completed: s.phases_completed,
-        fault_active: s.fault.is_some() as u8,
-        swap_active: s.swap_active as u8,
+        motion_state: st.state as u8,
+        phase: st.phase,
+        phases_completed: st.phases_completed,
+        fault_active: st.fault.is_some() as u8,
+        swap_active: st.swap_active as u8,
         run: s.run,
-        params_version: s.params_version,
+        params_version: st.params_version,
         swaps: s.swaps,
         calibrations: c.outcomes.len() as u32,
         calibrations_accepted: c.outcomes.iter().filter(|o| o.accepted).count() as u32,
         max_swap_step_m: s.max_swap_step_m,
         t_s: s.t,
-        cycles: l.cycles,
-        samples_dropped: l.dropped,
-        anchor_sigma_max_m: current.map_or(f64::NAN, |p| max_of(p.anchor_sigma_m.iter().flatten())),
-        l0_sigma_max_m: current.map_or(f64::NAN, |p| max_of(p.l0_sigma_m.iter())),
+        cycles: st.cycles,
+        samples_dropped: st.samples_dropped,
+        anchor_sigma_max_m: max_of(st.anchor_sigma_m.iter().flatten()),
+        l0_sigma_max_m: max_of(st.l0_sigma_m.iter()),
+        samples_recorded: st.samples_recorded,
+        events_dropped: st.events_dropped,
     }
 }
 
-/// The full status as one line of JSON (the same document as `taut ctl status`) into `buf`
+/// The full status as one line of JSON (the document `taut ctl status` prints) into `buf`
 /// (NUL-terminated, cut to fit); `*len_out` (if not NULL) gets its full length without the NUL,
 /// so a host can call again with a larger buffer. Operator call.
 ///
@@ -833,8 +829,7 @@ pub unsafe extern "C" fn taut_status_json(h: *const TautPlugin, buf: *mut c_char
             if buf.is_null() && len > 0 {
                 return error::fail(TautError::NullPointer, format_args!("taut_status_json: buf is NULL with len {len}"));
             }
-            let op = p.op();
-            let v = taut_rt_core::control::status_json(&op.loop_status(), &op.calib_status()).to_string();
+            let v = taut_rt_core::control::status_json(&p.handle.loop_status(), &p.handle.calib_status()).to_string();
             let out = if buf.is_null() { &mut [][..] } else { std::slice::from_raw_parts_mut(buf.cast::<u8>(), len) };
             let n = error::copy_str(v.as_bytes(), out);
             if let Some(l) = len_out.as_mut() {
@@ -845,8 +840,9 @@ pub unsafe extern "C" fn taut_status_json(h: *const TautPlugin, buf: *mut c_char
     }
 }
 
-/// The parameters in force. `TAUT_ERROR_REFUSED` before the first accepted estimate. Operator
-/// call.
+/// The parameters the calibrator published last (the loop may still be fading them in:
+/// `TautStatus::swap_active`). `TAUT_ERROR_REFUSED` before the first accepted estimate.
+/// Operator call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle; `out` NULL or a writable `TautParams`.
@@ -857,9 +853,11 @@ pub unsafe extern "C" fn taut_params(h: *const TautPlugin, out: *mut TautParams)
             let Some(o) = out.as_mut() else {
                 return error::fail(TautError::NullPointer, format_args!("taut_params: out is NULL"));
             };
-            let c = p.op().calib_status();
-            let Some(f) = &c.current else {
-                return error::fail(TautError::Refused, format_args!("taut_params: no parameters yet (the start-up has not produced an estimate)"));
+            let Some(f) = p.handle.params() else {
+                return error::fail(
+                    TautError::Refused,
+                    format_args!("taut_params: no parameters yet (the start-up has not produced an estimate)"),
+                );
             };
             let n = f.anchors_m.len().min(TAUT_MAX_CABLES);
             let mut r = TautParams {
@@ -884,51 +882,56 @@ pub unsafe extern "C" fn taut_params(h: *const TautPlugin, out: *mut TautParams)
     }
 }
 
-/// Sends an operator request through the daemon's control links; a refusal becomes
-/// `TAUT_ERROR_REFUSED` with the daemon's reason.
-fn request(p: &TautPlugin, name: &str, r: Request) -> TautError {
-    let v = p.op().links.handle(r);
-    if v["ok"] == true {
-        TautError::Ok
-    } else {
-        error::fail(TautError::Refused, format_args!("{name}: {}", v["error"].as_str().unwrap_or("refused")))
-    }
-}
-
-/// Asks for a new calibration (excitation, calibration, hot-swap), as `taut ctl recalibrate`.
-/// Refused unless the robot operates without a fault. Operator call.
+/// Asks for a new calibration (excitation, calibration, hot-swap if better), as
+/// `taut ctl recalibrate`. `TAUT_ERROR_REFUSED` unless the robot operates without a fault.
+/// Operator call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle.
 #[no_mangle]
 pub unsafe extern "C" fn taut_request_recalibration(h: *const TautPlugin) -> TautError {
-    unsafe { with_op(h, "taut_request_recalibration", |p| request(p, "taut_request_recalibration", Request::Recalibrate)) }
+    unsafe {
+        with_op(h, "taut_request_recalibration", |p| match p.handle.request_recalibration() {
+            Ok(()) => TautError::Ok,
+            Err(r) => error::fail(TautError::Refused, format_args!("taut_request_recalibration: {r}")),
+        })
+    }
 }
 
-/// Emergency stop: a flag the next `taut_update` acts on (quick stop, latched). Operator call;
-/// lock-free, so also callable from a signal-free real-time context.
+/// Emergency stop: a flag the next `taut_update` acts on (quick stop, latched). Never refused.
+/// Lock-free: the one operator call that may also be made from the real-time thread.
 ///
 /// # Safety
 /// `h` is NULL or a live handle.
 #[no_mangle]
 pub unsafe extern "C" fn taut_estop(h: *const TautPlugin) -> TautError {
-    unsafe { with_op(h, "taut_estop", |p| request(p, "taut_estop", Request::Estop)) }
+    unsafe {
+        with_op(h, "taut_estop", |p| {
+            p.handle.estop();
+            TautError::Ok
+        })
+    }
 }
 
-/// Clears a latched safety reaction (fault reset, re-enable, hold), as `taut ctl reset`.
-/// Operator call; progress shows in the status.
+/// Clears a latched safety reaction (fault reset, re-enable, hold where they stand), as
+/// `taut ctl reset`; the outcome comes as a `TAUT_EVENT_KIND_RESET` event. Operator call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle.
 #[no_mangle]
 pub unsafe extern "C" fn taut_reset(h: *const TautPlugin) -> TautError {
-    unsafe { with_op(h, "taut_reset", |p| request(p, "taut_reset", Request::Reset)) }
+    unsafe {
+        with_op(h, "taut_reset", |p| match p.handle.reset() {
+            Ok(()) => TautError::Ok,
+            Err(r) => error::fail(TautError::Refused, format_args!("taut_reset: {r}")),
+        })
+    }
 }
 
-/// The next event since the last poll, oldest first: `TAUT_ERROR_OK` with `*out` filled, or
-/// `TAUT_ERROR_NO_EVENT`. Calibration outcomes are never missed; motion states that came and
-/// went between two polls are (poll at least as often as states last, e.g. every 100 ms).
-/// Operator call.
+/// The next event, oldest first: `TAUT_ERROR_OK` with `*out` filled, or `TAUT_ERROR_NO_EVENT`.
+/// The loop queues its events without blocking (a full queue drops them and counts them in
+/// `TautStatus::events_dropped`); calibration outcomes come from the calibrator's status and
+/// are never dropped. Operator call.
 ///
 /// # Safety
 /// `h` is NULL or a live handle; `out` NULL or a writable `TautEvent`.
@@ -939,46 +942,53 @@ pub unsafe extern "C" fn taut_poll_event(h: *const TautPlugin, out: *mut TautEve
             let Some(o) = out.as_mut() else {
                 return error::fail(TautError::NullPointer, format_args!("taut_poll_event: out is NULL"));
             };
-            let op = p.op();
-            let l = op.loop_status();
-            let s = &l.snap;
-            let mut cur = p.events.lock().unwrap_or_else(|e| e.into_inner());
-            let ev = |kind: TautEventKind| TautEvent { kind: kind as u8, motion_state: s.state as u8, t_s: s.t, ..TautEvent::default() };
-            let c = op.calib_status();
-            if let Some(oc) = c.outcomes.get(cur.outcomes) {
-                cur.outcomes += 1;
-                *o = TautEvent {
-                    accepted: oc.accepted as u8,
-                    initial: (oc.kind == OutcomeKind::Initial) as u8,
-                    value: oc.version,
-                    ..ev(TautEventKind::Calibration)
-                };
-                return TautError::Ok;
-            }
-            if s.state as u8 != cur.state {
-                cur.state = s.state as u8;
-                *o = ev(TautEventKind::MotionState);
-                return TautError::Ok;
-            }
-            if s.params_version != cur.params_version {
-                cur.params_version = s.params_version;
-                *o = TautEvent { value: s.params_version, ..ev(TautEventKind::ParamsSwapped) };
-                return TautError::Ok;
-            }
-            if s.fault.is_some() != cur.fault {
-                cur.fault = s.fault.is_some();
-                if cur.fault {
-                    *o = ev(TautEventKind::Fault);
-                    return TautError::Ok;
+            match next_event(p) {
+                Some(e) => {
+                    *o = e;
+                    TautError::Ok
                 }
+                None => TautError::NoEvent,
             }
-            TautError::NoEvent
         })
     }
 }
 
-/// The name of a motion state (`TautStatus::motion_state`), a static string; "unknown" for a
-/// value that is not one.
+fn next_event(p: &TautPlugin) -> Option<TautEvent> {
+    let base = |kind: TautEventKind, t_s: f64, state: State| TautEvent {
+        kind: kind as u8,
+        motion_state: state as u8,
+        phase: -1,
+        t_s,
+        ..TautEvent::default()
+    };
+    {
+        let mut seen = p.outcomes_seen.lock().unwrap_or_else(|e| e.into_inner());
+        let c = p.handle.calib_status();
+        if let Some(oc) = c.outcomes.get(*seen) {
+            *seen += 1;
+            let s = p.handle.loop_status().snap;
+            return Some(TautEvent {
+                accepted: oc.accepted as u8,
+                initial: (oc.kind == OutcomeKind::Initial) as u8,
+                value: oc.version,
+                ..base(TautEventKind::Calibration, s.t, s.state)
+            });
+        }
+    }
+    let state = p.handle.loop_status().snap.state;
+    Some(match p.handle.poll_event()? {
+        Event::State { t_s, from, to } => TautEvent { from_state: from as u8, ..base(TautEventKind::MotionState, t_s, to) },
+        Event::Phase { t_s, phase } => TautEvent { phase, ..base(TautEventKind::Phase, t_s, state) },
+        Event::Fault { t_s, .. } => base(TautEventKind::Fault, t_s, state),
+        Event::ParamsSwapped { t_s, version } => TautEvent { value: version, ..base(TautEventKind::ParamsSwapped, t_s, state) },
+        Event::Reset { t_s, outcome } => {
+            TautEvent { accepted: (outcome == ResetOutcome::Done) as u8, ..base(TautEventKind::Reset, t_s, state) }
+        }
+    })
+}
+
+/// The name of a motion state (`TautStatus::motion_state`), a static NUL-terminated string;
+/// "unknown" for a value that is not one.
 #[no_mangle]
 pub extern "C" fn taut_motion_state_name(state: u8) -> *const c_char {
     let s: &'static CStr = match state {
@@ -1002,8 +1012,8 @@ pub extern "C" fn taut_motion_state_name(state: u8) -> *const c_char {
 
 /// Copies the calling thread's last error message into `buf` (NUL-terminated, cut to fit) and
 /// returns its full length without the NUL (0: no error yet). `buf` may be NULL with `len` 0 to
-/// ask for the length. The message is thread-local: it is the last failure of a call made on
-/// this thread, on any handle.
+/// ask for the length. The message is thread-local: the last failure of a call made on this
+/// thread, on any handle.
 ///
 /// # Safety
 /// `buf` is NULL or `len` writable bytes.
@@ -1016,9 +1026,9 @@ pub unsafe extern "C" fn taut_last_error(buf: *mut c_char, len: usize) -> usize 
     .unwrap_or(0)
 }
 
-/// The Rust call `taut_update` wraps, for the benchmark that sets the two side by side: one
-/// cycle of the loop core with rt-core's own `Inputs`/`Outputs`, no conversion, no FFI.
+/// The Rust call `taut_update` wraps, for the benchmark that sets the two side by side:
+/// `Plugin::update_with` on the plugin behind the handle, no conversion, no FFI.
 #[doc(hidden)]
-pub fn rust_cycle(h: &mut TautPlugin, now_s: f64, period_s: f64, i: &Inputs) -> Outputs {
-    h.engine.get_mut().rt.cycle(now_s, period_s, i)
+pub fn rust_update(h: &mut TautPlugin, now_s: f64, period_s: f64, i: &HostInputs, o: &mut HostOutputs) -> Option<Tick> {
+    h.plugin.get_mut().update_with(now_s, period_s, i, o).ok()
 }

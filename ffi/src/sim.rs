@@ -78,13 +78,14 @@ impl TautSim {
             return Err(format!("{n} cables: the simulated robot needs 4..={TAUT_MAX_CABLES}"));
         }
         let opts = SimOptions { seed, ..SimOptions::default() };
-        let w = ControllerConfig::from_robot(cfg)?.workspace;
+        let w = ControllerConfig::from_robot(cfg).map_err(|e| e.to_string())?.workspace;
         let centre = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
         // Where an operator parks the platform before the start-up (as `taut start --sim`).
         let p0 = simrig::rest_position(cfg, &opts, centre);
         let physics = Physics::default();
         let mut rng = taut_sim::rng(seed, 0);
-        let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
+        let truth =
+            Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
         let mut plant = Plant::new(&truth, &physics, p0).with_noise(&opts.noise, seed);
         let drum = plant
             .lengths_at_rest(p0, cfg.motion.init_follower_tension_n)
@@ -143,14 +144,22 @@ impl TautSim {
         const NAME: &str = "taut_sim_write";
         let n = self.n;
         if c.n_cables as usize != n {
-            return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: commands.n_cables is {}, the robot has {n}", c.n_cables)));
+            return Err(error::fail(
+                TautError::InvalidArgument,
+                format_args!("{NAME}: commands.n_cables is {}, the robot has {n}", c.n_cables),
+            ));
         }
         let request = match c.request {
             0 => TautDriveRequest::Disable,
             1 => TautDriveRequest::Enable,
             2 => TautDriveRequest::QuickStop,
             3 => TautDriveRequest::FaultReset,
-            r => return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: commands.request = {r} is not a TautDriveRequest"))),
+            r => {
+                return Err(error::fail(
+                    TautError::InvalidArgument,
+                    format_args!("{NAME}: commands.request = {r} is not a TautDriveRequest"),
+                ))
+            }
         };
         for j in 0..n {
             let d = &mut self.drives[j];
@@ -171,7 +180,10 @@ impl TautSim {
                 (Power::OperationEnabled, m) if m == TautCableMode::Position as u8 => {
                     let x = c.setpoint[j];
                     if !x.is_finite() {
-                        return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: commands.setpoint[{j}] = {x} m (position)")));
+                        return Err(error::fail(
+                            TautError::InvalidArgument,
+                            format_args!("{NAME}: commands.setpoint[{j}] = {x} m (position)"),
+                        ));
                     }
                     // Encoder length -> drum length through the site's true offset and scale.
                     self.drum[j] = (x - self.truth.l0[j]) / self.truth.scale[j];
@@ -180,19 +192,28 @@ impl TautSim {
                 (Power::OperationEnabled, m) if m == TautCableMode::Tension as u8 => {
                     let f = c.setpoint[j];
                     if !f.is_finite() {
-                        return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: commands.setpoint[{j}] = {f} N (tension)")));
+                        return Err(error::fail(
+                            TautError::InvalidArgument,
+                            format_args!("{NAME}: commands.setpoint[{j}] = {f} N (tension)"),
+                        ));
                     }
                     CableCommand::Tension(f.max(0.0))
                 }
                 (_, m) if m > TautCableMode::Tension as u8 => {
-                    return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: commands.mode[{j}] = {m} is not a TautCableMode")))
+                    return Err(error::fail(
+                        TautError::InvalidArgument,
+                        format_args!("{NAME}: commands.mode[{j}] = {m} is not a TautCableMode"),
+                    ))
                 }
                 // Brakes (or an idle enabled drive) hold the drum where it is.
                 _ => CableCommand::Length(self.drum[j]),
             };
         }
         if !(period.is_finite() && period > 0.0 && period <= 1.0) || !now.is_finite() {
-            return Err(error::fail(TautError::InvalidArgument, format_args!("{NAME}: now = {now} s, period = {period} s (0 < period <= 1)")));
+            return Err(error::fail(
+                TautError::InvalidArgument,
+                format_args!("{NAME}: now = {now} s, period = {period} s (0 < period <= 1)"),
+            ));
         }
         let o = self.plant.step(period, &self.cmds);
         self.encoder_m[..n].copy_from_slice(o.encoder_m);
