@@ -15,6 +15,8 @@
  *
  * Build (see ffi/tests/hosts.rs): cc -std=c11 -I ffi/include host.c -L target/debug -ltaut
  */
+/* clock_gettime and clock_nanosleep are POSIX, not C11. */
+#define _POSIX_C_SOURCE 200809L
 #include "taut.h"
 
 #include <math.h>

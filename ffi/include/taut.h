@@ -25,9 +25,9 @@
  *  - NULL pointers, bad enum codes and wrong cable counts are errors with a message, never
  *    undefined behaviour.
  *
- * The taut_sim_* functions (a simulated robot for hosts to test against) exist when the library
- * was built with the cargo feature `sim` (the default); define TAUT_SIM before including this
- * header to declare them.
+ * The taut_sim_* functions (a simulated robot for hosts to test against) are in the library when
+ * it was built with the cargo feature `sim` (the default; `--no-default-features` leaves them
+ * out, and a host that calls them then fails to link).
  */
 
 
@@ -86,7 +86,7 @@ typedef enum TautError {
   TAUT_ERROR_NO_EVENT = 10,
 } TautError;
 
-// State of one drive (`TautInputs::drive_state`), collapsed from the CiA 402 state machine.
+// State of one drive (`TautInputs::drive`), collapsed from the CiA 402 state machine.
 enum TautDriveState
 #if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
   : uint8_t
@@ -261,10 +261,8 @@ typedef uint8_t TautEventKind;
 // The opaque handle.
 typedef struct TautPlugin TautPlugin;
 
-#if defined(TAUT_SIM)
 // The simulated robot (opaque in C).
 typedef struct TautSim TautSim;
-#endif
 
 // Configure-time options. Initialise with [`taut_options_init`]; NULL means the defaults.
 typedef struct TautOptions {
@@ -416,7 +414,6 @@ typedef struct TautEvent {
   double t_s;
 } TautEvent;
 
-#if defined(TAUT_SIM)
 // The simulated site's true parameters, for a host's final check.
 typedef struct TautSimTruth {
   // Cables.
@@ -428,7 +425,6 @@ typedef struct TautSimTruth {
   // Platform position now, m.
   double position_m[3];
 } TautSimTruth;
-#endif
 
 #ifdef __cplusplus
 extern "C" {
@@ -574,7 +570,6 @@ const char *taut_motion_state_name(uint8_t state);
 // `buf` is NULL or `len` writable bytes.
 size_t taut_last_error(char *buf, size_t len);
 
-#if defined(TAUT_SIM)
 // Builds the simulated robot of the configuration at `config_path` (4..=8 cables, nominal
 // anchors): a site with anchors off by up to 0.2 m and unknown encoder offsets drawn from
 // `seed`, the platform resting where an operator would park it, drives disabled on their brakes.
@@ -582,18 +577,14 @@ size_t taut_last_error(char *buf, size_t len);
 // # Safety
 // `config_path` is a NUL-terminated string; `out` points to writable storage for a pointer.
 enum TautError taut_sim_new(const char *config_path, uint64_t seed, struct TautSim **out);
-#endif
 
-#if defined(TAUT_SIM)
 // The sensors at host time `now_s`: encoder lengths and load-cell tensions of the last plant
 // step (aged by the time since), drive states, the newest tracker pose (100 Hz) and its age.
 //
 // # Safety
 // `sim` is NULL or a live simulator; `out` NULL or a writable `TautInputs`.
 enum TautError taut_sim_read(const struct TautSim *sim, double now_s, struct TautInputs *out);
-#endif
 
-#if defined(TAUT_SIM)
 // Applies the commands (controlword intent per drive, position or tension per cable) and
 // advances the physics by `period_s` to `now_s + period_s`.
 //
@@ -603,24 +594,19 @@ enum TautError taut_sim_write(struct TautSim *sim,
                               double now_s,
                               double period_s,
                               const struct TautCommands *commands);
-#endif
 
-#if defined(TAUT_SIM)
 // The site's true anchors and encoder offsets and the platform's position, for a host to
 // judge the calibration.
 //
 // # Safety
 // `sim` is NULL or a live simulator; `out` NULL or a writable `TautSimTruth`.
 enum TautError taut_sim_truth(const struct TautSim *sim, struct TautSimTruth *out);
-#endif
 
-#if defined(TAUT_SIM)
 // Frees the simulator (NULL allowed).
 //
 // # Safety
 // `sim` is NULL or a live simulator, not used afterwards.
 void taut_sim_free(struct TautSim *sim);
-#endif
 
 #ifdef __cplusplus
 }  // extern "C"
