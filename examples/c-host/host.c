@@ -56,8 +56,11 @@ static int check_refusals(TautPlugin *p) {
     TautInputs in;
     TautCommands cmd;
     memset(&in, 0, sizeof in);
-    if (taut_update(p, 0.0, 0.002, &in, &cmd) != TAUT_ERROR_WRONG_STATE) {
-        fprintf(stderr, "c-host: taut_update before taut_activate was not refused\n");
+    TautError e = taut_update(p, 0.0, 0.002, &in, &cmd);
+    if (e != TAUT_ERROR_WRONG_STATE) {
+        char msg[512];
+        taut_last_error(msg, sizeof msg);
+        fprintf(stderr, "c-host: taut_update before taut_activate was not refused as WRONG_STATE: error %d (%s)\n", (int)e, msg);
         return 1;
     }
     if (taut_update(p, 0.0, 0.002, NULL, &cmd) != TAUT_ERROR_NULL_POINTER) {

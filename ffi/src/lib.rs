@@ -745,6 +745,11 @@ pub unsafe extern "C" fn taut_update(
 
 fn update_host(p: &mut Plugin, n: usize, now_s: f64, period_s: f64, i: &TautInputs, c: &mut TautCommands) -> TautError {
     const NAME: &str = "taut_update";
+    // The lifecycle first: a host that has not activated learns that, whatever it passed.
+    if p.lifecycle() != taut_rt_core::plugin::Lifecycle::Active {
+        let e = taut_rt_core::plugin::UpdateError::NotActive { state: p.lifecycle() };
+        return error::fail(code(e.kind()), format_args!("{NAME}: {e}"));
+    }
     if i.n_cables as usize != n {
         return error::fail(
             TautError::InvalidArgument,

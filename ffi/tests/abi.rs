@@ -89,6 +89,9 @@ fn lifecycle_order_cable_count_and_malformed_readings() {
     unsafe {
         assert_eq!(taut_update(h, 0.0, 0.002, &inp, &mut cmd), TautError::WrongState);
         assert!(last_error().contains("activate first"), "{}", last_error());
+        // The lifecycle is checked before the inputs.
+        let zero = TautInputs { n_cables: 0, ..TautInputs::default() };
+        assert_eq!(taut_update(h, 0.0, 0.002, &zero, &mut cmd), TautError::WrongState, "{}", last_error());
         assert_eq!(taut_deactivate(h), TautError::WrongState);
         assert_eq!(taut_status(h, &mut st), TautError::Ok);
         assert_eq!(st.lifecycle, TautLifecycle::Inactive as u8);

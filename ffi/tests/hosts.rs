@@ -49,8 +49,17 @@ fn compile(compiler: &str, std: &str, source: &str, out: &Path) {
 fn run_host(exe: &Path, name: &str, limit: Duration) {
     let dir = tempfile::tempdir().unwrap();
     let config = root().join("config/examples/aras-cam-sim.toml");
-    let mut child =
-        Command::new(exe).arg(&config).arg(dir.path()).args(["3", "4"]).stdout(Stdio::inherit()).stderr(Stdio::inherit()).spawn().unwrap();
+    // cargo test puts the profile directory before deps/ on LD_LIBRARY_PATH, where a libtaut.so
+    // of another build may be older: the host finds the one it was linked with by its rpath.
+    let mut child = Command::new(exe)
+        .env_remove("LD_LIBRARY_PATH")
+        .arg(&config)
+        .arg(dir.path())
+        .args(["3", "4"])
+        .stdout(Stdio::inherit())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
     let t0 = Instant::now();
     loop {
         if let Some(s) = child.try_wait().unwrap() {
