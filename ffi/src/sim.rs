@@ -209,7 +209,7 @@ impl TautSim {
                 _ => CableCommand::Length(self.drum[j]),
             };
         }
-        if !(period.is_finite() && period > 0.0 && period <= 1.0) || !now.is_finite() {
+        if !(period.is_finite() && period > 0.0 && period <= 1.0 && now.is_finite()) {
             return Err(error::fail(
                 TautError::InvalidArgument,
                 format_args!("{NAME}: now = {now} s, period = {period} s (0 < period <= 1)"),
