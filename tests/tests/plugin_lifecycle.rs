@@ -266,6 +266,14 @@ fn lifecycle_calls_out_of_order_are_errors() {
     let t = p.update_with(1.002, 0.002, &bad, &mut o).unwrap();
     assert_eq!(t.bad_input, Some(taut_rt_core::plugin::BadInput::Drive { cable: 2, code: 77 }));
     p.deactivate().unwrap();
+    // Re-activation: the loop starts over (enable, then the phases), and the host's clock may
+    // have restarted.
+    p.activate().unwrap();
+    let t = p.update_with(0.001, 0.002, &i, &mut o).unwrap();
+    assert_eq!((t.state, o.request), (State::Enabling, taut_rt_core::plugin::host::REQUEST_DISABLE));
+    let t = p.update_with(0.003, 0.002, &i, &mut o).unwrap();
+    assert_eq!((t.state, o.request), (State::Enabling, taut_rt_core::plugin::host::REQUEST_ENABLE));
+    p.deactivate().unwrap();
     p.cleanup().unwrap();
     let e = p.activate().unwrap_err();
     assert!(matches!(e, PluginError::Lifecycle { op: Op::Activate, state: Lifecycle::Finalized }), "{e}");
