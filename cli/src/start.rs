@@ -13,7 +13,8 @@ use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::io::Devices;
 use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+use taut_rt_core::plugin::{DeviceMode, DeviceSource};
+use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::simrig::{self, SimOptions};
 use taut_sim::Truth;
@@ -65,20 +66,20 @@ pub fn run(a: &StartArgs) -> Result<()> {
     for note in daemon_paths(&mut cfg, a.sim, text.as_deref(), a.data_dir.as_deref(), a.socket.as_deref()) {
         eprintln!("taut start: {note}");
     }
-    let (devices, truth, tracker): (Box<dyn Devices>, Option<Truth>, _) = if a.sim {
+    let (devices, truth, tracker): (DeviceMode, Option<Truth>, _) = if a.sim {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
         let w = ccfg.workspace;
         let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
         let so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
         let p0 = simrig::rest_position(&cfg, &so, p0);
         let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
-        (sim.devices, Some(sim.truth), Some(sim.tracker_stats))
+        (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
     } else {
         let (d, t) = hardware_devices(&cfg)?;
         (d, None, t)
     };
     let daemon =
-        Daemon::start(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
+        Daemon::start_with(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
             .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
 
@@ -241,29 +242,52 @@ fn daemon_paths(
 }
 
 /// The robot's own devices: the CiA 402 drives on the `[can]` interface through SocketCAN, the
-/// load cells on `[loadcells]`, the tracker on `[tracker]`.
-fn hardware_devices(cfg: &RobotConfig) -> Result<(Box<dyn Devices>, Option<TrackerStatsHandle>)> {
+/// load cells on `[loadcells]`, the tracker on `[tracker]`. The load-cell and tracker ports are
+/// opened here (the control socket shows the tracker's counters); the CAN interface is opened
+/// and the drives are configured by the plugin's activation ([`Hardware`]), after the control
+/// socket is bound and the recording created.
+fn hardware_devices(cfg: &RobotConfig) -> Result<(DeviceMode, Option<TrackerStatsHandle>)> {
     let Some(can) = &cfg.can else {
         bail!("the configuration has no [can] table: add one with the drives' interface, e.g. interface = \"can0\"");
     };
     #[cfg(target_os = "linux")]
     {
-        use taut_driver::transport::socketcan::SocketCanTransport;
-        let bus = SocketCanTransport::open(&can.interface).with_context(|| {
-            format!(
-                "opening CAN interface {} (can.interface): is it up? `ip link set {} up type can bitrate {}`",
-                can.interface, can.interface, can.bitrate
-            )
-        })?;
+        let _ = can;
         let peripherals = Peripherals::from_config(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
         let tracker = peripherals.pose.as_ref().map(|p| p.stats_handle());
-        eprintln!("taut start: bringing up the drives on {}", can.interface);
-        let d = RobotDevices::bring_up(cfg, bus, peripherals).map_err(|e| anyhow::anyhow!("{e}"))?;
-        Ok((Box::new(d), tracker))
+        Ok((DeviceMode::Owned(Box::new(Hardware { cfg: cfg.clone(), peripherals: Some(peripherals) })), tracker))
     }
     #[cfg(not(target_os = "linux"))]
     {
         bail!("CAN interface {}: SocketCAN needs Linux", can.interface)
+    }
+}
+
+/// The drives' bring-up, run by the plugin's `activate`.
+#[cfg(target_os = "linux")]
+struct Hardware {
+    cfg: RobotConfig,
+    peripherals: Option<Peripherals>,
+}
+
+#[cfg(target_os = "linux")]
+impl DeviceSource for Hardware {
+    fn bring_up(&mut self) -> std::result::Result<Box<dyn Devices>, BringUpError> {
+        use taut_driver::transport::socketcan::SocketCanTransport;
+        let can = self.cfg.can.as_ref().ok_or_else(|| BringUpError { what: "can".into(), message: "no [can] table".into() })?;
+        let bus = SocketCanTransport::open(&can.interface).map_err(|e| BringUpError {
+            what: "can.interface".into(),
+            message: format!(
+                "opening CAN interface {}: {e}; is it up? `ip link set {} up type can bitrate {}`",
+                can.interface, can.interface, can.bitrate
+            ),
+        })?;
+        let peripherals = self.peripherals.take().ok_or_else(|| BringUpError {
+            what: "devices".into(),
+            message: "a failed bring-up consumed the load-cell and tracker ports: start taut again".into(),
+        })?;
+        eprintln!("taut start: bringing up the drives on {}", can.interface);
+        Ok(Box::new(RobotDevices::bring_up(&self.cfg, bus, peripherals)?))
     }
 }
 

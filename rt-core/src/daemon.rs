@@ -115,12 +115,23 @@ impl Daemon {
         backend: Box<dyn Calibrate>,
         opts: DaemonOptions,
     ) -> Result<Daemon, DaemonError> {
+        Daemon::start_with(cfg, DeviceMode::ready(devices), backend, opts)
+    }
+
+    /// [`Daemon::start`] with plugin-owned devices that the plugin's activation brings up
+    /// (after the control socket is bound and the recording created).
+    pub fn start_with(
+        cfg: &RobotConfig,
+        devices: DeviceMode,
+        backend: Box<dyn Calibrate>,
+        opts: DaemonOptions,
+    ) -> Result<Daemon, DaemonError> {
         let popts = PluginOptions {
             recording: opts.recording.clone().map_or(RecordingPath::Default, RecordingPath::At),
             backend: Some(backend),
             ..PluginOptions::default()
         };
-        let builder = Plugin::builder(cfg, DeviceMode::ready(devices), popts)?;
+        let builder = Plugin::builder(cfg, devices, popts)?;
         let handle = builder.handle().clone();
         // The socket first: a second daemon is refused here, before it creates any file.
         let control = if opts.control {

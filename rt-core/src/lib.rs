@@ -10,6 +10,11 @@
 //!  taut ctl --Unix socket--> [control thread] --commands (bounded channel)--> loop
 //! ```
 //!
+//! The loop, the start-up routine and the calibrator are a controller [`plugin`] with the
+//! ros2_control lifecycle (configure, activate, update every cycle, deactivate, cleanup) that any
+//! host can drive, with its own devices or with taut's; `taut start` ([`daemon`]) is one such
+//! host. The plugin's module documentation states what may run in the real-time thread.
+//!
 //! The loop allocates nothing after start-up: everything it touches is fixed size
 //! ([`MAX_CABLES`]), parameters arrive through a [`triple`] buffer that returns old values to
 //! the writer, samples leave through a fixed-capacity ring that drops (and counts) when full.

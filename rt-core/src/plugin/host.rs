@@ -385,7 +385,7 @@ mod tests {
         let h = HostInputs::from_inputs(&i);
         let mut back = Inputs::new(4);
         assert_eq!(h.load_into(&mut back), None);
-        assert_eq!((back.length_m, back.drive, back.pose_m, back.fault), (i.length_m, i.drive, i.pose_m, i.fault));
+        assert_eq!((&back.length_m[..4], back.drive, back.pose_m, back.fault), (&i.length_m[..4], i.drive, i.pose_m, i.fault));
 
         let mut bad = h;
         bad.tension_age_s[2] = f64::NAN;
@@ -395,7 +395,7 @@ mod tests {
         bad.bus_state = 7;
         bad.pose_age_s = -1.0;
         let mut back = Inputs::new(4);
-        assert_eq!(bad.load_into(&mut back), Some(BadInput::Length { cable: 1 }));
+        assert_eq!(bad.load_into(&mut back), Some(BadInput::Drive { cable: 0, code: 9 }));
         assert!(back.length_age_s[1].is_infinite() && back.tension_age_s[2].is_infinite() && back.pose_age_s.is_infinite());
         assert_eq!(back.drive[0], DriveStatus::Unknown);
         assert_eq!(back.fault, Some(DeviceFault::Emcy { node: 3, code: 0xFF00 }));

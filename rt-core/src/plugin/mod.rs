@@ -445,6 +445,8 @@ impl Plugin {
                 return Err(e);
             }
         }
+        // Plugin time runs on from the last cycle whatever clock the host uses from now on.
+        self.offset = None;
         self.state = Lifecycle::Active;
         Ok(())
     }
@@ -463,7 +465,6 @@ impl Plugin {
             if up && self.core.controller.state() == State::Enabling {
                 // The next cycle (the host's first update) starts the first phase; until then
                 // the drives hold the positions last commanded.
-                self.offset = None;
                 return Ok(());
             }
             self.cycle_owned_step(t, period);
