@@ -17,7 +17,7 @@ use taut_driver::transport::candump::Recorder;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::virtual_bus::VirtualBus;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
+use taut_vdev::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
 /// Arguments of `taut probe`.
 #[derive(clap::Args, Debug)]

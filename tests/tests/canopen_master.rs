@@ -12,7 +12,7 @@ use taut_driver::canopen::pdo::PdoLayout;
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::{CanTransport, Frame};
-use taut_sim::devices::drive::{rack_filters, DriveRack};
+use taut_vdev::{rack_filters, DriveRack};
 
 const NODES: [u8; 4] = [1, 2, 3, 4];
 const MS: Duration = Duration::from_millis(1);
@@ -474,7 +474,7 @@ fn quick_stop_then_enable_again() {
 #[test]
 fn drive_set_reports_a_drive_that_rebooted_while_enabled() {
     use taut_driver::canopen::drive_set::{DriveSet, DriveSetError};
-    use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
+    use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
     let bus = VirtualBus::new();
     let nodes = [51u8, 52];
     let mut cfg = config(&nodes);

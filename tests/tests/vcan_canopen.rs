@@ -19,8 +19,8 @@ use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeConfig, Phas
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
 const IFACE: &str = "vcan0";
 static BUS: Mutex<()> = Mutex::new(());

@@ -19,8 +19,8 @@ use taut_driver::canopen::master::MasterConfig;
 use taut_driver::canopen::sdo::{Initiate, SdoRequest, SdoResponse};
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
 
 const IFACE: &str = "vcan0";
 /// The virtual drive's EDS, carried in the binary: the VM has no source tree.
