@@ -6,7 +6,7 @@
 //!  loop ── RobotDevices ──CANopen master── CAN (virtual bus, or vcan via SocketCAN) ──┐
 //!   │                                                                                 │
 //!   │     ┌──────────────── "sim-robot" thread (1 kHz, wall clock) ─────────────────┐ │
-//!   │     │ virtual CiA 402 drives (taut-sim) <── targets / actuals ──> Plant        │◄┘
+//!   │     │ virtual CiA 402 drives (taut-vdev) <── targets / actuals ──> Plant       │◄┘
 //!   │     │ tensions ──> virtual Modbus RTU load cells on a pty                      │
 //!   │     │ tracker (100 Hz, noise, outliers, dropouts) ──> UDP on loopback          │
 //!   │     └──────────────────────────────────────────────────────────────────────────┘
