@@ -4,7 +4,7 @@
 use super::node::Node;
 use super::script::Step;
 use super::DEFAULT_BOOT_WAIT;
-use crate::canopen::cia402::{Mode, Scaling};
+use crate::canopen::cia402::Mode;
 use crate::canopen::pdo::{self, PdoLayout, PdoSet};
 use crate::canopen::{od, NodeId};
 use std::fmt;
@@ -25,10 +25,6 @@ pub struct NodeConfig {
     pub heartbeat_ms: u16,
     /// Heartbeat timeout.
     pub heartbeat_timeout: Duration,
-    /// Counts and torque to metres and newtons.
-    pub scaling: Scaling,
-    /// Largest tension that may be commanded, N.
-    pub max_tension_n: f64,
     /// Expected vendor id.
     pub vendor_id: Option<u32>,
     /// Expected product code.
@@ -45,8 +41,6 @@ impl NodeConfig {
             mode: Mode::CyclicPosition,
             heartbeat_ms: 100,
             heartbeat_timeout: Duration::from_millis(300),
-            scaling: Scaling { drum_radius_m: 0.05, gear_ratio: 1.0, counts_per_rev: 131_072.0, rated_torque_nm: 1.0, sign: 1.0 },
-            max_tension_n: 500.0,
             vendor_id: None,
             product_code: None,
         }
@@ -247,14 +241,6 @@ impl MasterConfig {
                 },
                 heartbeat_ms: d.heartbeat_ms,
                 heartbeat_timeout: Duration::from_millis(u64::from(d.heartbeat_timeout())),
-                scaling: Scaling {
-                    drum_radius_m: d.drum_radius_m,
-                    gear_ratio: d.gear_ratio,
-                    counts_per_rev: f64::from(d.counts_per_rev),
-                    rated_torque_nm: d.rated_torque_nm,
-                    sign: if d.invert { -1.0 } else { 1.0 },
-                },
-                max_tension_n: d.max_tension_n,
                 vendor_id: d.vendor_id,
                 product_code: d.product_code,
             };

@@ -240,17 +240,10 @@ impl Operational<'_> {
         Ok(())
     }
 
-    /// Target position of drive `i`, metres of cable (CSP).
-    pub fn set_position_m(&mut self, i: usize, m: f64) -> Result<(), CommandError> {
-        let (ax, cfg) = self.enabled(i, Mode::CyclicPosition)?;
-        ax.target_position = cfg.scaling.m_to_counts(m);
-        Ok(())
-    }
-
-    /// Target tension of drive `i`, N, limited to the configured maximum (CST).
-    pub fn set_tension_n(&mut self, i: usize, n: f64) -> Result<(), CommandError> {
-        let (ax, cfg) = self.enabled(i, Mode::CyclicTorque)?;
-        ax.target_torque = cfg.scaling.n_to_permille(n.clamp(0.0, cfg.max_tension_n));
+    /// Target torque of drive `i`, ‰ of its rated torque (CST). The robot I/O layer converts
+    /// tensions to torque and limits them; the master sends what it is given.
+    pub fn set_torque_permille(&mut self, i: usize, permille: i16) -> Result<(), CommandError> {
+        self.enabled(i, Mode::CyclicTorque)?.0.target_torque = permille;
         Ok(())
     }
 }

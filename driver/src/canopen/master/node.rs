@@ -165,10 +165,6 @@ pub struct NodeStatus {
     pub identity: Identity,
     /// CiA 402 side.
     pub axis: Axis,
-    /// Position in metres of cable.
-    pub position_m: f64,
-    /// Tension from the drive's torque, N.
-    pub tension_n: f64,
     /// Boot-up messages seen.
     pub boots: u32,
     /// Last emergency (not counting "error reset").
@@ -244,8 +240,6 @@ impl Node {
             nmt: self.nmt,
             identity: self.identity,
             axis: self.axis,
-            position_m: self.cfg.scaling.counts_to_m(self.axis.position),
-            tension_n: self.cfg.scaling.permille_to_n(self.axis.torque),
             boots: self.boots,
             last_emcy: self.last_emcy,
             mode: self.axis.mode,
