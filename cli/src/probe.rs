@@ -11,12 +11,9 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use taut_config::devices::{CanConfig, DriveConfig};
 use taut_config::RobotConfig;
-use taut_driver::canopen::drive_set::DriveSet;
-use taut_driver::canopen::master::{Counters, Event, MasterConfig, NodeStatus, Phase};
+use taut_driver::canopen::master::Counters;
 use taut_driver::transport::candump::Recorder;
-use taut_driver::transport::socketcan::SocketCanTransport;
-use taut_driver::transport::virtual_bus::VirtualBus;
-use taut_driver::transport::CanTransport;
+use taut_driver::{CanTransport, DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport, VirtualBus};
 use taut_rt_core::robot_io::CableUnits;
 use taut_vdev::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
 

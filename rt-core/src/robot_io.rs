@@ -30,12 +30,10 @@ use std::fmt;
 use std::time::{Duration, Instant};
 use taut_config::devices::DriveConfig;
 use taut_config::RobotConfig;
-use taut_driver::canopen::cia402::{Mode, State};
-use taut_driver::canopen::drive_set::DriveSet;
-use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
-use taut_driver::loadcell::{LoadCellIo, TensionReader};
-use taut_driver::tracker::{PoseReader, TrackerThread};
-use taut_driver::transport::{BusEvent, CanTransport, TransportError};
+use taut_driver::{
+    BusEvent, CanTransport, DriveSet, Event, LoadCellIo, Master, MasterConfig, Mode, Phase, PoseReader, State, TensionReader,
+    TrackerThread, TransportError,
+};
 
 /// Why the devices could not be brought up. Each names the configuration key or device.
 #[derive(Debug)]

@@ -17,7 +17,7 @@
 //! depends on neither, not even for its benches: the master's round-trip bench is `benches/master.rs` here.
 //!
 //! ```no_run
-//! use taut_driver::transport::virtual_bus::VirtualBus;
+//! use taut_driver::VirtualBus;
 //! use taut_vdev::{rack_filters, DriveRack};
 //! let bus = VirtualBus::new();
 //! let master_port = bus.endpoint();
