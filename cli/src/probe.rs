@@ -11,13 +11,11 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use taut_config::devices::{CanConfig, DriveConfig};
 use taut_config::RobotConfig;
-use taut_driver::canopen::drive_set::DriveSet;
-use taut_driver::canopen::master::{Counters, Event, MasterConfig, NodeStatus, Phase};
+use taut_driver::canopen::master::Counters;
 use taut_driver::transport::candump::Recorder;
-use taut_driver::transport::socketcan::SocketCanTransport;
-use taut_driver::transport::virtual_bus::VirtualBus;
-use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
+use taut_driver::{CanTransport, DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport, VirtualBus};
+use taut_rt_core::robot_io::CableUnits;
+use taut_vdev::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
 /// Arguments of `taut probe`.
 #[derive(clap::Args, Debug)]
@@ -229,7 +227,7 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     for e in &events {
         println!("  {e}");
     }
-    print_table(&statuses, &loadcell_tensions(&cfg));
+    print_table(&cfg, &statuses, &loadcell_tensions(&cfg));
     print_counters(&counters);
     if let Some((listen, (_thread, reader))) = &tracker {
         let s = reader.stats();
@@ -254,7 +252,7 @@ fn drain(next: impl FnMut() -> Option<Event>) -> Vec<Event> {
     std::iter::from_fn(next).collect()
 }
 
-fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
+fn print_table(cfg: &RobotConfig, statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
     println!();
     println!(
         "{:>4} {:>5}  {:<15} {:<12} {:<18} {:>4} {:>11} {:>10} {:>10}  {:<10} {:<10} {:>8}  name / last EMCY",
@@ -262,7 +260,8 @@ fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
     );
     for s in statuses {
         let opt = |v: Option<u32>| v.map_or("-".to_string(), |v| format!("0x{v:08X}"));
-        let known = s.axis.tpdos > 0;
+        // Counts and torque in cable units, as the robot I/O layer converts them.
+        let units = cfg.cables.get(s.cable).and_then(|c| c.drive.as_ref()).map(CableUnits::from_drive).filter(|_| s.axis.tpdos > 0);
         let emcy = s.last_emcy.map(|e| format!("  EMCY 0x{:04X} {}", e.code, e.name())).unwrap_or_default();
         println!(
             "{:>4} {:>5}  {:<15} {:<12} {:<18} {:>4} {:>11} {:>10} {:>10}  {:<10} {:<10} {:>8}  {}{}",
@@ -272,9 +271,9 @@ fn print_table(statuses: &[NodeStatus], loadcells: &[Option<f64>]) {
             s.phase.name(),
             s.axis.state.map_or("-", |st| st.name()),
             s.axis.mode_display.unwrap_or(s.mode).name(),
-            if known { format!("{:.6}", s.position_m) } else { "-".into() },
+            units.map_or("-".into(), |u| format!("{:.6}", u.scaling.counts_to_m(s.axis.position))),
             // `+ 0.0` turns -0.0 into 0.0.
-            if known { format!("{:.1}", s.tension_n + 0.0) } else { "-".into() },
+            units.map_or("-".into(), |u| format!("{:.1}", u.scaling.permille_to_n(s.axis.torque) + 0.0)),
             loadcells.get(s.cable).copied().flatten().map_or("-".into(), |t| format!("{t:.1}")),
             opt(s.identity.vendor),
             opt(s.identity.product),

@@ -248,7 +248,7 @@ fn soak(seconds: f64) {
 fn canopen_io_bench(n: usize, cycles: usize) {
     use taut_driver::transport::virtual_bus::VirtualBus;
     use taut_rt_core::robot_io::{Peripherals, RobotDevices};
-    use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
+    use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
     let mut t = String::from("[robot]\nname = \"bench\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\ncycle_s = 0.001\n");
     for j in 0..n {

@@ -50,6 +50,7 @@ pub mod sample;
 pub mod simrig;
 pub mod spsc;
 mod sync;
+#[cfg(any(test, feature = "testkit"))]
 pub mod testkit;
 pub mod triple;
 pub mod urgent;

@@ -17,6 +17,10 @@
 //!        master timers; RPDOs + SYNC -> CAN
 //! ```
 //!
+//! The CANopen master deals in drive units (encoder counts, torque in ‰ of rated torque); the
+//! conversion to metres of cable and newtons of tension ([`Scaling`], per cable from its
+//! `[cable.drive]` table) and the tension limit are here, in the robot I/O layer.
+//!
 //! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
 //! (`heapless`), frames are `Copy`, readers are lock-free.
 
@@ -24,13 +28,12 @@ use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFau
 use crate::MAX_CABLES;
 use std::fmt;
 use std::time::{Duration, Instant};
+use taut_config::devices::DriveConfig;
 use taut_config::RobotConfig;
-use taut_driver::canopen::cia402::{Mode, State};
-use taut_driver::canopen::drive_set::DriveSet;
-use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
-use taut_driver::loadcell::{LoadCellIo, TensionReader};
-use taut_driver::tracker::{PoseReader, TrackerThread};
-use taut_driver::transport::{BusEvent, CanTransport, TransportError};
+use taut_driver::{
+    BusEvent, CanTransport, DriveSet, Event, LoadCellIo, Master, MasterConfig, Mode, Phase, PoseReader, State, TensionReader,
+    TrackerThread, TransportError,
+};
 
 /// Why the devices could not be brought up. Each names the configuration key or device.
 #[derive(Debug)]
@@ -51,6 +54,100 @@ impl std::error::Error for BringUpError {}
 
 fn err(what: impl Into<String>, message: impl Into<String>) -> BringUpError {
     BringUpError { what: what.into(), message: message.into() }
+}
+
+/// Converts between drive units and cable units for one winch.
+///
+/// ```text
+/// cable length change  dL = counts / (counts_per_rev * gear_ratio) * 2 pi r   (r: drum radius)
+/// cable tension        T  = torque_motor * gear_ratio / r,
+///                      torque_motor = permille / 1000 * rated_torque          (ideal gearbox)
+/// ```
+/// `gear_ratio` is motor revolutions per drum revolution; the encoder is on the motor. `sign`
+/// is +1 when positive counts pay cable out, -1 when they reel it in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scaling {
+    /// Drum radius, m (to the cable's centre line).
+    pub drum_radius_m: f64,
+    /// Motor revolutions per drum revolution.
+    pub gear_ratio: f64,
+    /// Encoder counts per motor revolution.
+    pub counts_per_rev: f64,
+    /// Rated motor torque (the 1000 ‰ of 0x6071/0x6077), N·m.
+    pub rated_torque_nm: f64,
+    /// +1 or -1.
+    pub sign: f64,
+}
+
+impl Scaling {
+    /// The scaling of a `[cable.drive]` table.
+    pub fn from_drive(d: &DriveConfig) -> Scaling {
+        Scaling {
+            drum_radius_m: d.drum_radius_m,
+            gear_ratio: d.gear_ratio,
+            counts_per_rev: f64::from(d.counts_per_rev),
+            rated_torque_nm: d.rated_torque_nm,
+            sign: if d.invert { -1.0 } else { 1.0 },
+        }
+    }
+
+    /// Metres of cable per encoder count.
+    pub fn metres_per_count(&self) -> f64 {
+        2.0 * std::f64::consts::PI * self.drum_radius_m / (self.counts_per_rev * self.gear_ratio)
+    }
+
+    /// Counts to metres.
+    pub fn counts_to_m(&self, counts: i32) -> f64 {
+        self.sign * f64::from(counts) * self.metres_per_count()
+    }
+
+    /// Metres to the nearest count, saturated to the i32 range.
+    pub fn m_to_counts(&self, m: f64) -> i32 {
+        let c = (self.sign * m / self.metres_per_count()).round();
+        if c.is_nan() {
+            0
+        } else {
+            c.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+        }
+    }
+
+    /// Torque in ‰ of rated torque to cable tension, N (sign as the cable sees it: positive
+    /// pulls).
+    pub fn permille_to_n(&self, permille: i16) -> f64 {
+        -self.sign * f64::from(permille) / 1000.0 * self.rated_torque_nm * self.gear_ratio / self.drum_radius_m
+    }
+
+    /// Cable tension, N, to torque in ‰ of rated torque, saturated to the i16 range.
+    pub fn n_to_permille(&self, n: f64) -> i16 {
+        let p = (-self.sign * n * self.drum_radius_m / (self.gear_ratio * self.rated_torque_nm) * 1000.0).round();
+        if p.is_nan() {
+            0
+        } else {
+            p.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+        }
+    }
+}
+
+/// One cable's drive in cable units: its [`Scaling`] and the largest tension it may be commanded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CableUnits {
+    /// Counts and torque to metres and newtons.
+    pub scaling: Scaling,
+    /// Largest tension that may be commanded, N (`[cable.drive] max_tension_n`).
+    pub max_tension_n: f64,
+}
+
+impl CableUnits {
+    /// From a `[cable.drive]` table.
+    pub fn from_drive(d: &DriveConfig) -> CableUnits {
+        CableUnits { scaling: Scaling::from_drive(d), max_tension_n: d.max_tension_n }
+    }
+
+    /// Torque command for a tension, N: limited to 0..=`max_tension_n` (a cable only pulls),
+    /// then converted.
+    pub fn torque_for(&self, n: f64) -> i16 {
+        self.scaling.n_to_permille(n.clamp(0.0, self.max_tension_n))
+    }
 }
 
 /// Where the load cells and the tracker are (usually from the configuration; the simulator
@@ -115,6 +212,8 @@ pub struct RobotDevices<T: CanTransport> {
     n: usize,
     /// Master index of each cable's drive.
     drive: [Option<usize>; MAX_CABLES],
+    /// Each cable's drive units.
+    units: [Option<CableUnits>; MAX_CABLES],
     /// TPDOs counted at the last read, and when the count last moved.
     tpdos: [u64; MAX_CABLES],
     fresh_at: [Option<Instant>; MAX_CABLES],
@@ -149,12 +248,14 @@ impl<T: CanTransport> RobotDevices<T> {
         }
         let mcfg = MasterConfig::from_robot(cfg).map_err(|p| err(p.key, p.message))?;
         let mut drive = [None; MAX_CABLES];
+        let mut units = [None; MAX_CABLES];
         let need = modes_needed(cfg);
         for (j, c) in cfg.cables.iter().enumerate() {
             let Some(i) = mcfg.nodes.iter().position(|nc| nc.cable == j) else {
                 return Err(err(format!("cable[{j}].drive"), "every cable needs a drive: add [cable.drive] with its node_id"));
             };
             drive[j] = Some(i);
+            units[j] = c.drive.as_ref().map(CableUnits::from_drive);
             let nc = &mcfg.nodes[i];
             let (pos, tq) = need[j];
             if !nc.pdos.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
@@ -184,6 +285,7 @@ impl<T: CanTransport> RobotDevices<T> {
             master,
             n,
             drive,
+            units,
             tpdos: [0; MAX_CABLES],
             fresh_at: [None; MAX_CABLES],
             loadcells: peripherals.loadcells,
@@ -311,7 +413,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
             r.update();
         }
         for j in 0..self.n {
-            let Some(i) = self.drive[j] else { continue };
+            let (Some(i), Some(u)) = (self.drive[j], self.units[j]) else { continue };
             let Some(s) = self.master.status(i) else { continue };
             if s.axis.tpdos != self.tpdos[j] {
                 self.tpdos[j] = s.axis.tpdos;
@@ -321,7 +423,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
             let operational = s.phase == Phase::Operational;
             match self.fresh_at[j] {
                 Some(at) if operational => {
-                    inp.length_m[j] = s.position_m;
+                    inp.length_m[j] = u.scaling.counts_to_m(s.axis.position);
                     inp.length_age_s[j] = wall.saturating_duration_since(at).as_secs_f64();
                 }
                 _ => inp.length_age_s[j] = f64::INFINITY,
@@ -337,7 +439,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                 },
                 None => {
                     // No load cells: the drive's torque is the tension estimate.
-                    inp.tension_n[j] = s.tension_n;
+                    inp.tension_n[j] = u.scaling.permille_to_n(s.axis.torque);
                     inp.tension_age_s[j] = inp.length_age_s[j];
                 }
             }
@@ -370,7 +472,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         }
         if let Some(mut op) = self.master.operational() {
             for j in 0..self.n.min(out.n) {
-                let Some(i) = self.drive[j] else { continue };
+                let (Some(i), Some(u)) = (self.drive[j], self.units[j]) else { continue };
                 // Refusals (not yet enabled, mode not mapped: checked at bring-up) leave the
                 // drive where it is; the loop sees its state next cycle.
                 match out.request {
@@ -390,10 +492,10 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
                         let _ = op.enable(i);
                         match out.cable[j] {
                             CableCommand::Position(l) if l.is_finite() && op.set_mode(i, Mode::CyclicPosition).is_ok() => {
-                                let _ = op.set_position_m(i, l);
+                                let _ = op.set_position_counts(i, u.scaling.m_to_counts(l));
                             }
                             CableCommand::Tension(t) if t.is_finite() && op.set_mode(i, Mode::CyclicTorque).is_ok() => {
-                                let _ = op.set_tension_n(i, t);
+                                let _ = op.set_torque_permille(i, u.torque_for(t));
                             }
                             _ => {}
                         }
@@ -419,7 +521,69 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
     use taut_driver::transport::virtual_bus::VirtualBus;
+
+    // Units: the drum conversions (moved here from taut-driver, which deals in counts and ‰).
+    fn scaling() -> impl Strategy<Value = Scaling> {
+        (
+            0.005f64..0.5,
+            1.0f64..100.0,
+            prop_oneof![Just(4096.0), Just(131072.0), Just(1048576.0)],
+            0.1f64..20.0,
+            prop_oneof![Just(1.0), Just(-1.0)],
+        )
+            .prop_map(|(drum_radius_m, gear_ratio, counts_per_rev, rated_torque_nm, sign)| Scaling {
+                drum_radius_m,
+                gear_ratio,
+                counts_per_rev,
+                rated_torque_nm,
+                sign,
+            })
+    }
+
+    proptest! {
+        #[test]
+        fn counts_metres_roundtrip(s in scaling(), c in -1_000_000i32..1_000_000) {
+            prop_assert_eq!(s.m_to_counts(s.counts_to_m(c)), c);
+        }
+
+        #[test]
+        fn metres_within_half_a_count(s in scaling(), m in -20.0f64..20.0) {
+            let c = s.m_to_counts(m);
+            if c > i32::MIN && c < i32::MAX {
+                prop_assert!((s.counts_to_m(c) - m).abs() <= 0.5 * s.metres_per_count() + 1e-12);
+            }
+        }
+
+        #[test]
+        fn torque_tension_roundtrip(s in scaling(), p in -3000i16..3000) {
+            prop_assert_eq!(s.n_to_permille(s.permille_to_n(p)), p);
+        }
+
+    }
+
+    #[test]
+    fn drum_example() {
+        // 50 mm drum, 10:1 gearbox, 2^17 counts/rev: one drum turn = 0.314 m of cable.
+        let s = Scaling { drum_radius_m: 0.05, gear_ratio: 10.0, counts_per_rev: 131072.0, rated_torque_nm: 1.0, sign: 1.0 };
+        assert!((s.counts_to_m(1_310_720) - 0.1 * std::f64::consts::PI).abs() < 1e-12);
+        // 1 N.m motor torque x 10 / 0.05 m = 200 N; pulling is negative torque with sign +1.
+        assert!((s.permille_to_n(-1000) - 200.0).abs() < 1e-9);
+        assert_eq!(s.m_to_counts(f64::NAN), 0);
+        assert_eq!(s.m_to_counts(1e30), i32::MAX);
+    }
+
+    #[test]
+    fn commanded_tension_is_limited_to_what_a_cable_can_take() {
+        let scaling = Scaling { drum_radius_m: 0.05, gear_ratio: 10.0, counts_per_rev: 131072.0, rated_torque_nm: 1.0, sign: 1.0 };
+        let u = CableUnits { scaling, max_tension_n: 100.0 };
+        // A cable only pulls: a negative tension is 0 torque; above the limit, the limit.
+        assert_eq!(u.torque_for(-50.0), 0);
+        assert_eq!(u.torque_for(1e9), scaling.n_to_permille(100.0));
+        assert_eq!(u.torque_for(20.0), scaling.n_to_permille(20.0));
+        assert_eq!(scaling.n_to_permille(100.0), -500);
+    }
 
     fn robot(pdo: &str, mode3: &str) -> RobotConfig {
         let mut t = String::from("[robot]\nname = \"t\"\nmass_kg = 3.0\n[can]\ninterface = \"can0\"\n");

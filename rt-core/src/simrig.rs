@@ -6,7 +6,7 @@
 //!  loop ── RobotDevices ──CANopen master── CAN (virtual bus, or vcan via SocketCAN) ──┐
 //!   │                                                                                 │
 //!   │     ┌──────────────── "sim-robot" thread (1 kHz, wall clock) ─────────────────┐ │
-//!   │     │ virtual CiA 402 drives (taut-sim) <── targets / actuals ──> Plant        │◄┘
+//!   │     │ virtual CiA 402 drives (taut-vdev) <── targets / actuals ──> Plant       │◄┘
 //!   │     │ tensions ──> virtual Modbus RTU load cells on a pty                      │
 //!   │     │ tracker (100 Hz, noise, outliers, dropouts) ──> UDP on loopback          │
 //!   │     └──────────────────────────────────────────────────────────────────────────┘
@@ -33,11 +33,9 @@ use taut_driver::canopen::cia402::Mode;
 use taut_driver::canopen::NodeId;
 use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
-use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
-use taut_sim::devices::tracker::TrackerSender;
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand as SimCommand, Noise, Physics, Plant, Truth};
+use taut_vdev::{rack_filters, DriveParams, DriveRack, LoadCellFault, TensionHandle, TrackerSender, VirtualDrive, VirtualLoadCells};
 
 /// Faults to inject into the simulated devices (set from any thread).
 #[derive(Debug, Default)]
@@ -408,7 +406,7 @@ impl<R: CanTransport> Site<R> {
     fn inject_faults(&mut self) {
         // Relaxed: independent switches polled each tick.
         if self.faults.loadcell_silent.load(Ordering::Relaxed) && !self.silenced {
-            self.vlc.inject(None, Fault::Silence, u32::MAX);
+            self.vlc.inject(None, LoadCellFault::Silence, u32::MAX);
             self.silenced = true;
         }
         let second = 1.min(self.units.len() - 1);

@@ -1,5 +1,8 @@
-//! Simulated cable robot: physics, sensors, the guided motions, and (in [`devices`]) virtual CiA 402
-//! drives and Modbus RTU load cells.
+//! Simulated cable robot: physics, sensors and the guided motions.
+//!
+//! Physics only: the virtual devices (CiA 402 drives, Modbus load cells, tracker sender) are in
+//! `taut-vdev`, and this crate depends on no device or driver crate. `taut-rt-core`'s simulated
+//! rig couples the [`Plant`] to the virtual devices.
 //!
 //! The simulator is the tests' ground truth. Its physics is written independently of
 //! `taut-calib`'s models on purpose: a wrong model must not hide behind a simulator that makes the
@@ -30,7 +33,6 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod catenary;
-pub mod devices;
 pub mod equilibrium;
 pub mod physics;
 pub mod plant;

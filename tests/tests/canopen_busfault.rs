@@ -7,7 +7,7 @@ mod busfault;
 
 use std::time::Duration;
 use taut_driver::transport::virtual_bus::VirtualBus;
-use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
+use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
 #[test]
 fn bus_faults_reach_the_loop_on_the_virtual_bus() {

@@ -10,7 +10,7 @@ use taut_driver::canopen::master::{Counters, Event, Master, MasterConfig, NodeCo
 use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
+use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
 const MS: Duration = Duration::from_millis(1);
 

@@ -12,7 +12,12 @@ use taut_driver::canopen::pdo::PdoLayout;
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::{CanTransport, Frame};
-use taut_sim::devices::drive::{rack_filters, DriveRack};
+use taut_rt_core::robot_io::Scaling;
+use taut_vdev::{rack_filters, DriveRack};
+
+/// The virtual drives' default drum in cable units (the master deals in counts and ‰; the robot
+/// I/O layer converts): 50 mm, 1:1, 2^17 counts per revolution, 1 N·m rated torque.
+const DRUM: Scaling = Scaling { drum_radius_m: 0.05, gear_ratio: 1.0, counts_per_rev: 131_072.0, rated_torque_nm: 1.0, sign: 1.0 };
 
 const NODES: [u8; 4] = [1, 2, 3, 4];
 const MS: Duration = Duration::from_millis(1);
@@ -131,23 +136,28 @@ fn csp_motion_moves_the_cable_by_the_commanded_metres() {
     let mut r = rig(config(&NODES));
     r.bring_up();
     // Motion commands need operation enabled: refused before.
-    assert_eq!(r.master.operational().unwrap().set_position_m(0, 0.1), Err(CommandError::NotEnabled { node: 1 }));
+    assert_eq!(r.master.operational().unwrap().set_position_counts(0, DRUM.m_to_counts(0.1)), Err(CommandError::NotEnabled { node: 1 }));
     r.enable_all();
-    let start: Vec<f64> = r.master.statuses().map(|s| s.position_m).collect();
+    let start: Vec<f64> = r.master.statuses().map(|s| DRUM.counts_to_m(s.axis.position)).collect();
     {
         let mut op = r.master.operational().unwrap();
-        op.set_position_m(0, start[0] + 0.10).unwrap();
-        op.set_position_m(1, start[1] - 0.05).unwrap();
-        assert_eq!(op.set_tension_n(2, 10.0), Err(CommandError::WrongMode { node: 3 }));
+        op.set_position_counts(0, DRUM.m_to_counts(start[0] + 0.10)).unwrap();
+        op.set_position_counts(1, DRUM.m_to_counts(start[1] - 0.05)).unwrap();
+        assert_eq!(op.set_torque_permille(2, DRUM.n_to_permille(10.0)), Err(CommandError::WrongMode { node: 3 }));
     }
     r.run(Duration::from_millis(500));
     let s0 = r.master.status(0).unwrap();
     let s1 = r.master.status(1).unwrap();
     let s2 = r.master.status(2).unwrap();
-    let count_m = NodeConfig::new(1, 0).scaling.metres_per_count();
-    assert!((s0.position_m - (start[0] + 0.10)).abs() <= 1.5 * count_m, "{} vs {}", s0.position_m, start[0] + 0.1);
-    assert!((s1.position_m - (start[1] - 0.05)).abs() <= 1.5 * count_m);
-    assert!((s2.position_m - start[2]).abs() <= 1.5 * count_m, "an enabled drive holds where it stood");
+    let count_m = DRUM.metres_per_count();
+    assert!(
+        (DRUM.counts_to_m(s0.axis.position) - (start[0] + 0.10)).abs() <= 1.5 * count_m,
+        "{} vs {}",
+        DRUM.counts_to_m(s0.axis.position),
+        start[0] + 0.1
+    );
+    assert!((DRUM.counts_to_m(s1.axis.position) - (start[1] - 0.05)).abs() <= 1.5 * count_m);
+    assert!((DRUM.counts_to_m(s2.axis.position) - start[2]).abs() <= 1.5 * count_m, "an enabled drive holds where it stood");
     assert_eq!(s0.axis.state, Some(State::OperationEnabled));
 }
 
@@ -156,16 +166,16 @@ fn cst_drive_follows_the_commanded_tension() {
     let mut cfg = config(&[5, 6, 7]);
     cfg.nodes[2].mode = Mode::CyclicTorque;
     cfg.nodes[2].pdos = PdoLayout::WithMode.pdos();
-    let scaling = cfg.nodes[2].scaling;
+    let scaling = DRUM;
     let mut r = rig(cfg);
     r.bring_up();
     r.enable_all();
-    r.master.operational().unwrap().set_tension_n(2, 20.0).unwrap();
+    r.master.operational().unwrap().set_torque_permille(2, DRUM.n_to_permille(20.0)).unwrap();
     // The maximum tension (500 N) limits the command.
     r.run(Duration::from_millis(20));
     let s = r.master.status(2).unwrap();
     assert_eq!(s.axis.torque, scaling.n_to_permille(20.0));
-    assert!((s.tension_n - 20.0).abs() < 0.3, "{}", s.tension_n);
+    assert!((DRUM.permille_to_n(s.axis.torque) - 20.0).abs() < 0.3, "{}", DRUM.permille_to_n(s.axis.torque));
     assert_eq!(s.axis.mode_display, Some(Mode::CyclicTorque), "mode travels in TPDO2 with this layout");
     assert_eq!(r.rack.drive(7).unwrap().target().mode, Mode::CyclicTorque);
 }
@@ -189,7 +199,7 @@ fn emcy_is_decoded_and_a_fault_is_reset_on_request_only() {
     // No automatic reset, and no motion commands to the faulted drive.
     r.run(Duration::from_millis(100));
     assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::Fault));
-    assert_eq!(r.master.operational().unwrap().set_position_m(1, 0.0), Err(CommandError::NotEnabled { node: 2 }));
+    assert_eq!(r.master.operational().unwrap().set_position_counts(1, DRUM.m_to_counts(0.0)), Err(CommandError::NotEnabled { node: 2 }));
     // The other drives stay enabled.
     assert_eq!(r.master.status(0).unwrap().axis.state, Some(State::OperationEnabled));
 
@@ -235,7 +245,7 @@ fn a_node_rebooting_mid_run_is_noticed_and_configured_again() {
     let mut r = rig(config(&NODES));
     r.bring_up();
     r.enable_all();
-    r.master.operational().unwrap().set_position_m(3, 0.02).unwrap();
+    r.master.operational().unwrap().set_position_counts(3, DRUM.m_to_counts(0.02)).unwrap();
     r.run(Duration::from_millis(50));
     r.rack.drive(4).unwrap().power_cycle();
     r.run(Duration::from_millis(5));
@@ -249,7 +259,7 @@ fn a_node_rebooting_mid_run_is_noticed_and_configured_again() {
     // Power-on state: disabled; the master does not re-enable by itself.
     assert_eq!(r.master.status(3).unwrap().axis.state, Some(State::ReadyToSwitchOn));
     // The absolute encoder kept its position.
-    assert!((r.master.status(3).unwrap().position_m - 0.02).abs() < 1e-3);
+    assert!((DRUM.counts_to_m(r.master.status(3).unwrap().axis.position) - 0.02).abs() < 1e-3);
     r.enable_all();
 }
 
@@ -334,7 +344,7 @@ fn candump_log_of_a_session_replays_to_the_same_state() {
         r.step();
     }
     assert!(r.master.all_operational());
-    let live: Vec<_> = r.master.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.position_m)).collect();
+    let live: Vec<_> = r.master.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.axis.position)).collect();
     let (_, log, res) = r.port.finish();
     res.unwrap();
     let text = String::from_utf8(log).unwrap();
@@ -357,7 +367,7 @@ fn candump_log_of_a_session_replays_to_the_same_state() {
         m.on_frame(&f, t);
     }
     assert_eq!(replay.stats().bad_lines, 0);
-    let replayed: Vec<_> = m.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.position_m)).collect();
+    let replayed: Vec<_> = m.statuses().map(|s| (s.phase, s.identity, s.axis.state, s.axis.position)).collect();
     assert_eq!(replayed, live);
     assert!(m.counters().ignored > 0, "the master's own frames are ignored on replay");
 }
@@ -373,11 +383,13 @@ fn master_config_from_a_robot_file() {
     };
     let cfg = taut_config::RobotConfig::from_toml_str(&text("")).unwrap();
     let m = MasterConfig::from_robot(&cfg).unwrap();
+    // The drum units are the robot I/O layer's, from the same table.
+    let drum0 = Scaling::from_drive(cfg.cables[0].drive.as_ref().unwrap());
     assert_eq!(m.sync_period, Duration::from_millis(4));
     assert_eq!(m.nodes.len(), 2, "the cable without a drive is skipped");
-    assert_eq!((m.nodes[0].node_id, m.nodes[0].cable, m.nodes[0].scaling.sign), (3, 0, -1.0));
+    assert_eq!((m.nodes[0].node_id, m.nodes[0].cable, drum0.sign), (3, 0, -1.0));
     assert_eq!((m.nodes[1].node_id, m.nodes[1].cable, m.nodes[1].mode), (9, 2, Mode::CyclicTorque));
-    assert!((m.nodes[0].scaling.metres_per_count() - 2.0 * std::f64::consts::PI * 0.04 / (131072.0 * 5.0)).abs() < 1e-15);
+    assert!((drum0.metres_per_count() - 2.0 * std::f64::consts::PI * 0.04 / (131072.0 * 5.0)).abs() < 1e-15);
     assert!(!m.bus_load().is_high());
 
     // A duplicate node id is refused when the file is loaded, with its line and key.
@@ -457,7 +469,7 @@ fn quick_stop_then_enable_again() {
     r.enable_all();
     r.master.operational().unwrap().quick_stop(0).unwrap();
     r.until(Duration::from_millis(50), "quick stop", |r| r.master.status(0).unwrap().axis.state == Some(State::QuickStopActive));
-    assert_eq!(r.master.operational().unwrap().set_position_m(0, 0.0), Err(CommandError::NotEnabled { node: 1 }));
+    assert_eq!(r.master.operational().unwrap().set_position_counts(0, DRUM.m_to_counts(0.0)), Err(CommandError::NotEnabled { node: 1 }));
     assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::OperationEnabled), "the other drive is untouched");
     r.enable_all();
     let mut op = r.master.operational().unwrap();
@@ -474,7 +486,7 @@ fn quick_stop_then_enable_again() {
 #[test]
 fn drive_set_reports_a_drive_that_rebooted_while_enabled() {
     use taut_driver::canopen::drive_set::{DriveSet, DriveSetError};
-    use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
+    use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
     let bus = VirtualBus::new();
     let nodes = [51u8, 52];
     let mut cfg = config(&nodes);

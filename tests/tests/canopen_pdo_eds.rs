@@ -13,7 +13,7 @@ use taut_driver::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::{CanTransport, Frame};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
-use taut_sim::devices::drive::{rack_filters, DriveParams, DriveRack, VirtualDrive};
+use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
 const MS: Duration = Duration::from_millis(1);
 

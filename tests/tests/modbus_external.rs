@@ -16,7 +16,7 @@ use taut_driver::modbus::link::SerialPortLink;
 use taut_driver::modbus::master::{Counters, Master, MasterConfig, TransactionError};
 use taut_driver::modbus::rtu::{ExceptionCode, Function, Request};
 use taut_driver::modbus::value;
-use taut_sim::devices::loadcell::{TensionHandle, VirtualLoadCells};
+use taut_vdev::{TensionHandle, VirtualLoadCells};
 
 fn python() -> String {
     std::env::var("TAUT_PYTHON").unwrap_or_else(|_| "python3".into())

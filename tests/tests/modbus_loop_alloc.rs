@@ -7,8 +7,7 @@ use std::cell::Cell;
 use std::time::{Duration, Instant};
 use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_driver::{loadcell, tracker};
-use taut_sim::devices::loadcell::{TensionHandle, VirtualLoadCells};
-use taut_sim::devices::tracker::TrackerStream;
+use taut_vdev::{TensionHandle, TrackerStream, VirtualLoadCells};
 
 thread_local! {
     /// Allocations made by this thread while counting is on.

@@ -7,7 +7,7 @@ use taut_driver::loadcell;
 use taut_driver::modbus::link::{LinkError, SerialPortLink};
 use taut_driver::modbus::master::{Counters, Master, MasterConfig, TransactionError};
 use taut_driver::modbus::rtu::{ExceptionCode, Function, Request};
-use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
+use taut_vdev::{LoadCellFault, TensionHandle, VirtualLoadCells};
 
 fn cells() -> Vec<LoadCellConfig> {
     vec![
@@ -79,20 +79,20 @@ fn faults_are_counted_and_retried() {
     let mut m = Master::new(SerialPortLink::open(&b).unwrap(), MasterConfig::from_bus(&b), &counters);
     let r1 = req(&cells()[0]);
 
-    server.inject(Some(1), Fault::BadCrc, 1);
+    server.inject(Some(1), LoadCellFault::BadCrc, 1);
     assert!(m.read(&r1).is_ok());
-    server.inject(Some(1), Fault::Silence, 2);
+    server.inject(Some(1), LoadCellFault::Silence, 2);
     assert!(m.read(&r1).is_ok(), "third try answers");
-    server.inject(Some(1), Fault::Garbage, 1);
+    server.inject(Some(1), LoadCellFault::Garbage, 1);
     assert!(m.read(&r1).is_ok());
-    server.inject(Some(1), Fault::NoiseThenAnswer, 1);
+    server.inject(Some(1), LoadCellFault::NoiseThenAnswer, 1);
     assert!(m.read(&r1).is_ok());
-    server.inject(Some(1), Fault::Exception(0x06), 1); // busy: transient, retried
+    server.inject(Some(1), LoadCellFault::Exception(0x06), 1); // busy: transient, retried
     assert!(m.read(&r1).is_ok());
-    server.inject(Some(1), Fault::Exception(0x04), 5); // device failure: transient, but persistent
+    server.inject(Some(1), LoadCellFault::Exception(0x04), 5); // device failure: transient, but persistent
     assert_eq!(m.read(&r1), Err(TransactionError::Exception { unit: 1, code: ExceptionCode::ServerDeviceFailure }));
     server.clear_faults();
-    server.inject(Some(1), Fault::Silence, 3);
+    server.inject(Some(1), LoadCellFault::Silence, 3);
     assert_eq!(m.read(&r1), Err(TransactionError::Timeout { unit: 1 }));
     assert!(m.read(&r1).is_ok(), "recovers after the fault");
 

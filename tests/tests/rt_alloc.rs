@@ -193,7 +193,7 @@ fn robot_devices_allocate_nothing_per_cycle() {
     use taut_driver::transport::virtual_bus::VirtualBus;
     use taut_rt_core::io::{CableCommand, Devices, DriveRequest, Inputs, Outputs};
     use taut_rt_core::robot_io::{Peripherals, RobotDevices};
-    use taut_sim::devices::drive::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
+    use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
     let mut t = String::from("[robot]\nname = \"alloc\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\n");
     for (j, a) in [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]].iter().enumerate() {

@@ -5,7 +5,7 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 use taut_config::devices::TrackerConfig;
 use taut_driver::tracker::{self, TrackerReceiver};
-use taut_sim::devices::tracker::{TrackerSender, TrackerStream};
+use taut_vdev::{TrackerSender, TrackerStream};
 
 fn loopback(max_age_s: f64) -> TrackerConfig {
     TrackerConfig { max_age_s, ..TrackerConfig::new("127.0.0.1:0") }

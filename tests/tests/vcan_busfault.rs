@@ -13,8 +13,8 @@ use std::mem::ManuallyDrop;
 use std::os::fd::{AsRawFd, FromRawFd};
 use std::time::Duration;
 use taut_driver::transport::socketcan::SocketCanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
 
 #[test]
 fn bus_faults_reach_the_loop_over_socketcan() {

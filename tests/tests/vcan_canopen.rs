@@ -19,8 +19,21 @@ use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeConfig, Phas
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
+use taut_rt_core::robot_io::Scaling;
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
+
+/// The virtual drives' default drum in cable units: the drive set deals in counts, the robot I/O
+/// layer converts (50 mm, 1:1, 2^17 counts per revolution).
+const DRUM: Scaling = Scaling { drum_radius_m: 0.05, gear_ratio: 1.0, counts_per_rev: 131_072.0, rated_torque_nm: 1.0, sign: 1.0 };
+
+fn positions_m<T: CanTransport>(set: &DriveSet<T, Enabled>) -> Vec<f64> {
+    set.positions_counts().into_iter().map(|c| DRUM.counts_to_m(c)).collect()
+}
+
+fn counts(m: &[f64]) -> Vec<i32> {
+    m.iter().map(|&x| DRUM.m_to_counts(x)).collect()
+}
 
 const IFACE: &str = "vcan0";
 static BUS: Mutex<()> = Mutex::new(());
@@ -88,13 +101,13 @@ fn bring_up_configure_enable_and_move_over_vcan() {
     set.run_for(Duration::from_millis(300)).unwrap();
     assert!(set.statuses().iter().all(|s| s.axis.tpdos > 0), "PDO cycle running");
     let mut set = enable(set);
-    let start = set.positions_m();
+    let start = positions_m(&set);
     let goal: Vec<f64> = start.iter().enumerate().map(|(i, p)| p + 0.01 * (i as f64 + 1.0)).collect();
-    set.set_lengths_m(&goal).unwrap();
+    set.set_positions_counts(&counts(&goal)).unwrap();
     let t = Instant::now();
     loop {
         set.cycle().unwrap();
-        let pos = set.positions_m();
+        let pos = positions_m(&set);
         if pos.iter().zip(&goal).all(|(p, g)| (p - g).abs() < 1e-4) {
             break;
         }
@@ -312,11 +325,11 @@ fn cangen_flood_is_counted_while_the_master_keeps_working() {
         Command::new(&cangen).args([IFACE, "-e", "-g", "1", "-n", "1000"]).spawn().expect("cangen"),
         Command::new(&cangen).args([IFACE, "-I", "0FF", "-L", "8", "-g", "2", "-n", "300"]).spawn().expect("cangen"),
     ];
-    let mut goal = set.positions_m();
+    let mut goal = positions_m(&set);
     let t = Instant::now();
     while floods.iter_mut().any(|c| c.try_wait().unwrap().is_none()) {
         goal[0] += 1e-4;
-        set.set_lengths_m(&goal).expect("commands go on during the flood");
+        set.set_positions_counts(&counts(&goal)).expect("commands go on during the flood");
         set.cycle().expect("the drives stay enabled during the flood");
         assert!(t.elapsed() < Duration::from_secs(300), "cangen did not finish");
     }
@@ -331,6 +344,6 @@ fn cangen_flood_is_counted_while_the_master_keeps_working() {
     assert_eq!(c.unknown_node - base.unknown_node, 300, "every frame of node 127 counted: {c:?}");
     assert_eq!(c.malformed, 0);
     assert!(set.master().all_enabled());
-    assert!((set.positions_m()[0] - goal[0]).abs() < 1e-3);
+    assert!((positions_m(&set)[0] - goal[0]).abs() < 1e-3);
     rack.stop();
 }

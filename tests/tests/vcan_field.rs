@@ -20,8 +20,8 @@ use taut_driver::canopen::master::{Event, MasterConfig, NodeConfig};
 use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
 const IFACE: &str = "vcan0";
 /// Set in the child process that plays taut in [`drives_stop_when_taut_is_killed_over_vcan`].

@@ -14,13 +14,26 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use taut_config::RobotConfig;
-use taut_driver::canopen::drive_set::DriveSet;
+use taut_driver::canopen::drive_set::{DriveSet, Enabled};
 use taut_driver::canopen::master::MasterConfig;
 use taut_driver::canopen::sdo::{Initiate, SdoRequest, SdoResponse};
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
-use taut_sim::devices::drive::{spawn_rack, DriveParams, VirtualDrive};
+use taut_rt_core::robot_io::Scaling;
 use taut_tests::vcan;
+use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
+
+/// The virtual drives' default drum in cable units: the drive set deals in counts, the robot I/O
+/// layer converts (50 mm, 1:1, 2^17 counts per revolution).
+const DRUM: Scaling = Scaling { drum_radius_m: 0.05, gear_ratio: 1.0, counts_per_rev: 131_072.0, rated_torque_nm: 1.0, sign: 1.0 };
+
+fn positions_m<T: CanTransport>(set: &DriveSet<T, Enabled>) -> Vec<f64> {
+    set.positions_counts().into_iter().map(|c| DRUM.counts_to_m(c)).collect()
+}
+
+fn counts(m: &[f64]) -> Vec<i32> {
+    m.iter().map(|&x| DRUM.m_to_counts(x)).collect()
+}
 
 const IFACE: &str = "vcan0";
 /// The virtual drive's EDS, carried in the binary: the VM has no source tree.
@@ -69,18 +82,18 @@ fn custom_pdo_map_brings_up_and_runs_cycles_over_vcan() {
     let rack = spawn_rack(drive_port, [41, 42].iter().map(|&n| VirtualDrive::new(DriveParams::new(n))).collect());
     let set = set.bring_up().unwrap_or_else(|r| panic!("bring-up over vcan0: {}; {:#?}", r.error, r.set.statuses()));
     let mut set = set.enable(Duration::from_secs(30)).unwrap_or_else(|r| panic!("enable: {}; {:#?}", r.error, r.set.statuses()));
-    let start = set.positions_m();
+    let start = positions_m(&set);
     let goal = vec![start[0] + 0.02, start[1]];
-    set.set_lengths_m(&goal).unwrap();
+    set.set_positions_counts(&counts(&goal)).unwrap();
     let t = Instant::now();
     let mut max_v = 0;
     loop {
         set.cycle().unwrap();
         max_v = max_v.max(set.master().status(0).unwrap().axis.velocity.abs());
-        if (set.positions_m()[0] - goal[0]).abs() < 1e-4 {
+        if (positions_m(&set)[0] - goal[0]).abs() < 1e-4 {
             break;
         }
-        assert!(t.elapsed() < Duration::from_secs(60), "motion did not reach {goal:?}: at {:?}", set.positions_m());
+        assert!(t.elapsed() < Duration::from_secs(60), "motion did not reach {goal:?}: at {:?}", positions_m(&set));
     }
     assert!(max_v > 0, "velocity actual value never arrived in TPDO2 of node 41");
     let c = set.master().counters();

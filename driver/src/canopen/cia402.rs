@@ -208,67 +208,6 @@ impl Mode {
     }
 }
 
-/// Converts between drive units and cable units for one winch.
-///
-/// ```text
-/// cable length change  dL = counts / (counts_per_rev * gear_ratio) * 2 pi r   (r: drum radius)
-/// cable tension        T  = torque_motor * gear_ratio / r,
-///                      torque_motor = permille / 1000 * rated_torque          (ideal gearbox)
-/// ```
-/// `gear_ratio` is motor revolutions per drum revolution; the encoder is on the motor. `sign`
-/// is +1 when positive counts pay cable out, -1 when they reel it in.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Scaling {
-    /// Drum radius, m (to the cable's centre line).
-    pub drum_radius_m: f64,
-    /// Motor revolutions per drum revolution.
-    pub gear_ratio: f64,
-    /// Encoder counts per motor revolution.
-    pub counts_per_rev: f64,
-    /// Rated motor torque (the 1000 ‰ of 0x6071/0x6077), N·m.
-    pub rated_torque_nm: f64,
-    /// +1 or -1.
-    pub sign: f64,
-}
-
-impl Scaling {
-    /// Metres of cable per encoder count.
-    pub fn metres_per_count(&self) -> f64 {
-        2.0 * std::f64::consts::PI * self.drum_radius_m / (self.counts_per_rev * self.gear_ratio)
-    }
-
-    /// Counts to metres.
-    pub fn counts_to_m(&self, counts: i32) -> f64 {
-        self.sign * f64::from(counts) * self.metres_per_count()
-    }
-
-    /// Metres to the nearest count, saturated to the i32 range.
-    pub fn m_to_counts(&self, m: f64) -> i32 {
-        let c = (self.sign * m / self.metres_per_count()).round();
-        if c.is_nan() {
-            0
-        } else {
-            c.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
-        }
-    }
-
-    /// Torque in ‰ of rated torque to cable tension, N (sign as the cable sees it: positive
-    /// pulls).
-    pub fn permille_to_n(&self, permille: i16) -> f64 {
-        -self.sign * f64::from(permille) / 1000.0 * self.rated_torque_nm * self.gear_ratio / self.drum_radius_m
-    }
-
-    /// Cable tension, N, to torque in ‰ of rated torque, saturated to the i16 range.
-    pub fn n_to_permille(&self, n: f64) -> i16 {
-        let p = (-self.sign * n * self.drum_radius_m / (self.gear_ratio * self.rated_torque_nm) * 1000.0).round();
-        if p.is_nan() {
-            0
-        } else {
-            p.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -320,57 +259,11 @@ mod tests {
         assert_eq!(Command::from_controlword(0x1F), Command::EnableOperation);
     }
 
-    fn scaling() -> impl Strategy<Value = Scaling> {
-        (
-            0.005f64..0.5,
-            1.0f64..100.0,
-            prop_oneof![Just(4096.0), Just(131072.0), Just(1048576.0)],
-            0.1f64..20.0,
-            prop_oneof![Just(1.0), Just(-1.0)],
-        )
-            .prop_map(|(drum_radius_m, gear_ratio, counts_per_rev, rated_torque_nm, sign)| Scaling {
-                drum_radius_m,
-                gear_ratio,
-                counts_per_rev,
-                rated_torque_nm,
-                sign,
-            })
-    }
-
     proptest! {
-        #[test]
-        fn counts_metres_roundtrip(s in scaling(), c in -1_000_000i32..1_000_000) {
-            prop_assert_eq!(s.m_to_counts(s.counts_to_m(c)), c);
-        }
-
-        #[test]
-        fn metres_within_half_a_count(s in scaling(), m in -20.0f64..20.0) {
-            let c = s.m_to_counts(m);
-            if c > i32::MIN && c < i32::MAX {
-                prop_assert!((s.counts_to_m(c) - m).abs() <= 0.5 * s.metres_per_count() + 1e-12);
-            }
-        }
-
-        #[test]
-        fn torque_tension_roundtrip(s in scaling(), p in -3000i16..3000) {
-            prop_assert_eq!(s.n_to_permille(s.permille_to_n(p)), p);
-        }
-
         #[test]
         fn any_statusword_decodes_without_panic(sw: u16, cw: u16) {
             let _ = State::from_statusword(sw);
             let _ = Command::from_controlword(cw);
         }
-    }
-
-    #[test]
-    fn drum_example() {
-        // 50 mm drum, 10:1 gearbox, 2^17 counts/rev: one drum turn = 0.314 m of cable.
-        let s = Scaling { drum_radius_m: 0.05, gear_ratio: 10.0, counts_per_rev: 131072.0, rated_torque_nm: 1.0, sign: 1.0 };
-        assert!((s.counts_to_m(1_310_720) - 0.1 * std::f64::consts::PI).abs() < 1e-12);
-        // 1 N.m motor torque x 10 / 0.05 m = 200 N; pulling is negative torque with sign +1.
-        assert!((s.permille_to_n(-1000) - 200.0).abs() < 1e-9);
-        assert_eq!(s.m_to_counts(f64::NAN), 0);
-        assert_eq!(s.m_to_counts(1e30), i32::MAX);
     }
 }

@@ -2,11 +2,13 @@
 //!
 //! ```text
 //! DriveSet<T, Configuring> --bring_up()--> DriveSet<T, Operational> --enable()--> DriveSet<T, Enabled>
-//!                                               ^   fault_reset()                     │ set_lengths_m()
-//!                                               └───────────── disable() ─────────────┘ set_tensions_n()
+//!                                               ^   fault_reset()                     │ set_positions_counts()
+//!                                               └───────────── disable() ─────────────┘ set_torques_permille()
 //! ```
 //! Only `DriveSet<_, Enabled>` has methods that move cables. This layer owns the clock
-//! (`Instant::now()`) and pumps the transport; the protocol is in [`Master`].
+//! (`Instant::now()`) and pumps the transport; the protocol is in [`Master`]. It deals in drive
+//! units (counts, ‰ of rated torque), like the master: metres and newtons belong to the robot I/O
+//! layer (`taut_rt_core::robot_io::Scaling`).
 //!
 //! ```no_run
 //! use taut_driver::canopen::drive_set::DriveSet;
@@ -18,7 +20,7 @@
 //! let set = DriveSet::new(bus, MasterConfig::from_robot(&cfg)?);
 //! let set = set.bring_up().map_err(|e| e.error)?;
 //! let mut set = set.enable(std::time::Duration::from_secs(2)).map_err(|e| e.error)?;
-//! set.set_lengths_m(&[1.0, 1.2, 0.9, 1.1])?;
+//! set.set_positions_counts(&[131_072, 150_000, 120_000, 140_000])?;
 //! set.cycle()?;
 //! # Ok(()) }
 //! ```
@@ -366,23 +368,22 @@ impl<T: CanTransport> DriveSet<T, Enabled> {
         Ok(())
     }
 
-    /// Target cable lengths relative to the zero of each encoder, m (CSP drives; in cable
-    /// order of the drives).
-    pub fn set_lengths_m(&mut self, m: &[f64]) -> Result<(), DriveSetError> {
+    /// Target positions, encoder counts (CSP drives; in cable order of the drives).
+    pub fn set_positions_counts(&mut self, counts: &[i32]) -> Result<(), DriveSetError> {
         self.check()?;
         let mut op = self.master.operational().ok_or(DriveSetError::NotOperational { node: 0, phase: Phase::Lost })?;
-        for (i, &x) in m.iter().enumerate() {
-            op.set_position_m(i, x)?;
+        for (i, &x) in counts.iter().enumerate() {
+            op.set_position_counts(i, x)?;
         }
         Ok(())
     }
 
-    /// Target cable tensions, N (CST drives).
-    pub fn set_tensions_n(&mut self, n: &[f64]) -> Result<(), DriveSetError> {
+    /// Target torques, ‰ of each drive's rated torque (CST drives).
+    pub fn set_torques_permille(&mut self, permille: &[i16]) -> Result<(), DriveSetError> {
         self.check()?;
         let mut op = self.master.operational().ok_or(DriveSetError::NotOperational { node: 0, phase: Phase::Lost })?;
-        for (i, &x) in n.iter().enumerate() {
-            op.set_tension_n(i, x)?;
+        for (i, &x) in permille.iter().enumerate() {
+            op.set_torque_permille(i, x)?;
         }
         Ok(())
     }
@@ -395,9 +396,9 @@ impl<T: CanTransport> DriveSet<T, Enabled> {
         self.check()
     }
 
-    /// Cable positions, m, in drive order.
-    pub fn positions_m(&self) -> Vec<f64> {
-        self.master.statuses().map(|s| s.position_m).collect()
+    /// Position actual values, counts, in drive order.
+    pub fn positions_counts(&self) -> Vec<i32> {
+        self.master.statuses().map(|s| s.axis.position).collect()
     }
 
     /// Disables every drive (power stages off) and hands back the operational set.

@@ -15,11 +15,11 @@
 //!
 //! ```no_run
 //! use taut_config::devices::LoadCellConfig;
-//! use taut_sim::devices::loadcell::{Fault, TensionHandle, VirtualLoadCells};
+//! use taut_vdev::{LoadCellFault, TensionHandle, VirtualLoadCells};
 //! let tensions = TensionHandle::new(2);
 //! let server = VirtualLoadCells::spawn(vec![LoadCellConfig::new(1), LoadCellConfig::new(2)], tensions.clone()).unwrap();
 //! tensions.set(0, 42.0);
-//! server.inject(Some(2), Fault::BadCrc, 3);
+//! server.inject(Some(2), LoadCellFault::BadCrc, 3);
 //! println!("master: open {}", server.path().display());
 //! ```
 
@@ -67,7 +67,7 @@ impl TensionHandle {
 
 /// A fault for the next answers of a unit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Fault {
+pub enum LoadCellFault {
     /// The answer with its CRC corrupted.
     BadCrc,
     /// No answer.
@@ -83,7 +83,7 @@ pub enum Fault {
 #[derive(Debug)]
 struct Injected {
     unit: Option<u8>,
-    fault: Fault,
+    fault: LoadCellFault,
     left: u32,
 }
 
@@ -158,7 +158,7 @@ impl VirtualLoadCells {
     }
 
     /// Applies `fault` to the next `count` answers of `unit` (`None`: any unit).
-    pub fn inject(&self, unit: Option<u8>, fault: Fault, count: u32) {
+    pub fn inject(&self, unit: Option<u8>, fault: LoadCellFault, count: u32) {
         self.shared.faults.lock().unwrap_or_else(|e| e.into_inner()).push(Injected { unit, fault, left: count });
     }
 
@@ -323,24 +323,24 @@ impl Server {
             Some(f) => {
                 self.shared.faults_applied.fetch_add(1, Ordering::Relaxed);
                 match f {
-                    Fault::Silence => return None,
-                    Fault::BadCrc => {
+                    LoadCellFault::Silence => return None,
+                    LoadCellFault::BadCrc => {
                         let n = rtu::encode_response(&resp, &mut tx);
                         out[..n].copy_from_slice(&tx[..n]);
                         out[n - 1] ^= 0x5A;
                         n
                     }
-                    Fault::Garbage => {
+                    LoadCellFault::Garbage => {
                         self.fill_noise(&mut out[..7]);
                         7
                     }
-                    Fault::NoiseThenAnswer => {
+                    LoadCellFault::NoiseThenAnswer => {
                         self.fill_noise(&mut out[..3]);
                         let n = rtu::encode_response(&resp, &mut tx);
                         out[3..3 + n].copy_from_slice(&tx[..n]);
                         3 + n
                     }
-                    Fault::Exception(code) => {
+                    LoadCellFault::Exception(code) => {
                         let function = frame.get(1).copied().unwrap_or(0) & 0x7F;
                         let n = rtu::encode_response(&exception(unit, function, ExceptionCode::from_code(code)), &mut tx);
                         out[..n].copy_from_slice(&tx[..n]);

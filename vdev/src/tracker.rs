@@ -2,7 +2,7 @@
 //! (`t px py pz [qw qx qy qz]`, see `taut_driver::tracker`) over UDP, normally to loopback.
 //!
 //! ```no_run
-//! use taut_sim::devices::tracker::TrackerSender;
+//! use taut_vdev::TrackerSender;
 //! let tx = TrackerSender::new("127.0.0.1:5005".parse().unwrap()).unwrap();
 //! tx.send_pose(0.01, [0.0, 0.0, 1.5], Some([1.0, 0.0, 0.0, 0.0])).unwrap();
 //! ```

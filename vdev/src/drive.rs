@@ -50,9 +50,8 @@ use taut_driver::canopen::od;
 use taut_driver::canopen::pdo::{self, MapEntry, COB_ID_INVALID};
 use taut_driver::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse, Segment};
 use taut_driver::canopen::sync;
-use taut_driver::canopen::NodeId;
 use taut_driver::transport::virtual_bus::Filter;
-use taut_driver::transport::{CanTransport, Frame, TransportError};
+use taut_driver::{CanTransport, Frame, NodeId, TransportError};
 
 /// Largest object the SDO server moves in one transfer, bytes.
 const SDO_MAX: usize = 64;

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use taut_driver::canopen::master::{Master, MasterConfig, NodeConfig};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::{CanTransport, Frame};
-use taut_sim::devices::drive::{rack_filters, DriveRack};
+use taut_vdev::{rack_filters, DriveRack};
 
 struct Rig {
     t: Instant,
