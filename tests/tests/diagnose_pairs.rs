@@ -42,20 +42,13 @@ fn finding(d: &Diagnosis, e: Effect) -> &Finding {
 
 #[test]
 fn explore() {
-    let mut s = Scenario::aras_cam(21);
-    s.physics = Physics { pulley: Some(0.053), ..Physics::default() };
-    let t0 = std::time::Instant::now();
-    let d = run(s, 40.0);
-    eprintln!("pulley {:.1}s {:#?}", t0.elapsed().as_secs_f64(), summary(&d));
-    let mut s = Scenario::aras_cam(22);
-    s.physics = Physics { elasticity: Some(19_000.0), time_offset_s: 0.03, ..Physics::default() };
-    let t0 = std::time::Instant::now();
-    let d = run(s, 40.0);
-    eprintln!("ea+dt {:.1}s {:#?}", t0.elapsed().as_secs_f64(), summary(&d));
-    let mut s = Scenario::outdoor(23);
-    s.physics = Physics { sag: Some(0.33), elasticity: Some(5e5), ..Physics::default() };
-    let t0 = std::time::Instant::now();
-    let d = run(s, 60.0);
-    eprintln!("sag+ea {:.1}s {:#?}", t0.elapsed().as_secs_f64(), summary(&d));
-    let _ = finding(&d, Effect::Sag);
+    for (k, (lf, mt, ea)) in [(0.2, 50.0, 5e5), (0.0, 3.0, 5e5), (0.2, 50.0, 1e6)].into_iter().enumerate() {
+        let mut s = Scenario::outdoor(23);
+        s.physics = Physics { sag: Some(0.33), elasticity: Some(ea), ..Physics::default() };
+        s.loose_fraction = lf;
+        s.robot.calibration.min_tension_n = mt;
+        let t0 = std::time::Instant::now();
+        let d = run(s, 60.0);
+        eprintln!("case {k} sag+ea {:.1}s {:#?}", t0.elapsed().as_secs_f64(), summary(&d));
+    }
 }
