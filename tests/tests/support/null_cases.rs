@@ -53,12 +53,7 @@ pub fn case(k: usize) -> (Scenario, f64) {
 
 /// A one-line description of case `k`.
 pub fn describe(k: usize) -> String {
-    format!(
-        "{} noise x{} seed {}",
-        GEOMETRIES[k % GEOMETRIES.len()],
-        NOISE_LEVELS[(k / GEOMETRIES.len()) % NOISE_LEVELS.len()],
-        1000 + k
-    )
+    format!("{} noise x{} seed {}", GEOMETRIES[k % GEOMETRIES.len()], NOISE_LEVELS[(k / GEOMETRIES.len()) % NOISE_LEVELS.len()], 1000 + k)
 }
 
 /// Simulates and diagnoses case `k`. A seed whose motion the simulator cannot hold in static
