@@ -451,7 +451,6 @@ struct Ctx<'a> {
     train: Vec<usize>,
     heldout: Vec<usize>,
     screen_train: Vec<usize>,
-    screen_heldout: Vec<usize>,
     /// Where each held-out time sample's residuals start (see [`Ctx::heldout_residuals`]).
     heldout_rows: Vec<usize>,
 }
@@ -948,10 +947,9 @@ pub fn diagnose(
     for &i in &heldout {
         heldout_rows.push(heldout_rows.last().copied().unwrap_or(0) + (0..n).filter(|&j| prep.usable[j][i]).count());
     }
-    let mut ctx = Ctx { prep: &prep, sigma, train, heldout, screen_train: vec![], screen_heldout: vec![], heldout_rows };
+    let mut ctx = Ctx { prep: &prep, sigma, train, heldout, screen_train: vec![], heldout_rows };
     let frac = opts.screen_samples as f64 / m.max(1) as f64;
     ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
-    ctx.screen_heldout = stride(&ctx.heldout, (frac * ctx.heldout.len() as f64).ceil().max(200.0) as usize);
 
     let base_all = ctx.fit(&ideal, &all_rows, &base.x, opts.max_iterations);
     let baseline = ctx.summary(&ideal, &base, &base_all);
