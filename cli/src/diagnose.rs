@@ -72,6 +72,11 @@ pub fn to_json(d: &Diagnosis) -> Value {
                 "heldout_rms_after_m": num(f.heldout_rms_after_m),
                 "evidence": f.evidence,
                 "equally_good": f.equally_good.iter().map(|(e, r)| json!({"effect": e.name(), "heldout_rms_m": num(*r)})).collect::<Vec<_>>(),
+                "test": f.test.map(test_json),
+                "joint": f.joint.iter().map(|j| json!({
+                    "with": j.with.map_or("anchors", |w| w.name()), "both_named": j.both_named,
+                    "correlation": num(j.correlation), "sigmas": j.sigmas.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+                })).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -112,7 +117,20 @@ pub fn to_json(d: &Diagnosis) -> Value {
             "samples": p.samples, "description": p.description,
         })).collect::<Vec<_>>(),
         "not_named": d.rejected,
+        "family_alpha": d.family_alpha,
+        "tests": d.tests.iter().map(|t| json!({
+            "round": t.round, "effect": t.effect.name(), "alpha": t.alpha, "decision": format!("{:?}", t.decision),
+            "test": t.test.map(test_json),
+        })).collect::<Vec<_>>(),
         "notes": d.notes,
+    })
+}
+
+/// One held-out test (see `taut_calib::diagnose::select`).
+fn test_json(t: taut_calib::diagnose::HeldoutTest) -> Value {
+    json!({
+        "heldout_ss_gain": num(t.gain), "weight": num(t.weight), "t": num(t.statistic), "dof": t.dof,
+        "n": t.n, "n_eff": num(t.n_eff), "p_value": num(t.p_value),
     })
 }
 

@@ -130,20 +130,9 @@ fn pulley_is_named() {
     let mut s = Scenario::aras_cam(15);
     s.physics = Physics { pulley: Some(0.08), ..Physics::default() };
     let (d, _) = run(s, 40.0);
-    // On this geometry an 8 cm swivel pulley is almost exactly a shifted anchor: when the ideal
-    // model already fits to the noise, nothing may be named; otherwise the pulley must be.
-    let noise = 1.5e-3;
-    if d.baseline.heldout_rms_m < 1.2 * noise {
-        assert!(named(&d).is_empty(), "{:#?}", summary(&d));
-        // ... and the report says that the pulley and a shifted anchor fit equally well.
-        assert!(
-            d.notes.iter().any(|n| n.contains("pulley") && n.contains("shifted anchors") && n.contains("equally well")),
-            "{:#?}\n{:#?}",
-            d.notes,
-            summary(&d)
-        );
-        return;
-    }
+    // On this geometry an 8 cm swivel pulley is almost a shifted anchor (the ideal model's
+    // held-out RMS is close to the noise), but the held-out test still tells them apart: the
+    // pulley must be named (issue 14), not left as "fits equally well".
     assert_eq!(named(&d).first(), Some(&Effect::Pulley), "{:#?}", summary(&d));
     let f = finding(&d, Effect::Pulley);
     assert_recovered("radius_m", f.values[0], f.sigmas[0], 0.08, 0.1);

@@ -108,6 +108,41 @@ impl Effect {
         }
     }
 
+    /// The effects (`None`: the anchors) whose fitted form can stand in for this one on some
+    /// recordings, and which are therefore also fitted jointly with it.
+    pub fn mimics(self) -> &'static [Option<Effect>] {
+        match self {
+            Effect::Elasticity => &[Some(Effect::Sag), Some(Effect::Scale)],
+            Effect::Sag => &[Some(Effect::Elasticity)],
+            Effect::Scale => &[Some(Effect::Elasticity)],
+            Effect::Pulley => &[None],
+            Effect::TimeOffset => &[Some(Effect::Backlash)],
+            Effect::Backlash => &[Some(Effect::TimeOffset)],
+            Effect::Slack => &[],
+        }
+    }
+
+    /// The measurement that would separate this effect from `other` (`None`: a shifted anchor)
+    /// when a recording cannot.
+    pub fn separating_measurement(self, other: Option<Effect>) -> &'static str {
+        use Effect::*;
+        match (self, other) {
+            (TimeOffset, Some(Backlash)) | (Backlash, Some(TimeOffset)) => {
+                "reversals at different speeds separate them (a time offset's error grows with speed, backlash's does not)"
+            }
+            (Sag, Some(Elasticity)) | (Elasticity, Some(Sag)) => {
+                "the same cable length held at different tensions separates them (stretch grows as T, the sag excess falls as 1/T^2)"
+            }
+            (Scale, Some(Elasticity)) | (Elasticity, Some(Scale)) => {
+                "the same cable length held at different tensions separates them (stretch changes with tension, a scale error does not)"
+            }
+            (Pulley, _) | (_, Some(Pulley)) | (_, None) => {
+                "poses at large wrap angles (the platform far out, cables near horizontal) separate a swivel pulley from a shifted anchor; or measure the pulley radius or the anchor positions"
+            }
+            _ => "a recording over more of the workspace, at several speeds and tensions, would separate them",
+        }
+    }
+
     /// Internal parameter -> reported value and its 1-sigma.
     pub fn to_physical(self, x: f64, sigma: f64) -> (f64, f64) {
         match self {
