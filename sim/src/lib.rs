@@ -14,6 +14,7 @@
 //! | [`equilibrium`]   | static equilibrium by energy minimisation                             |
 //! | [`trajectory`]    | excitation trajectories with excursions                               |
 //! | [`three_phase`]   | the guided three-phase initialisation motion                          |
+//! | [`dwell`]         | dwell-pose recordings without a tracker (self-calibration)            |
 //! | [`sensors`]       | tracker, encoders (backlash, quantisation), load cells                |
 //! | [`scenario`]      | scenarios -> `cdpr-recording v1` + truth                              |
 //! | [`plant`]         | the stepping plant for the real-time loop and the virtual drives      |
@@ -31,6 +32,7 @@
 
 pub mod catenary;
 pub mod devices;
+pub mod dwell;
 pub mod equilibrium;
 pub mod physics;
 pub mod plant;
