@@ -6,6 +6,9 @@
 //! load cells 0.3 N with offsets; the anchors start at the nominal ones, 5-20 cm from the truth.
 //! Run: `cargo bench -p taut-calib --bench selfcal`.
 
+// Index loops over parallel per-cable arrays, as in the library.
+#![allow(clippy::needless_range_loop)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use taut_calib::selfcal::{calibrate_without_tracker, SelfCalOptions};
 use taut_calib::synth::Rng;
@@ -13,8 +16,9 @@ use taut_config::recording::Recording;
 
 const NOMINAL: [[f64; 3]; 4] = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
 
-/// Static tensions of a 4-cable point mass: the minimum-norm balance of the weight shifted
-/// along the null space until the smallest is `t_min`; `None` if that cannot be done.
+/// Static tensions of a 4-cable point mass: the minimum-norm balance of the weight plus the
+/// multiple of the null-space direction closest to zero that keeps every tension >= `t_min`
+/// (the null direction has mixed signs for upward cables); `None` where none does.
 fn tensions(anchors: &[[f64; 3]], p: [f64; 3], mass: f64, t_min: f64) -> Option<[f64; 4]> {
     use nalgebra::{Matrix3x4, Vector3, Vector4};
     let mut u = Matrix3x4::zeros();
@@ -25,16 +29,24 @@ fn tensions(anchors: &[[f64; 3]], p: [f64; 3], mass: f64, t_min: f64) -> Option<
     let f = Vector3::new(0.0, 0.0, mass * 9.81);
     let pinv = u.transpose() * (u * u.transpose()).try_inverse()?;
     let t0: Vector4<f64> = pinv * f;
-    let ones = Vector4::repeat(1.0);
-    let null = ones - pinv * (u * ones);
-    let mut c = f64::NEG_INFINITY;
+    // Null direction: the component of a generic vector outside the row space of U.
+    let e = Vector4::new(1.0, -1.0, 1.0, -1.0);
+    let null = e - pinv * (u * e);
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
     for j in 0..4 {
-        if null[j] <= 1e-9 {
+        let b = (t_min - t0[j]) / null[j];
+        if null[j] > 1e-9 {
+            lo = lo.max(b);
+        } else if null[j] < -1e-9 {
+            hi = hi.min(b);
+        } else if t0[j] < t_min {
             return None;
         }
-        c = c.max((t_min - t0[j]) / null[j]);
     }
-    let t = t0 + null * c.max(0.0);
+    if lo > hi {
+        return None;
+    }
+    let t = t0 + null * 0.0f64.clamp(lo, hi);
     Some([t[0], t[1], t[2], t[3]])
 }
 

@@ -346,7 +346,8 @@ impl RobotConfig {
                 return Err(err(cal_line, format!("calibration.{k}"), format!("must be a 1-sigma in metres in (0, 10], got {v}")));
             }
         }
-        if !(cal.weak_sigma_m <= cal.max_sigma_m) {
+        // Both are finite here (checked above).
+        if cal.weak_sigma_m > cal.max_sigma_m {
             return Err(err(
                 cal_line,
                 "calibration.weak_sigma_m".into(),

@@ -132,7 +132,7 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
             let b = truth.platform_points[j];
             let x = [p[0] + b[0], p[1] + b[1], p[2] + b[2]];
             let path = models[j].path(x);
-            let loose = !(t[j] > 0.0);
+            let loose = t[j] <= 0.0;
             any_loose |= loose;
             let len = if loose {
                 path.length()

@@ -343,7 +343,7 @@ pub fn calibrate_without_tracker(
     let (c, d) = gauge(nominal, lay, frame);
     // Enough dwells that the globals are over-determined twice: each dwell adds (rows - 3).
     let per_dwell = n + if tensions { 3 } else { 0 } - 3;
-    let free = lay.len() - c.nrows();
+    let free = lay.count() - c.nrows();
     let needed = (2 * free).div_ceil(per_dwell).max(10);
     if found.dwells.len() < needed {
         return Err(SelfCalError::TooFewDwells { found: found.dwells.len(), needed, drifting: found.drifting });
@@ -434,7 +434,7 @@ pub fn calibrate_without_tracker(
             let dv = ai - aj;
             let dist = dv.norm();
             let u = dv / dist;
-            let mut grad = DVector::zeros(lay.len());
+            let mut grad = DVector::zeros(lay.count());
             for a in 0..3 {
                 grad[lay.a(i) + a] = u[a];
                 grad[lay.a(j) + a] = -u[a];
@@ -512,7 +512,7 @@ fn gauge(nominal: &[[f64; 3]], lay: Layout, frame: Frame) -> (DMatrix<f64>, DVec
     let n = nominal.len();
     let cn: [f64; 3] = std::array::from_fn(|a| nominal.iter().map(|p| p[a]).sum::<f64>() / n as f64);
     let rows = if frame == Frame::NominalTranslationYaw { 4 } else { 6 };
-    let mut c = DMatrix::zeros(rows, lay.len());
+    let mut c = DMatrix::zeros(rows, lay.count());
     let mut d = DVector::zeros(rows);
     for a in 0..3 {
         for j in 0..n {
@@ -541,7 +541,7 @@ fn gauge(nominal: &[[f64; 3]], lay: Layout, frame: Frame) -> (DMatrix<f64>, DVec
 fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
     let lay = pr.lay;
     let n = lay.n;
-    let mut g = DVector::zeros(lay.len());
+    let mut g = DVector::zeros(lay.count());
     for j in 0..n {
         for a in 0..3 {
             g[lay.a(j) + a] = nominal[j][a];
@@ -711,7 +711,7 @@ mod tests {
         let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
         let lay = Layout { n: 4, offsets: true, mass: false };
         let (c, d) = gauge(&nom, lay, Frame::NominalRigid);
-        let mut g = DVector::zeros(lay.len());
+        let mut g = DVector::zeros(lay.count());
         for j in 0..4 {
             for a in 0..3 {
                 g[3 * j + a] = nom[j][a];

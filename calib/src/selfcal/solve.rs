@@ -45,7 +45,7 @@ pub struct Layout {
 
 impl Layout {
     /// Number of globals.
-    pub fn len(&self) -> usize {
+    pub fn count(&self) -> usize {
         4 * self.n + if self.offsets { self.n } else { 0 } + usize::from(self.mass)
     }
     /// First index of anchor `j`.
@@ -230,7 +230,7 @@ struct Normal {
 }
 
 fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
-    let ng = pr.lay.len();
+    let ng = pr.lay.count();
     let kd = pr.dwells.len();
     let mut nm = Normal {
         hpp: Vec::with_capacity(kd),
@@ -269,8 +269,11 @@ fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
     nm
 }
 
+/// The Schur-reduced matrix and right-hand side, and the damped inverse pose blocks.
+type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Matrix3<f64>>);
+
 /// The Schur-reduced system with damping `lambda` (Marquardt's diagonal scaling).
-fn reduce(nm: &Normal, lambda: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<Matrix3<f64>>)> {
+fn reduce(nm: &Normal, lambda: f64) -> Option<Reduced> {
     let mut s = nm.hgg.clone();
     for i in 0..s.nrows() {
         s[(i, i)] += lambda * nm.hgg[(i, i)];
