@@ -498,6 +498,23 @@ mod tests {
     }
 
     #[test]
+    fn sigma_tolerances_are_validated() {
+        let base = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n[calibration]\n";
+        let c = RobotConfig::from_toml_str(&format!("{base}weak_sigma_m = 0.005\nmax_sigma_m = 0.02\n")).unwrap();
+        assert_eq!((c.calibration.weak_sigma_m, c.calibration.max_sigma_m), (0.005, 0.02));
+        for (extra, key, words) in [
+            ("max_sigma_m = 0.0\n", "calibration.max_sigma_m", "(0, 10]"),
+            ("weak_sigma_m = -1.0\n", "calibration.weak_sigma_m", "(0, 10]"),
+            ("max_sigma_m = 1e9\n", "calibration.max_sigma_m", "(0, 10]"),
+            ("weak_sigma_m = 0.2\nmax_sigma_m = 0.1\n", "calibration.weak_sigma_m", "weak_sigma_m <= max_sigma_m"),
+        ] {
+            let e = RobotConfig::from_toml_str(&format!("{base}{extra}")).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(7)), "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
+    }
+
+    #[test]
     fn defaults_apply() {
         let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n";
         let c = RobotConfig::from_toml_str(text).unwrap();
