@@ -72,11 +72,15 @@
 //! fluctuates around 1 by `sqrt(2/m)`, and shrinking the sigmas on a lucky recording would claim
 //! more than the sensors can give. The factor is reported per cable.
 //!
-//! The singular values of the weighted Jacobian `W^(1/2) J` (square roots of the eigenvalues of
-//! `J^T W J`) measure how well each direction of `x_j` is excited. When the smallest is below
-//! `min_rel_singular_value` times the largest, or a parameter's one-sigma exceeds `max_sigma_m`,
-//! [`calibrate`] refuses with [`CalibError::NotObservable`], naming the cable and the parameter
-//! that dominates the weakest direction and saying how to move the robot.
+//! Observability is decided by what it costs the user: the predicted one-sigma of each parameter.
+//! A parameter known to 9 mm is weakly determined, not unobservable. Above `weak_sigma_m`
+//! (`[calibration] weak_sigma_m`, default 2 mm) the estimate is returned with a warning in the
+//! notes and in [`CalibReport::weak`]; only above `max_sigma_m` (`[calibration] max_sigma_m`,
+//! default 10 cm), or when `J^T W J` cannot be inverted at all, does [`calibrate`] refuse with
+//! [`CalibError::NotObservable`], naming the cable and the parameter and saying how to move the
+//! robot. The singular values of the weighted Jacobian `W^(1/2) J` are still reported (they say
+//! which direction is weakest), but a ratio of them decides nothing: its scale depends on the
+//! units and the number of readings, the sigma does not.
 //!
 //! # What it achieves (measured, see `tests/calibration.rs` and `benches/calibrate.rs`)
 //!
@@ -104,6 +108,7 @@
 //! - [`metrics`]: co-registration, held-out split, Cramér–Rao bound.
 //! - [`screen`]: wild values (encoder spikes and jumps, impossible tensions, tracker jumps), found and excluded before any fit.
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
+//! - [`selfcal`]: calibration without a tracker, from dwell poses, the encoders and the load cells.
 //! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
@@ -118,6 +123,7 @@ pub mod metrics;
 pub mod model;
 pub mod noise;
 pub mod screen;
+pub mod selfcal;
 pub mod solver;
 pub mod synth;
 pub mod trust;
@@ -200,8 +206,8 @@ pub struct CalibOptions {
     pub max_iterations: usize,
     /// Robust loss against tracker outliers.
     pub loss: RobustLoss,
-    /// Refuse when a cable's smallest singular value is below this times its largest.
-    pub min_rel_singular_value: f64,
+    /// Warn (and list in [`CalibReport::weak`]) when a parameter's one-sigma exceeds this, m.
+    pub weak_sigma_m: f64,
     /// Refuse when a parameter's one-sigma exceeds this, m.
     pub max_sigma_m: f64,
     /// A reading whose normalised residual exceeds this many sigmas is counted as an outlier in
@@ -230,10 +236,8 @@ impl CalibOptions {
             // k = 2: 98% efficient on Gaussian noise; a 5 cm tracker outlier (30 sigma) pulls
             // like a 2-sigma reading instead of a 30-sigma one.
             loss: RobustLoss::Huber { k: 2.0 },
-            // 1e-3: a direction that changes the lengths 1000x less than the best-excited one;
-            // unmodelled millimetre errors then move that parameter by metres.
-            min_rel_singular_value: 1e-3,
-            max_sigma_m: 0.05,
+            weak_sigma_m: c.weak_sigma_m,
+            max_sigma_m: c.max_sigma_m,
             outlier_sigma: 6.0,
         }
     }
@@ -322,8 +326,10 @@ pub enum CalibError {
         largest: f64,
         /// One-sigma of `param`, m (possibly infinite).
         sigma_m: f64,
-        /// True when the weakest direction is (nearly) singular; false when it is excited but
-        /// too weakly for the one-sigma limit `max_sigma_m`.
+        /// The refusal tolerance `max_sigma_m`, m.
+        max_sigma_m: f64,
+        /// True when `J^T W J` cannot be inverted (no information at all in some direction);
+        /// false when the direction is excited but too weakly for `max_sigma_m`.
         singular: bool,
     },
     /// The iteration produced non-finite parameters.
@@ -347,15 +353,17 @@ impl fmt::Display for CalibError {
                 f,
                 "cable {cable}: only {used} usable readings ({loose} loose, {missing} missing), at least {needed} needed; record with this cable under tension (>= min_tension_n) while the tracker sees the platform"
             ),
-            CalibError::NotObservable { cable, param, singular_value, largest, sigma_m, singular: true } => write!(
+            CalibError::NotObservable { cable, param, singular: true, .. } => write!(
                 f,
-                "cable {cable}: {param} is not observable from this recording (singular value {singular_value:.1e} vs {largest:.1e}, 1-sigma {sigma_m:.1e} m): {}",
+                "cable {cable}: {param} is not observable from this recording (no information in its direction): {}",
                 param.advice()
             ),
-            CalibError::NotObservable { cable, param, sigma_m, singular: false, .. } => write!(
+            CalibError::NotObservable { cable, param, sigma_m, max_sigma_m, singular: false, .. } => write!(
                 f,
-                "cable {cable}: {param} is too weakly determined by this recording (1-sigma {:.1} mm, above max_sigma_m): move the platform over a larger part of the workspace, in all three directions, or record longer",
-                sigma_m * 1e3
+                "cable {cable}: {param} is too weakly determined by this recording (1-sigma {:.1} mm, above calibration.max_sigma_m = {:.1} mm): {}; or move the platform over a larger part of the workspace, in all three directions, or record longer (or raise calibration.max_sigma_m to accept it)",
+                sigma_m * 1e3,
+                max_sigma_m * 1e3,
+                param.advice()
             ),
             CalibError::Diverged { cable } => write!(
                 f,
@@ -452,8 +460,35 @@ pub struct CalibReport {
     pub heldout_peak_m: f64,
     /// Per-cable details.
     pub per_cable: Vec<CableReport>,
-    /// Things a person should know (fallbacks, scaled sigmas, exclusions).
+    /// Parameters returned although their one-sigma exceeds `weak_sigma_m`.
+    pub weak: Vec<WeakParam>,
+    /// Things a person should know (fallbacks, scaled sigmas, exclusions, weak parameters).
     pub notes: Vec<String>,
+}
+
+/// A parameter the recording determines only weakly (one-sigma above `weak_sigma_m`, below the
+/// refusal tolerance `max_sigma_m`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WeakParam {
+    /// Cable index.
+    pub cable: usize,
+    /// Which parameter.
+    pub param: Param,
+    /// Its one-sigma, m.
+    pub sigma_m: f64,
+}
+
+impl fmt::Display for WeakParam {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "cable {}: {} is weakly determined (1-sigma {:.1} mm, above calibration.weak_sigma_m): estimate kept; to improve it, {}",
+            self.cable,
+            self.param,
+            self.sigma_m * 1e3,
+            self.param.advice()
+        )
+    }
 }
 
 impl CalibReport {
@@ -488,6 +523,7 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
     let mut covariance = Vec::with_capacity(n);
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
+    let mut weak = Vec::new();
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
     for (j, d) in data.iter_mut().enumerate() {
@@ -548,17 +584,33 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
             Some(c) => [0, 1, 2, 3].map(|k| c[(k, k)].max(0.0).sqrt()),
             None => [f64::INFINITY; 4],
         };
-        // Observability: weakest direction relative to the strongest, and absurd sigmas.
-        let weakest = eig.eigenvectors.column(order[3]).into_owned();
-        if !(sv[3] >= opts.min_rel_singular_value * sv[0]) || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
-            let param = if sv[3] >= opts.min_rel_singular_value * sv[0] {
-                Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
-            } else {
+        // Observability by the predicted uncertainty: refuse beyond the user's tolerance (or
+        // without any information in some direction), warn beyond the weak level.
+        let singular = cov.is_none() || sig.iter().any(|s| !s.is_finite());
+        if singular || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
+            let param = if singular {
+                let weakest = eig.eigenvectors.column(order[3]).into_owned();
                 dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
+            } else {
+                Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
             };
             let k = param as usize;
-            let singular = !(sv[3] >= opts.min_rel_singular_value * sv[0]);
-            return Err(CalibError::NotObservable { cable: j, param, singular_value: sv[3], largest: sv[0], sigma_m: sig[k], singular });
+            return Err(CalibError::NotObservable {
+                cable: j,
+                param,
+                singular_value: sv[3],
+                largest: sv[0],
+                sigma_m: sig[k],
+                max_sigma_m: opts.max_sigma_m,
+                singular,
+            });
+        }
+        for (k, &s) in sig.iter().enumerate() {
+            if s > opts.weak_sigma_m {
+                let w = WeakParam { cable: j, param: Param::from_index(k), sigma_m: s };
+                notes.push(w.to_string());
+                weak.push(w);
+            }
         }
         // Held-out: the parameters of the training block alone, evaluated on the rest. The
         // training optimum is within about a standard deviation of the full-data one, where the
@@ -660,6 +712,7 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
         heldout_peak_m: if ho_n > 0 { ho_peak } else { f64::NAN },
         per_cable,
         params,
+        weak,
         notes,
     })
 }

@@ -186,13 +186,16 @@ fn refuses_when_the_platform_only_moves_along_a_line() {
     let truth = synth::aras_cam();
     let spec = Spec::new(truth.clone());
     let rec = synth::box_recording(&spec, 2000, [-2.5, 0.0, 1.5], [2.5, 0.0, 1.5], 4);
-    let e = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts_for(&spec)).unwrap_err();
+    // At a 5 cm tolerance (the tracker noise leaves the direction known to ~9 cm, not exactly
+    // singular; the default 10 cm would return it with a warning).
+    let opts = CalibOptions { max_sigma_m: 0.05, ..opts_for(&spec) };
+    let e = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap_err();
     eprintln!("{e}");
+    // Refused by the predicted uncertainty (the tracker noise keeps it from exactly singular).
     match e {
-        CalibError::NotObservable { param, singular_value, largest, singular, .. } => {
-            assert!(singular, "{e}");
+        CalibError::NotObservable { param, sigma_m, max_sigma_m, singular, .. } => {
+            assert!(singular || sigma_m > max_sigma_m, "{e}");
             assert!(matches!(param, Param::Ay | Param::Az), "{e}");
-            assert!(singular_value < 1e-3 * largest, "{e}");
         }
         other => panic!("expected NotObservable, got {other}"),
     }
@@ -217,6 +220,7 @@ fn planar_motion_observability() {
     eprintln!("wide plane: A_z sigma {:?} mm", rep.anchor_sigma.iter().map(|s| s[2] * 1e3).collect::<Vec<_>>());
     // A small patch of a plane: the curvature is too weak, the calibration refuses.
     let patch = synth::box_recording(&spec, 2000, [-0.3, -0.3, 1.5], [0.3, 0.3, 1.5], 4);
+    let opts = CalibOptions { max_sigma_m: 0.05, ..opts };
     let e = calibrate(&patch, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap_err();
     eprintln!("{e}");
     assert!(matches!(e, CalibError::NotObservable { .. }), "{e}");
@@ -232,6 +236,25 @@ fn refuses_when_a_sigma_exceeds_the_limit() {
     let e = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap_err();
     assert!(matches!(e, CalibError::NotObservable { singular: false, .. }), "{e}");
     assert!(e.to_string().contains("larger part of the workspace"), "{e}");
+}
+
+#[test]
+fn weakly_determined_parameters_are_returned_with_a_warning() {
+    // The same well-excited data: a warning level below what the data give (0.1 mm) keeps the
+    // estimate and names every parameter above it; the refusal tolerance is untouched.
+    let truth = synth::aras_cam();
+    let spec = Spec::new(truth.clone());
+    let rec = synth::box_recording(&spec, 1000, LO, HI, 9);
+    let opts = CalibOptions { weak_sigma_m: 1e-4, ..opts_for(&spec) };
+    let r = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap();
+    assert!(!r.weak.is_empty());
+    for w in &r.weak {
+        assert!(w.sigma_m > 1e-4 && w.sigma_m <= opts.max_sigma_m, "{w}");
+    }
+    assert!(r.notes.iter().any(|n| n.contains("weakly determined")), "{:?}", r.notes);
+    // At the default level (2 mm) nothing is weak on these data.
+    let r = calibrate(&rec, &spec.platform_points, &perturbed(&truth, 0.05), &opts_for(&spec)).unwrap();
+    assert!(r.weak.is_empty(), "{:?}", r.weak);
 }
 
 fn three_phase_case(truth: &Params, phases: &[PhaseSpec], n_per_phase: usize, seed: u64) -> (init::InitResult, f64, f64) {

@@ -1,4 +1,5 @@
 //! `taut calibrate REC.csv`: initialise and calibrate from any recording, with no prior geometry.
+//! Without a tracker in any row: self-calibration from dwell poses (`crate::notracker`).
 
 use crate::report;
 use anyhow::{Context, Result};
@@ -114,6 +115,17 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
+    if crate::notracker::tracker_absent(&rec) {
+        return crate::notracker::run(a, &rec, &parse, &cfg);
+    }
+    let untracked = crate::notracker::untracked_rows(&rec);
+    if untracked > 0 {
+        eprintln!(
+            "note: {}: {untracked} of {} rows have no tracker position: calibrating with the tracker, on the rows that have one",
+            a.recording.display(),
+            rec.len()
+        );
+    }
     let pb = progress(4);
     let out = pipeline(&rec, &cfg, &pb)?;
     pb.finish_and_clear();

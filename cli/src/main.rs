@@ -7,6 +7,7 @@ mod calibrate;
 mod ctl;
 mod demo;
 mod diagnose;
+mod notracker;
 mod outputs;
 mod plot;
 mod probe;

@@ -106,6 +106,12 @@ pub struct CalibrationConfig {
     pub cable_ea_n: f64,
     /// Fraction of the recording (its last time block) held out for validation.
     pub heldout_fraction: f64,
+    /// A calibrated parameter whose 1-sigma exceeds this is returned with a warning that it is
+    /// weakly determined, m.
+    pub weak_sigma_m: f64,
+    /// A calibration with a parameter whose 1-sigma exceeds this is refused, m (the estimate is
+    /// then too uncertain to be worth using, even as a start).
+    pub max_sigma_m: f64,
 }
 
 impl Default for CalibrationConfig {
@@ -116,6 +122,10 @@ impl Default for CalibrationConfig {
             encoder_sigma_m: 0.05e-3,
             cable_ea_n: 2.0e5,
             heldout_fraction: 0.2,
+            weak_sigma_m: 2e-3,
+            // An estimate known to 10 cm still improves on a tape-measured nominal geometry
+            // (10-20 cm): refusing it would leave the robot with no start at all.
+            max_sigma_m: 0.1,
         }
     }
 }
@@ -331,6 +341,22 @@ impl RobotConfig {
         if !(cal.heldout_fraction >= 0.0 && cal.heldout_fraction < 0.9) {
             return Err(err(cal_line, "calibration.heldout_fraction".into(), format!("must be in [0, 0.9), got {}", cal.heldout_fraction)));
         }
+        for (k, v) in [("weak_sigma_m", cal.weak_sigma_m), ("max_sigma_m", cal.max_sigma_m)] {
+            if !(v.is_finite() && v > 0.0 && v <= 10.0) {
+                return Err(err(cal_line, format!("calibration.{k}"), format!("must be a 1-sigma in metres in (0, 10], got {v}")));
+            }
+        }
+        // Both are finite here (checked above).
+        if cal.weak_sigma_m > cal.max_sigma_m {
+            return Err(err(
+                cal_line,
+                "calibration.weak_sigma_m".into(),
+                format!(
+                    "the warning level {} m is above the refusal tolerance calibration.max_sigma_m = {} m; make weak_sigma_m <= max_sigma_m",
+                    cal.weak_sigma_m, cal.max_sigma_m
+                ),
+            ));
+        }
         let first_line = |h: &str| table_header_lines(text, h).first().copied();
         self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;
         self.motion.validate(self.cables.len()).map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
@@ -467,6 +493,23 @@ mod tests {
         ] {
             let e = RobotConfig::from_toml_str(&text).unwrap_err();
             assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(line)), "{e}\n{text}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
+    }
+
+    #[test]
+    fn sigma_tolerances_are_validated() {
+        let base = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n[calibration]\n";
+        let c = RobotConfig::from_toml_str(&format!("{base}weak_sigma_m = 0.005\nmax_sigma_m = 0.02\n")).unwrap();
+        assert_eq!((c.calibration.weak_sigma_m, c.calibration.max_sigma_m), (0.005, 0.02));
+        for (extra, key, words) in [
+            ("max_sigma_m = 0.0\n", "calibration.max_sigma_m", "(0, 10]"),
+            ("weak_sigma_m = -1.0\n", "calibration.weak_sigma_m", "(0, 10]"),
+            ("max_sigma_m = 1e9\n", "calibration.max_sigma_m", "(0, 10]"),
+            ("weak_sigma_m = 0.2\nmax_sigma_m = 0.1\n", "calibration.weak_sigma_m", "weak_sigma_m <= max_sigma_m"),
+        ] {
+            let e = RobotConfig::from_toml_str(&format!("{base}{extra}")).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(7)), "{e}");
             assert!(e.to_string().contains(words), "{e}");
         }
     }

@@ -25,7 +25,8 @@ use std::path::Path;
 /// The first comment line of a file written by this project.
 pub const MAGIC: &str = "# cdpr-recording v1";
 
-/// Fewer usable samples (rows with a position and at least one length) than this is an error.
+/// Fewer usable samples (rows with at least one length; the tracker position may be missing, a
+/// recording without a tracker is calibrated from the lengths and tensions) than this is an error.
 pub const MIN_USABLE_SAMPLES: usize = 10;
 
 /// Longest line the reader accepts, bytes. A row of 64 cables with 20-character numbers is under
@@ -268,7 +269,7 @@ fn push_num(s: &mut String, v: f64, decimals: usize) {
 pub struct ParseReport {
     /// Data rows read.
     pub rows: usize,
-    /// Rows with a position and at least one length.
+    /// Rows with at least one length (with or without a tracker position).
     pub usable_rows: usize,
     /// Rows whose tracker position is missing (dropout).
     pub missing_position: usize,
@@ -324,7 +325,7 @@ pub enum ErrorKind {
     TooLarge(String),
     /// Time is missing, or earlier than on the previous row.
     Time(String),
-    /// Too few rows with a position and a length.
+    /// Too few rows with a length.
     TooFewSamples {
         /// Usable rows found.
         usable: usize,
@@ -396,7 +397,7 @@ impl fmt::Display for RecordingError {
             ErrorKind::TooLarge(m) => write!(f, ": too large: {m}"),
             ErrorKind::Time(m) => write!(f, ": {m}"),
             ErrorKind::TooFewSamples { usable, needed } => {
-                write!(f, ": only {usable} usable samples (rows with a position and a length), at least {needed} needed")
+                write!(f, ": only {usable} usable samples (rows with a length), at least {needed} needed")
             }
         }
     }
@@ -719,7 +720,7 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
         let nl = lvals.iter().filter(|v| v.is_nan()).count();
         report.missing_length += nl;
         report.missing_tension += fvals.iter().filter(|v| v.is_nan()).count();
-        if pos_ok && nl < lvals.len() {
+        if nl < lvals.len() {
             report.usable_rows += 1;
         }
         rec.push(t, p, q, &lvals, (!fvals.is_empty()).then_some(&fvals[..]), phase);
@@ -840,7 +841,8 @@ mod tests {
         assert_eq!(rep.missing_position, 1);
         assert_eq!(rep.missing_length, 1);
         assert_eq!(rep.missing_tension, 1);
-        assert_eq!(rep.usable_rows, 13);
+        // The row without a position still has lengths: usable (calibration without a tracker).
+        assert_eq!(rep.usable_rows, 14);
         assert!(rec.p[12][0].is_nan());
     }
 

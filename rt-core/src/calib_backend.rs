@@ -101,8 +101,9 @@ impl Calibrate for TautCalib {
         if !r.was_successful() {
             return Err(format!("the solver did not converge ({:?})", r.termination));
         }
-        let worst = r.singular_values.iter().map(|s| if s[0] > 0.0 { s[3] / s[0] } else { 0.0 }).fold(f64::INFINITY, f64::min);
-        let observable = worst >= self.opts.min_rel_singular_value;
+        // `calibrate` refuses beyond `calibration.max_sigma_m`: what it returns is an estimate,
+        // weakly determined parameters included (named in the note).
+        let weak: Vec<String> = r.weak.iter().map(|w| w.to_string()).collect();
         // Then all taut cables at once with the platform positions as unknowns (see
         // `taut_calib::bundle`): the force-aware fit is its start and its fallback.
         let (anchors, l0, anchor_sigma, l0_sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
@@ -125,14 +126,11 @@ impl Calibrate for TautCalib {
             anchor_sigma,
             l0_sigma,
             rms_m: r.rms_m,
-            observable,
-            note: if observable {
-                format!("{} readings, smallest relative singular value {worst:.2e}{how}", r.samples_used)
+            observable: true,
+            note: if weak.is_empty() {
+                format!("{} readings{how}", r.samples_used)
             } else {
-                format!(
-                    "smallest relative singular value {worst:.2e} below {:.0e}: excite the robot more",
-                    self.opts.min_rel_singular_value
-                )
+                format!("{} readings{how}; {}", r.samples_used, weak.join("; "))
             },
         })
     }

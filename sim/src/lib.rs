@@ -17,6 +17,7 @@
 //! | [`equilibrium`]   | static equilibrium by energy minimisation                             |
 //! | [`trajectory`]    | excitation trajectories with excursions                               |
 //! | [`three_phase`]   | the guided three-phase initialisation motion                          |
+//! | [`dwell`]         | dwell-pose recordings without a tracker (self-calibration)            |
 //! | [`sensors`]       | tracker, encoders (backlash, quantisation), load cells                |
 //! | [`scenario`]      | scenarios -> `cdpr-recording v1` + truth                              |
 //! | [`plant`]         | the stepping plant for the real-time loop and the virtual drives      |
@@ -33,6 +34,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod catenary;
+pub mod dwell;
 pub mod equilibrium;
 pub mod physics;
 pub mod plant;

@@ -1,0 +1,738 @@
+//! Self-calibration without a tracker: anchors, encoder offsets, load-cell offsets (and
+//! optionally the platform mass) from the encoders and the load cells alone, on a recording of
+//! static dwell poses.
+//!
+//! # Model
+//!
+//! The platform positions are unknowns beside the robot's parameters, one per dwell (a stretch
+//! where every encoder is still, [`dwell`]). Each dwell contributes the averaged encoder lengths
+//! and, with load cells, the static equilibrium of the averaged tensions:
+//!
+//! ```text
+//! l_kj = |P_k + b_j - A_j| + L0_j                                  (n equations, sigma_enc^2 / N)
+//! sum_j (f_kj - c_j) v_kj + m (0, 0, -g) = 0                       (3 equations, sigma_f^2 / N)
+//! ```
+//!
+//! `c_j`: the load cell's offset (unknown: 0.5 N unmodelled shifts inter-anchor distances by
+//! 5-11 mm), `v_kj`: unit vector from the platform point to the anchor. A redundant robot (more
+//! cables than the three position unknowns) over-determines each pose; a 3-cable robot does not,
+//! and is refused ([`SelfCalError::TooFewCables`]). The problem and its solver (Schur complement
+//! on the 3x3 pose blocks, time linear in the dwells) are in [`solve`].
+//!
+//! # Frame (gauge)
+//!
+//! Lengths and forces do not see where the robot stands: translating the whole robot, or turning
+//! it about the vertical, changes no measurement (without load cells gravity is unknown too and
+//! any rotation is free). The frame is fixed by the nominal anchors of the configuration: the
+//! estimate is the one whose anchors are best aligned with the nominal ones by a translation and
+//! a rotation about the vertical (any rotation without tensions). These are linear constraints
+//! on the anchors, exact for the least-squares alignment:
+//!
+//! ```text
+//! sum_j (A_j - N_j) = 0,     sum_j (N_j - N_mean) x A_j = 0   (z component; all three without tensions)
+//! ```
+//!
+//! Quantities that do not depend on the frame are reported with their uncertainties: the
+//! inter-anchor distances, the offsets `L0`, the load-cell offsets, and (with tensions, which
+//! fix the vertical) the anchor heights relative to anchor 0.
+//!
+//! # Uncertainty, refusal
+//!
+//! The covariance is the inverse Fisher information at the solution in that frame (the
+//! Cramér–Rao bound of the recording), scaled up by the a-posteriori variance factor
+//! `chi2 / dof` when above 1. A parameter whose sigma exceeds `weak_sigma_m` is returned with a
+//! warning; beyond `max_sigma_m`, or when the information is singular beyond the frame, the
+//! calibration is refused, naming the quantity and what to record instead (poses spanning the
+//! height and the width of the workspace, the load cells).
+//!
+//! # Start and the mirror solution
+//!
+//! The start is the nominal anchors. Positions come from the force balance at each dwell
+//! (tensions) or from the workspace centre below the anchors (encoders only), then the
+//! offsets and positions are alternated (median offset, Gauss–Newton per pose) with the anchors
+//! held, before the joint solve. The mirror image of the poses above the anchor plane fits the
+//! lengths but not gravity: a solution with the poses above the anchors, or whose
+//! `chi2 / dof` fails the chi-square test at a 1e-3 false-alarm rate, is retried from the
+//! mirrored poses and the better fit kept; a fit that still fails is reported (note), not hidden.
+
+pub mod dwell;
+pub mod solve;
+
+use crate::Params;
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use std::fmt;
+use taut_config::recording::Recording;
+use taut_config::RobotConfig;
+
+use solve::{Layout, Problem, State, G};
+
+/// Options of [`calibrate_without_tracker`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SelfCalOptions {
+    /// Encoder noise of one reading, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// Load-cell noise of one reading, 1-sigma, N; `None`: the pooled scatter within the dwells.
+    pub loadcell_sigma_n: Option<f64>,
+    /// Tensions below this are loose: the cable's length is not used at that dwell, N.
+    pub min_tension_n: f64,
+    /// Platform mass, kg (known, or the start when estimated).
+    pub mass_kg: f64,
+    /// Estimate the mass too.
+    pub estimate_mass: bool,
+    /// Use the load cells (when the recording has tensions).
+    pub use_tensions: bool,
+    /// Warn when a parameter's 1-sigma exceeds this, m.
+    pub weak_sigma_m: f64,
+    /// Refuse when a parameter's 1-sigma exceeds this, m.
+    pub max_sigma_m: f64,
+    /// Shortest dwell, samples.
+    pub min_dwell_samples: usize,
+    /// LM iteration limit per solve.
+    pub max_iterations: usize,
+}
+
+impl SelfCalOptions {
+    /// From a robot configuration (`[calibration]` and the platform mass).
+    pub fn from_config(cfg: &RobotConfig) -> Self {
+        let c = &cfg.calibration;
+        SelfCalOptions {
+            encoder_sigma_m: c.encoder_sigma_m,
+            loadcell_sigma_n: None,
+            min_tension_n: c.min_tension_n,
+            mass_kg: cfg.robot.mass_kg,
+            estimate_mass: false,
+            use_tensions: true,
+            weak_sigma_m: c.weak_sigma_m,
+            max_sigma_m: c.max_sigma_m,
+            min_dwell_samples: 20,
+            max_iterations: 200,
+        }
+    }
+}
+
+/// How the frame of the result is fixed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Frame {
+    /// Best translation and rotation about the vertical onto the nominal anchors (gravity fixes
+    /// the vertical).
+    NominalTranslationYaw,
+    /// Best translation and rotation onto the nominal anchors (no tensions: the vertical is not
+    /// observed either).
+    NominalRigid,
+}
+
+/// A frame-free quantity and its uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Value (m, N or kg).
+    pub value: f64,
+    /// 1-sigma, scaled by the variance factor when above 1.
+    pub sigma: f64,
+    /// Cramér–Rao bound (the unscaled 1-sigma).
+    pub crb: f64,
+}
+
+/// Which quantity a refusal or warning is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quantity {
+    /// Anchor `j`, coordinate `axis` (0 x, 1 y, 2 z) in the aligned frame.
+    Anchor(usize, usize),
+    /// Encoder offset of cable `j`.
+    Offset(usize),
+}
+
+impl fmt::Display for Quantity {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Quantity::Anchor(j, a) => write!(f, "anchor {j} {}", ["x", "y", "z"][a.min(2)]),
+            Quantity::Offset(j) => write!(f, "offset L0 of cable {j}"),
+        }
+    }
+}
+
+/// What the recording lacks, for the advice in a refusal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spread {
+    /// Standard deviation of the dwell heights, m.
+    pub height_m: f64,
+    /// Standard deviation of the dwell positions horizontally (the smaller axis), m.
+    pub width_m: f64,
+    /// Tensions were used.
+    pub tensions: bool,
+}
+
+impl Spread {
+    fn advice(&self) -> String {
+        let mut a = Vec::new();
+        if self.height_m < 0.2 * self.width_m {
+            a.push(format!(
+                "the poses lie nearly in one horizontal plane (heights spread {:.0} mm): add poses spanning the height of the workspace",
+                self.height_m * 1e3
+            ));
+        }
+        if self.width_m < 0.2 * self.height_m.max(0.25) {
+            a.push(format!("the poses span little width ({:.0} mm): add poses across the workspace", self.width_m * 1e3));
+        }
+        if !self.tensions {
+            a.push("record the load cells too (gravity then fixes the vertical and the shape)".into());
+        }
+        if a.is_empty() {
+            a.push("record more dwell poses spread through the height and the width of the workspace".into());
+        }
+        a.join("; ")
+    }
+}
+
+/// Why [`calibrate_without_tracker`] gave no result.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SelfCalError {
+    /// Fewer than four cables: the lengths carry no information beyond the pose.
+    TooFewCables {
+        /// Cables.
+        n: usize,
+    },
+    /// No nominal anchors: no start and no frame.
+    NoNominalAnchors,
+    /// Platform points or nominal anchors do not match the recording's cables.
+    CableCount {
+        /// Length columns in the recording.
+        recording: usize,
+        /// Platform points.
+        platform_points: usize,
+        /// Nominal anchors.
+        nominal: usize,
+    },
+    /// Too few dwells for the unknowns.
+    TooFewDwells {
+        /// Dwells found.
+        found: usize,
+        /// Dwells needed.
+        needed: usize,
+        /// Runs dropped because the encoders crept.
+        drifting: usize,
+    },
+    /// The information is singular beyond the frame.
+    Singular {
+        /// What to record instead.
+        advice: String,
+    },
+    /// A parameter's predicted uncertainty is beyond the tolerance.
+    TooUncertain {
+        /// The worst quantity.
+        quantity: Quantity,
+        /// Its 1-sigma, m.
+        sigma_m: f64,
+        /// The tolerance, m.
+        max_sigma_m: f64,
+        /// What to record instead.
+        advice: String,
+    },
+    /// The iteration produced non-finite numbers.
+    Diverged,
+}
+
+impl fmt::Display for SelfCalError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SelfCalError::TooFewCables { n } => write!(
+                f,
+                "a {n}-cable robot cannot calibrate itself without a tracker: its {n} lengths only fix the platform's position, they carry no information on the anchors, and the load cells alone give cm-level anchors that follow every load-cell offset; record with a tracker (e.g. the three-phase start-up with `[tracker]`)"
+            ),
+            SelfCalError::NoNominalAnchors => write!(
+                f,
+                "calibration without a tracker needs the nominal anchors (`anchor = [x, y, z]` in every [[cable]], a tape measure to ~20 cm is enough): they are the start and define the frame"
+            ),
+            SelfCalError::CableCount { recording, platform_points, nominal } => write!(
+                f,
+                "the recording has {recording} cables, the configuration {platform_points} platform points and {nominal} nominal anchors; use the configuration of the robot that made the recording"
+            ),
+            SelfCalError::TooFewDwells { found, needed, drifting } => write!(
+                f,
+                "only {found} dwell poses found (stretches where every encoder is still), at least {needed} needed ({drifting} stretches dropped because the encoders crept); hold the platform still at each pose for a second or more, at poses spread through the height and the width of the workspace"
+            ),
+            SelfCalError::Singular { advice } => {
+                write!(f, "the recording does not determine the robot's geometry (the information is singular beyond the frame): {advice}")
+            }
+            SelfCalError::TooUncertain { quantity, sigma_m, max_sigma_m, advice } => write!(
+                f,
+                "{quantity} is too weakly determined by this recording (1-sigma {:.1} mm, above calibration.max_sigma_m = {:.1} mm): {advice}",
+                sigma_m * 1e3,
+                max_sigma_m * 1e3
+            ),
+            SelfCalError::Diverged => {
+                write!(f, "the calibration diverged (non-finite numbers); check that the nominal anchors and the platform mass are right")
+            }
+        }
+    }
+}
+
+impl std::error::Error for SelfCalError {}
+
+/// What [`calibrate_without_tracker`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SelfCalReport {
+    /// Anchors (in the frame of [`SelfCalReport::frame`]) and encoder offsets.
+    pub params: Params,
+    /// 1-sigma of each anchor coordinate in that frame, m (scaled by the variance factor).
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// 1-sigma of each offset, m.
+    pub l0_sigma: Vec<f64>,
+    /// Cramér–Rao bound on the anchors: `sqrt(trace(Cov_A) / n)`, the expected RMS error over
+    /// anchors after the frame alignment, m.
+    pub anchor_rms_crb_m: f64,
+    /// Cramér–Rao bound on the anchors' shape: the expected RMS error over anchors after the best
+    /// alignment by any translation and rotation (the tilt, which only gravity fixes, removed), m.
+    /// Equal to `anchor_rms_crb_m` without tensions.
+    pub shape_rms_crb_m: f64,
+    /// Inter-anchor distances `(i, j, distance)`, i < j.
+    pub distances: Vec<(usize, usize, Estimate)>,
+    /// Heights relative to anchor 0 (with tensions only).
+    pub heights: Option<Vec<Estimate>>,
+    /// Load-cell offsets, N (with tensions).
+    pub loadcell_offsets: Option<Vec<Estimate>>,
+    /// The mass, kg, when estimated.
+    pub mass: Option<Estimate>,
+    /// The dwell positions, m, in the frame.
+    pub poses: Vec<[f64; 3]>,
+    /// The dwells used.
+    pub dwells: Vec<dwell::Dwell>,
+    /// Samples inside the dwells.
+    pub samples_used: usize,
+    /// How the frame is fixed.
+    pub frame: Frame,
+    /// True when the load cells entered.
+    pub used_tensions: bool,
+    /// Load-cell noise used, N.
+    pub loadcell_sigma_n: f64,
+    /// Whitened chi-square and its degrees of freedom.
+    pub chi2: f64,
+    /// Degrees of freedom.
+    pub dof: usize,
+    /// True when `chi2` passes the chi-square test at a 1e-3 false-alarm rate.
+    pub chi2_ok: bool,
+    /// LM iterations, all solves.
+    pub iterations: usize,
+    /// Full covariance of the globals (anchors, offsets, load-cell offsets, mass) in the frame,
+    /// unscaled (the Cramér–Rao bound).
+    pub covariance: DMatrix<f64>,
+    /// Weakly determined parameters (1-sigma above `weak_sigma_m`), m.
+    pub weak: Vec<(Quantity, f64)>,
+    /// Things a person should know.
+    pub notes: Vec<String>,
+}
+
+/// Calibrates anchors and offsets from the dwells of `rec` without using its tracker columns.
+pub fn calibrate_without_tracker(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    nominal: Option<&[[f64; 3]]>,
+    opts: &SelfCalOptions,
+) -> Result<SelfCalReport, SelfCalError> {
+    let n = rec.n_cables;
+    let nominal = nominal.ok_or(SelfCalError::NoNominalAnchors)?;
+    if platform_points.len() != n || nominal.len() != n {
+        return Err(SelfCalError::CableCount { recording: n, platform_points: platform_points.len(), nominal: nominal.len() });
+    }
+    if n < 4 {
+        return Err(SelfCalError::TooFewCables { n });
+    }
+    let found = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
+    let tensions = opts.use_tensions && rec.f.is_some() && found.dwells.iter().any(|d| d.nf.iter().all(|&c| c > 0));
+    let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass };
+    let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
+    let (c, d) = gauge(nominal, lay, frame);
+    // Enough dwells that the globals are over-determined twice: each dwell adds (rows - 3).
+    let per_dwell = n + if tensions { 3 } else { 0 } - 3;
+    let free = lay.count() - c.nrows();
+    let needed = (2 * free).div_ceil(per_dwell).max(10);
+    if found.dwells.len() < needed {
+        return Err(SelfCalError::TooFewDwells { found: found.dwells.len(), needed, drifting: found.drifting });
+    }
+    let sigma_f = opts.loadcell_sigma_n.or_else(|| found.loadcell_sigma()).unwrap_or(0.3).max(1e-3);
+    let pr = Problem {
+        lay,
+        b: platform_points,
+        dwells: &found.dwells,
+        var_l: opts.encoder_sigma_m.max(1e-7).powi(2),
+        var_f: sigma_f * sigma_f,
+        mass: opts.mass_kg,
+        min_tension_n: opts.min_tension_n,
+        c,
+        d,
+    };
+    let mut notes = Vec::new();
+    let z_plane = nominal.iter().map(|a| a[2]).fold(f64::INFINITY, f64::min);
+    let start = start(&pr, nominal);
+    let (mut s, mut iters, mut rep) = solve_from(&pr, start, opts.max_iterations);
+    let dof = rep.rows.saturating_sub(3 * found.dwells.len() + free).max(1);
+    let mean_z = |s: &State| s.p.iter().map(|p| p[2]).sum::<f64>() / s.p.len() as f64;
+    let ok = |chi2: f64| chi2 <= chi2_quantile(dof, 3.09);
+    if !ok(rep.chi2) || mean_z(&s) > z_plane {
+        // Retry from the mirror image of the poses in the anchor plane; keep the better fit.
+        let mut m = s.clone();
+        for p in &mut m.p {
+            p[2] = 2.0 * z_plane - p[2];
+        }
+        let (s2, it2, rep2) = solve_from(&pr, m, opts.max_iterations);
+        iters += it2;
+        if rep2.chi2 < rep.chi2 && mean_z(&s2) <= z_plane {
+            notes.push(format!(
+                "restarted from the mirrored poses: chi2/dof {:.1} -> {:.2}",
+                rep.chi2 / dof as f64,
+                rep2.chi2 / dof as f64
+            ));
+            (s, rep) = (s2, rep2);
+        }
+    }
+    if !s.g.iter().all(|v| v.is_finite()) || !s.p.iter().flatten().all(|v| v.is_finite()) {
+        return Err(SelfCalError::Diverged);
+    }
+    let spread = spread(&s.p, tensions);
+    let w = pr.whitening(&s);
+    let cov = solve::covariance(&pr, &s, &w).ok_or_else(|| SelfCalError::Singular { advice: spread.advice() })?;
+    let vf = rep.chi2 / dof as f64;
+    let chi2_ok = ok(rep.chi2);
+    if !chi2_ok {
+        notes.push(format!(
+            "chi2/dof = {vf:.2} fails the chi-square test (1e-3 false-alarm rate): the readings disagree with the static model more than their noise (motion in the dwells, stretch, sag, a wrong mass or encoder sigma); sigmas scaled up by sqrt({vf:.2})"
+        ));
+    }
+    if !rep.converged {
+        notes.push(format!("the solver stopped at its iteration limit ({} iterations)", opts.max_iterations));
+    }
+    let scale = vf.max(1.0).sqrt();
+    let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
+    let est = |value: f64, var: f64| Estimate { value, sigma: var.max(0.0).sqrt() * scale, crb: var.max(0.0).sqrt() };
+    let anchors: Vec<[f64; 3]> = (0..n).map(|j| s.anchor(j)).collect();
+    let l0: Vec<f64> = (0..n).map(|j| s.g[lay.l0(j)]).collect();
+    let anchor_sigma: Vec<[f64; 3]> = (0..n).map(|j| [0, 1, 2].map(|a| sd(lay.a(j) + a) * scale)).collect();
+    let l0_sigma: Vec<f64> = (0..n).map(|j| sd(lay.l0(j)) * scale).collect();
+    // Refusal and warnings by the predicted uncertainty.
+    let mut worst: Option<(Quantity, f64)> = None;
+    let mut weak = Vec::new();
+    for j in 0..n {
+        let qs = (0..3).map(|a| (Quantity::Anchor(j, a), anchor_sigma[j][a])).chain([(Quantity::Offset(j), l0_sigma[j])]);
+        for (q, sg) in qs {
+            if worst.is_none_or(|(_, w)| sg > w) {
+                worst = Some((q, sg));
+            }
+            if sg > opts.weak_sigma_m {
+                weak.push((q, sg));
+            }
+        }
+    }
+    if let Some((quantity, sigma_m)) = worst.filter(|(_, s)| !(*s <= opts.max_sigma_m)) {
+        return Err(SelfCalError::TooUncertain { quantity, sigma_m, max_sigma_m: opts.max_sigma_m, advice: spread.advice() });
+    }
+    for (q, sg) in &weak {
+        notes.push(format!("{q} is weakly determined (1-sigma {:.1} mm, above calibration.weak_sigma_m): {}", sg * 1e3, spread.advice()));
+    }
+    let mut distances = Vec::new();
+    for i in 0..n {
+        for j in i + 1..n {
+            let (ai, aj) = (Vector3::from(anchors[i]), Vector3::from(anchors[j]));
+            let dv = ai - aj;
+            let dist = dv.norm();
+            let u = dv / dist;
+            let mut grad = DVector::zeros(lay.count());
+            for a in 0..3 {
+                grad[lay.a(i) + a] = u[a];
+                grad[lay.a(j) + a] = -u[a];
+            }
+            distances.push((i, j, est(dist, (grad.transpose() * &cov * &grad)[0])));
+        }
+    }
+    let heights = tensions.then(|| {
+        (0..n)
+            .map(|j| {
+                let (zi, z0) = (lay.a(j) + 2, lay.a(0) + 2);
+                est(anchors[j][2] - anchors[0][2], cov[(zi, zi)] + cov[(z0, z0)] - 2.0 * cov[(zi, z0)])
+            })
+            .collect()
+    });
+    let loadcell_offsets = tensions.then(|| (0..n).map(|j| est(s.g[lay.c(j)], cov[(lay.c(j), lay.c(j))])).collect());
+    let mass = lay.mass.then(|| est(s.g[lay.m()], cov[(lay.m(), lay.m())]));
+    let anchor_rms_crb_m = ((0..3 * n).map(|i| cov[(i, i)]).sum::<f64>() / n as f64).sqrt();
+    let shape_rms_crb_m = shape_rms(&anchors, &cov);
+    if !tensions {
+        notes.insert(
+            0,
+            if rec.f.is_some() && opts.use_tensions {
+                "no dwell has every tension: encoders only, the frame's vertical is taken from the nominal anchors".to_string()
+            } else {
+                "no tensions: encoders only, the frame's vertical is taken from the nominal anchors".to_string()
+            },
+        );
+    }
+    Ok(SelfCalReport {
+        params: Params { anchors, l0 },
+        anchor_sigma,
+        l0_sigma,
+        anchor_rms_crb_m,
+        shape_rms_crb_m,
+        distances,
+        heights,
+        loadcell_offsets,
+        mass,
+        poses: s.p.clone(),
+        samples_used: found.samples,
+        dwells: found.dwells.clone(),
+        frame,
+        used_tensions: tensions,
+        loadcell_sigma_n: sigma_f,
+        chi2: rep.chi2,
+        dof,
+        chi2_ok,
+        iterations: iters,
+        covariance: cov,
+        weak,
+        notes,
+    })
+}
+
+/// Two LM solves, the force whitening re-evaluated at the first one's solution.
+fn solve_from(pr: &Problem<'_>, mut s: State, max_iter: usize) -> (State, usize, solve::SolveReport) {
+    let mut iters = 0;
+    let mut rep = None;
+    for _ in 0..2 {
+        let w = pr.whitening(&s);
+        let r = solve::lm(pr, &mut s, &w, max_iter);
+        iters += r.iterations;
+        rep = Some(r);
+    }
+    let w = pr.whitening(&s);
+    let (chi2, rows) = pr.cost(&s, &w);
+    let r =
+        rep.map(|r| solve::SolveReport { chi2, rows, ..r }).unwrap_or(solve::SolveReport { iterations: 0, chi2, rows, converged: false });
+    (s, iters, r)
+}
+
+/// Gauge constraints `C g = d` on the anchors: centroid and rotation(s) matched to `nominal`.
+fn gauge(nominal: &[[f64; 3]], lay: Layout, frame: Frame) -> (DMatrix<f64>, DVector<f64>) {
+    let n = nominal.len();
+    let cn: [f64; 3] = std::array::from_fn(|a| nominal.iter().map(|p| p[a]).sum::<f64>() / n as f64);
+    let rows = if frame == Frame::NominalTranslationYaw { 4 } else { 6 };
+    let mut c = DMatrix::zeros(rows, lay.count());
+    let mut d = DVector::zeros(rows);
+    for a in 0..3 {
+        for j in 0..n {
+            c[(a, lay.a(j) + a)] = 1.0;
+            d[a] += nominal[j][a];
+        }
+    }
+    // sum_j (N_j - N_mean) x A_j = 0: row 3 the z component, rows 4-5 x and y.
+    for j in 0..n {
+        let r = [nominal[j][0] - cn[0], nominal[j][1] - cn[1], nominal[j][2] - cn[2]];
+        let a = lay.a(j);
+        c[(3, a)] = -r[1];
+        c[(3, a + 1)] = r[0];
+        if rows == 6 {
+            c[(4, a + 1)] = -r[2];
+            c[(4, a + 2)] = r[1];
+            c[(5, a)] = r[2];
+            c[(5, a + 2)] = -r[0];
+        }
+    }
+    (c, d)
+}
+
+/// Start: nominal anchors, zero load-cell offsets, the known mass; poses from the force balance
+/// (tensions) or the workspace centre, then offsets and poses alternated with the anchors held.
+fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
+    let lay = pr.lay;
+    let n = lay.n;
+    let mut g = DVector::zeros(lay.count());
+    for j in 0..n {
+        for a in 0..3 {
+            g[lay.a(j) + a] = nominal[j][a];
+        }
+    }
+    if lay.mass {
+        g[lay.m()] = pr.mass;
+    }
+    let z_top = nominal.iter().map(|a| a[2]).fold(f64::INFINITY, f64::min);
+    let span = nominal.iter().map(|a| a[0]).fold(f64::NEG_INFINITY, f64::max) - nominal.iter().map(|a| a[0]).fold(f64::INFINITY, f64::min);
+    let centre = [
+        nominal.iter().map(|a| a[0]).sum::<f64>() / n as f64,
+        nominal.iter().map(|a| a[1]).sum::<f64>() / n as f64,
+        z_top - 0.3 * span.max(0.5),
+    ];
+    let mut s = State { g, p: vec![centre; pr.dwells.len()] };
+    if lay.offsets {
+        for k in 0..pr.dwells.len() {
+            if let Some(p) = force_position(pr, &s, k, centre, z_top) {
+                s.p[k] = p;
+            }
+        }
+    }
+    for round in 0..8 {
+        // Offsets: median of (reading - distance) over the dwells.
+        for j in 0..n {
+            let mut v: Vec<f64> = pr
+                .dwells
+                .iter()
+                .zip(&s.p)
+                .filter(|(d, _)| d.l[j].is_finite())
+                .map(|(d, p)| {
+                    let a = s.anchor(j);
+                    let b = pr.b[j];
+                    d.l[j] - ((p[0] + b[0] - a[0]).powi(2) + (p[1] + b[1] - a[1]).powi(2) + (p[2] + b[2] - a[2]).powi(2)).sqrt()
+                })
+                .collect();
+            if !v.is_empty() {
+                v.sort_by(|x, y| x.total_cmp(y));
+                s.g[lay.l0(j)] = v[v.len() / 2];
+            }
+        }
+        if round == 7 {
+            break;
+        }
+        for k in 0..pr.dwells.len() {
+            s.p[k] = length_position(pr, &s, k, s.p[k], z_top);
+        }
+    }
+    s
+}
+
+/// Position where the measured tensions balance the weight (anchors and mass of `s`).
+fn force_position(pr: &Problem<'_>, s: &State, k: usize, from: [f64; 3], z_top: f64) -> Option<[f64; 3]> {
+    let d = &pr.dwells[k];
+    if !d.f.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let mut p = Vector3::from(from);
+    for _ in 0..30 {
+        let mut f = Vector3::new(0.0, 0.0, -pr.mass * G);
+        let mut jac = Matrix3::zeros();
+        for j in 0..pr.lay.n {
+            let a = Vector3::from(s.anchor(j)) - Vector3::from(pr.b[j]);
+            let dv = a - p;
+            let rho = dv.norm();
+            let v = dv / rho;
+            f += v * d.f[j];
+            jac -= (Matrix3::identity() - v * v.transpose()) * (d.f[j] / rho);
+        }
+        let step = jac.lu().solve(&(-f))?;
+        let len = step.norm();
+        p += if len > 0.3 { step * (0.3 / len) } else { step };
+        p[2] = p[2].min(z_top - 0.05);
+        if len < 1e-7 {
+            break;
+        }
+    }
+    p.iter().all(|v| v.is_finite()).then(|| [p[0], p[1], p[2]])
+}
+
+/// Gauss–Newton on dwell `k`'s lengths alone (anchors and offsets of `s`).
+fn length_position(pr: &Problem<'_>, s: &State, k: usize, from: [f64; 3], z_top: f64) -> [f64; 3] {
+    let d = &pr.dwells[k];
+    let mut p = Vector3::from(from);
+    for _ in 0..10 {
+        let (mut h, mut r) = (Matrix3::zeros(), Vector3::zeros());
+        for j in 0..pr.lay.n {
+            if !d.l[j].is_finite() {
+                continue;
+            }
+            let x = p + Vector3::from(pr.b[j]);
+            let dv = x - Vector3::from(s.anchor(j));
+            let rho = dv.norm();
+            let u = dv / rho;
+            let e = d.l[j] - rho - s.g[pr.lay.l0(j)];
+            h += u * u.transpose();
+            r += u * e;
+        }
+        for a in 0..3 {
+            h[(a, a)] *= 1.0 + 1e-6;
+        }
+        let Some(step) = h.lu().solve(&r) else { break };
+        let len = step.norm();
+        p += if len > 0.3 { step * (0.3 / len) } else { step };
+        p[2] = p[2].min(z_top - 0.05);
+        if len < 1e-8 {
+            break;
+        }
+    }
+    if p.iter().all(|v| v.is_finite()) {
+        [p[0], p[1], p[2]]
+    } else {
+        from
+    }
+}
+
+/// `sqrt(trace(Pi Cov_A Pi) / n)` with `Pi` the projector that removes the infinitesimal rigid
+/// motions (translation, rotation about the anchors' centroid) from the anchor errors: the
+/// linearised error after the best least-squares alignment by any translation and rotation.
+fn shape_rms(anchors: &[[f64; 3]], cov: &DMatrix<f64>) -> f64 {
+    let n = anchors.len();
+    let c: [f64; 3] = std::array::from_fn(|a| anchors.iter().map(|p| p[a]).sum::<f64>() / n as f64);
+    let mut g = DMatrix::zeros(3 * n, 6);
+    for (j, p) in anchors.iter().enumerate() {
+        let r = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        for a in 0..3 {
+            g[(3 * j + a, a)] = 1.0;
+        }
+        // omega x r for omega = e_x, e_y, e_z.
+        g[(3 * j + 1, 3)] = -r[2];
+        g[(3 * j + 2, 3)] = r[1];
+        g[(3 * j, 4)] = r[2];
+        g[(3 * j + 2, 4)] = -r[0];
+        g[(3 * j, 5)] = -r[1];
+        g[(3 * j + 1, 5)] = r[0];
+    }
+    let Some(gtg_inv) = (g.transpose() * &g).try_inverse() else { return f64::NAN };
+    let pi = DMatrix::<f64>::identity(3 * n, 3 * n) - &g * gtg_inv * g.transpose();
+    let ca = cov.view((0, 0), (3 * n, 3 * n)).into_owned();
+    ((&pi * ca * &pi).trace().max(0.0) / n as f64).sqrt()
+}
+
+fn spread(p: &[[f64; 3]], tensions: bool) -> Spread {
+    let k = p.len().max(1) as f64;
+    let mean: [f64; 3] = std::array::from_fn(|a| p.iter().map(|q| q[a]).sum::<f64>() / k);
+    let sd = |a: usize| (p.iter().map(|q| (q[a] - mean[a]).powi(2)).sum::<f64>() / k).sqrt();
+    Spread { height_m: sd(2), width_m: sd(0).min(sd(1)), tensions }
+}
+
+/// Upper quantile of the chi-square distribution with `dof` degrees of freedom at the standard
+/// normal quantile `z` (Wilson–Hilferty; 3.09 gives the 1e-3 false-alarm level).
+pub fn chi2_quantile(dof: usize, z: f64) -> f64 {
+    let k = dof.max(1) as f64;
+    let h = 2.0 / (9.0 * k);
+    k * (1.0 - h + z * h.sqrt()).powi(3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gauge_rows_vanish_on_rigid_motions_of_the_nominal_anchors() {
+        // C g = d holds for the nominal anchors, and the rotation rows are the derivative of the
+        // Procrustes cross term: a small yaw of the nominal changes row 3 by yaw * sum |r_xy|^2.
+        let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
+        let lay = Layout { n: 4, offsets: true, mass: false };
+        let (c, d) = gauge(&nom, lay, Frame::NominalRigid);
+        let mut g = DVector::zeros(lay.count());
+        for j in 0..4 {
+            for a in 0..3 {
+                g[3 * j + a] = nom[j][a];
+            }
+        }
+        let r = &c * &g - &d;
+        assert!(r.norm() < 1e-12, "{r}");
+        // Translate: rows 0-2 change by 4 x the shift, the rotation rows not at all.
+        let mut t = g.clone();
+        for j in 0..4 {
+            t[3 * j] += 0.1;
+        }
+        let r = &c * &t - &d;
+        assert!((r[0] - 0.4).abs() < 1e-12 && r[3].abs() < 1e-12 && r[4].abs() < 1e-12 && r[5].abs() < 1e-12, "{r}");
+    }
+
+    #[test]
+    fn chi2_quantile_matches_tables() {
+        // chi2 0.999 quantiles: dof 10 -> 29.59, dof 100 -> 149.4, dof 1000 -> 1143.9.
+        assert!((chi2_quantile(10, 3.09) - 29.59).abs() < 0.5);
+        assert!((chi2_quantile(100, 3.09) - 149.4).abs() < 1.0);
+        assert!((chi2_quantile(1000, 3.09) - 1143.9).abs() < 2.0);
+    }
+}

@@ -1,0 +1,389 @@
+//! The sparse least-squares problem of self-calibration and its Levenberg–Marquardt solver.
+//!
+//! ```text
+//! globals  g = (A_0 .. A_(n-1), L0_0 .. L0_(n-1), c_0 .. c_(n-1) [tensions], m [if estimated])
+//! per dwell k: P_k (3)
+//!
+//! length   r_kj = l_kj - (|P_k + b_j - A_j| + L0_j)          var sigma_enc^2 / N_kj
+//! force    r_k  = -(sum_j (f_kj - c_j) v_kj + m g_vec)         cov sum_j sigma_f^2 / N_kj v_kj v_kj^T
+//!          v_kj = (A_j - X_kj) / |A_j - X_kj|,  g_vec = (0, 0, -9.81)
+//! ```
+//!
+//! The force rows are whitened by the Cholesky factor of their 3x3 covariance (held fixed during a
+//! solve, updated between solves), so every row has unit weight. The normal matrix is block-arrow
+//! shaped: each dwell couples its own 3x3 block `H_pp,k` to the globals only. One LM step
+//! eliminates the poses (Schur complement)
+//!
+//! ```text
+//! S = H_gg - sum_k H_pg,k^T H_pp,k^-1 H_pg,k,   s = b_g - sum_k H_pg,k^T H_pp,k^-1 b_p,k
+//! [S  C^T] [dg]   [s        ]
+//! [C   0 ] [mu] = [d - C g  ]        gauge: C g = d (see `super::gauge`)
+//! dP_k = H_pp,k^-1 (b_p,k - H_pg,k dg)
+//! ```
+//!
+//! so a step costs `O(K ng^2)` for `K` dwells and `ng` globals (at most 41): linear in the poses.
+//! The covariance of the globals in the gauge `C` is the top-left block of the inverse of the
+//! bordered matrix at the solution: the Cramér–Rao bound of the recording when the noise model
+//! holds.
+
+use super::dwell::Dwell;
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+/// Standard gravity, m/s^2.
+pub const G: f64 = 9.81;
+
+/// Index layout of the global parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout {
+    /// Cables.
+    pub n: usize,
+    /// Load-cell offsets are unknowns (tensions used).
+    pub offsets: bool,
+    /// The mass is an unknown.
+    pub mass: bool,
+}
+
+impl Layout {
+    /// Number of globals.
+    pub fn count(&self) -> usize {
+        4 * self.n + if self.offsets { self.n } else { 0 } + usize::from(self.mass)
+    }
+    /// First index of anchor `j`.
+    pub fn a(&self, j: usize) -> usize {
+        3 * j
+    }
+    /// Index of `L0_j`.
+    pub fn l0(&self, j: usize) -> usize {
+        3 * self.n + j
+    }
+    /// Index of load-cell offset `c_j`.
+    pub fn c(&self, j: usize) -> usize {
+        4 * self.n + j
+    }
+    /// Index of the mass.
+    pub fn m(&self) -> usize {
+        4 * self.n + if self.offsets { self.n } else { 0 }
+    }
+}
+
+/// The data and noise model.
+pub struct Problem<'a> {
+    /// Layout of the globals.
+    pub lay: Layout,
+    /// Platform points.
+    pub b: &'a [[f64; 3]],
+    /// The dwells.
+    pub dwells: &'a [Dwell],
+    /// Variance of one encoder reading, m^2.
+    pub var_l: f64,
+    /// Variance of one tension reading, N^2.
+    pub var_f: f64,
+    /// Known mass, kg (start value when estimated).
+    pub mass: f64,
+    /// Readings below this tension are loose: their lengths are not used.
+    pub min_tension_n: f64,
+    /// Gauge constraints `C g = d`.
+    pub c: DMatrix<f64>,
+    /// Right-hand side of the gauge constraints.
+    pub d: DVector<f64>,
+}
+
+/// Current estimate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct State {
+    /// Globals.
+    pub g: DVector<f64>,
+    /// One position per dwell.
+    pub p: Vec<[f64; 3]>,
+}
+
+impl State {
+    /// Anchor `j`.
+    pub fn anchor(&self, j: usize) -> [f64; 3] {
+        [self.g[3 * j], self.g[3 * j + 1], self.g[3 * j + 2]]
+    }
+}
+
+/// Whitening of the force rows of each dwell (`None`: no force rows).
+pub type Whitening = Vec<Option<Matrix3<f64>>>;
+
+/// Rows of one dwell: whitened residuals and Jacobians (pose part, global part).
+struct Rows {
+    r: Vec<f64>,
+    jp: Vec<[f64; 3]>,
+    jg: Vec<Vec<(usize, f64)>>,
+}
+
+impl Problem<'_> {
+    fn length_used(&self, d: &Dwell, j: usize) -> bool {
+        d.nl[j] > 0 && d.l[j].is_finite() && !(d.f[j] < self.min_tension_n)
+    }
+
+    fn force_used(&self, d: &Dwell) -> bool {
+        self.lay.offsets && d.nf.iter().all(|&c| c > 0) && d.f.iter().all(|v| v.is_finite())
+    }
+
+    fn mass_of(&self, s: &State) -> f64 {
+        if self.lay.mass {
+            s.g[self.lay.m()]
+        } else {
+            self.mass
+        }
+    }
+
+    /// Whitening matrices `L^-1` (`Sigma_F = L L^T`) at the state `s`.
+    pub fn whitening(&self, s: &State) -> Whitening {
+        self.dwells
+            .iter()
+            .zip(&s.p)
+            .map(|(d, p)| {
+                if !self.force_used(d) {
+                    return None;
+                }
+                let mut cov = Matrix3::zeros();
+                for j in 0..self.lay.n {
+                    let v = self.dir(s, p, j).1;
+                    cov += v * v.transpose() * (self.var_f / d.nf[j] as f64);
+                }
+                cov.cholesky().and_then(|c| c.l().try_inverse())
+            })
+            .collect()
+    }
+
+    /// `(rho, v)`: distance and unit vector from the platform point of cable `j` to its anchor.
+    fn dir(&self, s: &State, p: &[f64; 3], j: usize) -> (f64, Vector3<f64>) {
+        let a = s.anchor(j);
+        let b = self.b[j];
+        let d = Vector3::new(a[0] - p[0] - b[0], a[1] - p[1] - b[1], a[2] - p[2] - b[2]);
+        let rho = d.norm();
+        (rho, d / rho)
+    }
+
+    fn rows(&self, s: &State, k: usize, p: &[f64; 3], w: &Option<Matrix3<f64>>) -> Rows {
+        let d = &self.dwells[k];
+        let lay = self.lay;
+        let mut rows = Rows { r: Vec::with_capacity(lay.n + 3), jp: Vec::with_capacity(lay.n + 3), jg: Vec::with_capacity(lay.n + 3) };
+        for j in 0..lay.n {
+            if !self.length_used(d, j) {
+                continue;
+            }
+            let (rho, v) = self.dir(s, p, j);
+            let sw = (d.nl[j] as f64 / self.var_l).sqrt();
+            // model = rho + L0; d rho / dP = -v, d rho / dA = v.
+            rows.r.push(sw * (d.l[j] - rho - s.g[lay.l0(j)]));
+            rows.jp.push([-sw * v[0], -sw * v[1], -sw * v[2]]);
+            let a = lay.a(j);
+            rows.jg.push(vec![(a, sw * v[0]), (a + 1, sw * v[1]), (a + 2, sw * v[2]), (lay.l0(j), sw)]);
+        }
+        if let Some(wm) = w {
+            let m = self.mass_of(s);
+            let mut f = Vector3::new(0.0, 0.0, -m * G);
+            let mut dfdp = Matrix3::zeros();
+            // Columns of dF/dg, sparse: (index, 3-vector).
+            let mut cols: Vec<(usize, Vector3<f64>)> = Vec::with_capacity(4 * lay.n + 1);
+            for j in 0..lay.n {
+                let (rho, v) = self.dir(s, p, j);
+                let t = d.f[j] - s.g[lay.c(j)];
+                f += v * t;
+                let proj = (Matrix3::identity() - v * v.transpose()) * (t / rho);
+                dfdp -= proj;
+                let a = lay.a(j);
+                for q in 0..3 {
+                    cols.push((a + q, proj.column(q).into_owned()));
+                }
+                cols.push((lay.c(j), -v));
+            }
+            if lay.mass {
+                cols.push((lay.m(), Vector3::new(0.0, 0.0, -G)));
+            }
+            // Residual -F (the measured force balance is zero), whitened.
+            let r = wm * (-f);
+            let jp = wm * dfdp;
+            for q in 0..3 {
+                rows.r.push(r[q]);
+                rows.jp.push([jp[(q, 0)], jp[(q, 1)], jp[(q, 2)]]);
+                rows.jg.push(cols.iter().map(|(i, c)| (*i, (wm.row(q) * c)[0])).collect());
+            }
+        }
+        rows
+    }
+
+    /// Whitened chi-square at `s`, and the number of rows.
+    pub fn cost(&self, s: &State, w: &Whitening) -> (f64, usize) {
+        let (mut c, mut m) = (0.0, 0usize);
+        for k in 0..self.dwells.len() {
+            let rows = self.rows(s, k, &s.p[k], &w[k]);
+            c += rows.r.iter().map(|r| r * r).sum::<f64>();
+            m += rows.r.len();
+        }
+        (c, m)
+    }
+}
+
+/// Normal equations in block-arrow form.
+struct Normal {
+    hpp: Vec<Matrix3<f64>>,
+    hpg: Vec<DMatrix<f64>>,
+    bp: Vec<Vector3<f64>>,
+    hgg: DMatrix<f64>,
+    bg: DVector<f64>,
+}
+
+fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
+    let ng = pr.lay.count();
+    let kd = pr.dwells.len();
+    let mut nm = Normal {
+        hpp: Vec::with_capacity(kd),
+        hpg: Vec::with_capacity(kd),
+        bp: Vec::with_capacity(kd),
+        hgg: DMatrix::zeros(ng, ng),
+        bg: DVector::zeros(ng),
+    };
+    for k in 0..kd {
+        let rows = pr.rows(s, k, &s.p[k], &w[k]);
+        let mut hpp = Matrix3::zeros();
+        let mut hpg = DMatrix::zeros(3, ng);
+        let mut bp = Vector3::zeros();
+        for i in 0..rows.r.len() {
+            let (r, jp, jg) = (rows.r[i], rows.jp[i], &rows.jg[i]);
+            for a in 0..3 {
+                bp[a] += jp[a] * r;
+                for b in 0..3 {
+                    hpp[(a, b)] += jp[a] * jp[b];
+                }
+                for &(gi, gv) in jg {
+                    hpg[(a, gi)] += jp[a] * gv;
+                }
+            }
+            for &(gi, gv) in jg {
+                nm.bg[gi] += gv * r;
+                for &(gk, gw) in jg {
+                    nm.hgg[(gi, gk)] += gv * gw;
+                }
+            }
+        }
+        nm.hpp.push(hpp);
+        nm.hpg.push(hpg);
+        nm.bp.push(bp);
+    }
+    nm
+}
+
+/// The Schur-reduced matrix and right-hand side, and the damped inverse pose blocks.
+type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Matrix3<f64>>);
+
+/// The Schur-reduced system with damping `lambda` (Marquardt's diagonal scaling).
+fn reduce(nm: &Normal, lambda: f64) -> Option<Reduced> {
+    let mut s = nm.hgg.clone();
+    for i in 0..s.nrows() {
+        s[(i, i)] += lambda * nm.hgg[(i, i)];
+    }
+    let mut rhs = nm.bg.clone();
+    let mut invs = Vec::with_capacity(nm.hpp.len());
+    for k in 0..nm.hpp.len() {
+        let mut h = nm.hpp[k];
+        for a in 0..3 {
+            h[(a, a)] *= 1.0 + lambda;
+        }
+        let inv = h.try_inverse()?;
+        let ihg = inv * &nm.hpg[k]; // 3 x ng
+        s -= nm.hpg[k].transpose() * &ihg;
+        rhs -= ihg.transpose() * nm.bp[k];
+        invs.push(inv);
+    }
+    Some((s, rhs, invs))
+}
+
+/// Solves the bordered (gauge-constrained) system `[S C^T; C 0] [x; mu] = [r; e]`.
+fn bordered(s: &DMatrix<f64>, c: &DMatrix<f64>, r: &DVector<f64>, e: &DVector<f64>) -> Option<DVector<f64>> {
+    let (ng, nc) = (s.nrows(), c.nrows());
+    let mut k = DMatrix::zeros(ng + nc, ng + nc);
+    k.view_mut((0, 0), (ng, ng)).copy_from(s);
+    k.view_mut((ng, 0), (nc, ng)).copy_from(c);
+    k.view_mut((0, ng), (ng, nc)).copy_from(&c.transpose());
+    let mut rhs = DVector::zeros(ng + nc);
+    rhs.rows_mut(0, ng).copy_from(r);
+    rhs.rows_mut(ng, nc).copy_from(e);
+    let x = k.lu().solve(&rhs)?;
+    x.iter().all(|v| v.is_finite()).then(|| x.rows(0, ng).into_owned())
+}
+
+/// How the solve ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveReport {
+    /// LM iterations.
+    pub iterations: usize,
+    /// Final whitened chi-square.
+    pub chi2: f64,
+    /// Rows (scalar measurements).
+    pub rows: usize,
+    /// True when the cost change fell below the tolerance.
+    pub converged: bool,
+}
+
+/// Levenberg–Marquardt on the whole problem from `s` (whitening fixed).
+pub fn lm(pr: &Problem<'_>, s: &mut State, w: &Whitening, max_iter: usize) -> SolveReport {
+    let (mut cost, rows) = pr.cost(s, w);
+    let mut lambda = 1e-4;
+    let mut it = 0;
+    let mut converged = false;
+    let mut nm = normal(pr, s, w);
+    while it < max_iter {
+        it += 1;
+        let Some((sm, rhs, invs)) = reduce(&nm, lambda) else {
+            lambda *= 10.0;
+            continue;
+        };
+        let e = &pr.d - &pr.c * &s.g;
+        let Some(dg) = bordered(&sm, &pr.c, &rhs, &e) else {
+            lambda *= 10.0;
+            if lambda > 1e12 {
+                break;
+            }
+            continue;
+        };
+        let mut trial = State { g: &s.g + &dg, p: s.p.clone() };
+        for k in 0..trial.p.len() {
+            let dp = invs[k] * (nm.bp[k] - &nm.hpg[k] * &dg);
+            for a in 0..3 {
+                trial.p[k][a] += dp[a];
+            }
+        }
+        let (c_new, _) = pr.cost(&trial, w);
+        if c_new.is_finite() && c_new <= cost {
+            let drop = cost - c_new;
+            *s = trial;
+            cost = c_new;
+            lambda = (lambda / 3.0).max(1e-12);
+            // A chi-square change of 1e-4 moves the parameters by ~1e-2 sigma: converged.
+            if drop < 1e-4 {
+                converged = true;
+                break;
+            }
+            nm = normal(pr, s, w);
+        } else {
+            lambda *= 4.0;
+            if lambda > 1e12 {
+                // No step decreases the cost: at the minimum to round-off.
+                converged = true;
+                break;
+            }
+        }
+    }
+    SolveReport { iterations: it, chi2: cost, rows, converged }
+}
+
+/// Covariance of the globals in the gauge `C g = d` at `s` (inverse Fisher information,
+/// gauge-projected). `None` when the information is singular beyond the gauge.
+pub fn covariance(pr: &Problem<'_>, s: &State, w: &Whitening) -> Option<DMatrix<f64>> {
+    let nm = normal(pr, s, w);
+    let (sm, _, _) = reduce(&nm, 0.0)?;
+    let (ng, nc) = (sm.nrows(), pr.c.nrows());
+    let mut k = DMatrix::zeros(ng + nc, ng + nc);
+    k.view_mut((0, 0), (ng, ng)).copy_from(&sm);
+    k.view_mut((ng, 0), (nc, ng)).copy_from(&pr.c);
+    k.view_mut((0, ng), (ng, nc)).copy_from(&pr.c.transpose());
+    let inv = k.try_inverse()?;
+    let cov = inv.view((0, 0), (ng, ng)).into_owned();
+    cov.iter().all(|v| v.is_finite()).then_some(cov)
+}
