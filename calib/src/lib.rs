@@ -104,6 +104,7 @@
 //! - [`metrics`]: co-registration, held-out split, Cramér–Rao bound.
 //! - [`screen`]: wild values (encoder spikes and jumps, impossible tensions, tracker jumps), found and excluded before any fit.
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
+//! - [`effect_fit`]: anchors, offsets and a fixed set of effects fitted together (the running robot's refit).
 //! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
@@ -113,6 +114,7 @@
 
 pub mod bundle;
 pub mod diagnose;
+pub mod effect_fit;
 pub mod init;
 pub mod metrics;
 pub mod model;

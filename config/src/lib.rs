@@ -106,7 +106,18 @@ pub struct CalibrationConfig {
     pub cable_ea_n: f64,
     /// Fraction of the recording (its last time block) held out for validation.
     pub heldout_fraction: f64,
+    /// Effects the daemon's calibration fits together with the anchors and offsets (a fixed
+    /// model: no selection in the running robot), by their `taut diagnose` names: `elasticity`,
+    /// `scale`, `pulley`, `backlash`, `time-offset`. Empty: the ideal model (and whatever effects
+    /// a parameter file given to `taut start --params` carries). See docs/effects.md.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub effects: Vec<String>,
 }
+
+/// The effects the running robot can model (`[calibration] effects`): sag is left out (the
+/// catenary at the measured tension is too costly for the loop and matters on large robots
+/// only), slack is a data problem, not a model.
+pub const MODELLED_EFFECTS: [&str; 5] = ["elasticity", "scale", "pulley", "backlash", "time-offset"];
 
 impl Default for CalibrationConfig {
     fn default() -> Self {
@@ -116,6 +127,7 @@ impl Default for CalibrationConfig {
             encoder_sigma_m: 0.05e-3,
             cable_ea_n: 2.0e5,
             heldout_fraction: 0.2,
+            effects: Vec::new(),
         }
     }
 }
@@ -330,6 +342,20 @@ impl RobotConfig {
         }
         if !(cal.heldout_fraction >= 0.0 && cal.heldout_fraction < 0.9) {
             return Err(err(cal_line, "calibration.heldout_fraction".into(), format!("must be in [0, 0.9), got {}", cal.heldout_fraction)));
+        }
+        for (k, e) in cal.effects.iter().enumerate() {
+            let key = format!("calibration.effects[{k}]");
+            if !MODELLED_EFFECTS.contains(&e.as_str()) {
+                let shown: String = e.chars().take(40).collect();
+                return Err(err(
+                    cal_line,
+                    key,
+                    format!("`{shown}` is not an effect the robot models; use some of {}", MODELLED_EFFECTS.join(", ")),
+                ));
+            }
+            if cal.effects[..k].contains(e) {
+                return Err(err(cal_line, key, format!("`{e}` is named twice; name each effect once")));
+            }
         }
         let first_line = |h: &str| table_header_lines(text, h).first().copied();
         self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;
