@@ -76,6 +76,8 @@ pub enum EffectFitError {
         /// Effects asked for.
         count: usize,
     },
+    /// No effect to fit (use the ideal calibration).
+    NoEffects,
     /// Elasticity needs tensions and the recording has none.
     NoTensions,
     /// Too few usable readings of a cable.
@@ -104,6 +106,7 @@ impl fmt::Display for EffectFitError {
         match *self {
             EffectFitError::UnknownEffect { index } => write!(f, "effect {index} is not one the robot models"),
             EffectFitError::TooManyEffects { count } => write!(f, "{count} effects: at most 4 are fitted together"),
+            EffectFitError::NoEffects => write!(f, "no effect to fit"),
             EffectFitError::NoTensions => write!(f, "elasticity needs the cable tensions and the data have none"),
             EffectFitError::TooFewReadings { cable, usable } => write!(f, "cable {cable}: only {usable} usable readings"),
             EffectFitError::Diverged => write!(f, "the fit with effects diverged"),
@@ -256,23 +259,39 @@ pub fn fit_effects(
             return Err(EffectFitError::TooFewReadings { cable: j, usable });
         }
     }
-    let spec = ModelSpec { effects: effects.clone(), tension_end: TensionEnd::Platform };
-    let mut x0 = Vec::with_capacity(spec.n_params(n));
-    for j in 0..n {
-        x0.extend_from_slice(&anchors[j]);
-        x0.push(l0[j]);
-    }
-    for &e in &effects {
-        match e.sharing() {
-            Sharing::PerCable => x0.extend((0..n).map(|j| start_value(e, start, j))),
-            Sharing::Shared => x0.push(start_value(e, start, 0)),
-        }
-    }
+    // Staged: the effects join one at a time in a fixed order, geometry first (the pulley moves
+    // the anchors by centimetres, which the ideal start absorbed), then the time offset, the
+    // stretch, the scale and the play, each stage starting where the last ended. Started all at
+    // once from the ideal model's anchors, a compliance could take the first step below zero,
+    // stay on the bound and come out as a rigid cable (seen on the simulated robot).
+    const ORDER: [Effect; 5] = [Effect::Pulley, Effect::TimeOffset, Effect::Elasticity, Effect::Scale, Effect::Backlash];
+    let effects: Vec<Effect> = ORDER.into_iter().filter(|e| effects.contains(e)).collect();
     let all: Vec<usize> = (0..prep.t.len()).collect();
     let step = all.len().div_ceil(o.max_samples.max(1)).max(1);
     let samples: Vec<usize> = all.iter().step_by(step).copied().collect();
     let sigma = (o.encoder_sigma_m.powi(2) + o.tracker_sigma_m.powi(2)).sqrt().max(1e-6);
-    let r = fit::fit(&prep, &spec, &samples, &x0, sigma, o.max_iterations);
+    let mut prev = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let mut x: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j]]).collect();
+    let mut r = None;
+    for k in 1..=effects.len() {
+        let spec = ModelSpec { effects: effects[..k].to_vec(), tension_end: TensionEnd::Platform };
+        let mut x0 = spec.extend(n, &prev, &x);
+        // New effects start at the running model's value, if it has one.
+        let added = effects[k - 1];
+        let off = spec.offset(added, n).expect("active effect");
+        for q in 0..fit::width(added, n) {
+            x0[off + q] = start_value(added, start, q);
+        }
+        let rep = fit::fit(&prep, &spec, &samples, &x0, sigma, o.max_iterations);
+        if !rep.was_successful() || rep.x.iter().any(|v| !v.is_finite()) {
+            return Err(EffectFitError::Diverged);
+        }
+        x = rep.x.clone();
+        prev = spec;
+        r = Some(rep);
+    }
+    let spec = prev;
+    let Some(r) = r else { return Err(EffectFitError::NoEffects) };
     if !r.was_successful() || r.x.iter().any(|v| !v.is_finite()) {
         return Err(EffectFitError::Diverged);
     }

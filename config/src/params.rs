@@ -279,6 +279,8 @@ impl ParamsFile {
             return Err(err(None, format!("{} anchors but {} offsets", p.anchors_m.len(), p.l0_m.len())));
         }
         let mut p = p;
+        // A v1 file is a v2 file without effects: held (and written back) as v2.
+        p.format = FORMAT.into();
         let n = p.anchors_m.len();
         if p.anchor_sigma_m.is_empty() {
             p.anchor_sigma_m = vec![[f64::NAN; 3]; n];
