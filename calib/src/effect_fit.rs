@@ -142,7 +142,14 @@ pub struct EffectFit {
     pub readings: usize,
     /// Solver iterations.
     pub iterations: usize,
+    /// Cables whose stretch the data did not show (compliance fitted to zero): held rigid,
+    /// `ea_n` = [`RIGID_EA_N`] and its sigma unknown.
+    pub rigid: Vec<usize>,
 }
+
+/// The EA written for a cable whose stretch the data do not show: the largest a parameter file
+/// accepts, a stretch below a micron at any tension a CDPR cable carries.
+pub const RIGID_EA_N: f64 = 1e10;
 
 /// The effects of a list of names, in the fit's order. Unknown or unfit names are errors.
 pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
@@ -297,6 +304,7 @@ pub fn fit_effects(
     }
     let sig = r.sigmas();
     let mut out = Effects::default();
+    let mut rigid = vec![];
     for &e in &effects {
         let off = spec.offset(e, n).expect("active effect");
         let w = fit::width(e, n);
@@ -309,6 +317,16 @@ pub fn fit_effects(
         let mut sigmas = Vec::with_capacity(w);
         for k in 0..w {
             let (x, s) = (r.x[off + k], sig[off + k]);
+            // A compliance on its lower bound: the data show no stretch of this cable that the
+            // drum scale and the anchor do not already explain (a follower at constant tension,
+            // or a tension range too small against the tracker noise). In a fixed model that is
+            // a value, not a failure: the cable is held rigid ([`RIGID_EA_N`]) and the note says so.
+            if e == Effect::Elasticity && x <= lo && x >= 0.0 {
+                rigid.push(k);
+                vals.push(RIGID_EA_N);
+                sigmas.push(f64::NAN);
+                continue;
+            }
             let (v, sv) = e.to_physical(x, s);
             if !(x >= lo && x <= hi) || !v.is_finite() {
                 return Err(EffectFitError::NotPhysical { effect: e, cable: k, value: v });
@@ -342,6 +360,7 @@ pub fn fit_effects(
         rms_m: (ss / m.max(1) as f64).sqrt(),
         readings: m,
         iterations: r.iterations,
+        rigid,
     })
 }
 

@@ -89,7 +89,13 @@ impl TautCalib {
             l0_sigma: f.l0_sigma,
             rms_m: f.rms_m,
             observable: true,
-            note: format!("with {} ({} readings, {} iterations)", self.effects.join(", "), f.readings, f.iterations),
+            note: format!(
+                "with {} ({} readings, {} iterations){}",
+                self.effects.join(", "),
+                f.readings,
+                f.iterations,
+                if f.rigid.is_empty() { String::new() } else { format!("; no stretch seen on cables {:?}: held rigid", f.rigid) }
+            ),
             effects,
         })
     }
