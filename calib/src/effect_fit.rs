@@ -328,7 +328,7 @@ pub fn fit_effects(
                 continue;
             }
             let (v, sv) = e.to_physical(x, s);
-            if !(x >= lo && x <= hi) || !v.is_finite() {
+            if !(x >= lo && x <= hi && v.is_finite()) {
                 return Err(EffectFitError::NotPhysical { effect: e, cable: k, value: v });
             }
             vals.push(v);

@@ -124,7 +124,9 @@ impl Effects {
     /// non-negative and only beside their value. Err: (key, message).
     pub fn check(&self, n: usize) -> Result<(), (String, String)> {
         let range = |key: &str| EFFECT_RANGES.iter().find(|r| r.0 == key).copied().expect("every effect key has a range");
-        let vectors: [(&str, &Option<Vec<f64>>, &str, &Option<Vec<f64>>); 4] = [
+        // (value key, values, sigma key, sigmas)
+        type Keyed<'a> = (&'a str, &'a Option<Vec<f64>>, &'a str, &'a Option<Vec<f64>>);
+        let vectors: [Keyed; 4] = [
             ("ea_n", &self.ea_n, "ea_sigma_n", &self.ea_sigma_n),
             ("drum_scale", &self.drum_scale, "drum_scale_sigma", &self.drum_scale_sigma),
             ("pulley_radius_m", &self.pulley_radius_m, "pulley_radius_sigma_m", &self.pulley_radius_sigma_m),

@@ -59,7 +59,9 @@ fn v1_still_reads_and_v2_round_trips_with_every_effect() {
     assert_eq!(v2.effects.time_offset_s, Some(0.012));
     assert_eq!(v2.effects.names(), ["elasticity", "scale", "pulley", "backlash", "time-offset"]);
     v2.save_atomic(&out).unwrap();
-    assert_eq!(ParamsFile::load(&out).unwrap(), v2);
+    // (NaN sigmas, unknown here, are not equal to themselves: compare the rest.)
+    let back = ParamsFile::load(&out).unwrap();
+    assert_eq!((&back.effects, &back.anchors_m, &back.l0_m, &back.format), (&v2.effects, &v2.anchors_m, &v2.l0_m, &v2.format));
     // Into the loop: fixed-size arrays, the ideal model where nothing is given.
     let e = LoopEffects::from_file(&v2.effects);
     assert_eq!(e.compliance[1], 1.0 / 21000.0);
