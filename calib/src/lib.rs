@@ -109,6 +109,7 @@
 //! - [`screen`]: wild values (encoder spikes and jumps, impossible tensions, tracker jumps), found and excluded before any fit.
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
 //! - [`selfcal`]: calibration without a tracker, from dwell poses, the encoders and the load cells.
+//! - [`effect_fit`]: anchors, offsets and a fixed set of effects fitted together (the running robot's refit).
 //! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
@@ -118,6 +119,7 @@
 
 pub mod bundle;
 pub mod diagnose;
+pub mod effect_fit;
 pub mod init;
 pub mod metrics;
 pub mod model;

@@ -26,6 +26,10 @@ pub struct DiagnoseArgs {
     /// Where the load cells measure the tension: `platform` (at the attachment, the default) or `anchor` (at the winch).
     #[arg(long, default_value = "platform")]
     pub tension_at: String,
+    /// Write the final model's anchors and offsets with the named effects' parameters
+    /// (taut-params v2 TOML, for `taut start --params`) to this file, atomically.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
 }
 
 /// JSON number, `null` for NaN / infinite.
@@ -233,7 +237,8 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
 
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
     let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
-    let files: Vec<crate::outputs::Output> = a.json.iter().map(|p| ("--json", p.as_path())).collect();
+    let files: Vec<crate::outputs::Output> =
+        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).collect();
     let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
     crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, _parse) = load_recording(&a.recording)?;
@@ -260,6 +265,32 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     if let Some(j) = &a.json {
         taut_config::write_atomic(j, serde_json::to_string_pretty(&to_json(&d))?.as_bytes())
             .with_context(|| format!("writing {}", j.display()))?;
+    }
+    if let Some(p) = &a.out {
+        let (effects, notes) = taut_calib::effect_fit::effects_of(&d);
+        for n in notes {
+            eprintln!("--out: {n}");
+        }
+        let file = taut_config::params::ParamsFile {
+            format: taut_config::params::FORMAT.into(),
+            version: 1,
+            created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
+            robot: cfg.robot.name.clone(),
+            source: format!("taut diagnose {}", a.recording.display()),
+            anchors_m: fin.anchors_m.clone(),
+            l0_m: fin.l0_m.clone(),
+            anchor_sigma_m: fin.anchor_sigma_m.clone(),
+            l0_sigma_m: fin.l0_sigma_m.clone(),
+            rms_m: fin.rms_m,
+            heldout_rms_m: fin.heldout_rms_m,
+            effects,
+        };
+        file.save_atomic(p).with_context(|| format!("writing {}", p.display()))?;
+        eprintln!(
+            "parameters with {} written to {}",
+            if file.effects.is_empty() { "no effects".into() } else { file.effects.names().join(", ") },
+            p.display()
+        );
     }
     if let Some(dir) = &a.plot {
         plots(dir, &inputs, &d)?;

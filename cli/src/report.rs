@@ -198,6 +198,7 @@ pub fn params_file(cfg: &RobotConfig, source: &str, r: &CalibReport) -> ParamsFi
         l0_sigma_m: r.l0_sigma.clone(),
         rms_m: r.rms_m,
         heldout_rms_m: r.heldout_rms_m,
+        effects: Default::default(),
     }
 }
 

@@ -113,14 +113,22 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
     if a.no_three_phase {
         s.three_phase = None;
     }
+    let n = s.robot.cables.len();
+    apply_effects(&a.effects, n, &mut s.physics, "--effect")?;
+    Ok(s)
+}
+
+/// Sets the effects given as `NAME=VALUE` (`flag` names the option in messages) on `physics`
+/// for `n` cables: each a simulated effect, a number in its physical range, given once.
+pub fn apply_effects(effects: &[String], n: usize, physics: &mut taut_sim::Physics, flag: &str) -> Result<()> {
     let mut seen = Vec::new();
-    for e in &a.effects {
+    for e in effects {
         let shown = taut_config::recording::excerpt(e);
-        let (name, value) = e.split_once('=').with_context(|| format!("--effect `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
+        let (name, value) = e.split_once('=').with_context(|| format!("{flag} `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
         let name = name.trim();
         let Some(&(_, unit, lo, hi, what)) = EFFECTS.iter().find(|x| x.0 == name) else {
             bail!(
-                "--effect `{}` is not a simulated effect; use one of {}",
+                "{flag} `{}` is not a simulated effect; use one of {}",
                 taut_config::recording::excerpt(name),
                 EFFECTS.map(|x| x.0).join(", ")
             )
@@ -128,29 +136,28 @@ pub fn scenario(a: &SimulateArgs) -> Result<Scenario> {
         let v: f64 = value
             .trim()
             .parse()
-            .map_err(|_| anyhow::anyhow!("--effect `{shown}`: `{}` is not a number", taut_config::recording::excerpt(value)))?;
+            .map_err(|_| anyhow::anyhow!("{flag} `{shown}`: `{}` is not a number", taut_config::recording::excerpt(value)))?;
         anyhow::ensure!(
             v.is_finite() && v >= lo && v <= hi,
-            "--effect {name}={}: the {what} must be {} to {}{}{unit}",
+            "{flag} {name}={}: the {what} must be {} to {}{}{unit}",
             human(v),
             human(lo),
             human(hi),
             if unit.is_empty() { "" } else { " " }
         );
-        anyhow::ensure!(!seen.contains(&name), "--effect {name} is given twice; give each effect once");
+        anyhow::ensure!(!seen.contains(&name), "{flag} {name} is given twice; give each effect once");
         seen.push(name);
-        let n = s.robot.cables.len();
         match name {
-            "elasticity" => s.physics.elasticity = Some(v),
-            "sag" => s.physics.sag = Some(v),
-            "pulley" => s.physics.pulley = Some(v),
-            "scale" => s.physics.scale = Some(vec![v; n]),
-            "time-offset" => s.physics.time_offset_s = v,
-            "backlash" => s.physics.backlash_m = v,
+            "elasticity" => physics.elasticity = Some(v),
+            "sag" => physics.sag = Some(v),
+            "pulley" => physics.pulley = Some(v),
+            "scale" => physics.scale = Some(vec![v; n]),
+            "time-offset" => physics.time_offset_s = v,
+            "backlash" => physics.backlash_m = v,
             _ => unreachable!("every name in EFFECTS is matched"),
         }
     }
-    Ok(s)
+    Ok(())
 }
 
 pub fn run(a: &SimulateArgs) -> Result<()> {
@@ -191,6 +198,15 @@ pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim:
         l0_sigma_m: vec![0.0; n],
         rms_m: 0.0,
         heldout_rms_m: f64::NAN,
+        // The concealed effects, as the robot's model would hold them.
+        effects: taut_config::params::Effects {
+            ea_n: s.physics.elasticity.map(|ea| vec![ea; n]),
+            drum_scale: s.physics.scale.clone(),
+            pulley_radius_m: s.physics.pulley.map(|r| vec![r; n]),
+            backlash_m: (s.physics.backlash_m > 0.0).then(|| vec![s.physics.backlash_m; n]),
+            time_offset_s: (s.physics.time_offset_s != 0.0).then_some(s.physics.time_offset_s),
+            ..Default::default()
+        },
     };
     p.save_atomic(t).with_context(|| format!("writing {}", t.display()))
 }

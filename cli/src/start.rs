@@ -47,6 +47,14 @@ pub struct StartArgs {
     /// (e.g. `vcan0`) instead of an in-process virtual bus.
     #[arg(long, requires = "sim")]
     can: Option<String>,
+    /// A parameter file (taut-params v1 or v2, e.g. from `taut diagnose --out`): the effects it
+    /// carries are modelled and refitted by every calibration, starting from its values.
+    #[arg(long)]
+    params: Option<PathBuf>,
+    /// With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate
+    /// --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash).
+    #[arg(long = "sim-effect", value_name = "NAME=VALUE", requires = "sim")]
+    sim_effects: Vec<String>,
 }
 
 /// The simulated robot `taut start --sim` runs without --config (also loaded by the tests).
@@ -70,7 +78,8 @@ pub fn run(a: &StartArgs) -> Result<()> {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
         let w = ccfg.workspace;
         let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-        let so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
+        let mut so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
+        crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
         let p0 = simrig::rest_position(&cfg, &so, p0);
         let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
         (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
@@ -78,9 +87,23 @@ pub fn run(a: &StartArgs) -> Result<()> {
         let (d, t) = hardware_devices(&cfg)?;
         (d, None, t)
     };
-    let daemon =
-        Daemon::start_with(&cfg, devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { tracker, ..DaemonOptions::default() })
-            .map_err(|e| anyhow::anyhow!(e))?;
+    let mut backend = TautCalib::from_config(&cfg);
+    if let Some(p) = &a.params {
+        let file = taut_config::params::ParamsFile::load(p).map_err(|e| anyhow::anyhow!("{e}"))?;
+        anyhow::ensure!(
+            file.anchors_m.len() == cfg.cables.len(),
+            "{}: {} cables, but the robot configuration has {}; give the parameter file of this robot",
+            p.display(),
+            file.anchors_m.len(),
+            cfg.cables.len()
+        );
+        backend = backend.with_params(&file);
+    }
+    if !backend.effects().is_empty() {
+        eprintln!("taut start: modelling {}", backend.effects().join(", "));
+    }
+    let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
+        .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
 
     if !a.once {

@@ -112,7 +112,18 @@ pub struct CalibrationConfig {
     /// A calibration with a parameter whose 1-sigma exceeds this is refused, m (the estimate is
     /// then too uncertain to be worth using, even as a start).
     pub max_sigma_m: f64,
+    /// Effects the daemon's calibration fits together with the anchors and offsets (a fixed
+    /// model: no selection in the running robot), by their `taut diagnose` names: `elasticity`,
+    /// `scale`, `pulley`, `backlash`, `time-offset`. Empty: the ideal model (and whatever effects
+    /// a parameter file given to `taut start --params` carries). See docs/effects.md.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub effects: Vec<String>,
 }
+
+/// The effects the running robot can model (`[calibration] effects`): sag is left out (the
+/// catenary at the measured tension is too costly for the loop and matters on large robots
+/// only), slack is a data problem, not a model.
+pub const MODELLED_EFFECTS: [&str; 5] = ["elasticity", "scale", "pulley", "backlash", "time-offset"];
 
 impl Default for CalibrationConfig {
     fn default() -> Self {
@@ -126,6 +137,7 @@ impl Default for CalibrationConfig {
             // An estimate known to 10 cm still improves on a tape-measured nominal geometry
             // (10-20 cm): refusing it would leave the robot with no start at all.
             max_sigma_m: 0.1,
+            effects: Vec::new(),
         }
     }
 }
@@ -356,6 +368,20 @@ impl RobotConfig {
                     cal.weak_sigma_m, cal.max_sigma_m
                 ),
             ));
+        }
+        for (k, e) in cal.effects.iter().enumerate() {
+            let key = format!("calibration.effects[{k}]");
+            if !MODELLED_EFFECTS.contains(&e.as_str()) {
+                let shown: String = e.chars().take(40).collect();
+                return Err(err(
+                    cal_line,
+                    key,
+                    format!("`{shown}` is not an effect the robot models; use some of {}", MODELLED_EFFECTS.join(", ")),
+                ));
+            }
+            if cal.effects[..k].contains(e) {
+                return Err(err(cal_line, key, format!("`{e}` is named twice; name each effect once")));
+            }
         }
         let first_line = |h: &str| table_header_lines(text, h).first().copied();
         self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;

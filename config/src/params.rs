@@ -1,8 +1,9 @@
-//! `taut-params v1`: a calibrated parameter set as written by `taut calibrate --out` and by the
-//! daemon on every accepted calibration (TOML, written atomically).
+//! `taut-params v2`: a calibrated parameter set as written by `taut calibrate --out`, `taut
+//! diagnose --out` and by the daemon on every accepted calibration (TOML, written atomically).
+//! Version 1 files (the same without `[effects]`) are still read; files are written as v2.
 //!
 //! ```toml
-//! format = "taut-params v1"
+//! format = "taut-params v2"
 //! version = 3                      # increases with every accepted set
 //! created_unix_s = 1795000000.0
 //! robot = "aras-cam"
@@ -13,13 +14,194 @@
 //! l0_sigma_m = [0.0003, ...]
 //! rms_m = 0.0015
 //! heldout_rms_m = 0.0016
+//!
+//! [effects]                        # optional: only the effects that are modelled
+//! ea_n = [21000.0, 19500.0, ...]   # axial stiffness EA per cable, N (stretch T L / EA)
+//! ea_sigma_n = [300.0, ...]        # every value may have its 1-sigma beside it (`*_sigma*`)
+//! drum_scale = [1.003, ...]        # encoder reading per metre of cable (drum radius error)
+//! pulley_radius_m = [0.05, ...]    # swivel pulley radius; the anchor is where the cable
+//!                                  # enters the pulley, the swivel axis is vertical through it
+//! backlash_m = [0.002, ...]        # play in the drive train (width)
+//! time_offset_s = 0.012            # the encoders lag the tracker by this
 //! ```
+//!
+//! The model of an encoder reading (as in `taut_calib::diagnose::effects`): the path `G` from
+//! the anchor over the pulley to the platform, unstretched `U = G / (1 + T / EA)`, reading
+//! `drum_scale * U + L0`, through a play of width `backlash_m`.
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// The format tag of a parameter file.
-pub const FORMAT: &str = "taut-params v1";
+/// The format tag of a parameter file as written.
+pub const FORMAT: &str = "taut-params v2";
+/// The format tag of version 1 files (no `[effects]`), still read.
+pub const FORMAT_V1: &str = "taut-params v1";
+
+/// Plausible ranges of the effect values: (key, low, high, unit). A value outside is not a
+/// physical cable (or a typo), and the file is refused naming the key.
+pub const EFFECT_RANGES: [(&str, f64, f64, &str); 5] = [
+    // An elastic cord (1 kN) to a thick steel rope (10 GN is far beyond any; stiffer is rigid).
+    ("ea_n", 1e3, 1e10, "N"),
+    // A drum radius error of +-10 %.
+    ("drum_scale", 0.9, 1.1, ""),
+    ("pulley_radius_m", 0.0, 0.5, "m"),
+    ("backlash_m", 0.0, 0.05, "m"),
+    ("time_offset_s", -1.0, 1.0, "s"),
+];
+
+/// Physical effects beyond the ideal model, fitted by `taut diagnose` or the daemon's
+/// calibration. An absent key is an effect that is not modelled. Per-cable vectors have one
+/// value per cable; sigmas are 1-sigma, absent when unknown.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Effects {
+    /// Axial stiffness EA per cable, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ea_n: Option<Vec<f64>>,
+    /// 1-sigma of `ea_n`, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ea_sigma_n: Option<Vec<f64>>,
+    /// Encoder scale per cable (reading per metre of unstretched cable; 1 is exact).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drum_scale: Option<Vec<f64>>,
+    /// 1-sigma of `drum_scale`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drum_scale_sigma: Option<Vec<f64>>,
+    /// Swivel-pulley radius per cable, m (axis vertical through the anchor).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulley_radius_m: Option<Vec<f64>>,
+    /// 1-sigma of `pulley_radius_m`, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulley_radius_sigma_m: Option<Vec<f64>>,
+    /// Backlash (play) width per cable, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backlash_m: Option<Vec<f64>>,
+    /// 1-sigma of `backlash_m`, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backlash_sigma_m: Option<Vec<f64>>,
+    /// The encoders lag the tracker by this, s (robot-wide).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_offset_s: Option<f64>,
+    /// 1-sigma of `time_offset_s`, s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_offset_sigma_s: Option<f64>,
+}
+
+impl Effects {
+    /// No effect modelled.
+    pub fn is_empty(&self) -> bool {
+        self.ea_n.is_none()
+            && self.drum_scale.is_none()
+            && self.pulley_radius_m.is_none()
+            && self.backlash_m.is_none()
+            && self.time_offset_s.is_none()
+            && self.ea_sigma_n.is_none()
+            && self.drum_scale_sigma.is_none()
+            && self.pulley_radius_sigma_m.is_none()
+            && self.backlash_sigma_m.is_none()
+            && self.time_offset_sigma_s.is_none()
+    }
+
+    /// The names of the modelled effects (`taut-diagnosis v1` names: elasticity, scale,
+    /// pulley, backlash, time-offset).
+    pub fn names(&self) -> Vec<&'static str> {
+        let mut v = vec![];
+        for (on, name) in [
+            (self.ea_n.is_some(), "elasticity"),
+            (self.drum_scale.is_some(), "scale"),
+            (self.pulley_radius_m.is_some(), "pulley"),
+            (self.backlash_m.is_some(), "backlash"),
+            (self.time_offset_s.is_some(), "time-offset"),
+        ] {
+            if on {
+                v.push(name);
+            }
+        }
+        v
+    }
+
+    /// Every value finite and inside [`EFFECT_RANGES`], vectors of `n` values, sigmas finite,
+    /// non-negative and only beside their value. Err: (key, message).
+    pub fn check(&self, n: usize) -> Result<(), (String, String)> {
+        let range = |key: &str| EFFECT_RANGES.iter().find(|r| r.0 == key).copied().expect("every effect key has a range");
+        // (value key, values, sigma key, sigmas)
+        type Keyed<'a> = (&'a str, &'a Option<Vec<f64>>, &'a str, &'a Option<Vec<f64>>);
+        let vectors: [Keyed; 4] = [
+            ("ea_n", &self.ea_n, "ea_sigma_n", &self.ea_sigma_n),
+            ("drum_scale", &self.drum_scale, "drum_scale_sigma", &self.drum_scale_sigma),
+            ("pulley_radius_m", &self.pulley_radius_m, "pulley_radius_sigma_m", &self.pulley_radius_sigma_m),
+            ("backlash_m", &self.backlash_m, "backlash_sigma_m", &self.backlash_sigma_m),
+        ];
+        let value = |key: &str, v: f64| -> Result<(), String> {
+            let (_, lo, hi, unit) = range(key);
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                return Err(format!("{v} is outside the physical range {lo} to {hi}{}{unit}", if unit.is_empty() { "" } else { " " }));
+            }
+            Ok(())
+        };
+        let sigma = |v: f64| -> Result<(), String> {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("a 1-sigma must be finite and non-negative, got {v}"));
+            }
+            Ok(())
+        };
+        for (key, vals, skey, sigmas) in vectors {
+            if let Some(v) = vals {
+                if v.len() != n {
+                    return Err((format!("effects.{key}"), format!("{} values for {n} cables: give one per cable", v.len())));
+                }
+                for (j, &x) in v.iter().enumerate() {
+                    value(key, x).map_err(|m| (format!("effects.{key}[{j}]"), m))?;
+                }
+            }
+            if let Some(s) = sigmas {
+                if vals.is_none() {
+                    return Err((format!("effects.{skey}"), format!("a sigma without its value: give effects.{key} too")));
+                }
+                if s.len() != n {
+                    return Err((format!("effects.{skey}"), format!("{} values for {n} cables: give one per cable", s.len())));
+                }
+                for (j, &x) in s.iter().enumerate() {
+                    sigma(x).map_err(|m| (format!("effects.{skey}[{j}]"), m))?;
+                }
+            }
+        }
+        if let Some(d) = self.time_offset_s {
+            value("time_offset_s", d).map_err(|m| ("effects.time_offset_s".to_string(), m))?;
+        }
+        if let Some(s) = self.time_offset_sigma_s {
+            if self.time_offset_s.is_none() {
+                return Err(("effects.time_offset_sigma_s".into(), "a sigma without its value: give effects.time_offset_s too".into()));
+            }
+            sigma(s).map_err(|m| ("effects.time_offset_sigma_s".to_string(), m))?;
+        }
+        Ok(())
+    }
+}
+
+/// 1-based line of the first line in `text` that sets `key` (`key =` after optional spaces),
+/// after the `[effects]` header when the key is an effect's.
+fn key_line(text: &str, key: &str) -> Option<usize> {
+    let (table, bare) = match key.strip_prefix("effects.") {
+        Some(k) => (Some("[effects]"), k),
+        None => (None, key),
+    };
+    let bare = bare.split('[').next().unwrap_or(bare);
+    let mut inside = table.is_none();
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim_start();
+        if let Some(h) = table {
+            if t.starts_with('[') {
+                inside = t.starts_with(h);
+                continue;
+            }
+        }
+        if inside && t.strip_prefix(bare).is_some_and(|r| r.trim_start().starts_with('=')) {
+            return Some(i + 1);
+        }
+    }
+    None
+}
 
 /// A calibrated parameter set with its provenance.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -51,6 +233,9 @@ pub struct ParamsFile {
     /// Co-registration RMS on held-out data, m (NaN if none held out: then not written).
     #[serde(default = "nan", skip_serializing_if = "is_nan")]
     pub heldout_rms_m: f64,
+    /// The modelled effects (v2; none in a v1 file). Last: it is a TOML table.
+    #[serde(default, skip_serializing_if = "Effects::is_empty")]
+    pub effects: Effects,
 }
 
 // An unknown value is NaN in memory and absent from the file: no `nan` or `inf` is ever written.
@@ -75,13 +260,29 @@ impl ParamsFile {
         let text = crate::input::read_text(path).map_err(|e| err(None, format!("cannot read the file: {e}")))?;
         let p: ParamsFile =
             toml::from_str(&text).map_err(|e| err(e.span().map(|s| crate::line_of(&text, s.start)), e.message().trim().to_string()))?;
-        if p.format != FORMAT {
-            return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}`", p.format)));
+        if p.format != FORMAT && p.format != FORMAT_V1 {
+            return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V1}`)", p.format)));
         }
+        if p.format == FORMAT_V1 && !p.effects.is_empty() {
+            return Err(crate::ConfigError {
+                file: Some(path.to_path_buf()),
+                line: text.lines().position(|l| l.trim_start().starts_with("[effects]")).map(|i| i + 1),
+                key: Some("effects".into()),
+                message: format!("`{FORMAT_V1}` has no [effects] table: write format = \"{FORMAT}\""),
+            });
+        }
+        p.effects.check(p.anchors_m.len()).map_err(|(key, message)| crate::ConfigError {
+            file: Some(path.to_path_buf()),
+            line: key_line(&text, &key),
+            key: Some(key),
+            message,
+        })?;
         if p.anchors_m.len() != p.l0_m.len() {
             return Err(err(None, format!("{} anchors but {} offsets", p.anchors_m.len(), p.l0_m.len())));
         }
         let mut p = p;
+        // A v1 file is a v2 file without effects: held (and written back) as v2.
+        p.format = FORMAT.into();
         let n = p.anchors_m.len();
         if p.anchor_sigma_m.is_empty() {
             p.anchor_sigma_m = vec![[f64::NAN; 3]; n];
@@ -116,6 +317,7 @@ impl ParamsFile {
                 return Err(format!("{key} is not finite: {v}"));
             }
         }
+        self.effects.check(n).map_err(|(k, m)| format!("{k}: {m}"))?;
         Ok(())
     }
 
@@ -149,6 +351,7 @@ mod tests {
             l0_sigma_m: vec![1e-4; 3],
             rms_m: 1e-3,
             heldout_rms_m: 1.1e-3,
+            effects: Effects::default(),
         };
         let f = dir.join("p.toml");
         p.save_atomic(&f).unwrap();

@@ -1,7 +1,14 @@
-//! The daemon's calibration backend: `taut-calib`'s initialisation and force-aware calibration.
+//! The daemon's calibration backend: `taut-calib`'s initialisation and force-aware calibration,
+//! then, when the robot models effects (`[calibration] effects`, or the effects of the
+//! parameter file given to `taut start --params`), the anchors, offsets and those effects
+//! fitted together ([`taut_calib::effect_fit`]). The model is fixed: no effect is added or
+//! dropped in the running robot. A fit with effects that fails (diverges, or a value outside
+//! its physical range) fails the calibration, and the daemon keeps the running parameters.
 
 use crate::calibrator::{Calibrate, Estimate};
+use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
 use taut_calib::{init, CalibError, CalibOptions, Params};
+use taut_config::params::{Effects, ParamsFile};
 use taut_config::recording::Recording;
 use taut_config::RobotConfig;
 
@@ -10,6 +17,10 @@ pub struct TautCalib {
     platform: Vec<[f64; 3]>,
     nominal: Option<Vec<[f64; 3]>>,
     opts: CalibOptions,
+    /// The effects fitted with the anchors and offsets (`taut diagnose` names).
+    effects: Vec<String>,
+    /// Their values before any calibration (from a parameter file), the fit's start.
+    start_effects: Effects,
 }
 
 impl TautCalib {
@@ -18,7 +29,75 @@ impl TautCalib {
     pub fn from_config(cfg: &RobotConfig) -> TautCalib {
         let mut opts = CalibOptions::from_config(&cfg.calibration);
         opts.heldout_fraction = 0.0;
-        TautCalib { platform: cfg.platform_points(), nominal: cfg.anchors(), opts }
+        TautCalib {
+            platform: cfg.platform_points(),
+            nominal: cfg.anchors(),
+            opts,
+            effects: cfg.calibration.effects.clone(),
+            start_effects: Effects::default(),
+        }
+    }
+
+    /// Also models the effects `file` carries, starting from its values (its time offset
+    /// aligns the data from the start).
+    pub fn with_params(mut self, file: &ParamsFile) -> TautCalib {
+        for name in file.effects.names() {
+            if !self.effects.iter().any(|e| e == name) {
+                self.effects.push(name.to_string());
+            }
+        }
+        self.start_effects = file.effects.clone();
+        self
+    }
+
+    /// The effects modelled (`taut diagnose` names).
+    pub fn effects(&self) -> &[String] {
+        &self.effects
+    }
+
+    /// The effect values a fit starts from: the running estimate's, else the file's.
+    fn start_of(&self, running: &Effects) -> Effects {
+        let s = &self.start_effects;
+        Effects {
+            ea_n: running.ea_n.clone().or_else(|| s.ea_n.clone()),
+            drum_scale: running.drum_scale.clone().or_else(|| s.drum_scale.clone()),
+            pulley_radius_m: running.pulley_radius_m.clone().or_else(|| s.pulley_radius_m.clone()),
+            backlash_m: running.backlash_m.clone().or_else(|| s.backlash_m.clone()),
+            time_offset_s: running.time_offset_s.or(s.time_offset_s),
+            ..Effects::default()
+        }
+    }
+
+    /// Anchors, offsets and the modelled effects fitted together from the ideal model's
+    /// result. The data were aligned by the running time offset: the fitted one is added to it.
+    fn fit_with_effects(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64], running: &Effects) -> Result<Estimate, String> {
+        let o = EffectFitOptions {
+            effects: self.effects.clone(),
+            ..EffectFitOptions::new(&[], self.opts.min_tension_n, self.opts.tracker_sigma_m, self.opts.encoder_sigma_m)
+        };
+        let start = self.start_of(running);
+        let f = fit_effects(rec, &self.platform, anchors, l0, &start, &o).map_err(|e| format!("the fit with effects failed: {e}"))?;
+        let mut effects = f.effects;
+        if let Some(d) = effects.time_offset_s.as_mut() {
+            *d += running.time_offset_s.unwrap_or(0.0);
+        }
+        effects.check(anchors.len()).map_err(|(k, m)| format!("the fit with effects gave {k}: {m}"))?;
+        Ok(Estimate {
+            anchors: f.anchors,
+            l0: f.l0,
+            anchor_sigma: f.anchor_sigma,
+            l0_sigma: f.l0_sigma,
+            rms_m: f.rms_m,
+            observable: true,
+            note: format!(
+                "with {} ({} readings, {} iterations){}",
+                self.effects.join(", "),
+                f.readings,
+                f.iterations,
+                if f.rigid.is_empty() { String::new() } else { format!("; no stretch seen on cables {:?}: held rigid", f.rigid) }
+            ),
+            effects,
+        })
     }
 }
 
@@ -78,6 +157,10 @@ impl Calibrate for TautCalib {
             rms_m: f64::NAN,
             observable: true,
             note,
+            // Only the file's time offset: it aligns the excitation data the calibration gets.
+            // The other effects belong to anchors fitted with them, which the initial estimate's
+            // are not; they return with the calibration.
+            effects: Effects { time_offset_s: self.start_effects.time_offset_s, ..Effects::default() },
         })
     }
 
@@ -94,6 +177,7 @@ impl Calibrate for TautCalib {
                     rms_m: f64::NAN,
                     observable: false,
                     note: e.to_string(),
+                    effects: init.effects.clone(),
                 })
             }
             Err(e) => return Err(e.to_string()),
@@ -116,6 +200,20 @@ impl Calibrate for TautCalib {
             ),
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
+        // With effects: all of it again, the effects' parameters with the anchors and offsets.
+        if !self.effects.is_empty() && observable {
+            let mut est = self.fit_with_effects(rec, &anchors, &l0, &init.effects)?;
+            let cand = taut_calib::trust::Candidate {
+                anchors: &est.anchors,
+                l0: &est.l0,
+                anchor_sigma: &est.anchor_sigma,
+                l0_sigma: &est.l0_sigma,
+                rms_m: est.rms_m,
+            };
+            taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
+            est.note = format!("{} readings, smallest relative singular value {worst:.2e}{how}; {}", r.samples_used, est.note);
+            return Ok(est);
+        }
         // Nothing non-finite or absurd is offered as the robot's parameters.
         let cand =
             taut_calib::trust::Candidate { anchors: &anchors, l0: &l0, anchor_sigma: &anchor_sigma, l0_sigma: &l0_sigma, rms_m: r.rms_m };
@@ -132,6 +230,7 @@ impl Calibrate for TautCalib {
             } else {
                 format!("{} readings{how}; {}", r.samples_used, weak.join("; "))
             },
+            effects: Effects { time_offset_s: init.effects.time_offset_s, ..Effects::default() },
         })
     }
 }

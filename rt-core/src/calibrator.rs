@@ -17,7 +17,7 @@
 //! Each published set is written atomically as `params/params-vNNNN.toml` (history, never
 //! overwritten) and `params/current.toml`.
 
-use crate::kin::LoopParams;
+use crate::kin::{LoopEffects, LoopParams};
 use crate::motion::State;
 use crate::sample::{Sample, SampleRx};
 use crate::triple::Writer;
@@ -48,6 +48,8 @@ pub struct Estimate {
     pub observable: bool,
     /// Method and diagnostics, for people.
     pub note: String,
+    /// The modelled effects' values (empty: the ideal model).
+    pub effects: taut_config::params::Effects,
 }
 
 /// The calibration backend (`taut-calib` in the daemon; tests may use their own).
@@ -308,13 +310,16 @@ impl LengthHistory {
 /// time the pose was measured (`t - pose_age`) from the recent history: a pose a few
 /// milliseconds older than the lengths would be a systematic error along the motion, which
 /// the anchors would absorb (a 2 ms shift doubles the anchor error of a 25 s excitation).
-fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &CalibratorConfig) {
+///
+/// With a time offset `delta` in the running parameters (the encoders lag the tracker: a
+/// reading at `t` is the length at `t - delta`), the lengths are read at `t_pose + delta`.
+fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &CalibratorConfig, time_offset_s: f64) {
     let n = cfg.n;
     let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
     let tp = s.t - s.pose_age_s.max(0.0);
     let mut l = [f64::NAN; crate::MAX_CABLES];
     for (j, x) in l.iter_mut().enumerate().take(n) {
-        *x = hist.at(j, tp);
+        *x = hist.at(j, tp + time_offset_s);
     }
     let mut f = [f64::NAN; crate::MAX_CABLES];
     for ((fj, &age), &tension) in f[..n].iter_mut().zip(&s.tension_age_s[..n]).zip(&s.tension_n[..n]) {
@@ -529,11 +534,11 @@ impl Calibrator {
         self.decim += 1;
         match state {
             State::InitPhase if s.phase >= 0 => {
-                push_sample(&mut self.init_set, &self.lengths, s, &self.cfg);
+                push_sample(&mut self.init_set, &self.lengths, s, &self.cfg, self.current_params.effects.time_offset_s);
                 self.status.lock().unwrap().dataset_samples = self.init_set.len();
             }
             State::Excitation if keep => {
-                push_sample(&mut self.exc_set, &self.lengths, s, &self.cfg);
+                push_sample(&mut self.exc_set, &self.lengths, s, &self.cfg, self.current_params.effects.time_offset_s);
                 self.status.lock().unwrap().dataset_samples = self.exc_set.len();
             }
             _ => {}
@@ -642,6 +647,7 @@ impl Calibrator {
             l0_sigma_m: est.l0_sigma.clone(),
             rms_m: est.rms_m,
             heldout_rms_m: new_rms,
+            effects: est.effects.clone(),
         };
         let dir = self.cfg.data_dir.join("params");
         let written = std::fs::create_dir_all(&dir)
@@ -653,7 +659,7 @@ impl Calibrator {
             return;
         }
         self.version = version;
-        let lp = LoopParams::new(version, &est.anchors, &est.l0, &self.cfg.platform);
+        let lp = LoopParams::new(version, &est.anchors, &est.l0, &self.cfg.platform).with_effects(LoopEffects::from_file(&est.effects));
         // The displaced value is Copy; it is dropped here, on the calibrator thread.
         self.params_tx.write(lp);
         self.current_params = lp;
@@ -754,7 +760,7 @@ fn validate(
         return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
     }
     let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
-    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform);
+    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform).with_effects(LoopEffects::from_file(&est.effects));
     let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
     let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
     let old_rms = current.coregistration_rms(rows(), c.min_tension_n);

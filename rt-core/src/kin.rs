@@ -1,9 +1,77 @@
 //! Parameters as the loop holds them, and the inverse kinematics it runs every cycle.
 //!
 //! Model (as in `calib`): encoder length `l_j = |P + b_j - A_j| + L0_j` for a platform at `P`
-//! without rotation, `b_j` the attachment point in the platform frame, `A_j` the anchor.
+//! without rotation, `b_j` the attachment point in the platform frame, `A_j` the anchor; with
+//! the effects of a `taut-params v2` file ([`LoopEffects`], the model of
+//! `taut_calib::diagnose::effects`):
+//!
+//! ```text
+//! G_j = |X - A_j|, or over a swivel pulley of radius r_j (axis vertical through A_j):
+//!       r_j beta + sqrt(|X - C_j|^2 - r_j^2)
+//! l_j = s_j G_j / (1 + T_j / EA_j) + L0_j        s_j: drum scale, T_j: cable tension
+//! ```
+//!
+//! The encoder counts unstretched cable: to put the platform at `P` under tension `T_j` the
+//! drum must hold `G_j / (1 + T_j / EA_j)`, so inverse kinematics needs a tension. The loop
+//! passes the measured one (low-passed), or when it is stale the commanded tension of a
+//! torque-mode cable or the last measured one (what the cable is expected to carry).
+//! Backlash is modelled in the calibration only: inverse kinematics does not compensate it (a
+//! position-mode drive closes its loop on the motor side of the play, and the direction of
+//! approach is not known when a pose is commanded, so a half-width correction could be wrong
+//! by the full width).
 
 use crate::MAX_CABLES;
+use taut_config::params::Effects;
+
+/// The effects the loop models. `Copy`, fixed size; "off" values make the ideal model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopEffects {
+    /// Compliance `1 / EA` per cable, 1/N (0: rigid cable).
+    pub compliance: [f64; MAX_CABLES],
+    /// Encoder scale per cable (1: exact drum).
+    pub scale: [f64; MAX_CABLES],
+    /// Swivel-pulley radius per cable, m (0: the cable leaves from the anchor point).
+    pub pulley_r: [f64; MAX_CABLES],
+    /// Backlash width per cable, m (calibration only, see the module documentation).
+    pub backlash: [f64; MAX_CABLES],
+    /// The encoders lag the tracker by this, s (aligns the calibration data).
+    pub time_offset_s: f64,
+}
+
+impl LoopEffects {
+    /// The ideal model.
+    pub const NONE: LoopEffects = LoopEffects {
+        compliance: [0.0; MAX_CABLES],
+        scale: [1.0; MAX_CABLES],
+        pulley_r: [0.0; MAX_CABLES],
+        backlash: [0.0; MAX_CABLES],
+        time_offset_s: 0.0,
+    };
+
+    /// From a parameter file's effects (validated there: [`Effects::check`]); absent effects
+    /// are off, values for cables beyond `MAX_CABLES` ignored.
+    pub fn from_file(e: &Effects) -> LoopEffects {
+        let mut out = LoopEffects::NONE;
+        let copy = |dst: &mut [f64; MAX_CABLES], src: &Option<Vec<f64>>, f: fn(f64) -> f64| {
+            if let Some(v) = src {
+                for (d, s) in dst.iter_mut().zip(v) {
+                    *d = f(*s);
+                }
+            }
+        };
+        copy(&mut out.compliance, &e.ea_n, |ea| if ea > 0.0 { 1.0 / ea } else { 0.0 });
+        copy(&mut out.scale, &e.drum_scale, |s| s);
+        copy(&mut out.pulley_r, &e.pulley_radius_m, |r| r);
+        copy(&mut out.backlash, &e.backlash_m, |w| w);
+        out.time_offset_s = e.time_offset_s.unwrap_or(0.0);
+        out
+    }
+
+    /// True if nothing is modelled beyond the ideal model.
+    pub fn is_none(&self) -> bool {
+        *self == LoopEffects::NONE
+    }
+}
 
 /// The kinematic parameters the loop uses. `Copy` and fixed size, so publishing one through the
 /// triple buffer never allocates or frees on the loop.
@@ -21,12 +89,22 @@ pub struct LoopParams {
     pub platform: [[f64; 3]; MAX_CABLES],
     /// False until the loop may use these for inverse kinematics (no estimate yet).
     pub valid: bool,
+    /// The modelled effects ([`LoopEffects::NONE`]: the ideal model).
+    pub effects: LoopEffects,
 }
 
 impl LoopParams {
     /// Parameters of `n` cables that are not usable yet.
     pub fn invalid(n: usize) -> LoopParams {
-        LoopParams { version: 0, n, anchors: [[0.0; 3]; MAX_CABLES], l0: [0.0; MAX_CABLES], platform: [[0.0; 3]; MAX_CABLES], valid: false }
+        LoopParams {
+            version: 0,
+            n,
+            anchors: [[0.0; 3]; MAX_CABLES],
+            l0: [0.0; MAX_CABLES],
+            platform: [[0.0; 3]; MAX_CABLES],
+            valid: false,
+            effects: LoopEffects::NONE,
+        }
     }
 
     /// Usable parameters from slices.
@@ -42,20 +120,49 @@ impl LoopParams {
         p
     }
 
-    /// Encoder length of cable `j` for the platform at `p`, m.
-    #[inline]
-    pub fn length(&self, j: usize, p: &[f64; 3]) -> f64 {
-        let a = &self.anchors[j];
-        let b = &self.platform[j];
-        let d = [p[0] + b[0] - a[0], p[1] + b[1] - a[1], p[2] + b[2] - a[2]];
-        (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + self.l0[j]
+    /// The same parameters with `effects`.
+    pub fn with_effects(mut self, effects: LoopEffects) -> LoopParams {
+        self.effects = effects;
+        self
     }
 
-    /// Encoder lengths of every cable for the platform at `p`, into `out`.
+    /// Encoder length of cable `j` for the platform at `p` with the cable unloaded (no
+    /// stretch), m.
+    #[inline]
+    pub fn length(&self, j: usize, p: &[f64; 3]) -> f64 {
+        self.length_at(j, p, 0.0)
+    }
+
+    /// Encoder length of cable `j` for the platform at `p` with the cable under `tension_n`
+    /// (not finite or negative: no stretch), m. Allocates nothing.
+    #[inline]
+    pub fn length_at(&self, j: usize, p: &[f64; 3], tension_n: f64) -> f64 {
+        let a = &self.anchors[j];
+        let b = &self.platform[j];
+        let x = [p[0] + b[0], p[1] + b[1], p[2] + b[2]];
+        let d = [x[0] - a[0], x[1] - a[1], x[2] - a[2]];
+        let straight = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let e = &self.effects;
+        let r = e.pulley_r[j];
+        // Straight below a platform point on the swivel axis (the pulley model has no plane there).
+        let g = if r > 0.0 { taut_calib::diagnose::effects::pulley_length(x, *a, r).map_or(straight, |(g, _)| g) } else { straight };
+        let t = if tension_n.is_finite() && tension_n > 0.0 { tension_n } else { 0.0 };
+        e.scale[j] * g / (1.0 + e.compliance[j] * t) + self.l0[j]
+    }
+
+    /// Encoder lengths of every cable for the platform at `p` (unloaded cables), into `out`.
     #[inline]
     pub fn lengths(&self, p: &[f64; 3], out: &mut [f64; MAX_CABLES]) {
         for (j, o) in out.iter_mut().enumerate().take(self.n) {
             *o = self.length(j, p);
+        }
+    }
+
+    /// Encoder lengths of every cable for the platform at `p` under `tension_n`, into `out`.
+    #[inline]
+    pub fn lengths_at(&self, p: &[f64; 3], tension_n: &[f64; MAX_CABLES], out: &mut [f64; MAX_CABLES]) {
+        for (j, o) in out.iter_mut().enumerate().take(self.n) {
+            *o = self.length_at(j, p, tension_n[j]);
         }
     }
 
@@ -82,7 +189,7 @@ impl LoopParams {
     /// length, or with a tension below `min_tension_n` (loose cable).
     pub fn coregistration_error(&self, j: usize, p: &[f64; 3], l: &[f64], f: Option<&[f64]>, min_tension_n: f64) -> Option<f64> {
         let usable = p.iter().all(|x| x.is_finite()) && l[j].is_finite() && f.is_none_or(|f| f[j] >= min_tension_n);
-        usable.then(|| l[j] - self.length(j, p))
+        usable.then(|| l[j] - self.length_at(j, p, f.map_or(0.0, |f| f[j])))
     }
 }
 
@@ -98,5 +205,30 @@ mod tests {
         assert!((out[0] - 4.1).abs() < 1e-12);
         assert!((out[1] - 5.2).abs() < 1e-12);
         assert!((out[2] - 32f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn effects_stretch_scale_and_wrap_the_commanded_length() {
+        let a = [[0.0, 0.0, 4.0], [3.0, 0.0, 4.0], [0.0, 4.0, 4.0]];
+        let ideal = LoopParams::new(1, &a, &[0.1, 0.2, 0.0], &[[0.0; 3]; 3]);
+        let file = Effects {
+            ea_n: Some(vec![20_000.0; 3]),
+            drum_scale: Some(vec![1.003, 1.0, 0.998]),
+            pulley_radius_m: Some(vec![0.0, 0.05, 0.0]),
+            ..Effects::default()
+        };
+        let p = ideal.with_effects(LoopEffects::from_file(&file));
+        let x = [0.5, 0.5, 1.0];
+        // Cable 0: stretch at 100 N and the scale, written out.
+        let g = ideal.length(0, &x) - 0.1;
+        let want = 1.003 * g / (1.0 + 100.0 / 20_000.0) + 0.1;
+        assert!((p.length_at(0, &x, 100.0) - want).abs() < 1e-12);
+        // No tension: no stretch; a NaN tension is none.
+        assert!((p.length_at(0, &x, f64::NAN) - (1.003 * g + 0.1)).abs() < 1e-12);
+        // Cable 1 over a 5 cm pulley: the path is longer than the straight line (the wrap), by
+        // less than the radius.
+        let extra = p.length_at(1, &x, 0.0) - ideal.length(1, &x);
+        assert!(extra > 0.0 && extra < 0.05, "{extra}");
+        assert!(LoopEffects::from_file(&Effects::default()).is_none());
     }
 }

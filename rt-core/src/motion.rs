@@ -386,6 +386,8 @@ pub struct Controller {
     commands: Receiver<Command>,
     params_rx: Reader<LoopParams>,
     params: LoopParams,
+    /// The tension inverse kinematics stretches each cable by, N (see [`Controller::track_tension`]).
+    ik_tension: [f64; MAX_CABLES],
     state: State,
     state_t0: f64,
     phase: i8,
@@ -480,6 +482,7 @@ impl Controller {
             commands,
             params_rx,
             params,
+            ik_tension: [f64::NAN; MAX_CABLES],
             state: State::Idle,
             state_t0: 0.0,
             phase: -1,
@@ -708,7 +711,7 @@ impl Controller {
     /// last command is faded out by the transfer ramp.
     fn enter_ik(&mut self, s: State, now: f64) {
         let mut next = [0.0; MAX_CABLES];
-        self.params.lengths(&self.target, &mut next);
+        self.params.lengths_at(&self.target, &self.ik_tension, &mut next);
         if self.cmd_valid {
             self.transfer.start(self.cfg.n, &self.cmd, &next);
         }
@@ -760,6 +763,7 @@ impl Controller {
             }
         }
 
+        self.track_tension(inp, dt);
         self.check_devices(inp, now);
         if !matches!(self.state, State::Idle | State::Faulted | State::Stopped) {
             self.check_limits(inp, now);
@@ -1100,6 +1104,23 @@ impl Controller {
         }
     }
 
+    /// The tension inverse kinematics stretches each cable by (with an elasticity model): the
+    /// measured tension, low-passed over [`IK_TENSION_TAU_S`] so load-cell noise does not move
+    /// the drums; when the reading is stale, a torque-mode cable's commanded tension, else the
+    /// last filtered value (what the cable is expected to carry); NaN (no stretch) before any.
+    fn track_tension(&mut self, inp: &Inputs, dt: f64) {
+        let k = if dt.is_finite() { (dt / IK_TENSION_TAU_S).clamp(0.0, 1.0) } else { 1.0 };
+        for j in 0..self.cfg.n {
+            let fresh = inp.tension_age_s[j] <= self.cfg.tension_max_age_s && inp.tension_n[j].is_finite();
+            let v = &mut self.ik_tension[j];
+            if fresh {
+                *v = if v.is_finite() { *v + k * (inp.tension_n[j] - *v) } else { inp.tension_n[j] };
+            } else if self.cfg.follower[j] && matches!(self.state, State::Operate | State::Holding | State::Excitation) {
+                *v = self.cfg.follower_tension_n;
+            }
+        }
+    }
+
     /// Holding: position mode at `len`, except the redundant cables, which keep their tension
     /// (four rigid position-mode cables would fight over the platform).
     fn hold_mode(&self, j: usize, len: f64) -> CableCommand {
@@ -1112,7 +1133,7 @@ impl Controller {
 
     fn ik_command(&mut self, modes: &mut [CableCommand; MAX_CABLES]) -> [f64; MAX_CABLES] {
         let mut next = [0.0; MAX_CABLES];
-        self.params.lengths(&self.target, &mut next);
+        self.params.lengths_at(&self.target, &self.ik_tension, &mut next);
         for j in 0..self.cfg.n {
             modes[j] =
                 if self.cfg.follower[j] { CableCommand::Tension(self.cfg.follower_tension_n) } else { CableCommand::Position(next[j]) };
@@ -1196,6 +1217,10 @@ impl Controller {
         }
     }
 }
+
+/// Time constant of the tension inverse kinematics stretches the cables by, s: long against
+/// the load cells' noise, short against the platform's motion.
+pub const IK_TENSION_TAU_S: f64 = 0.05;
 
 /// Time after the start of a reel before the reeled and the held cables' tensions are judged, s.
 const REEL_GRACE_S: f64 = 0.2;

@@ -72,6 +72,29 @@ pub struct SimRobot {
     /// The CAN controller of the master's endpoint on the in-process bus, to inject error
     /// frames, bus-off and restart (`None` on SocketCAN: there the kernel reports them).
     pub can: Option<CanController>,
+    /// Where the platform really is (the plant's position, for tests and summaries; the
+    /// daemon never sees it).
+    pub platform: PlatformTruth,
+}
+
+/// The plant's platform position, published by the site thread after every step.
+#[derive(Debug, Clone, Default)]
+pub struct PlatformTruth(Arc<[AtomicU64; 3]>);
+
+impl PlatformTruth {
+    fn set(&self, p: [f64; 3]) {
+        for (a, v) in self.0.iter().zip(p) {
+            // Relaxed: three independent readings for people and tests; a torn triple is off by
+            // one plant step (microns), which no caller resolves.
+            a.store(v.to_bits(), Ordering::Relaxed);
+        }
+    }
+
+    /// The platform's true position, m.
+    pub fn position(&self) -> [f64; 3] {
+        // Relaxed: see `set`.
+        std::array::from_fn(|i| f64::from_bits(self.0[i].load(Ordering::Relaxed)))
+    }
 }
 
 /// Options of the simulated site.
@@ -90,6 +113,9 @@ pub struct SimOptions {
     pub can: Option<String>,
     /// Physics step of the simulated site (wall clock); also stepped at every SYNC.
     pub site_period: Duration,
+    /// The site's cable physics: effects concealed from the robot (elasticity, drum scale,
+    /// swivel pulleys...). The default has none but loose cables.
+    pub physics: Physics,
 }
 
 impl Default for SimOptions {
@@ -101,6 +127,7 @@ impl Default for SimOptions {
             noise: Noise::default(),
             can: None,
             site_period: Duration::from_millis(1),
+            physics: Physics::default(),
         }
     }
 }
@@ -109,7 +136,7 @@ impl Default for SimOptions {
 /// for the three-phase motion of `cfg.motion` (most tension margin for the held cables), or
 /// `fallback` if it finds none.
 pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -> [f64; 3] {
-    let physics = Physics::default();
+    let physics = opts.physics.clone();
     let mut rng = taut_sim::rng(opts.seed, 0);
     let Ok(truth) = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng) else { return fallback };
     let m = &cfg.motion;
@@ -209,7 +236,7 @@ where
     }
     let nodes = node_ids(cfg)?;
     let units: Vec<DriveUnits> = cfg.cables.iter().map(|c| DriveUnits::of(c.drive.as_ref().expect("checked by node_ids"))).collect();
-    let physics = Physics::default();
+    let physics = opts.physics.clone();
     let mut rng = taut_sim::rng(opts.seed, 0);
     let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
     let mut plant = Plant::new(&truth, &physics, p0).with_noise(&opts.noise, opts.seed);
@@ -257,7 +284,10 @@ where
 
     let faults = Arc::new(SimFaults::default());
     let stop = Arc::new(AtomicBool::new(false));
+    let platform = PlatformTruth::default();
+    platform.set(plant.position());
     let mut site = Site {
+        platform: platform.clone(),
         rack: DriveRack::new(rack_bus, drives),
         plant,
         units,
@@ -285,7 +315,7 @@ where
     let tracker_stats = pose.stats_handle();
     let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
-    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None })
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform })
 }
 
 fn counts(x: f64) -> i32 {
@@ -341,6 +371,7 @@ struct Site<R: CanTransport> {
     tracker: Tracker,
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
+    platform: PlatformTruth,
     stop: Arc<AtomicBool>,
     period: Duration,
     silenced: bool,
@@ -458,6 +489,7 @@ impl<R: CanTransport> Site<R> {
             self.rack.drives()[j].set_actual(counts(o.encoder_m[j] * u.counts_per_m), torque);
         }
         self.faults.plant_failed_steps.store(self.plant.failed_steps(), Ordering::Relaxed);
+        self.platform.set(self.plant.position());
     }
 }
 

@@ -295,6 +295,7 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
         rms_m: clean_p.rms_m,
         observable: true,
         note: "test".into(),
+        effects: Default::default(),
     };
     for a in init.anchors.iter_mut() {
         a[0] += 0.005;

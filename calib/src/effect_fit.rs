@@ -1,0 +1,462 @@
+//! Calibration with a fixed set of effects: anchors, encoder offsets and the parameters of the
+//! named effects fitted together, as the running robot refits them (no model selection: the
+//! model comes from the parameter file or the `[calibration] effects` key).
+//!
+//! The model and its Jacobian are the diagnosis's ([`crate::diagnose::fit`], documented in
+//! [`crate::diagnose::effects`]); this module builds the data set from a recording without the
+//! diagnosis's selection machinery, fits, and checks that the result is physics:
+//!
+//! ```text
+//! G = |X - A|  or, with a swivel pulley,  r beta + sqrt(|X - C|^2 - r^2)
+//! U = G / (1 + T / EA)          (T: the measured tension of the reading)
+//! v = drum_scale U + L0,   l_hat = play(v; backlash)
+//! X = P(t - delta) + b_j        (delta: the time offset still left in the data)
+//! ```
+//!
+//! Readings are weighted uniformly (`sigma^2 = sigma_enc^2 + sigma_tracker^2`), as in the
+//! diagnosis: the force-aware variance would down-weight the readings that reveal elasticity.
+//!
+//! ```no_run
+//! use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
+//! # let rec: taut_config::recording::Recording = unimplemented!();
+//! # let (platform, anchors, l0) = (vec![[0.0; 3]; 4], vec![[0.0; 3]; 4], vec![0.0; 4]);
+//! let o = EffectFitOptions::new(&["elasticity", "scale"], 3.0, 1.5e-3, 5e-5);
+//! let f = fit_effects(&rec, &platform, &anchors, &l0, &Default::default(), &o).unwrap();
+//! println!("EA {:?}", f.effects.ea_n);
+//! ```
+
+use crate::diagnose::effects::{Effect, TensionEnd};
+use crate::diagnose::fit::{self, ModelSpec, PlayState, Prepared};
+use crate::diagnose::{Diagnosis, Sharing};
+use std::fmt;
+use taut_config::params::Effects;
+use taut_config::recording::Recording;
+
+/// Options of [`fit_effects`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectFitOptions {
+    /// The effects to fit (`taut diagnose` names; at most 4).
+    pub effects: Vec<String>,
+    /// Readings with less tension are loose and left out, N.
+    pub min_tension_n: f64,
+    /// Tracker noise, 1-sigma per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Encoder noise, 1-sigma, m.
+    pub encoder_sigma_m: f64,
+    /// At most this many samples are fitted (evenly spread over the recording).
+    pub max_samples: usize,
+    /// Levenberg-Marquardt iteration limit.
+    pub max_iterations: usize,
+}
+
+impl EffectFitOptions {
+    /// Options for `effects` with the given noise model.
+    pub fn new(effects: &[&str], min_tension_n: f64, tracker_sigma_m: f64, encoder_sigma_m: f64) -> Self {
+        EffectFitOptions {
+            effects: effects.iter().map(|s| s.to_string()).collect(),
+            min_tension_n,
+            tracker_sigma_m,
+            encoder_sigma_m,
+            max_samples: 12_000,
+            max_iterations: 80,
+        }
+    }
+}
+
+/// Why a fit with effects gave no parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EffectFitError {
+    /// A name that is not a modelled effect (index into the list).
+    UnknownEffect {
+        /// Position in [`EffectFitOptions::effects`].
+        index: usize,
+    },
+    /// More effects than the model fits at once.
+    TooManyEffects {
+        /// Effects asked for.
+        count: usize,
+    },
+    /// No effect to fit (use the ideal calibration).
+    NoEffects,
+    /// Elasticity needs tensions and the recording has none.
+    NoTensions,
+    /// Too few usable readings of a cable.
+    TooFewReadings {
+        /// The cable.
+        cable: usize,
+        /// Its usable readings.
+        usable: usize,
+    },
+    /// The solver did not produce finite parameters.
+    Diverged,
+    /// A fitted value is outside the physical range of its effect (the data do not support
+    /// the effect, or something else is going on: run `taut diagnose`).
+    NotPhysical {
+        /// The effect.
+        effect: Effect,
+        /// Its cable (0 for a robot-wide effect).
+        cable: usize,
+        /// The fitted value in physical units ([`Effect::parameter`]).
+        value: f64,
+    },
+}
+
+impl fmt::Display for EffectFitError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            EffectFitError::UnknownEffect { index } => write!(f, "effect {index} is not one the robot models"),
+            EffectFitError::TooManyEffects { count } => write!(f, "{count} effects: at most 4 are fitted together"),
+            EffectFitError::NoEffects => write!(f, "no effect to fit"),
+            EffectFitError::NoTensions => write!(f, "elasticity needs the cable tensions and the data have none"),
+            EffectFitError::TooFewReadings { cable, usable } => write!(f, "cable {cable}: only {usable} usable readings"),
+            EffectFitError::Diverged => write!(f, "the fit with effects diverged"),
+            EffectFitError::NotPhysical { effect, cable, value } => write!(
+                f,
+                "{} of cable {cable} came out {value:.4e} {}, outside its physical range: the data do not support the model (run taut diagnose)",
+                effect.name(),
+                effect.parameter()
+            ),
+        }
+    }
+}
+
+impl std::error::Error for EffectFitError {}
+
+/// Anchors, offsets and effects fitted together.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectFit {
+    /// Anchors, m.
+    pub anchors: Vec<[f64; 3]>,
+    /// Encoder offsets, m.
+    pub l0: Vec<f64>,
+    /// 1-sigma of the anchors, m.
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// 1-sigma of the offsets, m.
+    pub l0_sigma: Vec<f64>,
+    /// The fitted effects with their sigmas. A time offset is the one left in the data (add
+    /// the offset the data were already aligned by).
+    pub effects: Effects,
+    /// RMS of the residual on the fitted readings, m.
+    pub rms_m: f64,
+    /// Readings fitted.
+    pub readings: usize,
+    /// Solver iterations.
+    pub iterations: usize,
+    /// Cables whose stretch the data did not show (compliance fitted to zero): held rigid,
+    /// `ea_n` = [`RIGID_EA_N`] and its sigma unknown.
+    pub rigid: Vec<usize>,
+}
+
+/// The EA written for a cable whose stretch the data do not show: the largest a parameter file
+/// accepts, a stretch below a micron at any tension a CDPR cable carries.
+pub const RIGID_EA_N: f64 = 1e10;
+
+/// The effects of a list of names, in the fit's order. Unknown or unfit names are errors.
+pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
+    let mut out = vec![];
+    for (index, s) in names.iter().enumerate() {
+        match Effect::from_name(s) {
+            Some(e) if e != Effect::Slack && e != Effect::Sag => {
+                if !out.contains(&e) {
+                    out.push(e);
+                }
+            }
+            _ => return Err(EffectFitError::UnknownEffect { index }),
+        }
+    }
+    if out.len() > 4 {
+        return Err(EffectFitError::TooManyEffects { count: out.len() });
+    }
+    Ok(out)
+}
+
+/// The recording as the joint model's data set: every row, time segments split at gaps, the
+/// play pattern read off the readings.
+fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> Prepared {
+    let n = rec.n_cables;
+    let m = rec.len();
+    let mut p = Prepared {
+        n,
+        t: rec.t.clone(),
+        rows: (0..m).collect(),
+        x: vec![Vec::with_capacity(m); n],
+        l: vec![Vec::with_capacity(m); n],
+        f: vec![Vec::with_capacity(m); n],
+        vel: vec![vec![0.0; m]; n],
+        dir: vec![vec![0.0; m]; n],
+        play: PlayState::default(),
+        usable: vec![Vec::with_capacity(m); n],
+        loose: vec![Vec::with_capacity(m); n],
+        segment: Vec::with_capacity(m),
+        heldout: vec![false; m],
+    };
+    let mut dts: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    dts.sort_by(|a, b| a.total_cmp(b));
+    let dt = dts.get(dts.len() / 2).copied().unwrap_or(0.01);
+    let mut seg = 0u32;
+    for i in 0..m {
+        if i > 0 && !(rec.t[i] - rec.t[i - 1] > 0.0 && rec.t[i] - rec.t[i - 1] < 5.0 * dt) {
+            seg += 1;
+        }
+        p.segment.push(seg);
+        let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
+        let pos = rec.p[i];
+        let f = rec.tensions(i);
+        for j in 0..n {
+            let b = platform[j];
+            let rb = match &r {
+                Some(r) => std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2]),
+                None => b,
+            };
+            let x = [pos[0] + rb[0], pos[1] + rb[1], pos[2] + rb[2]];
+            let l = rec.lengths(i)[j];
+            let t = f.map_or(f64::NAN, |f| f[j]);
+            let loose = t.is_finite() && t < o.min_tension_n;
+            let ok = l.is_finite() && x.iter().all(|v| v.is_finite()) && (t.is_finite() || !needs_tension);
+            p.x[j].push(x);
+            p.l[j].push(l);
+            p.f[j].push(t);
+            p.usable[j].push(ok && !loose);
+            p.loose[j].push(ok && loose);
+        }
+    }
+    // As the diagnosis: a reading has moved when it leaves a band of 6 difference sigmas.
+    let thr = (6.0 * std::f64::consts::SQRT_2 * o.encoder_sigma_m).max(1e-4);
+    p.play = PlayState::from_readings(&p.l, thr);
+    p.play.settle(&p.usable);
+    p
+}
+
+/// The internal starting value of `e` from `start` (the running model), else [`Effect::start`].
+fn start_value(e: Effect, start: &Effects, j: usize) -> f64 {
+    let per = |v: &Option<Vec<f64>>| v.as_ref().and_then(|v| v.get(j).copied());
+    let v = match e {
+        Effect::Elasticity => per(&start.ea_n).map(|ea| 1.0 / ea),
+        Effect::Scale => per(&start.drum_scale).map(|s| s - 1.0),
+        Effect::Pulley => per(&start.pulley_radius_m),
+        Effect::Backlash => per(&start.backlash_m).filter(|w| *w > 0.0),
+        // The data were aligned by the running offset: what is left starts at zero.
+        Effect::TimeOffset => Some(0.0),
+        _ => None,
+    };
+    v.filter(|v| v.is_finite()).unwrap_or(e.start())
+}
+
+/// Fits anchors, offsets and the effects of `o.effects` to `rec`, starting from `anchors`,
+/// `l0` and the running effect values `start`. Errors when the solver diverges or a value is
+/// not physical ([`Effect::internal_range`]); the caller keeps its old parameters then.
+pub fn fit_effects(
+    rec: &Recording,
+    platform: &[[f64; 3]],
+    anchors: &[[f64; 3]],
+    l0: &[f64],
+    start: &Effects,
+    o: &EffectFitOptions,
+) -> Result<EffectFit, EffectFitError> {
+    let effects = parse_effects(&o.effects)?;
+    let n = rec.n_cables;
+    let needs_tension = effects.iter().any(|e| e.needs_tension());
+    if needs_tension && rec.f.is_none() {
+        return Err(EffectFitError::NoTensions);
+    }
+    let prep = prepare(rec, platform, needs_tension, o);
+    for j in 0..n {
+        let usable = prep.usable[j].iter().filter(|u| **u).count();
+        if usable < 4 * crate::MIN_READINGS {
+            return Err(EffectFitError::TooFewReadings { cable: j, usable });
+        }
+    }
+    // Staged: the effects join one at a time in a fixed order, geometry first (the pulley moves
+    // the anchors by centimetres, which the ideal start absorbed), then the time offset, the
+    // stretch, the scale and the play, each stage starting where the last ended. Started all at
+    // once from the ideal model's anchors, a compliance could take the first step below zero,
+    // stay on the bound and come out as a rigid cable (seen on the simulated robot).
+    const ORDER: [Effect; 5] = [Effect::Pulley, Effect::TimeOffset, Effect::Elasticity, Effect::Scale, Effect::Backlash];
+    let effects: Vec<Effect> = ORDER.into_iter().filter(|e| effects.contains(e)).collect();
+    let all: Vec<usize> = (0..prep.t.len()).collect();
+    let step = all.len().div_ceil(o.max_samples.max(1)).max(1);
+    let samples: Vec<usize> = all.iter().step_by(step).copied().collect();
+    let sigma = (o.encoder_sigma_m.powi(2) + o.tracker_sigma_m.powi(2)).sqrt().max(1e-6);
+    let mut prev = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let mut x: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j]]).collect();
+    let mut r = None;
+    for k in 1..=effects.len() {
+        let spec = ModelSpec { effects: effects[..k].to_vec(), tension_end: TensionEnd::Platform };
+        let mut x0 = spec.extend(n, &prev, &x);
+        // New effects start at the running model's value, if it has one.
+        let added = effects[k - 1];
+        let off = spec.offset(added, n).expect("active effect");
+        for q in 0..fit::width(added, n) {
+            x0[off + q] = start_value(added, start, q);
+        }
+        let rep = fit::fit(&prep, &spec, &samples, &x0, sigma, o.max_iterations);
+        if !rep.was_successful() || rep.x.iter().any(|v| !v.is_finite()) {
+            return Err(EffectFitError::Diverged);
+        }
+        x = rep.x.clone();
+        prev = spec;
+        r = Some(rep);
+    }
+    let spec = prev;
+    let Some(r) = r else { return Err(EffectFitError::NoEffects) };
+    if !r.was_successful() || r.x.iter().any(|v| !v.is_finite()) {
+        return Err(EffectFitError::Diverged);
+    }
+    let sig = r.sigmas();
+    let mut out = Effects::default();
+    let mut rigid = vec![];
+    for &e in &effects {
+        let off = spec.offset(e, n).expect("active effect");
+        let w = fit::width(e, n);
+        let (lo, hi) = e.internal_range();
+        // Scale and time offset may be zero; the others have a lower bound above zero in the
+        // diagnosis because zero means "no effect". Here the model is fixed: zero play or an
+        // unmeasurably small pulley is a value, not a failure.
+        let lo = if matches!(e, Effect::Backlash | Effect::Pulley) { 0.0 } else { lo };
+        let mut vals = Vec::with_capacity(w);
+        let mut sigmas = Vec::with_capacity(w);
+        for k in 0..w {
+            let (x, s) = (r.x[off + k], sig[off + k]);
+            // A compliance on its lower bound: the data show no stretch of this cable that the
+            // drum scale and the anchor do not already explain (a follower at constant tension,
+            // or a tension range too small against the tracker noise). In a fixed model that is
+            // a value, not a failure: the cable is held rigid ([`RIGID_EA_N`]) and the note says so.
+            if e == Effect::Elasticity && x <= lo && x >= 0.0 {
+                rigid.push(k);
+                vals.push(RIGID_EA_N);
+                sigmas.push(f64::NAN);
+                continue;
+            }
+            let (v, sv) = e.to_physical(x, s);
+            if !(x >= lo && x <= hi && v.is_finite()) {
+                return Err(EffectFitError::NotPhysical { effect: e, cable: k, value: v });
+            }
+            vals.push(v);
+            sigmas.push(sv);
+        }
+        // One pulley radius for all cables in the model; the file keeps one per cable.
+        if e.sharing() == Sharing::Shared && e != Effect::TimeOffset {
+            vals = vec![vals[0]; n];
+            sigmas = vec![sigmas[0]; n];
+        }
+        let known = sigmas.iter().all(|s| s.is_finite());
+        let sig_opt = known.then_some(sigmas);
+        match e {
+            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig_opt),
+            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig_opt),
+            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig_opt),
+            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig_opt),
+            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig_opt.map(|s| s[0])),
+            Effect::Sag | Effect::Slack => unreachable!("refused by parse_effects"),
+        }
+    }
+    let (ss, m) = fit::sum_squares(&prep, &spec, &samples, &r.x);
+    Ok(EffectFit {
+        anchors: (0..n).map(|j| [r.x[4 * j], r.x[4 * j + 1], r.x[4 * j + 2]]).collect(),
+        l0: (0..n).map(|j| r.x[4 * j + 3]).collect(),
+        anchor_sigma: (0..n).map(|j| [sig[4 * j], sig[4 * j + 1], sig[4 * j + 2]]).collect(),
+        l0_sigma: (0..n).map(|j| sig[4 * j + 3]).collect(),
+        effects: out,
+        rms_m: (ss / m.max(1) as f64).sqrt(),
+        readings: m,
+        iterations: r.iterations,
+        rigid,
+    })
+}
+
+/// The effects a diagnosis named, as a parameter file carries them (sag and slack are not part
+/// of the robot's model and are left out, with a note each; so is a per-cable effect with a
+/// cable the data could not fit). Returns the effects and the notes.
+pub fn effects_of(d: &Diagnosis) -> (Effects, Vec<String>) {
+    let mut out = Effects::default();
+    let mut notes = vec![];
+    let n = d.cables;
+    for f in &d.effects {
+        let vals: Vec<f64> = match f.effect.sharing() {
+            Sharing::PerCable => f.values.clone(),
+            Sharing::Shared if f.effect == Effect::TimeOffset => f.values.clone(),
+            Sharing::Shared => vec![f.values.first().copied().unwrap_or(f64::NAN); n],
+        };
+        let sigmas: Vec<f64> = match f.effect.sharing() {
+            Sharing::Shared if f.effect != Effect::TimeOffset => vec![f.sigmas.first().copied().unwrap_or(f64::NAN); n],
+            _ => f.sigmas.clone(),
+        };
+        if vals.iter().any(|v| !v.is_finite()) || vals.is_empty() {
+            notes.push(format!("{} not written: a cable had no data to fit it", f.effect.name()));
+            continue;
+        }
+        let sig = (sigmas.len() == vals.len() && sigmas.iter().all(|s| s.is_finite() && *s >= 0.0)).then_some(sigmas);
+        match f.effect {
+            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig),
+            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig),
+            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig),
+            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig),
+            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig.map(|s| s[0])),
+            Effect::Sag => notes.push("sag not written: the running robot does not model it".into()),
+            Effect::Slack => {}
+        }
+    }
+    (out, notes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Readings of a 4-cable robot with elasticity, scale and a swivel pulley written out
+    /// here (not through the fit's model): the fixed-model fit finds them and the anchors.
+    #[test]
+    fn fixed_model_fit_recovers_concealed_elasticity_scale_and_pulley() {
+        let anchors = [[-3.0, -2.0, 3.0], [3.0, -2.0, 3.1], [3.0, 2.0, 2.9], [-3.0, 2.0, 3.0]];
+        let l0 = [0.3, -0.2, 0.1, 0.5];
+        let (ea, scale, r) = (20_000.0, [1.003, 0.998, 1.002, 1.0], 0.05);
+        let mut rec = Recording::with_capacity(4, 3000, true, false, false);
+        let mut rng = crate::synth::Rng::new(5);
+        for i in 0..3000 {
+            let t = i as f64 * 0.01;
+            let p = [1.5 * (0.7 * t).sin(), 1.0 * (1.1 * t).sin(), 1.0 + 0.5 * (0.5 * t).cos()];
+            let mut l = [0.0; 4];
+            let mut f = [0.0; 4];
+            for j in 0..4 {
+                // Pulley by hand: centre r towards the platform, tangent length plus wrap.
+                let d = [p[0] - anchors[j][0], p[1] - anchors[j][1], p[2] - anchors[j][2]];
+                let rho = (d[0] * d[0] + d[1] * d[1]).sqrt();
+                let (cx, cz) = (rho - r, d[2]);
+                let dc = (cx * cx + cz * cz).sqrt();
+                let free = (dc * dc - r * r).sqrt();
+                // Wrap from the top of the pulley (entry along the axis) to the tangent point.
+                let phi = cz.atan2(cx) - (r / dc).acos() + 2.0 * std::f64::consts::PI;
+                let g = r * (phi - std::f64::consts::PI) + free;
+                f[j] = 60.0 + 40.0 * ((0.3 + j as f64) * t).sin();
+                l[j] = scale[j] * g / (1.0 + f[j] / ea) + l0[j] + 5e-5 * rng.normal();
+            }
+            let m = [p[0] + 1e-4 * rng.normal(), p[1] + 1e-4 * rng.normal(), p[2] + 1e-4 * rng.normal()];
+            rec.push(t, m, None, &l, Some(&f), None);
+        }
+        let mut a0 = anchors;
+        a0[0][0] += 0.03;
+        a0[2][2] -= 0.02;
+        let o = EffectFitOptions::new(&["elasticity", "scale", "pulley"], 3.0, 1e-4, 5e-5);
+        let fit = fit_effects(&rec, &[[0.0; 3]; 4], &a0, &l0, &Effects::default(), &o).unwrap();
+        for j in 0..4 {
+            let ea_j = fit.effects.ea_n.as_ref().unwrap()[j];
+            assert!((ea_j - ea).abs() < 0.02 * ea, "cable {j}: EA {ea_j}");
+            let s = fit.effects.drum_scale.as_ref().unwrap()[j];
+            assert!((s - scale[j]).abs() < 2e-4, "cable {j}: scale {s}");
+            let d: f64 = (0..3).map(|k| (fit.anchors[j][k] - anchors[j][k]).powi(2)).sum::<f64>().sqrt();
+            assert!(d < 2e-3, "cable {j}: anchor off by {d}");
+        }
+        let rr = fit.effects.pulley_radius_m.as_ref().unwrap()[0];
+        assert!((rr - r).abs() < 2e-3, "radius {rr}");
+        assert!(fit.rms_m < 2e-4, "rms {}", fit.rms_m);
+        assert!(fit.effects.check(4).is_ok());
+    }
+
+    #[test]
+    fn unknown_and_unmodelled_effects_are_refused() {
+        assert_eq!(parse_effects(&["sag".into()]), Err(EffectFitError::UnknownEffect { index: 0 }));
+        assert_eq!(parse_effects(&["elasticity".into(), "warp".into()]), Err(EffectFitError::UnknownEffect { index: 1 }));
+        let five: Vec<String> = ["elasticity", "scale", "pulley", "backlash", "time-offset"].iter().map(|s| s.to_string()).collect();
+        assert_eq!(parse_effects(&five), Err(EffectFitError::TooManyEffects { count: 5 }));
+    }
+}
