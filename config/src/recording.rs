@@ -524,9 +524,8 @@ fn parse_header(fields: &[&str], line: usize, report: &mut ParseReport) -> Resul
 }
 
 /// Powers of ten that are exact in an f64 (10^22 < 2^53 * 2^22).
-const EXACT_POW10: [f64; 23] = [
-    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
-];
+const EXACT_POW10: [f64; 23] =
+    [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22];
 
 /// The common case of a recording's field, `[-+]?digits[.digits]`, without going through the
 /// general parser: the digits as an integer `m` and the count of decimals `e`. When `m < 2^53`
@@ -1080,7 +1079,25 @@ mod fast_field_tests {
 
     #[test]
     fn declines_what_it_does_not_know() {
-        for s in ["", "nan", "NaN", "1e5", "1E-3", "inf", "-", ".", "+", "1.2.3", "1,5", " 1", "1 ", "0x10", "12345678901234567890", "9007199254740993", "1.00000000000000000000001"] {
+        for s in [
+            "",
+            "nan",
+            "NaN",
+            "1e5",
+            "1E-3",
+            "inf",
+            "-",
+            ".",
+            "+",
+            "1.2.3",
+            "1,5",
+            " 1",
+            "1 ",
+            "0x10",
+            "12345678901234567890",
+            "9007199254740993",
+            "1.00000000000000000000001",
+        ] {
             assert_eq!(fast_field(s.as_bytes()), None, "`{s}`");
         }
     }
