@@ -7,6 +7,8 @@ mod calibrate;
 mod ctl;
 mod demo;
 mod diagnose;
+mod figures;
+mod html;
 mod outputs;
 mod plot;
 mod probe;
