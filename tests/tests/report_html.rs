@@ -223,3 +223,25 @@ fn a_page_that_loads_something_is_caught() {
     let msg = msg.downcast_ref::<String>().cloned().unwrap_or_default();
     assert!(msg.contains("Content Security Policy"), "rejected for another reason: {msg}");
 }
+
+#[test]
+fn a_report_over_an_input_or_another_output_is_refused_before_any_work() {
+    // `--report` is an output like `--json`: checked before the calibration runs, and the file it
+    // would have replaced is left as it was. (No Chromium needed.)
+    let dir = tempfile::tempdir().unwrap();
+    let rec = good_recording();
+    std::fs::write(dir.path().join("rec.csv"), &rec).unwrap();
+    for (args, expect) in [
+        (&["calibrate", "rec.csv", "--report", "rec.csv"][..], "--report"),
+        (&["diagnose", "rec.csv", "--report", "rec.csv"][..], "--report"),
+        (&["calibrate", "rec.csv", "--json", "out.html", "--report", "out.html"][..], "name the same file"),
+    ] {
+        let mut cmd = Command::new(taut_bin());
+        cmd.current_dir(dir.path()).args(args);
+        let r = run_with_deadline(cmd, Duration::from_secs(300));
+        assert_eq!(r.code, Some(1), "taut {args:?} should refuse:\n{}", r.stderr);
+        assert!(r.stderr.contains(expect), "taut {args:?}: message lacks `{expect}`:\n{}", r.stderr);
+        assert_eq!(std::fs::read_to_string(dir.path().join("rec.csv")).unwrap(), rec, "taut {args:?} changed the recording");
+        assert!(!dir.path().join("out.html").exists(), "taut {args:?} wrote an output");
+    }
+}
