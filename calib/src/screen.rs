@@ -330,6 +330,8 @@ impl Channel<'_> {
 
     /// `(prediction, z)` at `i` from two present neighbours either side (or four on one side at an
     /// end); NaN if there are not.
+    // The node loops index four small arrays together; iterator chains would hide the formula.
+    #[allow(clippy::needless_range_loop)]
     fn z(&self, i: usize) -> (f64, f64) {
         let (mut a, mut b) = ([0; REACH], [0; REACH]);
         if self.out[i] {

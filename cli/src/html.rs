@@ -335,7 +335,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
 
     if !out.screen.findings.is_empty() || !parse.notes.is_empty() {
         page.h2("Data problems and notes");
-        let mut items: Vec<String> = out.screen.findings.iter().take(50).map(|w| format!("{} ({})", w, w.kind.name())).collect();
+        let mut items: Vec<String> = out.screen.findings.iter().take(50).map(|w| format!("{w} ({})", w.kind.name())).collect();
         if out.screen.findings.len() > 50 {
             items.push(format!("and {} more wild values", out.screen.findings.len() - 50));
         }

@@ -1049,7 +1049,7 @@ mod fast_field_tests {
 
     #[test]
     fn agrees_with_the_standard_parser() {
-        for s in ["0", "-0", "+0.5", "1.", ".25", "3.1415926", "-12.000001", "0.1", "0.3", "9007199254740991", "123456789.012345678"] {
+        for s in ["0", "-0", "+0.5", "1.", ".25", "3.1415926", "-12.000001", "0.1", "0.3", "9007199254740991", "12345.678901"] {
             assert!(fast_field(s.as_bytes()).is_some(), "`{s}` should take the fast path");
             same(s);
         }

@@ -163,7 +163,7 @@ fn calibration_and_diagnosis_reports_render_in_chromium() {
     let rec = dir.path().join(EVIL_FILE);
     std::fs::write(&rec, good_recording()).unwrap();
     let cfg = dir.path().join("robot.toml");
-    std::fs::write(&cfg, GOOD_CONFIG.replace("name = \"hostile\"", &format!("name = {:?}", EVIL_ROBOT))).unwrap();
+    std::fs::write(&cfg, GOOD_CONFIG.replace("name = \"hostile\"", &format!("name = {EVIL_ROBOT:?}"))).unwrap();
 
     let run = |args: &[&str]| {
         let mut cmd = Command::new(taut_bin());

@@ -313,6 +313,8 @@ fn reading_sigma(opts: &CalibOptions) -> f64 {
 }
 
 /// Closed-form anchor and offset of one cable from its readings `d` (see the module doc).
+// The normal-equation loops index the 5x5 upper triangle by row and column, as the maths reads.
+#[allow(clippy::needless_range_loop)]
 pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
     let slots: Vec<usize> = d.used_slots().collect();
     let m = slots.len();

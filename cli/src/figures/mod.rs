@@ -485,7 +485,8 @@ mod tests {
         // Legend labels are drawn in the strip between the title and the chart: above the
         // highest data pixel of the panel.
         let y_of = |label: &str| -> f64 {
-            let k = svg.find(&format!(">{label}<")).unwrap_or_else(|| panic!("label {label} missing"));
+            // plotters writes `<text ...>\nLABEL\n</text>`.
+            let k = svg.find(&format!("\n{label}\n</text>")).unwrap_or_else(|| panic!("label {label} missing"));
             let tag = &svg[svg[..k].rfind("<text").unwrap()..k];
             let y = tag.split("y=\"").nth(1).unwrap();
             y[..y.find('"').unwrap()].parse().unwrap()
@@ -496,6 +497,10 @@ mod tests {
             .filter_map(|(k, _)| {
                 let pts = svg[k..].split("points=\"").nth(1)?;
                 let pts = &pts[..pts.find('"')?];
+                // Data lines only (the legend's glyphs are two-point lines).
+                if pts.split_whitespace().count() < 10 {
+                    return None;
+                }
                 pts.split_whitespace().filter_map(|p| p.split(',').nth(1)?.parse::<f64>().ok()).reduce(f64::min)
             })
             .fold(f64::INFINITY, f64::min);
