@@ -1071,7 +1071,7 @@ mod fast_field_tests {
                     s.push('.');
                 }
                 s.push((b'0' + (y % 10) as u8) as char);
-                y = y / 10 ^ (x >> (k % 40));
+                y = (y / 10) ^ (x >> (k % 40));
             }
             same(&s);
         }
