@@ -330,6 +330,8 @@ impl Channel<'_> {
 
     /// `(prediction, z)` at `i` from two present neighbours either side (or four on one side at an
     /// end); NaN if there are not.
+    // The node loops index four small arrays together; iterator chains would hide the formula.
+    #[allow(clippy::needless_range_loop)]
     fn z(&self, i: usize) -> (f64, f64) {
         let (mut a, mut b) = ([0; REACH], [0; REACH]);
         if self.out[i] {
@@ -348,15 +350,25 @@ impl Channel<'_> {
             return (f64::NAN, f64::NAN);
         };
         let ti = self.t[i];
-        let (mut pred, mut w2) = (0.0, 0.0);
-        for (p, &kp) in nodes.iter().enumerate() {
-            let mut w = 1.0;
-            for (q, &kq) in nodes.iter().enumerate() {
+        let tk = nodes.map(|k| self.t[k]);
+        // Lagrange weights w_p = prod_q (ti - t_q) / prod_q (t_p - t_q), q != p, with a single
+        // division for all four: this runs for every reading of every channel, at two spacings.
+        let mut num = [1.0f64; 4];
+        let mut den = [1.0f64; 4];
+        for p in 0..4 {
+            for q in 0..4 {
                 if p != q {
-                    w *= (ti - self.t[kq]) / (self.t[kp] - self.t[kq]);
+                    num[p] *= ti - tk[q];
+                    den[p] *= tk[p] - tk[q];
                 }
             }
-            pred += w * self.y[kp];
+        }
+        let inv = 1.0 / (den[0] * den[1] * den[2] * den[3]);
+        let others = [den[1] * den[2] * den[3], den[0] * den[2] * den[3], den[0] * den[1] * den[3], den[0] * den[1] * den[2]];
+        let (mut pred, mut w2) = (0.0, 0.0);
+        for p in 0..4 {
+            let w = num[p] * others[p] * inv;
+            pred += w * self.y[nodes[p]];
             w2 += w * w;
         }
         if !pred.is_finite() {

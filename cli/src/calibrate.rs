@@ -25,6 +25,13 @@ pub struct CalibrateArgs {
     /// Write the calibrated parameters (taut-params v1 TOML) to this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Write a self-contained HTML report (verdict, tables, figures) to this file, atomically.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Also calibrate without force weighting, to show what force weighting changes (tables,
+    /// JSON `unweighted`, figures). Off by default: it doubles the solve.
+    #[arg(long)]
+    pub compare: bool,
 }
 
 /// Everything one calibration run produced: the initial estimate, the calibration with and
@@ -70,9 +77,9 @@ pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
     Ok(cfg)
 }
 
-/// Screens out wild values, then initialises and calibrates (force-aware, and unweighted for
-/// comparison) on the cleaned recording (`Outcome::screen.recording(rec)`).
-pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::ProgressBar) -> Result<Outcome> {
+/// Screens out wild values, then initialises and calibrates (force-aware, and with `compare`
+/// unweighted too) on the cleaned recording (`Outcome::screen.recording(rec)`).
+pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &indicatif::ProgressBar) -> Result<Outcome> {
     let b = cfg.platform_points();
     let opts = CalibOptions::from_config(&cfg.calibration);
     progress.set_message("screening for wild values");
@@ -85,7 +92,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, progress: &indicatif::Progre
     let force = taut_calib::calibrate(rec, &b, &init.params, &opts).context("calibration failed")?;
     progress.inc(1);
     progress.set_message("calibrating (unweighted)");
-    let plain = if force.used_tensions {
+    let plain = if compare && force.used_tensions {
         let plain_opts = CalibOptions { force_aware: false, ..opts.clone() };
         Some(taut_calib::calibrate(rec, &b, &init.params, &plain_opts).context("unweighted calibration failed")?)
     } else {
@@ -109,8 +116,13 @@ pub fn progress(steps: u64) -> indicatif::ProgressBar {
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
-    let files: Vec<crate::outputs::Output> =
-        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).collect();
+    let files: Vec<crate::outputs::Output> = a
+        .json
+        .iter()
+        .map(|p| ("--json", p.as_path()))
+        .chain(a.out.iter().map(|p| ("--out", p.as_path())))
+        .chain(a.report.iter().map(|p| ("--report", p.as_path())))
+        .collect();
     let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
     crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, parse) = load_recording(&a.recording)?;
@@ -127,7 +139,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         );
     }
     let pb = progress(4);
-    let out = pipeline(&rec, &cfg, &pb)?;
+    let out = pipeline(&rec, &cfg, a.compare, &pb)?;
     pb.finish_and_clear();
     let rec = out.screen.recording(&rec);
     print_wild(&out.screen);
@@ -135,8 +147,15 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     // Nothing is written from a set that cannot be trusted.
     let nominal = cfg.anchors();
     let limit = 2.0 * cfg.daemon.max_anchor_change_m;
-    taut_calib::trust::check(&taut_calib::trust::Candidate::of(&out.force), rec, nominal.as_deref().map(|n| (n, limit)))
-        .map_err(|e| anyhow::anyhow!("calibration refused, nothing written: {e}"))?;
+    let trusted = taut_calib::trust::check(&taut_calib::trust::Candidate::of(&out.force), rec, nominal.as_deref().map(|n| (n, limit)));
+    if let Err(e) = &trusted {
+        // The report says why, so that a refusal is not just an exit code; nothing else is written.
+        if let Some(r) = &a.report {
+            write_report(a, r, rec, &parse, &cfg, &out, Some(e.to_string()))?;
+            anyhow::bail!("calibration refused, no parameters written (the report {} says why): {e}", r.display());
+        }
+    }
+    trusted.map_err(|e| anyhow::anyhow!("calibration refused, nothing written: {e}"))?;
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
@@ -152,7 +171,29 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             .with_context(|| format!("writing {}", p.display()))?;
         eprintln!("parameters written to {}", p.display());
     }
+    if let Some(r) = &a.report {
+        write_report(a, r, rec, &parse, &cfg, &out, None)?;
+        eprintln!("report written to {}", r.display());
+    }
     Ok(())
+}
+
+/// Writes the HTML report atomically.
+fn write_report(
+    a: &CalibrateArgs,
+    path: &Path,
+    rec: &Recording,
+    parse: &ParseReport,
+    cfg: &RobotConfig,
+    out: &Outcome,
+    refused: Option<String>,
+) -> Result<()> {
+    let source = a.recording.display().to_string();
+    let config = a.config.as_ref().map(|p| p.display().to_string());
+    let params_out = a.out.as_ref().map(|p| p.display().to_string());
+    let ctx = crate::html::CalibrationContext { source: &source, config: config.as_deref(), refused, params_out: params_out.as_deref() };
+    let html = crate::html::calibration(rec, parse, cfg, out, &ctx)?;
+    taut_config::write_atomic(path, html.as_bytes()).with_context(|| format!("writing {}", path.display()))
 }
 
 /// Prints the wild values the screen excluded, one line each (the first 20).

@@ -50,7 +50,8 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     // Read back what was written: the demo calibrates the file, as `taut calibrate` would.
     let (rec_file, parse) = taut_config::recording::Recording::load(&a.sim.output)?;
     debug_assert_eq!(rec_file.len(), rec.len());
-    let out = pipeline(&rec_file, &s.robot, &pb)?;
+    // The demo shows what force weighting changes: it always runs the unweighted comparison.
+    let out = pipeline(&rec_file, &s.robot, true, &pb)?;
     pb.finish_and_clear();
     let phases = rec.phase.as_ref().map(|p| p.iter().filter(|&&k| k >= 0).count()).unwrap_or(0);
     println!(

@@ -3,7 +3,6 @@
 //! `taut-diagnosis v1` JSON and draws the before/after figures.
 
 use crate::calibrate::{config_for, load_recording};
-use crate::plot::{color, write_panels, Panel, Series};
 use anyhow::{Context, Result};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -23,6 +22,9 @@ pub struct DiagnoseArgs {
     /// Write figures (SVG and PNG) into this directory.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Write a self-contained HTML report (verdict, tables, figures) to this file, atomically.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
     /// Where the load cells measure the tension: `platform` (at the attachment, the default) or `anchor` (at the winch).
     #[arg(long, default_value = "platform")]
     pub tension_at: String,
@@ -196,41 +198,8 @@ pub fn plots(dir: &Path, inputs: &[&Path], d: &Diagnosis) -> Result<()> {
 }
 
 fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result<()> {
-    let pts = |t: &[f64], r: &[f64]| -> Vec<(f64, f64)> { t.iter().zip(r).map(|(a, b)| (*a, b * 1e3)).collect() };
-    let before: Vec<Vec<(f64, f64)>> = d.baseline_residuals.iter().map(|(t, r)| pts(t, r)).collect();
-    let after: Vec<Vec<(f64, f64)>> = d.final_residuals.iter().map(|(t, r)| pts(t, r)).collect();
-    let panels: Vec<Panel> = (0..d.cables)
-        .map(|j| Panel {
-            title: format!("cable {j}: residual (reading - model)"),
-            x_label: "time (s)",
-            y_label: "residual (mm)",
-            series: vec![
-                Series { label: "ideal model".into(), points: &before[j], color: color(0), markers: true },
-                Series { label: "with named effects".into(), points: &after[j], color: color(1), markers: true },
-            ],
-        })
-        .collect();
-    write_panels(set, "diagnose-residual-vs-time", &panels)?;
-    for f in &d.effects {
-        let Some(p) = &f.plot else { continue };
-        // Each cable's points before and after the correction.
-        type Points = Vec<(f64, f64)>;
-        let data: Vec<(Points, Points)> = p.cables.iter().map(|(x, b, a)| (pts(x, b), pts(x, a))).collect();
-        let x_label = format!("{} ({})", p.regressor.name(), p.regressor.unit());
-        let panels: Vec<Panel> = data
-            .iter()
-            .enumerate()
-            .map(|(j, (b, a))| Panel {
-                title: format!("cable {j}: {} - residual against {}", f.effect.name(), p.regressor.name()),
-                x_label: &x_label,
-                y_label: "residual (mm)",
-                series: vec![
-                    Series { label: "before".into(), points: b, color: color(0), markers: true },
-                    Series { label: format!("with {}", f.effect.name()), points: a, color: color(1), markers: true },
-                ],
-            })
-            .collect();
-        write_panels(set, &format!("diagnose-{}", f.effect.name()), &panels)?;
+    for fig in crate::figures::diagnosis::figures(d) {
+        fig.write(set)?;
     }
     Ok(())
 }
@@ -238,7 +207,7 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
     let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
     let files: Vec<crate::outputs::Output> =
-        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).collect();
+        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).chain(a.report.iter().map(|p| ("--report", p.as_path()))).collect();
     let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
     crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, _parse) = load_recording(&a.recording)?;
@@ -261,7 +230,20 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
         l0_sigma: &fin.l0_sigma_m,
         rms_m: fin.rms_m,
     };
-    taut_calib::trust::check(&cand, &rec, None).map_err(|e| anyhow::anyhow!("diagnosis refused, nothing written: {e}"))?;
+    let trusted = taut_calib::trust::check(&cand, &rec, None);
+    let write_report = |refused: Option<String>| -> Result<()> {
+        let Some(r) = &a.report else { return Ok(()) };
+        let html = crate::html::diagnosis(&d, &a.recording.display().to_string(), &cfg.robot.name, refused)?;
+        taut_config::write_atomic(r, html.as_bytes()).with_context(|| format!("writing {}", r.display()))
+    };
+    if let Err(e) = &trusted {
+        if let Some(r) = &a.report {
+            // The report says why; nothing else is written.
+            write_report(Some(e.to_string()))?;
+            anyhow::bail!("diagnosis refused, no model written (the report {} says why): {e}", r.display());
+        }
+    }
+    trusted.map_err(|e| anyhow::anyhow!("diagnosis refused, nothing written: {e}"))?;
     if let Some(j) = &a.json {
         taut_config::write_atomic(j, serde_json::to_string_pretty(&to_json(&d))?.as_bytes())
             .with_context(|| format!("writing {}", j.display()))?;
@@ -295,6 +277,10 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     if let Some(dir) = &a.plot {
         plots(dir, &inputs, &d)?;
         eprintln!("figures written to {}", dir.display());
+    }
+    if let Some(r) = &a.report {
+        write_report(None)?;
+        eprintln!("report written to {}", r.display());
     }
     Ok(())
 }

@@ -8,6 +8,8 @@ mod ctl;
 mod demo;
 mod diagnose;
 mod notracker;
+mod figures;
+mod html;
 mod outputs;
 mod plot;
 mod probe;

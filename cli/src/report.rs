@@ -2,11 +2,10 @@
 //! parameter file.
 
 use crate::calibrate::Outcome;
-use crate::plot::{self, Panel, Series};
 use anyhow::Result;
 use serde_json::json;
 use std::path::Path;
-use taut_calib::{metrics, CalibOptions, CalibReport, Params};
+use taut_calib::{CalibReport, Params};
 use taut_config::params::ParamsFile;
 use taut_config::recording::{ParseReport, Recording};
 use taut_config::RobotConfig;
@@ -202,9 +201,8 @@ pub fn params_file(cfg: &RobotConfig, source: &str, r: &CalibReport) -> ParamsFi
     }
 }
 
-/// Figures like the paper's Fig. 7 (measured vs modelled before/after), Fig. 8 (error with loose
-/// samples marked, with and without force weighting) and Fig. 9 (error histograms).
-/// Figures 7-9 into `dir`, all or nothing (none of them may replace one of `inputs`).
+/// The calibration figures (`crate::figures::calibration`) into `dir`, all or nothing (none of
+/// them may replace one of `inputs`).
 pub fn plots(dir: &Path, inputs: &[&Path], rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Result<()> {
     let mut set = crate::outputs::figures(dir, inputs)?;
     draw_figures(&mut set, rec, cfg, out)?;
@@ -212,64 +210,8 @@ pub fn plots(dir: &Path, inputs: &[&Path], rec: &Recording, cfg: &RobotConfig, o
 }
 
 fn draw_figures(set: &mut taut_config::atomic::Staging, rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Result<()> {
-    let b = cfg.platform_points();
-    let n = rec.n_cables;
-    let opts = CalibOptions::from_config(&cfg.calibration);
-    let taut = metrics::taut_mask(rec, &opts);
-    let before = metrics::co_registration(rec, &b, &out.init.params);
-    let after = metrics::co_registration(rec, &b, &out.force.params);
-    let plain = out.plain.as_ref().map(|p| metrics::co_registration(rec, &b, &p.params));
-    // Fig. 7: measured and modelled lengths per cable, before and after.
-    let mut fig7_data = Vec::new();
-    for j in 0..n {
-        let meas: Vec<(f64, f64)> = (0..rec.len()).map(|i| (rec.t[i], rec.lengths(i)[j])).collect();
-        let model_before: Vec<(f64, f64)> = (0..rec.len()).map(|i| (rec.t[i], rec.lengths(i)[j] - before.get(i, j))).collect();
-        let model_after: Vec<(f64, f64)> = (0..rec.len()).map(|i| (rec.t[i], rec.lengths(i)[j] - after.get(i, j))).collect();
-        fig7_data.push((meas, model_before, model_after));
+    for fig in crate::figures::calibration::figures(rec, cfg, out) {
+        fig.write(set)?;
     }
-    let panels: Vec<Panel> = fig7_data
-        .iter()
-        .enumerate()
-        .map(|(j, (m, mb, ma))| Panel {
-            title: format!("cable {j}: encoder length vs model"),
-            x_label: "t, s",
-            y_label: "length, m",
-            series: vec![
-                Series { label: "measured".into(), points: m, color: plot::color(0), markers: false },
-                Series { label: "model, initial".into(), points: mb, color: plot::color(1), markers: false },
-                Series { label: "model, calibrated".into(), points: ma, color: plot::color(2), markers: false },
-            ],
-        })
-        .collect();
-    plot::write_panels(set, "fig7-lengths", &panels)?;
-    // Fig. 8: co-registration error with loose samples marked.
-    let mut fig8 = Vec::new();
-    for j in 0..n {
-        let err_force: Vec<(f64, f64)> = (0..rec.len()).map(|i| (rec.t[i], after.get(i, j) * 1e3)).collect();
-        let err_plain: Vec<(f64, f64)> =
-            plain.as_ref().map(|p| (0..rec.len()).map(|i| (rec.t[i], p.get(i, j) * 1e3)).collect()).unwrap_or_default();
-        let loose: Vec<(f64, f64)> = (0..rec.len()).filter(|&i| !taut[i * n + j]).map(|i| (rec.t[i], after.get(i, j) * 1e3)).collect();
-        fig8.push((err_force, err_plain, loose));
-    }
-    let panels: Vec<Panel> = fig8
-        .iter()
-        .enumerate()
-        .map(|(j, (ef, ep, lo))| {
-            let mut series = vec![Series { label: "force-aware".into(), points: ef, color: plot::color(0), markers: false }];
-            if !ep.is_empty() {
-                series.push(Series { label: "without force weighting".into(), points: ep, color: plot::color(1), markers: false });
-            }
-            series.push(Series { label: "loose cable (T < threshold)".into(), points: lo, color: plot::LOOSE, markers: true });
-            Panel { title: format!("cable {j}: co-registration error"), x_label: "t, s", y_label: "error, mm", series }
-        })
-        .collect();
-    plot::write_panels(set, "fig8-errors", &panels)?;
-    // Fig. 9: histograms of the taut-sample errors.
-    let collect = |r: &metrics::Residuals| -> Vec<f64> { (0..rec.len() * n).filter(|&k| taut[k]).map(|k| r.values[k] * 1e3).collect() };
-    let mut sets = vec![("before calibration".to_string(), collect(&before)), ("force-aware".to_string(), collect(&after))];
-    if let Some(p) = &plain {
-        sets.push(("without force weighting".to_string(), collect(p)));
-    }
-    plot::write_histograms(set, "fig9-histogram", "co-registration error, taut samples", "error, mm", &sets)?;
     Ok(())
 }

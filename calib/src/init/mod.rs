@@ -313,6 +313,8 @@ fn reading_sigma(opts: &CalibOptions) -> f64 {
 }
 
 /// Closed-form anchor and offset of one cable from its readings `d` (see the module doc).
+// The normal-equation loops index the 5x5 upper triangle by row and column, as the maths reads.
+#[allow(clippy::needless_range_loop)]
 pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
     let slots: Vec<usize> = d.used_slots().collect();
     let m = slots.len();
@@ -364,15 +366,25 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
     let mut l0_est = 0.0;
     let mut resid = vec![0.0; m];
     for round in 0..4 {
-        let mut nmat = SMatrix::<f64, 5, 5>::zeros();
-        let mut rhs = SVector::<f64, 5>::zeros();
+        // The normal equations' upper triangle, accumulated by hand (a 5x5 outer product per
+        // reading through nalgebra was most of the initialisation's time), then mirrored.
+        let two_over_s = 2.0 / s;
+        let (mut upper, mut r) = ([[0.0f64; 5]; 5], [0.0f64; 5]);
         for (i, &k) in slots.iter().enumerate() {
             let x = model::sub(d.point(k), xm);
-            let row = SVector::<f64, 5>::from([-2.0 * x[0] / s, -2.0 * x[1] / s, -2.0 * x[2] / s, 2.0 * (d.l[k] - lm) / s, 1.0]);
+            let row = [-x[0] * two_over_s, -x[1] * two_over_s, -x[2] * two_over_s, (d.l[k] - lm) * two_over_s, 1.0];
             let y = d.l[k] * d.l[k] - model::dot(x, x);
-            nmat += row * row.transpose() * w[i];
-            rhs += row * (y * w[i]);
+            let wi = w[i];
+            for a in 0..5 {
+                let ra = row[a] * wi;
+                for b in a..5 {
+                    upper[a][b] += ra * row[b];
+                }
+                r[a] += ra * y;
+            }
         }
+        let nmat = SMatrix::<f64, 5, 5>::from_fn(|a, b| if a <= b { upper[a][b] } else { upper[b][a] });
+        let rhs = SVector::<f64, 5>::from(r);
         theta = match nmat.cholesky() {
             Some(c) => c.solve(&rhs),
             None => return Err(InitError::NotExcited { cable, param: Param::L0, ratio: 0.0 }),
