@@ -407,6 +407,7 @@ pub struct Calibrator {
     version: u64,
     jobs: Option<JobChannels>,
     busy: bool,
+    outputs: Option<crate::channels::Outputs>,
 }
 
 impl Calibrator {
@@ -448,11 +449,30 @@ impl Calibrator {
             version,
             jobs: None,
             busy: false,
+            outputs: None,
         })
     }
 
-    fn stage(&self, s: &str) {
-        self.status.lock().unwrap().stage = s.into();
+    /// Also sends every sample, parameter set and stage to `o` (MCAP recording, telemetry).
+    pub fn with_outputs(mut self, o: crate::channels::Outputs) -> Calibrator {
+        self.outputs = Some(o);
+        self
+    }
+
+    fn stage(&mut self, s: &str) {
+        let mut st = self.status.lock().unwrap();
+        st.stage = s.into();
+        if let Some(o) = &mut self.outputs {
+            o.calibrator(s, st.samples_recorded, None);
+        }
+    }
+
+    /// Sends the newest outcome to the outputs.
+    fn outcome_out(&mut self) {
+        if let Some(o) = &mut self.outputs {
+            let st = self.status.lock().unwrap();
+            o.calibrator(&st.stage, st.samples_recorded, st.outcomes.last());
+        }
     }
 
     /// Runs until `quit` is set: drains, records, calibrates. Returns when the ring is empty
@@ -487,6 +507,12 @@ impl Calibrator {
                     }
                 }
             }
+            if let Some(o) = &mut self.outputs {
+                o.tick();
+                if let Some(e) = o.error.take() {
+                    self.status.lock().unwrap().recorder_error = Some(format!("MCAP recording: {e}"));
+                }
+            }
             // Acquire: pairs with the daemon's Release store so the final drain sees every sample
             // the loop pushed before it stopped.
             if got == 0 && quit.load(Ordering::Acquire) && !self.busy {
@@ -499,6 +525,9 @@ impl Calibrator {
         if let Some(r) = &mut self.recorder {
             let _ = r.flush();
         }
+        if let Some(o) = &mut self.outputs {
+            o.finish();
+        }
         self.jobs = None;
         let _ = worker.join();
     }
@@ -508,6 +537,12 @@ impl Calibrator {
             match r.push(s) {
                 Ok(()) => self.status.lock().unwrap().samples_recorded = r.rows,
                 Err(e) => self.status.lock().unwrap().recorder_error = Some(e.to_string()),
+            }
+        }
+        if let Some(o) = &mut self.outputs {
+            o.sample(s);
+            if self.recorder.is_none() {
+                self.status.lock().unwrap().samples_recorded += 1;
             }
         }
         let state = State::from_u8(s.state);
@@ -658,6 +693,9 @@ impl Calibrator {
         self.params_tx.write(lp);
         self.current_params = lp;
         self.current = Some(est.clone());
+        if let Some(o) = &mut self.outputs {
+            o.params(&file);
+        }
         let mut st = self.status.lock().unwrap();
         st.current = Some(file);
         st.outcomes.push(Outcome {
@@ -672,6 +710,8 @@ impl Calibrator {
             samples,
             data_problems: vec![],
         });
+        drop(st);
+        self.outcome_out();
     }
 
     fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
@@ -688,6 +728,8 @@ impl Calibrator {
             samples,
             data_problems: vec![],
         });
+        drop(st);
+        self.outcome_out();
     }
 }
 

@@ -52,8 +52,15 @@ pub struct Daemon {
     pub loop_status: SharedLoopStatus,
     /// The calibrator's status.
     pub calib_status: SharedCalibStatus,
-    /// The recording being written.
+    /// The recording being written (the CSV; the MCAP file when only MCAP is recorded).
     pub recording: PathBuf,
+    /// The MCAP recording, when `[recording] format` asks for one.
+    pub mcap: Option<PathBuf>,
+    /// Where the telemetry server listens, when `[telemetry]` is enabled.
+    pub telemetry: Option<std::net::SocketAddr>,
+    /// The telemetry server's counters.
+    pub telemetry_stats: Option<Arc<crate::telemetry::TelemetryStats>>,
+    telemetry_thread: Option<JoinHandle<()>>,
     urgent: Arc<Urgent>,
 }
 
@@ -94,16 +101,28 @@ impl Daemon {
         } else {
             None
         };
-        let calibrator = Calibrator::new(
-            CalibratorConfig::from_robot(cfg),
-            sample_rx,
-            params_tx,
-            backend,
-            Some(recording.clone()),
-            calib_status.clone(),
-        )
-        .map_err(|e| format!("cannot create the recording {}: {e} (daemon.data_dir)", recording.display()))?;
+        let fmt = cfg.recording.format;
+        let mcap = fmt.mcap().then(|| recording.with_extension("mcap"));
+        let recording = if fmt.csv() { recording } else { mcap.clone().unwrap_or(recording) };
+        let ccfg_cal = CalibratorConfig::from_robot(cfg);
+        let (outputs, telemetry) = crate::channels::open_outputs(&ccfg_cal, cfg, mcap.as_deref())?;
+        let calibrator =
+            Calibrator::new(ccfg_cal, sample_rx, params_tx, backend, fmt.csv().then(|| recording.clone()), calib_status.clone())
+                .map_err(|e| format!("cannot create the recording {}: {e} (daemon.data_dir)", recording.display()))?;
+        let calibrator = match outputs {
+            Some(o) => calibrator.with_outputs(o),
+            None => calibrator,
+        };
         let quit = Arc::new(AtomicBool::new(false));
+        let (telemetry_addr, telemetry_stats, telemetry_thread) = match telemetry {
+            Some(server) => {
+                let (addr, stats, q) = (server.addr, server.stats.clone(), quit.clone());
+                let t =
+                    std::thread::Builder::new().name("taut-telemetry".into()).spawn(move || server.run(q)).map_err(|e| e.to_string())?;
+                (Some(addr), Some(stats), Some(t))
+            }
+            None => (None, None, None),
+        };
         let loop_quit = Arc::new(AtomicBool::new(false));
         let calib_quit = quit.clone();
         let calib_thread = std::thread::Builder::new()
@@ -133,6 +152,10 @@ impl Daemon {
             loop_status,
             calib_status,
             recording,
+            mcap,
+            telemetry: telemetry_addr,
+            telemetry_stats,
+            telemetry_thread,
             urgent,
         })
     }
@@ -189,6 +212,9 @@ impl Daemon {
             let _ = t.join();
         }
         if let Some(t) = self.control_thread.take() {
+            let _ = t.join();
+        }
+        if let Some(t) = self.telemetry_thread.take() {
             let _ = t.join();
         }
     }

@@ -26,6 +26,7 @@
 
 pub mod calib_backend;
 pub mod calibrator;
+pub mod channels;
 pub mod control;
 pub mod ctl_server;
 pub mod daemon;
@@ -44,6 +45,7 @@ pub mod sample;
 pub mod simrig;
 pub mod spsc;
 mod sync;
+pub mod telemetry;
 pub mod testkit;
 pub mod triple;
 pub mod urgent;
