@@ -152,7 +152,11 @@ impl TelemetryServer {
             }
             match handshake(stream, cfg) {
                 Ok(mut ws) => {
-                    let ok = ws.send(Message::text(server_info())).and_then(|_| ws.send(Message::text(advertise())));
+                    // A send that would block stays queued in the socket's buffer: go on.
+                    let mut ok = ws.send(Message::text(server_info()));
+                    if ok.as_ref().map_or_else(would_block, |_| true) {
+                        ok = ws.send(Message::text(advertise()));
+                    }
                     match ok {
                         Ok(()) => {}
                         Err(e) if would_block(&e) => {}
@@ -219,6 +223,9 @@ impl TelemetryServer {
     }
 }
 
+// tungstenite's error and its handshake callback's error response are large by its design; they
+// live on the telemetry thread only, once per connection.
+#[allow(clippy::result_large_err)]
 fn handshake(stream: TcpStream, cfg: WebSocketConfig) -> Result<WebSocket<TcpStream>, String> {
     stream.set_nonblocking(false).map_err(|e| e.to_string())?;
     stream.set_read_timeout(Some(HANDSHAKE_TIMEOUT)).map_err(|e| e.to_string())?;

@@ -2,9 +2,13 @@
 //! files checked with the independent Python reader; hostile MCAP input gets clear errors.
 
 use std::path::Path;
+#[path = "../src/hostile.rs"]
+#[allow(dead_code)]
+mod hostile;
+
+use hostile::taut_bin;
 use std::process::Command;
 use taut_config::recording::Recording;
-use taut_tests::hostile::taut_bin;
 use taut_tests::mcap::{count, read_with_python};
 
 fn taut(args: &[&str]) -> std::process::Output {

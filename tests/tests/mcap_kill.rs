@@ -2,10 +2,14 @@
 //! chunks the independent Python reader reads (all but the last half second), and taut names
 //! the file and the problem instead of reading it half.
 
+#[path = "../src/hostile.rs"]
+#[allow(dead_code)]
+mod hostile;
+
+use hostile::taut_bin;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 use taut_config::recording::Recording;
-use taut_tests::hostile::taut_bin;
 use taut_tests::mcap::{count, read_with_python};
 
 #[test]
