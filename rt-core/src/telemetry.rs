@@ -71,6 +71,7 @@ struct Client {
     ws: WebSocket<TcpStream>,
     /// channel id -> subscription ids.
     subs: BTreeMap<u16, Vec<u32>>,
+    gone: bool,
 }
 
 fn channel_id(t: Topic) -> u16 {
@@ -113,16 +114,28 @@ impl TelemetryServer {
     /// Serves until `quit` is set.
     pub fn run(self, quit: Arc<AtomicBool>) {
         let mut clients: Vec<Client> = Vec::new();
+        // The newest frame of each channel sent on change (drives, phase, faults, params,
+        // calibrator): a client that subscribes later gets it at once, as a latched topic.
+        let mut latched: BTreeMap<u16, Frame> = BTreeMap::new();
         let cfg = WebSocketConfig::default().write_buffer_size(0).max_write_buffer_size(MAX_CLIENT_BACKLOG).max_message_size(Some(1 << 20));
         // Acquire: pairs with the daemon's Release store; only ends the loop.
         while !quit.load(Ordering::Acquire) {
             self.accept(&mut clients, cfg);
-            clients.retain_mut(|c| self.read_client(c));
+            for c in clients.iter_mut() {
+                for (sub, ch) in self.read_client(c) {
+                    if let Some(f) = latched.get(&ch) {
+                        self.send(c, sub, f);
+                    }
+                }
+            }
+            clients.retain(|c| !c.gone);
             match self.rx.recv_timeout(Duration::from_millis(20)) {
                 Ok(f) => {
-                    self.fan_out(&mut clients, &f);
-                    for f in self.rx.try_iter().take(4096) {
+                    for f in std::iter::once(f).chain(self.rx.try_iter().take(4096)) {
                         self.fan_out(&mut clients, &f);
+                        if matches!(f.topic, Topic::Drives | Topic::Phase | Topic::Faults | Topic::Params | Topic::Calibrator) {
+                            latched.insert(channel_id(f.topic), f);
+                        }
                     }
                 }
                 Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
@@ -166,7 +179,7 @@ impl TelemetryServer {
                         }
                     }
                     self.stats.accepted.fetch_add(1, Ordering::Relaxed);
-                    clients.push(Client { ws, subs: BTreeMap::new() });
+                    clients.push(Client { ws, subs: BTreeMap::new(), gone: false });
                 }
                 Err(_) => {
                     self.stats.refused.fetch_add(1, Ordering::Relaxed);
@@ -175,49 +188,62 @@ impl TelemetryServer {
         }
     }
 
-    /// Reads what the client sent; false when it is gone.
-    fn read_client(&self, c: &mut Client) -> bool {
-        loop {
+    /// Reads what the client sent (marks it gone when it left); returns the new subscriptions
+    /// as (subscription id, channel id).
+    fn read_client(&self, c: &mut Client) -> Vec<(u32, u16)> {
+        let mut new = Vec::new();
+        while !c.gone {
             match c.ws.read() {
-                Ok(Message::Text(t)) => on_request(c, t.as_str()),
-                Ok(Message::Close(_)) => return false,
+                Ok(Message::Text(t)) => new.extend(on_request(c, t.as_str())),
+                Ok(Message::Close(_)) => c.gone = true,
                 Ok(_) => {}
-                Err(e) if would_block(&e) => return true,
-                Err(_) => return false,
+                Err(e) if would_block(&e) => break,
+                Err(_) => c.gone = true,
             }
         }
+        if c.gone {
+            new.clear();
+        }
+        new
     }
 
     fn fan_out(&self, clients: &mut [Client], f: &Frame) {
         let ch = channel_id(f.topic);
         for c in clients.iter_mut() {
             let Some(subs) = c.subs.get(&ch) else { continue };
-            for &sub in subs {
-                let mut b = Vec::with_capacity(13 + f.data.len());
-                b.push(0x01);
-                b.extend_from_slice(&sub.to_le_bytes());
-                b.extend_from_slice(&f.log_time_ns.to_le_bytes());
-                b.extend_from_slice(&f.data);
-                match c.ws.write(Message::binary(b)) {
-                    // Relaxed: a statistic.
-                    Ok(()) => {
-                        self.stats.sent.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(e) if would_block(&e) => {
-                        self.stats.sent.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(tungstenite::Error::WriteBufferFull(_)) => {
-                        // Too slow: no more for this client; it is closed below.
-                        self.stats.slow_dropped.fetch_add(1, Ordering::Relaxed);
-                        c.subs.clear();
-                        let _ = c.ws.close(None);
-                        break;
-                    }
-                    Err(_) => {
-                        c.subs.clear();
-                        break;
-                    }
+            for sub in subs.clone() {
+                if !self.send(c, sub, f) {
+                    break;
                 }
+            }
+        }
+    }
+
+    /// One messageData frame to one subscription; false when the client can take no more.
+    fn send(&self, c: &mut Client, sub: u32, f: &Frame) -> bool {
+        let mut b = Vec::with_capacity(13 + f.data.len());
+        b.push(0x01);
+        b.extend_from_slice(&sub.to_le_bytes());
+        b.extend_from_slice(&f.log_time_ns.to_le_bytes());
+        b.extend_from_slice(&f.data);
+        match c.ws.write(Message::binary(b)) {
+            // Relaxed: statistics. A write that would block is queued in the socket's buffer.
+            Ok(()) => {
+                self.stats.sent.fetch_add(1, Ordering::Relaxed);
+                true
+            }
+            Err(e) if would_block(&e) => {
+                self.stats.sent.fetch_add(1, Ordering::Relaxed);
+                true
+            }
+            Err(e) => {
+                if matches!(e, tungstenite::Error::WriteBufferFull(_)) {
+                    // Too slow: dropped rather than ever waited on.
+                    self.stats.slow_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+                c.subs.clear();
+                c.gone = true;
+                false
             }
         }
     }
@@ -255,8 +281,9 @@ fn handshake(stream: TcpStream, cfg: WebSocketConfig) -> Result<WebSocket<TcpStr
 
 /// A subscribe or unsubscribe request; anything else (or malformed) is ignored, as the protocol
 /// allows for unknown operations.
-fn on_request(c: &mut Client, text: &str) {
-    let Ok(v) = serde_json::from_str::<serde_json::Value>(text) else { return };
+fn on_request(c: &mut Client, text: &str) -> Vec<(u32, u16)> {
+    let mut new = Vec::new();
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(text) else { return new };
     match v.get("op").and_then(|o| o.as_str()) {
         Some("subscribe") => {
             for s in v.get("subscriptions").and_then(|s| s.as_array()).into_iter().flatten() {
@@ -268,6 +295,7 @@ fn on_request(c: &mut Client, text: &str) {
                     let subs = c.subs.entry(ch).or_default();
                     if !subs.contains(&id) && subs.len() < 16 {
                         subs.push(id);
+                        new.push((id, ch));
                     }
                 }
             }
@@ -281,4 +309,5 @@ fn on_request(c: &mut Client, text: &str) {
         }
         _ => {}
     }
+    new
 }

@@ -3,7 +3,6 @@
 
 use std::path::Path;
 #[path = "../src/hostile.rs"]
-#[allow(dead_code)]
 mod hostile;
 
 use hostile::taut_bin;

@@ -3,7 +3,6 @@
 //! the file and the problem instead of reading it half.
 
 #[path = "../src/hostile.rs"]
-#[allow(dead_code)]
 mod hostile;
 
 use hostile::taut_bin;

@@ -44,11 +44,18 @@ fn start_up_mcap_has_every_channel_and_the_csv_rows() {
     let csv = d.recording.clone();
     let mcap = d.mcap.clone().expect("format both writes an MCAP file");
     let c = d.calib_status();
+    let fault = d.loop_status().snap.fault;
+    let dropped = d.loop_status().dropped;
     let report = d.shutdown().unwrap();
     assert!(ok, "start-up did not finish: {}", c.stage);
+    assert_eq!(dropped, 0, "the calibrator side (recording, encoding, telemetry) fell behind the loop");
+    assert!(fault.is_none(), "the start-up faulted: {fault:?} (stage {})", c.stage);
+    if let Some(o) = c.outcomes.iter().find(|o| !o.accepted) {
+        panic!("a calibration was rejected: {}", o.reason);
+    }
     let accepted = c.outcomes.iter().filter(|o| o.accepted).count() as u64;
     eprintln!(
-        "without a telemetry client: {} cycles, {} overruns, {} samples recorded, max late {} us",
+        "without a telemetry client: {} cycles, {} overruns, {dropped} samples dropped, {} samples recorded, max late {} us",
         report.cycles,
         report.overruns,
         c.samples_recorded,

@@ -17,7 +17,8 @@ use tungstenite::Message;
 
 type Ws = tungstenite::WebSocket<TcpStream>;
 
-fn connect(addr: SocketAddr, subprotocol: Option<&str>) -> Result<Ws, tungstenite::Error> {
+/// The handshake's error, boxed (tungstenite's error is large).
+fn connect(addr: SocketAddr, subprotocol: Option<&str>) -> Result<Ws, Box<tungstenite::Error>> {
     let stream = TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     let mut req = format!("ws://{addr}/").into_client_request().unwrap();
@@ -29,7 +30,7 @@ fn connect(addr: SocketAddr, subprotocol: Option<&str>) -> Result<Ws, tungstenit
             assert_eq!(resp.headers().get("Sec-WebSocket-Protocol").unwrap(), "foxglove.websocket.v1");
             Ok(ws)
         }
-        Err(tungstenite::HandshakeError::Failure(e)) => Err(e),
+        Err(tungstenite::HandshakeError::Failure(e)) => Err(Box::new(e)),
         Err(e) => panic!("handshake: {e}"),
     }
 }
@@ -122,13 +123,20 @@ fn a_client_receives_every_channel_during_the_start_up() {
     // Let the last frames through before stopping the client.
     std::thread::sleep(Duration::from_millis(500));
     let c = d.calib_status();
+    let fault = d.loop_status().snap.fault;
+    let dropped = d.loop_status().dropped;
     let stats = d.telemetry_stats.clone().unwrap();
     stop.store(true, Ordering::Relaxed);
     let got = client.join().unwrap();
     let report = d.shutdown().unwrap();
     assert!(ok, "start-up did not finish: {}", c.stage);
+    assert_eq!(dropped, 0, "the calibrator side (recording, encoding, telemetry) fell behind the loop");
+    assert!(fault.is_none(), "the start-up faulted: {fault:?} (stage {})", c.stage);
+    if let Some(o) = c.outcomes.iter().find(|o| !o.accepted) {
+        panic!("a calibration was rejected: {}", o.reason);
+    }
     eprintln!(
-        "with a telemetry client: {} cycles, {} overruns, {} samples recorded, max late {} us; received {:?}; server sent {}, slow drops {}",
+        "with a telemetry client: {} cycles, {} overruns, {dropped} samples dropped, {} samples recorded, max late {} us; received {:?}; server sent {}, slow drops {}",
         report.cycles,
         report.overruns,
         c.samples_recorded,
