@@ -10,6 +10,7 @@ mod diagnose;
 mod notracker;
 mod figures;
 mod html;
+mod export;
 mod outputs;
 mod plot;
 mod probe;
@@ -43,6 +44,8 @@ enum Command {
     Diagnose(diagnose::DiagnoseArgs),
     /// Find every CAN drive, configure its PDOs, print nodes, states, positions and the bus load.
     Probe(probe::ProbeArgs),
+    /// Convert a recording (cdpr-recording v1) to MCAP for Foxglove, PlotJuggler and rosbag2.
+    Export(export::ExportArgs),
 }
 
 fn main() -> ExitCode {
@@ -55,6 +58,7 @@ fn main() -> ExitCode {
         Command::Ctl(a) => ctl::run(&a),
         Command::Diagnose(a) => diagnose::run(&a),
         Command::Probe(a) => probe::run(&a),
+        Command::Export(a) => export::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -105,6 +105,12 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
+    if let Some(m) = daemon.mcap.as_ref().filter(|m| **m != daemon.recording) {
+        eprintln!("taut start: MCAP recording {} (open in Foxglove)", m.display());
+    }
+    if let Some(addr) = daemon.telemetry {
+        eprintln!("taut start: telemetry ws://{addr} (Foxglove: Open connection, Foxglove WebSocket)");
+    }
 
     if !a.once {
         taut_rt_core::rtsys::install_stop_signals();

@@ -16,6 +16,8 @@ pub mod eds;
 mod exact;
 pub mod geometry;
 pub mod input;
+pub mod live;
+pub mod mcap;
 pub mod params;
 pub mod pdo;
 pub mod recording;
@@ -60,6 +62,12 @@ pub struct RobotConfig {
     /// The `[daemon]` table: control socket and data files of `taut start` (optional).
     #[serde(default)]
     pub daemon: runtime::DaemonConfig,
+    /// The `[recording]` table: CSV, MCAP or both (optional).
+    #[serde(default)]
+    pub recording: live::RecordingConfig,
+    /// The `[telemetry]` table: live Foxglove WebSocket server (optional, off by default).
+    #[serde(default)]
+    pub telemetry: live::TelemetryConfig,
 }
 
 /// The `[robot]` table.
@@ -230,6 +238,8 @@ impl RobotConfig {
             motion: Default::default(),
             safety: Default::default(),
             daemon: Default::default(),
+            recording: Default::default(),
+            telemetry: Default::default(),
         }
     }
 
@@ -388,6 +398,7 @@ impl RobotConfig {
         self.motion.validate(self.cables.len()).map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
         self.safety.validate().map_err(|(k, m)| err(first_line("[safety]"), format!("safety.{k}"), m))?;
         self.daemon.validate().map_err(|(k, m)| err(first_line("[daemon]"), format!("daemon.{k}"), m))?;
+        self.telemetry.validate().map_err(|(k, m)| err(first_line("[telemetry]"), format!("telemetry.{k}"), m))?;
         Ok(())
     }
 }

@@ -248,7 +248,12 @@ impl Recording {
                 ))));
             }
         }
-        parse(std::io::BufReader::new(file)).map_err(|mut e| {
+        // MCAP by its magic bytes, whatever the file is called.
+        let mut file = std::io::BufReader::new(file);
+        if crate::mcap::is_mcap_bytes(file.fill_buf().map_err(|e| err(ErrorKind::Io(e.to_string())))?) {
+            return crate::mcap::read_from(path, file);
+        }
+        parse(file).map_err(|mut e| {
             e.file = Some(path.display().to_string());
             e
         })
@@ -325,6 +330,8 @@ pub enum ErrorKind {
     TooLarge(String),
     /// Time is missing, or earlier than on the previous row.
     Time(String),
+    /// An MCAP file that is not a readable taut recording (what is wrong, for a person).
+    Mcap(String),
     /// Too few rows with a length.
     TooFewSamples {
         /// Usable rows found.
@@ -396,6 +403,7 @@ impl fmt::Display for RecordingError {
             ),
             ErrorKind::TooLarge(m) => write!(f, ": too large: {m}"),
             ErrorKind::Time(m) => write!(f, ": {m}"),
+            ErrorKind::Mcap(m) => write!(f, ": MCAP: {m}"),
             ErrorKind::TooFewSamples { usable, needed } => {
                 write!(f, ": only {usable} usable samples (rows with a length), at least {needed} needed")
             }

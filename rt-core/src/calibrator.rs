@@ -412,6 +412,7 @@ pub struct Calibrator {
     version: u64,
     jobs: Option<JobChannels>,
     busy: bool,
+    outputs: Option<crate::channels::Outputs>,
 }
 
 impl Calibrator {
@@ -453,11 +454,30 @@ impl Calibrator {
             version,
             jobs: None,
             busy: false,
+            outputs: None,
         })
     }
 
-    fn stage(&self, s: &str) {
-        self.status.lock().unwrap().stage = s.into();
+    /// Also sends every sample, parameter set and stage to `o` (MCAP recording, telemetry).
+    pub fn with_outputs(mut self, o: crate::channels::Outputs) -> Calibrator {
+        self.outputs = Some(o);
+        self
+    }
+
+    fn stage(&mut self, s: &str) {
+        let mut st = self.status.lock().unwrap();
+        st.stage = s.into();
+        if let Some(o) = &mut self.outputs {
+            o.calibrator(s, st.samples_recorded, None);
+        }
+    }
+
+    /// Sends the newest outcome to the outputs.
+    fn outcome_out(&mut self) {
+        if let Some(o) = &mut self.outputs {
+            let st = self.status.lock().unwrap();
+            o.calibrator(&st.stage, st.samples_recorded, st.outcomes.last());
+        }
     }
 
     /// Runs until `quit` is set: drains, records, calibrates. Returns when the ring is empty
@@ -492,6 +512,12 @@ impl Calibrator {
                     }
                 }
             }
+            if let Some(o) = &mut self.outputs {
+                o.tick();
+                if let Some(e) = o.error.take() {
+                    self.status.lock().unwrap().recorder_error = Some(format!("MCAP recording: {e}"));
+                }
+            }
             // Acquire: pairs with the daemon's Release store so the final drain sees every sample
             // the loop pushed before it stopped.
             if got == 0 && quit.load(Ordering::Acquire) && !self.busy {
@@ -504,6 +530,9 @@ impl Calibrator {
         if let Some(r) = &mut self.recorder {
             let _ = r.flush();
         }
+        if let Some(o) = &mut self.outputs {
+            o.finish();
+        }
         self.jobs = None;
         let _ = worker.join();
     }
@@ -513,6 +542,12 @@ impl Calibrator {
             match r.push(s) {
                 Ok(()) => self.status.lock().unwrap().samples_recorded = r.rows,
                 Err(e) => self.status.lock().unwrap().recorder_error = Some(e.to_string()),
+            }
+        }
+        if let Some(o) = &mut self.outputs {
+            o.sample(s);
+            if self.recorder.is_none() {
+                self.status.lock().unwrap().samples_recorded += 1;
             }
         }
         let state = State::from_u8(s.state);
@@ -664,6 +699,9 @@ impl Calibrator {
         self.params_tx.write(lp);
         self.current_params = lp;
         self.current = Some(est.clone());
+        if let Some(o) = &mut self.outputs {
+            o.params(&file);
+        }
         let mut st = self.status.lock().unwrap();
         st.current = Some(file);
         st.outcomes.push(Outcome {
@@ -678,6 +716,8 @@ impl Calibrator {
             samples,
             data_problems: vec![],
         });
+        drop(st);
+        self.outcome_out();
     }
 
     fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
@@ -694,6 +734,8 @@ impl Calibrator {
             samples,
             data_problems: vec![],
         });
+        drop(st);
+        self.outcome_out();
     }
 }
 

@@ -3,7 +3,7 @@
 //! builds the ring, the triple buffers and the command channel and runs the calibrator thread;
 //! the daemon adds the loop thread and the control thread, and stops them in order.
 
-use crate::calibrator::{CalibStatus, Calibrate, SharedCalibStatus};
+use crate::calibrator::{CalibStatus, Calibrate, CalibratorConfig, SharedCalibStatus};
 use crate::control::{ControlServer, ServerLimits, SharedLoopStatus};
 use crate::io::Devices;
 use crate::motion::Command;
@@ -52,6 +52,9 @@ pub enum DaemonError {
         /// The error.
         source: std::io::Error,
     },
+    /// The MCAP recording or the telemetry server could not be opened (`[recording]`,
+    /// `[telemetry]`).
+    Outputs(String),
     /// A thread could not be started.
     Thread {
         /// Its name.
@@ -69,6 +72,7 @@ impl fmt::Display for DaemonError {
                 write!(f, "cannot serve the control socket {}: {source} (daemon.socket)", path.display())
             }
             DaemonError::Thread { name, source } => write!(f, "cannot start the {name} thread: {source}"),
+            DaemonError::Outputs(m) => f.write_str(m),
         }
     }
 }
@@ -78,6 +82,7 @@ impl std::error::Error for DaemonError {
         match self {
             DaemonError::Plugin(e) => Some(e),
             DaemonError::ControlSocket { source, .. } | DaemonError::Thread { source, .. } => Some(source),
+            DaemonError::Outputs(_) => None,
         }
     }
 }
@@ -100,8 +105,15 @@ pub struct Daemon {
     pub loop_status: SharedLoopStatus,
     /// The calibrator's status.
     pub calib_status: SharedCalibStatus,
-    /// The recording being written.
+    /// The recording being written (the CSV; the MCAP file when only MCAP is recorded).
     pub recording: PathBuf,
+    /// The MCAP recording, when `[recording] format` asks for one.
+    pub mcap: Option<PathBuf>,
+    /// Where the telemetry server listens, when `[telemetry]` is enabled.
+    pub telemetry: Option<std::net::SocketAddr>,
+    /// The telemetry server's counters.
+    pub telemetry_stats: Option<Arc<crate::telemetry::TelemetryStats>>,
+    telemetry_thread: Option<JoinHandle<()>>,
     handle: PluginHandle,
 }
 
@@ -141,9 +153,31 @@ impl Daemon {
         } else {
             None
         };
+        // The MCAP recording and the telemetry server read what the calibrator thread reads
+        // (the sample stream), never the loop.
+        let fmt = cfg.recording.format;
+        let base = builder.recording().map(PathBuf::from).unwrap_or_default();
+        let mcap = (fmt.mcap() && !base.as_os_str().is_empty()).then(|| base.with_extension("mcap"));
+        let (outputs, telemetry) =
+            crate::channels::open_outputs(&CalibratorConfig::from_robot(cfg), cfg, mcap.as_deref()).map_err(DaemonError::Outputs)?;
+        let mut builder = builder.with_csv(fmt.csv());
+        if let Some(o) = outputs {
+            builder = builder.with_outputs(o);
+        }
         let mut plugin = builder.build()?;
-        let recording = plugin.recording().map(PathBuf::from).unwrap_or_default();
+        let recording = if fmt.csv() { base } else { mcap.clone().unwrap_or(base) };
         let quit = Arc::new(AtomicBool::new(false));
+        let (telemetry_addr, telemetry_stats, telemetry_thread) = match telemetry {
+            Some(server) => {
+                let (addr, stats, q) = (server.addr, server.stats.clone(), quit.clone());
+                let t = std::thread::Builder::new()
+                    .name("taut-telemetry".into())
+                    .spawn(move || server.run(q))
+                    .map_err(|source| DaemonError::Thread { name: "taut-telemetry", source })?;
+                (Some(addr), Some(stats), Some(t))
+            }
+            None => (None, None, None),
+        };
         let control_thread = match control {
             Some(c) => {
                 let q = quit.clone();
@@ -166,6 +200,10 @@ impl Daemon {
             loop_status: links.loop_status,
             calib_status: links.calib,
             recording,
+            mcap,
+            telemetry: telemetry_addr,
+            telemetry_stats,
+            telemetry_thread,
             handle,
         };
         // From here a failure stops the control thread and the calibrator on drop.
@@ -254,6 +292,9 @@ impl Daemon {
         // Relaxed: the control thread only needs to see the flag eventually.
         self.quit.store(true, Ordering::Relaxed);
         if let Some(t) = self.control_thread.take() {
+            let _ = t.join();
+        }
+        if let Some(t) = self.telemetry_thread.take() {
             let _ = t.join();
         }
     }

@@ -31,6 +31,7 @@
 
 pub mod calib_backend;
 pub mod calibrator;
+pub mod channels;
 pub mod control;
 pub mod ctl_server;
 pub mod daemon;
@@ -50,6 +51,7 @@ pub mod sample;
 pub mod simrig;
 pub mod spsc;
 mod sync;
+pub mod telemetry;
 #[cfg(any(test, feature = "testkit"))]
 pub mod testkit;
 pub mod triple;

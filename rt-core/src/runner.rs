@@ -91,6 +91,9 @@ impl<D: Devices> LoopCore<D> {
         s.drive = i.drive;
         s.pose_m = i.pose_m;
         s.pose_age_s = i.pose_age_s;
+        s.cmd = self.outputs.cable;
+        s.fault = self.controller.fault();
+        s.params_version = self.controller.params().version;
         self.tx.push(s);
     }
 

@@ -4,7 +4,8 @@
 //! allocated once at start-up and checked under `loom` (`scripts/loom`). A full ring never blocks
 //! the loop: the sample is dropped and counted.
 
-use crate::io::DriveStatus;
+use crate::io::{CableCommand, DriveStatus};
+use crate::safety::{Cause, Reaction};
 use crate::spsc::{self, Consumer, Producer};
 use crate::MAX_CABLES;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -37,6 +38,12 @@ pub struct Sample {
     pub pose_m: [f64; 3],
     /// Its age, s.
     pub pose_age_s: f64,
+    /// What the loop commanded each cable this cycle (length or tension).
+    pub cmd: [CableCommand; MAX_CABLES],
+    /// The latched safety cause and reaction, if any.
+    pub fault: Option<(Cause, Reaction)>,
+    /// Version of the parameters the loop runs on.
+    pub params_version: u64,
 }
 
 impl Sample {
@@ -55,6 +62,9 @@ impl Sample {
             drive: [DriveStatus::Unknown; MAX_CABLES],
             pose_m: [f64::NAN; 3],
             pose_age_s: f64::INFINITY,
+            cmd: [CableCommand::Idle; MAX_CABLES],
+            fault: None,
+            params_version: 0,
         }
     }
 }

@@ -234,9 +234,24 @@ pub struct PluginBuilder {
     params_tx: Writer<LoopParams>,
     backend: Box<dyn Calibrate>,
     recording: Option<PathBuf>,
+    csv: bool,
+    outputs: Option<crate::channels::Outputs>,
 }
 
 impl PluginBuilder {
+    /// Whether the calibrator writes the CSV recording (default: yes, when there is a path).
+    pub fn with_csv(mut self, on: bool) -> PluginBuilder {
+        self.csv = on;
+        self
+    }
+
+    /// Also sends every sample, parameter set and stage to `o` (MCAP recording, telemetry), from
+    /// the calibrator thread.
+    pub fn with_outputs(mut self, o: crate::channels::Outputs) -> PluginBuilder {
+        self.outputs = Some(o);
+        self
+    }
+
     /// The operator's handle.
     pub fn handle(&self) -> &PluginHandle {
         &self.handle
@@ -250,8 +265,13 @@ impl PluginBuilder {
     /// Creates the recording and starts the calibrator thread: the plugin, inactive.
     pub fn build(self) -> Result<Plugin, PluginError> {
         let b = self;
-        let calibrator = Calibrator::new(b.calib_cfg, b.sample_rx, b.params_tx, b.backend, b.recording.clone(), b.calib_status)
+        let csv = if b.csv { b.recording.clone() } else { None };
+        let calibrator = Calibrator::new(b.calib_cfg, b.sample_rx, b.params_tx, b.backend, csv, b.calib_status)
             .map_err(|source| PluginError::Recording { path: b.recording.clone().unwrap_or_default(), source })?;
+        let calibrator = match b.outputs {
+            Some(o) => calibrator.with_outputs(o),
+            None => calibrator,
+        };
         let calib_quit = Arc::new(AtomicBool::new(false));
         let q = calib_quit.clone();
         let calib_thread = std::thread::Builder::new()
@@ -373,6 +393,8 @@ impl Plugin {
             params_tx,
             backend: opts.backend.unwrap_or_else(|| Box::new(TautCalib::from_config(cfg))),
             recording,
+            csv: true,
+            outputs: None,
         })
     }
 
