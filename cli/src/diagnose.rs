@@ -206,8 +206,13 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
 
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
     let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
-    let files: Vec<crate::outputs::Output> =
-        a.json.iter().map(|p| ("--json", p.as_path())).chain(a.out.iter().map(|p| ("--out", p.as_path()))).chain(a.report.iter().map(|p| ("--report", p.as_path()))).collect();
+    let files: Vec<crate::outputs::Output> = a
+        .json
+        .iter()
+        .map(|p| ("--json", p.as_path()))
+        .chain(a.out.iter().map(|p| ("--out", p.as_path())))
+        .chain(a.report.iter().map(|p| ("--report", p.as_path())))
+        .collect();
     let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
     crate::outputs::check(&files, &dirs, &inputs)?;
     let (rec, _parse) = load_recording(&a.recording)?;

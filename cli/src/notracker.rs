@@ -80,6 +80,7 @@ fn params_file(cfg: &RobotConfig, source: &str, r: &SelfCalReport) -> taut_confi
         l0_sigma_m: r.l0_sigma.clone(),
         rms_m: f64::NAN,
         heldout_rms_m: f64::NAN,
+        effects: Default::default(),
     }
 }
 

@@ -200,8 +200,10 @@ impl Calibrate for TautCalib {
             ),
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
-        // With effects: all of it again, the effects' parameters with the anchors and offsets.
-        if !self.effects.is_empty() && observable {
+        // With effects: all of it again, the effects' parameters with the anchors and offsets
+        // (only on a recording that determines every anchor and offset well: the start-up's
+        // initial estimate, with a follower cable, does not).
+        if !self.effects.is_empty() && weak.is_empty() {
             let mut est = self.fit_with_effects(rec, &anchors, &l0, &init.effects)?;
             let cand = taut_calib::trust::Candidate {
                 anchors: &est.anchors,
@@ -211,7 +213,7 @@ impl Calibrate for TautCalib {
                 rms_m: est.rms_m,
             };
             taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
-            est.note = format!("{} readings, smallest relative singular value {worst:.2e}{how}; {}", r.samples_used, est.note);
+            est.note = format!("{} readings{how}; {}", r.samples_used, est.note);
             return Ok(est);
         }
         // Nothing non-finite or absurd is offered as the robot's parameters.
