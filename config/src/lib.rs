@@ -17,6 +17,7 @@ mod exact;
 pub mod geometry;
 pub mod input;
 pub mod live;
+#[cfg(feature = "mcap")]
 pub mod mcap;
 pub mod params;
 pub mod pdo;

@@ -33,7 +33,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// The first bytes of every MCAP file.
-pub const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+pub const MAGIC: &[u8; 8] = crate::recording::MCAP_MAGIC;
 
 /// Longest time between two closed chunks.
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(500);

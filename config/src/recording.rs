@@ -250,8 +250,13 @@ impl Recording {
         }
         // MCAP by its magic bytes, whatever the file is called.
         let mut file = std::io::BufReader::new(file);
-        if crate::mcap::is_mcap_bytes(file.fill_buf().map_err(|e| err(ErrorKind::Io(e.to_string())))?) {
+        if file.fill_buf().map_err(|e| err(ErrorKind::Io(e.to_string())))?.starts_with(MCAP_MAGIC) {
+            #[cfg(feature = "mcap")]
             return crate::mcap::read_from(path, file);
+            #[cfg(not(feature = "mcap"))]
+            return Err(err(ErrorKind::Mcap(
+                "this program was built without MCAP support (taut-config feature `mcap`); read it with `taut`, which has it".into(),
+            )));
         }
         parse(file).map_err(|mut e| {
             e.file = Some(path.display().to_string());
@@ -1112,3 +1117,6 @@ mod fast_field_tests {
         }
     }
 }
+
+/// The first bytes of an MCAP file (how [`Recording::load`] tells MCAP from CSV).
+pub const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
