@@ -201,9 +201,9 @@ impl Calibrate for TautCalib {
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
         // With effects: all of it again, the effects' parameters with the anchors and offsets
-        // (only on a recording that determines every anchor and offset well: the start-up's
-        // initial estimate, with a follower cable, does not).
-        if !self.effects.is_empty() && weak.is_empty() {
+        // (`calibrate` has refused beyond `calibration.max_sigma_m`; the start-up's initial
+        // estimate does not come here, see `initialise`).
+        if !self.effects.is_empty() {
             let mut est = self.fit_with_effects(rec, &anchors, &l0, &init.effects)?;
             let cand = taut_calib::trust::Candidate {
                 anchors: &est.anchors,
