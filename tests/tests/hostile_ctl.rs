@@ -597,7 +597,12 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
         v
     };
     let before = listing();
-    assert_eq!(before.len(), 1, "{before:?}");
+    // The first daemon's recording: the CSV and, with `[recording] format = "both"` (the
+    // default), its MCAP beside it.
+    let mut expected: Vec<_> =
+        std::iter::once(&first.recording).chain(first.mcap.iter()).map(|p| p.file_name().unwrap().to_owned()).collect();
+    expected.sort();
+    assert_eq!(before, expected);
     // Same configuration (in the same second the default name is the first one's: the old order
     // truncated it), and one with its own recording path.
     let e =
@@ -608,6 +613,7 @@ fn a_refused_second_daemon_leaves_no_file_behind() {
     let e = Daemon::start(&cfg, robot(), Box::new(TautCalib::from_config(&cfg)), opts).err().expect("refused").to_string();
     assert!(e.contains("in use"), "{e}");
     assert!(!own.exists(), "the refused daemon created {}", own.display());
+    assert!(!own.with_extension("mcap").exists(), "the refused daemon created an MCAP beside {}", own.display());
     assert_eq!(listing(), before, "no new or replaced recording");
     let r = control::request(&dir.path().join("taut.sock"), "status", T).unwrap();
     assert_eq!(r["ok"], true);
