@@ -1,6 +1,6 @@
 //! Modbus RTU master for the RS-485 load cells.
 //!
-//! - `crc` (private) and [`rtu`]: the sans-IO frame codec (CRC-16, request/response/exception frames,
+//! - [`crc`] and [`rtu`]: the sans-IO frame codec (CRC-16, request/response/exception frames,
 //!   frame lengths, inter-frame timing).
 //! - [`value`]: two registers to a tension in newtons (int32 / float32, word order, scale,
 //!   offset).
@@ -16,7 +16,7 @@
 //! assert_eq!(&buf[..n], &[0x01, 0x03, 0x00, 0x00, 0x00, 0x0A, 0xC5, 0xCD]);
 //! ```
 
-mod crc;
+pub mod crc;
 pub mod link;
 pub mod master;
 pub mod rtu;
