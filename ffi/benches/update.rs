@@ -16,7 +16,7 @@ use std::ffi::CString;
 use std::time::{Duration, Instant};
 use taut::sim::*;
 use taut::*;
-use taut_rt_core::plugin::{HostInputs, HostOutputs};
+use taut_rt_core::plugin::HostOutputs;
 
 const CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
 const PERIOD: f64 = 0.002;
@@ -60,7 +60,7 @@ impl Rig {
             assert_eq!(r, TautError::Ok);
             d
         } else {
-            let hi = to_host(&self.inp);
+            let hi = taut::host_inputs(&self.inp);
             let mut out = HostOutputs::default();
             let p = unsafe { &mut *self.h };
             let t0 = Instant::now();
@@ -89,22 +89,6 @@ impl Drop for Rig {
             taut_cleanup(self.h);
             taut_sim_free(self.sim);
         }
-    }
-}
-
-fn to_host(i: &TautInputs) -> HostInputs {
-    HostInputs {
-        length_m: i.length_m,
-        length_age_s: i.length_age_s,
-        tension_n: i.tension_n,
-        tension_age_s: i.tension_age_s,
-        pose_m: i.pose_m,
-        pose_age_s: i.pose_age_s,
-        drive: i.drive,
-        fault_kind: i.fault_kind,
-        fault_node: i.fault_node,
-        fault_code: i.fault_code,
-        bus_state: i.bus_state,
     }
 }
 

@@ -657,8 +657,9 @@ pub unsafe extern "C" fn taut_cleanup(h: *mut TautPlugin) -> TautError {
     })
 }
 
-/// The host's readings as the plugin's `HostInputs`.
-fn host_inputs(i: &TautInputs) -> HostInputs {
+/// The host's readings as the plugin's `HostInputs` (also what the benchmark's Rust side calls).
+#[doc(hidden)]
+pub fn host_inputs(i: &TautInputs) -> HostInputs {
     HostInputs {
         length_m: i.length_m,
         length_age_s: i.length_age_s,
