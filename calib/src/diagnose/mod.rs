@@ -248,8 +248,6 @@ pub enum Decision {
     NotBetter,
     /// Predicts better, but its parameters are outside the physical range.
     NotPhysical,
-    /// Predicts better, but changes the predicted lengths by less than the measurement noise.
-    Negligible,
 }
 
 impl Decision {
@@ -262,7 +260,6 @@ impl Decision {
             Decision::Passed => "passed".into(),
             Decision::NotBetter => format!("not better than the current model at alpha {alpha:.1e}"),
             Decision::NotPhysical => "better, but its parameters are not physical".into(),
-            Decision::Negligible => "better, but it changes the predicted lengths by less than the measurement noise".into(),
         }
     }
 }
@@ -485,10 +482,9 @@ struct Values {
     sigs: Vec<f64>,
     /// Inside the physical range (or not distinguishable from its edge).
     plausible: Vec<bool>,
-    /// More than 4 inflated sigmas from the null, and visible.
+    /// More than 4 inflated sigmas from the null, and changes the predicted lengths by at
+    /// least the measurement noise.
     significant: Vec<bool>,
-    /// Changes the predicted lengths by at least the measurement noise.
-    visible: Vec<bool>,
 }
 
 /// LM iterations from each starting weight of the sag candidate before the best goes on.
@@ -502,7 +498,7 @@ impl Ctx<'_> {
         let mut out = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
         for &i in &self.heldout {
             for j in (0..self.prep.n).filter(|&j| self.prep.usable[j][i]) {
-                out.push(p.residual(x, i, j));
+                out.push(p.residual_heldout(x, i, j));
             }
         }
         out
@@ -550,7 +546,7 @@ impl Ctx<'_> {
             let e = f.effect;
             // The last named effect's values were computed from this very fit.
             let v = if spec.effects.last() == Some(&e) {
-                Values { vals: f.values.clone(), sigs: f.sigmas.clone(), plausible: vec![], significant: vec![], visible: vec![] }
+                Values { vals: f.values.clone(), sigs: f.sigmas.clone(), plausible: vec![], significant: vec![] }
             } else {
                 self.values(e, spec, fin, has_t, &self.train)
             };
@@ -658,7 +654,7 @@ impl Ctx<'_> {
             sigs.push(s);
         }
         let w = vals.len();
-        Values { vals, sigs, plausible: vec![true; w], significant: vec![false; w], visible: vec![false; w] }
+        Values { vals, sigs, plausible: vec![true; w], significant: vec![false; w] }
     }
 
     /// Physical values, sigmas and whether each is plausible / significant, for effect `e` in
@@ -688,7 +684,7 @@ impl Ctx<'_> {
         }
         let w = fit::width(e, n);
         let (lo, hi) = e.internal_range();
-        let (mut vals, mut sigs, mut plausible, mut significant, mut visible) = (vec![], vec![], vec![], vec![], vec![]);
+        let (mut vals, mut sigs, mut plausible, mut significant) = (vec![], vec![], vec![], vec![]);
         for k in 0..w {
             let has = e.sharing() == Sharing::Shared || !e.needs_tension() || has_t[k];
             let (x, s) = (r.x[o + k], sig[o + k]);
@@ -698,7 +694,6 @@ impl Ctx<'_> {
                 sigs.push(f64::NAN);
                 plausible.push(true);
                 significant.push(false);
-                visible.push(false);
                 continue;
             }
             vals.push(v);
@@ -708,20 +703,9 @@ impl Ctx<'_> {
             plausible.push(inside && x >= lo - 3.0 * s);
             // Every effect's internal parameter is 0 at its null (scale is stored as scale - 1).
             significant.push(x.abs() > 4.0 * s && x >= lo && x <= hi && change[k] >= NEGLIGIBLE * self.sigma);
-            visible.push(change[k] >= NEGLIGIBLE * self.sigma);
         }
-        Values { vals, sigs, plausible, significant, visible }
+        Values { vals, sigs, plausible, significant }
     }
-}
-
-/// Whether effect `e`'s prediction at a sample uses that sample's own noisy readings, so that
-/// the held-out test's premise (the candidate's predicted change is independent of the held-out
-/// noise) fails: a time offset interpolates the noisy tracker pose between neighbouring samples,
-/// which averages part of the tracker noise away; the backlash play state follows the noisy
-/// encoder readings. Both then "predict" held-out data better on effect-free recordings (measured:
-/// p down to 1e-30). For these two a claim also needs a visible length change (`NEGLIGIBLE`).
-fn reads_own_noise(e: Effect) -> bool {
-    matches!(e, Effect::TimeOffset | Effect::Backlash)
 }
 
 /// A parameter whose predicted length change (RMS, the other parameters held) is below this
@@ -1049,16 +1033,11 @@ pub fn diagnose(
                 ctx.raw_values(e, &s2, &r, &has_t)
             };
             let physical = v.plausible.iter().all(|p| *p);
-            // The magnitude gate applies where the held-out test's premise fails (see
-            // `reads_own_noise`); elsewhere the test decides.
-            let visible = !reads_own_noise(e) || v.visible.iter().any(|p| *p);
             let better = test.is_some_and(|t| t.p_value < alpha);
             let decision = if !better {
                 Decision::NotBetter
             } else if !physical {
                 Decision::NotPhysical
-            } else if !visible {
-                Decision::Negligible
             } else {
                 Decision::Passed
             };
