@@ -13,7 +13,9 @@
 //!    round, every remaining candidate is fitted jointly with anchors, offsets and the effects
 //!    named so far ([`fit`], solved by [`lm`]) on a subsample of the training blocks and tested
 //!    on the held-out blocks ([`select`]: the forecast-encompassing test of the nested pair,
-//!    with a batch-means variance for time-correlated residuals and a Student-t reference).
+//!    with an AR(1)-prewhitened batch-means variance for time-correlated residuals and a
+//!    Student-t reference; time offset and backlash predict held-out samples without their own
+//!    readings' noise, so the same test decides all six effects).
 //!    Each test runs at `family_alpha / (library x rounds)`, so the probability that a diagnosis
 //!    names anything the data do not support is at most `family_alpha` (1e-4 by default). Of the
 //!    candidates that pass (and whose parameters are physical: [`Effect::internal_range`] is a
