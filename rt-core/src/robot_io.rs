@@ -168,6 +168,16 @@ impl Peripherals {
             Some(_) => Some(taut_driver::loadcell::spawn_from_config(cfg).map_err(|e| err("loadcells", e.to_string()))?),
             None => None,
         };
+        // The tension readings have the loop's staleness deadline: their I/O thread runs just
+        // below the loop, not with the normal scheduler (see taut_driver::sched).
+        if let (Some((io, _)), true) = (&loadcells, cfg.rt.priority > 1) {
+            if let Err(e) = io.set_realtime(cfg.rt.priority - 1) {
+                eprintln!(
+                    "taut: SCHED_FIFO priority {} for the load-cell thread refused ({e}): under load its readings may go stale; set LimitRTPRIO=99 (deploy/taut.service) or grant CAP_SYS_NICE",
+                    cfg.rt.priority - 1
+                );
+            }
+        }
         let (tracker, pose) = match &cfg.tracker {
             Some(t) => {
                 let (th, reader) = taut_driver::tracker::spawn(t)
