@@ -196,19 +196,13 @@ pub fn modes_needed(cfg: &RobotConfig) -> Vec<(bool, bool)> {
     let n = cfg.cables.len();
     let mut need = vec![(false, false); n];
     for (j, nd) in need.iter_mut().enumerate() {
-        // The controller: cables 0..3 fix the point mass in position mode, the rest follow in
-        // torque mode (motion.rs, ControllerConfig::from_robot); in the phases, cables outside
-        // a phase's three follow in torque mode.
-        if j < 3 {
-            nd.0 = true;
-        } else {
-            nd.1 = true;
-        }
-        for ph in &cfg.motion.init_phases {
-            if ph.contains(&j) {
-                nd.0 = true;
-            } else {
+        // In operation and in each initialisation phase (taut_config::followers).
+        let held = std::iter::once(&taut_config::followers::OPERATION_HELD).chain(&cfg.motion.init_phases);
+        for h in held {
+            if taut_config::followers::follows(j, h) {
                 nd.1 = true;
+            } else {
+                nd.0 = true;
             }
         }
     }

@@ -560,22 +560,24 @@ impl<R: CanTransport> Site<R> {
     }
 }
 
-/// Tensions that hold a point mass at `p`: cables 3.. at `follower_n`, cables 0..3 solving the
-/// force balance. `None` if one would be below 1 N.
+/// Tensions that hold a point mass at `p` as the controller does in operation: the followers
+/// (taut_config::followers) at `follower_n`, the held cables solving the force balance. `None`
+/// if one would be below 1 N.
 fn rest_tensions(anchors: &[[f64; 3]], p: [f64; 3], mass_kg: f64, follower_n: f64) -> Option<Vec<f64>> {
+    use taut_config::followers::{follows_in_operation, OPERATION_HELD};
     let unit = |a: &[f64; 3]| {
         let d = [a[0] - p[0], a[1] - p[1], a[2] - p[2]];
         let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         [d[0] / r, d[1] / r, d[2] / r]
     };
     let mut rhs = [0.0, 0.0, mass_kg * 9.81];
-    for a in &anchors[3..] {
+    for a in anchors.iter().enumerate().filter(|(j, _)| follows_in_operation(*j)).map(|(_, a)| a) {
         let u = unit(a);
         for i in 0..3 {
             rhs[i] -= follower_n * u[i];
         }
     }
-    let u: Vec<[f64; 3]> = anchors[..3].iter().map(unit).collect();
+    let u: Vec<[f64; 3]> = OPERATION_HELD.iter().map(|&j| unit(&anchors[j])).collect();
     // Columns u0 u1 u2; Cramer's rule.
     let det = |c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]| {
         c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
@@ -588,7 +590,9 @@ fn rest_tensions(anchors: &[[f64; 3]], p: [f64; 3], mass_kg: f64, follower_n: f6
     if t.iter().any(|&x| x < 1.0) {
         return None;
     }
-    let mut out = t.to_vec();
-    out.extend(std::iter::repeat_n(follower_n, anchors.len() - 3));
+    let mut out = vec![follower_n; anchors.len()];
+    for (k, &j) in OPERATION_HELD.iter().enumerate() {
+        out[j] = t[k];
+    }
     Some(out)
 }
