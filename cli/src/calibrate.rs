@@ -115,16 +115,14 @@ pub fn progress(steps: u64) -> indicatif::ProgressBar {
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
-    let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
-    let files: Vec<crate::outputs::Output> = a
-        .json
-        .iter()
-        .map(|p| ("--json", p.as_path()))
-        .chain(a.out.iter().map(|p| ("--out", p.as_path())))
-        .chain(a.report.iter().map(|p| ("--report", p.as_path())))
-        .collect();
-    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
-    crate::outputs::check(&files, &dirs, &inputs)?;
+    let inputs = crate::outputs::check_analysis(
+        &a.recording,
+        a.config.as_deref(),
+        a.json.as_deref(),
+        a.out.as_deref(),
+        a.report.as_deref(),
+        a.plot.as_deref(),
+    )?;
     let (rec, parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     if crate::notracker::tracker_absent(&rec) {

@@ -205,16 +205,14 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
 }
 
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
-    let inputs: Vec<&Path> = std::iter::once(a.recording.as_path()).chain(a.config.as_deref()).collect();
-    let files: Vec<crate::outputs::Output> = a
-        .json
-        .iter()
-        .map(|p| ("--json", p.as_path()))
-        .chain(a.out.iter().map(|p| ("--out", p.as_path())))
-        .chain(a.report.iter().map(|p| ("--report", p.as_path())))
-        .collect();
-    let dirs: Vec<crate::outputs::Output> = a.plot.iter().map(|p| ("--plot", p.as_path())).collect();
-    crate::outputs::check(&files, &dirs, &inputs)?;
+    let inputs = crate::outputs::check_analysis(
+        &a.recording,
+        a.config.as_deref(),
+        a.json.as_deref(),
+        a.out.as_deref(),
+        a.report.as_deref(),
+        a.plot.as_deref(),
+    )?;
     let (rec, _parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let mut opts = DiagnoseOptions::from_config(&cfg.calibration);

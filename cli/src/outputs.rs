@@ -33,6 +33,25 @@ pub fn check(files: &[Output], figure_dirs: &[Output], inputs: &[&Path]) -> Resu
     Ok(())
 }
 
+/// The outputs of an analysis command (`calibrate`, `diagnose`): the files `--json`, `--out` and
+/// `--report` and the figure directory `--plot`, checked against the recording and the config
+/// (see [`check`]). Returns the inputs for the command's later use.
+pub fn check_analysis<'a>(
+    recording: &'a Path,
+    config: Option<&'a Path>,
+    json: Option<&Path>,
+    out: Option<&Path>,
+    report: Option<&Path>,
+    plot: Option<&Path>,
+) -> Result<Vec<&'a Path>> {
+    let inputs: Vec<&Path> = std::iter::once(recording).chain(config).collect();
+    let files: Vec<Output> =
+        json.map(|p| ("--json", p)).into_iter().chain(out.map(|p| ("--out", p))).chain(report.map(|p| ("--report", p))).collect();
+    let dirs: Vec<Output> = plot.map(|p| ("--plot", p)).into_iter().collect();
+    check(&files, &dirs, &inputs)?;
+    Ok(inputs)
+}
+
 /// Two output paths that would be the same file: the same inode if both exist, else the same
 /// absolute path.
 fn same_place(a: &Path, b: &Path) -> bool {

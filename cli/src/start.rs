@@ -81,7 +81,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
         let mut so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
         crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
         let p0 = simrig::rest_position(&cfg, &so, p0);
-        let sim = simrig::build(&cfg, p0, &so).map_err(|e| anyhow::anyhow!(e))?;
+        let sim = simrig::build(&cfg, p0, &so)?;
         (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
     } else {
         let (d, t) = hardware_devices(&cfg)?;

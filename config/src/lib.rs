@@ -14,6 +14,7 @@ pub mod atomic;
 pub mod devices;
 pub mod eds;
 mod exact;
+pub mod followers;
 pub mod geometry;
 pub mod input;
 pub mod live;

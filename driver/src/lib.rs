@@ -39,6 +39,7 @@
 pub mod canopen;
 pub mod loadcell;
 pub mod modbus;
+pub mod sched;
 pub mod tracker;
 pub mod transport;
 

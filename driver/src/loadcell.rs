@@ -79,6 +79,16 @@ impl LoadCellIo {
         self.counters.snapshot()
     }
 
+    /// Runs the I/O thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]): on the
+    /// robot, just below the loop's, so that a busy machine does not starve the readings the
+    /// loop's staleness check waits for.
+    pub fn set_realtime(&self, priority: i32) -> std::io::Result<()> {
+        match &self.thread {
+            Some(t) => crate::sched::set_fifo(t, priority),
+            None => Ok(()),
+        }
+    }
+
     /// Stops the thread and waits for it (at most one transaction plus one back-off slice).
     pub fn stop(mut self) {
         self.shutdown();

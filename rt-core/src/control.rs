@@ -28,6 +28,7 @@ use crate::triple::Reader;
 use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
 use serde_json::{json, Value};
+use std::fmt;
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::Path;
@@ -150,52 +151,119 @@ fn excerpt(s: &str, n: usize) -> String {
     }
 }
 
-/// Parses one request line (without its line end). The error is the reply's message.
-pub fn parse_request(line: &[u8]) -> Result<Request, String> {
-    let text = std::str::from_utf8(line).map_err(|e| format!("the request is not UTF-8 text (bad byte at offset {})", e.valid_up_to()))?;
-    if let Some((i, c)) = text.char_indices().find(|&(_, c)| c.is_control() && c != '\t') {
-        return Err(format!("the request has a control character {:?} at offset {i}; send one line of text: {VERBS}", c));
+/// Why a request line was refused. Its `Display` is the reply's `error` message; words quoted
+/// from the request are cut to 40 characters.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RequestError {
+    /// Not UTF-8.
+    NotUtf8 {
+        /// Byte offset of the first bad byte.
+        offset: usize,
+    },
+    /// A control character other than tab.
+    ControlChar {
+        /// The character.
+        c: char,
+        /// Its byte offset.
+        offset: usize,
+    },
+    /// Nothing but white space.
+    Empty,
+    /// A verb that takes no arguments got some.
+    UnexpectedArguments {
+        /// The verb.
+        verb: &'static str,
+        /// The arguments (quoted, cut).
+        args: String,
+    },
+    /// `move` without exactly three numbers.
+    MoveArity {
+        /// How many came (4 means four or more).
+        got: usize,
+    },
+    /// A `move` coordinate that does not parse as a number.
+    NotANumber {
+        /// `X`, `Y` or `Z`.
+        axis: &'static str,
+        /// The word (quoted, cut).
+        word: String,
+    },
+    /// A `move` coordinate that is NaN or infinite.
+    NotFinite {
+        /// `X`, `Y` or `Z`.
+        axis: &'static str,
+        /// The word (quoted, cut).
+        word: String,
+    },
+    /// An unknown verb.
+    UnknownVerb {
+        /// The verb (quoted, cut).
+        verb: String,
+    },
+}
+
+impl fmt::Display for RequestError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RequestError::NotUtf8 { offset } => write!(f, "the request is not UTF-8 text (bad byte at offset {offset})"),
+            RequestError::ControlChar { c, offset } => {
+                write!(f, "the request has a control character {c:?} at offset {offset}; send one line of text: {VERBS}")
+            }
+            RequestError::Empty => write!(f, "empty request; send one of: {VERBS}"),
+            RequestError::UnexpectedArguments { verb, args } => write!(f, "{verb} takes no arguments, got {args:?}"),
+            RequestError::MoveArity { got } => {
+                write!(f, "move needs exactly three numbers: move X Y Z (m), got {}{}", got, if *got > 3 { " or more" } else { "" })
+            }
+            RequestError::NotANumber { axis, word } => write!(f, "move: {axis} = {word:?} is not a number"),
+            RequestError::NotFinite { axis, word } => write!(f, "move refused: {axis} = {word:?} is not a finite number (m)"),
+            RequestError::UnknownVerb { verb } => write!(f, "unknown request {verb:?}: {VERBS}"),
+        }
+    }
+}
+
+impl std::error::Error for RequestError {}
+
+/// Parses one request line (without its line end). The error's `Display` is the reply's message.
+pub fn parse_request(line: &[u8]) -> Result<Request, RequestError> {
+    let text = std::str::from_utf8(line).map_err(|e| RequestError::NotUtf8 { offset: e.valid_up_to() })?;
+    if let Some((offset, c)) = text.char_indices().find(|&(_, c)| c.is_control() && c != '\t') {
+        return Err(RequestError::ControlChar { c, offset });
     }
     let mut words = text.split_whitespace();
-    let verb = match words.next() {
-        Some(v) => v,
-        None => return Err(format!("empty request; send one of: {VERBS}")),
+    let Some(verb) = words.next() else {
+        return Err(RequestError::Empty);
     };
     let rest: Vec<&str> = words.take(5).collect();
-    let simple = |r: Request| {
+    let simple = |r: Request, verb: &'static str| {
         if rest.is_empty() {
             Ok(r)
         } else {
-            Err(format!("{verb} takes no arguments, got {:?}", excerpt(&rest.join(" "), 40)))
+            Err(RequestError::UnexpectedArguments { verb, args: excerpt(&rest.join(" "), 40) })
         }
     };
     match verb {
-        "status" => simple(Request::Status),
-        "params" => simple(Request::Params),
-        "recalibrate" => simple(Request::Recalibrate),
-        "stop" => simple(Request::Stop),
-        "estop" => simple(Request::Estop),
-        "reset" => simple(Request::Reset),
+        "status" => simple(Request::Status, "status"),
+        "params" => simple(Request::Params, "params"),
+        "recalibrate" => simple(Request::Recalibrate, "recalibrate"),
+        "stop" => simple(Request::Stop, "stop"),
+        "estop" => simple(Request::Estop, "estop"),
+        "reset" => simple(Request::Reset, "reset"),
         "move" => {
             if rest.len() != 3 {
-                return Err(format!(
-                    "move needs exactly three numbers: move X Y Z (m), got {}{}",
-                    rest.len().min(4),
-                    if rest.len() > 3 { " or more" } else { "" }
-                ));
+                return Err(RequestError::MoveArity { got: rest.len().min(4) });
             }
             let mut p = [0.0; 3];
             for (i, w) in rest.iter().enumerate() {
                 let axis = ["X", "Y", "Z"][i];
-                let v: f64 = w.parse().map_err(|_| format!("move: {axis} = {:?} is not a number", excerpt(w, 40)))?;
+                let v: f64 = w.parse().map_err(|_| RequestError::NotANumber { axis, word: excerpt(w, 40) })?;
                 if !v.is_finite() {
-                    return Err(format!("move refused: {axis} = {:?} is not a finite number (m)", excerpt(w, 40)));
+                    return Err(RequestError::NotFinite { axis, word: excerpt(w, 40) });
                 }
                 p[i] = v;
             }
             Ok(Request::Move(p))
         }
-        _ => Err(format!("unknown request {:?}: {VERBS}", excerpt(verb, 40))),
+        _ => Err(RequestError::UnknownVerb { verb: excerpt(verb, 40) }),
     }
 }
 
@@ -303,7 +371,7 @@ impl ControlLinks {
     pub fn handle_line(&self, line: &str) -> Value {
         match parse_request(line.trim().as_bytes()) {
             Ok(r) => self.handle(r),
-            Err(e) => json!({"ok": false, "error": e}),
+            Err(e) => json!({"ok": false, "error": e.to_string()}),
         }
     }
 }

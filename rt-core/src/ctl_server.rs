@@ -30,7 +30,7 @@
 //!
 //! Counters of all of this are in the `control` part of the `status` reply.
 
-use crate::control::{parse_request, ControlLinks, Request};
+use crate::control::{parse_request, ControlLinks, Request, RequestError};
 use crate::urgent::Urgent;
 use serde_json::{json, Value};
 use std::io::Read;
@@ -220,7 +220,7 @@ impl ControlServer {
     pub fn run(mut self, quit: Arc<AtomicBool>) {
         let mut conns: Vec<Conn> = Vec::with_capacity(self.limits.max_connections);
         let mut fds: Vec<libc::pollfd> = Vec::with_capacity(self.limits.max_connections + 1);
-        let mut ready: Vec<(usize, Result<Request, String>)> = Vec::with_capacity(self.limits.max_connections);
+        let mut ready: Vec<(usize, Result<Request, RequestError>)> = Vec::with_capacity(self.limits.max_connections);
         let mut accept_paused_until: Option<Instant> = None;
         // Relaxed: only ends the serving; no data is handed over with it.
         while !quit.load(Ordering::Relaxed) {
@@ -333,7 +333,7 @@ impl ControlServer {
         let _ = std::fs::remove_file(&self.path);
     }
 
-    fn answer(&mut self, req: &Result<Request, String>) -> Value {
+    fn answer(&mut self, req: &Result<Request, RequestError>) -> Value {
         self.stats.requests += 1;
         match req {
             Ok(r) => {
@@ -348,7 +348,7 @@ impl ControlServer {
             }
             Err(e) => {
                 self.stats.malformed += 1;
-                json!({"ok": false, "error": e})
+                json!({"ok": false, "error": e.to_string()})
             }
         }
     }

@@ -296,7 +296,7 @@ impl ControllerConfig {
             node_ids[j] = c.drive.as_ref().map_or(j as u8 + 1, |d| d.node_id);
             // A point mass is fixed by three cables; the others follow in torque mode so that
             // errors in the parameters do not make position-controlled cables fight.
-            follower[j] = j >= 3;
+            follower[j] = taut_config::followers::follows_in_operation(j);
         }
         let mut phases = [[0usize; 3]; 3];
         for (k, p) in m.init_phases.iter().take(3).enumerate() {

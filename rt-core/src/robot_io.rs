@@ -168,6 +168,16 @@ impl Peripherals {
             Some(_) => Some(taut_driver::loadcell::spawn_from_config(cfg).map_err(|e| err("loadcells", e.to_string()))?),
             None => None,
         };
+        // The tension readings have the loop's staleness deadline: their I/O thread runs just
+        // below the loop, not with the normal scheduler (see taut_driver::sched).
+        if let (Some((io, _)), true) = (&loadcells, cfg.rt.priority > 1) {
+            if let Err(e) = io.set_realtime(cfg.rt.priority - 1) {
+                eprintln!(
+                    "taut: SCHED_FIFO priority {} for the load-cell thread refused ({e}): under load its readings may go stale; set LimitRTPRIO=99 (deploy/taut.service) or grant CAP_SYS_NICE",
+                    cfg.rt.priority - 1
+                );
+            }
+        }
         let (tracker, pose) = match &cfg.tracker {
             Some(t) => {
                 let (th, reader) = taut_driver::tracker::spawn(t)
@@ -186,19 +196,13 @@ pub fn modes_needed(cfg: &RobotConfig) -> Vec<(bool, bool)> {
     let n = cfg.cables.len();
     let mut need = vec![(false, false); n];
     for (j, nd) in need.iter_mut().enumerate() {
-        // The controller: cables 0..3 fix the point mass in position mode, the rest follow in
-        // torque mode (motion.rs, ControllerConfig::from_robot); in the phases, cables outside
-        // a phase's three follow in torque mode.
-        if j < 3 {
-            nd.0 = true;
-        } else {
-            nd.1 = true;
-        }
-        for ph in &cfg.motion.init_phases {
-            if ph.contains(&j) {
-                nd.0 = true;
-            } else {
+        // In operation and in each initialisation phase (taut_config::followers).
+        let held = std::iter::once(&taut_config::followers::OPERATION_HELD).chain(&cfg.motion.init_phases);
+        for h in held {
+            if taut_config::followers::follows(j, h) {
                 nd.1 = true;
+            } else {
+                nd.0 = true;
             }
         }
     }

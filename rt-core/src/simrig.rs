@@ -158,10 +158,84 @@ pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -
     taut_sim::three_phase::simulate(&truth, &physics, &plan, &ws, 20.0).map_or(fallback, |mo| mo.start)
 }
 
+/// Why the simulated robot could not be built. `Display` names the cable, interface or device
+/// and what to do.
+#[derive(Debug)]
+pub enum BuildError {
+    /// More cables than the loop handles.
+    TooManyCables {
+        /// Cables in the configuration.
+        n: usize,
+    },
+    /// A cable without a `[cable.drive]` table.
+    NoDrive {
+        /// Index of the cable.
+        cable: usize,
+    },
+    /// The simulated site could not be drawn or placed (`what` says which step).
+    Site {
+        /// The step, e.g. `no rest position at [..]`; empty for the drawing of the site.
+        what: String,
+        /// The simulator's reason.
+        error: taut_sim::SimError,
+    },
+    /// The platform cannot hang at `p0` with every cable in tension.
+    NoRest {
+        /// The asked position, m.
+        p0: [f64; 3],
+    },
+    /// A SocketCAN interface could not be opened.
+    Can {
+        /// Who opens it (`virtual drives`, `CANopen master`).
+        who: &'static str,
+        /// The interface.
+        iface: String,
+        /// The operating system's reason.
+        error: std::io::Error,
+    },
+    /// SocketCAN asked for off Linux.
+    NoSocketCan {
+        /// The interface.
+        iface: String,
+    },
+    /// A simulated device or its robot-side reader did not start (`what` names it).
+    Device {
+        /// `virtual load cells`, `tracker receiver`, ...
+        what: &'static str,
+        /// The reason.
+        error: String,
+    },
+    /// The robot's load-cell bus (on the simulated cells' pseudo-terminal) did not start.
+    LoadCells(taut_driver::loadcell::SpawnError),
+    /// The robot's devices did not come up.
+    BringUp(crate::robot_io::BringUpError),
+}
+
+impl std::fmt::Display for BuildError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BuildError::TooManyCables { n } => write!(f, "{n} cables: at most {MAX_CABLES}"),
+            BuildError::NoDrive { cable } => write!(f, "cable[{cable}]: the simulated robot needs a [cable.drive] table with a node_id"),
+            BuildError::Site { what, error } if what.is_empty() => write!(f, "simulated site: {error}"),
+            BuildError::Site { what, error } => write!(f, "simulated site: {what}: {error}"),
+            BuildError::NoRest { p0 } => write!(f, "simulated site: the platform cannot rest at {p0:?} with positive tensions"),
+            BuildError::Can { who, iface, error } => {
+                write!(f, "{who} on CAN interface {iface}: {error} (is it up? `ip link set {iface} up`)")
+            }
+            BuildError::NoSocketCan { iface } => write!(f, "CAN interface {iface}: SocketCAN needs Linux"),
+            BuildError::Device { what, error } => write!(f, "{what}: {error}"),
+            BuildError::LoadCells(e) => write!(f, "{e}"),
+            BuildError::BringUp(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for BuildError {}
+
 /// Builds the simulated robot of `cfg` (nominal anchors and a `[cable.drive]` per cable
 /// needed) with the platform at `p0`, starts it, and brings its drives up through the CANopen
 /// master: on an in-process virtual CAN bus, or on the SocketCAN interface `opts.can`.
-pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, String> {
+pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, BuildError> {
     match &opts.can {
         None => {
             let bus = VirtualBus::named("vcan-sim");
@@ -177,31 +251,21 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
             #[cfg(target_os = "linux")]
             {
                 use taut_driver::transport::socketcan::SocketCanTransport;
-                let open = |who: &str| {
-                    SocketCanTransport::open(iface)
-                        .map_err(|e| format!("{who} on CAN interface {iface}: {e} (is it up? `ip link set {iface} up`)"))
+                let open = |who: &'static str| {
+                    SocketCanTransport::open(iface).map_err(|error| BuildError::Can { who, iface: iface.clone(), error })
                 };
                 build_on(cfg, p0, opts, open("virtual drives")?, open("CANopen master")?)
             }
             #[cfg(not(target_os = "linux"))]
             {
-                Err(format!("CAN interface {iface}: SocketCAN needs Linux"))
+                Err(BuildError::NoSocketCan { iface: iface.clone() })
             }
         }
     }
 }
 
-fn node_ids(cfg: &RobotConfig) -> Result<Vec<NodeId>, String> {
-    cfg.cables
-        .iter()
-        .enumerate()
-        .map(|(j, c)| {
-            c.drive
-                .as_ref()
-                .map(|d| d.node_id)
-                .ok_or_else(|| format!("cable[{j}]: the simulated robot needs a [cable.drive] table with a node_id"))
-        })
-        .collect()
+fn node_ids(cfg: &RobotConfig) -> Result<Vec<NodeId>, BuildError> {
+    cfg.cables.iter().enumerate().map(|(j, c)| c.drive.as_ref().map(|d| d.node_id).ok_or(BuildError::NoDrive { cable: j })).collect()
 }
 
 /// The simulator's view of a drive's units (its own arithmetic, from the configuration).
@@ -225,24 +289,25 @@ impl DriveUnits {
     }
 }
 
-fn build_on<R, M>(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, rack_bus: R, master_bus: M) -> Result<SimRobot, String>
+fn build_on<R, M>(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, rack_bus: R, master_bus: M) -> Result<SimRobot, BuildError>
 where
     R: CanTransport + Send + 'static,
     M: CanTransport + Send + 'static,
 {
     let n = cfg.cables.len();
     if n > MAX_CABLES {
-        return Err(format!("{n} cables: at most {MAX_CABLES}"));
+        return Err(BuildError::TooManyCables { n });
     }
     let nodes = node_ids(cfg)?;
     let units: Vec<DriveUnits> = cfg.cables.iter().map(|c| DriveUnits::of(c.drive.as_ref().expect("checked by node_ids"))).collect();
     let physics = opts.physics.clone();
     let mut rng = taut_sim::rng(opts.seed, 0);
-    let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
+    let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng)
+        .map_err(|error| BuildError::Site { what: String::new(), error })?;
     let mut plant = Plant::new(&truth, &physics, p0).with_noise(&opts.noise, opts.seed);
-    let tensions = rest_tensions(&truth.anchors, p0, truth.mass_kg, cfg.motion.init_follower_tension_n)
-        .ok_or_else(|| format!("simulated site: the platform cannot rest at {p0:?} with positive tensions"))?;
-    let brake = plant.lengths_holding(p0, &tensions).map_err(|e| format!("simulated site: no rest position at {p0:?}: {e}"))?;
+    let tensions = rest_tensions(&truth.anchors, p0, truth.mass_kg, cfg.motion.init_follower_tension_n).ok_or(BuildError::NoRest { p0 })?;
+    let brake =
+        plant.lengths_holding(p0, &tensions).map_err(|error| BuildError::Site { what: format!("no rest position at {p0:?}"), error })?;
     // Settle on the brakes before anything is read.
     let cmds: Vec<SimCommand> = brake.iter().map(|&d| SimCommand::Length(d)).collect();
     let mut enc = vec![0.0; n];
@@ -270,17 +335,19 @@ where
     let handle = TensionHandle::new(n);
     handle.set_all(&ten);
     let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone())
-        .map_err(|e| format!("virtual load cells: {e}"))?;
+        .map_err(|e| BuildError::Device { what: "virtual load cells", error: e.to_string() })?;
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
     lc_bus.max_age_s = cfg.safety.tension_max_age_s;
     // The robot side of the load cells and the tracker, as on hardware but on the pty and on
     // a loopback port.
-    let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(|e| e.to_string())?;
+    let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(BuildError::LoadCells)?;
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
-    let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| format!("tracker receiver: {e}"))?;
-    let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| format!("tracker sender: {e}"))?;
+    let (tracker, pose) =
+        taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e.to_string() })?;
+    let sender =
+        TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e.to_string() })?;
 
     let faults = Arc::new(SimFaults::default());
     let stop = Arc::new(AtomicBool::new(false));
@@ -310,11 +377,11 @@ where
     let thread = std::thread::Builder::new()
         .name("sim-robot".into())
         .spawn(move || site.run())
-        .map_err(|e| format!("starting the simulated robot: {e}"))?;
+        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e.to_string() })?;
     let site = SiteThread { stop, thread: Some(thread) };
     let tracker_stats = pose.stats_handle();
     let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
-    let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(|e| e.to_string())?;
+    let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(BuildError::BringUp)?;
     Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform })
 }
 
@@ -493,22 +560,24 @@ impl<R: CanTransport> Site<R> {
     }
 }
 
-/// Tensions that hold a point mass at `p`: cables 3.. at `follower_n`, cables 0..3 solving the
-/// force balance. `None` if one would be below 1 N.
+/// Tensions that hold a point mass at `p` as the controller does in operation: the followers
+/// (taut_config::followers) at `follower_n`, the held cables solving the force balance. `None`
+/// if one would be below 1 N.
 fn rest_tensions(anchors: &[[f64; 3]], p: [f64; 3], mass_kg: f64, follower_n: f64) -> Option<Vec<f64>> {
+    use taut_config::followers::{follows_in_operation, OPERATION_HELD};
     let unit = |a: &[f64; 3]| {
         let d = [a[0] - p[0], a[1] - p[1], a[2] - p[2]];
         let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         [d[0] / r, d[1] / r, d[2] / r]
     };
     let mut rhs = [0.0, 0.0, mass_kg * 9.81];
-    for a in &anchors[3..] {
+    for a in anchors.iter().enumerate().filter(|(j, _)| follows_in_operation(*j)).map(|(_, a)| a) {
         let u = unit(a);
         for i in 0..3 {
             rhs[i] -= follower_n * u[i];
         }
     }
-    let u: Vec<[f64; 3]> = anchors[..3].iter().map(unit).collect();
+    let u: Vec<[f64; 3]> = OPERATION_HELD.iter().map(|&j| unit(&anchors[j])).collect();
     // Columns u0 u1 u2; Cramer's rule.
     let det = |c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]| {
         c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
@@ -521,7 +590,9 @@ fn rest_tensions(anchors: &[[f64; 3]], p: [f64; 3], mass_kg: f64, follower_n: f6
     if t.iter().any(|&x| x < 1.0) {
         return None;
     }
-    let mut out = t.to_vec();
-    out.extend(std::iter::repeat_n(follower_n, anchors.len() - 3));
+    let mut out = vec![follower_n; anchors.len()];
+    for (k, &j) in OPERATION_HELD.iter().enumerate() {
+        out[j] = t[k];
+    }
     Some(out)
 }

@@ -72,7 +72,7 @@ fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f6
     let mut dirs: Vec<[f64; 3]> = (0..n).map(|j| models[j].path(b[j]).dir).collect();
     for _ in 0..4 {
         let mut rhs = nalgebra::Vector3::new(0.0, 0.0, truth.mass_kg * G);
-        for j in (0..n).filter(|j| !plan.cables.contains(j)) {
+        for j in (0..n).filter(|&j| taut_config::followers::follows(j, &plan.cables)) {
             rhs -= plan.follower_tension_n * nalgebra::Vector3::from(dirs[j]);
         }
         let m = nalgebra::Matrix3::from_fn(|r, k| dirs[plan.cables[k]][r]);
@@ -177,7 +177,13 @@ fn run(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3], rat
         margin_n: f64::INFINITY,
     };
     let mut cmds: Vec<CableCommand> = (0..n)
-        .map(|j| if plan.cables.contains(&j) { CableCommand::Length(rest[j]) } else { CableCommand::Tension(plan.follower_tension_n) })
+        .map(|j| {
+            if taut_config::followers::follows(j, &plan.cables) {
+                CableCommand::Tension(plan.follower_tension_n)
+            } else {
+                CableCommand::Length(rest[j])
+            }
+        })
         .collect();
     for i in 0..samples {
         let t = i as f64 * dt;

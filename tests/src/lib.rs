@@ -1,4 +1,5 @@
 //! Shared helpers for the integration tests.
 
 pub mod mcap;
+pub mod startup;
 pub mod vcan;

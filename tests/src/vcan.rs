@@ -109,3 +109,28 @@ fn is_executable(p: &Path) -> bool {
     use std::os::unix::fs::PermissionsExt;
     fs::metadata(p).map(|m| m.is_file() && m.permissions().mode() & 0o111 != 0).unwrap_or(false)
 }
+
+/// The CANopen master's configuration for virtual drives `nodes` over vcan under TCG emulation:
+/// generous periods and timeouts (timing in the VM means nothing), heartbeats every 250 ms
+/// consumed with 3 s of patience. Each test sets what its scenario needs on top (the master's
+/// own heartbeat period, `reset_on_start`, `boot_wait`).
+pub fn master_config(nodes: &[u8]) -> taut_driver::canopen::master::MasterConfig {
+    use std::time::Duration;
+    use taut_driver::canopen::master::{MasterConfig, NodeConfig};
+    let mut cfg = MasterConfig::new(
+        nodes
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| {
+                let mut c = NodeConfig::new(n, i);
+                c.heartbeat_ms = 250;
+                c.heartbeat_timeout = Duration::from_secs(3);
+                c
+            })
+            .collect(),
+    );
+    cfg.sync_period = Duration::from_millis(10);
+    cfg.sdo_timeout = Duration::from_secs(2);
+    cfg.bringup_timeout = Duration::from_secs(60);
+    cfg
+}

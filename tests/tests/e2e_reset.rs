@@ -21,7 +21,8 @@ use taut_rt_core::io::{BusEvent, BusState};
 use taut_rt_core::motion::{ControllerConfig, ResetOutcome, ResetRefusal, State};
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::simrig::{self, SimFaults, SimOptions};
+use taut_rt_core::simrig::SimFaults;
+use taut_tests::startup;
 
 /// Largest per-cycle change of a commanded cable length after a re-enable, m (issue 9).
 const MAX_STEP_M: f64 = 1e-4;
@@ -39,26 +40,13 @@ struct Rig {
 
 fn start() -> Rig {
     let dir = tempfile::tempdir().unwrap();
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
     // As e2e_start: the robot `taut start --sim` runs, with a shorter excitation.
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    let cfg = startup::sim_robot(dir.path());
     let workspace = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let w = workspace;
-    let so = SimOptions { seed: 3, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let sim = startup::build_at_rest(&cfg, 3);
     let can = sim.can.clone().expect("the in-process bus has a CAN controller handle");
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
-    let ok = d.wait_until(Duration::from_secs(300), |l, c| {
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    });
+    let ok = d.wait_until(Duration::from_secs(300), startup::start_up_over);
     let l = d.loop_status();
     let c = d.calib_status();
     assert!(

@@ -6,19 +6,8 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::simrig::{self, SimOptions};
-
-/// The simulated robot `taut start --sim` runs (config/examples/aras-cam-sim.toml), with its
-/// files in `dir` and an excitation short enough for a test.
-pub fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
-    cfg
-}
+use taut_rt_core::motion::State;
+use taut_tests::startup;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
@@ -28,12 +17,8 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     let dir = tempfile::tempdir().unwrap();
     eprintln!("e2e files in {}", dir.path().display());
-    let cfg = robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let so = SimOptions { seed: 3, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let cfg = startup::sim_robot(dir.path());
+    let sim = startup::build_at_rest(&cfg, 3);
     let truth = sim.truth.clone();
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     let sock = dir.path().join("taut.sock");
@@ -41,13 +26,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     use std::os::unix::fs::PermissionsExt;
     assert_eq!(meta.permissions().mode() & 0o777, 0o660);
 
-    let ok = d.wait_until(Duration::from_secs(240), |l, c| {
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    });
+    let ok = d.wait_until(Duration::from_secs(240), startup::start_up_over);
     let l = d.loop_status();
     let c = d.calib_status();
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {

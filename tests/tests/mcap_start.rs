@@ -7,40 +7,18 @@ use std::time::Duration;
 use taut_config::live::RecordingFormat;
 use taut_config::recording::Recording;
 use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::simrig::{self, SimOptions};
 use taut_tests::mcap::{count, read_with_python};
-
-/// The simulated robot of `taut start --sim`, files in `dir`, a short excitation.
-pub fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
-    cfg
-}
+use taut_tests::startup;
 
 #[test]
 fn start_up_mcap_has_every_channel_and_the_csv_rows() {
     let dir = tempfile::tempdir().unwrap();
-    let mut cfg = robot(dir.path());
+    let mut cfg = startup::sim_robot(dir.path());
     cfg.recording.format = RecordingFormat::Both;
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let so = SimOptions { seed: 3, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let sim = startup::build_at_rest(&cfg, 3);
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
-    let ok = d.wait_until(Duration::from_secs(300), |l, c| {
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    });
+    let ok = d.wait_until(Duration::from_secs(300), startup::start_up_over);
     let csv = d.recording.clone();
     let mcap = d.mcap.clone().expect("format both writes an MCAP file");
     let c = d.calib_status();

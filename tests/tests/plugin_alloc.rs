@@ -11,12 +11,11 @@ use std::cell::Cell;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::io::{Devices, Inputs};
-use taut_rt_core::motion::{ControllerConfig, State};
+use taut_rt_core::motion::State;
 use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHandle, PluginOptions, RecordingPath, Tick};
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_tests::startup;
 
 struct Counting;
 
@@ -64,18 +63,8 @@ fn watched<T>(f: impl FnOnce() -> T) -> T {
     r
 }
 
-fn sim_robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
-    cfg
-}
-
 fn hot_swapped(h: &PluginHandle) -> bool {
-    let (l, c) = (h.loop_status(), h.calib_status());
-    c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
+    startup::hot_swapped(&h.loop_status(), &h.calib_status())
 }
 
 /// Runs the whole script, calling `cycle` once per period (it does the watched update); returns
@@ -103,10 +92,7 @@ fn script(p: &mut Plugin, rate_hz: f64, mut cycle: impl FnMut(&mut Plugin, f64, 
         }
         false
     };
-    let ok = run_until(p, Duration::from_secs(300), &mut || {
-        let l = h.loop_status();
-        l.snap.fault.is_some() || h.calib_status().outcomes.iter().any(|o| !o.accepted) || hot_swapped(&h)
-    });
+    let ok = run_until(p, Duration::from_secs(300), &mut || startup::start_up_over(&h.loop_status(), &h.calib_status()));
     let l = h.loop_status();
     assert!(
         ok && hot_swapped(&h),
@@ -179,11 +165,8 @@ fn check(seen: &[State], h: &PluginHandle, what: &str) {
 fn host_owned_update_allocates_nothing_through_a_whole_start_up() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
-    let cfg = sim_robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let so = SimOptions { seed: 7, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
-    let mut sim = simrig::build(&cfg, p0, &so).unwrap();
+    let cfg = startup::sim_robot(dir.path());
+    let mut sim = startup::build_at_rest(&cfg, 7);
     let n = cfg.cables.len();
     let opts = PluginOptions { recording: RecordingPath::At(dir.path().join("rec.csv")), event_capacity: 4, ..Default::default() };
     let mut p = Plugin::configure(&cfg, DeviceMode::Host, opts).unwrap();
@@ -211,11 +194,8 @@ fn host_owned_update_allocates_nothing_through_a_whole_start_up() {
 fn plugin_owned_update_allocates_nothing_through_a_whole_start_up() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
-    let cfg = sim_robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let so = SimOptions { seed: 8, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let cfg = startup::sim_robot(dir.path());
+    let sim = startup::build_at_rest(&cfg, 8);
     let opts = PluginOptions { recording: RecordingPath::At(dir.path().join("rec.csv")), event_capacity: 4, ..Default::default() };
     let mut p = Plugin::configure(&cfg, DeviceMode::ready(sim.devices), opts).unwrap();
     p.activate().unwrap();

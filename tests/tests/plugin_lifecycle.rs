@@ -8,25 +8,15 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::io::{DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt_core::motion::{ControllerConfig, ResetOutcome, State};
+use taut_rt_core::motion::{ResetOutcome, State};
 use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, Lifecycle, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
     UpdateError,
 };
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::simrig::{self, SimOptions};
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-
-/// The simulated robot of `taut start --sim` with a test-length excitation.
-fn sim_robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
-    cfg
-}
+use taut_tests::startup;
 
 /// The host's side of one cycle: the simulated devices' readings in, the plugin's commands out.
 struct Host {
@@ -83,11 +73,8 @@ impl Host {
 #[test]
 fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = sim_robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let so = SimOptions { seed: 5, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let cfg = startup::sim_robot(dir.path());
+    let sim = startup::build_at_rest(&cfg, 5);
     let truth = sim.truth.clone();
     let n = cfg.cables.len();
     let rec = dir.path().join("host.csv");
@@ -105,15 +92,7 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     assert_eq!(host.hout.request, taut_rt_core::plugin::host::REQUEST_ENABLE);
     assert_eq!(usize::from(host.hout.n_cables), n);
 
-    let swapped = |p: &Plugin| {
-        let h = p.handle();
-        let (l, c) = (h.loop_status(), h.calib_status());
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    };
+    let swapped = |p: &Plugin| startup::start_up_over(&p.handle().loop_status(), &p.handle().calib_status());
     let ok = host.run_until(&mut p, Duration::from_secs(300), swapped);
     let (l, c) = (handle.loop_status(), handle.calib_status());
     assert!(ok, "start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::drive_set::{DriveSet, DriveSetError, Enabled, Operational};
-use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeConfig, Phase};
+use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
@@ -43,21 +43,7 @@ fn lock() -> MutexGuard<'static, ()> {
 }
 
 fn config(nodes: &[u8]) -> MasterConfig {
-    let mut cfg = MasterConfig::new(
-        nodes
-            .iter()
-            .enumerate()
-            .map(|(i, &n)| {
-                let mut c = NodeConfig::new(n, i);
-                c.heartbeat_ms = 250;
-                c.heartbeat_timeout = Duration::from_secs(3);
-                c
-            })
-            .collect(),
-    );
-    cfg.sync_period = Duration::from_millis(10);
-    cfg.sdo_timeout = Duration::from_secs(2);
-    cfg.bringup_timeout = Duration::from_secs(60);
+    let mut cfg = vcan::master_config(nodes);
     // The drives below start after the master's socket is open, so their boot-up is seen;
     // a broadcast reset would also reset drives of other processes on the bus.
     cfg.reset_on_start = false;

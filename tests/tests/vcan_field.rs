@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::drive_set::{Configuring, DriveSet, DriveSetError, Operational};
-use taut_driver::canopen::master::{Event, MasterConfig, NodeConfig};
+use taut_driver::canopen::master::{Event, MasterConfig};
 use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_driver::transport::CanTransport;
@@ -35,21 +35,7 @@ fn lock() -> MutexGuard<'static, ()> {
 }
 
 fn config(nodes: &[u8]) -> MasterConfig {
-    let mut cfg = MasterConfig::new(
-        nodes
-            .iter()
-            .enumerate()
-            .map(|(i, &n)| {
-                let mut c = NodeConfig::new(n, i);
-                c.heartbeat_ms = 250;
-                c.heartbeat_timeout = Duration::from_secs(3);
-                c
-            })
-            .collect(),
-    );
-    cfg.sync_period = Duration::from_millis(10);
-    cfg.sdo_timeout = Duration::from_secs(2);
-    cfg.bringup_timeout = Duration::from_secs(60);
+    let mut cfg = vcan::master_config(nodes);
     cfg.boot_wait = Duration::from_secs(2);
     // Consumer time 3 s: a TCG stall of the test thread must not look like a dead master.
     cfg.supervision.heartbeat = Duration::from_secs(1);

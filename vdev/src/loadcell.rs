@@ -152,6 +152,17 @@ impl VirtualLoadCells {
         Ok(VirtualLoadCells { shared, path, dir, thread: Some(thread) })
     }
 
+    /// Runs the server thread under `SCHED_FIFO` at `priority`. The cells stand in for
+    /// hardware with its own processor, which answers whatever the robot's computer is doing;
+    /// a server thread starved by a loaded test machine would make readings stale that a real
+    /// cell would have delivered.
+    pub fn set_realtime(&self, priority: i32) -> io::Result<()> {
+        match &self.thread {
+            Some(t) => taut_driver::sched::set_fifo(t, priority),
+            None => Ok(()),
+        }
+    }
+
     /// Path the master opens (a symlink to the pseudo-terminal's slave end).
     pub fn path(&self) -> &Path {
         &self.path

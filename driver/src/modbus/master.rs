@@ -275,12 +275,20 @@ impl<'c, L: SerialLink> Master<'c, L> {
         let (unit, fc) = (req.unit, req.function.code());
         let mut len = 0usize;
         let result = loop {
-            let now = Instant::now();
-            if now >= deadline || len == self.rx.len() {
+            if len == self.rx.len() {
                 break None;
             }
+            // Past the deadline, still take what has already arrived: when this thread was
+            // preempted (a loaded machine), the device's answer may be waiting in the buffer,
+            // and our own lateness is not the device's silence. Calling it a timeout would
+            // also retry, discard the answer, and leave a late copy to spoil the next exchange.
+            let now = Instant::now();
             let header_ok = len >= 2 && self.rx[0] == unit && (self.rx[1] & 0x7F) == fc;
-            let wait = if len == 0 || header_ok { deadline - now } else { silence.min(deadline - now) };
+            let wait = if len == 0 || header_ok {
+                deadline.saturating_duration_since(now)
+            } else {
+                silence.min(deadline.saturating_duration_since(now))
+            };
             let got = self.link.recv(&mut self.rx[len..], wait).map_err(link)?;
             if got == 0 {
                 // Timeout with nothing, or silence after bytes that are not our answer.

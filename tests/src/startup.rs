@@ -1,0 +1,45 @@
+//! The simulated robot's start-up as the end-to-end tests run it: the robot `taut start --sim`
+//! runs (config/examples/aras-cam-sim.toml) with a test-length excitation, built at rest in the
+//! middle of its workspace, and the conditions that end a start-up.
+
+use std::path::Path;
+use taut_config::RobotConfig;
+use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
+use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::runner::LoopStatus;
+use taut_rt_core::simrig::{self, SimOptions, SimRobot};
+
+/// Excitation of the test start-ups, s (the example's is longer).
+pub const EXCITATION_S: f64 = 25.0;
+
+/// The simulated robot of `taut start --sim` with its socket and data directory in `dir` and an
+/// excitation of [`EXCITATION_S`].
+pub fn sim_robot(dir: &Path) -> RobotConfig {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = RobotConfig::load(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    cfg.motion.excitation_s = EXCITATION_S;
+    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.join("data").display().to_string();
+    cfg
+}
+
+/// The simulated robot for `cfg` with seed `seed`, the platform at rest below the middle of the
+/// workspace.
+pub fn build_at_rest(cfg: &RobotConfig, seed: u64) -> SimRobot {
+    let w = ControllerConfig::from_robot(cfg).expect("the example configuration is valid").workspace;
+    let centre = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+    let so = SimOptions { seed, ..Default::default() };
+    let p0 = simrig::rest_position(cfg, &so, centre);
+    simrig::build(cfg, p0, &so).unwrap_or_else(|e| panic!("building the simulated robot: {e}"))
+}
+
+/// The start-up has hot-swapped to accepted calibrated parameters and the swap's ramp is over.
+pub fn hot_swapped(l: &LoopStatus, c: &CalibStatus) -> bool {
+    c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
+}
+
+/// The start-up is over, one way or another: hot-swapped, a fault latched, or a calibration
+/// rejected. Wait for this, then assert which.
+pub fn start_up_over(l: &LoopStatus, c: &CalibStatus) -> bool {
+    l.snap.fault.is_some() || c.outcomes.iter().any(|o| !o.accepted) || hot_swapped(l, c)
+}
