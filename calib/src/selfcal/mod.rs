@@ -56,6 +56,8 @@
 //! mirrored poses and the better fit kept; a fit that still fails is reported (note), not hidden.
 
 pub mod dwell;
+pub mod plan;
+pub mod rest;
 pub mod solve;
 
 use crate::Params;
