@@ -1530,6 +1530,72 @@ mod tests {
         assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
     }
 
+    /// Without a tracker: the rest dwell (phase 0), the wait for the rest estimate, the dwell
+    /// plan's poses in order (each labelled with its index while recorded, the platform at the
+    /// pose), operate; `Recalibrate` visits the poses again. No tracker pose is ever read.
+    #[test]
+    fn dwell_startup_runs_the_plan_and_recalibrates() {
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
+        let mut cfg = quick_config(4, &std::env::temp_dir());
+        cfg.safety.tension_max_age_s = 5.0;
+        let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap().with_dwell_plan(&poses, 1.0, 0.2, 0.5);
+        let truth = truth_params(4, 0.1);
+        let (mut params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+        let (sample_tx, _sample_rx) = sample_ring(64);
+        let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
+        robot.inject.tracker_gone = true;
+        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
+        let dt = 0.002;
+        let mut t = 0.0;
+        let mut labels: Vec<(State, i8)> = Vec::new();
+        let mut at_pose: Vec<[f64; 3]> = Vec::new();
+        let mut run = |c: &mut LoopCore<KinematicRobot>,
+                       until: &dyn Fn(&LoopCore<KinematicRobot>) -> bool,
+                       labels: &mut Vec<(State, i8)>,
+                       at_pose: &mut Vec<[f64; 3]>| {
+            for _ in 0..200_000 {
+                t += dt;
+                c.cycle(t, dt);
+                let l = (c.controller.state(), c.controller.phase_label());
+                if labels.last() != Some(&l) {
+                    if labels.last().is_some_and(|p| p.0 == State::Excitation && p.1 >= 0) {
+                        at_pose.push(c.devices.p);
+                    }
+                    labels.push(l);
+                }
+                assert_eq!(c.controller.fault(), None, "{labels:?}");
+                if until(c) {
+                    return;
+                }
+            }
+            panic!("not reached: {labels:?}");
+        };
+        run(&mut c, &|c| c.controller.state() == State::AwaitInitial, &mut labels, &mut at_pose);
+        assert!(labels.contains(&(State::InitPhase, 0)), "the rest dwell is recorded: {labels:?}");
+        assert_eq!(c.controller.snapshot(0.0, &c.inputs).phases_completed, 1);
+        // The rest estimate arrives: the robot's own parameters, version 1.
+        let mut p1 = truth;
+        p1.version = 1;
+        p1.valid = true;
+        params_tx.write(p1);
+        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
+        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
+        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
+        for (p, q) in at_pose.iter().zip(&poses) {
+            assert!((0..3).all(|i| (p[i] - q[i]).abs() < 1e-6), "held at {p:?}, planned {q:?}");
+        }
+        // Recalibration visits the poses again.
+        labels.clear();
+        at_pose.clear();
+        cmd_tx.send(Command::Recalibrate).unwrap();
+        run(&mut c, &|c| c.controller.state() == State::Excitation, &mut labels, &mut at_pose);
+        assert_eq!(c.controller.run(), 1);
+        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
+        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
+        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
+    }
+
     /// A drum that turned while the drives were stopped (a quick stop's ramp, a brake that
     /// slipped): after the reset the cable is held where it now stands, not where it was when
     /// the reaction latched.
