@@ -1444,7 +1444,7 @@ pub(crate) fn solve3(h: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
     };
     let d = det(h);
-    if !(d.abs() > 1e-12) {
+    if d.is_nan() || d.abs() <= 1e-12 {
         return None;
     }
     let mut x = [0.0; 3];

@@ -132,7 +132,7 @@ pub fn rest_estimate(
     }
     // A balance within a few load-cell offsets: 2 N per cable.
     let residual_n = f.norm();
-    if !(residual_n <= 2.0 * n as f64) || !p.iter().all(|v| v.is_finite()) {
+    if residual_n.is_nan() || residual_n > 2.0 * n as f64 || !p.iter().all(|v| v.is_finite()) {
         return Err(RestError::NoBalance { residual_n });
     }
     let l0 = (0..n).map(|j| d.l[j] - (p + Vector3::from(platform[j]) - Vector3::from(nominal[j])).norm()).collect();
