@@ -603,7 +603,7 @@ impl Calibrator {
             return;
         }
         let nan = [f64::NAN; crate::MAX_CABLES];
-        if prev.is_none_or(|q| q.phase != s.phase) && set.len() > 0 {
+        if prev.is_none_or(|q| q.phase != s.phase) && !set.is_empty() {
             set.push(s.t, [f64::NAN; 3], None, &nan[..n], Some(&nan[..n]), Some(-1));
         }
         // `%` keeps the panic on a zero decimation and the MSRV (see `on_sample`).

@@ -157,14 +157,15 @@ fn held_dwells(rec: &Recording) -> Vec<HeldDwell> {
 /// taut cables' lengths with `p` (the closure of the lengths: `n - 3` degrees of freedom, zero
 /// for a perfect model whatever the frame), and the number of cables used.
 fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, usize)> {
-    let used: Vec<usize> = (0..p.n).filter(|&j| d.l[j].is_finite() && !(d.f[j] < min_tension_n)).collect();
+    // A missing tension (NaN) does not make a cable loose.
+    let used: Vec<usize> = (0..p.n).filter(|&j| d.l[j].is_finite() && (d.f[j].is_nan() || d.f[j] >= min_tension_n)).collect();
     if used.len() < 4 {
         return None;
     }
     let mut x = [0.0; 3];
     for &j in &used {
-        for a in 0..3 {
-            x[a] += p.anchors[j][a] / used.len() as f64;
+        for (xa, aa) in x.iter_mut().zip(p.anchors[j]) {
+            *xa += aa / used.len() as f64;
         }
     }
     x[2] -= 1.5;
