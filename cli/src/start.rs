@@ -55,6 +55,10 @@ pub struct StartArgs {
     /// --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash).
     #[arg(long = "sim-effect", value_name = "NAME=VALUE", requires = "sim")]
     sim_effects: Vec<String>,
+    /// With --sim: the simulated robot has no tracker; the start-up runs dwell poses and
+    /// calibrates from the encoders and load cells (`motion.startup = "dwell"`).
+    #[arg(long = "no-tracker", requires = "sim")]
+    no_tracker: bool,
 }
 
 /// The simulated robot `taut start --sim` runs without --config (also loaded by the tests).
@@ -74,11 +78,15 @@ pub fn run(a: &StartArgs) -> Result<()> {
     for note in daemon_paths(&mut cfg, a.sim, text.as_deref(), a.data_dir.as_deref(), a.socket.as_deref()) {
         eprintln!("taut start: {note}");
     }
+    if let Some(note) = startup_mode(&mut cfg, a.sim, a.no_tracker) {
+        eprintln!("taut start: {note}");
+    }
     let (devices, truth, tracker): (DeviceMode, Option<Truth>, _) = if a.sim {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
         let w = ccfg.workspace;
         let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-        let mut so = SimOptions { seed: a.seed, can: a.can.clone(), ..Default::default() };
+        let mut so =
+            SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_rt_core::notracker::is_dwell(&cfg), ..Default::default() };
         crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
         let p0 = simrig::rest_position(&cfg, &so, p0);
         let sim = simrig::build(&cfg, p0, &so)?;
@@ -160,6 +168,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
             .fold(0.0, f64::max)
     };
     let init_est = initial.and_then(|o| o.estimate.as_ref());
+    let aligned = |a: &[[f64; 3]]| taut_calib::selfcal::align::worst_aligned_error(a, truth_anchors);
     let final_est = accepted.and_then(|o| o.estimate.as_ref());
     let summary = json!({
         "phases_completed": l.snap.phases_completed,
@@ -173,6 +182,9 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
         "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors[..3.min(e.anchors.len())])),
         "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
+        "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.anchors)),
+        "without_tracker": taut_rt_core::notracker::is_dwell(&cfg),
+        "calibration_note": final_est.map(|e| e.note.clone()),
         "samples_recorded": c.samples_recorded,
         "samples_dropped": l.dropped,
         "hot_swapped": hot_swapped,
@@ -210,6 +222,13 @@ pub fn run(a: &StartArgs) -> Result<()> {
     if let Some(e) = final_est {
         if truth.is_some() {
             println!("calibrated         max anchor error {:.2} mm", err(&e.anchors) * 1e3);
+            if taut_rt_core::notracker::is_dwell(&cfg) {
+                println!(
+                    "                   without a tracker: {:.2} mm after the best translation and rotation about the vertical ({})",
+                    aligned(&e.anchors) * 1e3,
+                    e.note
+                );
+            }
         } else {
             for (j, a) in e.anchors.iter().enumerate() {
                 println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.l0[j]);
@@ -228,6 +247,27 @@ pub fn run(a: &StartArgs) -> Result<()> {
         bail!("the start-up calibration did not finish with a hot-swap (see above)");
     }
     Ok(())
+}
+
+/// The start-up routine: `motion.startup` as configured; with `--no-tracker` (simulated robot)
+/// or, on hardware, without `[tracker]` and without the key, the dwell start-up. With the
+/// dwell start-up the configuration's `[tracker]` is not used. Returns a note saying so.
+fn startup_mode(cfg: &mut RobotConfig, sim: bool, no_tracker: bool) -> Option<String> {
+    use taut_config::runtime::Startup;
+    if no_tracker {
+        cfg.motion.startup = Some(Startup::Dwell);
+        cfg.tracker = None;
+        return Some("no tracker: the start-up runs dwell poses and calibrates from the encoders and load cells".into());
+    }
+    if !sim && cfg.tracker.is_none() && cfg.motion.startup.is_none() {
+        cfg.motion.startup = Some(Startup::Dwell);
+        return Some("no [tracker] in the configuration: the start-up runs dwell poses (motion.startup = \"dwell\")".into());
+    }
+    if cfg.motion.startup == Some(Startup::Dwell) {
+        cfg.tracker = None;
+        return Some("motion.startup = \"dwell\": the start-up runs dwell poses without the tracker".into());
+    }
+    None
 }
 
 /// Where the daemon's files go. The options win; otherwise the configuration's `[daemon]` keys.

@@ -110,7 +110,34 @@ pub struct MotionConfig {
     pub swap_ramp_s: f64,
     /// Speed of operator moves, m/s.
     pub move_speed_m_s: f64,
+    /// The start-up routine: `"three-phase"` (the guided phases and an excitation, needs the
+    /// tracker) or `"dwell"` (dwell poses chosen from the nominal geometry, calibrated without a
+    /// tracker). Not given: three-phase; `taut start` on hardware without `[tracker]` runs dwell.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub startup: Option<Startup>,
+    /// Dwell poses of the tracker-free start-up and recalibration.
+    pub dwell_poses: usize,
+    /// Time the platform is held still and recorded at each dwell pose, s.
+    pub dwell_s: f64,
+    /// Time the platform is held before a dwell is recorded (it settles after the move), s.
+    pub dwell_settle_s: f64,
+    /// Largest platform speed between dwell poses, m/s (the robot moves with its nominal
+    /// geometry, a few cm off: slowly).
+    pub dwell_speed_m_s: f64,
 }
+
+/// The start-up routine (`motion.startup`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Startup {
+    /// Three guided phases, then the excitation; the tracker is needed.
+    ThreePhase,
+    /// Dwell poses without a tracker (self-calibration from the encoders and load cells).
+    Dwell,
+}
+
+/// Most dwell poses a plan may have (the loop holds them in a fixed-size table).
+pub const MAX_DWELL_POSES: usize = 64;
 
 impl Default for MotionConfig {
     fn default() -> Self {
@@ -127,6 +154,11 @@ impl Default for MotionConfig {
             workspace_max_m: None,
             swap_ramp_s: 2.0,
             move_speed_m_s: 0.2,
+            startup: None,
+            dwell_poses: 24,
+            dwell_s: 1.5,
+            dwell_settle_s: 1.0,
+            dwell_speed_m_s: 0.15,
         }
     }
 }
@@ -153,6 +185,7 @@ impl MotionConfig {
             ("excitation_speed_m_s", self.excitation_speed_m_s),
             ("swap_ramp_s", self.swap_ramp_s),
             ("move_speed_m_s", self.move_speed_m_s),
+            ("dwell_speed_m_s", self.dwell_speed_m_s),
         ] {
             if !positive(v) {
                 return Err((k.into(), format!("must be a positive number, got {v}")));
@@ -161,7 +194,20 @@ impl MotionConfig {
         if !(self.init_reel_m.is_finite() && self.init_reel_m != 0.0 && self.init_reel_m.abs() < 5.0) {
             return Err(("init_reel_m".into(), format!("must be a non-zero length under 5 m, got {}", self.init_reel_m)));
         }
-        for (k, v) in [("init_follower_tension_n", self.init_follower_tension_n), ("init_settle_s", self.init_settle_s)] {
+        if !(self.dwell_s.is_finite() && self.dwell_s >= 1.0) {
+            return Err(("dwell_s".into(), format!("must be at least 1 s (a dwell is averaged over its readings), got {}", self.dwell_s)));
+        }
+        if !(10..=MAX_DWELL_POSES).contains(&self.dwell_poses) {
+            return Err((
+                "dwell_poses".into(),
+                format!("must be 10 to {MAX_DWELL_POSES} (fewer do not determine the geometry), got {}", self.dwell_poses),
+            ));
+        }
+        for (k, v) in [
+            ("init_follower_tension_n", self.init_follower_tension_n),
+            ("init_settle_s", self.init_settle_s),
+            ("dwell_settle_s", self.dwell_settle_s),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err((k.into(), format!("must be a finite non-negative number, got {v}")));
             }

@@ -21,6 +21,8 @@ pub struct TautCalib {
     effects: Vec<String>,
     /// Their values before any calibration (from a parameter file), the fit's start.
     start_effects: Effects,
+    /// Without a tracker (`motion.startup = "dwell"`): the self-calibration's options.
+    selfcal: Option<taut_calib::selfcal::SelfCalOptions>,
 }
 
 impl TautCalib {
@@ -35,7 +37,64 @@ impl TautCalib {
             opts,
             effects: cfg.calibration.effects.clone(),
             start_effects: Effects::default(),
+            selfcal: crate::notracker::is_dwell(cfg).then(|| taut_calib::selfcal::SelfCalOptions::from_config(cfg)),
         }
+    }
+
+    /// Without a tracker: the rest estimate (nominal anchors, offsets from the force balance).
+    fn initialise_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, String> {
+        let nominal = self.nominal.as_ref().ok_or_else(|| taut_calib::selfcal::SelfCalError::NoNominalAnchors.to_string())?;
+        let r = taut_calib::selfcal::rest::rest_estimate(rec, &self.platform, nominal, o.mass_kg, o.encoder_sigma_m)
+            .map_err(|e| e.to_string())?;
+        let n = nominal.len();
+        Ok(Estimate {
+            anchors: r.params.anchors,
+            l0: r.params.l0,
+            anchor_sigma: vec![[f64::NAN; 3]; n],
+            l0_sigma: vec![f64::NAN; n],
+            rms_m: f64::NAN,
+            observable: true,
+            note: format!(
+                "rest estimate without a tracker: nominal anchors, platform at [{:.3}, {:.3}, {:.3}] m by the force balance (residual {:.2} N, {} readings)",
+                r.position[0], r.position[1], r.position[2], r.residual_n, r.samples
+            ),
+            effects: Effects::default(),
+        })
+    }
+
+    /// Without a tracker: `taut_calib::selfcal` on the recorded dwells.
+    fn calibrate_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, String> {
+        let r =
+            taut_calib::selfcal::calibrate_without_tracker(rec, &self.platform, self.nominal.as_deref(), o).map_err(|e| e.to_string())?;
+        let frame = match r.frame {
+            taut_calib::selfcal::Frame::NominalTranslationYaw => "the nominal anchors' (best translation and rotation about the vertical)",
+            taut_calib::selfcal::Frame::NominalRigid => "the nominal anchors' (best translation and rotation)",
+        };
+        let mut note = format!(
+            "{} dwells, {} readings, chi2/dof {:.2}, CRB anchor RMS {:.2} mm, {}; frame: {frame}",
+            r.dwells.len(),
+            r.samples_used,
+            r.chi2 / r.dof.max(1) as f64,
+            r.anchor_rms_crb_m * 1e3,
+            if r.used_tensions { "encoders and load cells" } else { "encoders only" }
+        );
+        for w in &r.notes {
+            note.push_str("; ");
+            note.push_str(w);
+        }
+        if !self.effects.is_empty() {
+            note.push_str(&format!("; {} not fitted (needs a tracker)", self.effects.join(", ")));
+        }
+        Ok(Estimate {
+            anchors: r.params.anchors,
+            l0: r.params.l0,
+            anchor_sigma: r.anchor_sigma,
+            l0_sigma: r.l0_sigma,
+            rms_m: f64::NAN,
+            observable: true,
+            note,
+            effects: Effects::default(),
+        })
     }
 
     /// Also models the effects `file` carries, starting from its values (its time offset
@@ -125,6 +184,9 @@ impl TautCalib {
 
 impl Calibrate for TautCalib {
     fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String> {
+        if let Some(o) = &self.selfcal {
+            return self.initialise_without_tracker(rec, o);
+        }
         let r = init::initialise(rec, &self.platform, &self.opts).map_err(|e| e.to_string())?;
         let n = r.params.anchors.len();
         let (mut anchors, mut l0) = (r.params.anchors, r.params.l0);
@@ -165,6 +227,9 @@ impl Calibrate for TautCalib {
     }
 
     fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, String> {
+        if let Some(o) = &self.selfcal {
+            return self.calibrate_without_tracker(rec, o);
+        }
         let start = Params { anchors: init.anchors.clone(), l0: init.l0.clone() };
         let r = match taut_calib::calibrate(rec, &self.platform, &start, &self.opts) {
             Ok(r) => r,

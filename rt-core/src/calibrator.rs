@@ -147,6 +147,10 @@ pub struct CalibratorConfig {
     pub tracker_max_age_s: f64,
     /// Tension age limit: older tensions are recorded as missing, s.
     pub tension_max_age_s: f64,
+    /// False for the start-up without a tracker (`motion.startup = "dwell"`): the data sets are
+    /// the recorded dwells, and the held-out check is on held-out dwells
+    /// ([`crate::notracker::heldout_dwells`]).
+    pub tracker: bool,
 }
 
 impl CalibratorConfig {
@@ -166,6 +170,7 @@ impl CalibratorConfig {
             max_sigma_m: cfg.daemon.max_sigma_m,
             tracker_max_age_s: cfg.safety.tracker_max_age_s,
             tension_max_age_s: cfg.safety.tension_max_age_s,
+            tracker: !crate::notracker::is_dwell(cfg),
         }
     }
 }
@@ -559,6 +564,9 @@ impl Calibrator {
         // One data-set row per fresh tracker pose (every `decimation`-th one).
         let prev = self.prev_sample.replace(*s);
         self.lengths.push(s, self.cfg.n);
+        if !self.cfg.tracker {
+            return self.push_dwell_row(s, prev.as_ref(), state);
+        }
         let fresh = prev.as_ref().is_none_or(|q| q.pose_m != s.pose_m) && s.pose_age_s <= self.cfg.tracker_max_age_s;
         if !fresh {
             return;
@@ -580,6 +588,48 @@ impl Calibrator {
         }
     }
 
+    /// Without a tracker: every `decimation`-th sample of a recorded dwell (phase label >= 0),
+    /// the encoder lengths as read and each tension only when it is a new reading (a repeated
+    /// one would count twice in the dwell's mean); a row without lengths between two dwells,
+    /// so that the dwell search never joins them.
+    fn push_dwell_row(&mut self, s: &Sample, prev: Option<&Sample>, state: State) {
+        let n = self.cfg.n;
+        let set = match state {
+            State::InitPhase => &mut self.init_set,
+            State::Excitation => &mut self.exc_set,
+            _ => return,
+        };
+        if s.phase < 0 {
+            return;
+        }
+        let nan = [f64::NAN; crate::MAX_CABLES];
+        if prev.is_none_or(|q| q.phase != s.phase) && !set.is_empty() {
+            set.push(s.t, [f64::NAN; 3], None, &nan[..n], Some(&nan[..n]), Some(-1));
+        }
+        // `%` keeps the panic on a zero decimation and the MSRV (see `on_sample`).
+        #[allow(clippy::manual_is_multiple_of)]
+        let keep = self.decim % self.cfg.decimation == 0;
+        self.decim += 1;
+        if !keep {
+            return;
+        }
+        let mut l = nan;
+        let mut f = nan;
+        for j in 0..n {
+            if s.length_m[j].is_finite() {
+                l[j] = s.length_m[j];
+            }
+            let measured = s.t - s.tension_age_s[j];
+            let new = prev.is_none_or(|q| (q.t - q.tension_age_s[j] - measured).abs() > 1e-9);
+            if new && s.tension_age_s[j] <= self.cfg.tension_max_age_s && s.tension_n[j].is_finite() {
+                f[j] = s.tension_n[j];
+            }
+        }
+        set.push(s.t, [f64::NAN; 3], None, &l[..n], Some(&f[..n]), Some(i32::from(s.phase)));
+        let len = set.len();
+        self.status.lock().unwrap().dataset_samples = len;
+    }
+
     fn on_transition(&mut self, prev: State, state: State, s: &Sample) {
         match (prev, state) {
             (_, State::InitPhase) if prev != State::InitPhase => {
@@ -597,8 +647,12 @@ impl Calibrator {
             }
             (State::Excitation, State::Operate) => {
                 let rec = std::mem::replace(&mut self.exc_set, Recording::with_capacity(self.cfg.n, 0, true, false, true));
-                let split = ((rec.len() as f64) * (1.0 - self.cfg.heldout_fraction)).round() as usize;
-                let (train, heldout) = (rec.slice(0..split), rec.slice(split..rec.len()));
+                let (train, heldout) = if self.cfg.tracker {
+                    let split = ((rec.len() as f64) * (1.0 - self.cfg.heldout_fraction)).round() as usize;
+                    (rec.slice(0..split), rec.slice(split..rec.len()))
+                } else {
+                    crate::notracker::split_dwells(&rec, self.cfg.heldout_fraction)
+                };
                 match self.current.clone() {
                     Some(init) => {
                         self.stage("calibrating");
@@ -673,6 +727,11 @@ impl Calibrator {
             robot: self.cfg.robot.clone(),
             source: match kind {
                 OutcomeKind::Initial => format!("start-up initial estimate ({})", est.note),
+                OutcomeKind::Calibration if !self.cfg.tracker => format!(
+                    "{} without a tracker ({})",
+                    if run == 0 { "start-up calibration".to_string() } else { format!("recalibration {run}") },
+                    est.note
+                ),
                 OutcomeKind::Calibration if run == 0 => "start-up calibration".into(),
                 OutcomeKind::Calibration => format!("recalibration {run}"),
             },
@@ -802,6 +861,9 @@ fn validate(
         return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
     }
     let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
+    if !c.tracker {
+        return crate::notracker::heldout_dwells(c, est, heldout, current);
+    }
     let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform).with_effects(LoopEffects::from_file(&est.effects));
     let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
     let new_rms = new.coregistration_rms(rows(), c.min_tension_n);

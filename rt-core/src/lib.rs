@@ -40,6 +40,7 @@ pub mod kin;
 #[cfg(all(test, loom))]
 mod loom_tests;
 pub mod motion;
+pub mod notracker;
 pub mod plugin;
 pub mod ramp;
 pub mod robot_io;

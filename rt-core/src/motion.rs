@@ -235,6 +235,34 @@ pub struct ControllerConfig {
     pub max_cable_speed_m_s: f64,
     /// Workspace margin, m.
     pub workspace_margin_m: f64,
+    /// The tracker-free start-up's dwell plan (`motion.startup = "dwell"`); `None`: the
+    /// three-phase start-up with a tracker. Set by [`ControllerConfig::with_dwell_plan`].
+    pub dwell: Option<DwellLoopPlan>,
+}
+
+/// Most dwell poses the loop holds.
+pub const MAX_DWELL_POSES: usize = taut_config::runtime::MAX_DWELL_POSES;
+
+/// The dwell plan as the loop holds it: fixed size, computed before the loop starts
+/// (`taut_calib::selfcal::plan`).
+///
+/// Without a tracker the start-up is: hold at rest for `settle_s`, record `dwell_s` (phase 0:
+/// the rest estimate), then visit `poses` in order: move (smoothstep, at most `speed_m_s` on
+/// average... peak 1.5x), hold `settle_s`, record `dwell_s` (the sample's phase is the pose's
+/// index). Moves are smoothsteps at a mean speed of `speed_m_s` (peak 1.5x). Recalibration
+/// visits the poses again.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DwellLoopPlan {
+    /// The poses, m (the first `count`).
+    pub poses: [[f64; 3]; MAX_DWELL_POSES],
+    /// Poses used.
+    pub count: usize,
+    /// Recorded time at each pose, s.
+    pub dwell_s: f64,
+    /// Hold before recording, s.
+    pub settle_s: f64,
+    /// Mean platform speed of a move, m/s.
+    pub speed_m_s: f64,
 }
 
 /// Why a configuration cannot drive the controller.
@@ -329,7 +357,18 @@ impl ControllerConfig {
             tracker_max_age_s: s.tracker_max_age_s,
             max_cable_speed_m_s: s.max_cable_speed_m_s,
             workspace_margin_m: s.workspace_margin_m,
+            dwell: None,
         })
+    }
+
+    /// Runs the tracker-free start-up through `poses` (at most [`MAX_DWELL_POSES`], the rest
+    /// ignored) instead of the three phases and the excitation.
+    pub fn with_dwell_plan(mut self, poses: &[[f64; 3]], dwell_s: f64, settle_s: f64, speed_m_s: f64) -> ControllerConfig {
+        let mut p = [[0.0; 3]; MAX_DWELL_POSES];
+        let count = poses.len().min(MAX_DWELL_POSES);
+        p[..count].copy_from_slice(&poses[..count]);
+        self.dwell = Some(DwellLoopPlan { poses: p, count, dwell_s, settle_s, speed_m_s });
+        self
     }
 }
 
@@ -418,6 +457,25 @@ pub struct Controller {
     stop_cycles: u32,
     urgent: Option<Arc<Urgent>>,
     reset: ResetRun,
+    dwell: DwellRun,
+}
+
+/// Where the dwell plan is (see [`DwellLoopPlan`]).
+#[derive(Debug, Clone, Copy)]
+struct DwellRun {
+    /// Pose being approached or held.
+    k: usize,
+    seg: DwellSeg,
+    t0: f64,
+    from: [f64; 3],
+    move_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DwellSeg {
+    Move,
+    Settle,
+    Record,
 }
 
 /// The bookkeeping of the operator's reset.
@@ -511,6 +569,7 @@ impl Controller {
             stop_cycles: 0,
             reset: ResetRun::new(),
             urgent: None,
+            dwell: DwellRun { k: 0, seg: DwellSeg::Move, t0: 0.0, from: centre, move_s: 1.0 },
         }
     }
 
@@ -572,6 +631,10 @@ impl Controller {
     /// The phase label of this cycle's sample: the phase while its cable is reeled and returned,
     /// -1 otherwise (settling before and after).
     pub fn phase_label(&self) -> i8 {
+        if self.state == State::Excitation && self.cfg.dwell.is_some() {
+            // Without a tracker: the index of the pose while its dwell is recorded.
+            return if self.dwell.seg == DwellSeg::Record { self.dwell.k.min(i8::MAX as usize) as i8 } else { -1 };
+        }
         if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) {
             self.phase
         } else {
@@ -719,6 +782,9 @@ impl Controller {
     }
 
     fn start_excitation(&mut self, inp: &Inputs, now: f64) {
+        if let Some(plan) = self.cfg.dwell {
+            return self.start_dwell_plan(&plan, inp, now);
+        }
         let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
         self.start_m = p0;
         self.lissajous_start = std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin());
@@ -786,7 +852,7 @@ impl Controller {
                 let first_off = (0..n).find(|&j| inp.drive[j] != DriveStatus::Enabled);
                 // The phases need fresh tensions and poses: the I/O threads may still be starting.
                 let stale_tension = (0..n).find(|&j| inp.tension_age_s[j] > self.cfg.tension_max_age_s);
-                let stale_pose = inp.pose_age_s > self.cfg.tracker_max_age_s;
+                let stale_pose = self.cfg.dwell.is_none() && inp.pose_age_s > self.cfg.tracker_max_age_s;
                 let waited = now - self.state_t0 > self.cfg.enable_timeout_s;
                 match first_off {
                     None if waited && stale_tension.is_some() => {
@@ -797,6 +863,10 @@ impl Controller {
                     None if (0..n).all(|j| inp.length_m[j].is_finite()) => {
                         self.hold_here(inp);
                         self.start_phase(0, inp, now);
+                        if self.cfg.dwell.is_some() {
+                            // The rest dwell instead of the reeling: nothing is reeled.
+                            self.segment = Segment::Lead;
+                        }
                     }
                     Some(j) if now - self.state_t0 > self.cfg.enable_timeout_s => {
                         self.latch(Cause::EnableTimeout { cable: j as u8 }, inp, now)
@@ -804,6 +874,7 @@ impl Controller {
                     _ => {}
                 }
             }
+            State::InitPhase if self.cfg.dwell.is_some() => self.rest_dwell(now, &mut next, &mut modes),
             State::InitPhase => {
                 let k = self.phase as usize;
                 let [a, b, r] = self.cfg.phases[k];
@@ -884,6 +955,10 @@ impl Controller {
                     self.start_excitation(inp, now);
                     next = self.ik_command(&mut modes);
                 }
+            }
+            State::Excitation if self.cfg.dwell.is_some() => {
+                self.step_dwell_plan(now);
+                next = self.ik_command(&mut modes);
             }
             State::Excitation => {
                 let t = now - self.state_t0;
@@ -1150,6 +1225,130 @@ impl Controller {
         self.reel_start_m = if inp.length_m[r].is_finite() { inp.length_m[r] } else { self.hold_m[r] };
     }
 
+    /// Without a tracker, the initialisation is one dwell at rest: hold (followers in torque
+    /// mode) for `settle_s`, record for `dwell_s` (phase 0), then wait for the rest estimate.
+    fn rest_dwell(&mut self, now: f64, next: &mut [f64; MAX_CABLES], modes: &mut [CableCommand; MAX_CABLES]) {
+        let Some(plan) = self.cfg.dwell else { return };
+        for j in 0..self.cfg.n {
+            next[j] = self.hold_m[j];
+            modes[j] = self.hold_mode(j, next[j]);
+        }
+        let ts = now - self.segment_t0;
+        match self.segment {
+            Segment::Lead if ts >= plan.settle_s => {
+                self.segment = Segment::Reel;
+                self.segment_t0 = now;
+            }
+            Segment::Reel if ts >= plan.dwell_s => {
+                self.segment = Segment::Settle;
+                self.phases_completed += 1;
+                self.awaited_version = self.params.version;
+                self.enter(State::AwaitInitial, now);
+            }
+            _ => {}
+        }
+    }
+
+    /// Starts the dwell plan from where the platform is by the running parameters (forward
+    /// kinematics of the measured lengths: there is no tracker).
+    fn start_dwell_plan(&mut self, plan: &DwellLoopPlan, inp: &Inputs, now: f64) {
+        self.target = self.forward(inp);
+        self.dwell = DwellRun {
+            k: 0,
+            seg: DwellSeg::Move,
+            t0: now,
+            from: self.target,
+            move_s: move_time(self.target, plan.poses[0], plan.speed_m_s),
+        };
+        self.enter_ik(State::Excitation, now);
+    }
+
+    /// One cycle of the dwell plan: the target, and the next segment when this one is over.
+    fn step_dwell_plan(&mut self, now: f64) {
+        let Some(plan) = self.cfg.dwell else { return };
+        let d = &mut self.dwell;
+        let to = plan.poses[d.k.min(plan.count.saturating_sub(1))];
+        let t = now - d.t0;
+        match d.seg {
+            DwellSeg::Move => {
+                let w = smoothstep(t / d.move_s);
+                self.target = std::array::from_fn(|i| d.from[i] + w * (to[i] - d.from[i]));
+                if t >= d.move_s {
+                    d.seg = DwellSeg::Settle;
+                    d.t0 = now;
+                }
+            }
+            DwellSeg::Settle => {
+                self.target = to;
+                if t >= plan.settle_s {
+                    d.seg = DwellSeg::Record;
+                    d.t0 = now;
+                }
+            }
+            DwellSeg::Record => {
+                self.target = to;
+                if t >= plan.dwell_s {
+                    d.k += 1;
+                    if d.k >= plan.count {
+                        self.goal = self.target;
+                        self.enter(State::Operate, now);
+                    } else {
+                        *d = DwellRun {
+                            k: d.k,
+                            seg: DwellSeg::Move,
+                            t0: now,
+                            from: to,
+                            move_s: move_time(to, plan.poses[d.k], plan.speed_m_s),
+                        };
+                    }
+                }
+            }
+        }
+    }
+
+    /// The platform position that explains the measured lengths with the running parameters
+    /// (Gauss–Newton from the last target, fixed iteration count, ideal model); the last target
+    /// where the lengths do not determine it.
+    fn forward(&self, inp: &Inputs) -> [f64; 3] {
+        let n = self.cfg.n;
+        let pr = &self.params;
+        let mut p = self.target;
+        for _ in 0..20 {
+            let mut h = [[0.0; 3]; 3];
+            let mut r = [0.0; 3];
+            for j in 0..n {
+                if !inp.length_m[j].is_finite() {
+                    continue;
+                }
+                let d: [f64; 3] = std::array::from_fn(|i| p[i] + pr.platform[j][i] - pr.anchors[j][i]);
+                let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if rho < 1e-9 {
+                    continue;
+                }
+                let u: [f64; 3] = std::array::from_fn(|i| d[i] / rho);
+                let e = inp.length_m[j] - pr.length(j, &p);
+                for a in 0..3 {
+                    r[a] += u[a] * e;
+                    for b in 0..3 {
+                        h[a][b] += u[a] * u[b];
+                    }
+                }
+            }
+            let Some(step) = solve3(h, r) else { return self.target };
+            for a in 0..3 {
+                p[a] += step[a];
+            }
+            if step.iter().map(|s| s * s).sum::<f64>() < 1e-18 {
+                break;
+            }
+        }
+        if p.iter().all(|v| v.is_finite()) {
+            p
+        } else {
+            self.target
+        }
+    }
+
     fn check_devices(&mut self, inp: &Inputs, now: f64) {
         if let Some(f) = inp.fault {
             let cause = match f {
@@ -1188,12 +1387,25 @@ impl Controller {
                 return self.latch(Cause::TensionHigh { cable: j as u8, tension_n: inp.tension_n[j] as f32 }, inp, now);
             }
         }
-        let tracker_needed = matches!(self.state, State::InitPhase | State::Excitation);
+        let tracker_needed = c.dwell.is_none() && matches!(self.state, State::InitPhase | State::Excitation);
         let pose_fresh = inp.pose_age_s <= c.tracker_max_age_s;
         if tracker_needed && !pose_fresh {
             return self.latch(Cause::TrackerStale, inp, now);
         }
-        if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) && c.tension_max_age_s.is_finite() {
+        if c.dwell.is_some() && self.state == State::Excitation && c.tension_max_age_s.is_finite() {
+            // Without a tracker the robot moves with its nominal geometry: a position-controlled
+            // cable going loose means the plan does not hold the platform as planned.
+            for j in 0..c.n {
+                if !c.follower[j] && measured_after(inp, j, now - self.state_t0, REEL_GRACE_S) && inp.tension_n[j] < c.loose_tension_n {
+                    return self.latch(Cause::CableLoose { cable: j as u8, tension_n: inp.tension_n[j] as f32 }, inp, now);
+                }
+            }
+        }
+        if c.dwell.is_none()
+            && self.state == State::InitPhase
+            && matches!(self.segment, Segment::Reel | Segment::Return)
+            && c.tension_max_age_s.is_finite()
+        {
             let r = c.phases[self.phase as usize][2];
             // Give the reeled cable a moment after the phase starts before calling it loose, and
             // judge it only on a reading taken since then.
@@ -1216,6 +1428,34 @@ impl Controller {
             }
         }
     }
+}
+
+/// Duration of a smoothstep move from `a` to `b` at mean speed `v` (its peak is 1.5 v), s; at
+/// least 1 s.
+fn move_time(a: [f64; 3], b: [f64; 3], v: f64) -> f64 {
+    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    (d / v.max(1e-3)).max(1.0)
+}
+
+/// Solves the 3x3 system `h x = r` by Cramer's rule; `None` when singular.
+pub(crate) fn solve3(h: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(h);
+    if d.is_nan() || d.abs() <= 1e-12 {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for (c, xc) in x.iter_mut().enumerate() {
+        let mut m = h;
+        for (row, rv) in m.iter_mut().zip(r) {
+            row[c] = rv;
+        }
+        *xc = det(m) / d;
+    }
+    Some(x)
 }
 
 /// Time constant of the tension inverse kinematics stretches the cables by, s: long against
@@ -1288,6 +1528,72 @@ mod tests {
         step(&mut c, 1);
         let (cause, _) = c.controller.fault().expect("a loose reeled cable latches");
         assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
+    }
+
+    /// Without a tracker: the rest dwell (phase 0), the wait for the rest estimate, the dwell
+    /// plan's poses in order (each labelled with its index while recorded, the platform at the
+    /// pose), operate; `Recalibrate` visits the poses again. No tracker pose is ever read.
+    #[test]
+    fn dwell_startup_runs_the_plan_and_recalibrates() {
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
+        let mut cfg = quick_config(4, &std::env::temp_dir());
+        cfg.safety.tension_max_age_s = 5.0;
+        let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap().with_dwell_plan(&poses, 1.0, 0.2, 0.5);
+        let truth = truth_params(4, 0.1);
+        let (mut params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+        let (sample_tx, _sample_rx) = sample_ring(64);
+        let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
+        robot.inject.tracker_gone = true;
+        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
+        let dt = 0.002;
+        let mut t = 0.0;
+        let mut labels: Vec<(State, i8)> = Vec::new();
+        let mut at_pose: Vec<[f64; 3]> = Vec::new();
+        let mut run = |c: &mut LoopCore<KinematicRobot>,
+                       until: &dyn Fn(&LoopCore<KinematicRobot>) -> bool,
+                       labels: &mut Vec<(State, i8)>,
+                       at_pose: &mut Vec<[f64; 3]>| {
+            for _ in 0..200_000 {
+                t += dt;
+                c.cycle(t, dt);
+                let l = (c.controller.state(), c.controller.phase_label());
+                if labels.last() != Some(&l) {
+                    if labels.last().is_some_and(|p| p.0 == State::Excitation && p.1 >= 0) {
+                        at_pose.push(c.devices.p);
+                    }
+                    labels.push(l);
+                }
+                assert_eq!(c.controller.fault(), None, "{labels:?}");
+                if until(c) {
+                    return;
+                }
+            }
+            panic!("not reached: {labels:?}");
+        };
+        run(&mut c, &|c| c.controller.state() == State::AwaitInitial, &mut labels, &mut at_pose);
+        assert!(labels.contains(&(State::InitPhase, 0)), "the rest dwell is recorded: {labels:?}");
+        assert_eq!(c.controller.snapshot(0.0, &c.inputs).phases_completed, 1);
+        // The rest estimate arrives: the robot's own parameters, version 1.
+        let mut p1 = truth;
+        p1.version = 1;
+        p1.valid = true;
+        params_tx.write(p1);
+        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
+        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
+        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
+        for (p, q) in at_pose.iter().zip(&poses) {
+            assert!((0..3).all(|i| (p[i] - q[i]).abs() < 1e-6), "held at {p:?}, planned {q:?}");
+        }
+        // Recalibration visits the poses again.
+        labels.clear();
+        at_pose.clear();
+        cmd_tx.send(Command::Recalibrate).unwrap();
+        run(&mut c, &|c| c.controller.state() == State::Excitation, &mut labels, &mut at_pose);
+        assert_eq!(c.controller.run(), 1);
+        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
+        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
+        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
     }
 
     /// A drum that turned while the drives were stopped (a quick stop's ramp, a brake that

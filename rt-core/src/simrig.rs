@@ -116,6 +116,9 @@ pub struct SimOptions {
     /// The site's cable physics: effects concealed from the robot (elasticity, drum scale,
     /// swivel pulleys...). The default has none but loose cables.
     pub physics: Physics,
+    /// The site has a tracker (default). `false`: no pose is ever sent and the robot gets no
+    /// tracker input (`taut start --sim --no-tracker`).
+    pub tracker: bool,
 }
 
 impl Default for SimOptions {
@@ -128,6 +131,7 @@ impl Default for SimOptions {
             can: None,
             site_period: Duration::from_millis(1),
             physics: Physics::default(),
+            tracker: true,
         }
     }
 }
@@ -365,7 +369,7 @@ where
         vlc,
         handle,
         sender,
-        tracker: Tracker::new(&opts.noise),
+        tracker: opts.tracker.then(|| Tracker::new(&opts.noise)),
         rng: taut_sim::rng(opts.seed, 7),
         faults: faults.clone(),
         stop: stop.clone(),
@@ -380,7 +384,13 @@ where
         .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e.to_string() })?;
     let site = SiteThread { stop, thread: Some(thread) };
     let tracker_stats = pose.stats_handle();
-    let peripherals = Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) };
+    let peripherals = if opts.tracker {
+        Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) }
+    } else {
+        // No tracker: the receiver is stopped (its counters stay at zero) and nothing is sent.
+        drop((tracker, pose));
+        Peripherals { loadcells: Some(loadcells), tracker: None, pose: None }
+    };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(BuildError::BringUp)?;
     Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform })
 }
@@ -435,7 +445,7 @@ struct Site<R: CanTransport> {
     vlc: VirtualLoadCells,
     handle: TensionHandle,
     sender: TrackerSender,
-    tracker: Tracker,
+    tracker: Option<Tracker>,
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
     platform: PlatformTruth,
@@ -491,9 +501,10 @@ impl<R: CanTransport> Site<R> {
             self.inject_faults();
             self.step_plant(dt);
             let t = now.saturating_duration_since(t0).as_secs_f64();
-            if t >= next_pose && !self.faults.tracker_gone.load(Ordering::Relaxed) {
+            let due = t >= next_pose && !self.faults.tracker_gone.load(Ordering::Relaxed);
+            if let (true, Some(tracker)) = (due, self.tracker.as_mut()) {
                 next_pose = (next_pose + TRACKER_PERIOD_S).max(t);
-                let m = self.tracker.measure(self.plant.position(), &mut self.rng);
+                let m = tracker.measure(self.plant.position(), &mut self.rng);
                 if m.iter().all(|v| v.is_finite()) {
                     let _ = self.sender.send_pose(t, m, None);
                 }

@@ -55,7 +55,10 @@
 //! `chi2 / dof` fails the chi-square test at a 1e-3 false-alarm rate, is retried from the
 //! mirrored poses and the better fit kept; a fit that still fails is reported (note), not hidden.
 
+pub mod align;
 pub mod dwell;
+pub mod plan;
+pub mod rest;
 pub mod solve;
 
 use crate::Params;

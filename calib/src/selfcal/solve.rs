@@ -373,6 +373,15 @@ pub fn lm(pr: &Problem<'_>, s: &mut State, w: &Whitening, max_iter: usize) -> So
     SolveReport { iterations: it, chi2: cost, rows, converged }
 }
 
+/// The Fisher information on the globals with the poses eliminated (the Schur complement
+/// `H_gg - sum_k H_pg,k^T H_pp,k^-1 H_pg,k` at `s`, no gauge): it adds over dwells, which the
+/// dwell planner ([`super::plan`]) uses to predict the bound of a set of poses. `None` when a
+/// pose block is singular.
+pub fn information(pr: &Problem<'_>, s: &State, w: &Whitening) -> Option<DMatrix<f64>> {
+    let nm = normal(pr, s, w);
+    reduce(&nm, 0.0).map(|r| r.0)
+}
+
 /// Covariance of the globals in the gauge `C g = d` at `s` (inverse Fisher information,
 /// gauge-projected). `None` when the information is singular beyond the gauge.
 pub fn covariance(pr: &Problem<'_>, s: &State, w: &Whitening) -> Option<DMatrix<f64>> {

@@ -241,13 +241,15 @@ pub enum PluginError {
     },
     /// `update` failed (when reported through a lifecycle call).
     Update(UpdateError),
+    /// No dwell plan for the tracker-free start-up (`motion.startup = "dwell"`).
+    DwellPlan(taut_calib::selfcal::plan::PlanError),
 }
 
 impl PluginError {
     /// The error class (C error codes).
     pub fn kind(&self) -> ErrorKind {
         match self {
-            PluginError::Config(_) | PluginError::ConfigValue { .. } => ErrorKind::Config,
+            PluginError::Config(_) | PluginError::ConfigValue { .. } | PluginError::DwellPlan(_) => ErrorKind::Config,
             PluginError::Lifecycle { .. } => ErrorKind::Lifecycle,
             PluginError::BringUp(_) | PluginError::Activation { .. } | PluginError::Stopped => ErrorKind::Device,
             PluginError::Recording { .. } => ErrorKind::Io,
@@ -285,6 +287,7 @@ impl fmt::Display for PluginError {
             }
             PluginError::Thread { name, source } => write!(f, "cannot start the {name} thread: {source}"),
             PluginError::Update(e) => e.fmt(f),
+            PluginError::DwellPlan(e) => write!(f, "the start-up without a tracker (motion.startup = \"dwell\"): {e}"),
         }
     }
 }
@@ -296,6 +299,7 @@ impl std::error::Error for PluginError {
             PluginError::BringUp(e) => Some(e),
             PluginError::Recording { source, .. } | PluginError::Thread { source, .. } => Some(source),
             PluginError::Update(e) => Some(e),
+            PluginError::DwellPlan(e) => Some(e),
             _ => None,
         }
     }

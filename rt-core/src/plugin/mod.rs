@@ -341,7 +341,7 @@ impl Plugin {
     /// The first half of [`Plugin::configure`]: validated and allocated, nothing created or
     /// started ([`PluginBuilder::build`] does that).
     pub fn builder(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<PluginBuilder, PluginError> {
-        let ccfg = ControllerConfig::from_robot(cfg)?;
+        let ccfg = crate::notracker::controller_config(cfg)?;
         let n = ccfg.n;
         let rt = cfg.rt.clone();
         if !(rt.rate_hz.is_finite() && rt.rate_hz >= 1.0) {

@@ -1,0 +1,233 @@
+//! The start-up without a tracker (`motion.startup = "dwell"`): the dwell plan, computed once
+//! when the plugin is configured (not in the loop), from the nominal geometry.
+//!
+//! A robot without a tracker does not know its anchors yet: it moves with the nominal ones (a
+//! few cm off, up to ~20 cm for a tape-measured site) and the encoder offsets of its rest
+//! estimate ([`taut_calib::selfcal::rest`]). So the plan keeps every planned tension at least
+//! [`TENSION_MARGIN`] x `calibration.min_tension_n` (and at least 2 x `safety.loose_tension_n`)
+//! and at most `safety.max_tension_n` / [`TENSION_MARGIN`], the moves are slow
+//! (`motion.dwell_speed_m_s`), and the loop's safety checks stay active (tension limit, loose
+//! position-controlled cables, speed limit, stale load cells). The loop gets the poses as a
+//! fixed-size table ([`crate::motion::DwellLoopPlan`]).
+//!
+//! The calibrator collects the recorded dwells ([`crate::calibrator`]), the backend calibrates
+//! them with `taut_calib::selfcal` ([`crate::calib_backend`]), and the result goes through the
+//! same acceptance and hot-swap as with a tracker; its held-out check is on held-out dwells
+//! ([`heldout_dwells`]): poses the calibration did not see, judged by how well their lengths
+//! close (the residual after fitting the platform position), which needs no tracker and no
+//! frame.
+
+use crate::calibrator::{CalibratorConfig, Estimate};
+use crate::kin::{LoopEffects, LoopParams};
+use crate::motion::{ControllerConfig, MAX_DWELL_POSES};
+use crate::plugin::PluginError;
+use crate::MAX_CABLES;
+use taut_calib::selfcal::plan::{plan, DwellPlan, PlanError, PlanInput};
+use taut_config::recording::Recording;
+use taut_config::runtime::Startup;
+use taut_config::RobotConfig;
+
+/// Factor between the planned tensions and the tension bounds (the nominal geometry is a few
+/// cm off: the real tensions differ from the planned ones by a few N).
+pub const TENSION_MARGIN: f64 = 2.0;
+
+/// Load-cell noise assumed by the planner when the configuration gives none, N (one reading).
+pub const PLAN_LOADCELL_SIGMA_N: f64 = 0.3;
+
+/// Tension readings per second assumed by the planner when the load cells are polled back to
+/// back (`loadcells.poll_period_s = 0`).
+pub const PLAN_TENSION_RATE_HZ: f64 = 50.0;
+
+/// True when the configuration runs the tracker-free start-up.
+pub fn is_dwell(cfg: &RobotConfig) -> bool {
+    cfg.motion.startup == Some(Startup::Dwell)
+}
+
+/// The dwell plan of `cfg` for the controller configuration `ccfg` (its workspace box, its
+/// followers and their tension). Deterministic.
+pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPlan, PlanError> {
+    let n = ccfg.n;
+    let nominal = cfg.anchors().ok_or(PlanError::BadInput("every [[cable]] needs a nominal `anchor` (the start and the frame)"))?;
+    let platform = cfg.platform_points();
+    let loadcells = cfg.loadcells.is_some() || cfg.cables.iter().any(|c| c.loadcell.is_some());
+    let m = &cfg.motion;
+    let rate = cfg.rt.rate_hz / cfg.daemon.calib_decimation.max(1) as f64;
+    let tension_rate = cfg.loadcells.as_ref().map_or(PLAN_TENSION_RATE_HZ, |l| {
+        if l.poll_period_s > 0.0 {
+            1.0 / l.poll_period_s
+        } else {
+            PLAN_TENSION_RATE_HZ
+        }
+    });
+    let w = ccfg.workspace;
+    plan(&PlanInput {
+        nominal: &nominal,
+        platform: &platform,
+        mass_kg: cfg.robot.mass_kg,
+        workspace: w,
+        follower: &ccfg.follower[..n],
+        follower_tension_n: ccfg.follower_tension_n,
+        min_tension_n: cfg.calibration.min_tension_n.max(cfg.safety.loose_tension_n),
+        max_tension_n: cfg.safety.max_tension_n,
+        tension_margin: TENSION_MARGIN,
+        encoder_sigma_m: cfg.calibration.encoder_sigma_m,
+        loadcell_sigma_n: loadcells.then_some(PLAN_LOADCELL_SIGMA_N),
+        length_samples: (m.dwell_s * rate).floor().max(1.0) as usize,
+        tension_samples: (m.dwell_s * tension_rate).floor().max(1.0) as usize,
+        poses: m.dwell_poses.min(MAX_DWELL_POSES),
+        start: Some([(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]),
+        grid: [7, 5, 4],
+    })
+}
+
+/// The controller configuration of `cfg`, with the dwell plan when the start-up runs without a
+/// tracker.
+pub fn controller_config(cfg: &RobotConfig) -> Result<ControllerConfig, PluginError> {
+    let ccfg = ControllerConfig::from_robot(cfg)?;
+    if !is_dwell(cfg) {
+        return Ok(ccfg);
+    }
+    let p = dwell_plan(cfg, &ccfg).map_err(PluginError::DwellPlan)?;
+    let m = &cfg.motion;
+    Ok(ccfg.with_dwell_plan(&p.poses, m.dwell_s, m.dwell_settle_s, m.dwell_speed_m_s))
+}
+
+/// Splits the dwell rows of a tracker-free data set into training and held-out dwells: every
+/// `round(1 / heldout_fraction)`-th dwell (by its phase label, the pose's index) is held out,
+/// so the held-out poses are spread over the workspace like the others. Rows without a label
+/// (the separators between dwells) go to both.
+pub fn split_dwells(rec: &Recording, heldout_fraction: f64) -> (Recording, Recording) {
+    let n = rec.n_cables;
+    let every = if heldout_fraction > 0.0 { (1.0 / heldout_fraction).round().max(2.0) as i32 } else { i32::MAX };
+    let mut train = Recording::with_capacity(n, rec.len(), true, false, true);
+    let mut held = Recording::with_capacity(n, rec.len() / every.max(1) as usize + 16, true, false, true);
+    for i in 0..rec.len() {
+        let ph = rec.phase.as_ref().map_or(-1, |p| p[i]);
+        let row = |r: &mut Recording| r.push(rec.t[i], rec.p[i], None, rec.lengths(i), rec.tensions(i), Some(ph));
+        if ph < 0 {
+            row(&mut train);
+            row(&mut held);
+        } else if ph % every == every - 1 {
+            row(&mut held);
+        } else {
+            row(&mut train);
+        }
+    }
+    (train, held)
+}
+
+/// One held-out dwell: mean encoder lengths and tensions over its rows.
+struct HeldDwell {
+    l: [f64; MAX_CABLES],
+    f: [f64; MAX_CABLES],
+}
+
+fn held_dwells(rec: &Recording) -> Vec<HeldDwell> {
+    let n = rec.n_cables;
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < rec.len() {
+        let ph = rec.phase.as_ref().map_or(-1, |p| p[i]);
+        let start = i;
+        while i < rec.len() && rec.phase.as_ref().map_or(-1, |p| p[i]) == ph {
+            i += 1;
+        }
+        if ph < 0 || i - start < 10 {
+            continue;
+        }
+        let mut d = HeldDwell { l: [f64::NAN; MAX_CABLES], f: [f64::NAN; MAX_CABLES] };
+        for j in 0..n {
+            let mean = |v: &mut dyn Iterator<Item = f64>| {
+                let (s, c) = v.filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));
+                if c > 0 {
+                    s / c as f64
+                } else {
+                    f64::NAN
+                }
+            };
+            d.l[j] = mean(&mut (start..i).map(|r| rec.lengths(r)[j]));
+            d.f[j] = mean(&mut (start..i).map(|r| rec.tensions(r).map_or(f64::NAN, |t| t[j])));
+        }
+        out.push(d);
+    }
+    out
+}
+
+/// Sum of squared length residuals of a dwell after fitting the platform position to its
+/// taut cables' lengths with `p` (the closure of the lengths: `n - 3` degrees of freedom, zero
+/// for a perfect model whatever the frame), and the number of cables used.
+fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, usize)> {
+    // A missing tension (NaN) does not make a cable loose.
+    let used: Vec<usize> = (0..p.n).filter(|&j| d.l[j].is_finite() && (d.f[j].is_nan() || d.f[j] >= min_tension_n)).collect();
+    if used.len() < 4 {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for &j in &used {
+        for (xa, aa) in x.iter_mut().zip(p.anchors[j]) {
+            *xa += aa / used.len() as f64;
+        }
+    }
+    x[2] -= 1.5;
+    for _ in 0..50 {
+        let (mut h, mut r) = ([[0.0; 3]; 3], [0.0; 3]);
+        for &j in &used {
+            let dv: [f64; 3] = std::array::from_fn(|a| x[a] + p.platform[j][a] - p.anchors[j][a]);
+            let rho = (dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2]).sqrt();
+            let u: [f64; 3] = std::array::from_fn(|a| dv[a] / rho);
+            let e = d.l[j] - p.length_at(j, &x, d.f[j]);
+            for a in 0..3 {
+                r[a] += u[a] * e;
+                for b in 0..3 {
+                    h[a][b] += u[a] * u[b];
+                }
+            }
+        }
+        let step = crate::motion::solve3(h, r)?;
+        let len = (step[0] * step[0] + step[1] * step[1] + step[2] * step[2]).sqrt();
+        let k = if len > 0.3 { 0.3 / len } else { 1.0 };
+        for a in 0..3 {
+            x[a] += k * step[a];
+        }
+        if len < 1e-10 {
+            break;
+        }
+    }
+    let ss = used.iter().map(|&j| (d.l[j] - p.length_at(j, &x, d.f[j])).powi(2)).sum::<f64>();
+    ss.is_finite().then_some((ss, used.len()))
+}
+
+/// The held-out check without a tracker: on the held-out dwells (poses the calibration did not
+/// see), the RMS length closure residual of the new set against the running one, per degree of
+/// freedom. The new set is taken when it is lower, or not significantly higher (paired
+/// differences per dwell, two standard errors), as with a tracker. Returns `(new, old)` RMS, m.
+pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), String> {
+    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform).with_effects(LoopEffects::from_file(&est.effects));
+    let dwells = held_dwells(heldout);
+    let mut pairs = Vec::new();
+    let (mut sn, mut so, mut dof) = (0.0, 0.0, 0usize);
+    for d in &dwells {
+        if let (Some((a, k)), Some((b, _))) = (closure(&new, d, c.min_tension_n), closure(current, d, c.min_tension_n)) {
+            sn += a;
+            so += b;
+            dof += k - 3;
+            pairs.push(a - b);
+        }
+    }
+    if pairs.len() < 2 || dof == 0 {
+        return Err(format!("only {} usable held-out dwells (at least 2 with four taut cables needed)", pairs.len()));
+    }
+    let (n_rms, o_rms) = ((sn / dof as f64).sqrt(), (so / dof as f64).sqrt());
+    let m = pairs.iter().sum::<f64>() / pairs.len() as f64;
+    let var = pairs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (pairs.len() - 1) as f64;
+    if n_rms < o_rms || m <= 2.0 * (var / pairs.len() as f64).sqrt() {
+        Ok((n_rms, o_rms))
+    } else {
+        Err(format!(
+            "held-out dwells ({}): length closure RMS {:.3} mm is significantly higher than the running parameters' {:.3} mm",
+            pairs.len(),
+            n_rms * 1e3,
+            o_rms * 1e3
+        ))
+    }
+}
