@@ -110,6 +110,13 @@ pub struct MotionConfig {
     pub swap_ramp_s: f64,
     /// Speed of operator moves, m/s.
     pub move_speed_m_s: f64,
+    /// The excitation is a tour of the workspace box's corners designed from the nominal anchors
+    /// for the smallest predicted anchor uncertainty (`taut_calib::design`); `false`: the fixed
+    /// Lissajous curve of earlier versions.
+    pub design_excitation: bool,
+    /// Rate of the tracker's poses, Hz: the number of samples the design's predicted
+    /// uncertainty counts on.
+    pub tracker_rate_hz: f64,
 }
 
 impl Default for MotionConfig {
@@ -127,6 +134,8 @@ impl Default for MotionConfig {
             workspace_max_m: None,
             swap_ramp_s: 2.0,
             move_speed_m_s: 0.2,
+            design_excitation: true,
+            tracker_rate_hz: 100.0,
         }
     }
 }
@@ -153,6 +162,7 @@ impl MotionConfig {
             ("excitation_speed_m_s", self.excitation_speed_m_s),
             ("swap_ramp_s", self.swap_ramp_s),
             ("move_speed_m_s", self.move_speed_m_s),
+            ("tracker_rate_hz", self.tracker_rate_hz),
         ] {
             if !positive(v) {
                 return Err((k.into(), format!("must be a positive number, got {v}")));

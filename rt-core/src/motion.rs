@@ -235,6 +235,8 @@ pub struct ControllerConfig {
     pub max_cable_speed_m_s: f64,
     /// Workspace margin, m.
     pub workspace_margin_m: f64,
+    /// The designed excitation path (`crate::excite`); `None`: the fixed Lissajous curve.
+    pub tour: Option<taut_calib::design::Tour>,
 }
 
 /// Why a configuration cannot drive the controller.
@@ -329,6 +331,7 @@ impl ControllerConfig {
             tracker_max_age_s: s.tracker_max_age_s,
             max_cable_speed_m_s: s.max_cable_speed_m_s,
             workspace_margin_m: s.workspace_margin_m,
+            tour: None,
         })
     }
 }
@@ -452,8 +455,8 @@ impl ResetRun {
     }
 }
 
-const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
-const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
+pub(crate) const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
+pub(crate) const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
 
 fn smoothstep(s: f64) -> f64 {
     let s = s.clamp(0.0, 1.0);
@@ -721,7 +724,10 @@ impl Controller {
     fn start_excitation(&mut self, inp: &Inputs, now: f64) {
         let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
         self.start_m = p0;
-        self.lissajous_start = std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin());
+        self.lissajous_start = match &self.cfg.tour {
+            Some(tour) => tour.start(),
+            None => std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin()),
+        };
         let d = (0..3).map(|i| (self.lissajous_start[i] - p0[i]).powi(2)).sum::<f64>().sqrt();
         // Smoothstep peaks at 1.5 x the mean speed.
         self.approach_s = (1.5 * d / self.cfg.excitation_speed_m_s).max(1.0);
@@ -733,6 +739,8 @@ impl Controller {
         if t < self.approach_s {
             let w = smoothstep(t / self.approach_s);
             std::array::from_fn(|i| self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]))
+        } else if let Some(tour) = &self.cfg.tour {
+            tour.point(t - self.approach_s)
         } else {
             let tt = t - self.approach_s;
             let mut p = [0.0; 3];

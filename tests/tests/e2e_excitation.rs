@@ -1,0 +1,83 @@
+//! The start-up's excitation on the simulated robot (config/examples/aras-cam-sim.toml, 30 s):
+//! worst anchor error against the simulator's truth, and the calibration's own sigmas.
+
+use std::time::Duration;
+use taut_rt_core::calib_backend::TautCalib;
+use taut_rt_core::calibrator::OutcomeKind;
+use taut_rt_core::daemon::{Daemon, DaemonOptions};
+use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::simrig::{self, SimOptions};
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// One start-up: (worst anchor error, worst anchor 1-sigma (norm), per-cable errors), m.
+struct Run {
+    worst_err_m: f64,
+    worst_sigma_m: f64,
+    predicted_m: f64,
+    errs_m: Vec<f64>,
+    sigmas_m: Vec<[f64; 3]>,
+    samples: usize,
+}
+
+fn startup(seed: u64, designed: bool) -> Run {
+    let dir = tempfile::tempdir().unwrap();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    cfg.motion.design_excitation = designed;
+    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
+    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+    let so = SimOptions { seed, ..Default::default() };
+    let p0 = simrig::rest_position(&cfg, &so, p0);
+    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let truth = sim.truth.clone();
+    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
+    let ok = d.wait_until(Duration::from_secs(400), |l, c| {
+        l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration || !o.accepted)
+    });
+    let l = d.loop_status();
+    let c = d.calib_status();
+    assert!(ok, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
+    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
+    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).expect("a calibration outcome");
+    let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
+    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
+        let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
+    }
+    let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
+    let errs_m: Vec<f64> = ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
+    let sig: Vec<f64> = ce.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
+    eprintln!("seed {seed}: note {}", ce.note);
+    let _ = d.shutdown();
+    Run {
+        worst_err_m: errs_m.iter().cloned().fold(0.0, f64::max),
+        worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
+        predicted_m,
+        errs_m,
+        sigmas_m: ce.anchor_sigma.clone(),
+        samples: cal.samples,
+    }
+}
+
+#[test]
+fn measure_startup() {
+    let seeds: Vec<u64> =
+        std::env::var("TAUT_EXCITE_SEEDS").map(|s| s.split(',').map(|x| x.trim().parse().unwrap()).collect()).unwrap_or_else(|_| vec![1]);
+    let designed = std::env::var("TAUT_EXCITE_PATH").map_or(true, |p| p != "lissajous");
+    for seed in seeds {
+        let r = startup(seed, designed);
+        eprintln!(
+            "RESULT seed {seed} designed {designed}: worst anchor error {:.2} mm, worst anchor sigma {:.2} mm (predicted {:.2} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
+            r.worst_err_m * 1e3,
+            r.worst_sigma_m * 1e3,
+            r.predicted_m * 1e3,
+            r.samples,
+            r.errs_m.iter().map(|e| (e * 1e4).round() / 10.0).collect::<Vec<_>>(),
+            r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e4).round() / 10.0)).collect::<Vec<_>>()
+        );
+    }
+}
