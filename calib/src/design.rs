@@ -310,6 +310,9 @@ fn tensions_ok(inp: &DesignInput, p: &[f64; 3], acc: &[f64; 3]) -> Option<bool> 
     Some(t.iter().all(|t| *t >= inp.min_tension_n && *t <= inp.max_tension_n))
 }
 
+/// A segment's duration, s, and the information of its samples.
+type SegmentInfo = (f64, DMatrix<f64>);
+
 /// Designs the excitation (see the module documentation).
 pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
     let n = inp.anchors.len();
@@ -319,12 +322,9 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
     let lo: [f64; 3] = std::array::from_fn(|i| inp.workspace[0][i] + inp.margin_m);
     let hi: [f64; 3] = std::array::from_fn(|i| inp.workspace[1][i] - inp.margin_m);
     let positive = |x: f64| x.is_finite() && x > 0.0;
-    if !(0..3).all(|i| hi[i] > lo[i])
-        || ![inp.speed_m_s, inp.accel_m_s2, inp.duration_s, inp.sample_hz, inp.tracker_sigma_m, inp.length_sigma_m]
-            .into_iter()
-            .all(positive)
-        || !(inp.used_fraction > 0.0 && inp.used_fraction <= 1.0)
-    {
+    let limits = [inp.speed_m_s, inp.accel_m_s2, inp.duration_s, inp.sample_hz, inp.tracker_sigma_m, inp.length_sigma_m];
+    let ok = (0..3).all(|i| hi[i] > lo[i]) && limits.into_iter().all(positive) && inp.used_fraction > 0.0 && inp.used_fraction <= 1.0;
+    if !ok {
         return Err(DesignError::Limits);
     }
     let corners: Vec<[f64; 3]> = (0..8)
@@ -345,7 +345,7 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
             .collect()
     };
     // Per ordered pair: duration, information, feasibility.
-    let mut seg: Vec<Vec<Option<(f64, DMatrix<f64>)>>> = vec![vec![None; 8]; 8];
+    let mut seg: [[Option<SegmentInfo>; 8]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| None));
     let mut any = false;
     for c0 in 0..8 {
         for c1 in 0..8 {
@@ -478,6 +478,11 @@ mod tests {
         let (wd, wt) = (d.predicted.worst_anchor_sigma_m(), today.worst_anchor_sigma_m());
         eprintln!("worst anchor 1-sigma: designed {:.2} mm ({} waypoints), Lissajous {:.2} mm", wd * 1e3, d.tour.n, wt * 1e3);
         assert!(wd < 0.5 * wt, "designed {wd} vs Lissajous {wt}");
+        // What more time or speed would buy (BENCHMARKS.md).
+        for (dur, v) in [(60.0, 0.4), (90.0, 0.4), (30.0, 0.8)] {
+            let p = design(&DesignInput { duration_s: dur, speed_m_s: v, ..input() }).unwrap().predicted.worst_anchor_sigma_m();
+            eprintln!("designed, {dur} s at {v} m/s: worst anchor 1-sigma {:.2} mm", p * 1e3);
+        }
     }
 
     #[test]

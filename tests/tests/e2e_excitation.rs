@@ -1,5 +1,10 @@
-//! The start-up's excitation on the simulated robot (config/examples/aras-cam-sim.toml, 30 s):
-//! worst anchor error against the simulator's truth, and the calibration's own sigmas.
+//! The start-up's designed excitation on the simulated robot (config/examples/aras-cam-sim.toml,
+//! 30 s, tracker at 100 Hz with 1.5 mm noise): worst anchor error against the simulator's truth,
+//! the calibration's own sigmas and the design's prediction.
+//!
+//! Seeds: 1 by default (one start-up, about two minutes under load); the acceptance set with
+//! `TAUT_EXCITE_SEEDS=1,2,3,4,5`. `TAUT_EXCITE_PATH=lissajous` runs the earlier Lissajous
+//! excitation instead and only prints (the comparison in BENCHMARKS.md).
 
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
@@ -12,12 +17,13 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// One start-up: (worst anchor error, worst anchor 1-sigma (norm), per-cable errors), m.
+/// One start-up against the truth, m.
 struct Run {
     worst_err_m: f64,
     worst_sigma_m: f64,
     predicted_m: f64,
     errs_m: Vec<f64>,
+    axis_errs_m: Vec<[f64; 3]>,
     sigmas_m: Vec<[f64; 3]>,
     samples: usize,
 }
@@ -29,6 +35,10 @@ fn startup(seed: u64, designed: bool) -> Run {
     cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.path().join("data").display().to_string();
     cfg.motion.design_excitation = designed;
+    // The simulated load cells answer over a pty from threads that share two cores with the
+    // build and the other tests: under that load a reading is sometimes 0.5 s late, which the
+    // loop (rightly) treats as a fault. Late, not wrong: allow 2 s here.
+    cfg.safety.tension_max_age_s = 2.0;
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
@@ -45,6 +55,8 @@ fn startup(seed: u64, designed: bool) -> Run {
     assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).expect("a calibration outcome");
     let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
+    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
+    assert!(ce.note.contains("predicted worst anchor 1-sigma"), "seed {seed}: the note lacks the prediction: {}", ce.note);
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {
         let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
     }
@@ -58,16 +70,19 @@ fn startup(seed: u64, designed: bool) -> Run {
         worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
         predicted_m,
         errs_m,
+        axis_errs_m: ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
         sigmas_m: ce.anchor_sigma.clone(),
         samples: cal.samples,
     }
 }
 
 #[test]
-fn measure_startup() {
-    let seeds: Vec<u64> =
-        std::env::var("TAUT_EXCITE_SEEDS").map(|s| s.split(',').map(|x| x.trim().parse().unwrap()).collect()).unwrap_or_else(|_| vec![1]);
+fn designed_excitation_reaches_a_millimetre_and_its_predicted_sigma() {
+    let seeds: Vec<u64> = std::env::var("TAUT_EXCITE_SEEDS")
+        .map(|s| s.split(',').map(|x| x.trim().parse().expect("TAUT_EXCITE_SEEDS: comma-separated seeds")).collect())
+        .unwrap_or_else(|_| vec![1]);
     let designed = std::env::var("TAUT_EXCITE_PATH").map_or(true, |p| p != "lissajous");
+    let mut failures = vec![];
     for seed in seeds {
         let r = startup(seed, designed);
         eprintln!(
@@ -79,5 +94,33 @@ fn measure_startup() {
             r.errs_m.iter().map(|e| (e * 1e4).round() / 10.0).collect::<Vec<_>>(),
             r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e4).round() / 10.0)).collect::<Vec<_>>()
         );
+        if !designed {
+            continue;
+        }
+        // The acceptance: worst anchor error <= 1 mm in the 30 s.
+        if r.worst_err_m > 1e-3 {
+            failures.push(format!("seed {seed}: worst anchor error {:.2} mm > 1 mm", r.worst_err_m * 1e3));
+        }
+        // The prediction omits the approach to the first corner (more data) and is taken at the
+        // nominal anchors (up to 20 cm off): the achieved sigma is expected within 0.7-1.3 of it;
+        // a factor 1.5 either way is the stated agreement.
+        let ratio = r.worst_sigma_m / r.predicted_m;
+        if !(ratio > 1.0 / 1.5 && ratio < 1.5) {
+            failures.push(format!(
+                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm (ratio {ratio:.2})",
+                r.worst_sigma_m * 1e3,
+                r.predicted_m * 1e3
+            ));
+        }
+        // Every coordinate within 4 of its own sigmas (60 comparisons over five seeds: a family
+        // error rate of 0.4 % for a right covariance).
+        for (j, (e, s)) in r.axis_errs_m.iter().zip(&r.sigmas_m).enumerate() {
+            for i in 0..3 {
+                if e[i].abs() > 4.0 * s[i] {
+                    failures.push(format!("seed {seed}: anchor {j}[{i}] off by {:.2} mm, sigma {:.2} mm", e[i] * 1e3, s[i] * 1e3));
+                }
+            }
+        }
     }
+    assert!(failures.is_empty(), "{failures:#?}");
 }
