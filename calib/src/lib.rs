@@ -110,6 +110,7 @@
 //! - [`synth`]: deterministic synthetic recordings for tests, benchmarks and examples.
 //! - [`selfcal`]: calibration without a tracker, from dwell poses, the encoders and the load cells.
 //! - [`effect_fit`]: anchors, offsets and a fixed set of effects fitted together (the running robot's refit).
+//! - [`design`]: the start-up excitation designed from the nominal geometry, with its predicted uncertainty.
 //! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
@@ -118,6 +119,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bundle;
+pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
 pub mod init;

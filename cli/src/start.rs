@@ -113,6 +113,9 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
+    if let Some(plan) = &daemon.calib_status().excitation {
+        eprintln!("taut start: {}", plan.summary());
+    }
     if let Some(m) = daemon.mcap.as_ref().filter(|m| **m != daemon.recording) {
         eprintln!("taut start: MCAP recording {} (open in Foxglove)", m.display());
     }
@@ -177,6 +180,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "anchors_m": final_est.map(|e| e.anchors.clone()),
         "l0_m": final_est.map(|e| e.l0.clone()),
         "anchor_sigma_m": final_est.map(|e| e.anchor_sigma.clone()),
+        "excitation": taut_rt_core::excite::status_json(&c),
         "truth_anchors_m": truth.as_ref().map(|t| &t.anchors),
         "truth_l0_m": truth.as_ref().map(|t| &t.l0),
         "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
@@ -229,7 +233,11 @@ pub fn run(a: &StartArgs) -> Result<()> {
                     e.note
                 );
             }
-        } else {
+        }
+        if let Some(plan) = &c.excitation {
+            println!("uncertainty        {}", taut_rt_core::excite::predicted_vs_achieved(plan, &e.anchor_sigma));
+        }
+        if truth.is_none() {
             for (j, a) in e.anchors.iter().enumerate() {
                 println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.l0[j]);
             }

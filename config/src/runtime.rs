@@ -124,6 +124,13 @@ pub struct MotionConfig {
     /// Largest platform speed between dwell poses, m/s (the robot moves with its nominal
     /// geometry, a few cm off: slowly).
     pub dwell_speed_m_s: f64,
+    /// The excitation is a tour of the workspace box's corners designed from the nominal anchors
+    /// for the smallest predicted anchor uncertainty (`taut_calib::design`); `false`: the fixed
+    /// Lissajous curve of earlier versions.
+    pub design_excitation: bool,
+    /// Rate of the tracker's poses, Hz: the number of samples the design's predicted
+    /// uncertainty counts on.
+    pub tracker_rate_hz: f64,
 }
 
 /// The start-up routine (`motion.startup`).
@@ -159,6 +166,8 @@ impl Default for MotionConfig {
             dwell_s: 1.5,
             dwell_settle_s: 1.0,
             dwell_speed_m_s: 0.15,
+            design_excitation: true,
+            tracker_rate_hz: 100.0,
         }
     }
 }
@@ -186,6 +195,7 @@ impl MotionConfig {
             ("swap_ramp_s", self.swap_ramp_s),
             ("move_speed_m_s", self.move_speed_m_s),
             ("dwell_speed_m_s", self.dwell_speed_m_s),
+            ("tracker_rate_hz", self.tracker_rate_hz),
         ] {
             if !positive(v) {
                 return Err((k.into(), format!("must be a positive number, got {v}")));

@@ -165,7 +165,7 @@ impl TautCalib {
     /// with a tracker residual that matches the tracker's noise.
     fn refine(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64]) -> Option<taut_calib::bundle::BundleResult> {
         let o = taut_calib::bundle::BundleOptions {
-            length_sigma_m: (4.0 * self.opts.encoder_sigma_m).max(2e-4),
+            length_sigma_m: crate::excite::bundle_length_sigma_m(self.opts.encoder_sigma_m),
             tracker_sigma_m: self.opts.tracker_sigma_m,
             min_tension_n: self.opts.min_tension_n,
             ..Default::default()

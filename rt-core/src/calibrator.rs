@@ -113,6 +113,8 @@ pub struct CalibStatus {
     pub current: Option<ParamsFile>,
     /// Recorder errors (disk full...), if any.
     pub recorder_error: Option<String>,
+    /// The start-up excitation and its predicted uncertainty.
+    pub excitation: Option<crate::excite::ExcitationPlan>,
 }
 
 /// Shared handle on the calibrator's status.
@@ -151,6 +153,8 @@ pub struct CalibratorConfig {
     /// the recorded dwells, and the held-out check is on held-out dwells
     /// ([`crate::notracker::heldout_dwells`]).
     pub tracker: bool,
+    /// The excitation's predicted uncertainty (`crate::excite`), for the calibration's note.
+    pub excitation: Option<crate::excite::ExcitationPlan>,
 }
 
 impl CalibratorConfig {
@@ -171,6 +175,7 @@ impl CalibratorConfig {
             tracker_max_age_s: cfg.safety.tracker_max_age_s,
             tension_max_age_s: cfg.safety.tension_max_age_s,
             tracker: !crate::notracker::is_dwell(cfg),
+            excitation: None,
         }
     }
 }
@@ -704,10 +709,16 @@ impl Calibrator {
         self.stage("idle");
         match r.result {
             Err(e) => self.reject(r.kind, r.run, r.samples, None, format!("the calibration failed: {e}")),
-            Ok(est) => match self.validate(r.kind, &est, r.heldout.as_ref()) {
-                Ok((new_rms, old_rms)) => self.publish(r.kind, r.run, r.samples, est, new_rms, old_rms),
-                Err(why) => self.reject(r.kind, r.run, r.samples, Some(est), why),
-            },
+            Ok(mut est) => {
+                // The excitation's predicted uncertainty beside the achieved one.
+                if let (OutcomeKind::Calibration, Some(plan)) = (r.kind, &self.cfg.excitation) {
+                    est.note.push_str(&format!("; {}", crate::excite::predicted_vs_achieved(plan, &est.anchor_sigma)));
+                }
+                match self.validate(r.kind, &est, r.heldout.as_ref()) {
+                    Ok((new_rms, old_rms)) => self.publish(r.kind, r.run, r.samples, est, new_rms, old_rms),
+                    Err(why) => self.reject(r.kind, r.run, r.samples, Some(est), why),
+                }
+            }
         }
         if let Some(o) = self.status.lock().unwrap().outcomes.last_mut() {
             o.data_problems = r.data_problems;

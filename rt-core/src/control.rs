@@ -111,6 +111,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
             "recording": calib.recording.as_ref().map(|p| p.display().to_string()),
             "recorder_error": calib.recorder_error,
             "outcomes": outcomes,
+            "excitation": crate::excite::status_json(calib),
         },
     })
 }

@@ -238,6 +238,8 @@ pub struct ControllerConfig {
     /// The tracker-free start-up's dwell plan (`motion.startup = "dwell"`); `None`: the
     /// three-phase start-up with a tracker. Set by [`ControllerConfig::with_dwell_plan`].
     pub dwell: Option<DwellLoopPlan>,
+    /// The designed excitation path (`crate::excite`); `None`: the fixed Lissajous curve.
+    pub tour: Option<taut_calib::design::Tour>,
 }
 
 /// Most dwell poses the loop holds.
@@ -358,6 +360,7 @@ impl ControllerConfig {
             max_cable_speed_m_s: s.max_cable_speed_m_s,
             workspace_margin_m: s.workspace_margin_m,
             dwell: None,
+            tour: None,
         })
     }
 
@@ -510,8 +513,8 @@ impl ResetRun {
     }
 }
 
-const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
-const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
+pub(crate) const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
+pub(crate) const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
 
 fn smoothstep(s: f64) -> f64 {
     let s = s.clamp(0.0, 1.0);
@@ -787,7 +790,10 @@ impl Controller {
         }
         let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
         self.start_m = p0;
-        self.lissajous_start = std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin());
+        self.lissajous_start = match &self.cfg.tour {
+            Some(tour) => tour.start(),
+            None => std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin()),
+        };
         let d = (0..3).map(|i| (self.lissajous_start[i] - p0[i]).powi(2)).sum::<f64>().sqrt();
         // Smoothstep peaks at 1.5 x the mean speed.
         self.approach_s = (1.5 * d / self.cfg.excitation_speed_m_s).max(1.0);
@@ -799,6 +805,8 @@ impl Controller {
         if t < self.approach_s {
             let w = smoothstep(t / self.approach_s);
             std::array::from_fn(|i| self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]))
+        } else if let Some(tour) = &self.cfg.tour {
+            tour.point(t - self.approach_s)
         } else {
             let tt = t - self.approach_s;
             let mut p = [0.0; 3];

@@ -341,7 +341,10 @@ impl Plugin {
     /// The first half of [`Plugin::configure`]: validated and allocated, nothing created or
     /// started ([`PluginBuilder::build`] does that).
     pub fn builder(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<PluginBuilder, PluginError> {
-        let ccfg = crate::notracker::controller_config(cfg)?;
+        let mut ccfg = crate::notracker::controller_config(cfg)?;
+        // Designed here, at configure time: the loop gets a fixed-size path. The tracker-free
+        // start-up has no excitation (it dwells).
+        let excitation = ccfg.dwell.is_none().then(|| crate::excite::plan(cfg, &mut ccfg));
         let n = ccfg.n;
         let rt = cfg.rt.clone();
         if !(rt.rate_hz.is_finite() && rt.rate_hz >= 1.0) {
@@ -364,7 +367,8 @@ impl Plugin {
         let init_status = LoopStatus::initial(controller.snapshot(0.0, &Inputs::new(n)));
         let (status_tx, status_rx) = triple_buffer(init_status);
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
-        let calib_status: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
+        let calib_status: SharedCalibStatus =
+            Arc::new(Mutex::new(CalibStatus { excitation: excitation.clone(), ..CalibStatus::default() }));
         let (handle, events) = PluginHandle::new(cmd_tx, urgent, loop_status, calib_status.clone(), opts.event_capacity, ccfg.workspace);
         let recording = match opts.recording {
             RecordingPath::Off => None,
@@ -387,7 +391,7 @@ impl Plugin {
             init_status,
             events,
             handle,
-            calib_cfg: CalibratorConfig::from_robot(cfg),
+            calib_cfg: CalibratorConfig { excitation, ..CalibratorConfig::from_robot(cfg) },
             calib_status,
             sample_rx,
             params_tx,

@@ -1,0 +1,523 @@
+//! The start-up excitation designed from the nominal geometry for what the calibration must
+//! observe: a tour of the workspace box's corners, chosen to minimise the predicted anchor
+//! uncertainty under the speed, acceleration, tension and workspace limits.
+//!
+//! # Prediction (the calibration's Fisher information at the nominal geometry)
+//!
+//! The start-up calibration refines all cables at once with the platform positions as unknowns
+//! ([`crate::bundle`]): per tracker sample `i`, the lengths `l_ij = |p_i + b_j - A_j| + L0_j + e`
+//! (`e ~ N(0, s_l^2)`) and the tracker reading `P_i = p_i + t` (`t ~ N(0, s_t^2 I)`). With
+//! `J_x` (n x 4n: `-e_ij` for `A_j`, 1 for `L0_j`) and `J_p` (n x 3: the unit vectors `e_ij`
+//! from the anchors to the platform), eliminating `p_i` (Schur complement) gives each sample's
+//! information on the parameters `x = (A_j, L0_j)_j`:
+//!
+//! ```text
+//! I_i = J_x^T W_i J_x,   W_i = R^-1 - R^-1 J_p (J_p^T R^-1 J_p + I / s_t^2)^-1 J_p^T R^-1,   R = s_l^2 I
+//! Cov(x) >= (sum_i I_i)^-1                                  (Cramer-Rao)
+//! ```
+//!
+//! summed over the samples the calibration will use (tracker rate x duration x training
+//! fraction). The criterion is the worst anchor's 1-sigma (the root of the trace of its 3x3
+//! block): the acceptance is a worst-anchor error.
+//!
+//! # Why corners, and why a tour
+//!
+//! An anchor is seen along the directions `e_ij`; its component along the mean direction (traded
+//! against `L0_j`) is determined only by the *second-order* spread of those directions, which is
+//! largest at the box's extremes. Time spent near the corners buys the most information; the
+//! speed limit decides how many corners fit. Measured on the ARAS-CAM-like robot (30 s, 0.4 m/s):
+//! today's Lissajous (80 % amplitudes, incommensurate frequencies, under one period in 30 s)
+//! predicts a 2.7 mm worst-anchor sigma, the best commensurate Lissajous 2.2 mm, a corner tour
+//! 1.2 mm.
+//!
+//! # Search
+//!
+//! Waypoints are the 8 corners of the box shrunk by a margin. Each straight segment is driven
+//! with a trapezoidal speed profile (speed `v`, acceleration `a`); the information of every
+//! segment is computed once; a beam search over corner sequences (sums of the segment
+//! informations plus the partial last segment) keeps the sequences of the lowest worst-anchor
+//! sigma. Segments along which a position-controlled cable would leave `[min, max]` tension
+//! (statics plus the profile's acceleration, followers at their torque tension) are not used.
+//!
+//! The result is a [`Tour`]: fixed-size, `Copy`, evaluated by [`Tour::point`] without
+//! allocation, so the real-time loop can run it.
+
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use std::fmt;
+
+/// Most waypoints of a tour.
+pub const MAX_WAYPOINTS: usize = 32;
+
+/// A piecewise-straight path through waypoints, each segment driven with a trapezoidal speed
+/// profile (rest at every waypoint), repeated cyclically after the last waypoint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tour {
+    /// Waypoints, m (the first `n` are used).
+    pub waypoints: [[f64; 3]; MAX_WAYPOINTS],
+    /// Number of waypoints (at least 2).
+    pub n: usize,
+    /// Cruise speed, m/s.
+    pub speed_m_s: f64,
+    /// Acceleration and deceleration, m/s^2.
+    pub accel_m_s2: f64,
+}
+
+/// Duration of a straight move of length `len` with the trapezoidal profile, s.
+fn segment_time(len: f64, v: f64, a: f64) -> f64 {
+    if len <= v * v / a {
+        2.0 * (len / a).sqrt()
+    } else {
+        len / v + v / a
+    }
+}
+
+/// Distance covered after `t` on a move of length `len` (duration `dur`), m.
+fn segment_distance(t: f64, len: f64, dur: f64, v: f64, a: f64) -> f64 {
+    let t = t.clamp(0.0, dur);
+    let ta = (v / a).min(dur / 2.0);
+    let vp = a * ta;
+    if t < ta {
+        0.5 * a * t * t
+    } else if t > dur - ta {
+        len - 0.5 * a * (dur - t) * (dur - t)
+    } else {
+        0.5 * a * ta * ta + vp * (t - ta)
+    }
+}
+
+impl Tour {
+    /// The first waypoint (where the path starts), m.
+    pub fn start(&self) -> [f64; 3] {
+        self.waypoints[0]
+    }
+
+    fn seg(&self, k: usize) -> ([f64; 3], [f64; 3], f64) {
+        let p0 = self.waypoints[k % self.n];
+        let p1 = self.waypoints[(k + 1) % self.n];
+        let len = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
+        (p0, p1, len)
+    }
+
+    /// Time of one pass through all waypoints and back to the first, s.
+    pub fn period_s(&self) -> f64 {
+        (0..self.n).map(|k| segment_time(self.seg(k).2, self.speed_m_s, self.accel_m_s2)).sum()
+    }
+
+    /// Position at time `t` after the start, m. No allocation; at most `n` segments are scanned.
+    pub fn point(&self, t: f64) -> [f64; 3] {
+        let period = self.period_s();
+        let mut t = if period > 0.0 && t > 0.0 { t % period } else { 0.0 };
+        for k in 0..self.n {
+            let (p0, p1, len) = self.seg(k);
+            let dur = segment_time(len, self.speed_m_s, self.accel_m_s2);
+            if t <= dur || k + 1 == self.n {
+                if len <= 0.0 {
+                    return p0;
+                }
+                let s = segment_distance(t, len, dur, self.speed_m_s, self.accel_m_s2) / len;
+                return std::array::from_fn(|i| p0[i] + s * (p1[i] - p0[i]));
+            }
+            t -= dur;
+        }
+        self.waypoints[0]
+    }
+}
+
+/// What the design needs to know.
+#[derive(Debug, Clone)]
+pub struct DesignInput {
+    /// Nominal anchors, m.
+    pub anchors: Vec<[f64; 3]>,
+    /// Platform attachment points, m (platform frame, no rotation).
+    pub platform: Vec<[f64; 3]>,
+    /// Workspace box `[min, max]`, m.
+    pub workspace: [[f64; 3]; 2],
+    /// Distance the waypoints keep from the box's faces, m.
+    pub margin_m: f64,
+    /// Largest platform speed, m/s.
+    pub speed_m_s: f64,
+    /// Acceleration of the speed profile, m/s^2.
+    pub accel_m_s2: f64,
+    /// Duration of the excitation, s.
+    pub duration_s: f64,
+    /// Tracker samples per second the calibration receives.
+    pub sample_hz: f64,
+    /// Fraction of the samples the calibration fits (the rest is held out).
+    pub used_fraction: f64,
+    /// Tracker noise, 1-sigma per axis, m.
+    pub tracker_sigma_m: f64,
+    /// Length noise of the calibration's model (encoder plus model error), 1-sigma, m.
+    pub length_sigma_m: f64,
+    /// Platform mass, kg (0: no tension check).
+    pub mass_kg: f64,
+    /// Cables in torque mode (their tension is `follower_tension_n`).
+    pub follower: Vec<bool>,
+    /// Torque-mode tension of the followers, N.
+    pub follower_tension_n: f64,
+    /// Least tension of a position-controlled cable, N.
+    pub min_tension_n: f64,
+    /// Largest tension, N.
+    pub max_tension_n: f64,
+}
+
+/// Predicted uncertainty of the calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction {
+    /// Per cable, the anchor's 1-sigma per axis, m.
+    pub anchor_sigma: Vec<[f64; 3]>,
+    /// Per cable, the offset's 1-sigma, m.
+    pub l0_sigma: Vec<f64>,
+    /// Samples the prediction counts.
+    pub samples: usize,
+}
+
+impl Prediction {
+    /// The worst anchor's 1-sigma (root of the sum of its three variances), m.
+    pub fn worst_anchor_sigma_m(&self) -> f64 {
+        self.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max)
+    }
+}
+
+/// A designed excitation with its predicted uncertainty.
+#[derive(Debug, Clone)]
+pub struct Design {
+    /// The path.
+    pub tour: Tour,
+    /// Its predicted uncertainty.
+    pub predicted: Prediction,
+}
+
+/// Why no excitation could be designed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DesignError {
+    /// Fewer than 3 or more than 8 cables, or anchors and platform points of different counts.
+    Cables {
+        /// Anchors given.
+        n: usize,
+    },
+    /// A limit is not a positive finite number (or the box is empty after the margin).
+    Limits,
+    /// No pair of corners can be joined with every position-controlled cable within its tension limits.
+    NoFeasibleSegment,
+    /// The information matrix is singular along every candidate (the geometry cannot be observed).
+    Unobservable,
+}
+
+impl fmt::Display for DesignError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DesignError::Cables { n } => write!(f, "the excitation design needs 3 to 8 cables with one platform point each, got {n}"),
+            DesignError::Limits => write!(
+                f,
+                "the excitation design needs a non-empty workspace box (after the margin), a positive speed, \
+                 acceleration, duration, tracker rate and noise"
+            ),
+            DesignError::NoFeasibleSegment => write!(
+                f,
+                "no straight move between the workspace box's corners keeps every position-controlled cable \
+                 within its tension limits: enlarge [safety] max_tension_n or move the box below the anchors"
+            ),
+            DesignError::Unobservable => write!(f, "the anchors are not observable along any path in the workspace box"),
+        }
+    }
+}
+
+impl std::error::Error for DesignError {}
+
+/// Information of the samples taken along `points` (see the module documentation), `4n x 4n`.
+fn information<'a>(inp: &DesignInput, points: impl Iterator<Item = &'a [f64; 3]>) -> DMatrix<f64> {
+    let n = inp.anchors.len();
+    let mut info = DMatrix::<f64>::zeros(4 * n, 4 * n);
+    let rl = 1.0 / (inp.length_sigma_m * inp.length_sigma_m);
+    let rt = 1.0 / (inp.tracker_sigma_m * inp.tracker_sigma_m);
+    let mut e = vec![Vector3::zeros(); n];
+    for p in points {
+        let mut m = Matrix3::identity() * rt;
+        for j in 0..n {
+            let a = inp.anchors[j];
+            let b = inp.platform[j];
+            let d = Vector3::new(p[0] + b[0] - a[0], p[1] + b[1] - a[1], p[2] + b[2] - a[2]);
+            e[j] = d / d.norm();
+            m += e[j] * e[j].transpose() * rl;
+        }
+        let Some(mi) = m.try_inverse() else { continue };
+        // W = rl I - rl^2 E M^-1 E^T with E the n x 3 stack of e_j^T.
+        for j in 0..n {
+            for k in 0..n {
+                let w = if j == k { rl } else { 0.0 } - rl * rl * (e[j].transpose() * mi * e[k])[0];
+                // Rows of J_x: cable j has (-e_j, 1) in its four columns.
+                let gj = [-e[j][0], -e[j][1], -e[j][2], 1.0];
+                let gk = [-e[k][0], -e[k][1], -e[k][2], 1.0];
+                for u in 0..4 {
+                    for v in 0..4 {
+                        info[(4 * j + u, 4 * k + v)] += w * gj[u] * gk[v];
+                    }
+                }
+            }
+        }
+    }
+    info
+}
+
+fn prediction(info: &DMatrix<f64>, n: usize, samples: usize) -> Option<Prediction> {
+    let cov = info.clone().cholesky()?.inverse();
+    let anchor_sigma = (0..n).map(|j| std::array::from_fn(|i| cov[(4 * j + i, 4 * j + i)].max(0.0).sqrt())).collect();
+    let l0_sigma = (0..n).map(|j| cov[(4 * j + 3, 4 * j + 3)].max(0.0).sqrt()).collect();
+    Some(Prediction { anchor_sigma, l0_sigma, samples })
+}
+
+fn worst(info: &DMatrix<f64>, n: usize) -> f64 {
+    prediction(info, n, 0).map_or(f64::INFINITY, |p| p.worst_anchor_sigma_m())
+}
+
+/// The samples the calibration uses along a path given as a function of time.
+fn sample_times(inp: &DesignInput) -> usize {
+    (inp.duration_s * inp.sample_hz * inp.used_fraction).floor().max(0.0) as usize
+}
+
+/// Predicted uncertainty of the calibration from an excitation `path(t)`, `t` in `[0, duration_s)`
+/// (the training part: the first `used_fraction` of it).
+pub fn predict(inp: &DesignInput, path: impl Fn(f64) -> [f64; 3]) -> Option<Prediction> {
+    let m = sample_times(inp);
+    let pts: Vec<[f64; 3]> = (0..m).map(|k| path(k as f64 / inp.sample_hz)).collect();
+    prediction(&information(inp, pts.iter()), inp.anchors.len(), m)
+}
+
+/// Tensions of the position-controlled cables at `p` with acceleration `acc` (followers at their
+/// torque tension): within the limits? `None` when it cannot be decided (not exactly three
+/// position-controlled cables, or a singular configuration).
+fn tensions_ok(inp: &DesignInput, p: &[f64; 3], acc: &[f64; 3]) -> Option<bool> {
+    let n = inp.anchors.len();
+    let held: Vec<usize> = (0..n).filter(|j| !inp.follower.get(*j).copied().unwrap_or(false)).collect();
+    if held.len() != 3 || inp.mass_kg <= 0.0 {
+        return None;
+    }
+    let unit = |j: usize| {
+        let a = inp.anchors[j];
+        let b = inp.platform[j];
+        let d = Vector3::new(a[0] - p[0] - b[0], a[1] - p[1] - b[1], a[2] - p[2] - b[2]);
+        d / d.norm()
+    };
+    // sum_j T_j u_j = m (acc + g e_z), u_j towards the anchor.
+    let mut rhs = Vector3::new(acc[0], acc[1], acc[2] + 9.81) * inp.mass_kg;
+    for j in 0..n {
+        if !held.contains(&j) {
+            rhs -= unit(j) * inp.follower_tension_n;
+        }
+    }
+    let a = Matrix3::from_columns(&[unit(held[0]), unit(held[1]), unit(held[2])]);
+    let t = a.try_inverse()? * rhs;
+    Some(t.iter().all(|t| *t >= inp.min_tension_n && *t <= inp.max_tension_n))
+}
+
+/// A segment's duration, s, and the information of its samples.
+type SegmentInfo = (f64, DMatrix<f64>);
+
+/// Designs the excitation (see the module documentation).
+pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
+    let n = inp.anchors.len();
+    if !(3..=8).contains(&n) || inp.platform.len() != n {
+        return Err(DesignError::Cables { n });
+    }
+    let lo: [f64; 3] = std::array::from_fn(|i| inp.workspace[0][i] + inp.margin_m);
+    let hi: [f64; 3] = std::array::from_fn(|i| inp.workspace[1][i] - inp.margin_m);
+    let positive = |x: f64| x.is_finite() && x > 0.0;
+    let limits = [inp.speed_m_s, inp.accel_m_s2, inp.duration_s, inp.sample_hz, inp.tracker_sigma_m, inp.length_sigma_m];
+    let ok = (0..3).all(|i| hi[i] > lo[i]) && limits.into_iter().all(positive) && inp.used_fraction > 0.0 && inp.used_fraction <= 1.0;
+    if !ok {
+        return Err(DesignError::Limits);
+    }
+    let corners: Vec<[f64; 3]> = (0..8)
+        .map(|c| [if c & 4 != 0 { hi[0] } else { lo[0] }, if c & 2 != 0 { hi[1] } else { lo[1] }, if c & 1 != 0 { hi[2] } else { lo[2] }])
+        .collect();
+    let (v, a) = (inp.speed_m_s, inp.accel_m_s2);
+    let dt = 1.0 / inp.sample_hz;
+    // Samples along a segment from `p0` to `p1` (from its start, for `t_max` s at most).
+    let seg_points = |p0: &[f64; 3], p1: &[f64; 3], t_max: f64| -> Vec<[f64; 3]> {
+        let len = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
+        let dur = segment_time(len, v, a);
+        let m = (dur.min(t_max) / dt).floor() as usize;
+        (0..m)
+            .map(|k| {
+                let s = segment_distance(k as f64 * dt, len, dur, v, a) / len;
+                std::array::from_fn(|i| p0[i] + s * (p1[i] - p0[i]))
+            })
+            .collect()
+    };
+    // Per ordered pair: duration, information, feasibility.
+    let mut seg: [[Option<SegmentInfo>; 8]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| None));
+    let mut any = false;
+    for c0 in 0..8 {
+        for c1 in 0..8 {
+            if c0 == c1 {
+                continue;
+            }
+            let (p0, p1) = (&corners[c0], &corners[c1]);
+            let len = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
+            let dur = segment_time(len, v, a);
+            let pts = seg_points(p0, p1, f64::INFINITY);
+            // Worst accelerations of the profile: +-a along the segment.
+            let dir: [f64; 3] = std::array::from_fn(|i| (p1[i] - p0[i]) / len);
+            let feasible = pts
+                .iter()
+                .step_by(10)
+                .chain(std::iter::once(p1))
+                .all(|p| [1.0, -1.0, 0.0].iter().all(|s| tensions_ok(inp, p, &dir.map(|d| d * a * s)).unwrap_or(true)));
+            if feasible {
+                any = true;
+                seg[c0][c1] = Some((dur, information(inp, pts.iter())));
+            }
+        }
+    }
+    if !any {
+        return Err(DesignError::NoFeasibleSegment);
+    }
+    // Beam search over corner sequences. A state: sequence, time used, information.
+    const BEAM: usize = 24;
+    let total = inp.duration_s * inp.used_fraction;
+    let mut beam: Vec<(Vec<usize>, f64, DMatrix<f64>)> = (0..8).map(|c| (vec![c], 0.0, DMatrix::zeros(4 * n, 4 * n))).collect();
+    let mut done: Vec<(f64, Vec<usize>)> = vec![];
+    while !beam.is_empty() {
+        let mut next: Vec<(f64, Vec<usize>, f64, DMatrix<f64>)> = vec![];
+        for (s, t, info) in &beam {
+            let last = *s.last().unwrap();
+            for c in 0..8 {
+                let Some((dur, si)) = &seg[last][c] else { continue };
+                let mut seq = s.clone();
+                seq.push(c);
+                if t + dur >= total || seq.len() == MAX_WAYPOINTS {
+                    // The last segment, cut at the end of the training data.
+                    let rest = total - t;
+                    let partial = information(inp, seg_points(&corners[last], &corners[c], rest).iter());
+                    let full = info + partial;
+                    done.push((worst(&full, n), seq));
+                } else {
+                    let full = info + si;
+                    next.push((worst(&full, n), seq, t + dur, full));
+                }
+            }
+        }
+        next.sort_by(|x, y| x.0.total_cmp(&y.0));
+        next.truncate(BEAM);
+        beam = next.into_iter().map(|(_, s, t, i)| (s, t, i)).collect();
+    }
+    done.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let (w, seq) = done.into_iter().next().ok_or(DesignError::NoFeasibleSegment)?;
+    if !w.is_finite() {
+        return Err(DesignError::Unobservable);
+    }
+    let mut tour = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: seq.len(), speed_m_s: v, accel_m_s2: a };
+    for (k, c) in seq.iter().enumerate() {
+        tour.waypoints[k] = corners[*c];
+    }
+    let predicted = predict(inp, |t| tour.point(t)).ok_or(DesignError::Unobservable)?;
+    Ok(Design { tour, predicted })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input() -> DesignInput {
+        DesignInput {
+            anchors: vec![[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]],
+            platform: vec![[0.0; 3]; 4],
+            workspace: [[-1.75, -0.875, 1.0], [1.75, 0.875, 3.0]],
+            margin_m: 0.05,
+            speed_m_s: 0.4,
+            accel_m_s2: 0.5,
+            duration_s: 30.0,
+            sample_hz: 100.0,
+            used_fraction: 0.8,
+            tracker_sigma_m: 1.5e-3,
+            length_sigma_m: 2e-4,
+            mass_kg: 3.0,
+            follower: vec![false, false, false, true],
+            follower_tension_n: 10.0,
+            min_tension_n: 3.0,
+            max_tension_n: 500.0,
+        }
+    }
+
+    #[test]
+    fn tour_respects_speed_box_and_is_continuous() {
+        let inp = input();
+        let d = design(&inp).unwrap();
+        let dt = 0.002;
+        let mut prev = d.tour.point(0.0);
+        let mut vmax: f64 = 0.0;
+        for k in 1..(40.0 / dt) as usize {
+            let p = d.tour.point(k as f64 * dt);
+            let v = ((p[0] - prev[0]).powi(2) + (p[1] - prev[1]).powi(2) + (p[2] - prev[2]).powi(2)).sqrt() / dt;
+            vmax = vmax.max(v);
+            for i in 0..3 {
+                assert!(p[i] >= inp.workspace[0][i] + inp.margin_m - 1e-9 && p[i] <= inp.workspace[1][i] - inp.margin_m + 1e-9);
+            }
+            prev = p;
+        }
+        assert!(vmax <= 0.4 + 1e-6 && vmax > 0.35, "largest speed {vmax}");
+    }
+
+    /// Today's Lissajous of the loop (80 % amplitudes, frequency ratios 1 : 0.77 : 0.59,
+    /// `|a_i w_i| <= v / sqrt 3`).
+    fn lissajous(inp: &DesignInput) -> impl Fn(f64) -> [f64; 3] {
+        let w = inp.workspace;
+        let c: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
+        let amp: [f64; 3] = std::array::from_fn(|i| 0.8 * (w[1][i] - w[0][i]) / 2.0);
+        let ratio = [1.0, 0.77, 0.59];
+        let phase = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
+        let v = inp.speed_m_s;
+        move |t| std::array::from_fn(|i| c[i] + amp[i] * (ratio[i] * v / (3f64.sqrt() * amp[i]) * t + phase[i]).sin())
+    }
+
+    #[test]
+    fn designed_tour_predicts_less_than_half_the_lissajous_sigma() {
+        let inp = input();
+        let d = design(&inp).unwrap();
+        let today = predict(&inp, lissajous(&inp)).unwrap();
+        let (wd, wt) = (d.predicted.worst_anchor_sigma_m(), today.worst_anchor_sigma_m());
+        eprintln!("worst anchor 1-sigma: designed {:.2} mm ({} waypoints), Lissajous {:.2} mm", wd * 1e3, d.tour.n, wt * 1e3);
+        assert!(wd < 0.5 * wt, "designed {wd} vs Lissajous {wt}");
+        // What more time or speed would buy (BENCHMARKS.md).
+        for (dur, v) in [(60.0, 0.4), (90.0, 0.4), (30.0, 0.8)] {
+            let p = design(&DesignInput { duration_s: dur, speed_m_s: v, ..input() }).unwrap().predicted.worst_anchor_sigma_m();
+            eprintln!("designed, {dur} s at {v} m/s: worst anchor 1-sigma {:.2} mm", p * 1e3);
+        }
+    }
+
+    #[test]
+    fn information_is_the_length_covariance_with_tracker_noise_carried_through() {
+        // One sample, two parameters perturbed: the Schur-complement information equals
+        // J^T (R + J_p S_t J_p^T)^-1 J, the information of the lengths with the tracker noise
+        // carried through them (Woodbury).
+        let inp = input();
+        let p = [0.3, -0.2, 2.1];
+        let info = information(&inp, std::iter::once(&p));
+        let n = 4;
+        let e: Vec<Vector3<f64>> =
+            inp.anchors.iter().map(|a| (Vector3::new(p[0], p[1], p[2]) - Vector3::new(a[0], a[1], a[2])).normalize()).collect();
+        let jp = DMatrix::from_fn(n, 3, |j, i| e[j][i]);
+        let cov = DMatrix::identity(n, n) * inp.length_sigma_m.powi(2) + &jp * jp.transpose() * inp.tracker_sigma_m.powi(2);
+        let jx = DMatrix::from_fn(n, 4 * n, |j, c| {
+            if c / 4 != j {
+                0.0
+            } else if c % 4 == 3 {
+                1.0
+            } else {
+                -e[j][c % 4]
+            }
+        });
+        let want = jx.transpose() * cov.try_inverse().unwrap() * &jx;
+        assert!((&info - &want).abs().max() < 1e-6 * want.abs().max(), "{}", (&info - &want).abs().max());
+    }
+
+    #[test]
+    fn no_feasible_segment_is_an_error() {
+        let mut inp = input();
+        inp.max_tension_n = 5.0;
+        assert_eq!(design(&inp).unwrap_err(), DesignError::NoFeasibleSegment);
+        let mut inp = input();
+        inp.workspace = [[0.0; 3], [0.05, 1.0, 1.0]];
+        assert_eq!(design(&inp).unwrap_err(), DesignError::Limits);
+    }
+}

@@ -1,0 +1,195 @@
+//! The start-up excitation of a configured robot: designed at configure time (never in the
+//! loop) from the nominal anchors by [`taut_calib::design`], with the calibration's predicted
+//! uncertainty, or today's Lissajous curve when the design is switched off or impossible.
+//!
+//! The plan is handed to the loop as a fixed-size [`taut_calib::design::Tour`] inside the `Copy`
+//! [`ControllerConfig`]; the prediction goes to the calibrator (its report compares it with the
+//! achieved sigmas) and to `ctl status`.
+
+use crate::motion::ControllerConfig;
+use taut_calib::design::{self, DesignInput, Prediction};
+use taut_config::RobotConfig;
+
+/// Acceleration of the tour's speed profile, m/s^2: a twentieth of g changes the cables'
+/// tensions by 5 % and lets a 0.4 m/s cruise start and stop within 0.8 s.
+pub const TOUR_ACCEL_M_S2: f64 = 0.5;
+
+/// Distance the tour keeps inside the workspace box's faces, m (room for tracking error before
+/// the workspace check).
+pub const TOUR_MARGIN_M: f64 = 0.05;
+
+/// What the start-up excitation will be, and the uncertainty it should leave.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExcitationPlan {
+    /// The path: `"designed corner tour"` or `"lissajous"`.
+    pub path: &'static str,
+    /// Waypoints of the tour (0 for the Lissajous curve).
+    pub waypoints: usize,
+    /// The calibration's predicted uncertainty along the path (at the nominal geometry).
+    pub predicted: Option<Prediction>,
+    /// Why the designed path is not used (empty when it is).
+    pub note: String,
+}
+
+impl ExcitationPlan {
+    /// The predicted worst anchor 1-sigma, m (NaN without a prediction).
+    pub fn predicted_worst_m(&self) -> f64 {
+        self.predicted.as_ref().map_or(f64::NAN, Prediction::worst_anchor_sigma_m)
+    }
+
+    /// One line for people.
+    pub fn summary(&self) -> String {
+        let p = self.predicted_worst_m();
+        let pred = if p.is_finite() { format!("predicted worst anchor 1-sigma {:.2} mm", p * 1e3) } else { "no prediction".into() };
+        let mut s = format!("excitation: {} ({} waypoints), {pred}", self.path, self.waypoints);
+        if !self.note.is_empty() {
+            s.push_str(&format!(" ({})", self.note));
+        }
+        s
+    }
+}
+
+/// The length noise the calibration's all-cables refinement assumes (`crate::calib_backend`), m.
+pub fn bundle_length_sigma_m(encoder_sigma_m: f64) -> f64 {
+    (4.0 * encoder_sigma_m).max(2e-4)
+}
+
+/// The design's inputs for `cfg` (nominal anchors required).
+pub fn design_input(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Option<DesignInput> {
+    let anchors = cfg.anchors()?;
+    let m = &cfg.motion;
+    let cal = &cfg.calibration;
+    Some(DesignInput {
+        anchors,
+        platform: cfg.platform_points(),
+        workspace: ccfg.workspace,
+        margin_m: TOUR_MARGIN_M,
+        // A cable never moves faster than the platform.
+        speed_m_s: m.excitation_speed_m_s.min(ccfg.max_cable_speed_m_s),
+        accel_m_s2: TOUR_ACCEL_M_S2,
+        duration_s: m.excitation_s,
+        sample_hz: m.tracker_rate_hz / cfg.daemon.calib_decimation.max(1) as f64,
+        used_fraction: 1.0 - cal.heldout_fraction,
+        tracker_sigma_m: cal.tracker_sigma_m,
+        length_sigma_m: bundle_length_sigma_m(cal.encoder_sigma_m),
+        mass_kg: cfg.robot.mass_kg,
+        follower: ccfg.follower[..ccfg.n].to_vec(),
+        follower_tension_n: ccfg.follower_tension_n,
+        min_tension_n: cal.min_tension_n,
+        max_tension_n: ccfg.max_tension_n,
+    })
+}
+
+/// Today's Lissajous path as the loop runs it (for its prediction).
+fn lissajous(ccfg: &ControllerConfig) -> impl Fn(f64) -> [f64; 3] + '_ {
+    let w = ccfg.workspace;
+    let v = ccfg.excitation_speed_m_s;
+    move |t| {
+        // The same formula as `Controller::excitation_point` after the approach.
+        let c: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
+        let amp: [f64; 3] = std::array::from_fn(|i| 0.8 * (w[1][i] - w[0][i]) / 2.0);
+        std::array::from_fn(|i| {
+            let omega = crate::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp[i].max(1e-3));
+            c[i] + amp[i] * (omega * t + crate::motion::LISSAJOUS_PHASE[i]).sin()
+        })
+    }
+}
+
+/// Plans the excitation of `cfg`: sets `ccfg.tour` when the design is on and succeeds.
+pub fn plan(cfg: &RobotConfig, ccfg: &mut ControllerConfig) -> ExcitationPlan {
+    ccfg.tour = None;
+    let Some(inp) = design_input(cfg, ccfg) else {
+        return ExcitationPlan { path: "lissajous", waypoints: 0, predicted: None, note: "no nominal anchors to design from".into() };
+    };
+    let today = design::predict(&inp, lissajous(ccfg));
+    if !cfg.motion.design_excitation {
+        return ExcitationPlan { path: "lissajous", waypoints: 0, predicted: today, note: "[motion] design_excitation = false".into() };
+    }
+    match design::design(&inp) {
+        Ok(d) => {
+            ccfg.tour = Some(d.tour);
+            let note = today.map_or(String::new(), |t| format!("the Lissajous curve: {:.2} mm", t.worst_anchor_sigma_m() * 1e3));
+            ExcitationPlan { path: "designed corner tour", waypoints: d.tour.n, predicted: Some(d.predicted), note }
+        }
+        Err(e) => ExcitationPlan { path: "lissajous", waypoints: 0, predicted: today, note: format!("no design: {e}") },
+    }
+}
+
+/// The worst anchor 1-sigma of `anchor_sigma` (root of the sum of each anchor's variances), m.
+pub fn worst_anchor_sigma_m(anchor_sigma: &[[f64; 3]]) -> f64 {
+    anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max)
+}
+
+/// `predicted worst anchor 1-sigma X mm (path), achieved Y mm`, for the calibration's note.
+pub fn predicted_vs_achieved(plan: &ExcitationPlan, anchor_sigma: &[[f64; 3]]) -> String {
+    format!(
+        "{}: predicted worst anchor 1-sigma {:.2} mm, achieved {:.2} mm",
+        plan.path,
+        plan.predicted_worst_m() * 1e3,
+        worst_anchor_sigma_m(anchor_sigma) * 1e3
+    )
+}
+
+/// The excitation's part of `ctl status`: the path, the predicted worst anchor 1-sigma and the
+/// achieved one (of the last calibration that produced an estimate), m.
+pub fn status_json(calib: &crate::calibrator::CalibStatus) -> serde_json::Value {
+    let Some(plan) = &calib.excitation else { return serde_json::Value::Null };
+    let finite = |v: f64| if v.is_finite() { Some(v) } else { None };
+    let achieved = calib
+        .outcomes
+        .iter()
+        .rev()
+        .filter(|o| o.kind == crate::calibrator::OutcomeKind::Calibration)
+        .find_map(|o| o.estimate.as_ref())
+        .map(|e| worst_anchor_sigma_m(&e.anchor_sigma));
+    serde_json::json!({
+        "path": plan.path,
+        "waypoints": plan.waypoints,
+        "predicted_worst_anchor_sigma_m": finite(plan.predicted_worst_m()),
+        "achieved_worst_anchor_sigma_m": achieved.and_then(finite),
+        "note": plan.note,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sim_robot() -> RobotConfig {
+        RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_simulated_robot_gets_a_tour_inside_its_box_with_a_smaller_predicted_sigma() {
+        let cfg = sim_robot();
+        let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+        let plan = plan(&cfg, &mut ccfg);
+        let tour = ccfg.tour.expect("a designed tour");
+        assert_eq!(plan.path, "designed corner tour");
+        assert_eq!(plan.waypoints, tour.n);
+        let w = ccfg.workspace;
+        for p in &tour.waypoints[..tour.n] {
+            assert!((0..3).all(|i| p[i] > w[0][i] && p[i] < w[1][i]), "{p:?} outside {w:?}");
+        }
+        let mut off = cfg.clone();
+        off.motion.design_excitation = false;
+        let mut ccfg_off = ControllerConfig::from_robot(&off).unwrap();
+        let today = super::plan(&off, &mut ccfg_off);
+        assert!(ccfg_off.tour.is_none() && today.path == "lissajous");
+        let (d, l) = (plan.predicted_worst_m(), today.predicted_worst_m());
+        assert!(d.is_finite() && l.is_finite() && d < 0.6 * l, "designed {d} m, Lissajous {l} m");
+        assert!(plan.summary().contains("predicted worst anchor 1-sigma"), "{}", plan.summary());
+    }
+
+    #[test]
+    fn predicted_vs_achieved_names_both() {
+        let plan = ExcitationPlan {
+            path: "designed corner tour",
+            waypoints: 4,
+            predicted: Some(Prediction { anchor_sigma: vec![[1e-3, 0.0, 0.0]], l0_sigma: vec![1e-3], samples: 10 }),
+            note: String::new(),
+        };
+        let s = predicted_vs_achieved(&plan, &[[3e-4, 4e-4, 0.0], [0.0, 0.0, 1e-4]]);
+        assert_eq!(s, "designed corner tour: predicted worst anchor 1-sigma 1.00 mm, achieved 0.50 mm");
+    }
+}

@@ -1,0 +1,130 @@
+//! The start-up's designed excitation on the simulated robot (config/examples/aras-cam-sim.toml,
+//! 30 s, tracker at 100 Hz with 1.5 mm noise): worst anchor error against the simulator's truth,
+//! the calibration's own sigmas and the design's prediction. Asserted: the calibration is
+//! accepted, its note states the predicted and the achieved uncertainty, the achieved worst-anchor
+//! sigma is within 1.5x of the predicted one, every anchor coordinate is within 4 of its sigmas.
+//!
+//! Seeds: 1 by default (one start-up, about two minutes under load); the acceptance set with
+//! `TAUT_EXCITE_SEEDS=1,2,3,4,5`. `TAUT_EXCITE_PATH=lissajous` runs the earlier Lissajous
+//! excitation instead and only prints (the comparison in BENCHMARKS.md).
+
+use std::time::Duration;
+use taut_rt_core::calib_backend::TautCalib;
+use taut_rt_core::calibrator::OutcomeKind;
+use taut_rt_core::daemon::{Daemon, DaemonOptions};
+use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::simrig::{self, SimOptions};
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// One start-up against the truth, m.
+struct Run {
+    worst_err_m: f64,
+    worst_sigma_m: f64,
+    predicted_m: f64,
+    errs_m: Vec<f64>,
+    axis_errs_m: Vec<[f64; 3]>,
+    sigmas_m: Vec<[f64; 3]>,
+    samples: usize,
+}
+
+fn startup(seed: u64, designed: bool) -> Run {
+    let dir = tempfile::tempdir().unwrap();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    cfg.motion.design_excitation = designed;
+    // The simulated load cells answer over a pty from threads that share two cores with the
+    // build and the other tests: under that load a reading is sometimes 0.5 s late, which the
+    // loop (rightly) treats as a fault. Late, not wrong: allow 2 s here.
+    cfg.safety.tension_max_age_s = 2.0;
+    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
+    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+    let so = SimOptions { seed, ..Default::default() };
+    let p0 = simrig::rest_position(&cfg, &so, p0);
+    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let truth = sim.truth.clone();
+    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
+    let ok = d.wait_until(Duration::from_secs(400), |l, c| {
+        l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration || !o.accepted)
+    });
+    let l = d.loop_status();
+    let c = d.calib_status();
+    assert!(ok, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
+    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
+    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).expect("a calibration outcome");
+    let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
+    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
+    assert!(ce.note.contains("predicted worst anchor 1-sigma"), "seed {seed}: the note lacks the prediction: {}", ce.note);
+    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
+        let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
+    }
+    let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
+    let errs_m: Vec<f64> = ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
+    let sig: Vec<f64> = ce.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
+    eprintln!("seed {seed}: note {}", ce.note);
+    let _ = d.shutdown();
+    Run {
+        worst_err_m: errs_m.iter().cloned().fold(0.0, f64::max),
+        worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
+        predicted_m,
+        errs_m,
+        axis_errs_m: ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
+        sigmas_m: ce.anchor_sigma.clone(),
+        samples: cal.samples,
+    }
+}
+
+#[test]
+fn designed_excitation_reaches_its_predicted_uncertainty() {
+    let seeds: Vec<u64> = std::env::var("TAUT_EXCITE_SEEDS")
+        .map(|s| s.split(',').map(|x| x.trim().parse().expect("TAUT_EXCITE_SEEDS: comma-separated seeds")).collect())
+        .unwrap_or_else(|_| vec![1]);
+    let designed = std::env::var("TAUT_EXCITE_PATH").map_or(true, |p| p != "lissajous");
+    let mut failures = vec![];
+    for seed in seeds {
+        let r = startup(seed, designed);
+        eprintln!(
+            "RESULT seed {seed} designed {designed}: worst anchor error {:.2} mm, worst anchor sigma {:.2} mm (predicted {:.2} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
+            r.worst_err_m * 1e3,
+            r.worst_sigma_m * 1e3,
+            r.predicted_m * 1e3,
+            r.samples,
+            r.errs_m.iter().map(|e| (e * 1e4).round() / 10.0).collect::<Vec<_>>(),
+            r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e4).round() / 10.0)).collect::<Vec<_>>()
+        );
+        if !designed {
+            continue;
+        }
+        // The issue asks for a worst anchor error <= 1 mm in the 30 s. The design's own bound says
+        // this robot cannot promise it: the best tour's predicted worst-anchor 1-sigma is 1.3 mm
+        // (1.2 mm at twice the speed; 0.78 mm needs 60 s, 0.63 mm 90 s), so a worst-of-four error
+        // above 1 mm is expected on some seeds. Not asserted (it would fail by chance, not by a
+        // fault); printed here and tabulated in BENCHMARKS.md. What is asserted is what the
+        // prediction promises:
+        // The prediction omits the approach to the first corner (more data) and is taken at the
+        // nominal anchors (up to 20 cm off): the achieved sigma is expected within 0.7-1.3 of it;
+        // a factor 1.5 either way is the stated agreement.
+        let ratio = r.worst_sigma_m / r.predicted_m;
+        if !(ratio > 1.0 / 1.5 && ratio < 1.5) {
+            failures.push(format!(
+                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm (ratio {ratio:.2})",
+                r.worst_sigma_m * 1e3,
+                r.predicted_m * 1e3
+            ));
+        }
+        // Every coordinate within 4 of its own sigmas (60 comparisons over five seeds: a family
+        // error rate of 0.4 % for a right covariance).
+        for (j, (e, s)) in r.axis_errs_m.iter().zip(&r.sigmas_m).enumerate() {
+            for i in 0..3 {
+                if e[i].abs() > 4.0 * s[i] {
+                    failures.push(format!("seed {seed}: anchor {j}[{i}] off by {:.2} mm, sigma {:.2} mm", e[i] * 1e3, s[i] * 1e3));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
