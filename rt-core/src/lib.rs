@@ -35,6 +35,7 @@ pub mod channels;
 pub mod control;
 pub mod ctl_server;
 pub mod daemon;
+pub mod follower;
 pub mod io;
 pub mod kin;
 #[cfg(all(test, loom))]
