@@ -27,6 +27,18 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
     cfg.daemon.socket = dir.join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.join("data").display().to_string();
     cfg.calibration.effects = effects.iter().map(|s| s.to_string()).collect();
+    // Generous device timeouts: the test shares two cores with builds (load 8-12), and a
+    // start-up that stops on a late load-cell reading or heartbeat measures nothing here.
+    cfg.safety.tension_max_age_s = 2.0;
+    for c in &mut cfg.cables {
+        if let Some(d) = c.drive.as_mut() {
+            d.heartbeat_timeout_ms = Some(2000);
+        }
+    }
+    if let Some(can) = cfg.can.as_mut() {
+        // The drives' consumer of taut's heartbeat: 3 periods.
+        can.master_heartbeat_ms = 500;
+    }
     cfg
 }
 
