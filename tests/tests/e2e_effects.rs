@@ -318,3 +318,69 @@ fn start_up_with_the_effect_model_reaches_the_noise_floor_and_the_commanded_pose
         );
     }
 }
+
+/// Offline look at a kept start-up recording (`TAUT_E2E_KEEP=1`): the daemon's backend on its
+/// excitation, and the fit with effects from the site's truth, with the held-out RMS of each.
+/// `TAUT_E2E_EFFECTS_CSV=/tmp/taut-e2e-effects-3-model.csv` (seed from `TAUT_E2E_EFFECTS_SEEDS`).
+#[test]
+#[ignore = "diagnostic on a kept recording"]
+fn offline_fit_of_a_kept_start_up_recording() {
+    use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
+    let Some(path) = std::env::var_os("TAUT_E2E_EFFECTS_CSV") else { return };
+    let text = std::fs::read_to_string(&path).unwrap();
+    let states: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).skip(1).map(|l| l.rsplit(',').next().unwrap_or("")).collect();
+    let e0 = states.iter().position(|s| *s == "excitation").unwrap();
+    let e1 = e0 + states[e0..].iter().take_while(|s| **s == "excitation").count();
+    let (rec, _) = taut_config::recording::Recording::load(&path).unwrap();
+    let seed = seeds()[0];
+    let m = modelled();
+    let m: Vec<&str> = m.iter().map(String::as_str).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = robot(dir.path(), &m);
+    let so = SimOptions { seed, physics: concealed(cfg.cables.len()), ..Default::default() };
+    let truth = taut_sim::Truth::sample(&cfg, &so.physics, so.site_error_m, so.l0_range_m, &mut taut_sim::rng(seed, 0)).unwrap();
+    let exc = rec.slice(e0..e1);
+    let split = ((exc.len() as f64) * (1.0 - cfg.calibration.heldout_fraction)).round() as usize;
+    let (train, held) = (exc.slice(0..split), exc.slice(split..exc.len()));
+    let platform = cfg.platform_points();
+    let heldout = |anchors: &[[f64; 3]], l0: &[f64], e: &taut_config::params::Effects| {
+        let p = LoopParams::new(1, anchors, l0, &platform).with_effects(LoopEffects::from_file(e));
+        p.coregistration_rms((0..held.len()).map(|i| (&held.p[i], held.lengths(i), held.tensions(i))), cfg.calibration.min_tension_n)
+            .unwrap()
+    };
+    let aerr = |anchors: &[[f64; 3]]| anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).fold(0.0, f64::max);
+    let mut backend = TautCalib::from_config(&cfg);
+    let init = backend.initialise(&rec.slice(0..e0)).unwrap();
+    let t0 = std::time::Instant::now();
+    let est = backend.calibrate(&train, &init).unwrap();
+    eprintln!(
+        "OFFLINE backend: held out {:.2} mm, anchors {:.1} mm, {:.1} s; {:?}; {}",
+        heldout(&est.anchors, &est.l0, &est.effects) * 1e3,
+        aerr(&est.anchors) * 1e3,
+        t0.elapsed().as_secs_f64(),
+        est.effects,
+        est.note
+    );
+    let t = TruthCalib::new(&truth, &so.physics).0;
+    eprintln!("OFFLINE truth: held out {:.2} mm", heldout(&t.anchors, &t.l0, &t.effects) * 1e3);
+    let c = &cfg.calibration;
+    for iters in [80, 400] {
+        let o =
+            EffectFitOptions { max_iterations: iters, ..EffectFitOptions::new(&m, c.min_tension_n, c.tracker_sigma_m, c.encoder_sigma_m) };
+        for (name, a, l0) in [("truth", &truth.anchors, &truth.l0), ("init", &init.anchors, &init.l0)] {
+            match fit_effects(&train, &platform, a, l0, &Default::default(), &o) {
+                Ok(f) => eprintln!(
+                    "OFFLINE fit from {name}, {iters} iterations: held out {:.2} mm, train {:.2} mm, anchors {:.1} mm, {} iterations; EA {:?} scale {:?} pulley {:?}",
+                    heldout(&f.anchors, &f.l0, &f.effects) * 1e3,
+                    f.rms_m * 1e3,
+                    aerr(&f.anchors) * 1e3,
+                    f.iterations,
+                    f.effects.ea_n,
+                    f.effects.drum_scale,
+                    f.effects.pulley_radius_m
+                ),
+                Err(e) => eprintln!("OFFLINE fit from {name}: {e}"),
+            }
+        }
+    }
+}
