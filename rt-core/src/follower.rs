@@ -73,15 +73,15 @@ pub fn distribute(
     let mut np = 0;
     let mut s = [0.0; 3];
     let mut nf = 0;
-    for j in 0..n {
+    for (j, &follows) in follower.iter().enumerate().take(n) {
         let a = params.anchors[j];
         let b = params.platform[j];
         let d = [a[0] - p[0] - b[0], a[1] - p[1] - b[1], a[2] - p[2] - b[2]];
         let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        if !(r > 1e-9) {
+        if r.is_nan() || r <= 1e-9 {
             return None;
         }
-        if follower[j] {
+        if follows {
             nf += 1;
             for i in 0..3 {
                 s[i] += d[i] / r;
@@ -110,7 +110,7 @@ pub fn distribute(
     };
     let d = det(c0, c1, c2);
     // Unit columns: |det| is the volume they span; below 1e-6 the tensions are meaningless.
-    if !(d.abs() > 1e-6) {
+    if d.is_nan() || d.abs() <= 1e-6 {
         return None;
     }
     let w = [0.0, 0.0, mass_kg * G];
@@ -173,8 +173,9 @@ mod tests {
             for r in 0..3 {
                 if r != c {
                     let f = m[r][c] / m[c][c];
-                    for k in c..4 {
-                        m[r][k] -= f * m[c][k];
+                    let pivot = m[c];
+                    for (x, y) in m[r][c..].iter_mut().zip(&pivot[c..]) {
+                        *x -= f * y;
                     }
                 }
             }
