@@ -36,6 +36,7 @@ pub mod control;
 pub mod ctl_server;
 pub mod daemon;
 pub mod excite;
+pub mod follower;
 pub mod io;
 pub mod kin;
 #[cfg(all(test, loom))]

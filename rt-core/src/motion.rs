@@ -196,8 +196,15 @@ pub struct ControllerConfig {
     pub node_ids: [u8; MAX_CABLES],
     /// Cables that follow in torque mode outside the initialisation (redundant cables).
     pub follower: [bool; MAX_CABLES],
-    /// Their tension, N.
+    /// Their tension, N: the least they hold; more where the statics need it to keep the
+    /// position cables taut ([`crate::follower`]).
     pub follower_tension_n: f64,
+    /// Platform mass, kg (the statics of the follower tension).
+    pub mass_kg: f64,
+    /// Swing of the follower tension over the excitation, N (0: none): when elasticity is
+    /// modelled, the tension the cables carry varies independently of their length, so that
+    /// the calibration can tell stretch from drum scale.
+    pub excitation_tension_swing_n: f64,
     /// `[held_a, held_b, reeled]` per phase.
     pub phases: [[usize; 3]; 3],
     /// Reel length, m (signed).
@@ -337,6 +344,12 @@ impl ControllerConfig {
             node_ids,
             follower,
             follower_tension_n: m.init_follower_tension_n.max(s.loose_tension_n * 2.0),
+            mass_kg: cfg.robot.mass_kg,
+            excitation_tension_swing_n: if cfg.calibration.effects.iter().any(|e| e == "elasticity") {
+                EXCITATION_TENSION_SWING_N.min(0.5 * s.max_tension_n)
+            } else {
+                0.0
+            },
             phases,
             reel_m: m.init_reel_m,
             reel_speed_m_s: m.init_reel_speed_m_s,
@@ -430,6 +443,9 @@ pub struct Controller {
     params: LoopParams,
     /// The tension inverse kinematics stretches each cable by, N (see [`Controller::track_tension`]).
     ik_tension: [f64; MAX_CABLES],
+    /// The followers' commanded tension, N ([`Controller::follower_tension`]); held in
+    /// holding states.
+    follower_n: f64,
     state: State,
     state_t0: f64,
     phase: i8,
@@ -513,6 +529,17 @@ impl ResetRun {
     }
 }
 
+/// Swing of the follower tension over an excitation that calibrates elasticity, N. At EA
+/// 20 kN and 4 m of cable 60 N stretches a cable by 12 mm, several times the tracker's noise,
+/// while the cables' tensions stay far below a drive's or a cable's limit (the statics keep
+/// them under half of `safety.max_tension_n`, see [`Controller::follower_tension`]).
+const EXCITATION_TENSION_SWING_N: f64 = 60.0;
+
+/// Period of the tension swing, s (rounded so a whole number of swings fits the excitation):
+/// several times faster than the Lissajous motion (periods of 25-40 s), so that tension and
+/// length are not correlated over the run.
+const EXCITATION_TENSION_PERIOD_S: f64 = 6.0;
+
 pub(crate) const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
 pub(crate) const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
 
@@ -544,6 +571,7 @@ impl Controller {
             params_rx,
             params,
             ik_tension: [f64::NAN; MAX_CABLES],
+            follower_n: cfg.follower_tension_n,
             state: State::Idle,
             state_t0: 0.0,
             phase: -1,
@@ -961,7 +989,7 @@ impl Controller {
                 if self.params.valid && self.params.version != self.awaited_version {
                     swapped = false; // taken over by the transfer ramp below
                     self.start_excitation(inp, now);
-                    next = self.ik_command(&mut modes);
+                    next = self.ik_command(&mut modes, 0.0);
                 }
             }
             State::Excitation if self.cfg.dwell.is_some() => {
@@ -971,11 +999,16 @@ impl Controller {
             State::Excitation => {
                 let t = now - self.state_t0;
                 self.target = self.excitation_point(t);
-                if t >= self.approach_s + self.cfg.excitation_s {
+                let total = self.approach_s + self.cfg.excitation_s;
+                if t >= total {
                     self.goal = self.target;
                     self.enter(State::Operate, now);
                 }
-                next = self.ik_command(&mut modes);
+                // The tension swing: sin^2 with a whole number of periods, so it starts and
+                // ends at zero (no step into the excitation or into operation).
+                let swings = (total / EXCITATION_TENSION_PERIOD_S).round().max(1.0);
+                let s = (std::f64::consts::PI * swings * (t / total).min(1.0)).sin();
+                next = self.ik_command(&mut modes, self.cfg.excitation_tension_swing_n * s * s);
             }
             State::Operate => {
                 // Straight-line moves towards the goal at the configured speed.
@@ -989,7 +1022,7 @@ impl Controller {
                 } else {
                     self.target = self.goal;
                 }
-                next = self.ik_command(&mut modes);
+                next = self.ik_command(&mut modes, 0.0);
             }
             State::Holding => {
                 for j in 0..n {
@@ -1199,29 +1232,53 @@ impl Controller {
             if fresh {
                 *v = if v.is_finite() { *v + k * (inp.tension_n[j] - *v) } else { inp.tension_n[j] };
             } else if self.cfg.follower[j] && matches!(self.state, State::Operate | State::Holding | State::Excitation) {
-                *v = self.cfg.follower_tension_n;
+                *v = self.follower_n;
             }
         }
     }
 
-    /// Holding: position mode at `len`, except the redundant cables, which keep their tension
-    /// (four rigid position-mode cables would fight over the platform).
+    /// Holding: position mode at `len`, except the redundant cables, which keep their last
+    /// tension (four rigid position-mode cables would fight over the platform; the last
+    /// tension is what the statics needed where the platform stands).
     fn hold_mode(&self, j: usize, len: f64) -> CableCommand {
         if self.cfg.follower[j] {
-            CableCommand::Tension(self.cfg.follower_tension_n)
+            CableCommand::Tension(self.follower_n)
         } else {
             CableCommand::Position(len)
         }
     }
 
-    fn ik_command(&mut self, modes: &mut [CableCommand; MAX_CABLES]) -> [f64; MAX_CABLES] {
+    /// Inverse kinematics at the target, the followers at [`Controller::follower_tension`]
+    /// plus `extra_n`.
+    fn ik_command(&mut self, modes: &mut [CableCommand; MAX_CABLES], extra_n: f64) -> [f64; MAX_CABLES] {
         let mut next = [0.0; MAX_CABLES];
         self.params.lengths_at(&self.target, &self.ik_tension, &mut next);
+        self.follower_n = self.follower_tension(extra_n);
         for j in 0..self.cfg.n {
-            modes[j] =
-                if self.cfg.follower[j] { CableCommand::Tension(self.cfg.follower_tension_n) } else { CableCommand::Position(next[j]) };
+            modes[j] = if self.cfg.follower[j] { CableCommand::Tension(self.follower_n) } else { CableCommand::Position(next[j]) };
         }
         next
+    }
+
+    /// The followers' tension at the target: the configured one plus `extra_n`, raised where
+    /// the statics need more to keep every position cable at `held_min_tension_n` and capped
+    /// where a position cable would pass half of `max_tension_n` ([`crate::follower`]). Without
+    /// usable statics (no valid parameters, not three position cables) the configured one.
+    fn follower_tension(&self, extra_n: f64) -> f64 {
+        let want = self.cfg.follower_tension_n + extra_n.max(0.0);
+        let min_n = self.cfg.held_min_tension_n.max(2.0 * self.cfg.loose_tension_n);
+        let range = crate::follower::distribute(
+            &self.params,
+            &self.cfg.follower,
+            &self.target,
+            self.cfg.mass_kg,
+            min_n,
+            0.5 * self.cfg.max_tension_n,
+        );
+        match range {
+            Some(r) if r.lo_n.is_finite() => r.clamp(want).min(0.5 * self.cfg.max_tension_n).max(self.cfg.follower_tension_n),
+            _ => self.cfg.follower_tension_n,
+        }
     }
 
     fn start_phase(&mut self, k: usize, inp: &Inputs, now: f64) {
