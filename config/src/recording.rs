@@ -25,6 +25,9 @@ use std::path::Path;
 /// The first comment line of a file written by this project.
 pub const MAGIC: &str = "# cdpr-recording v1";
 
+/// Read buffer of [`Recording::load`], bytes.
+const READ_BUFFER_BYTES: usize = 256 * 1024;
+
 /// Fewer usable samples (rows with at least one length; the tracker position may be missing, a
 /// recording without a tracker is calibrated from the lengths and tensions) than this is an error.
 pub const MIN_USABLE_SAMPLES: usize = 10;
@@ -104,6 +107,23 @@ impl Recording {
             f: tensions.then(|| Vec::with_capacity(capacity * n)),
             phase: phase.then(|| Vec::with_capacity(capacity)),
             comments: Vec::new(),
+        }
+    }
+
+    /// Tries to make room for `additional` more samples in every column; on failure (an
+    /// estimate from a hostile file's size) the columns simply grow as rows come.
+    fn try_reserve(&mut self, additional: usize) {
+        let n = self.n_cables;
+        let _ =
+            self.t.try_reserve(additional).and_then(|_| self.p.try_reserve(additional)).and_then(|_| self.l.try_reserve(additional * n));
+        if let Some(q) = &mut self.q {
+            let _ = q.try_reserve(additional);
+        }
+        if let Some(f) = &mut self.f {
+            let _ = f.try_reserve(additional * n);
+        }
+        if let Some(ph) = &mut self.phase {
+            let _ = ph.try_reserve(additional);
         }
     }
 
@@ -249,7 +269,9 @@ impl Recording {
             }
         }
         // MCAP by its magic bytes, whatever the file is called.
-        let mut file = std::io::BufReader::new(file);
+        let size = file.metadata().ok().filter(|m| m.is_file()).map(|m| m.len());
+        // Large reads: a recording is read front to back once.
+        let mut file = std::io::BufReader::with_capacity(READ_BUFFER_BYTES, file);
         if file.fill_buf().map_err(|e| err(ErrorKind::Io(e.to_string())))?.starts_with(MCAP_MAGIC) {
             #[cfg(feature = "mcap")]
             return crate::mcap::read_from(path, file);
@@ -258,7 +280,7 @@ impl Recording {
                 "this program was built without MCAP support (taut-config feature `mcap`); read it with `taut`, which has it".into(),
             )));
         }
-        parse(file).map_err(|mut e| {
+        parse_sized(file, size).map_err(|mut e| {
             e.file = Some(path.display().to_string());
             e
         })
@@ -575,6 +597,32 @@ fn fast_field(b: &[u8]) -> Option<f64> {
     Some(if neg { -v } else { v })
 }
 
+/// All `width` fields of `line` by [`fast_field`] into `vals`, their bounds into `spans`, in one
+/// pass; false (with `vals` and `spans` unspecified) when a field is not a plain decimal or the
+/// count is not `width`. The values are those the general path gives (each field is a plain
+/// decimal, which trimming leaves as it is).
+fn fast_row(line: &[u8], width: usize, vals: &mut Vec<f64>, spans: &mut Vec<(usize, usize)>) -> bool {
+    vals.clear();
+    spans.clear();
+    let mut start = 0;
+    for (k, &b) in line.iter().enumerate() {
+        if b == b',' {
+            match fast_field(&line[start..k]) {
+                Some(v) if vals.len() < width => vals.push(v),
+                _ => return false,
+            }
+            spans.push((start, k));
+            start = k + 1;
+        }
+    }
+    match fast_field(&line[start..]) {
+        Some(v) => vals.push(v),
+        None => return false,
+    }
+    spans.push((start, line.len()));
+    vals.len() == width
+}
+
 /// Parses one field: empty or `nan` (any case) is missing (NaN).
 fn field(s: &str) -> Result<f64, ErrorKind> {
     let s = s.trim();
@@ -651,7 +699,15 @@ impl<'a> Fields<'a> {
 
 /// Parses a `cdpr-recording v1` from a reader. Lines are capped at [`MAX_LINE_BYTES`] and the
 /// input at [`MAX_LINES`], so no input makes the reader allocate without bound.
-pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), RecordingError> {
+pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), RecordingError> {
+    parse_sized(reader, None)
+}
+
+/// [`parse`] of an input of `size` bytes, if known: the columns are sized once from the bytes
+/// after the header and the first row's length (room for 10 % more rows than that suggests, never
+/// more than [`MAX_LINES`]) instead of growing by doubling (copies and page faults of
+/// 100,000-row columns).
+fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recording, ParseReport), RecordingError> {
     let mut report = ParseReport::default();
     let mut comments = Vec::new();
     let mut dropped_comments = 0usize;
@@ -665,13 +721,22 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
     let mut fvals = Vec::new();
     let mut buf = Vec::with_capacity(1024);
     let mut spans: Vec<(usize, usize)> = Vec::with_capacity(64);
+    let mut vals: Vec<f64> = Vec::with_capacity(64);
     let mut lineno = 0usize;
+    // Bytes of the lines before this one (for sizing the columns).
+    let mut consumed = 0u64;
     loop {
         let at = |line: usize, kind| RecordingError { file: None, line, column: None, kind };
         let read = read_line_capped(&mut reader, &mut buf).map_err(|e| at(lineno + 1, ErrorKind::Io(e.to_string())))?;
         lineno += 1;
-        if let Some(i) = buf.iter().position(|&b| b == 0) {
-            return Err(at(lineno, ErrorKind::Binary(i + 1)));
+        // A row of plain decimals (nearly every row of a recording) in one pass: such a line
+        // has no NUL, no byte-order mark, is ASCII, neither blank nor a comment, so the checks
+        // below pass; anything else (spaces, `nan`, empty fields, junk) takes the general path.
+        let fast = matches!(read, Line::Complete) && cols.as_ref().is_some_and(|c| fast_row(&buf, c.width, &mut vals, &mut spans));
+        if !fast {
+            if let Some(i) = buf.iter().position(|&b| b == 0) {
+                return Err(at(lineno, ErrorKind::Binary(i + 1)));
+            }
         }
         match read {
             Line::Eof => break,
@@ -681,6 +746,13 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
         if lineno > MAX_LINES {
             return Err(at(lineno, ErrorKind::TooLarge(format!("more than {MAX_LINES} lines; split the recording into runs"))));
         }
+        if fast && report.rows == 0 {
+            if let Some(size) = size {
+                let rest = size.saturating_sub(consumed) / (buf.len() as u64 + 1);
+                rec.try_reserve((rest + rest / 10).min(MAX_LINES as u64) as usize);
+            }
+        }
+        consumed += buf.len() as u64 + 1;
         let mut bytes = &buf[..];
         if lineno == 1 {
             if let Some(rest) = bytes.strip_prefix(b"\xEF\xBB\xBF") {
@@ -717,13 +789,15 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
             Some(c) => c,
         };
         // Field bounds into a buffer kept across rows (no allocation per row); trimmed as before.
-        spans.clear();
-        let mut start = 0;
-        for (k, _) in line.match_indices(',') {
-            spans.push((start, k));
-            start = k + 1;
+        if !fast {
+            spans.clear();
+            let mut start = 0;
+            for (k, _) in line.match_indices(',') {
+                spans.push((start, k));
+                start = k + 1;
+            }
+            spans.push((start, line.len()));
         }
-        spans.push((start, line.len()));
         let fields = Fields { line, spans: &spans };
         if fields.len() != c.width {
             if let Some(q) = fields.iter().find(|f| f.starts_with(['"', '\''])) {
@@ -737,6 +811,9 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
             });
         }
         let get = |col: usize| -> Result<f64, RecordingError> {
+            if fast {
+                return Ok(vals[col]);
+            }
             let f = fields.get(col);
             if let Some(v) = fast_field(f.as_bytes()) {
                 return Ok(v);
