@@ -337,6 +337,14 @@ impl Channel<'_> {
         if self.out[i] {
             return (f64::NAN, f64::NAN);
         }
+        // Almost every reading: its four nearest rows are present and linked, the nodes `side`
+        // would find (checked in the same order, with the same comparisons).
+        if i >= 2 && i + 2 < self.y.len() && !(self.out[i - 2] | self.out[i - 1] | self.out[i + 1] | self.out[i + 2]) {
+            let linked = |k: usize, prev: usize| (self.t[k] - self.t[prev]).abs() <= self.gap && self.seg.get(k) == self.seg.get(i);
+            if linked(i - 1, i) && linked(i - 2, i - 1) && linked(i + 1, i) && linked(i + 2, i + 1) {
+                return self.lagrange(i, [i - 2, i - 1, i + 1, i + 2]);
+            }
+        }
         let (na, nb) = (self.side(i, false, 2, &mut a), self.side(i, true, 2, &mut b));
         // At an end of the recording or a gap: extrapolate from four on the other side (the
         // normalisation below accounts for the larger weights, so the test stays exact).
@@ -349,6 +357,13 @@ impl Channel<'_> {
         } else {
             return (f64::NAN, f64::NAN);
         };
+        self.lagrange(i, nodes)
+    }
+
+    /// `(prediction, z)` at `i` by the cubic through `nodes`.
+    #[inline]
+    #[allow(clippy::needless_range_loop)]
+    fn lagrange(&self, i: usize, nodes: [usize; 4]) -> (f64, f64) {
         let ti = self.t[i];
         let tk = nodes.map(|k| self.t[k]);
         // Lagrange weights w_p = prod_q (ti - t_q) / prod_q (t_p - t_q), q != p, with a single
@@ -450,23 +465,40 @@ enum Event {
 
 /// The channel's noise scale (robust) and the `z` of every reading.
 fn scale(ch: &Channel, zs: &mut [f64], floor: f64) -> (f64, usize) {
-    // A quantised channel that mostly stands still has a MAD of zero: one quantum is then the
-    // smallest change that can be told from none.
-    let quantum = ch.y.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|d| *d > 0.0 && d.is_finite()).fold(f64::INFINITY, f64::min);
-    let floor = if quantum.is_finite() { floor.max(quantum) } else { floor };
-    let mut a: Vec<f64> = Vec::with_capacity(zs.len());
+    let (mad, tested) = mad_scale(ch, zs);
+    (floored(mad, &ch.y, floor), tested)
+}
+
+/// `1.4826 median |z|` over the channel's finite `z` (NaN when there is none) and how many there
+/// are; fills `zs`. Without the floor of [`floored`], so that two floors can share it.
+fn mad_scale(ch: &Channel, zs: &mut [f64]) -> (f64, usize) {
+    // |z| as bits: without a sign bit, the integers' order is `total_cmp`'s, so the median is
+    // the same element, selected by integer comparisons.
+    let mut a: Vec<u64> = Vec::with_capacity(zs.len());
     for (i, z) in zs.iter_mut().enumerate() {
         *z = ch.z(i).1;
         if z.is_finite() {
-            a.push(z.abs());
+            a.push(z.abs().to_bits());
         }
     }
     if a.is_empty() {
         return (f64::NAN, 0);
     }
     let k = a.len() / 2;
-    a.select_nth_unstable_by(k, |x, y| x.total_cmp(y));
-    ((1.4826 * a[k]).max(floor), a.len())
+    (1.4826 * f64::from_bits(*a.select_nth_unstable(k).1), a.len())
+}
+
+/// The scale `mad` no lower than `floor` nor than the quantum of the values `y`; NaN stays NaN
+/// (no reading could be tested).
+fn floored(mad: f64, y: &[f64], floor: f64) -> f64 {
+    if mad.is_nan() {
+        return f64::NAN;
+    }
+    // A quantised channel that mostly stands still has a MAD of zero: one quantum is then the
+    // smallest change that can be told from none.
+    let quantum = y.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|d| *d > 0.0 && d.is_finite()).fold(f64::INFINITY, f64::min);
+    let floor = if quantum.is_finite() { floor.max(quantum) } else { floor };
+    mad.max(floor)
 }
 
 /// Screens one channel: absurd values first, then the iterative local test. `thr` is in the
@@ -698,12 +730,17 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let k = normal_upper_quantile(opts.false_alarm / (2.0 * tests.max(1) as f64));
     let thr_of = |nc: usize| k * (1.0 + 3.3 / (nc.max(1) as f64).sqrt());
     let mut findings = vec![];
-    let mut cleaned = rec.clone();
+    // Cloned when the first reading is excluded or shifted: a clean recording is not copied.
+    let mut cleaned: Option<Recording> = None;
     let mut changed = false;
     // Rows where a load cell's tension changes faster than its noise allows (its own local
     // test, two rows either side): the encoder's unstretched length follows the tension
     // (stretch, sag), so an encoder event there is physics, not a wild value.
+    // The load cells' `z` are computed once: the tension-quiet mask here and the load-cell
+    // screen below (the same readings excluded, so the same `z`) differ only in the quantum
+    // floor (taken with and without the absurd values), applied to the shared MAD.
     let mut tension_cols: Vec<(Vec<f64>, f64)> = vec![];
+    let mut tension_mad: Vec<(f64, usize)> = vec![];
     let tension_quiet: Vec<Vec<bool>> = (0..n)
         .map(|j| {
             let Some(f) = &rec.f else { return vec![] };
@@ -714,11 +751,14 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                 seg,
             );
             let mut zs = vec![f64::NAN; m];
-            let (s, nc) = scale(&ch, &mut zs, 1e-3);
+            let (mad, nc) = mad_scale(&ch, &mut zs);
+            let s = floored(mad, &ch.y, 1e-3);
+            tension_mad.push((mad, nc));
             let thr = thr_of(nc) * s;
             let ev: Vec<bool> = zs.iter().map(|z| z.abs() > thr).collect();
-            tension_cols.push((ch.y.clone(), s));
-            (0..m).map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x)).collect()
+            let quiet = (0..m).map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x)).collect();
+            tension_cols.push((ch.y, s));
+            quiet
         })
         .collect();
     // Encoders.
@@ -755,6 +795,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             }
         }
         if changed {
+            let cleaned = cleaned.get_or_insert_with(|| rec.clone());
             for i in 0..m {
                 cleaned.l[i * n + j] = if ch.out[i] { f64::NAN } else { ch.y[i] };
             }
@@ -764,14 +805,8 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     if let Some(f) = &rec.f {
         for j in 0..n {
             let col: Vec<f64> = (0..m).map(|i| f[i * n + j]).collect();
-            let mut ch = Channel::new(&rec.t, col.clone(), gap, seg);
-            let mut zs = vec![f64::NAN; m];
-            for i in 0..m {
-                if !ch.y[i].is_nan() && !(ch.y[i].abs() <= ABSURD_N) {
-                    ch.out[i] = true;
-                }
-            }
-            let (s, nc) = scale(&ch, &mut zs, 1e-3);
+            let (mad, nc) = tension_mad[j];
+            let s = floored(mad, &col, 1e-3);
             let mut loose: Vec<f64> =
                 col.iter().copied().filter(|v| v.is_finite() && v.abs() <= ABSURD_N && *v < opts.min_tension_n).collect();
             let z0 = if loose.len() >= 20 {
@@ -806,6 +841,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                         sigmas: if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY },
                         action: Action::Excluded,
                     });
+                    let cleaned = cleaned.get_or_insert_with(|| rec.clone());
                     if let Some(cf) = cleaned.f.as_mut() {
                         cf[i * n + j] = f64::NAN;
                     }
@@ -858,11 +894,11 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     }
     for (i, r) in removed_rows.iter().enumerate() {
         if *r {
-            cleaned.p[i] = [f64::NAN; 3];
+            cleaned.get_or_insert_with(|| rec.clone()).p[i] = [f64::NAN; 3];
         }
     }
     findings.sort_by_key(|w| (w.cable.is_none(), w.kind == WildKind::ImpossibleTension, w.cable, w.kind.name(), w.row));
-    Screen { findings, cleaned: changed.then_some(cleaned), removed_rows, tests, threshold_sigmas: k }
+    Screen { findings, cleaned: changed.then(|| cleaned.unwrap_or_else(|| rec.clone())), removed_rows, tests, threshold_sigmas: k }
 }
 
 #[cfg(test)]

@@ -25,6 +25,9 @@ use std::path::Path;
 /// The first comment line of a file written by this project.
 pub const MAGIC: &str = "# cdpr-recording v1";
 
+/// Read buffer of [`Recording::load`], bytes.
+const READ_BUFFER_BYTES: usize = 256 * 1024;
+
 /// Fewer usable samples (rows with at least one length; the tracker position may be missing, a
 /// recording without a tracker is calibrated from the lengths and tensions) than this is an error.
 pub const MIN_USABLE_SAMPLES: usize = 10;
@@ -104,6 +107,23 @@ impl Recording {
             f: tensions.then(|| Vec::with_capacity(capacity * n)),
             phase: phase.then(|| Vec::with_capacity(capacity)),
             comments: Vec::new(),
+        }
+    }
+
+    /// Tries to make room for `additional` more samples in every column; on failure (an
+    /// estimate from a hostile file's size) the columns simply grow as rows come.
+    fn try_reserve(&mut self, additional: usize) {
+        let n = self.n_cables;
+        let _ =
+            self.t.try_reserve(additional).and_then(|_| self.p.try_reserve(additional)).and_then(|_| self.l.try_reserve(additional * n));
+        if let Some(q) = &mut self.q {
+            let _ = q.try_reserve(additional);
+        }
+        if let Some(f) = &mut self.f {
+            let _ = f.try_reserve(additional * n);
+        }
+        if let Some(ph) = &mut self.phase {
+            let _ = ph.try_reserve(additional);
         }
     }
 
@@ -249,7 +269,9 @@ impl Recording {
             }
         }
         // MCAP by its magic bytes, whatever the file is called.
-        let mut file = std::io::BufReader::new(file);
+        let size = file.metadata().ok().filter(|m| m.is_file()).map(|m| m.len());
+        // Large reads: a recording is read front to back once.
+        let mut file = std::io::BufReader::with_capacity(READ_BUFFER_BYTES, file);
         if file.fill_buf().map_err(|e| err(ErrorKind::Io(e.to_string())))?.starts_with(MCAP_MAGIC) {
             #[cfg(feature = "mcap")]
             return crate::mcap::read_from(path, file);
@@ -258,7 +280,7 @@ impl Recording {
                 "this program was built without MCAP support (taut-config feature `mcap`); read it with `taut`, which has it".into(),
             )));
         }
-        parse(file).map_err(|mut e| {
+        parse_sized(file, size).map_err(|mut e| {
             e.file = Some(path.display().to_string());
             e
         })
@@ -575,6 +597,52 @@ fn fast_field(b: &[u8]) -> Option<f64> {
     Some(if neg { -v } else { v })
 }
 
+/// All `width` fields of `line` as [`fast_field`] reads them, into `vals`, their bounds into
+/// `spans`, in one pass over the bytes (the digits are read as the commas are found); false
+/// (with `vals` and `spans` unspecified) when a field is not a plain decimal or the count is not
+/// `width`. The values are those the general path gives (a plain decimal is left as it is by
+/// trimming, and read by the same fast path there).
+fn fast_row(line: &[u8], width: usize, vals: &mut Vec<f64>, spans: &mut Vec<(usize, usize)>) -> bool {
+    vals.clear();
+    spans.clear();
+    let n = line.len();
+    let mut k = 0;
+    loop {
+        let start = k;
+        let neg = k < n && line[k] == b'-';
+        if k < n && (line[k] == b'-' || line[k] == b'+') {
+            k += 1;
+        }
+        let (mut m, mut digits, mut decimals, mut dot) = (0u64, 0usize, 0usize, false);
+        while k < n {
+            match line[k] {
+                c @ b'0'..=b'9' => {
+                    if digits == 19 {
+                        return false;
+                    }
+                    m = m * 10 + (c - b'0') as u64;
+                    digits += 1;
+                    decimals += dot as usize;
+                }
+                b'.' if !dot => dot = true,
+                b',' => break,
+                _ => return false,
+            }
+            k += 1;
+        }
+        if digits == 0 || m >= 1 << 53 || decimals >= EXACT_POW10.len() || vals.len() == width {
+            return false;
+        }
+        let v = m as f64 / EXACT_POW10[decimals];
+        vals.push(if neg { -v } else { v });
+        spans.push((start, k));
+        if k == n {
+            return vals.len() == width;
+        }
+        k += 1;
+    }
+}
+
 /// Parses one field: empty or `nan` (any case) is missing (NaN).
 fn field(s: &str) -> Result<f64, ErrorKind> {
     let s = s.trim();
@@ -651,7 +719,15 @@ impl<'a> Fields<'a> {
 
 /// Parses a `cdpr-recording v1` from a reader. Lines are capped at [`MAX_LINE_BYTES`] and the
 /// input at [`MAX_LINES`], so no input makes the reader allocate without bound.
-pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), RecordingError> {
+pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), RecordingError> {
+    parse_sized(reader, None)
+}
+
+/// [`parse`] of an input of `size` bytes, if known: the columns are sized once from the bytes
+/// after the header and the first row's length (room for 10 % more rows than that suggests, never
+/// more than [`MAX_LINES`]) instead of growing by doubling (copies and page faults of
+/// 100,000-row columns).
+fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recording, ParseReport), RecordingError> {
     let mut report = ParseReport::default();
     let mut comments = Vec::new();
     let mut dropped_comments = 0usize;
@@ -665,13 +741,22 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
     let mut fvals = Vec::new();
     let mut buf = Vec::with_capacity(1024);
     let mut spans: Vec<(usize, usize)> = Vec::with_capacity(64);
+    let mut vals: Vec<f64> = Vec::with_capacity(64);
     let mut lineno = 0usize;
+    // Bytes of the lines before this one (for sizing the columns).
+    let mut consumed = 0u64;
     loop {
         let at = |line: usize, kind| RecordingError { file: None, line, column: None, kind };
         let read = read_line_capped(&mut reader, &mut buf).map_err(|e| at(lineno + 1, ErrorKind::Io(e.to_string())))?;
         lineno += 1;
-        if let Some(i) = buf.iter().position(|&b| b == 0) {
-            return Err(at(lineno, ErrorKind::Binary(i + 1)));
+        // A row of plain decimals (nearly every row of a recording) in one pass: such a line
+        // has no NUL, no byte-order mark, is ASCII, neither blank nor a comment, so the checks
+        // below pass; anything else (spaces, `nan`, empty fields, junk) takes the general path.
+        let fast = matches!(read, Line::Complete) && cols.as_ref().is_some_and(|c| fast_row(&buf, c.width, &mut vals, &mut spans));
+        if !fast {
+            if let Some(i) = buf.iter().position(|&b| b == 0) {
+                return Err(at(lineno, ErrorKind::Binary(i + 1)));
+            }
         }
         match read {
             Line::Eof => break,
@@ -681,6 +766,13 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
         if lineno > MAX_LINES {
             return Err(at(lineno, ErrorKind::TooLarge(format!("more than {MAX_LINES} lines; split the recording into runs"))));
         }
+        if fast && report.rows == 0 {
+            if let Some(size) = size {
+                let rest = size.saturating_sub(consumed) / (buf.len() as u64 + 1);
+                rec.try_reserve((rest + rest / 10).min(MAX_LINES as u64) as usize);
+            }
+        }
+        consumed += buf.len() as u64 + 1;
         let mut bytes = &buf[..];
         if lineno == 1 {
             if let Some(rest) = bytes.strip_prefix(b"\xEF\xBB\xBF") {
@@ -717,13 +809,15 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
             Some(c) => c,
         };
         // Field bounds into a buffer kept across rows (no allocation per row); trimmed as before.
-        spans.clear();
-        let mut start = 0;
-        for (k, _) in line.match_indices(',') {
-            spans.push((start, k));
-            start = k + 1;
+        if !fast {
+            spans.clear();
+            let mut start = 0;
+            for (k, _) in line.match_indices(',') {
+                spans.push((start, k));
+                start = k + 1;
+            }
+            spans.push((start, line.len()));
         }
-        spans.push((start, line.len()));
         let fields = Fields { line, spans: &spans };
         if fields.len() != c.width {
             if let Some(q) = fields.iter().find(|f| f.starts_with(['"', '\''])) {
@@ -737,6 +831,9 @@ pub fn parse<R: BufRead>(mut reader: R) -> Result<(Recording, ParseReport), Reco
             });
         }
         let get = |col: usize| -> Result<f64, RecordingError> {
+            if fast {
+                return Ok(vals[col]);
+            }
             let f = fields.get(col);
             if let Some(v) = fast_field(f.as_bytes()) {
                 return Ok(v);
@@ -1052,7 +1149,7 @@ mod tests {
 
 #[cfg(test)]
 mod fast_field_tests {
-    use super::fast_field;
+    use super::{fast_field, fast_row};
 
     /// The fast path gives the value `str::parse` gives, bit for bit, or declines.
     fn same(s: &str) {
@@ -1115,6 +1212,44 @@ mod fast_field_tests {
         ] {
             assert_eq!(fast_field(s.as_bytes()), None, "`{s}`");
         }
+    }
+
+    /// The one-pass row reader takes a row exactly when every comma-separated field takes
+    /// [`fast_field`], with the same values and field bounds.
+    #[test]
+    fn fast_row_is_fast_field_per_field() {
+        let pieces =
+            ["0", "-0", "+0.5", "1.", ".25", "3.1415926", "-12.000001", "", " 1", "nan", "1e5", "1.2.3", "-", "\r", "9007199254740993"];
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let (mut vals, mut spans) = (vec![], vec![]);
+        let mut taken = 0;
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let count = (x % 5 + 1) as usize;
+            let fields: Vec<&str> =
+                (0..count).map(|k| pieces[((x >> (8 + 5 * k)) % 10 + if x & (1 << 60) != 0 { 5 } else { 0 }) as usize]).collect();
+            let line = fields.join(",");
+            let width = if x & (1 << 61) != 0 { count } else { count + 1 };
+            let want: Option<Vec<f64>> = line.split(',').map(|f| fast_field(f.as_bytes())).collect();
+            let got = fast_row(line.as_bytes(), width, &mut vals, &mut spans);
+            match want {
+                Some(v) if v.len() == width => {
+                    assert!(got, "`{line}` should take the fast path");
+                    assert_eq!(
+                        vals.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        v.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        "`{line}`"
+                    );
+                    let bounds: Vec<&str> = spans.iter().map(|&(a, b)| &line[a..b]).collect();
+                    assert_eq!(bounds, line.split(',').collect::<Vec<_>>(), "`{line}`");
+                    taken += 1;
+                }
+                _ => assert!(!got, "`{line}` must take the general path"),
+            }
+        }
+        assert!(taken > 1000, "only {taken} rows took the fast path: the test does not exercise it");
     }
 }
 

@@ -415,8 +415,14 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
 
 /// `median |v|` (0 for an empty slice).
 fn median_abs(v: &[f64]) -> f64 {
-    let mut a: Vec<f64> = v.iter().map(|x| x.abs()).collect();
-    median_in_place(&mut a)
+    if v.is_empty() {
+        return 0.0;
+    }
+    // Without a sign bit, `total_cmp`'s order of f64 is the order of their bits as integers:
+    // the same element is selected, by integer comparisons.
+    let mut a: Vec<u64> = v.iter().map(|x| x.abs().to_bits()).collect();
+    let mid = a.len() / 2;
+    f64::from_bits(*a.select_nth_unstable(mid).1)
 }
 
 fn median_in_place(a: &mut [f64]) -> f64 {
