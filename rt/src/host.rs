@@ -226,7 +226,7 @@ impl HostInputs {
     /// Copies the first `inputs.n` cables' readings into the loop's `inputs`, each malformed
     /// value taken as missing (see the module documentation); returns the first malformed
     /// field. Allocates nothing.
-    pub(crate) fn load_into(&self, inputs: &mut Inputs) -> Option<BadInput> {
+    pub fn load_into(&self, inputs: &mut Inputs) -> Option<BadInput> {
         let mut bad = None;
         let mut note = |b: BadInput| {
             if bad.is_none() {

@@ -14,8 +14,9 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{Command, ControllerConfig};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
 use taut_sim::Physics;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// The simulated robot `taut start --sim` runs, with its files in `dir` and a test-length
 /// excitation.

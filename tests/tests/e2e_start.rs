@@ -7,7 +7,8 @@ use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// The simulated robot `taut start --sim` runs (config/examples/aras-cam-sim.toml), with its
 /// files in `dir` and an excitation short enough for a test.

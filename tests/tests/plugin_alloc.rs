@@ -16,7 +16,8 @@ use taut_rt_core::io::{Devices, Inputs};
 use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHandle, PluginOptions, RecordingPath, Tick};
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 
 struct Counting;
 

@@ -15,8 +15,9 @@ use taut_rt_core::plugin::{
 };
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::simrig::{self, SimOptions};
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// The simulated robot of `taut start --sim` with a test-length excitation.
 fn sim_robot(dir: &std::path::Path) -> taut_config::RobotConfig {
