@@ -16,8 +16,9 @@ use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::plugin::{DeviceMode, DeviceSource};
 use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
 use taut_sim::Truth;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// Arguments of `taut start`.
 #[derive(clap::Args)]

@@ -19,9 +19,10 @@ use crate::{TautCableMode, TautCommands, TautDriveRequest, TautDriveState, TautI
 use std::ffi::c_char;
 use taut_config::RobotConfig;
 use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand, Physics, Plant, Truth};
+use taut_simrig::{self as simrig, SimOptions};
 
 /// Tracker period, s (100 Hz, as the simulated tracker of `taut start --sim`).
 const TRACKER_PERIOD_S: f64 = 0.01;

@@ -23,6 +23,7 @@ use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::testkit::quick_config;
 use taut_rt_core::triple::triple_buffer;
 use taut_rt_core::urgent::Urgent;
+use taut_rt_core::FromRobot;
 
 const ESTOPS: usize = 1000;
 
@@ -191,7 +192,7 @@ fn main() {
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(64);
     let (_ptx, prx) = triple_buffer(LoopParams::invalid(4));
-    let controller = Controller::new(ccfg, cmd_rx, prx);
+    let controller = Controller::new(ccfg, move || cmd_rx.try_recv().ok(), prx);
     let init = LoopStatus::initial(controller.snapshot(0.0, &Inputs::new(4)));
     let (_stx, srx) = triple_buffer(init);
     let urgent = Arc::new(Urgent::default());

@@ -21,6 +21,7 @@ use taut_rt_core::runner::LoopCore;
 use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_rt_core::triple::triple_buffer;
+use taut_rt_core::FromRobot;
 
 /// Devices that echo the commands back (no physics): the loop's own cost only.
 struct Echo {
@@ -76,7 +77,7 @@ fn compute_bench(n: usize, kinematic: bool) {
         len[..n].copy_from_slice(&l[..n]);
         Box::new(Echo { n, len, enabled: false, pose: p0 })
     };
-    let mut core = LoopCore::new(n, dev, Controller::new(ccfg, crx, prx), stx);
+    let mut core = LoopCore::new(n, dev, Controller::new(ccfg, move || crx.try_recv().ok(), prx), stx);
     let dt = 0.001;
     let mut t = 0.0;
     // Bring it to operate: phases, initial estimate, excitation.
@@ -178,10 +179,9 @@ fn soak(seconds: f64) {
     let (_ctx, crx) = taut_rt_core::crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(cfg.rt.ring_capacity);
     let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus::initial(
-        Controller::new(ccfg, taut_rt_core::crossbeam_channel::bounded(1).1, triple_buffer(LoopParams::invalid(n)).1)
-            .snapshot(0.0, &Inputs::new(n)),
+        Controller::new(ccfg, || None, triple_buffer(LoopParams::invalid(n)).1).snapshot(0.0, &Inputs::new(n)),
     ));
-    let core = LoopCore::new(n, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, crx, prx), stx);
+    let core = LoopCore::new(n, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, move || crx.try_recv().ok(), prx), stx);
     let quit = Arc::new(AtomicBool::new(false));
     let q2 = quit.clone();
     let busy = std::thread::spawn(move || {

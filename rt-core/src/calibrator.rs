@@ -21,6 +21,7 @@ use crate::kin::{LoopEffects, LoopParams};
 use crate::motion::State;
 use crate::sample::{Sample, SampleRx};
 use crate::triple::Writer;
+use crate::EffectsFromFile;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};

@@ -154,6 +154,7 @@ pub fn status_json(calib: &crate::calibrator::CalibStatus) -> serde_json::Value 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::FromRobot;
 
     fn sim_robot() -> RobotConfig {
         RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap()

@@ -1,6 +1,13 @@
-//! The robot's real-time side: the periodic control loop, the guided start-up calibration, the
-//! lock-free sample pipeline to the calibrator, the parameter hot-swap and the operator control
-//! socket.
+//! The robot's side around the real-time loop: the periodic loop thread, the guided start-up
+//! calibration, the lock-free sample pipeline to the calibrator, the parameter hot-swap and the
+//! operator control socket.
+//!
+//! What runs every cycle (motion state machine, safety, inverse kinematics, ramps, the
+//! lock-free hand-overs) lives in the `taut-rt` crate, which has no threads, no I/O and no
+//! dependency but the cable model; its modules are re-exported here at their old paths
+//! ([`motion`], [`kin`], [`io`], [`safety`], [`ramp`], [`sample`], [`spsc`], [`triple`],
+//! [`urgent`]). This crate fills its plain configuration from the robot's files ([`FromRobot`],
+//! [`EffectsFromFile`]) and owns the threads, the channels and the files.
 //!
 //! ```text
 //!  devices --read--> [loop: motion state machine, safety, IK] --write--> devices
@@ -36,31 +43,20 @@ pub mod control;
 pub mod ctl_server;
 pub mod daemon;
 pub mod excite;
-pub mod follower;
-pub mod io;
-pub mod kin;
-#[cfg(all(test, loom))]
-mod loom_tests;
-pub mod motion;
+#[cfg(test)]
+mod motion_tests;
 pub mod notracker;
 pub mod plugin;
-pub mod ramp;
 pub mod robot_io;
+mod rt_config;
 pub mod rtsys;
 pub mod runner;
-pub mod safety;
-pub mod sample;
-#[cfg(feature = "sim")]
-pub mod simrig;
-pub mod spsc;
-mod sync;
 pub mod telemetry;
 #[cfg(any(test, feature = "testkit"))]
 pub mod testkit;
-pub mod triple;
-pub mod urgent;
+
+// The real-time crate's modules, at their old paths (`taut_rt_core::motion`, `crate::kin`).
+pub use taut_rt::{follower, io, kin, motion, ramp, safety, sample, spsc, triple, urgent, MAX_CABLES};
 
 pub use crossbeam_channel;
-
-/// Largest number of cables the loop is built for (fixed-size arrays, no allocation).
-pub const MAX_CABLES: usize = 8;
+pub use rt_config::{EffectsFromFile, FromRobot};

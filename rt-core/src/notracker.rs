@@ -22,6 +22,7 @@ use crate::kin::{LoopEffects, LoopParams};
 use crate::motion::{ControllerConfig, MAX_DWELL_POSES};
 use crate::plugin::PluginError;
 use crate::MAX_CABLES;
+use crate::{EffectsFromFile, FromRobot};
 use taut_calib::selfcal::plan::{plan, DwellPlan, PlanError, PlanInput};
 use taut_config::recording::Recording;
 use taut_config::runtime::Startup;

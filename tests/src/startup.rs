@@ -7,7 +7,8 @@ use taut_config::RobotConfig;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::simrig::{self, SimOptions, SimRobot};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions, SimRobot};
 
 /// Excitation of the test start-ups, s (the example's is longer).
 pub const EXCITATION_S: f64 = 25.0;

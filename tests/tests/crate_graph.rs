@@ -7,6 +7,12 @@
 //! - `taut-sim` is physics only: no `taut-vdev`, no `taut-driver`.
 //! - `taut-vdev` (the device side) does not depend on `taut-sim`: the simulated rig couples them.
 //! - `taut-calib` is pure: no I/O crates (`socketcan`, `serialport`, `libc`).
+//! - `taut-rt` (what the real-time loop runs every cycle) has none of: nalgebra, serde,
+//!   serde_json, toml, crossbeam, libc, the I/O crates, the configuration, the calibration, the
+//!   driver, the simulator; its source (and the model crate's) spawns no thread, takes no lock and
+//!   opens no file or socket outside its tests.
+//! - `taut-model` (the cable model formulas both calib and the loop call) has no dependencies.
+//! - `taut-rt-core` (the robot build) contains no simulator: the simulated rig is `taut-simrig`.
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -62,14 +68,14 @@ fn assert_none(v: Vec<String>, rule: &str) {
 #[test]
 fn driver_depends_on_neither_the_simulator_nor_the_virtual_devices() {
     assert_none(
-        violations("taut-driver", "normal,build", &[], &["taut-sim", "taut-vdev"]),
+        violations("taut-driver", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig", "taut-rt", "taut-rt-core"]),
         "the driver must build without the physics and without the device side",
     );
     // Dev-dependencies too: a dev-dependency on a crate that depends on the driver is a cycle
     // (two copies of the driver's types in its unit tests). `--depth 1`: the driver's own
     // dev-dependencies, not those of the crates below it.
     assert_none(
-        violations("taut-driver", "dev", &["--depth", "1"], &["taut-sim", "taut-vdev"]),
+        violations("taut-driver", "dev", &["--depth", "1"], &["taut-sim", "taut-vdev", "taut-simrig"]),
         "the driver's benches and tests must not need the device side; put them in taut-vdev or tests/",
     );
 }
@@ -78,7 +84,7 @@ fn driver_depends_on_neither_the_simulator_nor_the_virtual_devices() {
 fn sim_is_physics_only() {
     assert_none(
         violations("taut-sim", "normal,build", &[], &["taut-vdev", "taut-driver"]),
-        "taut-sim is physics only: the devices are in taut-vdev, the simulated rig in rt-core couples them",
+        "taut-sim is physics only: the devices are in taut-vdev, the simulated rig (taut-simrig) couples them",
     );
 }
 
@@ -86,7 +92,7 @@ fn sim_is_physics_only() {
 fn virtual_devices_do_not_need_the_physics() {
     assert_none(
         violations("taut-vdev", "normal,build", &[], &["taut-sim"]),
-        "taut-vdev is the device side of the protocols; the plant is coupled to it from rt-core's simulated rig",
+        "taut-vdev is the device side of the protocols; the plant is coupled to it in taut-simrig",
     );
 }
 
@@ -98,13 +104,120 @@ fn calib_has_no_io_crates() {
     );
 }
 
-/// The checker itself sees a real edge: rt-core with `--features sim` does depend on taut-sim and
-/// taut-vdev, and without it on neither (the rules above would not pass by a checker that sees nothing).
+/// What may be linked into the real-time crate: nothing that allocates behind its back, locks,
+/// spawns threads or does I/O, and none of the non-real-time side's crates.
+const NOT_REAL_TIME: &[&str] = &[
+    "nalgebra",
+    "serde",
+    "serde_json",
+    "toml",
+    "crossbeam-channel",
+    "crossbeam-utils",
+    "libc",
+    "socketcan",
+    "serialport",
+    "tungstenite",
+    "mcap",
+    "ringbuf",
+    "rand",
+    "taut-config",
+    "taut-calib",
+    "taut-driver",
+    "taut-sim",
+    "taut-vdev",
+    "taut-rt-core",
+];
+
+#[test]
+fn the_real_time_crate_links_nothing_from_the_non_real_time_side() {
+    assert_none(
+        violations("taut-rt", "normal,build", &[], NOT_REAL_TIME),
+        "taut-rt runs in the real-time thread: no nalgebra, serde, toml, crossbeam, libc, I/O crates, configuration, calibration or driver",
+    );
+    // `loom` is the one extra, under `--cfg loom` only (scripts/loom), for the model tests.
+    let all = deps("taut-rt", "normal,build", &[]);
+    assert_eq!(all, ["taut-model", "taut-rt"].map(str::to_owned).into(), "taut-rt's dependencies: only the model crate");
+}
+
+#[test]
+fn the_model_crate_has_no_dependencies() {
+    assert_eq!(deps("taut-model", "normal,build", &[]), ["taut-model"].map(str::to_owned).into());
+}
+
+/// Tokens that must not appear in the real-time crate's or the model crate's non-test code: a
+/// thread, a lock, a blocking wait, a file, a socket, a process.
+const NOT_IN_THE_LOOP: &[&str] = &[
+    "std::thread",
+    "thread::spawn",
+    "Mutex",
+    "RwLock",
+    "Condvar",
+    "std::sync::mpsc",
+    "sleep(",
+    "std::fs",
+    "std::net",
+    "std::io",
+    "std::process",
+    "std::env",
+];
+
+/// The non-test code of a source file: up to its first `#[cfg(test)]`-style module (taut keeps
+/// unit tests at the end of the file), without comments.
+fn code_of(text: &str) -> String {
+    let end = text.find("#[cfg(test)]").or_else(|| text.find("#[cfg(all(test")).unwrap_or(text.len());
+    text[..end].lines().filter(|l| !l.trim_start().starts_with("//")).collect::<Vec<_>>().join("\n")
+}
+
+/// Offending (file, line, token) in the `.rs` files under `dir`, `loom_tests.rs` excepted (built
+/// under `cfg(all(test, loom))` only).
+fn scan(dir: &std::path::Path) -> Vec<String> {
+    let mut found = Vec::new();
+    let mut files: Vec<_> =
+        std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).map(|e| e.unwrap().path()).collect();
+    files.sort();
+    for f in files {
+        if f.extension().is_none_or(|e| e != "rs") || f.file_name().is_some_and(|n| n == "loom_tests.rs") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (k, line) in code_of(&text).lines().enumerate() {
+            for t in NOT_IN_THE_LOOP {
+                if line.contains(t) {
+                    found.push(format!("{}: code line {}: `{t}` in `{}`", f.display(), k + 1, line.trim()));
+                }
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn the_real_time_source_spawns_no_thread_takes_no_lock_and_does_no_io() {
+    let mut found = scan(&workspace().join("rt/src"));
+    found.extend(scan(&workspace().join("model/src")));
+    assert!(found.is_empty(), "the real-time rule (docs/architecture.md) broken in taut-rt / taut-model:\n{}", found.join("\n"));
+    // The scan sees what it looks for: rt-core's daemon side spawns threads and takes locks.
+    let daemon_side = scan(&workspace().join("rt-core/src"));
+    assert!(daemon_side.iter().any(|l| l.contains("thread::spawn") || l.contains("std::thread")), "{daemon_side:?}");
+    assert!(daemon_side.iter().any(|l| l.contains("Mutex")), "{daemon_side:?}");
+}
+
+#[test]
+fn the_robot_build_contains_no_simulator() {
+    assert_none(
+        violations("taut-rt-core", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
+        "taut-rt-core is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
+    );
+}
+
+/// The checker itself sees a real edge: the simulated rig does depend on taut-sim and taut-vdev,
+/// through the path printed (the rules above would not pass by a checker that sees nothing).
 #[test]
 fn the_checker_finds_a_real_dependency() {
-    let with = violations("taut-rt-core", "normal", &["--features", "sim"], &["taut-sim", "taut-vdev"]);
+    let with = violations("taut-simrig", "normal", &[], &["taut-sim", "taut-vdev"]);
     assert_eq!(with.len(), 2, "{with:?}");
-    assert!(with[0].contains("taut-sim") && with[0].contains("taut-rt-core"), "{}", with[0]);
-    let without = violations("taut-rt-core", "normal", &[], &["taut-sim", "taut-vdev"]);
-    assert!(without.is_empty(), "{without:?}");
+    assert!(with[0].contains("taut-sim") && with[0].contains("taut-simrig"), "{}", with[0]);
+    // And the real-time crate's one dependency is seen too.
+    let model = violations("taut-rt", "normal", &[], &["taut-model"]);
+    assert_eq!(model.len(), 1, "{model:?}");
 }

@@ -15,8 +15,10 @@ use taut_rt_core::calibrator::{Calibrate, Estimate, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::kin::{LoopEffects, LoopParams};
 use taut_rt_core::motion::{Command, ControllerConfig};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::EffectsFromFile;
+use taut_rt_core::FromRobot;
 use taut_sim::Physics;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// The simulated robot `taut start --sim` runs, with its files in `dir` and a test-length
 /// excitation.

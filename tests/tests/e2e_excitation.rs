@@ -13,7 +13,8 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()

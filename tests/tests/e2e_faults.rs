@@ -8,7 +8,8 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::simrig::{self, SimFaults, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimFaults, SimOptions};
 
 fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
     // The simulated robot of `taut start --sim`, with faster phases and a shorter excitation.

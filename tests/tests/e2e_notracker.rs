@@ -19,7 +19,8 @@ use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 
 /// The tracker-free example robot with its files in `dir`; `short`: the test's shorter plan.
 fn robot(dir: &std::path::Path, short: bool) -> taut_config::RobotConfig {

@@ -21,7 +21,8 @@ use taut_rt_core::io::{BusEvent, BusState};
 use taut_rt_core::motion::{ControllerConfig, ResetOutcome, ResetRefusal, State};
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::simrig::SimFaults;
+use taut_rt_core::FromRobot;
+use taut_simrig::SimFaults;
 use taut_tests::startup;
 
 /// Largest per-cycle change of a commanded cable length after a re-enable, m (issue 9).

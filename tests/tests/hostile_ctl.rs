@@ -22,6 +22,7 @@ use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_rt_core::triple::{triple_buffer, Writer};
 use taut_rt_core::urgent::Urgent;
+use taut_rt_core::FromRobot;
 
 const T: Duration = Duration::from_secs(10);
 
@@ -57,7 +58,7 @@ impl Rig {
         let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(cfg.rt.command_capacity);
         let (sample_tx, _sample_rx) = sample_ring(1024);
         let urgent = Arc::new(Urgent::default());
-        let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
+        let controller = Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx).with_urgent(urgent.clone());
         let core = LoopCore::new(4, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), controller, sample_tx);
         let init = LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs));
         let (status_tx, status_rx) = triple_buffer(init);
@@ -530,7 +531,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     let (_ptx, prx) = triple_buffer(LoopParams::invalid(4));
     let urgent = Arc::new(Urgent::default());
     let (sample_tx, _rx) = sample_ring(64);
-    let controller = Controller::new(ccfg, cmd_rx, prx).with_urgent(urgent.clone());
+    let controller = Controller::new(ccfg, move || cmd_rx.try_recv().ok(), prx).with_urgent(urgent.clone());
     let mut core = LoopCore::new(4, KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]), controller, sample_tx);
     let init = LoopStatus::initial(core.controller.snapshot(0.0, &core.inputs));
     let (_stx, srx) = triple_buffer(init);
@@ -652,7 +653,7 @@ fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
     let _m = memory_lock();
     use taut_rt_core::calib_backend::TautCalib;
     use taut_rt_core::daemon::{Daemon, DaemonOptions};
-    use taut_rt_core::simrig::{self, SimOptions};
+    use taut_simrig::{self as simrig, SimOptions};
     let dir = tempfile::tempdir().unwrap();
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
     let mut cfg = taut_config::RobotConfig::load(path).unwrap();

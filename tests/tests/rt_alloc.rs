@@ -11,6 +11,7 @@ use taut_rt_core::runner::LoopCore;
 use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_rt_core::triple::triple_buffer;
+use taut_rt_core::FromRobot;
 
 struct Counting;
 
@@ -62,7 +63,7 @@ fn loop_allocates_nothing_in_any_state() {
     // A small ring nobody drains: it is full for most of the run, so drops are exercised too.
     let (sample_tx, _sample_rx) = sample_ring(1024);
     let robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
-    let mut core = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
+    let mut core = LoopCore::new(4, robot, Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx), sample_tx);
 
     let dt = 0.002;
     let mut t = 0.0;

@@ -13,7 +13,8 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::{ControllerConfig, State};
-use taut_rt_core::simrig::{self, SimOptions};
+use taut_rt_core::FromRobot;
+use taut_simrig::{self as simrig, SimOptions};
 use taut_tests::vcan;
 
 fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {

@@ -279,51 +279,7 @@ pub fn sag_excess(x: [f64; 3], anchor: [f64; 3], w: f64, t: f64, end: TensionEnd
     Some((s - chord, [e_da * ex, e_da * ey, -e_dh, ds_dw, ds_dt]))
 }
 
-/// Length over a swivel pulley of radius `r` from the entry point `anchor` to the platform
-/// attachment `x`.
-///
-/// ```text
-/// The swivel axis is vertical through the anchor (the cable arrives along it from above); the
-/// pulley plane contains the axis and X. In-plane coordinates (rho horizontal towards X, z up),
-/// relative to the anchor: pulley centre C = (r, 0), X = (rho, z).
-///   d_c  = |X - C|,  psi = atan2(z, rho - r)
-///   exit tangent point at angle phi_e = psi - acos(r / d_c)  (mod 2 pi, in [pi, 3 pi))
-///   wrap beta = phi_e - pi,   G = r beta + sqrt(d_c^2 - r^2)
-/// ```
-///
-/// Returns `G` and `[dG/dX (3), dG/dr]`; `dG/dA = -dG/dX` (the axis direction is fixed).
-pub fn pulley_length(x: [f64; 3], anchor: [f64; 3], r: f64) -> Option<(f64, [f64; 4])> {
-    let dx = [x[0] - anchor[0], x[1] - anchor[1], x[2] - anchor[2]];
-    let rho = (dx[0] * dx[0] + dx[1] * dx[1]).sqrt();
-    if rho < 1e-9 {
-        return None;
-    }
-    // Inputs: 0 = rho, 1 = z, 2 = r.
-    let rd = Dual::<3>::var(rho, 0);
-    let zd = Dual::var(dx[2], 1);
-    let radius = Dual::var(r, 2);
-    let cx = rd - radius;
-    let dc2 = cx * cx + zd * zd;
-    if dc2.v <= r * r {
-        return None;
-    }
-    let dc = dc2.sqrt();
-    let psi = zd.atan2(cx);
-    let phi = psi - (radius / dc).acos();
-    // Normalise the value into [pi, 3 pi); the partials do not change.
-    let two_pi = 2.0 * std::f64::consts::PI;
-    let mut shift = 0.0;
-    while phi.v + shift < std::f64::consts::PI {
-        shift += two_pi;
-    }
-    while phi.v + shift >= 3.0 * std::f64::consts::PI {
-        shift -= two_pi;
-    }
-    let beta = phi.offset(shift - std::f64::consts::PI);
-    let g = radius * beta + (dc2 - radius * radius).sqrt();
-    let (ex, ey) = (dx[0] / rho, dx[1] / rho);
-    Some((g.v, [g.d[0] * ex, g.d[0] * ey, g.d[1], g.d[2]]))
-}
+pub use taut_model::pulley_length;
 
 #[cfg(test)]
 mod tests {

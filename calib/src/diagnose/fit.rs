@@ -215,7 +215,7 @@ impl<'a> Joint<'a> {
         if let Some((k, c)) = get(Effect::Elasticity) {
             if has_t {
                 let q = 1.0 + c * tension;
-                u = g / q;
+                u = taut_model::unstretched(g, c, tension);
                 du_dg = 1.0 / q;
                 du_dc = Some((k, -g * tension / (q * q)));
             } else {
@@ -226,7 +226,7 @@ impl<'a> Joint<'a> {
             Some((k, s)) => (1.0 + s, Some((k, u))),
             None => (1.0, None),
         };
-        let value = scale * u + l0;
+        let value = taut_model::reading(scale, u, l0);
         let dwb = get(Effect::Backlash).map(|(k, _)| (k, 0.0));
         let f = scale * du_dg; // d value / d G
         let mut row = [(0usize, 0.0f64); 10];

@@ -48,7 +48,7 @@
 
 pub mod analysis;
 pub mod dataq;
-pub mod dual;
+pub use taut_model::dual;
 pub mod effects;
 pub mod fit;
 pub mod lm;

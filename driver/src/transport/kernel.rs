@@ -20,7 +20,6 @@
 //! ```
 
 use super::{BusEvent, Frame, TransportError, MAX_EXT_ID, MAX_STD_ID};
-use std::fmt;
 
 /// `CAN_MTU`: size of `struct can_frame`.
 pub const CAN_MTU: usize = 16;
@@ -113,49 +112,10 @@ pub fn decode(b: &[u8]) -> Result<Frame, TransportError> {
     Frame::try_new(id, extended, &data[..usize::from(len)]).ok_or(bad)
 }
 
-/// A network interface name (`IFNAMSIZ` = 16 with the NUL: at most 15 bytes), `Copy` so it
-/// can ride in causes and events on the real-time path. Longer names are cut at 15 bytes (on
-/// a character boundary).
-#[derive(Clone, Copy, PartialEq, Eq, Hash)]
-pub struct IfName {
-    len: u8,
-    bytes: [u8; 15],
-}
-
-impl IfName {
-    /// The name `s`, cut to 15 bytes.
-    pub fn new(s: &str) -> IfName {
-        let mut n = s.len().min(15);
-        while !s.is_char_boundary(n) {
-            n -= 1;
-        }
-        let mut bytes = [0u8; 15];
-        bytes[..n].copy_from_slice(&s.as_bytes()[..n]);
-        IfName { len: n as u8, bytes }
-    }
-
-    /// The name.
-    pub fn as_str(&self) -> &str {
-        // Built from a &str cut on a character boundary.
-        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("?")
-    }
-}
-
-impl fmt::Display for IfName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl fmt::Debug for IfName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:?}", self.as_str())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::IfName;
     use proptest::prelude::*;
 
     #[test]

@@ -10,7 +10,7 @@ pub mod kernel;
 pub mod socketcan;
 pub mod virtual_bus;
 
-pub use kernel::IfName;
+pub use taut_model::bus::{BusEvent, IfName};
 
 use std::fmt;
 use std::time::Instant;
@@ -95,116 +95,6 @@ impl fmt::Debug for Frame {
             write!(f, "{b:02X}")?;
         }
         Ok(())
-    }
-}
-
-/// A controller or bus problem reported by the CAN interface (SocketCAN error frames,
-/// `linux/can/error.h`). The most severe condition of one error frame is reported.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum BusEvent {
-    /// The controller went bus-off (TX error counter > 255): it takes no part in bus traffic
-    /// until restarted (`ip link set can0 type can restart-ms 100`).
-    BusOff,
-    /// Error-passive (an error counter > 127): the controller may no longer signal errors.
-    ErrorPassive {
-        /// TX error counter, if reported.
-        tx: u8,
-        /// RX error counter, if reported.
-        rx: u8,
-    },
-    /// Error warning level (an error counter > 95).
-    ErrorWarning {
-        /// TX error counter, if reported.
-        tx: u8,
-        /// RX error counter, if reported.
-        rx: u8,
-    },
-    /// Back to error-active.
-    ErrorActive,
-    /// A receive or transmit buffer of the controller overflowed: frames were lost.
-    Overflow,
-    /// A transmitted frame was not acknowledged: no other node on the bus, or wrong bitrate.
-    NoAck,
-    /// Protocol violation (bit, stuff, form, CRC error) seen by the controller.
-    Protocol,
-    /// Transceiver fault (CAN_H / CAN_L wiring).
-    Transceiver,
-    /// The controller was restarted after bus-off.
-    Restarted,
-    /// The driver gave up sending a frame.
-    TxTimeout,
-    /// Lost arbitration (normal on a busy bus, reported only when asked for).
-    LostArbitration,
-    /// Error class bits this driver does not know.
-    Other(u32),
-}
-
-impl BusEvent {
-    /// Decodes a SocketCAN error frame: `class` is the id without `CAN_ERR_FLAG`, `data` its 8
-    /// bytes.
-    ///
-    /// ```text
-    /// id bits (linux/can/error.h)       data
-    /// 0x001 TX timeout                   [1] controller: 0x01 rx ovfl, 0x02 tx ovfl,
-    /// 0x002 lost arbitration                 0x04/0x08 rx/tx warning, 0x10/0x20 rx/tx passive,
-    /// 0x004 controller problem (data[1])     0x40 back to error active
-    /// 0x008 protocol violation           [2..3] protocol violation type / location
-    /// 0x010 transceiver                  [4] transceiver status
-    /// 0x020 no ACK                       [6] TX error counter, [7] RX error counter
-    /// 0x040 bus-off   0x080 bus error   0x100 restarted   0x200 counters valid
-    /// ```
-    pub fn from_error_frame(class: u32, data: &[u8; 8]) -> BusEvent {
-        let (tx, rx) = (data[6], data[7]);
-        let ctrl = data[1];
-        if class & 0x040 != 0 {
-            BusEvent::BusOff
-        } else if class & 0x004 != 0 && ctrl & 0x30 != 0 {
-            BusEvent::ErrorPassive { tx, rx }
-        } else if class & 0x004 != 0 && ctrl & 0x0C != 0 {
-            BusEvent::ErrorWarning { tx, rx }
-        } else if class & 0x004 != 0 && ctrl & 0x03 != 0 {
-            BusEvent::Overflow
-        } else if class & 0x004 != 0 && ctrl & 0x40 != 0 {
-            BusEvent::ErrorActive
-        } else if class & 0x100 != 0 {
-            BusEvent::Restarted
-        } else if class & 0x020 != 0 {
-            BusEvent::NoAck
-        } else if class & 0x010 != 0 {
-            BusEvent::Transceiver
-        } else if class & 0x008 != 0 || class & 0x080 != 0 {
-            BusEvent::Protocol
-        } else if class & 0x001 != 0 {
-            BusEvent::TxTimeout
-        } else if class & 0x002 != 0 {
-            BusEvent::LostArbitration
-        } else {
-            BusEvent::Other(class)
-        }
-    }
-
-    /// True for conditions in which frames are being lost (bus-off, overflow).
-    pub fn is_severe(&self) -> bool {
-        matches!(self, BusEvent::BusOff | BusEvent::Overflow)
-    }
-}
-
-impl fmt::Display for BusEvent {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            BusEvent::BusOff => write!(f, "bus-off: the CAN controller stopped; check wiring, termination and bitrate"),
-            BusEvent::ErrorPassive { tx, rx } => write!(f, "error-passive (tx errors {tx}, rx errors {rx})"),
-            BusEvent::ErrorWarning { tx, rx } => write!(f, "error warning (tx errors {tx}, rx errors {rx})"),
-            BusEvent::ErrorActive => write!(f, "back to error-active"),
-            BusEvent::Overflow => write!(f, "controller buffer overflow: frames lost"),
-            BusEvent::NoAck => write!(f, "no ACK: no other node acknowledged (bus unpowered or wrong bitrate?)"),
-            BusEvent::Protocol => write!(f, "protocol violation on the bus"),
-            BusEvent::Transceiver => write!(f, "transceiver fault (CAN_H/CAN_L)"),
-            BusEvent::Restarted => write!(f, "controller restarted"),
-            BusEvent::TxTimeout => write!(f, "transmit timeout"),
-            BusEvent::LostArbitration => write!(f, "lost arbitration"),
-            BusEvent::Other(c) => write!(f, "unknown CAN error class 0x{c:03X}"),
-        }
     }
 }
 

@@ -62,7 +62,7 @@
 
 mod error;
 mod handle;
-pub mod host;
+pub use taut_rt::host;
 
 pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
 pub use handle::{Event, PluginHandle, Status};
@@ -363,7 +363,7 @@ impl Plugin {
         let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(rt.command_capacity);
         let (sample_tx, sample_rx) = sample_ring(rt.ring_capacity);
         let urgent = Arc::new(Urgent::default());
-        let controller = Controller::new(ccfg, cmd_rx, params_rx).with_urgent(urgent.clone());
+        let controller = Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx).with_urgent(urgent.clone());
         let init_status = LoopStatus::initial(controller.snapshot(0.0, &Inputs::new(n)));
         let (status_tx, status_rx) = triple_buffer(init_status);
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));

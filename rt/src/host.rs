@@ -33,7 +33,7 @@
 //! unknown drive code counts as [`DriveStatus::Unknown`] (not enabled); an unknown fault kind
 //! counts as a drive fault (EMCY 0xFF00, "device specific") of `fault_node`; an unknown bus
 //! state counts as bus-off. The loop's own checks then react (stale reading, drive not
-//! enabled, fault). The first such field is reported in [`Tick::bad_input`](super::Tick).
+//! enabled, fault). The first such field is reported in `Tick::bad_input` (`taut_rt_core::plugin::Tick`).
 
 use crate::io::{BusEvent, BusState, CableCommand, DeviceFault, DriveRequest, DriveStatus, IfName, Inputs, Outputs};
 use crate::MAX_CABLES;
@@ -226,7 +226,7 @@ impl HostInputs {
     /// Copies the first `inputs.n` cables' readings into the loop's `inputs`, each malformed
     /// value taken as missing (see the module documentation); returns the first malformed
     /// field. Allocates nothing.
-    pub(crate) fn load_into(&self, inputs: &mut Inputs) -> Option<BadInput> {
+    pub fn load_into(&self, inputs: &mut Inputs) -> Option<BadInput> {
         let mut bad = None;
         let mut note = |b: BadInput| {
             if bad.is_none() {

@@ -5,7 +5,7 @@
 //! place and never allocates.
 
 use crate::MAX_CABLES;
-pub use taut_driver::transport::{BusEvent, IfName};
+pub use taut_model::bus::{BusEvent, IfName};
 
 /// State of one drive as the loop needs it (collapsed from the CiA 402 state machine).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

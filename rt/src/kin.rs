@@ -2,8 +2,8 @@
 //!
 //! Model (as in `calib`): encoder length `l_j = |P + b_j - A_j| + L0_j` for a platform at `P`
 //! without rotation, `b_j` the attachment point in the platform frame, `A_j` the anchor; with
-//! the effects of a `taut-params v2` file ([`LoopEffects`], the model of
-//! `taut_calib::diagnose::effects`):
+//! the effects of a `taut-params v2` file ([`LoopEffects`]; the formulas are `taut_model`'s, the
+//! ones the calibration fits, `taut_calib::diagnose::effects`):
 //!
 //! ```text
 //! G_j = |X - A_j|, or over a swivel pulley of radius r_j (axis vertical through A_j):
@@ -21,7 +21,6 @@
 //! by the full width).
 
 use crate::MAX_CABLES;
-use taut_config::params::Effects;
 
 /// The effects the loop models. `Copy`, fixed size; "off" values make the ideal model.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,22 +47,30 @@ impl LoopEffects {
         time_offset_s: 0.0,
     };
 
-    /// From a parameter file's effects (validated there: [`Effects::check`]); absent effects
-    /// are off, values for cables beyond `MAX_CABLES` ignored.
-    pub fn from_file(e: &Effects) -> LoopEffects {
+    /// From per-cable values as a parameter file holds them (the non-real-time side reads and
+    /// validates the file: `taut_rt_core::EffectsFromFile`): stiffness `EA` in N (0 or
+    /// negative: rigid), drum scale, pulley radius and backlash width in m; absent effects are
+    /// off, values for cables beyond `MAX_CABLES` ignored.
+    pub fn from_values(
+        ea_n: Option<&[f64]>,
+        drum_scale: Option<&[f64]>,
+        pulley_radius_m: Option<&[f64]>,
+        backlash_m: Option<&[f64]>,
+        time_offset_s: Option<f64>,
+    ) -> LoopEffects {
         let mut out = LoopEffects::NONE;
-        let copy = |dst: &mut [f64; MAX_CABLES], src: &Option<Vec<f64>>, f: fn(f64) -> f64| {
+        let copy = |dst: &mut [f64; MAX_CABLES], src: Option<&[f64]>, f: fn(f64) -> f64| {
             if let Some(v) = src {
                 for (d, s) in dst.iter_mut().zip(v) {
                     *d = f(*s);
                 }
             }
         };
-        copy(&mut out.compliance, &e.ea_n, |ea| if ea > 0.0 { 1.0 / ea } else { 0.0 });
-        copy(&mut out.scale, &e.drum_scale, |s| s);
-        copy(&mut out.pulley_r, &e.pulley_radius_m, |r| r);
-        copy(&mut out.backlash, &e.backlash_m, |w| w);
-        out.time_offset_s = e.time_offset_s.unwrap_or(0.0);
+        copy(&mut out.compliance, ea_n, |ea| if ea > 0.0 { 1.0 / ea } else { 0.0 });
+        copy(&mut out.scale, drum_scale, |s| s);
+        copy(&mut out.pulley_r, pulley_radius_m, |r| r);
+        copy(&mut out.backlash, backlash_m, |w| w);
+        out.time_offset_s = time_offset_s.unwrap_or(0.0);
         out
     }
 
@@ -137,17 +144,10 @@ impl LoopParams {
     /// (not finite or negative: no stretch), m. Allocates nothing.
     #[inline]
     pub fn length_at(&self, j: usize, p: &[f64; 3], tension_n: f64) -> f64 {
-        let a = &self.anchors[j];
         let b = &self.platform[j];
         let x = [p[0] + b[0], p[1] + b[1], p[2] + b[2]];
-        let d = [x[0] - a[0], x[1] - a[1], x[2] - a[2]];
-        let straight = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let e = &self.effects;
-        let r = e.pulley_r[j];
-        // Straight below a platform point on the swivel axis (the pulley model has no plane there).
-        let g = if r > 0.0 { taut_calib::diagnose::effects::pulley_length(x, *a, r).map_or(straight, |(g, _)| g) } else { straight };
-        let t = if tension_n.is_finite() && tension_n > 0.0 { tension_n } else { 0.0 };
-        e.scale[j] * g / (1.0 + e.compliance[j] * t) + self.l0[j]
+        taut_model::cable_length(x, self.anchors[j], e.pulley_r[j], e.compliance[j], tension_n, e.scale[j], self.l0[j])
     }
 
     /// Encoder lengths of every cable for the platform at `p` (unloaded cables), into `out`.
@@ -211,17 +211,12 @@ mod tests {
     fn effects_stretch_scale_and_wrap_the_commanded_length() {
         let a = [[0.0, 0.0, 4.0], [3.0, 0.0, 4.0], [0.0, 4.0, 4.0]];
         let ideal = LoopParams::new(1, &a, &[0.1, 0.2, 0.0], &[[0.0; 3]; 3]);
-        let file = Effects {
-            ea_n: Some(vec![20_000.0; 3]),
-            drum_scale: Some(vec![1.003, 1.0, 0.998]),
-            pulley_radius_m: Some(vec![0.0, 0.05, 0.0]),
-            ..Effects::default()
-        };
-        let p = ideal.with_effects(LoopEffects::from_file(&file));
+        let effects = LoopEffects::from_values(Some(&[20_000.0; 3]), Some(&[1.003, 1.0, 0.998]), Some(&[0.0, 0.05, 0.0]), None, None);
+        let p = ideal.with_effects(effects);
         let x = [0.5, 0.5, 1.0];
         // Cable 0: stretch at 100 N and the scale, written out.
         let g = ideal.length(0, &x) - 0.1;
-        let want = 1.003 * g / (1.0 + 100.0 / 20_000.0) + 0.1;
+        let want = 1.003 * (g / (1.0 + 100.0 / 20_000.0)) + 0.1;
         assert!((p.length_at(0, &x, 100.0) - want).abs() < 1e-12);
         // No tension: no stretch; a NaN tension is none.
         assert!((p.length_at(0, &x, f64::NAN) - (1.003 * g + 0.1)).abs() < 1e-12);
@@ -229,6 +224,6 @@ mod tests {
         // less than the radius.
         let extra = p.length_at(1, &x, 0.0) - ideal.length(1, &x);
         assert!(extra > 0.0 && extra < 0.05, "{extra}");
-        assert!(LoopEffects::from_file(&Effects::default()).is_none());
+        assert!(LoopEffects::from_values(None, None, None, None, None).is_none());
     }
 }

@@ -36,7 +36,6 @@ use crate::safety::{Cause, Reaction};
 use crate::triple::Reader;
 use crate::urgent::Urgent;
 use crate::MAX_CABLES;
-use crossbeam_channel::Receiver;
 use std::sync::Arc;
 
 /// Motion states.
@@ -99,7 +98,7 @@ impl State {
     }
 }
 
-/// Commands from the control side. `Copy`, sent over a bounded channel.
+/// Commands from the control side. `Copy`; the loop takes them from a [`CommandSource`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Command {
     /// Emergency stop (quick stop), in every state.
@@ -113,6 +112,32 @@ pub enum Command {
     Reset,
     /// Move the platform to this position, m (in operate or holding).
     MoveTo([f64; 3]),
+}
+
+/// Where the loop takes the control side's commands from, each cycle, until it returns `None`.
+///
+/// Runs in the real-time thread: `try_next` must not block, take a lock or allocate. taut's
+/// hosts pass a closure over the receiving end of a bounded lock-free channel
+/// (`move || rx.try_recv().ok()`, in `taut-rt-core`, which owns the channel); a host without
+/// one can use this crate's own [`spsc`](crate::spsc) ring, whose [`Consumer`](crate::spsc::Consumer)
+/// is a source (with the producer behind the host's own hand-over).
+pub trait CommandSource: Send {
+    /// The next command, or `None` when none is waiting. Never waits.
+    fn try_next(&mut self) -> Option<Command>;
+}
+
+impl<F: FnMut() -> Option<Command> + Send> CommandSource for F {
+    #[inline]
+    fn try_next(&mut self) -> Option<Command> {
+        self()
+    }
+}
+
+impl CommandSource for crate::spsc::Consumer<Command> {
+    #[inline]
+    fn try_next(&mut self) -> Option<Command> {
+        self.pop()
+    }
 }
 
 /// Why a reset did not bring the robot back. The reaction stays latched.
@@ -246,11 +271,13 @@ pub struct ControllerConfig {
     /// three-phase start-up with a tracker. Set by [`ControllerConfig::with_dwell_plan`].
     pub dwell: Option<DwellLoopPlan>,
     /// The designed excitation path (`crate::excite`); `None`: the fixed Lissajous curve.
-    pub tour: Option<taut_calib::design::Tour>,
+    pub tour: Option<taut_model::tour::Tour>,
 }
 
 /// Most dwell poses the loop holds.
-pub const MAX_DWELL_POSES: usize = taut_config::runtime::MAX_DWELL_POSES;
+/// (Equal to `taut_config::runtime::MAX_DWELL_POSES`, which bounds `motion.dwell_poses`: a test in
+/// rt-core keeps the two equal.)
+pub const MAX_DWELL_POSES: usize = 64;
 
 /// The dwell plan as the loop holds it: fixed size, computed before the loop starts
 /// (`taut_calib::selfcal::plan`).
@@ -300,83 +327,6 @@ impl std::fmt::Display for ControllerConfigError {
 impl std::error::Error for ControllerConfigError {}
 
 impl ControllerConfig {
-    /// Resolves the configuration. Fails (with the key to set) when no workspace box is given and
-    /// none can be derived from nominal anchors.
-    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<ControllerConfig, ControllerConfigError> {
-        let n = cfg.cables.len();
-        if n > MAX_CABLES {
-            return Err(ControllerConfigError::TooManyCables { n });
-        }
-        let m = &cfg.motion;
-        let s = &cfg.safety;
-        let workspace = match (m.workspace_min_m, m.workspace_max_m) {
-            (Some(lo), Some(hi)) => [lo, hi],
-            _ => {
-                let anchors = cfg.anchors().ok_or(ControllerConfigError::NoWorkspace)?;
-                let mut lo = [f64::INFINITY; 3];
-                let mut hi = [f64::NEG_INFINITY; 3];
-                for a in &anchors {
-                    for i in 0..3 {
-                        lo[i] = lo[i].min(a[i]);
-                        hi[i] = hi[i].max(a[i]);
-                    }
-                }
-                // Middle half of the anchors' footprint, 1 m to 3 m below the lowest anchor.
-                let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
-                let h = [(hi[0] - lo[0]) / 4.0, (hi[1] - lo[1]) / 4.0];
-                [[c[0] - h[0], c[1] - h[1], lo[2] - 3.0], [c[0] + h[0], c[1] + h[1], lo[2] - 1.0]]
-            }
-        };
-        let mut node_ids = [0u8; MAX_CABLES];
-        let mut follower = [false; MAX_CABLES];
-        for (j, c) in cfg.cables.iter().enumerate() {
-            node_ids[j] = c.drive.as_ref().map_or(j as u8 + 1, |d| d.node_id);
-            // A point mass is fixed by three cables; the others follow in torque mode so that
-            // errors in the parameters do not make position-controlled cables fight.
-            follower[j] = taut_config::followers::follows_in_operation(j);
-        }
-        let mut phases = [[0usize; 3]; 3];
-        for (k, p) in m.init_phases.iter().take(3).enumerate() {
-            phases[k] = *p;
-        }
-        Ok(ControllerConfig {
-            n,
-            node_ids,
-            follower,
-            follower_tension_n: m.init_follower_tension_n.max(s.loose_tension_n * 2.0),
-            mass_kg: cfg.robot.mass_kg,
-            excitation_tension_swing_n: if cfg.calibration.effects.iter().any(|e| e == "elasticity") {
-                EXCITATION_TENSION_SWING_N.min(0.5 * s.max_tension_n)
-            } else {
-                0.0
-            },
-            phases,
-            reel_m: m.init_reel_m,
-            reel_speed_m_s: m.init_reel_speed_m_s,
-            init_follower_tension_n: m.init_follower_tension_n,
-            settle_s: m.init_settle_s,
-            held_min_tension_n: 2.0 * cfg.calibration.min_tension_n,
-            enable_timeout_s: m.enable_timeout_s,
-            excitation_s: m.excitation_s,
-            excitation_speed_m_s: m.excitation_speed_m_s,
-            workspace,
-            swap_ramp_s: m.swap_ramp_s,
-            move_speed_m_s: m.move_speed_m_s,
-            max_tension_n: s.max_tension_n,
-            loose_tension_n: s.loose_tension_n,
-            tension_max_age_s: if cfg.loadcells.is_some() || cfg.cables.iter().any(|c| c.loadcell.is_some()) {
-                s.tension_max_age_s
-            } else {
-                f64::INFINITY
-            },
-            tracker_max_age_s: s.tracker_max_age_s,
-            max_cable_speed_m_s: s.max_cable_speed_m_s,
-            workspace_margin_m: s.workspace_margin_m,
-            dwell: None,
-            tour: None,
-        })
-    }
-
     /// Runs the tracker-free start-up through `poses` (at most [`MAX_DWELL_POSES`], the rest
     /// ignored) instead of the three phases and the excitation.
     pub fn with_dwell_plan(mut self, poses: &[[f64; 3]], dwell_s: f64, settle_s: f64, speed_m_s: f64) -> ControllerConfig {
@@ -438,7 +388,7 @@ pub struct Snapshot {
 /// The motion state machine and safety checks.
 pub struct Controller {
     cfg: ControllerConfig,
-    commands: Receiver<Command>,
+    commands: Box<dyn CommandSource>,
     params_rx: Reader<LoopParams>,
     params: LoopParams,
     /// The tension inverse kinematics stretches each cable by, N (see [`Controller::track_tension`]).
@@ -533,15 +483,17 @@ impl ResetRun {
 /// 20 kN and 4 m of cable 60 N stretches a cable by 12 mm, several times the tracker's noise,
 /// while the cables' tensions stay far below a drive's or a cable's limit (the statics keep
 /// them under half of `safety.max_tension_n`, see [`Controller::follower_tension`]).
-const EXCITATION_TENSION_SWING_N: f64 = 60.0;
+pub const EXCITATION_TENSION_SWING_N: f64 = 60.0;
 
 /// Period of the tension swing, s (rounded so a whole number of swings fits the excitation):
 /// several times faster than the Lissajous motion (periods of 25-40 s), so that tension and
 /// length are not correlated over the run.
 const EXCITATION_TENSION_PERIOD_S: f64 = 6.0;
 
-pub(crate) const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
-pub(crate) const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
+/// Phases of the fixed Lissajous excitation's three axes, rad (`excite` predicts its uncertainty).
+pub const LISSAJOUS_PHASE: [f64; 3] = [0.0, std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_4];
+/// Frequency ratios of the fixed Lissajous excitation's three axes.
+pub const LISSAJOUS_RATIO: [f64; 3] = [1.0, 0.77, 0.59];
 
 fn smoothstep(s: f64) -> f64 {
     let s = s.clamp(0.0, 1.0);
@@ -549,9 +501,10 @@ fn smoothstep(s: f64) -> f64 {
 }
 
 impl Controller {
-    /// A controller in `Idle`. The parameters come through `params_rx` (they may be invalid
-    /// until the calibrator publishes an estimate).
-    pub fn new(cfg: ControllerConfig, commands: Receiver<Command>, mut params_rx: Reader<LoopParams>) -> Controller {
+    /// A controller in `Idle`. Commands come from `commands` (see [`CommandSource`]), the
+    /// parameters through `params_rx` (they may be invalid until the calibrator publishes an
+    /// estimate). Allocates once, here (the command source is boxed).
+    pub fn new(cfg: ControllerConfig, commands: impl CommandSource + 'static, mut params_rx: Reader<LoopParams>) -> Controller {
         let params = *params_rx.read();
         let centre = [
             (cfg.workspace[0][0] + cfg.workspace[1][0]) / 2.0,
@@ -567,7 +520,7 @@ impl Controller {
         }
         Controller {
             cfg,
-            commands,
+            commands: Box::new(commands),
             params_rx,
             params,
             ik_tension: [f64::NAN; MAX_CABLES],
@@ -621,7 +574,7 @@ impl Controller {
             // What is queued was sent before the estop or just with it: a reset or a move must
             // not undo or follow an estop the operator has not seen latched. Only a stop (it ends
             // the loop, which is what shutdown waits for) is still honoured.
-            while let Ok(c) = self.commands.try_recv() {
+            while let Some(c) = self.commands.try_next() {
                 if c == Command::Stop {
                     self.handle_command(c, inp, now);
                 }
@@ -849,7 +802,7 @@ impl Controller {
     pub fn update(&mut self, now: f64, dt: f64, inp: &Inputs, out: &mut Outputs) {
         let n = self.cfg.n;
         self.take_urgent(inp, now);
-        while let Ok(c) = self.commands.try_recv() {
+        while let Some(c) = self.commands.try_next() {
             // An estop set before this command was sent is acted on first (see urgent.rs).
             self.take_urgent(inp, now);
             self.handle_command(c, inp, now);
@@ -994,7 +947,7 @@ impl Controller {
             }
             State::Excitation if self.cfg.dwell.is_some() => {
                 self.step_dwell_plan(now);
-                next = self.ik_command(&mut modes);
+                next = self.ik_command(&mut modes, 0.0);
             }
             State::Excitation => {
                 let t = now - self.state_t0;
@@ -1503,7 +1456,7 @@ fn move_time(a: [f64; 3], b: [f64; 3], v: f64) -> f64 {
 }
 
 /// Solves the 3x3 system `h x = r` by Cramer's rule; `None` when singular.
-pub(crate) fn solve3(h: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
+pub fn solve3(h: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
     let det = |m: [[f64; 3]; 3]| {
         m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
@@ -1536,180 +1489,4 @@ const REEL_GRACE_S: f64 = 0.2;
 /// within `safety.tension_max_age_s`, and from a moment when the cable was loose at rest.
 fn measured_after(inp: &Inputs, j: usize, since_start: f64, grace: f64) -> bool {
     since_start - inp.tension_age_s[j] > grace
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::runner::LoopCore;
-    use crate::sample::sample_ring;
-    use crate::testkit::{quick_config, truth_params, KinematicRobot};
-    use crate::triple::triple_buffer;
-
-    fn core(dir: &std::path::Path) -> LoopCore<KinematicRobot> {
-        let mut cfg = quick_config(4, dir);
-        cfg.safety.tension_max_age_s = 5.0;
-        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-        let truth = truth_params(4, 0.1);
-        let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-        let (_cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
-        let (sample_tx, _sample_rx) = sample_ring(64);
-        LoopCore::new(4, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, cmd_rx, params_rx), sample_tx)
-    }
-
-    /// A loose reading taken before the reel began (the newest one after a stall of the
-    /// load-cell thread, still within the tension age limit) does not stop the phase as a loose
-    /// reeled cable; a loose reading taken during the reel does.
-    #[test]
-    fn a_reeled_cable_is_judged_loose_only_on_readings_taken_during_the_reel() {
-        // Nothing is written: the directory only names the socket and data paths.
-        let mut c = core(&std::env::temp_dir());
-        let dt = 0.002;
-        let mut t = 0.0;
-        let mut step = |c: &mut LoopCore<KinematicRobot>, k: usize| {
-            for _ in 0..k {
-                t += dt;
-                c.cycle(t, dt);
-            }
-        };
-        for _ in 0..5000 {
-            step(&mut c, 1);
-            if c.controller.state() == State::InitPhase {
-                break;
-            }
-        }
-        assert_eq!(c.controller.state(), State::InitPhase, "{:?}", c.controller.fault());
-        assert_eq!(c.controller.phase_label(), -1, "settling before the reel");
-        // Loose at rest, then the load cells go quiet: the reel starts on that old reading.
-        c.devices.tension_n = 0.3;
-        step(&mut c, 1);
-        c.devices.inject.loadcells_silent = true;
-        step(&mut c, 100);
-        assert_eq!(c.controller.phase_label(), 0, "reeling");
-        step(&mut c, 100);
-        assert_eq!(c.controller.fault(), None, "judged on a reading from before the reel");
-        // A reading taken during the reel says loose: the phase stops.
-        c.devices.inject.loadcells_silent = false;
-        step(&mut c, 1);
-        let (cause, _) = c.controller.fault().expect("a loose reeled cable latches");
-        assert!(matches!(cause, Cause::CableLoose { tension_n, .. } if tension_n < 1.0), "{cause:?}");
-    }
-
-    /// Without a tracker: the rest dwell (phase 0), the wait for the rest estimate, the dwell
-    /// plan's poses in order (each labelled with its index while recorded, the platform at the
-    /// pose), operate; `Recalibrate` visits the poses again. No tracker pose is ever read.
-    #[test]
-    fn dwell_startup_runs_the_plan_and_recalibrates() {
-        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
-        let mut cfg = quick_config(4, &std::env::temp_dir());
-        cfg.safety.tension_max_age_s = 5.0;
-        let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];
-        let ccfg = ControllerConfig::from_robot(&cfg).unwrap().with_dwell_plan(&poses, 1.0, 0.2, 0.5);
-        let truth = truth_params(4, 0.1);
-        let (mut params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-        let (sample_tx, _sample_rx) = sample_ring(64);
-        let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
-        robot.inject.tracker_gone = true;
-        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
-        let dt = 0.002;
-        let mut t = 0.0;
-        let mut labels: Vec<(State, i8)> = Vec::new();
-        let mut at_pose: Vec<[f64; 3]> = Vec::new();
-        let mut run = |c: &mut LoopCore<KinematicRobot>,
-                       until: &dyn Fn(&LoopCore<KinematicRobot>) -> bool,
-                       labels: &mut Vec<(State, i8)>,
-                       at_pose: &mut Vec<[f64; 3]>| {
-            for _ in 0..200_000 {
-                t += dt;
-                c.cycle(t, dt);
-                let l = (c.controller.state(), c.controller.phase_label());
-                if labels.last() != Some(&l) {
-                    if labels.last().is_some_and(|p| p.0 == State::Excitation && p.1 >= 0) {
-                        at_pose.push(c.devices.p);
-                    }
-                    labels.push(l);
-                }
-                assert_eq!(c.controller.fault(), None, "{labels:?}");
-                if until(c) {
-                    return;
-                }
-            }
-            panic!("not reached: {labels:?}");
-        };
-        run(&mut c, &|c| c.controller.state() == State::AwaitInitial, &mut labels, &mut at_pose);
-        assert!(labels.contains(&(State::InitPhase, 0)), "the rest dwell is recorded: {labels:?}");
-        assert_eq!(c.controller.snapshot(0.0, &c.inputs).phases_completed, 1);
-        // The rest estimate arrives: the robot's own parameters, version 1.
-        let mut p1 = truth;
-        p1.version = 1;
-        p1.valid = true;
-        params_tx.write(p1);
-        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
-        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
-        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
-        for (p, q) in at_pose.iter().zip(&poses) {
-            assert!((0..3).all(|i| (p[i] - q[i]).abs() < 1e-6), "held at {p:?}, planned {q:?}");
-        }
-        // Recalibration visits the poses again.
-        labels.clear();
-        at_pose.clear();
-        cmd_tx.send(Command::Recalibrate).unwrap();
-        run(&mut c, &|c| c.controller.state() == State::Excitation, &mut labels, &mut at_pose);
-        assert_eq!(c.controller.run(), 1);
-        run(&mut c, &|c| c.controller.state() == State::Operate, &mut labels, &mut at_pose);
-        let rec: Vec<i8> = labels.iter().filter(|l| l.0 == State::Excitation && l.1 >= 0).map(|l| l.1).collect();
-        assert_eq!(rec, vec![0, 1, 2], "{labels:?}");
-    }
-
-    /// A drum that turned while the drives were stopped (a quick stop's ramp, a brake that
-    /// slipped): after the reset the cable is held where it now stands, not where it was when
-    /// the reaction latched.
-    #[test]
-    fn a_reset_holds_where_the_drives_stand_now() {
-        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
-        let mut cfg = quick_config(4, &std::env::temp_dir());
-        cfg.safety.tension_max_age_s = 5.0;
-        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-        let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-        let (sample_tx, _sample_rx) = sample_ring(64);
-        let robot = KinematicRobot::new(truth_params(4, 0.1), [0.2, 0.1, 2.0]);
-        let mut c = LoopCore::new(4, robot, Controller::new(ccfg, cmd_rx, params_rx), sample_tx);
-        let mut t = 0.0;
-        let mut step = |c: &mut LoopCore<KinematicRobot>, k: usize| {
-            for _ in 0..k {
-                t += 0.002;
-                c.cycle(t, 0.002);
-            }
-        };
-        step(&mut c, 300);
-        assert_eq!(c.controller.state(), State::InitPhase, "{:?}", c.controller.fault());
-        cmd_tx.send(Command::Estop).unwrap();
-        step(&mut c, 10);
-        assert_eq!(c.controller.fault().map(|f| f.1), Some(Reaction::QuickStop));
-        // The drum of cable 0 turns by 5 mm while the drives are stopped.
-        c.devices.len[0] += 0.005;
-        let moved = c.devices.len[0];
-        step(&mut c, 10);
-        // A reset that is not asked for does not happen.
-        assert_eq!(c.controller.state(), State::Faulted);
-        cmd_tx.send(Command::Reset).unwrap();
-        step(&mut c, 20);
-        assert_eq!(c.controller.state(), State::Holding, "{:?}", c.controller.snapshot(0.0, &c.inputs).last_reset);
-        let s = c.controller.snapshot(0.0, &c.inputs);
-        assert_eq!(s.last_reset, Some(ResetOutcome::Done));
-        assert_eq!(s.resets, 1);
-        // (The stand-in robot re-levels the platform over the four cables when they are
-        // enabled, so cable 0 ends a little short of `moved`; what matters is that it is not
-        // pulled back the 5 mm to where it was when the reaction latched.)
-        let latched = moved - 0.005;
-        assert!((s.cmd_m[0] - latched).abs() > 0.003, "held at {} m, the stale {latched} m, the drum at {moved} m", s.cmd_m[0]);
-        assert!((s.cmd_m[0] - s.inputs.length_m[0]).abs() < 1e-9, "holds where it stands");
-        assert!(s.reenable_step_m < 1e-6, "step {} m", s.reenable_step_m);
-        // A second reset with nothing latched is refused with the reason.
-        cmd_tx.send(Command::Reset).unwrap();
-        step(&mut c, 2);
-        let s = c.controller.snapshot(0.0, &c.inputs);
-        assert_eq!(s.last_reset, Some(ResetOutcome::Refused(ResetRefusal::NothingToReset)));
-        assert_eq!(s.state, State::Holding);
-    }
 }

@@ -9,7 +9,7 @@
 //! lines so that the two threads do not share a line they both write.
 //!
 //! ```
-//! let (mut tx, mut rx) = taut_rt_core::spsc::ring::<u32>(2);
+//! let (mut tx, mut rx) = taut_rt::spsc::ring::<u32>(2);
 //! assert_eq!(tx.push(1), Ok(()));
 //! assert_eq!(tx.push(2), Ok(()));
 //! assert_eq!(tx.push(3), Err(3)); // full: the value comes back

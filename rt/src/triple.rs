@@ -11,7 +11,7 @@
 //! `loom_tests.rs` (`scripts/loom`).
 //!
 //! ```
-//! let (mut w, mut r) = taut_rt_core::triple::triple_buffer(0u32);
+//! let (mut w, mut r) = taut_rt::triple::triple_buffer(0u32);
 //! w.write(7);
 //! assert_eq!(*r.read(), 7);
 //! assert!(!r.update()); // nothing new

@@ -20,9 +20,6 @@
 //! their brakes hold the drums. The unit conversions here are the simulator's own (from the
 //! `[cable.drive]` tables), not the driver's.
 
-use crate::io::{Devices, Inputs, Outputs};
-use crate::robot_io::{Peripherals, RobotDevices};
-use crate::MAX_CABLES;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -33,6 +30,9 @@ use taut_driver::canopen::cia402::Mode;
 use taut_driver::canopen::NodeId;
 use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
 use taut_driver::transport::CanTransport;
+use taut_rt_core::io::{Devices, Inputs, Outputs};
+use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+use taut_rt_core::MAX_CABLES;
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand as SimCommand, Noise, Physics, Plant, Truth};
 use taut_vdev::{rack_filters, DriveParams, DriveRack, LoadCellFault, TensionHandle, TrackerSender, VirtualDrive, VirtualLoadCells};
@@ -212,7 +212,7 @@ pub enum BuildError {
     /// The robot's load-cell bus (on the simulated cells' pseudo-terminal) did not start.
     LoadCells(taut_driver::loadcell::SpawnError),
     /// The robot's devices did not come up.
-    BringUp(crate::robot_io::BringUpError),
+    BringUp(taut_rt_core::robot_io::BringUpError),
 }
 
 impl std::fmt::Display for BuildError {

@@ -1,0 +1,28 @@
+//! The per-cable model of a cable robot, in one place for every crate that evaluates it: the
+//! calibration and diagnosis (`taut-calib`, with partial derivatives) and the real-time loop's
+//! inverse kinematics (`taut-rt`). No dependencies, no allocation, no I/O.
+//!
+//! The encoder reading of cable `j` for the platform attachment point `X` (in the world frame),
+//! the anchor `A`, tension `T`:
+//!
+//! ```text
+//! G = |X - A|                                   ideal straight cable         straight_length
+//!   = r beta + sqrt(|X - C|^2 - r^2)            over a swivel pulley, radius r   pulley_length
+//! U = G / (1 + c T),   c = 1 / EA               the encoder counts unstretched cable   unstretched
+//! l = s U + L0                                  drum scale s, encoder offset L0   reading
+//! ```
+//!
+//! [`cable_length`] chains them the way the loop does. Sag and backlash are calibration-only
+//! effects and stay in `taut-calib`; the derivatives they need are carried by [`dual::Dual`].
+//!
+//! Beside the formulas, the crate holds the little vocabulary the layers share without
+//! depending on each other: the CAN bus status types ([`bus`]: decoded by `taut-driver`, carried
+//! in `taut-rt`'s safety causes).
+#![deny(missing_docs)]
+
+pub mod bus;
+mod cable;
+pub mod dual;
+pub mod tour;
+
+pub use cable::{cable_length, pulley_length, reading, straight_length, unstretched};
