@@ -482,7 +482,7 @@ impl ResetRun {
 /// Swing of the follower tension over an excitation that calibrates elasticity, N. At EA
 /// 20 kN and 4 m of cable 60 N stretches a cable by 12 mm, several times the tracker's noise,
 /// while the cables' tensions stay far below a drive's or a cable's limit (the statics keep
-/// them under half of `safety.max_tension_n`, see [`Controller::follower_tension`]).
+/// them under half of `safety.max_tension_n`, see `Controller::follower_tension`).
 pub const EXCITATION_TENSION_SWING_N: f64 = 60.0;
 
 /// Period of the tension swing, s (rounded so a whole number of swings fits the excitation):
