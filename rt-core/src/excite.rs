@@ -157,7 +157,9 @@ mod tests {
     use crate::FromRobot;
 
     fn sim_robot() -> RobotConfig {
-        RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap()
+        let mut cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
+        cfg.motion.design_excitation = true;
+        cfg
     }
 
     #[test]
