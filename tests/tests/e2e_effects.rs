@@ -147,13 +147,7 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
         Backend::Truth => Box::new(TruthCalib::new(&truth, &so.physics)),
     };
     let d = Daemon::start(&cfg, sim.devices, calib, DaemonOptions::default()).unwrap();
-    let ok = d.wait_until(Duration::from_secs(400), |l, c| {
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    });
+    let ok = d.wait_until(Duration::from_secs(400), taut_tests::startup::start_up_over);
     let l = d.loop_status();
     let c = d.calib_status();
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {

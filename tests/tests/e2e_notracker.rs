@@ -88,11 +88,7 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
         if states.last() != Some(&l.snap.state) {
             states.push(l.snap.state);
         }
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
+        taut_tests::startup::start_up_over(l, c)
     });
     let l = d.loop_status();
     let c = d.calib_status();

@@ -8,7 +8,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
@@ -114,13 +113,7 @@ fn a_client_receives_every_channel_during_the_start_up() {
     let s2 = stop.clone();
     let client = std::thread::spawn(move || count_until(&mut ws, &topics, &s2));
 
-    let ok = d.wait_until(Duration::from_secs(300), |l, c| {
-        l.snap.fault.is_some()
-            || c.outcomes.iter().any(|o| !o.accepted)
-            || c.outcomes
-                .iter()
-                .any(|o| o.kind == OutcomeKind::Calibration && o.accepted && l.snap.params_version == o.version && !l.snap.swap_active)
-    });
+    let ok = d.wait_until(Duration::from_secs(300), taut_tests::startup::start_up_over);
     // Let the last frames through before stopping the client.
     std::thread::sleep(Duration::from_millis(500));
     let c = d.calib_status();
