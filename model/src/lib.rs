@@ -1,6 +1,6 @@
 //! The per-cable model of a cable robot, in one place for every crate that evaluates it: the
 //! calibration and diagnosis (`taut-calib`, with partial derivatives) and the real-time loop's
-//! inverse kinematics (`taut-rt`). No dependencies, no allocation, no I/O.
+//! inverse kinematics (`taut-rt`). No dependencies, no I/O; the formulas allocate nothing.
 //!
 //! The encoder reading of cable `j` for the platform attachment point `X` (in the world frame),
 //! the anchor `A`, tension `T`:
@@ -17,12 +17,16 @@
 //!
 //! Beside the formulas, the crate holds the little vocabulary the layers share without
 //! depending on each other: the CAN bus status types ([`bus`]: decoded by `taut-driver`, carried
-//! in `taut-rt`'s safety causes).
+//! in `taut-rt`'s safety causes), and the one home of the robot's geometry and its
+//! uncertainties ([`geometry`]: anchors, encoder offsets, their 1-sigma; owned `Vec`s built off
+//! the loop, converted at the edges to the loop's fixed-size form and to the parameter file).
 #![deny(missing_docs)]
 
 pub mod bus;
 mod cable;
 pub mod dual;
+pub mod geometry;
 pub mod tour;
 
 pub use cable::{cable_length, pulley_length, reading, straight_length, unstretched};
+pub use geometry::{Geometry, GeometryError, Sigmas};
