@@ -23,6 +23,7 @@
 //! offsets). A sample is used when at least four cables are taut and its pose is known.
 
 use crate::model;
+use crate::{Geometry, Sigmas};
 use taut_config::recording::Recording;
 
 /// Settings of the refinement.
@@ -49,14 +50,10 @@ impl Default for BundleOptions {
 /// What the refinement found.
 #[derive(Debug, Clone)]
 pub struct BundleResult {
-    /// Anchors, m.
-    pub anchors: Vec<[f64; 3]>,
-    /// Encoder offsets, m.
-    pub l0: Vec<f64>,
-    /// 1-sigma of each anchor coordinate (from the reduced normal matrix), m.
-    pub anchor_sigma: Vec<[f64; 3]>,
-    /// 1-sigma of each offset, m.
-    pub l0_sigma: Vec<f64>,
+    /// Anchors and encoder offsets, m.
+    pub params: Geometry,
+    /// 1-sigma of each anchor coordinate and offset (from the reduced normal matrix), m.
+    pub sigma: Sigmas,
     /// Samples used.
     pub samples: usize,
     /// RMS of the length residuals at the solution, m.
@@ -356,12 +353,9 @@ pub fn refine(
         let e = model::sub(*pi, r.pos);
         st2 += e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
     }
-    let sigma = |x: usize| diag_inv[x].max(0.0).sqrt();
     Some(BundleResult {
-        anchors: (0..n).map(|j| [g[4 * j], g[4 * j + 1], g[4 * j + 2]]).collect(),
-        l0: (0..n).map(|j| g[4 * j + 3]).collect(),
-        anchor_sigma: (0..n).map(|j| [sigma(4 * j), sigma(4 * j + 1), sigma(4 * j + 2)]).collect(),
-        l0_sigma: (0..n).map(|j| sigma(4 * j + 3)).collect(),
+        params: Geometry::from_packed(&g, n),
+        sigma: Sigmas::from_variances(&diag_inv, n),
         samples: data.len(),
         length_rms_m: (sl2 / nl.max(1) as f64).sqrt(),
         tracker_rms_m: (st2 / (3 * data.len()) as f64).sqrt(),
@@ -394,12 +388,12 @@ mod tests {
         let c = crate::calibrate(&rec, &[[0.0; 3]; 4], &crate::Params { anchors: start.clone(), l0: vec![1.02, -0.48, 0.23, 2.01] }, &o)
             .unwrap();
         let worst = |a: &[[f64; 3]]| a.iter().zip(&truth).map(|(a, t)| model::norm(model::sub(*a, *t))).fold(0.0, f64::max);
-        let (eb, ec) = (worst(&r.anchors), worst(&c.params.anchors));
+        let (eb, ec) = (worst(&r.params.anchors), worst(&c.params.anchors));
         assert!(eb < 0.5 * ec, "bundle {:.2} mm, calibration {:.2} mm", eb * 1e3, ec * 1e3);
         assert!(eb < 2.5e-3, "bundle worst anchor {:.2} mm", eb * 1e3);
-        for (j, (a, t)) in r.anchors.iter().zip(&truth).enumerate() {
+        for (j, (a, t)) in r.params.anchors.iter().zip(&truth).enumerate() {
             for x in 0..3 {
-                assert!((a[x] - t[x]).abs() < 5.0 * r.anchor_sigma[j][x] + 1e-5, "anchor {j}[{x}] beyond 5 sigma");
+                assert!((a[x] - t[x]).abs() < 5.0 * r.sigma.anchors[j][x] + 1e-5, "anchor {j}[{x}] beyond 5 sigma");
             }
         }
         assert!(r.length_rms_m < 1e-4, "length rms {}", r.length_rms_m);

@@ -28,6 +28,7 @@
 use crate::diagnose::effects::{Effect, TensionEnd};
 use crate::diagnose::fit::{self, ModelSpec, PlayState, Prepared};
 use crate::diagnose::{Diagnosis, Sharing};
+use crate::{Geometry, Sigmas};
 use std::fmt;
 use taut_config::params::Effects;
 use taut_config::recording::Recording;
@@ -125,14 +126,10 @@ impl std::error::Error for EffectFitError {}
 /// Anchors, offsets and effects fitted together.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EffectFit {
-    /// Anchors, m.
-    pub anchors: Vec<[f64; 3]>,
-    /// Encoder offsets, m.
-    pub l0: Vec<f64>,
-    /// 1-sigma of the anchors, m.
-    pub anchor_sigma: Vec<[f64; 3]>,
-    /// 1-sigma of the offsets, m.
-    pub l0_sigma: Vec<f64>,
+    /// Anchors and encoder offsets, m.
+    pub params: Geometry,
+    /// 1-sigma of the anchors and offsets, m.
+    pub sigma: Sigmas,
     /// The fitted effects with their sigmas. A time offset is the one left in the data (add
     /// the offset the data were already aligned by).
     pub effects: Effects,
@@ -374,10 +371,8 @@ pub fn fit_effects(
     }
     let (ss, m) = fit::sum_squares(&prep, &spec, &samples, &r.x);
     Ok(EffectFit {
-        anchors: (0..n).map(|j| [r.x[4 * j], r.x[4 * j + 1], r.x[4 * j + 2]]).collect(),
-        l0: (0..n).map(|j| r.x[4 * j + 3]).collect(),
-        anchor_sigma: (0..n).map(|j| [sig[4 * j], sig[4 * j + 1], sig[4 * j + 2]]).collect(),
-        l0_sigma: (0..n).map(|j| sig[4 * j + 3]).collect(),
+        params: Geometry::from_packed(&r.x, n),
+        sigma: Sigmas::from_packed(&sig, n),
         effects: out,
         rms_m: (ss / m.max(1) as f64).sqrt(),
         readings: m,
@@ -465,7 +460,7 @@ mod tests {
             assert!((ea_j - ea).abs() < 0.02 * ea, "cable {j}: EA {ea_j}");
             let s = fit.effects.drum_scale.as_ref().unwrap()[j];
             assert!((s - scale[j]).abs() < 2e-4, "cable {j}: scale {s}");
-            let d: f64 = (0..3).map(|k| (fit.anchors[j][k] - anchors[j][k]).powi(2)).sum::<f64>().sqrt();
+            let d: f64 = (0..3).map(|k| (fit.params.anchors[j][k] - anchors[j][k]).powi(2)).sum::<f64>().sqrt();
             assert!(d < 2e-3, "cable {j}: anchor off by {d}");
         }
         let rr = fit.effects.pulley_radius_m.as_ref().unwrap()[0];

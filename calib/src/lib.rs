@@ -15,7 +15,7 @@
 //! let b = cfg.platform_points();
 //! let start = init::initialise(&rec, &b, &opts).unwrap();
 //! let report = calibrate(&rec, &b, &start.params, &opts).unwrap();
-//! for (j, (a, s)) in report.params.anchors.iter().zip(&report.anchor_sigma).enumerate() {
+//! for (j, (a, s)) in report.params.anchors.iter().zip(&report.sigma.anchors).enumerate() {
 //!     println!("cable {j}: anchor {a:?} m, 1-sigma {s:?} m");
 //! }
 //! println!("co-registration RMS {:.2} mm, held out {:.2} mm", report.rms_m * 1e3, report.heldout_rms_m * 1e3);
@@ -143,31 +143,10 @@ pub use solver::Termination;
 /// the residuals).
 pub const MIN_READINGS: usize = 10;
 
-/// Kinematic parameters of the robot.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Params {
-    /// Anchor (cable exit point) of each cable in the tracker frame, m.
-    pub anchors: Vec<[f64; 3]>,
-    /// Encoder offset of each cable, m: `l = |P + R b - A| + L0`.
-    pub l0: Vec<f64>,
-}
-
-impl Params {
-    /// Number of cables.
-    pub fn n_cables(&self) -> usize {
-        self.anchors.len()
-    }
-
-    /// Cable `j`'s parameters as `(A_x, A_y, A_z, L0)`.
-    pub fn cable(&self, j: usize) -> [f64; 4] {
-        let a = self.anchors[j];
-        [a[0], a[1], a[2], self.l0[j]]
-    }
-
-    fn from_cables(x: &[[f64; 4]]) -> Self {
-        Params { anchors: x.iter().map(|v| [v[0], v[1], v[2]]).collect(), l0: x.iter().map(|v| v[3]).collect() }
-    }
-}
+/// Kinematic parameters of the robot: the shared [`Geometry`] (anchors and encoder offsets), under
+/// the name the calibration code has always used.
+pub type Params = Geometry;
+pub use taut_model::geometry::{Geometry, GeometryError, Sigmas};
 
 /// A robust loss on the normalised residual `e = r / sigma`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -420,10 +399,9 @@ pub struct CableReport {
 pub struct CalibReport {
     /// Calibrated parameters (all taut readings).
     pub params: Params,
-    /// One-sigma of each anchor coordinate, m (scaled by the variance factor when above 1).
-    pub anchor_sigma: Vec<[f64; 3]>,
-    /// One-sigma of each offset, m.
-    pub l0_sigma: Vec<f64>,
+    /// One-sigma of each anchor coordinate and offset, m (scaled by the variance factor when
+    /// above 1).
+    pub sigma: Sigmas,
     /// Covariance of `(A_x, A_y, A_z, L0)` per cable, m^2.
     pub covariance: Vec<[[f64; 4]; 4]>,
     /// The worst termination over cables.
@@ -691,8 +669,10 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
     let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
     let worst = per_cable.iter().map(|c| c.termination).max_by_key(|t| t.severity()).unwrap_or(Termination::SmallStep);
     Ok(CalibReport {
-        anchor_sigma: covariance.iter().map(|c| [c[0][0].sqrt(), c[1][1].sqrt(), c[2][2].sqrt()]).collect(),
-        l0_sigma: covariance.iter().map(|c| c[3][3].sqrt()).collect(),
+        sigma: Sigmas::from_variances(
+            &covariance.iter().flat_map(|c| [c[0][0], c[1][1], c[2][2], c[3][3]]).collect::<Vec<_>>(),
+            covariance.len(),
+        ),
         covariance,
         termination: worst,
         iterations: per_cable.iter().map(|c| c.iterations).max().unwrap_or(0),

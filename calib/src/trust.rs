@@ -85,7 +85,7 @@ pub struct Candidate<'a> {
 impl<'a> Candidate<'a> {
     /// The parameters and uncertainty of a calibration report.
     pub fn of(r: &'a CalibReport) -> Self {
-        Candidate { anchors: &r.params.anchors, l0: &r.params.l0, anchor_sigma: &r.anchor_sigma, l0_sigma: &r.l0_sigma, rms_m: r.rms_m }
+        Candidate { anchors: &r.params.anchors, l0: &r.params.l0, anchor_sigma: &r.sigma.anchors, l0_sigma: &r.sigma.l0, rms_m: r.rms_m }
     }
 }
 

@@ -67,7 +67,7 @@ fn recovers_truth_within_cramer_rao_bound() {
         // The reported sigmas are the CRB at the estimate, up to the variance factor (~1 here)
         // and the Huber weights: within 15%.
         for k in 0..3 {
-            let r = rep.anchor_sigma[j][k] / crb.anchor_sigma[j][k];
+            let r = rep.sigma.anchors[j][k] / crb.anchor_sigma[j][k];
             assert!((0.85..1.15).contains(&r), "cable {j} axis {k}: reported/CRB sigma {r:.3}");
         }
     }
@@ -217,7 +217,7 @@ fn planar_motion_observability() {
     let rep = calibrate(&wide, &spec.platform_points, &perturbed(&truth, 0.05), &opts).unwrap();
     let crb = metrics::cramer_rao(&wide, &spec.platform_points, &truth, &opts);
     assert!(worst_z(&rep.params, &truth, &crb) < 4.0);
-    eprintln!("wide plane: A_z sigma {:?} mm", rep.anchor_sigma.iter().map(|s| s[2] * 1e3).collect::<Vec<_>>());
+    eprintln!("wide plane: A_z sigma {:?} mm", rep.sigma.anchors.iter().map(|s| s[2] * 1e3).collect::<Vec<_>>());
     // A small patch of a plane: the curvature is too weak, the calibration refuses.
     let patch = synth::box_recording(&spec, 2000, [-0.3, -0.3, 1.5], [0.3, 0.3, 1.5], 4);
     let opts = CalibOptions { max_sigma_m: 0.05, ..opts };
@@ -475,7 +475,7 @@ fn converges_from_half_a_metre_off() {
     for j in 0..4 {
         for k in 0..3 {
             let d = (far.params.anchors[j][k] - near.params.anchors[j][k]).abs();
-            assert!(d < 2e-2 * near.anchor_sigma[j][k], "cable {j} axis {k}: {d}");
+            assert!(d < 2e-2 * near.sigma.anchors[j][k], "cable {j} axis {k}: {d}");
         }
     }
 }

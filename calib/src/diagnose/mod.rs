@@ -54,7 +54,7 @@ pub mod fit;
 pub mod lm;
 pub mod select;
 
-use crate::Params;
+use crate::{Geometry, Params, Sigmas};
 use analysis::{rms, Mismatch, Regressor};
 pub use dataq::{DataProblem, ProblemKind};
 pub use effects::{Effect, Sharing, TensionEnd};
@@ -174,14 +174,10 @@ pub struct FitSummary {
     pub heldout_rms_m: f64,
     /// RMS per cable on all usable readings, m.
     pub per_cable_rms_m: Vec<f64>,
-    /// Anchors, m.
-    pub anchors_m: Vec<[f64; 3]>,
-    /// Encoder offsets, m.
-    pub l0_m: Vec<f64>,
-    /// 1-sigma of the anchors, m.
-    pub anchor_sigma_m: Vec<[f64; 3]>,
-    /// 1-sigma of the offsets, m.
-    pub l0_sigma_m: Vec<f64>,
+    /// Anchors and encoder offsets, m.
+    pub params: Geometry,
+    /// 1-sigma of the anchors and offsets, m.
+    pub sigma: Sigmas,
 }
 
 /// One named effect.
@@ -635,10 +631,8 @@ impl Ctx<'_> {
             rms_m: rms_of(self.prep, spec, &self.train, &train_fit.x),
             heldout_rms_m: rms_of(self.prep, spec, &self.heldout, &train_fit.x),
             per_cable_rms_m: res.iter().map(|r| rms(r)).collect(),
-            anchors_m: (0..n).map(|j| [all_fit.x[4 * j], all_fit.x[4 * j + 1], all_fit.x[4 * j + 2]]).collect(),
-            l0_m: (0..n).map(|j| all_fit.x[4 * j + 3]).collect(),
-            anchor_sigma_m: (0..n).map(|j| [sig[4 * j], sig[4 * j + 1], sig[4 * j + 2]]).collect(),
-            l0_sigma_m: (0..n).map(|j| sig[4 * j + 3]).collect(),
+            params: Geometry::from_packed(&all_fit.x, n),
+            sigma: Sigmas::from_packed(&sig, n),
         }
     }
 
@@ -940,7 +934,7 @@ pub fn diagnose(
     let base_all = ctx.fit(&ideal, &all_rows, &base.x, opts.max_iterations);
     let baseline = ctx.summary(&ideal, &base, &base_all);
     let base_res = fit::residuals(&prep, &ideal, &all_rows, &base.x);
-    let anchors0: Vec<[f64; 3]> = baseline.anchors_m.clone();
+    let anchors0: Vec<[f64; 3]> = baseline.params.anchors.clone();
     let an_sub = stride(&all_rows, 6000);
     let sub_res: Vec<Vec<f64>> = base_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
     let mismatch = analysis::analyse(&prep, &an_sub, &sub_res, &anchors0, &has_t);
@@ -1204,7 +1198,7 @@ pub fn diagnose(
 
     // Structure left over.
     let fsub: Vec<Vec<f64>> = final_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
-    let after = analysis::analyse(&prep, &an_sub, &fsub, &final_fit.anchors_m, &has_t);
+    let after = analysis::analyse(&prep, &an_sub, &fsub, &final_fit.params.anchors, &has_t);
     let expected = sigma;
     let mut unexplained_cables = vec![];
     for j in 0..n {

@@ -61,7 +61,7 @@ pub mod plan;
 pub mod rest;
 pub mod solve;
 
-use crate::Params;
+use crate::{Params, Sigmas};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use std::fmt;
 use taut_config::recording::Recording;
@@ -276,10 +276,9 @@ impl std::error::Error for SelfCalError {}
 pub struct SelfCalReport {
     /// Anchors (in the frame of [`SelfCalReport::frame`]) and encoder offsets.
     pub params: Params,
-    /// 1-sigma of each anchor coordinate in that frame, m (scaled by the variance factor).
-    pub anchor_sigma: Vec<[f64; 3]>,
-    /// 1-sigma of each offset, m.
-    pub l0_sigma: Vec<f64>,
+    /// 1-sigma of each anchor coordinate in that frame and of each offset, m (scaled by the
+    /// variance factor).
+    pub sigma: Sigmas,
     /// Cramér–Rao bound on the anchors: `sqrt(trace(Cov_A) / n)`, the expected RMS error over
     /// anchors after the frame alignment, m.
     pub anchor_rms_crb_m: f64,
@@ -469,8 +468,7 @@ pub fn calibrate_without_tracker(
     }
     Ok(SelfCalReport {
         params: Params { anchors, l0 },
-        anchor_sigma,
-        l0_sigma,
+        sigma: Sigmas { anchors: anchor_sigma, l0: l0_sigma },
         anchor_rms_crb_m,
         shape_rms_crb_m,
         distances,
