@@ -31,6 +31,7 @@
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use taut_model::geometry::{Field, Geometry, GeometryError, Sigmas};
 
 /// The format tag of a parameter file as written.
 pub const FORMAT: &str = "taut-params v2";
@@ -294,23 +295,63 @@ impl ParamsFile {
         Ok(p)
     }
 
-    /// Every number finite: anchors and offsets always; sigmas and RMS values finite or unknown
-    /// (NaN, all of a vector at once), never infinite. The message names the key.
+    /// The file's geometry: the one conversion from the file's keys (`anchors_m`, `l0_m`).
+    pub fn geometry(&self) -> Geometry {
+        Geometry { anchors: self.anchors_m.clone(), l0: self.l0_m.clone() }
+    }
+
+    /// The file's 1-sigma values (`anchor_sigma_m`, `l0_sigma_m`; NaN when unknown).
+    pub fn sigmas(&self) -> Sigmas {
+        Sigmas { anchors: self.anchor_sigma_m.clone(), l0: self.l0_sigma_m.clone() }
+    }
+
+    /// A file holding `geometry` and `sigma`: the one conversion to the file's keys. Version 0,
+    /// no provenance, RMS values unknown and no effects: callers set those with
+    /// `ParamsFile { version, robot, .. ParamsFile::from_geometry(g, s) }`.
+    pub fn from_geometry(geometry: &Geometry, sigma: &Sigmas) -> ParamsFile {
+        ParamsFile {
+            format: FORMAT.into(),
+            version: 0,
+            created_unix_s: 0.0,
+            robot: String::new(),
+            source: String::new(),
+            anchors_m: geometry.anchors.clone(),
+            l0_m: geometry.l0.clone(),
+            anchor_sigma_m: sigma.anchors.clone(),
+            l0_sigma_m: sigma.l0.clone(),
+            rms_m: f64::NAN,
+            heldout_rms_m: f64::NAN,
+            effects: Effects::default(),
+        }
+    }
+
+    /// Every number finite: anchors and offsets always; sigmas and RMS values finite and
+    /// non-negative, or unknown (NaN, all of a vector at once), never infinite. The message
+    /// names the key. The geometry and its sigmas are checked by [`Geometry::check`] and
+    /// [`Sigmas::check`] (the one validation of them); this names the file's keys.
     pub fn check_finite(&self) -> Result<(), String> {
         let n = self.anchors_m.len();
-        if let Some(j) = self.anchors_m.iter().position(|a| !a.iter().all(|v| v.is_finite())) {
-            return Err(format!("anchors_m[{j}] is not finite: {:?}", self.anchors_m[j]));
+        match self.geometry().check() {
+            Ok(()) | Err(GeometryError::NoCables) => {}
+            Err(GeometryError::NotFinite { cable: j, field: Field::Anchor }) => {
+                return Err(format!("anchors_m[{j}] is not finite: {:?}", self.anchors_m[j]));
+            }
+            Err(GeometryError::NotFinite { cable: j, .. }) => return Err(format!("l0_m[{j}] is not finite: {}", self.l0_m[j])),
+            Err(e) => return Err(format!("l0_m: {e}")),
         }
-        if let Some(j) = self.l0_m.iter().position(|v| !v.is_finite()) {
-            return Err(format!("l0_m[{j}] is not finite: {}", self.l0_m[j]));
-        }
-        let known = |v: &[f64]| v.iter().all(|x| x.is_finite()) || v.iter().all(|x| x.is_nan());
-        let flat: Vec<f64> = self.anchor_sigma_m.iter().flatten().copied().collect();
-        if self.anchor_sigma_m.len() != n || !known(&flat) {
-            return Err(format!("anchor_sigma_m must be {n} finite triples (or absent when unknown): {:?}", self.anchor_sigma_m));
-        }
-        if self.l0_sigma_m.len() != n || !known(&self.l0_sigma_m) {
-            return Err(format!("l0_sigma_m must be {n} finite values (or absent when unknown): {:?}", self.l0_sigma_m));
+        match self.sigmas().check(n) {
+            Ok(()) => {}
+            Err(GeometryError::Length { field: Field::AnchorSigma, .. })
+            | Err(GeometryError::NotFinite { field: Field::AnchorSigma, .. })
+            | Err(GeometryError::NegativeSigma { field: Field::AnchorSigma, .. }) => {
+                return Err(format!(
+                    "anchor_sigma_m must be {n} finite non-negative triples (or absent when unknown): {:?}",
+                    self.anchor_sigma_m
+                ));
+            }
+            Err(_) => {
+                return Err(format!("l0_sigma_m must be {n} finite non-negative values (or absent when unknown): {:?}", self.l0_sigma_m))
+            }
         }
         for (key, v) in [("rms_m", self.rms_m), ("heldout_rms_m", self.heldout_rms_m), ("created_unix_s", self.created_unix_s)] {
             if v.is_infinite() || (key == "created_unix_s" && v.is_nan()) {
@@ -386,5 +427,33 @@ mod tests {
         let e = ParamsFile::load(&f).unwrap_err();
         assert!(e.to_string().contains("l0_m[0]"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The one conversion between the file and the shared geometry types, both ways, and the
+    /// shared validation naming the file's keys.
+    #[test]
+    fn geometry_conversion_round_trips_and_names_the_key() {
+        let g = Geometry::new(vec![[1.0, 2.0, 3.0], [-1.0, 2.0, 3.5]], vec![0.1, -0.2]).unwrap();
+        let s = Sigmas { anchors: vec![[1e-4, 2e-4, 3e-4]; 2], l0: vec![5e-4; 2] };
+        let f = ParamsFile { version: 7, robot: "r".into(), ..ParamsFile::from_geometry(&g, &s) };
+        assert_eq!(
+            (f.anchors_m.clone(), f.l0_m.clone(), f.anchor_sigma_m.clone(), f.l0_sigma_m.clone()),
+            (g.anchors.clone(), g.l0.clone(), s.anchors.clone(), s.l0.clone())
+        );
+        assert_eq!((f.format.as_str(), f.version, f.effects.is_empty()), (FORMAT, 7, true));
+        assert!(f.rms_m.is_nan() && f.heldout_rms_m.is_nan());
+        assert_eq!((f.geometry(), f.sigmas()), (g.clone(), s.clone()));
+        assert_eq!(f.check_finite(), Ok(()));
+        let unknown = ParamsFile::from_geometry(&g, &Sigmas::unknown(2));
+        assert_eq!(unknown.check_finite(), Ok(()));
+        let mut neg = f.clone();
+        neg.l0_sigma_m[1] = -1e-4;
+        assert!(neg.check_finite().unwrap_err().starts_with("l0_sigma_m"), "a negative sigma is refused");
+        let mut neg = f.clone();
+        neg.anchor_sigma_m[0][2] = f64::INFINITY;
+        assert!(neg.check_finite().unwrap_err().starts_with("anchor_sigma_m"));
+        let mut short = f.clone();
+        short.l0_m.pop();
+        assert!(short.check_finite().unwrap_err().starts_with("l0_m"));
     }
 }
