@@ -21,6 +21,7 @@
 //! by the full width).
 
 use crate::MAX_CABLES;
+use taut_model::geometry::{Field, Geometry, GeometryError};
 
 /// The effects the loop models. `Copy`, fixed size; "off" values make the ideal model.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,6 +128,32 @@ impl LoopParams {
         p
     }
 
+    /// The loop's form of a calibrated [`Geometry`] with the platform points `b_j` (from the
+    /// configuration): the one conversion from the shared type. Runs on the calibrator thread or
+    /// at start-up, never in the loop; it copies into the fixed arrays and allocates nothing.
+    /// Refuses (naming the cable and field) a geometry that [`Geometry::check`] refuses, more
+    /// than [`MAX_CABLES`] cables, or platform points of another count or not finite.
+    pub fn from_geometry(version: u64, geometry: &Geometry, platform: &[[f64; 3]]) -> Result<LoopParams, GeometryError> {
+        geometry.check()?;
+        let n = geometry.n_cables();
+        if n > MAX_CABLES {
+            return Err(GeometryError::TooManyCables { n, max: MAX_CABLES });
+        }
+        if platform.len() != n {
+            return Err(GeometryError::Length { field: Field::Platform, len: platform.len(), n });
+        }
+        if let Some(cable) = platform.iter().position(|b| !b.iter().all(|v| v.is_finite())) {
+            return Err(GeometryError::NotFinite { cable, field: Field::Platform });
+        }
+        Ok(LoopParams::new(version, &geometry.anchors, &geometry.l0, platform))
+    }
+
+    /// The anchors and offsets back in the shared type (allocates: for reports and the
+    /// calibrator thread, never the loop).
+    pub fn geometry(&self) -> Geometry {
+        Geometry { anchors: self.anchors[..self.n].to_vec(), l0: self.l0[..self.n].to_vec() }
+    }
+
     /// The same parameters with `effects`.
     pub fn with_effects(mut self, effects: LoopEffects) -> LoopParams {
         self.effects = effects;
@@ -225,5 +252,24 @@ mod tests {
         let extra = p.length_at(1, &x, 0.0) - ideal.length(1, &x);
         assert!(extra > 0.0 && extra < 0.05, "{extra}");
         assert!(LoopEffects::from_values(None, None, None, None, None).is_none());
+    }
+
+    #[test]
+    fn from_geometry_round_trips_and_refuses_naming_the_cable() {
+        let g = Geometry { anchors: vec![[0.0, 0.0, 4.0], [3.0, 0.0, 4.0], [0.0, 4.0, 4.0]], l0: vec![0.1, 0.2, 0.0] };
+        let b = [[0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]];
+        let p = LoopParams::from_geometry(3, &g, &b).unwrap();
+        assert_eq!(p, LoopParams::new(3, &g.anchors, &g.l0, &b));
+        assert!(p.valid && p.n == 3 && p.version == 3 && p.effects == LoopEffects::NONE);
+        assert_eq!(p.geometry(), g);
+        assert_eq!(LoopParams::from_geometry(1, &g, &b[..2]), Err(GeometryError::Length { field: Field::Platform, len: 2, n: 3 }));
+        let mut nan = b;
+        nan[1][2] = f64::NAN;
+        assert_eq!(LoopParams::from_geometry(1, &g, &nan), Err(GeometryError::NotFinite { cable: 1, field: Field::Platform }));
+        let bad = Geometry { l0: vec![0.1, f64::INFINITY, 0.0], ..g.clone() };
+        assert_eq!(LoopParams::from_geometry(1, &bad, &b), Err(GeometryError::NotFinite { cable: 1, field: Field::Offset }));
+        let many = Geometry { anchors: vec![[0.0; 3]; MAX_CABLES + 1], l0: vec![0.0; MAX_CABLES + 1] };
+        let e = LoopParams::from_geometry(1, &many, &vec![[0.0; 3]; MAX_CABLES + 1]);
+        assert_eq!(e, Err(GeometryError::TooManyCables { n: MAX_CABLES + 1, max: MAX_CABLES }));
     }
 }

@@ -39,6 +39,7 @@ pub mod urgent;
 
 pub use kin::{LoopEffects, LoopParams};
 pub use motion::{Command, CommandSource, Controller, ControllerConfig};
+pub use taut_model::geometry::{Geometry, GeometryError, Sigmas};
 
 /// Largest number of cables the loop is built for (fixed-size arrays, no allocation).
 pub const MAX_CABLES: usize = 8;
