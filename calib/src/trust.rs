@@ -7,7 +7,7 @@
 //! of the tracked positions (the largest cable robot built spans 600 m), and, when the
 //! configuration gives nominal anchors, no more than `max_from_nominal_m` from its nominal one.
 
-use crate::CalibReport;
+use crate::{CalibReport, Geometry, Sigmas};
 use std::fmt;
 use taut_config::recording::Recording;
 
@@ -70,14 +70,10 @@ impl std::error::Error for Untrusted {}
 /// A parameter set with its uncertainty, as [`check`] judges it.
 #[derive(Debug, Clone, Copy)]
 pub struct Candidate<'a> {
-    /// Anchors, m.
-    pub anchors: &'a [[f64; 3]],
-    /// Encoder offsets, m.
-    pub l0: &'a [f64],
-    /// 1-sigma of the anchors, m.
-    pub anchor_sigma: &'a [[f64; 3]],
-    /// 1-sigma of the offsets, m.
-    pub l0_sigma: &'a [f64],
+    /// Anchors and encoder offsets, m.
+    pub params: &'a Geometry,
+    /// 1-sigma of the anchors and offsets, m.
+    pub sigma: &'a Sigmas,
     /// Co-registration RMS, m.
     pub rms_m: f64,
 }
@@ -85,29 +81,29 @@ pub struct Candidate<'a> {
 impl<'a> Candidate<'a> {
     /// The parameters and uncertainty of a calibration report.
     pub fn of(r: &'a CalibReport) -> Self {
-        Candidate { anchors: &r.params.anchors, l0: &r.params.l0, anchor_sigma: &r.sigma.anchors, l0_sigma: &r.sigma.l0, rms_m: r.rms_m }
+        Candidate { params: &r.params, sigma: &r.sigma, rms_m: r.rms_m }
     }
 }
 
 /// Checks `c` against the positions of `rec` and, if given, the nominal anchors with the
 /// largest plausible distance from them.
 pub fn check(c: &Candidate, rec: &Recording, nominal: Option<(&[[f64; 3]], f64)>) -> Result<(), Untrusted> {
-    for (j, a) in c.anchors.iter().enumerate() {
+    for (j, a) in c.params.anchors.iter().enumerate() {
         if !a.iter().all(|v| v.is_finite()) {
             return Err(Untrusted::NonFinite { cable: Some(j), what: "anchor" });
         }
     }
-    for (j, v) in c.l0.iter().enumerate() {
+    for (j, v) in c.params.l0.iter().enumerate() {
         if !v.is_finite() {
             return Err(Untrusted::NonFinite { cable: Some(j), what: "encoder offset" });
         }
     }
-    for (j, s) in c.anchor_sigma.iter().enumerate() {
+    for (j, s) in c.sigma.anchors.iter().enumerate() {
         if !s.iter().all(|v| v.is_finite()) {
             return Err(Untrusted::NonFinite { cable: Some(j), what: "anchor 1-sigma" });
         }
     }
-    for (j, v) in c.l0_sigma.iter().enumerate() {
+    for (j, v) in c.sigma.l0.iter().enumerate() {
         if !v.is_finite() {
             return Err(Untrusted::NonFinite { cable: Some(j), what: "encoder offset 1-sigma" });
         }
@@ -128,7 +124,7 @@ pub fn check(c: &Candidate, rec: &Recording, nominal: Option<(&[[f64; 3]], f64)>
         return Err(Untrusted::NoPositions);
     }
     let centroid = sum.map(|s| s / cnt as f64);
-    for (j, a) in c.anchors.iter().enumerate() {
+    for (j, a) in c.params.anchors.iter().enumerate() {
         let d = crate::model::norm(crate::model::sub(*a, centroid));
         if !(d <= crate::screen::ABSURD_M) {
             return Err(Untrusted::AnchorAbsurd { cable: j, distance_m: d, limit_m: crate::screen::ABSURD_M });
@@ -154,18 +150,17 @@ mod tests {
     fn refuses_non_finite_and_absurd_sets() {
         let truth = synth::aras_cam();
         let rec = synth::box_recording(&synth::Spec::new(truth.clone()), 200, [-1.0; 3], [1.0; 3], 1);
-        let s3 = vec![[1e-4; 3]; 4];
-        let s1 = vec![1e-4; 4];
-        let ok = Candidate { anchors: &truth.anchors, l0: &truth.l0, anchor_sigma: &s3, l0_sigma: &s1, rms_m: 1e-3 };
+        let sigma = Sigmas::uniform(4, 1e-4);
+        let ok = Candidate { params: &truth, sigma: &sigma, rms_m: 1e-3 };
         assert_eq!(check(&ok, &rec, Some((&truth.anchors, 1.0))), Ok(()));
         assert!(matches!(check(&Candidate { rms_m: f64::INFINITY, ..ok }, &rec, None), Err(Untrusted::NonFinite { cable: None, .. })));
-        let nan = vec![[1e-4, f64::NAN, 1e-4]; 4];
-        assert!(matches!(check(&Candidate { anchor_sigma: &nan, ..ok }, &rec, None), Err(Untrusted::NonFinite { cable: Some(0), .. })));
-        let mut far = truth.anchors.clone();
-        far[2] = [1e6, 0.0, 0.0];
-        assert!(matches!(check(&Candidate { anchors: &far, ..ok }, &rec, None), Err(Untrusted::AnchorAbsurd { cable: 2, .. })));
-        far[2] = [-3.0, 1.7, 6.0];
-        let e = check(&Candidate { anchors: &far, ..ok }, &rec, Some((&truth.anchors, 1.0))).unwrap_err();
+        let nan = Sigmas { anchors: vec![[1e-4, f64::NAN, 1e-4]; 4], ..sigma.clone() };
+        assert!(matches!(check(&Candidate { sigma: &nan, ..ok }, &rec, None), Err(Untrusted::NonFinite { cable: Some(0), .. })));
+        let mut far = truth.clone();
+        far.anchors[2] = [1e6, 0.0, 0.0];
+        assert!(matches!(check(&Candidate { params: &far, ..ok }, &rec, None), Err(Untrusted::AnchorAbsurd { cable: 2, .. })));
+        far.anchors[2] = [-3.0, 1.7, 6.0];
+        let e = check(&Candidate { params: &far, ..ok }, &rec, Some((&truth.anchors, 1.0))).unwrap_err();
         assert!(matches!(e, Untrusted::FarFromNominal { cable: 2, .. }), "{e}");
         assert!(e.to_string().contains("cable[2].anchor"));
     }

@@ -7,7 +7,7 @@
 
 use crate::calibrator::{Calibrate, Estimate};
 use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
-use taut_calib::{init, CalibError, CalibOptions, Params};
+use taut_calib::{init, CalibError, CalibOptions, Geometry, Sigmas};
 use taut_config::params::{Effects, ParamsFile};
 use taut_config::recording::Recording;
 use taut_config::RobotConfig;
@@ -46,12 +46,9 @@ impl TautCalib {
         let nominal = self.nominal.as_ref().ok_or_else(|| taut_calib::selfcal::SelfCalError::NoNominalAnchors.to_string())?;
         let r = taut_calib::selfcal::rest::rest_estimate(rec, &self.platform, nominal, o.mass_kg, o.encoder_sigma_m)
             .map_err(|e| e.to_string())?;
-        let n = nominal.len();
         Ok(Estimate {
-            anchors: r.params.anchors,
-            l0: r.params.l0,
-            anchor_sigma: vec![[f64::NAN; 3]; n],
-            l0_sigma: vec![f64::NAN; n],
+            sigma: Sigmas::unknown(r.params.n_cables()),
+            geometry: r.params,
             rms_m: f64::NAN,
             observable: true,
             note: format!(
@@ -85,16 +82,7 @@ impl TautCalib {
         if !self.effects.is_empty() {
             note.push_str(&format!("; {} not fitted (needs a tracker)", self.effects.join(", ")));
         }
-        Ok(Estimate {
-            anchors: r.params.anchors,
-            l0: r.params.l0,
-            anchor_sigma: r.anchor_sigma,
-            l0_sigma: r.l0_sigma,
-            rms_m: f64::NAN,
-            observable: true,
-            note,
-            effects: Effects::default(),
-        })
+        Ok(Estimate { geometry: r.params, sigma: r.sigma, rms_m: f64::NAN, observable: true, note, effects: Effects::default() })
     }
 
     /// Also models the effects `file` carries, starting from its values (its time offset
@@ -142,10 +130,8 @@ impl TautCalib {
         }
         effects.check(anchors.len()).map_err(|(k, m)| format!("the fit with effects gave {k}: {m}"))?;
         Ok(Estimate {
-            anchors: f.anchors,
-            l0: f.l0,
-            anchor_sigma: f.anchor_sigma,
-            l0_sigma: f.l0_sigma,
+            geometry: f.params,
+            sigma: f.sigma,
             rms_m: f.rms_m,
             observable: true,
             note: format!(
@@ -172,12 +158,13 @@ impl TautCalib {
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
         let moved = b
+            .params
             .anchors
             .iter()
             .zip(anchors)
             .map(|(a, s)| ((a[0] - s[0]).powi(2) + (a[1] - s[1]).powi(2) + (a[2] - s[2]).powi(2)).sqrt())
             .fold(0.0, f64::max);
-        let sane = b.anchors.iter().flatten().chain(&b.l0).all(|v| v.is_finite());
+        let sane = b.params.check().is_ok();
         (sane && moved < 0.5 && b.tracker_rms_m < 3.0 * self.opts.tracker_sigma_m).then_some(b)
     }
 }
@@ -188,7 +175,7 @@ impl Calibrate for TautCalib {
             return self.initialise_without_tracker(rec, o);
         }
         let r = init::initialise(rec, &self.platform, &self.opts).map_err(|e| e.to_string())?;
-        let n = r.params.anchors.len();
+        let n = r.params.n_cables();
         let (mut anchors, mut l0) = (r.params.anchors, r.params.l0);
         let mut note = r.method.json_name().to_string();
         // A cable held in fewer than two phases (the followers) gets its anchor from
@@ -207,15 +194,12 @@ impl Calibrate for TautCalib {
         // Every taut cable's length at once, with the platform positions as unknowns: the
         // redundant cables (the follower too) pin the geometry better than the tracker alone.
         if let Some(b) = self.refine(rec, &anchors, &l0) {
-            anchors = b.anchors;
-            l0 = b.l0;
+            (anchors, l0) = (b.params.anchors, b.params.l0);
             note.push_str(&format!("; refined on all cables ({} samples, errors-in-variables)", b.samples));
         }
         Ok(Estimate {
-            anchors,
-            l0,
-            anchor_sigma: vec![[f64::NAN; 3]; n],
-            l0_sigma: vec![f64::NAN; n],
+            geometry: Geometry { anchors, l0 },
+            sigma: Sigmas::unknown(n),
             rms_m: f64::NAN,
             observable: true,
             note,
@@ -230,15 +214,12 @@ impl Calibrate for TautCalib {
         if let Some(o) = &self.selfcal {
             return self.calibrate_without_tracker(rec, o);
         }
-        let start = Params { anchors: init.anchors.clone(), l0: init.l0.clone() };
-        let r = match taut_calib::calibrate(rec, &self.platform, &start, &self.opts) {
+        let r = match taut_calib::calibrate(rec, &self.platform, &init.geometry, &self.opts) {
             Ok(r) => r,
             Err(e @ CalibError::NotObservable { .. }) => {
                 return Ok(Estimate {
-                    anchors: init.anchors.clone(),
-                    l0: init.l0.clone(),
-                    anchor_sigma: vec![[f64::INFINITY; 3]; init.anchors.len()],
-                    l0_sigma: vec![f64::INFINITY; init.anchors.len()],
+                    geometry: init.geometry.clone(),
+                    sigma: Sigmas::uniform(init.geometry.n_cables(), f64::INFINITY),
                     rms_m: f64::NAN,
                     observable: false,
                     note: e.to_string(),
@@ -255,41 +236,26 @@ impl Calibrate for TautCalib {
         let weak: Vec<String> = r.weak.iter().map(|w| w.to_string()).collect();
         // Then all taut cables at once with the platform positions as unknowns (see
         // `taut_calib::bundle`): the force-aware fit is its start and its fallback.
-        let (anchors, l0, anchor_sigma, l0_sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
-            Some(b) => (
-                b.anchors,
-                b.l0,
-                b.anchor_sigma,
-                b.l0_sigma,
-                format!(", refined on all cables ({} samples, errors-in-variables)", b.samples),
-            ),
-            None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
+        let (geometry, sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
+            Some(b) => (b.params, b.sigma, format!(", refined on all cables ({} samples, errors-in-variables)", b.samples)),
+            None => (r.params, r.sigma, String::new()),
         };
         // With effects: all of it again, the effects' parameters with the anchors and offsets
         // (`calibrate` has refused beyond `calibration.max_sigma_m`; the start-up's initial
         // estimate does not come here, see `initialise`).
         if !self.effects.is_empty() {
-            let mut est = self.fit_with_effects(rec, &anchors, &l0, &init.effects)?;
-            let cand = taut_calib::trust::Candidate {
-                anchors: &est.anchors,
-                l0: &est.l0,
-                anchor_sigma: &est.anchor_sigma,
-                l0_sigma: &est.l0_sigma,
-                rms_m: est.rms_m,
-            };
+            let mut est = self.fit_with_effects(rec, &geometry.anchors, &geometry.l0, &init.effects)?;
+            let cand = taut_calib::trust::Candidate { params: &est.geometry, sigma: &est.sigma, rms_m: est.rms_m };
             taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
             est.note = format!("{} readings{how}; {}", r.samples_used, est.note);
             return Ok(est);
         }
         // Nothing non-finite or absurd is offered as the robot's parameters.
-        let cand =
-            taut_calib::trust::Candidate { anchors: &anchors, l0: &l0, anchor_sigma: &anchor_sigma, l0_sigma: &l0_sigma, rms_m: r.rms_m };
+        let cand = taut_calib::trust::Candidate { params: &geometry, sigma: &sigma, rms_m: r.rms_m };
         taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
         Ok(Estimate {
-            anchors,
-            l0,
-            anchor_sigma,
-            l0_sigma,
+            geometry,
+            sigma,
             rms_m: r.rms_m,
             observable: true,
             note: if weak.is_empty() {

@@ -31,18 +31,15 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use taut_config::params::{ParamsFile, FORMAT};
 use taut_config::recording::Recording;
 use taut_config::RobotConfig;
+use taut_rt::{Geometry, Sigmas};
 
 /// A parameter estimate from the calibration backend.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
-    /// Anchors, m.
-    pub anchors: Vec<[f64; 3]>,
-    /// Encoder offsets, m.
-    pub l0: Vec<f64>,
-    /// 1-sigma of the anchors, m (NaN if unknown).
-    pub anchor_sigma: Vec<[f64; 3]>,
-    /// 1-sigma of the offsets, m (NaN if unknown).
-    pub l0_sigma: Vec<f64>,
+    /// Anchors and encoder offsets, m.
+    pub geometry: Geometry,
+    /// 1-sigma of the anchors and offsets, m (NaN if unknown).
+    pub sigma: Sigmas,
     /// Co-registration RMS on the data it was fitted to, m.
     pub rms_m: f64,
     /// False when the backend found the problem badly conditioned (with `note` saying why).
@@ -713,7 +710,7 @@ impl Calibrator {
             Ok(mut est) => {
                 // The excitation's predicted uncertainty beside the achieved one.
                 if let (OutcomeKind::Calibration, Some(plan)) = (r.kind, &self.cfg.excitation) {
-                    est.note.push_str(&format!("; {}", crate::excite::predicted_vs_achieved(plan, &est.anchor_sigma)));
+                    est.note.push_str(&format!("; {}", crate::excite::predicted_vs_achieved(plan, &est.sigma.anchors)));
                 }
                 match self.validate(r.kind, &est, r.heldout.as_ref()) {
                     Ok((new_rms, old_rms)) => self.publish(r.kind, r.run, r.samples, est, new_rms, old_rms),
@@ -747,13 +744,10 @@ impl Calibrator {
                 OutcomeKind::Calibration if run == 0 => "start-up calibration".into(),
                 OutcomeKind::Calibration => format!("recalibration {run}"),
             },
-            anchors_m: est.anchors.clone(),
-            l0_m: est.l0.clone(),
-            anchor_sigma_m: est.anchor_sigma.clone(),
-            l0_sigma_m: est.l0_sigma.clone(),
             rms_m: est.rms_m,
             heldout_rms_m: new_rms,
             effects: est.effects.clone(),
+            ..ParamsFile::from_geometry(&est.geometry, &est.sigma)
         };
         let dir = self.cfg.data_dir.join("params");
         let written = std::fs::create_dir_all(&dir)
@@ -765,7 +759,14 @@ impl Calibrator {
             return;
         }
         self.version = version;
-        let lp = LoopParams::new(version, &est.anchors, &est.l0, &self.cfg.platform).with_effects(LoopEffects::from_file(&est.effects));
+        let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
+            Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
+            Err(e) => {
+                // `validate` has checked the geometry; this is the platform points' count or more cables than the loop holds.
+                self.reject(kind, run, samples, Some(est), format!("the loop cannot take these parameters: {e}"));
+                return;
+            }
+        };
         // The displaced value is Copy; it is dropped here, on the calibrator thread.
         self.params_tx.write(lp);
         self.current_params = lp;
@@ -820,22 +821,23 @@ fn validate(
     est: &Estimate,
     heldout: Option<&(Recording, LoopParams)>,
 ) -> Result<(f64, f64), String> {
-    if est.anchors.len() != c.n || est.l0.len() != c.n {
-        return Err(format!("{} anchors and {} offsets for {} cables", est.anchors.len(), est.l0.len(), c.n));
+    let g = &est.geometry;
+    if g.anchors.len() != c.n || g.l0.len() != c.n {
+        return Err(format!("{} anchors and {} offsets for {} cables", g.anchors.len(), g.l0.len(), c.n));
     }
-    if est.anchors.iter().flatten().chain(&est.l0).any(|v| !v.is_finite()) {
+    if g.anchors.iter().flatten().chain(&g.l0).any(|v| !v.is_finite()) {
         return Err("non-finite parameters".into());
     }
     // Unknown (NaN) uncertainty is allowed for an initial estimate; infinite only with the
     // backend's own verdict that the problem is not observable (refused below, with its reason).
-    if est.observable && est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).chain([&est.rms_m]).any(|v| v.is_infinite()) {
+    if est.observable && est.sigma.anchors.iter().flatten().chain(&est.sigma.l0).chain([&est.rms_m]).any(|v| v.is_infinite()) {
         return Err("infinite uncertainty or RMS: the statistics broke down".into());
     }
     // Anchors, and the zero lengths when there is a previous estimate.
     type Reference = (Vec<[f64; 3]>, Option<Vec<f64>>);
     let reference: Option<Reference> = match kind {
         OutcomeKind::Initial => c.nominal.clone().map(|a| (a, None)),
-        OutcomeKind::Calibration => current.map(|e| (e.anchors.clone(), Some(e.l0.clone()))),
+        OutcomeKind::Calibration => current.map(|e| (e.geometry.anchors.clone(), Some(e.geometry.l0.clone()))),
     };
     let bound = match kind {
         // The nominal anchors are a tape-measure guess: allow twice the change.
@@ -843,14 +845,14 @@ fn validate(
         OutcomeKind::Calibration => c.max_anchor_change_m,
     };
     if let Some((anchors, l0)) = reference {
-        for (j, (a, b)) in est.anchors.iter().zip(&anchors).enumerate() {
+        for (j, (a, b)) in est.geometry.anchors.iter().zip(&anchors).enumerate() {
             let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
             if d > bound {
                 return Err(format!("anchor {j} moved {d:.3} m, more than the plausible {bound:.3} m (daemon.max_anchor_change_m)"));
             }
         }
         if let Some(l0) = l0 {
-            for (j, (a, b)) in est.l0.iter().zip(&l0).enumerate() {
+            for (j, (a, b)) in est.geometry.l0.iter().zip(&l0).enumerate() {
                 if (a - b).abs() > c.max_l0_change_m {
                     return Err(format!(
                         "offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m",
@@ -868,7 +870,7 @@ fn validate(
         return Err(format!("observability: {}", est.note));
     }
     let worst =
-        est.anchor_sigma.iter().flatten().chain(&est.l0_sigma).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
+        est.sigma.anchors.iter().flatten().chain(&est.sigma.l0).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
     if worst > c.max_sigma_m {
         return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
     }
@@ -876,7 +878,9 @@ fn validate(
     if !c.tracker {
         return crate::notracker::heldout_dwells(c, est, heldout, current);
     }
-    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform).with_effects(LoopEffects::from_file(&est.effects));
+    let new =
+        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(|e| format!("the loop cannot take these parameters: {e}"))?;
+    let new = new.with_effects(LoopEffects::from_file(&est.effects));
     let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
     let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
     let old_rms = current.coregistration_rms(rows(), c.min_tension_n);

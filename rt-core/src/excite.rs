@@ -141,7 +141,7 @@ pub fn status_json(calib: &crate::calibrator::CalibStatus) -> serde_json::Value 
         .rev()
         .filter(|o| o.kind == crate::calibrator::OutcomeKind::Calibration)
         .find_map(|o| o.estimate.as_ref())
-        .map(|e| worst_anchor_sigma_m(&e.anchor_sigma));
+        .map(|e| worst_anchor_sigma_m(&e.sigma.anchors));
     serde_json::json!({
         "path": plan.path,
         "waypoints": plan.waypoints,

@@ -203,7 +203,9 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// freedom. The new set is taken when it is lower, or not significantly higher (paired
 /// differences per dwell, two standard errors), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), String> {
-    let new = LoopParams::new(0, &est.anchors, &est.l0, &c.platform).with_effects(LoopEffects::from_file(&est.effects));
+    let new =
+        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(|e| format!("the loop cannot take these parameters: {e}"))?;
+    let new = new.with_effects(LoopEffects::from_file(&est.effects));
     let dwells = held_dwells(heldout);
     let mut pairs = Vec::new();
     let (mut sn, mut so, mut dof) = (0.0, 0.0, 0usize);
