@@ -1,7 +1,7 @@
 //! `taut demo`: a simulated ARAS-CAM-like robot calibrating itself, end to end.
 
 use crate::calibrate::{pipeline, progress};
-use crate::report::{self, Truth};
+use crate::report;
 use crate::simulate::{scenario, SimulateArgs};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -62,7 +62,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
         run.loose_samples
     );
     println!();
-    let truth = Truth { anchors: run.truth.anchors.clone(), l0: run.truth.l0.clone() };
+    let truth = run.truth.geometry();
     report::print_calibration(&rec_file, &parse, &out, Some(&truth));
     if let Some(j) = &a.json {
         let v = report::json(&rec_file, &parse, &out, Some(&truth));

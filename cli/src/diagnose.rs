@@ -95,8 +95,8 @@ pub fn to_json(d: &Diagnosis) -> Value {
             "rms_m": num(d.baseline.rms_m),
             "heldout_rms_m": num(d.baseline.heldout_rms_m),
             "per_cable_rms_m": d.baseline.per_cable_rms_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
-            "anchors_m": d.baseline.anchors_m,
-            "l0_m": d.baseline.l0_m,
+            "anchors_m": d.baseline.params.anchors,
+            "l0_m": d.baseline.params.l0,
         },
         "mismatch": {
             "summary": d.mismatch.words,
@@ -112,10 +112,10 @@ pub fn to_json(d: &Diagnosis) -> Value {
             "rms_m": num(d.final_fit.rms_m),
             "heldout_rms_m": num(d.final_fit.heldout_rms_m),
             "per_cable_rms_m": d.final_fit.per_cable_rms_m.iter().map(|v| num(*v)).collect::<Vec<_>>(),
-            "anchors_m": d.final_fit.anchors_m,
-            "anchor_sigma_m": d.final_fit.anchor_sigma_m,
-            "l0_m": d.final_fit.l0_m,
-            "l0_sigma_m": d.final_fit.l0_sigma_m,
+            "anchors_m": d.final_fit.params.anchors,
+            "anchor_sigma_m": d.final_fit.sigma.anchors,
+            "l0_m": d.final_fit.params.l0,
+            "l0_sigma_m": d.final_fit.sigma.l0,
         },
         "unexplained": d.unexplained,
         "data_problems": d.data_problems.iter().map(|p| json!({
@@ -166,7 +166,7 @@ pub fn print(d: &Diagnosis) {
         println!("  {}", f.evidence);
     }
     println!("final model: RMS {:.2} mm, held out {:.2} mm", mm(d.final_fit.rms_m), mm(d.final_fit.heldout_rms_m));
-    for (j, (a, s)) in d.final_fit.anchors_m.iter().zip(&d.final_fit.anchor_sigma_m).enumerate() {
+    for (j, (a, s)) in d.final_fit.params.anchors.iter().zip(&d.final_fit.sigma.anchors).enumerate() {
         println!(
             "  cable {j}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
             a[0],
@@ -175,7 +175,7 @@ pub fn print(d: &Diagnosis) {
             mm(s[0]),
             mm(s[1]),
             mm(s[2]),
-            d.final_fit.l0_m[j]
+            d.final_fit.params.l0[j]
         );
     }
     if let Some(u) = &d.unexplained {
@@ -226,13 +226,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     // The wild values are excluded before the fit; should the model still come out non-finite
     // or absurd, say so and fail rather than hand out such numbers.
     let fin = &d.final_fit;
-    let cand = taut_calib::trust::Candidate {
-        anchors: &fin.anchors_m,
-        l0: &fin.l0_m,
-        anchor_sigma: &fin.anchor_sigma_m,
-        l0_sigma: &fin.l0_sigma_m,
-        rms_m: fin.rms_m,
-    };
+    let cand = taut_calib::trust::Candidate { params: &fin.params, sigma: &fin.sigma, rms_m: fin.rms_m };
     let trusted = taut_calib::trust::check(&cand, &rec, None);
     let write_report = |refused: Option<String>| -> Result<()> {
         let Some(r) = &a.report else { return Ok(()) };
@@ -257,18 +251,14 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
             eprintln!("--out: {n}");
         }
         let file = taut_config::params::ParamsFile {
-            format: taut_config::params::FORMAT.into(),
             version: 1,
             created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
             robot: cfg.robot.name.clone(),
             source: format!("taut diagnose {}", a.recording.display()),
-            anchors_m: fin.anchors_m.clone(),
-            l0_m: fin.l0_m.clone(),
-            anchor_sigma_m: fin.anchor_sigma_m.clone(),
-            l0_sigma_m: fin.l0_sigma_m.clone(),
             rms_m: fin.rms_m,
             heldout_rms_m: fin.heldout_rms_m,
             effects,
+            ..taut_config::params::ParamsFile::from_geometry(&fin.params, &fin.sigma)
         };
         file.save_atomic(p).with_context(|| format!("writing {}", p.display()))?;
         eprintln!(

@@ -206,7 +206,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
     ));
     // The verdict: the largest 1-sigma, the fit, and whether the result may be used.
     let (mut worst, mut worst_at) = (0.0f64, (0usize, 0usize));
-    for (j, s) in f.anchor_sigma.iter().enumerate() {
+    for (j, s) in f.sigma.anchors.iter().enumerate() {
         for (k, v) in s.iter().enumerate() {
             if !v.is_finite() || *v > worst {
                 worst = *v;
@@ -302,7 +302,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         .map(|j| {
             let a = f.params.anchors[j];
             let i = out.init.params.anchors[j];
-            let s = f.anchor_sigma[j];
+            let s = f.sigma.anchors[j];
             let moved = ((a[0] - i[0]).powi(2) + (a[1] - i[1]).powi(2) + (a[2] - i[2]).powi(2)).sqrt();
             vec![
                 format!("cable {j}"),
@@ -314,7 +314,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
                 mm(s[2]),
                 mm(moved),
                 m4(f.params.l0[j]),
-                mm(f.l0_sigma[j]),
+                mm(f.sigma.l0[j]),
             ]
         })
         .collect();
@@ -438,10 +438,10 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
     }
     page.h2("Model");
     let fin = &d.final_fit;
-    let rows: Vec<Vec<String>> = (0..fin.anchors_m.len())
+    let rows: Vec<Vec<String>> = (0..fin.params.anchors.len())
         .map(|j| {
-            let a = fin.anchors_m[j];
-            let s = fin.anchor_sigma_m.get(j).copied().unwrap_or([f64::NAN; 3]);
+            let a = fin.params.anchors[j];
+            let s = fin.sigma.anchors.get(j).copied().unwrap_or([f64::NAN; 3]);
             vec![
                 format!("cable {j}"),
                 m4(a[0]),
@@ -450,8 +450,8 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
                 mm(s[0]),
                 mm(s[1]),
                 mm(s[2]),
-                m4(fin.l0_m[j]),
-                mm(fin.l0_sigma_m.get(j).copied().unwrap_or(f64::NAN)),
+                m4(fin.params.l0[j]),
+                mm(fin.sigma.l0.get(j).copied().unwrap_or(f64::NAN)),
                 mm(d.baseline.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
                 mm(fin.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
             ]

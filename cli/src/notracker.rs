@@ -69,18 +69,11 @@ pub fn method(r: &SelfCalReport) -> &'static str {
 
 fn params_file(cfg: &RobotConfig, source: &str, r: &SelfCalReport) -> taut_config::params::ParamsFile {
     taut_config::params::ParamsFile {
-        format: taut_config::params::FORMAT.into(),
         version: 1,
         created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0),
         robot: cfg.robot.name.clone(),
         source: format!("{source} ({})", method(r)),
-        anchors_m: r.params.anchors.clone(),
-        l0_m: r.params.l0.clone(),
-        anchor_sigma_m: r.anchor_sigma.clone(),
-        l0_sigma_m: r.l0_sigma.clone(),
-        rms_m: f64::NAN,
-        heldout_rms_m: f64::NAN,
-        effects: Default::default(),
+        ..taut_config::params::ParamsFile::from_geometry(&r.params, &r.sigma)
     }
 }
 
@@ -108,7 +101,7 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     println!("frame: {frame}");
     println!("cable  anchor x/y/z (m)                 1-sigma (mm)            L0 (m)      1-sigma (mm)");
     for j in 0..rec.n_cables {
-        let (a, s) = (r.params.anchors[j], r.anchor_sigma[j]);
+        let (a, s) = (r.params.anchors[j], r.sigma.anchors[j]);
         println!(
             "{j:>5}  {:>9.4} {:>9.4} {:>9.4}   {:>6.2} {:>6.2} {:>6.2}   {:>9.4}   {:>6.2}",
             a[0],
@@ -118,7 +111,7 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
             s[1] * 1e3,
             s[2] * 1e3,
             r.params.l0[j],
-            r.l0_sigma[j] * 1e3
+            r.sigma.l0[j] * 1e3
         );
     }
     println!("Cramér–Rao bound on the anchors: {:.2} mm RMS after the frame alignment", r.anchor_rms_crb_m * 1e3);
@@ -151,9 +144,9 @@ fn json(r: &SelfCalReport, screen: &taut_calib::screen::Screen) -> serde_json::V
         "tracker": false,
         "description": method(r),
         "anchors_m": r.params.anchors,
-        "anchor_sigma_m": r.anchor_sigma,
+        "anchor_sigma_m": r.sigma.anchors,
         "l0_m": r.params.l0,
-        "l0_sigma_m": r.l0_sigma,
+        "l0_sigma_m": r.sigma.l0,
         "anchor_rms_crb_m": r.anchor_rms_crb_m,
         "distances_m": r.distances.iter().map(|(i, j, e)| serde_json::json!({ "i": i, "j": j, "distance": est(e) })).collect::<Vec<_>>(),
         "heights_m": r.heights.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),

@@ -5,18 +5,10 @@ use crate::calibrate::Outcome;
 use anyhow::Result;
 use serde_json::json;
 use std::path::Path;
-use taut_calib::{CalibReport, Params};
+use taut_calib::{CalibReport, Geometry, Params};
 use taut_config::params::ParamsFile;
 use taut_config::recording::{ParseReport, Recording};
 use taut_config::RobotConfig;
-
-/// Simulation truth, when there is one.
-pub struct Truth {
-    /// True anchors, m.
-    pub anchors: Vec<[f64; 3]>,
-    /// True encoder offsets, m.
-    pub l0: Vec<f64>,
-}
 
 fn mm(v: f64) -> String {
     if v.is_finite() {
@@ -31,7 +23,7 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 }
 
 /// RMS over cables of the anchor position error, m.
-pub fn anchor_rms_error(p: &Params, truth: &Truth) -> f64 {
+pub fn anchor_rms_error(p: &Params, truth: &Geometry) -> f64 {
     let s: f64 = p.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t).powi(2)).sum();
     (s / p.anchors.len() as f64).sqrt()
 }
@@ -41,7 +33,7 @@ fn fmt3(v: &[f64; 3]) -> String {
 }
 
 /// Prints the table in the spirit of the paper's Table I and Fig. 7-9.
-pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, truth: Option<&Truth>) {
+pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, truth: Option<&Geometry>) {
     let f = &out.force;
     let n = rec.n_cables;
     println!(
@@ -74,7 +66,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
         if truth.is_some() { "  truth                          error, mm (init -> calib)" } else { "" }
     );
     for j in 0..n {
-        let s = f.anchor_sigma[j];
+        let s = f.sigma.anchors[j];
         print!(
             "  {:<5} {:<28} {:<28} {:<22}",
             j,
@@ -95,7 +87,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     println!();
     println!("encoder offsets L0_j, m");
     for j in 0..n {
-        print!("  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm", j, out.init.params.l0[j], f.params.l0[j], mm(f.l0_sigma[j]));
+        print!("  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm", j, out.init.params.l0[j], f.params.l0[j], mm(f.sigma.l0[j]));
         if let Some(t) = truth {
             print!("   truth {:9.4}  error {} mm", t.l0[j], mm((f.params.l0[j] - t.l0[j]).abs()));
         }
@@ -140,8 +132,8 @@ fn report_json(r: &CalibReport) -> serde_json::Value {
     json!({
         "anchors_m": r.params.anchors,
         "l0_m": r.params.l0,
-        "anchor_sigma_m": r.anchor_sigma,
-        "l0_sigma_m": r.l0_sigma,
+        "anchor_sigma_m": r.sigma.anchors,
+        "l0_sigma_m": r.sigma.l0,
         "rms_m": r.rms_m,
         "peak_m": r.peak_m,
         "heldout_rms_m": r.heldout_rms_m,
@@ -155,7 +147,7 @@ fn report_json(r: &CalibReport) -> serde_json::Value {
 }
 
 /// The `--json` document.
-pub fn json(rec: &Recording, parse: &ParseReport, out: &Outcome, truth: Option<&Truth>) -> serde_json::Value {
+pub fn json(rec: &Recording, parse: &ParseReport, out: &Outcome, truth: Option<&Geometry>) -> serde_json::Value {
     let f = &out.force;
     let mut v = report_json(f);
     let o = v.as_object_mut().expect("object");
@@ -186,18 +178,13 @@ pub fn json(rec: &Recording, parse: &ParseReport, out: &Outcome, truth: Option<&
 /// The parameter file of a calibration.
 pub fn params_file(cfg: &RobotConfig, source: &str, r: &CalibReport) -> ParamsFile {
     ParamsFile {
-        format: taut_config::params::FORMAT.into(),
         version: 1,
         created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0),
         robot: cfg.robot.name.clone(),
         source: source.into(),
-        anchors_m: r.params.anchors.clone(),
-        l0_m: r.params.l0.clone(),
-        anchor_sigma_m: r.anchor_sigma.clone(),
-        l0_sigma_m: r.l0_sigma.clone(),
         rms_m: r.rms_m,
         heldout_rms_m: r.heldout_rms_m,
-        effects: Default::default(),
+        ..ParamsFile::from_geometry(&r.params, &r.sigma)
     }
 }
 

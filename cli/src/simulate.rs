@@ -187,15 +187,8 @@ pub fn run(a: &SimulateArgs) -> Result<()> {
 pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim::SimRun) -> Result<()> {
     let n = run.truth.anchors.len();
     let p = taut_config::params::ParamsFile {
-        format: taut_config::params::FORMAT.into(),
-        version: 0,
-        created_unix_s: 0.0,
         robot: s.robot.robot.name.clone(),
         source: format!("simulation truth, seed {seed}"),
-        anchors_m: run.truth.anchors.clone(),
-        l0_m: run.truth.l0.clone(),
-        anchor_sigma_m: vec![[0.0; 3]; n],
-        l0_sigma_m: vec![0.0; n],
         rms_m: 0.0,
         heldout_rms_m: f64::NAN,
         // The concealed effects, as the robot's model would hold them.
@@ -207,6 +200,7 @@ pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim:
             time_offset_s: (s.physics.time_offset_s != 0.0).then_some(s.physics.time_offset_s),
             ..Default::default()
         },
+        ..taut_config::params::ParamsFile::from_geometry(&run.truth.geometry(), &taut_config::params::Sigmas::uniform(n, 0.0))
     };
     p.save_atomic(t).with_context(|| format!("writing {}", t.display()))
 }

@@ -176,18 +176,18 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let final_est = accepted.and_then(|o| o.estimate.as_ref());
     let summary = json!({
         "phases_completed": l.snap.phases_completed,
-        "initial_anchors_m": init_est.map(|e| e.anchors.clone()),
-        "initial_l0_m": init_est.map(|e| e.l0.clone()),
-        "anchors_m": final_est.map(|e| e.anchors.clone()),
-        "l0_m": final_est.map(|e| e.l0.clone()),
-        "anchor_sigma_m": final_est.map(|e| e.anchor_sigma.clone()),
+        "initial_anchors_m": init_est.map(|e| e.geometry.anchors.clone()),
+        "initial_l0_m": init_est.map(|e| e.geometry.l0.clone()),
+        "anchors_m": final_est.map(|e| e.geometry.anchors.clone()),
+        "l0_m": final_est.map(|e| e.geometry.l0.clone()),
+        "anchor_sigma_m": final_est.map(|e| e.sigma.anchors.clone()),
         "excitation": taut_rt_core::excite::status_json(&c),
         "truth_anchors_m": truth.as_ref().map(|t| &t.anchors),
         "truth_l0_m": truth.as_ref().map(|t| &t.l0),
-        "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
-        "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors[..3.min(e.anchors.len())])),
-        "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.anchors)),
-        "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.anchors)),
+        "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
+        "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors[..3.min(e.geometry.anchors.len())])),
+        "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
+        "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.geometry.anchors)),
         "without_tracker": taut_rt_core::notracker::is_dwell(&cfg),
         "calibration_note": final_est.map(|e| e.note.clone()),
         "samples_recorded": c.samples_recorded,
@@ -216,31 +216,31 @@ pub fn run(a: &StartArgs) -> Result<()> {
     }
     println!("phases completed   {}", l.snap.phases_completed);
     if let Some(e) = init_est.filter(|_| truth.is_some()) {
-        let held = err(&e.anchors[..3.min(e.anchors.len())]);
+        let held = err(&e.geometry.anchors[..3.min(e.geometry.anchors.len())]);
         println!(
             "initial estimate   max anchor error {:.1} mm on the held cables, {:.1} mm on all ({})",
             held * 1e3,
-            err(&e.anchors) * 1e3,
+            err(&e.geometry.anchors) * 1e3,
             e.note
         );
     }
     if let Some(e) = final_est {
         if truth.is_some() {
-            println!("calibrated         max anchor error {:.2} mm", err(&e.anchors) * 1e3);
+            println!("calibrated         max anchor error {:.2} mm", err(&e.geometry.anchors) * 1e3);
             if taut_rt_core::notracker::is_dwell(&cfg) {
                 println!(
                     "                   without a tracker: {:.2} mm after the best translation and rotation about the vertical ({})",
-                    aligned(&e.anchors) * 1e3,
+                    aligned(&e.geometry.anchors) * 1e3,
                     e.note
                 );
             }
         }
         if let Some(plan) = &c.excitation {
-            println!("uncertainty        {}", taut_rt_core::excite::predicted_vs_achieved(plan, &e.anchor_sigma));
+            println!("uncertainty        {}", taut_rt_core::excite::predicted_vs_achieved(plan, &e.sigma.anchors));
         }
         if truth.is_none() {
-            for (j, a) in e.anchors.iter().enumerate() {
-                println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.l0[j]);
+            for (j, a) in e.geometry.anchors.iter().enumerate() {
+                println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.geometry.l0[j]);
             }
         }
     }

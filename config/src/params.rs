@@ -31,7 +31,10 @@
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use taut_model::geometry::{Field, Geometry, GeometryError, Sigmas};
+use taut_model::geometry::{Field, GeometryError};
+/// The shared geometry types, re-exported for the crates that see the configuration but not
+/// the model crate (the simulator holds its truth as plain data: it must not see the formulas).
+pub use taut_model::geometry::{Geometry, Sigmas};
 
 /// The format tag of a parameter file as written.
 pub const FORMAT: &str = "taut-params v2";

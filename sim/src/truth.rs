@@ -3,6 +3,7 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use taut_config::params::Geometry;
 use taut_config::RobotConfig;
 
 use crate::physics::Physics;
@@ -26,6 +27,12 @@ pub struct Truth {
 }
 
 impl Truth {
+    /// The true anchors and encoder offsets as the shared geometry type (the one conversion;
+    /// the truth holds more: scales, load-cell offsets, mass, platform points).
+    pub fn geometry(&self) -> Geometry {
+        Geometry { anchors: self.anchors.clone(), l0: self.l0.clone() }
+    }
+
     /// Draws a site: each nominal anchor moved by up to `site_error_m` in a uniformly random
     /// direction (magnitude uniform in [0.1, 1] x `site_error_m`: a quick set-up is off by a few
     /// cm to tens of cm), encoder offsets uniform in +-`l0_range_m`.
@@ -73,5 +80,21 @@ impl Truth {
     /// The noise-free encoder reading of cable `j` for an unstretched length `length`.
     pub fn encoder(&self, j: usize, length: f64) -> f64 {
         self.scale[j] * length + self.l0[j]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::Scenario;
+    use rand::SeedableRng;
+
+    #[test]
+    fn geometry_is_the_true_anchors_and_offsets() {
+        let s = Scenario::aras_cam(3);
+        let t = Truth::sample(&s.robot, &s.physics, 0.1, 1.0, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
+        let g = t.geometry();
+        assert_eq!((g.anchors, g.l0), (t.anchors.clone(), t.l0.clone()));
+        assert!(t.geometry().check().is_ok());
     }
 }

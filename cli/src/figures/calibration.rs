@@ -135,7 +135,7 @@ pub fn figures(rec: &Recording, cfg: &RobotConfig, out: &Outcome) -> Vec<Figure>
         "from the initial estimate to the calibration",
         &out.init.params.anchors,
         &out.force.params.anchors,
-        &out.force.anchor_sigma,
+        &out.force.sigma.anchors,
     ));
     figs
 }

@@ -75,13 +75,13 @@ pub fn figures(d: &Diagnosis) -> Vec<Figure> {
             panels,
         });
     }
-    if d.baseline.anchors_m.len() == d.final_fit.anchors_m.len() && !d.final_fit.anchors_m.is_empty() {
+    if d.baseline.params.anchors.len() == d.final_fit.params.anchors.len() && !d.final_fit.params.anchors.is_empty() {
         figs.push(anchor_moves(
             "diagnose-anchors",
             "from the ideal model to the model with the named effects",
-            &d.baseline.anchors_m,
-            &d.final_fit.anchors_m,
-            &d.final_fit.anchor_sigma_m,
+            &d.baseline.params.anchors,
+            &d.final_fit.params.anchors,
+            &d.final_fit.sigma.anchors,
         ));
     }
     figs
