@@ -22,7 +22,7 @@ fn main() {
         Ok(text) => {
             let rows: Vec<Vec<f64>> =
                 text.lines().map(|l| l.split_whitespace().map(|v| v.parse().expect("number in .init")).collect()).collect();
-            Params { anchors: rows.iter().map(|r| [r[0], r[1], r[2]]).collect(), l0: rows.iter().map(|r| r[3]).collect() }
+            Params::from_cables(&rows.iter().map(|r| [r[0], r[1], r[2], r[3]]).collect::<Vec<_>>())
         }
         Err(_) => init::initialise(&rec, &b, &opts).unwrap_or_else(|e| panic!("{e}")).params,
     };

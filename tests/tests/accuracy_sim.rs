@@ -59,7 +59,7 @@ fn calibrated_anchors_within_1_3x_cramer_rao_bound() {
         let init = init::initialise(rec, &c.b, &c.opts).unwrap();
         let rep = calibrate(rec, &c.b, &init.params, &c.opts).unwrap();
         assert!(rep.was_successful(), "seed {seed}: {:?}", rep.termination);
-        let truth = Params { anchors: c.run.truth.anchors.clone(), l0: c.run.truth.l0.clone() };
+        let truth = c.run.truth.geometry();
         let crb = metrics::cramer_rao(rec, &c.b, &truth, &c.opts);
         err2 += sq_error(&rep.params, &truth.anchors);
         crb2 += crb.anchor_sigma.iter().map(|s| s.iter().map(|v| v * v).sum::<f64>()).sum::<f64>();
@@ -67,7 +67,7 @@ fn calibrated_anchors_within_1_3x_cramer_rao_bound() {
         // The reported 1-sigma should describe the actual error: within 5 sigma per coordinate.
         for j in 0..truth.anchors.len() {
             for k in 0..3 {
-                let z = (rep.params.anchors[j][k] - truth.anchors[j][k]).abs() / rep.anchor_sigma[j][k];
+                let z = (rep.params.anchors[j][k] - truth.anchors[j][k]).abs() / rep.sigma.anchors[j][k];
                 assert!(z < 5.0, "seed {seed}: cable {j} axis {k}: error is {z:.1} reported sigma");
             }
         }
@@ -108,6 +108,6 @@ fn recording_round_trip_keeps_the_calibration() {
     let b = calibrate(&c.run.recording, &c.b, &init.params, &c.opts).unwrap();
     for j in 0..a.params.anchors.len() {
         let d = dist(&a.params.anchors[j], &b.params.anchors[j]);
-        assert!(d < 0.1 * a.anchor_sigma[j][0].min(a.anchor_sigma[j][1]).min(a.anchor_sigma[j][2]), "cable {j}: {d}");
+        assert!(d < 0.1 * a.sigma.anchors[j][0].min(a.sigma.anchors[j][1]).min(a.sigma.anchors[j][2]), "cable {j}: {d}");
     }
 }

@@ -97,10 +97,8 @@ impl TruthCalib {
             ..Default::default()
         };
         TruthCalib(Estimate {
-            anchors: truth.anchors.clone(),
-            l0: truth.l0.clone(),
-            anchor_sigma: vec![[1e-4; 3]; n],
-            l0_sigma: vec![1e-4; n],
+            geometry: truth.geometry(),
+            sigma: taut_calib::Sigmas::uniform(n, 1e-4),
             rms_m: 0.0,
             observable: true,
             note: "the site's truth".into(),
@@ -160,7 +158,7 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
     assert!(cal.accepted, "seed {seed} {effects:?}: {}", cal.reason);
     let est = cal.estimate.clone().unwrap();
-    let anchor_err_max_m = est.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).fold(0.0, f64::max);
+    let anchor_err_max_m = est.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).fold(0.0, f64::max);
 
     // Poses across the workspace, each reached at the move speed, then held for 2 s.
     let frac =
@@ -222,9 +220,9 @@ fn decompose(
 ) {
     let n = truth.anchors.len();
     let platform = &truth.platform_points;
-    let e = LoopParams::new(1, &est.anchors, &est.l0, platform).with_effects(LoopEffects::from_file(&est.effects));
+    let e = LoopParams::from_geometry(1, &est.geometry, platform).unwrap().with_effects(LoopEffects::from_file(&est.effects));
     let t = TruthCalib::new(truth, physics).0;
-    let tp = LoopParams::new(1, &t.anchors, &t.l0, platform).with_effects(LoopEffects::from_file(&t.effects));
+    let tp = LoopParams::from_geometry(1, &t.geometry, platform).unwrap().with_effects(LoopEffects::from_file(&t.effects));
     let inp = &snap.inputs;
     let pose = inp.pose_m;
     eprintln!(
@@ -345,8 +343,8 @@ fn offline_fit_of_a_kept_start_up_recording() {
     let split = ((exc.len() as f64) * (1.0 - cfg.calibration.heldout_fraction)).round() as usize;
     let (train, held) = (exc.slice(0..split), exc.slice(split..exc.len()));
     let platform = cfg.platform_points();
-    let heldout = |anchors: &[[f64; 3]], l0: &[f64], e: &taut_config::params::Effects| {
-        let p = LoopParams::new(1, anchors, l0, &platform).with_effects(LoopEffects::from_file(e));
+    let heldout = |g: &taut_calib::Geometry, e: &taut_config::params::Effects| {
+        let p = LoopParams::from_geometry(1, g, &platform).unwrap().with_effects(LoopEffects::from_file(e));
         p.coregistration_rms((0..held.len()).map(|i| (&held.p[i], held.lengths(i), held.tensions(i))), cfg.calibration.min_tension_n)
             .unwrap()
     };
@@ -357,25 +355,25 @@ fn offline_fit_of_a_kept_start_up_recording() {
     let est = backend.calibrate(&train, &init).unwrap();
     eprintln!(
         "OFFLINE backend: held out {:.2} mm, anchors {:.1} mm, {:.1} s; {:?}; {}",
-        heldout(&est.anchors, &est.l0, &est.effects) * 1e3,
-        aerr(&est.anchors) * 1e3,
+        heldout(&est.geometry, &est.effects) * 1e3,
+        aerr(&est.geometry.anchors) * 1e3,
         t0.elapsed().as_secs_f64(),
         est.effects,
         est.note
     );
     let t = TruthCalib::new(&truth, &so.physics).0;
-    eprintln!("OFFLINE truth: held out {:.2} mm", heldout(&t.anchors, &t.l0, &t.effects) * 1e3);
+    eprintln!("OFFLINE truth: held out {:.2} mm", heldout(&t.geometry, &t.effects) * 1e3);
     let c = &cfg.calibration;
     for iters in [80, 400] {
         let o =
             EffectFitOptions { max_iterations: iters, ..EffectFitOptions::new(&m, c.min_tension_n, c.tracker_sigma_m, c.encoder_sigma_m) };
-        for (name, a, l0) in [("truth", &truth.anchors, &truth.l0), ("init", &init.anchors, &init.l0)] {
+        for (name, a, l0) in [("truth", &truth.anchors, &truth.l0), ("init", &init.geometry.anchors, &init.geometry.l0)] {
             match fit_effects(&train, &platform, a, l0, &Default::default(), &o) {
                 Ok(f) => eprintln!(
                     "OFFLINE fit from {name}, {iters} iterations: held out {:.2} mm, train {:.2} mm, anchors {:.1} mm, {} iterations; EA {:?} scale {:?} pulley {:?}",
-                    heldout(&f.anchors, &f.l0, &f.effects) * 1e3,
+                    heldout(&f.params, &f.effects) * 1e3,
                     f.rms_m * 1e3,
-                    aerr(&f.anchors) * 1e3,
+                    aerr(&f.params.anchors) * 1e3,
                     f.iterations,
                     f.effects.ea_n,
                     f.effects.drum_scale,

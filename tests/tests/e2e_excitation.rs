@@ -64,8 +64,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
     }
     let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
-    let errs_m: Vec<f64> = ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
-    let sig: Vec<f64> = ce.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
+    let errs_m: Vec<f64> = ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
+    let sig: Vec<f64> = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
     eprintln!("seed {seed}: note {}", ce.note);
     let _ = d.shutdown();
     Run {
@@ -73,8 +73,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
         predicted_m,
         errs_m,
-        axis_errs_m: ce.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
-        sigmas_m: ce.anchor_sigma.clone(),
+        axis_errs_m: ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
+        sigmas_m: ce.sigma.anchors.clone(),
         samples: cal.samples,
     }
 }

@@ -116,7 +116,7 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     assert!(ce.note.contains("frame: the nominal anchors'"), "{}", ce.note);
     // The held-out dwells close far better with the calibrated set than with the rest estimate.
     assert!(cal.heldout_rms_new_m < 0.2 * cal.heldout_rms_old_m, "{} vs {}", cal.heldout_rms_new_m, cal.heldout_rms_old_m);
-    let worst = worst_aligned_error(&ce.anchors, &truth.anchors);
+    let worst = worst_aligned_error(&ce.geometry.anchors, &truth.anchors);
     eprintln!(
         "seed {seed}: worst anchor error after translation + yaw alignment {:.2} mm (predicted worst-anchor sigma {:.2} mm); held-out closure {:.4} mm vs {:.2} mm; {}",
         worst * 1e3,
@@ -131,8 +131,8 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     // heights carry the tilt of the frame, which only gravity fixes through the load cells, and
     // their 1-sigma is 3-5 mm in this plan (seed 3 gave 1.35 mm and 4.92 mm in two runs; see
     // BENCHMARKS.md and docs/selfcal.md).
-    let aligned = taut_calib::selfcal::align::align_translation_yaw(&ce.anchors, &truth.anchors);
-    for (j, ((a, t), s)) in aligned.iter().zip(&truth.anchors).zip(&ce.anchor_sigma).enumerate() {
+    let aligned = taut_calib::selfcal::align::align_translation_yaw(&ce.geometry.anchors, &truth.anchors);
+    for (j, ((a, t), s)) in aligned.iter().zip(&truth.anchors).zip(&ce.sigma.anchors).enumerate() {
         for i in 0..3 {
             assert!(
                 (a[i] - t[i]).abs() < 4.0 * s[i] + 2e-4,
@@ -179,7 +179,10 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
         if last.accepted {
             assert!(d.wait_until(Duration::from_secs(10), |l, _| l.snap.params_version == 3 && !l.snap.swap_active));
             let e = last.estimate.as_ref().unwrap();
-            eprintln!("recalibration: worst anchor {:.2} mm after alignment", worst_aligned_error(&e.anchors, &truth.anchors) * 1e3);
+            eprintln!(
+                "recalibration: worst anchor {:.2} mm after alignment",
+                worst_aligned_error(&e.geometry.anchors, &truth.anchors) * 1e3
+            );
         } else {
             assert!(!last.reason.is_empty());
             assert_eq!(d.loop_status().snap.params_version, 2);

@@ -43,13 +43,13 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     // (cable 3, torque mode) starts at its nominal anchor and is refined with the others.
     // Goal: 2 cm. Over runs of this start-up the held cables' initial anchors come within 5-13 mm
     // (three-phase geometry, then all cables' lengths with the positions as unknowns).
-    for (j, (a, t)) in ie.anchors.iter().zip(&truth.anchors).enumerate().take(3) {
+    for (j, (a, t)) in ie.geometry.anchors.iter().zip(&truth.anchors).enumerate().take(3) {
         assert!(dist(a, t) < 0.02, "initial anchor {j} off by {:.1} mm", dist(a, t) * 1e3);
     }
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
-    assert!(cal.accepted, "{} ({:?})", cal.reason, cal.estimate.as_ref().map(|e| (&e.anchor_sigma, &e.l0_sigma)));
+    assert!(cal.accepted, "{} ({:?})", cal.reason, cal.estimate.as_ref().map(|e| (&e.sigma.anchors, &e.sigma.l0)));
     let ce = cal.estimate.as_ref().unwrap();
-    for (j, ((a, t), s)) in ce.anchors.iter().zip(&truth.anchors).zip(&ce.anchor_sigma).enumerate() {
+    for (j, ((a, t), s)) in ce.geometry.anchors.iter().zip(&truth.anchors).zip(&ce.sigma.anchors).enumerate() {
         for i in 0..3 {
             // Within 4 sigma of the calibrator's own uncertainty (plus encoder quantisation).
             assert!(

@@ -288,20 +288,18 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
     let ccfg = CalibratorConfig::from_robot(robot);
     let exc = clean.slice(first_exc..m);
     let mut init = Estimate {
-        anchors: clean_p.anchors_m.clone(),
-        l0: clean_p.l0_m.clone(),
-        anchor_sigma: clean_p.anchor_sigma_m.clone(),
-        l0_sigma: clean_p.l0_sigma_m.clone(),
+        geometry: clean_p.geometry(),
+        sigma: clean_p.sigmas(),
         rms_m: clean_p.rms_m,
         observable: true,
         note: "test".into(),
         effects: Default::default(),
     };
-    for a in init.anchors.iter_mut() {
+    for a in init.geometry.anchors.iter_mut() {
         a[0] += 0.005;
         a[2] -= 0.005;
     }
-    let current = LoopParams::new(1, &init.anchors, &init.l0, &ccfg.platform);
+    let current = LoopParams::from_geometry(1, &init.geometry, &ccfg.platform).unwrap();
     let mut backend = TautCalib::from_config(robot);
     let base = evaluate(&ccfg, &mut backend, &exc, &init, current);
     assert!(base.accepted, "clean excitation refused: {}", base.reason);
@@ -461,10 +459,17 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             }
         } else {
             let e = o.estimate.as_ref().unwrap();
-            let w = worst_sigmas(&e.anchors, &base_est.anchors, &base_est.anchor_sigma);
-            let finite =
-                e.anchors.iter().flatten().chain(&e.l0).chain(e.anchor_sigma.iter().flatten()).chain(&e.l0_sigma).all(|v| v.is_finite())
-                    && e.rms_m.is_finite();
+            let w = worst_sigmas(&e.geometry.anchors, &base_est.geometry.anchors, &base_est.sigma.anchors);
+            let finite = e
+                .geometry
+                .anchors
+                .iter()
+                .flatten()
+                .chain(&e.geometry.l0)
+                .chain(e.sigma.anchors.iter().flatten())
+                .chain(&e.sigma.l0)
+                .all(|v| v.is_finite())
+                && e.rms_m.is_finite();
             if !finite {
                 fail(&mut t, true, "the daemon accepted non-finite numbers".into());
             } else if !(w <= SIGMAS) {

@@ -162,19 +162,17 @@ fn a_diagnosed_elasticity_goes_into_the_file_and_the_loop_kinematics() {
         created_unix_s: 0.0,
         robot: s.robot.robot.name.clone(),
         source: "test".into(),
-        anchors_m: d.final_fit.anchors_m.clone(),
-        l0_m: d.final_fit.l0_m.clone(),
-        anchor_sigma_m: d.final_fit.anchor_sigma_m.clone(),
-        l0_sigma_m: d.final_fit.l0_sigma_m.clone(),
         rms_m: d.final_fit.rms_m,
         heldout_rms_m: d.final_fit.heldout_rms_m,
         effects,
+        ..ParamsFile::from_geometry(&d.final_fit.params, &d.final_fit.sigma)
     };
     let p = dir.path().join("p.toml");
     f.save_atomic(&p).unwrap();
     let back = ParamsFile::load(&p).unwrap();
-    let lp =
-        LoopParams::new(1, &back.anchors_m, &back.l0_m, &sim.truth.platform_points).with_effects(LoopEffects::from_file(&back.effects));
+    let lp = LoopParams::from_geometry(1, &back.geometry(), &sim.truth.platform_points)
+        .unwrap()
+        .with_effects(LoopEffects::from_file(&back.effects));
     // 100 N on a cable stretches it by T G / EA: the encoder is commanded that much less.
     let x = [0.0, 0.0, 1.5];
     let g = lp.length(0, &x) - back.l0_m[0];

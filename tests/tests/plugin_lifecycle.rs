@@ -101,7 +101,7 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
     assert!(cal.accepted, "{}", cal.reason);
     let ce = cal.estimate.as_ref().unwrap();
-    for (j, ((a, t), s)) in ce.anchors.iter().zip(&truth.anchors).zip(&ce.anchor_sigma).enumerate() {
+    for (j, ((a, t), s)) in ce.geometry.anchors.iter().zip(&truth.anchors).zip(&ce.sigma.anchors).enumerate() {
         for i in 0..3 {
             // Within 4 sigma of the calibrator's own uncertainty (plus encoder quantisation), as
             // in e2e_start.

@@ -271,7 +271,7 @@ fn three_phase_recording_of_a_four_cable_robot_gives_an_estimate() {
     for w in &r.weak {
         eprintln!("{w}");
     }
-    for (j, sg) in r.anchor_sigma.iter().enumerate() {
+    for (j, sg) in r.sigma.anchors.iter().enumerate() {
         eprintln!("cable {j}: anchor 1-sigma {:.2} {:.2} {:.2} mm", sg[0] * 1e3, sg[1] * 1e3, sg[2] * 1e3);
         assert!(sg.iter().all(|v| *v <= opts.max_sigma_m));
     }
