@@ -13,6 +13,10 @@
 //!   opens no file or socket outside its tests.
 //! - `taut-model` (the cable model formulas both calib and the loop call) has no dependencies.
 //! - `taut-rt-core` (the robot build) contains no simulator: the simulated rig is `taut-simrig`.
+//! - `taut-sim` does not use the model the calibration fits: no direct `taut-model` dependency
+//!   and no `taut_model` in its source. It reaches `taut-model` only through `taut-config`
+//!   (allowed edge: the parameter file converts to the shared geometry type in one place), and
+//!   names the plain data type `Geometry` only through `taut_config::params`.
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -220,4 +224,25 @@ fn the_checker_finds_a_real_dependency() {
     // And the real-time crate's one dependency is seen too.
     let model = violations("taut-rt", "normal", &[], &["taut-model"]);
     assert_eq!(model.len(), 1, "{model:?}");
+}
+
+/// The simulator is independent of the calibration's model (brief): it may hold the shared
+/// geometry *data* type (through `taut-config`), never the formulas of `taut-model`.
+#[test]
+fn the_simulator_does_not_use_the_model_crate() {
+    let direct = deps("taut-sim", "normal,build", &["--depth", "1"]);
+    assert!(!direct.contains("taut-model"), "taut-sim must not depend on taut-model directly: {direct:?}");
+    let names = |dir: &str| -> Vec<String> {
+        let mut found = vec![];
+        for e in std::fs::read_dir(workspace().join(dir)).unwrap() {
+            let f = e.unwrap().path();
+            if f.extension().is_some_and(|x| x == "rs") && std::fs::read_to_string(&f).unwrap().contains("taut_model") {
+                found.push(f.display().to_string());
+            }
+        }
+        found
+    };
+    assert_eq!(names("sim/src"), Vec::<String>::new(), "taut-sim's source names taut_model");
+    // The scan sees what it looks for: the calibration does use the model crate.
+    assert!(!names("calib/src").is_empty());
 }
