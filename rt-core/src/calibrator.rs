@@ -729,6 +729,15 @@ impl Calibrator {
 
     fn publish(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Estimate, new_rms: f64, old_rms: f64) {
         let version = self.version + 1;
+        // The loop's form first: a set the loop cannot hold is refused before anything is written
+        // (`validate` has checked the geometry; this is the platform points or the cable count).
+        let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
+            Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
+            Err(e) => {
+                self.reject(kind, run, samples, Some(est), format!("the loop cannot take these parameters: {e}"));
+                return;
+            }
+        };
         let file = ParamsFile {
             format: FORMAT.into(),
             version,
@@ -759,14 +768,6 @@ impl Calibrator {
             return;
         }
         self.version = version;
-        let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
-            Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
-            Err(e) => {
-                // `validate` has checked the geometry; this is the platform points' count or more cables than the loop holds.
-                self.reject(kind, run, samples, Some(est), format!("the loop cannot take these parameters: {e}"));
-                return;
-            }
-        };
         // The displaced value is Copy; it is dropped here, on the calibrator thread.
         self.params_tx.write(lp);
         self.current_params = lp;
