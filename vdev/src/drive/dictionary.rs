@@ -60,35 +60,11 @@ impl VirtualDrive {
             (od::TARGET_POSITION, 0) => put(&self.target_position.to_le_bytes()),
             (od::VELOCITY_ACTUAL, 0) => put(&self.velocity.to_le_bytes()),
             (FOLLOWING_ERROR, 0) => put(&self.target_position.wrapping_sub(self.position()).to_le_bytes()),
-            (0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F..=0x60F4, _) if self.exists(index) => {
+            (0x1000 | 0x1008 | 0x1016 | 0x1017 | 0x1018 | 0x2000 | 0x6007 | 0x603F..=0x60F4, _) if object_exists(index) => {
                 Err(AbortCode::NO_SUBINDEX)
             }
             _ => Err(AbortCode::NO_OBJECT),
         }
-    }
-
-    pub(super) fn exists(&self, index: u16) -> bool {
-        matches!(
-            index,
-            0x1000
-                | 0x1008
-                | 0x1016
-                | 0x1017
-                | 0x1018
-                | 0x2000
-                | 0x6007
-                | 0x603F
-                | 0x6040
-                | 0x6041
-                | 0x6060
-                | 0x6061
-                | 0x6064
-                | 0x606C
-                | 0x6071
-                | 0x6077
-                | 0x607A
-                | 0x60F4
-        )
     }
 
     pub(super) fn write(&mut self, index: u16, sub: u8, d: &[u8]) -> Result<(), AbortCode> {
@@ -178,8 +154,39 @@ impl VirtualDrive {
                 Ok(())
             }
             (0x1000 | 0x1008 | 0x1018 | 0x603F | 0x6041 | 0x6061 | 0x6064 | 0x606C | 0x6077 | 0x60F4, _) => Err(AbortCode::READ_ONLY),
-            _ if self.exists(index) => Err(AbortCode::NO_SUBINDEX),
+            _ if object_exists(index) => Err(AbortCode::NO_SUBINDEX),
             _ => Err(AbortCode::NO_OBJECT),
         }
     }
+}
+
+/// Whether object `index` is in this drive's dictionary (the table in the module documentation).
+/// One list for the SDO server and the PDO mapping check, so that an object the drive has but
+/// cannot map is refused as not mappable (0x06040041), not as missing (0x06020000).
+pub(super) fn object_exists(index: u16) -> bool {
+    matches!(
+        index,
+        0x1000
+            | 0x1008
+            | 0x1016
+            | 0x1017
+            | 0x1018
+            | 0x1400..=0x1403
+            | 0x1600..=0x1603
+            | 0x1800..=0x1803
+            | 0x1A00..=0x1A03
+            | 0x2000
+            | 0x6007
+            | 0x603F
+            | 0x6040
+            | 0x6041
+            | 0x6060
+            | 0x6061
+            | 0x6064
+            | 0x606C
+            | 0x6071
+            | 0x6077
+            | 0x607A
+            | 0x60F4
+    )
 }

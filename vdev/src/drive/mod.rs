@@ -568,6 +568,25 @@ mod tests {
     }
 
     #[test]
+    fn an_existing_object_that_cannot_be_mapped_is_not_mappable_not_missing() {
+        let t = Instant::now();
+        let mut d = VirtualDrive::new(DriveParams::new(3));
+        d.poll(t);
+        let _ = d.poll_tx();
+        // TPDO 3 is invalid and empty at the factory: its entries may be written.
+        let entry =
+            |v: u32| SdoRequest::InitiateDownload { index: 0x1A02, sub: 1, kind: Initiate::Expedited { data: v.to_le_bytes(), len: 4 } };
+        let abort = |code: AbortCode| SdoResponse::Abort { index: 0x1A02, sub: 1, code };
+        // 0x6007 (abort connection option), 0x1016 sub 1 (heartbeat consumer), 0x1400 sub 1: in
+        // the dictionary, not mappable.
+        for v in [0x6007_0010, 0x1016_0120, 0x1400_0120] {
+            assert_eq!(sdo(&mut d, entry(v), t), abort(AbortCode::NOT_MAPPABLE), "{v:#010x}");
+        }
+        assert_eq!(sdo(&mut d, entry(0x5555_0010), t), abort(AbortCode::NO_OBJECT));
+        assert_eq!(sdo(&mut d, entry(0x6064_0020), t), SdoResponse::DownloadInitiated { index: 0x1A02, sub: 1 });
+    }
+
+    #[test]
     fn garbage_sdo_is_aborted_not_panicked() {
         let t = Instant::now();
         let mut d = VirtualDrive::new(DriveParams::new(3));

@@ -1,7 +1,7 @@
 //! PDOs (CiA 301 7.2.2, 7.5.2.35-38): the mapping rules a real drive enforces, the factory
 //! mapping, RPDO reception and the SYNC-driven engine (latched RPDOs applied, TPDOs sent).
 
-use super::dictionary::FOLLOWING_ERROR;
+use super::dictionary::{object_exists, FOLLOWING_ERROR};
 use super::VirtualDrive;
 use std::time::Instant;
 use taut_driver::canopen::emcy::{self, Emcy};
@@ -123,11 +123,6 @@ fn mapping_check(rx: bool, e: MapEntry) -> Result<(), AbortCode> {
         None if object_exists(e.index) => Err(AbortCode::NOT_MAPPABLE),
         None => Err(AbortCode::NO_OBJECT),
     }
-}
-
-fn object_exists(index: u16) -> bool {
-    matches!(index, 0x1000 | 0x1008 | 0x1017 | 0x1018 | 0x1400..=0x1403 | 0x1600..=0x1603 | 0x1800..=0x1803 | 0x1A00..=0x1A03 | 0x2000)
-        || MAPPABLE.iter().any(|m| m.0 == index)
 }
 
 /// The factory PDO configuration (what reset communication restores): deliberately not taut's,
