@@ -72,25 +72,64 @@ pub struct TautSimTruth {
     pub position_m: [f64; 3],
 }
 
+/// Why the simulated robot could not be set up from a configuration.
+#[derive(Debug, Clone)]
+enum SimSetupError {
+    /// Fewer than 4 or more than [`TAUT_MAX_CABLES`] cables.
+    CableCount {
+        /// Cables configured.
+        n: usize,
+    },
+    /// The configuration cannot drive the controller.
+    Controller(taut_rt_core::motion::ControllerConfigError),
+    /// No simulated site from the configuration.
+    Site(taut_sim::SimError),
+    /// The platform has no rest position at its parking place.
+    NoRest {
+        /// The parking place, m.
+        p0: [f64; 3],
+        /// Why.
+        error: taut_sim::SimError,
+    },
+}
+
+impl std::fmt::Display for SimSetupError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SimSetupError::CableCount { n } => write!(f, "{n} cables: the simulated robot needs 4..={TAUT_MAX_CABLES}"),
+            SimSetupError::Controller(e) => e.fmt(f),
+            SimSetupError::Site(e) => write!(f, "simulated site: {e}"),
+            SimSetupError::NoRest { p0, error } => write!(f, "simulated site: no rest position at {p0:?}: {error}"),
+        }
+    }
+}
+
+impl std::error::Error for SimSetupError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            SimSetupError::CableCount { .. } => None,
+            SimSetupError::Controller(e) => Some(e),
+            SimSetupError::Site(e) | SimSetupError::NoRest { error: e, .. } => Some(e),
+        }
+    }
+}
+
 impl TautSim {
-    fn new(cfg: &RobotConfig, seed: u64) -> Result<TautSim, String> {
+    fn new(cfg: &RobotConfig, seed: u64) -> Result<TautSim, SimSetupError> {
         let n = cfg.cables.len();
         if !(4..=TAUT_MAX_CABLES).contains(&n) {
-            return Err(format!("{n} cables: the simulated robot needs 4..={TAUT_MAX_CABLES}"));
+            return Err(SimSetupError::CableCount { n });
         }
         let opts = SimOptions { seed, ..SimOptions::default() };
-        let w = ControllerConfig::from_robot(cfg).map_err(|e| e.to_string())?.workspace;
+        let w = ControllerConfig::from_robot(cfg).map_err(SimSetupError::Controller)?.workspace;
         let centre = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
         // Where an operator parks the platform before the start-up (as `taut start --sim`).
         let p0 = simrig::rest_position(cfg, &opts, centre);
         let physics = Physics::default();
         let mut rng = taut_sim::rng(seed, 0);
-        let truth =
-            Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(|e| format!("simulated site: {e}"))?;
+        let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng).map_err(SimSetupError::Site)?;
         let mut plant = Plant::new(&truth, &physics, p0).with_noise(&opts.noise, seed);
-        let drum = plant
-            .lengths_at_rest(p0, cfg.motion.init_follower_tension_n)
-            .map_err(|e| format!("simulated site: no rest position at {p0:?}: {e}"))?;
+        let drum = plant.lengths_at_rest(p0, cfg.motion.init_follower_tension_n).map_err(|error| SimSetupError::NoRest { p0, error })?;
         let cmds: Vec<CableCommand> = drum.iter().map(|&d| CableCommand::Length(d)).collect();
         let mut encoder_m = [f64::NAN; TAUT_MAX_CABLES];
         let mut tension_n = [f64::NAN; TAUT_MAX_CABLES];

@@ -5,7 +5,7 @@
 //! dropped in the running robot. A fit with effects that fails (diverges, or a value outside
 //! its physical range) fails the calibration, and the daemon keeps the running parameters.
 
-use crate::calibrator::{Calibrate, Estimate};
+use crate::calibrator::{BackendError, Calibrate, Estimate};
 use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
 use taut_calib::{init, CalibError, CalibOptions, Geometry, Sigmas};
 use taut_config::params::{Effects, ParamsFile};
@@ -42,10 +42,9 @@ impl TautCalib {
     }
 
     /// Without a tracker: the rest estimate (nominal anchors, offsets from the force balance).
-    fn initialise_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, String> {
-        let nominal = self.nominal.as_ref().ok_or_else(|| taut_calib::selfcal::SelfCalError::NoNominalAnchors.to_string())?;
-        let r = taut_calib::selfcal::rest::rest_estimate(rec, &self.platform, nominal, o.mass_kg, o.encoder_sigma_m)
-            .map_err(|e| e.to_string())?;
+    fn initialise_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, BackendError> {
+        let nominal = self.nominal.as_ref().ok_or(taut_calib::selfcal::SelfCalError::NoNominalAnchors)?;
+        let r = taut_calib::selfcal::rest::rest_estimate(rec, &self.platform, nominal, o.mass_kg, o.encoder_sigma_m)?;
         Ok(Estimate {
             sigma: Sigmas::unknown(r.params.n_cables()),
             geometry: r.params,
@@ -60,9 +59,8 @@ impl TautCalib {
     }
 
     /// Without a tracker: `taut_calib::selfcal` on the recorded dwells.
-    fn calibrate_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, String> {
-        let r =
-            taut_calib::selfcal::calibrate_without_tracker(rec, &self.platform, self.nominal.as_deref(), o).map_err(|e| e.to_string())?;
+    fn calibrate_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, BackendError> {
+        let r = taut_calib::selfcal::calibrate_without_tracker(rec, &self.platform, self.nominal.as_deref(), o)?;
         let frame = match r.frame {
             taut_calib::selfcal::Frame::NominalTranslationYaw => "the nominal anchors' (best translation and rotation about the vertical)",
             taut_calib::selfcal::Frame::NominalRigid => "the nominal anchors' (best translation and rotation)",
@@ -117,18 +115,18 @@ impl TautCalib {
 
     /// Anchors, offsets and the modelled effects fitted together from the ideal model's
     /// result. The data were aligned by the running time offset: the fitted one is added to it.
-    fn fit_with_effects(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64], running: &Effects) -> Result<Estimate, String> {
+    fn fit_with_effects(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64], running: &Effects) -> Result<Estimate, BackendError> {
         let o = EffectFitOptions {
             effects: self.effects.clone(),
             ..EffectFitOptions::new(&[], self.opts.min_tension_n, self.opts.tracker_sigma_m, self.opts.encoder_sigma_m)
         };
         let start = self.start_of(running);
-        let f = fit_effects(rec, &self.platform, anchors, l0, &start, &o).map_err(|e| format!("the fit with effects failed: {e}"))?;
+        let f = fit_effects(rec, &self.platform, anchors, l0, &start, &o)?;
         let mut effects = f.effects;
         if let Some(d) = effects.time_offset_s.as_mut() {
             *d += running.time_offset_s.unwrap_or(0.0);
         }
-        effects.check(anchors.len()).map_err(|(k, m)| format!("the fit with effects gave {k}: {m}"))?;
+        effects.check(anchors.len()).map_err(|(key, message)| BackendError::EffectOutOfRange { key, message })?;
         Ok(Estimate {
             geometry: f.params,
             sigma: f.sigma,
@@ -170,11 +168,11 @@ impl TautCalib {
 }
 
 impl Calibrate for TautCalib {
-    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String> {
+    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, BackendError> {
         if let Some(o) = &self.selfcal {
             return self.initialise_without_tracker(rec, o);
         }
-        let r = init::initialise(rec, &self.platform, &self.opts).map_err(|e| e.to_string())?;
+        let r = init::initialise(rec, &self.platform, &self.opts)?;
         let n = r.params.n_cables();
         let (mut anchors, mut l0) = (r.params.anchors, r.params.l0);
         let mut note = r.method.json_name().to_string();
@@ -210,7 +208,7 @@ impl Calibrate for TautCalib {
         })
     }
 
-    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, String> {
+    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, BackendError> {
         if let Some(o) = &self.selfcal {
             return self.calibrate_without_tracker(rec, o);
         }
@@ -226,10 +224,10 @@ impl Calibrate for TautCalib {
                     effects: init.effects.clone(),
                 })
             }
-            Err(e) => return Err(e.to_string()),
+            Err(e) => return Err(e.into()),
         };
         if !r.was_successful() {
-            return Err(format!("the solver did not converge ({:?})", r.termination));
+            return Err(BackendError::NotConverged(r.termination));
         }
         // `calibrate` refuses beyond `calibration.max_sigma_m`: what it returns is an estimate,
         // weakly determined parameters included (named in the note).
@@ -246,13 +244,13 @@ impl Calibrate for TautCalib {
         if !self.effects.is_empty() {
             let mut est = self.fit_with_effects(rec, &geometry.anchors, &geometry.l0, &init.effects)?;
             let cand = taut_calib::trust::Candidate { params: &est.geometry, sigma: &est.sigma, rms_m: est.rms_m };
-            taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
+            taut_calib::trust::check(&cand, rec, None)?;
             est.note = format!("{} readings{how}; {}", r.samples_used, est.note);
             return Ok(est);
         }
         // Nothing non-finite or absurd is offered as the robot's parameters.
         let cand = taut_calib::trust::Candidate { params: &geometry, sigma: &sigma, rms_m: r.rms_m };
-        taut_calib::trust::check(&cand, rec, None).map_err(|e| e.to_string())?;
+        taut_calib::trust::check(&cand, rec, None)?;
         Ok(Estimate {
             geometry,
             sigma,

@@ -17,6 +17,7 @@
 //! Each published set is written atomically as `params/params-vNNNN.toml` (history, never
 //! overwritten) and `params/current.toml`.
 
+pub use crate::calib_error::{BackendError, RecorderError, Rejection};
 use crate::kin::{LoopEffects, LoopParams};
 use crate::motion::State;
 use crate::sample::{Sample, SampleRx};
@@ -53,10 +54,10 @@ pub struct Estimate {
 /// The calibration backend (`taut-calib` in the daemon; tests may use their own).
 pub trait Calibrate: Send {
     /// Initial estimate from the three-phase recording (it has a `phase` column).
-    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, String>;
+    fn initialise(&mut self, rec: &Recording) -> Result<Estimate, BackendError>;
     /// Calibration from an excitation recording, starting at `init`. The recording is the
     /// training part only: the daemon keeps its own held-out block.
-    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, String>;
+    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, BackendError>;
 }
 
 /// Kind of calibration outcome.
@@ -77,7 +78,9 @@ pub struct Outcome {
     pub kind: OutcomeKind,
     /// Published to the loop.
     pub accepted: bool,
-    /// Why not (empty when accepted).
+    /// Why not (None when accepted).
+    pub rejection: Option<Rejection>,
+    /// The rejection's message, for people and the JSON status (empty when accepted).
     pub reason: String,
     /// Version written, when accepted.
     pub version: u64,
@@ -109,8 +112,8 @@ pub struct CalibStatus {
     pub outcomes: Vec<Outcome>,
     /// The parameters in force (as written).
     pub current: Option<ParamsFile>,
-    /// Recorder errors (disk full...), if any.
-    pub recorder_error: Option<String>,
+    /// The newest recorder error (disk full...), if any.
+    pub recorder_error: Option<RecorderError>,
     /// The start-up excitation and its predicted uncertainty.
     pub excitation: Option<crate::excite::ExcitationPlan>,
 }
@@ -181,6 +184,7 @@ impl CalibratorConfig {
 /// Writes samples as `cdpr-recording v1` rows as they come, flushed (and synced) at least once a
 /// second, so a crash loses at most the last second.
 pub struct Recorder {
+    path: PathBuf,
     file: std::io::BufWriter<std::fs::File>,
     n: usize,
     line: String,
@@ -211,6 +215,7 @@ impl Recorder {
         writeln!(file, "{h}")?;
         file.flush()?;
         Ok(Recorder {
+            path: path.to_path_buf(),
             file,
             n,
             line: String::with_capacity(512),
@@ -219,6 +224,11 @@ impl Recorder {
             tension_max_age_s,
             rows: 0,
         })
+    }
+
+    /// The error of a failed write, naming the file.
+    fn error(&self, e: std::io::Error) -> RecorderError {
+        RecorderError::Csv { path: self.path.clone(), error: Arc::new(e) }
     }
 
     /// Appends one sample.
@@ -393,7 +403,7 @@ struct JobResult {
     kind: OutcomeKind,
     run: u16,
     samples: usize,
-    result: Result<Estimate, String>,
+    result: Result<Estimate, BackendError>,
     heldout: Option<(Recording, LoopParams)>,
     data_problems: Vec<String>,
 }
@@ -516,14 +526,14 @@ impl Calibrator {
             if let Some(r) = &mut self.recorder {
                 if r.last_flush.elapsed() >= Duration::from_millis(500) {
                     if let Err(e) = r.flush() {
-                        self.status.lock().unwrap().recorder_error = Some(e.to_string());
+                        self.status.lock().unwrap().recorder_error = Some(r.error(e));
                     }
                 }
             }
             if let Some(o) = &mut self.outputs {
                 o.tick();
                 if let Some(e) = o.error.take() {
-                    self.status.lock().unwrap().recorder_error = Some(format!("MCAP recording: {e}"));
+                    self.status.lock().unwrap().recorder_error = Some(RecorderError::Mcap(Arc::new(e)));
                 }
             }
             // Acquire: pairs with the daemon's Release store so the final drain sees every sample
@@ -549,7 +559,7 @@ impl Calibrator {
         if let Some(r) = &mut self.recorder {
             match r.push(s) {
                 Ok(()) => self.status.lock().unwrap().samples_recorded = r.rows,
-                Err(e) => self.status.lock().unwrap().recorder_error = Some(e.to_string()),
+                Err(e) => self.status.lock().unwrap().recorder_error = Some(r.error(e)),
             }
         }
         if let Some(o) = &mut self.outputs {
@@ -661,23 +671,13 @@ impl Calibrator {
                         self.stage("calibrating");
                         self.submit(Job::Calibrate { train, heldout, init, current: self.current_params, run: s.run });
                     }
-                    None => self.reject(OutcomeKind::Calibration, s.run, rec.len(), None, "no running parameters to start from".into()),
+                    None => self.reject(OutcomeKind::Calibration, s.run, rec.len(), None, Rejection::NoRunningParameters),
                 }
             }
             (State::InitPhase | State::Excitation, State::Faulted | State::Stopped) => {
                 let kind = if prev == State::InitPhase { OutcomeKind::Initial } else { OutcomeKind::Calibration };
                 let samples = if prev == State::InitPhase { self.init_set.len() } else { self.exc_set.len() };
-                self.reject(
-                    kind,
-                    s.run,
-                    samples,
-                    None,
-                    format!(
-                        "{} interrupted: the loop went to {}",
-                        if prev == State::InitPhase { "initialisation" } else { "excitation" },
-                        state.name()
-                    ),
-                );
+                self.reject(kind, s.run, samples, None, Rejection::Interrupted { kind, state });
                 self.stage("idle");
             }
             _ => {}
@@ -690,7 +690,7 @@ impl Calibrator {
                 Job::Initial { run, .. } => (OutcomeKind::Initial, *run),
                 Job::Calibrate { run, .. } => (OutcomeKind::Calibration, *run),
             };
-            self.reject(kind, run, 0, None, "a calibration is already running".into());
+            self.reject(kind, run, 0, None, Rejection::Busy);
             return;
         };
         if let Some((tx, _)) = &self.jobs {
@@ -706,7 +706,7 @@ impl Calibrator {
         self.busy = false;
         self.stage("idle");
         match r.result {
-            Err(e) => self.reject(r.kind, r.run, r.samples, None, format!("the calibration failed: {e}")),
+            Err(e) => self.reject(r.kind, r.run, r.samples, None, Rejection::Failed(e)),
             Ok(mut est) => {
                 // The excitation's predicted uncertainty beside the achieved one.
                 if let (OutcomeKind::Calibration, Some(plan)) = (r.kind, &self.cfg.excitation) {
@@ -723,7 +723,7 @@ impl Calibrator {
         }
     }
 
-    fn validate(&self, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), String> {
+    fn validate(&self, kind: OutcomeKind, est: &Estimate, heldout: Option<&(Recording, LoopParams)>) -> Result<(f64, f64), Rejection> {
         validate(&self.cfg, self.current.as_ref(), kind, est, heldout)
     }
 
@@ -734,7 +734,7 @@ impl Calibrator {
         let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
             Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
             Err(e) => {
-                self.reject(kind, run, samples, Some(est), format!("the loop cannot take these parameters: {e}"));
+                self.reject(kind, run, samples, Some(est), Rejection::LoopCannotHold(e));
                 return;
             }
         };
@@ -764,7 +764,7 @@ impl Calibrator {
             .and_then(|_| file.save_atomic(dir.join("current.toml")));
         if let Err(e) = written {
             // Never run parameters that are not on disk: a restart would not know them.
-            self.reject(kind, run, samples, Some(est), format!("cannot write {}: {e}", dir.display()));
+            self.reject(kind, run, samples, Some(est), Rejection::Write { dir, error: Arc::new(e) });
             return;
         }
         self.version = version;
@@ -781,6 +781,7 @@ impl Calibrator {
             run,
             kind,
             accepted: true,
+            rejection: None,
             reason: String::new(),
             version,
             estimate: Some(est),
@@ -793,13 +794,14 @@ impl Calibrator {
         self.outcome_out();
     }
 
-    fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, reason: String) {
+    fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, why: Rejection) {
         let mut st = self.status.lock().unwrap();
         st.outcomes.push(Outcome {
             run,
             kind,
             accepted: false,
-            reason,
+            reason: why.to_string(),
+            rejection: Some(why),
             version: 0,
             estimate: est,
             heldout_rms_new_m: f64::NAN,
@@ -821,18 +823,18 @@ fn validate(
     kind: OutcomeKind,
     est: &Estimate,
     heldout: Option<&(Recording, LoopParams)>,
-) -> Result<(f64, f64), String> {
+) -> Result<(f64, f64), Rejection> {
     let g = &est.geometry;
     if g.anchors.len() != c.n || g.l0.len() != c.n {
-        return Err(format!("{} anchors and {} offsets for {} cables", g.anchors.len(), g.l0.len(), c.n));
+        return Err(Rejection::CableCount { anchors: g.anchors.len(), offsets: g.l0.len(), cables: c.n });
     }
     if g.anchors.iter().flatten().chain(&g.l0).any(|v| !v.is_finite()) {
-        return Err("non-finite parameters".into());
+        return Err(Rejection::NonFinite);
     }
     // Unknown (NaN) uncertainty is allowed for an initial estimate; infinite only with the
     // backend's own verdict that the problem is not observable (refused below, with its reason).
     if est.observable && est.sigma.anchors.iter().flatten().chain(&est.sigma.l0).chain([&est.rms_m]).any(|v| v.is_infinite()) {
-        return Err("infinite uncertainty or RMS: the statistics broke down".into());
+        return Err(Rejection::InfiniteUncertainty);
     }
     // Anchors, and the zero lengths when there is a previous estimate.
     type Reference = (Vec<[f64; 3]>, Option<Vec<f64>>);
@@ -849,17 +851,13 @@ fn validate(
         for (j, (a, b)) in est.geometry.anchors.iter().zip(&anchors).enumerate() {
             let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
             if d > bound {
-                return Err(format!("anchor {j} moved {d:.3} m, more than the plausible {bound:.3} m (daemon.max_anchor_change_m)"));
+                return Err(Rejection::AnchorMoved { cable: j, moved_m: d, bound_m: bound });
             }
         }
         if let Some(l0) = l0 {
             for (j, (a, b)) in est.geometry.l0.iter().zip(&l0).enumerate() {
                 if (a - b).abs() > c.max_l0_change_m {
-                    return Err(format!(
-                        "offset {j} changed {:.3} m, more than daemon.max_l0_change_m = {:.3} m",
-                        (a - b).abs(),
-                        c.max_l0_change_m
-                    ));
+                    return Err(Rejection::OffsetChanged { cable: j, changed_m: (a - b).abs(), bound_m: c.max_l0_change_m });
                 }
             }
         }
@@ -868,19 +866,19 @@ fn validate(
         return Ok((f64::NAN, f64::NAN));
     }
     if !est.observable {
-        return Err(format!("observability: {}", est.note));
+        return Err(Rejection::NotObservable { note: est.note.clone() });
     }
     let worst =
         est.sigma.anchors.iter().flatten().chain(&est.sigma.l0).fold(0.0f64, |m, &s| if s.is_finite() { m.max(s) } else { f64::INFINITY });
     if worst > c.max_sigma_m {
-        return Err(format!("1-sigma up to {worst:.4} m, above daemon.max_sigma_m = {} m", c.max_sigma_m));
+        return Err(Rejection::SigmaTooLarge { worst_m: worst, max_m: c.max_sigma_m });
     }
-    let Some((heldout, current)) = heldout else { return Err("no held-out data".into()) };
+    let Some((heldout, current)) = heldout else { return Err(Rejection::NoHeldout) };
     if !c.tracker {
         return crate::notracker::heldout_dwells(c, est, heldout, current);
     }
     let new =
-        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(|e| format!("the loop cannot take these parameters: {e}"))?;
+        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
     let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
     let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
@@ -891,12 +889,8 @@ fn validate(
         // not significantly worse (paired test on the same readings), so a start-up whose
         // initial estimate was already good still ends with the calibrated set.
         (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n) => Ok((n, o)),
-        (Some(n), Some(o)) => Err(format!(
-            "held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm",
-            n * 1e3,
-            o * 1e3
-        )),
-        _ => Err("no usable held-out samples (tracker or taut cables missing)".into()),
+        (Some(n), Some(o)) => Err(Rejection::HeldoutWorse { new_m: n, old_m: o }),
+        _ => Err(Rejection::NoUsableHeldout),
     }
 }
 
@@ -908,18 +902,19 @@ pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recor
     let split = ((rec.len() as f64) * (1.0 - cfg.heldout_fraction)).round() as usize;
     let job = Job::Calibrate { train: rec.slice(0..split), heldout: rec.slice(split..rec.len()), init: init.clone(), current, run: 1 };
     let r = run_job(job, backend, cfg.min_tension_n);
-    let (accepted, reason, estimate, rms) = match r.result {
-        Err(e) => (false, format!("the calibration failed: {e}"), None, (f64::NAN, f64::NAN)),
+    let (rejection, estimate, rms) = match r.result {
+        Err(e) => (Some(Rejection::Failed(e)), None, (f64::NAN, f64::NAN)),
         Ok(est) => match validate(cfg, Some(init), r.kind, &est, r.heldout.as_ref()) {
-            Ok(rms) => (true, String::new(), Some(est), rms),
-            Err(why) => (false, why, Some(est), (f64::NAN, f64::NAN)),
+            Ok(rms) => (None, Some(est), rms),
+            Err(why) => (Some(why), Some(est), (f64::NAN, f64::NAN)),
         },
     };
     Outcome {
         run: r.run,
         kind: r.kind,
-        accepted,
-        reason,
+        accepted: rejection.is_none(),
+        reason: rejection.as_ref().map_or_else(String::new, ToString::to_string),
+        rejection,
         version: 0,
         estimate,
         heldout_rms_new_m: rms.0,
@@ -947,7 +942,7 @@ fn run_job(job: Job, backend: &mut dyn Calibrate, min_tension_n: f64) -> JobResu
             let samples = rec.len();
             let rec = screened(rec, min_tension_n, "initialisation data", &mut data_problems);
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.initialise(&rec)))
-                .unwrap_or_else(|_| Err("the initialisation panicked".into()));
+                .unwrap_or(Err(BackendError::Panicked(OutcomeKind::Initial)));
             JobResult { kind: OutcomeKind::Initial, run, samples, result, heldout: None, data_problems }
         }
         Job::Calibrate { train, heldout, init, current, run } => {
@@ -957,7 +952,7 @@ fn run_job(job: Job, backend: &mut dyn Calibrate, min_tension_n: f64) -> JobResu
             let train = screened(train, min_tension_n, "excitation (training rows)", &mut data_problems);
             let heldout = screened(heldout, min_tension_n, "excitation (held-out rows)", &mut data_problems);
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| backend.calibrate(&train, &init)))
-                .unwrap_or_else(|_| Err("the calibration panicked".into()));
+                .unwrap_or(Err(BackendError::Panicked(OutcomeKind::Calibration)));
             JobResult { kind: OutcomeKind::Calibration, run, samples, result, heldout: Some((heldout, current)), data_problems }
         }
     }

@@ -187,8 +187,8 @@ pub struct Outputs {
     pub mcap: Option<McapWriter>,
     /// The telemetry server's queue (bounded; a full queue drops the frame for the clients).
     pub live: Option<crossbeam_channel::Sender<Frame>>,
-    /// First MCAP write error.
-    pub error: Option<String>,
+    /// First MCAP write error (the calibrator takes it into its status).
+    pub error: Option<std::io::Error>,
     /// Frames the telemetry queue had no room for.
     pub live_dropped: u64,
 }
@@ -197,13 +197,13 @@ impl Outputs {
     fn emit(
         mcap: &mut Option<McapWriter>,
         live: &Option<crossbeam_channel::Sender<Frame>>,
-        err: &mut Option<String>,
+        err: &mut Option<std::io::Error>,
         dropped: &mut u64,
         f: Frame,
     ) {
         if let Some(w) = mcap {
             if let Err(e) = w.write(f.topic, f.log_time_ns, &f.data) {
-                err.get_or_insert_with(|| e.to_string());
+                err.get_or_insert(e);
             }
         }
         if let Some(tx) = live {
@@ -235,7 +235,7 @@ impl Outputs {
     pub fn tick(&mut self) {
         if let Some(w) = &mut self.mcap {
             if let Err(e) = w.tick() {
-                self.error.get_or_insert_with(|| e.to_string());
+                self.error.get_or_insert(e);
             }
         }
     }
@@ -244,7 +244,7 @@ impl Outputs {
     pub fn finish(&mut self) {
         if let Some(w) = self.mcap.take() {
             if let Err(e) = w.finish() {
-                self.error.get_or_insert_with(|| e.to_string());
+                self.error.get_or_insert(e);
             }
         }
     }
@@ -256,7 +256,7 @@ pub fn open_outputs(
     c: &crate::calibrator::CalibratorConfig,
     cfg: &taut_config::RobotConfig,
     mcap: Option<&std::path::Path>,
-) -> Result<(Option<Outputs>, Option<crate::telemetry::TelemetryServer>), String> {
+) -> Result<(Option<Outputs>, Option<crate::telemetry::TelemetryServer>), OutputsError> {
     let writer = match mcap {
         Some(p) => {
             let meta = taut_config::mcap::RecordingMeta {
@@ -267,17 +267,14 @@ pub fn open_outputs(
                 source: "taut start".into(),
                 comments: vec![format!(" robot: {}; written by taut start", c.robot)],
             };
-            Some(
-                McapWriter::create(p, &meta)
-                    .map_err(|e| format!("cannot create the MCAP recording {}: {e} (daemon.data_dir)", p.display()))?,
-            )
+            Some(McapWriter::create(p, &meta).map_err(|source| OutputsError::Mcap { path: p.to_path_buf(), source })?)
         }
         None => None,
     };
     let (server, live) = if cfg.telemetry.enabled {
-        let addr = cfg.telemetry.addr().ok_or("telemetry.bind is not an IP address")?;
-        let (server, tx) = crate::telemetry::bind(addr, cfg.telemetry.max_clients)
-            .map_err(|e| format!("cannot serve telemetry on {addr}: {e} (telemetry.bind, telemetry.port)"))?;
+        let addr = cfg.telemetry.addr().ok_or_else(|| OutputsError::TelemetryBind { bind: cfg.telemetry.bind.clone() })?;
+        let (server, tx) =
+            crate::telemetry::bind(addr, cfg.telemetry.max_clients).map_err(|source| OutputsError::Telemetry { addr, source })?;
         (Some(server), Some(tx))
     } else {
         (None, None)
@@ -287,4 +284,54 @@ pub fn open_outputs(
     }
     let enc = Encoder::new(c.n, c.platform.clone(), c.nominal.clone());
     Ok((Some(Outputs { enc, mcap: writer, live, error: None, live_dropped: 0 }), server))
+}
+
+/// Why the MCAP recording or the telemetry server could not be opened. Each names the file or
+/// the configuration key.
+#[derive(Debug)]
+pub enum OutputsError {
+    /// The MCAP recording could not be created (`daemon.data_dir`).
+    Mcap {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// `telemetry.bind` is not an IP address.
+    TelemetryBind {
+        /// Its value.
+        bind: String,
+    },
+    /// The telemetry server could not listen (`telemetry.bind`, `telemetry.port`).
+    Telemetry {
+        /// The address.
+        addr: std::net::SocketAddr,
+        /// The error.
+        source: std::io::Error,
+    },
+}
+
+impl std::fmt::Display for OutputsError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OutputsError::Mcap { path, source } => {
+                write!(f, "cannot create the MCAP recording {}: {source} (daemon.data_dir)", path.display())
+            }
+            OutputsError::TelemetryBind { bind } => {
+                write!(f, "telemetry.bind {bind:?} is not an IP address; give e.g. \"127.0.0.1\" (this machine only)")
+            }
+            OutputsError::Telemetry { addr, source } => {
+                write!(f, "cannot serve telemetry on {addr}: {source} (telemetry.bind, telemetry.port)")
+            }
+        }
+    }
+}
+
+impl std::error::Error for OutputsError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            OutputsError::Mcap { source, .. } | OutputsError::Telemetry { source, .. } => Some(source),
+            OutputsError::TelemetryBind { .. } => None,
+        }
+    }
 }

@@ -109,7 +109,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
             "samples_recorded": calib.samples_recorded,
             "dataset_samples": calib.dataset_samples,
             "recording": calib.recording.as_ref().map(|p| p.display().to_string()),
-            "recorder_error": calib.recorder_error,
+            "recorder_error": calib.recorder_error.as_ref().map(ToString::to_string),
             "outcomes": outcomes,
             "excitation": crate::excite::status_json(calib),
         },

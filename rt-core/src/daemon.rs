@@ -54,7 +54,7 @@ pub enum DaemonError {
     },
     /// The MCAP recording or the telemetry server could not be opened (`[recording]`,
     /// `[telemetry]`).
-    Outputs(String),
+    Outputs(crate::channels::OutputsError),
     /// A thread could not be started.
     Thread {
         /// Its name.
@@ -72,7 +72,7 @@ impl fmt::Display for DaemonError {
                 write!(f, "cannot serve the control socket {}: {source} (daemon.socket)", path.display())
             }
             DaemonError::Thread { name, source } => write!(f, "cannot start the {name} thread: {source}"),
-            DaemonError::Outputs(m) => f.write_str(m),
+            DaemonError::Outputs(e) => e.fmt(f),
         }
     }
 }
@@ -82,7 +82,7 @@ impl std::error::Error for DaemonError {
         match self {
             DaemonError::Plugin(e) => Some(e),
             DaemonError::ControlSocket { source, .. } | DaemonError::Thread { source, .. } => Some(source),
-            DaemonError::Outputs(_) => None,
+            DaemonError::Outputs(e) => Some(e),
         }
     }
 }

@@ -37,6 +37,7 @@
 #![deny(missing_docs)]
 
 pub mod calib_backend;
+mod calib_error;
 pub mod calibrator;
 pub mod channels;
 pub mod control;

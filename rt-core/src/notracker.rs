@@ -17,7 +17,7 @@
 //! close (the residual after fitting the platform position), which needs no tracker and no
 //! frame.
 
-use crate::calibrator::{CalibratorConfig, Estimate};
+use crate::calibrator::{CalibratorConfig, Estimate, Rejection};
 use crate::kin::{LoopEffects, LoopParams};
 use crate::motion::{ControllerConfig, MAX_DWELL_POSES};
 use crate::plugin::PluginError;
@@ -202,9 +202,8 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// see), the RMS length closure residual of the new set against the running one, per degree of
 /// freedom. The new set is taken when it is lower, or not significantly higher (paired
 /// differences per dwell, two standard errors), as with a tracker. Returns `(new, old)` RMS, m.
-pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), String> {
-    let new =
-        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(|e| format!("the loop cannot take these parameters: {e}"))?;
+pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
+    let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
     let dwells = held_dwells(heldout);
     let mut pairs = Vec::new();
@@ -218,7 +217,7 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
         }
     }
     if pairs.len() < 2 || dof == 0 {
-        return Err(format!("only {} usable held-out dwells (at least 2 with four taut cables needed)", pairs.len()));
+        return Err(Rejection::TooFewHeldoutDwells { usable: pairs.len() });
     }
     let (n_rms, o_rms) = ((sn / dof as f64).sqrt(), (so / dof as f64).sqrt());
     let m = pairs.iter().sum::<f64>() / pairs.len() as f64;
@@ -226,11 +225,6 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
     if n_rms < o_rms || m <= 2.0 * (var / pairs.len() as f64).sqrt() {
         Ok((n_rms, o_rms))
     } else {
-        Err(format!(
-            "held-out dwells ({}): length closure RMS {:.3} mm is significantly higher than the running parameters' {:.3} mm",
-            pairs.len(),
-            n_rms * 1e3,
-            o_rms * 1e3
-        ))
+        Err(Rejection::HeldoutDwellsWorse { dwells: pairs.len(), new_m: n_rms, old_m: o_rms })
     }
 }

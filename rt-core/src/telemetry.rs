@@ -252,10 +252,10 @@ impl TelemetryServer {
 // tungstenite's error and its handshake callback's error response are large by its design; they
 // live on the telemetry thread only, once per connection.
 #[allow(clippy::result_large_err)]
-fn handshake(stream: TcpStream, cfg: WebSocketConfig) -> Result<WebSocket<TcpStream>, String> {
-    stream.set_nonblocking(false).map_err(|e| e.to_string())?;
-    stream.set_read_timeout(Some(HANDSHAKE_TIMEOUT)).map_err(|e| e.to_string())?;
-    stream.set_write_timeout(Some(HANDSHAKE_TIMEOUT)).map_err(|e| e.to_string())?;
+fn handshake(stream: TcpStream, cfg: WebSocketConfig) -> Result<WebSocket<TcpStream>, HandshakeError> {
+    stream.set_nonblocking(false).map_err(HandshakeError::Socket)?;
+    stream.set_read_timeout(Some(HANDSHAKE_TIMEOUT)).map_err(HandshakeError::Socket)?;
+    stream.set_write_timeout(Some(HANDSHAKE_TIMEOUT)).map_err(HandshakeError::Socket)?;
     let _ = stream.set_nodelay(true);
     let callback = |req: &Request, mut resp: Response| -> Result<Response, ErrorResponse> {
         let offered = req
@@ -274,9 +274,44 @@ fn handshake(stream: TcpStream, cfg: WebSocketConfig) -> Result<WebSocket<TcpStr
         resp.headers_mut().insert("Sec-WebSocket-Protocol", tungstenite::http::HeaderValue::from_static(SUBPROTOCOL));
         Ok(resp)
     };
-    let ws = tungstenite::accept_hdr_with_config(stream, callback, Some(cfg)).map_err(|e| e.to_string())?;
-    ws.get_ref().set_nonblocking(true).map_err(|e| e.to_string())?;
+    let ws = tungstenite::accept_hdr_with_config(stream, callback, Some(cfg)).map_err(|e| match e {
+        tungstenite::HandshakeError::Failure(e) => HandshakeError::WebSocket(e),
+        tungstenite::HandshakeError::Interrupted(_) => HandshakeError::Incomplete,
+    })?;
+    ws.get_ref().set_nonblocking(true).map_err(HandshakeError::Socket)?;
     Ok(ws)
+}
+
+/// Why a connection was refused during the handshake (counted in [`TelemetryStats`]).
+#[derive(Debug)]
+enum HandshakeError {
+    /// The socket's mode or timeouts could not be set.
+    Socket(std::io::Error),
+    /// The WebSocket handshake failed: no Foxglove subprotocol (answered 400), a malformed
+    /// request, a timeout.
+    WebSocket(tungstenite::Error),
+    /// The blocking handshake returned unfinished (the socket was not blocking).
+    Incomplete,
+}
+
+impl std::fmt::Display for HandshakeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            HandshakeError::Socket(e) => write!(f, "telemetry client socket: {e}"),
+            HandshakeError::WebSocket(e) => write!(f, "telemetry WebSocket handshake: {e}"),
+            HandshakeError::Incomplete => f.write_str("telemetry WebSocket handshake did not complete"),
+        }
+    }
+}
+
+impl std::error::Error for HandshakeError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            HandshakeError::Socket(e) => Some(e),
+            HandshakeError::WebSocket(e) => Some(e),
+            HandshakeError::Incomplete => None,
+        }
+    }
 }
 
 /// A subscribe or unsubscribe request; anything else (or malformed) is ignored, as the protocol

@@ -206,8 +206,8 @@ pub enum BuildError {
     Device {
         /// `virtual load cells`, `tracker receiver`, ...
         what: &'static str,
-        /// The reason.
-        error: String,
+        /// The operating system's reason.
+        error: std::io::Error,
     },
     /// The robot's load-cell bus (on the simulated cells' pseudo-terminal) did not start.
     LoadCells(taut_driver::loadcell::SpawnError),
@@ -234,7 +234,19 @@ impl std::fmt::Display for BuildError {
     }
 }
 
-impl std::error::Error for BuildError {}
+impl std::error::Error for BuildError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            BuildError::Site { error, .. } => Some(error),
+            BuildError::Can { error, .. } | BuildError::Device { error, .. } => Some(error),
+            BuildError::LoadCells(e) => Some(e),
+            BuildError::BringUp(e) => Some(e),
+            BuildError::TooManyCables { .. } | BuildError::NoDrive { .. } | BuildError::NoRest { .. } | BuildError::NoSocketCan { .. } => {
+                None
+            }
+        }
+    }
+}
 
 /// Builds the simulated robot of `cfg` (nominal anchors and a `[cable.drive]` per cable
 /// needed) with the platform at `p0`, starts it, and brings its drives up through the CANopen
@@ -339,7 +351,7 @@ where
     let handle = TensionHandle::new(n);
     handle.set_all(&ten);
     let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone())
-        .map_err(|e| BuildError::Device { what: "virtual load cells", error: e.to_string() })?;
+        .map_err(|e| BuildError::Device { what: "virtual load cells", error: e })?;
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
     lc_bus.max_age_s = cfg.safety.tension_max_age_s;
@@ -348,10 +360,8 @@ where
     let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(BuildError::LoadCells)?;
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
-    let (tracker, pose) =
-        taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e.to_string() })?;
-    let sender =
-        TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e.to_string() })?;
+    let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
+    let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e })?;
 
     let faults = Arc::new(SimFaults::default());
     let stop = Arc::new(AtomicBool::new(false));
@@ -381,7 +391,7 @@ where
     let thread = std::thread::Builder::new()
         .name("sim-robot".into())
         .spawn(move || site.run())
-        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e.to_string() })?;
+        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
     let site = SiteThread { stop, thread: Some(thread) };
     let tracker_stats = pose.stats_handle();
     let peripherals = if opts.tracker {

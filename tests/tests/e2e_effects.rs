@@ -108,10 +108,14 @@ impl TruthCalib {
 }
 
 impl Calibrate for TruthCalib {
-    fn initialise(&mut self, _: &taut_config::recording::Recording) -> Result<Estimate, String> {
+    fn initialise(&mut self, _: &taut_config::recording::Recording) -> Result<Estimate, taut_rt_core::calibrator::BackendError> {
         Ok(self.0.clone())
     }
-    fn calibrate(&mut self, _: &taut_config::recording::Recording, _: &Estimate) -> Result<Estimate, String> {
+    fn calibrate(
+        &mut self,
+        _: &taut_config::recording::Recording,
+        _: &Estimate,
+    ) -> Result<Estimate, taut_rt_core::calibrator::BackendError> {
         Ok(self.0.clone())
     }
 }
