@@ -130,6 +130,18 @@ mod tests {
     }
 
     #[test]
+    fn a_robot_file_with_too_short_an_age_is_refused_at_load_at_the_key_line() {
+        let hw = include_str!("../examples/aras-cam-hw.toml");
+        assert!(crate::RobotConfig::from_toml_str(hw).is_ok(), "the hardware example is consistent");
+        let bad = hw.replace("response_timeout_s = 0.02", "response_timeout_s = 0.05") + "\n[safety]\ntension_max_age_s = 0.1\n";
+        let e = crate::RobotConfig::from_toml_str(&bad).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("safety.tension_max_age_s"));
+        let line = bad.lines().position(|l| l.starts_with("tension_max_age_s")).unwrap() + 1;
+        assert_eq!(e.line, Some(line), "{e:?}");
+        assert!(e.message.contains("loadcells.response_timeout_s = 0.05"), "{}", e.message);
+    }
+
+    #[test]
     fn a_slow_poll_period_counts_twice() {
         // Good reading in round k, failed in k+1, next good in k+2: two periods.
         let bus = LoadCellBusConfig { poll_period_s: 0.1, ..LoadCellBusConfig::new("/dev/x") };
