@@ -503,7 +503,10 @@ fn default_stop_bits() -> u8 {
     1
 }
 fn default_response_timeout() -> f64 {
-    0.05
+    // At 115200 baud a request and its answer take 1.5 ms on the wire and the FTDI latency
+    // timer is 1 ms (udev/99-taut-loadcells.rules): 20 ms leaves a load cell ~17 ms to answer,
+    // and three tries (67 ms) stay inside the default safety.tension_max_age_s (loadcell_timing).
+    0.02
 }
 fn default_retries() -> u8 {
     2

@@ -18,6 +18,7 @@ pub mod followers;
 pub mod geometry;
 pub mod input;
 pub mod live;
+pub mod loadcell_timing;
 #[cfg(feature = "mcap")]
 pub mod mcap;
 pub mod params;
@@ -399,6 +400,13 @@ impl RobotConfig {
         self.rt.validate().map_err(|(k, m)| err(first_line("[rt]"), format!("rt.{k}"), m))?;
         self.motion.validate(self.cables.len()).map_err(|(k, m)| err(first_line("[motion]"), format!("motion.{k}"), m))?;
         self.safety.validate().map_err(|(k, m)| err(first_line("[safety]"), format!("safety.{k}"), m))?;
+        if let Some(bus) = &self.loadcells {
+            // A tension older than safety.tension_max_age_s stops the loop: it must outlast one
+            // failed reading (loadcell_timing). The polled cells: the cables with a load cell.
+            let cells = self.cables.iter().filter(|c| c.loadcell.is_some()).count();
+            loadcell_timing::check_tension_age(self.safety.tension_max_age_s, bus, cells)
+                .map_err(|m| err(key_line(text, "[safety]", "tension_max_age_s"), "safety.tension_max_age_s".into(), m))?;
+        }
         self.daemon.validate().map_err(|(k, m)| err(first_line("[daemon]"), format!("daemon.{k}"), m))?;
         self.telemetry.validate().map_err(|(k, m)| err(first_line("[telemetry]"), format!("telemetry.{k}"), m))?;
         Ok(())

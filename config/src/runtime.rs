@@ -262,7 +262,10 @@ impl Default for SafetyConfig {
         SafetyConfig {
             max_tension_n: 500.0,
             loose_tension_n: 1.0,
-            tension_max_age_s: 0.1,
+            // One failed load-cell reading (3 tries of 22 ms at the bus defaults) plus the
+            // polling of up to 8 cells is at least 116 ms on the wire (crate::loadcell_timing);
+            // 0.15 s outlasts one lost frame, not two readings lost in a row.
+            tension_max_age_s: 0.15,
             tracker_max_age_s: 0.1,
             max_cable_speed_m_s: 1.0,
             workspace_margin_m: 0.3,

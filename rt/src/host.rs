@@ -33,7 +33,7 @@
 //! unknown drive code counts as [`DriveStatus::Unknown`] (not enabled); an unknown fault kind
 //! counts as a drive fault (EMCY 0xFF00, "device specific") of `fault_node`; an unknown bus
 //! state counts as bus-off. The loop's own checks then react (stale reading, drive not
-//! enabled, fault). The first such field is reported in `Tick::bad_input` (`taut_rt_core::plugin::Tick`).
+//! enabled, fault). The first such field is reported in [`crate::update::Tick::bad_input`].
 
 use crate::io::{BusEvent, BusState, CableCommand, DeviceFault, DriveRequest, DriveStatus, IfName, Inputs, Outputs};
 use crate::MAX_CABLES;

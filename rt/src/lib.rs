@@ -22,6 +22,7 @@
 //! and `taut_rt::motion` are the same module.
 #![deny(missing_docs)]
 
+pub mod cycle;
 pub mod follower;
 pub mod host;
 pub mod io;
@@ -35,6 +36,7 @@ pub mod sample;
 pub mod spsc;
 mod sync;
 pub mod triple;
+pub mod update;
 pub mod urgent;
 
 pub use kin::{LoopEffects, LoopParams};

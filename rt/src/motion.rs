@@ -1246,18 +1246,19 @@ impl Controller {
     /// Without a tracker, the initialisation is one dwell at rest: hold (followers in torque
     /// mode) for `settle_s`, record for `dwell_s` (phase 0), then wait for the rest estimate.
     fn rest_dwell(&mut self, now: f64, next: &mut [f64; MAX_CABLES], modes: &mut [CableCommand; MAX_CABLES]) {
-        let Some(plan) = self.cfg.dwell else { return };
+        // Two scalars, not the plan: a copy of the plan is its whole pose table, every cycle.
+        let Some((settle_s, dwell_s)) = self.cfg.dwell.as_ref().map(|p| (p.settle_s, p.dwell_s)) else { return };
         for j in 0..self.cfg.n {
             next[j] = self.hold_m[j];
             modes[j] = self.hold_mode(j, next[j]);
         }
         let ts = now - self.segment_t0;
         match self.segment {
-            Segment::Lead if ts >= plan.settle_s => {
+            Segment::Lead if ts >= settle_s => {
                 self.segment = Segment::Reel;
                 self.segment_t0 = now;
             }
-            Segment::Reel if ts >= plan.dwell_s => {
+            Segment::Reel if ts >= dwell_s => {
                 self.segment = Segment::Settle;
                 self.phases_completed += 1;
                 self.awaited_version = self.params.version;
@@ -1283,9 +1284,12 @@ impl Controller {
 
     /// One cycle of the dwell plan: the target, and the next segment when this one is over.
     fn step_dwell_plan(&mut self, now: f64) {
-        let Some(plan) = self.cfg.dwell else { return };
+        // What this cycle needs of the plan, not a copy of its pose table.
+        let Some(plan) = self.cfg.dwell.as_ref() else { return };
         let d = &mut self.dwell;
         let to = plan.poses[d.k.min(plan.count.saturating_sub(1))];
+        let after = plan.poses[(d.k + 1).min(MAX_DWELL_POSES - 1)];
+        let (count, settle_s, dwell_s, speed_m_s) = (plan.count, plan.settle_s, plan.dwell_s, plan.speed_m_s);
         let t = now - d.t0;
         match d.seg {
             DwellSeg::Move => {
@@ -1298,26 +1302,20 @@ impl Controller {
             }
             DwellSeg::Settle => {
                 self.target = to;
-                if t >= plan.settle_s {
+                if t >= settle_s {
                     d.seg = DwellSeg::Record;
                     d.t0 = now;
                 }
             }
             DwellSeg::Record => {
                 self.target = to;
-                if t >= plan.dwell_s {
+                if t >= dwell_s {
                     d.k += 1;
-                    if d.k >= plan.count {
+                    if d.k >= count {
                         self.goal = self.target;
                         self.enter(State::Operate, now);
                     } else {
-                        *d = DwellRun {
-                            k: d.k,
-                            seg: DwellSeg::Move,
-                            t0: now,
-                            from: to,
-                            move_s: move_time(to, plan.poses[d.k], plan.speed_m_s),
-                        };
+                        *d = DwellRun { k: d.k, seg: DwellSeg::Move, t0: now, from: to, move_s: move_time(to, after, speed_m_s) };
                     }
                 }
             }
@@ -1395,27 +1393,36 @@ impl Controller {
     }
 
     fn check_limits(&mut self, inp: &Inputs, now: f64) {
-        let c = self.cfg;
+        if let Some(cause) = self.limit_breach(inp, now) {
+            self.latch(cause, inp, now);
+        }
+    }
+
+    /// The first limit `inp` breaks, if any. Takes `&self` so that the configuration is read in
+    /// place: `ControllerConfig` is kilobytes (dwell table, tour), and copying it out to call
+    /// `latch` cost a memcpy every cycle.
+    fn limit_breach(&self, inp: &Inputs, now: f64) -> Option<Cause> {
+        let c = &self.cfg;
         for j in 0..c.n {
             // While enabling, stale data delays the start instead (see Enabling).
             if inp.tension_age_s[j] > c.tension_max_age_s && self.state != State::Enabling {
-                return self.latch(Cause::TensionStale { cable: j as u8 }, inp, now);
+                return Some(Cause::TensionStale { cable: j as u8 });
             }
             if inp.tension_n[j] > c.max_tension_n {
-                return self.latch(Cause::TensionHigh { cable: j as u8, tension_n: inp.tension_n[j] as f32 }, inp, now);
+                return Some(Cause::TensionHigh { cable: j as u8, tension_n: inp.tension_n[j] as f32 });
             }
         }
         let tracker_needed = c.dwell.is_none() && matches!(self.state, State::InitPhase | State::Excitation);
         let pose_fresh = inp.pose_age_s <= c.tracker_max_age_s;
         if tracker_needed && !pose_fresh {
-            return self.latch(Cause::TrackerStale, inp, now);
+            return Some(Cause::TrackerStale);
         }
         if c.dwell.is_some() && self.state == State::Excitation && c.tension_max_age_s.is_finite() {
             // Without a tracker the robot moves with its nominal geometry: a position-controlled
             // cable going loose means the plan does not hold the platform as planned.
             for j in 0..c.n {
                 if !c.follower[j] && measured_after(inp, j, now - self.state_t0, REEL_GRACE_S) && inp.tension_n[j] < c.loose_tension_n {
-                    return self.latch(Cause::CableLoose { cable: j as u8, tension_n: inp.tension_n[j] as f32 }, inp, now);
+                    return Some(Cause::CableLoose { cable: j as u8, tension_n: inp.tension_n[j] as f32 });
                 }
             }
         }
@@ -1429,7 +1436,7 @@ impl Controller {
             // judge it only on a reading taken since then.
             let grace = if self.segment == Segment::Return { 0.0 } else { REEL_GRACE_S };
             if measured_after(inp, r, now - self.segment_t0, grace) && inp.tension_n[r] < c.loose_tension_n {
-                return self.latch(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 }, inp, now);
+                return Some(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 });
             }
         }
         // The approach of the excitation may start outside the box; it leads into it.
@@ -1442,9 +1449,10 @@ impl Controller {
             let m = c.workspace_margin_m;
             let p = inp.pose_m;
             if (0..3).any(|i| p[i] < c.workspace[0][i] - m || p[i] > c.workspace[1][i] + m) {
-                self.latch(Cause::Workspace, inp, now);
+                return Some(Cause::Workspace);
             }
         }
+        None
     }
 }
 

@@ -358,6 +358,7 @@ where
     // The robot side of the load cells and the tracker, as on hardware but on the pty and on
     // a loopback port.
     let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(BuildError::LoadCells)?;
+    loadcells_realtime(cfg, &vlc, &loadcells.0);
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
     let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
@@ -403,6 +404,34 @@ where
     };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(BuildError::BringUp)?;
     Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform })
+}
+
+/// `SCHED_FIFO` priority of the virtual load cells' server thread: above the robot's load-cell
+/// thread when that one is real-time too (the loop's priority - 1), at least 2.
+fn sim_cells_priority(cfg: &RobotConfig) -> i32 {
+    cfg.rt.priority.max(2)
+}
+
+/// Scheduling of the two ends of the simulated load-cell bus. The cells stand in for hardware
+/// with its own processor, which answers whatever the robot's computer is doing: their server
+/// runs `SCHED_FIFO` always. Under the normal scheduler a loaded two-core machine starved it:
+/// `loadcell_ages` (4 cells, load ~9 plus 4 busy loops, 15 s) counted 3 timeouts and 10 late
+/// answers landing in the next unit's exchange, 0 and 0 with the server under `SCHED_FIFO`. A
+/// late answer is the device's fault here, and the master rightly counts it. The robot's end follows the robot's
+/// rule (`taut_rt_core::robot_io::Peripherals`): real-time just below a real-time loop,
+/// otherwise the normal scheduler, as on hardware with that configuration. A refused priority
+/// is a warning, as there.
+fn loadcells_realtime(cfg: &RobotConfig, vlc: &VirtualLoadCells, io: &taut_driver::loadcell::LoadCellIo) {
+    if let Err(e) = vlc.set_realtime(sim_cells_priority(cfg)) {
+        eprintln!(
+            "taut-simrig: SCHED_FIFO for the simulated load cells refused ({e}): on a loaded machine their answers may come late and the loop stop on stale tensions; run as root or grant CAP_SYS_NICE"
+        );
+    }
+    if cfg.rt.priority > 1 {
+        if let Err(e) = io.set_realtime(cfg.rt.priority - 1) {
+            eprintln!("taut-simrig: SCHED_FIFO priority {} for the load-cell thread refused ({e})", cfg.rt.priority - 1);
+        }
+    }
 }
 
 fn counts(x: f64) -> i32 {

@@ -1,7 +1,7 @@
 //! How old the tension readings of the simulated load cells get, seen from a loop at 500 Hz:
 //! the virtual Modbus RTU server on a pty and the driver's load-cell I/O thread, as in the
 //! simulated rig. Run it on a loaded machine to see what the real-time loop's staleness limit
-//! meets. `cargo run -p taut-vdev --example loadcell_ages -- SECONDS [CELLS]`
+//! meets. `[FIFO=server|both] cargo run -p taut-vdev --example loadcell_ages -- SECONDS [CELLS]`
 use std::time::{Duration, Instant};
 use taut_config::devices::{LoadCellBusConfig, LoadCellConfig};
 use taut_vdev::{TensionHandle, VirtualLoadCells};
@@ -17,9 +17,12 @@ fn main() {
     bus.max_age_s = 10.0;
     let pairs: Vec<(usize, LoadCellConfig)> = cells.into_iter().enumerate().collect();
     let (io, mut reader) = taut_driver::loadcell::spawn(&bus, &pairs, n).expect("load-cell bus");
-    if std::env::var_os("FIFO").is_some() {
-        // As the simulated rig does: the cells' server and the robot's I/O thread real-time.
-        server.set_realtime(2).and_then(|_| io.set_realtime(1)).expect("SCHED_FIFO");
+    match std::env::var("FIFO").as_deref() {
+        // The cells stand in for hardware with its own processor: the simulated rig runs their
+        // server real-time always, the robot's I/O thread only with a real-time loop.
+        Ok("server") => server.set_realtime(2).expect("SCHED_FIFO"),
+        Ok(_) => server.set_realtime(2).and_then(|_| io.set_realtime(1)).expect("SCHED_FIFO"),
+        Err(_) => {}
     }
     // Warm-up: the loop reads from the start, so the ring never fills.
     let warm = Instant::now();

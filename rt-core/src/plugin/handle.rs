@@ -7,7 +7,7 @@
 use super::error::Refusal;
 use crate::calibrator::{CalibStatus, SharedCalibStatus};
 use crate::control::{ControlLinks, SharedLoopStatus};
-use crate::motion::{Command, ResetOutcome, State};
+use crate::motion::{Command, State};
 use crate::runner::LoopStatus;
 use crate::safety::{Cause, Reaction};
 use crate::urgent::Urgent;
@@ -15,50 +15,9 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use taut_config::params::ParamsFile;
+use taut_rt::update::EventSink;
 
-/// Something the loop did, for the operator. `Copy`; `t_s` is the plugin's loop time.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Event {
-    /// The motion state changed.
-    State {
-        /// Loop time, s.
-        t_s: f64,
-        /// Before.
-        from: State,
-        /// After.
-        to: State,
-    },
-    /// An initialisation phase began.
-    Phase {
-        /// Loop time, s.
-        t_s: f64,
-        /// Phase 0, 1 or 2.
-        phase: i8,
-    },
-    /// A safety reaction was latched (or replaced by a worse one).
-    Fault {
-        /// Loop time, s.
-        t_s: f64,
-        /// Why.
-        cause: Cause,
-        /// What the loop does.
-        reaction: Reaction,
-    },
-    /// New parameters were taken into use (the swap ramp starts).
-    ParamsSwapped {
-        /// Loop time, s.
-        t_s: f64,
-        /// Their version.
-        version: u64,
-    },
-    /// A reset ended.
-    Reset {
-        /// Loop time, s.
-        t_s: f64,
-        /// How.
-        outcome: ResetOutcome,
-    },
-}
+pub use taut_rt::update::Event;
 
 /// The loop's side of the event queue.
 pub(crate) struct EventTx {
@@ -66,9 +25,11 @@ pub(crate) struct EventTx {
     dropped: Arc<AtomicU64>,
 }
 
-impl EventTx {
+impl EventTx {}
+
+impl EventSink for EventTx {
     /// Never blocks, never allocates (a bounded array channel); a full queue drops the event.
-    pub(crate) fn push(&self, e: Event) {
+    fn push(&mut self, e: Event) {
         if let Err(TrySendError::Full(_)) = self.tx.try_send(e) {
             // Relaxed: a counter read for display only.
             self.dropped.fetch_add(1, Ordering::Relaxed);

@@ -67,13 +67,14 @@ pub use taut_rt::host;
 pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
 pub use handle::{Event, PluginHandle, Status};
 pub use host::{BadInput, HostInputs, HostOutputs};
+pub use taut_rt::update::Tick;
 
 use crate::calib_backend::TautCalib;
 use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
 use crate::control::SharedLoopStatus;
-use crate::io::{DriveStatus, Inputs, Outputs};
+use crate::io::{DriveStatus, Inputs};
 use crate::kin::LoopParams;
-use crate::motion::{Controller, ControllerConfig, ResetOutcome, Snapshot, State};
+use crate::motion::{Controller, ControllerConfig, State};
 use crate::robot_io::BringUpError;
 use crate::rtsys::Periodic;
 use crate::runner::{LoopCore, LoopStatus, LoopTiming};
@@ -88,6 +89,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::runtime::RtConfig;
 use taut_config::RobotConfig;
+use taut_rt::update::{BadTime, DeviceSlot, UpdatePath};
 
 pub use crate::io::Devices;
 
@@ -159,63 +161,6 @@ impl Default for PluginOptions {
     }
 }
 
-/// What one cycle did. `Copy`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Tick {
-    /// Motion state after the cycle.
-    pub state: State,
-    /// Initialisation phase (-1 outside).
-    pub phase: i8,
-    /// A safety reaction is latched.
-    pub faulted: bool,
-    /// The loop has stopped (an operator stop): the drives were told to disable; deactivate.
-    pub finished: bool,
-    /// The first malformed host input of this cycle (host-owned mode; it was taken as
-    /// missing, see [`host`]).
-    pub bad_input: Option<BadInput>,
-}
-
-/// The devices inside the loop core.
-enum PluginDevices {
-    /// Plugin-owned, not up yet.
-    Down,
-    /// Plugin-owned, up.
-    Owned(Box<dyn Devices>),
-    /// Host-owned: this cycle's readings, staged by `update_with`.
-    Host(Box<Inputs>),
-}
-
-impl Devices for PluginDevices {
-    fn read(&mut self, now_s: f64, inputs: &mut Inputs) {
-        match self {
-            PluginDevices::Down => {}
-            PluginDevices::Owned(d) => d.read(now_s, inputs),
-            PluginDevices::Host(staged) => *inputs = **staged,
-        }
-    }
-    fn write(&mut self, now_s: f64, outputs: &Outputs) {
-        if let PluginDevices::Owned(d) = self {
-            d.write(now_s, outputs)
-        }
-    }
-}
-
-/// What the previous cycle published, for events.
-#[derive(Clone, Copy)]
-struct Seen {
-    state: State,
-    phase: i8,
-    fault: Option<(crate::safety::Cause, crate::safety::Reaction)>,
-    version: u64,
-    reset: Option<ResetOutcome>,
-}
-
-impl Seen {
-    fn of(s: &Snapshot) -> Seen {
-        Seen { state: s.state, phase: s.phase, fault: s.fault, version: s.params_version, reset: s.last_reset }
-    }
-}
-
 /// A configured plugin whose handle exists but which has created no file and started no thread
 /// yet: a host can claim its own resources first (the daemon binds the control socket here, so
 /// that a refused second daemon leaves no file behind).
@@ -223,10 +168,7 @@ pub struct PluginBuilder {
     ccfg: ControllerConfig,
     rt: RtConfig,
     mode: DeviceMode,
-    core: LoopCore<PluginDevices>,
-    status_tx: Writer<LoopStatus>,
-    init_status: LoopStatus,
-    events: EventTx,
+    path: UpdatePath<Box<dyn Devices>, EventTx>,
     handle: PluginHandle,
     calib_cfg: CalibratorConfig,
     calib_status: SharedCalibStatus,
@@ -278,7 +220,6 @@ impl PluginBuilder {
             .name("taut-calibrator".into())
             .spawn(move || calibrator.run(q))
             .map_err(|source| PluginError::Thread { name: "taut-calibrator", source })?;
-        let seen = Seen::of(&b.init_status.snap);
         Ok(Plugin {
             state: Lifecycle::Inactive,
             mode: b.mode.kind(),
@@ -288,18 +229,11 @@ impl PluginBuilder {
             },
             ccfg: b.ccfg,
             rt: b.rt,
-            core: b.core,
-            status_tx: b.status_tx,
-            st: b.init_status,
-            events: b.events,
-            seen,
+            path: b.path,
             handle: b.handle,
             calib_thread: Some(calib_thread),
             calib_quit,
             recording: b.recording,
-            t_last: 0.0,
-            offset: None,
-            timing: LoopTiming::default(),
             rearm: false,
         })
     }
@@ -312,21 +246,12 @@ pub struct Plugin {
     source: Option<Box<dyn DeviceSource>>,
     ccfg: ControllerConfig,
     rt: RtConfig,
-    core: LoopCore<PluginDevices>,
-    status_tx: Writer<LoopStatus>,
-    st: LoopStatus,
-    events: EventTx,
-    seen: Seen,
+    /// The per-cycle path (taut-rt): loop core, status, events, plugin time.
+    path: UpdatePath<Box<dyn Devices>, EventTx>,
     handle: PluginHandle,
     calib_thread: Option<JoinHandle<()>>,
     calib_quit: Arc<AtomicBool>,
     recording: Option<PathBuf>,
-    /// Plugin time of the last cycle, s.
-    t_last: f64,
-    /// Plugin time minus the host's `now_s`, fixed at the first cycle after each activation so
-    /// that plugin time runs on by one period.
-    offset: Option<f64>,
-    timing: LoopTiming,
     /// The controller must go back to Idle before the next activation.
     rearm: bool,
 }
@@ -379,17 +304,15 @@ impl Plugin {
             }
         };
         let devs = match devices {
-            DeviceMode::Owned(_) => PluginDevices::Down,
-            DeviceMode::Host => PluginDevices::Host(Box::new(Inputs::new(n))),
+            DeviceMode::Owned(_) => DeviceSlot::Down,
+            DeviceMode::Host => DeviceSlot::Host(Box::new(Inputs::new(n))),
         };
+        let core = LoopCore::new(n, devs, controller, sample_tx);
         Ok(PluginBuilder {
             ccfg,
             rt,
             mode: devices,
-            core: LoopCore::new(n, devs, controller, sample_tx),
-            status_tx,
-            init_status,
-            events,
+            path: UpdatePath::new(core, status_tx, init_status, events),
             handle,
             calib_cfg: CalibratorConfig { excitation, ..CalibratorConfig::from_robot(cfg) },
             calib_status,
@@ -439,13 +362,13 @@ impl Plugin {
 
     /// True once the loop has stopped (an operator stop).
     pub fn finished(&self) -> bool {
-        self.core.controller.finished()
+        self.path.core.controller.finished()
     }
 
     /// The host's timing of the cycle about to run (wake-up lateness, overruns, compute time),
     /// shown in status. Optional; real-time safe.
     pub fn set_timing(&mut self, t: LoopTiming) {
-        self.timing = t;
+        self.path.set_timing(t);
     }
 
     /// Inactive -> Active. Plugin-owned: brings the devices up if they are not yet, then runs
@@ -458,13 +381,13 @@ impl Plugin {
             return Err(PluginError::Lifecycle { op: Op::Activate, state: self.state });
         }
         if self.rearm {
-            self.core.controller.rearm();
+            self.path.core.controller.rearm();
             self.rearm = false;
         }
         if self.mode == ModeKind::Owned {
-            if matches!(self.core.devices, PluginDevices::Down) {
+            if matches!(self.path.core.devices, DeviceSlot::Down) {
                 let src = self.source.as_mut().expect("plugin-owned mode has a device source");
-                self.core.devices = PluginDevices::Owned(src.bring_up().map_err(PluginError::BringUp)?);
+                self.path.core.devices = DeviceSlot::Owned(src.bring_up().map_err(PluginError::BringUp)?);
             }
             if let Err(e) = self.enable_owned() {
                 self.rearm = true;
@@ -472,7 +395,7 @@ impl Plugin {
             }
         }
         // Plugin time runs on from the last cycle whatever clock the host uses from now on.
-        self.offset = None;
+        self.path.restart_clock();
         self.state = Lifecycle::Active;
         Ok(())
     }
@@ -484,21 +407,21 @@ impl Plugin {
         let n = self.ccfg.n;
         loop {
             timer.wait();
-            let t = self.t_last + period;
-            self.core.read(t);
-            let inp = &self.core.inputs;
+            let t = self.path.t_last() + period;
+            self.path.read(t);
+            let inp = &self.path.core.inputs;
             let up = (0..n).all(|j| inp.drive[j] == DriveStatus::Enabled && inp.length_m[j].is_finite());
-            if up && self.core.controller.state() == State::Enabling {
+            if up && self.path.core.controller.state() == State::Enabling {
                 // The next cycle (the host's first update) starts the first phase; until then
                 // the drives hold the positions last commanded.
                 return Ok(());
             }
-            self.cycle_owned_step(t, period);
-            if let Some((cause, reaction)) = self.core.controller.fault() {
+            self.path.step(t, period);
+            if let Some((cause, reaction)) = self.path.core.controller.fault() {
                 self.settle_after_failure(&mut timer, period);
                 return Err(PluginError::Activation { cause, reaction });
             }
-            if self.core.controller.finished() {
+            if self.path.core.controller.finished() {
                 return Err(PluginError::Stopped);
             }
         }
@@ -511,20 +434,14 @@ impl Plugin {
         let until = Instant::now() + Duration::from_millis(500);
         while Instant::now() < until {
             timer.wait();
-            let t = self.t_last + period;
-            self.core.read(t);
-            self.cycle_owned_step(t, period);
-            let inp = &self.core.inputs;
+            let t = self.path.t_last() + period;
+            self.path.read(t);
+            self.path.step(t, period);
+            let inp = &self.path.core.inputs;
             if (0..self.ccfg.n).all(|j| inp.drive[j] != DriveStatus::Enabled) {
                 break;
             }
         }
-    }
-
-    fn cycle_owned_step(&mut self, t: f64, period: f64) {
-        self.core.step(t, period);
-        self.t_last = t;
-        self.publish(t);
     }
 
     /// Active -> Inactive. Plugin-owned: stops the loop (hold, then disable) running the stop
@@ -534,16 +451,16 @@ impl Plugin {
         if self.state != Lifecycle::Active {
             return Err(PluginError::Lifecycle { op: Op::Deactivate, state: self.state });
         }
-        if self.mode == ModeKind::Owned && !self.core.controller.finished() {
+        if self.mode == ModeKind::Owned && !self.path.core.controller.finished() {
             self.handle.stop();
             let period = 1.0 / self.rt.rate_hz;
             let mut timer = Periodic::new((period * 1e9).round() as i64);
             let until = Instant::now() + Duration::from_secs(2);
-            while !self.core.controller.finished() && Instant::now() < until {
+            while !self.path.core.controller.finished() && Instant::now() < until {
                 timer.wait();
-                let t = self.t_last + period;
-                self.core.read(t);
-                self.cycle_owned_step(t, period);
+                let t = self.path.t_last() + period;
+                self.path.read(t);
+                self.path.step(t, period);
             }
         }
         self.state = Lifecycle::Inactive;
@@ -558,7 +475,7 @@ impl Plugin {
             return Err(PluginError::Lifecycle { op: Op::Cleanup, state: self.state });
         }
         self.stop_calibrator();
-        self.core.devices = PluginDevices::Down;
+        self.path.core.devices = DeviceSlot::Down;
         self.source = None;
         self.state = Lifecycle::Finalized;
         Ok(())
@@ -570,18 +487,6 @@ impl Plugin {
         if let Some(t) = self.calib_thread.take() {
             let _ = t.join();
         }
-    }
-
-    fn clock(&mut self, now_s: f64, period_s: f64) -> Result<f64, UpdateError> {
-        if !(now_s.is_finite() && period_s.is_finite() && period_s > 0.0) {
-            return Err(UpdateError::BadTime);
-        }
-        let off = *self.offset.get_or_insert(self.t_last + period_s - now_s);
-        let t = now_s + off;
-        if t < self.t_last {
-            return Err(UpdateError::BadTime);
-        }
-        Ok(t)
     }
 
     fn check(&self, mode: ModeKind) -> Result<(), UpdateError> {
@@ -598,71 +503,14 @@ impl Plugin {
     /// monotonic time (any origin), `period_s` the measured period. Real-time safe.
     pub fn update(&mut self, now_s: f64, period_s: f64) -> Result<Tick, UpdateError> {
         self.check(ModeKind::Owned)?;
-        let t = self.clock(now_s, period_s)?;
-        self.core.read(t);
-        self.cycle_owned_step(t, period_s);
-        Ok(self.tick(None))
+        self.path.update(now_s, period_s).map_err(|BadTime| UpdateError::BadTime)
     }
 
     /// One cycle with host-owned devices: `inputs` are this cycle's readings, `outputs` receive
     /// the commands. Real-time safe.
     pub fn update_with(&mut self, now_s: f64, period_s: f64, inputs: &HostInputs, outputs: &mut HostOutputs) -> Result<Tick, UpdateError> {
         self.check(ModeKind::Host)?;
-        let t = self.clock(now_s, period_s)?;
-        let bad = match &mut self.core.devices {
-            PluginDevices::Host(staged) => inputs.load_into(staged),
-            _ => None,
-        };
-        self.core.read(t);
-        self.cycle_owned_step(t, period_s);
-        outputs.store(&self.core.outputs);
-        Ok(self.tick(bad))
-    }
-
-    fn tick(&self, bad_input: Option<BadInput>) -> Tick {
-        let c = &self.core.controller;
-        Tick { state: c.state(), phase: c.phase(), faulted: c.fault().is_some(), finished: c.finished(), bad_input }
-    }
-
-    /// Status and events after a cycle. No allocation: `Copy` values into a triple buffer and
-    /// a bounded queue.
-    fn publish(&mut self, t: f64) {
-        let snap = self.core.controller.snapshot(t, &self.core.inputs);
-        let tm = self.timing;
-        self.st = LoopStatus {
-            snap,
-            cycles: self.st.cycles + 1,
-            overruns: tm.overruns,
-            late_ns: tm.late_ns,
-            max_late_ns: tm.max_late_ns,
-            max_compute_ns: tm.max_compute_ns,
-            dropped: self.core.dropped(),
-            realtime: tm.realtime,
-        };
-        // The displaced value is a Copy struct: nothing is freed here.
-        self.status_tx.write(self.st);
-        let now = Seen::of(&snap);
-        let was = self.seen;
-        if now.state != was.state {
-            self.events.push(Event::State { t_s: t, from: was.state, to: now.state });
-        }
-        if now.phase >= 0 && now.phase != was.phase {
-            self.events.push(Event::Phase { t_s: t, phase: now.phase });
-        }
-        if let Some((cause, reaction)) = now.fault {
-            if was.fault != now.fault {
-                self.events.push(Event::Fault { t_s: t, cause, reaction });
-            }
-        }
-        if now.version != was.version {
-            self.events.push(Event::ParamsSwapped { t_s: t, version: now.version });
-        }
-        if let Some(outcome) = now.reset {
-            if was.reset != now.reset && outcome != ResetOutcome::InProgress {
-                self.events.push(Event::Reset { t_s: t, outcome });
-            }
-        }
-        self.seen = now;
+        self.path.update_with(now_s, period_s, inputs, outputs).map_err(|BadTime| UpdateError::BadTime)
     }
 }
 
