@@ -45,6 +45,8 @@ pub mod daemon;
 pub mod excite;
 #[cfg(test)]
 mod motion_tests;
+#[cfg(test)]
+mod dwell_tare_tests;
 pub mod notracker;
 pub mod plugin;
 pub mod robot_io;
