@@ -93,7 +93,9 @@ fn main() {
         chi_f_d += zf_d.norm_squared();
         rows_f += 3;
         println!(
-            "{k:3} {:5} | {:?} | {:?} | {} | {} | {:+.1} {:+.1} {:+.1} | {:+.1} {:+.1} {:+.1}",
+            "{k:3} L{:<3} f {:?} {:5} | {:?} | {:?} | {} | {} | {:+.1} {:+.1} {:+.1} | {:+.1} {:+.1} {:+.1}",
+            d.label,
+            d.f.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>(),
             d.end - d.start,
             df,
             dl,
@@ -126,4 +128,51 @@ fn main() {
     );
     let found = dwell::find(&rec, opts.encoder_sigma_m, opts.min_dwell_samples);
     println!("dwell search: {} dwells, {} samples, {} drifting", found.dwells.len(), found.samples, found.drifting);
+    // The calibrator's data set keeps each tension only when it is a new reading: the same
+    // recording with repeated tension values blanked.
+    let mut dd = Recording::with_capacity(n, rec.len(), true, false, true);
+    for i in 0..rec.len() {
+        let f: Vec<f64> = (0..n)
+            .map(|j| {
+                let v = rec.tensions(i).map_or(f64::NAN, |t| t[j]);
+                if i > 0 && rec.tensions(i - 1).map_or(f64::NAN, |t| t[j]) == v {
+                    f64::NAN
+                } else {
+                    v
+                }
+            })
+            .collect();
+        dd.push(rec.t[i], rec.p[i], None, rec.lengths(i), Some(&f), rec.phase.as_ref().map(|p| p[i]));
+    }
+    let found = dwell::find(&dd, opts.encoder_sigma_m, opts.min_dwell_samples);
+    println!(
+        "repeats blanked: {} dwells, inflation lengths {:.2} tensions {:.2}",
+        found.dwells.len(),
+        found.length_inflation,
+        found.tension_inflation
+    );
+    // As the calibrator builds its data set: labelled rows only, a row without lengths where
+    // the label changes.
+    let mut cs = Recording::with_capacity(n, rec.len(), true, false, true);
+    let nan = vec![f64::NAN; n];
+    for i in 0..dd.len() {
+        let ph = dd.phase.as_ref().map_or(-1, |p| p[i]);
+        if ph < 0 {
+            continue;
+        }
+        if i > 0 && dd.phase.as_ref().map_or(-1, |p| p[i - 1]) != ph && !cs.is_empty() {
+            cs.push(dd.t[i], [f64::NAN; 3], None, &nan, Some(&nan), Some(-1));
+        }
+        cs.push(dd.t[i], dd.p[i], None, dd.lengths(i), dd.tensions(i), Some(ph));
+    }
+    let found = dwell::find(&cs, opts.encoder_sigma_m, opts.min_dwell_samples);
+    println!(
+        "as the calibrator's set: {} dwells ({:?})",
+        found.dwells.len(),
+        found.dwells.iter().map(|d| (d.label, d.end - d.start)).collect::<Vec<_>>()
+    );
+    match selfcal::calibrate_without_tracker(&dd, &platform, Some(&nominal), &opts) {
+        Ok(r) => println!("repeats blanked: chi2/dof {:.2}, sigma_f {:.3}", r.chi2 / r.dof as f64, r.loadcell_sigma_n),
+        Err(e) => println!("repeats blanked: {e}"),
+    }
 }

@@ -65,7 +65,11 @@ fn tares_follow_their_dwells_with_the_followers_at_zero_tension() {
             assert!((0..3).all(|i| (p[i] - poses[1][i]).abs() < 1e-6), "held at {p:?}");
         } else if l >= 0 {
             for &j in &followers {
-                assert!(matches!(c.outputs.cable[j], CableCommand::Tension(f) if f > 0.0), "follower {j} in a dwell: {:?}", c.outputs.cable[j]);
+                assert!(
+                    matches!(c.outputs.cable[j], CableCommand::Tension(f) if f > 0.0),
+                    "follower {j} in a dwell: {:?}",
+                    c.outputs.cable[j]
+                );
             }
         }
     }

@@ -42,11 +42,11 @@ pub mod channels;
 pub mod control;
 pub mod ctl_server;
 pub mod daemon;
+#[cfg(test)]
+mod dwell_tare_tests;
 pub mod excite;
 #[cfg(test)]
 mod motion_tests;
-#[cfg(test)]
-mod dwell_tare_tests;
 pub mod notracker;
 pub mod plugin;
 pub mod robot_io;

@@ -175,8 +175,9 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
 /// Batches per dwell in the long-run variance estimate.
 const BATCHES: usize = 10;
 
-/// `(inflation, row sigma)` of one kind of reading (`get(row, cable)`) over the dwells by
-/// pooled batch means (module documentation); `(1, None)` when no dwell is long enough.
+/// `(inflation, row sigma)` of one kind of reading (`get(row, cable)`, NaN: none in that row)
+/// over the dwells by pooled batch means of the readings present (module documentation);
+/// `(1, None)` when no dwell is long enough.
 fn inflation(dwells: &[Dwell], get: impl Fn(usize, usize) -> f64, n: usize) -> (f64, Option<f64>) {
     let (mut ss_b, mut dof_b, mut ss_r, mut dof_r) = (0.0, 0usize, 0.0, 0usize);
     for d in dwells {
@@ -186,18 +187,27 @@ fn inflation(dwells: &[Dwell], get: impl Fn(usize, usize) -> f64, n: usize) -> (
         }
         for j in 0..n {
             let rows = d.start..d.start + BATCHES * b;
-            if rows.clone().any(|i| !get(i, j).is_finite()) {
+            let vals = || rows.clone().map(|i| get(i, j)).filter(|v| v.is_finite());
+            let count = vals().count();
+            if count < 2 * BATCHES {
                 continue;
             }
-            let m = rows.clone().map(|i| get(i, j)).sum::<f64>() / (BATCHES * b) as f64;
+            let m = vals().sum::<f64>() / count as f64;
+            // Batch k: its readings' count and mean; the variance of the dwell mean is
+            // estimated by sum c_k (mean_k - m)^2 / (B - 1) / count (equal to the usual
+            // batch-means estimate when every row has a reading).
+            let mut used = 0;
             for k in 0..BATCHES {
                 let lo = d.start + k * b;
-                let bm = (lo..lo + b).map(|i| get(i, j)).sum::<f64>() / b as f64;
-                ss_b += b as f64 * (bm - m) * (bm - m);
+                let (s, c) = (lo..lo + b).map(|i| get(i, j)).filter(|v| v.is_finite()).fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+                if c > 0 {
+                    ss_b += c as f64 * (s / c as f64 - m).powi(2);
+                    used += 1;
+                }
             }
-            ss_r += rows.map(|i| (get(i, j) - m).powi(2)).sum::<f64>();
-            dof_b += BATCHES - 1;
-            dof_r += BATCHES * b - 1;
+            ss_r += vals().map(|v| (v - m).powi(2)).sum::<f64>();
+            dof_b += used - 1;
+            dof_r += count - 1;
         }
     }
     if dof_b == 0 || ss_r <= 0.0 {

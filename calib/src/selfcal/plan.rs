@@ -219,9 +219,8 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
                 if let Some(t) = static_tensions(inp.nominal, inp.platform, inp.follower, inp.follower_tension_n, inp.mass_kg, p) {
                     if t.iter().all(|&x| x >= lo_t && x <= hi_t) {
                         let zero = static_tensions(inp.nominal, inp.platform, inp.follower, 0.0, inp.mass_kg, p);
-                        let tare_min = zero
-                            .filter(|z| z.iter().zip(inp.follower).all(|(&x, &f)| f || x <= hi_t))
-                            .map_or(f64::NEG_INFINITY, |z| {
+                        let tare_min =
+                            zero.filter(|z| z.iter().zip(inp.follower).all(|(&x, &f)| f || x <= hi_t)).map_or(f64::NEG_INFINITY, |z| {
                                 z.iter().zip(inp.follower).filter(|(_, &f)| !f).map(|(&x, _)| x).fold(f64::INFINITY, f64::min)
                             });
                         cand.push((p, t, tare_min));
@@ -473,7 +472,8 @@ mod tests {
         // cells' noise against the weight, not by the offsets alone.
         let b = [[0.0; 3]; 4];
         let fol = [false, false, false, true];
-        let inp = PlanInput { length_samples: 1250, tension_samples: 290, min_tension_n: 5.0, grid: [9, 7, 6], ..input(&NOM, &b, &fol, 16) };
+        let inp =
+            PlanInput { length_samples: 1250, tension_samples: 290, min_tension_n: 5.0, grid: [9, 7, 6], ..input(&NOM, &b, &fol, 16) };
         let none = plan(&inp).unwrap();
         assert!(none.tare.iter().all(|t| !t));
         let tared = plan(&PlanInput { tares: 4, ..inp.clone() }).unwrap();
@@ -506,4 +506,3 @@ mod tests {
         assert!(e.to_string().contains("motion.dwell_poses"), "{e}");
     }
 }
-
