@@ -387,6 +387,10 @@ mod tests {
         assert_eq!(s.validate().unwrap_err().0, "loose_tension_n");
         let d = DaemonConfig { calib_decimation: 0, ..Default::default() };
         assert_eq!(d.validate().unwrap_err().0, "calib_decimation");
+        let t = MotionConfig { dwell_poses: 10, dwell_tares: 11, ..Default::default() };
+        let e = t.validate(4).unwrap_err();
+        assert_eq!(e.0, "dwell_tares");
+        assert!(e.1.contains("dwell_poses (10)"), "{}", e.1);
     }
 
     #[test]
