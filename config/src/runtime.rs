@@ -124,6 +124,11 @@ pub struct MotionConfig {
     /// Largest platform speed between dwell poses, m/s (the robot moves with its nominal
     /// geometry, a few cm off: slowly).
     pub dwell_speed_m_s: f64,
+    /// Tare dwells of the tracker-free start-up (at most `dwell_poses`): at that many dwell
+    /// poses the platform stays after its dwell with the followers at zero tension (slack, the
+    /// other cables hold it) while their load cells read their offsets; they fix the frame's
+    /// tilt, which the dwells alone confound with the load-cell offsets. 0: none.
+    pub dwell_tares: usize,
     /// The excitation is a tour of the workspace box's corners designed from the nominal anchors
     /// for the smallest predicted anchor uncertainty (`taut_calib::design`); `false` (the
     /// default): the fixed Lissajous curve. Opt-in until it is validated in every mode: in the
@@ -168,6 +173,7 @@ impl Default for MotionConfig {
             dwell_s: 1.5,
             dwell_settle_s: 1.0,
             dwell_speed_m_s: 0.15,
+            dwell_tares: 4,
             design_excitation: false,
             tracker_rate_hz: 100.0,
         }
@@ -213,6 +219,12 @@ impl MotionConfig {
             return Err((
                 "dwell_poses".into(),
                 format!("must be 10 to {MAX_DWELL_POSES} (fewer do not determine the geometry), got {}", self.dwell_poses),
+            ));
+        }
+        if self.dwell_tares > self.dwell_poses {
+            return Err((
+                "dwell_tares".into(),
+                format!("must be at most dwell_poses ({}): each tare follows a dwell, got {}", self.dwell_poses, self.dwell_tares),
             ));
         }
         for (k, v) in [
@@ -378,6 +390,10 @@ mod tests {
         assert_eq!(s.validate().unwrap_err().0, "loose_tension_n");
         let d = DaemonConfig { calib_decimation: 0, ..Default::default() };
         assert_eq!(d.validate().unwrap_err().0, "calib_decimation");
+        let t = MotionConfig { dwell_poses: 10, dwell_tares: 11, ..Default::default() };
+        let e = t.validate(4).unwrap_err();
+        assert_eq!(e.0, "dwell_tares");
+        assert!(e.1.contains("dwell_poses (10)"), "{}", e.1);
     }
 
     #[test]

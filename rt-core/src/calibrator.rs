@@ -632,8 +632,13 @@ impl Calibrator {
             if s.length_m[j].is_finite() {
                 l[j] = s.length_m[j];
             }
-            let measured = s.t - s.tension_age_s[j];
-            let new = prev.is_none_or(|q| (q.t - q.tension_age_s[j] - measured).abs() > 1e-9);
+            // A reading the loop saw again has the same value bit for bit. (Comparing the
+            // reading's instant `t - age` does not work: `t` is the loop's clock, the age the
+            // load-cell thread's wall clock, so the difference moves every cycle and every row
+            // looked new: each ~120 Hz reading counted ~4 times at 500 Hz, the force rows'
+            // chi2 per row was ~3.6.) A new reading with an identical value is dropped: rare
+            // at 1 mN resolution and 0.3 N noise, and it only costs that reading.
+            let new = prev.is_none_or(|q| q.tension_n[j].to_bits() != s.tension_n[j].to_bits());
             if new && s.tension_age_s[j] <= self.cfg.tension_max_age_s && s.tension_n[j].is_finite() {
                 f[j] = s.tension_n[j];
             }

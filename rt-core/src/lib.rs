@@ -43,6 +43,8 @@ pub mod channels;
 pub mod control;
 pub mod ctl_server;
 pub mod daemon;
+#[cfg(test)]
+mod dwell_tare_tests;
 pub mod excite;
 #[cfg(test)]
 mod motion_tests;

@@ -75,6 +75,7 @@ pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPla
         loadcell_sigma_n: loadcells.then_some(PLAN_LOADCELL_SIGMA_N),
         length_samples: (m.dwell_s * rate).floor().max(1.0) as usize,
         tension_samples: (m.dwell_s * tension_rate).floor().max(1.0) as usize,
+        tares: m.dwell_tares,
         poses: m.dwell_poses.min(MAX_DWELL_POSES),
         start: Some([(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]),
         grid: [7, 5, 4],
@@ -90,13 +91,14 @@ pub fn controller_config(cfg: &RobotConfig) -> Result<ControllerConfig, PluginEr
     }
     let p = dwell_plan(cfg, &ccfg).map_err(PluginError::DwellPlan)?;
     let m = &cfg.motion;
-    Ok(ccfg.with_dwell_plan(&p.poses, m.dwell_s, m.dwell_settle_s, m.dwell_speed_m_s))
+    Ok(ccfg.with_dwell_plan(&p.poses, m.dwell_s, m.dwell_settle_s, m.dwell_speed_m_s).with_dwell_tares(&p.tare))
 }
 
 /// Splits the dwell rows of a tracker-free data set into training and held-out dwells: every
 /// `round(1 / heldout_fraction)`-th dwell (by its phase label, the pose's index) is held out,
 /// so the held-out poses are spread over the workspace like the others. Rows without a label
-/// (the separators between dwells) go to both.
+/// (the separators between dwells) go to both; tares (labels from `MAX_DWELL_POSES` on) to
+/// the training set (the calibration's load-cell offsets; the held-out check uses lengths).
 pub fn split_dwells(rec: &Recording, heldout_fraction: f64) -> (Recording, Recording) {
     let n = rec.n_cables;
     let every = if heldout_fraction > 0.0 { (1.0 / heldout_fraction).round().max(2.0) as i32 } else { i32::MAX };
@@ -108,6 +110,8 @@ pub fn split_dwells(rec: &Recording, heldout_fraction: f64) -> (Recording, Recor
         if ph < 0 {
             row(&mut train);
             row(&mut held);
+        } else if ph >= MAX_DWELL_POSES as i32 {
+            row(&mut train);
         } else if ph % every == every - 1 {
             row(&mut held);
         } else {
@@ -226,5 +230,17 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
         Ok((n_rms, o_rms))
     } else {
         Err(Rejection::HeldoutDwellsWorse { dwells: pairs.len(), new_m: n_rms, old_m: o_rms })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tare_labels_agree_with_calib() {
+        // The loop labels a tare of pose k with MAX_DWELL_POSES + k; calib reads labels from
+        // TARE_LABEL_BASE on as tares.
+        assert_eq!(taut_calib::selfcal::dwell::TARE_LABEL_BASE, MAX_DWELL_POSES as i32);
     }
 }

@@ -286,7 +286,10 @@ pub const MAX_DWELL_POSES: usize = 64;
 /// the rest estimate), then visit `poses` in order: move (smoothstep, at most `speed_m_s` on
 /// average... peak 1.5x), hold `settle_s`, record `dwell_s` (the sample's phase is the pose's
 /// index). Moves are smoothsteps at a mean speed of `speed_m_s` (peak 1.5x). Recalibration
-/// visits the poses again.
+/// visits the poses again. At the poses marked in `tare`, the dwell is followed by a tare: the
+/// followers are commanded to zero tension while the position-controlled cables hold the
+/// platform where it is, held `settle_s`, recorded `dwell_s` (phase `MAX_DWELL_POSES + index`):
+/// the followers' load cells then read their offsets.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DwellLoopPlan {
     /// The poses, m (the first `count`).
@@ -299,6 +302,8 @@ pub struct DwellLoopPlan {
     pub settle_s: f64,
     /// Mean platform speed of a move, m/s.
     pub speed_m_s: f64,
+    /// Poses followed by a tare (the first `count`).
+    pub tare: [bool; MAX_DWELL_POSES],
 }
 
 /// Why a configuration cannot drive the controller.
@@ -333,7 +338,17 @@ impl ControllerConfig {
         let mut p = [[0.0; 3]; MAX_DWELL_POSES];
         let count = poses.len().min(MAX_DWELL_POSES);
         p[..count].copy_from_slice(&poses[..count]);
-        self.dwell = Some(DwellLoopPlan { poses: p, count, dwell_s, settle_s, speed_m_s });
+        self.dwell = Some(DwellLoopPlan { poses: p, count, dwell_s, settle_s, speed_m_s, tare: [false; MAX_DWELL_POSES] });
+        self
+    }
+
+    /// Marks the dwell poses followed by a tare (`tare[k]` for pose `k`; see [`DwellLoopPlan`]).
+    /// Without a dwell plan, nothing.
+    pub fn with_dwell_tares(mut self, tare: &[bool]) -> ControllerConfig {
+        if let Some(d) = self.dwell.as_mut() {
+            let k = tare.len().min(MAX_DWELL_POSES);
+            d.tare[..k].copy_from_slice(&tare[..k]);
+        }
         self
     }
 }
@@ -445,6 +460,10 @@ enum DwellSeg {
     Move,
     Settle,
     Record,
+    /// The followers going to zero tension.
+    TareSettle,
+    /// The tare recorded.
+    Tare,
 }
 
 /// The bookkeeping of the operator's reset.
@@ -617,7 +636,11 @@ impl Controller {
     pub fn phase_label(&self) -> i8 {
         if self.state == State::Excitation && self.cfg.dwell.is_some() {
             // Without a tracker: the index of the pose while its dwell is recorded.
-            return if self.dwell.seg == DwellSeg::Record { self.dwell.k.min(i8::MAX as usize) as i8 } else { -1 };
+            return match self.dwell.seg {
+                DwellSeg::Record => self.dwell.k.min(i8::MAX as usize) as i8,
+                DwellSeg::Tare => (MAX_DWELL_POSES + self.dwell.k).min(i8::MAX as usize) as i8,
+                _ => -1,
+            };
         }
         if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) {
             self.phase
@@ -948,6 +971,13 @@ impl Controller {
             State::Excitation if self.cfg.dwell.is_some() => {
                 self.step_dwell_plan(now);
                 next = self.ik_command(&mut modes, 0.0);
+                if matches!(self.dwell.seg, DwellSeg::TareSettle | DwellSeg::Tare) {
+                    // The tare: the followers slack, the position cables hold the platform.
+                    self.follower_n = 0.0;
+                    for j in (0..self.cfg.n).filter(|&j| self.cfg.follower[j]) {
+                        modes[j] = CableCommand::Tension(0.0);
+                    }
+                }
             }
             State::Excitation => {
                 let t = now - self.state_t0;
@@ -1307,7 +1337,19 @@ impl Controller {
                     d.t0 = now;
                 }
             }
-            DwellSeg::Record => {
+            DwellSeg::Record if t >= plan.dwell_s && plan.tare[d.k.min(MAX_DWELL_POSES - 1)] => {
+                self.target = to;
+                d.seg = DwellSeg::TareSettle;
+                d.t0 = now;
+            }
+            DwellSeg::TareSettle => {
+                self.target = to;
+                if t >= plan.settle_s {
+                    d.seg = DwellSeg::Tare;
+                    d.t0 = now;
+                }
+            }
+            DwellSeg::Record | DwellSeg::Tare => {
                 self.target = to;
                 if t >= dwell_s {
                     d.k += 1;

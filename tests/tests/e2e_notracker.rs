@@ -56,6 +56,11 @@ impl Dir {
 struct Run {
     worst_aligned_m: f64,
     predicted_worst_sigma_m: f64,
+    /// The planner's prediction again with the tension readings per second measured in the
+    /// recording (the planner assumes 50 per second for load cells polled back to back).
+    repredicted_worst_sigma_m: f64,
+    /// The calibration's own worst-anchor 1-sigma (CRB x the variance factor).
+    achieved_worst_sigma_m: f64,
     dwells_note: String,
     seconds: f64,
 }
@@ -127,10 +132,13 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     );
     // Each anchor coordinate, after the alignment, within 4 sigma of the calibration's own
     // uncertainty (its CRB scaled by the variance factor) plus encoder quantisation, as in
-    // e2e_start. The goal of 3 mm for the worst anchor is NOT asserted: the anchor
-    // heights carry the tilt of the frame, which only gravity fixes through the load cells, and
-    // their 1-sigma is 3-5 mm in this plan (seed 3 gave 1.35 mm and 4.92 mm in two runs; see
-    // BENCHMARKS.md and docs/selfcal.md).
+    // e2e_start: 12 coordinates, a correct estimator fails this with probability ~1e-3.
+    // The goal of 3 mm for the worst anchor is NOT asserted: the anchor heights carry
+    // the tilt of the frame, which only gravity fixes through the load cells; with this plan
+    // (16 poses of 2.5 s, 4 tares of the follower's load cell) the heights' 1-sigma is
+    // 2.3-2.9 mm, so a correct calibration exceeds 3 mm on its worst anchor in roughly half of
+    // the runs (P(max of the two tilt modes > 3 mm) ~ 0.4-0.6): an assertion would be a coin
+    // toss. The planner's bound says what would meet it (docs/selfcal.md, BENCHMARKS.md).
     let aligned = taut_calib::selfcal::align::align_translation_yaw(&ce.geometry.anchors, &truth.anchors);
     for (j, ((a, t), s)) in aligned.iter().zip(&truth.anchors).zip(&ce.sigma.anchors).enumerate() {
         for i in 0..3 {
@@ -145,6 +153,12 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     if worst > 3e-3 {
         eprintln!("seed {seed}: the worst anchor is {:.2} mm off after alignment: above the issue's 3 mm", worst * 1e3);
     }
+    // The calibration's chi2/dof is near 1: the noise model (with the variance of repeated
+    // load-cell readings, see calib/src/selfcal/dwell.rs) explains the residuals. A model
+    // error (motion in the dwells, stale tensions, a wrong mass) shows as a chi2/dof of several;
+    // the bound 1.5 is far above chance at ~60 degrees of freedom (P(chi2/dof > 1.5) ~ 5e-3).
+    let chi = ce.note.split("chi2/dof ").nth(1).and_then(|s| s.split(',').next()).and_then(|s| s.trim().parse::<f64>().ok()).unwrap();
+    assert!(chi < 1.5, "seed {seed}: chi2/dof {chi}: the readings disagree with the static model beyond their noise");
     // Hot-swapped, parameter version 1 (rest estimate) -> 2 (calibration), said in the file.
     assert_eq!(l.snap.params_version, 2);
     let params_dir = dir.path().join("data/params");
@@ -161,6 +175,36 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     let (rec, _) = taut_config::recording::Recording::load(&d.recording).unwrap();
     assert!(rec.len() > 5000 && rec.f.is_some());
     assert!(rec.p.iter().flatten().all(|v| v.is_nan()), "the recording has tracker values");
+    // The tares were recorded: the follower's load cell at zero tension (its offset, 0.5 N
+    // 1-sigma in the simulator) while the others hold the platform.
+    let tare_rows: Vec<usize> = (0..rec.len()).filter(|&i| rec.phase.as_ref().unwrap()[i] >= 64).collect();
+    let want = (0.8 * cfg.motion.dwell_tares as f64 * cfg.motion.dwell_s * cfg.rt.rate_hz) as usize;
+    assert!(tare_rows.len() >= want, "{} tare rows, {want} expected", tare_rows.len());
+    for j in (0..ccfg.n).filter(|&j| ccfg.follower[j]) {
+        let m = tare_rows.iter().map(|&i| rec.tensions(i).unwrap()[j]).sum::<f64>() / tare_rows.len() as f64;
+        assert!(m.abs() < 2.5, "follower {j} reads {m} N in the tares");
+    }
+    // Tension readings per second and cable in the recorded dwells (a new reading is a changed
+    // value), for the planner's prediction with the rate the simulated bus achieved.
+    let dwell_rows: Vec<usize> = (1..rec.len()).filter(|&i| rec.phase.as_ref().unwrap()[i] >= 0).collect();
+    let fresh = dwell_rows.iter().filter(|&&i| rec.tensions(i).unwrap()[0] != rec.tensions(i - 1).unwrap()[0]).count();
+    let rate = fresh as f64 / (dwell_rows.len() as f64 / cfg.rt.rate_hz);
+    let mut measured = cfg.clone();
+    measured.loadcells.get_or_insert_with(|| taut_config::devices::LoadCellBusConfig::new("")).poll_period_s = 1.0 / rate;
+    let replan = taut_rt_core::notracker::dwell_plan(&measured, &ccfg).unwrap();
+    let norm = |s: &[f64; 3]| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+    let achieved = ce.sigma.anchors.iter().map(norm).fold(0.0, f64::max);
+    eprintln!(
+        "seed {seed}: {rate:.0} tension readings/s per cable; worst-anchor 1-sigma: predicted {:.2} mm (at 50/s), {:.2} mm (at {rate:.0}/s), achieved {:.2} mm",
+        plan.worst_anchor_sigma_m * 1e3,
+        replan.worst_anchor_sigma_m * 1e3,
+        achieved * 1e3
+    );
+    // The prediction at the measured rate matches the achieved bound: the calibration sees 13
+    // of the 16 poses (every 5th held out; sqrt(16/13) = 1.11), at the estimated rather than
+    // the nominal geometry, with the measured variance factor.
+    let ratio = achieved / replan.worst_anchor_sigma_m;
+    assert!((0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
 
     if recalibrate {
         let sock = dir.path().join("taut.sock");
@@ -193,21 +237,34 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     Run {
         worst_aligned_m: worst,
         predicted_worst_sigma_m: plan.worst_anchor_sigma_m,
+        repredicted_worst_sigma_m: replan.worst_anchor_sigma_m,
+        achieved_worst_sigma_m: achieved,
         dwells_note: ce.note.clone(),
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
 
-#[test]
-fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
-    let r = start(3, true, false);
+fn report(seed: u64, r: &Run) {
     eprintln!(
-        "{:.0} s; worst {:.2} mm, predicted sigma {:.2} mm; {}",
+        "seed {seed}: {:.0} s; worst {:.2} mm; worst-anchor sigma predicted {:.2} mm (at 50 readings/s), {:.2} mm (measured rate), achieved {:.2} mm; {}",
         r.seconds,
         r.worst_aligned_m * 1e3,
         r.predicted_worst_sigma_m * 1e3,
+        r.repredicted_worst_sigma_m * 1e3,
+        r.achieved_worst_sigma_m * 1e3,
         r.dwells_note
     );
+}
+
+#[test]
+fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
+    report(3, &start(3, true, false));
+}
+
+/// A second site (seed 5: other anchors, offsets and load-cell offsets).
+#[test]
+fn starts_without_a_tracker_on_another_site() {
+    report(5, &start(5, true, false));
 }
 
 /// `ctl recalibrate` without a tracker visits the dwells again (about 80 s more; the loop's
@@ -224,13 +281,7 @@ fn recalibrates_without_a_tracker() {
 #[ignore]
 fn seeds() {
     for seed in 1..=5 {
-        let r = start(seed, true, false);
-        eprintln!(
-            "seed {seed}: {:.0} s; worst {:.2} mm; predicted sigma {:.2} mm",
-            r.seconds,
-            r.worst_aligned_m * 1e3,
-            r.predicted_worst_sigma_m * 1e3
-        );
+        report(seed, &start(seed, true, false));
     }
 }
 
@@ -238,11 +289,5 @@ fn seeds() {
 #[test]
 #[ignore]
 fn full_plan() {
-    let r = start(1, false, false);
-    eprintln!(
-        "full plan: {:.0} s; worst {:.2} mm; predicted sigma {:.2} mm",
-        r.seconds,
-        r.worst_aligned_m * 1e3,
-        r.predicted_worst_sigma_m * 1e3
-    );
+    report(1, &start(1, false, false));
 }

@@ -12,10 +12,37 @@
 //! their 5-sigma band (false alarm ~6e-7 per cable), and the run's first half (the settling after
 //! a move) is dropped and the test repeated once; a run that still drifts is not a dwell.
 //!
+//! A recording with phase labels (the loop's dwell plan labels each recorded dwell with its
+//! pose's index, the moves and the settling after them with -1) is split where the label
+//! changes, and only labelled rows form dwells: the loop knows when the platform has settled,
+//! and a tension reading taken during the move can be a few rows old when the encoders already
+//! stand still. A label from [`TARE_LABEL_BASE`] on marks a tare: the followers were commanded
+//! to zero tension while the position-controlled cables held the platform; a cable of such a
+//! dwell whose mean reading is below the loose threshold carries no tension, so its reading is
+//! its load cell's offset ([`Dwell::tared`]).
+//!
 //! Two readings at each end of a dwell are dropped (the start or end of a smooth move).
 //! A dwell's readings are averaged per cable (`NaN`s skipped): the mean is the sufficient
 //! statistic of a static pose under white noise, and its variance is `sigma^2 / m`. The
 //! within-dwell scatter of the tensions gives the load cells' noise when it is not configured.
+//!
+//! Consecutive rows are not independent readings in general: a load cell polled at ~120 Hz
+//! recorded by a 500 Hz loop repeats each reading over ~4 rows (sample and hold), an encoder
+//! whose drive missed a SYNC repeats its last value, a sensor's own filter correlates its
+//! readings. The variance of a dwell mean is then `sigma_lr^2 / m` with the long-run variance
+//! `sigma_lr^2 = sigma^2 (1 + 2 sum_k rho_k)`, not `sigma^2 / m`. It is estimated by batch
+//! means, pooled over the dwells and cables of one kind:
+//!
+//! ```text
+//! each dwell (>= 40 rows): B = 10 batches of b = floor(m / B) rows
+//! sigma_lr^2  = sum b (batch mean - dwell mean)^2 / sum (B - 1)
+//! sigma_row^2 = sum (row - dwell mean)^2 / sum (B b - 1)
+//! inflation   = max(1, sigma_lr^2 / sigma_row^2)       (var of a dwell mean: inflation sigma^2 / m)
+//! ```
+//!
+//! A batch of `b` rows (>= 4, 50 ms at 500 Hz in a 2 s dwell) is long against a hold of a few
+//! rows, so the batch means are nearly independent. With ~50 dwells x cables the pooled
+//! estimate has ~450 degrees of freedom (relative 1-sigma ~7 %).
 
 use taut_config::recording::Recording;
 
@@ -36,6 +63,26 @@ pub struct Dwell {
     pub nf: Vec<usize>,
     /// Sum of squared deviations of the tensions from their dwell mean, per cable, N^2.
     pub f_ss: Vec<f64>,
+    /// The phase label of the dwell's rows (-1: none).
+    pub label: i32,
+}
+
+/// Phase labels from this on mark a tare dwell (`label - TARE_LABEL_BASE`: the pose's index);
+/// equal to the loop's `MAX_DWELL_POSES`.
+pub const TARE_LABEL_BASE: i32 = 64;
+
+impl Dwell {
+    /// True when this is a tare dwell ([`TARE_LABEL_BASE`]).
+    pub fn is_tare(&self) -> bool {
+        self.label >= TARE_LABEL_BASE
+    }
+
+    /// Cables known to carry no tension in this dwell: in a tare, those whose mean reading is
+    /// below `loose_n` (the followers commanded to zero; the position-controlled cables hold
+    /// the platform well above it).
+    pub fn tared(&self, loose_n: f64) -> Vec<bool> {
+        self.f.iter().map(|&f| self.is_tare() && f < loose_n).collect()
+    }
 }
 
 /// What the dwell search found.
@@ -47,6 +94,14 @@ pub struct Dwells {
     pub samples: usize,
     /// Runs dropped because the encoders crept through them.
     pub drifting: usize,
+    /// Variance of a dwell's mean encoder reading over white noise's (`sigma_lr^2 /
+    /// sigma_row^2`, at least 1; module documentation).
+    pub length_inflation: f64,
+    /// The same for the tensions (1 without tensions).
+    pub tension_inflation: f64,
+    /// Pooled within-dwell standard deviation of one encoder row, m (`None`: no dwell long
+    /// enough).
+    pub length_row_sigma: Option<f64>,
 }
 
 impl Dwells {
@@ -70,11 +125,14 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
     let n = rec.n_cables;
     let min_samples = min_samples.max(4);
     let step = 6.0 * std::f64::consts::SQRT_2 * sigma_enc;
+    let label = |i: usize| rec.phase.as_ref().map_or(-1, |p| p[i]);
+    let labelled = rec.phase.as_ref().is_some_and(|p| p.iter().any(|&x| x >= 0));
     let still = |i: usize| {
         let (a, b) = (rec.lengths(i - 1), rec.lengths(i));
-        (0..n).all(|j| (b[j] - a[j]).abs() <= step)
+        label(i) == label(i - 1) && (0..n).all(|j| (b[j] - a[j]).abs() <= step)
     };
-    let mut out = Dwells { dwells: Vec::new(), samples: 0, drifting: 0 };
+    let mut out =
+        Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None };
     let mut i = 0;
     while i < rec.len() {
         if !rec.lengths(i).iter().all(|v| v.is_finite()) {
@@ -86,7 +144,7 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
         while i < rec.len() && rec.lengths(i).iter().all(|v| v.is_finite()) && still(i) {
             i += 1;
         }
-        if i - s < min_samples {
+        if i - s < min_samples || (labelled && label(s) < 0) {
             continue;
         }
         let mut lo = s;
@@ -105,7 +163,58 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
         out.samples += hi - lo;
         out.dwells.push(average(rec, lo, hi));
     }
+    let l = inflation(&out.dwells, |i, j| rec.lengths(i)[j], n);
+    out.length_inflation = l.0;
+    out.length_row_sigma = l.1;
+    if rec.f.is_some() {
+        out.tension_inflation = inflation(&out.dwells, |i, j| rec.tensions(i).map_or(f64::NAN, |t| t[j]), n).0;
+    }
     out
+}
+
+/// Batches per dwell in the long-run variance estimate.
+const BATCHES: usize = 10;
+
+/// `(inflation, row sigma)` of one kind of reading (`get(row, cable)`, NaN: none in that row)
+/// over the dwells by pooled batch means of the readings present (module documentation);
+/// `(1, None)` when no dwell is long enough.
+fn inflation(dwells: &[Dwell], get: impl Fn(usize, usize) -> f64, n: usize) -> (f64, Option<f64>) {
+    let (mut ss_b, mut dof_b, mut ss_r, mut dof_r) = (0.0, 0usize, 0.0, 0usize);
+    for d in dwells {
+        let b = (d.end - d.start) / BATCHES;
+        if b < 4 {
+            continue;
+        }
+        for j in 0..n {
+            let rows = d.start..d.start + BATCHES * b;
+            let vals = || rows.clone().map(|i| get(i, j)).filter(|v| v.is_finite());
+            let count = vals().count();
+            if count < 2 * BATCHES {
+                continue;
+            }
+            let m = vals().sum::<f64>() / count as f64;
+            // Batch k: its readings' count and mean; the variance of the dwell mean is
+            // estimated by sum c_k (mean_k - m)^2 / (B - 1) / count (equal to the usual
+            // batch-means estimate when every row has a reading).
+            let mut used = 0;
+            for k in 0..BATCHES {
+                let lo = d.start + k * b;
+                let (s, c) = (lo..lo + b).map(|i| get(i, j)).filter(|v| v.is_finite()).fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+                if c > 0 {
+                    ss_b += c as f64 * (s / c as f64 - m).powi(2);
+                    used += 1;
+                }
+            }
+            ss_r += vals().map(|v| (v - m).powi(2)).sum::<f64>();
+            dof_b += used - 1;
+            dof_r += count - 1;
+        }
+    }
+    if dof_b == 0 || ss_r <= 0.0 {
+        return (1.0, (dof_r > 0).then(|| (ss_r / dof_r.max(1) as f64).sqrt()));
+    }
+    let row = ss_r / dof_r as f64;
+    ((ss_b / dof_b as f64 / row).max(1.0), Some(row.sqrt()))
 }
 
 fn mean_l(rec: &Recording, lo: usize, hi: usize, j: usize) -> f64 {
@@ -138,7 +247,7 @@ fn average(rec: &Recording, lo: usize, hi: usize) -> Dwell {
             }
         }
     }
-    Dwell { start: lo, end: hi, l, nl: vec![hi - lo; n], f, nf, f_ss }
+    Dwell { start: lo, end: hi, l, nl: vec![hi - lo; n], f, nf, f_ss, label: rec.phase.as_ref().map_or(-1, |p| p[lo]) }
 }
 
 #[cfg(test)]
@@ -166,5 +275,72 @@ mod tests {
         assert_eq!((d.dwells[1].start, d.dwells[1].end), (81, 118));
         assert!((d.dwells[1].l[0] - 1.3).abs() < 1e-12);
         assert_eq!(d.drifting, 1, "the creep is not a dwell");
+    }
+
+    /// Standard normal variates from a fixed-seed xorshift generator (Box–Muller).
+    fn normals(seed: u64) -> impl FnMut() -> f64 {
+        let mut x = seed;
+        let mut u = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        move || (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos()
+    }
+
+    #[test]
+    fn repeated_readings_inflate_the_variance_of_a_dwell_mean() {
+        // 40 labelled dwells of 500 rows (a 500 Hz loop, 1 s) of 4 cables: encoders fresh every
+        // row (white), load cells read every 4th row and held (sample and hold, as a ~120 Hz
+        // Modbus poll recorded at 500 Hz). The variance of a dwell's mean tension is then 4x
+        // the white-noise value: the estimate pools 40 x 4 x 9 = 1440 batch dof (relative
+        // 1-sigma ~4 %, batch-means bias ~-3 % for a hold of 4 in batches of 50), so the bands
+        // below are > 4 sigma wide: the test fails by chance with probability < 1e-4, and it
+        // fails for an estimator that ignores the repetition (inflation 1).
+        let n = 4;
+        let mut g = normals(0x9e37_79b9_7f4a_7c15);
+        let mut r = Recording::with_capacity(n, 40 * 520, true, false, true);
+        let mut t = 0.0;
+        let mut held = [0.0; 4];
+        for k in 0..40 {
+            let base_l = 1.0 + 0.1 * k as f64;
+            for i in 0..520 {
+                // 20 separator rows (moving, label -1), then 500 still rows with the label.
+                let moving = i < 20;
+                let l: Vec<f64> = (0..n).map(|j| base_l + j as f64 + if moving { 0.01 * i as f64 } else { 0.2 } + 5e-5 * g()).collect();
+                if i % 4 == 0 {
+                    for (j, h) in held.iter_mut().enumerate() {
+                        *h = 20.0 + j as f64 + 0.3 * g();
+                    }
+                }
+                r.push(t, [f64::NAN; 3], None, &l, Some(&held), Some(if moving { -1 } else { k }));
+                t += 0.002;
+            }
+        }
+        let d = find(&r, 5e-5, 20);
+        assert_eq!(d.dwells.len(), 40, "one dwell per label");
+        assert!(d.dwells.iter().enumerate().all(|(k, w)| w.label == k as i32 && !w.is_tare()));
+        assert!((3.4..4.6).contains(&d.tension_inflation), "tension inflation {}", d.tension_inflation);
+        assert!((1.0..1.15).contains(&d.length_inflation), "length inflation {}", d.length_inflation);
+        let s = d.length_row_sigma.unwrap();
+        assert!((s - 5e-5).abs() < 5e-6, "row sigma {s}");
+    }
+
+    #[test]
+    fn a_tare_dwell_names_the_slack_cables() {
+        let d = Dwell {
+            start: 0,
+            end: 100,
+            l: vec![1.0; 4],
+            nl: vec![100; 4],
+            f: vec![20.0, 30.0, 25.0, 0.4],
+            nf: vec![25; 4],
+            f_ss: vec![0.0; 4],
+            label: TARE_LABEL_BASE + 3,
+        };
+        assert_eq!(d.tared(5.0), vec![false, false, false, true]);
+        let normal = Dwell { label: 3, ..d };
+        assert_eq!(normal.tared(5.0), vec![false; 4], "a low tension outside a tare is not known to be zero");
     }
 }

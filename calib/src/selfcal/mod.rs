@@ -304,8 +304,14 @@ pub struct SelfCalReport {
     pub frame: Frame,
     /// True when the load cells entered.
     pub used_tensions: bool,
-    /// Load-cell noise used, N.
+    /// Load-cell noise used, N (one reading).
     pub loadcell_sigma_n: f64,
+    /// Encoder noise used, m (one reading: the configured one or the measured scatter within
+    /// the dwells, the larger).
+    pub encoder_sigma_m: f64,
+    /// Variance inflation of a dwell's mean encoder reading and mean tension over independent
+    /// readings (repeated or correlated readings, [`dwell`]).
+    pub inflation: (f64, f64),
     /// Whitened chi-square and its degrees of freedom.
     pub chi2: f64,
     /// Degrees of freedom.
@@ -351,12 +357,16 @@ pub fn calibrate_without_tracker(
         return Err(SelfCalError::TooFewDwells { found: found.dwells.len(), needed, drifting: found.drifting });
     }
     let sigma_f = opts.loadcell_sigma_n.or_else(|| found.loadcell_sigma()).unwrap_or(0.3).max(1e-3);
+    // The variance of a dwell mean: one reading's variance (the encoders' at least the
+    // configured one) times the long-run inflation of correlated or repeated readings
+    // ([`dwell`]); the fit divides by the rows averaged.
+    let sigma_l = opts.encoder_sigma_m.max(found.length_row_sigma.unwrap_or(0.0)).max(1e-7);
     let pr = Problem {
         lay,
         b: platform_points,
         dwells: &found.dwells,
-        var_l: opts.encoder_sigma_m.max(1e-7).powi(2),
-        var_f: sigma_f * sigma_f,
+        var_l: sigma_l * sigma_l * found.length_inflation,
+        var_f: sigma_f * sigma_f * found.tension_inflation,
         mass: opts.mass_kg,
         min_tension_n: opts.min_tension_n,
         c,
@@ -481,6 +491,8 @@ pub fn calibrate_without_tracker(
         frame,
         used_tensions: tensions,
         loadcell_sigma_n: sigma_f,
+        encoder_sigma_m: sigma_l,
+        inflation: (found.length_inflation, found.tension_inflation),
         chi2: rep.chi2,
         dof,
         chi2_ok,

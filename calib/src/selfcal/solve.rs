@@ -7,7 +7,12 @@
 //! length   r_kj = l_kj - (|P_k + b_j - A_j| + L0_j)          var sigma_enc^2 / N_kj
 //! force    r_k  = -(sum_j (f_kj - c_j) v_kj + m g_vec)         cov sum_j sigma_f^2 / N_kj v_kj v_kj^T
 //!          v_kj = (A_j - X_kj) / |A_j - X_kj|,  g_vec = (0, 0, -9.81)
+//! tare     r_kj = f_kj - c_j                                   var sigma_f^2 / N_kj
 //! ```
+//!
+//! In a tare dwell ([`Dwell::tared`]) the tared cables carry no tension: each gives the tare
+//! row (its reading is its load cell's offset) instead of a term of the force balance, and no
+//! length (a slack cable's length says nothing about the geometry).
 //!
 //! The force rows are whitened by the Cholesky factor of their 3x3 covariance (held fixed during a
 //! solve, updated between solves), so every row has unit weight. The normal matrix is block-arrow
@@ -119,6 +124,15 @@ impl Problem<'_> {
         d.nl[j] > 0 && d.l[j].is_finite() && !(d.f[j] < self.min_tension_n)
     }
 
+    /// Cables of dwell `d` known to carry no tension (a tare, with load cells only).
+    fn tared(&self, d: &Dwell) -> Vec<bool> {
+        if self.lay.offsets {
+            d.tared(self.min_tension_n)
+        } else {
+            vec![false; self.lay.n]
+        }
+    }
+
     fn force_used(&self, d: &Dwell) -> bool {
         self.lay.offsets && d.nf.iter().all(|&c| c > 0) && d.f.iter().all(|v| v.is_finite())
     }
@@ -141,7 +155,8 @@ impl Problem<'_> {
                     return None;
                 }
                 let mut cov = Matrix3::zeros();
-                for j in 0..self.lay.n {
+                let tared = self.tared(d);
+                for j in (0..self.lay.n).filter(|&j| !tared[j]) {
                     let v = self.dir(s, p, j).1;
                     cov += v * v.transpose() * (self.var_f / d.nf[j] as f64);
                 }
@@ -181,7 +196,15 @@ impl Problem<'_> {
             let mut dfdp = Matrix3::zeros();
             // Columns of dF/dg, sparse: (index, 3-vector).
             let mut cols: Vec<(usize, Vector3<f64>)> = Vec::with_capacity(4 * lay.n + 1);
-            for j in 0..lay.n {
+            let tared = self.tared(d);
+            for j in (0..lay.n).filter(|&j| tared[j]) {
+                // model c_j, reading f_kj.
+                let sw = (d.nf[j] as f64 / self.var_f).sqrt();
+                rows.r.push(sw * (d.f[j] - s.g[lay.c(j)]));
+                rows.jp.push([0.0; 3]);
+                rows.jg.push(vec![(lay.c(j), sw)]);
+            }
+            for j in (0..lay.n).filter(|&j| !tared[j]) {
                 let (rho, v) = self.dir(s, p, j);
                 let t = d.f[j] - s.g[lay.c(j)];
                 f += v * t;
