@@ -168,6 +168,8 @@ impl TautCalib {
             length_sigma_m: crate::excite::bundle_length_sigma_m(self.opts.encoder_sigma_m),
             tracker_sigma_m: self.opts.tracker_sigma_m,
             min_tension_n: self.opts.min_tension_n,
+            // The length noise from the residuals, never below the encoders' (see `bundle::refine`).
+            length_sigma_floor_m: crate::excite::length_sigma_floor_m(self.opts.encoder_sigma_m),
             ..Default::default()
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
@@ -261,7 +263,11 @@ impl Calibrate for TautCalib {
                 b.l0,
                 b.anchor_sigma,
                 b.l0_sigma,
-                format!(", refined on all cables ({} samples, errors-in-variables)", b.samples),
+                format!(
+                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm)",
+                    b.samples,
+                    b.length_sigma_m * 1e3
+                ),
             ),
             None => (r.params.anchors, r.params.l0, r.anchor_sigma, r.l0_sigma, String::new()),
         };
