@@ -121,6 +121,17 @@ pub fn plan(cfg: &RobotConfig, ccfg: &mut ControllerConfig) -> ExcitationPlan {
     if !cfg.motion.design_excitation {
         return ExcitationPlan { path: "lissajous", waypoints: 0, predicted: today, note: "[motion] design_excitation = false".into() };
     }
+    // The design's information covers anchors and offsets only; the effects' parameters
+    // (stretch against drum scale needs the tension swing, the pulley the wrap angles) were
+    // measured on the Lissajous curve (tests/tests/e2e_effects.rs): it stays theirs.
+    if !cfg.calibration.effects.is_empty() {
+        return ExcitationPlan {
+            path: "lissajous",
+            waypoints: 0,
+            predicted: today,
+            note: "[calibration] effects are modelled: the design covers anchors and offsets only".into(),
+        };
+    }
     match design::design(&inp) {
         Ok(d) => {
             ccfg.tour = Some(d.tour);
