@@ -57,6 +57,17 @@ fn startup(seed: u64, designed: bool) -> Run {
     // build and the other tests: under that load a reading is sometimes 0.5 s late, which the
     // loop (rightly) treats as a fault. Late, not wrong: allow 2 s here.
     cfg.safety.tension_max_age_s = 2.0;
+    // Likewise the heartbeats (as in e2e_effects): a start-up stopped by a late heartbeat on a
+    // loaded machine (seen: HeartbeatLost on seed 3 at load 8) measures nothing.
+    for c in &mut cfg.cables {
+        if let Some(d) = c.drive.as_mut() {
+            d.heartbeat_timeout_ms = Some(2000);
+        }
+    }
+    if let Some(can) = cfg.can.as_mut() {
+        // The drives' consumer of taut's heartbeat: 3 periods.
+        can.master_heartbeat_ms = 500;
+    }
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
