@@ -497,6 +497,11 @@ mod tests {
             let p = design(&DesignInput { duration_s: dur, speed_m_s: v, ..input() }).unwrap().predicted.worst_anchor_sigma_m();
             eprintln!("designed, {dur} s at {v} m/s: worst anchor 1-sigma {:.2} mm", p * 1e3);
         }
+        // At the length noise the simulated robot's calibration measures (BENCHMARKS.md).
+        for dur in [30.0, 60.0] {
+            let p = design(&DesignInput { duration_s: dur, length_sigma_m: 1.13e-4, ..input() }).unwrap().predicted.worst_anchor_sigma_m();
+            eprintln!("designed, {dur} s at 0.8 m/s, length noise 0.113 mm: worst anchor 1-sigma {:.2} mm", p * 1e3);
+        }
     }
 
     #[test]
