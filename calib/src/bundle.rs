@@ -194,11 +194,6 @@ fn inv3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     ])
 }
 
-/// Huber threshold of a tracker residual's length, in tracker sigmas: a 3-D Gaussian error is
-/// longer than 3.5 sigma in 0.6 % of the samples; the tracker's outliers (centimetres) are
-/// down-weighted instead of pulling the frame.
-const TRACKER_HUBER_K: f64 = 3.5;
-
 /// Refines `anchors` and `l0` (a start within a few centimetres) on the recording. `None` if
 /// fewer than 20 samples have four taut cables, or the platform has orientation data.
 ///
@@ -266,7 +261,7 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                 }
             }
             let e = model::sub(*pi, r.pos);
-            c += huber_cost(model::norm(e) / st, TRACKER_HUBER_K);
+            c += 0.5 * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / (st * st);
         }
         c
     };
@@ -291,7 +286,9 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
             let mut bp = [0.0; 3];
             let mut cols: Vec<(usize, [f64; 3])> = Vec::with_capacity(4 * n);
             let e = model::sub(*pi, r.pos);
-            let wt = huber_w(model::norm(e) / st, TRACKER_HUBER_K) / (st * st);
+            // Quadratic: the tracker is what fixes the frame (a robust loss let a wrong model
+            // drift it, e2e_effects' ideal-model run).
+            let wt = 1.0 / (st * st);
             for a in 0..3 {
                 hpp[a][a] += wt;
                 bp[a] -= e[a] * wt;
@@ -402,7 +399,7 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
     for (r, pi) in data.iter().zip(&p) {
         let mut lpart = [[0.0; 3]; 3];
         let e = model::sub(*pi, r.pos);
-        let wt = huber_w(model::norm(e) / st, TRACKER_HUBER_K) / (st * st);
+        let wt = 1.0 / (st * st);
         let mut hpp = [[0.0; 3]; 3];
         for (a, row) in hpp.iter_mut().enumerate() {
             row[a] = wt;
