@@ -203,10 +203,10 @@ fn inv3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
 /// residuals `r` (those within 4 s_l: Huber-down-weighted slack and outliers are not noise),
 /// with `L_i` the length part of sample `i`'s 3x3 position information (its lengths take that
 /// much of its position's degrees of freedom), and the fit is repeated with it (at least the
-/// floor) until it changes by less than 5 %. The encoders resolve far better than a fixed
-/// conservative length sigma says, and the weight of the redundant cables against the tracker
-/// is what pins the anchors; where the model misses something (stretch, sag) the residuals
-/// say so and the weight follows.
+/// floor, at most the start) until it changes by less than 5 %. The encoders resolve far
+/// better than a fixed conservative length sigma says, and the weight of the redundant cables
+/// against the tracker is what pins the anchors. Where the model misses something (stretch,
+/// sag: residuals above the start) the start's weighting is kept.
 pub fn refine(
     rec: &Recording,
     platform_points: &[[f64; 3]],
@@ -226,7 +226,9 @@ pub fn refine(
     if opts.length_sigma_floor_m > 0.0 {
         for _ in 0..4 {
             let Some(est) = r.length_sigma_estimate else { break };
-            let next = est.max(opts.length_sigma_floor_m);
+            // Lowered only: where the model misses something (residuals above the start) the
+            // start's weighting stays (a misfit in mm let e2e_effects' ideal model drift).
+            let next = est.clamp(opts.length_sigma_floor_m, opts.length_sigma_m);
             if (next / r.result.length_sigma_m - 1.0).abs() < 0.05 {
                 break;
             }
@@ -547,5 +549,6 @@ mod tests {
         let o = BundleOptions { length_sigma_floor_m: 1e-5, ..Default::default() };
         let est = refine(&rec, &[[0.0; 3]; 4], &truth, &l0, &o).unwrap();
         assert!(est.length_sigma_m > 2.0 * 5e-5, "estimated length sigma {:.4} mm", est.length_sigma_m * 1e3);
+        assert!(est.length_sigma_m <= o.length_sigma_m, "never above the start");
     }
 }
