@@ -130,10 +130,9 @@ pub struct MotionConfig {
     /// tilt, which the dwells alone confound with the load-cell offsets. 0: none.
     pub dwell_tares: usize,
     /// The excitation is a tour of the workspace box's corners designed from the nominal anchors
-    /// for the smallest predicted anchor uncertainty (`taut_calib::design`); `false` (the
-    /// default): the fixed Lissajous curve. Opt-in until it is validated in every mode: in the
-    /// host-owned plugin test (seed 5) the tour's calibration was refused by the held-out check
-    /// (1.65 vs 1.59 mm), and with modelled effects it optimises the anchors only.
+    /// for the smallest predicted anchor uncertainty (`taut_calib::design`, default); `false`:
+    /// the fixed Lissajous curve. With `[calibration] effects` modelled the Lissajous curve is
+    /// used either way (the design covers anchors and offsets only).
     pub design_excitation: bool,
     /// Rate of the tracker's poses, Hz: the number of samples the design's predicted
     /// uncertainty counts on.
@@ -174,7 +173,7 @@ impl Default for MotionConfig {
             dwell_settle_s: 1.0,
             dwell_speed_m_s: 0.15,
             dwell_tares: 4,
-            design_excitation: false,
+            design_excitation: true,
             tracker_rate_hz: 100.0,
         }
     }

@@ -55,6 +55,21 @@ impl Tour {
         (p0, p1, len)
     }
 
+    /// The waypoint nearest `p` and the time the tour reaches it, s (the tour repeats: it may
+    /// be started there, `point(t + time)`, and still covers the same loop). No allocation.
+    pub fn nearest_waypoint(&self, p: &[f64; 3]) -> (usize, f64) {
+        let (mut best, mut best_d, mut best_t, mut t) = (0, f64::INFINITY, 0.0, 0.0);
+        for k in 0..self.n {
+            let w = self.waypoints[k];
+            let d = (w[0] - p[0]).powi(2) + (w[1] - p[1]).powi(2) + (w[2] - p[2]).powi(2);
+            if d < best_d {
+                (best, best_d, best_t) = (k, d, t);
+            }
+            t += segment_time(self.seg(k).2, self.speed_m_s, self.accel_m_s2);
+        }
+        (best, best_t)
+    }
+
     /// Time of one pass through all waypoints and back to the first, s.
     pub fn period_s(&self) -> f64 {
         (0..self.n).map(|k| segment_time(self.seg(k).2, self.speed_m_s, self.accel_m_s2)).sum()
@@ -77,5 +92,24 @@ impl Tour {
             t -= dur;
         }
         self.waypoints[0]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn joining_at_the_nearest_waypoint_continues_the_same_loop() {
+        let mut t = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: 4, speed_m_s: 0.8, accel_m_s2: 1.0 };
+        t.waypoints[..4].copy_from_slice(&[[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [2.0, 1.0, 2.0], [0.0, 1.0, 2.0]]);
+        let (k, t0) = t.nearest_waypoint(&[1.9, 1.1, 1.8]);
+        assert_eq!(k, 2);
+        assert!((t0 - segment_time(2.0, 0.8, 1.0) - segment_time(2f64.sqrt(), 0.8, 1.0)).abs() < 1e-12);
+        let p = t.point(t0);
+        assert!((0..3).all(|i| (p[i] - t.waypoints[2][i]).abs() < 1e-9), "{p:?}");
+        // One period later it is there again.
+        let q = t.point(t0 + t.period_s());
+        assert!((0..3).all(|i| (q[i] - p[i]).abs() < 1e-9), "{q:?}");
     }
 }

@@ -154,6 +154,8 @@ impl TautCalib {
             length_sigma_m: crate::excite::bundle_length_sigma_m(self.opts.encoder_sigma_m),
             tracker_sigma_m: self.opts.tracker_sigma_m,
             min_tension_n: self.opts.min_tension_n,
+            // The length noise from the residuals, never below the encoders' (see `bundle::refine`).
+            length_sigma_floor_m: crate::excite::length_sigma_floor_m(self.opts.encoder_sigma_m),
             ..Default::default()
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
@@ -237,7 +239,15 @@ impl Calibrate for TautCalib {
         // Then all taut cables at once with the platform positions as unknowns (see
         // `taut_calib::bundle`): the force-aware fit is its start and its fallback.
         let (geometry, sigma, how) = match self.refine(rec, &r.params.anchors, &r.params.l0) {
-            Some(b) => (b.params, b.sigma, format!(", refined on all cables ({} samples, errors-in-variables)", b.samples)),
+            Some(b) => (
+                b.params,
+                b.sigma,
+                format!(
+                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm)",
+                    b.samples,
+                    b.length_sigma_m * 1e3
+                ),
+            ),
             None => (r.params, r.sigma, String::new()),
         };
         // With effects: all of it again, the effects' parameters with the anchors and offsets

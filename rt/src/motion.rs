@@ -427,6 +427,8 @@ pub struct Controller {
     // excitation
     start_m: [f64; 3],
     lissajous_start: [f64; 3],
+    /// Where in the tour the excitation joins it (its waypoint nearest the start), s.
+    tour_t0: f64,
     approach_s: f64,
     omega: [f64; 3],
     amp: [f64; 3],
@@ -559,6 +561,7 @@ impl Controller {
             cmd_valid: false,
             start_m: centre,
             lissajous_start: centre,
+            tour_t0: 0.0,
             approach_s: 1.0,
             omega,
             amp,
@@ -794,13 +797,21 @@ impl Controller {
         }
         let p0 = if inp.pose_age_s <= self.cfg.tracker_max_age_s { inp.pose_m } else { self.target };
         self.start_m = p0;
+        self.tour_t0 = 0.0;
         self.lissajous_start = match &self.cfg.tour {
-            Some(tour) => tour.start(),
+            // Joined at the waypoint nearest the platform: a short approach.
+            Some(tour) => {
+                let (k, t0) = tour.nearest_waypoint(&p0);
+                self.tour_t0 = t0;
+                tour.waypoints[k]
+            }
             None => std::array::from_fn(|i| self.centre[i] + self.amp[i] * LISSAJOUS_PHASE[i].sin()),
         };
         let d = (0..3).map(|i| (self.lissajous_start[i] - p0[i]).powi(2)).sum::<f64>().sqrt();
-        // Smoothstep peaks at 1.5 x the mean speed.
-        self.approach_s = (1.5 * d / self.cfg.excitation_speed_m_s).max(1.0);
+        // Smoothstep peaks at 1.5 x the mean speed: at the tour's cruise speed when there is one
+        // (the approach's data are used for the calibration too, but the tour's are worth more).
+        let v = self.cfg.tour.map_or(self.cfg.excitation_speed_m_s, |t| t.speed_m_s.max(self.cfg.excitation_speed_m_s));
+        self.approach_s = (1.5 * d / v).max(1.0);
         self.target = p0;
         self.enter_ik(State::Excitation, now);
     }
@@ -810,7 +821,7 @@ impl Controller {
             let w = smoothstep(t / self.approach_s);
             std::array::from_fn(|i| self.start_m[i] + w * (self.lissajous_start[i] - self.start_m[i]))
         } else if let Some(tour) = &self.cfg.tour {
-            tour.point(t - self.approach_s)
+            tour.point(t - self.approach_s + self.tour_t0)
         } else {
             let tt = t - self.approach_s;
             let mut p = [0.0; 3];

@@ -16,6 +16,18 @@ use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 
+/// The loop's Lissajous point `t` s after the approach (as `taut_rt_core::excite` predicts it).
+fn ccfg_lissajous(ccfg: &ControllerConfig, t: f64) -> [f64; 3] {
+    let w = ccfg.workspace;
+    let v = ccfg.excitation_speed_m_s;
+    std::array::from_fn(|i| {
+        let c = (w[0][i] + w[1][i]) / 2.0;
+        let amp = 0.8 * (w[1][i] - w[0][i]) / 2.0;
+        let omega = taut_rt_core::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp.max(1e-3));
+        c + amp * (omega * t + taut_rt_core::motion::LISSAJOUS_PHASE[i]).sin()
+    })
+}
+
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -25,6 +37,9 @@ struct Run {
     worst_err_m: f64,
     worst_sigma_m: f64,
     predicted_m: f64,
+    /// The prediction at the length noise the calibration measured, m.
+    at_noise_m: f64,
+    noise_m: f64,
     errs_m: Vec<f64>,
     axis_errs_m: Vec<[f64; 3]>,
     sigmas_m: Vec<[f64; 3]>,
@@ -42,6 +57,17 @@ fn startup(seed: u64, designed: bool) -> Run {
     // build and the other tests: under that load a reading is sometimes 0.5 s late, which the
     // loop (rightly) treats as a fault. Late, not wrong: allow 2 s here.
     cfg.safety.tension_max_age_s = 2.0;
+    // Likewise the heartbeats (as in e2e_effects): a start-up stopped by a late heartbeat on a
+    // loaded machine (seen: HeartbeatLost on seed 3 at load 8) measures nothing.
+    for c in &mut cfg.cables {
+        if let Some(d) = c.drive.as_mut() {
+            d.heartbeat_timeout_ms = Some(2000);
+        }
+    }
+    if let Some(can) = cfg.can.as_mut() {
+        // The drives' consumer of taut's heartbeat: 3 periods.
+        can.master_heartbeat_ms = 500;
+    }
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
@@ -64,6 +90,26 @@ fn startup(seed: u64, designed: bool) -> Run {
         let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
     }
     let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
+    // The design predicts at the configured encoder noise; the calibration weighs the lengths
+    // with the noise it measures in its residuals (`length noise X mm` in the note). The same
+    // prediction at that noise checks the information model apart from the noise level.
+    let noise_m = ce
+        .note
+        .split("length noise ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|x| x.parse::<f64>().ok())
+        .map(|mm| mm * 1e-3)
+        .unwrap_or_else(|| panic!("seed {seed}: the note lacks the measured length noise: {}", ce.note));
+    let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+    let _ = taut_rt_core::excite::plan(&cfg, &mut ccfg);
+    let mut inp = taut_rt_core::excite::design_input(&cfg, &ccfg).unwrap();
+    inp.length_sigma_m = noise_m;
+    let at_noise_m = match ccfg.tour {
+        Some(tour) => taut_calib::design::predict(&inp, |t| tour.point(t)),
+        None => taut_calib::design::predict(&inp, |t| ccfg_lissajous(&ccfg, t)),
+    }
+    .map_or(f64::NAN, |p| p.worst_anchor_sigma_m());
     let errs_m: Vec<f64> = ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
     let sig: Vec<f64> = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
     eprintln!("seed {seed}: note {}", ce.note);
@@ -72,6 +118,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         worst_err_m: errs_m.iter().cloned().fold(0.0, f64::max),
         worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
         predicted_m,
+        at_noise_m,
+        noise_m,
         errs_m,
         axis_errs_m: ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
         sigmas_m: ce.sigma.anchors.clone(),
@@ -89,10 +137,12 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
     for seed in seeds {
         let r = startup(seed, designed);
         eprintln!(
-            "RESULT seed {seed} designed {designed}: worst anchor error {:.2} mm, worst anchor sigma {:.2} mm (predicted {:.2} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
+            "RESULT seed {seed} designed {designed}: worst anchor error {:.2} mm, worst anchor sigma {:.2} mm (predicted {:.2} mm; {:.2} mm at the measured length noise {:.3} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
             r.worst_err_m * 1e3,
             r.worst_sigma_m * 1e3,
             r.predicted_m * 1e3,
+            r.at_noise_m * 1e3,
+            r.noise_m * 1e3,
             r.samples,
             r.errs_m.iter().map(|e| (e * 1e4).round() / 10.0).collect::<Vec<_>>(),
             r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e4).round() / 10.0)).collect::<Vec<_>>()
@@ -109,12 +159,15 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
         // The prediction omits the approach to the first corner (more data) and is taken at the
         // nominal anchors (up to 20 cm off): the achieved sigma is expected within 0.7-1.3 of it;
         // a factor 1.5 either way is the stated agreement.
-        let ratio = r.worst_sigma_m / r.predicted_m;
+        // The information model is checked at the length noise the calibration measured (the
+        // design's own prediction at the configured encoder noise is printed beside it).
+        let ratio = r.worst_sigma_m / r.at_noise_m;
         if !(ratio > 1.0 / 1.5 && ratio < 1.5) {
             failures.push(format!(
-                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm (ratio {ratio:.2})",
+                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm at the measured length noise {:.3} mm (ratio {ratio:.2})",
                 r.worst_sigma_m * 1e3,
-                r.predicted_m * 1e3
+                r.at_noise_m * 1e3,
+                r.noise_m * 1e3
             ));
         }
         // Every coordinate within 4 of its own sigmas (60 comparisons over five seeds: a family
