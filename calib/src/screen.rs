@@ -289,6 +289,8 @@ struct Grid {
     norm: Vec<f64>,
     /// The four neighbours exist and each is within `gap` of the next towards `i`.
     linked: Vec<bool>,
+    /// Every other time of this grid with twice the gap (the decimated test), when made.
+    half: Option<Box<Grid>>,
 }
 
 impl Grid {
@@ -304,7 +306,18 @@ impl Grid {
                 linked[i] = true;
             }
         }
-        Grid { t, gap, w, norm, linked }
+        Grid { t, gap, w, norm, linked, half: None }
+    }
+
+    /// Every other time, twice the gap.
+    fn decimated(&self) -> Grid {
+        Grid::new(self.t.iter().step_by(2).copied().collect(), 2.0 * self.gap)
+    }
+
+    /// With its decimated grid, shared by every channel screened on it.
+    fn with_half(mut self) -> Grid {
+        self.half = Some(Box::new(self.decimated()));
+        self
     }
 }
 
@@ -562,7 +575,6 @@ fn screen_channel(
     steps: bool,
     quiet: &[bool],
     tension: Option<(&[f64], f64)>,
-    half_grid: &Grid,
 ) -> (Vec<Event>, usize) {
     let m = ch.y.len();
     let mut ev = vec![];
@@ -582,6 +594,14 @@ fn screen_channel(
     // reading gives the same noise scale (z is normalised), while unresolved motion grows with
     // the 4th power of the spacing. If the decimated scale is more than 1.5x, this channel's
     // local test would judge the motion, not the readings: only absurd values are flagged.
+    let own;
+    let half_grid = match ch.grid.half.as_deref() {
+        Some(h) => h,
+        None => {
+            own = ch.grid.decimated();
+            &own
+        }
+    };
     let yd: Vec<f64> = (0..m).step_by(2).map(|i| if ch.out[i] { f64::NAN } else { ch.y[i] }).collect();
     let sd: Vec<i32> = (0..m).step_by(2).map(|i| ch.seg.get(i).copied().unwrap_or(0)).collect();
     let half = Channel::new(half_grid, yd, if ch.seg.is_empty() { &[] } else { &sd });
@@ -777,8 +797,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let gap = if dt.is_finite() { 5.0 * dt } else { f64::INFINITY };
     let seg: &[i32] = rec.phase.as_deref().unwrap_or(&[]);
     // Every channel is sampled on the recording's times, decimated on every other one.
-    let grid = Grid::new(rec.t.clone(), gap);
-    let half_grid = Grid::new(rec.t.iter().step_by(2).copied().collect(), 2.0 * gap);
+    let grid = Grid::new(rec.t.clone(), gap).with_half();
     // The Bonferroni count: every reading of every channel (encoders, tracker axes, load cells).
     let tests = m * (n + 3 + if rec.f.is_some() { n } else { 0 });
     let k = normal_upper_quantile(opts.false_alarm / (2.0 * tests.max(1) as f64));
@@ -816,7 +835,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
         let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
         let mut ch = Channel::new(&grid, (0..m).map(|i| rec.l[i * n + j]).collect(), &eseg);
         let tension = tension_cols.get(j).map(|(c, s)| (&c[..], *s));
-        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension, &half_grid);
+        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension);
         for e in ev {
             changed = true;
             match e {
@@ -904,7 +923,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let mut removed_rows = vec![false; m];
     for a in 0..3 {
         let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
-        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None, &half_grid);
+        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None);
         for e in ev {
             changed = true;
             match e {
