@@ -275,9 +275,84 @@ pub fn normal_upper_quantile(p: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
+/// A time grid with the interpolation weights of its fast path, computed once for every channel
+/// sampled on it (the encoders, tracker axes and load cells share the recording's times; the
+/// decimated channels share every other time): row `i`'s cubic through rows `i-2, i-1, i+1, i+2`
+/// when those four are linked in time (`gap`). A channel uses them where its own readings and
+/// segments allow, and gets the same bits as [`Channel::lagrange`] (the same function computes them).
+struct Grid {
+    t: Vec<f64>,
+    gap: f64,
+    /// Lagrange weights of the four nodes, per row (zeros where not `linked`).
+    w: Vec<[f64; 4]>,
+    /// `sqrt(1 + sum w^2)`, the prediction's noise relative to one reading's.
+    norm: Vec<f64>,
+    /// The four neighbours exist and each is within `gap` of the next towards `i`.
+    linked: Vec<bool>,
+    /// Every other time of this grid with twice the gap (the decimated test), when made.
+    half: Option<Box<Grid>>,
+}
+
+impl Grid {
+    fn new(t: Vec<f64>, gap: f64) -> Grid {
+        let m = t.len();
+        let (mut w, mut norm, mut linked) = (vec![[0.0; 4]; m], vec![f64::NAN; m], vec![false; m]);
+        let link = |k: usize, prev: usize| (t[k] - t[prev]).abs() <= gap;
+        for i in 2..m.saturating_sub(2) {
+            if link(i - 1, i) && link(i - 2, i - 1) && link(i + 1, i) && link(i + 2, i + 1) {
+                let (wi, w2) = lagrange_weights(t[i], [t[i - 2], t[i - 1], t[i + 1], t[i + 2]]);
+                w[i] = wi;
+                norm[i] = (1.0 + w2).sqrt();
+                linked[i] = true;
+            }
+        }
+        Grid { t, gap, w, norm, linked, half: None }
+    }
+
+    /// Every other time, twice the gap.
+    fn decimated(&self) -> Grid {
+        Grid::new(self.t.iter().step_by(2).copied().collect(), 2.0 * self.gap)
+    }
+
+    /// With its decimated grid, shared by every channel screened on it.
+    fn with_half(mut self) -> Grid {
+        self.half = Some(Box::new(self.decimated()));
+        self
+    }
+}
+
+/// Lagrange weights `w_p = prod_q (ti - t_q) / prod_q (t_p - t_q)`, q != p, of the cubic through
+/// the times `tk` at `ti`, and `sum w_p^2`.
+#[inline]
+#[allow(clippy::needless_range_loop)]
+fn lagrange_weights(ti: f64, tk: [f64; 4]) -> ([f64; 4], f64) {
+    // A single division for all four: this runs for every row of a grid (and for every reading
+    // off the fast path).
+    let mut num = [1.0f64; 4];
+    let mut den = [1.0f64; 4];
+    for p in 0..4 {
+        for q in 0..4 {
+            if p != q {
+                num[p] *= ti - tk[q];
+                den[p] *= tk[p] - tk[q];
+            }
+        }
+    }
+    let inv = 1.0 / (den[0] * den[1] * den[2] * den[3]);
+    let others = [den[1] * den[2] * den[3], den[0] * den[2] * den[3], den[0] * den[1] * den[3], den[0] * den[1] * den[2]];
+    let (mut w, mut w2) = ([0.0; 4], 0.0);
+    for p in 0..4 {
+        w[p] = num[p] * others[p] * inv;
+        w2 += w[p] * w[p];
+    }
+    (w, w2)
+}
+
 /// One series (an encoder, a tracker axis, a load cell) being screened.
 struct Channel<'a> {
     t: &'a [f64],
+    /// The grid of `t` (its fast-path weights).
+    grid: &'a Grid,
     y: Vec<f64>,
     /// Excluded (wild) or missing.
     out: Vec<bool>,
@@ -291,9 +366,9 @@ struct Channel<'a> {
 const REACH: usize = 8;
 
 impl Channel<'_> {
-    fn new<'a>(t: &'a [f64], y: Vec<f64>, gap: f64, seg: &'a [i32]) -> Channel<'a> {
+    fn new<'a>(grid: &'a Grid, y: Vec<f64>, seg: &'a [i32]) -> Channel<'a> {
         let out = y.iter().map(|v| v.is_nan()).collect();
-        Channel { t, y, out, gap, seg }
+        Channel { t: &grid.t, grid, y, out, gap: grid.gap, seg }
     }
 
     /// Up to `want` present neighbours of `i` on one side, nearest first.
@@ -339,10 +414,16 @@ impl Channel<'_> {
         }
         // Almost every reading: its four nearest rows are present and linked, the nodes `side`
         // would find (checked in the same order, with the same comparisons).
-        if i >= 2 && i + 2 < self.y.len() && !(self.out[i - 2] | self.out[i - 1] | self.out[i + 1] | self.out[i + 2]) {
-            let linked = |k: usize, prev: usize| (self.t[k] - self.t[prev]).abs() <= self.gap && self.seg.get(k) == self.seg.get(i);
-            if linked(i - 1, i) && linked(i - 2, i - 1) && linked(i + 1, i) && linked(i + 2, i + 1) {
-                return self.lagrange(i, [i - 2, i - 1, i + 1, i + 2]);
+        // The time links and the weights are the grid's; the segments are the channel's.
+        if self.grid.linked[i] && !(self.out[i - 2] | self.out[i - 1] | self.out[i + 1] | self.out[i + 2]) {
+            let same = |k: usize| self.seg.get(k) == self.seg.get(i);
+            if same(i - 1) && same(i - 2) && same(i + 1) && same(i + 2) {
+                let (w, y) = (&self.grid.w[i], &self.y);
+                let pred = 0.0 + w[0] * y[i - 2] + w[1] * y[i - 1] + w[2] * y[i + 1] + w[3] * y[i + 2];
+                if !pred.is_finite() {
+                    return (f64::NAN, f64::NAN);
+                }
+                return (pred, (y[i] - pred) / self.grid.norm[i]);
             }
         }
         let (na, nb) = (self.side(i, false, 2, &mut a), self.side(i, true, 2, &mut b));
@@ -364,27 +445,10 @@ impl Channel<'_> {
     #[inline]
     #[allow(clippy::needless_range_loop)]
     fn lagrange(&self, i: usize, nodes: [usize; 4]) -> (f64, f64) {
-        let ti = self.t[i];
-        let tk = nodes.map(|k| self.t[k]);
-        // Lagrange weights w_p = prod_q (ti - t_q) / prod_q (t_p - t_q), q != p, with a single
-        // division for all four: this runs for every reading of every channel, at two spacings.
-        let mut num = [1.0f64; 4];
-        let mut den = [1.0f64; 4];
+        let (w, w2) = lagrange_weights(self.t[i], nodes.map(|k| self.t[k]));
+        let mut pred = 0.0;
         for p in 0..4 {
-            for q in 0..4 {
-                if p != q {
-                    num[p] *= ti - tk[q];
-                    den[p] *= tk[p] - tk[q];
-                }
-            }
-        }
-        let inv = 1.0 / (den[0] * den[1] * den[2] * den[3]);
-        let others = [den[1] * den[2] * den[3], den[0] * den[2] * den[3], den[0] * den[1] * den[3], den[0] * den[1] * den[2]];
-        let (mut pred, mut w2) = (0.0, 0.0);
-        for p in 0..4 {
-            let w = num[p] * others[p] * inv;
-            pred += w * self.y[nodes[p]];
-            w2 += w * w;
+            pred += w[p] * self.y[nodes[p]];
         }
         if !pred.is_finite() {
             return (f64::NAN, f64::NAN);
@@ -530,11 +594,18 @@ fn screen_channel(
     // reading gives the same noise scale (z is normalised), while unresolved motion grows with
     // the 4th power of the spacing. If the decimated scale is more than 1.5x, this channel's
     // local test would judge the motion, not the readings: only absurd values are flagged.
-    let dec: Vec<usize> = (0..m).step_by(2).collect();
-    let (td, yd): (Vec<f64>, Vec<f64>) = dec.iter().map(|&i| (ch.t[i], if ch.out[i] { f64::NAN } else { ch.y[i] })).unzip();
-    let sd: Vec<i32> = dec.iter().map(|&i| ch.seg.get(i).copied().unwrap_or(0)).collect();
-    let half = Channel::new(&td, yd, 2.0 * ch.gap, if ch.seg.is_empty() { &[] } else { &sd });
-    let (s2, _) = scale(&half, &mut vec![f64::NAN; td.len()], floor);
+    let own;
+    let half_grid = match ch.grid.half.as_deref() {
+        Some(h) => h,
+        None => {
+            own = ch.grid.decimated();
+            &own
+        }
+    };
+    let yd: Vec<f64> = (0..m).step_by(2).map(|i| if ch.out[i] { f64::NAN } else { ch.y[i] }).collect();
+    let sd: Vec<i32> = (0..m).step_by(2).map(|i| ch.seg.get(i).copied().unwrap_or(0)).collect();
+    let half = Channel::new(half_grid, yd, if ch.seg.is_empty() { &[] } else { &sd });
+    let (s2, _) = scale(&half, &mut vec![f64::NAN; half_grid.t.len()], floor);
     if !(s2 <= 1.5 * s) {
         return (ev, tested);
     }
@@ -725,6 +796,8 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     };
     let gap = if dt.is_finite() { 5.0 * dt } else { f64::INFINITY };
     let seg: &[i32] = rec.phase.as_deref().unwrap_or(&[]);
+    // Every channel is sampled on the recording's times, decimated on every other one.
+    let grid = Grid::new(rec.t.clone(), gap).with_half();
     // The Bonferroni count: every reading of every channel (encoders, tracker axes, load cells).
     let tests = m * (n + 3 + if rec.f.is_some() { n } else { 0 });
     let k = normal_upper_quantile(opts.false_alarm / (2.0 * tests.max(1) as f64));
@@ -744,12 +817,8 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let tension_quiet: Vec<Vec<bool>> = (0..n)
         .map(|j| {
             let Some(f) = &rec.f else { return vec![] };
-            let ch = Channel::new(
-                &rec.t,
-                (0..m).map(|i| f[i * n + j]).map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN }).collect(),
-                gap,
-                seg,
-            );
+            let ch =
+                Channel::new(&grid, (0..m).map(|i| f[i * n + j]).map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN }).collect(), seg);
             let mut zs = vec![f64::NAN; m];
             let (mad, nc) = mad_scale(&ch, &mut zs);
             let s = floored(mad, &ch.y, 1e-3);
@@ -764,9 +833,9 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     // Encoders.
     for j in 0..n {
         let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
-        let mut ch = Channel::new(&rec.t, (0..m).map(|i| rec.l[i * n + j]).collect(), gap, &eseg);
-        let (ev, _) =
-            screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension_cols.get(j).map(|(c, s)| (&c[..], *s)));
+        let mut ch = Channel::new(&grid, (0..m).map(|i| rec.l[i * n + j]).collect(), &eseg);
+        let tension = tension_cols.get(j).map(|(c, s)| (&c[..], *s));
+        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension);
         for e in ev {
             changed = true;
             match e {
@@ -853,7 +922,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     // Tracker.
     let mut removed_rows = vec![false; m];
     for a in 0..3 {
-        let mut ch = Channel::new(&rec.t, rec.p.iter().map(|p| p[a]).collect(), gap, seg);
+        let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
         let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None);
         for e in ev {
             changed = true;

@@ -115,6 +115,7 @@ pub fn progress(steps: u64) -> indicatif::ProgressBar {
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
+    crate::heap::keep_freed_memory();
     let inputs = crate::outputs::check_analysis(
         &a.recording,
         a.config.as_deref(),

@@ -205,6 +205,7 @@ fn draw_figures(set: &mut taut_config::atomic::Staging, d: &Diagnosis) -> Result
 }
 
 pub fn run(a: &DiagnoseArgs) -> Result<()> {
+    crate::heap::keep_freed_memory();
     let inputs = crate::outputs::check_analysis(
         &a.recording,
         a.config.as_deref(),

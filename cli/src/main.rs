@@ -9,6 +9,7 @@ mod demo;
 mod diagnose;
 mod export;
 mod figures;
+mod heap;
 mod html;
 mod notracker;
 mod outputs;

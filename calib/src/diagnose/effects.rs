@@ -211,12 +211,17 @@ pub fn catenary(a: f64, h: f64, w: f64, t: f64, end: TensionEnd) -> Option<(f64,
     if !(a > 1e-9 && w > 0.0 && t > 0.0 && chord > 0.0) {
         return None;
     }
-    // Inputs of the dual numbers: 0 = H, 1 = a, 2 = h, 3 = w.
-    let eval = |hh: f64| -> (Dual<4>, Dual<4>) {
-        let hd = Dual::<4>::var(hh, 0);
-        let ad = Dual::var(a, 1);
-        let vd = Dual::var(h, 2);
-        let wd = Dual::var(w, 3);
+    // Inputs of the dual numbers: 0 = H, 1 = a, 2 = h, 3 = w. The Newton steps need d/dH only:
+    // they run with one derivative (`N = 1`, inputs 1-3 constants), whose value and d/dH are
+    // the same operations on the same numbers as the first slot of `N = 4` (every dual
+    // operation treats its slots alike), so the iterates are the same bits at a quarter of the
+    // derivative work (this solve is most of a diagnosis's time).
+    fn eval<const N: usize>(hh: f64, a: f64, h: f64, w: f64, end: TensionEnd) -> (Dual<N>, Dual<N>) {
+        let var = |v: f64, k: usize| if k < N { Dual::<N>::var(v, k) } else { Dual::<N> { v, d: [0.0; N] } };
+        let hd = var(hh, 0);
+        let ad = var(a, 1);
+        let vd = var(h, 2);
+        let wd = var(w, 3);
         let dd = wd * ad / hd;
         let ee = wd * vd / hd;
         let half = (dd * 0.5).sinh();
@@ -229,11 +234,11 @@ pub fn catenary(a: f64, h: f64, w: f64, t: f64, end: TensionEnd) -> Option<(f64,
         let span = hd / wd * half * 2.0;
         let s = (vd * vd + span * span).sqrt();
         (tension, s)
-    };
+    }
     let mut hh = t * a / chord;
     let mut converged = false;
     for _ in 0..60 {
-        let (tn, _) = eval(hh);
+        let (tn, _) = eval::<1>(hh, a, h, w, end);
         let g = tn.v - t;
         let dg = tn.d[0];
         if !(dg.is_finite() && dg > 0.0) {
@@ -253,7 +258,7 @@ pub fn catenary(a: f64, h: f64, w: f64, t: f64, end: TensionEnd) -> Option<(f64,
     if !converged || !(hh > 0.0) {
         return None;
     }
-    let (tn, s) = eval(hh);
+    let (tn, s) = eval::<4>(hh, a, h, w, end);
     if !s.v.is_finite() {
         return None;
     }
