@@ -407,6 +407,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
     // 0.1 mm, a few encoder quanta) around where it last moved.
     let thr = (6.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m).max(1e-4);
     prep.play = fit::PlayState::from_readings(&prep.l, thr);
+    prep.play.extend_push_ends(&prep.l);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
@@ -664,9 +665,9 @@ impl Ctx<'_> {
     ///
     /// The least-squares sigmas assume independent residuals; the residuals of a recording are
     /// correlated in time (the platform moves smoothly, unmodelled physics leaves slow
-    /// structure), so each effect parameter's sigma is inflated by a block (batch-means)
-    /// factor: the variance of the parameter's score summed over contiguous time blocks of
-    /// `samples`, over the variance the independent-residual formula assumes. A parameter is
+    /// structure), so each effect parameter's sigma is widened by the batch-means sandwich of
+    /// [`sandwich_inflation`] (the spread over contiguous time blocks of `samples` of each
+    /// block's influence on the estimate; never narrowed). A parameter is
     /// significant only if it is more than 4 inflated sigmas from its null value *and* its
     /// predicted length change (RMS over `samples`, the fitted model with and without the
     /// parameter) is at least `NEGLIGIBLE` of the measurement noise: a parameter that moves
@@ -791,18 +792,16 @@ fn sandwich_inflation(
 /// For parameter `k` of the fitted `x`: the RMS predicted length change the parameter makes
 /// (against its null value 0) over `samples`. `res` are the residuals at `x` on `samples`.
 fn length_change(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64], res: &[Vec<f64>], k: usize) -> f64 {
-    let h = 1e-3 * x[k].abs() + 1e-12;
-    let mut xp = x.to_vec();
-    xp[k] += h;
-    let rp = fit::residuals(prep, spec, samples, &xp);
     let mut x0 = x.to_vec();
     x0[k] = 0.0;
     let r0 = fit::residuals(prep, spec, samples, &x0);
     let (mut ch, mut chn) = (0.0, 0usize);
+    // Over the readings the parameter moves (its cable; a reading without the data for it, e.g.
+    // no tension, is not moved).
     for j in 0..res.len() {
         for i in 0..samples.len() {
-            let (r, a, z) = (res[j][i], rp[j][i], r0[j][i]);
-            if r.is_finite() && a.is_finite() && z.is_finite() && a != r {
+            let (r, z) = (res[j][i], r0[j][i]);
+            if r.is_finite() && z.is_finite() && z != r {
                 ch += (z - r) * (z - r);
                 chn += 1;
             }
