@@ -612,6 +612,15 @@ impl Ctx<'_> {
                 let with = j.with.map_or("the anchors", |w| w.name());
                 if j.both_named {
                     f.evidence.push_str(&format!("; correlation with {with} {:+.2}", j.correlation));
+                    // Named, but nearly the same model as the other: say how weakly this
+                    // recording fixes the split and what would fix it (a pulley against the
+                    // anchors is the usual case: r 78 mm against 50 mm true was seen online).
+                    if j.correlation.abs() > 0.9 {
+                        f.evidence.push_str(&format!(
+                            " (weakly observable: the two trade off in this recording; {})",
+                            e.separating_measurement(j.with)
+                        ));
+                    }
                 } else if j.correlation.abs() > 0.9 {
                     f.evidence.push_str(&format!(
                         "; fitted together with {with} (not named) the estimates correlate {:+.2}: {}",
