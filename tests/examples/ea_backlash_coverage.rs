@@ -4,7 +4,7 @@
 //! 68 / 95 / 99.7 %).
 //!
 //! ```text
-//! cargo run --profile test -p taut-tests --example ea_backlash_coverage -- [first seed, default 40] [seeds, default 10]
+//! cargo run --profile test -p taut-tests --example ea_backlash_coverage -- [first seed, default 40] [seeds, default 10] [play mm, default 10]
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -14,11 +14,12 @@ fn main() {
     let mut args = std::env::args().skip(1).map(|a| a.parse::<u64>().expect("a number"));
     let first = args.next().unwrap_or(40);
     let count = args.next().unwrap_or(10);
+    let play_m = args.next().unwrap_or(10) as f64 * 1e-3;
     let truth = 15_000.0;
     let mut z = vec![];
     for seed in first..first + count {
         let mut s = Scenario::aras_cam(seed);
-        s.physics = Physics { elasticity: Some(truth), backlash_m: 0.01, ..Physics::default() };
+        s.physics = Physics { elasticity: Some(truth), backlash_m: play_m, ..Physics::default() };
         s.duration_s = 40.0;
         let sim = simulate(&s);
         let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &DiagnoseOptions::from_config(&s.robot.calibration))

@@ -79,6 +79,11 @@ fn swivel_pulley_of_5_3_cm_is_named() {
         assert!(!d.notes.iter().any(|n| n.contains("equally well")), "seed {seed}: {:#?}", d.notes);
         // The pulley mimics a shifted anchor: the correlation is reported.
         assert!(f.joint.iter().any(|j| j.with.is_none() && j.correlation.abs() > 0.5), "{:#?}", f.joint);
+        // Above 0.9 the radius is weakly observable: the evidence says so and names the
+        // measurement that would fix it (and says nothing of the kind below).
+        let weak = f.joint.iter().any(|j| j.with.is_none() && j.correlation.abs() > 0.9);
+        assert_eq!(f.evidence.contains("weakly observable") && f.evidence.contains("wrap angles"), weak, "seed {seed}: {}", f.evidence);
+        println!("seed {seed}: {}", f.evidence);
     }
 }
 

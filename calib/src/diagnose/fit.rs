@@ -438,6 +438,56 @@ impl PlayState {
         st
     }
 
+    /// Takes the monotone ends of each push as pushes too: the readings after a detected push
+    /// that keep moving the same way (each one past the one before), and the readings before a
+    /// detected push that already moved its way. [`PlayState::from_readings`] detects a push only
+    /// once the reading has moved by the threshold (several noise sigmas), so a push that slows
+    /// down before it ends leaves the held level up to the threshold beyond the reading at the
+    /// last detected push, always in the push's direction (and a push that starts slowly is read
+    /// as held for its first samples): a bias that follows the side of the play, which the
+    /// elasticity and play estimates shared between them.
+    ///
+    /// A noise-only run of rising readings in a hold is short (length `r` with probability
+    /// `1/(r+1)!`), and at a hold's ends the modelled input is still near the reading, so a
+    /// spurious extension moves the prediction by about the input's motion over a sample.
+    pub fn extend_push_ends(&mut self, l: &[Vec<f64>]) {
+        for (j, col) in l.iter().enumerate() {
+            let contact = &mut self.contact[j];
+            let side = &mut self.side[j];
+            let m = col.len();
+            let rising =
+                |k: usize, s: i8| k > 0 && col[k].is_finite() && col[k - 1].is_finite() && f64::from(s) * (col[k] - col[k - 1]) > 0.0;
+            let mut i = 0;
+            while i < m {
+                // A detected push at i with side s: the hold after it runs while contact == i.
+                if contact[i] as usize != i || side[i] == 0 {
+                    i += 1;
+                    continue;
+                }
+                let s = side[i];
+                // Backwards: the start of the push, inside the hold before it.
+                let mut k = i;
+                while k > 1 && (contact[k - 1] as usize) < k - 1 && rising(k - 1, s) {
+                    k -= 1;
+                    contact[k] = k as u32;
+                    side[k] = s;
+                }
+                // Forwards: the slow end of the push.
+                let mut end = i;
+                while end + 1 < m && contact[end + 1] as usize == i && rising(end + 1, s) {
+                    end += 1;
+                    contact[end] = end as u32;
+                }
+                let mut h = end + 1;
+                while h < m && contact[h] as usize == i {
+                    contact[h] = end as u32;
+                    h += 1;
+                }
+                i = end + 1;
+            }
+        }
+    }
+
     /// Moves each push that happened at a sample not usable for its cable to the first usable
     /// sample after it (or the sample itself, if none comes first). A loose cable's drum pays out
     /// slack the geometry does not see, so the modelled input there is not what pushed the
@@ -460,6 +510,34 @@ impl PlayState {
                 contact[i] = target.unwrap_or(i as u32);
             }
         }
+    }
+
+    /// Marks as not usable each reading of a cable held since a push at a sample not usable for
+    /// that cable (until the reading moves again at a usable one); returns how many.
+    ///
+    /// A loose cable's drum pays out slack the geometry does not see, and the play follows the
+    /// drum: a slack peak smaller than the play pushes the output out and leaves it there when the
+    /// slack is reeled back in, anywhere inside `[v - w/2, v + w/2]` of the modelled input `v`.
+    /// The held level after the cable is taut again is then not `v_c - side w/2` for any modelled
+    /// `c`: taking it as the first taut sample's (as this once did) left errors of up to the play
+    /// width after each loose episode, at low tension, which the fit paid for with a low play and
+    /// a high compliance (EA 15 kN under 10 mm play came out at 9-11 kN, 4-7 sigma low, on some
+    /// seeds; a spurious scale or time offset was named on others). Without a play only the few
+    /// readings before the cable moves past the push threshold go.
+    pub fn exclude_unseen_pushes(&self, usable: &mut [Vec<bool>]) -> usize {
+        let mut count = 0;
+        for (j, ok) in usable.iter_mut().enumerate() {
+            let contact = &self.contact[j];
+            // A push sample is its own contact, so a usable one is never changed here and the
+            // readings held after it keep their contact usable.
+            for i in 0..contact.len() {
+                if ok[i] && !ok[contact[i] as usize] {
+                    ok[i] = false;
+                    count += 1;
+                }
+            }
+        }
+        count
     }
 }
 
@@ -659,16 +737,83 @@ mod tests {
     }
 
     #[test]
-    fn play_pattern_ignores_noise_below_the_threshold_and_settles_on_usable_samples() {
+    fn play_pattern_ignores_noise_below_the_threshold_and_drops_holds_set_while_loose() {
         // Out 1, 2, 3; held with noise; in at sample 6; sample 7 NaN holds.
         let l = vec![vec![0.0, 1.0, 2.0, 3.0, 3.05, 2.96, 2.0, f64::NAN, 2.02]];
-        let mut p = PlayState::from_readings(&l, 0.2);
+        let p = PlayState::from_readings(&l, 0.2);
         assert_eq!(p.contact[0], [0, 1, 2, 3, 3, 3, 6, 6, 6]);
         assert_eq!(p.side[0], [0, 1, 1, 1, 1, 1, -1, -1, -1]);
-        // Pushed at 3 while loose (not usable): the push moves to the first usable sample, 5.
-        let usable = vec![vec![true, true, true, false, false, true, true, true, true]];
-        p.settle(&usable);
-        assert_eq!(p.contact[0], [0, 1, 2, 3, 4, 5, 6, 6, 6]);
+        // Pushed at 3 while loose (not usable): the readings held since (4, 5) have an unknown
+        // level and go; the push at 6 is usable again and so are the readings it holds.
+        let mut usable = vec![vec![true, true, true, false, false, true, true, true, true]];
+        let mut settled = p.clone();
+        settled.settle(&usable);
+        // (The calibration's effect fit instead moves the push to the first usable sample, 5.)
+        assert_eq!(settled.contact[0], [0, 1, 2, 3, 4, 5, 6, 6, 6]);
+        assert_eq!(p.exclude_unseen_pushes(&mut usable), 1);
+        assert_eq!(usable[0], [true, true, true, false, false, false, true, true, true]);
+    }
+
+    /// The sandwich widening of [`crate::diagnose::sandwich_inflation`] on the ideal model with
+    /// white and with AR(1) reading noise: about 1 for white noise; for AR(1) with `phi` the
+    /// variance of a mean grows by `(1 + phi) / (1 - phi)` (19 at 0.9), which the offsets `L0` (a
+    /// mean) should show, while the least-squares sigma alone cannot.
+    #[test]
+    fn sandwich_sigma_widens_with_correlated_noise_only() {
+        use crate::synth::Rng;
+        let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+        let samples: Vec<usize> = (0..4000).collect();
+        for (phi, lo, hi) in [(0.0, 1.0, 1.35), (0.9, 3.0, 6.0)] {
+            let mut mean_f = 0.0;
+            let seeds = 4;
+            for seed in 0..seeds {
+                let (mut prep, x) = synthetic(4000);
+                let mut rng = Rng::new(100 + seed);
+                for j in 0..4 {
+                    let mut e = rng.normal();
+                    for i in 0..4000 {
+                        e = phi * e + (1.0 - phi * phi).sqrt() * rng.normal();
+                        prep.l[j][i] += 1e-3 * e;
+                    }
+                }
+                let r = fit(&prep, &spec, &samples, &x, 1e-3, 50);
+                let f = crate::diagnose::sandwich_inflation(&prep, &spec, &samples, &r, 1e-3, 0..16);
+                mean_f += (f[3] + f[7] + f[11] + f[15]) / 16.0;
+            }
+            let mean_f = mean_f / seeds as f64 * 4.0;
+            assert!(mean_f > lo && mean_f < hi, "phi {phi}: L0 sigma widened {mean_f:.2}x (expected {lo}-{hi})");
+        }
+    }
+
+    #[test]
+    fn extended_push_ends_hold_exactly_the_reading_the_push_left() {
+        // Exact readings through a play: a threshold of 1 mm detects each push late and ends it
+        // early (the path slows into every reversal), so held readings differ from the reading
+        // at their contact; with the monotone ends taken as pushes they equal it.
+        let widths = [4e-3, 6e-3, 8e-3, 2e-3];
+        let (prep, _) = synthetic_with_play(3000, &widths);
+        let off = |p: &PlayState| -> f64 {
+            let mut worst = 0.0f64;
+            for j in 0..4 {
+                for i in 0..3000 {
+                    worst = worst.max((prep.l[j][i] - prep.l[j][p.contact[j][i] as usize]).abs());
+                }
+            }
+            worst
+        };
+        let mut p = PlayState::from_readings(&prep.l, 1e-3);
+        assert!(off(&p) > 5e-4, "detected late: {}", off(&p));
+        p.extend_push_ends(&prep.l);
+        assert!(off(&p) < 1e-12, "after: {}", off(&p));
+        // Each push has the side of the reading's motion.
+        for j in 0..4 {
+            for i in 1..3000 {
+                if p.contact[j][i] as usize == i && p.side[j][i] != 0 {
+                    let d = prep.l[j][i] - prep.l[j][i - 1];
+                    assert!(d == 0.0 || d.signum() == f64::from(p.side[j][i]), "cable {j} sample {i}");
+                }
+            }
+        }
     }
 
     #[test]
