@@ -229,7 +229,7 @@ pub fn refine(
             if (next / r.result.length_sigma_m - 1.0).abs() < 0.05 {
                 break;
             }
-            let (a, l): (Vec<[f64; 3]>, Vec<f64>) = (r.result.anchors.clone(), r.result.l0.clone());
+            let (a, l): (Vec<[f64; 3]>, Vec<f64>) = (r.result.params.anchors.clone(), r.result.params.l0.clone());
             r = solve(&data, platform_points, &a, &l, next, opts)?;
         }
     }
@@ -516,17 +516,17 @@ mod tests {
         // 2,000 redundant lengths: the estimate's relative standard error is 1/sqrt(4000) = 1.6 %.
         assert!((est.length_sigma_m / 5e-5 - 1.0).abs() < 0.1, "estimated length sigma {:.4} mm", est.length_sigma_m * 1e3);
         assert_eq!(fixed.length_sigma_m, 2e-4);
-        let worst_sigma = |r: &BundleResult| r.anchor_sigma.iter().flatten().fold(0.0f64, |a, s| a.max(*s));
+        let worst_sigma = |r: &BundleResult| r.sigma.anchors.iter().flatten().fold(0.0f64, |a, s| a.max(*s));
         assert!(worst_sigma(&est) < 0.7 * worst_sigma(&fixed), "{} vs {}", worst_sigma(&est), worst_sigma(&fixed));
         // The sigmas are honest: every coordinate within 4.5 of its sigmas (12 comparisons).
-        for (j, (a, t)) in est.anchors.iter().zip(&truth).enumerate() {
+        for (j, (a, t)) in est.params.anchors.iter().zip(&truth).enumerate() {
             for x in 0..3 {
                 let e = (a[x] - t[x]).abs();
                 assert!(
-                    e < 4.5 * est.anchor_sigma[j][x],
+                    e < 4.5 * est.sigma.anchors[j][x],
                     "anchor {j}[{x}] off {:.3} mm, sigma {:.3} mm",
                     e * 1e3,
-                    est.anchor_sigma[j][x] * 1e3
+                    est.sigma.anchors[j][x] * 1e3
                 );
             }
         }

@@ -910,8 +910,7 @@ fn validate(
     if !c.tracker {
         return crate::notracker::heldout_dwells(c, est, heldout, current);
     }
-    let new =
-        LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
+    let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
     let rows = || (0..heldout.len()).map(|i| (&heldout.p[i], heldout.lengths(i), heldout.tensions(i)));
     let new_rms = new.coregistration_rms(rows(), c.min_tension_n);
