@@ -3,10 +3,7 @@
 //! keep holding it) and the tare is recorded with the label `MAX_DWELL_POSES + index`.
 
 use crate::motion::*;
-use crate::runner::LoopCore;
-use crate::sample::sample_ring;
-use crate::testkit::{quick_config, truth_params, KinematicRobot};
-use crate::triple::triple_buffer;
+use crate::testkit::quick_config;
 use crate::FromRobot;
 use taut_rt::io::CableCommand;
 
@@ -19,12 +16,7 @@ fn tares_follow_their_dwells_with_the_followers_at_zero_tension() {
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap().with_dwell_plan(&poses, 1.0, 0.2, 0.5).with_dwell_tares(&[false, true, false]);
     let followers: Vec<usize> = (0..4).filter(|&j| ccfg.follower[j]).collect();
     assert!(!followers.is_empty());
-    let truth = truth_params(4, 0.1);
-    let (mut params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-    let (sample_tx, _sample_rx) = sample_ring(64);
-    let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
-    robot.inject.tracker_gone = true;
-    let mut c = LoopCore::new(4, robot, Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx), sample_tx);
+    let (mut c, mut params_tx, truth) = crate::motion_tests::dwell_rig(ccfg, cmd_rx);
     let dt = 0.002;
     let mut t = 0.0;
     let mut labels: Vec<i8> = Vec::new();

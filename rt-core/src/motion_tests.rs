@@ -9,6 +9,20 @@ use crate::testkit::{quick_config, truth_params, KinematicRobot};
 use crate::triple::triple_buffer;
 use crate::FromRobot;
 
+/// The 4-cable kinematic robot without a tracker in the loop core, running `ccfg`, with no
+/// parameters yet: the core, the writer of the loop's parameters and the robot's truth.
+pub(crate) fn dwell_rig(
+    ccfg: ControllerConfig,
+    cmd_rx: crate::crossbeam_channel::Receiver<Command>,
+) -> (LoopCore<KinematicRobot>, crate::triple::Writer<crate::kin::LoopParams>, crate::kin::LoopParams) {
+    let truth = truth_params(4, 0.1);
+    let (params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+    let (sample_tx, _sample_rx) = sample_ring(64);
+    let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
+    robot.inject.tracker_gone = true;
+    (LoopCore::new(4, robot, Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx), sample_tx), params_tx, truth)
+}
+
 fn core(dir: &std::path::Path) -> LoopCore<KinematicRobot> {
     let mut cfg = quick_config(4, dir);
     cfg.safety.tension_max_age_s = 5.0;
@@ -125,12 +139,7 @@ fn dwell_startup_runs_the_plan_and_recalibrates() {
     cfg.safety.tension_max_age_s = 5.0;
     let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap().with_dwell_plan(&poses, 1.0, 0.2, 0.5);
-    let truth = truth_params(4, 0.1);
-    let (mut params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-    let (sample_tx, _sample_rx) = sample_ring(64);
-    let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
-    robot.inject.tracker_gone = true;
-    let mut c = LoopCore::new(4, robot, Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx), sample_tx);
+    let (mut c, mut params_tx, truth) = dwell_rig(ccfg, cmd_rx);
     let dt = 0.002;
     let mut t = 0.0;
     let mut labels: Vec<(State, i8)> = Vec::new();
