@@ -115,7 +115,8 @@ pub struct CalibrationConfig {
     /// Expected axial stiffness EA of the cables, N. Sets how fast the variance of a length reading
     /// grows with tension x length (unobserved stretch T·L/EA).
     pub cable_ea_n: f64,
-    /// Fraction of the recording (its last time block) held out for validation.
+    /// Fraction of the recording held out for validation (with a tracker: the ends of eight
+    /// time blocks of the excitation; without: every `1/fraction`-th dwell).
     pub heldout_fraction: f64,
     /// A calibrated parameter whose 1-sigma exceeds this is returned with a warning that it is
     /// weakly determined, m.

@@ -186,6 +186,38 @@ impl Recording {
         }
     }
 
+    /// A recording of the samples in `ranges`, in that order (comments kept): for a split into
+    /// interleaved time blocks. Ranges must lie within the recording.
+    pub fn gather(&self, ranges: &[std::ops::Range<usize>]) -> Recording {
+        let n = self.n_cables;
+        let rows: usize = ranges.iter().map(|r| r.len()).sum();
+        let mut out = Recording {
+            n_cables: n,
+            t: Vec::with_capacity(rows),
+            p: Vec::with_capacity(rows),
+            q: self.q.as_ref().map(|_| Vec::with_capacity(rows)),
+            l: Vec::with_capacity(rows * n),
+            f: self.f.as_ref().map(|_| Vec::with_capacity(rows * n)),
+            phase: self.phase.as_ref().map(|_| Vec::with_capacity(rows)),
+            comments: self.comments.clone(),
+        };
+        for r in ranges {
+            out.t.extend_from_slice(&self.t[r.clone()]);
+            out.p.extend_from_slice(&self.p[r.clone()]);
+            if let (Some(o), Some(q)) = (&mut out.q, &self.q) {
+                o.extend_from_slice(&q[r.clone()]);
+            }
+            out.l.extend_from_slice(&self.l[r.start * n..r.end * n]);
+            if let (Some(o), Some(f)) = (&mut out.f, &self.f) {
+                o.extend_from_slice(&f[r.start * n..r.end * n]);
+            }
+            if let (Some(o), Some(ph)) = (&mut out.phase, &self.phase) {
+                o.extend_from_slice(&ph[r.clone()]);
+            }
+        }
+        out
+    }
+
     /// Writes the recording as `cdpr-recording v1` CSV.
     pub fn write_csv<W: Write>(&self, mut w: W) -> std::io::Result<()> {
         let n = self.n_cables;

@@ -11,7 +11,7 @@
 
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{Calibrate, Estimate, OutcomeKind};
+use taut_rt_core::calibrator::{Calibrate, Estimate, HeldoutBlocks, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::kin::{LoopEffects, LoopParams};
 use taut_rt_core::motion::{Command, ControllerConfig};
@@ -344,8 +344,7 @@ fn offline_fit_of_a_kept_start_up_recording() {
     let so = SimOptions { seed, physics: concealed(cfg.cables.len()), ..Default::default() };
     let truth = taut_sim::Truth::sample(&cfg, &so.physics, so.site_error_m, so.l0_range_m, &mut taut_sim::rng(seed, 0)).unwrap();
     let exc = rec.slice(e0..e1);
-    let split = ((exc.len() as f64) * (1.0 - cfg.calibration.heldout_fraction)).round() as usize;
-    let (train, held) = (exc.slice(0..split), exc.slice(split..exc.len()));
+    let (train, held) = HeldoutBlocks::new(exc.len(), cfg.calibration.heldout_fraction).split(&exc);
     let platform = cfg.platform_points();
     let heldout = |g: &taut_calib::Geometry, e: &taut_config::params::Effects| {
         let p = LoopParams::from_geometry(1, g, &platform).unwrap().with_effects(LoopEffects::from_file(e));

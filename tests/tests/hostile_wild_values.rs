@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use taut_config::params::ParamsFile;
 use taut_config::recording::Recording;
 use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{evaluate, CalibratorConfig, Estimate};
+use taut_rt_core::calibrator::{evaluate, CalibratorConfig, Estimate, HeldoutBlocks};
 use taut_rt_core::kin::LoopParams;
 use taut_sim::{simulate, Scenario};
 
@@ -305,7 +305,7 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
     assert!(base.accepted, "clean excitation refused: {}", base.reason);
     assert!(base.data_problems.is_empty(), "{:#?}", base.data_problems);
     let base_est = base.estimate.clone().unwrap();
-    let split = ((exc.len() as f64) * (1.0 - ccfg.heldout_fraction)).round() as usize;
+    let split = HeldoutBlocks::new(exc.len(), ccfg.heldout_fraction);
 
     let mut t = Tally::default();
     for case in cases() {
@@ -442,7 +442,10 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
             fail(&mut t, false, "the daemon's calibration panicked".into());
             continue;
         };
-        let (part, r) = if row - first_exc < split { ("training", row - first_exc) } else { ("held-out", row - first_exc - split) };
+        let (part, r) = match split.part_of(row - first_exc) {
+            (false, k) => ("training", k),
+            (true, k) => ("held-out", k),
+        };
         // The daemon does not re-reference jumps (`ScreenOptions::jumps`): a jump shows there as
         // the readings it excluded, or the result is refused.
         let kind_daemon = if kind_cal == "encoder-jump" { "encoder-" } else { kind_cal };
