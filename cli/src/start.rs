@@ -352,18 +352,13 @@ struct Hardware {
 impl DeviceSource for Hardware {
     fn bring_up(&mut self) -> std::result::Result<Box<dyn Devices>, BringUpError> {
         use taut_driver::transport::socketcan::SocketCanTransport;
-        let can = self.cfg.can.as_ref().ok_or_else(|| BringUpError { what: "can".into(), message: "no [can] table".into() })?;
-        let bus = SocketCanTransport::open(&can.interface).map_err(|e| BringUpError {
-            what: "can.interface".into(),
-            message: format!(
-                "opening CAN interface {}: {e}; is it up? `ip link set {} up type can bitrate {}`",
-                can.interface, can.interface, can.bitrate
-            ),
+        let can = self.cfg.can.as_ref().ok_or(BringUpError::NoCan)?;
+        let bus = SocketCanTransport::open(&can.interface).map_err(|source| BringUpError::CanInterface {
+            interface: can.interface.clone(),
+            bitrate: can.bitrate,
+            source,
         })?;
-        let peripherals = self.peripherals.take().ok_or_else(|| BringUpError {
-            what: "devices".into(),
-            message: "a failed bring-up consumed the load-cell and tracker ports: start taut again".into(),
-        })?;
+        let peripherals = self.peripherals.take().ok_or(BringUpError::DevicesTaken)?;
         eprintln!("taut start: bringing up the drives on {}", can.interface);
         Ok(Box::new(RobotDevices::bring_up(&self.cfg, bus, peripherals)?))
     }

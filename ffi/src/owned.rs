@@ -22,18 +22,18 @@ impl DeviceSource for ConfigDevices {
     #[cfg(target_os = "linux")]
     fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError> {
         use taut_driver::transport::socketcan::SocketCanTransport;
-        let err = |what: &str, message: String| BringUpError { what: what.into(), message };
-        let Some(can) = &self.cfg.can else {
-            return Err(err("can", "plugin-owned devices need a [can] table with the interface of the drives".into()));
-        };
-        let bus = SocketCanTransport::open(&can.interface)
-            .map_err(|e| err("can.interface", format!("{}: {e} (is it up? `ip link set {} up`)", can.interface, can.interface)))?;
+        let Some(can) = &self.cfg.can else { return Err(BringUpError::NoCan) };
+        let bus = SocketCanTransport::open(&can.interface).map_err(|source| BringUpError::CanInterface {
+            interface: can.interface.clone(),
+            bitrate: can.bitrate,
+            source,
+        })?;
         let peripherals = Peripherals::from_config(&self.cfg)?;
         Ok(Box::new(RobotDevices::bring_up(&self.cfg, bus, peripherals)?))
     }
 
     #[cfg(not(target_os = "linux"))]
     fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError> {
-        Err(BringUpError { what: "can".into(), message: "plugin-owned devices need SocketCAN (Linux)".into() })
+        Err(BringUpError::Unsupported)
     }
 }

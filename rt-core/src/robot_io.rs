@@ -35,25 +35,122 @@ use taut_driver::{
     TrackerThread, TransportError,
 };
 
-/// Why the devices could not be brought up. Each names the configuration key or device.
+/// Why the devices could not be brought up. [`BringUpError::key`] names the configuration key
+/// or device; the message says what to do.
 #[derive(Debug)]
-pub struct BringUpError {
-    /// What failed (`can`, `cable[2].drive.pdo`, `loadcells`, `tracker`, ...).
-    pub what: String,
-    /// The error and what to do.
-    pub message: String,
+pub enum BringUpError {
+    /// More cables than the loop is built for.
+    TooManyCables {
+        /// Cables in the configuration.
+        cables: usize,
+    },
+    /// A drive setting the CANopen master cannot use (key and what to do).
+    MasterConfig(taut_driver::ConfigProblem),
+    /// Cable `cable` has no `[cable.drive]`.
+    NoDrive {
+        /// Cable index.
+        cable: usize,
+    },
+    /// The start-up motion needs the drive of `cable` in a mode its PDO map cannot select
+    /// (no RPDO carries the mode of operation 0x6060).
+    ModeFixed {
+        /// Cable index.
+        cable: usize,
+        /// The drive's node-ID.
+        node: u8,
+        /// Needed in cyclic synchronous position mode.
+        position: bool,
+        /// Needed in cyclic synchronous torque mode.
+        torque: bool,
+    },
+    /// The drives did not come up on the bus.
+    Drives(taut_driver::DriveSetError),
+    /// The load-cell bus did not start.
+    LoadCells(taut_driver::loadcell::SpawnError),
+    /// The tracker's UDP port could not be opened.
+    Tracker(std::io::Error),
+    /// Devices the plugin owns need a `[can]` table.
+    NoCan,
+    /// The CAN interface could not be opened.
+    CanInterface {
+        /// `can.interface`.
+        interface: String,
+        /// `can.bitrate`, bit/s.
+        bitrate: u32,
+        /// The OS's answer.
+        source: std::io::Error,
+    },
+    /// The devices were handed over once already (a failed bring-up consumes the load-cell
+    /// and tracker ports).
+    DevicesTaken,
+    /// Devices the plugin owns need SocketCAN, which only Linux has.
+    Unsupported,
+}
+
+impl BringUpError {
+    /// The configuration key or device the error is about (`can`, `cable[2].drive.pdo`,
+    /// `loadcells`, `tracker.listen`, ...).
+    pub fn key(&self) -> String {
+        match self {
+            BringUpError::TooManyCables { .. } => "cable".into(),
+            BringUpError::MasterConfig(p) => p.key.clone(),
+            BringUpError::NoDrive { cable } => format!("cable[{cable}].drive"),
+            BringUpError::ModeFixed { cable, .. } => format!("cable[{cable}].drive.pdo"),
+            BringUpError::Drives(_) | BringUpError::NoCan | BringUpError::Unsupported => "can".into(),
+            BringUpError::LoadCells(_) => "loadcells".into(),
+            BringUpError::Tracker(_) => "tracker.listen".into(),
+            BringUpError::CanInterface { .. } => "can.interface".into(),
+            BringUpError::DevicesTaken => "devices".into(),
+        }
+    }
 }
 
 impl fmt::Display for BringUpError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}: {}", self.what, self.message)
+        write!(f, "{}: ", self.key())?;
+        match self {
+            BringUpError::TooManyCables { cables } => write!(f, "{cables} cables: the loop is built for at most {MAX_CABLES}"),
+            BringUpError::MasterConfig(p) => write!(f, "{}", p.message),
+            BringUpError::NoDrive { .. } => write!(f, "every cable needs a drive: add [cable.drive] with its node_id"),
+            BringUpError::ModeFixed { node, position, torque, .. } => write!(
+                f,
+                "node {node} must run in {} for the start-up motion, but no RPDO of its map carries the mode of \
+                 operation 0x6060, so its mode is fixed; set pdo = \"with_mode\" (0x6060 in RPDO2) or map 0x6060",
+                match (position, torque) {
+                    (true, true) => "position and torque mode",
+                    (true, false) => "position mode",
+                    _ => "torque mode",
+                }
+            ),
+            BringUpError::Drives(e) => write!(f, "drive bring-up failed: {e}"),
+            BringUpError::LoadCells(e) => write!(f, "{e}"),
+            BringUpError::Tracker(e) => write!(f, "{e}; check the address and that no other program uses the port"),
+            BringUpError::NoCan => write!(f, "devices the plugin owns need a [can] table with the interface of the drives"),
+            BringUpError::CanInterface { interface, bitrate, source } => {
+                write!(f, "opening CAN interface {interface}: {source}; is it up? `ip link set {interface} up type can bitrate {bitrate}`")
+            }
+            BringUpError::DevicesTaken => {
+                write!(
+                    f,
+                    "the devices were handed over once already (a failed bring-up consumes the load-cell and tracker ports): start again"
+                )
+            }
+            BringUpError::Unsupported => write!(f, "devices the plugin owns need SocketCAN (Linux)"),
+        }
     }
 }
 
-impl std::error::Error for BringUpError {}
-
-fn err(what: impl Into<String>, message: impl Into<String>) -> BringUpError {
-    BringUpError { what: what.into(), message: message.into() }
+impl std::error::Error for BringUpError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            BringUpError::MasterConfig(e) => Some(e),
+            BringUpError::Drives(e) => Some(e),
+            BringUpError::LoadCells(e) => Some(e),
+            BringUpError::Tracker(e) => Some(e),
+            BringUpError::CanInterface { source, .. } => Some(source),
+            _ => None,
+        }
+    }
 }
 
 /// Converts between drive units and cable units for one winch.
@@ -165,7 +262,7 @@ impl Peripherals {
     /// Opens the load-cell bus and the tracker port of `cfg` (either may be absent).
     pub fn from_config(cfg: &RobotConfig) -> Result<Peripherals, BringUpError> {
         let loadcells = match &cfg.loadcells {
-            Some(_) => Some(taut_driver::loadcell::spawn_from_config(cfg).map_err(|e| err("loadcells", e.to_string()))?),
+            Some(_) => Some(taut_driver::loadcell::spawn_from_config(cfg).map_err(BringUpError::LoadCells)?),
             None => None,
         };
         // The tension readings have the loop's staleness deadline: their I/O thread runs just
@@ -180,8 +277,7 @@ impl Peripherals {
         }
         let (tracker, pose) = match &cfg.tracker {
             Some(t) => {
-                let (th, reader) = taut_driver::tracker::spawn(t)
-                    .map_err(|e| err("tracker.listen", format!("{e}; check the address and that no other program uses the port")))?;
+                let (th, reader) = taut_driver::tracker::spawn(t).map_err(BringUpError::Tracker)?;
                 (Some(th), Some(reader))
             }
             None => (None, None),
@@ -248,15 +344,15 @@ impl<T: CanTransport> RobotDevices<T> {
     pub fn bring_up(cfg: &RobotConfig, bus: T, peripherals: Peripherals) -> Result<Self, BringUpError> {
         let n = cfg.cables.len();
         if n > MAX_CABLES {
-            return Err(err("cable", format!("{n} cables: the loop is built for at most {MAX_CABLES}")));
+            return Err(BringUpError::TooManyCables { cables: n });
         }
-        let mcfg = MasterConfig::from_robot(cfg).map_err(|p| err(p.key, p.message))?;
+        let mcfg = MasterConfig::from_robot(cfg).map_err(BringUpError::MasterConfig)?;
         let mut drive = [None; MAX_CABLES];
         let mut units = [None; MAX_CABLES];
         let need = modes_needed(cfg);
         for (j, c) in cfg.cables.iter().enumerate() {
             let Some(i) = mcfg.nodes.iter().position(|nc| nc.cable == j) else {
-                return Err(err(format!("cable[{j}].drive"), "every cable needs a drive: add [cable.drive] with its node_id"));
+                return Err(BringUpError::NoDrive { cable: j });
             };
             drive[j] = Some(i);
             units[j] = c.drive.as_ref().map(CableUnits::from_drive);
@@ -264,24 +360,11 @@ impl<T: CanTransport> RobotDevices<T> {
             let (pos, tq) = need[j];
             if !nc.pdos.maps_mode() && ((pos && nc.mode != Mode::CyclicPosition) || (tq && nc.mode != Mode::CyclicTorque)) {
                 let node = c.drive.as_ref().map_or(0, |d| d.node_id);
-                return Err(err(
-                    format!("cable[{j}].drive.pdo"),
-                    format!(
-                        "node {node} must run in {} for the start-up motion, but no RPDO of its map carries the mode of \
-                         operation 0x6060, so its mode is fixed; set pdo = \"with_mode\" (0x6060 in RPDO2) or map 0x6060",
-                        if pos && tq {
-                            "position and torque mode"
-                        } else if pos {
-                            "position mode"
-                        } else {
-                            "torque mode"
-                        }
-                    ),
-                ));
+                return Err(BringUpError::ModeFixed { cable: j, node, position: pos, torque: tq });
             }
         }
         let set = DriveSet::new(bus, mcfg);
-        let set = set.bring_up().map_err(|r| err("can", format!("drive bring-up failed: {}", r.error)))?;
+        let set = set.bring_up().map_err(|r| BringUpError::Drives(r.error))?;
         let (bus, master) = set.into_parts();
         let bus_iface = bus.iface();
         Ok(RobotDevices {
@@ -608,15 +691,17 @@ mod tests {
     fn a_follower_with_a_fixed_position_mode_is_refused_by_key() {
         let none = || Peripherals { loadcells: None, tracker: None, pose: None };
         let e = RobotDevices::bring_up(&robot("compact", "position"), VirtualBus::new().endpoint(), none()).err().unwrap();
-        assert_eq!(e.what, "cable[3].drive.pdo");
-        assert!(e.message.contains("with_mode"), "{e}");
+        assert_eq!(e.key(), "cable[3].drive.pdo");
+        assert!(matches!(e, BringUpError::ModeFixed { cable: 3, position: false, torque: true, .. }), "{e}");
+        assert!(e.to_string().contains("with_mode"), "{e}");
         // The follower in torque mode is fine with compact PDOs: the bring-up itself then fails
         // (nobody on the bus), naming the CAN side.
         let mut cfg = robot("compact", "torque");
         cfg.can.as_mut().unwrap().bringup_timeout_s = 0.2;
         let e = RobotDevices::bring_up(&cfg, VirtualBus::new().endpoint(), none()).err().unwrap();
-        assert_eq!(e.what, "can", "{e}");
-        assert!(e.message.contains("no boot-up or heartbeat seen"), "{e}");
+        assert_eq!(e.key(), "can", "{e}");
+        assert!(matches!(e, BringUpError::Drives(_)), "{e}");
+        assert!(e.to_string().contains("no boot-up or heartbeat seen"), "{e}");
     }
 
     #[test]

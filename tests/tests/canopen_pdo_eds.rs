@@ -281,7 +281,7 @@ fn a_bad_pdo_table_names_file_line_and_key() {
     cfg.cables[0].drive.as_mut().unwrap().tpdo[1] = taut_config::devices::PdoTable::new(["0x606C:0/32", "0x606C:0/32"]);
     let bus = VirtualBus::new();
     let e = RobotDevices::bring_up(&cfg, bus.endpoint(), Peripherals { loadcells: None, tracker: None, pose: None }).err().unwrap();
-    assert_eq!(e.what, "cable[0].drive.tpdo[1].map[1]", "{e}");
+    assert_eq!(e.key(), "cable[0].drive.tpdo[1].map[1]", "{e}");
     assert_eq!(bus.frames_sent(), 0);
 }
 

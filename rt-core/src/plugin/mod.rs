@@ -106,7 +106,7 @@ struct Ready(Option<Box<dyn Devices>>);
 
 impl DeviceSource for Ready {
     fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError> {
-        self.0.take().ok_or_else(|| BringUpError { what: "devices".into(), message: "already handed to the plugin once".into() })
+        self.0.take().ok_or(BringUpError::DevicesTaken)
     }
 }
 
