@@ -7,7 +7,8 @@ and without `--compare`) on a recording and on hostile copies of it, and `taut d
 
 Hostile copies (each one change to the original): an absurd encoder value (1e308), an encoder spike,
 an impossible tension, a tracker spike, a lost-count jump (every later encoder reading of a cable
-shifted), fields with spaces, `nan`, an empty field, CR line ends. Exit status 1 if any output differs.
+shifted), fields with spaces, `nan`, an empty field, CR line ends; with --diagnose, the same nine
+copies of REC2 as well. Exit status 1 if any output differs.
 """
 import argparse
 import os
@@ -83,8 +84,18 @@ def main():
         for flags in ([], ["--json", js], ["--compare"], ["--compare", "--json", js]):
             cases.append((f"calibrate {name} {' '.join(f for f in flags if f != js)}", ["calibrate", p] + flags))
     if a.diagnose:
-        for flags in ([], ["--json", js]):
-            cases.append((f"diagnose {' '.join(f for f in flags if f != js)}", ["diagnose", a.diagnose] + flags))
+        # The diagnosis on its recording and on the same nine hostile copies of it.
+        with open(a.diagnose, newline="") as f:
+            dlines = f.readlines()
+        drecs = [("original", a.diagnose)]
+        for name, out in variants(dlines):
+            p = os.path.join(work, "diagnose-" + name + ".csv")
+            with open(p, "w", newline="") as f:
+                f.writelines(out)
+            drecs.append((name, p))
+        for name, p in drecs:
+            for flags in ([], ["--json", js]):
+                cases.append((f"diagnose {name} {' '.join(f for f in flags if f != js)}", ["diagnose", p] + flags))
     bad = 0
     for label, args in cases:
         o, n = run([a.old] + args, js), run([a.new] + args, js)

@@ -4,7 +4,10 @@
 see the same machine load. Each timing is the process from exec to exit: reading and parsing the
 file, the calibration, the output (stdout to /dev/null).
 
-    whole_process.py TAUT REC.csv [--runs N] [--scipy-runs M]
+    whole_process.py TAUT REC.csv [--runs N] [--scipy-runs M] [--old OLD_TAUT]
+
+With --old, an older build's `calibrate REC` runs interleaved with the new one's (old, new, old,
+...) so that a speed change is measured side by side under the same load.
 """
 import argparse
 import os
@@ -39,17 +42,21 @@ def main():
     ap.add_argument("--py", default=sys.executable)
     ap.add_argument("--label", default="taut calibrate REC", help="name of the taut row (e.g. an older build)")
     ap.add_argument("--no-compare", action="store_true", help="skip the --compare row (builds before the flag existed)")
+    ap.add_argument("--old", help="an older taut build, run interleaved with TAUT and reported beside it")
     a = ap.parse_args()
     here = os.path.dirname(os.path.abspath(__file__))
     ours_cmd = [a.taut, "calibrate", a.recording]
     compare_cmd = ours_cmd + ["--compare"]
     scipy_cmd = [a.py, os.path.join(here, "scipy_compare.py"), a.recording, "--runs", "1"]
     timed(ours_cmd)  # page cache warm for both
-    ours, compare, scipy = [], [], []
+    old_cmd = [a.old, "calibrate", a.recording] if a.old else None
+    ours, compare, scipy, old = [], [], [], []
     per = max(1, a.runs // max(1, a.scipy_runs))
     while len(ours) < a.runs or len(scipy) < a.scipy_runs:
         for _ in range(per):
             if len(ours) < a.runs:
+                if old_cmd:
+                    old.append(timed(old_cmd))
                 ours.append(timed(ours_cmd))
                 if not a.no_compare:
                     compare.append(timed(compare_cmd))
@@ -66,6 +73,8 @@ def main():
     print(f"whole process, {a.runs} / {a.scipy_runs} runs interleaved; medians; CPU = user + system of the process")
     print(f"{'':50} {'wall, s':>9} {'wall range, s':>15} {'CPU, s':>9} {'scipy/this':>10} {'(CPU)':>10}")
     ref = row("python3 bench/scipy_compare.py REC --runs 1", scipy)
+    if old:
+        row(f"old build: {a.old} calibrate REC", old, ref)
     row(a.label, ours, ref)
     if compare:
         row(a.label + " --compare", compare, ref)

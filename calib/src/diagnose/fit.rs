@@ -155,14 +155,13 @@ impl<'a> Joint<'a> {
     /// of the play operator. The Jacobian row keeps a slot for the width (0 here).
     ///
     /// `own` replaces one sample's pose and tension; `shift: false` leaves the time offset out.
-    fn reading(&self, x: &[f64], i: usize, j: usize, own: Option<&Own>, shift: bool) -> Prediction {
-        let n = self.prep.n;
+    fn reading(&self, x: &[f64], i: usize, j: usize, own: Option<&Own>, shift: bool, offs: &Offsets) -> Prediction {
         let spec = self.spec;
         let base = 4 * j;
         let anchor = [x[base], x[base + 1], x[base + 2]];
         let l0 = x[base + 3];
         let get = |e: Effect| -> Option<(usize, f64)> {
-            spec.offset(e, n).map(|o| {
+            offs.of(e).map(|o| {
                 let k = if e.sharing() == Sharing::PerCable { o + j } else { o };
                 (k, x[k])
             })
@@ -266,16 +265,32 @@ impl<'a> Joint<'a> {
     /// the last sample at which the play pushed the reading; a held reading inherits its
     /// derivatives from that sample.
     pub fn predict(&self, x: &[f64], i: usize, j: usize) -> Prediction {
-        self.predict_with(x, i, j, None)
+        self.predict_with(x, i, j, None, &self.offsets())
     }
 
-    fn predict_with(&self, x: &[f64], i: usize, j: usize, own: Option<&Own>) -> Prediction {
-        let Some(o) = self.spec.offset(Effect::Backlash, self.prep.n) else {
-            return self.reading(x, i, j, own, true);
+    /// Where each effect's parameters start (looked up once per pass over the samples, not per
+    /// reading: the lookups were a sixth of a diagnosis's time).
+    fn offsets(&self) -> Offsets {
+        let n = self.prep.n;
+        let of = |e: Effect| self.spec.offset(e, n);
+        Offsets {
+            time_offset: of(Effect::TimeOffset),
+            pulley: of(Effect::Pulley),
+            sag: of(Effect::Sag),
+            elasticity: of(Effect::Elasticity),
+            scale: of(Effect::Scale),
+            backlash: of(Effect::Backlash),
+            slack: of(Effect::Slack),
+        }
+    }
+
+    fn predict_with(&self, x: &[f64], i: usize, j: usize, own: Option<&Own>, offs: &Offsets) -> Prediction {
+        let Some(o) = offs.backlash else {
+            return self.reading(x, i, j, own, true, offs);
         };
         let c = self.prep.play.contact[j][i] as usize;
         let side = f64::from(self.prep.play.side[j][i]);
-        let mut p = self.reading(x, c, j, own, true);
+        let mut p = self.reading(x, c, j, own, true, offs);
         let k = o + j;
         p.value -= 0.5 * x[k] * side;
         for e in &mut p.row[..p.len] {
@@ -314,8 +329,9 @@ impl<'a> Joint<'a> {
             return self.predict(x, i, j).value;
         }
         let own = self.own_out(i, j);
-        self.predict_with(x, i, j, Some(&own)).value + self.reading(x, i, j, None, false).value
-            - self.reading(x, i, j, Some(&own), false).value
+        let offs = self.offsets();
+        self.predict_with(x, i, j, Some(&own), &offs).value + self.reading(x, i, j, None, false, &offs).value
+            - self.reading(x, i, j, Some(&own), false, &offs).value
     }
 
     /// Sample `i`'s pose and tension of cable `j` estimated from its neighbours in the same
@@ -350,6 +366,31 @@ impl<'a> Joint<'a> {
     /// Residual `reading - model` of cable `j` at held-out sample `i` (see [`Joint::predict_heldout`]), m.
     pub fn residual_heldout(&self, x: &[f64], i: usize, j: usize) -> f64 {
         self.prep.l[j][i] - self.predict_heldout(x, i, j)
+    }
+}
+
+/// The first parameter of each active effect ([`ModelSpec::offset`]), `None` when inactive.
+struct Offsets {
+    time_offset: Option<usize>,
+    pulley: Option<usize>,
+    sag: Option<usize>,
+    elasticity: Option<usize>,
+    scale: Option<usize>,
+    backlash: Option<usize>,
+    slack: Option<usize>,
+}
+
+impl Offsets {
+    fn of(&self, e: Effect) -> Option<usize> {
+        match e {
+            Effect::TimeOffset => self.time_offset,
+            Effect::Pulley => self.pulley,
+            Effect::Sag => self.sag,
+            Effect::Elasticity => self.elasticity,
+            Effect::Scale => self.scale,
+            Effect::Backlash => self.backlash,
+            Effect::Slack => self.slack,
+        }
     }
 }
 
@@ -548,12 +589,13 @@ impl LeastSquares for Joint<'_> {
     fn rows(&self, x: &[f64], jacobian: bool, visit: &mut lm::RowVisitor<'_>) {
         let inv = 1.0 / self.sigma;
         let mut buf = [(0usize, 0.0f64); 10];
+        let offs = self.offsets();
         for &i in self.samples {
             for j in 0..self.prep.n {
                 if !self.prep.usable[j][i] {
                     continue;
                 }
-                let p = self.predict(x, i, j);
+                let p = self.predict_with(x, i, j, None, &offs);
                 let r = (p.value - self.prep.l[j][i]) * inv;
                 if jacobian {
                     for k in 0..p.len {

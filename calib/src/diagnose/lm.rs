@@ -118,12 +118,6 @@ fn normal_equations(p: &dyn LeastSquares, x: &[f64]) -> (DMatrix<f64>, DVector<f
     (jtj, jtr, cost, m)
 }
 
-fn cost_of(p: &dyn LeastSquares, x: &[f64]) -> f64 {
-    let mut c = 0.0;
-    p.rows(x, false, &mut |r, _| c += r * r);
-    c
-}
-
 /// Minimises the problem from `x0`.
 pub fn minimize(p: &dyn LeastSquares, x0: &[f64], opts: LmOptions) -> LmReport {
     let n = p.n_params();
@@ -162,12 +156,16 @@ pub fn minimize(p: &dyn LeastSquares, x0: &[f64], opts: LmOptions) -> LmReport {
             let dx = ch.solve(&(-&jtr));
             let mut xn: Vec<f64> = x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
             p.project(&mut xn);
-            let cn = cost_of(p, &xn);
+            // The trial point's normal equations at once: their cost is the same sum of r^2 in
+            // the same order as a cost-only pass, and an accepted step (most are) needs them
+            // next, so the model is evaluated once per accepted step instead of twice.
+            let trial = normal_equations(p, &xn);
+            let cn = trial.2;
             if cn.is_finite() && cn < cost {
                 let rel = (cost - cn) / cost.max(1e-300);
                 let step: f64 = dx.iter().zip(&x).map(|(d, v)| (d / (v.abs() + 1e-6)).powi(2)).sum::<f64>().sqrt();
                 x = xn;
-                (jtj, jtr, cost, m) = normal_equations(p, &x);
+                (jtj, jtr, cost, m) = trial;
                 lambda = (lambda / 3.0).max(1e-12);
                 if rel < opts.cost_tolerance {
                     termination = Termination::Converged;

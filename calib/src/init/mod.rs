@@ -313,9 +313,29 @@ fn reading_sigma(opts: &CalibOptions) -> f64 {
 }
 
 /// Closed-form anchor and offset of one cable from its readings `d` (see the module doc).
+pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports the feature `multilaterate_avx2` is compiled for.
+            return unsafe { multilaterate_avx2(d, sigma, cable) };
+        }
+    }
+    multilaterate_body(d, sigma, cable)
+}
+
+/// [`multilaterate_body`] compiled for AVX2: the same operations in the same order (Rust does
+/// not fuse a multiply and an add), on wider registers, so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn multilaterate_avx2(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
+    multilaterate_body(d, sigma, cable)
+}
+
 // The normal-equation loops index the 5x5 upper triangle by row and column, as the maths reads.
 #[allow(clippy::needless_range_loop)]
-pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
+#[inline(always)]
+fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3], f64), InitError> {
     let slots: Vec<usize> = d.used_slots().collect();
     let m = slots.len();
     if m < MIN_READINGS {
@@ -365,24 +385,50 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
     let mut a_est = xm;
     let mut l0_est = 0.0;
     let mut resid = vec![0.0; m];
+    // Each reading's row of the linear system and its right-hand side do not change between
+    // the rounds (only the weights do): computed once, with the used readings' points and
+    // lengths in columns of their own for the re-weighting.
+    let two_over_s = 2.0 / s;
+    let rows: Vec<([f64; 4], f64)> = slots
+        .iter()
+        .map(|&k| {
+            let x = model::sub(d.point(k), xm);
+            let row = [-x[0] * two_over_s, -x[1] * two_over_s, -x[2] * two_over_s, (d.l[k] - lm) * two_over_s];
+            (row, d.l[k] * d.l[k] - model::dot(x, x))
+        })
+        .collect();
+    let column = |c: &[f64]| -> Vec<f64> { slots.iter().map(|&k| c[k]).collect() };
+    let (px, py, pz, pl) = (column(&d.x), column(&d.y), column(&d.z), column(&d.l));
     for round in 0..4 {
         // The normal equations' upper triangle, accumulated by hand (a 5x5 outer product per
         // reading through nalgebra was most of the initialisation's time), then mirrored.
-        let two_over_s = 2.0 / s;
-        let (mut upper, mut r) = ([[0.0f64; 5]; 5], [0.0f64; 5]);
-        for (i, &k) in slots.iter().enumerate() {
-            let x = model::sub(d.point(k), xm);
-            let row = [-x[0] * two_over_s, -x[1] * two_over_s, -x[2] * two_over_s, (d.l[k] - lm) * two_over_s, 1.0];
-            let y = d.l[k] * d.l[k] - model::dot(x, x);
-            let wi = w[i];
-            for a in 0..5 {
-                let ra = row[a] * wi;
-                for b in a..5 {
-                    upper[a][b] += ra * row[b];
+        // The row is `[row (4), 1]`: the 4x4 block is accumulated whole (four lanes a row; the
+        // entries below the diagonal are dropped), the last column is `row * w` (times 1) and
+        // the corner `w`: each kept entry gets the same products in the same order as
+        // `upper[a][b] += (row[a] w) row[b]` over the 5x5 upper triangle.
+        let (mut block, mut last, mut r4) = ([[0.0f64; 4]; 4], [0.0f64; 4], [0.0f64; 4]);
+        let (mut corner, mut r_last) = (0.0f64, 0.0f64);
+        for (&(row, y), &wi) in rows.iter().zip(&w) {
+            let ra = [row[0] * wi, row[1] * wi, row[2] * wi, row[3] * wi];
+            for a in 0..4 {
+                for b in 0..4 {
+                    block[a][b] += ra[a] * row[b];
                 }
-                r[a] += ra * y;
             }
+            for a in 0..4 {
+                last[a] += ra[a];
+                r4[a] += ra[a] * y;
+            }
+            corner += wi;
+            r_last += wi * y;
         }
+        let mut upper = [[0.0f64; 5]; 5];
+        for a in 0..4 {
+            upper[a][..4].copy_from_slice(&block[a]);
+            upper[a][4] = last[a];
+        }
+        upper[4][4] = corner;
+        let r = [r4[0], r4[1], r4[2], r4[3], r_last];
         let nmat = SMatrix::<f64, 5, 5>::from_fn(|a, b| if a <= b { upper[a][b] } else { upper[b][a] });
         let rhs = SVector::<f64, 5>::from(r);
         theta = match nmat.cholesky() {
@@ -395,9 +441,9 @@ pub fn multilaterate(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 3
             break;
         }
         // Re-weight: rows to length units, Huber on the length residual.
-        for (i, &k) in slots.iter().enumerate() {
-            let rho = model::norm(model::sub(d.point(k), a_est));
-            resid[i] = d.l[k] - l0_est - rho;
+        for i in 0..m {
+            let rho = model::norm(model::sub([px[i], py[i], pz[i]], a_est));
+            resid[i] = pl[i] - l0_est - rho;
             w[i] = 1.0 / (4.0 * rho * rho).max(1e-6);
         }
         let scale = sigma.max(1.4826 * median_abs(&resid));
