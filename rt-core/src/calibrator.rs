@@ -1191,6 +1191,23 @@ mod tests {
     }
 
     #[test]
+    fn clearly_worse_compares_the_mean_square_difference_with_the_tolerance() {
+        // Ten held-out dwells of 3 degrees of freedom each (scale 30), the running set at 1.5 mm:
+        // the tolerance 0.1 mm is a mean-square difference of 0.1 * (2 * 1.5 + 0.1) = 0.31 mm^2,
+        // a sum of 30 * 0.31 mm^2 over the dwells.
+        let at = |f: f64| -> Vec<f64> { (0..10).map(|i| f * 30.0 * 0.31e-6 / 10.0 * (1.0 + 0.01 * f64::from(i % 3))).collect() };
+        assert!(clearly_worse(&at(2.0), 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        assert!(!clearly_worse(&at(0.5), 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        // Zero tolerance: any consistent increase.
+        assert!(clearly_worse(&at(0.5), 30.0, 1.5e-3, 0.0, HELDOUT_ALPHA));
+        // Noisy pairs: a mean 2x the margin with a spread of 10x it is not evidence.
+        let noisy: Vec<f64> = at(2.0).iter().enumerate().map(|(i, d)| d + if i % 2 == 0 { 10.0 } else { -10.0 } * 0.93e-6).collect();
+        assert!(!clearly_worse(&noisy, 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        // Fewer than two units: no evidence either way, refused (the caller says why).
+        assert!(clearly_worse(&[0.0], 3.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+    }
+
+    #[test]
     fn the_t_quantile_matches_the_table() {
         // Student's t 0.999 quantiles from the standard table.
         for (dof, want) in [(1, 318.31), (2, 22.327), (5, 5.893), (10, 4.144), (19, 3.579)] {
