@@ -206,7 +206,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// see), the RMS length closure residual of the new set against the running one, per degree of
 /// freedom. The new set is taken when it is lower, or not higher by more than
 /// `daemon.heldout_tolerance_m` at 99.9 % confidence (paired differences per dwell,
-/// [`crate::calibrator::clearly_worse`]), as with a tracker. Returns `(new, old)` RMS, m.
+/// as `calibrator::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
