@@ -326,6 +326,11 @@ pub struct DaemonConfig {
     pub max_l0_change_m: f64,
     /// Largest accepted 1-sigma of any anchor coordinate or offset, m.
     pub max_sigma_m: f64,
+    /// A new set is refused when its held-out RMS (co-registration with a tracker, length
+    /// closure without) is higher than the running set's by more than this, with 99.9 %
+    /// confidence (one-sided); it is the effect size that matters, so a set as good as the
+    /// running one is not refused by chance. m, >= 0 (0: any significant increase refuses).
+    pub heldout_tolerance_m: f64,
 }
 
 impl Default for DaemonConfig {
@@ -337,6 +342,9 @@ impl Default for DaemonConfig {
             max_anchor_change_m: 0.5,
             max_l0_change_m: 0.5,
             max_sigma_m: 0.01,
+            // At the 1.5 mm tracker floor 0.1 mm of RMS is an added model error of
+            // sqrt(1.6^2 - 1.5^2) = 0.56 mm per cable: well below what a failed calibration adds.
+            heldout_tolerance_m: 1e-4,
         }
     }
 }
@@ -361,6 +369,12 @@ impl DaemonConfig {
             if !(v.is_finite() && v > 0.0) {
                 return Err((k.into(), format!("must be a positive length in m, got {v}")));
             }
+        }
+        if !(self.heldout_tolerance_m.is_finite() && (0.0..=0.01).contains(&self.heldout_tolerance_m)) {
+            return Err((
+                "heldout_tolerance_m".into(),
+                format!("must be a length in m in [0, 0.01] (default 0.0001), got {}", self.heldout_tolerance_m),
+            ));
         }
         Ok(())
     }
@@ -389,6 +403,10 @@ mod tests {
         assert_eq!(s.validate().unwrap_err().0, "loose_tension_n");
         let d = DaemonConfig { calib_decimation: 0, ..Default::default() };
         assert_eq!(d.validate().unwrap_err().0, "calib_decimation");
+        for bad in [-1e-4, f64::NAN, 0.5] {
+            let d = DaemonConfig { heldout_tolerance_m: bad, ..Default::default() };
+            assert_eq!(d.validate().unwrap_err().0, "heldout_tolerance_m", "{bad}");
+        }
         let t = MotionConfig { dwell_poses: 10, dwell_tares: 11, ..Default::default() };
         let e = t.validate(4).unwrap_err();
         assert_eq!(e.0, "dwell_tares");

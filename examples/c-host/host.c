@@ -4,8 +4,9 @@
  * the drives. It runs the whole start-up (enable, three initialisation phases, initial
  * estimate, excitation, calibration) until the calibrated parameters are hot-swapped, then
  * checks that the parameter version moved past the initial estimate's and that every anchor
- * is within 4 standard uncertainties (plus 0.2 mm of encoder quantisation) of the simulated
- * site's truth. Exit status 0 on success, 1 on any failure (with the reason on stderr).
+ * coordinate is within 4.46 standard uncertainties (plus 0.2 mm of encoder quantisation) of the
+ * simulated site's truth (4.46: Bonferroni over 12 coordinates for a chance failure of 1e-4
+ * with a right covariance; a flat 4 failed 7.6e-4 of runs). Exit status 0 on success, 1 on any failure (with the reason on stderr).
  *
  *   c-host CONFIG.toml DATA_DIR [SEED [SPEED]]
  *
@@ -88,7 +89,10 @@ int main(int argc, char **argv) {
     const uint64_t seed = argc > 3 ? strtoull(argv[3], NULL, 10) : 1;
     const double speed = argc > 4 ? atof(argv[4]) : 1.0;
     const double period = 0.002;  /* the configuration's rt.rate_hz = 500 */
-    const double max_sim_s = 900.0;
+    /* The calibrator runs in wall-clock time: on a loaded machine it takes longer, and at SPEED
+     * 4 each wall second is 4 simulated ones. 3600 s = 900 s of wall at speed 4 (ffi/tests/hosts.rs's
+     * own limit): a timeout, not a requirement. */
+    const double max_sim_s = 3600.0;
 
     TautSim *sim = NULL;
     CHECK(taut_sim_new(config, seed, &sim));
@@ -181,7 +185,7 @@ int main(int argc, char **argv) {
         double worst = 0.0;
         for (int i = 0; i < 3; i++) {
             double err = fabs(par.anchors_m[j][i] - truth.anchors_m[j][i]);
-            double lim = 4.0 * par.anchor_sigma_m[j][i] + 2e-4;
+            double lim = 4.46 * par.anchor_sigma_m[j][i] + 2e-4;
             if (!(err < lim)) {
                 fprintf(stderr, "c-host: anchor %u[%d] off by %.2f mm, sigma %.2f mm\n", j, i, err * 1e3, par.anchor_sigma_m[j][i] * 1e3);
                 bad = 1;

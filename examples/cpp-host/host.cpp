@@ -176,7 +176,9 @@ int main(int argc, char **argv) {
     uint64_t initial = 0, calibrated = 0;
     bool done = false;
     rclcpp::Time now{0.0};
-    for (uint64_t k = 0; now.s < 900.0 && !done; k++) {
+    // 3600 simulated s: 900 s of wall at speed 4 (the calibrator runs in wall-clock time and
+    // slows on a loaded machine); a timeout, not a requirement.
+    for (uint64_t k = 0; now.s < 3600.0 && !done; k++) {
         if (sys.read(now, period) != return_type::OK || sys.write(now, period) != return_type::OK) return 1;
         now.s += period.s;
         if (speed > 0.0) std::this_thread::sleep_until(wall0 + std::chrono::duration<double>(now.s / speed));
@@ -201,7 +203,7 @@ int main(int argc, char **argv) {
         done = calibrated != 0 && st.params_version == calibrated && !st.swap_active;
     }
     if (!done) {
-        std::fprintf(stderr, "cpp-host: no hot-swap within 900 s of simulated time\n");
+        std::fprintf(stderr, "cpp-host: no hot-swap within 3600 s of simulated time\n");
         return 1;
     }
     TautParams par;
@@ -210,7 +212,8 @@ int main(int argc, char **argv) {
     for (uint32_t j = 0; j < par.n_cables; j++) {
         for (int i = 0; i < 3; i++) {
             const double err = std::fabs(par.anchors_m[j][i] - truth.anchors_m[j][i]);
-            if (!(err < 4.0 * par.anchor_sigma_m[j][i] + 2e-4)) {
+            // 4.46 sigma: Bonferroni over the 12 coordinates for a chance failure of 1e-4 (c-host).
+            if (!(err < 4.46 * par.anchor_sigma_m[j][i] + 2e-4)) {
                 std::fprintf(stderr, "cpp-host: anchor %u[%d] off by %.2f mm, sigma %.2f mm\n", j, i, err * 1e3,
                              par.anchor_sigma_m[j][i] * 1e3);
                 bad = true;

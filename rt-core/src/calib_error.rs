@@ -200,6 +200,8 @@ pub enum Rejection {
         new_m: f64,
         /// Running set, m.
         old_m: f64,
+        /// The tolerance it exceeds (`daemon.heldout_tolerance_m`), m.
+        tolerance_m: f64,
     },
     /// With a tracker: no held-out row with a pose and taut cables.
     NoUsableHeldout,
@@ -217,6 +219,8 @@ pub enum Rejection {
         new_m: f64,
         /// Running set, m.
         old_m: f64,
+        /// The tolerance it exceeds (`daemon.heldout_tolerance_m`), m.
+        tolerance_m: f64,
     },
 }
 
@@ -249,21 +253,25 @@ impl fmt::Display for Rejection {
             Rejection::NotObservable { note } => write!(f, "observability: {note}"),
             Rejection::SigmaTooLarge { worst_m, max_m } => write!(f, "1-sigma up to {worst_m:.4} m, above daemon.max_sigma_m = {max_m} m"),
             Rejection::NoHeldout => f.write_str("no held-out data"),
-            Rejection::HeldoutWorse { new_m, old_m } => write!(
+            Rejection::HeldoutWorse { new_m, old_m, tolerance_m } => write!(
                 f,
-                "held-out co-registration RMS {:.2} mm is significantly higher than the running parameters' {:.2} mm",
+                "held-out co-registration RMS {:.2} mm is higher than the running parameters' {:.2} mm by more than {:.2} mm \
+                 (daemon.heldout_tolerance_m) at 99.9 % confidence",
                 new_m * 1e3,
-                old_m * 1e3
+                old_m * 1e3,
+                tolerance_m * 1e3
             ),
             Rejection::NoUsableHeldout => f.write_str("no usable held-out samples (tracker or taut cables missing)"),
             Rejection::TooFewHeldoutDwells { usable } => {
                 write!(f, "only {usable} usable held-out dwells (at least 2 with four taut cables needed)")
             }
-            Rejection::HeldoutDwellsWorse { dwells, new_m, old_m } => write!(
+            Rejection::HeldoutDwellsWorse { dwells, new_m, old_m, tolerance_m } => write!(
                 f,
-                "held-out dwells ({dwells}): length closure RMS {:.3} mm is significantly higher than the running parameters' {:.3} mm",
+                "held-out dwells ({dwells}): length closure RMS {:.3} mm is higher than the running parameters' {:.3} mm by more \
+                 than {:.3} mm (daemon.heldout_tolerance_m) at 99.9 % confidence",
                 new_m * 1e3,
-                old_m * 1e3
+                old_m * 1e3,
+                tolerance_m * 1e3
             ),
         }
     }
@@ -438,10 +446,10 @@ mod tests {
             Ok(e)
         }));
         match o.rejection {
-            Some(Rejection::HeldoutWorse { new_m, old_m }) => assert!(new_m > 2.0 * old_m, "{new_m} {old_m}"),
+            Some(Rejection::HeldoutWorse { new_m, old_m, .. }) => assert!(new_m > 2.0 * old_m, "{new_m} {old_m}"),
             ref r => panic!("{r:?}"),
         }
-        assert!(o.reason.starts_with("held-out co-registration RMS") && o.reason.ends_with("mm"), "{}", o.reason);
+        assert!(o.reason.starts_with("held-out co-registration RMS") && o.reason.contains("daemon.heldout_tolerance_m"), "{}", o.reason);
     }
 
     #[test]

@@ -9,8 +9,16 @@
 //! A calibrated set is published only when
 //! 1. its held-out co-registration RMS (on `calibration.heldout_fraction` of the excitation,
 //!    the ends of eight time blocks ([`HeldoutBlocks`]), which the backend does not see) is
-//!    lower than that of the running parameters (or, at the noise floor, not significantly
-//!    higher);
+//!    not clearly higher than that of the running parameters: refused only when it exceeds it
+//!    by more than `daemon.heldout_tolerance_m` (0.1 mm) with 99.9 % one-sided confidence
+//!    ([`HELDOUT_ALPHA`]). Error rates, measured on synthetic held-out tours (1.5 mm tracker
+//!    noise, this module's tests; docs/test-robustness.md): a new set truly no worse than the
+//!    running one is refused in 0 of 974 trials (bound: far below 1e-6), one worse by at most
+//!    the tolerance in 0 of 574 and, exactly at it, 0 of 2000 (bound: 1e-3); one worse by
+//!    0.3 mm in 500 of 500. The former zero-tolerance test at 2.5 % refused 324 of the 574 sets
+//!    worse by less than 0.1 mm (a calibrated set a few hundredths of a mm worse on the
+//!    held-out rows than a good initial estimate: the start-up kept the initial estimate, and
+//!    `e2e_reset` failed in CI);
 //! 2. every anchor moved less than `daemon.max_anchor_change_m` and every offset less than
 //!    `daemon.max_l0_change_m` from the running set;
 //! 3. its 1-sigma values are below `daemon.max_sigma_m` and the backend reports the problem
@@ -148,6 +156,8 @@ pub struct CalibratorConfig {
     pub max_l0_change_m: f64,
     /// Validation bounds, m.
     pub max_sigma_m: f64,
+    /// How much higher the new set's held-out RMS may be (`daemon.heldout_tolerance_m`), m.
+    pub heldout_tolerance_m: f64,
     /// Tracker age limit: older poses are recorded as missing, s.
     pub tracker_max_age_s: f64,
     /// Tension age limit: older tensions are recorded as missing, s.
@@ -175,6 +185,7 @@ impl CalibratorConfig {
             max_anchor_change_m: cfg.daemon.max_anchor_change_m,
             max_l0_change_m: cfg.daemon.max_l0_change_m,
             max_sigma_m: cfg.daemon.max_sigma_m,
+            heldout_tolerance_m: cfg.daemon.heldout_tolerance_m,
             tracker_max_age_s: cfg.safety.tracker_max_age_s,
             tension_max_age_s: cfg.safety.tension_max_age_s,
             tracker: !crate::notracker::is_dwell(cfg),
@@ -416,18 +427,52 @@ impl HeldoutBlocks {
     }
 }
 
-/// True if `new` fits the held-out readings worse than `old`: a one-sided test at 2.5 % on the
-/// paired difference of squared residuals (each clipped at 1 cm, so a tracker outlier does not
-/// decide), by batch means. The held-out block is a stretch of path: a parameter error
-/// projects smoothly along it, so consecutive differences are correlated and their i.i.d.
-/// standard error understates the spread (it refused a designed tour's calibration over 1.74
-/// vs 1.71 mm). The rows are cut into 20 consecutive batches (fewer with under 40 rows), each
-/// batch's mean difference is one observation, and `new` is worse when their mean exceeds
-/// Student's t quantile (0.975, batches - 1) standard errors.
-fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_tension_n: f64) -> bool {
+/// One-sided error rate of the held-out comparison: the chance that a new set no more than
+/// `daemon.heldout_tolerance_m` worse than the running one is refused (0.1 %).
+pub const HELDOUT_ALPHA: f64 = 1e-3;
+
+/// The new set's held-out fit is clearly worse than the running set's: with one-sided
+/// confidence `1 - alpha`, its RMS exceeds the running set's by more than `tolerance_m`.
+///
+/// `d` are paired differences of squared residuals (new minus old) on independent units (batch
+/// means, or held-out dwells) and `scale` converts their mean to a difference of mean squares
+/// (`sum(d) / scale`). With the running set's RMS `o`, the new RMS exceeds `o + tol` when the mean
+/// square difference exceeds `(o + tol)^2 - o^2`; the test refuses when the lower confidence
+/// bound of the mean, `mean - t(1 - alpha, k - 1) * se`, is above it. Fewer than two units: no
+/// evidence either way, refused (the caller reports which).
+pub(crate) fn clearly_worse(d: &[f64], scale: f64, old_rms: f64, tolerance_m: f64, alpha: f64) -> bool {
+    let k = d.len();
+    if k < 2 {
+        return true;
+    }
+    let m = d.iter().sum::<f64>() / k as f64;
+    let var = d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k - 1) as f64;
+    let lower = m - taut_calib::diagnose::select::student_t_upper_quantile(alpha, (k - 1) as f64) * (var / k as f64).sqrt();
+    let margin = tolerance_m * (2.0 * old_rms + tolerance_m) * scale / k as f64;
+    lower > margin
+}
+
+/// True if `new` fits the held-out readings clearly worse than `old` ([`clearly_worse`] at
+/// [`HELDOUT_ALPHA`] with `tolerance_m`), on the paired difference of squared residuals (each
+/// clipped at 1 cm, so a tracker outlier does not decide), by batch means.
+///
+/// The held-out rows are stretches of path: a parameter error projects smoothly along them, so
+/// consecutive differences are correlated and their i.i.d. standard error understates the
+/// spread (it refused a designed tour's calibration over 1.74 vs 1.71 mm). The rows are cut
+/// into 20 consecutive batches (fewer with under 40 rows) and each batch's mean difference is
+/// one observation.
+///
+/// The test used to be on a zero tolerance at 2.5 %: it refused a calibrated set that was a few
+/// hundredths of a mm worse on the held-out rows (324 of 574 such synthetic sets), an effect
+/// of no consequence that the held-out noise and the choice of held-out rows decide. The
+/// tolerance makes it a test about an effect that matters; its error rates are in the module
+/// documentation.
+fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_tension_n: f64, tolerance_m: f64, alpha: f64) -> bool {
     let clip = |e: f64| (e * e).min(1e-4);
-    // Per held-out row, the mean paired difference over its usable cables.
+    // Per held-out row, the mean paired difference over its usable cables, and the running
+    // set's mean square (clipped as the differences are).
     let mut rows = Vec::new();
+    let (mut old_ss, mut old_k) = (0.0, 0usize);
     for i in 0..rec.len() {
         let (p, l, f) = (&rec.p[i], rec.lengths(i), rec.tensions(i));
         let (mut sum, mut k) = (0.0, 0usize);
@@ -437,11 +482,13 @@ fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_
                 (new.coregistration_error(j, p, l, f, min_tension_n), old.coregistration_error(j, p, l, f, min_tension_n))
             {
                 sum += clip(a) - clip(b);
+                old_ss += clip(b);
                 k += 1;
             }
         }
         if k > 0 {
             rows.push(sum / k as f64);
+            old_k += k;
         }
     }
     let batches = (rows.len() / 2).min(20);
@@ -454,19 +501,8 @@ fn significantly_worse(new: &LoopParams, old: &LoopParams, rec: &Recording, min_
             r.iter().sum::<f64>() / r.len() as f64
         })
         .collect();
-    let m = means.iter().sum::<f64>() / batches as f64;
-    let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (batches - 1) as f64;
-    m > t_quantile_975(batches - 1) * (var / batches as f64).sqrt()
-}
-
-/// Student's t 0.975 quantile with `dof` degrees of freedom, 1 to 19 (the batches are at most
-/// 20), from the standard table.
-fn t_quantile_975(dof: usize) -> f64 {
-    const T: [f64; 19] = [
-        12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131, 2.120, 2.110, 2.101,
-        2.093,
-    ];
-    T[dof.clamp(1, 19) - 1]
+    // The batch means average to the mean square difference: scale = batches.
+    clearly_worse(&means, batches as f64, (old_ss / old_k as f64).sqrt(), tolerance_m, alpha)
 }
 
 fn unix_now() -> f64 {
@@ -984,11 +1020,13 @@ fn validate(
     let old_rms = current.coregistration_rms(rows(), c.min_tension_n);
     match (new_rms, old_rms) {
         (Some(n), Some(o)) if n < o => Ok((n, o)),
-        // Both at the tracker's noise floor: the difference is noise. Take the new set if it is
-        // not significantly worse (paired test on the same readings), so a start-up whose
-        // initial estimate was already good still ends with the calibrated set.
-        (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n) => Ok((n, o)),
-        (Some(n), Some(o)) => Err(Rejection::HeldoutWorse { new_m: n, old_m: o }),
+        // Both at the tracker's noise floor: the difference is noise. Take the new set unless it
+        // is clearly worse by more than the tolerance (paired test on the same readings), so a
+        // start-up whose initial estimate was already good still ends with the calibrated set.
+        (Some(n), Some(o)) if !significantly_worse(&new, current, heldout, c.min_tension_n, c.heldout_tolerance_m, HELDOUT_ALPHA) => {
+            Ok((n, o))
+        }
+        (Some(n), Some(o)) => Err(Rejection::HeldoutWorse { new_m: n, old_m: o, tolerance_m: c.heldout_tolerance_m }),
         _ => Err(Rejection::NoUsableHeldout),
     }
 }
@@ -1147,16 +1185,199 @@ mod tests {
             let m = [p[0] + 1.5e-3 * rng.normal(), p[1] + 1.5e-3 * rng.normal(), p[2] + 1.5e-3 * rng.normal()];
             rec.push(f64::from(i) * 0.01, m, None, &l, None, None);
         }
-        assert!(!significantly_worse(&truth, &truth, &rec, 1.0));
-        assert!(!significantly_worse(&truth, &shifted, &rec, 1.0));
-        assert!(significantly_worse(&shifted, &truth, &rec, 1.0));
+        assert!(!significantly_worse(&truth, &truth, &rec, 1.0, 1e-4, HELDOUT_ALPHA));
+        assert!(!significantly_worse(&truth, &shifted, &rec, 1.0, 1e-4, HELDOUT_ALPHA));
+        assert!(significantly_worse(&shifted, &truth, &rec, 1.0, 1e-4, HELDOUT_ALPHA));
+    }
+
+    #[test]
+    fn clearly_worse_compares_the_mean_square_difference_with_the_tolerance() {
+        // Ten held-out dwells of 3 degrees of freedom each (scale 30), the running set at 1.5 mm:
+        // the tolerance 0.1 mm is a mean-square difference of 0.1 * (2 * 1.5 + 0.1) = 0.31 mm^2,
+        // a sum of 30 * 0.31 mm^2 over the dwells.
+        let at = |f: f64| -> Vec<f64> { (0..10).map(|i| f * 30.0 * 0.31e-6 / 10.0 * (1.0 + 0.01 * f64::from(i % 3))).collect() };
+        assert!(clearly_worse(&at(2.0), 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        assert!(!clearly_worse(&at(0.5), 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        // Zero tolerance: any consistent increase.
+        assert!(clearly_worse(&at(0.5), 30.0, 1.5e-3, 0.0, HELDOUT_ALPHA));
+        // Noisy pairs: a mean 2x the margin with a spread of 10x it is not evidence.
+        let noisy: Vec<f64> = at(2.0).iter().enumerate().map(|(i, d)| d + if i % 2 == 0 { 10.0 } else { -10.0 } * 0.93e-6).collect();
+        assert!(!clearly_worse(&noisy, 30.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
+        // Fewer than two units: no evidence either way, refused (the caller says why).
+        assert!(clearly_worse(&[0.0], 3.0, 1.5e-3, 1e-4, HELDOUT_ALPHA));
     }
 
     #[test]
     fn the_t_quantile_matches_the_table() {
-        for (dof, want) in [(1, 12.706), (2, 4.303), (5, 2.571), (10, 2.228), (19, 2.093)] {
-            let got = t_quantile_975(dof);
-            assert!((got / want - 1.0).abs() < 0.01, "dof {dof}: {got} vs {want}");
+        // Student's t 0.999 quantiles from the standard table.
+        for (dof, want) in [(1, 318.31), (2, 22.327), (5, 5.893), (10, 4.144), (19, 3.579)] {
+            let got = taut_calib::diagnose::select::student_t_upper_quantile(HELDOUT_ALPHA, dof as f64);
+            assert!((got / want - 1.0).abs() < 1e-3, "dof {dof}: {got} vs {want}");
         }
+    }
+
+    /// A synthetic start-up: a four-cable robot, a smooth 2000-row excitation tour (a Lissajous
+    /// figure through the workspace), split as the daemon splits it; the held-out rows carry
+    /// tracker noise of 1.5 mm per axis and exact lengths from `truth`.
+    struct Tour {
+        truth: LoopParams,
+        path: Vec<[f64; 3]>,
+    }
+
+    const ANCHORS: [[f64; 3]; 4] = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+
+    impl Tour {
+        fn new() -> Tour {
+            let rows = 2000;
+            let all: Vec<[f64; 3]> = (0..rows)
+                .map(|i| {
+                    let t = i as f64 / rows as f64 * std::f64::consts::TAU;
+                    [1.5 * (3.0 * t).sin(), 0.8 * (2.0 * t).sin(), 2.0 + 0.6 * (5.0 * t).cos()]
+                })
+                .collect();
+            let h = HeldoutBlocks::new(rows, 0.2);
+            let path = h.heldout().into_iter().flat_map(|r| all[r].to_vec()).collect();
+            Tour { truth: LoopParams::new(1, &ANCHORS, &[0.5; 4], &[[0.0; 3]; 4]), path }
+        }
+
+        fn heldout(&self, rng: &mut taut_calib::synth::Rng) -> Recording {
+            let mut rec = Recording::with_capacity(4, self.path.len(), false, false, false);
+            for (i, p) in self.path.iter().enumerate() {
+                let l: Vec<f64> = (0..4).map(|j| self.truth.length(j, p)).collect();
+                let m = std::array::from_fn(|a| p[a] + 1.5e-3 * rng.normal());
+                rec.push(i as f64 * 0.01, m, None, &l, None, None);
+            }
+            rec
+        }
+
+        /// A set with every anchor coordinate and offset off by N(0, sigma).
+        fn estimate(rng: &mut taut_calib::synth::Rng, sigma: f64) -> LoopParams {
+            let a: Vec<[f64; 3]> = ANCHORS.iter().map(|a| std::array::from_fn(|k| a[k] + sigma * rng.normal())).collect();
+            let l0: Vec<f64> = (0..4).map(|_| 0.5 + sigma * rng.normal()).collect();
+            LoopParams::new(2, &a, &l0, &[[0.0; 3]; 4])
+        }
+
+        /// The population RMS of `p` on this path (noise-free model error plus the tracker's
+        /// 1.5 mm projected on the cable), m.
+        fn rms(&self, p: &LoopParams) -> f64 {
+            let ms = self.path.iter().flat_map(|x| (0..4).map(move |j| (p.length(j, x) - self.truth.length(j, x)).powi(2))).sum::<f64>()
+                / (4 * self.path.len()) as f64;
+            (ms + 1.5e-3f64.powi(2)).sqrt()
+        }
+    }
+
+    /// Refusals in `trials` synthetic start-ups of the pair `(new, old)` drawn by `sets`, by the
+    /// rule with `tolerance_m` and `alpha`, tallied by how much worse the new set truly is on the
+    /// held-out path (its population RMS minus the running set's, `Tour::rms`): `[(trials,
+    /// refused); 3]` for a new set no worse (<= 0), worse by at most the tolerance, and worse by
+    /// more (where a refusal is right).
+    fn refusals(
+        seed: u64,
+        trials: usize,
+        tolerance_m: f64,
+        alpha: f64,
+        mut sets: impl FnMut(&mut taut_calib::synth::Rng) -> (LoopParams, LoopParams),
+    ) -> [(usize, usize); 3] {
+        let tour = Tour::new();
+        let mut rng = taut_calib::synth::Rng::new(seed);
+        let mut tally = [(0, 0); 3];
+        for _ in 0..trials {
+            let (new, old) = sets(&mut rng);
+            let rec = tour.heldout(&mut rng);
+            let rows = || (0..rec.len()).map(|i| (&rec.p[i], rec.lengths(i), rec.tensions(i)));
+            let (n, o) = (new.coregistration_rms(rows(), 1.0).unwrap(), old.coregistration_rms(rows(), 1.0).unwrap());
+            // As `validate`: lower is taken without a test.
+            let refused = n >= o && significantly_worse(&new, &old, &rec, 1.0, tolerance_m, alpha);
+            let worse = tour.rms(&new) - tour.rms(&old);
+            let k = if worse <= 0.0 {
+                0
+            } else if worse <= tolerance_m.max(1e-4) {
+                1
+            } else {
+                2
+            };
+            tally[k].0 += 1;
+            tally[k].1 += usize::from(refused);
+        }
+        tally
+    }
+
+    #[test]
+    fn the_heldout_rule_does_not_refuse_an_equal_set_by_chance() {
+        // New and running sets of the same expected quality (each anchor coordinate and offset
+        // 0.5 mm off, independent draws), so in about half the trials the new one is truly no
+        // worse on the held-out path. The former rule (zero tolerance, 2.5 %) refused some of
+        // those by design. The rule now must refuse none of them: its lower confidence bound
+        // would have to clear 0.31 mm^2 of mean-square difference while the true difference is
+        // <= 0, many standard errors (a chance far below 1e-6 per trial, so 0 is what a
+        // correct rule gives; the seed is fixed, so this test is deterministic). Between 0 and
+        // the tolerance its refusal rate is at most alpha = 1e-3 (asserted <= 1 %: for a
+        // correct rule Binomial(<= 2000, 1e-3) exceeds 1 % with probability below 1e-6).
+        let trials = 2000;
+        let equal = |rng: &mut taut_calib::synth::Rng| (Tour::estimate(rng, 0.5e-3), Tour::estimate(rng, 0.5e-3));
+        let former = refusals(11, trials, 0.0, 0.025, equal);
+        let now = refusals(11, trials, 1e-4, HELDOUT_ALPHA, equal);
+        eprintln!("equal-quality sets, [(trials, refused)] for new no worse / worse by <= 0.1 mm / worse by more: former rule {former:?}, the rule now {now:?}");
+        assert_eq!(now[0].1, 0, "a set no worse than the running one was refused: {now:?}");
+        assert!(now[1].1 * 100 <= now[1].0, "a set worse by less than the tolerance was refused too often: {now:?}");
+        // And the tie: the calibrated set equal to the running one is never refused.
+        let tie = |rng: &mut taut_calib::synth::Rng| {
+            let p = Tour::estimate(rng, 1e-3);
+            (p, p)
+        };
+        assert_eq!(refusals(12, 200, 1e-4, HELDOUT_ALPHA, tie)[0], (200, 0));
+    }
+
+    #[test]
+    fn the_heldout_rule_refuses_a_set_worse_by_the_tolerance_rarely_and_a_bad_one_always() {
+        let tour = Tour::new();
+        let truth = tour.truth;
+        // One anchor shifted along x by `s`, against the truth.
+        let shifted = |s: f64| {
+            let mut a = ANCHORS;
+            a[2][0] += s;
+            LoopParams::new(3, &a, &[0.5; 4], &[[0.0; 3]; 4])
+        };
+        // The shift whose population RMS is exactly the tolerance above the truth's.
+        let (mut lo, mut hi) = (0.0, 0.05);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if tour.rms(&shifted(mid)) - tour.rms(&truth) < 1e-4 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let at_tol = shifted(lo);
+        // At the tolerance the rule refuses with probability alpha = 1e-3 (if the batch means
+        // were exactly normal and independent): expected 2 in 2000. Asserted <= 10: for a
+        // correct rule the count is Poisson(2) and exceeds 10 with probability 8e-6 (and the
+        // fixed seed makes it deterministic).
+        let trials = 2000;
+        let n_tol = refusals(21, trials, 1e-4, HELDOUT_ALPHA, |_| (at_tol, truth))[1].1;
+        // A set 5 mm off on one anchor (several tenths of a mm of RMS): refused every time.
+        let bad = shifted(5e-3);
+        let n_bad = refusals(22, 500, 1e-4, HELDOUT_ALPHA, |_| (bad, truth))[2].1;
+        let twice = {
+            let (mut lo2, mut hi2) = (0.0, 0.05);
+            for _ in 0..60 {
+                let mid = 0.5 * (lo2 + hi2);
+                if tour.rms(&shifted(mid)) - tour.rms(&truth) < 3e-4 {
+                    lo2 = mid;
+                } else {
+                    hi2 = mid;
+                }
+            }
+            shifted(lo2)
+        };
+        let n_3tol = refusals(23, 500, 1e-4, HELDOUT_ALPHA, |_| (twice, truth))[2].1;
+        eprintln!(
+            "shift at the tolerance {:.2} mm: refused {n_tol} of {trials}; RMS +0.3 mm (shift {:.2} mm): {n_3tol} of 500; 5 mm: {n_bad} of 500 (RMS +{:.3} mm)",
+            lo * 1e3,
+            twice.geometry().anchors[2][0] * 1e3 - ANCHORS[2][0] * 1e3,
+            (tour.rms(&bad) - tour.rms(&truth)) * 1e3
+        );
+        assert!(n_tol <= 10, "refused {n_tol} of {trials} at the tolerance");
+        assert_eq!(n_bad, 500, "a 5 mm anchor error passed");
     }
 }

@@ -204,8 +204,9 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 
 /// The held-out check without a tracker: on the held-out dwells (poses the calibration did not
 /// see), the RMS length closure residual of the new set against the running one, per degree of
-/// freedom. The new set is taken when it is lower, or not significantly higher (paired
-/// differences per dwell, two standard errors), as with a tracker. Returns `(new, old)` RMS, m.
+/// freedom. The new set is taken when it is lower, or not higher by more than
+/// `daemon.heldout_tolerance_m` at 99.9 % confidence (paired differences per dwell,
+/// as `calibrator::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
@@ -224,12 +225,12 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
         return Err(Rejection::TooFewHeldoutDwells { usable: pairs.len() });
     }
     let (n_rms, o_rms) = ((sn / dof as f64).sqrt(), (so / dof as f64).sqrt());
-    let m = pairs.iter().sum::<f64>() / pairs.len() as f64;
-    let var = pairs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (pairs.len() - 1) as f64;
-    if n_rms < o_rms || m <= 2.0 * (var / pairs.len() as f64).sqrt() {
+    // The pairs sum to dof times the mean-square difference.
+    let worse = crate::calibrator::clearly_worse(&pairs, dof as f64, o_rms, c.heldout_tolerance_m, crate::calibrator::HELDOUT_ALPHA);
+    if n_rms < o_rms || !worse {
         Ok((n_rms, o_rms))
     } else {
-        Err(Rejection::HeldoutDwellsWorse { dwells: pairs.len(), new_m: n_rms, old_m: o_rms })
+        Err(Rejection::HeldoutDwellsWorse { dwells: pairs.len(), new_m: n_rms, old_m: o_rms, tolerance_m: c.heldout_tolerance_m })
     }
 }
 
