@@ -86,6 +86,7 @@ pub fn design_input(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Option<Design
         duration_s: m.excitation_s,
         sample_hz: m.tracker_rate_hz / cfg.daemon.calib_decimation.max(1) as f64,
         used_fraction: 1.0 - cal.heldout_fraction,
+        heldout_blocks: crate::calibrator::HeldoutBlocks::BLOCKS,
         tracker_sigma_m: cal.tracker_sigma_m,
         length_sigma_m: length_sigma_floor_m(cal.encoder_sigma_m),
         mass_kg: cfg.robot.mass_kg,
@@ -209,6 +210,18 @@ mod tests {
         let (d, l) = (plan.predicted_worst_m(), today.predicted_worst_m());
         assert!(d.is_finite() && l.is_finite() && d < 0.6 * l, "designed {d} m, Lissajous {l} m");
         assert!(plan.summary().contains("predicted worst anchor 1-sigma"), "{}", plan.summary());
+    }
+
+    #[test]
+    fn the_design_counts_the_rows_the_calibrator_trains_on() {
+        use crate::calibrator::HeldoutBlocks;
+        for rows in [0usize, 1, 7, 8, 9, 100, 2_500, 3_001] {
+            for fraction in [0.0, 0.2, 0.5] {
+                let daemon: Vec<usize> = HeldoutBlocks::new(rows, fraction).training().into_iter().flatten().collect();
+                let design: Vec<usize> = taut_calib::design::training_rows(rows, 1.0 - fraction, HeldoutBlocks::BLOCKS).collect();
+                assert_eq!(daemon, design, "rows {rows} held out {fraction}");
+            }
+        }
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //!
 //! Seeds: 1 by default (one start-up, about two minutes under load); the acceptance set with
 //! `TAUT_EXCITE_SEEDS=1,2,3,4,5`. `TAUT_EXCITE_PATH=lissajous` runs the earlier Lissajous
-//! excitation instead and only prints (the comparison in BENCHMARKS.md).
+//! excitation instead and only prints (the comparison in BENCHMARKS.md). `TAUT_EXCITE_S=25`
+//! runs the 25 s excitation of the other start-up tests.
 
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
@@ -53,6 +54,10 @@ fn startup(seed: u64, designed: bool) -> Run {
     cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.path().join("data").display().to_string();
     cfg.motion.design_excitation = designed;
+    // `TAUT_EXCITE_S=25`: the test start-ups' excitation (tests/src/startup.rs EXCITATION_S).
+    if let Ok(s) = std::env::var("TAUT_EXCITE_S") {
+        cfg.motion.excitation_s = s.parse().expect("TAUT_EXCITE_S: the excitation's duration, s");
+    }
     // The simulated load cells answer over a pty from threads that share two cores with the
     // build and the other tests: under that load a reading is sometimes 0.5 s late, which the
     // loop (rightly) treats as a fault. Late, not wrong: allow 2 s here.
@@ -106,7 +111,7 @@ fn startup(seed: u64, designed: bool) -> Run {
     let mut inp = taut_rt_core::excite::design_input(&cfg, &ccfg).unwrap();
     inp.length_sigma_m = noise_m;
     let at_noise_m = match ccfg.tour {
-        Some(tour) => taut_calib::design::predict(&inp, |t| tour.point(t)),
+        Some(tour) => taut_calib::design::predict_tour(&inp, &tour),
         None => taut_calib::design::predict(&inp, |t| ccfg_lissajous(&ccfg, t)),
     }
     .map_or(f64::NAN, |p| p.worst_anchor_sigma_m());
@@ -151,15 +156,14 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
         if !designed {
             continue;
         }
-        // The issue asks for a worst anchor error <= 1 mm in the 30 s. The design's own bound says
-        // this robot cannot promise it: the best tour's predicted worst-anchor 1-sigma is 1.3 mm
-        // (1.2 mm at twice the speed; 0.78 mm needs 60 s, 0.63 mm 90 s), so a worst-of-four error
-        // above 1 mm is expected on some seeds. Not asserted (it would fail by chance, not by a
-        // fault); printed here and tabulated in BENCHMARKS.md. What is asserted is what the
-        // prediction promises:
+        // The issue asks for a worst anchor error <= 1 mm in the 30 s. The design predicts a
+        // worst-anchor 1-sigma of ~0.45 mm (anchor 2's x ~0.3 mm), so the worst of four errors
+        // exceeds 1 mm with a probability of ~2e-3 per seed (x beyond 3.3 sigma on anchor 2, the
+        // others less): too likely for an assertion in CI (< 1e-4 wanted). Printed here and
+        // tabulated in BENCHMARKS.md. What is asserted is what the prediction promises:
         // The prediction omits the approach to the first corner (more data) and is taken at the
-        // nominal anchors (up to 20 cm off): the achieved sigma is expected within 0.7-1.3 of it;
-        // a factor 1.5 either way is the stated agreement.
+        // nominal anchors (up to 20 cm off) and the worst joining waypoint: the achieved sigma is
+        // expected within 0.8-1.1 of it; a factor 1.5 either way is the stated agreement.
         // The information model is checked at the length noise the calibration measured (the
         // design's own prediction at the configured encoder noise is printed beside it).
         let ratio = r.worst_sigma_m / r.at_noise_m;
