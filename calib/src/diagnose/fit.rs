@@ -391,6 +391,20 @@ pub struct PlayState {
 }
 
 impl PlayState {
+    /// The play pattern of a recording's readings `l[j][i]` with encoder noise `encoder_sigma_m`:
+    /// a reading has moved when it leaves a band of 6 difference sigmas (at least 0.1 mm, a few
+    /// encoder quanta) around where it last moved ([`PlayState::from_readings`]), with the
+    /// monotone ends of each push taken as pushes ([`PlayState::extend_push_ends`]). The one
+    /// home of the pattern for the diagnosis and the calibration's effect fit
+    /// ([`crate::effect_fit`]); both then drop the readings held since a push while loose
+    /// ([`PlayState::exclude_unseen_pushes`]) once their loose masks are final.
+    pub fn of_readings(l: &[Vec<f64>], encoder_sigma_m: f64) -> PlayState {
+        let thr = (6.0 * std::f64::consts::SQRT_2 * encoder_sigma_m).max(1e-4);
+        let mut st = PlayState::from_readings(l, thr);
+        st.extend_push_ends(l);
+        st
+    }
+
     /// The pattern from the readings `l[j][i]` (time order): the reading is pushed at `i` when it
     /// has moved by more than `threshold` from where it was last pushed (NaN readings hold).
     /// `threshold` must be well above the encoder noise: a noise spike taken for a push would move
@@ -484,30 +498,6 @@ impl PlayState {
                     h += 1;
                 }
                 i = end + 1;
-            }
-        }
-    }
-
-    /// Moves each push that happened at a sample not usable for its cable to the first usable
-    /// sample after it (or the sample itself, if none comes first). A loose cable's drum pays out
-    /// slack the geometry does not see, so the modelled input there is not what pushed the
-    /// reading; once the cable is taut again the input is within `w/2` of the held reading.
-    pub fn settle(&mut self, usable: &[Vec<bool>]) {
-        for (j, ok) in usable.iter().enumerate() {
-            let contact = &mut self.contact[j];
-            let mut first_ok: Option<(u32, Option<u32>)> = None;
-            for i in 0..contact.len() {
-                let c = contact[i];
-                if ok[c as usize] {
-                    continue;
-                }
-                let target = match first_ok {
-                    Some((cc, t)) if cc == c => t,
-                    _ => None,
-                };
-                let target = target.or_else(|| ok[i].then_some(i as u32));
-                first_ok = Some((c, target));
-                contact[i] = target.unwrap_or(i as u32);
             }
         }
     }
@@ -746,10 +736,6 @@ mod tests {
         // Pushed at 3 while loose (not usable): the readings held since (4, 5) have an unknown
         // level and go; the push at 6 is usable again and so are the readings it holds.
         let mut usable = vec![vec![true, true, true, false, false, true, true, true, true]];
-        let mut settled = p.clone();
-        settled.settle(&usable);
-        // (The calibration's effect fit instead moves the push to the first usable sample, 5.)
-        assert_eq!(settled.contact[0], [0, 1, 2, 3, 4, 5, 6, 6, 6]);
         assert_eq!(p.exclude_unseen_pushes(&mut usable), 1);
         assert_eq!(usable[0], [true, true, true, false, false, false, true, true, true]);
     }

@@ -399,11 +399,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
             prep.dir[j][i] = last;
         }
     }
-    // Play pattern: a reading has moved when it leaves a band of 6 difference sigmas (at least
-    // 0.1 mm, a few encoder quanta) around where it last moved.
-    let thr = (6.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m).max(1e-4);
-    prep.play = fit::PlayState::from_readings(&prep.l, thr);
-    prep.play.extend_push_ends(&prep.l);
+    prep.play = fit::PlayState::of_readings(&prep.l, opts.encoder_sigma_m);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
