@@ -186,6 +186,7 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
         loose: vec![Vec::with_capacity(m); n],
         segment: Vec::with_capacity(m),
         heldout: vec![false; m],
+        hold_weight: vec![],
     };
     let mut dts: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
     dts.sort_by(|a, b| a.total_cmp(b));
@@ -221,6 +222,7 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
     // after a loose episode is unknown: see `PlayState::exclude_unseen_pushes`).
     p.play = PlayState::of_readings(&p.l, o.encoder_sigma_m);
     p.play.exclude_unseen_pushes(&mut p.usable);
+    p.hold_weight = p.play.hold_weights(&p.usable, o.tracker_sigma_m, o.encoder_sigma_m);
     p
 }
 

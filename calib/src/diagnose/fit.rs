@@ -37,6 +37,9 @@ pub struct Prepared {
     pub segment: Vec<u32>,
     /// Sample is in the held-out time blocks.
     pub heldout: Vec<bool>,
+    /// Weight factor of each reading in a fit with backlash ([`PlayState::hold_weights`]; empty:
+    /// all 1). Without backlash every reading has weight 1.
+    pub hold_weight: Vec<Vec<f64>>,
 }
 
 /// Which effects the model includes.
@@ -286,6 +289,30 @@ impl<'a> Joint<'a> {
         p
     }
 
+    /// The weight factor of cable `j`'s reading at sample `i` in this fit
+    /// ([`PlayState::hold_weights`] with backlash, else 1).
+    pub fn weight(&self, i: usize, j: usize) -> f64 {
+        if self.prep.hold_weight.is_empty() || self.spec.offset(Effect::Backlash, self.prep.n).is_none() {
+            return 1.0;
+        }
+        self.prep.hold_weight[j][i]
+    }
+
+    /// The sum of the squared weight factors over the usable readings of `samples`: the number
+    /// of readings the weighted sum of squares is worth (each reading's residual has the same
+    /// variance, so its expectation is `sigma^2` times this, less the parameters).
+    pub fn effective_rows(&self) -> f64 {
+        let mut m = 0.0;
+        for &i in self.samples {
+            for j in 0..self.prep.n {
+                if self.prep.usable[j][i] {
+                    m += self.weight(i, j).powi(2);
+                }
+            }
+        }
+        m
+    }
+
     /// Residual `reading - model` of cable `j` at sample `i`, m.
     pub fn residual(&self, x: &[f64], i: usize, j: usize) -> f64 {
         self.prep.l[j][i] - self.predict(x, i, j).value
@@ -502,6 +529,44 @@ impl PlayState {
         }
     }
 
+    /// The weight factor of each reading in a fit with backlash: the readings held since the
+    /// same push share one prediction, `v_c - side w/2` at their contact sample `c`, and so share
+    /// that sample's tracker noise (`tracker_sigma_m`, against `encoder_sigma_m` of their own).
+    /// A hold of `h` usable readings (of `usable`) is one observation of the play's level, not
+    /// `h`: with residual `e_i + eta_c` (encoder noise `e_i` each, tracker noise `eta_c` common)
+    /// the generalised least-squares weight of the hold's mean is `1 / (s_t^2 + s_e^2 / h)`, and
+    /// the deviations from the mean do not depend on the parameters, so weighting each reading by
+    /// `(s_t^2 + s_e^2) / (h s_t^2 + s_e^2)` (the factor returned is its square root, 1 for
+    /// `h = 1`) gives the same estimate as the full covariance.
+    ///
+    /// Unweighted, a hold of seconds (a cable that barely moves while the platform works the
+    /// others) counted as hundreds of readings with one tracker error: it pinned the play width
+    /// and, through the width, the cable's compliance (EA 15 kN under 10 mm play: 9,467 ± 728 N,
+    /// -7.6 sigma, on seed 43, its cable 0 held for 12 s), and the batch-means sigma could not see
+    /// it (the blocks inside one hold are one draw, not several).
+    pub fn hold_weights(&self, usable: &[Vec<bool>], tracker_sigma_m: f64, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
+        let (st2, se2) = (tracker_sigma_m * tracker_sigma_m, (encoder_sigma_m * encoder_sigma_m).max(1e-18));
+        self.contact
+            .iter()
+            .zip(usable)
+            .map(|(contact, ok)| {
+                let mut count = vec![0u32; contact.len()];
+                for (i, &c) in contact.iter().enumerate() {
+                    if ok[i] {
+                        count[c as usize] += 1;
+                    }
+                }
+                contact
+                    .iter()
+                    .map(|&c| {
+                        let h = f64::from(count[c as usize].max(1));
+                        ((st2 + se2) / (h * st2 + se2)).sqrt()
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
     /// Marks as not usable each reading of a cable held since a push at a sample not usable for
     /// that cable (until the reading moves again at a usable one); returns how many.
     ///
@@ -544,10 +609,11 @@ impl LeastSquares for Joint<'_> {
                     continue;
                 }
                 let p = self.predict(x, i, j);
-                let r = (p.value - self.prep.l[j][i]) * inv;
+                let w = inv * self.weight(i, j);
+                let r = (p.value - self.prep.l[j][i]) * w;
                 if jacobian {
                     for k in 0..p.len {
-                        buf[k] = (p.row[k].0, p.row[k].1 * inv);
+                        buf[k] = (p.row[k].0, p.row[k].1 * w);
                     }
                     visit(r, &buf[..p.len]);
                 } else {
@@ -582,18 +648,27 @@ impl LeastSquares for Joint<'_> {
 pub fn fit(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x0: &[f64], sigma: f64, max_iterations: usize) -> LmReport {
     assert!(spec.effects.len() <= 4, "at most 4 effects at once (Jacobian row capacity)");
     let p = Joint { prep, spec, samples, sigma };
-    lm::minimize(&p, x0, LmOptions { max_iterations, cost_tolerance: 1e-7 })
+    let mut r = lm::minimize(&p, x0, LmOptions { max_iterations, cost_tolerance: 1e-7 });
+    if p.spec.offset(Effect::Backlash, prep.n).is_some() && !prep.hold_weight.is_empty() {
+        // The weighted sum of squares is worth fewer readings than it has rows (the sigmas'
+        // residual variance divides by this).
+        r.m = p.effective_rows().round() as usize;
+    }
+    r
 }
 
-/// Sum of squared residuals (m^2) and their count on `samples`.
+/// Sum of squared residuals (m^2, unweighted) and their count on `samples`.
 pub fn sum_squares(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> (f64, usize) {
     let p = Joint { prep, spec, samples, sigma: 1.0 };
     let mut s = 0.0;
     let mut m = 0;
-    p.rows(x, false, &mut |r, _| {
-        s += r * r;
-        m += 1;
-    });
+    for &i in samples {
+        for j in (0..prep.n).filter(|&j| prep.usable[j][i]) {
+            let r = p.residual(x, i, j);
+            s += r * r;
+            m += 1;
+        }
+    }
     (s, m)
 }
 
@@ -626,6 +701,7 @@ mod tests {
             loose: vec![vec![false; n_samples]; n],
             segment: vec![],
             heldout: vec![],
+            hold_weight: vec![],
         };
         for i in 0..n_samples {
             let t = i as f64 * 0.01;
@@ -724,6 +800,31 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A hold of `h` usable readings weighs as one observation of its contact's tracker noise:
+    /// `h w^2 = h (s_t^2 + s_e^2) / (h s_t^2 + s_e^2)`, which tends to `1 + s_e^2 / s_t^2` for
+    /// long holds and is 1 for a single pushed reading; unusable readings do not count.
+    #[test]
+    fn hold_weights_count_a_hold_as_one_observation() {
+        // Pushed at 0, 1, 2; then held at 2 for 7 readings (one of them unusable); pushed at 10.
+        let mut l = vec![0.0, 1.0, 2.0];
+        l.extend([2.0; 7]);
+        l.push(0.0);
+        let p = PlayState::from_readings(&[l], 0.2);
+        assert_eq!(p.contact[0], [0, 1, 2, 2, 2, 2, 2, 2, 2, 2, 10]);
+        let mut usable = vec![vec![true; 11]];
+        usable[0][5] = false;
+        let (st, se) = (1.5e-3, 5e-5);
+        let w = p.hold_weights(&usable, st, se);
+        let h = 7.0; // readings 2, 3, 4, 6, 7, 8, 9
+        let expect = ((st * st + se * se) / (h * st * st + se * se)).sqrt();
+        for i in 2..10 {
+            assert!((w[0][i] - expect).abs() < 1e-12, "reading {i}: {} vs {expect}", w[0][i]);
+        }
+        assert_eq!((w[0][0], w[0][1], w[0][10]), (1.0, 1.0, 1.0));
+        let total: f64 = (2..10).filter(|&i| usable[0][i]).map(|i| w[0][i] * w[0][i]).sum();
+        assert!((total - 1.0).abs() < 2e-3, "a hold weighs {total} readings");
     }
 
     #[test]
