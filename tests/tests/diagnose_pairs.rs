@@ -146,10 +146,11 @@ fn time_offset_backlash_and_elasticity_on_three_cables() {
     }
 }
 
-/// Small EA (15,000 N) under large backlash (10 mm) on the 4-cable robot: both named on every
-/// seed. Known limitation (not hidden): on seed 46 one cable's EA comes out 8,983 ± 885 N (6.8
-/// sigma low) — that cable's play width and EA trade off beyond what the joint sigma shows —
-/// so the values are checked on seed 45 only (all four cables within 4 sigma or 10%).
+/// Small EA (15,000 N) under large backlash (10 mm) on the 4-cable robot: both named, and every
+/// cable's EA within 4 sigma or 10 % on both seeds. (Seed 46 once gave 8,983 ± 885 N, 6.8 sigma
+/// low, on one cable: a hold of seconds counted as hundreds of readings with one tracker error;
+/// the estimates now come from the hold-weighted fit, `PlayState::hold_weights`: -1.1 .. +1.2
+/// sigma. The seeds are fixed, so the outcome is deterministic.)
 #[test]
 fn small_elasticity_under_large_backlash() {
     for seed in [45, 46] {
@@ -158,11 +159,9 @@ fn small_elasticity_under_large_backlash() {
         let d = run(s, 40.0);
         let n = named(&d);
         assert!(n.contains(&Effect::Backlash) && n.contains(&Effect::Elasticity), "seed {seed}: {:#?}", summary(&d));
-        if seed != 46 {
-            let f = finding(&d, Effect::Elasticity);
-            for (v, sg) in f.values.iter().zip(&f.sigmas) {
-                assert_recovered("EA", *v, *sg, 15_000.0, 4.0, 0.1);
-            }
+        let f = finding(&d, Effect::Elasticity);
+        for (v, sg) in f.values.iter().zip(&f.sigmas) {
+            assert_recovered("EA", *v, *sg, 15_000.0, 4.0, 0.1);
         }
     }
 }

@@ -37,6 +37,9 @@ pub struct Prepared {
     pub segment: Vec<u32>,
     /// Sample is in the held-out time blocks.
     pub heldout: Vec<bool>,
+    /// Weight factor of each reading in a fit with backlash ([`PlayState::hold_weights`]; empty:
+    /// all 1). Without backlash every reading has weight 1.
+    pub hold_weight: Vec<Vec<f64>>,
 }
 
 /// Which effects the model includes.
@@ -301,6 +304,30 @@ impl<'a> Joint<'a> {
         p
     }
 
+    /// The weight factor of cable `j`'s reading at sample `i` in this fit
+    /// ([`PlayState::hold_weights`] with backlash, else 1).
+    pub fn weight(&self, i: usize, j: usize) -> f64 {
+        if self.prep.hold_weight.is_empty() || self.spec.offset(Effect::Backlash, self.prep.n).is_none() {
+            return 1.0;
+        }
+        self.prep.hold_weight[j][i]
+    }
+
+    /// The sum of the squared weight factors over the usable readings of `samples`: the number
+    /// of readings the weighted sum of squares is worth (each reading's residual has the same
+    /// variance, so its expectation is `sigma^2` times this, less the parameters).
+    pub fn effective_rows(&self) -> f64 {
+        let mut m = 0.0;
+        for &i in self.samples {
+            for j in 0..self.prep.n {
+                if self.prep.usable[j][i] {
+                    m += self.weight(i, j).powi(2);
+                }
+            }
+        }
+        m
+    }
+
     /// Residual `reading - model` of cable `j` at sample `i`, m.
     pub fn residual(&self, x: &[f64], i: usize, j: usize) -> f64 {
         self.prep.l[j][i] - self.predict(x, i, j).value
@@ -432,6 +459,20 @@ pub struct PlayState {
 }
 
 impl PlayState {
+    /// The play pattern of a recording's readings `l[j][i]` with encoder noise `encoder_sigma_m`:
+    /// a reading has moved when it leaves a band of 6 difference sigmas (at least 0.1 mm, a few
+    /// encoder quanta) around where it last moved ([`PlayState::from_readings`]), with the
+    /// monotone ends of each push taken as pushes ([`PlayState::extend_push_ends`]). The one
+    /// home of the pattern for the diagnosis and the calibration's effect fit
+    /// ([`crate::effect_fit`]); both then drop the readings held since a push while loose
+    /// ([`PlayState::exclude_unseen_pushes`]) once their loose masks are final.
+    pub fn of_readings(l: &[Vec<f64>], encoder_sigma_m: f64) -> PlayState {
+        let thr = (6.0 * std::f64::consts::SQRT_2 * encoder_sigma_m).max(1e-4);
+        let mut st = PlayState::from_readings(l, thr);
+        st.extend_push_ends(l);
+        st
+    }
+
     /// The pattern from the readings `l[j][i]` (time order): the reading is pushed at `i` when it
     /// has moved by more than `threshold` from where it was last pushed (NaN readings hold).
     /// `threshold` must be well above the encoder noise: a noise spike taken for a push would move
@@ -529,28 +570,42 @@ impl PlayState {
         }
     }
 
-    /// Moves each push that happened at a sample not usable for its cable to the first usable
-    /// sample after it (or the sample itself, if none comes first). A loose cable's drum pays out
-    /// slack the geometry does not see, so the modelled input there is not what pushed the
-    /// reading; once the cable is taut again the input is within `w/2` of the held reading.
-    pub fn settle(&mut self, usable: &[Vec<bool>]) {
-        for (j, ok) in usable.iter().enumerate() {
-            let contact = &mut self.contact[j];
-            let mut first_ok: Option<(u32, Option<u32>)> = None;
-            for i in 0..contact.len() {
-                let c = contact[i];
-                if ok[c as usize] {
-                    continue;
+    /// The weight factor of each reading in a fit with backlash: the readings held since the
+    /// same push share one prediction, `v_c - side w/2` at their contact sample `c`, and so share
+    /// that sample's tracker noise (`tracker_sigma_m`, against `encoder_sigma_m` of their own).
+    /// A hold of `h` usable readings (of `usable`) is one observation of the play's level, not
+    /// `h`: with residual `e_i + eta_c` (encoder noise `e_i` each, tracker noise `eta_c` common)
+    /// the generalised least-squares weight of the hold's mean is `1 / (s_t^2 + s_e^2 / h)`, and
+    /// the deviations from the mean do not depend on the parameters, so weighting each reading by
+    /// `(s_t^2 + s_e^2) / (h s_t^2 + s_e^2)` (the factor returned is its square root, 1 for
+    /// `h = 1`) gives the same estimate as the full covariance.
+    ///
+    /// Unweighted, a hold of seconds (a cable that barely moves while the platform works the
+    /// others) counted as hundreds of readings with one tracker error: it pinned the play width
+    /// and, through the width, the cable's compliance (EA 15 kN under 10 mm play: 9,467 ± 728 N,
+    /// -7.6 sigma, on seed 43, its cable 0 held for 12 s), and the batch-means sigma could not see
+    /// it (the blocks inside one hold are one draw, not several).
+    pub fn hold_weights(&self, usable: &[Vec<bool>], tracker_sigma_m: f64, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
+        let (st2, se2) = (tracker_sigma_m * tracker_sigma_m, (encoder_sigma_m * encoder_sigma_m).max(1e-18));
+        self.contact
+            .iter()
+            .zip(usable)
+            .map(|(contact, ok)| {
+                let mut count = vec![0u32; contact.len()];
+                for (i, &c) in contact.iter().enumerate() {
+                    if ok[i] {
+                        count[c as usize] += 1;
+                    }
                 }
-                let target = match first_ok {
-                    Some((cc, t)) if cc == c => t,
-                    _ => None,
-                };
-                let target = target.or_else(|| ok[i].then_some(i as u32));
-                first_ok = Some((c, target));
-                contact[i] = target.unwrap_or(i as u32);
-            }
-        }
+                contact
+                    .iter()
+                    .map(|&c| {
+                        let h = f64::from(count[c as usize].max(1));
+                        ((st2 + se2) / (h * st2 + se2)).sqrt()
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// Marks as not usable each reading of a cable held since a push at a sample not usable for
@@ -596,10 +651,11 @@ impl LeastSquares for Joint<'_> {
                     continue;
                 }
                 let p = self.predict_with(x, i, j, None, &offs);
-                let r = (p.value - self.prep.l[j][i]) * inv;
+                let w = inv * self.weight(i, j);
+                let r = (p.value - self.prep.l[j][i]) * w;
                 if jacobian {
                     for k in 0..p.len {
-                        buf[k] = (p.row[k].0, p.row[k].1 * inv);
+                        buf[k] = (p.row[k].0, p.row[k].1 * w);
                     }
                     visit(r, &buf[..p.len]);
                 } else {
@@ -634,18 +690,27 @@ impl LeastSquares for Joint<'_> {
 pub fn fit(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x0: &[f64], sigma: f64, max_iterations: usize) -> LmReport {
     assert!(spec.effects.len() <= 4, "at most 4 effects at once (Jacobian row capacity)");
     let p = Joint { prep, spec, samples, sigma };
-    lm::minimize(&p, x0, LmOptions { max_iterations, cost_tolerance: 1e-7 })
+    let mut r = lm::minimize(&p, x0, LmOptions { max_iterations, cost_tolerance: 1e-7 });
+    if p.spec.offset(Effect::Backlash, prep.n).is_some() && !prep.hold_weight.is_empty() {
+        // The weighted sum of squares is worth fewer readings than it has rows (the sigmas'
+        // residual variance divides by this).
+        r.m = p.effective_rows().round() as usize;
+    }
+    r
 }
 
-/// Sum of squared residuals (m^2) and their count on `samples`.
+/// Sum of squared residuals (m^2, unweighted) and their count on `samples`.
 pub fn sum_squares(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> (f64, usize) {
     let p = Joint { prep, spec, samples, sigma: 1.0 };
     let mut s = 0.0;
     let mut m = 0;
-    p.rows(x, false, &mut |r, _| {
-        s += r * r;
-        m += 1;
-    });
+    for &i in samples {
+        for j in (0..prep.n).filter(|&j| prep.usable[j][i]) {
+            let r = p.residual(x, i, j);
+            s += r * r;
+            m += 1;
+        }
+    }
     (s, m)
 }
 
@@ -678,6 +743,7 @@ mod tests {
             loose: vec![vec![false; n_samples]; n],
             segment: vec![],
             heldout: vec![],
+            hold_weight: vec![],
         };
         for i in 0..n_samples {
             let t = i as f64 * 0.01;
@@ -778,6 +844,31 @@ mod tests {
         }
     }
 
+    /// A hold of `h` usable readings weighs as one observation of its contact's tracker noise:
+    /// `h w^2 = h (s_t^2 + s_e^2) / (h s_t^2 + s_e^2)`, which tends to `1 + s_e^2 / s_t^2` for
+    /// long holds and is 1 for a single pushed reading; unusable readings do not count.
+    #[test]
+    fn hold_weights_count_a_hold_as_one_observation() {
+        // Pushed at 0, 1, 2; then held at 2 for 7 readings (one of them unusable); pushed at 10.
+        let mut l = vec![0.0, 1.0, 2.0];
+        l.extend([2.0; 7]);
+        l.push(0.0);
+        let p = PlayState::from_readings(&[l], 0.2);
+        assert_eq!(p.contact[0], [0, 1, 2, 2, 2, 2, 2, 2, 2, 2, 10]);
+        let mut usable = vec![vec![true; 11]];
+        usable[0][5] = false;
+        let (st, se) = (1.5e-3, 5e-5);
+        let w = p.hold_weights(&usable, st, se);
+        let h = 7.0; // readings 2, 3, 4, 6, 7, 8, 9
+        let expect = ((st * st + se * se) / (h * st * st + se * se)).sqrt();
+        for i in 2..10 {
+            assert!((w[0][i] - expect).abs() < 1e-12, "reading {i}: {} vs {expect}", w[0][i]);
+        }
+        assert_eq!((w[0][0], w[0][1], w[0][10]), (1.0, 1.0, 1.0));
+        let total: f64 = (2..10).filter(|&i| usable[0][i]).map(|i| w[0][i] * w[0][i]).sum();
+        assert!((total - 1.0).abs() < 2e-3, "a hold weighs {total} readings");
+    }
+
     #[test]
     fn play_pattern_ignores_noise_below_the_threshold_and_drops_holds_set_while_loose() {
         // Out 1, 2, 3; held with noise; in at sample 6; sample 7 NaN holds.
@@ -788,10 +879,6 @@ mod tests {
         // Pushed at 3 while loose (not usable): the readings held since (4, 5) have an unknown
         // level and go; the push at 6 is usable again and so are the readings it holds.
         let mut usable = vec![vec![true, true, true, false, false, true, true, true, true]];
-        let mut settled = p.clone();
-        settled.settle(&usable);
-        // (The calibration's effect fit instead moves the push to the first usable sample, 5.)
-        assert_eq!(settled.contact[0], [0, 1, 2, 3, 4, 5, 6, 6, 6]);
         assert_eq!(p.exclude_unseen_pushes(&mut usable), 1);
         assert_eq!(usable[0], [true, true, true, false, false, false, true, true, true]);
     }

@@ -347,6 +347,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
         loose: vec![Vec::with_capacity(m); n],
         segment: rows.iter().map(|&i| masks.segment[i]).collect(),
         heldout: vec![false; m],
+        hold_weight: vec![],
     };
     for &i in &rows {
         let r = rec.q.as_ref().and_then(|q| rotation(q[i]));
@@ -399,11 +400,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
             prep.dir[j][i] = last;
         }
     }
-    // Play pattern: a reading has moved when it leaves a band of 6 difference sigmas (at least
-    // 0.1 mm, a few encoder quanta) around where it last moved.
-    let thr = (6.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m).max(1e-4);
-    prep.play = fit::PlayState::from_readings(&prep.l, thr);
-    prep.play.extend_push_ends(&prep.l);
+    prep.play = fit::PlayState::of_readings(&prep.l, opts.encoder_sigma_m);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
@@ -441,6 +438,7 @@ fn multilaterate(prep: &Prepared, samples: &[usize]) -> Option<Vec<f64>> {
     Some(x)
 }
 
+#[derive(Clone)]
 struct Ctx<'a> {
     prep: &'a Prepared,
     sigma: f64,
@@ -766,12 +764,13 @@ fn sandwich_inflation(
                 continue;
             }
             let p = joint.predict(&r.x, i, j);
-            let res = (p.value - prep.l[j][i]) * inv;
+            let w = inv * joint.weight(i, j);
+            let res = (p.value - prep.l[j][i]) * w;
             if !res.is_finite() {
                 continue;
             }
             for &(a, v) in &p.row[..p.len] {
-                g[b][a] += v * inv * res;
+                g[b][a] += v * w * res;
             }
         }
     }
@@ -1249,8 +1248,41 @@ pub fn diagnose(
     }
     // The named effects' values from the final model (each one fitted jointly with every other
     // named effect), and the mimicking pairs fitted jointly.
-    ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
-    let final_all = ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations);
+    //
+    // With backlash the estimates come from a refit with the hold weights
+    // (`PlayState::hold_weights`: the readings held since one push share its tracker error and
+    // count as one observation), the generalised least-squares fit of the play model; unweighted,
+    // a long hold pinned the play width and through it the compliance, 4-8 sigma off on some
+    // recordings. Selection (the held-out tests) and the held-out RMS figures stay on the
+    // unweighted fit the tests were calibrated on (docs/diagnosis.md). Not with a time offset in
+    // the model: there the play width comes out 10-17 % high in both fits (3-cable robot, 6 mm
+    // play, 20 ms: unweighted 6.60-6.77 mm, 4-5 sigma; weighted 7.02 mm), a model error the
+    // weighting does not fix (open), and the unweighted fit is kept.
+    let final_all = if spec.effects.contains(&Effect::Backlash) && !spec.effects.contains(&Effect::TimeOffset) {
+        let mut prep_w = prep.clone();
+        prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
+        let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
+        let cur_w = wctx.fit(&spec, &wctx.train, &cur_train.x, opts.max_iterations);
+        // Every named effect's values from the weighted fit (none reused from the unweighted one).
+        let keep: Vec<(Vec<f64>, Vec<f64>)> = effects.iter().map(|f| (f.values.clone(), f.sigmas.clone())).collect();
+        if let Some(f) = effects.iter_mut().find(|f| spec.effects.last() == Some(&f.effect)) {
+            let v = wctx.values(f.effect, &spec, &cur_w, &has_t, &wctx.train);
+            (f.values, f.sigmas) = (v.vals, v.sigs);
+        }
+        if cur_w.x.iter().all(|v| v.is_finite()) {
+            wctx.joint_fits(&mut effects, &spec, &cur_w, &has_t, opts, &[]);
+            wctx.fit(&spec, &all_rows, &cur_w.x, opts.max_iterations)
+        } else {
+            for (f, (v, s)) in effects.iter_mut().zip(keep) {
+                (f.values, f.sigmas) = (v, s);
+            }
+            ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
+            ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations)
+        }
+    } else {
+        ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
+        ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations)
+    };
     let final_fit = ctx.summary(&spec, &cur_train, &final_all);
     let final_res = fit::residuals(&prep, &spec, &all_rows, &cur_train.x);
 
