@@ -539,7 +539,11 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
             } else {
                 -epoch.duration_since(p.measured).as_secs_f64()
             };
-            inp.pose_age_s = now_s - measured_s;
+            // `now_s` was taken by the caller before this read: a pose that arrived in between
+            // (or a preempted caller) is measured a little after `now_s`. A reading is never
+            // from the future: age 0 (a host-owned plugin refuses a negative age as malformed
+            // input, and plugin_lifecycle's host saw one).
+            inp.pose_age_s = (now_s - measured_s).max(0.0);
         } else {
             inp.pose_age_s = f64::INFINITY;
         }
