@@ -48,14 +48,14 @@ fn tares_follow_their_dwells_with_the_masked_cables_at_zero_tension() {
             }
             continue;
         }
-        for j in 0..4 {
-            if let CableCommand::Tension(f) = c.outputs.cable[j] {
-                if let Some(prev) = last_tension[j] {
+        for (last, out) in last_tension.iter_mut().zip(&c.outputs.cable) {
+            if let CableCommand::Tension(f) = *out {
+                if let Some(prev) = *last {
                     largest_step = largest_step.max((f - prev).abs());
                 }
-                last_tension[j] = Some(f);
+                *last = Some(f);
             } else {
-                last_tension[j] = None;
+                *last = None;
             }
         }
         let l = c.controller.phase_label();
@@ -93,8 +93,8 @@ fn tares_follow_their_dwells_with_the_masked_cables_at_zero_tension() {
     let rec: Vec<i8> = labels.iter().copied().filter(|&l| l >= 0).collect();
     assert_eq!(rec, vec![0, 1, MAX_DWELL_POSES as i8 + 1, 2, MAX_DWELL_POSES as i8 + 2], "{labels:?}");
     // Recorded for dwell_s at 500 Hz (one cycle either way).
-    for k in 1..3 {
-        assert!((499..=501).contains(&tare_cycles[k]), "{} cycles in tare {k}", tare_cycles[k]);
+    for (k, cycles) in tare_cycles.iter().enumerate().skip(1) {
+        assert!((499..=501).contains(cycles), "{cycles} cycles in tare {k}");
     }
     // 30 N (the stand-in's tension) down over 0.1 s (50 cycles) and back over 0.2 s: a
     // smoothstep's steepest step is 1.5 x the mean one, 0.9 N per cycle; a step would be 30 N.

@@ -302,7 +302,7 @@ fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
 
 /// The acceptance (item 3): the worst anchor error after the alignment is at most 3 mm,
 /// on two sites, with the example's plan (16 poses of 30 s, 6 tares: about 12 minutes per
-/// start-up, the two in parallel): `cargo test -p taut-tests --test e2e_notracker within_3_mm -- --ignored --nocapture`.
+/// start-up, one after the other): `cargo test -p taut-tests --test e2e_notracker within_3_mm -- --ignored --nocapture`.
 ///
 /// Failure probability: each start-up first asserts that the computed P(worst > 3 mm) of its
 /// own recording (at the reading rate measured in it, the sigma scaled to the achieved one) is
@@ -314,9 +314,9 @@ fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
 #[test]
 #[ignore]
 fn worst_anchor_within_3_mm() {
-    let runs: Vec<(u64, Run)> = std::thread::scope(|s| {
-        [3u64, 5].map(|seed| s.spawn(move || (seed, start(seed, Plan::Example, false)))).map(|h| h.join().unwrap()).into()
-    });
+    // One after the other: two simulated robots in parallel on a loaded two-core machine starve
+    // each other's device threads (stale load cells, missed heartbeats).
+    let runs: Vec<(u64, Run)> = [3u64, 5].into_iter().map(|seed| (seed, start(seed, Plan::Example, false))).collect();
     for (seed, r) in &runs {
         report(*seed, r);
     }
