@@ -49,6 +49,13 @@ fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
         cfg.motion.dwell_speed_m_s = 0.5;
         cfg.motion.dwell_tares = 8;
     }
+    if plan == Plan::Example {
+        // Twelve minutes of real time on a two-core machine shared with other builds: the
+        // simulated load cells' thread was starved for over 0.5 s within a few minutes in three
+        // of three tries (stale load cells latch a hold). The stale-tension check itself is
+        // tested elsewhere (e2e_faults); here it only allows that lateness.
+        cfg.safety.tension_max_age_s = 2.0;
+    }
     cfg.daemon.socket = dir.join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.join("data").display().to_string();
     cfg
