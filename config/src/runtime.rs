@@ -129,6 +129,11 @@ pub struct MotionConfig {
     /// other cables hold it) while their load cells read their offsets; they fix the frame's
     /// tilt, which the dwells alone confound with the load-cell offsets. 0: none.
     pub dwell_tares: usize,
+    /// The tares rotate through every cable (4-cable robots; default): a position-controlled
+    /// cable's tare ramps it to zero tension while the three others (the follower in position
+    /// mode, holding its length) hold the platform, so every load cell reads its own offset and
+    /// the tilt is fixed by gravity alone. `false`: only the followers are tared.
+    pub dwell_tare_each_cable: bool,
     /// The excitation is a tour of the workspace box's corners designed from the nominal anchors
     /// for the smallest predicted anchor uncertainty (`taut_calib::design`, default); `false`:
     /// the fixed Lissajous curve. With `[calibration] effects` modelled the Lissajous curve is
@@ -173,6 +178,7 @@ impl Default for MotionConfig {
             dwell_settle_s: 1.0,
             dwell_speed_m_s: 0.15,
             dwell_tares: 4,
+            dwell_tare_each_cable: true,
             design_excitation: true,
             tracker_rate_hz: 100.0,
         }

@@ -76,6 +76,7 @@ pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPla
         length_samples: (m.dwell_s * rate).floor().max(1.0) as usize,
         tension_samples: (m.dwell_s * tension_rate).floor().max(1.0) as usize,
         tares: m.dwell_tares,
+        tare_each_cable: m.dwell_tare_each_cable,
         poses: m.dwell_poses.min(MAX_DWELL_POSES),
         start: Some([(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]),
         grid: [7, 5, 4],
@@ -243,5 +244,53 @@ mod tests {
         // The loop labels a tare of pose k with MAX_DWELL_POSES + k; calib reads labels from
         // TARE_LABEL_BASE on as tares.
         assert_eq!(taut_calib::selfcal::dwell::TARE_LABEL_BASE, MAX_DWELL_POSES as i32);
+    }
+}
+
+/// The planner's predictions for candidate plans of the example robot at the simulated bus's
+/// measured ~128 tension readings a second (BENCHMARKS.md, "Start-up without a tracker"):
+/// `cargo test -p taut-rt-core --lib plan_predictions -- --ignored --nocapture`.
+#[cfg(test)]
+mod plan_predictions {
+    #[test]
+    #[ignore]
+    fn plan_predictions() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim-notracker.toml");
+        let base = taut_config::RobotConfig::load(path).unwrap();
+        // (poses, dwell s, tares, tares through every cable, tension readings/s)
+        for &(poses, dwell, tares, each, rate) in &[
+            (16usize, 2.5f64, 4usize, false, 128.0f64),
+            (16, 2.5, 8, true, 128.0),
+            (16, 2.5, 16, true, 128.0),
+            (16, 2.5, 16, true, 1280.0),
+            (24, 16.0, 6, true, 128.0),
+            (32, 12.0, 6, true, 128.0),
+            (16, 30.0, 3, true, 128.0),
+            (16, 30.0, 6, true, 128.0),
+        ] {
+            let mut cfg = base.clone();
+            cfg.motion.dwell_poses = poses;
+            cfg.motion.dwell_s = dwell;
+            cfg.motion.dwell_tares = tares;
+            cfg.motion.dwell_tare_each_cable = each;
+            cfg.motion.dwell_settle_s = 0.3;
+            cfg.motion.dwell_speed_m_s = 0.5;
+            cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
+            let ccfg = <crate::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
+            let p = super::dwell_plan(&cfg, &ccfg).unwrap();
+            let nominal = cfg.anchors().unwrap();
+            let m = &cfg.motion;
+            let ntares = p.tare.iter().filter(|&&t| t != 0).count();
+            let wall = poses as f64 * (m.dwell_s + m.dwell_settle_s)
+                + ntares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
+                + p.path_m / m.dwell_speed_m_s;
+            let (pr, up) = p.worst_exceeds_probability(&nominal, 3e-3, 1.0, 1_000_000);
+            eprintln!(
+                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.2} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}), ~{wall:.0} s, z sigmas {:?} mm, tare masks {:?}",
+                p.worst_anchor_sigma_m * 1e3,
+                p.anchor_sigma_m.iter().map(|s| (s[2] * 1e4).round() / 10.0).collect::<Vec<_>>(),
+                p.tare.iter().filter(|&&t| t != 0).collect::<Vec<_>>()
+            );
+        }
     }
 }

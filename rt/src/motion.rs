@@ -286,10 +286,13 @@ pub const MAX_DWELL_POSES: usize = 64;
 /// the rest estimate), then visit `poses` in order: move (smoothstep, at most `speed_m_s` on
 /// average... peak 1.5x), hold `settle_s`, record `dwell_s` (the sample's phase is the pose's
 /// index). Moves are smoothsteps at a mean speed of `speed_m_s` (peak 1.5x). Recalibration
-/// visits the poses again. At the poses marked in `tare`, the dwell is followed by a tare: the
-/// followers are commanded to zero tension while the position-controlled cables hold the
-/// platform where it is, held `settle_s`, recorded `dwell_s` (phase `MAX_DWELL_POSES + index`):
-/// the followers' load cells then read their offsets.
+/// visits the poses again. At the poses with a `tare` mask, the dwell is followed by a tare: the
+/// cables of the mask are ramped to zero tension (torque mode, a smoothstep over the first half
+/// of `settle_s`) while the others hold the platform where it is in position mode (a follower
+/// that is not in the mask holds the length it had when the tare began), held `settle_s`,
+/// recorded `dwell_s` (phase `MAX_DWELL_POSES + index`): the slack cables' load cells then read
+/// their offsets. Then the slack cables are ramped back to the tension they carried before
+/// (`settle_s`) and the next move begins.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DwellLoopPlan {
     /// The poses, m (the first `count`).
@@ -302,8 +305,9 @@ pub struct DwellLoopPlan {
     pub settle_s: f64,
     /// Mean platform speed of a move, m/s.
     pub speed_m_s: f64,
-    /// Poses followed by a tare (the first `count`).
-    pub tare: [bool; MAX_DWELL_POSES],
+    /// Cables slackened in the tare after each pose, bit `j` for cable `j` (0: no tare; the
+    /// first `count`).
+    pub tare: [u8; MAX_DWELL_POSES],
 }
 
 /// Why a configuration cannot drive the controller.
@@ -338,13 +342,13 @@ impl ControllerConfig {
         let mut p = [[0.0; 3]; MAX_DWELL_POSES];
         let count = poses.len().min(MAX_DWELL_POSES);
         p[..count].copy_from_slice(&poses[..count]);
-        self.dwell = Some(DwellLoopPlan { poses: p, count, dwell_s, settle_s, speed_m_s, tare: [false; MAX_DWELL_POSES] });
+        self.dwell = Some(DwellLoopPlan { poses: p, count, dwell_s, settle_s, speed_m_s, tare: [0; MAX_DWELL_POSES] });
         self
     }
 
-    /// Marks the dwell poses followed by a tare (`tare[k]` for pose `k`; see [`DwellLoopPlan`]).
-    /// Without a dwell plan, nothing.
-    pub fn with_dwell_tares(mut self, tare: &[bool]) -> ControllerConfig {
+    /// The cables slackened in a tare after each dwell pose (`tare[k]`, a bit mask, for pose
+    /// `k`; see [`DwellLoopPlan`]). Without a dwell plan, nothing.
+    pub fn with_dwell_tares(mut self, tare: &[u8]) -> ControllerConfig {
         if let Some(d) = self.dwell.as_mut() {
             let k = tare.len().min(MAX_DWELL_POSES);
             d.tare[..k].copy_from_slice(&tare[..k]);
@@ -444,6 +448,12 @@ pub struct Controller {
     urgent: Option<Arc<Urgent>>,
     reset: ResetRun,
     dwell: DwellRun,
+    /// In a tare: each cable's measured length when it began (a follower not in the tare
+    /// holds it in position mode), m.
+    tare_hold_m: [f64; MAX_CABLES],
+    /// In a tare: each cable's tension when it began (the slack cables ramp from it to zero
+    /// and back), N.
+    tare_from_n: [f64; MAX_CABLES],
 }
 
 /// Where the dwell plan is (see [`DwellLoopPlan`]).
@@ -462,10 +472,12 @@ enum DwellSeg {
     Move,
     Settle,
     Record,
-    /// The followers going to zero tension.
+    /// The tare's cables ramped to zero tension, then held there.
     TareSettle,
     /// The tare recorded.
     Tare,
+    /// The tare's cables ramped back to their tension.
+    TareReturn,
 }
 
 /// The bookkeeping of the operator's reset.
@@ -576,6 +588,8 @@ impl Controller {
             reset: ResetRun::new(),
             urgent: None,
             dwell: DwellRun { k: 0, seg: DwellSeg::Move, t0: 0.0, from: centre, move_s: 1.0 },
+            tare_hold_m: [f64::NAN; MAX_CABLES],
+            tare_from_n: [0.0; MAX_CABLES],
         }
     }
 
@@ -980,14 +994,34 @@ impl Controller {
                 }
             }
             State::Excitation if self.cfg.dwell.is_some() => {
+                let was = self.dwell.seg;
                 self.step_dwell_plan(now);
-                next = self.ik_command(&mut modes, 0.0);
-                if matches!(self.dwell.seg, DwellSeg::TareSettle | DwellSeg::Tare) {
-                    // The tare: the followers slack, the position cables hold the platform.
-                    self.follower_n = 0.0;
-                    for j in (0..self.cfg.n).filter(|&j| self.cfg.follower[j]) {
-                        modes[j] = CableCommand::Tension(0.0);
+                if was == DwellSeg::Record && self.dwell.seg == DwellSeg::TareSettle {
+                    // The tare begins: what each cable carries and where it is.
+                    for j in 0..n {
+                        let fresh = inp.tension_n[j].is_finite() && inp.tension_age_s[j] <= self.cfg.tension_max_age_s;
+                        self.tare_from_n[j] = if self.cfg.follower[j] {
+                            self.follower_n
+                        } else if fresh {
+                            inp.tension_n[j].clamp(0.0, 0.5 * self.cfg.max_tension_n)
+                        } else {
+                            0.0
+                        };
+                        self.tare_hold_m[j] = if inp.length_m[j].is_finite() { inp.length_m[j] } else { self.cmd[j] };
                     }
+                    // A follower that holds in position mode starts from where it is: its last
+                    // command was a tension (the inverse kinematics' length, by the running
+                    // parameters, is not where the cable is), so the speed limit judges its
+                    // position commands from its measured length.
+                    let mask = self.cfg.dwell.as_ref().map_or(0, |p| p.tare[self.dwell.k.min(MAX_DWELL_POSES - 1)]);
+                    for j in (0..n).filter(|&j| self.cfg.follower[j] && mask & (1 << j) == 0) {
+                        self.cmd[j] = self.tare_hold_m[j];
+                    }
+                }
+                let ramp_follower = self.follower_n;
+                next = self.ik_command(&mut modes, 0.0);
+                if let Some(w) = self.tare_weight(now) {
+                    self.tare_modes(w, ramp_follower, &mut next, &mut modes);
                 }
             }
             State::Excitation => {
@@ -1309,6 +1343,56 @@ impl Controller {
         }
     }
 
+    /// In a tare segment: the slack cables' share of their tension before the tare (1 at its
+    /// start and end, 0 while recorded); `None` outside a tare.
+    fn tare_weight(&self, now: f64) -> Option<f64> {
+        let plan = self.cfg.dwell.as_ref()?;
+        let t = now - self.dwell.t0;
+        let half = (0.5 * plan.settle_s).max(1e-3);
+        match self.dwell.seg {
+            DwellSeg::TareSettle => Some(1.0 - smoothstep(t / half)),
+            DwellSeg::Tare => Some(0.0),
+            DwellSeg::TareReturn => Some(smoothstep(t / plan.settle_s.max(1e-3))),
+            _ => None,
+        }
+    }
+
+    /// The cables of the current tare's mask in torque mode at `w` x their tension before the
+    /// tare; a follower not in the mask in position mode at its length when the tare began (the
+    /// three others hold the platform); `follower_n`: the followers' tension before this cycle.
+    fn tare_modes(&mut self, w: f64, follower_n: f64, next: &mut [f64; MAX_CABLES], modes: &mut [CableCommand; MAX_CABLES]) {
+        let Some(plan) = self.cfg.dwell.as_ref() else { return };
+        let mask = plan.tare[self.dwell.k.min(MAX_DWELL_POSES - 1)];
+        for j in 0..self.cfg.n {
+            if mask & (1 << j) != 0 {
+                let f = w * self.tare_from_n[j];
+                modes[j] = CableCommand::Tension(f);
+                if self.cfg.follower[j] {
+                    self.follower_n = f;
+                }
+            } else if self.cfg.follower[j] {
+                next[j] = self.tare_hold_m[j];
+                modes[j] = CableCommand::Position(next[j]);
+                self.follower_n = follower_n;
+            }
+        }
+    }
+
+    /// True when cable `j` is position controlled in this cycle of the dwell plan: the
+    /// position-controlled cables, except the one slackened in a tare, and the followers held in
+    /// position mode while a position cable is tared.
+    fn dwell_position_cable(&self, j: usize) -> bool {
+        let mask = match (self.cfg.dwell.as_ref(), self.dwell.seg) {
+            (Some(plan), DwellSeg::TareSettle | DwellSeg::Tare | DwellSeg::TareReturn) => plan.tare[self.dwell.k.min(MAX_DWELL_POSES - 1)],
+            _ => 0,
+        };
+        if mask & (1 << j) != 0 {
+            false
+        } else {
+            !self.cfg.follower[j] || mask != 0
+        }
+    }
+
     /// Starts the dwell plan from where the platform is by the running parameters (forward
     /// kinematics of the measured lengths: there is no tracker).
     fn start_dwell_plan(&mut self, plan: &DwellLoopPlan, inp: &Inputs, now: f64) {
@@ -1348,7 +1432,7 @@ impl Controller {
                     d.t0 = now;
                 }
             }
-            DwellSeg::Record if t >= plan.dwell_s && plan.tare[d.k.min(MAX_DWELL_POSES - 1)] => {
+            DwellSeg::Record if t >= plan.dwell_s && plan.tare[d.k.min(MAX_DWELL_POSES - 1)] != 0 => {
                 self.target = to;
                 d.seg = DwellSeg::TareSettle;
                 d.t0 = now;
@@ -1360,9 +1444,17 @@ impl Controller {
                     d.t0 = now;
                 }
             }
-            DwellSeg::Record | DwellSeg::Tare => {
+            DwellSeg::Tare => {
                 self.target = to;
                 if t >= dwell_s {
+                    d.seg = DwellSeg::TareReturn;
+                    d.t0 = now;
+                }
+            }
+            DwellSeg::Record | DwellSeg::TareReturn => {
+                self.target = to;
+                let over = if d.seg == DwellSeg::Record { dwell_s } else { settle_s };
+                if t >= over {
                     d.k += 1;
                     if d.k >= count {
                         self.goal = self.target;
@@ -1474,7 +1566,10 @@ impl Controller {
             // Without a tracker the robot moves with its nominal geometry: a position-controlled
             // cable going loose means the plan does not hold the platform as planned.
             for j in 0..c.n {
-                if !c.follower[j] && measured_after(inp, j, now - self.state_t0, REEL_GRACE_S) && inp.tension_n[j] < c.loose_tension_n {
+                if self.dwell_position_cable(j)
+                    && measured_after(inp, j, now - self.state_t0, REEL_GRACE_S)
+                    && inp.tension_n[j] < c.loose_tension_n
+                {
                     return Some(Cause::CableLoose { cable: j as u8, tension_n: inp.tension_n[j] as f32 });
                 }
             }

@@ -7,10 +7,12 @@
 //! The simulated site's anchors are up to 20 cm from the nominal ones, its encoder offsets up to
 //! 2 m, its load cells 0.5 N off; its physics is `taut-sim`'s, not calib's model.
 //!
-//! The test runs a shorter plan than the example (16 poses of 2.5 s, settle 0.3 s, 0.5 m/s mean
-//! speed instead of 24 of 1.5 s, 0.5 s, 0.3 m/s: fewer, faster moves, as many load-cell
-//! readings) to stay under two minutes in a debug build; the example's plan is run by the
-//! ignored `seeds` sweep, the recalibration by the ignored `recalibrates_without_a_tracker`.
+//! The CI tests run a short plan (16 poses of 2.5 s, settle 0.3 s, 0.5 m/s mean speed, 8 tares
+//! rotating through the cables: under two minutes in a debug build) and assert each anchor
+//! coordinate within 4 sigma of the calibration's own uncertainty; its worst-anchor 1-sigma is
+//! ~2.3 mm, too wide for the 3 mm. The example's plan (16 poses of 30 s, 6 tares, ~12
+//! minutes) meets the 3 mm with a computed error rate: the ignored `worst_anchor_within_3_mm`.
+//! The recalibration: the ignored `recalibrates_without_a_tracker`.
 
 use std::time::Duration;
 use taut_calib::selfcal::align::worst_aligned_error;
@@ -22,17 +24,37 @@ use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 
-/// The tracker-free example robot with its files in `dir`; `short`: the test's shorter plan.
-fn robot(dir: &std::path::Path, short: bool) -> taut_config::RobotConfig {
+/// Which dwell plan a start-up runs.
+#[derive(Clone, Copy, PartialEq)]
+enum Plan {
+    /// The CI test's: 16 poses of 2.5 s, settle 0.3 s, 0.5 m/s, 8 tares.
+    Short,
+    /// The example configuration's: the acceptance plan for the 3 mm (16 poses of 30 s,
+    /// 6 tares), chosen with the planner's prediction at the simulated bus's ~120 tension
+    /// readings a second per cable for a predicted P(worst aligned anchor > 3 mm) well below
+    /// 5e-4 (BENCHMARKS.md).
+    Example,
+}
+
+/// The tracker-free example robot with its files in `dir`, running `plan`.
+fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim-notracker.toml");
     let mut cfg = taut_config::RobotConfig::load(path).unwrap();
     assert!(cfg.tracker.is_none());
     assert_eq!(cfg.motion.startup, Some(taut_config::runtime::Startup::Dwell));
-    if short {
+    if plan == Plan::Short {
         cfg.motion.dwell_poses = 16;
         cfg.motion.dwell_s = 2.5;
         cfg.motion.dwell_settle_s = 0.3;
         cfg.motion.dwell_speed_m_s = 0.5;
+        cfg.motion.dwell_tares = 8;
+    }
+    if plan == Plan::Example {
+        // Twelve minutes of real time on a two-core machine shared with other builds: the
+        // simulated load cells' thread was starved for over 0.5 s within a few minutes in three
+        // of three tries (stale load cells latch a hold). The stale-tension check itself is
+        // tested elsewhere (e2e_faults); here it only allows that lateness.
+        cfg.safety.tension_max_age_s = 2.0;
     }
     cfg.daemon.socket = dir.join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.join("data").display().to_string();
@@ -63,11 +85,13 @@ struct Run {
     achieved_worst_sigma_m: f64,
     dwells_note: String,
     seconds: f64,
+    /// The 99.9 % upper bound of P(worst aligned anchor > 3 mm) for this recording.
+    p3_upper: f64,
 }
 
 /// Starts the simulated robot without a tracker and checks the start-up; `recalibrate`: then
 /// `ctl recalibrate` and check that it visits the dwells again.
-fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
+fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     let t0 = std::time::Instant::now();
     let dir = tempfile::tempdir().unwrap();
     // TAUT_E2E_KEEP: keep the files (recording, parameters) for a look after a failure.
@@ -76,7 +100,7 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     } else {
         Dir::Temp(dir)
     };
-    let cfg = robot(dir.path(), short);
+    let cfg = robot(dir.path(), plan_kind);
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
     let w = ccfg.workspace;
@@ -89,7 +113,8 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     eprintln!("e2e files in {}", dir.path().display());
     let mut states = Vec::new();
-    let ok = d.wait_until(Duration::from_secs(300), |l, c| {
+    let limit_s = if plan_kind == Plan::Example { 1500 } else { 300 };
+    let ok = d.wait_until(Duration::from_secs(limit_s), |l, c| {
         if states.last() != Some(&l.snap.state) {
             states.push(l.snap.state);
         }
@@ -175,14 +200,26 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     let (rec, _) = taut_config::recording::Recording::load(&d.recording).unwrap();
     assert!(rec.len() > 5000 && rec.f.is_some());
     assert!(rec.p.iter().flatten().all(|v| v.is_nan()), "the recording has tracker values");
-    // The tares were recorded: the follower's load cell at zero tension (its offset, 0.5 N
-    // 1-sigma in the simulator) while the others hold the platform.
+    // The tares were recorded: each tare's slack cable (the follower, or a position cable with
+    // the follower holding its length) at zero tension, its load cell reading its offset (0.5 N
+    // 1-sigma in the simulator, from the simulated cable's own physics) while the three others
+    // hold the platform.
+    let tares = plan.tare.iter().filter(|&&m| m != 0).count();
+    assert!(tares >= 4 && plan.tare.iter().any(|&m| m != 0 && ccfg.follower.iter().enumerate().all(|(j, &f)| !f || m & (1 << j) == 0)));
     let tare_rows: Vec<usize> = (0..rec.len()).filter(|&i| rec.phase.as_ref().unwrap()[i] >= 64).collect();
-    let want = (0.8 * cfg.motion.dwell_tares as f64 * cfg.motion.dwell_s * cfg.rt.rate_hz) as usize;
+    let want = (0.8 * tares as f64 * cfg.motion.dwell_s * cfg.rt.rate_hz) as usize;
     assert!(tare_rows.len() >= want, "{} tare rows, {want} expected", tare_rows.len());
-    for j in (0..ccfg.n).filter(|&j| ccfg.follower[j]) {
-        let m = tare_rows.iter().map(|&i| rec.tensions(i).unwrap()[j]).sum::<f64>() / tare_rows.len() as f64;
-        assert!(m.abs() < 2.5, "follower {j} reads {m} N in the tares");
+    for (k, &mask) in plan.tare.iter().enumerate().filter(|x| *x.1 != 0) {
+        let rows: Vec<usize> = tare_rows.iter().copied().filter(|&i| rec.phase.as_ref().unwrap()[i] == 64 + k as i32).collect();
+        assert!(!rows.is_empty(), "tare after pose {k} not recorded");
+        for j in 0..ccfg.n {
+            let m = rows.iter().map(|&i| rec.tensions(i).unwrap()[j]).sum::<f64>() / rows.len() as f64;
+            if mask & (1 << j) != 0 {
+                assert!(m.abs() < 2.5, "cable {j} reads {m} N in its tare after pose {k}");
+            } else {
+                assert!(m > 2.5, "cable {j} reads {m} N holding the platform in the tare after pose {k}");
+            }
+        }
     }
     // Tension readings per second and cable in the recorded dwells (a new reading is a changed
     // value), for the planner's prediction with the rate the simulated bus achieved.
@@ -205,6 +242,13 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
     // the nominal geometry, with the measured variance factor.
     let ratio = achieved / replan.worst_anchor_sigma_m;
     assert!((0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
+    // The probability that a correct calibration of this recording has its worst aligned
+    // anchor beyond the 3 mm: the planner's covariance at the measured reading rate,
+    // scaled up to the achieved sigma where that is larger, by Monte Carlo (1e6 draws, with a
+    // 99.9 % upper bound).
+    let nominal = cfg.anchors().unwrap();
+    let (p3, p3_upper) = replan.worst_exceeds_probability(&nominal, 3e-3, ratio.max(1.0), 1_000_000);
+    eprintln!("seed {seed}: P(worst aligned anchor > 3 mm) = {p3:.2e} (upper bound {p3_upper:.2e})");
 
     if recalibrate {
         let sock = dir.path().join("taut.sock");
@@ -241,30 +285,64 @@ fn start(seed: u64, short: bool, recalibrate: bool) -> Run {
         achieved_worst_sigma_m: achieved,
         dwells_note: ce.note.clone(),
         seconds: t0.elapsed().as_secs_f64(),
+        p3_upper,
     }
 }
 
 fn report(seed: u64, r: &Run) {
     eprintln!(
-        "seed {seed}: {:.0} s; worst {:.2} mm; worst-anchor sigma predicted {:.2} mm (at 50 readings/s), {:.2} mm (measured rate), achieved {:.2} mm; {}",
+        "seed {seed}: {:.0} s; worst {:.2} mm; worst-anchor sigma predicted {:.2} mm (at 50 readings/s), {:.2} mm (measured rate), achieved {:.2} mm; P(> 3 mm) <= {:.1e}; {}",
         r.seconds,
         r.worst_aligned_m * 1e3,
         r.predicted_worst_sigma_m * 1e3,
         r.repredicted_worst_sigma_m * 1e3,
         r.achieved_worst_sigma_m * 1e3,
+        r.p3_upper,
         r.dwells_note
     );
 }
 
 #[test]
 fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
-    report(3, &start(3, true, false));
+    report(3, &start(3, Plan::Short, false));
+}
+
+/// The acceptance (item 3): the worst anchor error after the alignment is at most 3 mm,
+/// on two sites, with the example's plan (16 poses of 30 s, 6 tares: about 12 minutes per
+/// start-up, one after the other): `cargo test -p taut-tests --test e2e_notracker within_3_mm -- --ignored --nocapture`.
+///
+/// Failure probability: each start-up first asserts that the computed P(worst > 3 mm) of its
+/// own recording (at the reading rate measured in it, the sigma scaled to the achieved one) is
+/// below 5e-4 (99.9 % Monte Carlo upper bound); then a correct calibration fails the 3 mm
+/// assertion with at most that probability, so the test fails by chance with probability
+/// below 2 x 5e-4 = 1e-3 per run (plus the 4-sigma checks' ~1e-3 each, as in the CI tests).
+/// Not in CI: at ~120 tension readings a second per cable the 3 mm needs about ten times the
+/// CI plan's load-cell readings (the CI tests assert the 4-sigma check and print P).
+#[test]
+#[ignore]
+fn worst_anchor_within_3_mm() {
+    // One after the other: two simulated robots in parallel on a loaded two-core machine starve
+    // each other's device threads (stale load cells, missed heartbeats).
+    // TAUT_E2E_SEEDS=3 (or 5): one of them, e.g. the two in separate processes on an idle machine.
+    let seeds: Vec<u64> = std::env::var("TAUT_E2E_SEEDS").map_or(vec![3, 5], |v| v.split(',').map(|x| x.trim().parse().unwrap()).collect());
+    let runs: Vec<(u64, Run)> = seeds.into_iter().map(|seed| (seed, start(seed, Plan::Example, false))).collect();
+    for (seed, r) in &runs {
+        report(*seed, r);
+    }
+    for (seed, r) in &runs {
+        assert!(
+            r.p3_upper < 5e-4,
+            "seed {seed}: P(worst > 3 mm) up to {:.1e}: the plan does not meet the 3 mm with the stated error rate",
+            r.p3_upper
+        );
+        assert!(r.worst_aligned_m <= 3e-3, "seed {seed}: worst anchor {:.2} mm after alignment", r.worst_aligned_m * 1e3);
+    }
 }
 
 /// A second site (seed 5: other anchors, offsets and load-cell offsets).
 #[test]
 fn starts_without_a_tracker_on_another_site() {
-    report(5, &start(5, true, false));
+    report(5, &start(5, Plan::Short, false));
 }
 
 /// `ctl recalibrate` without a tracker visits the dwells again (about 80 s more; the loop's
@@ -272,7 +350,7 @@ fn starts_without_a_tracker_on_another_site() {
 #[test]
 #[ignore]
 fn recalibrates_without_a_tracker() {
-    start(4, true, true);
+    start(4, Plan::Short, true);
 }
 
 /// Seeds 1-5 with the test's plan:
@@ -281,13 +359,13 @@ fn recalibrates_without_a_tracker() {
 #[ignore]
 fn seeds() {
     for seed in 1..=5 {
-        report(seed, &start(seed, true, false));
+        report(seed, &start(seed, Plan::Short, false));
     }
 }
 
-/// The example's full plan (24 poses of 1.5 s), seed 1.
+/// The example's plan (the acceptance plan), seed 1, alone.
 #[test]
 #[ignore]
 fn full_plan() {
-    report(1, &start(1, false, false));
+    report(1, &start(1, Plan::Example, false));
 }

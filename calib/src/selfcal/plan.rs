@@ -64,6 +64,11 @@ pub struct PlanInput<'a> {
     /// cells read their offsets (`tension_samples` readings each). Only poses where the three
     /// hold the platform within the tension bounds alone qualify.
     pub tares: usize,
+    /// The tares rotate through every cable (4-cable robots): a position-controlled cable's
+    /// tare slackens it while the three others (the follower now in position mode) hold the
+    /// platform, so every load cell reads its offset; only poses where those three hold it
+    /// within the tension bounds qualify. `false`: the followers only.
+    pub tare_each_cable: bool,
     /// Dwell poses wanted.
     pub poses: usize,
     /// Where the path starts (the platform's rest position, if known), m.
@@ -79,14 +84,18 @@ pub struct DwellPlan {
     pub poses: Vec<[f64; 3]>,
     /// Planned tensions at each pose, N.
     pub tensions: Vec<Vec<f64>>,
-    /// Poses followed by a tare dwell (the followers at zero tension).
-    pub tare: Vec<bool>,
+    /// Cables slackened in the tare dwell after each pose, as a bit mask (bit `j`: cable `j`;
+    /// 0: no tare).
+    pub tare: Vec<u8>,
     /// Predicted 1-sigma of each anchor coordinate (Cramér–Rao bound at the nominal geometry), m.
     pub anchor_sigma_m: Vec<[f64; 3]>,
     /// Predicted worst anchor: `max_j sqrt(sx^2 + sy^2 + sz^2)`, m.
     pub worst_anchor_sigma_m: f64,
     /// Predicted RMS anchor error after the frame alignment: `sqrt(trace(Cov_A) / n)`, m.
     pub anchor_rms_m: f64,
+    /// The predicted covariance of the anchor coordinates (`3n x 3n`, row-major, anchor `j`'s
+    /// coordinate `a` at `3j + a`) in the nominal frame, m^2.
+    pub anchor_cov_m2: Vec<f64>,
     /// Predicted 1-sigma of each encoder offset, m.
     pub l0_sigma_m: Vec<f64>,
     /// Path length through the poses (from the start, if given), m.
@@ -188,6 +197,9 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     if n < 4 {
         return Err(PlanError::TooFewCables { n });
     }
+    if n > 8 {
+        return Err(PlanError::BadInput("more than 8 cables (the tare masks are 8 bits, the loop's limit)"));
+    }
     if inp.platform.len() != n || inp.follower.len() != n {
         return Err(PlanError::BadInput("platform points, followers and anchors differ in number"));
     }
@@ -204,9 +216,16 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     let z_plane = inp.nominal.iter().map(|a| a[2]).fold(f64::INFINITY, f64::min);
     let lo_t = inp.tension_margin * inp.min_tension_n;
     let hi_t = inp.max_tension_n / inp.tension_margin.max(1.0);
+    // The tare groups: the followers together, and with `tare_each_cable` (4 cables) each
+    // position-controlled cable alone (the three others hold the platform).
+    let fmask: u8 = (0..n).filter(|&j| inp.follower[j]).fold(0, |m, j| m | (1 << j));
+    let mut groups: Vec<u8> = vec![fmask];
+    if inp.tare_each_cable && n == 4 {
+        groups.extend((0..n).filter(|&j| !inp.follower[j]).map(|j| 1u8 << j));
+    }
     // Candidates: the grid, each feasible one with its tensions.
-    // (position, tensions, lowest position-cable tension with the followers at zero).
-    let mut cand: Vec<([f64; 3], Vec<f64>, f64)> = Vec::new();
+    // (position, tensions, per tare group: the lowest holding tension with the group at zero).
+    let mut cand: Vec<([f64; 3], Vec<f64>, Vec<f64>)> = Vec::new();
     let w = inp.workspace;
     for iz in 0..inp.grid[2] {
         for iy in 0..inp.grid[1] {
@@ -218,12 +237,17 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
                 }
                 if let Some(t) = static_tensions(inp.nominal, inp.platform, inp.follower, inp.follower_tension_n, inp.mass_kg, p) {
                     if t.iter().all(|&x| x >= lo_t && x <= hi_t) {
-                        let zero = static_tensions(inp.nominal, inp.platform, inp.follower, 0.0, inp.mass_kg, p);
-                        let tare_min =
-                            zero.filter(|z| z.iter().zip(inp.follower).all(|(&x, &f)| f || x <= hi_t)).map_or(f64::NEG_INFINITY, |z| {
-                                z.iter().zip(inp.follower).filter(|(_, &f)| !f).map(|(&x, _)| x).fold(f64::INFINITY, f64::min)
-                            });
-                        cand.push((p, t, tare_min));
+                        let margins = groups
+                            .iter()
+                            .map(|&g| {
+                                let slack: Vec<bool> = (0..n).map(|j| g & (1 << j) != 0).collect();
+                                let zero = static_tensions(inp.nominal, inp.platform, &slack, 0.0, inp.mass_kg, p);
+                                zero.filter(|z| z.iter().zip(&slack).all(|(&x, &s)| s || x <= hi_t)).map_or(f64::NEG_INFINITY, |z| {
+                                    z.iter().zip(&slack).filter(|(_, &s)| !s).map(|(&x, _)| x).fold(f64::INFINITY, f64::min)
+                                })
+                            })
+                            .collect();
+                        cand.push((p, t, margins));
                     }
                 }
             }
@@ -275,22 +299,37 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
         let wh = pr.whitening(&s);
         info.push(solve::information(&pr, &s, &wh).ok_or(PlanError::Singular)?);
     }
-    // The tares: at the feasible candidates with the largest margin (the lowest position-cable
-    // tension with the followers at zero), `tension_samples` readings of each follower's
-    // offset each; their information on the offsets is part of the sum from the start.
-    let mut tare_at: Vec<usize> = if tensions { (0..cand.len()).filter(|&k| cand[k].2 >= lo_t).collect() } else { vec![] };
-    tare_at.sort_by(|&a, &b| cand[b].2.total_cmp(&cand[a].2).then(a.cmp(&b)));
-    tare_at.truncate(inp.tares.min(inp.poses));
+    // The tares: the groups in turn, each at the feasible candidate with the largest margin (the
+    // lowest holding tension with the group at zero) not tared yet, `tension_samples` readings
+    // of each slack cable's offset each; their information on the offsets is part of the sum
+    // from the start.
+    let mut tare_at: Vec<(usize, u8)> = Vec::new();
+    // Groups no candidate can tare (the others cannot hold the platform alone anywhere in the
+    // box) are left out of the rotation.
+    let tareable: Vec<usize> = (0..groups.len()).filter(|&gi| cand.iter().any(|c| c.2[gi] >= lo_t)).collect();
+    if tensions && !tareable.is_empty() {
+        for s in 0..inp.tares.min(inp.poses) {
+            let gi = tareable[s % tareable.len()];
+            let best = (0..cand.len())
+                .filter(|&k| cand[k].2[gi] >= lo_t && !tare_at.iter().any(|&(q, _)| q == k))
+                .max_by(|&a, &b| cand[a].2[gi].total_cmp(&cand[b].2[gi]).then(b.cmp(&a)));
+            if let Some(k) = best {
+                tare_at.push((k, groups[gi]));
+            }
+        }
+    }
     // Greedy A-optimal selection with a weak prior.
     let prior = DMatrix::<f64>::identity(ng, ng);
     let mut sum = DMatrix::<f64>::zeros(ng, ng);
-    for j in (0..n).filter(|&j| inp.follower[j] && tensions) {
-        sum[(lay.c(j), lay.c(j))] += (tare_at.len() * inp.tension_samples.max(1)) as f64 / var_f;
+    for &(_, g) in &tare_at {
+        for j in (0..n).filter(|&j| g & (1 << j) != 0) {
+            sum[(lay.c(j), lay.c(j))] += inp.tension_samples.max(1) as f64 / var_f;
+        }
     }
     let mut chosen: Vec<usize> = Vec::with_capacity(inp.poses);
     let mut used = vec![false; cand.len()];
     // The tare poses are dwell poses too.
-    for &k in &tare_at {
+    for &(k, _) in &tare_at {
         used[k] = true;
         sum += &info[k];
         chosen.push(k);
@@ -317,6 +356,8 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     let anchor_sigma_m: Vec<[f64; 3]> = (0..n).map(|j| [0, 1, 2].map(|a| cov[(lay.a(j) + a, lay.a(j) + a)].max(0.0).sqrt())).collect();
     let worst_anchor_sigma_m = anchor_sigma_m.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max);
     let anchor_rms_m = ((0..3 * n).map(|i| cov[(i, i)]).sum::<f64>() / n as f64).sqrt();
+    let anchor_cov_m2 =
+        (0..3 * n).flat_map(|r| (0..3 * n).map(move |q| (r, q))).map(|(r, q)| cov[(lay.a(r / 3) + r % 3, lay.a(q / 3) + q % 3)]).collect();
     let l0_sigma_m = (0..n).map(|j| cov[(lay.l0(j), lay.l0(j))].max(0.0).sqrt()).collect();
     if !worst_anchor_sigma_m.is_finite() {
         return Err(PlanError::Singular);
@@ -327,15 +368,86 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     let path_m = path_length(&poses, inp.start);
     Ok(DwellPlan {
         tensions: order.iter().map(|&i| cand[chosen[i]].1.clone()).collect(),
-        tare: order.iter().map(|&i| tare_at.contains(&chosen[i])).collect(),
+        tare: order.iter().map(|&i| tare_at.iter().find(|&&(k, _)| k == chosen[i]).map_or(0, |&(_, g)| g)).collect(),
         poses,
         anchor_sigma_m,
         worst_anchor_sigma_m,
         anchor_rms_m,
+        anchor_cov_m2,
         l0_sigma_m,
         path_m,
         candidates: cand.len(),
     })
+}
+
+impl DwellPlan {
+    /// The probability that the worst anchor error after the best translation and rotation
+    /// about the vertical ([`super::align::worst_aligned_error`]) exceeds `limit_m`, for a
+    /// calibration whose anchor errors are Gaussian with the predicted covariance
+    /// ([`DwellPlan::anchor_cov_m2`], scaled by `scale^2`: e.g. the square root of the ratio of
+    /// the assumed to the achieved tension readings), at the nominal anchors `nominal`.
+    ///
+    /// Monte Carlo with `draws` draws from a fixed generator (deterministic): returns the
+    /// fraction exceeding and its one-sided 99.9 % upper confidence bound
+    /// (`p + 3.1 sqrt(p (1 - p) / draws) + 10 / draws`, conservative where few exceed).
+    pub fn worst_exceeds_probability(&self, nominal: &[[f64; 3]], limit_m: f64, scale: f64, draws: usize) -> (f64, f64) {
+        let n = nominal.len();
+        let k = 3 * n;
+        if self.anchor_cov_m2.len() != k * k || draws == 0 {
+            return (1.0, 1.0);
+        }
+        let cov = DMatrix::from_row_slice(k, k, &self.anchor_cov_m2) * (scale * scale);
+        let eig = cov.symmetric_eigen();
+        // The square root of the covariance (its gauge directions have zero variance).
+        let mut root = eig.eigenvectors.clone();
+        for c in 0..k {
+            let s = eig.eigenvalues[c].max(0.0).sqrt();
+            for r in 0..k {
+                root[(r, c)] *= s;
+            }
+        }
+        let mut rng = SplitMix(0x5eed_7a07);
+        let mut z = DVector::zeros(k);
+        let mut moved = vec![[0.0; 3]; n];
+        let mut over = 0usize;
+        for _ in 0..draws {
+            for i in 0..k {
+                z[i] = rng.normal();
+            }
+            let e = &root * &z;
+            for j in 0..n {
+                moved[j] = std::array::from_fn(|a| nominal[j][a] + e[3 * j + a]);
+            }
+            if super::align::worst_aligned_error(&moved, nominal) > limit_m {
+                over += 1;
+            }
+        }
+        let p = over as f64 / draws as f64;
+        (p, (p + 3.1 * (p * (1.0 - p) / draws as f64).sqrt() + 10.0 / draws as f64).min(1.0))
+    }
+}
+
+/// SplitMix64 with Box–Muller normals: a small deterministic generator for the Monte Carlo.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in (0, 1].
+    fn uniform(&mut self) -> f64 {
+        ((self.next() >> 11) as f64 + 1.0) / (1u64 << 53) as f64
+    }
+
+    fn normal(&mut self) -> f64 {
+        let (u, v) = (self.uniform(), self.uniform());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
 }
 
 /// Top-left block of `[S C^T; C 0]^-1`: the covariance in the frame `C`.
@@ -422,6 +534,7 @@ mod tests {
             length_samples: 300,
             tension_samples: 100,
             tares: 0,
+            tare_each_cable: false,
             poses,
             start: Some([0.0, 0.0, 2.0]),
             grid: [5, 5, 4],
@@ -475,21 +588,76 @@ mod tests {
         let inp =
             PlanInput { length_samples: 1250, tension_samples: 290, min_tension_n: 5.0, grid: [9, 7, 6], ..input(&NOM, &b, &fol, 16) };
         let none = plan(&inp).unwrap();
-        assert!(none.tare.iter().all(|t| !t));
+        assert!(none.tare.iter().all(|&t| t == 0));
         let tared = plan(&PlanInput { tares: 4, ..inp.clone() }).unwrap();
-        assert_eq!(tared.tare.iter().filter(|t| **t).count(), 4);
+        assert_eq!(tared.tare.iter().filter(|&&t| t == 0b1000).count(), 4);
         assert!(
             tared.worst_anchor_sigma_m < 0.85 * none.worst_anchor_sigma_m,
             "{} vs {}",
             tared.worst_anchor_sigma_m,
             none.worst_anchor_sigma_m
         );
-        for (q, _) in tared.poses.iter().zip(&tared.tare).filter(|x| *x.1) {
+        for (q, _) in tared.poses.iter().zip(&tared.tare).filter(|x| *x.1 != 0) {
             // The three position cables hold the platform alone, within the tension bounds.
             let t = static_tensions(&NOM, &b, &fol, 0.0, 3.0, *q).unwrap();
             assert!(t[..3].iter().all(|&x| (10.0..=250.0).contains(&x)), "{q:?}: {t:?}");
             assert_eq!(t[3], 0.0);
         }
+    }
+
+    #[test]
+    fn tares_through_every_cable_hold_the_platform_with_three_others_and_lower_the_bound() {
+        let b = [[0.0; 3]; 4];
+        let fol = [false, false, false, true];
+        let inp = PlanInput {
+            length_samples: 1250,
+            tension_samples: 320,
+            min_tension_n: 5.0,
+            grid: [9, 7, 6],
+            tares: 6,
+            ..input(&NOM, &b, &fol, 16)
+        };
+        let followers_only = plan(&inp).unwrap();
+        let each = plan(&PlanInput { tare_each_cable: true, ..inp.clone() }).unwrap();
+        assert!(
+            each.worst_anchor_sigma_m < 0.95 * followers_only.worst_anchor_sigma_m,
+            "{} vs {}",
+            each.worst_anchor_sigma_m,
+            followers_only.worst_anchor_sigma_m
+        );
+        let masks: Vec<u8> = each.tare.iter().copied().filter(|&m| m != 0).collect();
+        assert!(masks.len() >= 4, "{masks:?}");
+        assert!(masks.iter().any(|&m| m != 0b1000), "a position cable is tared: {masks:?}");
+        for (q, &m) in each.poses.iter().zip(&each.tare).filter(|x| *x.1 != 0) {
+            // One cable slack, the three others hold the platform within the tension bounds.
+            assert_eq!(m.count_ones(), 1, "{m:#b}");
+            let slack: Vec<bool> = (0..4).map(|j| m & (1 << j) != 0).collect();
+            let t = static_tensions(&NOM, &b, &slack, 0.0, 3.0, *q).unwrap();
+            for j in 0..4 {
+                if slack[j] {
+                    assert_eq!(t[j], 0.0);
+                } else {
+                    assert!((10.0..=250.0).contains(&t[j]), "{q:?} with {m:#b} slack: {t:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_probability_of_exceeding_matches_a_case_worked_by_hand() {
+        // Only anchor 0's height uncertain (sigma 1 mm): the alignment's vertical translation
+        // takes a quarter of its error off it (and puts a quarter on each other anchor), so the
+        // worst aligned error is 0.75 |e|: P(worst > 0.75 x 2.5 mm) = 2 Phi(-2.5) = 0.012419.
+        let mut p = plan(&input(&NOM, &[[0.0; 3]; 4], &[false, false, false, true], 10)).unwrap();
+        p.anchor_cov_m2 = vec![0.0; 144];
+        p.anchor_cov_m2[2 * 12 + 2] = 1e-6;
+        let (pr, up) = p.worst_exceeds_probability(&NOM, 0.75 * 2.5e-3, 1.0, 1_000_000);
+        // Deterministic draws; 5 standard errors of the estimate.
+        assert!((pr - 0.012419).abs() < 5.0 * (0.012419f64 * 0.987581 / 1e6).sqrt(), "{pr}");
+        assert!(up > pr && up < pr + 1e-3);
+        // Twice the sigma: far more often.
+        let (p2, _) = p.worst_exceeds_probability(&NOM, 0.75 * 2.5e-3, 2.0, 100_000);
+        assert!(p2 > 0.2, "{p2}");
     }
 
     #[test]
