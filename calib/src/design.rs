@@ -219,12 +219,18 @@ fn worst(info: &DMatrix<f64>, n: usize) -> f64 {
 /// `1 - used_fraction` of each of `blocks` consecutive blocks is held out (the daemon's
 /// `calibrator::HeldoutBlocks`, kept equal to this by a test in taut-rt-core).
 pub fn training_rows(rows: usize, used_fraction: f64, blocks: usize) -> impl Iterator<Item = usize> {
+    let held = 1.0 - used_fraction;
+    (0..blocks.max(1)).flat_map(move |b| heldout_block(rows, held, blocks, b).0)
+}
+
+/// Block `b` of `blocks` consecutive blocks over `rows` rows, the last `held_fraction` of it
+/// held out: its training rows, then its held-out rows. The daemon's split
+/// (`taut_rt_core::calibrator::HeldoutBlocks`) and [`training_rows`] are both this.
+pub fn heldout_block(rows: usize, held_fraction: f64, blocks: usize, b: usize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
     let blocks = blocks.max(1);
-    let held = (1.0 - used_fraction).clamp(0.0, 1.0);
-    (0..blocks).flat_map(move |b| {
-        let (start, end) = (b * rows / blocks, (b + 1) * rows / blocks);
-        start..end - (((end - start) as f64) * held).round() as usize
-    })
+    let (start, end) = (b * rows / blocks, (b + 1) * rows / blocks);
+    let held_start = end - (((end - start) as f64) * held_fraction.clamp(0.0, 1.0)).round() as usize;
+    (start..held_start, held_start..end)
 }
 
 /// Predicted uncertainty of the calibration from an excitation `path(t)`, `t` in `[0, duration_s)`:

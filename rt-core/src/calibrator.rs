@@ -404,13 +404,13 @@ impl HeldoutBlocks {
     }
 
     fn segment(&self, b: usize) -> std::ops::Range<usize> {
-        b * self.rows / Self::BLOCKS..(b + 1) * self.rows / Self::BLOCKS
+        let (train, held) = taut_calib::design::heldout_block(self.rows, self.fraction, Self::BLOCKS, b);
+        train.start..held.end
     }
 
-    /// First held-out row of segment `b`.
+    /// First held-out row of segment `b` (the excitation design counts the same rows).
     fn held_start(&self, b: usize) -> usize {
-        let s = self.segment(b);
-        s.end - ((s.len() as f64) * self.fraction).round() as usize
+        taut_calib::design::heldout_block(self.rows, self.fraction, Self::BLOCKS, b).1.start
     }
 
     /// The training rows, as ranges in time order.
