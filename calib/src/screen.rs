@@ -250,7 +250,7 @@ impl Screen {
 
 /// Upper tail of the standard normal, `P(Z > x)`, for `x >= 0` (relative error < 1.2e-7:
 /// Numerical Recipes' Chebyshev fit of erfc).
-fn normal_sf(x: f64) -> f64 {
+pub fn normal_sf(x: f64) -> f64 {
     let z = x / std::f64::consts::SQRT_2;
     let t = 1.0 / (1.0 + 0.5 * z);
     let p = -z * z - 1.26551223

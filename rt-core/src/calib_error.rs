@@ -202,6 +202,8 @@ pub enum Rejection {
         old_m: f64,
         /// The tolerance it exceeds (`daemon.heldout_tolerance_m`), m.
         tolerance_m: f64,
+        /// Held-out rows left out of both as tracker outliers.
+        outliers: usize,
     },
     /// With a tracker: no held-out row with a pose and taut cables.
     NoUsableHeldout,
@@ -253,10 +255,10 @@ impl fmt::Display for Rejection {
             Rejection::NotObservable { note } => write!(f, "observability: {note}"),
             Rejection::SigmaTooLarge { worst_m, max_m } => write!(f, "1-sigma up to {worst_m:.4} m, above daemon.max_sigma_m = {max_m} m"),
             Rejection::NoHeldout => f.write_str("no held-out data"),
-            Rejection::HeldoutWorse { new_m, old_m, tolerance_m } => write!(
+            Rejection::HeldoutWorse { new_m, old_m, tolerance_m, outliers } => write!(
                 f,
                 "held-out co-registration RMS {:.2} mm is higher than the running parameters' {:.2} mm by more than {:.2} mm \
-                 (daemon.heldout_tolerance_m) at 99.9 % confidence",
+                 (daemon.heldout_tolerance_m) at 99.9 % confidence ({outliers} held-out rows left out as tracker outliers)",
                 new_m * 1e3,
                 old_m * 1e3,
                 tolerance_m * 1e3

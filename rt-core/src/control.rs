@@ -67,6 +67,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
                 "samples": o.samples,
                 "heldout_rms_new_m": finite(o.heldout_rms_new_m),
                 "heldout_rms_old_m": finite(o.heldout_rms_old_m),
+                "heldout_outliers": o.heldout_outliers,
                 "data_problems": o.data_problems,
             })
         })

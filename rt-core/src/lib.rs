@@ -46,6 +46,7 @@ pub mod daemon;
 #[cfg(test)]
 mod dwell_tare_tests;
 pub mod excite;
+pub mod heldout;
 #[cfg(test)]
 mod motion_tests;
 pub mod notracker;

@@ -77,6 +77,10 @@ struct Run {
     heldout_rms_m: f64,
     /// Held-out RMS of the initial estimate on the same rows.
     heldout_initial_m: f64,
+    /// Held-out rows left out as tracker outliers, of all held-out rows.
+    heldout_outliers: usize,
+    /// Held-out RMS of the published set and the initial estimate with the outliers kept.
+    heldout_with_outliers_m: [f64; 2],
     anchor_err_max_m: f64,
     reached_rms_m: f64,
     reached_max_m: f64,
@@ -196,6 +200,8 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
     let r = Run {
         heldout_rms_m: cal.heldout_rms_new_m,
         heldout_initial_m: cal.heldout_rms_old_m,
+        heldout_outliers: cal.heldout_outliers,
+        heldout_with_outliers_m: cal.heldout_rms_with_outliers_m,
         anchor_err_max_m,
         reached_rms_m,
         reached_max_m: errs.iter().copied().fold(0.0, f64::max),
@@ -204,11 +210,14 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
         file_effects: current.effects.names(),
     };
     eprintln!(
-        "E2E-EFFECTS seed {seed} model {:<26} held-out RMS {:.2} mm (initial estimate {:.2} mm), max anchor error {:.1} mm, \
-         reached RMS {:.2} mm max {:.2} mm; {}; {:?}",
+        "E2E-EFFECTS seed {seed} model {:<26} held-out RMS {:.2} mm (initial estimate {:.2} mm; {} rows left out as tracker \
+         outliers, with them {:.2} / {:.2} mm), max anchor error {:.1} mm, reached RMS {:.2} mm max {:.2} mm; {}; {:?}",
         if effects.is_empty() { "ideal".to_string() } else { effects.join("+") },
         r.heldout_rms_m * 1e3,
         r.heldout_initial_m * 1e3,
+        r.heldout_outliers,
+        r.heldout_with_outliers_m[0] * 1e3,
+        r.heldout_with_outliers_m[1] * 1e3,
         r.anchor_err_max_m * 1e3,
         r.reached_rms_m * 1e3,
         r.reached_max_m * 1e3,
@@ -352,7 +361,16 @@ fn offline_fit_of_a_kept_start_up_recording() {
     let cfg = robot(dir.path(), &m);
     let so = SimOptions { seed, physics: concealed(cfg.cables.len()), ..Default::default() };
     let truth = taut_sim::Truth::sample(&cfg, &so.physics, so.site_error_m, so.l0_range_m, &mut taut_sim::rng(seed, 0)).unwrap();
-    let exc = rec.slice(e0..e1);
+    // The daemon's rows: one per fresh tracker pose (the CSV repeats a pose until the next one
+    // arrives), every `calib_decimation`-th; the lengths are the loop's at that sample, not
+    // interpolated at the pose's instant as the daemon does (a few tenths of a mm at speed).
+    let fresh: Vec<std::ops::Range<usize>> = (e0..e1)
+        .filter(|&i| i == 0 || rec.p[i] != rec.p[i - 1])
+        .filter(|&i| rec.p[i].iter().all(|x| x.is_finite()))
+        .step_by(cfg.daemon.calib_decimation.max(1))
+        .map(|i| i..i + 1)
+        .collect();
+    let exc = rec.gather(&fresh);
     let (train, held) = HeldoutBlocks::new(exc.len(), cfg.calibration.heldout_fraction).split(&exc);
     let platform = cfg.platform_points();
     let heldout = |g: &taut_calib::Geometry, e: &taut_config::params::Effects| {
@@ -375,6 +393,17 @@ fn offline_fit_of_a_kept_start_up_recording() {
     );
     let t = TruthCalib::new(&truth, &so.physics).0;
     eprintln!("OFFLINE truth: held out {:.2} mm", heldout(&t.geometry, &t.effects) * 1e3);
+    // The held-out rows' tracker outliers (the daemon's rule), the fitted set against the truth.
+    let lp = |g: &taut_calib::Geometry, e: &taut_config::params::Effects| {
+        LoopParams::from_geometry(1, g, &platform).unwrap().with_effects(LoopEffects::from_file(e))
+    };
+    let cmp = taut_rt_core::heldout::HeldoutComparison::new(
+        &lp(&est.geometry, &est.effects),
+        &lp(&t.geometry, &t.effects),
+        &held,
+        cfg.calibration.min_tension_n,
+    );
+    eprintln!("OFFLINE held-out outliers (fitted vs truth, threshold {:.1} sigma): {:?}", cmp.threshold_sigma, cmp.rms());
     let c = &cfg.calibration;
     for iters in [80, 400] {
         let o =
