@@ -107,6 +107,9 @@ pub struct Outcome {
     /// Held-out rows left out of both RMS values and the test as tracker outliers
     /// ([`crate::heldout`]).
     pub heldout_outliers: usize,
+    /// Held-out rows with a pose and a taut cable, outliers included (0 without a check, and
+    /// for the held-out dwells without a tracker).
+    pub heldout_rows: usize,
     /// Held-out RMS of the new and the running set with the outliers kept, m (what the check
     /// reported before it left them out; NaN without a held-out check).
     pub heldout_rms_with_outliers_m: [f64; 2],
@@ -967,6 +970,7 @@ impl Calibrator {
             heldout_rms_new_m: rms.new_m,
             heldout_rms_old_m: rms.old_m,
             heldout_outliers: rms.outliers,
+            heldout_rows: rms.rows,
             heldout_rms_with_outliers_m: [rms.new_all_m, rms.old_all_m],
             samples,
             data_problems: vec![],
@@ -988,6 +992,7 @@ impl Calibrator {
             heldout_rms_new_m: f64::NAN,
             heldout_rms_old_m: f64::NAN,
             heldout_outliers: 0,
+            heldout_rows: 0,
             heldout_rms_with_outliers_m: [f64::NAN; 2],
             samples,
             data_problems: vec![],
@@ -1104,6 +1109,7 @@ pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recor
         heldout_rms_new_m: rms.new_m,
         heldout_rms_old_m: rms.old_m,
         heldout_outliers: rms.outliers,
+        heldout_rows: rms.rows,
         heldout_rms_with_outliers_m: [rms.new_all_m, rms.old_all_m],
         samples: r.samples,
         data_problems: r.data_problems,

@@ -77,8 +77,12 @@ struct Run {
     heldout_rms_m: f64,
     /// Held-out RMS of the initial estimate on the same rows.
     heldout_initial_m: f64,
-    /// Held-out rows left out as tracker outliers, of all held-out rows.
+    /// Held-out rows left out as tracker outliers, of `heldout_rows`.
     heldout_outliers: usize,
+    /// Held-out rows with a pose and a taut cable.
+    heldout_rows: usize,
+    /// Rows the calibration was fitted to (the data set less the held-out rows).
+    training_rows: usize,
     /// Held-out RMS of the published set and the initial estimate with the outliers kept.
     heldout_with_outliers_m: [f64; 2],
     anchor_err_max_m: f64,
@@ -201,6 +205,8 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
         heldout_rms_m: cal.heldout_rms_new_m,
         heldout_initial_m: cal.heldout_rms_old_m,
         heldout_outliers: cal.heldout_outliers,
+        heldout_rows: cal.heldout_rows,
+        training_rows: cal.samples - cal.heldout_rows,
         heldout_with_outliers_m: cal.heldout_rms_with_outliers_m,
         anchor_err_max_m,
         reached_rms_m,
@@ -210,12 +216,13 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
         file_effects: current.effects.names(),
     };
     eprintln!(
-        "E2E-EFFECTS seed {seed} model {:<26} held-out RMS {:.2} mm (initial estimate {:.2} mm; {} rows left out as tracker \
-         outliers, with them {:.2} / {:.2} mm), max anchor error {:.1} mm, reached RMS {:.2} mm max {:.2} mm; {}; {:?}",
+        "E2E-EFFECTS seed {seed} model {:<26} held-out RMS {:.2} mm (initial estimate {:.2} mm; {} of {} rows left out as \
+         tracker outliers, with them {:.2} / {:.2} mm), max anchor error {:.1} mm, reached RMS {:.2} mm max {:.2} mm; {}; {:?}",
         if effects.is_empty() { "ideal".to_string() } else { effects.join("+") },
         r.heldout_rms_m * 1e3,
         r.heldout_initial_m * 1e3,
         r.heldout_outliers,
+        r.heldout_rows,
         r.heldout_with_outliers_m[0] * 1e3,
         r.heldout_with_outliers_m[1] * 1e3,
         r.anchor_err_max_m * 1e3,
@@ -287,50 +294,85 @@ fn modelled() -> Vec<String> {
     list.split(',').map(|s| s.trim().to_string()).collect()
 }
 
-/// What works today: the effect model is fitted at start-up, published as a v2 file with the
-/// effects, runs in the loop, and fits the held-out rows better than the ideal model.
+/// Upper bound of the held-out RMS of a model at the noise floor, m, and the floor itself.
+///
+/// At the floor a held-out residual is the tracker's noise along the cable plus the encoder's:
+/// `sigma_f^2 = sigma_t^2 + sigma_e^2` (1.5008 mm; the drum scale and stretch change the
+/// gradient's length by < 0.3 %). Per row the squared residuals sum to `delta^T G^T G delta`
+/// (one 3-D tracker error seen by `k` cables): a weighted sum of chi-square(1) with weights
+/// summing to `k sigma_f^2`, which has at least one degree of freedom (all cables parallel is
+/// the worst case). So over `N` held-out rows the mean square is at most as spread as
+/// `sigma_f^2 chi^2(N) / N`; its upper quantile at `z` (Wilson-Hilferty) bounds it with
+/// probability `1 - Phi(z)` for a model at the floor. Fitting `p` parameters to `n` training
+/// rows (3 tracker degrees of freedom each) raises the expected held-out mean square by
+/// `p / 3n` (~0.4 % here), added.
+fn floor_bound(heldout_rows: usize, training_rows: usize, parameters: usize, z: f64) -> (f64, f64) {
+    let noise = taut_sim::Noise::default();
+    let floor = (noise.tracker_sigma_m.powi(2) + noise.encoder_sigma_m.powi(2)).sqrt();
+    let n = heldout_rows.max(1);
+    let ms = taut_calib::selfcal::chi2_quantile(n, z) / n as f64 + parameters as f64 / (3.0 * training_rows.max(1) as f64);
+    (floor * ms.sqrt(), floor)
+}
+
+/// The acceptance of issue 14 item 3: the effect model is fitted at start-up, published as a
+/// v2 file with the effects and runs in the loop; its held-out RMS reaches the noise floor, the
+/// ideal model's does not, and the platform reaches the commanded poses at least twice as well
+/// as with the ideal model (see BENCHMARKS.md). It needs the followers' tension from the statics
+/// (a slack cable put one pose 35 mm off with any parameters), the excitation's tension swing
+/// (stretch told from scale) and a held-out check robust to tracker outliers (the simulator's
+/// 0.2 % of ~5 cm: two in seed 3's held-out rows took the model from 1.55 to 2.06 mm; the
+/// daemon now leaves them out, `taut_rt_core::heldout`).
+///
+/// The floor bound (`floor_bound`) at z = 3.72: a model truly at the floor fails it with
+/// probability 1e-4 per seed (the run's one random assertion that is near its bound; the
+/// others have margins of 2-20x, docs/test-robustness.md). The ideal model must be above the
+/// same bound: not at the floor, by a statistical test at the same level.
 #[test]
-fn start_up_fits_and_publishes_the_effect_model_and_beats_the_ideal_model_held_out() {
+fn start_up_with_the_effect_model_reaches_the_noise_floor_and_the_commanded_poses() {
     let m = modelled();
     let m: Vec<&str> = m.iter().map(String::as_str).collect();
+    // Anchors and offsets (16), EA and drum scale per cable, one pulley radius.
+    let count =
+        |e: &[&str]| 16 + 4 * e.iter().filter(|x| **x == "elasticity" || **x == "scale").count() + usize::from(e.contains(&"pulley"));
+    const Z: f64 = 3.72;
     for seed in seeds() {
         let model = run(seed, &m);
         let ideal = run(seed, &[]);
         assert_eq!(model.file_effects, ["elasticity", "scale", "pulley"].iter().filter(|e| m.contains(e)).copied().collect::<Vec<_>>());
         assert!(ideal.file_effects.is_empty());
+        let (bound, floor) = floor_bound(model.heldout_rows, model.training_rows, count(&m), Z);
+        let (ideal_bound, _) = floor_bound(ideal.heldout_rows, ideal.training_rows, count(&[]), Z);
+        eprintln!(
+            "E2E-EFFECTS seed {seed}: floor {:.3} mm; effect model {:.3} mm against its bound {:.3} mm ({} held-out rows, {} outliers); \
+             ideal {:.3} mm against {:.3} mm ({} rows, {} outliers)",
+            floor * 1e3,
+            model.heldout_rms_m * 1e3,
+            bound * 1e3,
+            model.heldout_rows,
+            model.heldout_outliers,
+            ideal.heldout_rms_m * 1e3,
+            ideal_bound * 1e3,
+            ideal.heldout_rows,
+            ideal.heldout_outliers
+        );
+        assert!(
+            model.heldout_rms_m < bound,
+            "seed {seed}: effect model held out {:.2} mm, above the floor's bound {:.2} mm (floor {:.2} mm)",
+            model.heldout_rms_m * 1e3,
+            bound * 1e3,
+            floor * 1e3
+        );
+        assert!(
+            ideal.heldout_rms_m > ideal_bound,
+            "seed {seed}: ideal model held out {:.2} mm, within the floor's bound {:.2} mm",
+            ideal.heldout_rms_m * 1e3,
+            ideal_bound * 1e3
+        );
         assert!(
             model.heldout_rms_m < ideal.heldout_rms_m,
             "seed {seed}: held out {:.2} mm with the model, {:.2} mm without",
             model.heldout_rms_m * 1e3,
             ideal.heldout_rms_m * 1e3
-        );
-    }
-}
-
-/// The acceptance of issue 14 item 3: with the model the held-out RMS reaches the noise floor
-/// and the platform reaches the commanded poses at least twice as well as with the ideal model
-/// (seed 3: held-out 1.66 mm against a 1.50 mm floor, reached RMS 0.40 mm against 8.70 mm; see
-/// BENCHMARKS.md). It needs the followers' tension from the statics (a slack cable put one pose
-/// 35 mm off with any parameters) and the excitation's tension swing (stretch told from scale).
-#[test]
-#[ignore = "fails since session 13 (held-out rows spread over the path): seed 3's held-out set now holds tracker outliers (0.2 % of ~5 cm in the simulator, kept by the held-out RMS): effect model 2.06 mm against the 1.73 mm bound, ideal model 3.2 mm against its 3.0 mm; reached RMS 0.44-0.51 mm vs 7.7 mm ideal still met. Needs a held-out criterion robust to tracker outliers (issue 14, open)"]
-fn start_up_with_the_effect_model_reaches_the_noise_floor_and_the_commanded_poses() {
-    let m = modelled();
-    let m: Vec<&str> = m.iter().map(String::as_str).collect();
-    let noise = taut_sim::Noise::default();
-    // The floor of the co-registration RMS: tracker noise along the cable and encoder noise.
-    let floor = (noise.tracker_sigma_m.powi(2) + noise.encoder_sigma_m.powi(2)).sqrt();
-    for seed in seeds() {
-        let model = run(seed, &m);
-        let ideal = run(seed, &[]);
-        assert!(ideal.heldout_rms_m > 2.0 * floor, "seed {seed}: ideal model held out {:.2} mm", ideal.heldout_rms_m * 1e3);
-        // Thousands of held-out readings put the RMS's own sampling error at 1-2 %; the 15 %
-        // allows for the tracker's outliers, which the held-out RMS keeps.
-        assert!(
-            model.heldout_rms_m < 1.15 * floor,
-            "seed {seed}: effect model held out {:.2} mm, floor {:.2} mm",
-            model.heldout_rms_m * 1e3,
-            floor * 1e3
         );
         assert!(
             model.reached_rms_m < 0.5 * ideal.reached_rms_m,
