@@ -42,6 +42,10 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
         // `daemon.max_sigma_m` of 30 mm. This run is the comparison (what the ideal model
         // does in the loop): publish it anyway.
         cfg.daemon.max_sigma_m = 0.2;
+        // For the same reason its anchors may move far from the initial estimate along the
+        // scale/offset/anchor trade-off of coplanar anchors: on seed 4 one moved 0.543 m,
+        // beyond `daemon.max_anchor_change_m` (0.5 m), and the comparison run was refused.
+        cfg.daemon.max_anchor_change_m = 1.0;
     }
     // Generous device timeouts: the test shares two cores with builds (load 8-12), and a
     // start-up that stops on a late load-cell reading or heartbeat measures nothing here.
