@@ -33,7 +33,9 @@
 //!
 //! a Bonferroni bound: on a held-out set without outliers, under Gaussian tracker noise, the
 //! chance that any row is excluded is at most 1e-3 (per-row threshold for 600 rows: `z_i^2 >
-//! 32`, a 5.7-sigma displacement, 8.5 mm for 1.5 mm noise; a 5 cm outlier is 33 sigma).
+//! 29.6`, a 5.4-sigma displacement, 6.2 sigma with the widened scale: 9 mm for 1.5 mm noise; a
+//! 5 cm outlier is 33 sigma). Rows whose taut cables do not fix a displacement (nearly
+//! coplanar directions) are kept untested.
 //!
 //! Because the scale is the set's own, a parameter set with millimetres of systematic error
 //! has a larger scale and flags only what stands out from its own misfit. The rows are flagged
