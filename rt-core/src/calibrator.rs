@@ -1524,8 +1524,8 @@ mod tests {
             for _ in 0..2 {
                 let i = (rng.uniform() * rec.len() as f64) as usize % rec.len();
                 let u = rng.unit_vector();
-                for k in 0..3 {
-                    rec.p[i][k] += 0.05 * u[k];
+                for (x, uk) in rec.p[i].iter_mut().zip(u) {
+                    *x += 0.05 * uk;
                 }
             }
             let equal = Tour::estimate(&mut rng, 0.2e-3);

@@ -140,11 +140,11 @@ fn displacement(r: &RowFit) -> Option<[f64; 3]> {
     }
     let mut a = [[0.0; 3]; 3];
     let mut b = [0.0; 3];
-    for i in 0..r.k {
-        for u in 0..3 {
-            b[u] += r.g[i][u] * r.e[i];
-            for v in 0..3 {
-                a[u][v] += r.g[i][u] * r.g[i][v];
+    for (g, e) in r.g[..r.k].iter().zip(&r.e[..r.k]) {
+        for (u, (row, bu)) in a.iter_mut().zip(&mut b).enumerate() {
+            *bu += g[u] * e;
+            for (x, gv) in row.iter_mut().zip(g) {
+                *x += g[u] * gv;
             }
         }
     }
@@ -160,7 +160,9 @@ fn inverse3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     let det = a[0][0] * c(0, 0) + a[0][1] * c(0, 1) + a[0][2] * c(0, 2);
     let tr = a[0][0] + a[1][1] + a[2][2];
     // Conditioning relative to the cables' own scale (unit gradients: trace ~ cables).
-    if !(det.abs() > 1e-9 * (tr / 3.0).powi(3)) {
+    // (Also refuses NaN.)
+    let conditioned = det.abs() > 1e-9 * (tr / 3.0).powi(3);
+    if !conditioned {
         return None;
     }
     Some(std::array::from_fn(|i| std::array::from_fn(|j| c(j, i) / det)))
@@ -204,7 +206,8 @@ fn statistic(r: &RowFit, m: &[f64; 3], s: &[f64; 3]) -> Option<(f64, usize)> {
         2 => {
             let (a, b, d) = (w(0, 0), w(0, 1), w(1, 1));
             let det = a * d - b * b;
-            if !(det > 1e-12 * a * d) {
+            let independent = det > 1e-12 * a * d;
+            if !independent {
                 return None;
             }
             let (x, y) = (res(0), res(1));
@@ -353,8 +356,8 @@ mod tests {
             let mut m: [f64; 3] = std::array::from_fn(|a| p[a] + 1.5e-3 * rng.normal());
             if bad.contains(&i) {
                 let (u, mag) = (rng.unit_vector(), 0.05 * (0.9 + 0.2 * rng.uniform()));
-                for a in 0..3 {
-                    m[a] += mag * u[a];
+                for (x, ua) in m.iter_mut().zip(u) {
+                    *x += mag * ua;
                 }
             }
             rec.push(i as f64 * 0.01, m, None, &l, None, None);

@@ -464,7 +464,12 @@ fn offline_fit_of_a_kept_start_up_recording() {
         &screened,
         cfg.calibration.min_tension_n,
     );
-    eprintln!("OFFLINE screen: {} findings {:?}; then {:?}", sc.findings.len(), sc.findings.iter().map(|w| w.to_string()).collect::<Vec<_>>(), cmp.rms());
+    eprintln!(
+        "OFFLINE screen: {} findings {:?}; then {:?}",
+        sc.findings.len(),
+        sc.findings.iter().map(|w| w.to_string()).collect::<Vec<_>>(),
+        cmp.rms()
+    );
     let c = &cfg.calibration;
     for iters in [80, 400] {
         let o =
