@@ -705,8 +705,8 @@ impl<R: CanTransport> Site<R> {
             self.step_plant(at);
             return;
         }
-        // A tick stepped the plant past the SYNC before it was read: the state at `at` between
-        // the last two steps (the drums move linearly between targets, see `Ramp`).
+        // A tick stepped the plant past the SYNC before it was read: the encoders at `at`,
+        // linearly between the last two steps.
         let Some((tp, enc_p, tq_p)) = self.prev_step else { return };
         let span = self.last_step.saturating_duration_since(tp).as_secs_f64();
         let s = if span > 0.0 { (at.saturating_duration_since(tp).as_secs_f64() / span).clamp(0.0, 1.0) } else { 1.0 };
