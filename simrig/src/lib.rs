@@ -75,6 +75,8 @@ pub struct SimRobot {
     /// Where the platform really is (the plant's position, for tests and summaries; the
     /// daemon never sees it).
     pub platform: PlatformTruth,
+    /// How late the site thread handled the SYNCs (for tests and measurements).
+    pub sync_stats: Arc<SyncStats>,
 }
 
 /// The plant's platform position, published by the site thread after every step.
@@ -94,6 +96,105 @@ impl PlatformTruth {
     pub fn position(&self) -> [f64; 3] {
         // Relaxed: see `set`.
         std::array::from_fn(|i| f64::from_bits(self.0[i].load(Ordering::Relaxed)))
+    }
+}
+
+/// How long after a SYNC was on the bus the site thread handled it: the wake-up latency of a
+/// thread on the robot's computer, which a real drive (its own processor, sampling at the SYNC
+/// on the wire) does not have. The drives latch at the SYNC's bus instant whatever it is;
+/// these counters show what that instant saves. Upper bucket bounds in
+/// [`SyncStats::BOUNDS_US`]; the last bucket counts the rest.
+#[derive(Debug, Default)]
+pub struct SyncStats {
+    buckets: [AtomicU64; 8],
+    max_ns: AtomicU64,
+    sum_ns: AtomicU64,
+    /// Tracker poses sent, and the time from the instant they describe to their sending (the
+    /// physics step and the formatting): the smallest of these is a fixed transit the receiver
+    /// cannot see, which shifts its `measured` instants later by that much.
+    poses: AtomicU64,
+    pose_delay_sum_ns: AtomicU64,
+    pose_delay_min_ns: AtomicU64,
+    /// SYNCs handled later than one SYNC period after they were on the bus (their TPDOs may
+    /// reach the master after the next SYNC, which then stamps them with that SYNC's time).
+    overrun: AtomicU64,
+}
+
+impl SyncStats {
+    /// Upper bounds of the latency buckets, µs.
+    pub const BOUNDS_US: [u64; 7] = [50, 100, 250, 500, 1000, 2000, 5000];
+
+    fn record(&self, latency: Duration, overrun: bool) {
+        let us = latency.as_micros() as u64;
+        let k = Self::BOUNDS_US.iter().position(|&b| us < b).unwrap_or(Self::BOUNDS_US.len());
+        // Relaxed: counters for people and tests, read after the fact.
+        self.buckets[k].fetch_add(1, Ordering::Relaxed);
+        let ns = latency.as_nanos() as u64;
+        self.sum_ns.fetch_add(ns, Ordering::Relaxed);
+        self.max_ns.fetch_max(ns, Ordering::Relaxed);
+        if overrun {
+            self.overrun.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn record_pose(&self, delay: Duration) {
+        let ns = delay.as_nanos() as u64;
+        // Relaxed: see `record`. The minimum starts at 0 = "none yet".
+        let n = self.poses.fetch_add(1, Ordering::Relaxed);
+        self.pose_delay_sum_ns.fetch_add(ns, Ordering::Relaxed);
+        if n == 0 {
+            self.pose_delay_min_ns.store(ns, Ordering::Relaxed);
+        } else {
+            self.pose_delay_min_ns.fetch_min(ns, Ordering::Relaxed);
+        }
+    }
+
+    /// Tracker poses sent, the mean and the smallest delay from their instant to their sending, s.
+    pub fn pose_delay_s(&self) -> (u64, f64, f64) {
+        let n = self.poses.load(Ordering::Relaxed);
+        let mean = self.pose_delay_sum_ns.load(Ordering::Relaxed) as f64 * 1e-9 / n.max(1) as f64;
+        (n, mean, self.pose_delay_min_ns.load(Ordering::Relaxed) as f64 * 1e-9)
+    }
+
+    /// SYNCs handled.
+    pub fn count(&self) -> u64 {
+        self.buckets.iter().map(|b| b.load(Ordering::Relaxed)).sum()
+    }
+
+    /// Counts per bucket (see [`SyncStats::BOUNDS_US`]).
+    pub fn buckets(&self) -> [u64; 8] {
+        std::array::from_fn(|k| self.buckets[k].load(Ordering::Relaxed))
+    }
+
+    /// Mean and largest latency, s.
+    pub fn mean_max_s(&self) -> (f64, f64) {
+        let n = self.count().max(1) as f64;
+        (self.sum_ns.load(Ordering::Relaxed) as f64 * 1e-9 / n, self.max_ns.load(Ordering::Relaxed) as f64 * 1e-9)
+    }
+
+    /// SYNCs handled only after the next SYNC was on the bus.
+    pub fn overruns(&self) -> u64 {
+        self.overrun.load(Ordering::Relaxed)
+    }
+}
+
+impl std::fmt::Display for SyncStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (mean, max) = self.mean_max_s();
+        write!(f, "{} SYNCs handled {:.3} ms (mean) / {:.3} ms (max) after the bus instant; <", self.count(), mean * 1e3, max * 1e3)?;
+        let b = self.buckets();
+        for (k, us) in Self::BOUNDS_US.iter().enumerate() {
+            write!(f, " {us}us:{}", b[k])?;
+        }
+        let (n, mean, min) = self.pose_delay_s();
+        write!(
+            f,
+            " more:{}; overruns {}; {n} poses sent {:.3} ms (mean) / {:.3} ms (min) after their instant",
+            b[7],
+            self.overruns(),
+            mean * 1e3,
+            min * 1e3
+        )
     }
 }
 
@@ -368,8 +469,18 @@ where
     let stop = Arc::new(AtomicBool::new(false));
     let platform = PlatformTruth::default();
     platform.set(plant.position());
+    let sync_stats = Arc::new(SyncStats::default());
+    let now = Instant::now();
     let mut site = Site {
         platform: platform.clone(),
+        ramps: brake.iter().map(|&d| Ramp { from: d, to: d, target: None, start: now, dur_s: 0.0 }).collect(),
+        last_step: now,
+        prev_step: None,
+        last_enc: [0.0; MAX_CABLES],
+        last_tq: [0; MAX_CABLES],
+        last_sync: None,
+        sync_period_s: None,
+        sync_stats: sync_stats.clone(),
         rack: DriveRack::new(rack_bus, drives),
         plant,
         units,
@@ -403,7 +514,7 @@ where
         Peripherals { loadcells: Some(loadcells), tracker: None, pose: None }
     };
     let devices = RobotDevices::bring_up(cfg, master_bus, peripherals).map_err(BuildError::BringUp)?;
-    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform })
+    Ok(SimRobot { truth, faults, devices: Box::new(SimDevices { devices, _site: site }), tracker_stats, can: None, platform, sync_stats })
 }
 
 /// `SCHED_FIFO` priority of the virtual load cells' server thread: above the robot's load-cell
@@ -488,6 +599,20 @@ struct Site<R: CanTransport> {
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
     platform: PlatformTruth,
+    /// Per cable: the drum's motion from its last target to the new one (cyclic synchronous
+    /// position).
+    ramps: Vec<Ramp>,
+    /// When the plant was last stepped to, and the encoder counts and torques there.
+    last_step: Instant,
+    /// The step before: (instant, encoder counts, torques), to latch at an instant between.
+    prev_step: Option<(Instant, [f64; MAX_CABLES], [i16; MAX_CABLES])>,
+    /// Encoder counts (unrounded) and torques at `last_step`.
+    last_enc: [f64; MAX_CABLES],
+    last_tq: [i16; MAX_CABLES],
+    /// Bus instant of the last SYNC, and the interval before it, s.
+    last_sync: Option<Instant>,
+    sync_period_s: Option<f64>,
+    sync_stats: Arc<SyncStats>,
     stop: Arc<AtomicBool>,
     period: Duration,
     silenced: bool,
@@ -502,27 +627,20 @@ impl<R: CanTransport> Site<R> {
     fn run(&mut self) {
         let t0 = Instant::now();
         let mut next = t0;
-        let mut last = t0;
+        self.last_step = t0;
         let mut next_pose = 0.0;
         // Relaxed: the flag carries no data.
         while !self.stop.load(Ordering::Relaxed) {
-            // Frames as they come (SDO answers and TPDOs without waiting for the tick)...
+            // Frames as they come (SDO answers and TPDOs without waiting for the tick), every
+            // one of them here: `DriveRack::step` would drain the rest of a burst (the master's
+            // RPDOs and SYNC come together) without the SYNC's latch. Measured before: 74 of
+            // ~25,000 SYNCs in a start-up reached the latch, the others latched the plant as of
+            // the last tick.
             let mut sync = false;
-            if let Ok(Some(f)) = self.rack.transport().recv_deadline(next) {
-                let now = Instant::now();
-                if f.std_id() == Some(0x080) {
-                    // A SYNC: the drives latch their actual values now, so the physics is
-                    // brought up to now first (as a real drive samples its encoder at SYNC).
-                    sync = true;
-                    let dt = now.saturating_duration_since(last).as_secs_f64();
-                    if dt > 1e-4 {
-                        last = now;
-                        self.step_plant(dt.min(0.02));
-                    }
-                }
-                for d in self.rack.drives() {
-                    d.on_frame(&f, now);
-                }
+            let mut first = self.rack.transport().recv_deadline(next);
+            while let Ok(Some(f)) = first {
+                sync |= self.on_frame(&f);
+                first = self.rack.transport().try_recv();
             }
             let now = Instant::now();
             self.rack.step(now);
@@ -530,24 +648,94 @@ impl<R: CanTransport> Site<R> {
                 continue;
             }
             // ...and the physics on the tick, with the wall time that passed.
-            let dt = now.saturating_duration_since(last).as_secs_f64().clamp(1e-4, 0.02);
-            last = now;
             next += self.period;
             if next < now {
                 // Starved (loaded machine): skip ahead rather than run a burst of steps.
                 next = now + self.period;
             }
             self.inject_faults();
-            self.step_plant(dt);
+            self.step_plant(now);
             let t = now.saturating_duration_since(t0).as_secs_f64();
             let due = t >= next_pose && !self.faults.tracker_gone.load(Ordering::Relaxed);
             if let (true, Some(tracker)) = (due, self.tracker.as_mut()) {
                 next_pose = (next_pose + TRACKER_PERIOD_S).max(t);
+                // The platform where it is at `now`, stamped `now` (the plant was stepped to it).
                 let m = tracker.measure(self.plant.position(), &mut self.rng);
                 if m.iter().all(|v| v.is_finite()) {
                     let _ = self.sender.send_pose(t, m, None);
+                    self.sync_stats.record_pose(now.elapsed());
                 }
             }
+        }
+    }
+
+    /// Delivers one frame to the drives at the instant it was on the bus; true for a SYNC.
+    fn on_frame(&mut self, f: &taut_driver::Frame) -> bool {
+        let now = Instant::now();
+        // When the frame was on the bus: a real drive sees it then, whatever this thread was
+        // doing (SocketCAN without time stamps: when it was read).
+        let at = self.rack.transport().rx_timestamp().map_or(now, |t| t.min(now));
+        let sync = f.std_id() == Some(0x080);
+        if sync {
+            self.latch_at(at, now);
+        }
+        for d in self.rack.drives() {
+            d.on_frame(f, at);
+        }
+        // Targets applied (a SYNC applies the RPDOs it latched) start the drums moving.
+        self.follow_targets(at);
+        sync
+    }
+
+    /// A SYNC that was on the bus at `at`, handled at `now`: the drives' actual values become
+    /// the plant's state at `at`. CiA 301 7.2.5: synchronous TPDOs carry what the drive sampled
+    /// at the SYNC, which a real drive does within microseconds of the frame on the wire. This
+    /// thread reads it later (its wake-up latency, see [`SyncStats`]), and the master stamps the
+    /// readings with the SYNC's send time: latched at the read, that latency became an
+    /// encoder-vs-tracker time offset.
+    fn latch_at(&mut self, at: Instant, now: Instant) {
+        let latency = now.saturating_duration_since(at);
+        let overrun = self.sync_period_s.is_some_and(|p| latency.as_secs_f64() > p);
+        self.sync_stats.record(latency, overrun);
+        if let Some(s) = self.last_sync.filter(|&s| at > s) {
+            self.sync_period_s = Some(at.duration_since(s).as_secs_f64().clamp(2e-4, 0.02));
+        }
+        self.last_sync = Some(self.last_sync.map_or(at, |s| s.max(at)));
+        if at > self.last_step {
+            self.step_plant(at);
+            return;
+        }
+        // A tick stepped the plant past the SYNC before it was read: the encoders at `at`,
+        // linearly between the last two steps.
+        let Some((tp, enc_p, tq_p)) = self.prev_step else { return };
+        let span = self.last_step.saturating_duration_since(tp).as_secs_f64();
+        let s = if span > 0.0 { (at.saturating_duration_since(tp).as_secs_f64() / span).clamp(0.0, 1.0) } else { 1.0 };
+        for j in 0..self.units.len() {
+            let c = enc_p[j] + s * (self.last_enc[j] - enc_p[j]);
+            let tq = if s < 0.5 { tq_p[j] } else { self.last_tq[j] };
+            self.rack.drives()[j].set_actual(counts(c), tq);
+        }
+    }
+
+    /// Starts a drum ramp for every cable whose position target changed (at bus instant `at`).
+    fn follow_targets(&mut self, at: Instant) {
+        // One SYNC period: the interval between the last two SYNCs, or the site's tick.
+        let period_s = self.period.as_secs_f64();
+        for j in 0..self.units.len() {
+            let t = self.rack.drives()[j].target();
+            if !(t.enabled && t.mode == Mode::CyclicPosition) {
+                self.ramps[j].target = None;
+                continue;
+            }
+            if self.ramps[j].target == Some(t.position) {
+                continue;
+            }
+            let u = self.units[j];
+            let to = (f64::from(t.position) / u.counts_per_m - self.l0[j]) / self.scale[j];
+            let r = &mut self.ramps[j];
+            let from = if r.target.is_some() { r.at(at) } else { self.drum[j] };
+            let dur_s = r.target.map_or(0.0, |_| CSP_INTERPOLATION_PERIODS * self.sync_period_s.unwrap_or(period_s));
+            *r = Ramp { from, to, target: Some(t.position), start: at, dur_s };
         }
     }
 
@@ -580,33 +768,78 @@ impl<R: CanTransport> Site<R> {
         }
     }
 
-    fn step_plant(&mut self, dt: f64) {
+    /// Steps the physics to `at` (not before the last step): the drums where their ramps are
+    /// at `at`, the plant's equilibrium there, and the drives' actual values from it.
+    fn step_plant(&mut self, at: Instant) {
         let n = self.units.len();
+        let dt = at.saturating_duration_since(self.last_step).as_secs_f64().min(0.02);
         for j in 0..n {
             let t = self.rack.drives()[j].target();
             let u = self.units[j];
-            self.cmds[j] = match (t.enabled, t.mode) {
-                (true, Mode::CyclicPosition) => {
-                    let encoder_m = f64::from(t.position) / u.counts_per_m;
-                    self.drum[j] = (encoder_m - self.l0[j]) / self.scale[j];
+            self.cmds[j] = match (t.enabled, t.mode, self.ramps[j].target) {
+                (true, Mode::CyclicPosition, Some(_)) => {
+                    self.drum[j] = self.ramps[j].at(at);
                     SimCommand::Length(self.drum[j])
                 }
-                (true, Mode::CyclicTorque) => SimCommand::Tension((f64::from(t.torque) * u.n_per_permille).max(0.0)),
+                (true, Mode::CyclicTorque, _) => SimCommand::Tension((f64::from(t.torque) * u.n_per_permille).max(0.0)),
                 // Brakes hold the drum where it is.
                 _ => SimCommand::Length(self.drum[j]),
             };
         }
         let o = self.plant.step(dt, &self.cmds);
         self.handle.set_all(o.tension_n);
+        let mut enc = [0.0; MAX_CABLES];
+        let mut tq = [0i16; MAX_CABLES];
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];
             let u = self.units[j];
-            let torque = permille(o.tension_n[j] / u.n_per_permille);
-            self.rack.drives()[j].set_actual(counts(o.encoder_m[j] * u.counts_per_m), torque);
+            enc[j] = o.encoder_m[j] * u.counts_per_m;
+            tq[j] = permille(o.tension_n[j] / u.n_per_permille);
         }
+        for j in 0..n {
+            self.rack.drives()[j].set_actual(counts(enc[j]), tq[j]);
+        }
+        self.prev_step = Some((self.last_step, self.last_enc, self.last_tq));
+        (self.last_step, self.last_enc, self.last_tq) = (at, enc, tq);
         self.faults.plant_failed_steps.store(self.plant.failed_steps(), Ordering::Relaxed);
         self.platform.set(self.plant.position());
+    }
+}
+
+/// Over how many SYNC periods a drive in cyclic synchronous position moves its drum from one
+/// set-point to the next (0: it takes each set-point at the SYNC that applies it, and the
+/// platform moves at the next physics tick).
+///
+/// Measured on e2e_excitation (30 s designed tour, latch at the SYNC's bus instant), see
+/// BENCHMARKS.md "Session 14": 0 gives seed 1 0.45 mm worst anchor at a 0.43 mm sigma; 1 (a
+/// linear interpolation over the cycle, which real CSP drives do and which makes the
+/// encoder and the tracker sample one continuous motion) gave 1.4-1.8 mm on all five seeds,
+/// the same pattern on each, with the time-block sandwich raising the sigma to 0.6-0.9 mm: a
+/// systematic that is not understood (by the timing alone, 1 should be the consistent one and
+/// 0 leave the encoders ~1 ms behind the tracker), so the earlier behaviour stays until it is.
+const CSP_INTERPOLATION_PERIODS: f64 = 0.0;
+
+/// A drum in cyclic synchronous position: from its last target to the new one, linearly, over
+/// [`CSP_INTERPOLATION_PERIODS`] SYNC periods from the SYNC that applied it.
+#[derive(Debug, Clone, Copy)]
+struct Ramp {
+    from: f64,
+    to: f64,
+    /// The target (counts) ramped to; `None` when the drive is not in CSP.
+    target: Option<i32>,
+    start: Instant,
+    dur_s: f64,
+}
+
+impl Ramp {
+    /// The drum length at `t`, m.
+    fn at(&self, t: Instant) -> f64 {
+        if self.dur_s <= 0.0 {
+            return self.to;
+        }
+        let s = (t.saturating_duration_since(self.start).as_secs_f64() / self.dur_s).min(1.0);
+        self.from + s * (self.to - self.from)
     }
 }
 

@@ -79,6 +79,7 @@ fn startup(seed: u64, designed: bool) -> Run {
     let p0 = simrig::rest_position(&cfg, &so, p0);
     let sim = simrig::build(&cfg, p0, &so).unwrap();
     let truth = sim.truth.clone();
+    let sync_stats = sim.sync_stats.clone();
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     let ok = d.wait_until(Duration::from_secs(400), |l, c| {
         l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.kind == OutcomeKind::Calibration || !o.accepted)
@@ -118,6 +119,7 @@ fn startup(seed: u64, designed: bool) -> Run {
     let errs_m: Vec<f64> = ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
     let sig: Vec<f64> = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
     eprintln!("seed {seed}: note {}", ce.note);
+    eprintln!("seed {seed}: simulated drives: {sync_stats}");
     let _ = d.shutdown();
     Run {
         worst_err_m: errs_m.iter().cloned().fold(0.0, f64::max),

@@ -278,6 +278,9 @@ impl<T: CanTransport, W: Write> CanTransport for Recorder<T, W> {
     fn iface(&self) -> super::IfName {
         self.inner.iface()
     }
+    fn rx_timestamp(&self) -> Option<Instant> {
+        self.inner.rx_timestamp()
+    }
 }
 
 /// Counts kept by a [`Replay`].

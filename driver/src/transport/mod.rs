@@ -138,6 +138,12 @@ pub trait CanTransport {
     fn iface(&self) -> IfName {
         IfName::new("can")
     }
+    /// When the frame returned last by `try_recv` or `recv_deadline` was on the bus, if the
+    /// transport knows (the kernel's `SO_TIMESTAMP`; the in-process bus stamps every frame as it
+    /// is sent); `None` otherwise, and then the receiver's own clock is the best there is.
+    fn rx_timestamp(&self) -> Option<Instant> {
+        None
+    }
 }
 
 impl<T: CanTransport + ?Sized> CanTransport for Box<T> {
@@ -152,6 +158,9 @@ impl<T: CanTransport + ?Sized> CanTransport for Box<T> {
     }
     fn iface(&self) -> IfName {
         (**self).iface()
+    }
+    fn rx_timestamp(&self) -> Option<Instant> {
+        (**self).rx_timestamp()
     }
 }
 

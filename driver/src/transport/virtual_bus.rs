@@ -6,6 +6,11 @@
 //! Queues are allocated when an endpoint is made; a full receive queue drops the new frame and
 //! counts it, like a SocketCAN socket whose buffer is full.
 //!
+//! Every frame carries the instant it was sent, which is the instant it was on the wire (the bus
+//! has no arbitration delay): [`CanTransport::rx_timestamp`] hands it out with the frame, as the
+//! kernel's `SO_TIMESTAMP` does. A simulated drive latches its encoder at the SYNC's instant on
+//! the wire, not when its thread got round to reading it.
+//!
 //! Frames travel as the kernel's `struct can_frame` bytes and are decoded on receipt by
 //! [`kernel::decode`], the parser SocketCAN reads go through. Each endpoint has a
 //! [`CanController`] handle through which a test injects error frames (bytes of
@@ -55,8 +60,8 @@ impl Filter {
 
 struct Slot {
     alive: bool,
-    /// `struct can_frame` bytes, decoded on receipt.
-    queue: VecDeque<[u8; CAN_MTU]>,
+    /// `struct can_frame` bytes, decoded on receipt, and the instant they were sent.
+    queue: VecDeque<([u8; CAN_MTU], Instant)>,
     /// The endpoint's controller is bus-off: it neither sends nor receives.
     bus_off: bool,
     /// Frames not sent because the controller was bus-off.
@@ -126,7 +131,7 @@ impl VirtualBus {
             bus_off: false,
             tx_lost: 0,
         });
-        VirtualEndpoint { shared: self.shared.clone(), idx: st.slots.len() - 1 }
+        VirtualEndpoint { shared: self.shared.clone(), idx: st.slots.len() - 1, rx_at: None }
     }
 
     /// Frames sent on the bus so far.
@@ -145,6 +150,8 @@ fn lock(shared: &Shared) -> MutexGuard<'_, State> {
 pub struct VirtualEndpoint {
     shared: Arc<Shared>,
     idx: usize,
+    /// When the frame received last was sent.
+    rx_at: Option<Instant>,
 }
 
 impl VirtualEndpoint {
@@ -189,7 +196,7 @@ impl CanController {
         if slot.queue.len() >= slot.capacity {
             slot.dropped += 1;
         } else {
-            slot.queue.push_back(frame);
+            slot.queue.push_back((frame, Instant::now()));
         }
         if st.waiters > 0 {
             self.shared.cv.notify_all();
@@ -240,7 +247,7 @@ impl CanTransport for VirtualEndpoint {
             return Err(TransportError::Full(*frame));
         }
         st.sent += 1;
-        let bytes = kernel::encode(frame);
+        let bytes = (kernel::encode(frame), Instant::now());
         for (i, slot) in st.slots.iter_mut().enumerate() {
             if i == self.idx || !slot.alive || slot.bus_off {
                 continue;
@@ -261,14 +268,16 @@ impl CanTransport for VirtualEndpoint {
     }
 
     fn try_recv(&mut self) -> Result<Option<Frame>, TransportError> {
-        lock(&self.shared).slots[self.idx].queue.pop_front().map(|b| kernel::decode(&b)).transpose()
+        let popped = lock(&self.shared).slots[self.idx].queue.pop_front();
+        popped.map(|(b, at)| self.received(&b, at)).transpose()
     }
 
     fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError> {
         let mut st = lock(&self.shared);
         loop {
-            if let Some(b) = st.slots[self.idx].queue.pop_front() {
-                return kernel::decode(&b).map(Some);
+            if let Some((b, at)) = st.slots[self.idx].queue.pop_front() {
+                drop(st);
+                return self.received(&b, at).map(Some);
             }
             let now = Instant::now();
             if now >= deadline {
@@ -283,6 +292,17 @@ impl CanTransport for VirtualEndpoint {
 
     fn iface(&self) -> IfName {
         lock(&self.shared).name
+    }
+
+    fn rx_timestamp(&self) -> Option<Instant> {
+        self.rx_at
+    }
+}
+
+impl VirtualEndpoint {
+    fn received(&mut self, bytes: &[u8; CAN_MTU], sent: Instant) -> Result<Frame, TransportError> {
+        self.rx_at = Some(sent);
+        kernel::decode(bytes)
     }
 }
 
@@ -336,6 +356,25 @@ mod tests {
         assert_eq!(got, Some(Frame::new(0x7, &[7])));
         t.join().unwrap();
         assert_eq!(rx.recv_deadline(Instant::now() + Duration::from_millis(5)).unwrap(), None);
+    }
+
+    /// A frame read late still says when it was on the bus (the simulated drives latch at it).
+    #[test]
+    fn a_frame_carries_its_send_instant() {
+        let bus = VirtualBus::new();
+        let (mut tx, mut rx) = (bus.endpoint(), bus.endpoint());
+        assert_eq!(rx.rx_timestamp(), None);
+        let before = Instant::now();
+        tx.send(&Frame::new(0x080, &[])).unwrap();
+        let after = Instant::now();
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(rx.recv_deadline(Instant::now() + Duration::from_secs(1)).unwrap().is_some());
+        let at = rx.rx_timestamp().expect("stamped");
+        assert!(at >= before && at <= after, "stamped at sending, not at reading");
+        tx.send(&Frame::new(0x081, &[])).unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+        assert!(rx.try_recv().unwrap().is_some());
+        assert!(rx.rx_timestamp().unwrap() > after);
     }
 
     #[test]
