@@ -40,6 +40,47 @@ pub struct Prepared {
     /// Weight factor of each reading in a fit with backlash ([`PlayState::hold_weights`]; empty:
     /// all 1). Without backlash every reading has weight 1.
     pub hold_weight: Vec<Vec<f64>>,
+    /// The sensors' noise for errors-in-variables weights ([`Eiv`]); `None`: every reading
+    /// weighs the same (times its hold weight).
+    pub eiv: Option<Eiv>,
+}
+
+/// Errors-in-variables weights: the noise of the inputs a prediction is made from enters the
+/// residual, and how much depends on the parameters. Each reading is weighted by
+/// `sqrt(sigma^2 / var)`, `sigma^2 = s_t^2 + s_e^2` (the weight is 1 for a reading predicted from
+/// its own pose and an exact tension), with
+///
+/// ```text
+/// var = s_e^2 + k(s) s_t^2 + g_T^2 s_T^2
+/// k(s) = (1 - s)^2 + s^2      the tracker noise of a pose interpolated at fraction s (time offset)
+/// g_T = d reading / d T       stretch and sag: the load cell's noise s_T moves the prediction
+/// ```
+///
+/// Why: a time offset predicts from a pose interpolated between two noisy tracker samples, whose
+/// noise variance is `k(s) s_t^2`, half at a half-sample offset: unweighted, the fit prefers the
+/// offsets that average the noise (a 20 ms offset at 100 Hz came out 16-17 ms, 9-12 sigma low,
+/// and a play fitted with it 1-1.5 mm high to make up the pushes' lag). Near slack the sag's
+/// excess grows as `1/T^2` and the stretch with `T`: a reading at a few newtons has a prediction
+/// the load-cell noise moves by centimetres. With the variance of the residual *at the
+/// candidate parameters* as weight, and the weight's own derivative in the Jacobian, the
+/// expected weighted sum of squares is `m sigma^2` plus the misfit, least at the truth, and the
+/// score is unbiased to first order (the errors-in-variables term `E[r dr/dtheta]` that biases
+/// unweighted least squares is cancelled by `r^2 d w^2/dtheta`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Eiv {
+    /// Tracker noise variance along a cable, m^2.
+    pub tracker_var: f64,
+    /// Encoder noise variance, m^2.
+    pub encoder_var: f64,
+    /// Load-cell noise variance, N^2.
+    pub tension_var: f64,
+}
+
+impl Eiv {
+    /// From the 1-sigma noise of the tracker (m, per axis), encoder (m) and load cells (N).
+    pub fn new(tracker_sigma_m: f64, encoder_sigma_m: f64, loadcell_sigma_n: f64) -> Self {
+        Eiv { tracker_var: tracker_sigma_m.powi(2), encoder_var: encoder_sigma_m.powi(2), tension_var: loadcell_sigma_n.powi(2) }
+    }
 }
 
 /// Which effects the model includes.
@@ -110,6 +151,17 @@ pub struct Prediction {
     pub row: [(usize, f64); 10],
     /// Number of valid entries in `row`.
     pub len: usize,
+    /// Multiplier `k(s)` of the tracker variance of the pose the prediction was made from (1: a
+    /// sample's own pose; see [`Eiv`]).
+    pub tracker_k: f64,
+    /// `d k / d (time offset)` and the offset's parameter index.
+    pub dk: Option<(usize, f64)>,
+    /// `g_T = d value / d T` (stretch and sag).
+    pub g_t: f64,
+    /// `d g_T / d parameter` for the compliance, sag weight and scale.
+    pub dg_t: [(usize, f64); 3],
+    /// Valid entries of `dg_t`.
+    pub dg_len: usize,
 }
 
 impl<'a> Joint<'a> {
@@ -117,7 +169,17 @@ impl<'a> Joint<'a> {
     /// segment, clamped at its ends) and its velocity.
     ///
     /// `own` replaces one sample's attachment point (see [`Joint::predict_heldout`]).
-    fn shifted(&self, i: usize, j: usize, delta: Option<f64>, own: Option<&Own>) -> ([f64; 3], [f64; 3]) {
+    /// The third value is the tracker-noise variance factor of the interpolated pose and its
+    /// derivative by the offset, `(k, dk/d delta)` (`None`: a sample's own pose, `k = 1`).
+    ///
+    /// Inside a segment the pose is a cubic B-spline quasi-interpolation of the four samples
+    /// around `tau` (exact for a pose that moves linearly): its noise variance `sum w^2` is
+    /// 0.46-0.50 of one sample's whatever the fraction `s`, and flat at whole and half samples.
+    /// Linear interpolation's `(1 - s)^2 + s^2` ranges 0.5-1: the fit then prefers offsets that
+    /// average two samples' noise, by about `s_t^2 / (dt v^2)` (a 20 ms offset at 100 Hz came out
+    /// 16-17 ms, 9-12 sigma low, and a play fitted with it 1-1.5 mm high). Two samples from a
+    /// segment end the interpolation is linear (and the [`Eiv`] weight makes up its variance).
+    fn shifted(&self, i: usize, j: usize, delta: Option<f64>, own: Option<&Own>) -> ([f64; 3], [f64; 3], Option<(f64, f64)>) {
         let p = self.prep;
         let raw = &p.x[j];
         let xs = |k: usize| match own {
@@ -127,7 +189,7 @@ impl<'a> Joint<'a> {
         // Without the effect no interpolation; with it, interpolate even at delta = 0 so the
         // Jacobian (the velocity) is not zero at the start of the fit.
         let Some(delta) = delta else {
-            return (xs(i), [0.0; 3]);
+            return (xs(i), [0.0; 3], None);
         };
         let tau = p.t[i] - delta;
         let seg = p.segment[i];
@@ -141,17 +203,35 @@ impl<'a> Joint<'a> {
             k += 1;
         }
         if k + 1 >= nn || p.segment[k + 1] != seg || p.t[k] > tau {
-            return (xs(k), [0.0; 3]);
+            return (xs(k), [0.0; 3], None);
         }
         let dt = p.t[k + 1] - p.t[k];
         if dt <= 0.0 {
-            return (xs(k), [0.0; 3]);
+            return (xs(k), [0.0; 3], None);
         }
         let s = (tau - p.t[k]) / dt;
+        // ds / d delta = -1 / dt.
+        if k >= 1 && k + 2 < nn && p.segment[k - 1] == seg && p.segment[k + 2] == seg {
+            let r = 1.0 - s;
+            let w = [r * r * r / 6.0, (3.0 * s * s * s - 6.0 * s * s + 4.0) / 6.0, (-3.0 * s * s * s + 3.0 * s * s + 3.0 * s + 1.0) / 6.0, s * s * s / 6.0];
+            let dw = [-0.5 * r * r, 0.5 * (3.0 * s * s - 4.0 * s), 0.5 * (-3.0 * s * s + 2.0 * s + 1.0), 0.5 * s * s];
+            let pts = [xs(k - 1), xs(k), xs(k + 1), xs(k + 2)];
+            let (mut x, mut v) = ([0.0; 3], [0.0; 3]);
+            for m in 0..4 {
+                for a in 0..3 {
+                    x[a] += w[m] * pts[m][a];
+                    v[a] += dw[m] * pts[m][a] / dt;
+                }
+            }
+            let kv: f64 = w.iter().map(|w| w * w).sum();
+            let dk: f64 = 2.0 * w.iter().zip(&dw).map(|(w, d)| w * d).sum::<f64>();
+            return (x, v, Some((kv, -dk / dt)));
+        }
         let a = xs(k);
         let b = xs(k + 1);
         let v = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt, (b[2] - a[2]) / dt];
-        ([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])], v)
+        let x = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])];
+        (x, v, Some(((1.0 - s) * (1.0 - s) + s * s, -(4.0 * s - 2.0) / dt)))
     }
 
     /// The modelled reading of cable `j` at sample `i` without the play (backlash): the input
@@ -175,7 +255,7 @@ impl<'a> Joint<'a> {
         };
         let has_t = tension.is_finite();
         let delta = get(Effect::TimeOffset);
-        let (xp, vel) = self.shifted(i, j, delta.and_then(|d| shift.then_some(d.1)), own);
+        let (xp, vel, frac) = self.shifted(i, j, delta.and_then(|d| shift.then_some(d.1)), own);
         // Geometry: straight or over the pulley.
         let mut g;
         let mut gx; // dG/dX
@@ -199,6 +279,8 @@ impl<'a> Joint<'a> {
             }
         }
         let mut dg_dw = None;
+        // d G / d T and d^2 G / dT dw (sag only; see `Eiv`).
+        let (mut g_t, mut g_tw) = (0.0, 0.0);
         if let Some((k, w)) = get(Effect::Sag) {
             let mut dw = 0.0;
             if has_t && w > 0.0 {
@@ -206,6 +288,9 @@ impl<'a> Joint<'a> {
                     g += e;
                     gx = [gx[0] + d[0], gx[1] + d[1], gx[2] + d[2]];
                     dw = d[3];
+                    g_t = d[4];
+                    // The excess grows about as w^2 (a function of w / T): d(dG/dT)/dw = 2 g_t / w.
+                    g_tw = 2.0 * d[4] / w;
                 }
             }
             dg_dw = Some((k, dw));
@@ -214,12 +299,20 @@ impl<'a> Joint<'a> {
         let mut u = g;
         let mut du_dg = 1.0;
         let mut du_dc = None;
+        // d u / d T and its derivatives by the compliance and the sag weight.
+        let (mut u_t, mut u_tc, mut u_tw) = (g_t, 0.0, g_tw);
+        let mut c_index = None;
         if let Some((k, c)) = get(Effect::Elasticity) {
             if has_t {
                 let q = 1.0 + c * tension;
                 u = taut_model::unstretched(g, c, tension);
                 du_dg = 1.0 / q;
                 du_dc = Some((k, -g * tension / (q * q)));
+                // u = G / (1 + c T): du/dT = G_T / q - G c / q^2.
+                u_t = g_t / q - g * c / (q * q);
+                u_tc = -g_t * tension / (q * q) - g / (q * q) + 2.0 * g * c * tension / (q * q * q);
+                u_tw = g_tw / q;
+                c_index = Some(k);
             } else {
                 du_dc = Some((k, 0.0));
             }
@@ -228,6 +321,15 @@ impl<'a> Joint<'a> {
             Some((k, s)) => (1.0 + s, Some((k, u))),
             None => (1.0, None),
         };
+        let mut dg_t = [(0usize, 0.0f64); 3];
+        let mut dg_len = 0;
+        if has_t && (g_t != 0.0 || c_index.is_some()) {
+            for e in [c_index.map(|k| (k, scale * u_tc)), dg_dw.map(|(k, _)| (k, scale * u_tw)), dk.map(|(k, _)| (k, u_t))].into_iter().flatten() {
+                dg_t[dg_len] = e;
+                dg_len += 1;
+            }
+        }
+        let g_t = if has_t { scale * u_t } else { 0.0 };
         let value = taut_model::reading(scale, u, l0);
         let dwb = get(Effect::Backlash).map(|(k, _)| (k, 0.0));
         let f = scale * du_dg; // d value / d G
@@ -248,6 +350,7 @@ impl<'a> Joint<'a> {
         push(du_dc.map(|(k, d)| (k, scale * d)));
         push(dk);
         push(dwb);
+        let (mut tracker_k, mut dkd) = (1.0, None);
         if let Some((k, _)) = delta {
             // d X / d delta = -v.
             let d = -(gx[0] * vel[0] + gx[1] * vel[1] + gx[2] * vel[2]) * f;
@@ -257,8 +360,14 @@ impl<'a> Joint<'a> {
                 row[len] = (k, d);
                 len += 1;
             }
+            if let Some((kv, dk)) = frac {
+                tracker_k = kv;
+                dkd = Some((k, dk));
+            } else {
+                dkd = Some((k, 0.0));
+            }
         }
-        Prediction { value, row, len }
+        Prediction { value, row, len, tracker_k, dk: dkd, g_t, dg_t, dg_len }
     }
 
     /// The modelled reading of cable `j` at sample `i`.
@@ -311,6 +420,34 @@ impl<'a> Joint<'a> {
             return 1.0;
         }
         self.prep.hold_weight[j][i]
+    }
+
+    /// The weight factor of a reading with prediction `p` (cable `j`, sample `i`): the hold
+    /// weight times the errors-in-variables factor `sqrt(sigma^2 / var)` ([`Eiv`]), and the
+    /// derivatives of its logarithm by the parameters it depends on (`(index, d ln w / d x)`,
+    /// the first `len` of them).
+    pub fn weight_of(&self, p: &Prediction, i: usize, j: usize) -> (f64, [(usize, f64); 4], usize) {
+        let hw = self.weight(i, j);
+        let mut d = [(0usize, 0.0f64); 4];
+        let Some(e) = self.prep.eiv else {
+            return (hw, d, 0);
+        };
+        let base = e.tracker_var + e.encoder_var;
+        let var = e.encoder_var + p.tracker_k * e.tracker_var + p.g_t * p.g_t * e.tension_var;
+        if !(var > 0.0 && base > 0.0) {
+            return (hw, d, 0);
+        }
+        let mut len = 0;
+        // d ln w = -1/2 d var / var.
+        if let Some((k, dk)) = p.dk {
+            d[len] = (k, -0.5 * e.tracker_var * dk / var);
+            len += 1;
+        }
+        for &(k, dg) in &p.dg_t[..p.dg_len] {
+            d[len] = (k, -p.g_t * e.tension_var * dg / var);
+            len += 1;
+        }
+        (hw * (base / var).sqrt(), d, len)
     }
 
     /// The sum of the squared weight factors over the usable readings of `samples`: the number
@@ -651,11 +788,18 @@ impl LeastSquares for Joint<'_> {
                     continue;
                 }
                 let p = self.predict_with(x, i, j, None, &offs);
-                let w = inv * self.weight(i, j);
+                let (wf, dlog, dl) = self.weight_of(&p, i, j);
+                let w = inv * wf;
                 let r = (p.value - self.prep.l[j][i]) * w;
                 if jacobian {
                     for k in 0..p.len {
                         buf[k] = (p.row[k].0, p.row[k].1 * w);
+                    }
+                    // The weight's own derivative: d (w r) = w dr + r w d ln w.
+                    for &(a, g) in &dlog[..dl] {
+                        if let Some(b) = buf[..p.len].iter_mut().find(|b| b.0 == a) {
+                            b.1 += r * g;
+                        }
                     }
                     visit(r, &buf[..p.len]);
                 } else {
@@ -744,6 +888,7 @@ mod tests {
             segment: vec![],
             heldout: vec![],
             hold_weight: vec![],
+            eiv: None,
         };
         for i in 0..n_samples {
             let t = i as f64 * 0.01;

@@ -73,6 +73,11 @@ pub struct DiagnoseOptions {
     pub tracker_sigma_m: f64,
     /// Encoder noise, 1-sigma, m.
     pub encoder_sigma_m: f64,
+    /// Load-cell noise, 1-sigma, N: the tension readings' noise enters the predicted length
+    /// through `d(stretch + sag)/dT`, and each reading is weighted by its total variance
+    /// ([`fit::Eiv`]). 0: the tensions are taken as exact (the `[calibration]` table has no key
+    /// for it; give the load cells' noise here to diagnose below the controller's tension floor).
+    pub loadcell_sigma_n: f64,
     /// Fraction of the recording held out (in time blocks).
     pub heldout_fraction: f64,
     /// Where the load cells measure tension (sag only).
@@ -98,6 +103,7 @@ impl DiagnoseOptions {
             min_tension_n: c.min_tension_n,
             tracker_sigma_m: c.tracker_sigma_m,
             encoder_sigma_m: c.encoder_sigma_m,
+            loadcell_sigma_n: 0.0,
             heldout_fraction: if c.heldout_fraction > 0.0 { c.heldout_fraction } else { 0.2 },
             tension_end: TensionEnd::Platform,
             max_effects: 3,
@@ -348,6 +354,9 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
         segment: rows.iter().map(|&i| masks.segment[i]).collect(),
         heldout: vec![false; m],
         hold_weight: vec![],
+        // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
+        // sag: the tension's noise): see `fit::Eiv`.
+        eiv: Some(fit::Eiv::new(opts.tracker_sigma_m, opts.encoder_sigma_m, opts.loadcell_sigma_n)),
     };
     for &i in &rows {
         let r = rec.q.as_ref().and_then(|q| rotation(q[i]));
@@ -764,13 +773,18 @@ fn sandwich_inflation(
                 continue;
             }
             let p = joint.predict(&r.x, i, j);
-            let w = inv * joint.weight(i, j);
+            let (wf, dlog, dl) = joint.weight_of(&p, i, j);
+            let w = inv * wf;
             let res = (p.value - prep.l[j][i]) * w;
             if !res.is_finite() {
                 continue;
             }
             for &(a, v) in &p.row[..p.len] {
                 g[b][a] += v * w * res;
+            }
+            // The errors-in-variables weight's own term of the score (see `fit::Eiv`).
+            for &(a, v) in &dlog[..dl] {
+                g[b][a] += res * res * v;
             }
         }
     }
@@ -1258,7 +1272,7 @@ pub fn diagnose(
     // the model: there the play width comes out 10-17 % high in both fits (3-cable robot, 6 mm
     // play, 20 ms: unweighted 6.60-6.77 mm, 4-5 sigma; weighted 7.02 mm), a model error the
     // weighting does not fix (open), and the unweighted fit is kept.
-    let final_all = if spec.effects.contains(&Effect::Backlash) && !spec.effects.contains(&Effect::TimeOffset) {
+    let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
         prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
