@@ -33,6 +33,8 @@ fn main() {
         };
         let mut o = DiagnoseOptions::from_config(&s.robot.calibration);
         o.loadcell_sigma_n = cell_sigma;
+        // The simulated cells' constant offsets (1-sigma), as a data sheet or a tare states it.
+        o.loadcell_offset_n = if cell_sigma > 0.0 { s.noise.loadcell_offset_n } else { 0.0 };
         let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &o).expect("diagnosis");
         let named: Vec<&str> = d.effects.iter().filter(|f| f.effect != Effect::Slack).map(|f| f.effect.name()).collect();
         if d.effects.iter().any(|f| !matches!(f.effect, Effect::Slack | Effect::Sag | Effect::Elasticity)) {
