@@ -74,7 +74,10 @@ fn main() {
         );
     }
     println!("per candidate (round 1; a uniform p gives n x level below each level):");
-    println!("{:12} {:>7} {:>6} {:>16} {:>14} {:>14} {:>14}", "candidate", "claims", "tests", "p < level", "p < 1e-3", "p < 0.01", "p < 0.05");
+    println!(
+        "{:12} {:>7} {:>6} {:>16} {:>14} {:>14} {:>14}",
+        "candidate", "claims", "tests", "p < level", "p < 1e-3", "p < 0.01", "p < 0.05"
+    );
     for (q, e) in lib.iter().enumerate() {
         let n = tests_of[q] as f64;
         let (lo, hi) = interval(claims_of[q], count);
