@@ -33,7 +33,10 @@
 //!
 //! The residuals are weighted uniformly (`sigma^2 = sigma_enc^2 + sigma_tracker^2`): the
 //! force-aware variance of [`crate::noise`] grows with T·L, which would down-weight exactly the
-//! readings that reveal elasticity.
+//! readings that reveal elasticity. Two exceptions are errors in variables ([`fit::Eiv`]): a time
+//! offset's interpolated pose has less tracker noise than a sample's, and with
+//! [`DiagnoseOptions::loadcell_sigma_n`] a reading whose stretch or sag the tension noise moves
+//! counts by its total variance, in the fits and in the held-out tests.
 //!
 //! ```no_run
 //! use taut_calib::diagnose::{diagnose, DiagnoseOptions};
@@ -523,10 +526,16 @@ impl Ctx<'_> {
     /// residual of [`Ctx::heldout_residuals`] (same order): the held-out test compares two models
     /// on residuals scaled by the smaller factor of the two (the larger noise variance), so a
     /// reading whose prediction the tension noise moves by centimetres counts as little in the
-    /// test as in the fits. 1 everywhere without tension effects and load-cell noise.
+    /// test as in the fits. 1 everywhere without tension effects or load-cell noise.
     fn heldout_factors(&self, spec: &ModelSpec, x: &[f64]) -> Vec<f64> {
+        let rows = self.heldout_rows.last().copied().unwrap_or(0);
+        // Without tension noise only a time offset changes the factor, by the same amount at
+        // every sample (its interpolation fraction): no pass needed, the test is scale-free.
+        if self.prep.eiv.is_none_or(|e| e.tension_var == 0.0) || !spec.effects.iter().any(|e| e.needs_tension()) {
+            return vec![1.0; rows];
+        }
         let p = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
-        let mut out = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
+        let mut out = Vec::with_capacity(rows);
         for &i in &self.heldout {
             for j in (0..self.prep.n).filter(|&j| self.prep.usable[j][i]) {
                 let pr = p.predict(x, i, j);
@@ -1371,10 +1380,9 @@ pub fn diagnose(
     // count as one observation), the generalised least-squares fit of the play model; unweighted,
     // a long hold pinned the play width and through it the compliance, 4-8 sigma off on some
     // recordings. Selection (the held-out tests) and the held-out RMS figures stay on the
-    // unweighted fit the tests were calibrated on (docs/diagnosis.md). Not with a time offset in
-    // the model: there the play width comes out 10-17 % high in both fits (3-cable robot, 6 mm
-    // play, 20 ms: unweighted 6.60-6.77 mm, 4-5 sigma; weighted 7.02 mm), a model error the
-    // weighting does not fix (open), and the unweighted fit is kept.
+    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). With a time offset
+    // too since the offset's errors-in-variables bias is fixed (`fit::Eiv`: the play width had
+    // come out 10-17 % high with it, in both fits).
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
         prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
