@@ -458,6 +458,10 @@ impl<'a> Joint<'a> {
         let Some(e) = self.prep.eiv else {
             return (hw, d, 0);
         };
+        // A sample's own pose and no tension term: the factor is exactly 1 (the common case).
+        if p.tracker_k == 1.0 && p.g_t == 0.0 && p.dk.is_none() {
+            return (hw, d, 0);
+        }
         let base = e.tracker_var + e.encoder_var;
         let var = e.encoder_var + p.tracker_k * e.tracker_var + p.g_t * p.g_t * e.tension_var;
         if !(var > 0.0 && base > 0.0) {
