@@ -335,7 +335,9 @@ impl<'a> Joint<'a> {
         };
         let mut dg_t = [(0usize, 0.0f64); 7];
         let mut dg_len = 0;
-        if has_t && (g_t != 0.0 || c_index.is_some()) {
+        // The weight's derivatives only where the tension's noise weighs (`Eiv`).
+        let weighs = self.prep.eiv.is_some_and(|e| e.tension_var > 0.0);
+        if weighs && has_t && (g_t != 0.0 || c_index.is_some()) {
             // d u_T / dX = u_tg gx + u_tx; the anchor moves X's opposite, the offset by -v.
             let ux = [u_tg * gx[0] + u_tx[0], u_tg * gx[1] + u_tx[1], u_tg * gx[2] + u_tx[2]];
             let by_delta = delta.map(|(k, _)| (k, -scale * (ux[0] * vel[0] + ux[1] * vel[1] + ux[2] * vel[2])));
@@ -449,24 +451,33 @@ impl<'a> Joint<'a> {
     }
 
     /// The weight factor of a reading with prediction `p` (cable `j`, sample `i`): the hold
-    /// weight times the errors-in-variables factor `sqrt(sigma^2 / var)` ([`Eiv`]), and the
-    /// derivatives of its logarithm by the parameters it depends on (`(index, d ln w / d x)`,
-    /// the first `len` of them).
-    pub fn weight_of(&self, p: &Prediction, i: usize, j: usize) -> (f64, [(usize, f64); 8], usize) {
+    /// weight times the errors-in-variables factor `sqrt(sigma^2 / var)` ([`Eiv`]).
+    pub fn weight_of(&self, p: &Prediction, i: usize, j: usize) -> f64 {
         let hw = self.weight(i, j);
-        let mut d = [(0usize, 0.0f64); 8];
-        let Some(e) = self.prep.eiv else {
-            return (hw, d, 0);
-        };
-        // A sample's own pose and no tension term: the factor is exactly 1 (the common case).
-        if p.tracker_k == 1.0 && p.g_t == 0.0 && p.dk.is_none() {
-            return (hw, d, 0);
+        match self.eiv_var(p) {
+            Some((e, var)) => hw * ((e.tracker_var + e.encoder_var) / var).sqrt(),
+            None => hw,
         }
-        let base = e.tracker_var + e.encoder_var;
+    }
+
+    /// The reading's errors-in-variables variance, when it is not the plain `s_t^2 + s_e^2` (a
+    /// sample's own pose and no tension term: the factor is exactly 1, the common case).
+    #[inline]
+    fn eiv_var(&self, p: &Prediction) -> Option<(Eiv, f64)> {
+        let e = self.prep.eiv?;
+        if p.dk.is_none() && (p.g_t == 0.0 || e.tension_var == 0.0) {
+            return None;
+        }
         let var = e.encoder_var + p.tracker_k * e.tracker_var + p.g_t * p.g_t * e.tension_var;
-        if !(var > 0.0 && base > 0.0) {
-            return (hw, d, 0);
-        }
+        (var > 0.0 && e.tracker_var + e.encoder_var > 0.0).then_some((e, var))
+    }
+
+    /// The derivatives of the logarithm of [`Joint::weight_of`] by the parameters it depends on
+    /// (`(index, d ln w / d x)`), written to `d`; returns how many.
+    pub fn weight_dlog(&self, p: &Prediction, d: &mut [(usize, f64); 8]) -> usize {
+        let Some((e, var)) = self.eiv_var(p) else {
+            return 0;
+        };
         let mut len = 0;
         // d ln w = -1/2 d var / var.
         if let Some((k, dk)) = p.dk {
@@ -477,7 +488,7 @@ impl<'a> Joint<'a> {
             d[len] = (k, -p.g_t * e.tension_var * dg / var);
             len += 1;
         }
-        (hw * (base / var).sqrt(), d, len)
+        len
     }
 
     /// The sum of the squared weight factors over the usable readings of `samples`: the number
@@ -811,6 +822,7 @@ impl LeastSquares for Joint<'_> {
     fn rows(&self, x: &[f64], jacobian: bool, visit: &mut lm::RowVisitor<'_>) {
         let inv = 1.0 / self.sigma;
         let mut buf = [(0usize, 0.0f64); 10];
+        let mut dlog = [(0usize, 0.0f64); 8];
         let offs = self.offsets();
         for &i in self.samples {
             for j in 0..self.prep.n {
@@ -818,14 +830,14 @@ impl LeastSquares for Joint<'_> {
                     continue;
                 }
                 let p = self.predict_with(x, i, j, None, &offs);
-                let (wf, dlog, dl) = self.weight_of(&p, i, j);
-                let w = inv * wf;
+                let w = inv * self.weight_of(&p, i, j);
                 let r = (p.value - self.prep.l[j][i]) * w;
                 if jacobian {
                     for k in 0..p.len {
                         buf[k] = (p.row[k].0, p.row[k].1 * w);
                     }
                     // The weight's own derivative: d (w r) = w dr + r w d ln w.
+                    let dl = self.weight_dlog(&p, &mut dlog);
                     for &(a, g) in &dlog[..dl] {
                         if let Some(b) = buf[..p.len].iter_mut().find(|b| b.0 == a) {
                             b.1 += r * g;
@@ -1208,13 +1220,15 @@ mod tests {
             let mut x = x0.clone();
             x.extend_from_slice(&extra);
             let p = Joint { prep: &prep, spec: &spec, samples: &samples, sigma: 1.5e-3 };
-            let lnw = |x: &[f64], i: usize, j: usize| p.weight_of(&p.predict(x, i, j), i, j).0.ln();
+            let lnw = |x: &[f64], i: usize, j: usize| p.weight_of(&p.predict(x, i, j), i, j).ln();
             let sag = spec.offset(Effect::Sag, 4);
             let mut weighted = 0;
             for &i in &samples {
                 for j in 0..4 {
                     let pr = p.predict(&x, i, j);
-                    let (w, d, len) = p.weight_of(&pr, i, j);
+                    let w = p.weight_of(&pr, i, j);
+                    let mut d = [(0usize, 0.0f64); 8];
+                    let len = p.weight_dlog(&pr, &mut d);
                     weighted += usize::from((w - 1.0).abs() > 1e-3);
                     let mut idx: Vec<usize> = d[..len].iter().map(|e| e.0).collect();
                     idx.dedup();

@@ -539,7 +539,7 @@ impl Ctx<'_> {
         for &i in &self.heldout {
             for j in (0..self.prep.n).filter(|&j| self.prep.usable[j][i]) {
                 let pr = p.predict(x, i, j);
-                out.push(p.weight_of(&pr, i, j).0);
+                out.push(p.weight_of(&pr, i, j));
             }
         }
         out
@@ -809,8 +809,9 @@ fn sandwich_inflation(
                 continue;
             }
             let p = joint.predict(&r.x, i, j);
-            let (wf, dlog, dl) = joint.weight_of(&p, i, j);
-            let w = inv * wf;
+            let w = inv * joint.weight_of(&p, i, j);
+            let mut dlog = [(0usize, 0.0f64); 8];
+            let dl = joint.weight_dlog(&p, &mut dlog);
             let res = (p.value - prep.l[j][i]) * w;
             if !res.is_finite() {
                 continue;
@@ -892,7 +893,7 @@ fn tension_offset_variance(
                 continue;
             }
             let p = joint.predict(&r.x, i, j);
-            let w = inv * joint.weight_of(&p, i, j).0;
+            let w = inv * joint.weight_of(&p, i, j);
             let d = w * p.g_t;
             if !d.is_finite() || d == 0.0 {
                 continue;
