@@ -56,6 +56,9 @@ pub struct Prepared {
 /// g_T = d reading / d T       stretch and sag: the load cell's noise s_T moves the prediction
 /// ```
 ///
+/// The time-offset term is in place but not fed (`Joint::shifted` returns no variance: the
+/// B-spline pose it needs named spurious offsets under backlash, docs/diagnosis.md); `k = 1`.
+///
 /// Why: a time offset predicts from a pose interpolated between two noisy tracker samples, whose
 /// noise variance is `k(s) s_t^2`, half at a half-sample offset: unweighted, the fit prefers the
 /// offsets that average the noise (a 20 ms offset at 100 Hz came out 16-17 ms, 9-12 sigma low,
@@ -169,16 +172,13 @@ impl<'a> Joint<'a> {
     /// segment, clamped at its ends) and its velocity.
     ///
     /// `own` replaces one sample's attachment point (see [`Joint::predict_heldout`]).
-    /// The third value is the tracker-noise variance factor of the interpolated pose and its
-    /// derivative by the offset, `(k, dk/d delta)` (`None`: a sample's own pose, `k = 1`).
-    ///
-    /// Inside a segment the pose is a cubic B-spline quasi-interpolation of the four samples
-    /// around `tau` (exact for a pose that moves linearly): its noise variance `sum w^2` is
-    /// 0.46-0.50 of one sample's whatever the fraction `s`, and flat at whole and half samples.
-    /// Linear interpolation's `(1 - s)^2 + s^2` ranges 0.5-1: the fit then prefers offsets that
-    /// average two samples' noise, by about `s_t^2 / (dt v^2)` (a 20 ms offset at 100 Hz came out
-    /// 16-17 ms, 9-12 sigma low, and a play fitted with it 1-1.5 mm high). Two samples from a
-    /// segment end the interpolation is linear (and the [`Eiv`] weight makes up its variance).
+    /// The third value would be the tracker-noise variance factor of the interpolated pose and
+    /// its derivative by the offset, `(k, dk/d delta)`, for the [`Eiv`] weight; `None`: not
+    /// weighted. Linear interpolation's `(1 - s)^2 + s^2` (0.5-1 of a sample's) biases the offset
+    /// toward half samples (a 20 ms offset at 100 Hz came out 16-17 ms, 9-12 sigma low, and a play
+    /// fitted with it 1-1.5 mm high). A cubic B-spline pose with that weight removed the bias
+    /// (docs/diagnosis.md) but named a spurious time offset on most recordings with backlash, so
+    /// it is not used: open.
     fn shifted(&self, i: usize, j: usize, delta: Option<f64>, own: Option<&Own>) -> ([f64; 3], [f64; 3], Option<(f64, f64)>) {
         let p = self.prep;
         let raw = &p.x[j];
@@ -210,33 +210,12 @@ impl<'a> Joint<'a> {
             return (xs(k), [0.0; 3], None);
         }
         let s = (tau - p.t[k]) / dt;
-        // ds / d delta = -1 / dt.
-        if k >= 1 && k + 2 < nn && p.segment[k - 1] == seg && p.segment[k + 2] == seg {
-            let r = 1.0 - s;
-            let w = [
-                r * r * r / 6.0,
-                (3.0 * s * s * s - 6.0 * s * s + 4.0) / 6.0,
-                (-3.0 * s * s * s + 3.0 * s * s + 3.0 * s + 1.0) / 6.0,
-                s * s * s / 6.0,
-            ];
-            let dw = [-0.5 * r * r, 0.5 * (3.0 * s * s - 4.0 * s), 0.5 * (-3.0 * s * s + 2.0 * s + 1.0), 0.5 * s * s];
-            let pts = [xs(k - 1), xs(k), xs(k + 1), xs(k + 2)];
-            let (mut x, mut v) = ([0.0; 3], [0.0; 3]);
-            for m in 0..4 {
-                for a in 0..3 {
-                    x[a] += w[m] * pts[m][a];
-                    v[a] += dw[m] * pts[m][a] / dt;
-                }
-            }
-            let kv: f64 = w.iter().map(|w| w * w).sum();
-            let dk: f64 = 2.0 * w.iter().zip(&dw).map(|(w, d)| w * d).sum::<f64>();
-            return (x, v, Some((kv, -dk / dt)));
-        }
         let a = xs(k);
         let b = xs(k + 1);
         let v = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt, (b[2] - a[2]) / dt];
         let x = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])];
-        (x, v, Some(((1.0 - s) * (1.0 - s) + s * s, -(4.0 * s - 2.0) / dt)))
+        // The interpolation's variance is not weighted (see the doc above).
+        (x, v, None)
     }
 
     /// The modelled reading of cable `j` at sample `i` without the play (backlash): the input
@@ -391,8 +370,6 @@ impl<'a> Joint<'a> {
             if let Some((kv, dk)) = frac {
                 tracker_k = kv;
                 dkd = Some((k, dk));
-            } else {
-                dkd = Some((k, 0.0));
             }
         }
         Prediction { value, row, len, tracker_k, dk: dkd, g_t, dg_t, dg_len }
