@@ -187,6 +187,7 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
         segment: Vec::with_capacity(m),
         heldout: vec![false; m],
         hold_weight: vec![],
+        eiv: None,
     };
     let mut dts: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
     dts.sort_by(|a, b| a.total_cmp(b));

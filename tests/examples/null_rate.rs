@@ -1,6 +1,8 @@
 //! The false-claim rate of `taut diagnose` on effect-free simulated recordings (issue 14): 3-,
 //! 4- and 8-cable robots and the 20 m outdoor robot, three noise levels, many seeds. Prints
-//! one line per recording and the measured rate beside the nominal family rate.
+//! one line per recording, then per candidate effect the false claims and the round-1 p-values
+//! in the tail (against the count a uniform p would give), and the measured rate with its 95 %
+//! confidence interval beside the nominal family rate.
 //!
 //! ```text
 //! cargo run --profile test -p taut-tests --example null_rate -- [recordings, default 52]
@@ -11,23 +13,53 @@ mod null_cases;
 
 use taut_calib::diagnose::{Effect, DEFAULT_FAMILY_ALPHA};
 
+/// Two-sided 95 % interval of a binomial proportion `k / n`: Clopper-Pearson for `k = 0`
+/// (`[0, 1 - 0.025^(1/n)]`, exact), Wilson otherwise.
+fn interval(k: usize, n: usize) -> (f64, f64) {
+    let nf = n.max(1) as f64;
+    if k == 0 {
+        return (0.0, 1.0 - 0.025f64.powf(1.0 / nf));
+    }
+    let (p, z) = (k as f64 / nf, 1.959_964);
+    let c = (p + z * z / (2.0 * nf)) / (1.0 + z * z / nf);
+    let h = z / (1.0 + z * z / nf) * (p * (1.0 - p) / nf + z * z / (4.0 * nf * nf)).sqrt();
+    (c - h, c + h)
+}
+
 fn main() {
     let count: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(52);
     let t0 = std::time::Instant::now();
     let mut with_claims = 0;
     let mut smallest_p = f64::INFINITY;
-    // Round-1 p-values of all six candidates: under the null about 5 % of them fall below 0.05.
-    let (mut tests, mut below_5pct) = (0usize, 0usize);
+    let lib = Effect::FITTED;
+    // Per candidate: claims, round-1 tests, and round-1 p below the test's level, 1e-3, 1e-2, 0.05.
+    let mut claims_of = vec![0usize; lib.len()];
+    let mut tests_of = vec![0usize; lib.len()];
+    let mut tail_of = vec![[0usize; 4]; lib.len()];
+    let mut alpha = 0.0;
     for k in 0..count {
         let t = std::time::Instant::now();
         let d = null_cases::diagnose_case(k);
         let c = null_cases::claims(&d);
         let round1: Vec<(Effect, f64)> =
             d.tests.iter().filter(|t| t.round == 1).filter_map(|t| t.test.map(|x| (t.effect, x.p_value))).collect();
+        if let Some(t) = d.tests.first() {
+            alpha = t.alpha;
+        }
+        for &(e, p) in &round1 {
+            let q = lib.iter().position(|x| *x == e).expect("in the library");
+            tests_of[q] += 1;
+            for (s, lim) in [alpha, 1e-3, 1e-2, 0.05].iter().enumerate() {
+                tail_of[q][s] += usize::from(p < *lim);
+            }
+        }
+        for e in &c {
+            if let Some(q) = lib.iter().position(|x| x == e) {
+                claims_of[q] += 1;
+            }
+        }
         let p = round1.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
         let arg = round1.iter().find(|x| x.1 == p).map_or("-", |x| x.0.name());
-        tests += round1.len();
-        below_5pct += round1.iter().filter(|x| x.1 < 0.05).count();
         smallest_p = smallest_p.min(p);
         if !c.is_empty() {
             with_claims += 1;
@@ -41,14 +73,41 @@ fn main() {
             t.elapsed().as_secs_f64()
         );
     }
+    println!("per candidate (round 1; a uniform p gives n x level below each level):");
     println!(
-        "round-1 tests: {below_5pct} of {tests} with p < 0.05 ({:.1} %); smallest p {smallest_p:.1e}",
-        100.0 * below_5pct as f64 / tests.max(1) as f64
+        "{:12} {:>7} {:>6} {:>16} {:>14} {:>14} {:>14}",
+        "candidate", "claims", "tests", "p < level", "p < 1e-3", "p < 0.01", "p < 0.05"
     );
+    for (q, e) in lib.iter().enumerate() {
+        let n = tests_of[q] as f64;
+        let (lo, hi) = interval(claims_of[q], count);
+        println!(
+            "{:12} {:>7} {:>6} {:>8} ({:.1e}) {:>7} ({:>4.2}) {:>7} ({:>4.1}) {:>7} ({:>4.1})   claim rate 95 % CI [{lo:.3}, {hi:.3}]",
+            e.name(),
+            claims_of[q],
+            tests_of[q],
+            tail_of[q][0],
+            n * alpha,
+            tail_of[q][1],
+            n * 1e-3,
+            tail_of[q][2],
+            n * 1e-2,
+            tail_of[q][3],
+            n * 0.05
+        );
+    }
+    let tests: usize = tests_of.iter().sum();
+    let below: usize = tail_of.iter().map(|t| t[3]).sum();
     println!(
-        "{with_claims} of {count} effect-free recordings with a claim (measured rate {:.3}); nominal family rate {:.0e} per recording; {:.0} s",
+        "round-1 tests: {below} of {tests} with p < 0.05 ({:.1} %); smallest p {smallest_p:.1e}; level of each test {alpha:.1e}",
+        100.0 * below as f64 / tests.max(1) as f64
+    );
+    let (lo, hi) = interval(with_claims, count);
+    println!(
+        "{with_claims} of {count} effect-free recordings with a claim (measured rate {:.4}, 95 % CI [{lo:.4}, {hi:.4}]); nominal family rate {:.0e} per recording (bound on a claim in round 1: {:.1e}); {:.0} s",
         with_claims as f64 / count as f64,
         DEFAULT_FAMILY_ALPHA,
+        alpha * lib.len() as f64,
         t0.elapsed().as_secs_f64()
     );
 }
