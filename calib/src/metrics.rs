@@ -233,11 +233,13 @@ pub fn cramer_rao(rec: &Recording, platform_points: &[[f64; 3]], params: &Params
     let nm = NoiseModel::new(opts, weighting);
     let mut data = noise::gather(rec, platform_points, opts, weighting);
     let mut out = CrbReport { anchor_sigma: vec![], l0_sigma: vec![], covariance: vec![], fisher: vec![] };
-    for (j, d) in data.iter_mut().enumerate() {
+    let fisher = crate::par::map_mut(opts.threads, &mut data, |j, d| {
         let x = params.cable(j);
         d.set_variances(&x, &nm);
         // The residual-free part of a least-squares pass is exactly F = sum J^T J / sigma^2.
-        let h = solver::pass(d, 0, d.len(), &x, RobustLoss::None).h_matrix();
+        solver::pass(d, 0, d.len(), &x, RobustLoss::None).h_matrix()
+    });
+    for h in fisher {
         let mut f4 = [[0.0; 4]; 4];
         for a in 0..4 {
             for b in 0..4 {

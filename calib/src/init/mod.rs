@@ -286,8 +286,10 @@ pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &Cal
     let mut anchors = Vec::new();
     let mut l0 = Vec::new();
     let mut cables = Vec::new();
-    for (j, d) in data.iter().enumerate() {
-        let (a, o) = multilaterate(d, sigma, j)?;
+    // Independent per cable; the first error in cable order is the one reported, as in a loop.
+    let solved = crate::par::map(opts.threads, data.len(), |j| multilaterate(&data[j], sigma, j).map(|(a, o)| (a, o, rms(&data[j], a, o))));
+    for (d, found) in data.iter().zip(solved) {
+        let (a, o, rms_m) = found?;
         anchors.push(a);
         l0.push(o);
         cables.push(CableInit {
@@ -295,7 +297,7 @@ pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &Cal
             held_in: vec![],
             line_anchor: None,
             geometric_anchor: None,
-            rms_m: rms(d, a, o),
+            rms_m,
             used: d.used,
         });
     }
