@@ -108,8 +108,12 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
         None
     };
     progress.inc(1);
-    let before = metrics::rms_peak(&metrics::co_registration(rec, &b, &init.params), &metrics::taut_mask(rec, &opts));
-    let crb = metrics::cramer_rao(rec, &b, &force.params, &opts);
+    let ((res, mask), crb) = taut_calib::par::join(
+        threads,
+        || taut_calib::par::join(threads, || metrics::co_registration(rec, &b, &init.params), || metrics::taut_mask(rec, &opts)),
+        || metrics::cramer_rao(rec, &b, &force.params, &opts),
+    );
+    let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
     Ok(Outcome { init, force, plain, before, crb, screen })
 }

@@ -19,7 +19,7 @@
 //! or `nan` is a missing value. Rows are kept in memory column-wise, missing values as NaN.
 
 use std::fmt;
-use std::io::{BufRead, Read, Write};
+use std::io::{BufRead, Write};
 use std::path::Path;
 
 mod pieces;
@@ -327,13 +327,10 @@ impl Recording {
         }
         let parsed = match size {
             Some(size) if threads > 1 && size <= MAX_IN_MEMORY_BYTES => {
-                let mut bytes = Vec::with_capacity(size as usize + 1);
-                // A file that grew since its size was taken is read on as a stream.
-                (&mut file).take(MAX_IN_MEMORY_BYTES + 1).read_to_end(&mut bytes).map_err(|e| err(ErrorKind::Io(e.to_string())))?;
-                if bytes.len() as u64 > MAX_IN_MEMORY_BYTES {
-                    parse_sized(Read::chain(&bytes[..], file), Some(size))
-                } else {
-                    pieces::parse_bytes(&bytes, threads, pieces::MIN_PIECE_BYTES)
+                // A file whose size changed since it was taken is read as a stream.
+                match pieces::read_whole(file.get_ref(), size as usize, threads).map_err(|e| err(ErrorKind::Io(e.to_string())))? {
+                    Some(bytes) => pieces::parse_bytes(&bytes, threads, pieces::MIN_PIECE_BYTES),
+                    None => parse_sized(file, Some(size)),
                 }
             }
             _ => parse_sized(file, size),

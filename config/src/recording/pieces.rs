@@ -56,10 +56,12 @@ struct Piece {
 }
 
 /// The rows of `bytes[start..end]` (whole lines) up to the first line that is not a row of
-/// plain decimals passing the row checks (see the module doc); `stop` ends it early.
-fn fast_piece(bytes: &[u8], start: usize, end: usize, c: &Columns, stop: &AtomicBool) -> Piece {
+/// plain decimals passing the row checks (see the module doc); `stop` ends it early. The
+/// columns have room for the rows of `room` bytes (the first piece's for the whole input, so
+/// that the others join it without a copy of it).
+fn fast_piece(bytes: &[u8], start: usize, end: usize, room: usize, c: &Columns, stop: &AtomicBool) -> Piece {
     let width_guess = bytes[start..end].iter().position(|&b| b == b'\n').unwrap_or(end - start) + 1;
-    let cap = (end - start) / width_guess + 16;
+    let cap = (room / width_guess + room / width_guess / 10 + 16).min(MAX_LINES);
     let n = c.l.len();
     let mut out = Piece {
         taken_end: start,
@@ -143,6 +145,16 @@ impl Parser {
             return false;
         }
         let rec = &mut self.rec;
+        if rec.t.is_empty() {
+            // The first rows: the piece's columns become the recording's.
+            rec.t = piece.t;
+            rec.p = piece.p;
+            rec.q = rec.q.take().map(|_| piece.q);
+            rec.l = piece.l;
+            rec.f = rec.f.take().map(|_| piece.f);
+            rec.phase = rec.phase.take().map(|_| piece.phase);
+            return self.counted(k);
+        }
         rec.t.extend_from_slice(&piece.t);
         rec.p.extend_from_slice(&piece.p);
         if let Some(q) = &mut rec.q {
@@ -155,15 +167,47 @@ impl Parser {
         if let Some(ph) = &mut rec.phase {
             ph.extend_from_slice(&piece.phase);
         }
+        self.counted(k)
+    }
+
+    /// Counts `k` rows of plain decimals just taken, whose times are the last `k` of the
+    /// recording.
+    fn counted(&mut self, k: usize) -> bool {
+        let t = &self.rec.t;
         // What the reader counts for a row of plain decimals: nothing missing, usable.
         self.report.rows += k;
         self.report.usable_rows += k;
-        self.before_last_t = if k >= 2 { piece.t[k - 2] } else { self.last_t };
-        self.last_t = piece.t[k - 1];
+        self.before_last_t = if k >= 2 { t[t.len() - 2] } else { self.last_t };
+        self.last_t = t[t.len() - 1];
         self.lineno += k;
         self.last_line = self.lineno;
         true
     }
+}
+
+/// The `size` bytes of `file`, read in one piece per thread (each thread faults in its own
+/// part of the buffer); `None` when the file is no longer `size` bytes long.
+pub(super) fn read_whole(file: &std::fs::File, size: usize, threads: usize) -> std::io::Result<Option<Vec<u8>>> {
+    use std::os::unix::fs::FileExt;
+    let mut bytes = vec![0u8; size];
+    let chunk = size.div_ceil(threads.min(size / MIN_PIECE_BYTES).max(1)).max(1);
+    let read = |k: usize, part: &mut [u8]| match file.read_exact_at(part, (k * chunk) as u64) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(e),
+    };
+    let whole = std::thread::scope(|s| {
+        let mut parts = bytes.chunks_mut(chunk).enumerate();
+        let first = parts.next();
+        let helpers: Vec<_> = parts.map(|(k, part)| s.spawn(move || read(k, part))).collect();
+        let mut whole = first.map_or(Ok(true), |(k, part)| read(k, part))?;
+        for h in helpers {
+            whole &= h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))?;
+        }
+        Ok::<_, std::io::Error>(whole)
+    })?;
+    // Nothing after the end either (a file that grew is read as a stream).
+    Ok((whole && file.read_at(&mut [0u8], size as u64)? == 0).then_some(bytes))
 }
 
 /// Parses a whole input in memory on up to `threads` threads, pieces of at least `min_piece`
@@ -183,16 +227,24 @@ pub(super) fn parse_bytes(bytes: &[u8], threads: usize, min_piece: usize) -> Res
     let stop = AtomicBool::new(false);
     std::thread::scope(|s| {
         let (cols, stop) = (&cols, &stop);
-        let helpers: Vec<_> = cuts.windows(2).skip(1).map(|w| s.spawn(move || fast_piece(bytes, w[0], w[1], cols, stop))).collect();
+        let helpers: Vec<_> =
+            cuts.windows(2).skip(1).map(|w| s.spawn(move || fast_piece(bytes, w[0], w[1], w[1] - w[0], cols, stop))).collect();
+        // The first piece on this thread.
+        let first = fast_piece(bytes, cuts[0], cuts[1], bytes.len() - cuts[0], cols, stop);
         let read = || -> Result<(), RecordingError> {
-            for (k, h) in helpers.into_iter().enumerate() {
-                while lines.pos < cuts[k + 1] {
+            let mut first = Some(first);
+            let mut helpers = helpers.into_iter();
+            for k in 0..cuts.len() - 1 {
+                while lines.pos < cuts[k] {
                     let (read, line) = lines.next_line();
                     if !p.line(read, line)? {
                         return Ok(());
                     }
                 }
-                let piece = h.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
+                let piece = match first.take() {
+                    Some(piece) => piece,
+                    None => helpers.next().expect("a thread per piece").join().unwrap_or_else(|e| std::panic::resume_unwind(e)),
+                };
                 let end = piece.taken_end;
                 if p.join(piece) {
                     lines.pos = end;
@@ -387,10 +439,35 @@ mod tests {
         let cols = p.cols.clone().unwrap();
         let stop = AtomicBool::new(false);
         for w in cuts.windows(2).skip(1) {
-            let piece = fast_piece(&bytes, w[0], w[1], &cols, &stop);
+            let piece = fast_piece(&bytes, w[0], w[1], w[1] - w[0], &cols, &stop);
             assert_eq!(piece.taken_end, w[1], "the piece is taken whole");
             assert!(piece.rows > 1000);
         }
         assert_eq!(outcome(parse_bytes(&bytes, 4, 1000)), one_thread(&bytes));
+    }
+
+    /// `Recording::load_with` reads a file in pieces (larger than two [`MIN_PIECE_BYTES`]) and
+    /// gives what `Recording::load` gives, for a clean file and one with an error far in.
+    #[test]
+    fn a_file_read_in_pieces_is_the_file_read_as_a_stream() {
+        let mut rng = Rng(11);
+        let (mut lines, _) = lines(&mut rng, 12_000);
+        let dir = std::env::temp_dir().join(format!("taut-pieces-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("rec.csv");
+        for bad in [None, Some(9_000), Some(4_000)] {
+            if let Some(i) = bad {
+                lines[i] = lines[i].replacen(',', ",x", 1);
+            }
+            let bytes = text(&lines, true);
+            assert!(bytes.len() > 3 * MIN_PIECE_BYTES, "{} bytes", bytes.len());
+            std::fs::write(&path, &bytes).unwrap();
+            let want = outcome(Recording::load(&path));
+            assert_eq!(want.starts_with("Ok"), bad.is_none(), "{}", &want[..want.len().min(300)]);
+            for threads in [2, 3] {
+                assert_eq!(outcome(Recording::load_with(&path, threads)), want, "{threads} threads, error at {bad:?}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
