@@ -494,6 +494,30 @@ impl CalibReport {
 /// point mass). The parameters come from all used readings; the held-out figures from a second
 /// solve on the training block only.
 pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, opts: &CalibOptions) -> Result<CalibReport, CalibError> {
+    calibrate_readings(rec, platform_points, init, opts, None)
+}
+
+/// [`calibrate`] on readings gathered once for the initialisation, the calibration and the
+/// Cramér–Rao bound: `data` must be `noise::gather(rec, platform_points, opts, Weighting::of(rec,
+/// opts))` (checked for its shape); the calibration sets their variances.
+pub fn calibrate_gathered(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    init: &Params,
+    opts: &CalibOptions,
+    data: &mut [noise::CableData],
+) -> Result<CalibReport, CalibError> {
+    assert!(data.len() == rec.n_cables && data.iter().all(|d| d.len() == rec.len()), "readings gathered from this recording");
+    calibrate_readings(rec, platform_points, init, opts, Some(data))
+}
+
+fn calibrate_readings(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    init: &Params,
+    opts: &CalibOptions,
+    gathered: Option<&mut [noise::CableData]>,
+) -> Result<CalibReport, CalibError> {
     let n = rec.n_cables;
     if platform_points.len() != n || init.anchors.len() != n || init.l0.len() != n {
         return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: init.anchors.len() });
@@ -505,11 +529,18 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
     }
     let weighting = Weighting::of(rec, opts);
     let nm = noise::NoiseModel::new(opts, weighting);
-    let mut data = noise::gather(rec, platform_points, opts, weighting);
+    let mut own: Vec<noise::CableData>;
+    let data = match gathered {
+        Some(d) => d,
+        None => {
+            own = noise::gather(rec, platform_points, opts, weighting);
+            &mut own[..]
+        }
+    };
     let split = metrics::heldout_start(rec, opts.heldout_fraction);
     // The cables are independent problems (on `opts.threads` threads); everything summed or
     // listed over them is summed and listed in cable order below, as one thread would.
-    let cables = par::map_mut(opts.threads, &mut data, |j, d| calibrate_cable(j, d, init, &nm, opts, split, rec.len()));
+    let cables = par::map_mut(opts.threads, data, |j, d| calibrate_cable(j, d, init, &nm, opts, split, rec.len()));
 
     let mut xs = Vec::with_capacity(n);
     let mut per_cable = Vec::with_capacity(n);

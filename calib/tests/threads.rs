@@ -49,3 +49,26 @@ fn the_first_failing_cable_is_reported_as_with_one_thread() {
         assert_eq!(run(threads), one);
     }
 }
+
+/// The readings gathered once and shared (`initialise_gathered`, `calibrate_gathered`,
+/// `cramer_rao_gathered`, as `taut calibrate` runs them) give what each function gives on its own.
+#[test]
+fn readings_gathered_once_give_the_same() {
+    let (rec, _) = synth::bench_recording(6000);
+    let b = vec![[0.0; 3]; rec.n_cables];
+    for threads in [1, 2] {
+        let opts = CalibOptions { threads, ..CalibOptions::default() };
+        let start = init::initialise(&rec, &b, &opts).expect("initialisation");
+        let cal = calibrate(&rec, &b, &start.params, &opts).expect("calibration");
+        let crb = metrics::cramer_rao(&rec, &b, &cal.params, &opts);
+        let mut data = taut_calib::noise::gather(&rec, &b, &opts, taut_calib::Weighting::of(&rec, &opts));
+        let start2 = init::initialise_gathered(&rec, &b, &opts, &data).expect("initialisation");
+        let cal2 = taut_calib::calibrate_gathered(&rec, &b, &start2.params, &opts, &mut data).expect("calibration");
+        let crb2 = metrics::cramer_rao_gathered(&rec, &cal2.params, &opts, &mut data);
+        assert_eq!(
+            format!("{:?}\n{cal2:?}\n{crb2:?}", start2.params),
+            format!("{:?}\n{cal:?}\n{crb:?}", start.params),
+            "{threads} threads"
+        );
+    }
+}

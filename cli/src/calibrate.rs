@@ -95,10 +95,12 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     );
     let rec = screen.recording(rec);
     progress.set_message("initialising");
-    let init = init::initialise(rec, &b, &opts).context("initialisation failed")?;
+    // The readings as the initialisation, the calibration and the bound use them, gathered once.
+    let mut data = taut_calib::noise::gather(rec, &b, &opts, taut_calib::Weighting::of(rec, &opts));
+    let init = init::initialise_gathered(rec, &b, &opts, &data).context("initialisation failed")?;
     progress.inc(1);
     progress.set_message("calibrating (force-aware)");
-    let force = taut_calib::calibrate(rec, &b, &init.params, &opts).context("calibration failed")?;
+    let force = taut_calib::calibrate_gathered(rec, &b, &init.params, &opts, &mut data).context("calibration failed")?;
     progress.inc(1);
     progress.set_message("calibrating (unweighted)");
     let plain = if compare && force.used_tensions {
@@ -111,7 +113,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     let ((res, mask), crb) = taut_calib::par::join(
         threads,
         || taut_calib::par::join(threads, || metrics::co_registration(rec, &b, &init.params), || metrics::taut_mask(rec, &opts)),
-        || metrics::cramer_rao(rec, &b, &force.params, &opts),
+        || metrics::cramer_rao_gathered(rec, &force.params, &opts, &mut data),
     );
     let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
