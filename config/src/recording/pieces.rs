@@ -1,16 +1,17 @@
 //! Reading a recording held in memory on several threads ([`Recording::load_with`] of a regular
 //! file).
 //!
-//! The rows after the header are cut into pieces at line starts, one per thread. The first piece
-//! is read by the ordinary line-by-line [`Parser`]; every other piece by [`fast_piece`] on a
-//! thread of its own, which takes only rows of plain decimals ([`fast_row`]) that pass every row
-//! check on their own (a plausible time, not decreasing within the piece; a phase that is an
-//! integer >= -1) and stops at the first line that is anything else. The pieces are then joined
-//! in order: a piece's rows are appended when its first time is not before the last row before
-//! it and the line limit allows them; every line that no piece took (all of a piece whose rows
-//! do not join, and whatever follows a piece's first other line) is read by the ordinary reader.
-//! So the recording, the report and every error are the ones the one-thread reader gives: what
-//! the pieces take are exactly rows on which its checks pass, read by the same [`fast_row`].
+//! The comments and the header are read by the ordinary line-by-line [`Parser`]. The rows after
+//! them are cut into pieces at line starts, one per thread, and each piece is read by
+//! [`fast_piece`] (the first on the calling thread), which takes only rows of plain decimals
+//! ([`fast_row`]) that pass every row check on their own (a plausible time, not decreasing
+//! within the piece; a phase that is an integer >= -1) and stops at the first line that is
+//! anything else. The pieces are then joined in order: a piece's rows are appended when its
+//! first time is not before the last row before it and the line limit allows them; every line
+//! that no piece took (all of a piece whose rows do not join, and whatever follows a piece's
+//! first other line) is read by the ordinary reader. So the recording, the report and every
+//! error are the ones the one-thread reader gives: what the pieces take are exactly rows on which
+//! its checks pass, read by the same [`fast_row`].
 
 use super::{fast_row, Columns, Line, ParseReport, Parser, Recording, RecordingError, MAX_LINES, MAX_LINE_BYTES, MAX_TIME_S};
 use std::sync::atomic::{AtomicBool, Ordering};
