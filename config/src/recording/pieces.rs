@@ -79,7 +79,7 @@ fn fast_piece(bytes: &[u8], start: usize, end: usize, room: usize, c: &Columns, 
     let mut last_t = f64::NEG_INFINITY;
     while pos < end {
         // Relaxed: a hint to give up early (the reader failed elsewhere); nothing is read through it.
-        if out.rows % 4096 == 0 && stop.load(Ordering::Relaxed) {
+        if out.rows.is_multiple_of(4096) && stop.load(Ordering::Relaxed) {
             break;
         }
         let len = bytes[pos..end].iter().position(|&b| b == b'\n').unwrap_or(end - pos);
@@ -88,7 +88,9 @@ fn fast_piece(bytes: &[u8], start: usize, end: usize, room: usize, c: &Columns, 
             break;
         }
         let t = vals[c.t];
-        if !(t.abs() <= MAX_TIME_S) || t < last_t {
+        // A fast field is finite: the reader's checks are a time beyond MAX_TIME_S and one
+        // before the last.
+        if t.abs() > MAX_TIME_S || t < last_t {
             break;
         }
         let phase = match c.phase {
@@ -235,8 +237,8 @@ pub(super) fn parse_bytes(bytes: &[u8], threads: usize, min_piece: usize) -> Res
         let read = || -> Result<(), RecordingError> {
             let mut first = Some(first);
             let mut helpers = helpers.into_iter();
-            for k in 0..cuts.len() - 1 {
-                while lines.pos < cuts[k] {
+            for &start in &cuts[..cuts.len() - 1] {
+                while lines.pos < start {
                     let (read, line) = lines.next_line();
                     if !p.line(read, line)? {
                         return Ok(());
