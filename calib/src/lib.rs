@@ -3,7 +3,9 @@
 //! initialisation (three-phase circles or algebraic multilateration), and the metrics to judge the
 //! result (co-registration, held-out error, Cramér–Rao bound).
 //!
-//! Pure: no I/O, no threads. The input is a [`Recording`] (crate `taut-config`).
+//! Pure: no I/O. No threads unless the caller asks for them (`CalibOptions::threads`, [`par`]):
+//! then scoped workers take whole cables or channels, with the same results bit for bit.
+//! The input is a [`Recording`] (crate `taut-config`).
 //!
 //! ```no_run
 //! use taut_calib::{calibrate, init, CalibOptions};
@@ -111,6 +113,7 @@
 //! - [`selfcal`]: calibration without a tracker, from dwell poses, the encoders and the load cells.
 //! - [`effect_fit`]: anchors, offsets and a fixed set of effects fitted together (the running robot's refit).
 //! - [`design`]: the start-up excitation designed from the nominal geometry, with its predicted uncertainty.
+//! - [`par`]: independent cables or channels on several cores, results in index order.
 //! - [`trust`]: whether a calibrated set may become the robot's parameters (finite, plausible anchors).
 #![deny(missing_docs)]
 // `!(a > b)` is deliberate throughout: a NaN must fail a check, not pass it.
@@ -126,6 +129,7 @@ pub mod init;
 pub mod metrics;
 pub mod model;
 pub mod noise;
+pub mod par;
 pub mod screen;
 pub mod selfcal;
 pub mod solver;
@@ -196,6 +200,9 @@ pub struct CalibOptions {
     /// A reading whose normalised residual exceeds this many sigmas is counted as an outlier in
     /// the report.
     pub outlier_sigma: f64,
+    /// Threads the per-cable work may use ([`par`]): 1 (the default) keeps it on the caller's
+    /// thread; more gives the same results sooner on a machine with free cores.
+    pub threads: usize,
 }
 
 impl Default for CalibOptions {
@@ -222,6 +229,7 @@ impl CalibOptions {
             weak_sigma_m: c.weak_sigma_m,
             max_sigma_m: c.max_sigma_m,
             outlier_sigma: 6.0,
+            threads: 1,
         }
     }
 }
@@ -486,6 +494,30 @@ impl CalibReport {
 /// point mass). The parameters come from all used readings; the held-out figures from a second
 /// solve on the training block only.
 pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, opts: &CalibOptions) -> Result<CalibReport, CalibError> {
+    calibrate_readings(rec, platform_points, init, opts, None)
+}
+
+/// [`calibrate`] on readings gathered once for the initialisation, the calibration and the
+/// Cramér–Rao bound: `data` must be `noise::gather(rec, platform_points, opts, Weighting::of(rec,
+/// opts))` (checked for its shape); the calibration sets their variances.
+pub fn calibrate_gathered(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    init: &Params,
+    opts: &CalibOptions,
+    data: &mut [noise::CableData],
+) -> Result<CalibReport, CalibError> {
+    assert!(data.len() == rec.n_cables && data.iter().all(|d| d.len() == rec.len()), "readings gathered from this recording");
+    calibrate_readings(rec, platform_points, init, opts, Some(data))
+}
+
+fn calibrate_readings(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    init: &Params,
+    opts: &CalibOptions,
+    gathered: Option<&mut [noise::CableData]>,
+) -> Result<CalibReport, CalibError> {
     let n = rec.n_cables;
     if platform_points.len() != n || init.anchors.len() != n || init.l0.len() != n {
         return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: init.anchors.len() });
@@ -497,8 +529,18 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
     }
     let weighting = Weighting::of(rec, opts);
     let nm = noise::NoiseModel::new(opts, weighting);
-    let mut data = noise::gather(rec, platform_points, opts, weighting);
+    let mut own: Vec<noise::CableData>;
+    let data = match gathered {
+        Some(d) => d,
+        None => {
+            own = noise::gather(rec, platform_points, opts, weighting);
+            &mut own[..]
+        }
+    };
     let split = metrics::heldout_start(rec, opts.heldout_fraction);
+    // The cables are independent problems (on `opts.threads` threads); everything summed or
+    // listed over them is summed and listed in cable order below, as one thread would.
+    let cables = par::map_mut(opts.threads, data, |j, d| calibrate_cable(j, d, init, &nm, opts, split, rec.len()));
 
     let mut xs = Vec::with_capacity(n);
     let mut per_cable = Vec::with_capacity(n);
@@ -508,154 +550,23 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
     let mut weak = Vec::new();
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
-    for (j, d) in data.iter_mut().enumerate() {
-        // `m` readings used; the solver runs over all `slots` (unused ones weigh zero).
-        let (m, slots) = (d.used, d.len());
-        if m < MIN_READINGS {
-            return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
+    for c in cables {
+        let c = c?;
+        notes.extend(c.weak.iter().map(|w| w.to_string()));
+        weak.extend(c.weak);
+        if let Some((sum, count, peak)) = c.heldout {
+            ho_sum += sum;
+            ho_n += count;
+            ho_peak = ho_peak.max(peak);
         }
-        // The variances depend (weakly) on the geometry (stretch ~ rho, tracker projection ~ u).
-        // They are held fixed during a solve, so that LM's accept/reject test compares values of
-        // one cost function: a least-squares stage with the uniform variance brings the start
-        // near the optimum, the variances are then set at that point (a few sigma from the final
-        // one) for the final solve, and re-checked once more if that solve moved the anchor by
-        // more than 0.5% of the shortest cable (an isotropic tracker's variances then change by
-        // under 1%; with an anisotropic one they are always re-checked).
-        let x0 = init.cable(j);
-        d.set_uniform_variance(nm.uniform_variance());
-        let s1 = solver::lm(d, 0, slots, x0, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
-        let mut iterations = s1.iterations;
-        if !s1.x.iter().all(|v| v.is_finite()) {
-            return Err(CalibError::Diverged { cable: j });
-        }
-        let x = s1.x;
-        d.set_variances(&x, &nm);
-        let mut x_var = x;
-        let mut sol = solver::lm(d, 0, slots, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
-        iterations += sol.iterations;
-        for _ in 0..3 {
-            if !sol.x.iter().all(|v| v.is_finite()) {
-                return Err(CalibError::Diverged { cable: j });
-            }
-            let moved = model::norm(model::sub([sol.x[0], sol.x[1], sol.x[2]], [x_var[0], x_var[1], x_var[2]]));
-            if nm.iso.is_some() && moved <= 0.005 * d.rho_min {
-                break;
-            }
-            x_var = sol.x;
-            if d.set_variances(&sol.x, &nm) <= 0.01 {
-                break;
-            }
-            sol = solver::lm(d, 0, slots, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
-            iterations += sol.iterations;
-        }
-        if !sol.x.iter().all(|v| v.is_finite()) {
-            return Err(CalibError::Diverged { cable: j });
-        }
-        sol.iterations = iterations;
-        let fin = solver::final_pass(d, 0, slots, &sol.x, opts.loss, opts.outlier_sigma);
-        sol.at_x = fin.pass;
-        let h = sol.at_x.h_matrix();
-        let eig = nalgebra::SymmetricEigen::new(h);
-        let mut order: [usize; 4] = [0, 1, 2, 3];
-        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-        let sv = order.map(|k| eig.eigenvalues[k].max(0.0).sqrt());
-        let vf = sol.at_x.chi2 / (m as f64 - 4.0);
-        let scale = vf.max(1.0);
-        let cov = h.try_inverse().map(|c| c * scale);
-        let sig: [f64; 4] = match &cov {
-            Some(c) => [0, 1, 2, 3].map(|k| c[(k, k)].max(0.0).sqrt()),
-            None => [f64::INFINITY; 4],
-        };
-        // Observability by the predicted uncertainty: refuse beyond the user's tolerance (or
-        // without any information in some direction), warn beyond the weak level.
-        let singular = cov.is_none() || sig.iter().any(|s| !s.is_finite());
-        if singular || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
-            let param = if singular {
-                let weakest = eig.eigenvectors.column(order[3]).into_owned();
-                dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
-            } else {
-                Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
-            };
-            let k = param as usize;
-            return Err(CalibError::NotObservable {
-                cable: j,
-                param,
-                singular_value: sv[3],
-                largest: sv[0],
-                sigma_m: sig[k],
-                max_sigma_m: opts.max_sigma_m,
-                singular,
-            });
-        }
-        for (k, &s) in sig.iter().enumerate() {
-            if s > opts.weak_sigma_m {
-                let w = WeakParam { cable: j, param: Param::from_index(k), sigma_m: s };
-                notes.push(w.to_string());
-                weak.push(w);
-            }
-        }
-        // Held-out: the parameters of the training block alone, evaluated on the rest. The
-        // training optimum is within about a standard deviation of the full-data one, where the
-        // cost is quadratic: one Gauss-Newton step from the full solution on the training block
-        // lands on it to a small fraction of a sigma (checked against a full solve in the
-        // tests), for one pass instead of a whole solve.
-        let ntrain = d.used_in(0..split);
-        let mut heldout = f64::NAN;
-        if split < rec.len() && ntrain >= MIN_READINGS && ntrain < m {
-            let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
-            if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
-                let xt = [sol.x[0] + step[0], sol.x[1] + step[1], sol.x[2] + step[2], sol.x[3] + step[3]];
-                if xt.iter().all(|v| v.is_finite()) {
-                    let hs = solver::final_pass(d, split, slots, &xt, opts.loss, opts.outlier_sigma);
-                    ho_sum += hs.sum_sq;
-                    ho_n += m - ntrain;
-                    ho_peak = ho_peak.max(hs.peak);
-                    heldout = (hs.sum_sq / (m - ntrain) as f64).sqrt();
-                }
-            }
-        }
-        if d.loose > 0 {
-            notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
-        }
-        if vf > 1.5 {
-            notes.push(format!(
-                "cable {j}: residuals are {:.1}x larger than the noise model predicts (variance factor {vf:.2}); its sigmas are scaled up accordingly",
-                vf.sqrt()
-            ));
-        }
-        if !sol.termination.was_successful() {
-            notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
-        }
-        // All readings, loose ones included.
-        all_sum += fin.sum_sq_all;
-        all_n += m + d.loose;
-        all_peak = all_peak.max(fin.peak_all);
-        let mut c4 = [[0.0; 4]; 4];
-        if let Some(c) = &cov {
-            for a in 0..4 {
-                for b in 0..4 {
-                    c4[a][b] = c[(a, b)];
-                }
-            }
-        } else {
-            c4 = [[f64::INFINITY; 4]; 4];
-        }
-        covariance.push(c4);
-        singular_values.push(sv);
-        per_cable.push(CableReport {
-            termination: sol.termination,
-            iterations: sol.iterations,
-            cost: sol.at_x.cost,
-            used: m,
-            excluded: Excluded { loose: d.loose, missing: d.missing },
-            downweighted: fin.downweighted,
-            outliers: fin.outliers,
-            variance_factor: vf,
-            rms_m: (fin.sum_sq / m as f64).sqrt(),
-            peak_m: fin.peak,
-            heldout_rms_m: heldout,
-        });
-        xs.push(sol.x);
+        notes.extend(c.notes);
+        all_sum += c.all.0;
+        all_n += c.all.1;
+        all_peak = all_peak.max(c.all.2);
+        covariance.push(c.covariance);
+        singular_values.push(c.singular_values);
+        per_cable.push(c.report);
+        xs.push(c.x);
     }
     let params = Params::from_cables(&xs);
     match weighting {
@@ -698,6 +609,181 @@ pub fn calibrate(rec: &Recording, platform_points: &[[f64; 3]], init: &Params, o
         params,
         weak,
         notes,
+    })
+}
+
+/// What [`calibrate`] found for one cable, summed over the cables in cable order.
+struct CableOutcome {
+    x: [f64; 4],
+    report: CableReport,
+    covariance: [[f64; 4]; 4],
+    singular_values: [f64; 4],
+    /// Weak parameters (each also a note, listed before `notes`).
+    weak: Vec<WeakParam>,
+    notes: Vec<String>,
+    /// Held-out sum of squares, readings and peak, when there is a held-out block.
+    heldout: Option<(f64, usize, f64)>,
+    /// Sum of squares, readings and peak over the used and the loose readings.
+    all: (f64, usize, f64),
+}
+
+/// [`calibrate`] for cable `j` on its readings `d`; `split` is the first held-out slot, `rows`
+/// the recording's length.
+fn calibrate_cable(
+    j: usize,
+    d: &mut noise::CableData,
+    init: &Params,
+    nm: &noise::NoiseModel,
+    opts: &CalibOptions,
+    split: usize,
+    rows: usize,
+) -> Result<CableOutcome, CalibError> {
+    // `m` readings used; the solver runs over all `slots` (unused ones weigh zero).
+    let (m, slots) = (d.used, d.len());
+    if m < MIN_READINGS {
+        return Err(CalibError::TooFewReadings { cable: j, used: m, loose: d.loose, missing: d.missing, needed: MIN_READINGS });
+    }
+    // The variances depend (weakly) on the geometry (stretch ~ rho, tracker projection ~ u).
+    // They are held fixed during a solve, so that LM's accept/reject test compares values of
+    // one cost function: a least-squares stage with the uniform variance brings the start
+    // near the optimum, the variances are then set at that point (a few sigma from the final
+    // one) for the final solve, and re-checked once more if that solve moved the anchor by
+    // more than 0.5% of the shortest cable (an isotropic tracker's variances then change by
+    // under 1%; with an anisotropic one they are always re-checked).
+    let x0 = init.cable(j);
+    d.set_uniform_variance(nm.uniform_variance());
+    let s1 = solver::lm(d, 0, slots, x0, RobustLoss::None, opts.max_iterations, solver::Tolerances::COARSE);
+    let mut iterations = s1.iterations;
+    if !s1.x.iter().all(|v| v.is_finite()) {
+        return Err(CalibError::Diverged { cable: j });
+    }
+    let x = s1.x;
+    d.set_variances(&x, nm);
+    let mut x_var = x;
+    let mut sol = solver::lm(d, 0, slots, x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+    iterations += sol.iterations;
+    for _ in 0..3 {
+        if !sol.x.iter().all(|v| v.is_finite()) {
+            return Err(CalibError::Diverged { cable: j });
+        }
+        let moved = model::norm(model::sub([sol.x[0], sol.x[1], sol.x[2]], [x_var[0], x_var[1], x_var[2]]));
+        if nm.iso.is_some() && moved <= 0.005 * d.rho_min {
+            break;
+        }
+        x_var = sol.x;
+        if d.set_variances(&sol.x, nm) <= 0.01 {
+            break;
+        }
+        sol = solver::lm(d, 0, slots, sol.x, opts.loss, opts.max_iterations, solver::Tolerances::FINAL);
+        iterations += sol.iterations;
+    }
+    if !sol.x.iter().all(|v| v.is_finite()) {
+        return Err(CalibError::Diverged { cable: j });
+    }
+    sol.iterations = iterations;
+    let fin = solver::final_pass(d, 0, slots, &sol.x, opts.loss, opts.outlier_sigma);
+    sol.at_x = fin.pass;
+    let h = sol.at_x.h_matrix();
+    let eig = nalgebra::SymmetricEigen::new(h);
+    let mut order: [usize; 4] = [0, 1, 2, 3];
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let sv = order.map(|k| eig.eigenvalues[k].max(0.0).sqrt());
+    let vf = sol.at_x.chi2 / (m as f64 - 4.0);
+    let scale = vf.max(1.0);
+    let cov = h.try_inverse().map(|c| c * scale);
+    let sig: [f64; 4] = match &cov {
+        Some(c) => [0, 1, 2, 3].map(|k| c[(k, k)].max(0.0).sqrt()),
+        None => [f64::INFINITY; 4],
+    };
+    // Observability by the predicted uncertainty: refuse beyond the user's tolerance (or
+    // without any information in some direction), warn beyond the weak level.
+    let singular = cov.is_none() || sig.iter().any(|s| !s.is_finite());
+    if singular || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
+        let param = if singular {
+            let weakest = eig.eigenvectors.column(order[3]).into_owned();
+            dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
+        } else {
+            Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
+        };
+        let k = param as usize;
+        return Err(CalibError::NotObservable {
+            cable: j,
+            param,
+            singular_value: sv[3],
+            largest: sv[0],
+            sigma_m: sig[k],
+            max_sigma_m: opts.max_sigma_m,
+            singular,
+        });
+    }
+    let weak: Vec<WeakParam> = (0..4)
+        .filter(|&k| sig[k] > opts.weak_sigma_m)
+        .map(|k| WeakParam { cable: j, param: Param::from_index(k), sigma_m: sig[k] })
+        .collect();
+    let mut notes = Vec::new();
+    // Held-out: the parameters of the training block alone, evaluated on the rest. The
+    // training optimum is within about a standard deviation of the full-data one, where the
+    // cost is quadratic: one Gauss-Newton step from the full solution on the training block
+    // lands on it to a small fraction of a sigma (checked against a full solve in the
+    // tests), for one pass instead of a whole solve.
+    let ntrain = d.used_in(0..split);
+    let (mut heldout, mut heldout_sums) = (f64::NAN, None);
+    if split < rows && ntrain >= MIN_READINGS && ntrain < m {
+        let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
+        if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
+            let xt = [sol.x[0] + step[0], sol.x[1] + step[1], sol.x[2] + step[2], sol.x[3] + step[3]];
+            if xt.iter().all(|v| v.is_finite()) {
+                let hs = solver::final_pass(d, split, slots, &xt, opts.loss, opts.outlier_sigma);
+                heldout_sums = Some((hs.sum_sq, m - ntrain, hs.peak));
+                heldout = (hs.sum_sq / (m - ntrain) as f64).sqrt();
+            }
+        }
+    }
+    if d.loose > 0 {
+        notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
+    }
+    if vf > 1.5 {
+        notes.push(format!(
+            "cable {j}: residuals are {:.1}x larger than the noise model predicts (variance factor {vf:.2}); its sigmas are scaled up accordingly",
+            vf.sqrt()
+        ));
+    }
+    if !sol.termination.was_successful() {
+        notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
+    }
+    let mut c4 = [[0.0; 4]; 4];
+    if let Some(c) = &cov {
+        for a in 0..4 {
+            for b in 0..4 {
+                c4[a][b] = c[(a, b)];
+            }
+        }
+    } else {
+        c4 = [[f64::INFINITY; 4]; 4];
+    }
+    let report = CableReport {
+        termination: sol.termination,
+        iterations: sol.iterations,
+        cost: sol.at_x.cost,
+        used: m,
+        excluded: Excluded { loose: d.loose, missing: d.missing },
+        downweighted: fin.downweighted,
+        outliers: fin.outliers,
+        variance_factor: vf,
+        rms_m: (fin.sum_sq / m as f64).sqrt(),
+        peak_m: fin.peak,
+        heldout_rms_m: heldout,
+    };
+    Ok(CableOutcome {
+        x: sol.x,
+        report,
+        covariance: c4,
+        singular_values: sv,
+        weak,
+        notes,
+        heldout: heldout_sums,
+        // All readings, loose ones included.
+        all: (fin.sum_sq_all, m + d.loose, fin.peak_all),
     })
 }
 

@@ -229,15 +229,22 @@ impl CrbReport {
 /// Cramér–Rao bound at `params` under the noise model of `opts`, over the readings the
 /// calibration would use.
 pub fn cramer_rao(rec: &Recording, platform_points: &[[f64; 3]], params: &Params, opts: &CalibOptions) -> CrbReport {
-    let weighting = Weighting::of(rec, opts);
-    let nm = NoiseModel::new(opts, weighting);
-    let mut data = noise::gather(rec, platform_points, opts, weighting);
+    let mut data = noise::gather(rec, platform_points, opts, Weighting::of(rec, opts));
+    cramer_rao_gathered(rec, params, opts, &mut data)
+}
+
+/// [`cramer_rao`] on the readings gathered for the calibration (see
+/// [`crate::calibrate_gathered`]); their variances are set at `params`.
+pub fn cramer_rao_gathered(rec: &Recording, params: &Params, opts: &CalibOptions, data: &mut [noise::CableData]) -> CrbReport {
+    let nm = NoiseModel::new(opts, Weighting::of(rec, opts));
     let mut out = CrbReport { anchor_sigma: vec![], l0_sigma: vec![], covariance: vec![], fisher: vec![] };
-    for (j, d) in data.iter_mut().enumerate() {
+    let fisher = crate::par::map_mut(opts.threads, data, |j, d| {
         let x = params.cable(j);
         d.set_variances(&x, &nm);
         // The residual-free part of a least-squares pass is exactly F = sum J^T J / sigma^2.
-        let h = solver::pass(d, 0, d.len(), &x, RobustLoss::None).h_matrix();
+        solver::pass(d, 0, d.len(), &x, RobustLoss::None).h_matrix()
+    });
+    for h in fisher {
         let mut f4 = [[0.0; 4]; 4];
         for a in 0..4 {
             for b in 0..4 {

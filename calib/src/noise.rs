@@ -410,48 +410,46 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
         [x.into(), y.into(), z.into()]
     };
     let shared = (rot.is_none() && platform_points.iter().all(|b| *b == [0.0; 3])).then(|| columns([0.0; 3]));
-    (0..n)
-        .map(|j| {
-            let [x, y, z] = match &shared {
-                Some(c) => c.clone(),
-                None => columns(platform_points[j]),
+    crate::par::map(opts.threads, n, |j| {
+        let [x, y, z] = match &shared {
+            Some(c) => c.clone(),
+            None => columns(platform_points[j]),
+        };
+        // Branch-free classification over zipped rows (no bounds checks, no pushes).
+        let mut l = vec![0.0; m];
+        let mut t = vec![0.0; m];
+        let mut class = vec![MISSING; m];
+        let min_t = opts.min_tension_n;
+        let has_t = tensions.is_some();
+        let zeros = [0.0f64];
+        let frows: Box<dyn Iterator<Item = &[f64]>> = match tensions {
+            Some(f) => Box::new(f.chunks_exact(n)),
+            None => Box::new(std::iter::repeat(&zeros[..])),
+        };
+        let tj = if has_t { j } else { 0 };
+        let (mut used, mut loose) = (0usize, 0usize);
+        for ((((lo, to), co), (row, frow)), ok) in
+            l.iter_mut().zip(t.iter_mut()).zip(class.iter_mut()).zip(rec.l.chunks_exact(n).zip(frows)).zip(&pose_ok)
+        {
+            let (li, ti) = (row[j], frow[tj]);
+            let miss = !*ok || li.is_nan() || ti.is_nan();
+            let is_loose = !miss && has_t && ti < min_t;
+            let is_used = !miss && !is_loose;
+            *co = if miss {
+                MISSING
+            } else if is_loose {
+                LOOSE
+            } else {
+                USED
             };
-            // Branch-free classification over zipped rows (no bounds checks, no pushes).
-            let mut l = vec![0.0; m];
-            let mut t = vec![0.0; m];
-            let mut class = vec![MISSING; m];
-            let min_t = opts.min_tension_n;
-            let has_t = tensions.is_some();
-            let zeros = [0.0f64];
-            let frows: Box<dyn Iterator<Item = &[f64]>> = match tensions {
-                Some(f) => Box::new(f.chunks_exact(n)),
-                None => Box::new(std::iter::repeat(&zeros[..])),
-            };
-            let tj = if has_t { j } else { 0 };
-            let (mut used, mut loose) = (0usize, 0usize);
-            for ((((lo, to), co), (row, frow)), ok) in
-                l.iter_mut().zip(t.iter_mut()).zip(class.iter_mut()).zip(rec.l.chunks_exact(n).zip(frows)).zip(&pose_ok)
-            {
-                let (li, ti) = (row[j], frow[tj]);
-                let miss = !*ok || li.is_nan() || ti.is_nan();
-                let is_loose = !miss && has_t && ti < min_t;
-                let is_used = !miss && !is_loose;
-                *co = if miss {
-                    MISSING
-                } else if is_loose {
-                    LOOSE
-                } else {
-                    USED
-                };
-                *lo = if li.is_nan() { 0.0 } else { li };
-                *to = if is_used { ti } else { 0.0 };
-                used += is_used as usize;
-                loose += is_loose as usize;
-            }
-            let missing = m - used - loose;
-            CableData { x, y, z, l, t, class, iv: Vec::new(), rho_min: f64::NAN, used, loose, missing }
-        })
-        .collect()
+            *lo = if li.is_nan() { 0.0 } else { li };
+            *to = if is_used { ti } else { 0.0 };
+            used += is_used as usize;
+            loose += is_loose as usize;
+        }
+        let missing = m - used - loose;
+        CableData { x, y, z, l, t, class, iv: Vec::new(), rho_min: f64::NAN, used, loose, missing }
+    })
 }
 
 #[cfg(test)]

@@ -109,12 +109,14 @@ pub struct ScreenOptions {
     /// (lengths interpolated at the pose time of a tracker slower than the loop) show steps of
     /// a few mm that are no lost counts, and re-referencing them would cost more than it saves.
     pub jumps: bool,
+    /// Threads the channels may be screened on ([`crate::par`]; the findings are the same).
+    pub threads: usize,
 }
 
 impl ScreenOptions {
-    /// The default false-alarm rate and no configured tension maximum.
+    /// The default false-alarm rate and no configured tension maximum, on the caller's thread.
     pub fn new(min_tension_n: f64) -> Self {
-        ScreenOptions { false_alarm: FALSE_ALARM, min_tension_n, max_tension_n: None, jumps: true }
+        ScreenOptions { false_alarm: FALSE_ALARM, min_tension_n, max_tension_n: None, jumps: true, threads: 1 }
     }
 }
 
@@ -314,10 +316,13 @@ impl Grid {
         Grid::new(self.t.iter().step_by(2).copied().collect(), 2.0 * self.gap)
     }
 
-    /// With its decimated grid, shared by every channel screened on it.
-    fn with_half(mut self) -> Grid {
-        self.half = Some(Box::new(self.decimated()));
-        self
+    /// The grid of `t` with its decimated grid ([`Grid::decimated`]), shared by every channel
+    /// screened on it (the two made at once when there are `threads`).
+    fn with_half(t: &[f64], gap: f64, threads: usize) -> Grid {
+        let (mut grid, half) =
+            crate::par::join(threads, || Grid::new(t.to_vec(), gap), || Grid::new(t.iter().step_by(2).copied().collect(), 2.0 * gap));
+        grid.half = Some(Box::new(half));
+        grid
     }
 }
 
@@ -797,7 +802,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     let gap = if dt.is_finite() { 5.0 * dt } else { f64::INFINITY };
     let seg: &[i32] = rec.phase.as_deref().unwrap_or(&[]);
     // Every channel is sampled on the recording's times, decimated on every other one.
-    let grid = Grid::new(rec.t.clone(), gap).with_half();
+    let grid = Grid::with_half(&rec.t, gap, opts.threads);
     // The Bonferroni count: every reading of every channel (encoders, tracker axes, load cells).
     let tests = m * (n + 3 + if rec.f.is_some() { n } else { 0 });
     let k = normal_upper_quantile(opts.false_alarm / (2.0 * tests.max(1) as f64));
@@ -806,36 +811,56 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     // Cloned when the first reading is excluded or shifted: a clean recording is not copied.
     let mut cleaned: Option<Recording> = None;
     let mut changed = false;
+    // The channels are screened independently (on `opts.threads` threads: first the three
+    // tracker axes and the load cells' `z`, then the encoders, which need the load cells');
+    // what they found is applied below in the order of one thread: encoders, load cells, tracker.
+    //
     // Rows where a load cell's tension changes faster than its noise allows (its own local
     // test, two rows either side): the encoder's unstretched length follows the tension
     // (stretch, sag), so an encoder event there is physics, not a wild value.
     // The load cells' `z` are computed once: the tension-quiet mask here and the load-cell
     // screen below (the same readings excluded, so the same `z`) differ only in the quantum
     // floor (taken with and without the absurd values), applied to the shared MAD.
+    let tension = |j: usize| {
+        let f = rec.f.as_ref()?;
+        let ch = Channel::new(&grid, (0..m).map(|i| f[i * n + j]).map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN }).collect(), seg);
+        let mut zs = vec![f64::NAN; m];
+        let (mad, nc) = mad_scale(&ch, &mut zs);
+        let s = floored(mad, &ch.y, 1e-3);
+        let thr = thr_of(nc) * s;
+        let ev: Vec<bool> = zs.iter().map(|z| z.abs() > thr).collect();
+        let quiet: Vec<bool> = (0..m).map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x)).collect();
+        Some((quiet, (ch.y, s), (mad, nc)))
+    };
+    let tracker = |a: usize| {
+        let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
+        screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None).0
+    };
+    let mut tracker_events = Vec::with_capacity(3);
+    let mut tension_quiet: Vec<Vec<bool>> = Vec::with_capacity(n);
     let mut tension_cols: Vec<(Vec<f64>, f64)> = vec![];
     let mut tension_mad: Vec<(f64, usize)> = vec![];
-    let tension_quiet: Vec<Vec<bool>> = (0..n)
-        .map(|j| {
-            let Some(f) = &rec.f else { return vec![] };
-            let ch =
-                Channel::new(&grid, (0..m).map(|i| f[i * n + j]).map(|v| if v.abs() <= ABSURD_N { v } else { f64::NAN }).collect(), seg);
-            let mut zs = vec![f64::NAN; m];
-            let (mad, nc) = mad_scale(&ch, &mut zs);
-            let s = floored(mad, &ch.y, 1e-3);
-            tension_mad.push((mad, nc));
-            let thr = thr_of(nc) * s;
-            let ev: Vec<bool> = zs.iter().map(|z| z.abs() > thr).collect();
-            let quiet = (0..m).map(|i| ev[i.saturating_sub(2)..(i + 3).min(m)].iter().any(|x| *x)).collect();
-            tension_cols.push((ch.y, s));
-            quiet
-        })
-        .collect();
-    // Encoders.
-    for j in 0..n {
+    // The tracker axes first: the longer pieces, started early.
+    for piece in crate::par::map(opts.threads, 3 + n, |k| if k < 3 { Err(tracker(k)) } else { Ok(tension(k - 3)) }) {
+        match piece {
+            Err(ev) => tracker_events.push(ev),
+            Ok(Some((quiet, col, mad))) => {
+                tension_quiet.push(quiet);
+                tension_cols.push(col);
+                tension_mad.push(mad);
+            }
+            Ok(None) => tension_quiet.push(vec![]),
+        }
+    }
+    let encoders = crate::par::map(opts.threads, n, |j| {
         let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
         let mut ch = Channel::new(&grid, (0..m).map(|i| rec.l[i * n + j]).collect(), &eseg);
         let tension = tension_cols.get(j).map(|(c, s)| (&c[..], *s));
         let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension);
+        (ev, ch.y, ch.out)
+    });
+    // Encoders.
+    for (j, (ev, y, out)) in encoders.into_iter().enumerate() {
         for e in ev {
             changed = true;
             match e {
@@ -866,7 +891,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
         if changed {
             let cleaned = cleaned.get_or_insert_with(|| rec.clone());
             for i in 0..m {
-                cleaned.l[i * n + j] = if ch.out[i] { f64::NAN } else { ch.y[i] };
+                cleaned.l[i * n + j] = if out[i] { f64::NAN } else { y[i] };
             }
         }
     }
@@ -921,9 +946,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     }
     // Tracker.
     let mut removed_rows = vec![false; m];
-    for a in 0..3 {
-        let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
-        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None);
+    for (a, ev) in tracker_events.into_iter().enumerate() {
         for e in ev {
             changed = true;
             match e {
@@ -1144,5 +1167,33 @@ mod tests {
         let c = sc.cleaned.unwrap();
         assert!(c.p[700][0].is_nan() && c.p[1500][0].is_nan() && c.l[900 * n + 1].is_nan());
         assert!(sc.removed_rows[700] && !sc.removed_rows[701]);
+    }
+
+    /// The channels on several threads find the same, in the same order, and clean the same
+    /// readings (bit for bit), with every kind of wild value in one recording.
+    #[test]
+    fn threads_find_the_same() {
+        let truth = synth::aras_cam();
+        let clean = smooth(&truth, 3000, 100.0, 1.5e-3, 5e-5, 81);
+        let mut rec = clean.clone();
+        let n = rec.n_cables;
+        rec.l[400 * n + 1] = 1e308;
+        rec.l[1234 * n + 3] += 0.05;
+        for i in 2000..3000 {
+            rec.l[i * n + 2] += 0.02;
+        }
+        rec.p[700][1] = 1e308;
+        rec.p[1500][2] += 0.03;
+        let f = rec.f.as_mut().unwrap();
+        f[900 * n + 1] = f64::INFINITY;
+        f[1100 * n] = -50.0;
+        let show = |sc: &Screen| format!("{:?} {:?} {:?} {} {}", sc.findings, sc.cleaned, sc.removed_rows, sc.tests, sc.threshold_sigmas);
+        for r in [&clean, &rec] {
+            let one = screen(r, &ScreenOptions::new(3.0));
+            for threads in [2, 3, 16] {
+                assert_eq!(show(&screen(r, &ScreenOptions { threads, ..ScreenOptions::new(3.0) })), show(&one), "{threads} threads");
+            }
+        }
+        assert!(screen(&rec, &ScreenOptions { threads: 2, ..ScreenOptions::new(3.0) }).findings.len() >= 6);
     }
 }

@@ -34,6 +34,10 @@ pub struct CalibrateArgs {
     pub compare: bool,
 }
 
+/// Most threads `taut calibrate` uses: the work comes in pieces of one cable or one channel
+/// (4-11 on a four-cable robot), so more threads than that only wait.
+const MAX_THREADS: usize = 8;
+
 /// Everything one calibration run produced: the initial estimate, the calibration with and
 /// without force weighting, and the metrics that compare them.
 pub struct Outcome {
@@ -51,9 +55,9 @@ pub struct Outcome {
     pub screen: taut_calib::screen::Screen,
 }
 
-/// Loads a recording and says what was skipped.
+/// Loads a recording (on every core: the same recording) and says what was skipped.
 pub fn load_recording(path: &Path) -> Result<(Recording, ParseReport)> {
-    let (rec, rep) = Recording::load(path)?;
+    let (rec, rep) = Recording::load_with(path, taut_calib::par::available(MAX_THREADS))?;
     for n in &rep.notes {
         eprintln!("note: {}: {n}", path.display());
     }
@@ -81,15 +85,22 @@ pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
 /// unweighted too) on the cleaned recording (`Outcome::screen.recording(rec)`).
 pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &indicatif::ProgressBar) -> Result<Outcome> {
     let b = cfg.platform_points();
-    let opts = CalibOptions::from_config(&cfg.calibration);
+    // A one-shot command: the cables and the screened channels on every core (same results).
+    let threads = taut_calib::par::available(MAX_THREADS);
+    let opts = CalibOptions { threads, ..CalibOptions::from_config(&cfg.calibration) };
     progress.set_message("screening for wild values");
-    let screen = taut_calib::screen::screen(rec, &taut_calib::screen::ScreenOptions::new(opts.min_tension_n));
+    let screen = taut_calib::screen::screen(
+        rec,
+        &taut_calib::screen::ScreenOptions { threads, ..taut_calib::screen::ScreenOptions::new(opts.min_tension_n) },
+    );
     let rec = screen.recording(rec);
     progress.set_message("initialising");
-    let init = init::initialise(rec, &b, &opts).context("initialisation failed")?;
+    // The readings as the initialisation, the calibration and the bound use them, gathered once.
+    let mut data = taut_calib::noise::gather(rec, &b, &opts, taut_calib::Weighting::of(rec, &opts));
+    let init = init::initialise_gathered(rec, &b, &opts, &data).context("initialisation failed")?;
     progress.inc(1);
     progress.set_message("calibrating (force-aware)");
-    let force = taut_calib::calibrate(rec, &b, &init.params, &opts).context("calibration failed")?;
+    let force = taut_calib::calibrate_gathered(rec, &b, &init.params, &opts, &mut data).context("calibration failed")?;
     progress.inc(1);
     progress.set_message("calibrating (unweighted)");
     let plain = if compare && force.used_tensions {
@@ -99,8 +110,12 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
         None
     };
     progress.inc(1);
-    let before = metrics::rms_peak(&metrics::co_registration(rec, &b, &init.params), &metrics::taut_mask(rec, &opts));
-    let crb = metrics::cramer_rao(rec, &b, &force.params, &opts);
+    let ((res, mask), crb) = taut_calib::par::join(
+        threads,
+        || taut_calib::par::join(threads, || metrics::co_registration(rec, &b, &init.params), || metrics::taut_mask(rec, &opts)),
+        || metrics::cramer_rao_gathered(rec, &force.params, &opts, &mut data),
+    );
+    let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
     Ok(Outcome { init, force, plain, before, crb, screen })
 }

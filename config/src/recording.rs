@@ -22,6 +22,8 @@ use std::fmt;
 use std::io::{BufRead, Write};
 use std::path::Path;
 
+mod pieces;
+
 /// The first comment line of a file written by this project.
 pub const MAGIC: &str = "# cdpr-recording v1";
 
@@ -42,6 +44,10 @@ pub const MAX_LINES: usize = 10_000_000;
 
 /// Largest file `Recording::load` opens, bytes (checked before reading a regular file).
 pub const MAX_FILE_BYTES: u64 = 4 << 30;
+
+/// Largest file [`Recording::load_with`] reads whole to parse on several threads, bytes (a
+/// 1 kHz 12-cable recording of about 40 minutes); a larger one is read as a stream.
+pub const MAX_IN_MEMORY_BYTES: u64 = 512 << 20;
 
 /// Most cables (`l` columns) a recording may have.
 pub const MAX_RECORDING_CABLES: usize = 64;
@@ -285,6 +291,13 @@ impl Recording {
 
     /// Reads a recording from a file; errors name the file, line and column.
     pub fn load(path: impl AsRef<Path>) -> Result<(Recording, ParseReport), RecordingError> {
+        Self::load_with(path, 1)
+    }
+
+    /// [`Recording::load`] on up to `threads` threads: a regular file of at most
+    /// [`MAX_IN_MEMORY_BYTES`] is read whole and its rows cut into pieces, one per thread; the
+    /// recording, the report and every error are those of [`Recording::load`].
+    pub fn load_with(path: impl AsRef<Path>, threads: usize) -> Result<(Recording, ParseReport), RecordingError> {
         let path = path.as_ref();
         let err = |kind| RecordingError { file: Some(path.display().to_string()), line: 0, column: None, kind };
         let file = crate::input::open(path).map_err(|e| err(ErrorKind::Io(e)))?;
@@ -312,7 +325,17 @@ impl Recording {
                 "this program was built without MCAP support (taut-config feature `mcap`); read it with `taut`, which has it".into(),
             )));
         }
-        parse_sized(file, size).map_err(|mut e| {
+        let parsed = match size {
+            Some(size) if threads > 1 && size <= MAX_IN_MEMORY_BYTES => {
+                // A file whose size changed since it was taken is read as a stream.
+                match pieces::read_whole(file.get_ref(), size as usize, threads).map_err(|e| err(ErrorKind::Io(e.to_string())))? {
+                    Some(bytes) => pieces::parse_bytes(&bytes, threads, pieces::MIN_PIECE_BYTES),
+                    None => parse_sized(file, Some(size)),
+                }
+            }
+            _ => parse_sized(file, size),
+        };
+        parsed.map_err(|mut e| {
             e.file = Some(path.display().to_string());
             e
         })
@@ -473,6 +496,7 @@ impl fmt::Display for RecordingError {
 impl std::error::Error for RecordingError {}
 
 /// Where each field of the format sits in a row.
+#[derive(Clone)]
 struct Columns {
     t: usize,
     p: [usize; 3],
@@ -755,43 +779,87 @@ pub fn parse<R: BufRead>(reader: R) -> Result<(Recording, ParseReport), Recordin
     parse_sized(reader, None)
 }
 
-/// [`parse`] of an input of `size` bytes, if known: the columns are sized once from the bytes
-/// after the header and the first row's length (room for 10 % more rows than that suggests, never
-/// more than [`MAX_LINES`]) instead of growing by doubling (copies and page faults of
-/// 100,000-row columns).
+/// [`parse`] of an input of `size` bytes, if known (see [`Parser`]).
 fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recording, ParseReport), RecordingError> {
-    let mut report = ParseReport::default();
-    let mut comments = Vec::new();
-    let mut dropped_comments = 0usize;
-    let mut cols: Option<Columns> = None;
-    let mut rec = Recording::default();
-    // The last two rows' times and the last row's line, to blame a time outlier on its own row.
-    let mut last_t = f64::NEG_INFINITY;
-    let mut before_last_t = f64::NEG_INFINITY;
-    let mut last_line = 0usize;
-    let mut lvals = Vec::new();
-    let mut fvals = Vec::new();
+    let mut p = Parser::new(size);
     let mut buf = Vec::with_capacity(1024);
-    let mut spans: Vec<(usize, usize)> = Vec::with_capacity(64);
-    let mut vals: Vec<f64> = Vec::with_capacity(64);
-    let mut lineno = 0usize;
-    // Bytes of the lines before this one (for sizing the columns).
-    let mut consumed = 0u64;
     loop {
+        let read = read_line_capped(&mut reader, &mut buf).map_err(|e| RecordingError {
+            file: None,
+            line: p.lineno + 1,
+            column: None,
+            kind: ErrorKind::Io(e.to_string()),
+        })?;
+        if !p.line(read, &buf)? {
+            return p.finish();
+        }
+    }
+}
+
+/// The reader between two lines: [`Parser::line`] takes each line as [`read_line_capped`]
+/// reads it, [`Parser::finish`] makes the recording at the end. When the input's `size` is
+/// known, the columns are sized once from the bytes after the header and the first row's length
+/// (room for 10 % more rows than that suggests, never more than [`MAX_LINES`]) instead of growing
+/// by doubling (copies and page faults of 100,000-row columns).
+struct Parser {
+    size: Option<u64>,
+    report: ParseReport,
+    comments: Vec<String>,
+    dropped_comments: usize,
+    cols: Option<Columns>,
+    rec: Recording,
+    /// The last two rows' times and the last row's line, to blame a time outlier on its own row.
+    last_t: f64,
+    before_last_t: f64,
+    last_line: usize,
+    lvals: Vec<f64>,
+    fvals: Vec<f64>,
+    spans: Vec<(usize, usize)>,
+    vals: Vec<f64>,
+    /// Lines read so far: the 1-based number of the last one.
+    lineno: usize,
+    /// Bytes of the lines before this one (for sizing the columns).
+    consumed: u64,
+}
+
+impl Parser {
+    fn new(size: Option<u64>) -> Parser {
+        Parser {
+            size,
+            report: ParseReport::default(),
+            comments: Vec::new(),
+            dropped_comments: 0,
+            cols: None,
+            rec: Recording::default(),
+            last_t: f64::NEG_INFINITY,
+            before_last_t: f64::NEG_INFINITY,
+            last_line: 0,
+            lvals: Vec::new(),
+            fvals: Vec::new(),
+            spans: Vec::with_capacity(64),
+            vals: Vec::with_capacity(64),
+            lineno: 0,
+            consumed: 0,
+        }
+    }
+
+    /// One line, `buf` without its newline, as `read` says; false at the end of the input.
+    fn line(&mut self, read: Line, buf: &[u8]) -> Result<bool, RecordingError> {
         let at = |line: usize, kind| RecordingError { file: None, line, column: None, kind };
-        let read = read_line_capped(&mut reader, &mut buf).map_err(|e| at(lineno + 1, ErrorKind::Io(e.to_string())))?;
-        lineno += 1;
+        self.lineno += 1;
+        let lineno = self.lineno;
+        let (report, rec, vals, spans) = (&mut self.report, &mut self.rec, &mut self.vals, &mut self.spans);
         // A row of plain decimals (nearly every row of a recording) in one pass: such a line
         // has no NUL, no byte-order mark, is ASCII, neither blank nor a comment, so the checks
         // below pass; anything else (spaces, `nan`, empty fields, junk) takes the general path.
-        let fast = matches!(read, Line::Complete) && cols.as_ref().is_some_and(|c| fast_row(&buf, c.width, &mut vals, &mut spans));
+        let fast = matches!(read, Line::Complete) && self.cols.as_ref().is_some_and(|c| fast_row(buf, c.width, vals, spans));
         if !fast {
             if let Some(i) = buf.iter().position(|&b| b == 0) {
                 return Err(at(lineno, ErrorKind::Binary(i + 1)));
             }
         }
         match read {
-            Line::Eof => break,
+            Line::Eof => return Ok(false),
             Line::TooLong => return Err(at(lineno, ErrorKind::LineTooLong)),
             Line::Complete => {}
         }
@@ -799,13 +867,13 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
             return Err(at(lineno, ErrorKind::TooLarge(format!("more than {MAX_LINES} lines; split the recording into runs"))));
         }
         if fast && report.rows == 0 {
-            if let Some(size) = size {
-                let rest = size.saturating_sub(consumed) / (buf.len() as u64 + 1);
+            if let Some(size) = self.size {
+                let rest = size.saturating_sub(self.consumed) / (buf.len() as u64 + 1);
                 rec.try_reserve((rest + rest / 10).min(MAX_LINES as u64) as usize);
             }
         }
-        consumed += buf.len() as u64 + 1;
-        let mut bytes = &buf[..];
+        self.consumed += buf.len() as u64 + 1;
+        let mut bytes = buf;
         if lineno == 1 {
             if let Some(rest) = bytes.strip_prefix(b"\xEF\xBB\xBF") {
                 bytes = rest;
@@ -815,28 +883,28 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
         let line = std::str::from_utf8(bytes).map_err(|e| at(lineno, ErrorKind::NotUtf8(e.valid_up_to() + 1)))?;
         let line = line.trim_end_matches('\r');
         if line.trim().is_empty() {
-            continue;
+            return Ok(true);
         }
         if let Some(comment) = line.strip_prefix('#') {
-            if cols.is_none() {
+            if self.cols.is_none() {
                 check_version(comment).map_err(|k| at(lineno, k))?;
-                if comments.len() < MAX_COMMENTS {
-                    comments.push(comment.to_string());
+                if self.comments.len() < MAX_COMMENTS {
+                    self.comments.push(comment.to_string());
                 } else {
-                    dropped_comments += 1;
+                    self.dropped_comments += 1;
                 }
             }
-            continue;
+            return Ok(true);
         }
-        let c = match &cols {
+        let c = match &self.cols {
             None => {
                 let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-                let c = parse_header(&fields, lineno, &mut report)?;
+                let c = parse_header(&fields, lineno, report)?;
                 let n = c.l.len();
-                rec = Recording::with_capacity(n, 1024, !c.f.is_empty(), c.q.is_some(), c.phase.is_some());
-                rec.comments = std::mem::take(&mut comments);
-                cols = Some(c);
-                continue;
+                *rec = Recording::with_capacity(n, 1024, !c.f.is_empty(), c.q.is_some(), c.phase.is_some());
+                rec.comments = std::mem::take(&mut self.comments);
+                self.cols = Some(c);
+                return Ok(true);
             }
             Some(c) => c,
         };
@@ -850,7 +918,7 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
             }
             spans.push((start, line.len()));
         }
-        let fields = Fields { line, spans: &spans };
+        let fields = Fields { line, spans };
         if fields.len() != c.width {
             if let Some(q) = fields.iter().find(|f| f.starts_with(['"', '\''])) {
                 return Err(at(lineno, ErrorKind::Quoted(q.to_string())));
@@ -873,6 +941,7 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
             field(f).map_err(|kind| RecordingError { file: None, line: lineno, column: Some(header_name(c, col)), kind })
         };
         let t = get(c.t)?;
+        let (last_t, before_last_t) = (self.last_t, self.before_last_t);
         let terr = |line: usize, m: String| RecordingError { file: None, line, column: Some("t".into()), kind: ErrorKind::Time(m) };
         if t.is_nan() {
             return Err(terr(lineno, "time is missing; every row needs a time in s (`nan` and empty are not allowed here)".into()));
@@ -889,20 +958,21 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
             // One row far ahead of both neighbours is that row's fault, not the next one's.
             if t >= before_last_t && before_last_t.is_finite() {
                 return Err(terr(
-                    last_line,
+                    self.last_line,
                     format!("time jumps ahead to {last_t} s between {before_last_t} s on the row before and {t} s on the row after"),
                 ));
             }
             return Err(terr(lineno, format!("time goes backwards: {t} after {last_t}")));
         }
-        before_last_t = last_t;
-        last_t = t;
-        last_line = lineno;
+        self.before_last_t = last_t;
+        self.last_t = t;
+        self.last_line = lineno;
         let p = [get(c.p[0])?, get(c.p[1])?, get(c.p[2])?];
         let q = match c.q {
             Some(qc) => Some([get(qc[0])?, get(qc[1])?, get(qc[2])?, get(qc[3])?]),
             None => None,
         };
+        let (lvals, fvals) = (&mut self.lvals, &mut self.fvals);
         lvals.clear();
         for &col in &c.l {
             lvals.push(get(col)?);
@@ -938,40 +1008,46 @@ fn parse_sized<R: BufRead>(mut reader: R, size: Option<u64>) -> Result<(Recordin
         if nl < lvals.len() {
             report.usable_rows += 1;
         }
-        rec.push(t, p, q, &lvals, (!fvals.is_empty()).then_some(&fvals[..]), phase);
+        rec.push(t, p, q, lvals, (!fvals.is_empty()).then_some(&fvals[..]), phase);
+        Ok(true)
     }
-    if cols.is_none() {
-        return Err(RecordingError { file: None, line: 0, column: None, kind: ErrorKind::NoHeader });
+
+    /// The recording at the end of the input, with the checks that need all of it.
+    fn finish(self) -> Result<(Recording, ParseReport), RecordingError> {
+        let Parser { mut report, dropped_comments, cols, mut rec, .. } = self;
+        if cols.is_none() {
+            return Err(RecordingError { file: None, line: 0, column: None, kind: ErrorKind::NoHeader });
+        }
+        if dropped_comments > 0 {
+            report.notes.push(format!("{dropped_comments} comment lines after the first {MAX_COMMENTS} not kept"));
+        }
+        if report.usable_rows < MIN_USABLE_SAMPLES {
+            return Err(RecordingError {
+                file: None,
+                line: 0,
+                column: None,
+                kind: ErrorKind::TooFewSamples { usable: report.usable_rows, needed: MIN_USABLE_SAMPLES },
+            });
+        }
+        // A tension column that is empty for the whole recording means: no load cells.
+        if rec.f.as_ref().is_some_and(|f| f.iter().all(|v| v.is_nan())) {
+            rec.f = None;
+            report.missing_tension = 0;
+            report.notes.push("the f columns are empty: no tensions in this recording".into());
+        } else if rec.f.is_none() {
+            report.notes.push("no f columns: no tensions in this recording".into());
+        }
+        if report.missing_position > 0 {
+            report.notes.push(format!("{} rows without a tracker position (dropouts)", report.missing_position));
+        }
+        if report.missing_length > 0 {
+            report.notes.push(format!("{} missing length readings", report.missing_length));
+        }
+        if report.missing_tension > 0 {
+            report.notes.push(format!("{} missing tension readings", report.missing_tension));
+        }
+        Ok((rec, report))
     }
-    if dropped_comments > 0 {
-        report.notes.push(format!("{dropped_comments} comment lines after the first {MAX_COMMENTS} not kept"));
-    }
-    if report.usable_rows < MIN_USABLE_SAMPLES {
-        return Err(RecordingError {
-            file: None,
-            line: 0,
-            column: None,
-            kind: ErrorKind::TooFewSamples { usable: report.usable_rows, needed: MIN_USABLE_SAMPLES },
-        });
-    }
-    // A tension column that is empty for the whole recording means: no load cells.
-    if rec.f.as_ref().is_some_and(|f| f.iter().all(|v| v.is_nan())) {
-        rec.f = None;
-        report.missing_tension = 0;
-        report.notes.push("the f columns are empty: no tensions in this recording".into());
-    } else if rec.f.is_none() {
-        report.notes.push("no f columns: no tensions in this recording".into());
-    }
-    if report.missing_position > 0 {
-        report.notes.push(format!("{} rows without a tracker position (dropouts)", report.missing_position));
-    }
-    if report.missing_length > 0 {
-        report.notes.push(format!("{} missing length readings", report.missing_length));
-    }
-    if report.missing_tension > 0 {
-        report.notes.push(format!("{} missing tension readings", report.missing_tension));
-    }
-    Ok((rec, report))
 }
 
 /// Refuses a `# cdpr-recording vN` tag of another version than this reader's.

@@ -256,14 +256,35 @@ impl std::error::Error for InitError {}
 /// Three-phase when the recording has a `phase` column with values >= 0 (falling back to
 /// multilateration, with a note, if the phases cannot be used), multilateration otherwise.
 pub fn initialise(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions) -> Result<InitResult, InitError> {
+    initialise_with(rec, platform_points, opts, None)
+}
+
+/// [`initialise`] with the readings gathered once for the initialisation, the calibration and the
+/// Cramér–Rao bound (`noise::gather(rec, platform_points, opts, Weighting::of(rec, opts))`, as
+/// [`crate::calibrate_gathered`] takes them).
+pub fn initialise_gathered(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    opts: &CalibOptions,
+    data: &[CableData],
+) -> Result<InitResult, InitError> {
+    initialise_with(rec, platform_points, opts, Some(data))
+}
+
+fn initialise_with(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    opts: &CalibOptions,
+    data: Option<&[CableData]>,
+) -> Result<InitResult, InitError> {
     let has_phases = rec.phase.as_ref().is_some_and(|p| p.iter().any(|&v| v >= 0));
     if !has_phases {
-        return multilateration(rec, platform_points, opts);
+        return multilateration_with(rec, platform_points, opts, data);
     }
     match three_phase(rec, platform_points, opts) {
         Ok(r) => Ok(r),
         Err(e) => {
-            let mut r = multilateration(rec, platform_points, opts).map_err(|_| e)?;
+            let mut r = multilateration_with(rec, platform_points, opts, data).map_err(|_| e)?;
             r.notes.insert(0, format!("three-phase initialisation not possible ({e}); used multilateration"));
             Ok(r)
         }
@@ -279,15 +300,33 @@ fn check_count(rec: &Recording, platform_points: &[[f64; 3]]) -> Result<(), Init
 
 /// Multilateration of every cable on all its taut readings.
 pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions) -> Result<InitResult, InitError> {
+    multilateration_with(rec, platform_points, opts, None)
+}
+
+fn multilateration_with(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    opts: &CalibOptions,
+    gathered: Option<&[CableData]>,
+) -> Result<InitResult, InitError> {
     check_count(rec, platform_points)?;
     let weighting = Weighting::of(rec, opts);
-    let data = noise::gather(rec, platform_points, opts, weighting);
+    let own;
+    let data = match gathered {
+        Some(d) => d,
+        None => {
+            own = noise::gather(rec, platform_points, opts, weighting);
+            &own[..]
+        }
+    };
     let sigma = reading_sigma(opts);
     let mut anchors = Vec::new();
     let mut l0 = Vec::new();
     let mut cables = Vec::new();
-    for (j, d) in data.iter().enumerate() {
-        let (a, o) = multilaterate(d, sigma, j)?;
+    // Independent per cable; the first error in cable order is the one reported, as in a loop.
+    let solved = crate::par::map(opts.threads, data.len(), |j| multilaterate(&data[j], sigma, j).map(|(a, o)| (a, o, rms(&data[j], a, o))));
+    for (d, found) in data.iter().zip(solved) {
+        let (a, o, rms_m) = found?;
         anchors.push(a);
         l0.push(o);
         cables.push(CableInit {
@@ -295,7 +334,7 @@ pub fn multilateration(rec: &Recording, platform_points: &[[f64; 3]], opts: &Cal
             held_in: vec![],
             line_anchor: None,
             geometric_anchor: None,
-            rms_m: rms(d, a, o),
+            rms_m,
             used: d.used,
         });
     }
