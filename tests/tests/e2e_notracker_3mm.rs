@@ -1,0 +1,142 @@
+//! The issue's acceptance for the start-up without a tracker (issue 11 item 3): `taut start
+//! --sim` without a tracker, worst anchor error after the alignment (translation + rotation
+//! about the vertical) at most 3 mm, hot-swapped, with the example's plan
+//! (config/examples/aras-cam-sim-notracker.toml).
+//!
+//! About 13 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
+//! tests/Cargo.toml) but its own serial step of `scripts/test`, after the workspace tests, on an
+//! otherwise idle machine: `cargo test -p taut-tests --test e2e_notracker_3mm -- --nocapture`
+//! (`TAUT_E2E_SEEDS=1,2,4` for other sites, one after the other).
+//!
+//! # Failure probability per run (one start-up, correct code): below 1e-4, computed
+//!
+//! The information is the load cells' (0.3 N per reading at the ~128 readings a second per cable
+//! that four Modbus cells polled back to back at 115200 baud give, against a 29 N weight: the
+//! anchor heights carry the frame's tilt, which only gravity fixes); it grows with the dwell
+//! time and nothing else the plan can choose (BENCHMARKS.md, "Start-up without a tracker").
+//!
+//! 1. The 3 mm: a correct calibration's anchor errors are Gaussian with the covariance the
+//!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma.
+//!    Measured c over the six start-ups of session 13: 0.88-0.94 (mean 0.920, sd 0.022); its
+//!    99.9 % upper prediction bound (Student's t, 5 dof) is [`HONESTY_UP`] = 1.06. The plan is
+//!    checked first (deterministic): P(worst > 3 mm) at 1.06 x the predicted covariance is below
+//!    [`PLAN_P_MAX`] = 3e-5 (Monte Carlo, 99.9 % upper bound).
+//! 2. The recording's own P(worst > 3 mm), from its achieved sigma (the planner's covariance at
+//!    the reading rate measured in the recording, scaled up to the achieved sigma where larger)
+//!    must be below [`RECORDING_P_MAX`] = 5e-4 before the 3 mm is asserted. The plan has that P
+//!    below 5e-4 up to 1.25 x its sigma ([`PLAN_P_AT_125_MAX`], checked first); the achieved
+//!    sigma is the CRB at the fit (c <= 0.94 measured) times sqrt(chi2/dof) when above 1, so a
+//!    correct run fails this check only when chi2/dof exceeds (1.25 / 0.94)^2 = 1.77: at the
+//!    fit's ~80 degrees of freedom P ~ 3e-5 (computed and printed by the test from the fit's
+//!    own dof), or when the simulated bus delivers fewer readings (a starved machine: what this
+//!    check is for).
+//! 3. The checks every start-up makes (`notracker::start`): 12 anchor coordinates within 4.89
+//!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
+//!
+//! Sum: 3e-5 + 3e-5 + 1.2e-5 + 1e-5 = 8.2e-5 per run.
+//!
+//! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
+//! allowance, not the robot's.
+
+mod notracker;
+
+use notracker::{report, robot, start, Plan};
+use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::FromRobot;
+
+/// 99.9 % upper prediction bound of achieved / predicted worst-anchor sigma: six start-ups of
+/// session 13 (0.884, 0.942 with this plan; 0.904, 0.922, 0.930, 0.938 with the short one),
+/// mean 0.920 + t(0.999, 5) 5.893 x sd 0.0222 x sqrt(1 + 1/6).
+const HONESTY_UP: f64 = 1.06;
+
+/// The plan's P(worst aligned anchor > 3 mm) at [`HONESTY_UP`] x its predicted covariance.
+const PLAN_P_MAX: f64 = 3e-5;
+
+/// The recording's own P(worst aligned anchor > 3 mm) from its achieved sigmas.
+const RECORDING_P_MAX: f64 = 5e-4;
+
+/// The plan's P(worst > 3 mm) at 1.25 x its predicted covariance: the recording's check passes
+/// unless the achieved sigma is 1.25 x the predicted one.
+const PLAN_P_AT_125_MAX: f64 = 5e-4;
+
+/// Tension readings a second per cable on the simulated bus (measured 128-131 in every run):
+/// what the plan is judged at; the recording's check uses the rate measured in it.
+const RATE_HZ: f64 = 128.0;
+
+#[test]
+fn worst_anchor_within_3_mm() {
+    // The plan itself first (deterministic: the example's configuration and the planner).
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = robot(dir.path(), Plan::Example);
+    cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / RATE_HZ;
+    let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+    let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+    let nominal = cfg.anchors().unwrap();
+    let (_, p_honest) = plan.worst_exceeds_probability(&nominal, 3e-3, HONESTY_UP, 4_000_000);
+    let (_, p_125) = plan.worst_exceeds_probability(&nominal, 3e-3, 1.25, 4_000_000);
+    eprintln!(
+        "plan: {} poses x {} s, {} tares; worst-anchor sigma {:.3} mm at {RATE_HZ}/s; P(worst > 3 mm) <= {p_honest:.1e} at {HONESTY_UP} sigma, <= {p_125:.1e} at 1.25 sigma",
+        cfg.motion.dwell_poses,
+        cfg.motion.dwell_s,
+        plan.tare.iter().filter(|&&t| t != 0).count(),
+        plan.worst_anchor_sigma_m * 1e3
+    );
+    assert!(p_honest < PLAN_P_MAX, "the example's plan: P(worst > 3 mm) up to {p_honest:.1e} at {HONESTY_UP} sigma");
+    assert!(p_125 < PLAN_P_AT_125_MAX, "the example's plan: P(worst > 3 mm) up to {p_125:.1e} at 1.25 sigma");
+
+    // One start-up per seed, one after the other: two simulated robots in parallel on a
+    // two-core machine starve each other's device threads (stale load cells, missed heartbeats).
+    let seeds: Vec<u64> = std::env::var("TAUT_E2E_SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.trim().parse().unwrap()).collect());
+    for seed in seeds {
+        let r = start(seed, Plan::Example, false);
+        report(seed, &r);
+        eprintln!(
+            "seed {seed}: achieved / predicted (at the measured rate) worst-anchor sigma {:.3}; chi2/dof {:.2} at {} dof: P(chi2/dof >= 1.77) = {:.1e}",
+            r.achieved_worst_sigma_m / r.repredicted_worst_sigma_m,
+            r.chi2_dof,
+            r.dof,
+            chi2_tail(r.dof, 1.77)
+        );
+        assert!(
+            r.p3_upper < RECORDING_P_MAX,
+            "seed {seed}: this recording's P(worst > 3 mm) is up to {:.1e}: it does not show the 3 mm at the stated error rate",
+            r.p3_upper
+        );
+        assert!(r.worst_aligned_m <= 3e-3, "seed {seed}: worst anchor {:.2} mm after alignment", r.worst_aligned_m * 1e3);
+    }
+}
+
+/// P(chi2 / dof >= v) for a chi-square with `dof` degrees of freedom (Wilson–Hilferty, the
+/// inverse of `taut_calib::selfcal::chi2_quantile`).
+fn chi2_tail(dof: usize, v: f64) -> f64 {
+    let h = 2.0 / (9.0 * dof.max(1) as f64);
+    let z = (v.cbrt() - (1.0 - h)) / h.sqrt();
+    0.5 * erfc(z / std::f64::consts::SQRT_2)
+}
+
+/// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07 + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
+}
+
+#[test]
+fn chi2_tail_matches_tables() {
+    // scipy.stats.chi2: isf(1e-3, 100) = 149.45, isf(1e-5, 80) = 145.76, sf(1.77 x 79, 79) = 2.97e-5.
+    assert!((chi2_tail(100, 1.4945) / 1e-3 - 1.0).abs() < 0.05, "{}", chi2_tail(100, 1.4945));
+    assert!((chi2_tail(80, 145.76 / 80.0) / 1e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(80, 145.76 / 80.0));
+    assert!((chi2_tail(79, 1.77) / 2.97e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(79, 1.77));
+}
