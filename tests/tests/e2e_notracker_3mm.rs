@@ -23,17 +23,18 @@
 //!    [`PLAN_P_MAX`] = 3e-5 (Monte Carlo, 99.9 % upper bound).
 //! 2. The recording's own P(worst > 3 mm), from its achieved sigma (the planner's covariance at
 //!    the reading rate measured in the recording, scaled up to the achieved sigma where larger)
-//!    must be below [`RECORDING_P_MAX`] = 5e-4 before the 3 mm is asserted. The plan has that P
-//!    below 5e-4 up to 1.25 x its sigma ([`PLAN_P_AT_125_MAX`], checked first); the achieved
-//!    sigma is the CRB at the fit (c <= 0.94 measured) times sqrt(chi2/dof) when above 1, so a
-//!    correct run fails this check only when chi2/dof exceeds (1.25 / 0.94)^2 = 1.77: at the
-//!    fit's ~80 degrees of freedom P ~ 3e-5 (computed and printed by the test from the fit's
-//!    own dof), or when the simulated bus delivers fewer readings (a starved machine: what this
-//!    check is for).
+//!    must be below [`RECORDING_P_MAX`] = 1e-3 before the 3 mm is asserted. The plan has that P
+//!    below 1e-3 up to [`SCALE_CHECKED`] = 1.32 x its sigma (checked first); the achieved sigma
+//!    is the CRB at the fit (c <= 0.94 x predicted in every run) times sqrt(chi2/dof) when above
+//!    1, so a correct run fails this check only when chi2/dof exceeds (1.32 / 0.94)^2 = 1.97:
+//!    P = 3.1e-6 at the 68 degrees of freedom of the plan's fit, 1.1e-5 even at 60 (computed and
+//!    printed by the test from the fit's own dof), or when the simulated bus delivers fewer
+//!    readings (a starved machine: what this check is for).
 //! 3. The checks every start-up makes (`notracker::start`): 12 anchor coordinates within 4.89
 //!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
 //!
-//! Sum: 3e-5 + 3e-5 + 1.2e-5 + 1e-5 = 8.2e-5 per run.
+//! Sum: 3e-5 + 1.1e-5 + 1.2e-5 + 1e-5 = 6.3e-5 per run (the asserted bounds, 60 dof; with this
+//! plan's 2.6e-5 and its fit's 68 dof: 5.1e-5).
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
@@ -53,49 +54,65 @@ const HONESTY_UP: f64 = 1.06;
 const PLAN_P_MAX: f64 = 3e-5;
 
 /// The recording's own P(worst aligned anchor > 3 mm) from its achieved sigmas.
-const RECORDING_P_MAX: f64 = 5e-4;
+const RECORDING_P_MAX: f64 = 1e-3;
 
-/// The plan's P(worst > 3 mm) at 1.25 x its predicted covariance: the recording's check passes
-/// unless the achieved sigma is 1.25 x the predicted one.
-const PLAN_P_AT_125_MAX: f64 = 5e-4;
+/// The plan keeps P(worst > 3 mm) below [`RECORDING_P_MAX`] up to this many times its predicted
+/// sigma: the recording's check passes unless the achieved sigma is that much larger.
+const SCALE_CHECKED: f64 = 1.32;
+
+/// The largest achieved / predicted worst-anchor CRB seen (0.84-0.94 over seven start-ups).
+const CRB_RATIO_MAX: f64 = 0.94;
 
 /// Tension readings a second per cable on the simulated bus (measured 128-131 in every run):
 /// what the plan is judged at; the recording's check uses the rate measured in it.
 const RATE_HZ: f64 = 128.0;
 
+/// The plan first (deterministic: the example's configuration and the planner), at the rate the
+/// simulated bus delivers; the loop runs the plan computed at the configured rate (polled back
+/// to back: the planner assumes 50/s), which must be the same poses and tares.
 #[test]
-fn worst_anchor_within_3_mm() {
-    // The plan itself first (deterministic: the example's configuration and the planner).
+fn the_example_plan_meets_the_budget() {
     let dir = tempfile::tempdir().unwrap();
-    let mut cfg = robot(dir.path(), Plan::Example);
-    cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / RATE_HZ;
+    let cfg = robot(dir.path(), Plan::Example);
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+    let run = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+    let mut at_rate = cfg.clone();
+    at_rate.loadcells.as_mut().unwrap().poll_period_s = 1.0 / RATE_HZ;
+    let plan = taut_rt_core::notracker::dwell_plan(&at_rate, &ccfg).unwrap();
+    assert_eq!(plan.tare, run.tare);
+    for (a, b) in plan.poses.iter().zip(&run.poses) {
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-9), "the plan at {RATE_HZ}/s differs from the one the loop runs: {a:?} vs {b:?}");
+    }
     let nominal = cfg.anchors().unwrap();
     let (_, p_honest) = plan.worst_exceeds_probability(&nominal, 3e-3, HONESTY_UP, 4_000_000);
-    let (_, p_125) = plan.worst_exceeds_probability(&nominal, 3e-3, 1.25, 4_000_000);
+    let (_, p_checked) = plan.worst_exceeds_probability(&nominal, 3e-3, SCALE_CHECKED, 4_000_000);
     eprintln!(
-        "plan: {} poses x {} s, {} tares; worst-anchor sigma {:.3} mm at {RATE_HZ}/s; P(worst > 3 mm) <= {p_honest:.1e} at {HONESTY_UP} sigma, <= {p_125:.1e} at 1.25 sigma",
+        "plan: {} poses x {} s, {} tares; worst-anchor sigma {:.3} mm at {RATE_HZ}/s; P(worst > 3 mm) <= {p_honest:.1e} at {HONESTY_UP} sigma, <= {p_checked:.1e} at {SCALE_CHECKED} sigma",
         cfg.motion.dwell_poses,
         cfg.motion.dwell_s,
         plan.tare.iter().filter(|&&t| t != 0).count(),
         plan.worst_anchor_sigma_m * 1e3
     );
     assert!(p_honest < PLAN_P_MAX, "the example's plan: P(worst > 3 mm) up to {p_honest:.1e} at {HONESTY_UP} sigma");
-    assert!(p_125 < PLAN_P_AT_125_MAX, "the example's plan: P(worst > 3 mm) up to {p_125:.1e} at 1.25 sigma");
+    assert!(p_checked < RECORDING_P_MAX, "the example's plan: P(worst > 3 mm) up to {p_checked:.1e} at {SCALE_CHECKED} sigma");
+}
 
+/// The start-up, one per seed (default seed 1; `TAUT_E2E_SEEDS=1,2,4`).
+#[test]
+fn worst_anchor_within_3_mm() {
     // One start-up per seed, one after the other: two simulated robots in parallel on a
     // two-core machine starve each other's device threads (stale load cells, missed heartbeats).
     let seeds: Vec<u64> = std::env::var("TAUT_E2E_SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.trim().parse().unwrap()).collect());
+    let vf_fail = (SCALE_CHECKED / CRB_RATIO_MAX).powi(2);
     for seed in seeds {
         let r = start(seed, Plan::Example, false);
         report(seed, &r);
         eprintln!(
-            "seed {seed}: achieved / predicted (at the measured rate) worst-anchor sigma {:.3}; chi2/dof {:.2} at {} dof: P(chi2/dof >= 1.77) = {:.1e}",
+            "seed {seed}: achieved / predicted (at the measured rate) worst-anchor sigma {:.3}; chi2/dof {:.2} at {} dof: P(chi2/dof >= {vf_fail:.2}) = {:.1e} (the recording check's chance failure)",
             r.achieved_worst_sigma_m / r.repredicted_worst_sigma_m,
             r.chi2_dof,
             r.dof,
-            chi2_tail(r.dof, 1.77)
+            chi2_tail(r.dof, vf_fail)
         );
         assert!(
             r.p3_upper < RECORDING_P_MAX,
@@ -139,4 +156,7 @@ fn chi2_tail_matches_tables() {
     assert!((chi2_tail(100, 1.4945) / 1e-3 - 1.0).abs() < 0.05, "{}", chi2_tail(100, 1.4945));
     assert!((chi2_tail(80, 145.76 / 80.0) / 1e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(80, 145.76 / 80.0));
     assert!((chi2_tail(79, 1.77) / 2.97e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(79, 1.77));
+    // The recording check's chance failure (1.32 / 0.94)^2 = 1.972: sf at 68 dof 3.14e-6, at 60 1.07e-5.
+    assert!((chi2_tail(68, 1.972) / 3.14e-6 - 1.0).abs() < 0.25, "{}", chi2_tail(68, 1.972));
+    assert!((chi2_tail(60, 1.972) / 1.07e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(60, 1.972));
 }
