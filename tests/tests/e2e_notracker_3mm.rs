@@ -17,10 +17,10 @@
 //!
 //! 1. The 3 mm: a correct calibration's anchor errors are Gaussian with the covariance the
 //!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma.
-//!    Measured c over the six start-ups of session 13: 0.88-0.94 (mean 0.920, sd 0.022); its
-//!    99.9 % upper prediction bound (Student's t, 5 dof) is [`HONESTY_UP`] = 1.06. The plan is
-//!    checked first (deterministic): P(worst > 3 mm) at 1.06 x the predicted covariance is below
-//!    [`PLAN_P_MAX`] = 3e-5 (Monte Carlo, 99.9 % upper bound).
+//!    Measured c over eight start-ups (six of session 13, seeds 1 and 2 of this plan): 0.84-0.95
+//!    (mean 0.914, sd 0.035); its 99.9 % upper prediction bound (Student's t, 7 dof) is
+//!    [`HONESTY_UP`] = 1.10. The plan is checked first (deterministic): P(worst > 3 mm) at 1.10 x
+//!    the predicted covariance is below [`PLAN_P_MAX`] = 6e-5 (Monte Carlo, 99.9 % upper bound).
 //! 2. The recording's own P(worst > 3 mm), from its achieved sigma (the planner's covariance at
 //!    the reading rate measured in the recording, scaled up to the achieved sigma where larger)
 //!    must be below [`RECORDING_P_MAX`] = 1e-3 before the 3 mm is asserted. The plan has that P
@@ -33,8 +33,8 @@
 //! 3. The checks every start-up makes (`notracker::start`): 12 anchor coordinates within 4.89
 //!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
 //!
-//! Sum: 3e-5 + 1.1e-5 + 1.2e-5 + 1e-5 = 6.3e-5 per run (the asserted bounds, 60 dof; with this
-//! plan's 2.6e-5 and its fit's 68 dof: 5.1e-5).
+//! Sum: 6e-5 + 1.1e-5 + 1.2e-5 + 1e-5 = 9.3e-5 per run (the asserted bounds, 60 dof; the plan's
+//! own numbers are printed by `the_example_plan_meets_the_budget`).
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
@@ -45,13 +45,14 @@ use notracker::{report, robot, start, Plan};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 
-/// 99.9 % upper prediction bound of achieved / predicted worst-anchor sigma: six start-ups of
-/// session 13 (0.884, 0.942 with this plan; 0.904, 0.922, 0.930, 0.938 with the short one),
-/// mean 0.920 + t(0.999, 5) 5.893 x sd 0.0222 x sqrt(1 + 1/6).
-const HONESTY_UP: f64 = 1.06;
+/// 99.9 % upper prediction bound of achieved / predicted worst-anchor sigma (at the measured
+/// reading rate): six start-ups of session 13 (0.884, 0.942 with the 6-tare long plan; 0.904,
+/// 0.922, 0.930, 0.938 with the short one) and seeds 1, 2 of this plan (0.843, 0.946): mean
+/// 0.914 + t(0.999, 7) 4.785 x sd 0.0353 x sqrt(1 + 1/8) = 1.093.
+const HONESTY_UP: f64 = 1.10;
 
 /// The plan's P(worst aligned anchor > 3 mm) at [`HONESTY_UP`] x its predicted covariance.
-const PLAN_P_MAX: f64 = 3e-5;
+const PLAN_P_MAX: f64 = 6e-5;
 
 /// The recording's own P(worst aligned anchor > 3 mm) from its achieved sigmas.
 const RECORDING_P_MAX: f64 = 1e-3;
@@ -60,7 +61,8 @@ const RECORDING_P_MAX: f64 = 1e-3;
 /// sigma: the recording's check passes unless the achieved sigma is that much larger.
 const SCALE_CHECKED: f64 = 1.32;
 
-/// The largest achieved / predicted worst-anchor CRB seen (0.84-0.94 over seven start-ups).
+/// The largest achieved / predicted worst-anchor CRB (sigma without the variance factor) seen:
+/// 0.84-0.94 over eight start-ups.
 const CRB_RATIO_MAX: f64 = 0.94;
 
 /// Tension readings a second per cable on the simulated bus (measured 128-131 in every run):
