@@ -66,10 +66,11 @@ impl TautCalib {
             taut_calib::selfcal::Frame::NominalRigid => "the nominal anchors' (best translation and rotation)",
         };
         let mut note = format!(
-            "{} dwells, {} readings, chi2/dof {:.2}, dwell-mean variance x{:.1} (encoders) x{:.1} (load cells) for repeated readings, CRB anchor RMS {:.2} mm, {}; frame: {frame}",
+            "{} dwells, {} readings, chi2/dof {:.2}, {} degrees of freedom, dwell-mean variance x{:.1} (encoders) x{:.1} (load cells) for repeated readings, CRB anchor RMS {:.2} mm, {}; frame: {frame}",
             r.dwells.len(),
             r.samples_used,
             r.chi2 / r.dof.max(1) as f64,
+            r.dof,
             r.inflation.0,
             r.inflation.1,
             r.anchor_rms_crb_m * 1e3,

@@ -248,7 +248,9 @@ mod tests {
 }
 
 /// The planner's predictions for candidate plans of the example robot at the simulated bus's
-/// measured ~128 tension readings a second (BENCHMARKS.md, "Start-up without a tracker"):
+/// measured ~128 tension readings a second, with P(worst aligned anchor > 3 mm) at 1, 1.06 and
+/// 1.25 x the predicted sigma (the acceptance test's budget, tests/tests/e2e_notracker_3mm.rs;
+/// BENCHMARKS.md, "Start-up without a tracker"):
 /// `cargo test -p taut-rt-core --lib plan_predictions -- --ignored --nocapture`.
 #[cfg(test)]
 mod plan_predictions {
@@ -259,21 +261,22 @@ mod plan_predictions {
         let base = taut_config::RobotConfig::load(path).unwrap();
         // (poses, dwell s, tares, tares through every cable, tension readings/s)
         for &(poses, dwell, tares, each, rate) in &[
-            (16usize, 2.5f64, 4usize, false, 128.0f64),
-            (16, 2.5, 8, true, 128.0),
-            (16, 2.5, 16, true, 128.0),
+            (16usize, 2.5f64, 8usize, true, 128.0f64),
             (16, 2.5, 16, true, 1280.0),
-            (24, 16.0, 6, true, 128.0),
-            (32, 12.0, 6, true, 128.0),
-            (16, 30.0, 3, true, 128.0),
+            (16, 20.0, 6, true, 128.0),
+            (16, 25.0, 6, true, 128.0),
+            (16, 25.0, 8, true, 128.0),
+            (12, 40.0, 6, true, 128.0),
             (16, 30.0, 6, true, 128.0),
+            (16, 32.0, 6, true, 128.0),
+            (16, 30.0, 8, true, 128.0),
         ] {
             let mut cfg = base.clone();
             cfg.motion.dwell_poses = poses;
             cfg.motion.dwell_s = dwell;
             cfg.motion.dwell_tares = tares;
             cfg.motion.dwell_tare_each_cable = each;
-            cfg.motion.dwell_settle_s = 0.3;
+            cfg.motion.dwell_settle_s = 0.5;
             cfg.motion.dwell_speed_m_s = 0.5;
             cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
             let ccfg = <crate::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
@@ -284,10 +287,12 @@ mod plan_predictions {
             let wall = poses as f64 * (m.dwell_s + m.dwell_settle_s)
                 + ntares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
                 + p.path_m / m.dwell_speed_m_s;
-            let (pr, up) = p.worst_exceeds_probability(&nominal, 3e-3, 1.0, 1_000_000);
+            let mc = |scale: f64| p.worst_exceeds_probability(&nominal, 3e-3, scale, 4_000_000);
+            let ((pr, up), (_, up106), (_, up125)) = (mc(1.0), mc(1.06), mc(1.25));
             eprintln!(
-                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.2} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}), ~{wall:.0} s, z sigmas {:?} mm, tare masks {:?}",
+                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.3} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}); at 1.06 sigma <= {up106:.1e}, at 1.25 sigma <= {up125:.1e}; ~{wall:.0} s (path {:.1} m), z sigmas {:?} mm, tare masks {:?}",
                 p.worst_anchor_sigma_m * 1e3,
+                p.path_m,
                 p.anchor_sigma_m.iter().map(|s| (s[2] * 1e4).round() / 10.0).collect::<Vec<_>>(),
                 p.tare.iter().filter(|&&t| t != 0).collect::<Vec<_>>()
             );
