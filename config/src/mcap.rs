@@ -690,15 +690,7 @@ pub fn parse(buf: &[u8]) -> Result<(Recording, ParseReport), String> {
         report.missing_tension = 0;
         report.notes.push("the f columns are empty: no tensions in this recording".into());
     }
-    if report.missing_position > 0 {
-        report.notes.push(format!("{} rows without a tracker position (dropouts)", report.missing_position));
-    }
-    if report.missing_length > 0 {
-        report.notes.push(format!("{} missing length readings", report.missing_length));
-    }
-    if report.missing_tension > 0 {
-        report.notes.push(format!("{} missing tension readings", report.missing_tension));
-    }
+    report.note_missing();
     if !ended {
         report.notes.push("the file has no summary (the writer did not finish it); every complete chunk was read".into());
     }

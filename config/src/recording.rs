@@ -370,6 +370,21 @@ pub struct ParseReport {
     pub notes: Vec<String>,
 }
 
+impl ParseReport {
+    /// The notes on missing values, in the words every reader uses (CSV and MCAP alike).
+    pub(crate) fn note_missing(&mut self) {
+        if self.missing_position > 0 {
+            self.notes.push(format!("{} rows without a tracker position (dropouts)", self.missing_position));
+        }
+        if self.missing_length > 0 {
+            self.notes.push(format!("{} missing length readings", self.missing_length));
+        }
+        if self.missing_tension > 0 {
+            self.notes.push(format!("{} missing tension readings", self.missing_tension));
+        }
+    }
+}
+
 /// What is wrong with a recording.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ErrorKind {
@@ -1037,15 +1052,7 @@ impl Parser {
         } else if rec.f.is_none() {
             report.notes.push("no f columns: no tensions in this recording".into());
         }
-        if report.missing_position > 0 {
-            report.notes.push(format!("{} rows without a tracker position (dropouts)", report.missing_position));
-        }
-        if report.missing_length > 0 {
-            report.notes.push(format!("{} missing length readings", report.missing_length));
-        }
-        if report.missing_tension > 0 {
-            report.notes.push(format!("{} missing tension readings", report.missing_tension));
-        }
+        report.note_missing();
         Ok((rec, report))
     }
 }
