@@ -32,6 +32,34 @@ pub struct DiagnoseArgs {
     /// (taut-params v2 TOML, for `taut start --params`) to this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Load-cell noise, 1-sigma of one reading, N (errors-in-variables weights for stretch and
+    /// sag). Default: `[calibration] loadcell_sigma_n` of --config, else 0 (tensions exact).
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub loadcell_sigma: Option<f64>,
+    /// 1-sigma of each load cell's constant offset, N (widens the stretch and sag sigmas).
+    /// Default: `[calibration] loadcell_offset_n` of --config, else 0 (cells zeroed exactly).
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub loadcell_offset: Option<f64>,
+}
+
+/// The diagnosis options: the `[calibration]` table of `cfg`, then the arguments (which win).
+fn options(a: &DiagnoseArgs, cfg: &taut_config::RobotConfig) -> Result<DiagnoseOptions> {
+    let mut opts = DiagnoseOptions::from_config(&cfg.calibration);
+    opts.tension_end = match a.tension_at.as_str() {
+        "anchor" => TensionEnd::Anchor,
+        "platform" => TensionEnd::Platform,
+        other => anyhow::bail!("--tension-at `{other}`: use `anchor` (load cell at the winch) or `platform`"),
+    };
+    for (flag, given, opt) in [
+        ("--loadcell-sigma", a.loadcell_sigma, &mut opts.loadcell_sigma_n),
+        ("--loadcell-offset", a.loadcell_offset, &mut opts.loadcell_offset_n),
+    ] {
+        if let Some(v) = given {
+            taut_config::check_loadcell_sigma(v).map_err(|m| anyhow::anyhow!("{flag} {v}: {m}"))?;
+            *opt = v;
+        }
+    }
+    Ok(opts)
 }
 
 /// JSON number, `null` for NaN / infinite.
@@ -216,12 +244,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     )?;
     let (rec, _parse) = load_recording(&a.recording)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
-    let mut opts = DiagnoseOptions::from_config(&cfg.calibration);
-    opts.tension_end = match a.tension_at.as_str() {
-        "anchor" => TensionEnd::Anchor,
-        "platform" => TensionEnd::Platform,
-        other => anyhow::bail!("--tension-at `{other}`: use `anchor` (load cell at the winch) or `platform`"),
-    };
+    let opts = options(a, &cfg)?;
     let d = diagnose(&rec, &cfg.platform_points(), None, &opts).with_context(|| format!("diagnosing {}", a.recording.display()))?;
     print(&d);
     // The wild values are excluded before the fit; should the model still come out non-finite
@@ -277,4 +300,41 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
         eprintln!("report written to {}", r.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: DiagnoseArgs,
+    }
+
+    fn args(extra: &[&str]) -> DiagnoseArgs {
+        Cli::try_parse_from(["taut", "rec.csv"].iter().chain(extra)).unwrap().args
+    }
+
+    #[test]
+    fn load_cell_noise_from_the_config_then_the_arguments() {
+        let mut cfg = taut_config::RobotConfig::point_mass(4);
+        let o = options(&args(&[]), &cfg).unwrap();
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.0, 0.0));
+        cfg.calibration.loadcell_sigma_n = 0.3;
+        cfg.calibration.loadcell_offset_n = 0.5;
+        let o = options(&args(&[]), &cfg).unwrap();
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.3, 0.5));
+        let o = options(&args(&["--loadcell-sigma", "0.2"]), &cfg).unwrap();
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.2, 0.5));
+        let o = options(&args(&["--loadcell-offset", "0", "--loadcell-sigma", "0"]), &cfg).unwrap();
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.0, 0.0));
+        for (flag, v) in
+            [("--loadcell-sigma", "nan"), ("--loadcell-sigma", "-1"), ("--loadcell-offset", "inf"), ("--loadcell-offset", "1e9")]
+        {
+            let e = options(&args(&[flag, v]), &cfg).unwrap_err().to_string();
+            assert!(e.starts_with(flag) && e.contains("0 (exact) to 1000"), "{e}");
+        }
+    }
 }

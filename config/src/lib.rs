@@ -130,6 +130,42 @@ pub struct CalibrationConfig {
     /// a parameter file given to `taut start --params` carries). See docs/effects.md.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub effects: Vec<String>,
+    /// Load-cell noise, 1-sigma of one tension reading, N. `taut diagnose` predicts stretch and
+    /// sag from the measured tensions: with this, a reading whose prediction the tension noise
+    /// moves counts by its total variance (errors in variables; docs/diagnosis.md). 0 (the
+    /// default): the tensions are taken as exact. Here rather than in `[cable.loadcell]`: like
+    /// `tracker_sigma_m` and `encoder_sigma_m` it is the noise model of the estimators, which a
+    /// recording-only configuration (no devices) needs too.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub loadcell_sigma_n: f64,
+    /// 1-sigma of each load cell's unknown constant offset (its zero), N: added to the
+    /// uncertainty `taut diagnose` reports for stretch and sag. 0 (the default): the cells are
+    /// taken as zeroed exactly.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub loadcell_offset_n: f64,
+}
+
+/// A default 0 is not written (configurations written before the key existed stay the same).
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// The largest load-cell 1-sigma (`[calibration] loadcell_sigma_n`, `loadcell_offset_n`) taken,
+/// N: above a kilonewton of noise a reading says nothing about a cable robot's tension; such a
+/// value is a unit mistake (mN, raw counts), not a load cell.
+pub const LOADCELL_SIGMA_MAX_N: f64 = 1000.0;
+
+/// Checks a load-cell 1-sigma in newtons (`[calibration] loadcell_sigma_n` / `loadcell_offset_n`,
+/// `taut diagnose --loadcell-sigma` / `--loadcell-offset`): finite, 0 to [`LOADCELL_SIGMA_MAX_N`].
+/// The error says what is allowed; the caller adds where the value came from.
+pub fn check_loadcell_sigma(v: f64) -> Result<(), String> {
+    if v.is_finite() && (0.0..=LOADCELL_SIGMA_MAX_N).contains(&v) {
+        Ok(())
+    } else {
+        Err(format!(
+            "must be a load cell's 1-sigma in newtons, 0 (exact) to {LOADCELL_SIGMA_MAX_N}, got {v}; give the noise of one reading in N"
+        ))
+    }
 }
 
 /// The effects the running robot can model (`[calibration] effects`): sag is left out (the
@@ -150,6 +186,8 @@ impl Default for CalibrationConfig {
             // (10-20 cm): refusing it would leave the robot with no start at all.
             max_sigma_m: 0.1,
             effects: Vec::new(),
+            loadcell_sigma_n: 0.0,
+            loadcell_offset_n: 0.0,
         }
     }
 }
@@ -383,6 +421,9 @@ impl RobotConfig {
                 ),
             ));
         }
+        for (k, v) in [("loadcell_sigma_n", cal.loadcell_sigma_n), ("loadcell_offset_n", cal.loadcell_offset_n)] {
+            check_loadcell_sigma(v).map_err(|m| err(key_line(text, "[calibration]", k), format!("calibration.{k}"), m))?;
+        }
         for (k, e) in cal.effects.iter().enumerate() {
             let key = format!("calibration.effects[{k}]");
             if !MODELLED_EFFECTS.contains(&e.as_str()) {
@@ -560,6 +601,31 @@ mod tests {
             assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(7)), "{e}");
             assert!(e.to_string().contains(words), "{e}");
         }
+    }
+
+    #[test]
+    fn loadcell_noise_keys_are_read_and_validated_on_their_line() {
+        let base = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n[calibration]\nmin_tension_n = 10.0\n";
+        let c = RobotConfig::from_toml_str(base).unwrap();
+        assert_eq!((c.calibration.loadcell_sigma_n, c.calibration.loadcell_offset_n), (0.0, 0.0));
+        let c = RobotConfig::from_toml_str(&format!("{base}loadcell_sigma_n = 0.3\nloadcell_offset_n = 0.5\n")).unwrap();
+        assert_eq!((c.calibration.loadcell_sigma_n, c.calibration.loadcell_offset_n), (0.3, 0.5));
+        let c = RobotConfig::from_toml_str(&format!("{base}loadcell_sigma_n = 1000.0\n")).unwrap();
+        assert_eq!(c.calibration.loadcell_sigma_n, LOADCELL_SIGMA_MAX_N);
+        for (extra, key, line, words) in [
+            ("loadcell_sigma_n = -0.3\n", "calibration.loadcell_sigma_n", 9, "got -0.3"),
+            ("loadcell_sigma_n = nan\n", "calibration.loadcell_sigma_n", 9, "got NaN"),
+            ("loadcell_offset_n = inf\n", "calibration.loadcell_offset_n", 9, "got inf"),
+            ("loadcell_sigma_n = 0.3\nloadcell_offset_n = 1e6\n", "calibration.loadcell_offset_n", 10, "0 (exact) to 1000"),
+            ("loadcell_sigma_n = 1000.001\n", "calibration.loadcell_sigma_n", 9, "0 (exact) to 1000"),
+        ] {
+            let e = RobotConfig::from_toml_str(&format!("{base}{extra}")).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(line)), "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
+        // A string is the TOML reader's error, on the key's line.
+        let e = RobotConfig::from_toml_str(&format!("{base}loadcell_sigma_n = \"0.3 N\"\n")).unwrap_err();
+        assert_eq!((e.key.as_deref(), e.line), (Some("calibration.loadcell_sigma_n"), Some(9)), "{e}");
     }
 
     #[test]

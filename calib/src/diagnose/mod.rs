@@ -77,12 +77,12 @@ pub struct DiagnoseOptions {
     pub encoder_sigma_m: f64,
     /// Load-cell noise, 1-sigma, N: the tension readings' noise enters the predicted length
     /// through `d(stretch + sag)/dT`, and each reading is weighted by its total variance
-    /// ([`fit::Eiv`]). 0: the tensions are taken as exact (the `[calibration]` table has no key
-    /// for it; give the load cells' noise here to diagnose below the controller's tension floor).
+    /// ([`fit::Eiv`]). 0: the tensions are taken as exact. From `[calibration] loadcell_sigma_n`
+    /// (give the load cells' noise to diagnose below the controller's tension floor).
     pub loadcell_sigma_n: f64,
     /// 1-sigma of each load cell's unknown constant offset, N: added to the uncertainty of
     /// stretch and sag (their estimates move with it; see `tension_offset_variance`). 0: the
-    /// cells are taken as zeroed exactly.
+    /// cells are taken as zeroed exactly. From `[calibration] loadcell_offset_n`.
     pub loadcell_offset_n: f64,
     /// Fraction of the recording held out (in time blocks).
     pub heldout_fraction: f64,
@@ -109,8 +109,8 @@ impl DiagnoseOptions {
             min_tension_n: c.min_tension_n,
             tracker_sigma_m: c.tracker_sigma_m,
             encoder_sigma_m: c.encoder_sigma_m,
-            loadcell_sigma_n: 0.0,
-            loadcell_offset_n: 0.0,
+            loadcell_sigma_n: c.loadcell_sigma_n,
+            loadcell_offset_n: c.loadcell_offset_n,
             heldout_fraction: if c.heldout_fraction > 0.0 { c.heldout_fraction } else { 0.2 },
             tension_end: TensionEnd::Platform,
             max_effects: 3,
@@ -1472,6 +1472,16 @@ mod tests {
         spec.tensions = tensions;
         let rec = synth::box_recording(&spec, 3000, [-2.5, -1.2, 0.5], [2.5, 1.2, 2.8], seed);
         (rec, spec)
+    }
+
+    #[test]
+    fn the_load_cell_noise_comes_from_the_calibration_table() {
+        let c = CalibrationConfig { loadcell_sigma_n: 0.3, loadcell_offset_n: 0.5, ..CalibrationConfig::default() };
+        let o = DiagnoseOptions::from_config(&c);
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.3, 0.5));
+        // Without the keys the tensions are exact, as before the keys existed.
+        let o = DiagnoseOptions::default();
+        assert_eq!((o.loadcell_sigma_n, o.loadcell_offset_n), (0.0, 0.0));
     }
 
     #[test]
