@@ -3,20 +3,12 @@
 //! over many seeds is in BENCHMARKS.md: `examples/outdoor_sag_ea.rs`).
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect, Finding};
-use taut_sim::{try_simulate, Physics, Scenario};
+use taut_sim::{Physics, Scenario};
+use taut_tests::sim::simulate_next_seed;
 
 fn run(mut s: Scenario, duration_s: f64, opts: impl Fn(&Scenario) -> DiagnoseOptions) -> Diagnosis {
     s.duration_s = duration_s;
-    let sim = loop {
-        match try_simulate(&s) {
-            Ok(sim) => break sim,
-            Err(e) if s.seed < 100_000 => {
-                eprintln!("seed {} not simulated ({e}); next seed", s.seed);
-                s.seed += 10_000;
-            }
-            Err(e) => panic!("{e}"),
-        }
-    };
+    let sim = simulate_next_seed(&mut s);
     diagnose(&sim.recording, &sim.truth.platform_points, None, &opts(&s)).expect("diagnosis")
 }
 

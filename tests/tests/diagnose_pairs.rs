@@ -5,23 +5,13 @@
 //! truth.
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect, Finding};
-use taut_sim::{try_simulate, Physics, Scenario};
+use taut_sim::{Physics, Scenario};
+use taut_tests::sim::simulate_next_seed;
 
-/// Simulates and diagnoses `s`. A seed whose motion the simulator cannot hold in static
-/// equilibrium (a rare planned pose at the small 3-cable robot's workspace edge) is replaced by
-/// the seed 10,000 higher.
+/// Simulates (the next seed where one cannot be: [`simulate_next_seed`]) and diagnoses `s`.
 fn run(mut s: Scenario, duration_s: f64) -> Diagnosis {
     s.duration_s = duration_s;
-    let sim = loop {
-        match try_simulate(&s) {
-            Ok(sim) => break sim,
-            Err(e) if s.seed < 100_000 => {
-                eprintln!("seed {} not simulated ({e}); next seed", s.seed);
-                s.seed += 10_000;
-            }
-            Err(e) => panic!("{e}"),
-        }
-    };
+    let sim = simulate_next_seed(&mut s);
     let opts = DiagnoseOptions::from_config(&s.robot.calibration);
     diagnose(&sim.recording, &sim.truth.platform_points, None, &opts).expect("diagnosis")
 }
