@@ -468,6 +468,22 @@ pub struct WeakParam {
     pub sigma_m: f64,
 }
 
+impl WeakParam {
+    /// The parameters of cable `cable` whose one-sigma (`sig`: A_x, A_y, A_z, L0, m) exceeds
+    /// `weak_sigma_m`, in that order.
+    pub fn of_cable(cable: usize, sig: [f64; 4], weak_sigma_m: f64) -> impl Iterator<Item = WeakParam> {
+        (0..4).filter(move |&k| sig[k] > weak_sigma_m).map(move |k| WeakParam { cable, param: Param::from_index(k), sigma_m: sig[k] })
+    }
+
+    /// The parameters of `sigma` above `weak_sigma_m`, in the order cable, A_x, A_y, A_z, L0
+    /// (for a set whose uncertainty comes from elsewhere than [`calibrate`]'s per-cable solve,
+    /// e.g. the bundle refinement).
+    pub fn of_sigmas(sigma: &Sigmas, weak_sigma_m: f64) -> Vec<WeakParam> {
+        let cables = sigma.anchors.iter().zip(&sigma.l0).enumerate();
+        cables.flat_map(|(j, (a, &l0))| Self::of_cable(j, [a[0], a[1], a[2], l0], weak_sigma_m)).collect()
+    }
+}
+
 impl fmt::Display for WeakParam {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
@@ -716,10 +732,7 @@ fn calibrate_cable(
             singular,
         });
     }
-    let weak: Vec<WeakParam> = (0..4)
-        .filter(|&k| sig[k] > opts.weak_sigma_m)
-        .map(|k| WeakParam { cable: j, param: Param::from_index(k), sigma_m: sig[k] })
-        .collect();
+    let weak: Vec<WeakParam> = WeakParam::of_cable(j, sig, opts.weak_sigma_m).collect();
     let mut notes = Vec::new();
     // Held-out: the parameters of the training block alone, evaluated on the rest. The
     // training optimum is within about a standard deviation of the full-data one, where the
@@ -795,5 +808,25 @@ fn dominant(v: &[f64; 4]) -> Param {
         Param::from_index(a)
     } else {
         Param::L0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weak_parameters_are_named_by_their_uncertainty() {
+        let mut s = Sigmas::uniform(4, 0.5e-3);
+        s.anchors[2][0] = 6.6e-3;
+        s.l0[3] = 2.5e-3;
+        let w = WeakParam::of_sigmas(&s, 2e-3);
+        assert_eq!(w.len(), 2);
+        assert_eq!((w[0].cable, w[0].param, w[0].sigma_m), (2, Param::Ax, 6.6e-3));
+        assert_eq!((w[1].cable, w[1].param), (3, Param::L0));
+        assert!(WeakParam::of_sigmas(&Sigmas::uniform(4, 1e-3), 2e-3).is_empty());
+        // At the level exactly: not weak.
+        let w: Vec<_> = WeakParam::of_cable(1, [2e-3, 3e-3, 1e-3, 4e-3], 2e-3).map(|w| w.param).collect();
+        assert_eq!(w, [Param::Ay, Param::L0]);
     }
 }

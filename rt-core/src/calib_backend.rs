@@ -243,7 +243,7 @@ impl Calibrate for TautCalib {
         if let Some(b) = &refined {
             // The refined set's uncertainty is the one published: warn by it, not by the
             // per-cable first pass (which named parameters the refinement determines well).
-            weak = weak_params(&b.sigma, self.opts.weak_sigma_m).iter().map(|w| w.to_string()).collect();
+            weak = taut_calib::WeakParam::of_sigmas(&b.sigma, self.opts.weak_sigma_m).iter().map(|w| w.to_string()).collect();
         }
         let (geometry, sigma, how) = match refined {
             Some(b) => (
@@ -285,19 +285,6 @@ impl Calibrate for TautCalib {
     }
 }
 
-/// The parameters of `sigma` above `weak_sigma_m`, in the order cable, A_x, A_y, A_z, L0.
-fn weak_params(sigma: &Sigmas, weak_sigma_m: f64) -> Vec<taut_calib::WeakParam> {
-    let mut out = Vec::new();
-    for (j, (a, &l0)) in sigma.anchors.iter().zip(&sigma.l0).enumerate() {
-        for (k, &s) in a.iter().chain(std::iter::once(&l0)).enumerate() {
-            if s > weak_sigma_m {
-                out.push(taut_calib::WeakParam { cable: j, param: taut_calib::Param::from_index(k), sigma_m: s });
-            }
-        }
-    }
-    out
-}
-
 /// Median of `l - |p + b - a|` over the taut readings of cable `j`.
 fn median_offset(rec: &Recording, platform: &[[f64; 3]], j: usize, a: [f64; 3], min_tension_n: f64) -> Option<f64> {
     let b = platform[j];
@@ -315,21 +302,4 @@ fn median_offset(rec: &Recording, platform: &[[f64; 3]], j: usize, a: [f64; 3], 
     }
     v.sort_by(|x, y| x.total_cmp(y));
     Some(v[v.len() / 2])
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn weak_parameters_are_named_by_the_published_uncertainty() {
-        let mut s = Sigmas::uniform(4, 0.5e-3);
-        s.anchors[2][0] = 6.6e-3;
-        s.l0[3] = 2.5e-3;
-        let w = weak_params(&s, 2e-3);
-        assert_eq!(w.len(), 2);
-        assert_eq!((w[0].cable, w[0].param, w[0].sigma_m), (2, taut_calib::Param::Ax, 6.6e-3));
-        assert_eq!((w[1].cable, w[1].param), (3, taut_calib::Param::L0));
-        assert!(weak_params(&Sigmas::uniform(4, 1e-3), 2e-3).is_empty());
-    }
 }

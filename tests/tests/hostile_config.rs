@@ -134,6 +134,19 @@ fn cases() -> Vec<Case> {
         Case::err("diagnose: mass nan", &["diagnose", "rec.csv", "--config", "cfg.toml"], &["cfg.toml:3", "robot.mass_kg"])
             .file("rec.csv", good_recording())
             .file("cfg.toml", line(3, "mass_kg = nan")),
+        Case::err(
+            "diagnose: load-cell sigma negative",
+            &["diagnose", "rec.csv", "--config", "cfg.toml"],
+            &["cfg.toml:13", "calibration.loadcell_sigma_n", "0 (exact) to 1000"],
+        )
+        .file("rec.csv", good_recording())
+        .file("cfg.toml", format!("{GOOD_CONFIG}[calibration]\nloadcell_sigma_n = -0.3\n")),
+        Case::err(
+            "diagnose: --loadcell-offset nan",
+            &["diagnose", "rec.csv", "--loadcell-offset", "nan"],
+            &["--loadcell-offset NaN", "0 (exact) to 1000"],
+        )
+        .file("rec.csv", good_recording()),
         // At the bounds: the simulator either simulates or says why it cannot, never panics.
         sim("mass 0.01 kg: three-phase infeasible", &line(3, "mass_kg = 0.01"), &["cannot simulate this robot", "three-phase plan"]),
         sim(
