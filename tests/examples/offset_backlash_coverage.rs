@@ -8,7 +8,8 @@
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{try_simulate, Physics, Scenario};
+use taut_sim::{Physics, Scenario};
+use taut_tests::sim::simulate_next_seed;
 
 fn main() {
     let mut args = std::env::args().skip(1).map(|a| a.parse::<u64>().expect("a number"));
@@ -28,13 +29,7 @@ fn main() {
             ..Physics::default()
         };
         s.duration_s = 40.0;
-        let sim = loop {
-            match try_simulate(&s) {
-                Ok(sim) => break sim,
-                Err(_) if s.seed < 100_000 => s.seed += 10_000,
-                Err(e) => panic!("{e}"),
-            }
-        };
+        let sim = simulate_next_seed(&mut s);
         let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &DiagnoseOptions::from_config(&s.robot.calibration))
             .expect("diagnosis");
         let named: Vec<&str> = d.effects.iter().filter(|f| f.effect != Effect::Slack).map(|f| f.effect.name()).collect();

@@ -8,7 +8,8 @@
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{try_simulate, Physics, Scenario};
+use taut_sim::{Physics, Scenario};
+use taut_tests::sim::simulate_next_seed;
 
 fn main() {
     let mut args = std::env::args().skip(1).map(|a| a.parse::<u64>().expect("a number"));
@@ -24,13 +25,7 @@ fn main() {
         s.physics = Physics { sag: Some(sag), elasticity: Some(ea), ..Physics::default() };
         s.robot.calibration.min_tension_n = floor;
         s.duration_s = 60.0;
-        let sim = loop {
-            match try_simulate(&s) {
-                Ok(sim) => break sim,
-                Err(_) if s.seed < 100_000 => s.seed += 10_000,
-                Err(e) => panic!("{e}"),
-            }
-        };
+        let sim = simulate_next_seed(&mut s);
         let mut o = DiagnoseOptions::from_config(&s.robot.calibration);
         o.loadcell_sigma_n = cell_sigma;
         // The simulated cells' constant offsets (1-sigma), as a data sheet or a tare states it.
