@@ -169,8 +169,11 @@ impl fmt::Display for DesignError {
 
 impl std::error::Error for DesignError {}
 
-/// Information of the samples taken along `points` (see the module documentation), `4n x 4n`.
-fn information<'a>(inp: &DesignInput, points: impl Iterator<Item = &'a [f64; 3]>) -> DMatrix<f64> {
+/// Information of the samples taken along `points` (see the module documentation), `4n x 4n`:
+/// parameters anchor `j` (x, y, z) then its offset at `4j..4j + 4`. Public for tests that need
+/// how the information is spread over the path (e.g. the degrees of freedom of a time-block
+/// sandwich).
+pub fn information<'a>(inp: &DesignInput, points: impl Iterator<Item = &'a [f64; 3]>) -> DMatrix<f64> {
     let n = inp.anchors.len();
     let mut info = DMatrix::<f64>::zeros(4 * n, 4 * n);
     let rl = 1.0 / (inp.length_sigma_m * inp.length_sigma_m);

@@ -27,7 +27,7 @@
 use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use crate::MAX_CABLES;
 use std::fmt;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 use taut_config::devices::DriveConfig;
 use taut_config::RobotConfig;
 use taut_driver::{
@@ -320,8 +320,6 @@ pub struct RobotDevices<T: CanTransport> {
     loadcells: Option<(LoadCellIo, TensionReader)>,
     _tracker: Option<TrackerThread>,
     pose: Option<PoseReader>,
-    /// Loop time 0 on the wall clock (set at the first read).
-    epoch: Option<Instant>,
     transport_errors: u64,
     /// The bus as the interface reported it.
     bus_status: BusStatus,
@@ -378,7 +376,6 @@ impl<T: CanTransport> RobotDevices<T> {
             loadcells: peripherals.loadcells,
             _tracker: peripherals.tracker,
             pose: peripherals.pose,
-            epoch: None,
             transport_errors: 0,
             bus_status: BusStatus { iface: bus_iface, ..BusStatus::default() },
             bus_fault: None,
@@ -475,9 +472,11 @@ fn status_of(state: Option<State>) -> DriveStatus {
 }
 
 impl<T: CanTransport + Send> Devices for RobotDevices<T> {
-    fn read(&mut self, now_s: f64, inp: &mut Inputs) {
+    fn read(&mut self, _now_s: f64, inp: &mut Inputs) {
+        // Every age below is a difference of two wall-clock instants, taken against this one
+        // `wall`: the loop's `now_s` is the host's (plugin) time, which need not run with the
+        // wall clock (see the pose age).
         let wall = Instant::now();
-        let epoch = *self.epoch.get_or_insert_with(|| wall - Duration::from_secs_f64(now_s.max(0.0)));
         self.drain(wall);
         inp.fault = self.bus_fault.take();
         while let Some(e) = self.master.poll_event() {
@@ -533,17 +532,16 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         }
         if let Some(p) = self.pose.as_ref().and_then(PoseReader::newest) {
             inp.pose_m = p.position;
-            // Age from when the tracker measured it, not from when the datagram arrived.
-            let measured_s = if p.measured >= epoch {
-                p.measured.duration_since(epoch).as_secs_f64()
-            } else {
-                -epoch.duration_since(p.measured).as_secs_f64()
-            };
-            // `now_s` was taken by the caller before this read: a pose that arrived in between
-            // (or a preempted caller) is measured a little after `now_s`. A reading is never
-            // from the future: age 0 (a host-owned plugin refuses a negative age as malformed
-            // input, and plugin_lifecycle's host saw one).
-            inp.pose_age_s = (now_s - measured_s).max(0.0);
+            // Age from when the tracker measured it, not from when the datagram arrived, on the
+            // wall clock like the lengths' and the tensions' ages, so that `t - age` puts every
+            // reading of a sample on one time axis. (It was `now_s - (measured - epoch)` with the
+            // epoch fixed at the first read: plugin time runs on by one period across each
+            // activation, so from the daemon's first loop cycle on it was behind the wall clock
+            // by the hand-over's extra time, and the poses looked older than the lengths by that
+            // much: measured 1.58 ms on e2e_excitation seed 1, 0.6 mm along the tour.) A pose
+            // that arrived after `wall` (drained after it was taken) is 0 s old, never negative
+            // (a host-owned plugin refuses a negative age as malformed input).
+            inp.pose_age_s = wall.saturating_duration_since(p.measured).as_secs_f64();
         } else {
             inp.pose_age_s = f64::INFINITY;
         }

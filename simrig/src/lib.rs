@@ -808,17 +808,20 @@ impl<R: CanTransport> Site<R> {
 }
 
 /// Over how many SYNC periods a drive in cyclic synchronous position moves its drum from one
-/// set-point to the next (0: it takes each set-point at the SYNC that applies it, and the
-/// platform moves at the next physics tick).
+/// set-point to the next: 1, a linear interpolation over the cycle from the SYNC that applies
+/// the set-point (CiA 402 CSP: the drive's own position loop interpolates between the
+/// set-points it gets once per cycle), so that the encoders and the tracker sample one continuous
+/// motion. 0 would take each set-point at the SYNC that applies it (a staircase).
 ///
-/// Measured on e2e_excitation (30 s designed tour, latch at the SYNC's bus instant), see
-/// BENCHMARKS.md "Session 14": 0 gives seed 1 0.45 mm worst anchor at a 0.43 mm sigma; 1 (a
-/// linear interpolation over the cycle, which real CSP drives do and which makes the
-/// encoder and the tracker sample one continuous motion) gave 1.4-1.8 mm on all five seeds,
-/// the same pattern on each, with the time-block sandwich raising the sigma to 0.6-0.9 mm: a
-/// systematic that is not understood (by the timing alone, 1 should be the consistent one and
-/// 0 leave the encoders ~1 ms behind the tracker), so the earlier behaviour stays until it is.
-const CSP_INTERPOLATION_PERIODS: f64 = 0.0;
+/// Measured on the calibrator's own rows (e2e_excitation's start-up, seed 1, tracker at 1 mm
+/// noise; one time offset fitted against the true geometry, BENCHMARKS.md "Session 15"): with 1
+/// the lengths of a row are from 0.05 ms later than its pose (the tracker's fixed transit, which
+/// its receiver counts as zero); with 0 from 0.97 ms earlier (half the 2 ms SYNC period: the
+/// row interpolates linearly between readings of a staircase). Session 14 kept 0 because 1 gave
+/// 1.4-1.8 mm anchor errors: the rows then were 1.58 ms off the other way, from the device layer's
+/// pose age (plugin time against a wall-clock epoch, fixed in `taut_rt_core::robot_io`), which
+/// the staircase's -1 ms happened to cancel.
+const CSP_INTERPOLATION_PERIODS: f64 = 1.0;
 
 /// A drum in cyclic synchronous position: from its last target to the new one, linearly, over
 /// [`CSP_INTERPOLATION_PERIODS`] SYNC periods from the SYNC that applied it.

@@ -2,7 +2,8 @@
 //! 30 s, tracker at 100 Hz with 1.5 mm noise): worst anchor error against the simulator's truth,
 //! the calibration's own sigmas and the design's prediction. Asserted: the calibration is
 //! accepted, its note states the predicted and the achieved uncertainty, the achieved worst-anchor
-//! sigma is within 1.5x of the predicted one, every anchor coordinate is within 4 of its sigmas.
+//! sigma is within a bound of the predicted one derived from the time-block sandwich's scatter
+//! (1e-5 per run), every anchor coordinate is within 4.46-4.79 of its sigmas (1e-4 per run).
 //!
 //! Seeds: 1 by default (one start-up, about two minutes under load); the acceptance set with
 //! `TAUT_EXCITE_SEEDS=1,2,3,4,5`. `TAUT_EXCITE_PATH=lissajous` runs the earlier Lissajous
@@ -33,6 +34,40 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+/// Blocks of the refinement's time-block sandwich (`taut_calib::bundle`'s `SANDWICH_BLOCKS`).
+const SANDWICH_BLOCKS: usize = 32;
+
+/// The effective degrees of freedom of the time-block sandwich variance of each anchor
+/// coordinate along `path` (the training rows the calibration fits, cut into
+/// [`SANDWICH_BLOCKS`] consecutive blocks). Under the model a block's gradient has covariance
+/// `I_b` (its information), so the sandwich variance of coordinate `k` is
+/// `sum_b lambda_b chi2_1` with `lambda_b = (C I_b C)_kk`, `C` the inverse of the total: by
+/// Satterthwaite a `(sum lambda) chi2_nu / nu` with `nu = (sum lambda)^2 / sum lambda^2` (31 for
+/// equal blocks; less where a coordinate is seen in few blocks).
+fn sandwich_dof(inp: &taut_calib::design::DesignInput, path: impl Fn(f64) -> [f64; 3]) -> Vec<[f64; 3]> {
+    let rows = (inp.duration_s * inp.sample_hz).floor() as usize;
+    let pts: Vec<[f64; 3]> =
+        taut_calib::design::training_rows(rows, inp.used_fraction, inp.heldout_blocks).map(|k| path(k as f64 / inp.sample_hz)).collect();
+    let blocks: Vec<_> = (0..SANDWICH_BLOCKS)
+        .map(|b| {
+            let r = b * pts.len() / SANDWICH_BLOCKS..(b + 1) * pts.len() / SANDWICH_BLOCKS;
+            taut_calib::design::information(inp, pts[r].iter())
+        })
+        .collect();
+    let total = blocks.iter().fold(nalgebra::DMatrix::<f64>::zeros(blocks[0].nrows(), blocks[0].ncols()), |a, b| a + b);
+    let Some(c) = total.try_inverse() else { return vec![[1.0; 3]; inp.anchors.len()] };
+    let per_block: Vec<_> = blocks.iter().map(|ib| &c * ib * &c).collect();
+    (0..inp.anchors.len())
+        .map(|j| {
+            std::array::from_fn(|i| {
+                let k = 4 * j + i;
+                let s: f64 = per_block.iter().map(|m| m[(k, k)]).sum();
+                s * s / per_block.iter().map(|m| m[(k, k)].powi(2)).sum::<f64>()
+            })
+        })
+        .collect()
+}
+
 /// One start-up against the truth, m.
 struct Run {
     worst_err_m: f64,
@@ -40,6 +75,12 @@ struct Run {
     predicted_m: f64,
     /// The prediction at the length noise the calibration measured, m.
     at_noise_m: f64,
+    /// Predicted 1-sigma of each anchor (root of its three variances) at the measured length
+    /// noise, m.
+    predicted_anchor_m: Vec<f64>,
+    /// Effective degrees of freedom of the refinement's time-block sandwich per anchor
+    /// coordinate (at the nominal geometry; the smallest over the tour's joins).
+    sandwich_dof: Vec<[f64; 3]>,
     noise_m: f64,
     errs_m: Vec<f64>,
     axis_errs_m: Vec<[f64; 3]>,
@@ -111,11 +152,24 @@ fn startup(seed: u64, designed: bool) -> Run {
     let _ = taut_rt_core::excite::plan(&cfg, &mut ccfg);
     let mut inp = taut_rt_core::excite::design_input(&cfg, &ccfg).unwrap();
     inp.length_sigma_m = noise_m;
-    let at_noise_m = match ccfg.tour {
+    let pred = match ccfg.tour {
         Some(tour) => taut_calib::design::predict_tour(&inp, &tour),
         None => taut_calib::design::predict(&inp, |t| ccfg_lissajous(&ccfg, t)),
-    }
-    .map_or(f64::NAN, |p| p.worst_anchor_sigma_m());
+    };
+    let at_noise_m = pred.as_ref().map_or(f64::NAN, |p| p.worst_anchor_sigma_m());
+    let predicted_anchor_m: Vec<f64> = pred.as_ref().map_or(vec![f64::NAN; truth.anchors.len()], |p| {
+        p.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect()
+    });
+    let sandwich_dof = match ccfg.tour {
+        Some(tour) => (0..tour.n.max(1))
+            .map(|k| {
+                let (_, t0) = tour.nearest_waypoint(&tour.waypoints[k]);
+                sandwich_dof(&inp, |t| tour.point(t + t0))
+            })
+            .reduce(|a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|i| x[i].min(y[i]))).collect())
+            .unwrap_or_default(),
+        None => sandwich_dof(&inp, |t| ccfg_lissajous(&ccfg, t)),
+    };
     let errs_m: Vec<f64> = ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
     let sig: Vec<f64> = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
     eprintln!("seed {seed}: note {}", ce.note);
@@ -126,6 +180,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         worst_sigma_m: sig.iter().cloned().fold(0.0, f64::max),
         predicted_m,
         at_noise_m,
+        predicted_anchor_m,
+        sandwich_dof,
         noise_m,
         errs_m,
         axis_errs_m: ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
@@ -162,16 +218,44 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
         // worst-anchor 1-sigma of ~0.45 mm (anchor 2's x ~0.3 mm), so the worst of four errors
         // exceeds 1 mm with a probability of ~2e-3 per seed (x beyond 3.3 sigma on anchor 2, the
         // others less): too likely for an assertion in CI (< 1e-4 wanted). Printed here and
-        // tabulated in BENCHMARKS.md. What is asserted is what the prediction promises:
-        // The prediction omits the approach to the first corner (more data) and is taken at the
-        // nominal anchors (up to 20 cm off) and the worst joining waypoint: the achieved sigma is
-        // expected within 0.8-1.1 of it; a factor 1.5 either way is the stated agreement.
-        // The information model is checked at the length noise the calibration measured (the
-        // design's own prediction at the configured encoder noise is printed beside it).
+        // tabulated in BENCHMARKS.md. What is asserted is what the prediction promises.
+        //
+        // The achieved worst-anchor sigma against the prediction at the length noise the
+        // calibration measured (the design's own prediction at the configured encoder noise is
+        // printed beside it). The refinement reports per coordinate the larger of its model
+        // variance m_ji and the time-block sandwich s_ji, so with sigma_j = sqrt(sum_i m_ji):
+        //   R = max_j sqrt(sum_i max(m_ji, s_ji)) / pred_w
+        //     <= c * max_j rho_j * max(1, max_i sqrt(W_ji)),
+        // c = the model's sigmas over the prediction's: deterministic given the path (the
+        // approach's extra rows, true vs nominal anchors, the actual join; 0.90-1.00 measured
+        // over sessions 13-14), allowed up to C_MAX; rho_j = pred_j / pred_w; under the model
+        // s_ji = m_ji W_ji with W_ji ~ chi2_nu / nu (Satterthwaite, `sandwich_dof`: 13-31 here,
+        // lowest where a coordinate is seen in few of the 32 blocks). So R exceeds
+        //   r_max = C_MAX * max(1, max_j rho_j sqrt(q_ji))
+        // with probability at most sum_ji P(W_ji > q_ji), each q_ji at 1e-5 / (12 x seeds)
+        // (Wilson-Hilferty at floor(nu), which errs high: 71.2 vs 70.2 at nu = 20, z = 5.1).
+        // The old fixed 1.5 failed by chance with ~1e-3 per seed even at nu = 31, c = 1 (seen
+        // once: seed 4, 1.52). The lower side, R >= c > 1/1.5, is not random (the reported
+        // sigma is at least the model's): only a wrong information model fails it.
+        const C_MAX: f64 = 1.1;
+        let z = taut_calib::screen::normal_upper_quantile(1e-5 / comparisons as f64);
+        let mut r_max: f64 = 1.0;
+        for (nu, pj) in r.sandwich_dof.iter().zip(&r.predicted_anchor_m) {
+            for v in nu {
+                let v = v.floor().max(1.0);
+                r_max = r_max.max(pj / r.at_noise_m * (taut_calib::selfcal::chi2_quantile(v as usize, z) / v).sqrt());
+            }
+        }
+        let r_max = C_MAX * r_max;
         let ratio = r.worst_sigma_m / r.at_noise_m;
-        if !(ratio > 1.0 / 1.5 && ratio < 1.5) {
+        eprintln!(
+            "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.3}, allowed 0.667-{r_max:.3} (sandwich dof per anchor {:?}, predicted sigmas {:?} mm)",
+            r.sandwich_dof.iter().map(|a| a.map(|x| (x * 10.0).round() / 10.0)).collect::<Vec<_>>(),
+            r.predicted_anchor_m.iter().map(|x| (x * 1e4).round() / 10.0).collect::<Vec<_>>()
+        );
+        if !(ratio > 1.0 / 1.5 && ratio < r_max) {
             failures.push(format!(
-                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm at the measured length noise {:.3} mm (ratio {ratio:.2})",
+                "seed {seed}: achieved worst anchor sigma {:.2} mm vs predicted {:.2} mm at the measured length noise {:.3} mm (ratio {ratio:.2}, allowed 0.667-{r_max:.3})",
                 r.worst_sigma_m * 1e3,
                 r.at_noise_m * 1e3,
                 r.noise_m * 1e3
