@@ -33,10 +33,12 @@
 //! 3. The checks every start-up makes (`notracker::start`): 12 anchor coordinates within 4.89
 //!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
 //!
-//! Sum: 6e-5 + 4.2e-6 + 1.2e-5 + 1e-5 = 8.6e-5 per run (the asserted bounds; 8.1e-5 with the
-//! plan's own 5.5e-5). Until session 14 the plan was 16 x 30 s (0.662 mm) with an honesty bound
-//! of 1.10 over eight ratios; the ninth and tenth (0.988, 1.043) raised it to 1.18 and that plan
-//! to ~1.4e-4 per run. The longer dwells cost ~1.6 minutes (~14.8 minutes in all).
+//! Sum: 6e-5 + 5e-6 + 1.2e-5 + 1e-5 = 8.7e-5 per run (the asserted bounds, [`BUDGET`]; 8.1e-5
+//! with the plan's own 5.5e-5 and the computed 4.2e-6). Until session 14 the plan was 16 x 30 s
+//! (0.662 mm) with an honesty bound of 1.10 over eight ratios; the ninth and tenth (0.988,
+//! 1.043) raised it to 1.18 and that plan to ~1.4e-4 per run. The longer dwells cost ~1.6
+//! minutes (~14.8 minutes in all). The k-sigma and chi2 terms assume the static model; the
+//! chi-square of the long-plan runs pooled supports it (BENCHMARKS.md, session 15 `budget`).
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
@@ -69,6 +71,11 @@ const SCALE_CHECKED: f64 = 1.45;
 /// The largest chance a correct run's ratio exceeds [`SCALE_CHECKED`] (the prediction over
 /// [`RATIOS`]: 4.2e-6).
 const RECORDING_CHANCE_MAX: f64 = 5e-6;
+
+/// The failure probability per run with the asserted bounds: the plan, the recording check, the
+/// k-sigma check (12 coordinates at 4.89 sigma) and the chi-square check (its 1e-5 quantile).
+const BUDGET: f64 = PLAN_P_MAX + RECORDING_CHANCE_MAX + 1.2e-5 + 1e-5;
+const _: () = assert!(BUDGET < 1e-4);
 
 /// Tension readings a second per cable on the simulated bus (measured 128-131 in every run):
 /// what the plan is judged at; the recording's check uses the rate measured in it.
@@ -130,12 +137,11 @@ fn the_measured_ratios_give_the_budget() {
     let n = RATIOS.len() as f64;
     let chance = student_t_sf((SCALE_CHECKED - mean) / (sd * (1.0 + 1.0 / n).sqrt()), n - 1.0);
     eprintln!(
-        "{} ratios: mean {mean:.3}, sd {sd:.4}; 99.9 % upper prediction bound {up:.3}; P(ratio > {SCALE_CHECKED}) = {chance:.1e}",
+        "{} ratios: mean {mean:.3}, sd {sd:.4}; 99.9 % upper prediction bound {up:.3}; P(ratio > {SCALE_CHECKED}) = {chance:.1e}; budget {BUDGET:.1e} per run",
         RATIOS.len()
     );
     assert!(up <= HONESTY_UP, "the honesty bound over the measured ratios is {up:.3} > {HONESTY_UP}");
     assert!(chance < RECORDING_CHANCE_MAX, "P(ratio > {SCALE_CHECKED}) = {chance:.1e}");
-    assert!(PLAN_P_MAX + RECORDING_CHANCE_MAX + 1.2e-5 + 1e-5 < 1e-4);
 }
 
 /// The plan first (deterministic: the example's configuration and the planner), at the rate the
