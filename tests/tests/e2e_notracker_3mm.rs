@@ -3,7 +3,7 @@
 //! about the vertical) at most 3 mm, hot-swapped, with the example's plan
 //! (config/examples/aras-cam-sim-notracker.toml).
 //!
-//! About 13 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
+//! About 15 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
 //! tests/Cargo.toml) but its own serial step of `scripts/test`, after the workspace tests, on an
 //! otherwise idle machine: `cargo test -p taut-tests --test e2e_notracker_3mm -- --nocapture`
 //! (`TAUT_E2E_SEEDS=1,2,4` for other sites, one after the other).
