@@ -44,6 +44,9 @@ fn main() {
     let mut rng = taut_sim::rng(seed, 0);
     let truth = taut_sim::truth::Truth::sample(&cfg, &so.physics, so.site_error_m, so.l0_range_m, &mut rng).expect("the site");
 
+    // The calibrator's start-up set holds the excitation (the dwell plan) only: the rest dwell
+    // before it (state `init-phase`) went to the initial estimate.
+    let rec = excitation_rows(&rec, &args[2]);
     let set = calibrator_set(&rec, cfg.daemon.calib_decimation.max(1), 0.0, (0.0, 1.0));
     let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
     let r = selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts).unwrap_or_else(|e| panic!("{e}"));
@@ -61,6 +64,10 @@ fn main() {
     );
     residuals(&r, &platform, &opts);
     errors(&r, &truth);
+    at_truth(&r, &truth, &opts, 0.0);
+    // The simulated position-mode cable is stiff, not rigid (taut_sim::physics::EA_RIGID): its
+    // encoder counts the unstretched length, T L / EA shorter than the geometric one.
+    at_truth(&r, &truth, &opts, 1.0 / taut_sim::physics::EA_RIGID);
 
     println!("\nleaving out the start of every dwell (training dwells as above):");
     for skip in [2.0, 5.0, 10.0] {
@@ -68,11 +75,56 @@ fn main() {
         let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
         summary(&format!("first {skip} s left out"), selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts), &truth);
     }
+    // The lengths corrected by the simulated cables' stretch (the truth's offsets and the row's
+    // tension): what the fit gives when the rigid-cable model holds.
+    let mut stretched = Recording::with_capacity(rec.n_cables, rec.len(), true, false, true);
+    for i in 0..rec.len() {
+        let f = rec.tensions(i).map(|t| t.to_vec()).unwrap_or_else(|| vec![f64::NAN; rec.n_cables]);
+        let l: Vec<f64> = (0..rec.n_cables)
+            .map(|j| {
+                let t = f[j] - truth.loadcell_offsets[j];
+                let l = rec.lengths(i)[j];
+                if t.is_finite() {
+                    l + (l - truth.l0[j]) * t / taut_sim::physics::EA_RIGID
+                } else {
+                    l
+                }
+            })
+            .collect();
+        stretched.push(rec.t[i], rec.p[i], None, &l, Some(&f), rec.phase.as_ref().map(|p| p[i]));
+    }
+    let set = calibrator_set(&stretched, cfg.daemon.calib_decimation.max(1), 0.0, (0.0, 1.0));
+    let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
+    summary(
+        "lengths corrected by the cables' stretch T L / EA",
+        selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts),
+        &truth,
+    );
     for (name, part) in [("first half of every dwell", (0.0, 0.5)), ("second half of every dwell", (0.5, 1.0))] {
         let set = calibrator_set(&rec, cfg.daemon.calib_decimation.max(1), 0.0, part);
         let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
         summary(name, selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts), &truth);
     }
+}
+
+/// The rows of `rec` whose state column (the CSV's last, which `Recording` does not keep) says
+/// `excitation`; all of them when the file has no such column.
+fn excitation_rows(rec: &Recording, path: &str) -> Recording {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header = lines.next().unwrap_or("");
+    if !header.trim_end().ends_with(",state") {
+        return rec.clone();
+    }
+    let states: Vec<&str> = lines.map(|l| l.rsplit(',').next().unwrap_or("").trim()).collect();
+    assert_eq!(states.len(), rec.len(), "{path}: rows and states differ");
+    let mut out = Recording::with_capacity(rec.n_cables, rec.len(), true, false, true);
+    for (i, st) in states.iter().enumerate() {
+        if *st == "excitation" {
+            out.push(rec.t[i], rec.p[i], None, rec.lengths(i), rec.tensions(i), rec.phase.as_ref().map(|p| p[i]));
+        }
+    }
+    out
 }
 
 /// The calibrator's data set from a recording: labelled rows, every `decim`-th, tensions only
@@ -220,6 +272,87 @@ fn errors(r: &SelfCalReport, truth: &taut_sim::truth::Truth) {
                 .collect::<Vec<_>>()
                 .join(" ")
         );
+    }
+}
+
+/// The same dwells against the site's truth (anchors, encoder offsets and scales, load-cell
+/// offsets, mass): per dwell the position from its lengths, then the force balance whitened as
+/// in the fit. Nothing is fitted but the position (3 of each dwell's 4 lengths' dof), so the
+/// force rows' chi2 per row is ~1 for rows that agree with the static model and the noise.
+fn at_truth(r: &SelfCalReport, truth: &taut_sim::truth::Truth, opts: &SelfCalOptions, compliance_per_n: f64) {
+    let n = truth.anchors.len();
+    let var_f = r.loadcell_sigma_n.powi(2) * r.inflation.1;
+    let var_l = r.encoder_sigma_m.powi(2) * r.inflation.0;
+    let (mut chi_f, mut rows_f, mut chi_l, mut rows_l) = (0.0, 0usize, 0.0, 0usize);
+    let mut zs = Vec::new();
+    for d in &r.dwells {
+        let tared = d.tared(opts.min_tension_n);
+        let used: Vec<usize> = (0..n).filter(|&j| !tared[j]).collect();
+        // Geometric length from the reading: (l - L0) / scale, stretched by the tension x
+        // `compliance_per_n` (0: the static model's rigid cable).
+        let len = |j: usize| (d.l[j] - truth.l0[j]) / truth.scale[j] * (1.0 + (d.f[j] - truth.loadcell_offsets[j]) * compliance_per_n);
+        let mut p = [0.0; 3];
+        for &j in &used {
+            for (a, pa) in p.iter_mut().enumerate() {
+                *pa += (truth.anchors[j][a] - truth.platform_points[j][a]) / used.len() as f64;
+            }
+        }
+        p[2] -= 1.5;
+        for _ in 0..100 {
+            let (mut h, mut g) = (nalgebra::Matrix3::zeros(), nalgebra::Vector3::zeros());
+            for &j in &used {
+                let (u, rho) = unit(truth.anchors[j], p, truth.platform_points[j]);
+                // d rho / d p = -u
+                let jv = -nalgebra::Vector3::from(u);
+                h += jv * jv.transpose();
+                g += jv * (len(j) - rho);
+            }
+            let step = h.lu().solve(&g).unwrap_or_else(nalgebra::Vector3::zeros);
+            for a in 0..3 {
+                p[a] += step[a];
+            }
+            if step.norm() < 1e-12 {
+                break;
+            }
+        }
+        let mut fvec = [0.0, 0.0, -truth.mass_kg * G];
+        let mut cov = nalgebra::Matrix3::zeros();
+        for &j in &used {
+            let (v, rho) = unit(truth.anchors[j], p, truth.platform_points[j]);
+            let z = (len(j) - rho) * truth.scale[j] / (var_l / d.nl[j] as f64).sqrt();
+            chi_l += z * z;
+            rows_l += 1;
+            for q in 0..3 {
+                fvec[q] += v[q] * (d.f[j] - truth.loadcell_offsets[j]);
+            }
+            let vv = nalgebra::Vector3::from(v);
+            cov += vv * vv.transpose() * (var_f / d.nf[j] as f64);
+        }
+        let l = cov.cholesky().map(|c| c.l().try_inverse().unwrap());
+        if let Some(l) = l {
+            let z = l * nalgebra::Vector3::from(fvec);
+            chi_f += z.norm_squared();
+            rows_f += 3;
+            zs.push(format!(
+                "{}{}: {:+.1} {:+.1} {:+.1} ({:+.4} {:+.4} {:+.4} N)",
+                if d.is_tare() { "T" } else { "" },
+                d.label,
+                z[0],
+                z[1],
+                z[2],
+                fvec[0],
+                fvec[1],
+                fvec[2]
+            ));
+        }
+    }
+    println!(
+        "at the truth, cable compliance {compliance_per_n:.0e} / N (positions from the lengths): force balance chi2 {chi_f:.1} over {rows_f} rows ({:.2} per row), lengths {chi_l:.1} over {rows_l} rows (positions take {} of them)",
+        chi_f / rows_f.max(1) as f64,
+        3 * r.dwells.len()
+    );
+    for z in zs {
+        println!("  {z}");
     }
 }
 
