@@ -37,8 +37,10 @@
 //! with the plan's own 5.5e-5 and the computed 4.2e-6). Until session 14 the plan was 16 x 30 s
 //! (0.662 mm) with an honesty bound of 1.10 over eight ratios; the ninth and tenth (0.988,
 //! 1.043) raised it to 1.18 and that plan to ~1.4e-4 per run. The longer dwells cost ~1.6
-//! minutes (~14.8 minutes in all). The k-sigma and chi2 terms assume the static model; the
-//! chi-square of the long-plan runs pooled supports it (BENCHMARKS.md, session 15 `budget`).
+//! minutes (~14.8 minutes in all). The k-sigma and chi2 terms assume the static model: OPEN,
+//! the merged tree's two runs have chi2/dof 1.49 and 1.20 (pooled P = 0.005 for a correct
+//! model, not located in the rows); at a true variance factor of 1.2 the chi2 check alone would
+//! fail with P = 1.5e-3 (BENCHMARKS.md, session 15 `budget`).
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
