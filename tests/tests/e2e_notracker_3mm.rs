@@ -3,7 +3,7 @@
 //! about the vertical) at most 3 mm, hot-swapped, with the example's plan
 //! (config/examples/aras-cam-sim-notracker.toml).
 //!
-//! About 13 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
+//! About 15 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
 //! tests/Cargo.toml) but its own serial step of `scripts/test`, after the workspace tests, on an
 //! otherwise idle machine: `cargo test -p taut-tests --test e2e_notracker_3mm -- --nocapture`
 //! (`TAUT_E2E_SEEDS=1,2,4` for other sites, one after the other).
@@ -16,28 +16,31 @@
 //! time and nothing else the plan can choose (BENCHMARKS.md, "Start-up without a tracker").
 //!
 //! 1. The 3 mm: a correct calibration's anchor errors are Gaussian with the covariance the
-//!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma.
-//!    Measured c over eight start-ups (six of session 13, seeds 1 and 2 of this plan): 0.84-0.95
-//!    (mean 0.914, sd 0.035); its 99.9 % upper prediction bound (Student's t, 7 dof) is
-//!    [`HONESTY_UP`] = 1.10. The plan is checked first (deterministic): P(worst > 3 mm) at 1.10 x
-//!    the predicted covariance is below [`PLAN_P_MAX`] = 6e-5 (Monte Carlo, 99.9 % upper bound).
+//!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma
+//!    (achieved: the CRB at the fit times sqrt(chi2/dof) when above 1). Every c measured
+//!    ([`RATIOS`]: ten start-ups when the plan was chosen, 0.843-1.043, mean 0.934, sd 0.055)
+//!    gives a 99.9 % upper prediction bound (Student's t, 9 dof) of 1.180; with this plan's two
+//!    runs (0.912, 0.910) 1.141 ([`honesty_bound`], asserted <= [`HONESTY_UP`] = 1.181). The plan is checked first (deterministic): P(worst > 3 mm) at
+//!    [`HONESTY_UP`] x the predicted covariance below [`PLAN_P_MAX`] = 6e-5 (Monte Carlo, 99.9 %
+//!    upper bound; 16 poses x 34 s with 8 tares: 5.5e-5).
 //! 2. The recording's own P(worst > 3 mm), from its achieved sigma (the planner's covariance at
 //!    the reading rate measured in the recording, scaled up to the achieved sigma where larger)
 //!    must be below [`RECORDING_P_MAX`] = 1e-3 before the 3 mm is asserted. The plan has that P
-//!    below 1e-3 up to [`SCALE_CHECKED`] = 1.32 x its sigma (checked first); the achieved sigma
-//!    is the CRB at the fit (c <= 0.94 x predicted in every run) times sqrt(chi2/dof) when above
-//!    1, so a correct run fails this check only when chi2/dof exceeds (1.32 / 0.94)^2 = 1.97:
-//!    P = 3.1e-6 at the 68 degrees of freedom of the plan's fit, 1.1e-5 even at 60 (computed and
-//!    printed by the test from the fit's own dof), or when the simulated bus delivers fewer
-//!    readings (a starved machine: what this check is for).
+//!    below 1e-3 up to [`SCALE_CHECKED`] = 1.45 x its sigma (checked first), so a correct run
+//!    fails this check only when its c exceeds 1.45: 4.2e-6 by the same prediction over ten
+//!    ratios, 3.9e-7 over twelve (Student's t over [`RATIOS`], computed by the test), or when the simulated bus delivers fewer readings
+//!    (a starved machine: what this check is for).
 //! 3. The checks every start-up makes (`notracker::start`): 12 anchor coordinates within 4.89
 //!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
 //!
-//! Sum: 6e-5 + 1.1e-5 + 1.2e-5 + 1e-5 = 9.3e-5 per run (the asserted bounds, 60 dof; the plan's
-//! own numbers are printed by `the_example_plan_meets_the_budget`).
-//! OPEN: run 4 (seed 4) had a CRB ratio of 0.988 > the 0.94 assumed in 2.; with it and the honesty
-//! bound over nine ratios the sum is roughly 1.4e-4 per run, not 9.3e-5 (BENCHMARKS.md, Session
-//! 14 `ntci`). A longer plan (16 x 32 s: 0.641 mm) or a larger checked scale would restore it.
+//! Sum: 6e-5 + 5e-6 + 1.2e-5 + 1e-5 = 8.7e-5 per run (the asserted bounds, [`BUDGET`]; 8.1e-5
+//! with the plan's own 5.5e-5 and the computed 4.2e-6). Until session 14 the plan was 16 x 30 s
+//! (0.662 mm) with an honesty bound of 1.10 over eight ratios; the ninth and tenth (0.988,
+//! 1.043) raised it to 1.18 and that plan to ~1.4e-4 per run. The longer dwells cost ~1.6
+//! minutes (~14.8 minutes in all). The k-sigma and chi2 terms assume the static model: OPEN,
+//! the merged tree's three runs have chi2/dof 1.49, 1.20, 1.15 (pooled P = 0.004 for a correct
+//! model, not located in the rows); at a true variance factor of 1.2 the chi2 check alone would
+//! fail with P = 1.5e-3 (BENCHMARKS.md, session 15 `budget`).
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
@@ -48,11 +51,16 @@ use notracker::{report, robot, start, Plan};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 
-/// 99.9 % upper prediction bound of achieved / predicted worst-anchor sigma (at the measured
-/// reading rate): six start-ups of session 13 (0.884, 0.942 with the 6-tare long plan; 0.904,
-/// 0.922, 0.930, 0.938 with the short one) and seeds 1, 2 of this plan (0.843, 0.946): mean
-/// 0.914 + t(0.999, 7) 4.785 x sd 0.0353 x sqrt(1 + 1/8) = 1.093.
-const HONESTY_UP: f64 = 1.10;
+/// Achieved / predicted (at the measured reading rate) worst-anchor sigma of every tracker-free
+/// start-up measured: session 13 (seeds 3, 5 of the 6-tare long plan: 0.884, 0.942; the short
+/// plan, seeds 3, 5 twice: 0.904, 0.922, 0.930, 0.938), session 14 `ntci` (16 x 30 s, seeds 1, 2,
+/// 4: 0.843, 0.946, 0.988), the merged tree's CI run (seed 1: 1.043, chi2/dof 1.49) and session
+/// 15 `budget`'s two runs of the 16 x 34 s plan (seed 1: 0.912, 0.910).
+const RATIOS: [f64; 12] = [0.884, 0.942, 0.904, 0.922, 0.930, 0.938, 0.843, 0.946, 0.988, 1.043, 0.912, 0.910];
+
+/// At least the 99.9 % upper prediction bound of the next ratio ([`honesty_bound`]: 1.180 over
+/// the first ten, when the plan was chosen; 1.141 over all twelve).
+const HONESTY_UP: f64 = 1.181;
 
 /// The plan's P(worst aligned anchor > 3 mm) at [`HONESTY_UP`] x its predicted covariance.
 const PLAN_P_MAX: f64 = 6e-5;
@@ -62,15 +70,83 @@ const RECORDING_P_MAX: f64 = 1e-3;
 
 /// The plan keeps P(worst > 3 mm) below [`RECORDING_P_MAX`] up to this many times its predicted
 /// sigma: the recording's check passes unless the achieved sigma is that much larger.
-const SCALE_CHECKED: f64 = 1.32;
+const SCALE_CHECKED: f64 = 1.45;
 
-/// The largest achieved / predicted worst-anchor CRB (sigma without the variance factor) seen:
-/// 0.84-0.94 over eight start-ups.
-const CRB_RATIO_MAX: f64 = 0.94;
+/// The largest chance a correct run's ratio exceeds [`SCALE_CHECKED`] (the prediction over
+/// [`RATIOS`]: 4.2e-6 over the first ten, 3.9e-7 over all twelve).
+const RECORDING_CHANCE_MAX: f64 = 5e-6;
+
+/// The failure probability per run with the asserted bounds: the plan, the recording check, the
+/// k-sigma check (12 coordinates at 4.89 sigma) and the chi-square check (its 1e-5 quantile).
+const BUDGET: f64 = PLAN_P_MAX + RECORDING_CHANCE_MAX + 1.2e-5 + 1e-5;
+const _: () = assert!(BUDGET < 1e-4);
 
 /// Tension readings a second per cable on the simulated bus (measured 128-131 in every run):
 /// what the plan is judged at; the recording's check uses the rate measured in it.
 const RATE_HZ: f64 = 128.0;
+
+/// Mean, standard deviation and the 99.9 % upper prediction bound of the next value of `x`
+/// (Student's t with n - 1 dof: mean + t sd sqrt(1 + 1/n)).
+fn honesty_bound(x: &[f64]) -> (f64, f64, f64) {
+    let n = x.len() as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    let sd = (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    // The t quantile by bisection on the tail.
+    let (mut lo, mut hi) = (0.0, 50.0);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if student_t_sf(mid, n - 1.0) > 1e-3 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    (mean, sd, mean + hi * sd * (1.0 + 1.0 / n).sqrt())
+}
+
+/// P(T > x) for Student's t with `dof` degrees of freedom: the density integrated numerically
+/// (t = tan(u), Simpson's rule) and divided by its integral over the line.
+fn student_t_sf(x: f64, dof: f64) -> f64 {
+    let f = |u: f64| {
+        let t = u.tan();
+        (1.0 + t * t / dof).powf(-(dof + 1.0) / 2.0) / (u.cos() * u.cos())
+    };
+    let simpson = |a: f64, b: f64| {
+        let m = 20_000;
+        let h = (b - a) / m as f64;
+        // The end points carry no weight where the density (with its sec^2) vanishes.
+        let mut s = 0.0;
+        for k in 1..m {
+            s += if k % 2 == 1 { 4.0 } else { 2.0 } * f(a + k as f64 * h);
+        }
+        let end = |u: f64| if (u.abs() - std::f64::consts::FRAC_PI_2).abs() < 1e-12 { 0.0 } else { f(u) };
+        (s + end(a) + end(b)) * h / 3.0
+    };
+    let half = std::f64::consts::FRAC_PI_2;
+    simpson(x.atan(), half) / simpson(-half, half)
+}
+
+#[test]
+fn student_t_matches_tables() {
+    // scipy.stats.t: sf(4.297, 9) = 9.997e-4, sf(8.1, 9) = 1.002e-5, sf(2, 3) = 0.06966.
+    assert!((student_t_sf(4.297, 9.0) / 9.997e-4 - 1.0).abs() < 1e-3, "{}", student_t_sf(4.297, 9.0));
+    assert!((student_t_sf(8.1, 9.0) / 1.002e-5 - 1.0).abs() < 1e-3, "{}", student_t_sf(8.1, 9.0));
+    assert!((student_t_sf(2.0, 3.0) / 0.06966 - 1.0).abs() < 1e-3, "{}", student_t_sf(2.0, 3.0));
+}
+
+/// The honesty bound and the recording check's chance failure from the measured ratios.
+#[test]
+fn the_measured_ratios_give_the_budget() {
+    let (mean, sd, up) = honesty_bound(&RATIOS);
+    let n = RATIOS.len() as f64;
+    let chance = student_t_sf((SCALE_CHECKED - mean) / (sd * (1.0 + 1.0 / n).sqrt()), n - 1.0);
+    eprintln!(
+        "{} ratios: mean {mean:.3}, sd {sd:.4}; 99.9 % upper prediction bound {up:.3}; P(ratio > {SCALE_CHECKED}) = {chance:.1e}; budget {BUDGET:.1e} per run",
+        RATIOS.len()
+    );
+    assert!(up <= HONESTY_UP, "the honesty bound over the measured ratios is {up:.3} > {HONESTY_UP}");
+    assert!(chance < RECORDING_CHANCE_MAX, "P(ratio > {SCALE_CHECKED}) = {chance:.1e}");
+}
 
 /// The plan first (deterministic: the example's configuration and the planner), at the rate the
 /// simulated bus delivers; the loop runs the plan computed at the configured rate (polled back
@@ -108,16 +184,19 @@ fn worst_anchor_within_3_mm() {
     // One start-up per seed, one after the other: two simulated robots in parallel on a
     // two-core machine starve each other's device threads (stale load cells, missed heartbeats).
     let seeds: Vec<u64> = std::env::var("TAUT_E2E_SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.trim().parse().unwrap()).collect());
-    let vf_fail = (SCALE_CHECKED / CRB_RATIO_MAX).powi(2);
     for seed in seeds {
         let r = start(seed, Plan::Example, false);
         report(seed, &r);
+        // The ratio is the honesty of one more start-up (RATIOS); its CRB part (without the
+        // variance factor) and the chi-square's tail say whether a larger one is the model's
+        // (chi2/dof above its noise) or the geometry's.
+        let ratio = r.achieved_worst_sigma_m / r.repredicted_worst_sigma_m;
         eprintln!(
-            "seed {seed}: achieved / predicted (at the measured rate) worst-anchor sigma {:.3}; chi2/dof {:.2} at {} dof: P(chi2/dof >= {vf_fail:.2}) = {:.1e} (the recording check's chance failure)",
-            r.achieved_worst_sigma_m / r.repredicted_worst_sigma_m,
+            "seed {seed}: achieved / predicted (at the measured rate) worst-anchor sigma {ratio:.3} (CRB part {:.3}; the recording check fails above {SCALE_CHECKED}); chi2/dof {:.2} at {} dof: P(chi2/dof >= that) = {:.1e}",
+            ratio / r.chi2_dof.max(1.0).sqrt(),
             r.chi2_dof,
             r.dof,
-            chi2_tail(r.dof, vf_fail)
+            chi2_tail(r.dof, r.chi2_dof)
         );
         assert!(
             r.p3_upper < RECORDING_P_MAX,
@@ -161,7 +240,53 @@ fn chi2_tail_matches_tables() {
     assert!((chi2_tail(100, 1.4945) / 1e-3 - 1.0).abs() < 0.05, "{}", chi2_tail(100, 1.4945));
     assert!((chi2_tail(80, 145.76 / 80.0) / 1e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(80, 145.76 / 80.0));
     assert!((chi2_tail(79, 1.77) / 2.97e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(79, 1.77));
-    // The recording check's chance failure (1.32 / 0.94)^2 = 1.972: sf at 68 dof 3.14e-6, at 60 1.07e-5.
+    // sf(1.972 x 68, 68) = 3.14e-6, sf(1.972 x 60, 60) = 1.07e-5.
     assert!((chi2_tail(68, 1.972) / 3.14e-6 - 1.0).abs() < 0.25, "{}", chi2_tail(68, 1.972));
     assert!((chi2_tail(60, 1.972) / 1.07e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(60, 1.972));
+}
+
+/// Candidate plans for the budget: per plan the predicted worst-anchor sigma at [`RATE_HZ`], the
+/// wall time (dwells, tares, moves), P(worst > 3 mm) at the scales given and the largest scale
+/// at which P stays below [`RECORDING_P_MAX`]:
+/// `TAUT_PLANS="16x30x8,16x36x8" TAUT_SCALES="1.0,1.2" cargo test -p taut-tests --test e2e_notracker_3mm plan_candidates -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn plan_candidates() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = robot(dir.path(), Plan::Example);
+    let list = |key: &str, default: &str| std::env::var(key).unwrap_or_else(|_| default.to_string());
+    let scales: Vec<f64> = list("TAUT_SCALES", "1.0,1.1,1.2").split(',').map(|s| s.trim().parse().unwrap()).collect();
+    let nominal = base.anchors().unwrap();
+    for spec in list("TAUT_PLANS", "16x30x8,16x32x8,16x34x8,16x36x8").split(',') {
+        let v: Vec<f64> = spec.trim().split('x').map(|s| s.parse().unwrap()).collect();
+        let mut cfg = base.clone();
+        cfg.motion.dwell_poses = v[0] as usize;
+        cfg.motion.dwell_s = v[1];
+        cfg.motion.dwell_tares = v[2] as usize;
+        cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / RATE_HZ;
+        let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+        let p = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+        let m = &cfg.motion;
+        let tares = p.tare.iter().filter(|&&t| t != 0).count();
+        let wall = p.poses.len() as f64 * (m.dwell_s + m.dwell_settle_s)
+            + tares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
+            + p.path_m / m.dwell_speed_m_s;
+        let ps: Vec<String> =
+            scales.iter().map(|&s| format!("{s}: {:.1e}", p.worst_exceeds_probability(&nominal, 3e-3, s, 4_000_000).1)).collect();
+        // The largest scale with P <= RECORDING_P_MAX (bisection, 1e6 draws, 99.9 % bound).
+        let (mut lo, mut hi) = (1.0, 2.0);
+        for _ in 0..12 {
+            let mid = 0.5 * (lo + hi);
+            if p.worst_exceeds_probability(&nominal, 3e-3, mid, 1_000_000).1 < RECORDING_P_MAX {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        eprintln!(
+            "{spec}: sigma {:.3} mm, {tares} tares, wall ~{wall:.0} s; P(worst > 3 mm) upper at scale {}; P < {RECORDING_P_MAX:.0e} up to scale {lo:.3}",
+            p.worst_anchor_sigma_m * 1e3,
+            ps.join(", ")
+        );
+    }
 }
