@@ -10,7 +10,9 @@
 //!
 //! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`; see
 //! `support/null_cases.rs`) changes what the recordings are made of, to split the causes of a
-//! tail; `NULL_FIRST` starts at another case. Each line ends with the six round-1 p-values.
+//! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test as it was
+//! before session 15 (without the current model's estimation error,
+//! `DiagnoseOptions::estimation_error`). Each line ends with the six round-1 p-values.
 
 #[path = "../tests/support/null_cases.rs"]
 mod null_cases;
@@ -35,7 +37,8 @@ fn main() {
     let first: usize = std::env::var("NULL_FIRST").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
     let variant_name = std::env::var("NULL_VARIANT").unwrap_or_else(|_| "sim".into());
     let variant = null_cases::Variant::parse(&variant_name).unwrap_or_else(|| panic!("NULL_VARIANT {variant_name}: unknown"));
-    println!("variant {variant:?}, cases {first}..{}", first + count);
+    let estimation_error = std::env::var("NULL_BEFORE").map_or(true, |v| v != "1");
+    println!("variant {variant:?}, cases {first}..{}, estimation error counted: {estimation_error}", first + count);
     let t0 = std::time::Instant::now();
     let mut with_claims = 0;
     let mut smallest_p = f64::INFINITY;
@@ -47,7 +50,7 @@ fn main() {
     let mut alpha = 0.0;
     for k in first..first + count {
         let t = std::time::Instant::now();
-        let d = null_cases::diagnose_variant(k, variant);
+        let d = null_cases::diagnose_with(k, variant, estimation_error);
         let c = null_cases::claims(&d);
         let round1: Vec<(Effect, f64)> =
             d.tests.iter().filter(|t| t.round == 1).filter_map(|t| t.test.map(|x| (t.effect, x.p_value))).collect();

@@ -60,7 +60,7 @@ pub fn describe(k: usize) -> String {
 /// equilibrium (a rare planned pose at the workspace edge) is replaced by the seed 10,000 higher.
 #[allow(dead_code)]
 pub fn diagnose_case(k: usize) -> Diagnosis {
-    diagnose_variant(k, Variant::Sim)
+    diagnose_with(k, Variant::Sim, true)
 }
 
 /// What an effect-free recording is made of, to split the causes of the p-values' tail
@@ -130,8 +130,9 @@ fn ideal_recording(sim: &taut_sim::SimRun, s: &Scenario, phi: f64) -> taut_confi
     out
 }
 
-/// Simulates and diagnoses case `k` as `variant` makes it (see [`diagnose_case`]).
-pub fn diagnose_variant(k: usize, variant: Variant) -> Diagnosis {
+/// Simulates and diagnoses case `k` as `variant` makes it (see [`diagnose_case`]), with the
+/// held-out tests' estimation-error term on or off ([`DiagnoseOptions::estimation_error`]).
+pub fn diagnose_with(k: usize, variant: Variant, estimation_error: bool) -> Diagnosis {
     let (mut s, duration) = case(k);
     s.duration_s = duration;
     match variant {
@@ -155,7 +156,7 @@ pub fn diagnose_variant(k: usize, variant: Variant) -> Diagnosis {
             Err(e) => panic!("{}: {e}", describe(k)),
         }
     };
-    let opts = DiagnoseOptions::from_config(&s.robot.calibration);
+    let opts = DiagnoseOptions { estimation_error, ..DiagnoseOptions::from_config(&s.robot.calibration) };
     let rec = match variant {
         Variant::Ideal => ideal_recording(&sim, &s, 0.0),
         Variant::IdealAr1 => ideal_recording(&sim, &s, 0.9),
