@@ -13,7 +13,8 @@
 //!    round, every remaining candidate is fitted jointly with anchors, offsets and the effects
 //!    named so far ([`fit`], solved by [`lm`]) on a subsample of the training blocks and tested
 //!    on the held-out blocks ([`select`]: the forecast-encompassing test of the nested pair,
-//!    with an AR(1)-prewhitened batch-means variance for time-correlated residuals and a
+//!    with an AR(1)-prewhitened batch-means variance for time-correlated residuals, plus the
+//!    current model's own estimation error on the training blocks ([`esterr`]), and a
 //!    Student-t reference; time offset and backlash predict held-out samples without their own
 //!    readings' noise, so the same test decides all six effects).
 //!    Each test runs at `family_alpha / (library x rounds)`, so the probability that a diagnosis

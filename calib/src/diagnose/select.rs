@@ -27,6 +27,11 @@
 //! effects). The effective sample size `n_eff` (the number of independent samples that would give
 //! the same variance) is reported beside it.
 //!
+//! Both models' parameters come from the training blocks, so `r0` also carries the current
+//! model's own estimation error, one draw per recording that the held-out batches cannot see:
+//! [`encompassing_test_with`] adds its variance ([`super::esterr`]); without it the p-values of
+//! effect-free recordings were too small in the tail (13x the uniform count below 1e-3).
+//!
 //! The one-sided test at level `alpha` claims a candidate that explains nothing real with
 //! probability at most `alpha` (measured at 5 % under AR(1) residuals up to `phi` 0.97: see the
 //! Monte Carlo test below). The held-out residuals must come from predictions that do not reuse
