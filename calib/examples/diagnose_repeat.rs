@@ -1,6 +1,7 @@
 //! Runs the diagnosis benchmark's case (`benches/diagnose.rs`) `N` times and prints each run's
 //! wall time, for CPU-time comparisons of two builds on a loaded machine (`/usr/bin/time -f %U`);
-//! `DIAGNOSE_WITHOUT=<effect>` leaves one candidate out.
+//! `DIAGNOSE_WITHOUT=<effect>` leaves one candidate out; `DIAGNOSE_BEFORE=1` leaves the held-out
+//! tests' estimation-error term out (`DiagnoseOptions::estimation_error`), to see its cost.
 //!
 //! ```text
 //! cargo run --release -p taut-calib --example diagnose_repeat -- [N, default 5]
@@ -20,6 +21,9 @@ fn main() {
     // `DIAGNOSE_WITHOUT=time-offset` (an effect name) leaves one candidate out, to see its share.
     if let Ok(name) = std::env::var("DIAGNOSE_WITHOUT") {
         opts.library.retain(|e| e.name() != name);
+    }
+    if std::env::var("DIAGNOSE_BEFORE").is_ok_and(|v| v == "1") {
+        opts.estimation_error = false;
     }
     for _ in 0..n {
         let t = std::time::Instant::now();

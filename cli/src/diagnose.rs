@@ -164,7 +164,7 @@ pub fn to_json(d: &Diagnosis) -> Value {
 fn test_json(t: taut_calib::diagnose::HeldoutTest) -> Value {
     json!({
         "heldout_ss_gain": num(t.gain), "weight": num(t.weight), "t": num(t.statistic), "dof": t.dof,
-        "n": t.n, "n_eff": num(t.n_eff), "p_value": num(t.p_value),
+        "n": t.n, "n_eff": num(t.n_eff), "p_value": num(t.p_value), "estimation_share": num(t.estimation_share),
     })
 }
 

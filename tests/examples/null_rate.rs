@@ -7,6 +7,12 @@
 //! ```text
 //! cargo run --profile test -p taut-tests --example null_rate -- [recordings, default 52]
 //! ```
+//!
+//! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`; see
+//! `support/null_cases.rs`) changes what the recordings are made of, to split the causes of a
+//! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test as it was
+//! before session 15 (without the current model's estimation error,
+//! `DiagnoseOptions::estimation_error`). Each line ends with the six round-1 p-values.
 
 #[path = "../tests/support/null_cases.rs"]
 mod null_cases;
@@ -28,6 +34,11 @@ fn interval(k: usize, n: usize) -> (f64, f64) {
 
 fn main() {
     let count: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(52);
+    let first: usize = std::env::var("NULL_FIRST").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let variant_name = std::env::var("NULL_VARIANT").unwrap_or_else(|_| "sim".into());
+    let variant = null_cases::Variant::parse(&variant_name).unwrap_or_else(|| panic!("NULL_VARIANT {variant_name}: unknown"));
+    let estimation_error = std::env::var("NULL_BEFORE").map_or(true, |v| v != "1");
+    println!("variant {variant:?}, cases {first}..{}, estimation error counted: {estimation_error}", first + count);
     let t0 = std::time::Instant::now();
     let mut with_claims = 0;
     let mut smallest_p = f64::INFINITY;
@@ -37,9 +48,9 @@ fn main() {
     let mut tests_of = vec![0usize; lib.len()];
     let mut tail_of = vec![[0usize; 4]; lib.len()];
     let mut alpha = 0.0;
-    for k in 0..count {
+    for k in first..first + count {
         let t = std::time::Instant::now();
-        let d = null_cases::diagnose_case(k);
+        let d = null_cases::diagnose_with(k, variant, estimation_error);
         let c = null_cases::claims(&d);
         let round1: Vec<(Effect, f64)> =
             d.tests.iter().filter(|t| t.round == 1).filter_map(|t| t.test.map(|x| (t.effect, x.p_value))).collect();
@@ -65,12 +76,16 @@ fn main() {
             with_claims += 1;
         }
         println!(
-            "{k:3} {:32} claims {:?}  smallest round-1 p {:.1e} ({arg})  held-out {:.3} mm  ({:.1} s)",
+            "{k:3} {:32} claims {:?}  smallest round-1 p {:.1e} ({arg})  held-out {:.3} mm  ({:.1} s)  p1 {}",
             null_cases::describe(k),
             c.iter().map(|e| e.name()).collect::<Vec<_>>(),
             p,
             d.final_fit.heldout_rms_m * 1e3,
-            t.elapsed().as_secs_f64()
+            t.elapsed().as_secs_f64(),
+            lib.iter()
+                .map(|e| round1.iter().find(|x| x.0 == *e).map_or("-".to_string(), |x| format!("{:.3e}", x.1)))
+                .collect::<Vec<_>>()
+                .join(" ")
         );
     }
     println!("per candidate (round 1; a uniform p gives n x level below each level):");

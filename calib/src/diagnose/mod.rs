@@ -13,7 +13,8 @@
 //!    round, every remaining candidate is fitted jointly with anchors, offsets and the effects
 //!    named so far ([`fit`], solved by [`lm`]) on a subsample of the training blocks and tested
 //!    on the held-out blocks ([`select`]: the forecast-encompassing test of the nested pair,
-//!    with an AR(1)-prewhitened batch-means variance for time-correlated residuals and a
+//!    with an AR(1)-prewhitened batch-means variance for time-correlated residuals, plus the
+//!    current model's own estimation error on the training blocks ([`esterr`]), and a
 //!    Student-t reference; time offset and backlash predict held-out samples without their own
 //!    readings' noise, so the same test decides all six effects).
 //!    Each test runs at `family_alpha / (library x rounds)`, so the probability that a diagnosis
@@ -52,6 +53,7 @@ pub mod analysis;
 pub mod dataq;
 pub use taut_model::dual;
 pub mod effects;
+pub mod esterr;
 pub mod fit;
 pub mod lm;
 pub mod select;
@@ -100,6 +102,11 @@ pub struct DiagnoseOptions {
     /// that the data do not support is at most this (Bonferroni over the library and the
     /// rounds: each held-out test runs at [`DiagnoseOptions::test_alpha`]).
     pub family_alpha: f64,
+    /// Count the current model's estimation error on the training blocks in each held-out
+    /// test's variance ([`esterr`]; true). False gives the test as it was before (the
+    /// held-out scores' variance only), whose p-values are too small in the tail: for
+    /// comparisons only (`tests/examples/null_rate.rs`).
+    pub estimation_error: bool,
 }
 
 impl DiagnoseOptions {
@@ -118,6 +125,7 @@ impl DiagnoseOptions {
             library: Effect::FITTED.to_vec(),
             max_iterations: 60,
             family_alpha: DEFAULT_FAMILY_ALPHA,
+            estimation_error: true,
         }
     }
 
@@ -841,16 +849,29 @@ fn sandwich_inflation(
         .collect()
 }
 
-/// The held-out test of `r1` against `r0` ([`select::encompassing_test`]) on residuals scaled by
-/// the smaller of their errors-in-variables factors `w0`, `w1` ([`Ctx::heldout_factors`]).
-fn weighted_test(r0: &[f64], w0: &[f64], r1: &[f64], w1: &[f64], rows: &[usize]) -> Option<HeldoutTest> {
+/// The held-out test of `r1` against `r0` ([`select::encompassing_test_with`]) on residuals
+/// scaled by the smaller of their errors-in-variables factors `w0`, `w1`
+/// ([`Ctx::heldout_factors`]), with the variance the current model's estimation error adds
+/// (`err`, see [`esterr`]).
+fn weighted_test(
+    r0: &[f64],
+    w0: &[f64],
+    r1: &[f64],
+    w1: &[f64],
+    rows: &[usize],
+    err: Option<&esterr::EstimationError>,
+) -> Option<HeldoutTest> {
     if w0.iter().chain(w1).all(|w| *w == 1.0) {
-        return select::encompassing_test(r0, r1, rows, select::BATCHES);
+        let delta: Vec<f64> = r0.iter().zip(r1).map(|(a, b)| a - b).collect();
+        let est = err.and_then(|e| e.variance(&delta, None));
+        return select::encompassing_test_with(r0, r1, rows, select::BATCHES, est);
     }
     let w: Vec<f64> = w0.iter().zip(w1).map(|(a, b)| a.min(*b)).collect();
     let a: Vec<f64> = r0.iter().zip(&w).map(|(r, w)| r * w).collect();
     let b: Vec<f64> = r1.iter().zip(&w).map(|(r, w)| r * w).collect();
-    select::encompassing_test(&a, &b, rows, select::BATCHES)
+    let delta: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+    let est = err.and_then(|e| e.variance(&delta, Some(&w)));
+    select::encompassing_test_with(&a, &b, rows, select::BATCHES, est)
 }
 
 /// For the parameters `params` of the fit `r` on `samples`: the variance each one gets from the
@@ -1183,6 +1204,12 @@ pub fn diagnose(
         round += 1;
         let cur_res = ctx.heldout_residuals(&spec, &cur_train.x);
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
+        // The current model's own estimation error on the training blocks: part of every
+        // held-out test's variance (see [`esterr`]).
+        let cur_err = opts
+            .estimation_error
+            .then(|| esterr::EstimationError::new(&prep, &spec, &ctx.train, &ctx.heldout, &cur_train, sigma))
+            .flatten();
         let mut cands: Vec<(Effect, Candidate)> = vec![];
         rejected.clear();
         for &e in &opts.library {
@@ -1203,7 +1230,7 @@ pub fn diagnose(
             }
             let res = ctx.heldout_residuals(&s2, &r.x);
             let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows);
+            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
             // where they can matter: a candidate that passed, or a pulley (the absorbed note).
             let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
@@ -1276,7 +1303,12 @@ pub fn diagnose(
         for (k, (e, c)) in cands.iter().enumerate() {
             let mut decision = c.decision;
             if k != bi && c.decision == Decision::Passed {
-                let pair = weighted_test(&c.res, &c.res_w, &cands[bi].1.res, &cands[bi].1.res_w, &ctx.heldout_rows);
+                // B as the current model: its estimation error is that of its screening fit.
+                let err = opts
+                    .estimation_error
+                    .then(|| esterr::EstimationError::new(&prep, &c.spec, &ctx.screen_train, &ctx.heldout, &c.report, sigma))
+                    .flatten();
+                let pair = weighted_test(&c.res, &c.res_w, &cands[bi].1.res, &cands[bi].1.res_w, &ctx.heldout_rows, err.as_ref());
                 if pair.is_none_or(|t| t.p_value >= alpha) {
                     let ho = (c.res.iter().map(|r| r * r).sum::<f64>() / c.res.len().max(1) as f64).sqrt();
                     equally_good.push((*e, ho));

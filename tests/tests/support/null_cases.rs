@@ -58,9 +58,94 @@ pub fn describe(k: usize) -> String {
 
 /// Simulates and diagnoses case `k`. A seed whose motion the simulator cannot hold in static
 /// equilibrium (a rare planned pose at the workspace edge) is replaced by the seed 10,000 higher.
+#[allow(dead_code)]
 pub fn diagnose_case(k: usize) -> Diagnosis {
+    diagnose_with(k, Variant::Sim, true)
+}
+
+/// What an effect-free recording is made of, to split the causes of the p-values' tail
+/// (`examples/null_rate.rs`, `NULL_VARIANT`): the simulator as it is, the simulator without one
+/// kind of structure, or the ideal model itself along the simulator's path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[allow(dead_code)]
+pub enum Variant {
+    /// The simulator as it is (what `diagnose_null` runs).
+    Sim,
+    /// No tracker outliers.
+    NoOutliers,
+    /// No loose-cable excursions.
+    NoLoose,
+    /// Neither outliers nor loose cables nor dropouts, encoders not quantised.
+    Clean,
+    /// The ideal model along the simulated path: readings `|P + b - A| + L0` of the true
+    /// positions plus white Gaussian encoder and tracker noise (the recording's sigmas); true
+    /// tensions.
+    Ideal,
+    /// As [`Variant::Ideal`] with AR(1) tracker noise, lag-1 coefficient 0.9 per sample.
+    IdealAr1,
+}
+
+#[allow(dead_code)]
+impl Variant {
+    /// From a name (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`).
+    pub fn parse(s: &str) -> Option<Variant> {
+        Some(match s {
+            "sim" => Variant::Sim,
+            "no-outliers" => Variant::NoOutliers,
+            "no-loose" => Variant::NoLoose,
+            "clean" => Variant::Clean,
+            "ideal" => Variant::Ideal,
+            "ideal-ar1" => Variant::IdealAr1,
+            _ => return None,
+        })
+    }
+}
+
+/// The ideal model's readings along a simulated path (see [`Variant::Ideal`]).
+fn ideal_recording(sim: &taut_sim::SimRun, s: &Scenario, phi: f64) -> taut_config::recording::Recording {
+    use taut_calib::synth::Rng;
+    let rec = &sim.recording;
+    let n = rec.n_cables;
+    let tr = &sim.truth;
+    let mut out = taut_config::recording::Recording::with_capacity(n, rec.len(), rec.f.is_some(), false, rec.phase.is_some());
+    let mut rng = Rng::new(s.seed ^ 0x1dea1);
+    let innov = (1.0 - phi * phi).sqrt();
+    let mut e: [f64; 3] = std::array::from_fn(|_| rng.normal());
+    let mut l = vec![0.0; n];
+    for i in 0..rec.len() {
+        let p = sim.positions[i];
+        for (j, lj) in l.iter_mut().enumerate() {
+            let b = tr.platform_points[j];
+            let a = tr.anchors[j];
+            let d = [p[0] + b[0] - a[0], p[1] + b[1] - a[1], p[2] + b[2] - a[2]];
+            *lj = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + tr.l0[j] + s.noise.encoder_sigma_m * rng.normal();
+        }
+        let pm: [f64; 3] = std::array::from_fn(|k| p[k] + s.noise.tracker_sigma_m * e[k]);
+        for v in e.iter_mut() {
+            *v = phi * *v + innov * rng.normal();
+        }
+        let f = rec.f.as_ref().map(|_| &sim.tensions[i * n..(i + 1) * n]);
+        out.push(rec.t[i], pm, None, &l, f, rec.phase.as_ref().map(|ph| ph[i]));
+    }
+    out
+}
+
+/// Simulates and diagnoses case `k` as `variant` makes it (see [`diagnose_case`]), with the
+/// held-out tests' estimation-error term on or off ([`DiagnoseOptions::estimation_error`]).
+pub fn diagnose_with(k: usize, variant: Variant, estimation_error: bool) -> Diagnosis {
     let (mut s, duration) = case(k);
     s.duration_s = duration;
+    match variant {
+        Variant::NoOutliers => s.noise.tracker_outlier_prob = 0.0,
+        Variant::NoLoose => s.loose_fraction = 0.0,
+        Variant::Clean => {
+            s.noise.tracker_outlier_prob = 0.0;
+            s.noise.tracker_dropout_prob = 0.0;
+            s.noise.encoder_quantum_m = 0.0;
+            s.loose_fraction = 0.0;
+        }
+        _ => {}
+    }
     let sim = loop {
         match try_simulate(&s) {
             Ok(sim) => break sim,
@@ -71,8 +156,13 @@ pub fn diagnose_case(k: usize) -> Diagnosis {
             Err(e) => panic!("{}: {e}", describe(k)),
         }
     };
-    let opts = DiagnoseOptions::from_config(&s.robot.calibration);
-    diagnose(&sim.recording, &sim.truth.platform_points, None, &opts).expect("diagnosis")
+    let opts = DiagnoseOptions { estimation_error, ..DiagnoseOptions::from_config(&s.robot.calibration) };
+    let rec = match variant {
+        Variant::Ideal => ideal_recording(&sim, &s, 0.0),
+        Variant::IdealAr1 => ideal_recording(&sim, &s, 0.9),
+        _ => sim.recording.clone(),
+    };
+    diagnose(&rec, &sim.truth.platform_points, None, &opts).expect("diagnosis")
 }
 
 /// The effects named (slack aside).
