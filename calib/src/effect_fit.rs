@@ -260,11 +260,6 @@ pub fn fit_effects(
         return Err(EffectFitError::NoTensions);
     }
     let mut prep = prepare(rec, platform, needs_tension, o);
-    if effects.contains(&Effect::TimeOffset) {
-        // As the diagnosis: with a time offset the hold-weighted play width was measured biased
-        // (docs/diagnosis.md, "Known limits"), so the fit stays unweighted.
-        prep.hold_weight.clear();
-    }
     for j in 0..n {
         let usable = prep.usable[j].iter().filter(|u| **u).count();
         if usable < 4 * crate::MIN_READINGS {
