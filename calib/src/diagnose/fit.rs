@@ -51,18 +51,16 @@ pub struct Prepared {
 /// its own pose and an exact tension), with
 ///
 /// ```text
-/// var = s_e^2 + k(s) s_t^2 + g_T^2 s_T^2
-/// k(s) = (1 - s)^2 + s^2      the tracker noise of a pose interpolated at fraction s (time offset)
+/// var = s_e^2 + s_t^2 + g_T^2 s_T^2
 /// g_T = d reading / d T       stretch and sag: the load cell's noise s_T moves the prediction
 /// ```
 ///
-/// The time-offset term is in place but not fed (`Joint::shifted` returns no variance: the
-/// B-spline pose it needs named spurious offsets under backlash, docs/diagnosis.md); `k = 1`.
+/// A time offset needs no such term: it shifts the encoder series, not the tracker's
+/// ([`Joint::predict`]; interpolating the noisy tracker pose between two samples, as before,
+/// halved its noise at half-sample offsets, and the fit preferred those: a 20 ms offset at
+/// 100 Hz came out 16-17 ms, 9-12 sigma low, and a play fitted with it 1-1.5 mm high).
 ///
-/// Why: a time offset predicts from a pose interpolated between two noisy tracker samples, whose
-/// noise variance is `k(s) s_t^2`, half at a half-sample offset: unweighted, the fit prefers the
-/// offsets that average the noise (a 20 ms offset at 100 Hz came out 16-17 ms, 9-12 sigma low,
-/// and a play fitted with it 1-1.5 mm high to make up the pushes' lag). Near slack the sag's
+/// Why: near slack the sag's
 /// excess grows as `1/T^2` and the stretch with `T`: a reading at a few newtons has a prediction
 /// the load-cell noise moves by centimetres. With the variance of the residual *at the
 /// candidate parameters* as weight, and the weight's own derivative in the Jacobian, the
@@ -395,6 +393,15 @@ impl<'a> Joint<'a> {
     /// [`PlayState`]): `l_hat_i = v_c - side * w/2`, `v` the modelled reading without play and `c`
     /// the last sample at which the play pushed the reading; a held reading inherits its
     /// derivatives from that sample.
+    ///
+    /// With a time offset `delta` (encoders late) the tracker sample `i` is compared with the
+    /// encoder at `t_i + delta`, interpolated between its samples `k`, `k + 1` (the encoder is
+    /// smooth and its noise 0.05 mm; the tracker's 1.5 mm, whose interpolation biased the fit):
+    /// `residual = l(t_i + delta) - model(pose_i, T_i)`, written as the prediction
+    /// `model_i + l_i - l(t_i + delta)` of the sample's own reading. With a play too, each
+    /// encoder sample is predicted by the play as the observation mixes them (see
+    /// `Joint::played`): a pushed one from sample `i`'s own pose, a held one from the input at
+    /// its contact `c` at tracker time `t_c - delta`.
     pub fn predict(&self, x: &[f64], i: usize, j: usize) -> Prediction {
         self.predict_with(x, i, j, None, &self.offsets())
     }
@@ -509,17 +516,17 @@ impl<'a> Joint<'a> {
             let side = f64::from(pl.side[j][q]);
             let c = pl.contact[j][q] as usize;
             let mut p = if c == q {
-                let mut p = own.get_or_insert_with(|| self.reading(x, i, j, rep, None, offs)).clone();
+                let mut p = *own.get_or_insert_with(|| self.reading(x, i, j, rep, None, offs));
                 let r = rate(q);
                 p.value += (self.prep.t[q] - delta - self.prep.t[i]) * r;
                 add_entry(&mut p.row, &mut p.len, ko, -r);
                 p
             } else {
                 match &held {
-                    Some((hc, hp)) if *hc == c => hp.clone(),
+                    Some((hc, hp)) if *hc == c => *hp,
                     _ => {
                         let hp = self.reading(x, c, j, rep, Some(delta), offs);
-                        held = Some((c, hp.clone()));
+                        held = Some((c, hp));
                         hp
                     }
                 }
@@ -538,7 +545,7 @@ impl<'a> Joint<'a> {
         }
         let (pk1, _) = one(k1);
         // Mix: value, row, and d s / d delta = 1 / dt.
-        let mut out = pk.clone();
+        let mut out = pk;
         out.value = (1.0 - s) * pk.value + s * pk1.value;
         for e in &mut out.row[..out.len] {
             e.1 *= 1.0 - s;

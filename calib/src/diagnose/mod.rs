@@ -1383,10 +1383,9 @@ pub fn diagnose(
     // count as one observation), the generalised least-squares fit of the play model; unweighted,
     // a long hold pinned the play width and through it the compliance, 4-8 sigma off on some
     // recordings. Selection (the held-out tests) and the held-out RMS figures stay on the
-    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). Not with a time
-    // offset in the model: there the play width comes out 10-17 % high in both fits, from the
-    // offset's errors-in-variables bias (docs/diagnosis.md; the fix tried named spurious time
-    // offsets under backlash), and the unweighted fit is kept.
+    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). Also with a time
+    // offset: it shifts the encoder series, so a pushed reading is predicted from its own pose
+    // and only the holds share a (contact) pose, as without one.
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
         prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
