@@ -153,6 +153,12 @@ pub struct Prediction {
     pub row: [(usize, f64); 10],
     /// Number of valid entries in `row`.
     pub len: usize,
+    /// Multiplier `k(s) = (1 - s)^2 + s^2` of the tracker variance of the pose the prediction
+    /// was made from (1: a sample's own pose; a held reading's contact interpolated at fraction
+    /// `s`, see [`Joint::shifted`]).
+    pub tracker_k: f64,
+    /// `d k / d (time offset)` and the offset's parameter index.
+    pub dk: Option<(usize, f64)>,
     /// `g_T = d value / d T` (stretch and sag).
     pub g_t: f64,
     /// `d g_T / d parameter` for the compliance, sag weight, scale, time offset and the anchor.
@@ -223,18 +229,21 @@ impl<'a> Joint<'a> {
     /// reading (see [`Joint::predict`]): the input at a push's end, where it reverses, so the
     /// pose's velocity along the cable is near zero and the interpolation's smoothing counts once
     /// per hold.
-    fn shifted(&self, i: usize, j: usize, delta: f64, rep: Option<&Rep>) -> ([f64; 3], [f64; 3], f64, f64) {
+    fn shifted(&self, i: usize, j: usize, delta: f64, rep: Option<&Rep>) -> ([f64; 3], [f64; 3], f64, f64, (f64, f64)) {
         let (k, s, dt) = self.locate(i, self.prep.t[i] - delta);
         let (a, fa) = self.pose_at(k, j, rep);
         if dt == 0.0 {
-            return (a, [0.0; 3], fa, 0.0);
+            return (a, [0.0; 3], fa, 0.0, (1.0, 0.0));
         }
         let (b, fb) = self.pose_at(k + 1, j, rep);
         let v = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt, (b[2] - a[2]) / dt];
         let x = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])];
         // A tension only where both samples have one (the models switch on its presence).
         let (f, fdot) = if fa.is_finite() && fb.is_finite() { (fa + s * (fb - fa), (fb - fa) / dt) } else { (fa, 0.0) };
-        (x, v, f, fdot)
+        // The interpolated pose's tracker variance, k(s) of a sample's, and d k / d delta
+        // (d s / d delta = -1 / dt).
+        let kv = (1.0 - s) * (1.0 - s) + s * s;
+        (x, v, f, fdot, (kv, -(4.0 * s - 2.0) / dt))
     }
 
     /// The modelled reading of cable `j` without the play (backlash): the input of the play
@@ -255,11 +264,14 @@ impl<'a> Joint<'a> {
                 (k, x[k])
             })
         };
-        let (xp, vel, tension, tension_rate) = match shift {
-            Some(d) => self.shifted(i, j, d, rep),
+        let (xp, vel, tension, tension_rate, kvar) = match shift {
+            Some(d) => {
+                let (x, v, f, fd, kv) = self.shifted(i, j, d, rep);
+                (x, v, f, fd, Some(kv))
+            }
             None => {
                 let (xp, f) = self.pose_at(i, j, rep);
-                (xp, [0.0; 3], f, 0.0)
+                (xp, [0.0; 3], f, 0.0, None)
             }
         };
         let has_t = tension.is_finite();
@@ -391,7 +403,11 @@ impl<'a> Joint<'a> {
                 len += 1;
             }
         }
-        Prediction { value, row, len, g_t, dg_t, dg_len }
+        let (tracker_k, dk) = match (kvar, delta) {
+            (Some((kv, dkv)), Some((k, _))) => (kv, Some((k, dkv))),
+            _ => (1.0, None),
+        };
+        Prediction { value, row, len, tracker_k, dk, g_t, dg_t, dg_len }
     }
 
     /// The modelled reading of cable `j` at sample `i`.
@@ -562,6 +578,10 @@ impl<'a> Joint<'a> {
         }
         add_entry(&mut out.row, &mut out.len, ko, (pk1.value - pk.value) / dt);
         out.g_t = (1.0 - s) * pk.g_t + s * pk1.g_t;
+        // The contact's variance factor mixed as the prediction is (1 for a pushed sample).
+        out.tracker_k = (1.0 - s) * pk.tracker_k + s * pk1.tracker_k;
+        let dkk = |p: &Prediction| p.dk.map_or(0.0, |d| d.1);
+        out.dk = Some((ko, (1.0 - s) * dkk(&pk) + s * dkk(&pk1) + (pk1.tracker_k - pk.tracker_k) / dt));
         for e in &mut out.dg_t[..out.dg_len] {
             e.1 *= 1.0 - s;
         }
@@ -602,10 +622,10 @@ impl<'a> Joint<'a> {
     #[inline]
     fn eiv_var(&self, p: &Prediction) -> Option<(Eiv, f64)> {
         let e = self.prep.eiv?;
-        if p.g_t == 0.0 || e.tension_var == 0.0 {
+        if p.dk.is_none() && (p.g_t == 0.0 || e.tension_var == 0.0) {
             return None;
         }
-        let var = e.encoder_var + e.tracker_var + p.g_t * p.g_t * e.tension_var;
+        let var = e.encoder_var + p.tracker_k * e.tracker_var + p.g_t * p.g_t * e.tension_var;
         (var > 0.0 && e.tracker_var + e.encoder_var > 0.0).then_some((e, var))
     }
 
@@ -617,6 +637,10 @@ impl<'a> Joint<'a> {
         };
         let mut len = 0;
         // d ln w = -1/2 d var / var.
+        if let Some((k, dk)) = p.dk {
+            d[len] = (k, -0.5 * e.tracker_var * dk / var);
+            len += 1;
+        }
         for &(k, dg) in &p.dg_t[..p.dg_len] {
             d[len] = (k, -p.g_t * e.tension_var * dg / var);
             len += 1;
