@@ -51,14 +51,17 @@ pub struct Prepared {
 /// its own pose and an exact tension), with
 ///
 /// ```text
-/// var = s_e^2 + s_t^2 + g_T^2 s_T^2
+/// var = s_e^2 + k(s) s_t^2 + g_T^2 s_T^2
+/// k(s) = (1 - s)^2 + s^2      a held reading's contact pose interpolated at fraction s (time offset with a play)
 /// g_T = d reading / d T       stretch and sag: the load cell's noise s_T moves the prediction
 /// ```
 ///
-/// A time offset needs no such term: it shifts the encoder series, not the tracker's
-/// ([`Joint::predict`]; interpolating the noisy tracker pose between two samples, as before,
-/// halved its noise at half-sample offsets, and the fit preferred those: a 20 ms offset at
-/// 100 Hz came out 16-17 ms, 9-12 sigma low, and a play fitted with it 1-1.5 mm high).
+/// A time offset shifts the encoder series, not the tracker's ([`Joint::predict`];
+/// interpolating every noisy tracker pose between two samples, as before, halved its noise at
+/// half-sample offsets and the fit preferred those: a 20 ms offset at 100 Hz came out 16-17 ms,
+/// 9-12 sigma low, and a play fitted with it 1-1.5 mm high). Only a held reading's contact is
+/// still an interpolated pose (the play's input at `t_c - delta`), hence `k(s)` there (without
+/// it the cost had a cusp at whole-sample offsets, the estimates 0.3-0.5 ms to either side).
 ///
 /// Why: near slack the sag's
 /// excess grows as `1/T^2` and the stretch with `T`: a reading at a few newtons has a prediction
@@ -155,7 +158,7 @@ pub struct Prediction {
     pub len: usize,
     /// Multiplier `k(s) = (1 - s)^2 + s^2` of the tracker variance of the pose the prediction
     /// was made from (1: a sample's own pose; a held reading's contact interpolated at fraction
-    /// `s`, see [`Joint::shifted`]).
+    /// `s`, see `Joint::shifted`).
     pub tracker_k: f64,
     /// `d k / d (time offset)` and the offset's parameter index.
     pub dk: Option<(usize, f64)>,
