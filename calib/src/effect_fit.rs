@@ -10,7 +10,8 @@
 //! G = |X - A|  or, with a swivel pulley,  r beta + sqrt(|X - C|^2 - r^2)
 //! U = G / (1 + T / EA)          (T: the measured tension of the reading)
 //! v = drum_scale U + L0,   l_hat = play(v; backlash)
-//! X = P(t - delta) + b_j        (delta: the time offset still left in the data)
+//! X = P(t) + b_j,  l(t + delta)  (delta: the time offset still left in the data; the encoder
+//!                                 series is shifted, see `diagnose::fit::Joint::predict`)
 //! ```
 //!
 //! Readings are weighted uniformly (`sigma^2 = sigma_enc^2 + sigma_tracker^2`), as in the
@@ -259,12 +260,7 @@ pub fn fit_effects(
     if needs_tension && rec.f.is_none() {
         return Err(EffectFitError::NoTensions);
     }
-    let mut prep = prepare(rec, platform, needs_tension, o);
-    if effects.contains(&Effect::TimeOffset) {
-        // As the diagnosis: with a time offset the hold-weighted play width was measured biased
-        // (docs/diagnosis.md, "Known limits"), so the fit stays unweighted.
-        prep.hold_weight.clear();
-    }
+    let prep = prepare(rec, platform, needs_tension, o);
     for j in 0..n {
         let usable = prep.usable[j].iter().filter(|u| **u).count();
         if usable < 4 * crate::MIN_READINGS {

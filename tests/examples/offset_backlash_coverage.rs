@@ -4,7 +4,7 @@
 //! the error in sigmas, then the share within 1, 2 and 3 sigmas (a Gaussian gives 68 / 95 / 99.7 %).
 //!
 //! ```text
-//! cargo run --profile test -p taut-tests --example offset_backlash_coverage -- [first seed, default 100] [seeds, default 10] [EA kN, default 0: none] [robot: 3 or 4 cables, default 3]
+//! cargo run --profile test -p taut-tests --example offset_backlash_coverage -- [first seed, default 100] [seeds, default 10] [EA kN, default 0: none] [robot: 3 or 4 cables, default 3] [play mm, default 6] [offset ms, default 20]
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -17,7 +17,8 @@ fn main() {
     let count = args.next().unwrap_or(10);
     let ea_kn = args.next().unwrap_or(0);
     let cables = args.next().unwrap_or(3);
-    let (play, offset) = (0.006, 0.02);
+    let play = args.next().unwrap_or(6) as f64 * 1e-3;
+    let offset = args.next().unwrap_or(20) as f64 * 1e-3;
     let (mut zw, mut zo, mut ze) = (vec![], vec![], vec![]);
     let mut spurious = 0;
     for seed in first..first + count {
@@ -34,7 +35,8 @@ fn main() {
             .expect("diagnosis");
         let named: Vec<&str> = d.effects.iter().filter(|f| f.effect != Effect::Slack).map(|f| f.effect.name()).collect();
         let truth_has = |e: Effect| match e {
-            Effect::TimeOffset | Effect::Backlash => true,
+            Effect::TimeOffset => offset > 0.0,
+            Effect::Backlash => play > 0.0,
             Effect::Elasticity => ea_kn > 0,
             _ => false,
         };

@@ -517,13 +517,16 @@ const SAG_START_ITERATIONS: usize = 6;
 
 impl Ctx<'_> {
     /// The residuals on the held-out samples (time order, usable cables of each sample in
-    /// turn: sample `k` is `heldout_rows[k]..heldout_rows[k + 1]`).
-    fn heldout_residuals(&self, spec: &ModelSpec, x: &[f64]) -> Vec<f64> {
+    /// turn: sample `k` is `heldout_rows[k]..heldout_rows[k + 1]`) of `spec` at `x` for the
+    /// held-out test against the current model `cur` ([`fit::Joint::heldout_residual`]; the
+    /// current model's own are its plain residuals).
+    fn heldout_residuals(&self, spec: &ModelSpec, x: &[f64], cur: (&ModelSpec, &[f64])) -> Vec<f64> {
         let p = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
+        let c = fit::Joint { prep: self.prep, spec: cur.0, samples: &self.heldout, sigma: 1.0 };
         let mut out = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
         for &i in &self.heldout {
             for j in (0..self.prep.n).filter(|&j| self.prep.usable[j][i]) {
-                out.push(p.residual_heldout(x, i, j));
+                out.push(p.heldout_residual(x, &c, cur.1, i, j));
             }
         }
         out
@@ -1202,7 +1205,7 @@ pub fn diagnose(
     let mut last_round: Vec<(Effect, Candidate)> = vec![];
     while spec.effects.len() < opts.max_effects {
         round += 1;
-        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x);
+        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x));
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
         // The current model's own estimation error on the training blocks: part of every
         // held-out test's variance (see [`esterr`]).
@@ -1228,7 +1231,7 @@ pub fn diagnose(
                 rejected.push(format!("{}: the fit diverged", e.name()));
                 continue;
             }
-            let res = ctx.heldout_residuals(&s2, &r.x);
+            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x));
             let res_w = ctx.heldout_factors(&s2, &r.x);
             let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
@@ -1412,11 +1415,10 @@ pub fn diagnose(
     // count as one observation), the generalised least-squares fit of the play model; unweighted,
     // a long hold pinned the play width and through it the compliance, 4-8 sigma off on some
     // recordings. Selection (the held-out tests) and the held-out RMS figures stay on the
-    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). Not with a time
-    // offset in the model: there the play width comes out 10-17 % high in both fits, from the
-    // offset's errors-in-variables bias (docs/diagnosis.md; the fix tried named spurious time
-    // offsets under backlash), and the unweighted fit is kept.
-    let final_all = if spec.effects.contains(&Effect::Backlash) && !spec.effects.contains(&Effect::TimeOffset) {
+    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). Also with a time
+    // offset: it shifts the encoder series, so a pushed reading is predicted from its own pose
+    // and only the holds share a (contact) pose, as without one.
+    let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
         prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };

@@ -35,7 +35,7 @@
 //! The one-sided test at level `alpha` claims a candidate that explains nothing real with
 //! probability at most `alpha` (measured at 5 % under AR(1) residuals up to `phi` 0.97: see the
 //! Monte Carlo test below). The held-out residuals must come from predictions that do not reuse
-//! the held-out sample's own noise ([`super::fit::Joint::predict_heldout`]).
+//! the held-out sample's own noise ([`super::fit::Joint::heldout_residual`]).
 //!
 //! Two candidates `A` and `B` that are not nested (e.g. time offset vs backlash) are compared by
 //! the same test with `B` as the current model: if `A` adds nothing significant beyond `B`, the
