@@ -258,25 +258,25 @@ impl Parser {
         self.counted(k)
     }
 
-    /// Takes `cols` (the rows of every piece, each taken whole, in order) as the recording's
-    /// rows when the one-thread reader would take them as they are: each piece's first time is
+    /// Takes `cols` (the rows of every piece, each taken whole, in order; left empty) as the
+    /// recording's rows when the one-thread reader would take them as they are: each piece's first time is
     /// not before the last row before it and the lines stay within [`MAX_LINES`].
-    fn whole(&mut self, cols: Columnar, rows: &[usize], c: &Columns) -> Result<(), Columnar> {
+    fn whole(&mut self, cols: &mut Columnar, rows: &[usize], c: &Columns) -> bool {
         let total: usize = rows.iter().sum();
         let mut last_t = self.last_t;
         let mut at = 0;
         for &k in rows {
             if k == 0 || cols.t[at] < last_t {
-                return Err(cols);
+                return false;
             }
             at += k;
             last_t = cols.t[at - 1];
         }
         if self.lineno + total > MAX_LINES {
-            return Err(cols);
+            return false;
         }
         let rec = &mut self.rec;
-        let Columnar { t, p, q, l, f, phase } = cols;
+        let Columnar { t, p, q, l, f, phase } = std::mem::replace(cols, Columnar::new(0, c));
         rec.t = t;
         rec.p = p;
         rec.q = rec.q.take().map(|_| q);
@@ -284,8 +284,7 @@ impl Parser {
         rec.f = rec.f.take().map(|_| f);
         rec.phase = rec.phase.take().map(|_| phase);
         debug_assert!(rec.t.len() == total && rec.l.len() == total * c.l.len());
-        self.counted(total);
-        Ok(())
+        self.counted(total)
     }
 
     /// Counts `k` rows of plain decimals just taken, whose times are the last `k` of the
@@ -343,10 +342,15 @@ pub(super) fn parse_bytes(bytes: &[u8], threads: usize, min_piece: usize) -> Res
     let cols = p.cols.clone().expect("the header was read");
     let cuts = cuts(bytes, lines.pos, threads, min_piece);
     let ranges: Vec<(usize, usize)> = cuts.windows(2).map(|w| (w[0], w[1])).collect();
-    // Each piece's lines, counted on its own thread: the room its rows need.
+    // Each piece's lines, counted on its own thread: the room its rows need. Never more than
+    // a row of `width` fields can fill (at least 2 * width - 1 bytes and its newline: a file of
+    // empty lines gets no room for them) nor than MAX_LINES; a piece whose part is full stops
+    // there and the rest is read by the ordinary reader.
+    let width = cols.width.max(1);
+    let room_of = |a: usize, b: usize| count_lines(&bytes[a..b]).min((b - a + 1) / (2 * width)).min(MAX_LINES);
     let room: Vec<usize> = std::thread::scope(|s| {
-        let helpers: Vec<_> = ranges[1..].iter().map(|&(a, b)| s.spawn(move || count_lines(&bytes[a..b]))).collect();
-        let first = count_lines(&bytes[ranges[0].0..ranges[0].1]);
+        let helpers: Vec<_> = ranges[1..].iter().map(|&(a, b)| s.spawn(move || room_of(a, b))).collect();
+        let first = room_of(ranges[0].0, ranges[0].1);
         std::iter::once(first).chain(helpers.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))).collect()
     });
     let mut columns = Columnar::new(room.iter().sum(), &cols);
@@ -365,17 +369,13 @@ pub(super) fn parse_bytes(bytes: &[u8], threads: usize, min_piece: usize) -> Res
     let all_taken = taken.iter().zip(&room).zip(&ranges).all(|((tk, &k), &(_, end))| tk.rows == k && tk.taken_end == end);
     let pieces: Vec<Piece> = if all_taken {
         drop(parts);
-        match p.whole(columns, &room, &cols) {
-            Ok(()) => {
-                lines.pos = bytes.len();
-                vec![]
-            }
-            Err(back) => {
-                // Not taken as one: the same rows, joined piece by piece below.
-                columns = back;
-                parts = columns.parts(&room, &cols);
-                parts.iter().zip(&taken).map(|(part, &tk)| Piece::of(part, tk, &cols)).collect()
-            }
+        if p.whole(&mut columns, &room, &cols) {
+            lines.pos = bytes.len();
+            vec![]
+        } else {
+            // Not taken as one: the same rows, joined piece by piece below.
+            parts = columns.parts(&room, &cols);
+            parts.iter().zip(&taken).map(|(part, &tk)| Piece::of(part, tk, &cols)).collect()
         }
     } else {
         parts.iter().zip(&taken).map(|(part, &tk)| Piece::of(part, tk, &cols)).collect()
@@ -570,6 +570,24 @@ mod tests {
         }
     }
 
+    /// Runs of empty lines give a piece less room than lines (a row needs 2 * width bytes): a
+    /// part that fills up stops its piece there, and the rest is read as the one-thread reader
+    /// reads it.
+    #[test]
+    fn empty_lines_do_not_get_room_and_change_nothing() {
+        let mut rng = Rng(5);
+        let (mut lines, _) = lines(&mut rng, 3000);
+        for at in [1500, 2900] {
+            for _ in 0..5000 {
+                lines.insert(at, String::new());
+            }
+        }
+        let bytes = text(&lines, true);
+        for threads in [2, 3, 4] {
+            assert_eq!(outcome(parse_bytes(&bytes, threads, 1000)), one_thread(&bytes), "{threads} threads");
+        }
+    }
+
     #[test]
     fn every_piece_is_taken_from_a_clean_recording() {
         let mut rng = Rng(7);
@@ -596,7 +614,7 @@ mod tests {
             assert!(taken.rows > 1000);
         }
         // The parts are the recording, in place (no join of separate pieces).
-        assert!(p.whole(columns, &room, &cols).is_ok());
+        assert!(p.whole(&mut columns, &room, &cols));
         let want = super::super::parse_sized(std::io::Cursor::new(&bytes[..]), None).unwrap().0;
         assert_eq!(format!("{:?}", p.rec), format!("{want:?}"));
         assert_eq!(outcome(parse_bytes(&bytes, 4, 1000)), one_thread(&bytes));
