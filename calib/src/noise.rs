@@ -393,23 +393,23 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
     let rot = rotations(rec);
     let tensions = if weighting.uses_tensions() { rec.f.as_deref() } else { None };
     let pose_ok: Vec<bool> = (0..m).map(|i| !rec.p[i].iter().any(|v| v.is_nan()) && rot.as_ref().is_none_or(|r| r[i].is_some())).collect();
-    let columns = |b: [f64; 3]| -> [Arc<[f64]>; 3] {
+    // Axis `a` of platform point `b`'s positions, written straight into the shared column
+    // (collecting a counted range allocates the `Arc` once; a `Vec` turned into one is copied).
+    let column = |b: [f64; 3], a: usize| -> Arc<[f64]> {
         let pt = |i: usize| -> [f64; 3] {
             if !pose_ok[i] {
                 return [0.0; 3];
             }
             model::attachment(rec.p[i], rot.as_ref().and_then(|r| r[i].as_ref()), b)
         };
-        let (mut x, mut y, mut z) = (Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m));
-        for i in 0..m {
-            let p = pt(i);
-            x.push(p[0]);
-            y.push(p[1]);
-            z.push(p[2]);
-        }
-        [x.into(), y.into(), z.into()]
+        (0..m).map(|i| pt(i)[a]).collect()
     };
-    let shared = (rot.is_none() && platform_points.iter().all(|b| *b == [0.0; 3])).then(|| columns([0.0; 3]));
+    let columns = |b: [f64; 3]| -> [Arc<[f64]>; 3] { [column(b, 0), column(b, 1), column(b, 2)] };
+    let shared = (rot.is_none() && platform_points.iter().all(|b| *b == [0.0; 3])).then(|| {
+        // One point for every cable: its three columns on the threads.
+        let mut axes = crate::par::map(opts.threads, 3, |a| column([0.0; 3], a)).into_iter();
+        [(); 3].map(|_| axes.next().expect("three axes"))
+    });
     crate::par::map(opts.threads, n, |j| {
         let [x, y, z] = match &shared {
             Some(c) => c.clone(),

@@ -895,9 +895,10 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             }
         }
     }
-    // Load cells.
+    // Load cells: each cable's impossible tensions found on the threads (each from its own
+    // column only), then applied in the order of one thread.
     if let Some(f) = &rec.f {
-        for j in 0..n {
+        let impossible = crate::par::map(opts.threads, n, |j| {
             let col: Vec<f64> = (0..m).map(|i| f[i * n + j]).collect();
             let (mad, nc) = tension_mad[j];
             let s = floored(mad, &col, 1e-3);
@@ -911,6 +912,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             };
             let low = if s.is_finite() { z0.min(0.0) - thr_of(nc) * s } else { f64::NEG_INFINITY };
             let high = opts.max_tension_n.filter(|h| *h > 0.0).unwrap_or(ABSURD_N).min(ABSURD_N);
+            let mut bad_rows = vec![];
             for (i, &v) in col.iter().enumerate() {
                 if v.is_nan() {
                     continue;
@@ -923,24 +925,31 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
                     (false, 0.0)
                 };
                 if bad {
-                    changed = true;
-                    findings.push(WildValue {
-                        kind: WildKind::ImpossibleTension,
-                        row: i,
-                        t: rec.t[i],
-                        cable: Some(j),
-                        axis: None,
-                        value: v,
-                        expected: limit,
-                        sigmas: if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY },
-                        action: Action::Excluded,
-                    });
-                    let cleaned = cleaned.get_or_insert_with(|| rec.clone());
-                    if let Some(cf) = cleaned.f.as_mut() {
-                        cf[i * n + j] = f64::NAN;
-                    }
-                    cleaned.l[i * n + j] = f64::NAN;
+                    let sigmas = if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY };
+                    bad_rows.push((i, v, limit, sigmas));
                 }
+            }
+            bad_rows
+        });
+        for (j, bad_rows) in impossible.into_iter().enumerate() {
+            for (i, v, limit, sigmas) in bad_rows {
+                changed = true;
+                findings.push(WildValue {
+                    kind: WildKind::ImpossibleTension,
+                    row: i,
+                    t: rec.t[i],
+                    cable: Some(j),
+                    axis: None,
+                    value: v,
+                    expected: limit,
+                    sigmas,
+                    action: Action::Excluded,
+                });
+                let cleaned = cleaned.get_or_insert_with(|| rec.clone());
+                if let Some(cf) = cleaned.f.as_mut() {
+                    cf[i * n + j] = f64::NAN;
+                }
+                cleaned.l[i * n + j] = f64::NAN;
             }
         }
     }

@@ -2,19 +2,23 @@
 //! file).
 //!
 //! The comments and the header are read by the ordinary line-by-line [`Parser`]. The rows after
-//! them are cut into pieces at line starts, one per thread, and each piece is read by
-//! [`fast_piece`] (the first on the calling thread), which takes only rows of plain decimals
+//! them are cut into pieces at line starts, one per thread. Each thread counts its piece's lines
+//! and the recording's columns are made with room for all of them, each piece owning the part
+//! that follows the pieces before it; then each piece is read by [`fast_piece`] (the first on
+//! the calling thread) straight into its part. [`fast_piece`] takes only rows of plain decimals
 //! ([`fast_row`]) that pass every row check on their own (a plausible time, not decreasing
 //! within the piece; a phase that is an integer >= -1) and stops at the first line that is
-//! anything else. The pieces are then joined in order: a piece's rows are appended when its
-//! first time is not before the last row before it and the line limit allows them; every line
-//! that no piece took (all of a piece whose rows do not join, and whatever follows a piece's
-//! first other line) is read by the ordinary reader. So the recording, the report and every
-//! error are the ones the one-thread reader gives: what the pieces take are exactly rows on which
-//! its checks pass, read by the same [`fast_row`].
+//! anything else. When every piece was taken whole (every line a row), each piece's first time
+//! is not before the last row before it and the line limit allows them, the parts are the
+//! recording as it stands: nothing is copied. Otherwise the pieces are joined in order as
+//! separate rows: a piece's rows are appended when its first time is not before the last row
+//! before it and the line limit allows them; every line that no piece took (all of a piece whose
+//! rows do not join, and whatever follows a piece's first other line) is read by the ordinary
+//! reader. So the recording, the report and every error are the ones the one-thread reader
+//! gives: what the pieces take are exactly rows on which its checks pass, read by the same
+//! [`fast_row`].
 
 use super::{fast_row, Columns, Line, ParseReport, Parser, Recording, RecordingError, MAX_LINES, MAX_LINE_BYTES, MAX_TIME_S};
-use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Below this many bytes of rows per thread the threads cost more than they save.
 pub(super) const MIN_PIECE_BYTES: usize = 256 * 1024;
@@ -44,10 +48,20 @@ impl<'a> Lines<'a> {
     }
 }
 
-/// The rows [`fast_piece`] took from `bytes[start..taken_end]`, column-wise as in [`Recording`].
-struct Piece {
-    taken_end: usize,
-    rows: usize,
+/// A piece's part of the recording's columns: room for one row per line of the piece (`q`,
+/// `f` and `phase` empty when the recording has no such column).
+struct Part<'a> {
+    t: &'a mut [f64],
+    p: &'a mut [[f64; 3]],
+    q: &'a mut [[f64; 4]],
+    l: &'a mut [f64],
+    f: &'a mut [f64],
+    phase: &'a mut [i32],
+}
+
+/// The recording's columns with room for `rows` rows, zeroed (the allocator's fresh zero pages:
+/// each thread faults in the pages of its own part as it writes them).
+struct Columnar {
     t: Vec<f64>,
     p: Vec<[f64; 3]>,
     q: Vec<[f64; 4]>,
@@ -56,37 +70,74 @@ struct Piece {
     phase: Vec<i32>,
 }
 
-/// The rows of `bytes[start..end]` (whole lines) up to the first line that is not a row of
-/// plain decimals passing the row checks (see the module doc); `stop` ends it early. The
-/// columns have room for the rows of `room` bytes (the first piece's for the whole input, so
-/// that the others join it without a copy of it).
-fn fast_piece(bytes: &[u8], start: usize, end: usize, room: usize, c: &Columns, stop: &AtomicBool) -> Piece {
-    let width_guess = bytes[start..end].iter().position(|&b| b == b'\n').unwrap_or(end - start) + 1;
-    let cap = (room / width_guess + room / width_guess / 10 + 16).min(MAX_LINES);
-    let n = c.l.len();
-    let mut out = Piece {
-        taken_end: start,
-        rows: 0,
-        t: Vec::with_capacity(cap),
-        p: Vec::with_capacity(cap),
-        q: Vec::with_capacity(if c.q.is_some() { cap } else { 0 }),
-        l: Vec::with_capacity(cap * n),
-        f: Vec::with_capacity(if c.f.is_empty() { 0 } else { cap * n }),
-        phase: Vec::with_capacity(if c.phase.is_some() { cap } else { 0 }),
-    };
+impl Columnar {
+    fn new(rows: usize, c: &Columns) -> Columnar {
+        let if_has = |has: bool| if has { rows } else { 0 };
+        Columnar {
+            t: vec![0.0; rows],
+            p: vec![[0.0; 3]; rows],
+            q: vec![[0.0; 4]; if_has(c.q.is_some())],
+            l: vec![0.0; rows * c.l.len()],
+            f: vec![0.0; rows * c.f.len()],
+            phase: vec![0; if_has(c.phase.is_some())],
+        }
+    }
+
+    /// The parts of `rows[0]`, `rows[1]`, ... rows, in order.
+    fn parts(&mut self, rows: &[usize], c: &Columns) -> Vec<Part<'_>> {
+        let (nl, nf) = (c.l.len(), c.f.len());
+        let (has_q, has_phase) = (c.q.is_some() as usize, c.phase.is_some() as usize);
+        let (mut t, mut p, mut q) = (&mut self.t[..], &mut self.p[..], &mut self.q[..]);
+        let (mut l, mut f, mut phase) = (&mut self.l[..], &mut self.f[..], &mut self.phase[..]);
+        let mut out = Vec::with_capacity(rows.len());
+        for &k in rows {
+            let (t0, t1) = std::mem::take(&mut t).split_at_mut(k);
+            let (p0, p1) = std::mem::take(&mut p).split_at_mut(k);
+            let (q0, q1) = std::mem::take(&mut q).split_at_mut(k * has_q);
+            let (l0, l1) = std::mem::take(&mut l).split_at_mut(k * nl);
+            let (f0, f1) = std::mem::take(&mut f).split_at_mut(k * nf);
+            let (h0, h1) = std::mem::take(&mut phase).split_at_mut(k * has_phase);
+            out.push(Part { t: t0, p: p0, q: q0, l: l0, f: f0, phase: h0 });
+            (t, p, q, l, f, phase) = (t1, p1, q1, l1, f1, h1);
+        }
+        out
+    }
+}
+
+/// The lines of `bytes` (the last one may lack its newline): the most rows a piece can hold.
+fn count_lines(bytes: &[u8]) -> usize {
+    // Counted 64 bytes at a time in a byte (at most 64 fits), which the compiler turns into
+    // vector compares and adds; a count per byte in a `usize` does not vectorise as well.
+    let chunks = bytes.chunks_exact(64);
+    let tail = chunks.remainder();
+    let newlines: usize = chunks.map(|c| c.iter().map(|&b| (b == b'\n') as u8).sum::<u8>() as usize).sum::<usize>()
+        + tail.iter().filter(|&&b| b == b'\n').count();
+    newlines + bytes.last().is_some_and(|&b| b != b'\n') as usize
+}
+
+/// How much of its piece [`fast_piece`] took: its first `rows` rows, up to byte `taken_end`.
+#[derive(Clone, Copy, Debug)]
+struct Taken {
+    taken_end: usize,
+    rows: usize,
+}
+
+/// Reads the rows of `bytes[start..end]` (whole lines) into `part` up to the first line that
+/// is not a row of plain decimals passing the row checks (see the module doc) or when `part`
+/// is full.
+fn fast_piece(bytes: &[u8], start: usize, end: usize, c: &Columns, part: &mut Part<'_>) -> Taken {
+    let (nl, nf) = (c.l.len(), c.f.len());
     let (mut vals, mut spans) = (Vec::with_capacity(c.width), Vec::with_capacity(c.width));
     let mut pos = start;
+    let mut r = 0;
     let mut last_t = f64::NEG_INFINITY;
-    while pos < end {
-        // Relaxed: a hint to give up early (the reader failed elsewhere); nothing is read through it.
-        if out.rows.is_multiple_of(4096) && stop.load(Ordering::Relaxed) {
+    while pos < end && r < part.t.len() {
+        // The line's end is found by the row reader itself (one pass over the bytes).
+        let Some(len) = fast_row(&bytes[pos..end], c.width, &mut vals, &mut spans) else { break };
+        if len > MAX_LINE_BYTES {
             break;
         }
-        let len = bytes[pos..end].iter().position(|&b| b == b'\n').unwrap_or(end - pos);
         let line = &bytes[pos..pos + len];
-        if len > MAX_LINE_BYTES || !fast_row(line, c.width, &mut vals, &mut spans) {
-            break;
-        }
         let t = vals[c.t];
         // A fast field is finite: the reader's checks are a time beyond MAX_TIME_S and one
         // before the last.
@@ -104,19 +155,53 @@ fn fast_piece(bytes: &[u8], start: usize, end: usize, room: usize, c: &Columns, 
             None => None,
         };
         last_t = t;
-        out.t.push(t);
-        out.p.push(c.p.map(|col| vals[col]));
+        part.t[r] = t;
+        part.p[r] = c.p.map(|col| vals[col]);
         if let Some(qc) = c.q {
-            out.q.push(qc.map(|col| vals[col]));
+            part.q[r] = qc.map(|col| vals[col]);
         }
-        out.l.extend(c.l.iter().map(|&col| vals[col]));
-        out.f.extend(c.f.iter().map(|&col| vals[col]));
-        out.phase.extend(phase);
-        out.rows += 1;
+        for (o, &col) in part.l[r * nl..(r + 1) * nl].iter_mut().zip(&c.l) {
+            *o = vals[col];
+        }
+        for (o, &col) in part.f[r * nf..(r + 1) * nf].iter_mut().zip(&c.f) {
+            *o = vals[col];
+        }
+        if let Some(k) = phase {
+            part.phase[r] = k;
+        }
+        r += 1;
         pos = (pos + len + 1).min(end);
     }
-    out.taken_end = pos;
-    out
+    Taken { taken_end: pos, rows: r }
+}
+
+/// The rows a piece took, as separate columns (for joining them one by one).
+struct Piece {
+    taken_end: usize,
+    rows: usize,
+    t: Vec<f64>,
+    p: Vec<[f64; 3]>,
+    q: Vec<[f64; 4]>,
+    l: Vec<f64>,
+    f: Vec<f64>,
+    phase: Vec<i32>,
+}
+
+impl Piece {
+    fn of(part: &Part<'_>, taken: Taken, c: &Columns) -> Piece {
+        let r = taken.rows;
+        let (nq, nh) = (if c.q.is_some() { r } else { 0 }, if c.phase.is_some() { r } else { 0 });
+        Piece {
+            taken_end: taken.taken_end,
+            rows: r,
+            t: part.t[..r].to_vec(),
+            p: part.p[..r].to_vec(),
+            q: part.q[..nq].to_vec(),
+            l: part.l[..r * c.l.len()].to_vec(),
+            f: part.f[..r * c.f.len()].to_vec(),
+            phase: part.phase[..nh].to_vec(),
+        }
+    }
 }
 
 /// Line starts cutting `bytes[from..]` into up to `threads` pieces of about equal size, each of
@@ -173,6 +258,35 @@ impl Parser {
         self.counted(k)
     }
 
+    /// Takes `cols` (the rows of every piece, each taken whole, in order; left empty) as the
+    /// recording's rows when the one-thread reader would take them as they are: each piece's first time is
+    /// not before the last row before it and the lines stay within [`MAX_LINES`].
+    fn whole(&mut self, cols: &mut Columnar, rows: &[usize], c: &Columns) -> bool {
+        let total: usize = rows.iter().sum();
+        let mut last_t = self.last_t;
+        let mut at = 0;
+        for &k in rows {
+            if k == 0 || cols.t[at] < last_t {
+                return false;
+            }
+            at += k;
+            last_t = cols.t[at - 1];
+        }
+        if self.lineno + total > MAX_LINES {
+            return false;
+        }
+        let rec = &mut self.rec;
+        let Columnar { t, p, q, l, f, phase } = std::mem::replace(cols, Columnar::new(0, c));
+        rec.t = t;
+        rec.p = p;
+        rec.q = rec.q.take().map(|_| q);
+        rec.l = l;
+        rec.f = rec.f.take().map(|_| f);
+        rec.phase = rec.phase.take().map(|_| phase);
+        debug_assert!(rec.t.len() == total && rec.l.len() == total * c.l.len());
+        self.counted(total)
+    }
+
     /// Counts `k` rows of plain decimals just taken, whose times are the last `k` of the
     /// recording.
     fn counted(&mut self, k: usize) -> bool {
@@ -227,45 +341,66 @@ pub(super) fn parse_bytes(bytes: &[u8], threads: usize, min_piece: usize) -> Res
     }
     let cols = p.cols.clone().expect("the header was read");
     let cuts = cuts(bytes, lines.pos, threads, min_piece);
-    let stop = AtomicBool::new(false);
-    std::thread::scope(|s| {
-        let (cols, stop) = (&cols, &stop);
+    let ranges: Vec<(usize, usize)> = cuts.windows(2).map(|w| (w[0], w[1])).collect();
+    // Each piece's lines, counted on its own thread: the room its rows need. Never more than
+    // a row of `width` fields can fill (at least 2 * width - 1 bytes and its newline: a file of
+    // empty lines gets no room for them) nor than MAX_LINES; a piece whose part is full stops
+    // there and the rest is read by the ordinary reader.
+    let width = cols.width.max(1);
+    let room_of = |a: usize, b: usize| count_lines(&bytes[a..b]).min((b - a + 1) / (2 * width)).min(MAX_LINES);
+    let room: Vec<usize> = std::thread::scope(|s| {
+        let helpers: Vec<_> = ranges[1..].iter().map(|&(a, b)| s.spawn(move || room_of(a, b))).collect();
+        let first = room_of(ranges[0].0, ranges[0].1);
+        std::iter::once(first).chain(helpers.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))).collect()
+    });
+    let mut columns = Columnar::new(room.iter().sum(), &cols);
+    let mut parts = columns.parts(&room, &cols);
+    let taken: Vec<Taken> = std::thread::scope(|s| {
+        let cols = &cols;
+        let mut parts = parts.iter_mut();
+        let first_part = parts.next().expect("one piece at least");
         let helpers: Vec<_> =
-            cuts.windows(2).skip(1).map(|w| s.spawn(move || fast_piece(bytes, w[0], w[1], w[1] - w[0], cols, stop))).collect();
+            ranges[1..].iter().zip(parts).map(|(&(a, b), part)| s.spawn(move || fast_piece(bytes, a, b, cols, part))).collect();
         // The first piece on this thread.
-        let first = fast_piece(bytes, cuts[0], cuts[1], bytes.len() - cuts[0], cols, stop);
-        let read = || -> Result<(), RecordingError> {
-            let mut first = Some(first);
-            let mut helpers = helpers.into_iter();
-            for &start in &cuts[..cuts.len() - 1] {
-                while lines.pos < start {
-                    let (read, line) = lines.next_line();
-                    if !p.line(read, line)? {
-                        return Ok(());
-                    }
-                }
-                let piece = match first.take() {
-                    Some(piece) => piece,
-                    None => helpers.next().expect("a thread per piece").join().unwrap_or_else(|e| std::panic::resume_unwind(e)),
-                };
-                let end = piece.taken_end;
-                if p.join(piece) {
-                    lines.pos = end;
-                }
-            }
-            loop {
+        let first = fast_piece(bytes, ranges[0].0, ranges[0].1, cols, first_part);
+        std::iter::once(first).chain(helpers.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))).collect()
+    });
+    // Every line of every piece a row: the parts are the recording's rows, in place.
+    let all_taken = taken.iter().zip(&room).zip(&ranges).all(|((tk, &k), &(_, end))| tk.rows == k && tk.taken_end == end);
+    let pieces: Vec<Piece> = if all_taken {
+        drop(parts);
+        if p.whole(&mut columns, &room, &cols) {
+            lines.pos = bytes.len();
+            vec![]
+        } else {
+            // Not taken as one: the same rows, joined piece by piece below.
+            parts = columns.parts(&room, &cols);
+            parts.iter().zip(&taken).map(|(part, &tk)| Piece::of(part, tk, &cols)).collect()
+        }
+    } else {
+        parts.iter().zip(&taken).map(|(part, &tk)| Piece::of(part, tk, &cols)).collect()
+    };
+    let read = || -> Result<(), RecordingError> {
+        for (&(start, _), piece) in ranges.iter().zip(pieces) {
+            while lines.pos < start {
                 let (read, line) = lines.next_line();
                 if !p.line(read, line)? {
                     return Ok(());
                 }
             }
-        };
-        let r = read();
-        if r.is_err() {
-            stop.store(true, Ordering::Relaxed);
+            let end = piece.taken_end;
+            if p.join(piece) {
+                lines.pos = end;
+            }
         }
-        r
-    })?;
+        loop {
+            let (read, line) = lines.next_line();
+            if !p.line(read, line)? {
+                return Ok(());
+            }
+        }
+    };
+    read()?;
     p.finish()
 }
 
@@ -426,6 +561,34 @@ mod tests {
     }
 
     #[test]
+    fn lines_are_counted_as_one_by_one() {
+        let mut rng = Rng(3);
+        for len in (0..300).chain([4096, 4097, 10_000]) {
+            let bytes: Vec<u8> = (0..len).map(|_| [b'\n', b'1', b',', 0x8a, 0x0a ^ 0x80][rng.below(5)]).collect();
+            let want = bytes.split(|&b| b == b'\n').count() - bytes.last().is_none_or(|&b| b == b'\n') as usize;
+            assert_eq!(count_lines(&bytes), want, "{len} bytes");
+        }
+    }
+
+    /// Runs of empty lines give a piece less room than lines (a row needs 2 * width bytes): a
+    /// part that fills up stops its piece there, and the rest is read as the one-thread reader
+    /// reads it.
+    #[test]
+    fn empty_lines_do_not_get_room_and_change_nothing() {
+        let mut rng = Rng(5);
+        let (mut lines, _) = lines(&mut rng, 3000);
+        for at in [1500, 2900] {
+            for _ in 0..5000 {
+                lines.insert(at, String::new());
+            }
+        }
+        let bytes = text(&lines, true);
+        for threads in [2, 3, 4] {
+            assert_eq!(outcome(parse_bytes(&bytes, threads, 1000)), one_thread(&bytes), "{threads} threads");
+        }
+    }
+
+    #[test]
     fn every_piece_is_taken_from_a_clean_recording() {
         let mut rng = Rng(7);
         let (lines, _) = lines(&mut rng, 5000);
@@ -440,12 +603,20 @@ mod tests {
             assert!(p.line(read, line).unwrap());
         }
         let cols = p.cols.clone().unwrap();
-        let stop = AtomicBool::new(false);
-        for w in cuts.windows(2).skip(1) {
-            let piece = fast_piece(&bytes, w[0], w[1], w[1] - w[0], &cols, &stop);
-            assert_eq!(piece.taken_end, w[1], "the piece is taken whole");
-            assert!(piece.rows > 1000);
+        let ranges: Vec<(usize, usize)> = cuts.windows(2).map(|w| (w[0], w[1])).collect();
+        let room: Vec<usize> = ranges.iter().map(|&(a, b)| count_lines(&bytes[a..b])).collect();
+        assert_eq!(room.iter().sum::<usize>(), 5000);
+        let mut columns = Columnar::new(5000, &cols);
+        for ((part, &(a, b)), &k) in columns.parts(&room, &cols).iter_mut().zip(&ranges).zip(&room) {
+            let taken = fast_piece(&bytes, a, b, &cols, part);
+            assert_eq!(taken.taken_end, b, "the piece is taken whole");
+            assert_eq!(taken.rows, k);
+            assert!(taken.rows > 1000);
         }
+        // The parts are the recording, in place (no join of separate pieces).
+        assert!(p.whole(&mut columns, &room, &cols));
+        let want = super::super::parse_sized(std::io::Cursor::new(&bytes[..]), None).unwrap().0;
+        assert_eq!(format!("{:?}", p.rec), format!("{want:?}"));
         assert_eq!(outcome(parse_bytes(&bytes, 4, 1000)), one_thread(&bytes));
     }
 
