@@ -1473,26 +1473,7 @@ mod tests {
             x.extend_from_slice(&extra);
             let p = Joint { prep: &prep, spec: &spec, samples: &all, sigma: 1.0 };
             for i in (7..1990).step_by(7) {
-                for j in 0..4 {
-                    let pr = p.predict(&x, i, j);
-                    let mut dense = vec![0.0; x.len()];
-                    for k in 0..pr.len {
-                        dense[pr.row[k].0] += pr.row[k].1;
-                    }
-                    for k in 0..x.len() {
-                        let h = if k >= 16 { (x[k].abs() * 1e-5).max(1e-9) } else { 1e-7 };
-                        let (mut xp, mut xm) = (x.clone(), x.clone());
-                        xp[k] += h;
-                        xm[k] -= h;
-                        let num = (p.predict(&xp, i, j).value - p.predict(&xm, i, j).value) / (2.0 * h);
-                        assert!(
-                            (num - dense[k]).abs() < 1e-5 * (1.0 + num.abs()),
-                            "{:?} sample {i} cable {j} param {k}: analytic {} numeric {num}",
-                            spec.effects,
-                            dense[k]
-                        );
-                    }
-                }
+                assert_prediction_jacobian(&p, &x, i, |k, xk| if k >= 16 { (xk.abs() * 1e-5).max(1e-9) } else { 1e-7 });
             }
         }
         // (A fit from elsewhere stalls near the minimum: the residuals are piecewise linear in the
@@ -1568,27 +1549,37 @@ mod tests {
         let samples: Vec<usize> = (0..400).step_by(37).collect();
         let p = Joint { prep: &prep, spec, samples: &samples, sigma: 1.0 };
         for &i in &samples {
-            for j in 0..4 {
-                let pr = p.predict(&x, i, j);
-                let mut dense = vec![0.0; x.len()];
-                for k in 0..pr.len {
-                    dense[pr.row[k].0] += pr.row[k].1;
+            assert_prediction_jacobian(&p, &x, i, |k, xk| {
+                if k >= 16 {
+                    (xk.abs() * 1e-4).max(1e-9)
+                } else {
+                    1e-6 * (1.0 + xk.abs()).min(1e-3 / 1e-6)
                 }
-                for k in 0..x.len() {
-                    let h = 1e-6 * (1.0 + x[k].abs()).min(1e-3 / 1e-6);
-                    let h = if k >= 16 { (x[k].abs() * 1e-4).max(1e-9) } else { h };
-                    let mut xp = x.clone();
-                    xp[k] += h;
-                    let mut xm = x.clone();
-                    xm[k] -= h;
-                    let num = (p.predict(&xp, i, j).value - p.predict(&xm, i, j).value) / (2.0 * h);
-                    assert!(
-                        (num - dense[k]).abs() < 1e-5 * (1.0 + num.abs()),
-                        "{:?} sample {i} cable {j} param {k}: analytic {} numeric {num}",
-                        spec.effects,
-                        dense[k]
-                    );
-                }
+            });
+        }
+    }
+
+    /// Every cable's predicted length at sample `i`: the analytic Jacobian row against central
+    /// differences with step `step(k, x[k])` for parameter `k`.
+    fn assert_prediction_jacobian(p: &Joint<'_>, x: &[f64], i: usize, step: impl Fn(usize, f64) -> f64) {
+        for j in 0..4 {
+            let pr = p.predict(x, i, j);
+            let mut dense = vec![0.0; x.len()];
+            for k in 0..pr.len {
+                dense[pr.row[k].0] += pr.row[k].1;
+            }
+            for k in 0..x.len() {
+                let h = step(k, x[k]);
+                let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+                xp[k] += h;
+                xm[k] -= h;
+                let num = (p.predict(&xp, i, j).value - p.predict(&xm, i, j).value) / (2.0 * h);
+                assert!(
+                    (num - dense[k]).abs() < 1e-5 * (1.0 + num.abs()),
+                    "{:?} sample {i} cable {j} param {k}: analytic {} numeric {num}",
+                    p.spec.effects,
+                    dense[k]
+                );
             }
         }
     }
