@@ -179,12 +179,7 @@ fn fast_piece(bytes: &[u8], start: usize, end: usize, c: &Columns, part: &mut Pa
 struct Piece {
     taken_end: usize,
     rows: usize,
-    t: Vec<f64>,
-    p: Vec<[f64; 3]>,
-    q: Vec<[f64; 4]>,
-    l: Vec<f64>,
-    f: Vec<f64>,
-    phase: Vec<i32>,
+    cols: Columnar,
 }
 
 impl Piece {
@@ -194,12 +189,14 @@ impl Piece {
         Piece {
             taken_end: taken.taken_end,
             rows: r,
-            t: part.t[..r].to_vec(),
-            p: part.p[..r].to_vec(),
-            q: part.q[..nq].to_vec(),
-            l: part.l[..r * c.l.len()].to_vec(),
-            f: part.f[..r * c.f.len()].to_vec(),
-            phase: part.phase[..nh].to_vec(),
+            cols: Columnar {
+                t: part.t[..r].to_vec(),
+                p: part.p[..r].to_vec(),
+                q: part.q[..nq].to_vec(),
+                l: part.l[..r * c.l.len()].to_vec(),
+                f: part.f[..r * c.f.len()].to_vec(),
+                phase: part.phase[..nh].to_vec(),
+            },
         }
     }
 }
@@ -229,18 +226,14 @@ impl Parser {
     /// lines stay within [`MAX_LINES`].
     fn join(&mut self, piece: Piece) -> bool {
         let k = piece.rows;
+        let piece = piece.cols;
         if k == 0 || piece.t[0] < self.last_t || self.lineno + k > MAX_LINES {
             return false;
         }
         let rec = &mut self.rec;
         if rec.t.is_empty() {
             // The first rows: the piece's columns become the recording's.
-            rec.t = piece.t;
-            rec.p = piece.p;
-            rec.q = rec.q.take().map(|_| piece.q);
-            rec.l = piece.l;
-            rec.f = rec.f.take().map(|_| piece.f);
-            rec.phase = rec.phase.take().map(|_| piece.phase);
+            self.adopt(piece);
             return self.counted(k);
         }
         rec.t.extend_from_slice(&piece.t);
@@ -275,16 +268,21 @@ impl Parser {
         if self.lineno + total > MAX_LINES {
             return false;
         }
+        self.adopt(std::mem::replace(cols, Columnar::new(0, c)));
+        debug_assert!(self.rec.t.len() == total && self.rec.l.len() == total * c.l.len());
+        self.counted(total)
+    }
+
+    /// `cols` become the recording's columns (the optional ones only where the header has them).
+    fn adopt(&mut self, cols: Columnar) {
         let rec = &mut self.rec;
-        let Columnar { t, p, q, l, f, phase } = std::mem::replace(cols, Columnar::new(0, c));
+        let Columnar { t, p, q, l, f, phase } = cols;
         rec.t = t;
         rec.p = p;
         rec.q = rec.q.take().map(|_| q);
         rec.l = l;
         rec.f = rec.f.take().map(|_| f);
         rec.phase = rec.phase.take().map(|_| phase);
-        debug_assert!(rec.t.len() == total && rec.l.len() == total * c.l.len());
-        self.counted(total)
     }
 
     /// Counts `k` rows of plain decimals just taken, whose times are the last `k` of the
