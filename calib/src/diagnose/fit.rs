@@ -699,7 +699,8 @@ impl<'a> Joint<'a> {
         if self.spec == cur.spec && x == x_cur {
             return r0;
         }
-        let rep = cur.replacement(x_cur, i, j);
+        let (cand_poses, _) = self.sources(x, i, j);
+        let rep = cur.replacement(x_cur, i, j, &cand_poses);
         let d =
             self.predict_with(x, i, j, Some(&rep), &self.offsets()).value - cur.predict_with(x_cur, i, j, Some(&rep), &cur.offsets()).value;
         r0 - d
@@ -749,15 +750,48 @@ impl<'a> Joint<'a> {
         (poses, encs)
     }
 
-    /// The samples of [`Joint::sources`] replaced by linear interpolation (in time) between the
-    /// nearest samples of the same segment outside the set, for [`Joint::heldout_residual`].
-    fn replacement(&self, x: &[f64], i: usize, j: usize) -> Rep {
+    /// The samples of [`Joint::sources`] replaced by linear interpolation (in time) between
+    /// samples of the same segment outside the set, for [`Joint::heldout_residual`] against a
+    /// candidate that reads the poses `cand_poses` (its [`Joint::sources`]).
+    ///
+    /// The flanks of a run of replaced poses are the nearest samples outside it, unless the
+    /// candidate reads a pose the current model does not (a play's contact `c`, `d` samples
+    /// before the held reading `i`): then they are the samples `d` before and `d` after the run
+    /// (`c` itself and its mirror image), so that the replaced pose's tracker noise shares as much
+    /// with the current model's own (in `r0`) as the candidate's pose does, whatever the noise's
+    /// autocorrelation: `cov(eta_i, (eta_c + eta_{2i-c}) / 2) = rho(d) = cov(eta_i, eta_c)` for
+    /// stationary noise, and the candidate's change is uncorrelated with `r0` under the null.
+    /// The nearest flanks did that only for white noise: with AR(1) tracker noise (lag-1 0.9)
+    /// the replaced pose shared `rho(1)` of `eta_i`, the contact `rho(d) < rho(1)`, and backlash
+    /// was claimed on 19 of 52 effect-free recordings (BENCHMARKS.md, branch ar1).
+    fn replacement(&self, x: &[f64], i: usize, j: usize, cand_poses: &[usize]) -> Rep {
         let (poses, encs) = self.sources(x, i, j);
         let p = self.prep;
         let mut rep = Rep::default();
         for (lo, hi) in runs(&poses) {
-            let (Some(a), Some(b)) = (self.flank(lo, -1, j, &poses, true), self.flank(hi, 1, j, &poses, true)) else {
-                continue;
+            // The lag of the candidate's nearest pose that the current model does not read.
+            let lag = cand_poses
+                .iter()
+                .filter(|q| poses.binary_search(q).is_err())
+                .map(|&q| if q < lo { lo - q } else { q.saturating_sub(hi) })
+                .filter(|&d| d > 0)
+                .min();
+            let usable = |q: usize| {
+                q < p.t.len()
+                    && p.segment[q] == p.segment[lo]
+                    && poses.binary_search(&q).is_err()
+                    && p.x[j][q].iter().all(|v| v.is_finite())
+            };
+            let mirrored = lag.filter(|&d| d > 1).and_then(|d| {
+                let (a, b) = (lo.checked_sub(d)?, hi + d);
+                (usable(a) && usable(b)).then_some((a, b))
+            });
+            let (a, b) = match mirrored {
+                Some(f) => f,
+                None => match (self.flank(lo, -1, j, &poses, true), self.flank(hi, 1, j, &poses, true)) {
+                    (Some(a), Some(b)) => (a, b),
+                    _ => continue,
+                },
             };
             for k in lo..=hi {
                 let u = (p.t[k] - p.t[a]) / (p.t[b] - p.t[a]);

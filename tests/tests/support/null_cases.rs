@@ -81,7 +81,8 @@ pub enum Variant {
     /// positions plus white Gaussian encoder and tracker noise (the recording's sigmas); true
     /// tensions.
     Ideal,
-    /// As [`Variant::Ideal`] with AR(1) tracker noise, lag-1 coefficient 0.9 per sample.
+    /// As [`Variant::Ideal`] with AR(1) tracker noise, lag-1 coefficient 0.9 per sample
+    /// (`NULL_AR_PHI` sets another).
     IdealAr1,
 }
 
@@ -99,6 +100,11 @@ impl Variant {
             _ => return None,
         })
     }
+}
+
+/// The lag-1 coefficient of [`Variant::IdealAr1`]'s tracker noise: `NULL_AR_PHI`, default 0.9.
+pub fn ar1_phi() -> f64 {
+    std::env::var("NULL_AR_PHI").ok().and_then(|v| v.parse().ok()).filter(|p: &f64| (0.0..1.0).contains(p)).unwrap_or(0.9)
 }
 
 /// The ideal model's readings along a simulated path (see [`Variant::Ideal`]).
@@ -159,7 +165,7 @@ pub fn diagnose_with(k: usize, variant: Variant, estimation_error: bool) -> Diag
     let opts = DiagnoseOptions { estimation_error, ..DiagnoseOptions::from_config(&s.robot.calibration) };
     let rec = match variant {
         Variant::Ideal => ideal_recording(&sim, &s, 0.0),
-        Variant::IdealAr1 => ideal_recording(&sim, &s, 0.9),
+        Variant::IdealAr1 => ideal_recording(&sim, &s, ar1_phi()),
         _ => sim.recording.clone(),
     };
     diagnose(&rec, &sim.truth.platform_points, None, &opts).expect("diagnosis")
