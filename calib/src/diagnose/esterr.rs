@@ -21,12 +21,17 @@
 //! the held-out blocks: the tail this fixes (Clark and McCracken 2001 derive the same term for
 //! the encompassing test of nested models; West 1996 in general).
 //!
-//! `cov(x0_hat)` is the sandwich `H^-1 (sum_i s_i s_i^T) H^-1` with `s_i` the score of training
-//! sample `i` summed over its cables: the cables of one sample share its tracker noise, so the
-//! sample, not the reading, is the independent unit (as in the held-out scores).
+//! `cov(x0_hat)` is the sandwich `H^-1 (sum_i sum_k s_i s_k^T) H^-1` with `s_i` the score of
+//! training sample `i` summed over its cables (the cables of one sample share its tracker noise),
+//! and the samples' scores correlated in time as the tracker noise is: `c^T cov(x0_hat) c` is
+//! the long-run variance of the series `c^T H^-1 s_i` in time order, estimated as the held-out
+//! scores' is ([`super::select::long_run_variance`]). Summing only `(c^T H^-1 s_i)^2` (each
+//! sample independent) was right for white tracker noise and ~19x low with AR(1) noise of lag-1
+//! 0.9 (branch ar1, BENCHMARKS.md).
 
 use super::fit::{self, ModelSpec, Prepared};
 use super::lm::LmReport;
+use super::select::{long_run_variance, BATCHES};
 
 /// What the current model's estimation error adds to the held-out test (see the module doc).
 #[derive(Debug, Clone)]
@@ -38,7 +43,8 @@ pub struct EstimationError {
     z: Vec<f64>,
     /// Parameters.
     p: usize,
-    /// Training samples with a usable reading: the sandwich's degrees of freedom, less `p`.
+    /// Training samples with a usable reading (the sandwich's small-sample factor is
+    /// `samples / (samples - p)`).
     samples: usize,
 }
 
@@ -112,10 +118,15 @@ impl EstimationError {
                 c[a] += v * d;
             }
         }
-        let var: f64 = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>().powi(2)).sum();
+        // `c^T z_i` per training sample, in time order: `c^T cov(x0_hat) c` is the variance of
+        // their sum, taken as the held-out scores' is (AR(1)-prewhitened batch means,
+        // [`long_run_variance`]): the scores of neighbouring samples share correlated tracker
+        // noise, and the sum of their squares (the sandwich by sample) was low by the noise's
+        // integrated correlation time (~19 with AR(1) lag-1 0.9).
+        let y: Vec<f64> = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>()).collect();
+        let (var, dof) = long_run_variance(&y, &[], BATCHES.min(y.len() / 4).max(2));
         // The sandwich's small-sample factor (its residuals are short by the parameters).
-        let dof = (self.samples - self.p) as f64;
-        Some((var * self.samples as f64 / dof, dof))
+        Some((var * self.samples as f64 / (self.samples - self.p) as f64, dof))
     }
 }
 

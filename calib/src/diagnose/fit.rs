@@ -690,6 +690,13 @@ impl<'a> Joint<'a> {
     ///
     /// Without a time offset or a play in either model this is the plain residual.
     pub fn heldout_residual(&self, x: &[f64], cur: &Joint, x_cur: &[f64], i: usize, j: usize) -> f64 {
+        self.heldout_residual_with(x, cur, x_cur, i, j, 1)
+    }
+
+    /// [`Joint::heldout_residual`] for tracker noise correlated over `noise_lag` samples (see
+    /// [`correlation_lag`]): the replaced poses' flanks mirror the candidate's own poses up to
+    /// that lag ([`Joint::replacement`]); 1 is white noise (the nearest flanks).
+    pub fn heldout_residual_with(&self, x: &[f64], cur: &Joint, x_cur: &[f64], i: usize, j: usize, noise_lag: usize) -> f64 {
         let n = self.prep.n;
         let shares = |s: &ModelSpec| s.offset(Effect::TimeOffset, n).is_some() || s.offset(Effect::Backlash, n).is_some();
         if !shares(self.spec) && !shares(cur.spec) {
@@ -700,7 +707,7 @@ impl<'a> Joint<'a> {
             return r0;
         }
         let (cand_poses, _) = self.sources(x, i, j);
-        let rep = cur.replacement(x_cur, i, j, &cand_poses);
+        let rep = cur.replacement(x_cur, i, j, &cand_poses, noise_lag);
         let d =
             self.predict_with(x, i, j, Some(&rep), &self.offsets()).value - cur.predict_with(x_cur, i, j, Some(&rep), &cur.offsets()).value;
         r0 - d
@@ -756,15 +763,19 @@ impl<'a> Joint<'a> {
     ///
     /// The flanks of a run of replaced poses are the nearest samples outside it, unless the
     /// candidate reads a pose the current model does not (a play's contact `c`, `d` samples
-    /// before the held reading `i`): then they are the samples `d` before and `d` after the run
-    /// (`c` itself and its mirror image), so that the replaced pose's tracker noise shares as much
-    /// with the current model's own (in `r0`) as the candidate's pose does, whatever the noise's
-    /// autocorrelation: `cov(eta_i, (eta_c + eta_{2i-c}) / 2) = rho(d) = cov(eta_i, eta_c)` for
-    /// stationary noise, and the candidate's change is uncorrelated with `r0` under the null.
-    /// The nearest flanks did that only for white noise: with AR(1) tracker noise (lag-1 0.9)
-    /// the replaced pose shared `rho(1)` of `eta_i`, the contact `rho(d) < rho(1)`, and backlash
-    /// was claimed on 19 of 52 effect-free recordings (BENCHMARKS.md, branch ar1).
-    fn replacement(&self, x: &[f64], i: usize, j: usize, cand_poses: &[usize]) -> Rep {
+    /// before the held reading `i`) and the tracker noise is correlated over `noise_lag > 1`
+    /// samples: then they are the samples `D = min(d, noise_lag)` before and after the run (for
+    /// `d <= noise_lag`, `c` itself and its mirror image), so that the replaced pose's tracker
+    /// noise shares as much with the current model's own (in `r0`) as the candidate's pose does:
+    /// `cov(eta_i, (eta_{i-D} + eta_{i+D}) / 2) = rho(D)`, and `rho(D) = rho(d) = cov(eta_i,
+    /// eta_c)` for `d <= noise_lag` (stationary noise), both about 0 beyond it. The candidate's
+    /// change is then uncorrelated with `r0` under the null. The nearest flanks do that only for
+    /// white noise: with AR(1) tracker noise (lag-1 0.9) the replaced pose shared `rho(1)` of
+    /// `eta_i`, the contact `rho(d) < rho(1)`, and backlash was claimed on 19 of 52 effect-free
+    /// recordings (BENCHMARKS.md, branch ar1). The lag is capped because a long span is a poor
+    /// pose: unbounded mirrored flanks (holds of seconds on the 20 m robot) named backlash on 3 of
+    /// 52 effect-free recordings with white noise.
+    fn replacement(&self, x: &[f64], i: usize, j: usize, cand_poses: &[usize], noise_lag: usize) -> Rep {
         let (poses, encs) = self.sources(x, i, j);
         let p = self.prep;
         let mut rep = Rep::default();
@@ -782,7 +793,7 @@ impl<'a> Joint<'a> {
                     && poses.binary_search(&q).is_err()
                     && p.x[j][q].iter().all(|v| v.is_finite())
             };
-            let mirrored = lag.filter(|&d| d > 1).and_then(|d| {
+            let mirrored = lag.map(|d| d.min(noise_lag)).filter(|&d| d > 1).and_then(|d| {
                 let (a, b) = (lo.checked_sub(d)?, hi + d);
                 (usable(a) && usable(b)).then_some((a, b))
             });
@@ -829,6 +840,55 @@ impl<'a> Joint<'a> {
             }
         }
     }
+}
+
+/// Largest tracker-noise correlation length [`correlation_lag`] reports, samples.
+pub const MAX_NOISE_LAG: usize = 100;
+
+/// Autocorrelation below which the residuals count as uncorrelated ([`correlation_lag`]).
+const NOISE_CORRELATION_FLOOR: f64 = 0.05;
+
+/// The correlation length of the residuals of `spec` at `x` on `samples` (time order): the
+/// smallest lag `k >= 1` at which their autocorrelation, pooled over the cables and over the
+/// pairs of usable readings `k` samples apart in one segment, falls below 0.05; at most `max`.
+/// 1 for white noise. The held-out test uses it for the span over which the tracker noise of
+/// neighbouring samples is shared ([`Joint::heldout_residual_with`]).
+pub fn correlation_lag(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64], max: usize) -> usize {
+    let m = prep.t.len();
+    let joint = Joint { prep, spec, samples, sigma: 1.0 };
+    let mut res = vec![vec![f64::NAN; m]; prep.n];
+    for (j, col) in res.iter_mut().enumerate() {
+        for &i in samples {
+            if prep.usable[j][i] {
+                col[i] = joint.residual(x, i, j);
+            }
+        }
+        let (s, c) = col.iter().filter(|v| v.is_finite()).fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+        let mean = s / c.max(1) as f64;
+        col.iter_mut().for_each(|v| *v -= mean);
+    }
+    let var: f64 = res.iter().flatten().filter(|v| v.is_finite()).map(|v| v * v).sum();
+    if var <= 0.0 {
+        return 1;
+    }
+    for k in 1..max.max(1) {
+        let (mut cov, mut pairs, mut all) = (0.0, 0usize, 0usize);
+        for col in &res {
+            for i in 0..m.saturating_sub(k) {
+                if col[i].is_finite() {
+                    all += 1;
+                    if col[i + k].is_finite() && prep.segment[i] == prep.segment[i + k] {
+                        cov += col[i] * col[i + k];
+                        pairs += 1;
+                    }
+                }
+            }
+        }
+        if pairs == 0 || cov / pairs as f64 * all as f64 / var < NOISE_CORRELATION_FLOOR {
+            return k;
+        }
+    }
+    max.max(1)
 }
 
 /// Adds `v` to column `k` of a Jacobian row (a new entry if the row has none; a full row drops it,

@@ -520,13 +520,14 @@ impl Ctx<'_> {
     /// turn: sample `k` is `heldout_rows[k]..heldout_rows[k + 1]`) of `spec` at `x` for the
     /// held-out test against the current model `cur` ([`fit::Joint::heldout_residual`]; the
     /// current model's own are its plain residuals).
-    fn heldout_residuals(&self, spec: &ModelSpec, x: &[f64], cur: (&ModelSpec, &[f64])) -> Vec<f64> {
+    /// `noise_lag`: the tracker noise's correlation length ([`fit::correlation_lag`]).
+    fn heldout_residuals(&self, spec: &ModelSpec, x: &[f64], cur: (&ModelSpec, &[f64]), noise_lag: usize) -> Vec<f64> {
         let p = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
         let c = fit::Joint { prep: self.prep, spec: cur.0, samples: &self.heldout, sigma: 1.0 };
         let mut out = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
         for &i in &self.heldout {
             for j in (0..self.prep.n).filter(|&j| self.prep.usable[j][i]) {
-                out.push(p.heldout_residual(x, &c, cur.1, i, j));
+                out.push(p.heldout_residual_with(x, &c, cur.1, i, j, noise_lag));
             }
         }
         out
@@ -1205,7 +1206,10 @@ pub fn diagnose(
     let mut last_round: Vec<(Effect, Candidate)> = vec![];
     while spec.effects.len() < opts.max_effects {
         round += 1;
-        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x));
+        // How far apart the current model's residuals stay correlated (the tracker noise's
+        // correlation length, 1 when white): the held-out replacement's span.
+        let noise_lag = fit::correlation_lag(&prep, &spec, &ctx.train, &cur_train.x, fit::MAX_NOISE_LAG);
+        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
         // The current model's own estimation error on the training blocks: part of every
         // held-out test's variance (see [`esterr`]).
@@ -1231,7 +1235,7 @@ pub fn diagnose(
                 rejected.push(format!("{}: the fit diverged", e.name()));
                 continue;
             }
-            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x));
+            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), noise_lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
             let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
