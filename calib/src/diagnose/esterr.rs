@@ -131,15 +131,28 @@ impl EstimationError {
         // are smooth in time: the batch sums lose about `p` of their `b` dimensions to the fit
         // (the per-sample sandwich loses `p` of `samples`), so `b` is large (batches of
         // `ESTIMATION_BATCH` samples; prewhitened, short batches hold) and the variance is
-        // scaled by `b / (b - p)`. With 50 batches it was ~30-60 % low on the 4- and 8-cable
+        // scaled by `b_eff / (b_eff - p)`. With 50 batches it was ~30-60 % low on the 4- and 8-cable
         // robots with white noise (round-1 p below 0.01: 11 of 312, against 4 before).
         let y: Vec<f64> = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>()).collect();
         let b = (self.samples / ESTIMATION_BATCH).max(BATCHES).min(self.samples / 4);
         if b <= self.p + 2 {
             return None;
         }
-        let (var, dof) = long_run_variance(&y, &[], b);
-        let shrink = (b - self.p) as f64 / b as f64;
+        // The weights the scores carry (`y_i^2`): a few batches can carry most (the training
+        // samples nearest the held-out blocks' poses), and then the fit takes `p` of fewer
+        // effective batches, `b_eff = (sum W_k)^2 / sum W_k^2`.
+        let w: Vec<f64> = y.iter().map(|v| v * v).collect();
+        let (var, dof) = long_run_variance(&y, &w, b);
+        let mut wb = vec![0.0; b];
+        for (i, v) in w.iter().enumerate() {
+            wb[(i * b / w.len()).min(b - 1)] += v;
+        }
+        let (sw, sw2) = wb.iter().fold((0.0, 0.0), |(a, c), v| (a + v, c + v * v));
+        let b_eff = if sw2 > 0.0 { sw * sw / sw2 } else { b as f64 };
+        if b_eff <= self.p as f64 + 1.0 {
+            return None;
+        }
+        let shrink = (b_eff - self.p as f64) / b_eff;
         Some((var / shrink, (dof * shrink).max(1.0)))
     }
 }
