@@ -25,8 +25,8 @@
 //! training sample `i` summed over its cables (the cables of one sample share its tracker noise),
 //! and the samples' scores correlated in time as the tracker noise is: `c^T cov(x0_hat) c` is
 //! the long-run variance of the series `c^T H^-1 s_i` in time order, the sum of its squares
-//! times the AR(1) factor `(1 + rho) / (1 - rho)` of its lag-1 autocorrelation
-//! ([`EstimationError::variance`]). Summing only `(c^T H^-1 s_i)^2` (each sample independent)
+//! times the AR(1) factor `(1 + phi) / (1 - phi)` of the tracker noise's lag-1 autocorrelation
+//! `phi` ([`EstimationError::variance`], [`fit::noise_phi`]). Summing only `(c^T H^-1 s_i)^2` (each sample independent)
 //! is right for white tracker noise and was ~19x low with AR(1) noise of lag-1 0.9 (branch ar1,
 //! BENCHMARKS.md).
 
@@ -45,6 +45,8 @@ pub struct EstimationError {
     p: usize,
     /// Training samples with a usable reading (the length of the score series).
     samples: usize,
+    /// The tracker noise's lag-1 autocorrelation per sample ([`fit::noise_phi`]; 0: white).
+    phi: f64,
 }
 
 impl EstimationError {
@@ -99,7 +101,8 @@ impl EstimationError {
                 rows.push((pr.row, pr.len as u8));
             }
         }
-        Some(EstimationError { rows, z, p, samples })
+        let phi = fit::noise_phi(prep, spec, train, x);
+        Some(EstimationError { rows, z, p, samples, phi })
     }
 
     /// The variance the current model's estimation error adds to `sum_k r0_k delta_k`, for the
@@ -120,22 +123,22 @@ impl EstimationError {
         // `c^T z_i` per training sample, in time order: `c^T cov(x0_hat) c` is the variance of
         // their sum. The scores of neighbouring samples share the tracker noise when it is
         // correlated in time; the sum of their squares alone (each sample independent) was ~19x
-        // low with AR(1) noise of lag-1 0.9. With `rho` the series' lag-1 autocorrelation
-        // (bias-corrected, clamped to [0, 0.99]), the AR(1) long-run factor `tau = (1 + rho) / (1 - rho)`
-        // (Andrews 1991's AR(1) plug-in) scales it, and the degrees of freedom are the effective
-        // samples less the parameters. With white noise `rho` is ~0 (+-1/sqrt(n)) and this is the
-        // sandwich by sample. (A batch-means estimate instead moved the white-noise tests:
-        // its batch sums lose to the fit an uncertain share of their dimensions.)
+        // low with AR(1) noise of lag-1 0.9. The AR(1) long-run factor `tau = (1 + phi) / (1 -
+        // phi)` of the noise (Andrews 1991's AR(1) plug-in) scales it, and the degrees of freedom
+        // are the effective samples less the parameters. `phi` is the tracker noise's
+        // ([`fit::noise_phi`], from the residuals' first differences), not the scores' own
+        // lag-1 autocorrelation: under a real effect the current model's residuals carry its slow
+        // misfit, and the scores' autocorrelation (~0.99 under a 30 ms time offset) made the
+        // term 100 % of the test's variance and the offset unnamed. With white noise `phi` is ~0
+        // and this is the sandwich by sample. (A batch-means estimate instead moved the
+        // white-noise tests: its batch sums lose to the fit an uncertain share of their
+        // dimensions.)
         let y: Vec<f64> = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>()).collect();
         let ss: f64 = y.iter().map(|v| v * v).sum();
         if ss <= 0.0 {
             return Some((0.0, 1.0));
         }
-        // The scores sum to ~0 at the optimum: no centring.
-        let lag1: f64 = y.windows(2).map(|w| w[0] * w[1]).sum();
-        // Corrected for its small-sample bias (Kendall 1954, as in `long_run_variance`).
-        let rho = lag1 / ss;
-        let rho = (rho + (1.0 + 3.0 * rho) / y.len() as f64).clamp(0.0, 0.99);
+        let rho = self.phi.clamp(0.0, 0.99);
         let tau = (1.0 + rho) / (1.0 - rho);
         let n = self.samples as f64;
         let p = self.p as f64;
@@ -202,7 +205,12 @@ mod tests {
                     (r, 3u8)
                 })
                 .collect();
-            let err = EstimationError { rows: ho_rows, z: z.clone(), p: 3, samples: n_train };
+            // The noise's lag-1 coefficient from the training residuals' first differences, as
+            // `fit::noise_phi` takes it.
+            let d: Vec<f64> = res_t.as_slice().windows(2).map(|w| w[1] - w[0]).collect();
+            let (dc, dv) = d.windows(2).fold((0.0, 0.0), |(c, v), w| (c + w[0] * w[1], v + w[0] * w[0]));
+            let phi_hat = (1.0 + 2.0 * dc / dv).clamp(0.0, 0.995);
+            let err = EstimationError { rows: ho_rows, z: z.clone(), p: 3, samples: n_train, phi: phi_hat };
             let delta: Vec<f64> = r0.iter().zip(&r1).map(|(a, b)| a - b).collect();
             let corrected = encompassing_test_with(&r0, &r1, &rows, BATCHES, err.variance(&delta, None)).unwrap();
             let plain = encompassing_test(&r0, &r1, &rows, BATCHES).unwrap();
@@ -262,9 +270,9 @@ mod tests {
     /// estimation error's variance as the AR(1) long-run variance of the training scores the
     /// test is near its level; with the sandwich by sample (each sample's score independent,
     /// the estimator before, ~19x low here) it rejects 4-8x too often. Not exactly nominal:
-    /// measured over `MC_SEED` 7-10 (2,000 recordings each) 115-143 rejections at 5 % and 31-52
-    /// at 1 % (nominal 100 and 20; by sample 416-432 and 228-259). The limits, 250 and 100, are
-    /// 9 and 6.7 binomial sigmas above the worst measured rate (a chance failure below 1e-10
+    /// measured over `MC_SEED` 7-9 (2,000 recordings each) 94-124 rejections at 5 % and 25-48
+    /// at 1 % (nominal 100 and 20; by sample 416-431 and 228-259). The limits, 250 and 100, are
+    /// 11 and 7.5 binomial sigmas above the worst measured rate (a chance failure below 1e-12
     /// per level at that rate) and well below the old estimator's.
     #[test]
     fn estimation_error_under_correlated_noise_is_a_long_run_variance() {

@@ -861,6 +861,16 @@ const NOISE_CORRELATION_FLOOR: f64 = 0.05;
 /// (Measured with the residuals' own autocorrelation instead: a real 6 mm play read as noise
 /// correlated over 100 samples and the candidate's held-out residual lost the play.)
 pub fn correlation_lag(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64], max: usize) -> usize {
+    let phi = noise_phi(prep, spec, samples, x);
+    if phi <= NOISE_CORRELATION_FLOOR {
+        return 1;
+    }
+    ((NOISE_CORRELATION_FLOOR.ln() / phi.ln()).ceil() as usize).clamp(1, max.max(1))
+}
+
+/// The tracker noise's lag-1 autocorrelation `phi` (AR(1), per sample, in [0, 0.995]) from the
+/// first differences of the residuals of `spec` at `x` on `samples` (see [`correlation_lag`]).
+pub fn noise_phi(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> f64 {
     let m = prep.t.len();
     let joint = Joint { prep, spec, samples, sigma: 1.0 };
     let mut res = vec![f64::NAN; m];
@@ -890,13 +900,9 @@ pub fn correlation_lag(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: 
         }
     }
     if var <= 0.0 {
-        return 1;
+        return 0.0;
     }
-    let phi = (1.0 + 2.0 * cov / var).clamp(0.0, 0.995);
-    if phi <= NOISE_CORRELATION_FLOOR {
-        return 1;
-    }
-    ((NOISE_CORRELATION_FLOOR.ln() / phi.ln()).ceil() as usize).clamp(1, max.max(1))
+    (1.0 + 2.0 * cov / var).clamp(0.0, 0.995)
 }
 
 /// Adds `v` to column `k` of a Jacobian row (a new entry if the row has none; a full row drops it,
