@@ -125,12 +125,14 @@ impl EstimationError {
         // correlated in time; the sum of their squares alone (each sample independent) was ~19x
         // low with AR(1) noise of lag-1 0.9. The AR(1) long-run factor `tau = (1 + phi) / (1 -
         // phi)` of the noise (Andrews 1991's AR(1) plug-in) scales it, and the degrees of freedom
-        // are the effective samples less the parameters. `phi` is the tracker noise's
-        // ([`fit::noise_phi`], from the residuals' first differences), not the scores' own
-        // lag-1 autocorrelation: under a real effect the current model's residuals carry its slow
-        // misfit, and the scores' autocorrelation (~0.99 under a 30 ms time offset) made the
-        // term 100 % of the test's variance and the offset unnamed. With white noise `phi` is ~0
-        // and this is the sandwich by sample. (A batch-means estimate instead moved the
+        // are the effective samples less the parameters. Under the null the scores' own lag-1
+        // autocorrelation and the tracker noise's `phi` ([`fit::noise_phi`], from the residuals'
+        // first differences) estimate the same thing; under a real effect the current model's
+        // residuals carry its misfit, which inflates one or the other: the scores' (~0.99 under a
+        // 30 ms time offset: the term was then 100 % of the test's variance and the offset
+        // unnamed), the first differences' (sag near slack on the 20 m robot, where the misfit
+        // moves from sample to sample with the tension: sag unnamed). So the smaller of the two.
+        // With white noise both are ~0 and this is the sandwich by sample. (A batch-means estimate instead moved the
         // white-noise tests: its batch sums lose to the fit an uncertain share of their
         // dimensions.)
         let y: Vec<f64> = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>()).collect();
@@ -138,7 +140,11 @@ impl EstimationError {
         if ss <= 0.0 {
             return Some((0.0, 1.0));
         }
-        let rho = self.phi.clamp(0.0, 0.99);
+        // The scores' own lag-1 autocorrelation (they sum to ~0 at the optimum: no centring),
+        // corrected for its small-sample bias (Kendall 1954, as in `long_run_variance`).
+        let lag1: f64 = y.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / ss;
+        let lag1 = lag1 + (1.0 + 3.0 * lag1) / y.len() as f64;
+        let rho = self.phi.min(lag1).clamp(0.0, 0.99);
         let tau = (1.0 + rho) / (1.0 - rho);
         let n = self.samples as f64;
         let p = self.p as f64;
@@ -270,10 +276,12 @@ mod tests {
     /// estimation error's variance as the AR(1) long-run variance of the training scores the
     /// test is near its level; with the sandwich by sample (each sample's score independent,
     /// the estimator before, ~19x low here) it rejects 4-8x too often. Not exactly nominal:
-    /// measured over `MC_SEED` 7-9 (2,000 recordings each) 94-124 rejections at 5 % and 25-48
-    /// at 1 % (nominal 100 and 20; by sample 416-431 and 228-259). The limits, 250 and 100, are
-    /// 11 and 7.5 binomial sigmas above the worst measured rate (a chance failure below 1e-12
-    /// per level at that rate) and well below the old estimator's.
+    /// measured over `MC_SEED` 7-10 (2,000 recordings each) 137-164 rejections at 5 % and 41-65
+    /// at 1 % (nominal 100 and 20; by sample 416-432 and 228-259): the smaller of the two
+    /// correlation estimates ([`EstimationError::variance`]) is low here, where the fit removes
+    /// the scores' slow part. The limits, 250 and 125, are 7 and 7.6 binomial sigmas above the
+    /// worst measured rate (a chance failure below 1e-11 per level at that rate) and below the
+    /// old estimator's.
     #[test]
     fn estimation_error_under_correlated_noise_is_a_long_run_variance() {
         let trials: usize = std::env::var("MC_TRIALS").ok().and_then(|v| v.parse().ok()).unwrap_or(2000);
@@ -287,8 +295,8 @@ mod tests {
             by_sample[1],
         );
         eprintln!("{report}");
-        // 2.5x and 5x the nominal counts.
-        let limits = [trials / 8, trials / 20];
+        // 2.5x and 6.25x the nominal counts.
+        let limits = [trials / 8, trials / 16];
         for k in 0..2 {
             assert!(with[k] <= limits[k], "limits {limits:?}: {report}");
             assert!(by_sample[k] > limits[k], "the sandwich by sample should over-reject here: {report}");
