@@ -271,8 +271,12 @@ fn tensions_ok(inp: &DesignInput, p: &[f64; 3], acc: &[f64; 3]) -> Option<bool> 
     Some(t.iter().all(|t| *t >= inp.min_tension_n && *t <= inp.max_tension_n))
 }
 
-/// Partial tours the beam search keeps.
-const BEAM_WIDTH: usize = 96;
+/// Grid points per axis of the candidate waypoints: corners, edge midpoints, face centres and
+/// the centre of the box (a 3 x 3 x 3 grid).
+const GRID: usize = 4;
+
+/// Start tours of the local search (the best two-waypoint loops).
+const STARTS: usize = 12;
 
 /// A segment's duration, s, and the information of its samples.
 type SegmentInfo = (f64, DMatrix<f64>);
@@ -291,10 +295,14 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
     if !ok {
         return Err(DesignError::Limits);
     }
-    let corners: Vec<[f64; 3]> = (0..8)
-        .map(|c| [if c & 4 != 0 { hi[0] } else { lo[0] }, if c & 2 != 0 { hi[1] } else { lo[1] }, if c & 1 != 0 { hi[2] } else { lo[2] }])
-        .collect();
     let (v, a) = (inp.speed_m_s, inp.accel_m_s2);
+    // Candidate waypoints: the grid points where the platform can rest.
+    let at = |k: usize, i: usize| lo[i] + (hi[i] - lo[i]) * k as f64 / (GRID - 1) as f64;
+    let cands: Vec<[f64; 3]> = (0..GRID * GRID * GRID)
+        .map(|c| [at(c / (GRID * GRID), 0), at(c / GRID % GRID, 1), at(c % GRID, 2)])
+        .filter(|p| tensions_ok(inp, p, &[0.0; 3]).unwrap_or(true))
+        .collect();
+    let k = cands.len();
     let dt = 1.0 / inp.sample_hz;
     // Samples along a segment from `p0` to `p1` (from its start, for `t_max` s at most).
     let seg_points = |p0: &[f64; 3], p1: &[f64; 3], t_max: f64| -> Vec<[f64; 3]> {
@@ -308,19 +316,17 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
             })
             .collect()
     };
-    // Per ordered pair: duration, information, feasibility.
-    let mut seg: [[Option<SegmentInfo>; 8]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| None));
-    let mut any = false;
-    for c0 in 0..8 {
-        for c1 in 0..8 {
+    // Per ordered pair: duration and information, when every position-controlled cable stays
+    // within its tension limits along it (statics plus the profile's +-a).
+    let mut seg: Vec<Option<SegmentInfo>> = vec![None; k * k];
+    for c0 in 0..k {
+        for c1 in 0..k {
             if c0 == c1 {
                 continue;
             }
-            let (p0, p1) = (&corners[c0], &corners[c1]);
+            let (p0, p1) = (&cands[c0], &cands[c1]);
             let len = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
-            let dur = segment_time(len, v, a);
             let pts = seg_points(p0, p1, f64::INFINITY);
-            // Worst accelerations of the profile: +-a along the segment.
             let dir: [f64; 3] = std::array::from_fn(|i| (p1[i] - p0[i]) / len);
             let feasible = pts
                 .iter()
@@ -328,101 +334,122 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
                 .chain(std::iter::once(p1))
                 .all(|p| [1.0, -1.0, 0.0].iter().all(|s| tensions_ok(inp, p, &dir.map(|d| d * a * s)).unwrap_or(true)));
             if feasible {
-                any = true;
-                seg[c0][c1] = Some((dur, information(inp, pts.iter())));
+                seg[c0 * k + c1] = Some((segment_time(len, v, a), information(inp, pts.iter())));
             }
         }
     }
-    if !any {
+    if seg.iter().all(Option::is_none) {
         return Err(DesignError::NoFeasibleSegment);
     }
-    // Beam search over corner sequences. A state: sequence, time used, information.
-    // A partial tour's information is often singular (a direction not yet seen): ranked by its
-    // worst anchor sigma it would be infinite and the beam's cut arbitrary. Partial tours are
-    // ranked with a small ridge (a millionth of a typical segment's information), which orders
-    // them by what they have seen; finished tours by their own information.
-    let (mut diag_sum, mut segs) = (0.0, 0usize);
-    for (_, si) in seg.iter().flatten().flatten() {
-        diag_sum += si.trace() / (4 * n) as f64;
-        segs += 1;
-    }
-    let ridge = DMatrix::<f64>::identity(4 * n, 4 * n) * (1e-6 * diag_sum / segs.max(1) as f64);
-    const BEAM: usize = BEAM_WIDTH;
-    // The tour runs the whole excitation; the held-out rows are spread over it like the training
-    // rows, which see a share `used_fraction` of every stretch: the same factor for every
-    // candidate, so the ranking uses the whole path's information (the prediction at the end
-    // counts the training rows exactly).
     let total = inp.duration_s;
-    // The information of the closed tour `seq` over the excitation (it repeats after the return
-    // to its first waypoint).
-    let cycle_info = |seq: &[usize]| -> DMatrix<f64> {
-        let mut info = DMatrix::zeros(4 * n, 4 * n);
-        let mut t = 0.0;
-        for k in 0.. {
-            let (c0, c1) = (seq[k % seq.len()], seq[(k + 1) % seq.len()]);
-            let Some((dur, si)) = &seg[c0][c1] else { break };
-            if t + dur >= total {
-                info += information(inp, seg_points(&corners[c0], &corners[c1], total - t).iter());
-                break;
-            }
-            info += si;
-            t += dur;
+    // The search's score of a closed tour: the worst-anchor sigma of its loop's information
+    // times the loops that fit in the excitation (which waypoint the loop joins at moves the
+    // cut end; the final choice is ranked by the exact prediction at the worst join). Infinite
+    // when a move is infeasible or the loop does not fit in the excitation.
+    let score = |seq: &[usize]| -> f64 {
+        if seq.len() < 2 || seq.len() > MAX_WAYPOINTS {
+            return f64::INFINITY;
         }
-        info
+        let mut info = DMatrix::<f64>::zeros(4 * n, 4 * n);
+        let mut period = 0.0;
+        for (i, c0) in seq.iter().enumerate() {
+            let c1 = seq[(i + 1) % seq.len()];
+            let Some((dur, si)) = &seg[c0 * k + c1] else { return f64::INFINITY };
+            period += dur;
+            info += si;
+        }
+        if period > total {
+            return f64::INFINITY;
+        }
+        worst(&(info * (total / period)), n)
     };
-    let mut beam: Vec<(Vec<usize>, f64, DMatrix<f64>)> = (0..8).map(|c| (vec![c], 0.0, DMatrix::zeros(4 * n, 4 * n))).collect();
-    // Finished tours: (closed within the training part, worst sigma, sequence).
-    let mut done: Vec<(bool, f64, Vec<usize>)> = vec![];
-    while !beam.is_empty() {
-        let mut next: Vec<(f64, Vec<usize>, f64, DMatrix<f64>)> = vec![];
-        for (s, t, info) in &beam {
-            let last = *s.last().unwrap();
-            for c in 0..8 {
-                let Some((dur, si)) = &seg[last][c] else { continue };
-                let mut seq = s.clone();
-                seq.push(c);
-                // The tour returns to its first waypoint after the last: that move must be
-                // feasible too.
-                let close = if c == seq[0] { Some(0.0) } else { seg[c][seq[0]].as_ref().map(|x| x.0) };
-                if let Some(close) = close {
-                    if c != seq[0] && t + dur + close <= total {
-                        // A closed tour within the excitation: wherever the loop joins it (its
-                        // waypoint nearest the platform), every move is driven.
-                        // Ranked by its worst join: where the platform will be is not known here.
-                        let joined = (0..seq.len()).map(|k| {
-                            let rotated: Vec<usize> = seq[k..].iter().chain(&seq[..k]).copied().collect();
-                            worst(&cycle_info(&rotated), n)
-                        });
-                        done.push((true, joined.fold(0.0, f64::max), seq.clone()));
-                    } else if t + dur >= total || seq.len() == MAX_WAYPOINTS {
-                        // The last segment, cut at the end of the excitation.
-                        let rest = total - t;
-                        let partial = information(inp, seg_points(&corners[last], &corners[c], rest).iter());
-                        done.push((false, worst(&(info + partial), n), seq));
-                        continue;
+    // Starts: the best two-waypoint loops (back and forth).
+    let mut pairs: Vec<(f64, Vec<usize>)> =
+        (0..k).flat_map(|c0| (c0 + 1..k).map(move |c1| vec![c0, c1])).map(|s| (score(&s), s)).filter(|(w, _)| w.is_finite()).collect();
+    // A pair alone rarely observes every anchor (infinite sigma): order those by their
+    // information's trace, the rest by their sigma.
+    let trace = |s: &[usize]| -> f64 {
+        seg[s[0] * k + s[1]].as_ref().map_or(0.0, |x| x.1.trace()) + seg[s[1] * k + s[0]].as_ref().map_or(0.0, |x| x.1.trace())
+    };
+    if pairs.is_empty() {
+        pairs = (0..k)
+            .flat_map(|c0| (c0 + 1..k).map(move |c1| vec![c0, c1]))
+            .filter(|s| seg[s[0] * k + s[1]].is_some() && seg[s[1] * k + s[0]].is_some())
+            .map(|s| (-trace(&s), s))
+            .collect();
+    }
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    // Steepest descent from each start over the moves: insert a waypoint, replace one, remove
+    // one, reverse a stretch (2-opt).
+    let descend = |mut cur: Vec<usize>| -> (f64, Vec<usize>) {
+        let mut best = score(&cur);
+        loop {
+            let mut next: Option<(f64, Vec<usize>)> = None;
+            let mut consider = |s: Vec<usize>| {
+                let w = score(&s);
+                if w < next.as_ref().map_or(best * (1.0 - 1e-9), |x| x.0) {
+                    next = Some((w, s));
+                }
+            };
+            let m = cur.len();
+            for pos in 0..=m {
+                for c in 0..k {
+                    let mut s = cur.clone();
+                    s.insert(pos, c);
+                    consider(s);
+                }
+            }
+            for pos in 0..m {
+                for c in 0..k {
+                    if c != cur[pos] {
+                        let mut s = cur.clone();
+                        s[pos] = c;
+                        consider(s);
                     }
                 }
-                if t + dur < total && seq.len() < MAX_WAYPOINTS {
-                    let full = info + si;
-                    next.push((worst(&(&full + &ridge), n), seq, t + dur, full));
+                if m > 2 {
+                    let mut s = cur.clone();
+                    s.remove(pos);
+                    consider(s);
+                }
+                for end in pos + 2..=m {
+                    let mut s = cur.clone();
+                    s[pos..end].reverse();
+                    consider(s);
                 }
             }
+            match next {
+                Some((w, s)) => (best, cur) = (w, s),
+                None => return (best, cur),
+            }
         }
-        next.sort_by(|x, y| x.0.total_cmp(&y.0));
-        next.truncate(BEAM);
-        beam = next.into_iter().map(|(_, s, t, i)| (s, t, i)).collect();
+    };
+    let tour_of = |seq: &[usize]| {
+        let mut tour = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: seq.len(), speed_m_s: v, accel_m_s2: a };
+        for (i, c) in seq.iter().enumerate() {
+            tour.waypoints[i] = cands[*c];
+        }
+        tour
+    };
+    // The local optima, ranked by the exact prediction at their worst join.
+    let mut found: Vec<Vec<usize>> = vec![];
+    for (_, s) in pairs.into_iter().take(STARTS) {
+        let (_, s) = descend(s);
+        if !found.contains(&s) {
+            found.push(s);
+        }
     }
-    // Closed tours first, then the lowest predicted sigma.
-    done.sort_by(|x, y| y.0.cmp(&x.0).then(x.1.total_cmp(&y.1)));
-    let (_, w, seq) = done.into_iter().next().ok_or(DesignError::NoFeasibleSegment)?;
-    if !w.is_finite() {
+    let (predicted, tour) = found
+        .iter()
+        .filter_map(|s| {
+            let t = tour_of(s);
+            predict_tour(inp, &t).map(|p| (p, t))
+        })
+        .min_by(|x, y| x.0.worst_anchor_sigma_m().total_cmp(&y.0.worst_anchor_sigma_m()))
+        .ok_or(DesignError::Unobservable)?;
+    if !predicted.worst_anchor_sigma_m().is_finite() {
         return Err(DesignError::Unobservable);
     }
-    let mut tour = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: seq.len(), speed_m_s: v, accel_m_s2: a };
-    for (k, c) in seq.iter().enumerate() {
-        tour.waypoints[k] = corners[*c];
-    }
-    let predicted = predict_tour(inp, &tour).ok_or(DesignError::Unobservable)?;
     Ok(Design { tour, predicted })
 }
 
