@@ -90,6 +90,9 @@ fn grid(lo: [f64; 3], hi: [f64; 3], m: usize) -> Vec<[f64; 3]> {
 }
 
 fn main() {
+    if std::env::args().any(|a| a == "knobs") {
+        return study_knobs();
+    }
     if std::env::args().any(|a| a == "tensions") {
         return study_tensions();
     }
@@ -293,4 +296,36 @@ fn study_tensions() {
             }
         }
     }
+}
+
+/// The design's prediction when one input changes.
+fn study_knobs() {
+    let show = |name: &str, inp: DesignInput| match design::design(&inp) {
+        Ok(d) => println!(
+            "{name}: {} waypoints, period {:.1} s, worst anchor {:.3} mm",
+            d.tour.n,
+            d.tour.period_s(),
+            d.predicted.worst_anchor_sigma_m() * 1e3
+        ),
+        Err(e) => println!("{name}: {e}"),
+    };
+    show("today (0.8 m/s, 1 m/s^2, margin 5 cm, 80 % training)", input());
+    for v in [0.4, 0.6, 1.0] {
+        show(&format!("speed {v} m/s"), DesignInput { speed_m_s: v, ..input() });
+    }
+    for a in [0.5, 2.0, 4.0] {
+        show(&format!("acceleration {a} m/s^2"), DesignInput { accel_m_s2: a, ..input() });
+    }
+    for m in [0.0, 0.15] {
+        show(&format!("margin {m} m"), DesignInput { margin_m: m, ..input() });
+    }
+    for f in [0.9, 1.0] {
+        show(&format!("training fraction {f}"), DesignInput { used_fraction: f, ..input() });
+    }
+    for ft in [5.0, 20.0] {
+        show(&format!("follower tension {ft} N"), DesignInput { follower_tension_n: ft, ..input() });
+    }
+    show("no tension check", DesignInput { mass_kg: 0.0, ..input() });
+    show("tracker 200 Hz", DesignInput { sample_hz: 200.0, ..input() });
+    show("60 s", DesignInput { duration_s: 60.0, ..input() });
 }

@@ -20,42 +20,52 @@
 //! fraction). The criterion is the worst anchor's 1-sigma (the root of the trace of its 3x3
 //! block): the acceptance is a worst-anchor error.
 //!
-//! # Why corners, and why a tour
+//! # Why the box's extremes, and why a tour
 //!
 //! An anchor is seen along the directions `e_ij`; its component along the mean direction (traded
 //! against `L0_j`) is determined only by the *second-order* spread of those directions, which is
 //! largest at the box's extremes. Time spent near the corners buys the most information; the
-//! speed limit decides how many corners fit. Measured on the ARAS-CAM-like robot (30 s, 0.4 m/s):
+//! speed limit decides how many fit. Measured on the ARAS-CAM-like robot (30 s, 0.4 m/s):
 //! today's Lissajous (80 % amplitudes, incommensurate frequencies, under one period in 30 s)
 //! predicts a 2.7 mm worst-anchor sigma, the best commensurate Lissajous 2.2 mm, a corner tour
 //! 1.2 mm.
 //!
 //! # Search
 //!
-//! Waypoints are the 8 corners of the box shrunk by a margin. Each straight segment is driven
-//! with a trapezoidal speed profile (speed `v`, acceleration `a`); the information of every
-//! segment is computed once; a beam search over corner sequences (sums of the segment
-//! informations) keeps the sequences of the lowest worst-anchor sigma, partial ones ranked with
-//! a small ridge (their information is often still singular). Segments along which a
-//! position-controlled cable would leave `[min, max]` tension (statics plus the profile's
-//! acceleration, followers at their torque tension) are not used.
+//! Candidate waypoints are the points of a 4 x 4 x 4 grid over the box shrunk by a margin where
+//! the platform can rest with every position-controlled cable within `[min, max]` tension (the
+//! followers at their torque tension). Each straight move is driven with a trapezoidal speed
+//! profile (speed `v`, acceleration `a`, rest at each waypoint); a move along which a cable
+//! would leave its limits (statics plus the profile's +-a along the move) is not used. The
+//! information of every move is computed once. The search is a steepest descent over closed
+//! tours (moves: insert a waypoint, replace one, remove one, reverse a stretch), scored by the
+//! worst-anchor sigma of the loop's information times the loops that fit in the excitation,
+//! started from the 12 best two-waypoint loops; the local optima are ranked by the exact
+//! prediction at their worst join ([`predict_tour`]).
 //!
 //! The tour is *closed within the excitation*: its loop (the return to the first waypoint
 //! included, which must be feasible too) fits in `duration_s`, so wherever the loop joins it
 //! (at the waypoint nearest the platform) every move is driven. The calibration holds out the
 //! ends of [`DesignInput::heldout_blocks`] time blocks, so training and held-out rows both lie
 //! along the whole path, and the prediction counts exactly the training rows
-//! ([`training_rows`]). (Until the held-out rows were one block at the end, the tour had to
-//! close within the training part, so that the held-out block repeated a path the calibration
-//! had seen.) Only when no closed tour fits is the best cut one used.
+//! ([`training_rows`]).
 //!
-//! What decides the result (ARAS-CAM-like robot, 30 s, 80 % for training, tracker 1.5 mm at
-//! 100 Hz): the length noise the calibration weighs the redundant cables with (tours cut at
-//! the end, 0.4 m/s: 0.2 mm fixed 1.31 mm worst-anchor sigma; the encoders' 0.05 mm, now
-//! estimated from the residuals by [`crate::bundle::refine`], 0.64 mm), then the speed (closed
-//! tours at 0.4 m/s have 3 corners, 4.3 mm; at 0.8 m/s 5 corners, 0.41 mm; 1.0 m/s 0.42 mm),
-//! not the box (cut tours in a box of 75 % of the anchors' footprint, 0.5-3.5 m high: 0.91 mm
-//! at 1 m/s, its corners near the anchors' plane tension-infeasible and its moves longer).
+//! # What decides the result
+//!
+//! ARAS-CAM-like robot (config/examples/aras-cam-sim.toml: 30 s, 80 % for training, tracker
+//! 1.5 mm at 100 Hz, encoders 0.05 mm, follower at 10 N, 3 N least tension, 0.8 m/s, 1 m/s^2;
+//! `cargo run --release -p taut-calib --example design_study [knobs|tensions|paths]`):
+//! - The waypoints. A beam search over the 8 corners (until session 16) found 0.44 mm: with
+//!   cable 3 following at 10 N, three of the corners (the two on cable 3's side, and the low one
+//!   beside it at 2.1 N) cannot be rested at, and the long moves between the remaining ones
+//!   left 7 corner visits in 30 s. The grid's waypoints near the infeasible corners and inside
+//!   the faces give 0.275 mm (3 x 3 x 3 grid: 0.325 mm; 6 x 6 x 6: 0.268 mm).
+//! - The tension limits: without them 0.207 mm (the best spread of 2,400 samples over the
+//!   feasible 9 x 9 x 9 grid points, travel ignored: 0.221 mm; over all of them 0.176 mm). A
+//!   larger acceleration makes more moves infeasible (2 m/s^2: 0.35 mm), a follower at 20 N or
+//!   5 N moves the feasible region (0.31, 0.30 mm).
+//! - The samples: 60 s 0.198 mm, the tracker at 200 Hz 0.203 mm, all rows for training (no
+//!   held-out rows) 0.242 mm. The speed no longer (1 m/s: 0.271 mm; 0.6 m/s 0.363 mm).
 //!
 //! The result is a [`Tour`]: fixed-size, `Copy`, evaluated by [`Tour::point`] without
 //! allocation, so the real-time loop can run it.
@@ -114,12 +124,50 @@ pub struct Prediction {
     pub l0_sigma: Vec<f64>,
     /// Samples the prediction counts.
     pub samples: usize,
+    /// Covariance of the anchors' coordinates (`3n x 3n`, anchor `j`'s x, y, z at `3j..3j + 3`,
+    /// row-major), m^2.
+    pub anchor_cov_m2: Vec<f64>,
 }
 
 impl Prediction {
     /// The worst anchor's 1-sigma (root of the sum of its three variances), m.
     pub fn worst_anchor_sigma_m(&self) -> f64 {
         self.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max)
+    }
+
+    /// P(the largest anchor error exceeds `limit_m`) for anchor errors Gaussian with this
+    /// covariance times `scale^2`: Monte Carlo over `draws` draws of a fixed generator (the same
+    /// numbers on every call). Returns the estimate and its 99.9 % upper bound (normal
+    /// approximation plus `10 / draws` for the rare-event end).
+    pub fn worst_exceeds_probability(&self, limit_m: f64, scale: f64, draws: usize) -> (f64, f64) {
+        let k = self.anchor_sigma.len() * 3;
+        if self.anchor_cov_m2.len() != k * k || draws == 0 {
+            return (1.0, 1.0);
+        }
+        let cov = DMatrix::from_row_slice(k, k, &self.anchor_cov_m2) * (scale * scale);
+        let eig = cov.symmetric_eigen();
+        let mut root = eig.eigenvectors.clone();
+        for c in 0..k {
+            let s = eig.eigenvalues[c].max(0.0).sqrt();
+            for r in 0..k {
+                root[(r, c)] *= s;
+            }
+        }
+        let mut rng = crate::selfcal::plan::SplitMix(0x5eed_de51);
+        let mut z = nalgebra::DVector::zeros(k);
+        let limit2 = limit_m * limit_m;
+        let mut over = 0usize;
+        for _ in 0..draws {
+            for i in 0..k {
+                z[i] = rng.normal();
+            }
+            let e = &root * &z;
+            if (0..k / 3).any(|j| e[3 * j] * e[3 * j] + e[3 * j + 1] * e[3 * j + 1] + e[3 * j + 2] * e[3 * j + 2] > limit2) {
+                over += 1;
+            }
+        }
+        let p = over as f64 / draws as f64;
+        (p, (p + 3.1 * (p * (1.0 - p) / draws as f64).sqrt() + 10.0 / draws as f64).min(1.0))
     }
 }
 
@@ -142,7 +190,7 @@ pub enum DesignError {
     },
     /// A limit is not a positive finite number (or the box is empty after the margin).
     Limits,
-    /// No pair of corners can be joined with every position-controlled cable within its tension limits.
+    /// No pair of the box's grid points can be joined with every position-controlled cable within its tension limits.
     NoFeasibleSegment,
     /// The information matrix is singular along every candidate (the geometry cannot be observed).
     Unobservable,
@@ -159,7 +207,7 @@ impl fmt::Display for DesignError {
             ),
             DesignError::NoFeasibleSegment => write!(
                 f,
-                "no straight move between the workspace box's corners keeps every position-controlled cable \
+                "no straight move between rest points of the workspace box keeps every position-controlled cable \
                  within its tension limits: enlarge [safety] max_tension_n or move the box below the anchors"
             ),
             DesignError::Unobservable => write!(f, "the anchors are not observable along any path in the workspace box"),
@@ -211,7 +259,9 @@ fn prediction(info: &DMatrix<f64>, n: usize, samples: usize) -> Option<Predictio
     let cov = info.clone().cholesky()?.inverse();
     let anchor_sigma = (0..n).map(|j| std::array::from_fn(|i| cov[(4 * j + i, 4 * j + i)].max(0.0).sqrt())).collect();
     let l0_sigma = (0..n).map(|j| cov[(4 * j + 3, 4 * j + 3)].max(0.0).sqrt()).collect();
-    Some(Prediction { anchor_sigma, l0_sigma, samples })
+    let anchor_cov_m2 =
+        (0..3 * n).flat_map(|r| (0..3 * n).map(move |c| (r, c))).map(|(r, c)| cov[(r / 3 * 4 + r % 3, c / 3 * 4 + c % 3)]).collect();
+    Some(Prediction { anchor_sigma, l0_sigma, samples, anchor_cov_m2 })
 }
 
 fn worst(info: &DMatrix<f64>, n: usize) -> f64 {
