@@ -92,6 +92,6 @@ mod tests {
         assert!((exceeds_chance(&x, up) - 1e-3).abs() < 1e-6);
         // A step at the bound: failing always above it, never below: the integral is its tail.
         let p = integrated_failure(&x, |c| if c > up { 1.0 } else { 0.0 });
-        assert!(p >= 1e-3 && p < 1.1e-3, "{p}");
+        assert!((1e-3..1.1e-3).contains(&p), "{p}");
     }
 }
