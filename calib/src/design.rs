@@ -20,42 +20,52 @@
 //! fraction). The criterion is the worst anchor's 1-sigma (the root of the trace of its 3x3
 //! block): the acceptance is a worst-anchor error.
 //!
-//! # Why corners, and why a tour
+//! # Why the box's extremes, and why a tour
 //!
 //! An anchor is seen along the directions `e_ij`; its component along the mean direction (traded
 //! against `L0_j`) is determined only by the *second-order* spread of those directions, which is
 //! largest at the box's extremes. Time spent near the corners buys the most information; the
-//! speed limit decides how many corners fit. Measured on the ARAS-CAM-like robot (30 s, 0.4 m/s):
+//! speed limit decides how many fit. Measured on the ARAS-CAM-like robot (30 s, 0.4 m/s):
 //! today's Lissajous (80 % amplitudes, incommensurate frequencies, under one period in 30 s)
 //! predicts a 2.7 mm worst-anchor sigma, the best commensurate Lissajous 2.2 mm, a corner tour
 //! 1.2 mm.
 //!
 //! # Search
 //!
-//! Waypoints are the 8 corners of the box shrunk by a margin. Each straight segment is driven
-//! with a trapezoidal speed profile (speed `v`, acceleration `a`); the information of every
-//! segment is computed once; a beam search over corner sequences (sums of the segment
-//! informations) keeps the sequences of the lowest worst-anchor sigma, partial ones ranked with
-//! a small ridge (their information is often still singular). Segments along which a
-//! position-controlled cable would leave `[min, max]` tension (statics plus the profile's
-//! acceleration, followers at their torque tension) are not used.
+//! Candidate waypoints are the points of a 4 x 4 x 4 grid over the box shrunk by a margin where
+//! the platform can rest with every position-controlled cable within `[min, max]` tension (the
+//! followers at their torque tension). Each straight move is driven with a trapezoidal speed
+//! profile (speed `v`, acceleration `a`, rest at each waypoint); a move along which a cable
+//! would leave its limits (statics plus the profile's +-a along the move) is not used. The
+//! information of every move is computed once. The search is a steepest descent over closed
+//! tours (moves: insert a waypoint, replace one, remove one, reverse a stretch), scored by the
+//! worst-anchor sigma of the loop's information times the loops that fit in the excitation,
+//! started from the 12 best two-waypoint loops; the local optima are ranked by the exact
+//! prediction at their worst join ([`predict_tour`]).
 //!
 //! The tour is *closed within the excitation*: its loop (the return to the first waypoint
 //! included, which must be feasible too) fits in `duration_s`, so wherever the loop joins it
 //! (at the waypoint nearest the platform) every move is driven. The calibration holds out the
 //! ends of [`DesignInput::heldout_blocks`] time blocks, so training and held-out rows both lie
 //! along the whole path, and the prediction counts exactly the training rows
-//! ([`training_rows`]). (Until the held-out rows were one block at the end, the tour had to
-//! close within the training part, so that the held-out block repeated a path the calibration
-//! had seen.) Only when no closed tour fits is the best cut one used.
+//! ([`training_rows`]).
 //!
-//! What decides the result (ARAS-CAM-like robot, 30 s, 80 % for training, tracker 1.5 mm at
-//! 100 Hz): the length noise the calibration weighs the redundant cables with (tours cut at
-//! the end, 0.4 m/s: 0.2 mm fixed 1.31 mm worst-anchor sigma; the encoders' 0.05 mm, now
-//! estimated from the residuals by [`crate::bundle::refine`], 0.64 mm), then the speed (closed
-//! tours at 0.4 m/s have 3 corners, 4.3 mm; at 0.8 m/s 5 corners, 0.41 mm; 1.0 m/s 0.42 mm),
-//! not the box (cut tours in a box of 75 % of the anchors' footprint, 0.5-3.5 m high: 0.91 mm
-//! at 1 m/s, its corners near the anchors' plane tension-infeasible and its moves longer).
+//! # What decides the result
+//!
+//! ARAS-CAM-like robot (config/examples/aras-cam-sim.toml: 30 s, 80 % for training, tracker
+//! 1.5 mm at 100 Hz, encoders 0.05 mm, follower at 10 N, 3 N least tension, 0.8 m/s, 1 m/s^2;
+//! `cargo run --release -p taut-calib --example design_study [knobs|tensions|paths]`):
+//! - The waypoints. A beam search over the 8 corners (until session 16) found 0.44 mm: with
+//!   cable 3 following at 10 N, three of the corners (the two on cable 3's side, and the low one
+//!   beside it at 2.1 N) cannot be rested at, and the long moves between the remaining ones
+//!   left 7 corner visits in 30 s. The grid's waypoints near the infeasible corners and inside
+//!   the faces give 0.275 mm (3 x 3 x 3 grid: 0.325 mm; 6 x 6 x 6: 0.268 mm).
+//! - The tension limits: without them 0.207 mm (the best spread of 2,400 samples over the
+//!   feasible 9 x 9 x 9 grid points, travel ignored: 0.221 mm; over all of them 0.176 mm). A
+//!   larger acceleration makes more moves infeasible (2 m/s^2: 0.35 mm), a follower at 20 N or
+//!   5 N moves the feasible region (0.31, 0.30 mm).
+//! - The samples: 60 s 0.198 mm, the tracker at 200 Hz 0.203 mm, all rows for training (no
+//!   held-out rows) 0.242 mm. The speed no longer (1 m/s: 0.271 mm; 0.6 m/s 0.363 mm).
 //!
 //! The result is a [`Tour`]: fixed-size, `Copy`, evaluated by [`Tour::point`] without
 //! allocation, so the real-time loop can run it.
@@ -114,6 +124,9 @@ pub struct Prediction {
     pub l0_sigma: Vec<f64>,
     /// Samples the prediction counts.
     pub samples: usize,
+    /// Covariance of the anchors' coordinates (`3n x 3n`, anchor `j`'s x, y, z at `3j..3j + 3`,
+    /// row-major), m^2.
+    pub anchor_cov_m2: Vec<f64>,
 }
 
 impl Prediction {
@@ -121,6 +134,108 @@ impl Prediction {
     pub fn worst_anchor_sigma_m(&self) -> f64 {
         self.anchor_sigma.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max)
     }
+
+    /// Upper bound on P(the largest anchor error exceeds `limit_m`) for anchor errors Gaussian
+    /// with this covariance times `scale^2`: the sum over anchors of P(|e_j| > limit) (union
+    /// bound; the anchors' errors are nearly independent, so it is close), each computed by
+    /// quadrature ([`norm_exceeds`]). Deterministic; 1 when there is no covariance.
+    pub fn worst_exceeds_bound(&self, limit_m: f64, scale: f64) -> f64 {
+        let k = self.anchor_sigma.len() * 3;
+        if self.anchor_cov_m2.len() != k * k {
+            return 1.0;
+        }
+        let p: f64 = (0..k / 3)
+            .map(|j| {
+                let block = Matrix3::from_fn(|r, c| self.anchor_cov_m2[(3 * j + r) * k + 3 * j + c] * scale * scale);
+                let lam = block.symmetric_eigenvalues();
+                norm_exceeds([lam[0], lam[1], lam[2]], limit_m)
+            })
+            .sum();
+        p.min(1.0)
+    }
+
+    /// P(the largest anchor error exceeds `limit_m`) for anchor errors Gaussian with this
+    /// covariance times `scale^2`: Monte Carlo over `draws` draws of a fixed generator (the same
+    /// numbers on every call). Returns the estimate and its 99.9 % upper bound (normal
+    /// approximation plus `10 / draws` for the rare-event end).
+    pub fn worst_exceeds_probability(&self, limit_m: f64, scale: f64, draws: usize) -> (f64, f64) {
+        let k = self.anchor_sigma.len() * 3;
+        if self.anchor_cov_m2.len() != k * k || draws == 0 {
+            return (1.0, 1.0);
+        }
+        let cov = DMatrix::from_row_slice(k, k, &self.anchor_cov_m2) * (scale * scale);
+        let eig = cov.symmetric_eigen();
+        let mut root = eig.eigenvectors.clone();
+        for c in 0..k {
+            let s = eig.eigenvalues[c].max(0.0).sqrt();
+            for r in 0..k {
+                root[(r, c)] *= s;
+            }
+        }
+        let mut rng = crate::selfcal::plan::SplitMix(0x5eed_de51);
+        let mut z = nalgebra::DVector::zeros(k);
+        let limit2 = limit_m * limit_m;
+        let mut over = 0usize;
+        for _ in 0..draws {
+            for i in 0..k {
+                z[i] = rng.normal();
+            }
+            let e = &root * &z;
+            if (0..k / 3).any(|j| e[3 * j] * e[3 * j] + e[3 * j + 1] * e[3 * j + 1] + e[3 * j + 2] * e[3 * j + 2] > limit2) {
+                over += 1;
+            }
+        }
+        let p = over as f64 / draws as f64;
+        (p, (p + 3.1 * (p * (1.0 - p) / draws as f64).sqrt() + 10.0 / draws as f64).min(1.0))
+    }
+}
+
+/// P(|e| > `r`) for a 3-D Gaussian `e` with covariance eigenvalues `lam` (m^2), by quadrature:
+/// with `e = (sqrt(l1) z1, sqrt(l2) z2, sqrt(l3) z3)`, conditioned on `z3` the other two give
+/// `P(l1 z1^2 + l2 z2^2 > s) = (2 / pi) int_0^{pi/2} exp(-s / (2 q(t))) dt`,
+/// `q(t) = l1 cos^2 t + l2 sin^2 t` (polar coordinates: `rho^2 / 2` is exponential), integrated
+/// over `z3`'s density (Simpson's rule inside `|z3| < r / sqrt(l3)`, at most 9; beyond, the
+/// third axis alone exceeds `r`).
+pub fn norm_exceeds(lam: [f64; 3], r: f64) -> f64 {
+    let mut l = lam.map(|x| x.max(0.0));
+    l.sort_by(f64::total_cmp);
+    // Condition on the smallest: the largest stay in the closed form.
+    let (l3, l1, l2) = (l[0], l[1], l[2]);
+    if l1 + l2 <= 0.0 {
+        return if l3 * 81.0 > r * r { 1.0 } else { 0.0 };
+    }
+    let inner = |s: f64| -> f64 {
+        if s <= 0.0 {
+            return 1.0;
+        }
+        let m = 200;
+        let h = std::f64::consts::FRAC_PI_2 / m as f64;
+        let f = |t: f64| {
+            let q = l1 * t.cos().powi(2) + l2 * t.sin().powi(2);
+            if q > 0.0 {
+                (-s / (2.0 * q)).exp()
+            } else {
+                0.0
+            }
+        };
+        let mut acc = f(0.0) + f(std::f64::consts::FRAC_PI_2);
+        for i in 1..m {
+            acc += if i % 2 == 1 { 4.0 } else { 2.0 } * f(i as f64 * h);
+        }
+        acc * h / 3.0 / std::f64::consts::FRAC_PI_2
+    };
+    // Beyond |z3| = r / sqrt(l3) the third axis alone exceeds r: there the integrand is the
+    // density (exactly 2 P(Z > zk)); inside, it is smooth.
+    let zk = if l3 > 0.0 { (r / l3.sqrt()).min(9.0) } else { 9.0 };
+    let tail = if l3 > 0.0 && r / l3.sqrt() < 9.0 { 2.0 * crate::screen::normal_sf(zk) } else { 0.0 };
+    let m = 400;
+    let h = 2.0 * zk / m as f64;
+    let g = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() * inner(r * r - l3 * z * z);
+    let mut acc = g(-zk) + g(zk);
+    for i in 1..m {
+        acc += if i % 2 == 1 { 4.0 } else { 2.0 } * g(-zk + i as f64 * h);
+    }
+    (acc * h / 3.0 + tail).clamp(0.0, 1.0)
 }
 
 /// A designed excitation with its predicted uncertainty.
@@ -142,7 +257,7 @@ pub enum DesignError {
     },
     /// A limit is not a positive finite number (or the box is empty after the margin).
     Limits,
-    /// No pair of corners can be joined with every position-controlled cable within its tension limits.
+    /// No pair of the box's grid points can be joined with every position-controlled cable within its tension limits.
     NoFeasibleSegment,
     /// The information matrix is singular along every candidate (the geometry cannot be observed).
     Unobservable,
@@ -159,7 +274,7 @@ impl fmt::Display for DesignError {
             ),
             DesignError::NoFeasibleSegment => write!(
                 f,
-                "no straight move between the workspace box's corners keeps every position-controlled cable \
+                "no straight move between rest points of the workspace box keeps every position-controlled cable \
                  within its tension limits: enlarge [safety] max_tension_n or move the box below the anchors"
             ),
             DesignError::Unobservable => write!(f, "the anchors are not observable along any path in the workspace box"),
@@ -211,7 +326,9 @@ fn prediction(info: &DMatrix<f64>, n: usize, samples: usize) -> Option<Predictio
     let cov = info.clone().cholesky()?.inverse();
     let anchor_sigma = (0..n).map(|j| std::array::from_fn(|i| cov[(4 * j + i, 4 * j + i)].max(0.0).sqrt())).collect();
     let l0_sigma = (0..n).map(|j| cov[(4 * j + 3, 4 * j + 3)].max(0.0).sqrt()).collect();
-    Some(Prediction { anchor_sigma, l0_sigma, samples })
+    let anchor_cov_m2 =
+        (0..3 * n).flat_map(|r| (0..3 * n).map(move |c| (r, c))).map(|(r, c)| cov[(r / 3 * 4 + r % 3, c / 3 * 4 + c % 3)]).collect();
+    Some(Prediction { anchor_sigma, l0_sigma, samples, anchor_cov_m2 })
 }
 
 fn worst(info: &DMatrix<f64>, n: usize) -> f64 {
@@ -271,8 +388,12 @@ fn tensions_ok(inp: &DesignInput, p: &[f64; 3], acc: &[f64; 3]) -> Option<bool> 
     Some(t.iter().all(|t| *t >= inp.min_tension_n && *t <= inp.max_tension_n))
 }
 
-/// Partial tours the beam search keeps.
-const BEAM_WIDTH: usize = 96;
+/// Grid points per axis of the candidate waypoints: corners, edge midpoints, face centres and
+/// the centre of the box (a 3 x 3 x 3 grid).
+const GRID: usize = 4;
+
+/// Start tours of the local search (the best two-waypoint loops).
+const STARTS: usize = 12;
 
 /// A segment's duration, s, and the information of its samples.
 type SegmentInfo = (f64, DMatrix<f64>);
@@ -291,10 +412,14 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
     if !ok {
         return Err(DesignError::Limits);
     }
-    let corners: Vec<[f64; 3]> = (0..8)
-        .map(|c| [if c & 4 != 0 { hi[0] } else { lo[0] }, if c & 2 != 0 { hi[1] } else { lo[1] }, if c & 1 != 0 { hi[2] } else { lo[2] }])
-        .collect();
     let (v, a) = (inp.speed_m_s, inp.accel_m_s2);
+    // Candidate waypoints: the grid points where the platform can rest.
+    let at = |k: usize, i: usize| lo[i] + (hi[i] - lo[i]) * k as f64 / (GRID - 1) as f64;
+    let cands: Vec<[f64; 3]> = (0..GRID * GRID * GRID)
+        .map(|c| [at(c / (GRID * GRID), 0), at(c / GRID % GRID, 1), at(c % GRID, 2)])
+        .filter(|p| tensions_ok(inp, p, &[0.0; 3]).unwrap_or(true))
+        .collect();
+    let k = cands.len();
     let dt = 1.0 / inp.sample_hz;
     // Samples along a segment from `p0` to `p1` (from its start, for `t_max` s at most).
     let seg_points = |p0: &[f64; 3], p1: &[f64; 3], t_max: f64| -> Vec<[f64; 3]> {
@@ -308,19 +433,17 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
             })
             .collect()
     };
-    // Per ordered pair: duration, information, feasibility.
-    let mut seg: [[Option<SegmentInfo>; 8]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| None));
-    let mut any = false;
-    for c0 in 0..8 {
-        for c1 in 0..8 {
+    // Per ordered pair: duration and information, when every position-controlled cable stays
+    // within its tension limits along it (statics plus the profile's +-a).
+    let mut seg: Vec<Option<SegmentInfo>> = vec![None; k * k];
+    for c0 in 0..k {
+        for c1 in 0..k {
             if c0 == c1 {
                 continue;
             }
-            let (p0, p1) = (&corners[c0], &corners[c1]);
+            let (p0, p1) = (&cands[c0], &cands[c1]);
             let len = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2) + (p1[2] - p0[2]).powi(2)).sqrt();
-            let dur = segment_time(len, v, a);
             let pts = seg_points(p0, p1, f64::INFINITY);
-            // Worst accelerations of the profile: +-a along the segment.
             let dir: [f64; 3] = std::array::from_fn(|i| (p1[i] - p0[i]) / len);
             let feasible = pts
                 .iter()
@@ -328,101 +451,122 @@ pub fn design(inp: &DesignInput) -> Result<Design, DesignError> {
                 .chain(std::iter::once(p1))
                 .all(|p| [1.0, -1.0, 0.0].iter().all(|s| tensions_ok(inp, p, &dir.map(|d| d * a * s)).unwrap_or(true)));
             if feasible {
-                any = true;
-                seg[c0][c1] = Some((dur, information(inp, pts.iter())));
+                seg[c0 * k + c1] = Some((segment_time(len, v, a), information(inp, pts.iter())));
             }
         }
     }
-    if !any {
+    if seg.iter().all(Option::is_none) {
         return Err(DesignError::NoFeasibleSegment);
     }
-    // Beam search over corner sequences. A state: sequence, time used, information.
-    // A partial tour's information is often singular (a direction not yet seen): ranked by its
-    // worst anchor sigma it would be infinite and the beam's cut arbitrary. Partial tours are
-    // ranked with a small ridge (a millionth of a typical segment's information), which orders
-    // them by what they have seen; finished tours by their own information.
-    let (mut diag_sum, mut segs) = (0.0, 0usize);
-    for (_, si) in seg.iter().flatten().flatten() {
-        diag_sum += si.trace() / (4 * n) as f64;
-        segs += 1;
-    }
-    let ridge = DMatrix::<f64>::identity(4 * n, 4 * n) * (1e-6 * diag_sum / segs.max(1) as f64);
-    const BEAM: usize = BEAM_WIDTH;
-    // The tour runs the whole excitation; the held-out rows are spread over it like the training
-    // rows, which see a share `used_fraction` of every stretch: the same factor for every
-    // candidate, so the ranking uses the whole path's information (the prediction at the end
-    // counts the training rows exactly).
     let total = inp.duration_s;
-    // The information of the closed tour `seq` over the excitation (it repeats after the return
-    // to its first waypoint).
-    let cycle_info = |seq: &[usize]| -> DMatrix<f64> {
-        let mut info = DMatrix::zeros(4 * n, 4 * n);
-        let mut t = 0.0;
-        for k in 0.. {
-            let (c0, c1) = (seq[k % seq.len()], seq[(k + 1) % seq.len()]);
-            let Some((dur, si)) = &seg[c0][c1] else { break };
-            if t + dur >= total {
-                info += information(inp, seg_points(&corners[c0], &corners[c1], total - t).iter());
-                break;
-            }
-            info += si;
-            t += dur;
+    // The search's score of a closed tour: the worst-anchor sigma of its loop's information
+    // times the loops that fit in the excitation (which waypoint the loop joins at moves the
+    // cut end; the final choice is ranked by the exact prediction at the worst join). Infinite
+    // when a move is infeasible or the loop does not fit in the excitation.
+    let score = |seq: &[usize]| -> f64 {
+        if seq.len() < 2 || seq.len() > MAX_WAYPOINTS {
+            return f64::INFINITY;
         }
-        info
+        let mut info = DMatrix::<f64>::zeros(4 * n, 4 * n);
+        let mut period = 0.0;
+        for (i, c0) in seq.iter().enumerate() {
+            let c1 = seq[(i + 1) % seq.len()];
+            let Some((dur, si)) = &seg[c0 * k + c1] else { return f64::INFINITY };
+            period += dur;
+            info += si;
+        }
+        if period > total {
+            return f64::INFINITY;
+        }
+        worst(&(info * (total / period)), n)
     };
-    let mut beam: Vec<(Vec<usize>, f64, DMatrix<f64>)> = (0..8).map(|c| (vec![c], 0.0, DMatrix::zeros(4 * n, 4 * n))).collect();
-    // Finished tours: (closed within the training part, worst sigma, sequence).
-    let mut done: Vec<(bool, f64, Vec<usize>)> = vec![];
-    while !beam.is_empty() {
-        let mut next: Vec<(f64, Vec<usize>, f64, DMatrix<f64>)> = vec![];
-        for (s, t, info) in &beam {
-            let last = *s.last().unwrap();
-            for c in 0..8 {
-                let Some((dur, si)) = &seg[last][c] else { continue };
-                let mut seq = s.clone();
-                seq.push(c);
-                // The tour returns to its first waypoint after the last: that move must be
-                // feasible too.
-                let close = if c == seq[0] { Some(0.0) } else { seg[c][seq[0]].as_ref().map(|x| x.0) };
-                if let Some(close) = close {
-                    if c != seq[0] && t + dur + close <= total {
-                        // A closed tour within the excitation: wherever the loop joins it (its
-                        // waypoint nearest the platform), every move is driven.
-                        // Ranked by its worst join: where the platform will be is not known here.
-                        let joined = (0..seq.len()).map(|k| {
-                            let rotated: Vec<usize> = seq[k..].iter().chain(&seq[..k]).copied().collect();
-                            worst(&cycle_info(&rotated), n)
-                        });
-                        done.push((true, joined.fold(0.0, f64::max), seq.clone()));
-                    } else if t + dur >= total || seq.len() == MAX_WAYPOINTS {
-                        // The last segment, cut at the end of the excitation.
-                        let rest = total - t;
-                        let partial = information(inp, seg_points(&corners[last], &corners[c], rest).iter());
-                        done.push((false, worst(&(info + partial), n), seq));
-                        continue;
+    // Starts: the best two-waypoint loops (back and forth).
+    let mut pairs: Vec<(f64, Vec<usize>)> =
+        (0..k).flat_map(|c0| (c0 + 1..k).map(move |c1| vec![c0, c1])).map(|s| (score(&s), s)).filter(|(w, _)| w.is_finite()).collect();
+    // A pair alone rarely observes every anchor (infinite sigma): order those by their
+    // information's trace, the rest by their sigma.
+    let trace = |s: &[usize]| -> f64 {
+        seg[s[0] * k + s[1]].as_ref().map_or(0.0, |x| x.1.trace()) + seg[s[1] * k + s[0]].as_ref().map_or(0.0, |x| x.1.trace())
+    };
+    if pairs.is_empty() {
+        pairs = (0..k)
+            .flat_map(|c0| (c0 + 1..k).map(move |c1| vec![c0, c1]))
+            .filter(|s| seg[s[0] * k + s[1]].is_some() && seg[s[1] * k + s[0]].is_some())
+            .map(|s| (-trace(&s), s))
+            .collect();
+    }
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    // Steepest descent from each start over the moves: insert a waypoint, replace one, remove
+    // one, reverse a stretch (2-opt).
+    let descend = |mut cur: Vec<usize>| -> (f64, Vec<usize>) {
+        let mut best = score(&cur);
+        loop {
+            let mut next: Option<(f64, Vec<usize>)> = None;
+            let mut consider = |s: Vec<usize>| {
+                let w = score(&s);
+                if w < next.as_ref().map_or(best * (1.0 - 1e-9), |x| x.0) {
+                    next = Some((w, s));
+                }
+            };
+            let m = cur.len();
+            for pos in 0..=m {
+                for c in 0..k {
+                    let mut s = cur.clone();
+                    s.insert(pos, c);
+                    consider(s);
+                }
+            }
+            for pos in 0..m {
+                for c in 0..k {
+                    if c != cur[pos] {
+                        let mut s = cur.clone();
+                        s[pos] = c;
+                        consider(s);
                     }
                 }
-                if t + dur < total && seq.len() < MAX_WAYPOINTS {
-                    let full = info + si;
-                    next.push((worst(&(&full + &ridge), n), seq, t + dur, full));
+                if m > 2 {
+                    let mut s = cur.clone();
+                    s.remove(pos);
+                    consider(s);
+                }
+                for end in pos + 2..=m {
+                    let mut s = cur.clone();
+                    s[pos..end].reverse();
+                    consider(s);
                 }
             }
+            match next {
+                Some((w, s)) => (best, cur) = (w, s),
+                None => return (best, cur),
+            }
         }
-        next.sort_by(|x, y| x.0.total_cmp(&y.0));
-        next.truncate(BEAM);
-        beam = next.into_iter().map(|(_, s, t, i)| (s, t, i)).collect();
+    };
+    let tour_of = |seq: &[usize]| {
+        let mut tour = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: seq.len(), speed_m_s: v, accel_m_s2: a };
+        for (i, c) in seq.iter().enumerate() {
+            tour.waypoints[i] = cands[*c];
+        }
+        tour
+    };
+    // The local optima, ranked by the exact prediction at their worst join.
+    let mut found: Vec<Vec<usize>> = vec![];
+    for (_, s) in pairs.into_iter().take(STARTS) {
+        let (_, s) = descend(s);
+        if !found.contains(&s) {
+            found.push(s);
+        }
     }
-    // Closed tours first, then the lowest predicted sigma.
-    done.sort_by(|x, y| y.0.cmp(&x.0).then(x.1.total_cmp(&y.1)));
-    let (_, w, seq) = done.into_iter().next().ok_or(DesignError::NoFeasibleSegment)?;
-    if !w.is_finite() {
+    let (predicted, tour) = found
+        .iter()
+        .filter_map(|s| {
+            let t = tour_of(s);
+            predict_tour(inp, &t).map(|p| (p, t))
+        })
+        .min_by(|x, y| x.0.worst_anchor_sigma_m().total_cmp(&y.0.worst_anchor_sigma_m()))
+        .ok_or(DesignError::Unobservable)?;
+    if !predicted.worst_anchor_sigma_m().is_finite() {
         return Err(DesignError::Unobservable);
     }
-    let mut tour = Tour { waypoints: [[0.0; 3]; MAX_WAYPOINTS], n: seq.len(), speed_m_s: v, accel_m_s2: a };
-    for (k, c) in seq.iter().enumerate() {
-        tour.waypoints[k] = corners[*c];
-    }
-    let predicted = predict_tour(inp, &tour).ok_or(DesignError::Unobservable)?;
     Ok(Design { tour, predicted })
 }
 
@@ -575,6 +719,50 @@ mod tests {
         });
         let want = jx.transpose() * cov.try_inverse().unwrap() * &jx;
         assert!((&info - &want).abs().max() < 1e-6 * want.abs().max(), "{}", (&info - &want).abs().max());
+    }
+
+    #[test]
+    fn the_norm_tail_matches_closed_forms_and_the_monte_carlo() {
+        // Isotropic: |e|^2 / s^2 is chi-square with 3 dof; P(chi2_3 > x) =
+        // 2 P(Z > sqrt(x)) + sqrt(2 x / pi) exp(-x / 2).
+        let chi3 = |x: f64| 2.0 * crate::screen::normal_sf(x.sqrt()) + (2.0 * x / std::f64::consts::PI).sqrt() * (-x / 2.0).exp();
+        for x in [1.0f64, 9.0, 25.0, 36.0] {
+            let p = norm_exceeds([1.0, 1.0, 1.0], x.sqrt());
+            assert!((p / chi3(x) - 1.0).abs() < 1e-6, "x {x}: {p} vs {}", chi3(x));
+        }
+        // One axis only: 2 Phi(-r / s).
+        let p = norm_exceeds([0.0, 0.0, 4.0], 5.0);
+        assert!((p / (2.0 * crate::screen::normal_sf(2.5)) - 1.0).abs() < 1e-6, "{p}");
+        // A design's prediction, where P is large enough to measure: each anchor's quadrature
+        // against a Monte Carlo of its 3 x 3 block (the sum of the two), and the union over
+        // the anchors above the joint Monte Carlo (an upper bound: the anchors' errors are
+        // positively correlated, 4.6e-2 vs 4.0e-2 at 0.5 mm).
+        let d = design(&input()).unwrap();
+        let p = &d.predicted;
+        let k = 3 * p.anchor_sigma.len();
+        for limit in [0.5e-3, 0.6e-3] {
+            let bound = p.worst_exceeds_bound(limit, 1.0);
+            let mut rng = crate::selfcal::plan::SplitMix(7);
+            let draws = 200_000;
+            let mut sum_mc = 0.0;
+            for j in 0..k / 3 {
+                let block = Matrix3::from_fn(|r, c| p.anchor_cov_m2[(3 * j + r) * k + 3 * j + c]);
+                let l = block.cholesky().unwrap().l();
+                let over = (0..draws)
+                    .filter(|_| {
+                        let z = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+                        (l * z).norm() > limit
+                    })
+                    .count();
+                sum_mc += over as f64 / draws as f64;
+            }
+            // The sum of four binomial estimates: its sd is below sqrt(bound / draws).
+            let sd = (bound / draws as f64).sqrt();
+            let (joint, _) = p.worst_exceeds_probability(limit, 1.0, draws);
+            eprintln!("limit {limit}: union bound {bound:.4e}, per-anchor Monte Carlo sum {sum_mc:.4e} (sd {sd:.1e}), joint {joint:.4e}");
+            assert!((bound - sum_mc).abs() < 5.0 * sd, "limit {limit}: quadrature {bound} vs Monte Carlo {sum_mc}");
+            assert!(bound > joint, "limit {limit}: union {bound} below the joint {joint}");
+        }
     }
 
     #[test]

@@ -15,11 +15,11 @@ use taut_config::RobotConfig;
 pub const TOUR_ACCEL_M_S2: f64 = 1.0;
 
 /// The tour's cruise speed as a fraction of `safety.max_cable_speed_m_s` (a cable never moves
-/// faster than the platform): the information is gathered at the corners, and a faster tour
-/// closes a richer loop within the training part of the excitation (`taut_calib::design`:
-/// at 0.4 m/s a closed tour of the simulated robot's box has 3 corners and predicts 4.3 mm,
-/// at 0.8 m/s 5 corners and 0.41 mm). A fifth of the limit stays for the loop's timing jitter
-/// (the speed check divides by the measured period).
+/// faster than the platform): the information is gathered at the box's extremes, and a faster
+/// tour closes a richer loop within the excitation (`taut_calib::design`: the simulated robot's
+/// 30 s tour predicts 0.46 mm at 0.4 m/s, 0.36 mm at 0.6 m/s, 0.275 mm at 0.8 m/s, 0.271 mm at
+/// 1 m/s). A fifth of the limit stays for the loop's timing jitter (the speed check divides by
+/// the measured period).
 pub const TOUR_SPEED_FRACTION: f64 = 0.8;
 
 /// Distance the tour keeps inside the workspace box's faces, m (room for tracking error before
@@ -229,7 +229,7 @@ mod tests {
         let plan = ExcitationPlan {
             path: "designed corner tour",
             waypoints: 4,
-            predicted: Some(Prediction { anchor_sigma: vec![[1e-3, 0.0, 0.0]], l0_sigma: vec![1e-3], samples: 10 }),
+            predicted: Some(Prediction { anchor_sigma: vec![[1e-3, 0.0, 0.0]], l0_sigma: vec![1e-3], samples: 10, anchor_cov_m2: vec![] }),
             note: String::new(),
         };
         let s = predicted_vs_achieved(&plan, &[[3e-4, 4e-4, 0.0], [0.0, 0.0, 1e-4]]);

@@ -1,5 +1,6 @@
 //! Shared helpers for the integration tests.
 
+pub mod honesty;
 pub mod mcap;
 pub mod sim;
 pub mod startup;

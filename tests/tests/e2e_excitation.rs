@@ -3,12 +3,27 @@
 //! the calibration's own sigmas and the design's prediction. Asserted: the calibration is
 //! accepted, its note states the predicted and the achieved uncertainty, the achieved worst-anchor
 //! sigma is within a bound of the predicted one derived from the time-block sandwich's scatter
-//! (1e-5 per run), every anchor coordinate is within 4.46-4.79 of its sigmas (1e-4 per run).
+//! (1e-5 per run), every anchor coordinate is within 4.46-4.79 of its sigmas (1e-4 per run), and
+//! the issue's acceptance: **the worst anchor error is at most 1 mm**.
 //!
-//! Seeds: 1 by default (one start-up, about two minutes under load); the acceptance set with
-//! `TAUT_EXCITE_SEEDS=1,2,3,4,5`. `TAUT_EXCITE_PATH=lissajous` runs the earlier Lissajous
-//! excitation instead and only prints (the comparison in BENCHMARKS.md). `TAUT_EXCITE_S=25`
-//! runs the 25 s excitation of the other start-up tests.
+//! # The 1 mm: failure probability per seed for correct code, computed
+//!
+//! A correct calibration's anchor errors are Gaussian with the covariance the design predicts
+//! times the honesty `c`, the achieved / predicted worst-anchor sigma (at the length noise the
+//! calibration measures: 0.050 mm, the configured encoder noise, in every run so far). The
+//! measured `c` ([`RATIOS`]) give the predictive distribution of the next one (Student's t).
+//! 1. The design (deterministic, `the_design_meets_the_budget`): P(worst > 1 mm) integrated over
+//!    that distribution, at each `c` the union over the anchors of P(|e_j| > 1 mm) computed by
+//!    quadrature (`taut_calib::design::Prediction::worst_exceeds_bound`), below [`PLAN_P_MAX`].
+//! 2. The recording's own P(worst > 1 mm), from the prediction at the measured length noise
+//!    scaled up by the achieved / predicted ratio where above 1, must be below
+//!    [`RECORDING_P_MAX`] before the 1 mm is asserted. The design keeps that P below it up to
+//!    [`SCALE_CHECKED`] x its sigma (checked first), so a correct run fails this check only when
+//!    its ratio exceeds that: below [`RECORDING_CHANCE_MAX`] by the same prediction (or when the
+//!    length noise rises, e.g. on a starved machine: what the check is for).
+//!
+//! Sum for the 1 mm: [`PLAN_P_MAX`] + [`RECORDING_CHANCE_MAX`] per seed ([`BUDGET_1MM`],
+//! docs/test-robustness.md).
 
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
@@ -68,6 +83,101 @@ fn sandwich_dof(inp: &taut_calib::design::DesignInput, path: impl Fn(f64) -> [f6
         .collect()
 }
 
+/// Achieved / predicted (at the measured length noise) worst-anchor sigma of every start-up on
+/// the local-search tour (BENCHMARKS.md, session 16 `design`: seeds 1-5 three times; the first
+/// five printed to three decimals).
+const RATIOS: [f64; 15] =
+    [1.008, 1.019, 1.071, 0.981, 0.994, 1.0077, 1.0212, 1.0207, 0.9847, 0.9931, 1.0072, 1.0587, 1.0260, 0.9802, 0.9920];
+
+/// The design's P(worst anchor error > 1 mm), integrated over the honesty's prediction.
+const PLAN_P_MAX: f64 = 5e-6;
+
+/// The recording's own P(worst > 1 mm) from its achieved sigma.
+const RECORDING_P_MAX: f64 = 1e-3;
+
+/// The design keeps P(worst > 1 mm) below [`RECORDING_P_MAX`] up to this many times its
+/// predicted sigma.
+const SCALE_CHECKED: f64 = 1.4;
+
+/// The largest chance a correct run's ratio exceeds [`SCALE_CHECKED`] (the prediction over [`RATIOS`]).
+const RECORDING_CHANCE_MAX: f64 = 5e-6;
+
+/// The 1 mm assertion's failure probability per seed with the asserted bounds.
+const BUDGET_1MM: f64 = PLAN_P_MAX + RECORDING_CHANCE_MAX;
+const _: () = assert!(BUDGET_1MM < 1e-4);
+
+/// The simulated robot's configuration, with the test machine's allowances.
+fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
+    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.join("data").display().to_string();
+    cfg
+}
+
+/// The recording check's chance failure from the measured ratios.
+#[test]
+fn the_measured_ratios_give_the_budget() {
+    let (mean, sd, up) = taut_tests::honesty::upper_prediction_bound(&RATIOS, 1e-5);
+    let chance = taut_tests::honesty::exceeds_chance(&RATIOS, SCALE_CHECKED);
+    eprintln!(
+        "{} ratios: mean {mean:.3}, sd {sd:.4}; upper prediction bound at 1e-5 {up:.3}; P(ratio > {SCALE_CHECKED}) = {chance:.1e}; 1 mm budget {BUDGET_1MM:.1e} per seed",
+        RATIOS.len()
+    );
+    assert!(chance < RECORDING_CHANCE_MAX, "P(ratio > {SCALE_CHECKED}) = {chance:.1e}");
+}
+
+/// The design of the simulated robot (deterministic) keeps P(worst > 1 mm) within the budget.
+#[test]
+fn the_design_meets_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = robot(dir.path());
+    let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+    let plan = taut_rt_core::excite::plan(&cfg, &mut ccfg);
+    assert!(ccfg.tour.is_some(), "{}", plan.summary());
+    let pred = plan.predicted.as_ref().expect("a prediction");
+    let p_plan = taut_tests::honesty::integrated_failure(&RATIOS, |c| pred.worst_exceeds_bound(1e-3, c));
+    let p_checked = pred.worst_exceeds_bound(1e-3, SCALE_CHECKED);
+    eprintln!(
+        "{}; P(worst > 1 mm) = {p_plan:.1e} over the honesty's prediction, {:.1e} at 1 x, {p_checked:.1e} at {SCALE_CHECKED} x its sigma",
+        plan.summary(),
+        pred.worst_exceeds_bound(1e-3, 1.0)
+    );
+    assert!(p_plan < PLAN_P_MAX, "P(worst > 1 mm) = {p_plan:.1e}");
+    assert!(p_checked < RECORDING_P_MAX, "P(worst > 1 mm) = {p_checked:.1e} at {SCALE_CHECKED} x");
+}
+
+/// P(worst > 1 mm) of the design at each scale (`TAUT_SCALES=1.0,1.2`) and the largest scale
+/// with P below [`RECORDING_P_MAX`]:
+/// `cargo test -p taut-tests --test e2e_excitation design_scales -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn design_scales() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = robot(dir.path());
+    let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
+    let plan = taut_rt_core::excite::plan(&cfg, &mut ccfg);
+    let pred = plan.predicted.as_ref().expect("a prediction");
+    let scales: Vec<f64> = std::env::var("TAUT_SCALES")
+        .unwrap_or_else(|_| "1.0,1.1,1.2,1.3,1.4".into())
+        .split(',')
+        .map(|s| s.trim().parse().unwrap())
+        .collect();
+    for s in scales {
+        eprintln!("{}: scale {s}: P(worst > 1 mm) <= {:.2e}", plan.summary(), pred.worst_exceeds_bound(1e-3, s));
+    }
+    let (mut lo, mut hi) = (1.0, 3.0);
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        if pred.worst_exceeds_bound(1e-3, mid) < RECORDING_P_MAX {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    eprintln!("P < {RECORDING_P_MAX:.0e} up to scale {lo:.3}");
+}
+
 /// One start-up against the truth, m.
 struct Run {
     worst_err_m: f64,
@@ -86,14 +196,16 @@ struct Run {
     axis_errs_m: Vec<[f64; 3]>,
     sigmas_m: Vec<[f64; 3]>,
     samples: usize,
+    /// This recording's P(worst > 1 mm): the prediction at the measured length noise, scaled up
+    /// by the achieved / predicted worst-anchor sigma where above 1.
+    p1: f64,
+    /// The scale used for it.
+    p1_scale: f64,
 }
 
 fn startup(seed: u64, designed: bool) -> Run {
     let dir = tempfile::tempdir().unwrap();
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    let mut cfg = robot(dir.path());
     cfg.motion.design_excitation = designed;
     // `TAUT_EXCITE_S=25`: the test start-ups' excitation (tests/src/startup.rs EXCITATION_S).
     if let Ok(s) = std::env::var("TAUT_EXCITE_S") {
@@ -172,6 +284,8 @@ fn startup(seed: u64, designed: bool) -> Run {
     };
     let errs_m: Vec<f64> = ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| dist(a, t)).collect();
     let sig: Vec<f64> = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).collect();
+    let p1_scale = (sig.iter().cloned().fold(0.0, f64::max) / at_noise_m).max(1.0);
+    let p1 = pred.as_ref().map_or(1.0, |p| p.worst_exceeds_bound(1e-3, p1_scale));
     eprintln!("seed {seed}: note {}", ce.note);
     eprintln!("seed {seed}: simulated drives: {sync_stats}");
     let _ = d.shutdown();
@@ -187,6 +301,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         axis_errs_m: ce.geometry.anchors.iter().zip(&truth.anchors).map(|(a, t)| std::array::from_fn(|i| a[i] - t[i])).collect(),
         sigmas_m: ce.sigma.anchors.clone(),
         samples: cal.samples,
+        p1,
+        p1_scale,
     }
 }
 
@@ -201,24 +317,36 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
     for seed in seeds {
         let r = startup(seed, designed);
         eprintln!(
-            "RESULT seed {seed} designed {designed}: worst anchor error {:.2} mm, worst anchor sigma {:.2} mm (predicted {:.2} mm; {:.2} mm at the measured length noise {:.3} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
+            "RESULT seed {seed} designed {designed}: worst anchor error {:.3} mm, worst anchor sigma {:.3} mm (predicted {:.3} mm; {:.3} mm at the measured length noise {:.4} mm), samples {}, errors {:?} mm, sigmas {:?} mm",
             r.worst_err_m * 1e3,
             r.worst_sigma_m * 1e3,
             r.predicted_m * 1e3,
             r.at_noise_m * 1e3,
             r.noise_m * 1e3,
             r.samples,
-            r.errs_m.iter().map(|e| (e * 1e4).round() / 10.0).collect::<Vec<_>>(),
-            r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e4).round() / 10.0)).collect::<Vec<_>>()
+            r.errs_m.iter().map(|e| (e * 1e5).round() / 100.0).collect::<Vec<_>>(),
+            r.sigmas_m.iter().map(|s| s.map(|x| (x * 1e5).round() / 100.0)).collect::<Vec<_>>()
         );
         if !designed {
             continue;
         }
-        // The issue asks for a worst anchor error <= 1 mm in the 30 s. The design predicts a
-        // worst-anchor 1-sigma of ~0.45 mm (anchor 2's x ~0.3 mm), so the worst of four errors
-        // exceeds 1 mm with a probability of ~2e-3 per seed (x beyond 3.3 sigma on anchor 2, the
-        // others less): too likely for an assertion in CI (< 1e-4 wanted). Printed here and
-        // tabulated in BENCHMARKS.md. What is asserted is what the prediction promises.
+        // The issue's 1 mm (see the module documentation for its failure rate): first whether
+        // this recording shows it at the stated rate, then the error itself.
+        eprintln!(
+            "seed {seed}: achieved / predicted worst-anchor sigma {:.4} (at the measured noise; {:.4} at the configured); this recording's P(worst > 1 mm) <= {:.1e} (predicted covariance at the measured noise x {:.3}^2)",
+            r.worst_sigma_m / r.at_noise_m,
+            r.worst_sigma_m / r.predicted_m,
+            r.p1,
+            r.p1_scale
+        );
+        if r.p1 >= RECORDING_P_MAX {
+            failures.push(format!(
+                "seed {seed}: this recording's P(worst > 1 mm) is up to {:.1e}: it does not show the 1 mm at the stated error rate",
+                r.p1
+            ));
+        } else if r.worst_err_m > 1e-3 {
+            failures.push(format!("seed {seed}: worst anchor error {:.2} mm > 1 mm", r.worst_err_m * 1e3));
+        }
         //
         // The achieved worst-anchor sigma against the prediction at the length noise the
         // calibration measured (the design's own prediction at the configured encoder noise is
