@@ -481,8 +481,14 @@ impl<'a> Joint<'a> {
         }
         let sliding = dt > 0.0 && k1 != k;
         let (yk, yk1) = (self.enc_at(k, j, rep), self.enc_at(k1, j, rep));
-        let obs = yk + s * (yk1 - yk);
-        let obs_rate = if sliding { (yk1 - yk) / dt } else { 0.0 };
+        // Quadratic interpolation where the encoder is smooth: the linear one is off by
+        // `f'' dt^2 s (s - 1) / 2` (a push's turn, 1 m/s^2 at 100 Hz: 12 microns half-way), always
+        // toward the inside of the turn, which widened a fitted play (6 mm, 25 ms: +0.08 mm, +0.75
+        // sigma on average), and it gave the cost a kink at every whole-sample offset (20 ms:
+        // the estimates spread 1.7 times their sigma).
+        let curv = if sliding { self.encoder_curvature(k, k1, j, rep) } else { 0.0 };
+        let obs = yk + s * (yk1 - yk) + 0.5 * curv * dt * dt * s * (s - 1.0);
+        let obs_rate = if sliding { (yk1 - yk) / dt + 0.5 * curv * dt * (2.0 * s - 1.0) } else { 0.0 };
         let own = self.enc_at(i, j, rep);
         let mut p = match play {
             None => self.reading(x, i, j, rep, None, offs),
@@ -491,6 +497,40 @@ impl<'a> Joint<'a> {
         p.value += own - obs;
         add_entry(&mut p.row, &mut p.len, ko, -obs_rate);
         p
+    }
+
+    /// The encoder's second derivative on the interval `[k, k1]` (m/s^2): the mean of the divided
+    /// second differences at `k` and `k1` whose three samples are readings of the interval's
+    /// segment, pushed by the play on one side ([`PlayState`]: where the encoder follows the
+    /// input smoothly; a hold's ends are kinks); 0 when neither is.
+    fn encoder_curvature(&self, k: usize, k1: usize, j: usize, rep: Option<&Rep>) -> f64 {
+        let p = self.prep;
+        let seg = p.segment[k];
+        let pl = &p.play;
+        let smooth = |q: usize| {
+            q > 0
+                && q + 1 < p.t.len()
+                && (q - 1..=q + 1)
+                    .all(|r| p.segment[r] == seg && self.enc_ok(r, j) && pl.contact[j][r] as usize == r && pl.side[j][r] == pl.side[j][q])
+                && pl.side[j][q] != 0
+        };
+        let second = |q: usize| {
+            let (ha, hb) = (p.t[q] - p.t[q - 1], p.t[q + 1] - p.t[q]);
+            let (ya, yq, yb) = (self.enc_at(q - 1, j, rep), self.enc_at(q, j, rep), self.enc_at(q + 1, j, rep));
+            2.0 * ((yb - yq) / hb - (yq - ya) / ha) / (ha + hb)
+        };
+        let (mut sum, mut cnt) = (0.0, 0.0);
+        for q in [k, k1] {
+            if smooth(q) {
+                sum += second(q);
+                cnt += 1.0;
+            }
+        }
+        if cnt > 0.0 {
+            sum / cnt
+        } else {
+            0.0
+        }
     }
 
     /// The played reading at tracker sample `i` with a time offset `delta`: the encoder samples
@@ -1150,6 +1190,103 @@ impl LeastSquares for Joint<'_> {
             }
         }
     }
+}
+
+/// [`PlayState::exclude_unseen_pushes`] in encoder time, for a fit with backlash and a time
+/// offset `delta`: the rows of `usable` (the mask before that exclusion) that keep a weight.
+/// The exclusion pairs a reading with the push (contact) of the encoder sample of its own row,
+/// but with the offset a row `i` (tracker time `t_i`) is predicted from the encoder samples
+/// around `t_i + delta` ([`Joint::predict`]), and a push at encoder sample `c` happened at
+/// tracker time `t_c - delta` (20 ms: two rows later and earlier at 100 Hz). A row is kept when
+/// it is usable and the row at the tracker time of each contact it reads from was usable too
+/// (the cable was taut when the play last pushed those readings).
+///
+/// The caller gives the other rows weight 0 rather than marking them unusable: their readings
+/// stay readings, which the encoder's interpolation between samples reads (an unusable row's
+/// reading is not one, [`Joint::predict`] then falls back to the other sample alone, and the
+/// prediction of the rows around it jumped by millimetres where the offset crossed a whole
+/// sample: the fit stuck there).
+pub fn encoder_time_exclusion(prep: &Prepared, usable: &[Vec<bool>], delta: f64) -> Vec<Vec<bool>> {
+    let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let jt = Joint { prep, spec: &spec, samples: &[], sigma: 1.0 };
+    let m = prep.t.len();
+    // Each row's encoder samples with a non-zero share (the second: usize::MAX when none).
+    let enc: Vec<(usize, usize)> = (0..m)
+        .map(|i| {
+            let (k, s, dt) = jt.locate(i, prep.t[i] + delta);
+            match (dt > 0.0, s == 0.0, s == 1.0) {
+                (false, _, _) | (true, true, _) => (k, usize::MAX),
+                (true, _, true) => (k + 1, usize::MAX),
+                _ => (k, k + 1),
+            }
+        })
+        .collect();
+    // Each encoder sample's row: the nearest to `t_q - delta` in its segment.
+    let row: Vec<usize> = (0..m)
+        .map(|q| {
+            let (k, s, dt) = jt.locate(q, prep.t[q] - delta);
+            if dt > 0.0 && s >= 0.5 {
+                k + 1
+            } else {
+                k
+            }
+        })
+        .collect();
+    (0..prep.n)
+        .map(|j| {
+            let contact = &prep.play.contact[j];
+            let taut_at_push = |q: usize| q == usize::MAX || usable[j][row[contact[q] as usize]];
+            (0..m).map(|i| usable[j][i] && taut_at_push(enc[i].0) && taut_at_push(enc[i].1)).collect()
+        })
+        .collect()
+}
+
+/// The rows of `usable` predicted from clearly pushed readings only: every encoder sample a row
+/// reads (its own; with a time offset `delta` the two around `t_i + delta`, [`Joint::predict`])
+/// was pushed by the play and moved from the sample before by more than `min_step` on its side.
+///
+/// A held reading's level is the input's extreme over the push that left it, which is the input
+/// at the last pushed sample only when the pattern found that sample exactly; at a push's end
+/// the input turns, the last steps are within the encoder noise, and any other sample's input is
+/// less extreme, so a mistaken push end (a held reading that rose by noise taken as pushed, with
+/// probability 1/2 at each end, or a last small step read as held) always predicts the held level
+/// short of the play's side, never beyond: one-sided. The play width came out short and a time
+/// offset, which trades off with it at each push's start, long (6 mm, 20 ms: 5.95 mm and
+/// +0.15 ms on average over 30 recordings, and the same with the tracker noise at 0.1 mm:
+/// deterministic). The readings held since a push share the pushing sample's pose, so in the
+/// generalised least-squares fit a hold with its push is one observation of `v_c - side w/2`,
+/// about as informative as the push's own reading ([`PlayState::hold_weights`]): leaving the holds
+/// and the ambiguous push ends out costs little information and removes the bias.
+pub fn clear_push_rows(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, min_step: f64) -> Vec<Vec<bool>> {
+    let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let jt = Joint { prep, spec: &spec, samples: &[], sigma: 1.0 };
+    let m = prep.t.len();
+    // The encoder samples a row may read while the fit moves the offset by up to a sample either
+    // way: a row whose set changed with it would make the cost jump where the offset crosses a
+    // whole sample (a 20 ms offset at 100 Hz sits on one).
+    let enc: Vec<(usize, usize)> = (0..m)
+        .map(|i| match delta {
+            None => (i, i),
+            Some(d) => {
+                let (k, _, dt) = jt.locate(i, prep.t[i] + d);
+                let k1 = if dt > 0.0 { k + 1 } else { k };
+                (k.saturating_sub(1), (k1 + 1).min(m - 1))
+            }
+        })
+        .collect();
+    (0..prep.n)
+        .map(|j| {
+            let (pl, l) = (&prep.play, &prep.l[j]);
+            let clear = |q: usize| {
+                pl.contact[j][q] as usize == q
+                    && pl.side[j][q] != 0
+                    && q > 0
+                    && prep.segment[q - 1] == prep.segment[q]
+                    && f64::from(pl.side[j][q]) * (l[q] - l[q - 1]) > min_step
+            };
+            (0..m).map(|i| usable[j][i] && (enc[i].0..=enc[i].1).all(|q| prep.segment[q] == prep.segment[i] && clear(q))).collect()
+        })
+        .collect()
 }
 
 /// Fits `spec` on `samples` from `x0`.

@@ -1125,6 +1125,9 @@ pub fn diagnose(
         }
     }
     // Readings held since a push while the cable was loose: the play's level is unknown there.
+    // (With a time offset the final refit redoes this in encoder time from the mask before it:
+    // `fit::encoder_time_play`.)
+    let usable_before_play = prep.usable.clone();
     prep.play.exclude_unseen_pushes(&mut prep.usable);
     let prep = prep; // frozen from here on
     let mut heldout_rows = vec![0];
@@ -1420,7 +1423,20 @@ pub fn diagnose(
     // and only the holds share a (contact) pose, as without one.
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
-        prep_w.hold_weight = prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m);
+        // The rows that keep a weight: not held since a push while loose (in encoder time with
+        // a time offset, whose excluded rows stay readings for the encoder's interpolation:
+        // `fit::encoder_time_exclusion`), and reading clear pushes only (`fit::clear_push_rows`:
+        // a hold's level is the input's extreme, which a mistaken push end misses on one side).
+        let delta = spec.offset(Effect::TimeOffset, n).map(|o| cur_train.x[o]);
+        let kept = match delta {
+            Some(d) => {
+                prep_w.usable = usable_before_play.clone();
+                fit::encoder_time_exclusion(&prep, &usable_before_play, d)
+            }
+            None => prep.usable.clone(),
+        };
+        let clear = fit::clear_push_rows(&prep_w, &kept, delta, 3.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m);
+        prep_w.hold_weight = clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect();
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
         let cur_w = wctx.fit(&spec, &wctx.train, &cur_train.x, opts.max_iterations);
         // Every named effect's values from the weighted fit (none reused from the unweighted one).
