@@ -30,7 +30,8 @@ pub struct Prepared {
     pub play: PlayState,
     /// Sample is usable for cable j (not loose, no data problem).
     pub usable: Vec<Vec<bool>>,
-    /// Reading of cable j excluded as loose (and only for that).
+    /// Reading of cable j excluded as loose, or as held since a push while loose
+    /// ([`PlayState::exclude_unseen_pushes`]), and only for that: a reading still.
     pub loose: Vec<Vec<bool>>,
     /// Continuous stretch of time the sample belongs to (a clock jump or dropout starts a new one);
     /// time-offset interpolation never crosses a boundary.
@@ -481,14 +482,8 @@ impl<'a> Joint<'a> {
         }
         let sliding = dt > 0.0 && k1 != k;
         let (yk, yk1) = (self.enc_at(k, j, rep), self.enc_at(k1, j, rep));
-        // Quadratic interpolation where the encoder is smooth: the linear one is off by
-        // `f'' dt^2 s (s - 1) / 2` (a push's turn, 1 m/s^2 at 100 Hz: 12 microns half-way), always
-        // toward the inside of the turn, which widened a fitted play (6 mm, 25 ms: +0.08 mm, +0.75
-        // sigma on average), and it gave the cost a kink at every whole-sample offset (20 ms:
-        // the estimates spread 1.7 times their sigma).
-        let curv = if sliding { self.encoder_curvature(k, k1, j, rep) } else { 0.0 };
-        let obs = yk + s * (yk1 - yk) + 0.5 * curv * dt * dt * s * (s - 1.0);
-        let obs_rate = if sliding { (yk1 - yk) / dt + 0.5 * curv * dt * (2.0 * s - 1.0) } else { 0.0 };
+        let obs = yk + s * (yk1 - yk);
+        let obs_rate = if sliding { (yk1 - yk) / dt } else { 0.0 };
         let own = self.enc_at(i, j, rep);
         let mut p = match play {
             None => self.reading(x, i, j, rep, None, offs),
@@ -497,40 +492,6 @@ impl<'a> Joint<'a> {
         p.value += own - obs;
         add_entry(&mut p.row, &mut p.len, ko, -obs_rate);
         p
-    }
-
-    /// The encoder's second derivative on the interval `[k, k1]` (m/s^2): the mean of the divided
-    /// second differences at `k` and `k1` whose three samples are readings of the interval's
-    /// segment, pushed by the play on one side ([`PlayState`]: where the encoder follows the
-    /// input smoothly; a hold's ends are kinks); 0 when neither is.
-    fn encoder_curvature(&self, k: usize, k1: usize, j: usize, rep: Option<&Rep>) -> f64 {
-        let p = self.prep;
-        let seg = p.segment[k];
-        let pl = &p.play;
-        let smooth = |q: usize| {
-            q > 0
-                && q + 1 < p.t.len()
-                && (q - 1..=q + 1)
-                    .all(|r| p.segment[r] == seg && self.enc_ok(r, j) && pl.contact[j][r] as usize == r && pl.side[j][r] == pl.side[j][q])
-                && pl.side[j][q] != 0
-        };
-        let second = |q: usize| {
-            let (ha, hb) = (p.t[q] - p.t[q - 1], p.t[q + 1] - p.t[q]);
-            let (ya, yq, yb) = (self.enc_at(q - 1, j, rep), self.enc_at(q, j, rep), self.enc_at(q + 1, j, rep));
-            2.0 * ((yb - yq) / hb - (yq - ya) / ha) / (ha + hb)
-        };
-        let (mut sum, mut cnt) = (0.0, 0.0);
-        for q in [k, k1] {
-            if smooth(q) {
-                sum += second(q);
-                cnt += 1.0;
-            }
-        }
-        if cnt > 0.0 {
-            sum / cnt
-        } else {
-            0.0
-        }
     }
 
     /// The played reading at tracker sample `i` with a time offset `delta`: the encoder samples

@@ -1129,6 +1129,16 @@ pub fn diagnose(
     // `fit::encoder_time_play`.)
     let usable_before_play = prep.usable.clone();
     prep.play.exclude_unseen_pushes(&mut prep.usable);
+    // Those readings are readings still, as a loose cable's are: the encoder's interpolation
+    // under a time offset reads them (`fit::Joint::predict`; taken for data problems, the rows
+    // beside them fell back to one encoder sample, millimetres off at speed).
+    for j in 0..n {
+        for i in 0..m {
+            if usable_before_play[j][i] && !prep.usable[j][i] {
+                prep.loose[j][i] = true;
+            }
+        }
+    }
     let prep = prep; // frozen from here on
     let mut heldout_rows = vec![0];
     for &i in &heldout {
