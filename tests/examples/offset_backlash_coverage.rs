@@ -62,6 +62,22 @@ fn main() {
         if d.effects.iter().any(|f| f.effect != Effect::Slack && !truth_has(f.effect)) {
             spurious += 1;
         }
+        // The test that named an effect outside the truth, and its values.
+        let spur: Vec<String> = d
+            .tests
+            .iter()
+            .filter(|t| t.decision == taut_calib::diagnose::Decision::Named && !truth_has(t.effect))
+            .map(|t| {
+                let vals: Vec<String> = t.values.iter().zip(&t.sigmas).map(|(v, s)| format!("{v:.3e} ± {s:.1e}")).collect();
+                format!(
+                    " [round {} {}: {}; {}]",
+                    t.round,
+                    t.effect.name(),
+                    t.test.map_or("no test".into(), |x| x.to_string()),
+                    vals.join(", ")
+                )
+            })
+            .collect();
         let mut line = format!("seed {:6}: {named:?}", s.seed);
         if let Some(f) = d.effects.iter().find(|f| f.effect == Effect::Backlash) {
             let w: Vec<String> = f
@@ -94,6 +110,7 @@ fn main() {
                 .collect();
             line.push_str(&format!("; EA {}", v.join(", ")));
         }
+        line.push_str(&spur.concat());
         println!("{line}");
     }
     let share = |z: &[f64], k: f64| 100.0 * z.iter().filter(|e| e.abs() <= k).count() as f64 / z.len().max(1) as f64;
