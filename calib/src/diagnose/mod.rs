@@ -1022,18 +1022,22 @@ fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: u
         .collect()
 }
 
-/// `prep` with the weights of a fit of `spec` at `x` when it has a play: 1 on the rows that read
-/// clear pushes only, 0 elsewhere ([`fit::clear_push_rows`]; the time offset at `x`'s); `None`
-/// without a play. Every fit of a model with a play uses them, in the selection as in the final
-/// estimates: fitted on the holds too, a model with a time offset and a play came out with the
-/// offset 0.2-3 ms long (20 ms true), and the third candidate of the round after named the
-/// misfit (sag, scale or a pulley at its null value on 7 of 30 recordings). The held-out tests
-/// still compare the models on every held-out reading.
+/// `prep` with the weights of a fit of `spec` at `x` when it has a play and a time offset: 1 on
+/// the rows that read clear pushes only, 0 elsewhere ([`fit::clear_push_rows`], at `x`'s
+/// offset); `None` otherwise. Every fit of such a model uses them, in the selection as in the
+/// final estimates: fitted on the holds too, a model with a time offset and a play came out
+/// with the offset 0.2-3 ms long (20 ms true), and the third candidate of the round after named
+/// the misfit (sag, scale or a pulley at its null value on 7 of 30 recordings). The held-out
+/// tests still compare the models on every held-out reading. A play without a time offset
+/// keeps the holds: they pin its width at the push's start, where only the offset trades off
+/// with it (measured bias without an offset -0.015 mm, 0.2 sigma), and without them the
+/// held-out RMS of EA 20 kN under 8 mm play (`diagnose_concealed`) rose from below 1.65 mm to
+/// 1.69 mm.
 fn play_prep(prep: &Prepared, spec: &ModelSpec, x: &[f64], encoder_sigma_m: f64) -> Option<Prepared> {
     let n = prep.n;
     spec.offset(Effect::Backlash, n)?;
-    let delta = spec.offset(Effect::TimeOffset, n).map(|o| x[o]);
-    let clear = fit::clear_push_rows(prep, &prep.usable, delta, 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
+    let delta = x[spec.offset(Effect::TimeOffset, n)?];
+    let clear = fit::clear_push_rows(prep, &prep.usable, Some(delta), 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
     let mut p = prep.clone();
     p.hold_weight = clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect();
     Some(p)
@@ -1467,8 +1471,9 @@ pub fn diagnose(
         let mut prep_w = prep.clone();
         // The rows that keep a weight: not held since a push while loose (in encoder time with
         // a time offset, whose excluded rows stay readings for the encoder's interpolation:
-        // `fit::encoder_time_exclusion`), and reading clear pushes only (`fit::clear_push_rows`:
-        // a hold's level is the input's extreme, which a mistaken push end misses on one side).
+        // `fit::encoder_time_exclusion`), and with a time offset reading clear pushes only
+        // (`fit::clear_push_rows`: a hold's level is the input's extreme, which a mistaken push
+        // end misses on one side).
         let delta = spec.offset(Effect::TimeOffset, n).map(|o| cur_train.x[o]);
         let kept = match delta {
             Some(d) => {
@@ -1477,8 +1482,14 @@ pub fn diagnose(
             }
             None => prep.usable.clone(),
         };
-        let clear = fit::clear_push_rows(&prep_w, &kept, delta, 3.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m);
-        prep_w.hold_weight = clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect();
+        prep_w.hold_weight = match delta {
+            Some(_) => {
+                let clear = fit::clear_push_rows(&prep_w, &kept, delta, 3.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m);
+                clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
+            }
+            // Without a time offset the holds stay, weighted (see `play_prep`).
+            None => prep.play.hold_weights(&kept, opts.tracker_sigma_m, opts.encoder_sigma_m),
+        };
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
         let cur_w = wctx.fit(&spec, &wctx.train, &cur_train.x, opts.max_iterations);
         // Every named effect's values from the weighted fit (none reused from the unweighted one).
