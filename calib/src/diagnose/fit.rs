@@ -1578,6 +1578,64 @@ mod tests {
         // offset with a kink at whole samples, where this data set's minimum is.)
     }
 
+    /// A play with a time offset: the rows `clear_push_rows` keeps read pushed encoder samples
+    /// only, over a sample either side (so the kept set holds while the fit moves the offset);
+    /// a row taken out of a fit as loose keeps its reading for the encoder's interpolation, so
+    /// the rows around it stay exact and continuous across a whole-sample offset; and the
+    /// loose-push exclusion pairs a row with the push of the encoder sample it reads, in encoder
+    /// time.
+    #[test]
+    fn clear_pushes_and_excluded_rows_in_encoder_time() {
+        let widths = [4e-3, 6e-3, 8e-3, 2e-3];
+        let (mut prep, x_true) = synthetic_late_with_play(2000, &widths, 2);
+        let usable = prep.usable.clone();
+        let clear = clear_push_rows(&prep, &usable, Some(0.02), 1e-4);
+        let pl = &prep.play;
+        for j in 0..4 {
+            let kept = (0..2000).filter(|&i| clear[j][i]).count();
+            assert!(kept > 500 && kept < 2000, "cable {j}: {kept} rows kept");
+            for i in (0..1996).filter(|&i| clear[j][i]) {
+                for q in i + 1..=i + 3 {
+                    assert_eq!(pl.contact[j][q] as usize, q, "cable {j} row {i} reads sample {q}, held");
+                    assert!(f64::from(pl.side[j][q]) * (prep.l[j][q] - prep.l[j][q - 1]) > 1e-4);
+                }
+            }
+        }
+        // Row 1000 of cable 1 out of the fit as loose: the rows reading its encoder sample stay
+        // exact and continuous in the offset.
+        prep.usable[1][1000] = false;
+        prep.loose[1][1000] = true;
+        let spec = ModelSpec { effects: vec![Effect::TimeOffset, Effect::Backlash], tension_end: TensionEnd::Platform };
+        let all: Vec<usize> = (0..2000).collect();
+        let p = Joint { prep: &prep, spec: &spec, samples: &all, sigma: 1.0 };
+        let at = |d: f64, i: usize| {
+            let mut x = x_true.clone();
+            x.push(d);
+            x.extend(widths);
+            p.residual(&x, i, 1)
+        };
+        for i in 996..=999 {
+            assert!(at(0.02, i).abs() < 1e-12, "row {i}: {}", at(0.02, i));
+            assert!((at(0.02 - 1e-7, i) - at(0.02 + 1e-7, i)).abs() < 1e-6, "row {i} jumps at 20 ms");
+        }
+        // A push of cable 2 at encoder sample c, whose row (c - 2 at 20 ms) was loose: the rows
+        // reading the readings it left held go; the tracker-time exclusion would pair them with
+        // the usable row c instead.
+        let j = 2;
+        let c = (100..1900)
+            .find(|&q| pl.contact[j][q] as usize == q && (q + 1..q + 6).all(|h| pl.contact[j][h] as usize == q))
+            .expect("a push with a hold after it");
+        let mut u = usable.clone();
+        u[j][c - 2] = false;
+        let kept = encoder_time_exclusion(&prep, &u, 0.02);
+        for i in c - 1..c + 3 {
+            assert!(!kept[j][i], "row {i} reads the hold after the loose push at {c}");
+        }
+        let mut tracker_time = u.clone();
+        pl.exclude_unseen_pushes(&mut tracker_time);
+        assert!(tracker_time[j][c - 1] && tracker_time[j][c]);
+    }
+
     /// The held-out residual of a candidate against the current model does not depend on the
     /// noise of the samples the current model's residual reads ([`Joint::sources`]): moving any
     /// of them moves `r0` and the candidate's residual by the same amount.
