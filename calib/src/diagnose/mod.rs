@@ -1468,9 +1468,9 @@ pub fn diagnose(
     // count as one observation), the generalised least-squares fit of the play model; unweighted,
     // a long hold pinned the play width and through it the compliance, 4-8 sigma off on some
     // recordings. Selection (the held-out tests) and the held-out RMS figures stay on the
-    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md). Also with a time
-    // offset: it shifts the encoder series, so a pushed reading is predicted from its own pose
-    // and only the holds share a (contact) pose, as without one.
+    // hold-unweighted fit the tests were calibrated on (docs/diagnosis.md), except for a model
+    // with a play and a time offset, fitted on the clear-push rows throughout (`play_prep`),
+    // as here.
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         let mut prep_w = prep.clone();
         // The rows that keep a weight: not held since a push while loose (in encoder time with
