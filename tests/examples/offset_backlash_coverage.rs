@@ -6,6 +6,10 @@
 //! ```text
 //! cargo run --profile test -p taut-tests --example offset_backlash_coverage -- [first seed, default 100] [seeds, default 10] [EA kN, default 0: none] [robot: 3 or 4 cables, default 3] [play mm, default 6] [offset ms, default 20]
 //! ```
+//!
+//! Variants for finding a bias's cause (environment): `COVERAGE_TRACKER_MM=0.1` sets the
+//! simulated tracker noise and the diagnosis's noise model to 0.1 mm; `COVERAGE_CLEAN=1` turns off
+//! tracker outliers and dropouts; `COVERAGE_LOOSE=0` sets the loose-cable fraction; `COVERAGE_LIBRARY=time-offset,backlash` limits the candidates.
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
 use taut_sim::{Physics, Scenario};
@@ -30,9 +34,24 @@ fn main() {
             ..Physics::default()
         };
         s.duration_s = 40.0;
+        if let Ok(v) = std::env::var("COVERAGE_TRACKER_MM") {
+            let sigma = v.parse::<f64>().expect("COVERAGE_TRACKER_MM: a number") * 1e-3;
+            s.noise.tracker_sigma_m = sigma;
+            s.robot.calibration.tracker_sigma_m = sigma;
+        }
+        if let Ok(v) = std::env::var("COVERAGE_LOOSE") {
+            s.loose_fraction = v.parse::<f64>().expect("COVERAGE_LOOSE: a fraction");
+        }
+        if std::env::var("COVERAGE_CLEAN").is_ok_and(|v| v == "1") {
+            s.noise.tracker_outlier_prob = 0.0;
+            s.noise.tracker_dropout_prob = 0.0;
+        }
         let sim = simulate_next_seed(&mut s);
-        let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &DiagnoseOptions::from_config(&s.robot.calibration))
-            .expect("diagnosis");
+        let mut opts = DiagnoseOptions::from_config(&s.robot.calibration);
+        if let Ok(v) = std::env::var("COVERAGE_LIBRARY") {
+            opts.library = v.split(',').map(|e| Effect::from_name(e).expect("COVERAGE_LIBRARY: effect names")).collect();
+        }
+        let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &opts).expect("diagnosis");
         let named: Vec<&str> = d.effects.iter().filter(|f| f.effect != Effect::Slack).map(|f| f.effect.name()).collect();
         let truth_has = |e: Effect| match e {
             Effect::TimeOffset => offset > 0.0,
@@ -43,6 +62,22 @@ fn main() {
         if d.effects.iter().any(|f| f.effect != Effect::Slack && !truth_has(f.effect)) {
             spurious += 1;
         }
+        // The test that named an effect outside the truth, and its values.
+        let spur: Vec<String> = d
+            .tests
+            .iter()
+            .filter(|t| t.decision == taut_calib::diagnose::Decision::Named && !truth_has(t.effect))
+            .map(|t| {
+                let vals: Vec<String> = t.values.iter().zip(&t.sigmas).map(|(v, s)| format!("{v:.3e} ± {s:.1e}")).collect();
+                format!(
+                    " [round {} {}: {}; {}]",
+                    t.round,
+                    t.effect.name(),
+                    t.test.map_or("no test".into(), |x| x.to_string()),
+                    vals.join(", ")
+                )
+            })
+            .collect();
         let mut line = format!("seed {:6}: {named:?}", s.seed);
         if let Some(f) = d.effects.iter().find(|f| f.effect == Effect::Backlash) {
             let w: Vec<String> = f
@@ -75,6 +110,7 @@ fn main() {
                 .collect();
             line.push_str(&format!("; EA {}", v.join(", ")));
         }
+        line.push_str(&spur.concat());
         println!("{line}");
     }
     let share = |z: &[f64], k: f64| 100.0 * z.iter().filter(|e| e.abs() <= k).count() as f64 / z.len().max(1) as f64;

@@ -30,7 +30,8 @@ pub struct Prepared {
     pub play: PlayState,
     /// Sample is usable for cable j (not loose, no data problem).
     pub usable: Vec<Vec<bool>>,
-    /// Reading of cable j excluded as loose (and only for that).
+    /// Reading of cable j excluded as loose, or as held since a push while loose
+    /// ([`PlayState::exclude_unseen_pushes`]), and only for that: a reading still.
     pub loose: Vec<Vec<bool>>,
     /// Continuous stretch of time the sample belongs to (a clock jump or dropout starts a new one);
     /// time-offset interpolation never crosses a boundary.
@@ -1260,6 +1261,103 @@ impl LeastSquares for Joint<'_> {
     }
 }
 
+/// [`PlayState::exclude_unseen_pushes`] in encoder time, for a fit with backlash and a time
+/// offset `delta`: the rows of `usable` (the mask before that exclusion) that keep a weight.
+/// The exclusion pairs a reading with the push (contact) of the encoder sample of its own row,
+/// but with the offset a row `i` (tracker time `t_i`) is predicted from the encoder samples
+/// around `t_i + delta` ([`Joint::predict`]), and a push at encoder sample `c` happened at
+/// tracker time `t_c - delta` (20 ms: two rows later and earlier at 100 Hz). A row is kept when
+/// it is usable and the row at the tracker time of each contact it reads from was usable too
+/// (the cable was taut when the play last pushed those readings).
+///
+/// The caller gives the other rows weight 0 rather than marking them unusable: their readings
+/// stay readings, which the encoder's interpolation between samples reads (an unusable row's
+/// reading is not one, [`Joint::predict`] then falls back to the other sample alone, and the
+/// prediction of the rows around it jumped by millimetres where the offset crossed a whole
+/// sample: the fit stuck there).
+pub fn encoder_time_exclusion(prep: &Prepared, usable: &[Vec<bool>], delta: f64) -> Vec<Vec<bool>> {
+    let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let jt = Joint { prep, spec: &spec, samples: &[], sigma: 1.0 };
+    let m = prep.t.len();
+    // Each row's encoder samples with a non-zero share (the second: usize::MAX when none).
+    let enc: Vec<(usize, usize)> = (0..m)
+        .map(|i| {
+            let (k, s, dt) = jt.locate(i, prep.t[i] + delta);
+            match (dt > 0.0, s == 0.0, s == 1.0) {
+                (false, _, _) | (true, true, _) => (k, usize::MAX),
+                (true, _, true) => (k + 1, usize::MAX),
+                _ => (k, k + 1),
+            }
+        })
+        .collect();
+    // Each encoder sample's row: the nearest to `t_q - delta` in its segment.
+    let row: Vec<usize> = (0..m)
+        .map(|q| {
+            let (k, s, dt) = jt.locate(q, prep.t[q] - delta);
+            if dt > 0.0 && s >= 0.5 {
+                k + 1
+            } else {
+                k
+            }
+        })
+        .collect();
+    (0..prep.n)
+        .map(|j| {
+            let contact = &prep.play.contact[j];
+            let taut_at_push = |q: usize| q == usize::MAX || usable[j][row[contact[q] as usize]];
+            (0..m).map(|i| usable[j][i] && taut_at_push(enc[i].0) && taut_at_push(enc[i].1)).collect()
+        })
+        .collect()
+}
+
+/// The rows of `usable` predicted from clearly pushed readings only: every encoder sample a row
+/// reads (its own; with a time offset `delta` the two around `t_i + delta`, [`Joint::predict`])
+/// was pushed by the play and moved from the sample before by more than `min_step` on its side.
+///
+/// A held reading's level is the input's extreme over the push that left it, which is the input
+/// at the last pushed sample only when the pattern found that sample exactly; at a push's end
+/// the input turns, the last steps are within the encoder noise, and any other sample's input is
+/// less extreme, so a mistaken push end (a held reading that rose by noise taken as pushed, with
+/// probability 1/2 at each end, or a last small step read as held) always predicts the held level
+/// short of the play's side, never beyond: one-sided. The play width came out short and a time
+/// offset, which trades off with it at each push's start, long (6 mm, 20 ms: 5.95 mm and
+/// +0.15 ms on average over 30 recordings, and the same with the tracker noise at 0.1 mm:
+/// deterministic). The readings held since a push share the pushing sample's pose, so in the
+/// generalised least-squares fit a hold with its push is one observation of `v_c - side w/2`,
+/// about as informative as the push's own reading ([`PlayState::hold_weights`]): leaving the holds
+/// and the ambiguous push ends out costs little information and removes the bias.
+pub fn clear_push_rows(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, min_step: f64) -> Vec<Vec<bool>> {
+    let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
+    let jt = Joint { prep, spec: &spec, samples: &[], sigma: 1.0 };
+    let m = prep.t.len();
+    // The encoder samples a row may read while the fit moves the offset by up to a sample either
+    // way: a row whose set changed with it would make the cost jump where the offset crosses a
+    // whole sample (a 20 ms offset at 100 Hz sits on one).
+    let enc: Vec<(usize, usize)> = (0..m)
+        .map(|i| match delta {
+            None => (i, i),
+            Some(d) => {
+                let (k, _, dt) = jt.locate(i, prep.t[i] + d);
+                let k1 = if dt > 0.0 { k + 1 } else { k };
+                (k.saturating_sub(1), (k1 + 1).min(m - 1))
+            }
+        })
+        .collect();
+    (0..prep.n)
+        .map(|j| {
+            let (pl, l) = (&prep.play, &prep.l[j]);
+            let clear = |q: usize| {
+                pl.contact[j][q] as usize == q
+                    && pl.side[j][q] != 0
+                    && q > 0
+                    && prep.segment[q - 1] == prep.segment[q]
+                    && f64::from(pl.side[j][q]) * (l[q] - l[q - 1]) > min_step
+            };
+            (0..m).map(|i| usable[j][i] && (enc[i].0..=enc[i].1).all(|q| prep.segment[q] == prep.segment[i] && clear(q))).collect()
+        })
+        .collect()
+}
+
 /// Fits `spec` on `samples` from `x0`.
 pub fn fit(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x0: &[f64], sigma: f64, max_iterations: usize) -> LmReport {
     assert!(spec.effects.len() <= 4, "at most 4 effects at once (Jacobian row capacity)");
@@ -1586,6 +1684,64 @@ mod tests {
         }
         // (A fit from elsewhere stalls near the minimum: the residuals are piecewise linear in the
         // offset with a kink at whole samples, where this data set's minimum is.)
+    }
+
+    /// A play with a time offset: the rows `clear_push_rows` keeps read pushed encoder samples
+    /// only, over a sample either side (so the kept set holds while the fit moves the offset);
+    /// a row taken out of a fit as loose keeps its reading for the encoder's interpolation, so
+    /// the rows around it stay exact and continuous across a whole-sample offset; and the
+    /// loose-push exclusion pairs a row with the push of the encoder sample it reads, in encoder
+    /// time.
+    #[test]
+    fn clear_pushes_and_excluded_rows_in_encoder_time() {
+        let widths = [4e-3, 6e-3, 8e-3, 2e-3];
+        let (mut prep, x_true) = synthetic_late_with_play(2000, &widths, 2);
+        let usable = prep.usable.clone();
+        let clear = clear_push_rows(&prep, &usable, Some(0.02), 1e-4);
+        let pl = &prep.play;
+        for j in 0..4 {
+            let kept = (0..2000).filter(|&i| clear[j][i]).count();
+            assert!(kept > 500 && kept < 2000, "cable {j}: {kept} rows kept");
+            for i in (0..1996).filter(|&i| clear[j][i]) {
+                for q in i + 1..=i + 3 {
+                    assert_eq!(pl.contact[j][q] as usize, q, "cable {j} row {i} reads sample {q}, held");
+                    assert!(f64::from(pl.side[j][q]) * (prep.l[j][q] - prep.l[j][q - 1]) > 1e-4);
+                }
+            }
+        }
+        // Row 1000 of cable 1 out of the fit as loose: the rows reading its encoder sample stay
+        // exact and continuous in the offset.
+        prep.usable[1][1000] = false;
+        prep.loose[1][1000] = true;
+        let spec = ModelSpec { effects: vec![Effect::TimeOffset, Effect::Backlash], tension_end: TensionEnd::Platform };
+        let all: Vec<usize> = (0..2000).collect();
+        let p = Joint { prep: &prep, spec: &spec, samples: &all, sigma: 1.0 };
+        let at = |d: f64, i: usize| {
+            let mut x = x_true.clone();
+            x.push(d);
+            x.extend(widths);
+            p.residual(&x, i, 1)
+        };
+        for i in 996..=999 {
+            assert!(at(0.02, i).abs() < 1e-12, "row {i}: {}", at(0.02, i));
+            assert!((at(0.02 - 1e-7, i) - at(0.02 + 1e-7, i)).abs() < 1e-6, "row {i} jumps at 20 ms");
+        }
+        // A push of cable 2 at encoder sample c, whose row (c - 2 at 20 ms) was loose: the rows
+        // reading the readings it left held go; the tracker-time exclusion would pair them with
+        // the usable row c instead.
+        let j = 2;
+        let c = (100..1900)
+            .find(|&q| pl.contact[j][q] as usize == q && (q + 1..q + 6).all(|h| pl.contact[j][h] as usize == q))
+            .expect("a push with a hold after it");
+        let mut u = usable.clone();
+        u[j][c - 2] = false;
+        let kept = encoder_time_exclusion(&prep, &u, 0.02);
+        for i in c - 1..c + 3 {
+            assert!(!kept[j][i], "row {i} reads the hold after the loose push at {c}");
+        }
+        let mut tracker_time = u.clone();
+        pl.exclude_unseen_pushes(&mut tracker_time);
+        assert!(tracker_time[j][c - 1] && tracker_time[j][c]);
     }
 
     /// The held-out residual of a candidate against the current model does not depend on the
