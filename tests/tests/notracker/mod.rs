@@ -347,7 +347,7 @@ fn truth_sampler(
             }
             writeln!(f, "{line}").unwrap();
             rows += 1;
-            if rows % 200 == 0 {
+            if rows.is_multiple_of(200) {
                 // A failed start-up panics the test: keep what was sampled.
                 f.flush().unwrap();
             }
