@@ -48,7 +48,6 @@ fn main() {
     let nominal = cfg.anchors().unwrap();
     let platform = cfg.platform_points();
     let opts = SelfCalOptions::from_config(&cfg);
-    let n = nominal.len();
     println!(
         "plan: {} poses x {} s, {} tares; {ROW_HZ} rows/s, {TENSION_HZ} tension readings/s per cable",
         plan.poses.len(),
@@ -91,7 +90,6 @@ fn main() {
             chi2_sf(*chi, *dof)
         );
     }
-    let _ = n;
 }
 
 /// The calibrator's data set of one start-up (both variants, the same noise).
