@@ -146,6 +146,12 @@ impl Plant {
         self.p
     }
 
+    /// Platform-end tension of each cable at the last equilibrium, N: the physics, before the
+    /// load cells' offset and noise (for measurements of what the sensors report).
+    pub fn true_tension(&self, j: usize) -> f64 {
+        self.loads[j].tension
+    }
+
     /// Simulated time, s.
     pub fn time(&self) -> f64 {
         self.t

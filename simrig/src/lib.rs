@@ -79,9 +79,10 @@ pub struct SimRobot {
     pub sync_stats: Arc<SyncStats>,
 }
 
-/// The plant's platform position, published by the site thread after every step.
+/// The plant's platform position, and each cable's true tension and drum length, published by
+/// the site thread after every step.
 #[derive(Debug, Clone, Default)]
-pub struct PlatformTruth(Arc<[AtomicU64; 3]>);
+pub struct PlatformTruth(Arc<[AtomicU64; 3 + 2 * MAX_CABLES]>);
 
 impl PlatformTruth {
     fn set(&self, p: [f64; 3]) {
@@ -92,10 +93,26 @@ impl PlatformTruth {
         }
     }
 
+    fn set_cables(&self, tension_n: &[f64], drum_m: &[f64]) {
+        for (j, (t, d)) in tension_n.iter().zip(drum_m).enumerate().take(MAX_CABLES) {
+            // Relaxed: see `set`.
+            self.0[3 + j].store(t.to_bits(), Ordering::Relaxed);
+            self.0[3 + MAX_CABLES + j].store(d.to_bits(), Ordering::Relaxed);
+        }
+    }
+
     /// The platform's true position, m.
     pub fn position(&self) -> [f64; 3] {
         // Relaxed: see `set`.
         std::array::from_fn(|i| f64::from_bits(self.0[i].load(Ordering::Relaxed)))
+    }
+
+    /// Each cable's true platform-end tension (no load-cell offset or noise), N, and drum length
+    /// (the unstretched cable paid out, no encoder effects), m; zero past the cable count.
+    pub fn cables(&self) -> ([f64; MAX_CABLES], [f64; MAX_CABLES]) {
+        // Relaxed: see `set`.
+        let get = |i: usize| f64::from_bits(self.0[i].load(Ordering::Relaxed));
+        (std::array::from_fn(|j| get(3 + j)), std::array::from_fn(|j| get(3 + MAX_CABLES + j)))
     }
 }
 
@@ -804,6 +821,11 @@ impl<R: CanTransport> Site<R> {
         (self.last_step, self.last_enc, self.last_tq) = (at, enc, tq);
         self.faults.plant_failed_steps.store(self.plant.failed_steps(), Ordering::Relaxed);
         self.platform.set(self.plant.position());
+        let mut true_n = [0.0; MAX_CABLES];
+        for (j, t) in true_n.iter_mut().enumerate().take(n) {
+            *t = self.plant.true_tension(j);
+        }
+        self.platform.set_cables(&true_n[..n], &self.drum[..n]);
     }
 }
 

@@ -127,6 +127,9 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     let sim = simrig::build(&cfg, p0, &so).unwrap();
     let truth = sim.truth.clone();
     let faults = sim.faults.clone();
+    // TAUT_E2E_TRUTH (with TAUT_E2E_KEEP): the site's true platform position, tensions and drum
+    // lengths every 5 ms into truth.csv beside the recording (for tests/examples/notracker_truth).
+    let sampler = std::env::var_os("TAUT_E2E_TRUTH").map(|_| truth_sampler(sim.platform.clone(), cfg.cables.len(), dir.path()));
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     eprintln!("e2e files in {}", dir.path().display());
     let mut states = Vec::new();
@@ -299,6 +302,10 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     }
     d.commands.try_send(taut_rt_core::motion::Command::Stop).unwrap();
     d.wait().unwrap();
+    if let Some((stop, h)) = sampler {
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        h.join().unwrap();
+    }
     Run {
         worst_aligned_m: worst,
         predicted_worst_sigma_m: plan.worst_anchor_sigma_m,
@@ -310,6 +317,45 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
         chi2_dof: chi,
         dof,
     }
+}
+
+/// Samples the site's truth every 5 ms (wall clock) into `dir/truth.csv`: seconds since the
+/// start, platform position, true tensions, drum lengths.
+fn truth_sampler(
+    platform: simrig::PlatformTruth,
+    n: usize,
+    dir: &std::path::Path,
+) -> (std::sync::Arc<std::sync::atomic::AtomicBool>, std::thread::JoinHandle<()>) {
+    use std::io::Write;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    let path = dir.join("truth.csv");
+    let h = std::thread::spawn(move || {
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+        let t0 = std::time::Instant::now();
+        let mut rows = 0u64;
+        // Relaxed: the flag carries no data; join() synchronises.
+        while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+            let p = platform.position();
+            let (t, d) = platform.cables();
+            let mut line = format!("{:.4},{:.9},{:.9},{:.9}", t0.elapsed().as_secs_f64(), p[0], p[1], p[2]);
+            for v in &t[..n] {
+                line += &format!(",{v:.6}");
+            }
+            for v in &d[..n] {
+                line += &format!(",{v:.9}");
+            }
+            writeln!(f, "{line}").unwrap();
+            rows += 1;
+            if rows.is_multiple_of(200) {
+                // A failed start-up panics the test: keep what was sampled.
+                f.flush().unwrap();
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        f.flush().unwrap();
+    });
+    (stop, h)
 }
 
 pub fn report(seed: u64, r: &Run) {
