@@ -96,58 +96,14 @@ const RATE_HZ: f64 = 128.0;
 /// Mean, standard deviation and the 99.9 % upper prediction bound of the next value of `x`
 /// (Student's t with n - 1 dof: mean + t sd sqrt(1 + 1/n)).
 fn honesty_bound(x: &[f64]) -> (f64, f64, f64) {
-    let n = x.len() as f64;
-    let mean = x.iter().sum::<f64>() / n;
-    let sd = (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-    // The t quantile by bisection on the tail.
-    let (mut lo, mut hi) = (0.0, 50.0);
-    for _ in 0..60 {
-        let mid = 0.5 * (lo + hi);
-        if student_t_sf(mid, n - 1.0) > 1e-3 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    (mean, sd, mean + hi * sd * (1.0 + 1.0 / n).sqrt())
-}
-
-/// P(T > x) for Student's t with `dof` degrees of freedom: the density integrated numerically
-/// (t = tan(u), Simpson's rule) and divided by its integral over the line.
-fn student_t_sf(x: f64, dof: f64) -> f64 {
-    let f = |u: f64| {
-        let t = u.tan();
-        (1.0 + t * t / dof).powf(-(dof + 1.0) / 2.0) / (u.cos() * u.cos())
-    };
-    let simpson = |a: f64, b: f64| {
-        let m = 20_000;
-        let h = (b - a) / m as f64;
-        // The end points carry no weight where the density (with its sec^2) vanishes.
-        let mut s = 0.0;
-        for k in 1..m {
-            s += if k % 2 == 1 { 4.0 } else { 2.0 } * f(a + k as f64 * h);
-        }
-        let end = |u: f64| if (u.abs() - std::f64::consts::FRAC_PI_2).abs() < 1e-12 { 0.0 } else { f(u) };
-        (s + end(a) + end(b)) * h / 3.0
-    };
-    let half = std::f64::consts::FRAC_PI_2;
-    simpson(x.atan(), half) / simpson(-half, half)
-}
-
-#[test]
-fn student_t_matches_tables() {
-    // scipy.stats.t: sf(4.297, 9) = 9.997e-4, sf(8.1, 9) = 1.002e-5, sf(2, 3) = 0.06966.
-    assert!((student_t_sf(4.297, 9.0) / 9.997e-4 - 1.0).abs() < 1e-3, "{}", student_t_sf(4.297, 9.0));
-    assert!((student_t_sf(8.1, 9.0) / 1.002e-5 - 1.0).abs() < 1e-3, "{}", student_t_sf(8.1, 9.0));
-    assert!((student_t_sf(2.0, 3.0) / 0.06966 - 1.0).abs() < 1e-3, "{}", student_t_sf(2.0, 3.0));
+    taut_tests::honesty::upper_prediction_bound(x, 1e-3)
 }
 
 /// The honesty bound and the recording check's chance failure from the measured ratios.
 #[test]
 fn the_measured_ratios_give_the_budget() {
     let (mean, sd, up) = honesty_bound(&RATIOS);
-    let n = RATIOS.len() as f64;
-    let chance = student_t_sf((SCALE_CHECKED - mean) / (sd * (1.0 + 1.0 / n).sqrt()), n - 1.0);
+    let chance = taut_tests::honesty::exceeds_chance(&RATIOS, SCALE_CHECKED);
     eprintln!(
         "{} ratios: mean {mean:.3}, sd {sd:.4}; 99.9 % upper prediction bound {up:.3}; P(ratio > {SCALE_CHECKED}) = {chance:.1e}; budget {BUDGET:.1e} per run",
         RATIOS.len()
