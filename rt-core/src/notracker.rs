@@ -248,8 +248,9 @@ mod tests {
 }
 
 /// The planner's predictions for candidate plans of the example robot at the simulated bus's
-/// measured ~128 tension readings a second, with P(worst aligned anchor > 3 mm) at 1, 1.06 and
-/// 1.25 x the predicted sigma (the acceptance test's budget, tests/tests/e2e_notracker_3mm.rs;
+/// measured ~128 tension readings a second, with P(worst aligned anchor > 3 mm) at 1, 1.181 and
+/// 1.45 x the predicted sigma (the acceptance test's honesty bound and its recording check,
+/// tests/tests/e2e_notracker_3mm.rs; the example plan is 16 x 34 s with 8 tares;
 /// BENCHMARKS.md, "Start-up without a tracker"):
 /// `cargo test -p taut-rt-core --lib plan_predictions -- --ignored --nocapture`.
 #[cfg(test)]
@@ -270,6 +271,8 @@ mod plan_predictions {
             (16, 30.0, 6, true, 128.0),
             (16, 32.0, 6, true, 128.0),
             (16, 30.0, 8, true, 128.0),
+            (16, 32.0, 8, true, 128.0),
+            (16, 34.0, 8, true, 128.0),
         ] {
             let mut cfg = base.clone();
             cfg.motion.dwell_poses = poses;
@@ -288,9 +291,9 @@ mod plan_predictions {
                 + ntares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
                 + p.path_m / m.dwell_speed_m_s;
             let mc = |scale: f64| p.worst_exceeds_probability(&nominal, 3e-3, scale, 4_000_000);
-            let ((pr, up), (_, up106), (_, up125)) = (mc(1.0), mc(1.06), mc(1.25));
+            let ((pr, up), (_, up118), (_, up145)) = (mc(1.0), mc(1.181), mc(1.45));
             eprintln!(
-                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.3} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}); at 1.06 sigma <= {up106:.1e}, at 1.25 sigma <= {up125:.1e}; ~{wall:.0} s (path {:.1} m), z sigmas {:?} mm, tare masks {:?}",
+                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.3} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}); at 1.181 sigma <= {up118:.1e}, at 1.45 sigma <= {up145:.1e}; ~{wall:.0} s (path {:.1} m), z sigmas {:?} mm, tare masks {:?}",
                 p.worst_anchor_sigma_m * 1e3,
                 p.path_m,
                 p.anchor_sigma_m.iter().map(|s| (s[2] * 1e4).round() / 10.0).collect::<Vec<_>>(),
