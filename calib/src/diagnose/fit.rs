@@ -696,7 +696,7 @@ impl<'a> Joint<'a> {
 
     /// [`Joint::heldout_residual`] for tracker noise correlated over `noise_lag` samples (see
     /// [`correlation_lag`]): the replaced poses' flanks mirror the candidate's own poses up to
-    /// that lag ([`Joint::replacement`]); 1 is white noise (the nearest flanks).
+    /// that lag (`Joint::replacement`); 1 is white noise (the nearest flanks).
     pub fn heldout_residual_with(&self, x: &[f64], cur: &Joint, x_cur: &[f64], i: usize, j: usize, noise_lag: usize) -> f64 {
         let n = self.prep.n;
         let shares = |s: &ModelSpec| s.offset(Effect::TimeOffset, n).is_some() || s.offset(Effect::Backlash, n).is_some();
