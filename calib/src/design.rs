@@ -160,33 +160,10 @@ impl Prediction {
     /// approximation plus `10 / draws` for the rare-event end).
     pub fn worst_exceeds_probability(&self, limit_m: f64, scale: f64, draws: usize) -> (f64, f64) {
         let k = self.anchor_sigma.len() * 3;
-        if self.anchor_cov_m2.len() != k * k || draws == 0 {
-            return (1.0, 1.0);
-        }
-        let cov = DMatrix::from_row_slice(k, k, &self.anchor_cov_m2) * (scale * scale);
-        let eig = cov.symmetric_eigen();
-        let mut root = eig.eigenvectors.clone();
-        for c in 0..k {
-            let s = eig.eigenvalues[c].max(0.0).sqrt();
-            for r in 0..k {
-                root[(r, c)] *= s;
-            }
-        }
-        let mut rng = crate::selfcal::plan::SplitMix(0x5eed_de51);
-        let mut z = nalgebra::DVector::zeros(k);
         let limit2 = limit_m * limit_m;
-        let mut over = 0usize;
-        for _ in 0..draws {
-            for i in 0..k {
-                z[i] = rng.normal();
-            }
-            let e = &root * &z;
-            if (0..k / 3).any(|j| e[3 * j] * e[3 * j] + e[3 * j + 1] * e[3 * j + 1] + e[3 * j + 2] * e[3 * j + 2] > limit2) {
-                over += 1;
-            }
-        }
-        let p = over as f64 / draws as f64;
-        (p, (p + 3.1 * (p * (1.0 - p) / draws as f64).sqrt() + 10.0 / draws as f64).min(1.0))
+        crate::mc::gaussian_exceeds(&self.anchor_cov_m2, k, scale, draws, 0x5eed_de51, |e| {
+            (0..k / 3).any(|j| e[3 * j] * e[3 * j] + e[3 * j + 1] * e[3 * j + 1] + e[3 * j + 2] * e[3 * j + 2] > limit2)
+        })
     }
 }
 
@@ -742,7 +719,7 @@ mod tests {
         let k = 3 * p.anchor_sigma.len();
         for limit in [0.5e-3, 0.6e-3] {
             let bound = p.worst_exceeds_bound(limit, 1.0);
-            let mut rng = crate::selfcal::plan::SplitMix(7);
+            let mut rng = crate::mc::SplitMix(7);
             let draws = 200_000;
             let mut sum_mc = 0.0;
             for j in 0..k / 3 {

@@ -126,6 +126,7 @@ pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
 pub mod init;
+mod mc;
 pub mod metrics;
 pub mod model;
 pub mod noise;

@@ -392,61 +392,13 @@ impl DwellPlan {
     /// (`p + 3.1 sqrt(p (1 - p) / draws) + 10 / draws`, conservative where few exceed).
     pub fn worst_exceeds_probability(&self, nominal: &[[f64; 3]], limit_m: f64, scale: f64, draws: usize) -> (f64, f64) {
         let n = nominal.len();
-        let k = 3 * n;
-        if self.anchor_cov_m2.len() != k * k || draws == 0 {
-            return (1.0, 1.0);
-        }
-        let cov = DMatrix::from_row_slice(k, k, &self.anchor_cov_m2) * (scale * scale);
-        let eig = cov.symmetric_eigen();
-        // The square root of the covariance (its gauge directions have zero variance).
-        let mut root = eig.eigenvectors.clone();
-        for c in 0..k {
-            let s = eig.eigenvalues[c].max(0.0).sqrt();
-            for r in 0..k {
-                root[(r, c)] *= s;
-            }
-        }
-        let mut rng = SplitMix(0x5eed_7a07);
-        let mut z = DVector::zeros(k);
         let mut moved = vec![[0.0; 3]; n];
-        let mut over = 0usize;
-        for _ in 0..draws {
-            for i in 0..k {
-                z[i] = rng.normal();
-            }
-            let e = &root * &z;
+        crate::mc::gaussian_exceeds(&self.anchor_cov_m2, 3 * n, scale, draws, 0x5eed_7a07, |e| {
             for j in 0..n {
                 moved[j] = std::array::from_fn(|a| nominal[j][a] + e[3 * j + a]);
             }
-            if super::align::worst_aligned_error(&moved, nominal) > limit_m {
-                over += 1;
-            }
-        }
-        let p = over as f64 / draws as f64;
-        (p, (p + 3.1 * (p * (1.0 - p) / draws as f64).sqrt() + 10.0 / draws as f64).min(1.0))
-    }
-}
-
-/// SplitMix64 with Box–Muller normals: a small deterministic generator for the Monte Carlo.
-pub(crate) struct SplitMix(pub(crate) u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1].
-    fn uniform(&mut self) -> f64 {
-        ((self.next() >> 11) as f64 + 1.0) / (1u64 << 53) as f64
-    }
-
-    pub(crate) fn normal(&mut self) -> f64 {
-        let (u, v) = (self.uniform(), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+            super::align::worst_aligned_error(&moved, nominal) > limit_m
+        })
     }
 }
 
