@@ -87,7 +87,7 @@ fn main() {
             "{}: pooled chi2/dof {:.3} at {dof} dof, P(chi2 >= that) {:.2e}",
             ["stretch", "rigid"][v],
             chi / *dof as f64,
-            chi2_sf(*chi, *dof)
+            taut_tests::honesty::chi2_sf(*chi, *dof)
         );
     }
 }
@@ -167,19 +167,4 @@ fn recordings(
         }
     }
     out
-}
-
-/// P(chi2 >= x) at `dof` (Wilson–Hilferty).
-fn chi2_sf(x: f64, dof: usize) -> f64 {
-    let k = dof.max(1) as f64;
-    let h = 2.0 / (9.0 * k);
-    let z = ((x / k).cbrt() - (1.0 - h)) / h.sqrt();
-    let t = 1.0 / (1.0 + 0.231_641_9 * z.abs());
-    let poly = t * (0.319_381_530 + t * (-0.356_563_782 + t * (1.781_477_937 + t * (-1.821_255_978 + t * 1.330_274_429))));
-    let tail = (-z * z / 2.0).exp() / (2.0 * std::f64::consts::PI).sqrt() * poly;
-    if z >= 0.0 {
-        tail
-    } else {
-        1.0 - tail
-    }
 }

@@ -56,7 +56,7 @@ fn main() {
         r.dwells.len(),
         r.chi2,
         r.dof,
-        chi2_sf(r.chi2, r.dof),
+        taut_tests::honesty::chi2_sf(r.chi2, r.dof),
         r.encoder_sigma_m * 1e6,
         r.inflation.0,
         r.loadcell_sigma_n,
@@ -370,27 +370,11 @@ fn summary(name: &str, r: Result<SelfCalReport, selfcal::SelfCalError>, truth: &
                 "  {name}: chi2/dof {:.3} at {} dof (P {:.1e}), worst anchor {:.2} mm, worst-anchor sigma {:.2} mm",
                 r.chi2 / r.dof as f64,
                 r.dof,
-                chi2_sf(r.chi2, r.dof),
+                taut_tests::honesty::chi2_sf(r.chi2, r.dof),
                 worst * 1e3,
                 sig * 1e3
             );
         }
         Err(e) => println!("  {name}: {e}"),
-    }
-}
-
-/// P(chi2 >= x) at `dof` (Wilson–Hilferty).
-fn chi2_sf(x: f64, dof: usize) -> f64 {
-    let k = dof.max(1) as f64;
-    let h = 2.0 / (9.0 * k);
-    let z = ((x / k).cbrt() - (1.0 - h)) / h.sqrt();
-    // Upper normal tail (Abramowitz-Stegun 26.2.17, |error| < 7.5e-8).
-    let t = 1.0 / (1.0 + 0.231_641_9 * z.abs());
-    let poly = t * (0.319_381_530 + t * (-0.356_563_782 + t * (1.781_477_937 + t * (-1.821_255_978 + t * 1.330_274_429))));
-    let tail = (-z * z / 2.0).exp() / (2.0 * std::f64::consts::PI).sqrt() * poly;
-    if z >= 0.0 {
-        tail
-    } else {
-        1.0 - tail
     }
 }

@@ -1,6 +1,7 @@
 //! The honesty of a predicted uncertainty from measured ratios (achieved / predicted sigma over
 //! earlier runs): the upper prediction bound of the next ratio (Student's t), for the tests that
-//! assert an error limit at a stated failure probability (e2e_excitation).
+//! assert an error limit at a stated failure probability (e2e_excitation, e2e_notracker_3mm), and
+//! a chi-square tail.
 
 /// Mean, standard deviation and the upper prediction bound of the next value of `x` at tail
 /// probability `tail` (Student's t with n - 1 dof: mean + t sd sqrt(1 + 1/n)).
@@ -72,6 +73,23 @@ pub fn student_t_sf(x: f64, dof: f64) -> f64 {
     };
     let half = std::f64::consts::FRAC_PI_2;
     simpson(x.atan(), half) / simpson(-half, half)
+}
+
+/// P(chi2 >= x) at `dof` (Wilson–Hilferty), for the chi-square of a fit's residuals (the
+/// tracker-free examples).
+pub fn chi2_sf(x: f64, dof: usize) -> f64 {
+    let k = dof.max(1) as f64;
+    let h = 2.0 / (9.0 * k);
+    let z = ((x / k).cbrt() - (1.0 - h)) / h.sqrt();
+    // Upper normal tail (Abramowitz-Stegun 26.2.17, |error| < 7.5e-8).
+    let t = 1.0 / (1.0 + 0.231_641_9 * z.abs());
+    let poly = t * (0.319_381_530 + t * (-0.356_563_782 + t * (1.781_477_937 + t * (-1.821_255_978 + t * 1.330_274_429))));
+    let tail = (-z * z / 2.0).exp() / (2.0 * std::f64::consts::PI).sqrt() * poly;
+    if z >= 0.0 {
+        tail
+    } else {
+        1.0 - tail
+    }
 }
 
 #[cfg(test)]
