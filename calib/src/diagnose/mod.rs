@@ -1038,10 +1038,16 @@ fn play_prep(prep: &Prepared, spec: &ModelSpec, x: &[f64], encoder_sigma_m: f64)
     let n = prep.n;
     spec.offset(Effect::Backlash, n)?;
     let delta = x[spec.offset(Effect::TimeOffset, n)?];
-    let clear = fit::clear_push_rows(prep, &prep.usable, Some(delta), 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
     let mut p = prep.clone();
-    p.hold_weight = clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect();
+    p.hold_weight = clear_push_weights(prep, &prep.usable, delta, encoder_sigma_m);
     Some(p)
+}
+
+/// Weight 1 on the `usable` rows of `prep` that read clear pushes at the time offset `delta`
+/// (steps beyond 3 sigmas of an encoder difference: [`fit::clear_push_rows`]), 0 elsewhere.
+fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
+    let clear = fit::clear_push_rows(prep, usable, Some(delta), 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
+    clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
 }
 
 /// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used
@@ -1491,10 +1497,7 @@ pub fn diagnose(
             None => prep.usable.clone(),
         };
         prep_w.hold_weight = match delta {
-            Some(_) => {
-                let clear = fit::clear_push_rows(&prep_w, &kept, delta, 3.0 * std::f64::consts::SQRT_2 * opts.encoder_sigma_m);
-                clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
-            }
+            Some(d) => clear_push_weights(&prep_w, &kept, d, opts.encoder_sigma_m),
             // Without a time offset the holds stay, weighted (see `play_prep`).
             None => prep.play.hold_weights(&kept, opts.tracker_sigma_m, opts.encoder_sigma_m),
         };
