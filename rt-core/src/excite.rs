@@ -29,7 +29,8 @@ pub const TOUR_MARGIN_M: f64 = 0.05;
 /// What the start-up excitation will be, and the uncertainty it should leave.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExcitationPlan {
-    /// The path: `"designed corner tour"` or `"lissajous"`.
+    /// The path: `"designed tour"` (a closed tour of waypoints chosen by [`taut_calib::design`])
+    /// or `"lissajous"`.
     pub path: &'static str,
     /// Waypoints of the tour (0 for the Lissajous curve).
     pub waypoints: usize,
@@ -137,7 +138,7 @@ pub fn plan(cfg: &RobotConfig, ccfg: &mut ControllerConfig) -> ExcitationPlan {
         Ok(d) => {
             ccfg.tour = Some(d.tour);
             let note = today.map_or(String::new(), |t| format!("the Lissajous curve: {:.2} mm", t.worst_anchor_sigma_m() * 1e3));
-            ExcitationPlan { path: "designed corner tour", waypoints: d.tour.n, predicted: Some(d.predicted), note }
+            ExcitationPlan { path: "designed tour", waypoints: d.tour.n, predicted: Some(d.predicted), note }
         }
         Err(e) => ExcitationPlan { path: "lissajous", waypoints: 0, predicted: today, note: format!("no design: {e}") },
     }
@@ -196,7 +197,7 @@ mod tests {
         let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
         let plan = plan(&cfg, &mut ccfg);
         let tour = ccfg.tour.expect("a designed tour");
-        assert_eq!(plan.path, "designed corner tour");
+        assert_eq!(plan.path, "designed tour");
         assert_eq!(plan.waypoints, tour.n);
         let w = ccfg.workspace;
         for p in &tour.waypoints[..tour.n] {
@@ -227,12 +228,12 @@ mod tests {
     #[test]
     fn predicted_vs_achieved_names_both() {
         let plan = ExcitationPlan {
-            path: "designed corner tour",
+            path: "designed tour",
             waypoints: 4,
             predicted: Some(Prediction { anchor_sigma: vec![[1e-3, 0.0, 0.0]], l0_sigma: vec![1e-3], samples: 10, anchor_cov_m2: vec![] }),
             note: String::new(),
         };
         let s = predicted_vs_achieved(&plan, &[[3e-4, 4e-4, 0.0], [0.0, 0.0, 1e-4]]);
-        assert_eq!(s, "designed corner tour: predicted worst anchor 1-sigma 1.00 mm, achieved 0.50 mm");
+        assert_eq!(s, "designed tour: predicted worst anchor 1-sigma 1.00 mm, achieved 0.50 mm");
     }
 }

@@ -26,7 +26,7 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
     let mut cfg = taut_config::RobotConfig::load(path).unwrap();
     cfg.motion.excitation_s = 25.0;
-    // The Lissajous excitation this acceptance was measured on. The designed corner tour
+    // The Lissajous excitation this acceptance was measured on. The designed tour
     // (`[motion] design_excitation = true`) optimises the anchors only: on seed 3 it
     // left the effect model at 1.84 mm held out (limit 1.73 mm) and the ideal model at 2.96 mm,
     // while the reached RMS fell to 0.69 mm. Designing for the effect parameters too is open
