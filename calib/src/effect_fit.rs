@@ -28,7 +28,7 @@
 
 use crate::diagnose::effects::{Effect, TensionEnd};
 use crate::diagnose::fit::{self, ModelSpec, PlayState, Prepared};
-use crate::diagnose::{Diagnosis, Sharing};
+use crate::diagnose::{encoder_time_prep, Diagnosis, Sharing};
 use crate::{Geometry, Sigmas};
 use std::fmt;
 use taut_config::params::Effects;
@@ -169,8 +169,10 @@ pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
 }
 
 /// The recording as the joint model's data set: every row, time segments split at gaps, the
-/// play pattern read off the readings.
-fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> Prepared {
+/// play pattern read off the readings. Also returns the usable mask before the readings held
+/// since a push while loose were left out (a fit with a time offset and a play redoes that in
+/// encoder time: [`crate::diagnose::encoder_time_prep`]).
+fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> (Prepared, Vec<Vec<bool>>) {
     let n = rec.n_cables;
     let m = rec.len();
     let mut p = Prepared {
@@ -220,13 +222,18 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
             p.loose[j].push(ok && loose);
         }
     }
-    // The diagnosis's pattern; readings held since a push while loose go (the play's level
-    // after a loose episode is unknown: see `PlayState::exclude_unseen_pushes`).
+    // The diagnosis's pattern; readings held since a push while loose go out of the fit (the
+    // play's level after a loose episode is unknown: see `PlayState::exclude_unseen_pushes`)
+    // and stay readings for the encoder's interpolation under a time offset, as the diagnosis's.
     p.play = PlayState::of_readings(&p.l, o.encoder_sigma_m);
-    p.play.exclude_unseen_pushes(&mut p.usable);
+    let usable_before_play = crate::diagnose::exclude_unseen_pushes(&mut p);
     p.hold_weight = p.play.hold_weights(&p.usable, o.tracker_sigma_m, o.encoder_sigma_m);
-    p
+    (p, usable_before_play)
 }
+
+/// How many times a fit with a play and a time offset runs again on the clear-push rows of the
+/// offset it came out at, when that moved them (in encoder time: [`fit_effects`]).
+const ENCODER_TIME_REFITS: usize = 3;
 
 /// The internal starting value of `e` from `start` (the running model), else [`Effect::start`].
 fn start_value(e: Effect, start: &Effects, j: usize) -> f64 {
@@ -260,7 +267,7 @@ pub fn fit_effects(
     if needs_tension && rec.f.is_none() {
         return Err(EffectFitError::NoTensions);
     }
-    let prep = prepare(rec, platform, needs_tension, o);
+    let (prep, usable_before_play) = prepare(rec, platform, needs_tension, o);
     for j in 0..n {
         let usable = prep.usable[j].iter().filter(|u| **u).count();
         if usable < 4 * crate::MIN_READINGS {
@@ -299,7 +306,32 @@ pub fn fit_effects(
             for q in 0..fit::width(added, n) {
                 x0[off + q] = start_value(added, start, q);
             }
-            let rep = fit::fit(&prep, &spec, &samples, &x0, sigma, o.max_iterations);
+            let rep = match (spec.offset(Effect::TimeOffset, n), spec.offset(Effect::Backlash, n)) {
+                // A play with a time offset is fitted in encoder time on the rows reading clear
+                // pushes, as the diagnosis's final estimates are ([`encoder_time_prep`]: in
+                // tracker time with the holds the offset came out 0.36 ms long and the play
+                // 0.13 mm short on average, 3.8 and 1.9 sigma). The rows are those of the
+                // offset the fit starts from, give or take a sample; when the fit moves the
+                // offset beyond that the rows change, and the fit runs again from there.
+                (Some(ko), Some(_)) => {
+                    let mut x0 = x0;
+                    let mut rows = encoder_time_prep(&prep, &usable_before_play, x0[ko], o.encoder_sigma_m);
+                    let mut rep = fit::fit(&rows, &spec, &samples, &x0, sigma, o.max_iterations);
+                    for _ in 0..ENCODER_TIME_REFITS {
+                        if !rep.was_successful() || !rep.x[ko].is_finite() {
+                            break;
+                        }
+                        let next = encoder_time_prep(&prep, &usable_before_play, rep.x[ko], o.encoder_sigma_m);
+                        if next.hold_weight == rows.hold_weight {
+                            break;
+                        }
+                        (rows, x0) = (next, rep.x.clone());
+                        rep = fit::fit(&rows, &spec, &samples, &x0, sigma, o.max_iterations);
+                    }
+                    rep
+                }
+                _ => fit::fit(&prep, &spec, &samples, &x0, sigma, o.max_iterations),
+            };
             if !rep.was_successful() || rep.x.iter().any(|v| !v.is_finite()) {
                 return Err(EffectFitError::Diverged);
             }
