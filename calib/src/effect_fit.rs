@@ -515,48 +515,12 @@ mod tests {
     /// 20,080 N, play 19.99 mm of 20, RMS 0.13 mm).
     #[test]
     fn effect_fit_leaves_out_readings_held_since_a_push_while_loose() {
-        let anchors = [[-3.0, -2.0, 3.0], [3.0, -2.0, 3.1], [3.0, 2.0, 2.9], [-3.0, 2.0, 3.0]];
-        let l0 = [0.3, -0.2, 0.1, 0.5];
         let (ea, w, min_t) = (20_000.0, 0.02, 6.0);
-        let m = 6000;
-        let mut rec = Recording::with_capacity(4, m, true, false, false);
-        let mut rng = crate::synth::Rng::new(7);
-        let path = |t: f64| [1.5 * (0.7 * t).sin(), 1.0 * (1.1 * t).sin(), 1.0 + 0.5 * (0.5 * t).cos()];
-        let geom = |p: [f64; 3], j: usize| {
-            let d = [p[0] - anchors[j][0], p[1] - anchors[j][1], p[2] - anchors[j][2]];
-            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-        };
-        // Cable 0 goes loose where it turns from paying out to reeling in (a local maximum of its
-        // length): its tension dips to 2 N within 0.4 s of the turn, and below `min_t` its drum pays
-        // out up to 6 mm of slack (pushing the play's output out, which then holds for ~0.1 s after
+        // Cable 0 goes loose where it turns from paying out to reeling in, and its drum pays out
+        // up to 6 mm of slack (pushing the play's output out, which then holds for ~0.1 s after
         // the cable is taut again: the 20 mm play outlasts the slack).
-        let g0: Vec<f64> = (0..m).map(|i| geom(path(i as f64 * 0.01), 0)).collect();
-        let turns: Vec<f64> = (1..m - 1).filter(|&i| g0[i] > g0[i - 1] && g0[i] >= g0[i + 1]).map(|i| i as f64 * 0.01).collect();
-        let mut y: [Option<f64>; 4] = [None; 4];
-        let mut loose_samples = 0;
-        for i in 0..m {
-            let t = i as f64 * 0.01;
-            let p = path(t);
-            let mut l = [0.0; 4];
-            let mut f = [0.0; 4];
-            for j in 0..4 {
-                let g = geom(p, j);
-                f[j] = if j == 0 {
-                    let dt = turns.iter().map(|tt| (t - tt).abs()).fold(f64::INFINITY, f64::min);
-                    2.0 + 58.0 * (dt / 0.4).min(1.0).powi(2)
-                } else {
-                    60.0 + 40.0 * ((0.3 + j as f64) * t).sin()
-                };
-                let slack = if f[j] < min_t { 1.5e-3 * (min_t - f[j]) } else { 0.0 };
-                loose_samples += usize::from(f[j] < min_t);
-                let v = g / (1.0 + f[j] / ea) + slack;
-                let out = y[j].map_or(v, |y| y.clamp(v - 0.5 * w, v + 0.5 * w));
-                y[j] = Some(out);
-                l[j] = out + l0[j] + 5e-5 * rng.normal();
-            }
-            let mk = [p[0] + 1e-4 * rng.normal(), p[1] + 1e-4 * rng.normal(), p[2] + 1e-4 * rng.normal()];
-            rec.push(t, mk, None, &l, Some(&f), None);
-        }
+        let (rec, anchors, l0) = loose_play_recording(ea, w, 1.5e-3, 0.0, 7);
+        let loose_samples = (0..rec.len()).filter(|&i| rec.tensions(i).unwrap()[0] < min_t).count();
         assert!(loose_samples > 150, "the data must have loose episodes ({loose_samples})");
         let o = EffectFitOptions::new(&["elasticity", "backlash"], min_t, 1e-4, 5e-5);
         let fit = fit_effects(&rec, &[[0.0; 3]; 4], &anchors, &l0, &Effects::default(), &o).unwrap();
@@ -569,13 +533,14 @@ mod tests {
         assert!(fit.rms_m < 3e-4, "rms {}", fit.rms_m);
     }
 
-    /// A 4-cable recording, 60 s at 100 Hz: a play of width `w` on every cable, the encoder
-    /// reading the cable at `t - delta` (a time offset `delta`: the reading of tracker row `i` is
-    /// the encoder's at `t_i + delta`), tracker noise 0.1 mm, encoder noise 0.05 mm. Cable 0 goes
-    /// loose (2 N) where it turns from paying out to reeling in, and below 6 N its drum pays out
-    /// slack the geometry does not see (as in the test above). Written out here with the
-    /// discrete play operator, not through the fit's model.
-    fn offset_play_recording(delta: f64, w: f64, seed: u64) -> (Recording, [[f64; 3]; 4], [f64; 4]) {
+    /// A 4-cable recording, 60 s at 100 Hz: a play of width `w` and elasticity `ea` (N,
+    /// `f64::INFINITY`: none) on every cable, the encoder reading the cable at `t - delta` (a time
+    /// offset `delta`: the reading of tracker row `i` is the encoder's at `t_i + delta`), tracker
+    /// noise 0.1 mm, encoder noise 0.05 mm. Cable 0 goes loose where it turns from paying out to
+    /// reeling in (a local maximum of its length): its tension dips to 2 N within 0.4 s of the
+    /// turn, and below 6 N its drum pays out `slack_per_n` per newton of slack the geometry does
+    /// not see. Written out here with the discrete play operator, not through the fit's model.
+    fn loose_play_recording(ea: f64, w: f64, slack_per_n: f64, delta: f64, seed: u64) -> (Recording, [[f64; 3]; 4], [f64; 4]) {
         let anchors = [[-3.0, -2.0, 3.0], [3.0, -2.0, 3.1], [3.0, 2.0, 2.9], [-3.0, 2.0, 3.0]];
         let l0 = [0.3, -0.2, 0.1, 0.5];
         let m = 6000;
@@ -605,8 +570,9 @@ mod tests {
                 f[j] = tension(j, t);
                 // The encoder's sample at t reads the cable at t - delta.
                 let te = t - delta;
-                let slack = 0.5e-3 * (6.0 - tension(j, te)).max(0.0);
-                let v = geom(path(te), j) + slack;
+                let te_f = tension(j, te);
+                let slack = slack_per_n * (6.0 - te_f).max(0.0);
+                let v = geom(path(te), j) / (1.0 + te_f / ea) + slack;
                 let out = y[j].map_or(v, |y| y.clamp(v - 0.5 * w, v + 0.5 * w));
                 y[j] = Some(out);
                 l[j] = out + l0[j] + 5e-5 * rng.normal();
@@ -632,7 +598,7 @@ mod tests {
     #[test]
     fn effect_fit_aligns_a_play_and_a_time_offset_in_encoder_time() {
         let (delta, w) = (0.02, 8e-3);
-        let (rec, anchors, l0) = offset_play_recording(delta, w, 11);
+        let (rec, anchors, l0) = loose_play_recording(f64::INFINITY, w, 0.5e-3, delta, 11);
         let o = EffectFitOptions::new(&["time-offset", "backlash"], 6.0, 1e-4, 5e-5);
         let (prep, before) = prepare(&rec, &[[0.0; 3]; 4], false, &o);
         let excluded: usize = (0..4).map(|j| (0..rec.len()).filter(|&i| before[j][i] && !prep.usable[j][i]).count()).sum();

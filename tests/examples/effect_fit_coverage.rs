@@ -18,8 +18,7 @@
 
 use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
 use taut_calib::{calibrate, CalibOptions, Geometry};
-use taut_sim::{Physics, Scenario};
-use taut_tests::sim::simulate_next_seed;
+use taut_tests::sim::{offset_backlash_scenario, simulate_next_seed};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -40,18 +39,8 @@ fn main() {
         }
     };
     for seed in first..first + count {
-        let mut s = Scenario::three_cable(seed);
-        s.physics = Physics {
-            elasticity: (ea_kn > 0).then_some(ea_kn as f64 * 1e3),
-            backlash_m: play,
-            time_offset_s: offset,
-            ..Physics::default()
-        };
-        s.duration_s = 40.0;
-        if std::env::var("EFFECT_FIT_CLEAN").is_ok_and(|v| v == "1") {
-            s.noise.tracker_outlier_prob = 0.0;
-            s.noise.tracker_dropout_prob = 0.0;
-        }
+        let clean = std::env::var("EFFECT_FIT_CLEAN").is_ok_and(|v| v == "1");
+        let mut s = offset_backlash_scenario(seed, 3, ea_kn, play, offset, clean);
         let sim = simulate_next_seed(&mut s);
         let rec = &sim.recording;
         let platform = &sim.truth.platform_points;
