@@ -168,17 +168,20 @@ pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
     Ok(out)
 }
 
-/// The recording as the joint model's data set: every row, time segments split at gaps, the
-/// play pattern read off the readings. Also returns the usable mask before the readings held
+/// The recording as the joint model's data set: every row with a pose (a row without one, a
+/// tracker dropout, is left out as in the diagnosis: a held reading's contact pose there made
+/// the prediction NaN and the fit with a play and a time offset refused as diverged), time
+/// segments split at gaps of the recording's clock, the play pattern read off the readings. Also returns the usable mask before the readings held
 /// since a push while loose were left out (a fit with a time offset and a play redoes that in
 /// encoder time: [`crate::diagnose::encoder_time_prep`]).
 fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> (Prepared, Vec<Vec<bool>>) {
     let n = rec.n_cables;
-    let m = rec.len();
+    let rows: Vec<usize> = (0..rec.len()).filter(|&i| !crate::diagnose::dataq::pose_missing(rec, i)).collect();
+    let m = rows.len();
     let mut p = Prepared {
         n,
-        t: rec.t.clone(),
-        rows: (0..m).collect(),
+        t: rows.iter().map(|&i| rec.t[i]).collect(),
+        rows: rows.clone(),
         x: vec![Vec::with_capacity(m); n],
         l: vec![Vec::with_capacity(m); n],
         f: vec![Vec::with_capacity(m); n],
@@ -196,9 +199,13 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
     dts.sort_by(|a, b| a.total_cmp(b));
     let dt = dts.get(dts.len() / 2).copied().unwrap_or(0.01);
     let mut seg = 0u32;
-    for i in 0..m {
+    let mut next = rows.iter().copied().peekable();
+    for i in 0..rec.len() {
         if i > 0 && !(rec.t[i] - rec.t[i - 1] > 0.0 && rec.t[i] - rec.t[i - 1] < 5.0 * dt) {
             seg += 1;
+        }
+        if next.next_if_eq(&i).is_none() {
+            continue;
         }
         p.segment.push(seg);
         let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
