@@ -635,6 +635,28 @@ mod tests {
         }
     }
 
+    /// Tracker dropouts (rows without a pose, as the daemon records a stale pose) under a play
+    /// and a time offset: the rows are left out, as in the diagnosis. Kept, a held reading whose
+    /// contact was such a row had a NaN prediction and the fit refused as diverged (this data:
+    /// every 97th row without a pose). Fixed seed: deterministic; the bounds as in the test above
+    /// (3.4e-5 for correct code with honest sigmas).
+    #[test]
+    fn effect_fit_leaves_out_rows_without_a_pose() {
+        let (delta, w) = (0.02, 8e-3);
+        let (mut rec, anchors, l0) = loose_play_recording(f64::INFINITY, w, 0.5e-3, delta, 11);
+        for i in (50..rec.len()).step_by(97) {
+            rec.p[i] = [f64::NAN; 3];
+        }
+        let o = EffectFitOptions::new(&["time-offset", "backlash"], 6.0, 1e-4, 5e-5);
+        let fit = fit_effects(&rec, &[[0.0; 3]; 4], &anchors, &l0, &Effects::default(), &o).unwrap();
+        let (d, sd) = (fit.effects.time_offset_s.unwrap(), fit.effects.time_offset_sigma_s.unwrap());
+        assert!(sd > 0.0 && sd < 2e-5 && (d - delta).abs() < 4.5 * sd, "offset {:.4} ± {:.4} ms", d * 1e3, sd * 1e3);
+        let (ws, wsd) = (fit.effects.backlash_m.unwrap(), fit.effects.backlash_sigma_m.unwrap());
+        for j in 0..4 {
+            assert!(wsd[j] > 0.0 && wsd[j] < 2e-5 && (ws[j] - w).abs() < 4.5 * wsd[j], "cable {j}: play {} ± {}", ws[j], wsd[j]);
+        }
+    }
+
     #[test]
     fn unknown_and_unmodelled_effects_are_refused() {
         assert_eq!(parse_effects(&["sag".into()]), Err(EffectFitError::UnknownEffect { index: 0 }));
