@@ -12,8 +12,7 @@
 //! tracker outliers and dropouts; `COVERAGE_LOOSE=0` sets the loose-cable fraction; `COVERAGE_LIBRARY=time-offset,backlash` limits the candidates.
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{Physics, Scenario};
-use taut_tests::sim::simulate_next_seed;
+use taut_tests::sim::{offset_backlash_scenario, simulate_next_seed};
 
 fn main() {
     let mut args = std::env::args().skip(1).map(|a| a.parse::<u64>().expect("a number"));
@@ -26,14 +25,8 @@ fn main() {
     let (mut zw, mut zo, mut ze) = (vec![], vec![], vec![]);
     let mut spurious = 0;
     for seed in first..first + count {
-        let mut s = if cables == 4 { Scenario::aras_cam(seed) } else { Scenario::three_cable(seed) };
-        s.physics = Physics {
-            elasticity: (ea_kn > 0).then_some(ea_kn as f64 * 1e3),
-            backlash_m: play,
-            time_offset_s: offset,
-            ..Physics::default()
-        };
-        s.duration_s = 40.0;
+        let clean = std::env::var("COVERAGE_CLEAN").is_ok_and(|v| v == "1");
+        let mut s = offset_backlash_scenario(seed, cables, ea_kn, play, offset, clean);
         if let Ok(v) = std::env::var("COVERAGE_TRACKER_MM") {
             let sigma = v.parse::<f64>().expect("COVERAGE_TRACKER_MM: a number") * 1e-3;
             s.noise.tracker_sigma_m = sigma;
@@ -41,10 +34,6 @@ fn main() {
         }
         if let Ok(v) = std::env::var("COVERAGE_LOOSE") {
             s.loose_fraction = v.parse::<f64>().expect("COVERAGE_LOOSE: a fraction");
-        }
-        if std::env::var("COVERAGE_CLEAN").is_ok_and(|v| v == "1") {
-            s.noise.tracker_outlier_prob = 0.0;
-            s.noise.tracker_dropout_prob = 0.0;
         }
         let sim = simulate_next_seed(&mut s);
         let mut opts = DiagnoseOptions::from_config(&s.robot.calibration);

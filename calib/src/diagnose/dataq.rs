@@ -125,6 +125,13 @@ fn summarise(kind: ProblemKind, cable: Option<usize>, t: &[f64], flags: &[bool],
     })
 }
 
+/// Row `i` of `rec` has no pose (position or orientation missing: a tracker dropout). Such a row
+/// is not a row of the fitted data set, in the diagnosis as in the running robot's effect fit
+/// ([`crate::effect_fit`]).
+pub(crate) fn pose_missing(rec: &Recording, i: usize) -> bool {
+    !rec.p[i].iter().all(|v| v.is_finite()) || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite()))
+}
+
 /// Finds the data problems of `rec`. `tracker_sigma_m` sets the smallest tracker jump that can be
 /// called an outlier.
 pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
@@ -139,9 +146,7 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
     let m = rec.len();
     let mut problems = vec![];
     // Dropouts: position (or orientation) missing.
-    let missing: Vec<bool> = (0..m)
-        .map(|i| !rec.p[i].iter().all(|v| v.is_finite()) || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite())))
-        .collect();
+    let missing: Vec<bool> = (0..m).map(|i| pose_missing(rec, i)).collect();
     let dropout: Vec<bool> = (0..m).map(|i| missing[i] && !removed.get(i).copied().unwrap_or(false)).collect();
     problems.extend(summarise(ProblemKind::TrackerDropout, None, &rec.t, &dropout, "tracker dropout (no position)"));
     let mut row_ok: Vec<bool> = missing.iter().map(|x| !x).collect();

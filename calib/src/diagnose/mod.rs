@@ -1050,6 +1050,39 @@ fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: f64, encoder
     clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
 }
 
+/// Leaves out of the fit the readings held since a push while the cable was loose
+/// ([`PlayState::exclude_unseen_pushes`]: the play's level is unknown there) and keeps them
+/// readings, as a loose cable's are ([`Prepared::loose`]): the encoder's interpolation under a
+/// time offset reads them ([`fit::Joint::predict`]; taken for data problems, the rows beside them
+/// fell back to one encoder sample, millimetres off at speed). Returns the usable mask before
+/// the exclusion, which a fit with a time offset and a play redoes in encoder time
+/// ([`encoder_time_prep`]). Shared by the diagnosis and the running robot's effect fit
+/// ([`crate::effect_fit`]).
+pub(crate) fn exclude_unseen_pushes(prep: &mut Prepared) -> Vec<Vec<bool>> {
+    let before = prep.usable.clone();
+    prep.play.exclude_unseen_pushes(&mut prep.usable);
+    for ((loose, now), was) in prep.loose.iter_mut().zip(&prep.usable).zip(&before) {
+        for ((l, now), was) in loose.iter_mut().zip(now).zip(was) {
+            *l |= *was && !*now;
+        }
+    }
+    before
+}
+
+/// `prep` for a fit of a model with a play and a time offset `delta`, in encoder time: every
+/// row of `usable_before_play` (the mask before [`exclude_unseen_pushes`]) stays a reading, and
+/// weight 1 goes to the rows that are not held since a push while loose in encoder time
+/// ([`fit::encoder_time_exclusion`]) and read clear pushes ([`clear_push_weights`]), 0 to the
+/// others (a hold's level is the input's extreme, which a mistaken push end misses on one side).
+/// The diagnosis's final estimates and the running robot's effect fit ([`crate::effect_fit`])
+/// both fit on it.
+pub(crate) fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Prepared {
+    let kept = fit::encoder_time_exclusion(prep, usable_before_play, delta);
+    let mut p = Prepared { usable: usable_before_play.to_vec(), ..prep.clone() };
+    p.hold_weight = clear_push_weights(&p, &kept, delta, encoder_sigma_m);
+    p
+}
+
 /// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used
 /// as the starting point of the baseline fit; without it the calibration's initialisation runs.
 pub fn diagnose(
@@ -1155,18 +1188,7 @@ pub fn diagnose(
     // Readings held since a push while the cable was loose: the play's level is unknown there.
     // (With a time offset the final refit redoes this in encoder time from the mask before it:
     // `fit::encoder_time_play`.)
-    let usable_before_play = prep.usable.clone();
-    prep.play.exclude_unseen_pushes(&mut prep.usable);
-    // Those readings are readings still, as a loose cable's are: the encoder's interpolation
-    // under a time offset reads them (`fit::Joint::predict`; taken for data problems, the rows
-    // beside them fell back to one encoder sample, millimetres off at speed).
-    for j in 0..n {
-        for i in 0..m {
-            if usable_before_play[j][i] && !prep.usable[j][i] {
-                prep.loose[j][i] = true;
-            }
-        }
-    }
+    let usable_before_play = exclude_unseen_pushes(&mut prep);
     let prep = prep; // frozen from here on
     let mut heldout_rows = vec![0];
     for &i in &heldout {
@@ -1482,24 +1504,17 @@ pub fn diagnose(
     // with a play and a time offset, fitted on the clear-push rows throughout (`play_prep`),
     // as here.
     let final_all = if spec.effects.contains(&Effect::Backlash) {
-        let mut prep_w = prep.clone();
         // The rows that keep a weight: not held since a push while loose (in encoder time with
         // a time offset, whose excluded rows stay readings for the encoder's interpolation:
         // `fit::encoder_time_exclusion`), and with a time offset reading clear pushes only
         // (`fit::clear_push_rows`: a hold's level is the input's extreme, which a mistaken push
         // end misses on one side).
-        let delta = spec.offset(Effect::TimeOffset, n).map(|o| cur_train.x[o]);
-        let kept = match delta {
-            Some(d) => {
-                prep_w.usable = usable_before_play.clone();
-                fit::encoder_time_exclusion(&prep, &usable_before_play, d)
-            }
-            None => prep.usable.clone(),
-        };
-        prep_w.hold_weight = match delta {
-            Some(d) => clear_push_weights(&prep_w, &kept, d, opts.encoder_sigma_m),
+        let prep_w = match spec.offset(Effect::TimeOffset, n).map(|o| cur_train.x[o]) {
+            Some(d) => encoder_time_prep(&prep, &usable_before_play, d, opts.encoder_sigma_m),
             // Without a time offset the holds stay, weighted (see `play_prep`).
-            None => prep.play.hold_weights(&kept, opts.tracker_sigma_m, opts.encoder_sigma_m),
+            None => {
+                Prepared { hold_weight: prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m), ..prep.clone() }
+            }
         };
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
         let cur_w = wctx.fit(&spec, &wctx.train, &cur_train.x, opts.max_iterations);
