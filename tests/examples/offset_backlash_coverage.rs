@@ -12,7 +12,7 @@
 //! Variants for finding a bias's cause (environment): `COVERAGE_TRACKER_MM=0.1` sets the
 //! simulated tracker noise and the diagnosis's noise model to 0.1 mm; `COVERAGE_CLEAN=1` turns off
 //! tracker outliers and dropouts; `COVERAGE_LOOSE=0` sets the loose-cable fraction; `COVERAGE_LIBRARY=time-offset,backlash` limits the candidates;
-//! `COVERAGE_AR_PHI=0.9` makes the simulated tracker noise AR(1) with that lag-1 correlation per
+//! `COVERAGE_TESTS=1` prints every candidate test; `COVERAGE_AR_PHI=0.9` makes the simulated tracker noise AR(1) with that lag-1 correlation per
 //! sample and the same marginal sigma (`taut_sim::Noise::tracker_phi`; the diagnosis is not told).
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -125,6 +125,17 @@ fn main() {
         }
         line.push_str(&spur.concat());
         println!("{line}");
+        if std::env::var("COVERAGE_TESTS").is_ok_and(|v| v == "1") {
+            for t in &d.tests {
+                println!(
+                    "    round {} {}: {:?}, {}",
+                    t.round,
+                    t.effect.name(),
+                    t.decision,
+                    t.test.map_or("no test".into(), |x| x.to_string())
+                );
+            }
+        }
     }
     let phi = std::env::var("COVERAGE_AR_PHI").unwrap_or_else(|_| "0 (white)".into());
     println!("tracker noise lag-1 correlation {phi}; {count} recordings");

@@ -1287,7 +1287,18 @@ pub fn diagnose(
                 rejected.push(format!("{}: the fit diverged", e.name()));
                 continue;
             }
-            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), noise_lag);
+            // The replacement's span from the smaller of the two models' noise correlation: a
+            // model that leaves out a slow effect reads it as correlated noise (the holds of a
+            // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
+            // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
+            // was named on 1 of 24 recordings), the candidate that has the effect does not; under
+            // the null both carry the same noise. Only where the span is more than one sample.
+            let lag = if noise_lag > 1 {
+                fit::correlation_lag(cur_phi.min(fit::noise_phi(&prep, &s2, &ctx.train, &r.x)), fit::MAX_NOISE_LAG)
+            } else {
+                noise_lag
+            };
+            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
             let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
