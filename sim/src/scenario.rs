@@ -382,6 +382,9 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
         " simulated by taut-sim: robot {}, seed {}, {} Hz, loose fraction target {}",
         s.robot.robot.name, s.seed, s.rate_hz, s.loose_fraction
     ));
+    if s.noise.tracker_phi > 0.0 {
+        run.recording.comments.push(format!(" tracker noise AR(1), lag-1 correlation {} per sample", s.noise.tracker_phi));
+    }
     for i in 0..total {
         let p = tracker.measure(run.positions[i], &mut tr_rng);
         for j in 0..n {

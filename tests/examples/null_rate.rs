@@ -8,7 +8,7 @@
 //! cargo run --profile test -p taut-tests --example null_rate -- [recordings, default 52]
 //! ```
 //!
-//! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`; see
+//! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`, `sim-ar1`; see
 //! `support/null_cases.rs`) changes what the recordings are made of, to split the causes of a
 //! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test as it was
 //! before session 15 (without the current model's estimation error,

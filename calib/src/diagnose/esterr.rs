@@ -51,8 +51,20 @@ pub struct EstimationError {
 
 impl EstimationError {
     /// For the model `spec` fitted as `fit` on `train` (with the fit's `sigma`), tested on
-    /// `heldout`. `None` without a covariance (singular normal matrix) or with too few samples.
-    pub fn new(prep: &Prepared, spec: &ModelSpec, train: &[usize], heldout: &[usize], fit: &LmReport, sigma: f64) -> Option<Self> {
+    /// `heldout`, with the tracker noise's lag-1 autocorrelation `phi` in that fit's residuals
+    /// on `train` ([`fit::noise_phi`]`(prep, spec, train, &fit.x)`, which the caller may already
+    /// have for the held-out replacement's span). `None` without a covariance (singular normal
+    /// matrix) or with too few samples.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        prep: &Prepared,
+        spec: &ModelSpec,
+        train: &[usize],
+        heldout: &[usize],
+        fit: &LmReport,
+        sigma: f64,
+        phi: f64,
+    ) -> Option<Self> {
         let hinv = fit.inv_normal.as_ref()?;
         let p = fit.x.len();
         let x = &fit.x;
@@ -101,7 +113,6 @@ impl EstimationError {
                 rows.push((pr.row, pr.len as u8));
             }
         }
-        let phi = fit::noise_phi(prep, spec, train, x);
         Some(EstimationError { rows, z, p, samples, phi })
     }
 

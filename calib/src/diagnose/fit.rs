@@ -849,10 +849,20 @@ pub const MAX_NOISE_LAG: usize = 100;
 /// Autocorrelation below which the tracker noise counts as uncorrelated ([`correlation_lag`]).
 const NOISE_CORRELATION_FLOOR: f64 = 0.05;
 
-/// The correlation length of the tracker noise in the residuals of `spec` at `x` on `samples`
-/// (time order): the lag `k >= 1` at which an AR(1) noise's autocorrelation `phi^k` falls below
-/// 0.05, at most `max`; 1 for white noise. The held-out test uses it for the span over which
-/// neighbouring samples share tracker noise ([`Joint::heldout_residual_with`]).
+/// The correlation length of tracker noise with lag-1 autocorrelation `phi` ([`noise_phi`]):
+/// the lag `k >= 1` at which an AR(1) noise's autocorrelation `phi^k` falls below 0.05, at most
+/// `max`; 1 for white noise. The held-out test uses it for the span over which neighbouring
+/// samples share tracker noise ([`Joint::heldout_residual_with`]).
+pub fn correlation_lag(phi: f64, max: usize) -> usize {
+    if phi <= NOISE_CORRELATION_FLOOR {
+        return 1;
+    }
+    ((NOISE_CORRELATION_FLOOR.ln() / phi.ln()).ceil() as usize).clamp(1, max.max(1))
+}
+
+/// The tracker noise's lag-1 autocorrelation `phi` (AR(1), per sample, in [0, 0.995]) in the
+/// residuals of `spec` at `x` on `samples` (time order), for [`correlation_lag`] and the
+/// estimation error's long-run factor ([`super::esterr::EstimationError::new`]).
 ///
 /// `phi` comes from the residuals' first differences, not the residuals: an effect the model
 /// leaves out is slow (or a step at each reversal, for a play) and would read as noise
@@ -860,17 +870,8 @@ const NOISE_CORRELATION_FLOOR: f64 = 0.05;
 /// `-(1 - phi) / 2` (-1/2 for white noise), which a slow misfit hardly moves. So `phi = 1 + 2
 /// corr(d_i, d_{i+1})`, pooled over the cables and the consecutive usable readings of a segment.
 /// (Measured with the residuals' own autocorrelation instead: a real 6 mm play read as noise
-/// correlated over 100 samples and the candidate's held-out residual lost the play.)
-pub fn correlation_lag(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64], max: usize) -> usize {
-    let phi = noise_phi(prep, spec, samples, x);
-    if phi <= NOISE_CORRELATION_FLOOR {
-        return 1;
-    }
-    ((NOISE_CORRELATION_FLOOR.ln() / phi.ln()).ceil() as usize).clamp(1, max.max(1))
-}
-
-/// The tracker noise's lag-1 autocorrelation `phi` (AR(1), per sample, in [0, 0.995]) from the
-/// first differences of the residuals of `spec` at `x` on `samples` (see [`correlation_lag`]).
+/// correlated over 100 samples and the candidate's held-out residual lost the play.) The hold
+/// weights of `prep` do not enter (residuals, not weighted rows).
 pub fn noise_phi(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]) -> f64 {
     let m = prep.t.len();
     let joint = Joint { prep, spec, samples, sigma: 1.0 };

@@ -1270,7 +1270,10 @@ pub fn diagnose(
         round += 1;
         // How far apart the current model's residuals stay correlated (the tracker noise's
         // correlation length, 1 when white): the held-out replacement's span.
-        let noise_lag = fit::correlation_lag(&prep, &spec, &ctx.train, &cur_train.x, fit::MAX_NOISE_LAG);
+        // `noise_phi` once per round: the same residuals give the estimation error's long-run
+        // factor below (the clear-push weights of `cur_pp` do not enter the residuals).
+        let cur_phi = fit::noise_phi(&prep, &spec, &ctx.train, &cur_train.x);
+        let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
         let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
         // The current model's own estimation error on the training blocks: part of every
@@ -1278,7 +1281,9 @@ pub fn diagnose(
         let cur_pp = play_prep(&prep, &spec, &cur_train.x, opts.encoder_sigma_m);
         let cur_err = opts
             .estimation_error
-            .then(|| esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(&prep), &spec, &ctx.train, &ctx.heldout, &cur_train, sigma))
+            .then(|| {
+                esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(&prep), &spec, &ctx.train, &ctx.heldout, &cur_train, sigma, cur_phi)
+            })
             .flatten();
         let mut cands: Vec<(Effect, Candidate)> = vec![];
         rejected.clear();
@@ -1304,7 +1309,18 @@ pub fn diagnose(
                 rejected.push(format!("{}: the fit diverged", e.name()));
                 continue;
             }
-            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), noise_lag);
+            // The replacement's span from the smaller of the two models' noise correlation: a
+            // model that leaves out a slow effect reads it as correlated noise (the holds of a
+            // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
+            // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
+            // was named on 1 of 24 recordings), the candidate that has the effect does not; under
+            // the null both carry the same noise. Only where the span is more than one sample.
+            let lag = if noise_lag > 1 {
+                fit::correlation_lag(cur_phi.min(fit::noise_phi(&prep, &s2, &ctx.train, &r.x)), fit::MAX_NOISE_LAG)
+            } else {
+                noise_lag
+            };
+            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
             let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
@@ -1384,14 +1400,9 @@ pub fn diagnose(
                     .estimation_error
                     .then(|| {
                         let pp = cur_pp.as_ref().and_then(|_| play_prep(&prep, &c.spec, &c.report.x, opts.encoder_sigma_m));
-                        esterr::EstimationError::new(
-                            pp.as_ref().unwrap_or(&prep),
-                            &c.spec,
-                            &ctx.screen_train,
-                            &ctx.heldout,
-                            &c.report,
-                            sigma,
-                        )
+                        let pp = pp.as_ref().unwrap_or(&prep);
+                        let phi = fit::noise_phi(pp, &c.spec, &ctx.screen_train, &c.report.x);
+                        esterr::EstimationError::new(pp, &c.spec, &ctx.screen_train, &ctx.heldout, &c.report, sigma, phi)
                     })
                     .flatten();
                 let pair = weighted_test(&c.res, &c.res_w, &cands[bi].1.res, &cands[bi].1.res_w, &ctx.heldout_rows, err.as_ref());

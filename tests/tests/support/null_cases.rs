@@ -84,11 +84,14 @@ pub enum Variant {
     /// As [`Variant::Ideal`] with AR(1) tracker noise, lag-1 coefficient 0.9 per sample
     /// (`NULL_AR_PHI` sets another).
     IdealAr1,
+    /// The simulator as it is with its AR(1) tracker noise (`Noise::tracker_phi`, the same
+    /// marginal sigma), lag-1 coefficient 0.9 per sample (`NULL_AR_PHI` sets another).
+    SimAr1,
 }
 
 #[allow(dead_code)]
 impl Variant {
-    /// From a name (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`).
+    /// From a name (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`, `sim-ar1`).
     pub fn parse(s: &str) -> Option<Variant> {
         Some(match s {
             "sim" => Variant::Sim,
@@ -97,12 +100,13 @@ impl Variant {
             "clean" => Variant::Clean,
             "ideal" => Variant::Ideal,
             "ideal-ar1" => Variant::IdealAr1,
+            "sim-ar1" => Variant::SimAr1,
             _ => return None,
         })
     }
 }
 
-/// The lag-1 coefficient of [`Variant::IdealAr1`]'s tracker noise: `NULL_AR_PHI`, default 0.9.
+/// The lag-1 coefficient of [`Variant::IdealAr1`]'s and [`Variant::SimAr1`]'s tracker noise: `NULL_AR_PHI`, default 0.9.
 pub fn ar1_phi() -> f64 {
     std::env::var("NULL_AR_PHI").ok().and_then(|v| v.parse().ok()).filter(|p: &f64| (0.0..1.0).contains(p)).unwrap_or(0.9)
 }
@@ -150,6 +154,7 @@ pub fn diagnose_with(k: usize, variant: Variant, estimation_error: bool) -> Diag
             s.noise.encoder_quantum_m = 0.0;
             s.loose_fraction = 0.0;
         }
+        Variant::SimAr1 => s.noise.tracker_phi = ar1_phi(),
         _ => {}
     }
     let sim = loop {
