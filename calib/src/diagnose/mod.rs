@@ -475,6 +475,25 @@ struct Ctx<'a> {
     heldout_rows: Vec<usize>,
 }
 
+/// How the held-out test groups the held-out residuals into its score terms (the summands whose
+/// time series [`select::long_run_variance`] takes the variance of; [`Ctx::heldout_terms`]):
+/// term `t` is the residuals `order[rows[t]..rows[t + 1]]`, the terms in time order.
+///
+/// The residuals of one term share their tracker noise. Without a play each held-out time
+/// sample is a term (its cables share the sample's pose). A play's held reading is predicted from
+/// the pose where the play last pushed (its contact), so every reading of a hold (~50 samples of
+/// 0.5 s at 100 Hz on the 3-cable robot) carries the same tracker noise: a hold's residuals are
+/// one draw (measured on `offset_backlash_coverage`, 30 recordings with a 20 ms offset and a 6
+/// mm play: the holds' mean residual 1.3 mm RMS, the readings about it 0.35 mm, the encoder's
+/// noise). Counted as ~50 samples in batches of ~30 the scores' variance was far too small:
+/// the t statistics of candidates outside the truth restricted to the held readings had variance
+/// 18.5 (1.16 on the pushed readings), and 18 of 120 p-values fell below 1e-3.
+#[derive(Debug, Clone)]
+struct Terms {
+    order: Vec<usize>,
+    rows: Vec<usize>,
+}
+
 fn stride(v: &[usize], target: usize) -> Vec<usize> {
     let s = v.len().div_ceil(target.max(1)).max(1);
     v.iter().step_by(s).copied().collect()
@@ -531,6 +550,36 @@ impl Ctx<'_> {
             }
         }
         out
+    }
+
+    /// The held-out test's score terms for the current model `spec` at `x` ([`Terms`]): each
+    /// held-out residual is placed at the earliest tracker sample its prediction reads
+    /// ([`fit::Joint::sources`]), the residuals placed at one sample form one term, and the terms
+    /// are in time order. Without a play that is the residual's own sample (the terms are the
+    /// held-out time samples); a held reading is placed at its contact, so a hold is one term.
+    fn heldout_terms(&self, spec: &ModelSpec, x: &[f64]) -> Terms {
+        let n = self.prep.n;
+        if spec.offset(Effect::Backlash, n).is_none() {
+            let rows = self.heldout_rows.last().copied().unwrap_or(0);
+            return Terms { order: (0..rows).collect(), rows: self.heldout_rows.clone() };
+        }
+        let c = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
+        let mut at = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
+        for &i in &self.heldout {
+            for j in (0..n).filter(|&j| self.prep.usable[j][i]) {
+                at.push(c.sources(x, i, j).0.first().map_or(i, |&q| q.min(i)));
+            }
+        }
+        let mut order: Vec<usize> = (0..at.len()).collect();
+        order.sort_by_key(|&k| (at[k], k));
+        let mut rows = vec![0];
+        for (q, &k) in order.iter().enumerate() {
+            if q > 0 && at[k] != at[order[q - 1]] {
+                rows.push(q);
+            }
+        }
+        rows.push(order.len());
+        Terms { order, rows }
     }
 
     /// The errors-in-variables factor `sqrt(sigma^2 / var)` ([`fit::Eiv`]) of each held-out
@@ -862,20 +911,21 @@ fn weighted_test(
     w0: &[f64],
     r1: &[f64],
     w1: &[f64],
-    rows: &[usize],
+    terms: &Terms,
     err: Option<&esterr::EstimationError>,
 ) -> Option<HeldoutTest> {
-    if w0.iter().chain(w1).all(|w| *w == 1.0) {
-        let delta: Vec<f64> = r0.iter().zip(r1).map(|(a, b)| a - b).collect();
-        let est = err.and_then(|e| e.variance(&delta, None));
-        return select::encompassing_test_with(r0, r1, rows, select::BATCHES, est);
+    if r0.len() != terms.order.len() || r1.len() != terms.order.len() {
+        return None;
     }
-    let w: Vec<f64> = w0.iter().zip(w1).map(|(a, b)| a.min(*b)).collect();
+    let plain = w0.iter().chain(w1).all(|w| *w == 1.0);
+    let w: Vec<f64> = if plain { vec![1.0; r0.len()] } else { w0.iter().zip(w1).map(|(a, b)| a.min(*b)).collect() };
     let a: Vec<f64> = r0.iter().zip(&w).map(|(r, w)| r * w).collect();
     let b: Vec<f64> = r1.iter().zip(&w).map(|(r, w)| r * w).collect();
     let delta: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
-    let est = err.and_then(|e| e.variance(&delta, Some(&w)));
-    select::encompassing_test_with(&a, &b, rows, select::BATCHES, est)
+    let est = err.and_then(|e| e.variance(&delta, (!plain).then_some(&w[..])));
+    let a: Vec<f64> = terms.order.iter().map(|&k| a[k]).collect();
+    let b: Vec<f64> = terms.order.iter().map(|&k| b[k]).collect();
+    select::encompassing_test_with(&a, &b, &terms.rows, select::BATCHES, est)
 }
 
 /// For the parameters `params` of the fit `r` on `samples`: the variance each one gets from the
@@ -1251,6 +1301,7 @@ pub fn diagnose(
         let noise_lag = fit::correlation_lag(&prep, &spec, &ctx.train, &cur_train.x, fit::MAX_NOISE_LAG);
         let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
+        let cur_terms = ctx.heldout_terms(&spec, &cur_train.x);
         // The current model's own estimation error on the training blocks: part of every
         // held-out test's variance (see [`esterr`]).
         let cur_pp = play_prep(&prep, &spec, &cur_train.x, opts.encoder_sigma_m);
@@ -1284,7 +1335,7 @@ pub fn diagnose(
             }
             let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), noise_lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
+            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
             // where they can matter: a candidate that passed, or a pulley (the absorbed note).
             let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
@@ -1372,7 +1423,14 @@ pub fn diagnose(
                         )
                     })
                     .flatten();
-                let pair = weighted_test(&c.res, &c.res_w, &cands[bi].1.res, &cands[bi].1.res_w, &ctx.heldout_rows, err.as_ref());
+                let pair = weighted_test(
+                    &c.res,
+                    &c.res_w,
+                    &cands[bi].1.res,
+                    &cands[bi].1.res_w,
+                    &ctx.heldout_terms(&c.spec, &c.report.x),
+                    err.as_ref(),
+                );
                 if pair.is_none_or(|t| t.p_value >= alpha) {
                     let ho = (c.res.iter().map(|r| r * r).sum::<f64>() / c.res.len().max(1) as f64).sqrt();
                     equally_good.push((*e, ho));
