@@ -473,6 +473,9 @@ struct Ctx<'a> {
     screen_train: Vec<usize>,
     /// Where each held-out time sample's residuals start (see [`Ctx::heldout_residuals`]).
     heldout_rows: Vec<usize>,
+    /// Tracker and encoder noise variances, m^2 ([`Ctx::heldout_terms`]).
+    tracker_var: f64,
+    encoder_var: f64,
 }
 
 /// How the held-out test groups the held-out residuals into its score terms (the summands whose
@@ -492,6 +495,10 @@ struct Ctx<'a> {
 struct Terms {
     order: Vec<usize>,
     rows: Vec<usize>,
+    /// Per residual (in the residuals' order), the factor both models' residuals are scaled by:
+    /// with a play, the square root of the reading's generalised least-squares weight within its
+    /// hold of `h` held-out readings, `(s_t^2 + s_e^2) / (h s_t^2 + s_e^2)`; else 1.
+    scale: Vec<f64>,
 }
 
 fn stride(v: &[usize], target: usize) -> Vec<usize> {
@@ -559,17 +566,27 @@ impl Ctx<'_> {
     /// held-out time samples); a held reading is placed at its contact, so a hold is one term.
     fn heldout_terms(&self, spec: &ModelSpec, x: &[f64]) -> Terms {
         let n = self.prep.n;
+        let rows = self.heldout_rows.last().copied().unwrap_or(0);
         if spec.offset(Effect::Backlash, n).is_none() {
-            let rows = self.heldout_rows.last().copied().unwrap_or(0);
-            return Terms { order: (0..rows).collect(), rows: self.heldout_rows.clone() };
+            return Terms { order: (0..rows).collect(), rows: self.heldout_rows.clone(), scale: vec![1.0; rows] };
         }
         let c = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
-        let mut at = Vec::with_capacity(self.heldout_rows.last().copied().unwrap_or(0));
+        let mut at = Vec::with_capacity(rows);
+        let mut hold = Vec::with_capacity(rows);
         for &i in &self.heldout {
             for j in (0..n).filter(|&j| self.prep.usable[j][i]) {
                 at.push(c.sources(x, i, j).0.first().map_or(i, |&q| q.min(i)));
+                hold.push((j, self.prep.play.contact[j][i]));
             }
         }
+        // Each reading weighted as in the generalised least-squares fit of its hold (see
+        // `PlayState::hold_weights`), counting the hold's held-out readings.
+        let mut count: std::collections::HashMap<(usize, u32), u32> = std::collections::HashMap::new();
+        for h in &hold {
+            *count.entry(*h).or_default() += 1;
+        }
+        let (st2, se2) = (self.tracker_var, self.encoder_var.max(1e-18));
+        let scale = hold.iter().map(|h| (st2 + se2) / (f64::from(count[h]) * st2 + se2)).map(f64::sqrt).collect();
         let mut order: Vec<usize> = (0..at.len()).collect();
         order.sort_by_key(|&k| (at[k], k));
         let mut rows = vec![0];
@@ -579,7 +596,7 @@ impl Ctx<'_> {
             }
         }
         rows.push(order.len());
-        Terms { order, rows }
+        Terms { order, rows, scale }
     }
 
     /// The errors-in-variables factor `sqrt(sigma^2 / var)` ([`fit::Eiv`]) of each held-out
@@ -917,8 +934,9 @@ fn weighted_test(
     if r0.len() != terms.order.len() || r1.len() != terms.order.len() {
         return None;
     }
-    let plain = w0.iter().chain(w1).all(|w| *w == 1.0);
-    let w: Vec<f64> = if plain { vec![1.0; r0.len()] } else { w0.iter().zip(w1).map(|(a, b)| a.min(*b)).collect() };
+    let plain = w0.iter().chain(w1).chain(&terms.scale).all(|w| *w == 1.0);
+    let w: Vec<f64> =
+        if plain { vec![1.0; r0.len()] } else { w0.iter().zip(w1).zip(&terms.scale).map(|((a, b), s)| a.min(*b) * s).collect() };
     let a: Vec<f64> = r0.iter().zip(&w).map(|(r, w)| r * w).collect();
     let b: Vec<f64> = r1.iter().zip(&w).map(|(r, w)| r * w).collect();
     let delta: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
@@ -1222,8 +1240,17 @@ pub fn diagnose(
     for &i in &heldout {
         heldout_rows.push(heldout_rows.last().copied().unwrap_or(0) + (0..n).filter(|&j| prep.usable[j][i]).count());
     }
-    let mut ctx =
-        Ctx { prep: &prep, sigma, tension_offset_sigma: opts.loadcell_offset_n, train, heldout, screen_train: vec![], heldout_rows };
+    let mut ctx = Ctx {
+        prep: &prep,
+        sigma,
+        tension_offset_sigma: opts.loadcell_offset_n,
+        train,
+        heldout,
+        screen_train: vec![],
+        heldout_rows,
+        tracker_var: opts.tracker_sigma_m.powi(2),
+        encoder_var: opts.encoder_sigma_m.powi(2),
+    };
     let frac = opts.screen_samples as f64 / m.max(1) as f64;
     ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
 
