@@ -351,6 +351,20 @@ mod tests {
     use super::*;
     use crate::synth::Rng;
 
+    /// A term that carries most of the sum (a play's hold whose readings share one tracker
+    /// error, placed at its contact: the first term when the hold began before the held-out
+    /// block) is in the variance as it is in the sum. Deterministic: small alternating terms
+    /// and one large first term; before, the first term was left out of the variance and
+    /// `var / u_0^2` was ~1e-4.
+    #[test]
+    fn long_run_variance_counts_the_first_term() {
+        let mut u: Vec<f64> = (0..400).map(|i| if i % 2 == 0 { 0.01 } else { -0.01 }).collect();
+        u[0] = 1.0;
+        let w = vec![1.0; u.len()];
+        let (var, _) = long_run_variance(&u, &w, 50);
+        assert!(var > 0.5 && var < 2.0, "variance {var} for a sum dominated by a first term of 1");
+    }
+
     #[test]
     fn student_t_tail_matches_closed_forms() {
         for t in [0.0f64, 0.3, 1.0, 2.5, 7.0, 40.0] {
