@@ -490,7 +490,12 @@ struct Ctx<'a> {
 /// mm play: the holds' mean residual 1.3 mm RMS, the readings about it 0.35 mm, the encoder's
 /// noise). Counted as ~50 samples in batches of ~30 the scores' variance was far too small:
 /// the t statistics of candidates outside the truth restricted to the held readings had variance
-/// 18.5 (1.16 on the pushed readings), and 18 of 120 p-values fell below 1e-3.
+/// 18.5 (1.16 on the pushed readings), and 18 of 120 p-values fell below 1e-3. A hold is now one
+/// term (placed at its contact), and its readings are weighted as the hold's generalised least
+/// squares weighs them (`scale`: otherwise the few hold terms carry most of the variance and the
+/// test keeps few degrees of freedom; EA 20 kN under a 20 ms offset and a 6 mm play was then not
+/// named, t = 5.2 with 12 dof). Together 0 of those 120 below 1e-3 and 1 below 0.01 (BENCHMARKS.md,
+/// branch third2).
 #[derive(Debug, Clone)]
 struct Terms {
     order: Vec<usize>,
