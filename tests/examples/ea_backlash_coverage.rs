@@ -44,7 +44,15 @@ fn main() {
             .iter()
             .find(|f| f.effect == Effect::Backlash)
             .map(|f| f.values.iter().map(|w| format!("{:.1}", w * 1e3)).collect::<Vec<_>>());
-        println!("seed {seed}: {named:?} EA {} ; play mm {widths:?}", line.join(", "));
+        // The tests that named an effect outside the truth.
+        let spur: String = d
+            .tests
+            .iter()
+            .filter(|t| t.decision == taut_calib::diagnose::Decision::Named)
+            .filter(|t| ![Effect::Elasticity, Effect::Backlash, Effect::Slack].contains(&t.effect))
+            .map(|t| format!(" [round {} {}: {}]", t.round, t.effect.name(), t.test.map_or("no test".into(), |x| x.to_string())))
+            .collect();
+        println!("seed {seed}: {named:?} EA {} ; play mm {widths:?}{spur}", line.join(", "));
     }
     let share = |k: f64| 100.0 * z.iter().filter(|e| e.abs() <= k).count() as f64 / z.len().max(1) as f64;
     println!("{} cable estimates: within 1 σ {:.0} %, 2 σ {:.0} %, 3 σ {:.0} %", z.len(), share(1.0), share(2.0), share(3.0));

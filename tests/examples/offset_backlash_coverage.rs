@@ -31,6 +31,7 @@ fn main() {
     let (mut zw, mut zo, mut ze) = (vec![], vec![], vec![]);
     let mut named_count = [0usize; 3];
     let mut spurious = 0;
+    let (mut after_truth, mut alpha) = (vec![], f64::NAN);
     for seed in first..first + count {
         let clean = std::env::var("COVERAGE_CLEAN").is_ok_and(|v| v == "1");
         let mut s = offset_backlash_scenario(seed, cables, ea_kn, play, offset, clean);
@@ -63,6 +64,15 @@ fn main() {
         }
         if d.effects.iter().any(|f| f.effect != Effect::Slack && !truth_has(f.effect)) {
             spurious += 1;
+        }
+        // The tests of candidates outside the truth once every effect of the truth is in the
+        // current model (rounds after the truth's count): their p-values should be uniform.
+        let in_truth = [Effect::TimeOffset, Effect::Backlash, Effect::Elasticity].into_iter().filter(|e| truth_has(*e)).count();
+        let truth_named = d.effects.iter().filter(|f| f.effect != Effect::Slack && truth_has(f.effect)).count() == in_truth;
+        if truth_named {
+            alpha = d.tests.first().map_or(alpha, |t| t.alpha);
+            after_truth
+                .extend(d.tests.iter().filter(|t| t.round > in_truth && !truth_has(t.effect)).filter_map(|t| t.test.map(|x| x.p_value)));
         }
         // The test that named an effect outside the truth, and its values.
         let spur: Vec<String> = d
@@ -155,4 +165,19 @@ fn main() {
         );
     }
     println!("recordings naming an effect not in the truth: {spurious} of {count}");
+    let below = |a: f64| after_truth.iter().filter(|p| **p < a).count();
+    println!(
+        "tests of candidates outside the truth after it was named: {}; p below 0.05: {}, 0.01: {}, 1e-3: {}, 1e-4: {}, alpha {alpha:.1e}: {} (a uniform p: {:.1}, {:.1}, {:.2}, {:.3}, {:.1e})",
+        after_truth.len(),
+        below(0.05),
+        below(0.01),
+        below(1e-3),
+        below(1e-4),
+        below(alpha),
+        0.05 * after_truth.len() as f64,
+        0.01 * after_truth.len() as f64,
+        1e-3 * after_truth.len() as f64,
+        1e-4 * after_truth.len() as f64,
+        alpha * after_truth.len() as f64
+    );
 }

@@ -473,6 +473,37 @@ struct Ctx<'a> {
     screen_train: Vec<usize>,
     /// Where each held-out time sample's residuals start (see [`Ctx::heldout_residuals`]).
     heldout_rows: Vec<usize>,
+    /// Tracker and encoder noise variances, m^2 ([`Ctx::heldout_terms`]).
+    tracker_var: f64,
+    encoder_var: f64,
+}
+
+/// How the held-out test groups the held-out residuals into its score terms (the summands whose
+/// time series [`select::long_run_variance`] takes the variance of; [`Ctx::heldout_terms`]):
+/// term `t` is the residuals `order[rows[t]..rows[t + 1]]`, the terms in time order.
+///
+/// The residuals of one term share their tracker noise. Without a play each held-out time
+/// sample is a term (its cables share the sample's pose). A play's held reading is predicted from
+/// the pose where the play last pushed (its contact), so every reading of a hold (~50 samples of
+/// 0.5 s at 100 Hz on the 3-cable robot) carries the same tracker noise: a hold's residuals are
+/// one draw (measured on `offset_backlash_coverage`, 30 recordings with a 20 ms offset and a 6
+/// mm play: the holds' mean residual 1.3 mm RMS, the readings about it 0.35 mm, the encoder's
+/// noise). Counted as ~50 samples in batches of ~30 the scores' variance was far too small:
+/// the t statistics of candidates outside the truth restricted to the held readings had variance
+/// 18.5 (1.16 on the pushed readings), and 18 of 120 p-values fell below 1e-3. A hold is now one
+/// term (placed at its contact), and its readings are weighted as the hold's generalised least
+/// squares weighs them (`scale`: otherwise the few hold terms carry most of the variance and the
+/// test keeps few degrees of freedom; EA 20 kN under a 20 ms offset and a 6 mm play was then not
+/// named, t = 5.2 with 12 dof). Together 0 of those 120 below 1e-3 and 1 below 0.01 (BENCHMARKS.md,
+/// branch third2).
+#[derive(Debug, Clone)]
+struct Terms {
+    order: Vec<usize>,
+    rows: Vec<usize>,
+    /// Per residual (in the residuals' order), the factor both models' residuals are scaled by:
+    /// with a play, the square root of the reading's generalised least-squares weight within its
+    /// hold of `h` held-out readings, `(s_t^2 + s_e^2) / (h s_t^2 + s_e^2)`; else 1.
+    scale: Vec<f64>,
 }
 
 fn stride(v: &[usize], target: usize) -> Vec<usize> {
@@ -531,6 +562,46 @@ impl Ctx<'_> {
             }
         }
         out
+    }
+
+    /// The held-out test's score terms for the current model `spec` at `x` ([`Terms`]): each
+    /// held-out residual is placed at the earliest tracker sample its prediction reads
+    /// ([`fit::Joint::sources`]), the residuals placed at one sample form one term, and the terms
+    /// are in time order. Without a play that is the residual's own sample (the terms are the
+    /// held-out time samples); a held reading is placed at its contact, so a hold is one term.
+    fn heldout_terms(&self, spec: &ModelSpec, x: &[f64]) -> Terms {
+        let n = self.prep.n;
+        let rows = self.heldout_rows.last().copied().unwrap_or(0);
+        if spec.offset(Effect::Backlash, n).is_none() {
+            return Terms { order: (0..rows).collect(), rows: self.heldout_rows.clone(), scale: vec![1.0; rows] };
+        }
+        let c = fit::Joint { prep: self.prep, spec, samples: &self.heldout, sigma: 1.0 };
+        let mut at = Vec::with_capacity(rows);
+        let mut hold = Vec::with_capacity(rows);
+        for &i in &self.heldout {
+            for j in (0..n).filter(|&j| self.prep.usable[j][i]) {
+                at.push(c.sources(x, i, j).0.first().map_or(i, |&q| q.min(i)));
+                hold.push((j, self.prep.play.contact[j][i]));
+            }
+        }
+        // Each reading weighted as in the generalised least-squares fit of its hold (see
+        // `PlayState::hold_weights`), counting the hold's held-out readings.
+        let mut count: std::collections::HashMap<(usize, u32), u32> = std::collections::HashMap::new();
+        for h in &hold {
+            *count.entry(*h).or_default() += 1;
+        }
+        let (st2, se2) = (self.tracker_var, self.encoder_var.max(1e-18));
+        let scale = hold.iter().map(|h| (st2 + se2) / (f64::from(count[h]) * st2 + se2)).map(f64::sqrt).collect();
+        let mut order: Vec<usize> = (0..at.len()).collect();
+        order.sort_by_key(|&k| (at[k], k));
+        let mut rows = vec![0];
+        for (q, &k) in order.iter().enumerate() {
+            if q > 0 && at[k] != at[order[q - 1]] {
+                rows.push(q);
+            }
+        }
+        rows.push(order.len());
+        Terms { order, rows, scale }
     }
 
     /// The errors-in-variables factor `sqrt(sigma^2 / var)` ([`fit::Eiv`]) of each held-out
@@ -862,20 +933,22 @@ fn weighted_test(
     w0: &[f64],
     r1: &[f64],
     w1: &[f64],
-    rows: &[usize],
+    terms: &Terms,
     err: Option<&esterr::EstimationError>,
 ) -> Option<HeldoutTest> {
-    if w0.iter().chain(w1).all(|w| *w == 1.0) {
-        let delta: Vec<f64> = r0.iter().zip(r1).map(|(a, b)| a - b).collect();
-        let est = err.and_then(|e| e.variance(&delta, None));
-        return select::encompassing_test_with(r0, r1, rows, select::BATCHES, est);
+    if r0.len() != terms.order.len() || r1.len() != terms.order.len() {
+        return None;
     }
-    let w: Vec<f64> = w0.iter().zip(w1).map(|(a, b)| a.min(*b)).collect();
+    let plain = w0.iter().chain(w1).chain(&terms.scale).all(|w| *w == 1.0);
+    let w: Vec<f64> =
+        if plain { vec![1.0; r0.len()] } else { w0.iter().zip(w1).zip(&terms.scale).map(|((a, b), s)| a.min(*b) * s).collect() };
     let a: Vec<f64> = r0.iter().zip(&w).map(|(r, w)| r * w).collect();
     let b: Vec<f64> = r1.iter().zip(&w).map(|(r, w)| r * w).collect();
     let delta: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
-    let est = err.and_then(|e| e.variance(&delta, Some(&w)));
-    select::encompassing_test_with(&a, &b, rows, select::BATCHES, est)
+    let est = err.and_then(|e| e.variance(&delta, (!plain).then_some(&w[..])));
+    let a: Vec<f64> = terms.order.iter().map(|&k| a[k]).collect();
+    let b: Vec<f64> = terms.order.iter().map(|&k| b[k]).collect();
+    select::encompassing_test_with(&a, &b, &terms.rows, select::BATCHES, est)
 }
 
 /// For the parameters `params` of the fit `r` on `samples`: the variance each one gets from the
@@ -1194,8 +1267,17 @@ pub fn diagnose(
     for &i in &heldout {
         heldout_rows.push(heldout_rows.last().copied().unwrap_or(0) + (0..n).filter(|&j| prep.usable[j][i]).count());
     }
-    let mut ctx =
-        Ctx { prep: &prep, sigma, tension_offset_sigma: opts.loadcell_offset_n, train, heldout, screen_train: vec![], heldout_rows };
+    let mut ctx = Ctx {
+        prep: &prep,
+        sigma,
+        tension_offset_sigma: opts.loadcell_offset_n,
+        train,
+        heldout,
+        screen_train: vec![],
+        heldout_rows,
+        tracker_var: opts.tracker_sigma_m.powi(2),
+        encoder_var: opts.encoder_sigma_m.powi(2),
+    };
     let frac = opts.screen_samples as f64 / m.max(1) as f64;
     ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
 
@@ -1276,6 +1358,7 @@ pub fn diagnose(
         let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
         let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
         let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
+        let cur_terms = ctx.heldout_terms(&spec, &cur_train.x);
         // The current model's own estimation error on the training blocks: part of every
         // held-out test's variance (see [`esterr`]).
         let cur_pp = play_prep(&prep, &spec, &cur_train.x, opts.encoder_sigma_m);
@@ -1322,7 +1405,7 @@ pub fn diagnose(
             };
             let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &ctx.heldout_rows, cur_err.as_ref());
+            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref());
             // The inflated sigmas and the gates (several residual passes per parameter) only
             // where they can matter: a candidate that passed, or a pulley (the absorbed note).
             let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
@@ -1405,7 +1488,14 @@ pub fn diagnose(
                         esterr::EstimationError::new(pp, &c.spec, &ctx.screen_train, &ctx.heldout, &c.report, sigma, phi)
                     })
                     .flatten();
-                let pair = weighted_test(&c.res, &c.res_w, &cands[bi].1.res, &cands[bi].1.res_w, &ctx.heldout_rows, err.as_ref());
+                let pair = weighted_test(
+                    &c.res,
+                    &c.res_w,
+                    &cands[bi].1.res,
+                    &cands[bi].1.res_w,
+                    &ctx.heldout_terms(&c.spec, &c.report.x),
+                    err.as_ref(),
+                );
                 if pair.is_none_or(|t| t.p_value >= alpha) {
                     let ho = (c.res.iter().map(|r| r * r).sum::<f64>() / c.res.len().max(1) as f64).sqrt();
                     equally_good.push((*e, ho));

@@ -63,7 +63,8 @@ pub struct HeldoutTest {
     /// Degrees of freedom of its t reference (at most `batches - 1`: fewer when the batches
     /// carry unequal weight or the residual is strongly correlated, see [`long_run_variance`]).
     pub dof: f64,
-    /// Held-out time samples compared.
+    /// Score terms compared: the held-out time samples, a play's hold counted once (its
+    /// readings share the pose where it last pushed; see `diagnose::Terms`).
     pub n: usize,
     /// Effective sample size (`n` if the scores were independent).
     pub n_eff: f64,
@@ -216,8 +217,12 @@ pub fn long_run_variance(u: &[f64], w: &[f64], b: usize) -> (f64, f64) {
     let phi = if den > 0.0 { num / den } else { 0.0 };
     // Bias-corrected, and kept away from a unit root (where the recolouring explodes).
     let phi = (phi + (1.0 + 3.0 * phi) / n as f64).clamp(-0.9, 0.995);
-    // The first term has no predecessor to whiten it: left out (one of n).
+    // The first term has no predecessor to whiten it: scaled to the innovations' variance
+    // (Prais-Winsten, `sqrt(1 - phi^2) u_0`). Left out, as before, a term that carries much of
+    // the sum (a play's hold, [`super::Terms`]) was in the numerator and not in its variance.
     let (mut sums, mut weights) = (vec![0.0; b], vec![0.0; b]);
+    sums[0] = (1.0 - phi * phi).sqrt() * u[0];
+    weights[0] = w.first().copied().unwrap_or(1.0);
     for i in 1..n {
         let k = (i * b / n).min(b - 1);
         sums[k] += u[i] - phi * u[i - 1];
@@ -355,6 +360,20 @@ fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::synth::Rng;
+
+    /// A term that carries most of the sum (a play's hold whose readings share one tracker
+    /// error, placed at its contact: the first term when the hold began before the held-out
+    /// block) is in the variance as it is in the sum. Deterministic: small alternating terms
+    /// and one large first term; before, the first term was left out of the variance and
+    /// `var / u_0^2` was ~1e-4.
+    #[test]
+    fn long_run_variance_counts_the_first_term() {
+        let mut u: Vec<f64> = (0..400).map(|i| if i % 2 == 0 { 0.01 } else { -0.01 }).collect();
+        u[0] = 1.0;
+        let w = vec![1.0; u.len()];
+        let (var, _) = long_run_variance(&u, &w, 50);
+        assert!(var > 0.5 && var < 2.0, "variance {var} for a sum dominated by a first term of 1");
+    }
 
     #[test]
     fn student_t_tail_matches_closed_forms() {
