@@ -136,10 +136,11 @@ impl TautCalib {
             rms_m: f.rms_m,
             observable: true,
             note: format!(
-                "with {} ({} readings, {} iterations){}",
+                "with {} ({} readings, {} iterations){}{}",
                 self.effects.join(", "),
                 f.readings,
                 f.iterations,
+                if f.tracker_outliers == 0 { String::new() } else { format!("; {} tracker outliers left out", f.tracker_outliers) },
                 if f.rigid.is_empty() { String::new() } else { format!("; no stretch seen on cables {:?}: held rigid", f.rigid) }
             ),
             effects,

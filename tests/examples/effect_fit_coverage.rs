@@ -9,8 +9,9 @@
 //! bit-identical runs print the same checksum).
 //!
 //! `EFFECT_FIT_CLEAN=1` turns off the simulated tracker outliers and dropouts (as
-//! `offset_backlash_coverage`'s `COVERAGE_CLEAN=1`): the effect fit has no outlier rejection of its
-//! own (the diagnosis screens them first), and a 5 cm tracker outlier or a dropout row moves it.
+//! `offset_backlash_coverage`'s `COVERAGE_CLEAN=1`). The effect fit leaves out rows without a pose
+//! and tracker outliers by the diagnosis's rules (`dataq::pose_missing`, `dataq::tracker_outliers`);
+//! each line says how many outliers were left out.
 //!
 //! ```text
 //! cargo run --profile test -p taut-tests --example effect_fit_coverage -- [first seed, default 100] [seeds, default 10] [effects, default time-offset,backlash] [EA kN, default 0: none] [play mm, default 6] [offset ms, default 20]
@@ -30,6 +31,7 @@ fn main() {
     let offset = num(5, 20) as f64 * 1e-3;
     let (mut zw, mut ew, mut zo, mut eo, mut ze) = (vec![], vec![], vec![], vec![], vec![]);
     let mut whole = 0;
+    let mut outliers = 0;
     let mut failed = 0;
     // FNV-1a over the bits of every fitted number.
     let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
@@ -69,7 +71,15 @@ fn main() {
         }
         e.time_offset_s.into_iter().chain(e.time_offset_sigma_s).for_each(&mut mix);
         mix(f.rms_m);
-        let mut line = format!("seed {:6}: rms {:.3} mm, {} readings, {} iterations", s.seed, f.rms_m * 1e3, f.readings, f.iterations);
+        outliers += f.tracker_outliers;
+        let mut line = format!(
+            "seed {:6}: rms {:.3} mm, {} readings, {} iterations, {} tracker outliers left out",
+            s.seed,
+            f.rms_m * 1e3,
+            f.readings,
+            f.iterations,
+            f.tracker_outliers
+        );
         if let (Some(v), Some(sg)) = (&e.backlash_m, &e.backlash_sigma_m) {
             let w: Vec<String> = v
                 .iter()
@@ -146,6 +156,7 @@ fn main() {
     if !zo.is_empty() {
         println!("offset estimates on a whole encoder sample: {whole} of {}", zo.len());
     }
+    println!("tracker outliers left out: {outliers}");
     println!("fits refused: {failed} of {count}");
     println!("checksum {hash:016x}");
 }

@@ -132,6 +132,56 @@ pub(crate) fn pose_missing(rec: &Recording, i: usize) -> bool {
     !rec.p[i].iter().all(|v| v.is_finite()) || rec.q.as_ref().is_some_and(|q| !q[i].iter().all(|v| v.is_finite()))
 }
 
+/// The tracker outliers of `rec` (the diagnosis's rule, shared with the running robot's effect
+/// fit, [`crate::effect_fit`]) and the threshold: `None` with fewer than 7 rows.
+///
+/// A row's deviation is its distance to the position predicted from the nearest present
+/// positions on either side (2 or 3 each; the median of the straight-line interpolations in time
+/// between one before and one after, so one outlier among them does not move it); it is an
+/// outlier beyond `max(10 x median deviation, 8 tracker_sigma_m, 0.1 mm)` (the median: a robust
+/// scale of the same quantity, which includes the motion between samples at low rates). Missing
+/// rows are skipped, so an outlier right after a dropout is still caught (a held reading of the
+/// play model would otherwise inherit it).
+///
+/// False exclusions: with Gaussian tracker noise of `s` per axis and the motion between samples
+/// interpolated exactly, the deviation is `c s chi(3)` (`c`: 1.1-1.3, the interpolation's own
+/// noise), whose median is 1.54 `c s`; the threshold is then at least 10 medians, `chi(3) > 15.4`,
+/// a chance below 1e-49 per row; the `8 tracker_sigma_m` floor alone would be `chi(3) > 8 / 1.3 = 6.2`,
+/// 2.3e-8 per row (below 3e-3 that one good row of 10^5 is left out), and it is never the binding
+/// term under that noise model (10 medians are 15 `c s`).
+pub(crate) fn tracker_outliers(rec: &Recording, tracker_sigma_m: f64) -> Option<(Vec<bool>, f64)> {
+    let m = rec.len();
+    if m < 7 {
+        return None;
+    }
+    let mut dev = vec![f64::NAN; m];
+    let present = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
+    for (i, d) in dev.iter_mut().enumerate() {
+        if !present(i) {
+            continue;
+        }
+        let before: Vec<usize> = (i.saturating_sub(12)..i).rev().filter(|&k| present(k) && rec.t[k] < rec.t[i]).take(3).collect();
+        let after: Vec<usize> = (i + 1..(i + 13).min(m)).filter(|&k| present(k) && rec.t[k] > rec.t[i]).take(3).collect();
+        if before.len() < 2 || after.len() < 2 {
+            continue;
+        }
+        let mut d2 = 0.0;
+        for k in 0..3 {
+            let mut w: Vec<f64> = before
+                .iter()
+                .flat_map(|&b| after.iter().map(move |&a| (b, a)))
+                .map(|(b, a)| rec.p[b][k] + (rec.t[i] - rec.t[b]) / (rec.t[a] - rec.t[b]) * (rec.p[a][k] - rec.p[b][k]))
+                .collect();
+            d2 += (rec.p[i][k] - median(&mut w)).powi(2);
+        }
+        *d = d2.sqrt();
+    }
+    let mut finite: Vec<f64> = dev.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+    let scale = median(&mut finite);
+    let thr = (10.0 * scale).max(8.0 * tracker_sigma_m).max(1e-4);
+    Some((dev.iter().map(|&d| d.is_finite() && d > thr).collect(), thr))
+}
+
 /// Finds the data problems of `rec`. `tracker_sigma_m` sets the smallest tracker jump that can be
 /// called an outlier.
 pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
@@ -206,39 +256,7 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
         }
     }
 
-    // Tracker outliers: distance to the position predicted from the nearest present positions
-    // on either side (2 or 3 each; the median of the straight-line interpolations in time between
-    // one before and one after, so one outlier among them does not move it), against a robust
-    // scale of the same quantity (which includes the motion between samples at low rates).
-    // Missing rows are skipped, so an outlier right after a dropout is still caught (a held
-    // reading of the play model would otherwise inherit it).
-    let mut dev = vec![f64::NAN; m];
-    if m >= 7 {
-        let present = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
-        for (i, d) in dev.iter_mut().enumerate() {
-            if !present(i) {
-                continue;
-            }
-            let before: Vec<usize> = (i.saturating_sub(12)..i).rev().filter(|&k| present(k) && rec.t[k] < rec.t[i]).take(3).collect();
-            let after: Vec<usize> = (i + 1..(i + 13).min(m)).filter(|&k| present(k) && rec.t[k] > rec.t[i]).take(3).collect();
-            if before.len() < 2 || after.len() < 2 {
-                continue;
-            }
-            let mut d2 = 0.0;
-            for k in 0..3 {
-                let mut w: Vec<f64> = before
-                    .iter()
-                    .flat_map(|&b| after.iter().map(move |&a| (b, a)))
-                    .map(|(b, a)| rec.p[b][k] + (rec.t[i] - rec.t[b]) / (rec.t[a] - rec.t[b]) * (rec.p[a][k] - rec.p[b][k]))
-                    .collect();
-                d2 += (rec.p[i][k] - median(&mut w)).powi(2);
-            }
-            *d = d2.sqrt();
-        }
-        let mut finite: Vec<f64> = dev.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
-        let scale = median(&mut finite);
-        let thr = (10.0 * scale).max(8.0 * tracker_sigma_m).max(1e-4);
-        let outl: Vec<bool> = dev.iter().map(|&d| d.is_finite() && d > thr).collect();
+    if let Some((outl, thr)) = tracker_outliers(rec, tracker_sigma_m) {
         if let Some(mut p) = summarise(ProblemKind::TrackerOutlier, None, &rec.t, &outl, "tracker outliers") {
             p.description = format!("{} (more than {:.1} mm from their neighbours)", p.description, thr * 1e3);
             problems.push(p);
