@@ -88,8 +88,13 @@ fn main() {
         let truth_named = d.effects.iter().filter(|f| f.effect != Effect::Slack && truth_has(f.effect)).count() == in_truth;
         if truth_named {
             alpha = d.tests.first().map_or(alpha, |t| t.alpha);
-            after_truth
-                .extend(d.tests.iter().filter(|t| t.round > in_truth && !truth_has(t.effect)).filter(|t| !removal(t)).filter_map(|t| t.test.map(|x| x.p_value)));
+            after_truth.extend(
+                d.tests
+                    .iter()
+                    .filter(|t| t.round > in_truth && !truth_has(t.effect))
+                    .filter(|t| !removal(t))
+                    .filter_map(|t| t.test.map(|x| x.p_value)),
+            );
         }
         // The test that named an effect outside the truth, and its values.
         let spur: Vec<String> = d

@@ -290,7 +290,9 @@ impl Decision {
             Decision::Passed => "passed".into(),
             Decision::NotBetter => format!("not better than the current model at alpha {alpha:.1e}"),
             Decision::NotPhysical => "better, but its parameters are not physical".into(),
-            Decision::Dropped => format!("named earlier, not needed once a later effect was named (removal test not significant at alpha {alpha:.1e}): dropped"),
+            Decision::Dropped => format!(
+                "named earlier, not needed once a later effect was named (removal test not significant at alpha {alpha:.1e}): dropped"
+            ),
             Decision::Kept => "named earlier, still needed once a later effect was named (removal test significant)".into(),
         }
     }
@@ -698,7 +700,17 @@ impl Ctx<'_> {
         let red_pp = play_prep(self.prep, &red, &red_fit.x, opts.encoder_sigma_m);
         let err = opts
             .estimation_error
-            .then(|| esterr::EstimationError::new(red_pp.as_ref().unwrap_or(self.prep), &red, &self.train, &self.heldout, &red_fit, self.sigma, phi))
+            .then(|| {
+                esterr::EstimationError::new(
+                    red_pp.as_ref().unwrap_or(self.prep),
+                    &red,
+                    &self.train,
+                    &self.heldout,
+                    &red_fit,
+                    self.sigma,
+                    phi,
+                )
+            })
             .flatten();
         // The candidate, from the values it has in the current model.
         let mut s2 = red.clone();
@@ -1678,7 +1690,12 @@ pub fn diagnose(
                 }
             }
             let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
-            let worst = results.iter().enumerate().filter(|(_, r)| p(&r.3) >= alpha).max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3))).map(|(i, _)| i);
+            let worst = results
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| p(&r.3) >= alpha)
+                .max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3)))
+                .map(|(i, _)| i);
             let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
                 let f = effects.iter().find(|f| f.effect == e).expect("named");
                 CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
