@@ -1,7 +1,7 @@
 //! Coverage of the reported EA uncertainty when backlash is present (issue 14): EA 15 kN under
 //! 10 mm backlash on the 4-cable robot, many seeds. Prints each cable's EA, its reported sigma
 //! and the error in sigmas, then the share of errors within 1, 2 and 3 sigmas (a Gaussian gives
-//! 68 / 95 / 99.7 %).
+//! 68 / 95 / 99.7 %). `DIAGNOSE_BACKWARD=0` runs the forward-only selection (without the backward step).
 //!
 //! ```text
 //! cargo run --profile test -p taut-tests --example ea_backlash_coverage -- [first seed, default 40] [seeds, default 10] [play mm, default 10]
@@ -22,8 +22,12 @@ fn main() {
         s.physics = Physics { elasticity: Some(truth), backlash_m: play_m, ..Physics::default() };
         s.duration_s = 40.0;
         let sim = simulate(&s);
-        let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &DiagnoseOptions::from_config(&s.robot.calibration))
-            .expect("diagnosis");
+        // DIAGNOSE_BACKWARD=0: the forward-only selection (before the backward step), to compare.
+        let opts = DiagnoseOptions {
+            backward: std::env::var("DIAGNOSE_BACKWARD").map_or(true, |v| v != "0"),
+            ..DiagnoseOptions::from_config(&s.robot.calibration)
+        };
+        let d = diagnose(&sim.recording, &sim.truth.platform_points, None, &opts).expect("diagnosis");
         let named: Vec<&str> = d.effects.iter().map(|f| f.effect.name()).collect();
         let Some(f) = d.effects.iter().find(|f| f.effect == Effect::Elasticity) else {
             println!("seed {seed}: elasticity not named ({named:?})");
@@ -50,7 +54,15 @@ fn main() {
             .iter()
             .filter(|t| t.decision == taut_calib::diagnose::Decision::Named)
             .filter(|t| ![Effect::Elasticity, Effect::Backlash, Effect::Slack].contains(&t.effect))
-            .map(|t| format!(" [round {} {}: {}]", t.round, t.effect.name(), t.test.map_or("no test".into(), |x| x.to_string())))
+            .map(|t| {
+                let dropped: String = d
+                    .tests
+                    .iter()
+                    .filter(|q| q.effect == t.effect && q.decision == taut_calib::diagnose::Decision::Dropped)
+                    .map(|q| format!("; dropped in round {}: {}", q.round, q.test.map_or("no test".into(), |x| x.to_string())))
+                    .collect();
+                format!(" [round {} {}: {}{dropped}]", t.round, t.effect.name(), t.test.map_or("no test".into(), |x| x.to_string()))
+            })
             .collect();
         println!("seed {seed}: {named:?} EA {} ; play mm {widths:?}{spur}", line.join(", "));
     }

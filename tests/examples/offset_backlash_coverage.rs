@@ -13,10 +13,25 @@
 //! simulated tracker noise and the diagnosis's noise model to 0.1 mm; `COVERAGE_CLEAN=1` turns off
 //! tracker outliers and dropouts; `COVERAGE_LOOSE=0` sets the loose-cable fraction; `COVERAGE_LIBRARY=time-offset,backlash` limits the candidates;
 //! `COVERAGE_TESTS=1` prints every candidate test; `COVERAGE_AR_PHI=0.9` makes the simulated tracker noise AR(1) with that lag-1 correlation per
-//! sample and the same marginal sigma (`taut_sim::Noise::tracker_phi`; the diagnosis is not told).
+//! sample and the same marginal sigma (`taut_sim::Noise::tracker_phi`; the diagnosis is not told);
+//! `DIAGNOSE_BACKWARD=0` runs the forward-only selection (without the backward step).
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
 use taut_tests::sim::{offset_backlash_scenario, simulate_next_seed};
+
+/// A backward step's removal test (not a candidate's forward test).
+fn removal(t: &taut_calib::diagnose::CandidateTest) -> bool {
+    matches!(t.decision, taut_calib::diagnose::Decision::Dropped | taut_calib::diagnose::Decision::Kept)
+}
+
+/// "; dropped in round r (test)" when the backward step dropped `e`.
+fn dropped_words(d: &taut_calib::diagnose::Diagnosis, e: Effect) -> String {
+    d.tests
+        .iter()
+        .filter(|t| t.effect == e && t.decision == taut_calib::diagnose::Decision::Dropped)
+        .map(|t| format!("; dropped in round {}: {}", t.round, t.test.map_or("no test".into(), |x| x.to_string())))
+        .collect()
+}
 
 fn main() {
     let mut args = std::env::args().skip(1).map(|a| a.parse::<u64>().expect("a number"));
@@ -48,6 +63,8 @@ fn main() {
         }
         let sim = simulate_next_seed(&mut s);
         let mut opts = DiagnoseOptions::from_config(&s.robot.calibration);
+        // DIAGNOSE_BACKWARD=0: the forward-only selection (before the backward step), to compare.
+        opts.backward = std::env::var("DIAGNOSE_BACKWARD").map_or(true, |v| v != "0");
         if let Ok(v) = std::env::var("COVERAGE_LIBRARY") {
             opts.library = v.split(',').map(|e| Effect::from_name(e).expect("COVERAGE_LIBRARY: effect names")).collect();
         }
@@ -71,8 +88,13 @@ fn main() {
         let truth_named = d.effects.iter().filter(|f| f.effect != Effect::Slack && truth_has(f.effect)).count() == in_truth;
         if truth_named {
             alpha = d.tests.first().map_or(alpha, |t| t.alpha);
-            after_truth
-                .extend(d.tests.iter().filter(|t| t.round > in_truth && !truth_has(t.effect)).filter_map(|t| t.test.map(|x| x.p_value)));
+            after_truth.extend(
+                d.tests
+                    .iter()
+                    .filter(|t| t.round > in_truth && !truth_has(t.effect))
+                    .filter(|t| !removal(t))
+                    .filter_map(|t| t.test.map(|x| x.p_value)),
+            );
         }
         // The test that named an effect outside the truth, and its values.
         let spur: Vec<String> = d
@@ -82,11 +104,12 @@ fn main() {
             .map(|t| {
                 let vals: Vec<String> = t.values.iter().zip(&t.sigmas).map(|(v, s)| format!("{v:.3e} ± {s:.1e}")).collect();
                 format!(
-                    " [round {} {}: {}; {}]",
+                    " [round {} {}: {}; {}{}]",
                     t.round,
                     t.effect.name(),
                     t.test.map_or("no test".into(), |x| x.to_string()),
-                    vals.join(", ")
+                    vals.join(", "),
+                    dropped_words(&d, t.effect)
                 )
             })
             .collect();

@@ -107,6 +107,11 @@ pub struct DiagnoseOptions {
     /// held-out scores' variance only), whose p-values are too small in the tail: for
     /// comparisons only (`tests/examples/null_rate.rs`).
     pub estimation_error: bool,
+    /// Backward step (true): after each effect is named, every earlier-named effect is tested
+    /// for removal with the same held-out test (the model without it as the current model, it
+    /// as the candidate); one the test cannot tell from nothing is dropped and not tried again.
+    /// False gives the forward-only selection as it was before (for comparisons only).
+    pub backward: bool,
 }
 
 impl DiagnoseOptions {
@@ -126,6 +131,7 @@ impl DiagnoseOptions {
             max_iterations: 60,
             family_alpha: DEFAULT_FAMILY_ALPHA,
             estimation_error: true,
+            backward: true,
         }
     }
 
@@ -267,6 +273,11 @@ pub enum Decision {
     NotBetter,
     /// Predicts better, but its parameters are outside the physical range.
     NotPhysical,
+    /// Named earlier; tested for removal once a later effect was named (backward step), and
+    /// the model without it predicts the held-out data as well: dropped.
+    Dropped,
+    /// Named earlier; tested for removal once a later effect was named, and still needed.
+    Kept,
 }
 
 impl Decision {
@@ -279,6 +290,10 @@ impl Decision {
             Decision::Passed => "passed".into(),
             Decision::NotBetter => format!("not better than the current model at alpha {alpha:.1e}"),
             Decision::NotPhysical => "better, but its parameters are not physical".into(),
+            Decision::Dropped => format!(
+                "named earlier, not needed once a later effect was named (removal test not significant at alpha {alpha:.1e}): dropped"
+            ),
+            Decision::Kept => "named earlier, still needed once a later effect was named (removal test significant)".into(),
         }
     }
 }
@@ -651,6 +666,70 @@ impl Ctx<'_> {
         } else {
             best
         }
+    }
+
+    /// The backward step's test of a named effect `e` in the current model `spec` (fitted on the
+    /// training blocks: `cur`): the model without `e` becomes the current model of a forward
+    /// round (fitted on the training blocks from `cur`'s values) and `e` its candidate (fitted on
+    /// the screening samples), and the same held-out test decides, with the same residual span,
+    /// estimation error and clear-push rows as the forward round would use. Returns the reduced
+    /// model, its fit and the test (`None`: too few held-out samples); `None` when a fit diverged
+    /// (the effect then stays).
+    fn removal_test(
+        &self,
+        e: Effect,
+        spec: &ModelSpec,
+        cur: &lm::LmReport,
+        opts: &DiagnoseOptions,
+    ) -> Option<(ModelSpec, lm::LmReport, Option<HeldoutTest>)> {
+        let n = self.prep.n;
+        let mut red = spec.clone();
+        red.effects.retain(|&q| q != e);
+        let x0 = red.extend(n, spec, &cur.x);
+        let pp = play_prep(self.prep, &red, &x0, opts.encoder_sigma_m);
+        let red_fit = Ctx { prep: pp.as_ref().unwrap_or(self.prep), ..self.clone() }.fit(&red, &self.train, &x0, opts.max_iterations);
+        if !red_fit.x.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        // As at the start of a forward round with `red` as the current model.
+        let phi = fit::noise_phi(self.prep, &red, &self.train, &red_fit.x);
+        let noise_lag = fit::correlation_lag(phi, fit::MAX_NOISE_LAG);
+        let cur_res = self.heldout_residuals(&red, &red_fit.x, (&red, &red_fit.x), noise_lag);
+        let cur_w = self.heldout_factors(&red, &red_fit.x);
+        let terms = self.heldout_terms(&red, &red_fit.x);
+        let red_pp = play_prep(self.prep, &red, &red_fit.x, opts.encoder_sigma_m);
+        let err = opts
+            .estimation_error
+            .then(|| {
+                esterr::EstimationError::new(
+                    red_pp.as_ref().unwrap_or(self.prep),
+                    &red,
+                    &self.train,
+                    &self.heldout,
+                    &red_fit,
+                    self.sigma,
+                    phi,
+                )
+            })
+            .flatten();
+        // The candidate, from the values it has in the current model.
+        let mut s2 = red.clone();
+        s2.effects.push(e);
+        let xc = s2.extend(n, spec, &cur.x);
+        let cpp = red_pp.as_ref().and_then(|_| play_prep(self.prep, &s2, &xc, opts.encoder_sigma_m));
+        let r = Ctx { prep: cpp.as_ref().unwrap_or(self.prep), ..self.clone() }.fit_candidate(e, &s2, &xc, 30);
+        if !r.x.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let lag = if noise_lag > 1 {
+            fit::correlation_lag(phi.min(fit::noise_phi(self.prep, &s2, &self.train, &r.x)), fit::MAX_NOISE_LAG)
+        } else {
+            noise_lag
+        };
+        let res = self.heldout_residuals(&s2, &r.x, (&red, &red_fit.x), lag);
+        let res_w = self.heldout_factors(&s2, &r.x);
+        let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &terms, err.as_ref());
+        Some((red, red_fit, test))
     }
 
     /// The named effects' values and sigmas from the final model `fin` (fitted on the training
@@ -1348,7 +1427,10 @@ pub fn diagnose(
     // The last round's candidates when it named nothing: each is the current model plus one
     // effect, fitted jointly, which the joint fits below reuse.
     let mut last_round: Vec<(Effect, Candidate)> = vec![];
-    while spec.effects.len() < opts.max_effects {
+    // Effects dropped by the backward step: not tried again (no cycling).
+    let mut dropped: Vec<Effect> = vec![];
+    // At most `max_effects` rounds (the Bonferroni count of `test_alpha`), drops or not.
+    while spec.effects.len() < opts.max_effects && round < opts.max_effects {
         round += 1;
         // How far apart the current model's residuals stay correlated (the tracker noise's
         // correlation length, 1 when white): the held-out replacement's span.
@@ -1372,6 +1454,10 @@ pub fn diagnose(
         rejected.clear();
         for &e in &opts.library {
             if spec.effects.contains(&e) || e == Effect::Slack {
+                continue;
+            }
+            if dropped.contains(&e) {
+                rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
                 continue;
             }
             if e.needs_tension() && !used_tensions {
@@ -1592,6 +1678,59 @@ pub fn diagnose(
         });
         spec = new_spec;
         cur_train = full;
+        // Backward step: each earlier-named effect is tested for removal (see
+        // [`Ctx::removal_test`]); of those the test cannot keep at `alpha`, the one with the
+        // largest p-value is dropped, and the rest are tested again on the smaller model.
+        while opts.backward && spec.effects.len() >= 2 {
+            let last = *spec.effects.last().expect("named");
+            let mut results = vec![];
+            for e in spec.effects.clone().into_iter().filter(|&e| e != last) {
+                if let Some((red, red_fit, test)) = ctx.removal_test(e, &spec, &cur_train, opts) {
+                    results.push((e, red, red_fit, test));
+                }
+            }
+            let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
+            let worst = results
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| p(&r.3) >= alpha)
+                .max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3)))
+                .map(|(i, _)| i);
+            let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
+                let f = effects.iter().find(|f| f.effect == e).expect("named");
+                CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
+            };
+            let Some(wi) = worst else {
+                // Every earlier effect is still needed.
+                for (e, _, _, test) in &results {
+                    tests.push(record(*e, *test, Decision::Kept, &effects));
+                }
+                break;
+            };
+            let (e, red, red_fit, test) = results.swap_remove(wi);
+            tests.push(record(e, test, Decision::Dropped, &effects));
+            let named_in = tests.iter().find(|t| t.effect == e && t.decision == Decision::Named).map_or(0, |t| t.round);
+            let words = format!(
+                "{} (named in round {named_in}) was dropped in round {round} once {} was named: the model without it predicts the held-out data as well ({}; not significant at alpha {alpha:.1e})",
+                e.name(),
+                last.name(),
+                test.map_or("no test".into(), |t| t.to_string())
+            );
+            effects.retain(|f| f.effect != e);
+            let pp = play_prep(&prep, &red, &red_fit.x, opts.encoder_sigma_m);
+            let rctx = Ctx { prep: pp.as_ref().unwrap_or(&prep), ..ctx.clone() };
+            if let Some(f) = effects.iter_mut().find(|f| f.effect == last) {
+                let v = rctx.values(last, &red, &red_fit, &has_t, &ctx.train);
+                (f.values, f.sigmas) = (v.vals, v.sigs);
+                f.rms_after_m = rms_of(&prep, &red, &ctx.train, &red_fit.x);
+                f.heldout_rms_after_m = rms_of(&prep, &red, &ctx.heldout, &red_fit.x);
+                f.evidence.push_str(&format!("; {words}"));
+            }
+            notes.push(words);
+            dropped.push(e);
+            spec = red;
+            cur_train = red_fit;
+        }
     }
     // The named effects' values from the final model (each one fitted jointly with every other
     // named effect), and the mimicking pairs fitted jointly.
