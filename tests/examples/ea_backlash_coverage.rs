@@ -4,7 +4,7 @@
 //! 68 / 95 / 99.7 %). `DIAGNOSE_BACKWARD=0` runs the forward-only selection (without the backward step).
 //!
 //! ```text
-//! cargo run --profile test -p taut-tests --example ea_backlash_coverage -- [first seed, default 40] [seeds, default 10] [play mm, default 10]
+//! cargo run --profile test -p taut-tests --example ea_backlash_coverage -- [first seed, default 40] [seeds, default 10] [play mm, default 10] [EA kN, default 15; 0: none] [encoder noise um, default the scenario's]
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -15,11 +15,15 @@ fn main() {
     let first = args.next().unwrap_or(40);
     let count = args.next().unwrap_or(10);
     let play_m = args.next().unwrap_or(10) as f64 * 1e-3;
-    let truth = 15_000.0;
+    let truth = args.next().unwrap_or(15) as f64 * 1e3;
+    let encoder_sigma = args.next().map(|u| u as f64 * 1e-6);
     let mut z = vec![];
     for seed in first..first + count {
         let mut s = Scenario::aras_cam(seed);
-        s.physics = Physics { elasticity: Some(truth), backlash_m: play_m, ..Physics::default() };
+        s.physics = Physics { elasticity: (truth > 0.0).then_some(truth), backlash_m: play_m, ..Physics::default() };
+        if let Some(e) = encoder_sigma {
+            s.noise.encoder_sigma_m = e;
+        }
         s.duration_s = 40.0;
         let sim = simulate(&s);
         // DIAGNOSE_BACKWARD=0: the forward-only selection (before the backward step), to compare.
@@ -61,7 +65,14 @@ fn main() {
                     .filter(|q| q.effect == t.effect && q.decision == taut_calib::diagnose::Decision::Dropped)
                     .map(|q| format!("; dropped in round {}: {}", q.round, q.test.map_or("no test".into(), |x| x.to_string())))
                     .collect();
-                format!(" [round {} {}: {}{dropped}]", t.round, t.effect.name(), t.test.map_or("no test".into(), |x| x.to_string()))
+                let v: Vec<String> = t.values.iter().zip(&t.sigmas).map(|(v, s)| format!("{v:.3e} ± {s:.1e}")).collect();
+                format!(
+                    " [round {} {} ({}): {}{dropped}]",
+                    t.round,
+                    t.effect.name(),
+                    v.join(", "),
+                    t.test.map_or("no test".into(), |x| x.to_string())
+                )
             })
             .collect();
         println!("seed {seed}: {named:?} EA {} ; play mm {widths:?}{spur}", line.join(", "));

@@ -1042,7 +1042,11 @@ impl PlayState {
     /// push, so the reading it was pushed to can differ from the reading at that push by nearly
     /// `threshold`; over a long hold, noise then takes it across. Once a hold has lasted
     /// [`HOLD_SAMPLES`] readings, a push must also leave the band around the mean of the held
-    /// readings (on the same side).
+    /// readings (on the same side). A push on the side of the last one must leave that band from
+    /// the hold's first reading on: the slow end had crept up to the threshold past the reading
+    /// at the last push, so a noise step took a held reading for a new push (after a sharp
+    /// reversal, where the input moves mm per sample, off by up to the play's width: measured
+    /// with `ea_play_misfit`). An opposite push is not delayed by it (the band is further away).
     pub fn from_readings(l: &[Vec<f64>], threshold: f64) -> PlayState {
         let mut st = PlayState::default();
         for col in l {
@@ -1057,7 +1061,9 @@ impl PlayState {
                         None => last = Some((i, 0.0, 0)),
                         Some((c, sum, k)) => {
                             let d = y - col[c];
-                            let held_ok = k < HOLD_SAMPLES || {
+                            // A push on the side of the last one leaves the hold's level.
+                            let same = sd != 0 && d.signum() == f64::from(sd);
+                            let held_ok = (k < HOLD_SAMPLES && !(same && k > 0)) || {
                                 let e = y - sum / k as f64;
                                 e.abs() > threshold && e.signum() == d.signum()
                             };
@@ -1635,6 +1641,22 @@ mod tests {
             assert_eq!(p.contact[0][i], 2, "sample {i}");
         }
         assert_eq!((p.contact[0][last], p.side[0][last]), (last as u32, 1));
+    }
+
+    #[test]
+    fn play_pattern_is_not_fooled_by_a_slow_push_end_and_noise_over_a_short_hold() {
+        // Seed 44's cable 0 (ea_play_misfit): pushed out to 2.0, a creep to 2.39 under the
+        // threshold (0.42), a hold of 5 readings, one 0.43 from the last push but 0.04 from the
+        // hold, then the input's reversal pulls the reading in.
+        let mut col = vec![0.0, 1.0, 2.0, 2.2, 2.39, 2.38, 2.4, 2.39, 2.39];
+        col.push(2.43);
+        col.push(1.0);
+        let p = PlayState::from_readings(&[col.clone()], 0.42);
+        let last = col.len() - 1;
+        for i in 3..last {
+            assert_eq!((p.contact[0][i], p.side[0][i]), (2, 1), "sample {i}");
+        }
+        assert_eq!((p.contact[0][last], p.side[0][last]), (last as u32, -1));
     }
 
     /// The synthetic data read through a play of `widths[j]` by encoders `lag` samples late (a
