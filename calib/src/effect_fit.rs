@@ -134,9 +134,10 @@ pub struct EffectFit {
     /// The fitted effects with their sigmas. A time offset is the one left in the data (add
     /// the offset the data were already aligned by).
     pub effects: Effects,
-    /// RMS of the residual on the fitted readings, m.
+    /// RMS of the residual on the fitted readings, m (with a play and a time offset, the rows
+    /// that fit weighs: [`fitted_rows`]).
     pub rms_m: f64,
-    /// Readings fitted.
+    /// Readings fitted (counted as for `rms_m`).
     pub readings: usize,
     /// Solver iterations.
     pub iterations: usize,
@@ -244,6 +245,35 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
     let usable_before_play = crate::diagnose::exclude_unseen_pushes(&mut p);
     p.hold_weight = p.play.hold_weights(&p.usable, o.tracker_sigma_m, o.encoder_sigma_m);
     (p, usable_before_play, outliers)
+}
+
+/// The readings a fit weighs, for its RMS: with a play and a time offset `delta`, the rows
+/// the fit in encoder time gives a weight ([`encoder_time_prep`]: not held since a push while
+/// loose, reading clear pushes); the others stay readings for the encoder's interpolation. The
+/// rows the fit gives no weight are holds, whose level the model knows less well (a hold's is
+/// the input's extreme over its push, one tracker error for the hold), and above all the
+/// readings before a cable's first push, whose level the model takes to be the first input (the
+/// play's output is anywhere within it at power-on): on clean simulated recordings their
+/// residual is 2-10 mm RMS (the three-phase start, up to 14 mm per cable), which took the RMS
+/// of the right model from the 1.50 mm floor to 1.4-4.4 mm (BENCHMARKS.md, branch efrms).
+/// Other models: every usable row.
+fn fitted_rows<'a>(
+    prep: &'a Prepared,
+    usable_before_play: &[Vec<bool>],
+    delta: Option<f64>,
+    encoder_sigma_m: f64,
+) -> std::borrow::Cow<'a, Prepared> {
+    let Some(delta) = delta else { return std::borrow::Cow::Borrowed(prep) };
+    let mut p = encoder_time_prep(prep, usable_before_play, delta, encoder_sigma_m);
+    for j in 0..p.n {
+        for i in 0..p.t.len() {
+            if p.usable[j][i] && p.hold_weight[j][i] <= 0.0 {
+                p.usable[j][i] = false;
+                p.loose[j][i] = true;
+            }
+        }
+    }
+    std::borrow::Cow::Owned(p)
 }
 
 /// How many times a fit with a play and a time offset runs again on the clear-push rows of the
@@ -420,7 +450,8 @@ pub fn fit_effects(
             Effect::Sag | Effect::Slack => unreachable!("refused by parse_effects"),
         }
     }
-    let (ss, m) = fit::sum_squares(&prep, &spec, &samples, &r.x);
+    let delta = spec.offset(Effect::TimeOffset, n).filter(|_| spec.effects.contains(&Effect::Backlash)).map(|o| r.x[o]);
+    let (ss, m) = fit::sum_squares(&fitted_rows(&prep, &usable_before_play, delta, o.encoder_sigma_m), &spec, &samples, &r.x);
     Ok(EffectFit {
         params: Geometry::from_packed(&r.x, n),
         sigma: Sigmas::from_packed(&sig, n),
