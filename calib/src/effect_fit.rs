@@ -135,7 +135,8 @@ pub struct EffectFit {
     /// the offset the data were already aligned by).
     pub effects: Effects,
     /// RMS of the residual on the fitted readings, m (with a play and a time offset, the rows
-    /// that fit weighs: [`fitted_rows`]).
+    /// that fit weighs: the clear-push rows of the fitted offset; the holds and the readings
+    /// before a cable's first push are left out).
     pub rms_m: f64,
     /// Readings fitted (counted as for `rms_m`).
     pub readings: usize,
