@@ -196,7 +196,8 @@ impl<'a> Joint<'a> {
     }
 
     /// The encoder reading of cable `j` nearest in time to `tau` in the segment of samples `k <=
-    /// k1`, searching down from `k` and up from `k1` (`None`: the segment has none). The
+    /// k1`, neither a reading, searching down from `k` and up from `k1` ([`Joint::flank`];
+    /// `None`: the segment has none). The
     /// time-offset prediction's fallback when neither sample around `tau` is a reading: at a
     /// run of data problems' edge it is the sample the interpolation reaches there (the
     /// prediction stays continuous in the offset as it moves into the run); a held-out row
@@ -205,12 +206,9 @@ impl<'a> Joint<'a> {
     /// seed 1, where the encoder readings of cable 0 were data problems 30 ms after a usable
     /// row, and nothing was named at 16 mm held out).
     fn nearest_reading(&self, k: usize, k1: usize, j: usize, tau: f64) -> Option<usize> {
-        let p = self.prep;
-        let seg = p.segment[k];
-        let below = (0..=k).rev().take_while(|&q| p.segment[q] == seg).find(|&q| self.enc_ok(q, j));
-        let above = (k1..p.t.len()).take_while(|&q| p.segment[q] == seg).find(|&q| self.enc_ok(q, j));
-        match (below, above) {
-            (Some(a), Some(b)) => Some(if tau - p.t[a] <= p.t[b] - tau { a } else { b }),
+        let t = &self.prep.t;
+        match (self.flank(k, -1, j, &[], false), self.flank(k1, 1, j, &[], false)) {
+            (Some(a), Some(b)) => Some(if tau - t[a] <= t[b] - tau { a } else { b }),
             (a, b) => a.or(b),
         }
     }

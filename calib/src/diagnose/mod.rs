@@ -1756,16 +1756,10 @@ pub fn diagnose(
     // under 8 mm play either gave 1.72 mm held out over every reading, against a 1.50 mm noise
     // floor, `diagnose_concealed`); with a time offset as well the selection's clear-push fit, as
     // since session 16.
-    let final_train = if spec.effects.contains(&Effect::Backlash) && spec.offset(Effect::TimeOffset, n).is_none() {
-        let r = ctx.fit(&spec, &ctx.train, &cur_train.x, opts.max_iterations);
-        if r.x.iter().all(|v| v.is_finite()) {
-            r
-        } else {
-            cur_train.clone()
-        }
-    } else {
-        cur_train.clone()
-    };
+    let refit = (spec.effects.contains(&Effect::Backlash) && spec.offset(Effect::TimeOffset, n).is_none())
+        .then(|| ctx.fit(&spec, &ctx.train, &cur_train.x, opts.max_iterations))
+        .filter(|r| r.x.iter().all(|v| v.is_finite()));
+    let final_train = refit.as_ref().unwrap_or(&cur_train);
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         // The rows that keep a weight: not held since a push while loose (in encoder time with
         // a time offset, whose excluded rows stay readings for the encoder's interpolation:
@@ -1801,7 +1795,7 @@ pub fn diagnose(
         ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
         ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations)
     };
-    let final_fit = ctx.summary(&spec, &final_train, &final_all);
+    let final_fit = ctx.summary(&spec, final_train, &final_all);
     let final_res = fit::residuals(&prep, &spec, &all_rows, &final_train.x);
 
     // Structure left over.
