@@ -21,6 +21,7 @@
 //! | [`sensors`]       | tracker, encoders (backlash, quantisation), load cells                |
 //! | [`scenario`]      | scenarios -> `cdpr-recording v1` + truth                              |
 //! | [`plant`]         | the stepping plant for the real-time loop and the virtual drives      |
+//! | [`dynamics`]      | the plant's dynamic mode: mass on elastic, damped cables; its modes   |
 //!
 //! ```no_run
 //! let mut s = taut_sim::Scenario::aras_cam(42);
@@ -35,6 +36,7 @@
 
 pub mod catenary;
 pub mod dwell;
+pub mod dynamics;
 pub mod equilibrium;
 pub mod physics;
 pub mod plant;
@@ -48,6 +50,7 @@ pub mod truth;
 #[cfg(test)]
 mod tests;
 
+pub use dynamics::{Dynamics, Mode};
 pub use physics::{CableCommand, Physics};
 pub use plant::Plant;
 pub use scenario::{simulate, try_simulate, Scenario, SimRun};

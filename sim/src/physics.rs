@@ -23,6 +23,7 @@
 use std::cell::Cell;
 
 use crate::catenary::{self, CableSpec, Catenary, End};
+use crate::dynamics::Dynamics;
 
 /// Axial stiffness used for a cable in position mode when elasticity is switched off, N: stiff
 /// enough that its stretch (T L / EA ~ microns) is below the encoder resolution, soft enough for
@@ -55,11 +56,15 @@ pub struct Physics {
     /// Loose cables: where the trajectory demands a negative tension the cable goes slack and its
     /// drum pays out extra cable.
     pub slack: bool,
+    /// A dynamic plant: the platform's mass swings on elastic, damped cables (see
+    /// [`crate::dynamics`]). `None` (the default): the quasi-static plant. Only [`crate::Plant`]
+    /// reads it; the scenario recordings stay quasi-static.
+    pub dynamics: Option<Dynamics>,
 }
 
 impl Default for Physics {
     fn default() -> Self {
-        Physics { elasticity: None, sag: None, pulley: None, scale: None, time_offset_s: 0.0, backlash_m: 0.0, slack: true }
+        Physics { elasticity: None, sag: None, pulley: None, scale: None, time_offset_s: 0.0, backlash_m: 0.0, slack: true, dynamics: None }
     }
 }
 

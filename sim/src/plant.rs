@@ -1,11 +1,16 @@
-//! A stepping plant for the real-time loop and the virtual drives: the platform's quasi-static
-//! response to drum commands.
+//! A stepping plant for the real-time loop and the virtual drives: the platform's response to
+//! drum commands, quasi-static (the default) or dynamic.
 //!
-//! Each [`Plant::step`] takes the elapsed time and one [`CableCommand`] per cable, finds the
-//! static equilibrium (warm-started from the last one, see [`crate::equilibrium`]) and returns the
+//! Each [`Plant::step`] takes the elapsed time and one [`CableCommand`] per cable and returns the
 //! platform position, the encoder readings (scale, offset, backlash, time offset, optional noise)
 //! and the platform-end tensions (optional load-cell noise). Everything is allocated in
 //! [`Plant::new`]; a step does not allocate.
+//!
+//! - Quasi-static (`Physics::dynamics` is `None`): each step finds the static equilibrium
+//!   (warm-started from the last one, see [`crate::equilibrium`]).
+//! - Dynamic (`Physics::dynamics` is `Some(..)`): each step integrates the platform's mass on
+//!   elastic, damped cables and the torque-mode drums (see [`crate::dynamics`]); the first step
+//!   starts at rest in the static equilibrium. The sensors are the same.
 //!
 //! ```no_run
 //! use taut_sim::{CableCommand, Scenario};
@@ -23,6 +28,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::catenary::Catenary;
+use crate::dynamics::{Body, DynState, Mode};
 use crate::equilibrium::{EquilibriumReport, System};
 use crate::physics::{CableCommand, CableLoad, CableModel, Physics};
 use crate::sensors::{Encoder, LoadCell, Noise};
@@ -43,7 +49,9 @@ pub struct StepOutput<'a> {
     pub tension_n: &'a [f64],
     /// Unstretched lengths paid out by the drums (no sensor effects), m.
     pub drum_m: &'a [f64],
-    /// How the equilibrium search went.
+    /// How the equilibrium search went. In dynamic mode: `iterations` is the number of
+    /// sub-steps, `residual_n` the net force on the platform (`m |a|`), and `converged` false
+    /// only for a step whose state turned non-finite (undone).
     pub report: EquilibriumReport,
 }
 
@@ -80,6 +88,8 @@ pub struct Plant {
     have_good: bool,
     sub_cmds: Vec<CableCommand>,
     failed_steps: u64,
+    // The dynamic mode's state (None: quasi-static).
+    dynamic: Option<DynState>,
 }
 
 /// Substeps tried when a step's equilibrium search fails from the last equilibrium.
@@ -88,12 +98,18 @@ const SUBSTEPS: usize = 8;
 impl Plant {
     /// A plant of the true robot with the cable `physics`, platform at `p0` (a starting guess:
     /// the first step finds the equilibrium from there). Exact sensors; see [`Plant::with_noise`].
+    /// Dynamic when [`Physics::dynamics`] is set (its cables then have no sag and the dynamics'
+    /// EA when elasticity is off).
     pub fn new(truth: &Truth, physics: &Physics, p0: [f64; 3]) -> Self {
         let n = truth.n_cables();
         let none = Noise::none();
         let rng = ChaCha8Rng::seed_from_u64(0);
+        let models = match &physics.dynamics {
+            Some(d) => crate::dynamics::models(&truth.anchors, physics, d),
+            None => truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect(),
+        };
         Plant {
-            models: truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect(),
+            models,
             offsets: truth.platform_points.clone(),
             platform_points: truth.platform_points.clone(),
             mass: truth.mass_kg,
@@ -121,6 +137,7 @@ impl Plant {
             have_good: false,
             sub_cmds: vec![CableCommand::Tension(0.0); n],
             failed_steps: 0,
+            dynamic: physics.dynamics.clone().map(|d| DynState::new(d, n)),
         }
     }
 
@@ -146,7 +163,41 @@ impl Plant {
         self.p
     }
 
-    /// Platform-end tension of each cable at the last equilibrium, N: the physics, before the
+    /// Current platform velocity, m/s (zero in the quasi-static mode).
+    pub fn velocity(&self) -> [f64; 3] {
+        self.dynamic.as_ref().map_or([0.0; 3], |d| d.v)
+    }
+
+    /// Whether the plant integrates the dynamics ([`Physics::dynamics`]).
+    pub fn is_dynamic(&self) -> bool {
+        self.dynamic.is_some()
+    }
+
+    /// Moves the platform by `dp` (m) and adds `dv` to its velocity (m/s), drums unchanged: a
+    /// push or an impulse. In dynamic mode (after the first step) the platform swings from there;
+    /// the quasi-static plant ignores `dv` and finds its equilibrium again from the moved position.
+    pub fn nudge(&mut self, dp: [f64; 3], dv: [f64; 3]) {
+        for k in 0..3 {
+            self.p[k] += dp[k];
+        }
+        if let Some(d) = &mut self.dynamic {
+            for k in 0..3 {
+                d.v[k] += dv[k];
+            }
+        }
+    }
+
+    /// The linearised modes at the current position with the current tensions and drums held
+    /// (see [`crate::dynamics`]), sorted by natural frequency; `None` for a quasi-static plant.
+    pub fn predicted_modes(&self) -> Option<[Mode; 3]> {
+        let d = self.dynamic.as_ref()?;
+        let t: Vec<f64> = self.loads.iter().map(|l| l.tension).collect();
+        let (k, c) = crate::dynamics::linearise(&self.models, &self.offsets, self.mass, &d.params, self.p, &t);
+        Some(crate::dynamics::modes(&k, &c, self.mass))
+    }
+
+    /// Platform-end tension of each cable at the last equilibrium (dynamic: at the end of the
+    /// last step), N: the physics, before the
     /// load cells' offset and noise (for measurements of what the sensors report).
     pub fn true_tension(&self, j: usize) -> f64 {
         self.loads[j].tension
@@ -208,6 +259,45 @@ impl Plant {
     pub fn step(&mut self, dt: f64, commands: &[CableCommand]) -> StepOutput<'_> {
         assert_eq!(commands.len(), self.models.len(), "one command per cable");
         self.t += dt;
+        let rep = if self.dynamic.is_some() { self.step_dynamic(dt, commands) } else { self.step_static(commands) };
+        self.last_report = rep;
+        for (j, l) in self.loads.iter().enumerate() {
+            self.drum[j] = l.drum_length;
+        }
+        self.push_history();
+        self.lag_into_scratch();
+        for j in 0..self.models.len() {
+            let (rng, noisy) = (&mut self.rng, self.noisy);
+            self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng);
+            let t = self.loads[j].tension;
+            self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
+        }
+        StepOutput { position: self.p, encoder_m: &self.encoder_out, tension_n: &self.tension_out, drum_m: &self.drum, report: rep }
+    }
+
+    /// The dynamic mode's step: the first one places the platform in the static equilibrium,
+    /// at rest; every step integrates `dt`.
+    fn step_dynamic(&mut self, dt: f64, commands: &[CableCommand]) -> EquilibriumReport {
+        let mut first = None;
+        if self.dynamic.as_ref().is_some_and(|d| !d.started) {
+            first = Some(self.solve_for(commands));
+            let loads = &self.loads;
+            self.dynamic.as_mut().expect("dynamic").start_at_rest(loads);
+        }
+        let body = Body { models: &self.models, offsets: &self.offsets, mass: self.mass };
+        let d = self.dynamic.as_mut().expect("dynamic");
+        let rep = d.advance(&body, &mut self.p, dt, commands, &mut self.loads);
+        if !rep.converged {
+            self.failed_steps += 1;
+        }
+        match first {
+            Some(f) if dt == 0.0 => f,
+            _ => rep,
+        }
+    }
+
+    /// The quasi-static step: the equilibrium under `commands`.
+    fn step_static(&mut self, commands: &[CableCommand]) -> EquilibriumReport {
         let p_before = self.p;
         let mut rep = self.solve_for(commands);
         if !rep.converged && self.have_good {
@@ -229,23 +319,11 @@ impl Plant {
                 self.loads.copy_from_slice(&self.good_loads);
             }
         }
-        self.last_report = rep;
-        for (j, l) in self.loads.iter().enumerate() {
-            self.drum[j] = l.drum_length;
-        }
-        self.push_history();
-        self.lag_into_scratch();
-        for j in 0..self.models.len() {
-            let (rng, noisy) = (&mut self.rng, self.noisy);
-            self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng);
-            let t = self.loads[j].tension;
-            self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
-        }
-        StepOutput { position: self.p, encoder_m: &self.encoder_out, tension_n: &self.tension_out, drum_m: &self.drum, report: rep }
+        rep
     }
 
     /// Steps whose equilibrium search failed even in substeps (the plant kept the last
-    /// equilibrium).
+    /// equilibrium); in dynamic mode, steps whose state turned non-finite (undone).
     pub fn failed_steps(&self) -> u64 {
         self.failed_steps
     }

@@ -1,0 +1,404 @@
+//! The plant's dynamic mode: the platform's mass swinging on elastic, damped cables.
+//!
+//! Switched on with [`Physics::dynamics`] (`Some(Dynamics::default())`); [`crate::Plant`] keeps
+//! its API, its sensors and its outputs, only the physics behind them changes.
+//!
+//! # Model
+//!
+//! The platform is a point mass `m` (kg) at its reference point `p` (m). Its orientation is
+//! imposed, as in the quasi-static plant ([`crate::Plant::set_orientation`]): the cables pull at
+//! the attachment points `p + R b_j`, but their moments are not integrated, so the platform has
+//! no rotational inertia here. The point mass obeys
+//!
+//! ```text
+//! m dv/dt = sum_j T_j u_j + m g,     dp/dt = v
+//! ```
+//!
+//! with `g = (0, 0, -9.81)` m/s² and `u_j` the unit vector from the attachment point towards the
+//! cable's exit point at the anchor (its pulley's tangent point with a pulley). Cable `j` is a
+//! massless spring and dashpot in parallel (Kelvin-Voigt) between the drum and the platform:
+//!
+//! ```text
+//! s_j = L_j - D_j                                  stretch, m
+//! T_j = max(0, k_j s_j + c_j ds_j/dt)  if s_j > 0, else 0      N
+//! k_j = EA / D_j                                   N/m
+//! c_j = 2 zeta sqrt(k_j m)                         N s/m
+//! ```
+//!
+//! `L_j` is the geometric path length (pulley wrap plus straight span, m), `D_j` the unstretched
+//! length paid out by the drum (m, what the encoder counts), `EA` the cable's axial stiffness
+//! ([`Physics::elasticity`], else [`Dynamics::ea_n`]) and `zeta` [`Dynamics::damping_ratio`]:
+//! the damping ratio the platform would have hanging vertically on that cable alone. A cable
+//! only pulls: it is slack (zero tension) while shorter than its unstretched length, and also
+//! when it shortens fast enough that the dashpot would push. At a constant drum `ds/dt` is the
+//! rate of the geometric length, `dL_j/dt = -u_j . v`.
+//!
+//! The drums:
+//! - [`CableCommand::Length`] (position mode): the drum pays out `D_j` directly. Within a
+//!   [`crate::Plant::step`] the drum moves at constant speed from where it was to the commanded
+//!   length, reaching it at the end of the step (the drive's position loop is ideal).
+//! - [`CableCommand::Tension`] (torque mode): the drum yields like a viscous admittance,
+//!   `dD_j/dt = (T_j - T_cmd) / (k_j tau)` with `tau` [`Dynamics::tension_time_constant_s`]: it
+//!   pays out while the cable pulls harder than commanded and reels in otherwise (at
+//!   `T_cmd / (k_j tau)` while slack). With the platform held still the tension error decays as
+//!   `exp(-t / tau)`; at rest the tension is the command. The dashpot term uses this same drum
+//!   speed, solved together with the tension.
+//!
+//! # Integrator
+//!
+//! Semi-implicit (symplectic) Euler: `v += h a(p, v, D)`, `p += h v`, then the torque-mode drums
+//! `D += h dD/dt`. A step of `dt` is cut into equal sub-steps `h` no longer than
+//! [`Dynamics::max_substep_s`] (1 ms) and inside the stability limit. For an oscillator of angular
+//! frequency `w` and damping ratio `z` the method is stable for `h < 2 (sqrt(1 + z²) - z) / w`;
+//! the plant bounds the highest frequency by `w_max² <= trace(K) / m` (stiffness `K` below, with
+//! every cable counted as taut) and takes half that limit, and at most `tau / 2` for the torque-mode
+//! drums. With 40 kN cables of a few metres on a few kg, `w_max` is ~100-300 rad/s and the 1 ms
+//! cap decides. The outputs are the state at the end of the step; the tensions reported are the
+//! ones the next sub-step accelerates with (up to the change of a position-mode drum's speed at the
+//! next command), so `sum_j T_j u_j + m g` is `m a` of the positions'
+//! second difference.
+//!
+//! The very first step of a dynamic plant places the platform at rest in the static equilibrium
+//! of its commands (the quasi-static plant's solver, [`crate::equilibrium`]); later steps
+//! integrate.
+//!
+//! # Linearised modes
+//!
+//! About an equilibrium with tensions `T_j`, held drums and small motion:
+//!
+//! ```text
+//! M x'' + C x' + K x = 0,   M = m I,
+//! K = sum_j [k_j u_j u_j^T + (T_j / l_j) (I - u_j u_j^T)],   C = sum_j c_j u_j u_j^T
+//! ```
+//!
+//! with `l_j` the straight span. [`predicted_modes`] and [`crate::Plant::predicted_modes`] return
+//! the three modes from the eigenvalues of the first-order system `[[0, I], [-K/m, -C/m]]`
+//! (`lambda = -zeta w_n +- i w_d`).
+//!
+//! # Neglected
+//!
+//! Cable mass and sag (the dynamic plant ignores [`Physics::sag`]: straight cables), the cables'
+//! own vibration (transverse and axial waves), platform rotation and rotational inertia, drum and
+//! motor inertia, torque and speed limits of the drives, friction on the pulleys, the pulley's
+//! wrap changing the transverse stiffness (the span `l_j` is used), aerodynamic drag.
+
+use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3};
+
+use crate::equilibrium::EquilibriumReport;
+use crate::physics::{CableCommand, CableLoad, CableModel, Physics, G};
+use crate::truth::Truth;
+
+/// Options of the dynamic plant. Units in each field's name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dynamics {
+    /// Axial stiffness EA of every cable when [`Physics::elasticity`] is off, N. Default 40 kN: a
+    /// 2-3 mm steel wire rope or a 3-4 mm Dynema braid.
+    pub ea_n: f64,
+    /// Damping ratio `zeta` of each cable: `c_j = 2 zeta sqrt(k_j m)`, N s/m. Default 0.05.
+    pub damping_ratio: f64,
+    /// Time constant `tau` of a torque-mode drum's tension loop, s. Default 10 ms.
+    pub tension_time_constant_s: f64,
+    /// Longest integration sub-step, s (shorter when the stability limit requires). Default 1 ms.
+    pub max_substep_s: f64,
+}
+
+impl Default for Dynamics {
+    fn default() -> Self {
+        Dynamics { ea_n: 40_000.0, damping_ratio: 0.05, tension_time_constant_s: 0.01, max_substep_s: 1e-3 }
+    }
+}
+
+impl Dynamics {
+    /// Damping coefficient of a cable of stiffness `k` (N/m) holding mass `mass` (kg), N s/m.
+    pub fn damping(&self, k: f64, mass: f64) -> f64 {
+        2.0 * self.damping_ratio * (k * mass).max(0.0).sqrt()
+    }
+}
+
+/// One mode of the linearised platform.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mode {
+    /// Undamped natural frequency `w_n / 2 pi`, Hz.
+    pub natural_hz: f64,
+    /// Damped frequency `w_n sqrt(1 - zeta²) / 2 pi` (0 when overdamped), Hz: what an oscillation
+    /// shows between zero crossings.
+    pub damped_hz: f64,
+    /// Damping ratio `zeta` (1 or more: overdamped).
+    pub damping_ratio: f64,
+    /// Undamped mode shape: unit eigenvector of `K` (sign arbitrary).
+    pub shape: [f64; 3],
+}
+
+/// The cable models of the dynamic plant: the physics' anchors and pulleys, no sag, the
+/// dynamics' EA when elasticity is off.
+pub(crate) fn models(anchors: &[[f64; 3]], physics: &Physics, dynamics: &Dynamics) -> Vec<CableModel> {
+    anchors
+        .iter()
+        .map(|a| {
+            let mut m = CableModel::new(*a, physics);
+            m.w = 0.0;
+            if !m.ea.is_finite() {
+                m.ea = dynamics.ea_n;
+            }
+            m
+        })
+        .collect()
+}
+
+/// The predicted modes of the true robot with `physics` (dynamic options from
+/// [`Physics::dynamics`], else [`Dynamics::default`]) at rest at `p` with platform-end tensions
+/// `tensions` (N), drums held, platform unrotated. Sorted by natural frequency.
+pub fn predicted_modes(truth: &Truth, physics: &Physics, p: [f64; 3], tensions: &[f64]) -> [Mode; 3] {
+    let dynamics = physics.dynamics.clone().unwrap_or_default();
+    let models = models(&truth.anchors, physics, &dynamics);
+    let (k, c) = linearise(&models, &truth.platform_points, truth.mass_kg, &dynamics, p, tensions);
+    modes(&k, &c, truth.mass_kg)
+}
+
+/// Stiffness and damping matrices at `p` with tensions `tensions` (see the module doc); a cable
+/// without tension counts as slack.
+pub(crate) fn linearise(
+    models: &[CableModel],
+    offsets: &[[f64; 3]],
+    mass: f64,
+    dynamics: &Dynamics,
+    p: [f64; 3],
+    tensions: &[f64],
+) -> (Matrix3<f64>, Matrix3<f64>) {
+    let mut k = Matrix3::zeros();
+    let mut c = Matrix3::zeros();
+    for (j, m) in models.iter().enumerate() {
+        let t = tensions[j];
+        if t <= 0.0 {
+            continue;
+        }
+        let o = offsets[j];
+        let path = m.path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
+        let u = Vector3::from(path.dir);
+        let uu = u * u.transpose();
+        let d = path.length() / (1.0 + t / m.ea);
+        let kj = m.ea / d;
+        k += uu * kj + (Matrix3::identity() - uu) * (t / path.straight);
+        c += uu * dynamics.damping(kj, mass);
+    }
+    (k, c)
+}
+
+/// The three modes of `m x'' + c x' + k x = 0`, sorted by natural frequency.
+pub(crate) fn modes(k: &Matrix3<f64>, c: &Matrix3<f64>, mass: f64) -> [Mode; 3] {
+    let mut a = Matrix6::zeros();
+    for r in 0..3 {
+        a[(r, r + 3)] = 1.0;
+        for col in 0..3 {
+            a[(r + 3, col)] = -k[(r, col)] / mass;
+            a[(r + 3, col + 3)] = -c[(r, col)] / mass;
+        }
+    }
+    let ev = a.complex_eigenvalues();
+    // (w_n, zeta) per mode: complex pairs from their upper member, real eigenvalues paired in order.
+    let mut found: Vec<(f64, f64)> = Vec::with_capacity(3);
+    let mut reals: Vec<f64> = Vec::new();
+    for l in ev.iter() {
+        let w = l.norm();
+        if l.im.abs() > 1e-9 * w.max(1e-300) {
+            if l.im > 0.0 {
+                found.push((w, -l.re / w));
+            }
+        } else {
+            reals.push(l.re);
+        }
+    }
+    reals.sort_by(|x, y| y.total_cmp(x));
+    for pair in reals.chunks(2) {
+        if let [l1, l2] = *pair {
+            let wn = (l1 * l2).max(0.0).sqrt();
+            found.push((wn, if wn > 0.0 { -(l1 + l2) / (2.0 * wn) } else { f64::INFINITY }));
+        }
+    }
+    found.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let sym = SymmetricEigen::new(*k);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&x, &y| sym.eigenvalues[x].total_cmp(&sym.eigenvalues[y]));
+    let tau = 2.0 * std::f64::consts::PI;
+    std::array::from_fn(|i| {
+        let (wn, z) = found.get(i).copied().unwrap_or((f64::NAN, f64::NAN));
+        let v = sym.eigenvectors.column(order[i]);
+        Mode {
+            natural_hz: wn / tau,
+            damped_hz: if z < 1.0 { wn * (1.0 - z * z).sqrt() / tau } else { 0.0 },
+            damping_ratio: z,
+            shape: [v[0], v[1], v[2]],
+        }
+    })
+}
+
+/// The dynamic state of a plant: velocity and drums.
+#[derive(Debug, Clone)]
+pub(crate) struct DynState {
+    pub params: Dynamics,
+    /// Platform velocity, m/s.
+    pub v: [f64; 3],
+    /// Unstretched lengths paid out, m.
+    drum: Vec<f64>,
+    /// Drum lengths at the start of the step, m.
+    start: Vec<f64>,
+    /// Drum speeds, m/s.
+    rate: Vec<f64>,
+    /// Whether the first step placed the platform.
+    pub started: bool,
+}
+
+/// The platform and its cables, borrowed for one step.
+pub(crate) struct Body<'a> {
+    pub models: &'a [CableModel],
+    pub offsets: &'a [[f64; 3]],
+    pub mass: f64,
+}
+
+impl DynState {
+    pub fn new(params: Dynamics, n: usize) -> Self {
+        DynState { params, v: [0.0; 3], drum: vec![0.0; n], start: vec![0.0; n], rate: vec![0.0; n], started: false }
+    }
+
+    /// At rest with the drums of `loads` (an equilibrium).
+    pub fn start_at_rest(&mut self, loads: &[CableLoad]) {
+        for (d, l) in self.drum.iter_mut().zip(loads) {
+            *d = l.drum_length;
+        }
+        self.v = [0.0; 3];
+        self.rate.fill(0.0);
+        self.started = true;
+    }
+
+    /// Cable forces at `p` with the current velocity, drums and drum speeds (torque-mode drum
+    /// speeds are solved here and written to `rate`); fills `loads`, returns the net force
+    /// including gravity, N.
+    fn forces(&mut self, body: &Body<'_>, p: [f64; 3], cmds: &[CableCommand], loads: &mut [CableLoad]) -> [f64; 3] {
+        let mut f = [0.0, 0.0, -body.mass * G];
+        let v = self.v;
+        for (j, m) in body.models.iter().enumerate() {
+            let o = body.offsets[j];
+            let path = m.path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
+            let u = path.dir;
+            let ell = path.length();
+            let ell_dot = -(u[0] * v[0] + u[1] * v[1] + u[2] * v[2]);
+            let d = self.drum[j].max(1e-6);
+            let s = ell - d;
+            let k = m.ea / d;
+            let c = self.params.damping(k, body.mass);
+            let t = match cmds[j] {
+                CableCommand::Length(_) => {
+                    if s > 0.0 {
+                        (k * s + c * (ell_dot - self.rate[j])).max(0.0)
+                    } else {
+                        0.0
+                    }
+                }
+                CableCommand::Tension(tc) => {
+                    // T = k s + c (ell_dot - (T - tc) / (k tau)), solved for T.
+                    let kt = k * self.params.tension_time_constant_s;
+                    let beta = c / kt;
+                    let t = if s > 0.0 { ((k * s + c * ell_dot + beta * tc) / (1.0 + beta)).max(0.0) } else { 0.0 };
+                    self.rate[j] = (t - tc) / kt;
+                    t
+                }
+            };
+            for a in 0..3 {
+                f[a] += t * u[a];
+            }
+            loads[j] = CableLoad {
+                force: [t * u[0], t * u[1], t * u[2]],
+                energy: 0.5 * k * s.max(0.0).powi(2),
+                tension: t,
+                drum_length: self.drum[j],
+                slack: t <= 0.0,
+            };
+        }
+        f
+    }
+
+    /// The longest stable sub-step at `p` (see the module doc), s.
+    fn substep_limit(&self, body: &Body<'_>, p: [f64; 3], loads: &[CableLoad]) -> f64 {
+        let (mut trace, mut csum) = (0.0, 0.0);
+        for (j, m) in body.models.iter().enumerate() {
+            let o = body.offsets[j];
+            let path = m.path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
+            let k = m.ea / self.drum[j].max(1e-6);
+            trace += k + 2.0 * loads[j].tension.max(0.0) / path.straight.max(1e-6);
+            csum += self.params.damping(k, body.mass);
+        }
+        let w = (trace / body.mass).sqrt();
+        let z = csum / (2.0 * body.mass * w);
+        let limit = 0.5 * 2.0 * ((1.0 + z * z).sqrt() - z) / w;
+        limit.min(self.params.max_substep_s).min(0.5 * self.params.tension_time_constant_s)
+    }
+
+    /// Integrates `dt` under `cmds`; `p` and `loads` in and out. A non-finite result restores
+    /// the state of the step's start and reports no convergence.
+    pub fn advance(
+        &mut self,
+        body: &Body<'_>,
+        p: &mut [f64; 3],
+        dt: f64,
+        cmds: &[CableCommand],
+        loads: &mut [CableLoad],
+    ) -> EquilibriumReport {
+        let n = body.models.len();
+        let (p0, v0) = (*p, self.v);
+        self.start.copy_from_slice(&self.drum);
+        let mut steps = 0usize;
+        if dt > 0.0 {
+            // The limit at the step's start, with the tensions of the last step's end.
+            let h_max = self.substep_limit(body, *p, loads);
+            steps = ((dt / h_max).ceil() as usize).clamp(1, 1_000_000);
+            let h = dt / steps as f64;
+            for j in 0..n {
+                if let CableCommand::Length(l) = cmds[j] {
+                    self.rate[j] = (l - self.start[j]) / dt;
+                }
+            }
+            for i in 0..steps {
+                for j in 0..n {
+                    if let CableCommand::Length(l) = cmds[j] {
+                        self.drum[j] = self.start[j] + (l - self.start[j]) * (i as f64 / steps as f64);
+                    }
+                }
+                let f = self.forces(body, *p, cmds, loads);
+                for a in 0..3 {
+                    self.v[a] += h * f[a] / body.mass;
+                    p[a] += h * self.v[a];
+                }
+                for j in 0..n {
+                    if let CableCommand::Tension(_) = cmds[j] {
+                        self.drum[j] += h * self.rate[j];
+                    }
+                }
+            }
+            for j in 0..n {
+                if let CableCommand::Length(l) = cmds[j] {
+                    self.drum[j] = l;
+                }
+            }
+        } else {
+            for j in 0..n {
+                if let CableCommand::Length(l) = cmds[j] {
+                    self.drum[j] = l;
+                    self.rate[j] = 0.0;
+                }
+            }
+        }
+        // The loads at the step's end: what the next sub-step accelerates with.
+        let f = self.forces(body, *p, cmds, loads);
+        let ok = p.iter().chain(&self.v).chain(&self.drum).all(|x| x.is_finite());
+        if !ok {
+            *p = p0;
+            self.v = v0;
+            self.drum.copy_from_slice(&self.start);
+            self.forces(body, *p, cmds, loads);
+        }
+        EquilibriumReport { iterations: steps, residual_n: Vector3::from(f).norm(), converged: ok, stable: ok }
+    }
+}
+
+#[cfg(test)]
+mod tests;
