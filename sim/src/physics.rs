@@ -57,8 +57,9 @@ pub struct Physics {
     /// drum pays out extra cable.
     pub slack: bool,
     /// A dynamic plant: the platform's mass swings on elastic, damped cables (see
-    /// [`crate::dynamics`]). `None` (the default): the quasi-static plant. Only [`crate::Plant`]
-    /// reads it; the scenario recordings stay quasi-static.
+    /// [`crate::dynamics`]). `None` (the default): the quasi-static plant. Read by
+    /// [`crate::Plant`] (and so by the three-phase motion, which steps a plant); the excitation
+    /// recordings of [`crate::simulate`] stay quasi-static.
     pub dynamics: Option<Dynamics>,
 }
 

@@ -238,6 +238,28 @@ fn cables_go_slack_in_a_drop_and_recover() {
     }
 }
 
+/// Cables stiff enough that 1 ms is beyond the stability limit: the plant sub-steps below it
+/// and a push decays instead of growing.
+#[test]
+fn stiff_cables_sub_step_inside_the_stability_limit() {
+    let mut s = scenario(Some(Dynamics::default()));
+    s.physics.elasticity = Some(5e7);
+    let (mut plant, hold) = s.plant().unwrap();
+    let cmds = lengths(&hold);
+    let p_eq = plant.position();
+    let w_max = 2.0 * std::f64::consts::PI * plant.predicted_modes().unwrap()[2].natural_hz;
+    plant.nudge([1e-4, -1e-4, 1e-4], [0.0; 3]);
+    let mut h = 0.0;
+    for _ in 0..2000 {
+        let out = plant.step(DT, &cmds);
+        h = DT / out.report.iterations as f64;
+    }
+    let left = norm(sub(plant.position(), p_eq));
+    println!("w_max {w_max:.0} rad/s, sub-step {h:.2e} s (limit 2/w {:.2e} s), {left:.1e} m left of a 0.17 mm push", 2.0 / w_max);
+    assert!(h < 2.0 / w_max && h < DT, "sub-step {h}");
+    assert!(left < 1e-5 && plant.failed_steps() == 0, "{left} m");
+}
+
 /// A mixed run (noise, time offset, backlash, torque mode, a drop) twice: bit for bit the same.
 #[test]
 fn dynamic_plant_is_deterministic() {
