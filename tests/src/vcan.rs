@@ -2,7 +2,7 @@
 //!
 //! The `tests/vcan/run` script boots a QEMU VM with the CAN modules loaded,
 //! `vcan0` and `vcan1` up, and [`REQUIRED_ENV`] set to `1`, then runs every
-//! `tests/tests/vcan_*.rs` target there. On a normal host (`cargo test`) the
+//! module of the `vcan` test target (`tests/tests/vcan/`) there. On a normal host (`cargo test`) the
 //! interfaces are usually missing and the tests skip themselves:
 //!
 //! ```no_run

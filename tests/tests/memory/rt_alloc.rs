@@ -2,7 +2,6 @@
 //! watches 100,000+ cycles through every state, parameter swaps, safety reactions and a full
 //! sample ring.
 
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use taut_rt_core::io::{BusEvent, DeviceFault, IfName};
 use taut_rt_core::kin::LoopParams;
@@ -13,44 +12,8 @@ use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_rt_core::triple::triple_buffer;
 use taut_rt_core::FromRobot;
 
-struct Counting;
-
-thread_local! {
-    // const-initialised thread locals need no allocation on first use.
-    static WATCHING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-    static FREES: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let _ = WATCHING.try_with(|w| {
-            if w.get() {
-                ALLOCS.with(|a| a.set(a.get() + 1));
-            }
-        });
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        let _ = WATCHING.try_with(|w| {
-            if w.get() {
-                FREES.with(|a| a.set(a.get() + 1));
-            }
-        });
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        let _ = WATCHING.try_with(|w| {
-            if w.get() {
-                ALLOCS.with(|a| a.set(a.get() + 1));
-            }
-        });
-        System.realloc(p, l, n)
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+// The counting global allocator of this test binary (one per binary): `crate::counting`.
+use crate::counting::{ALLOCS, FREES, WATCHING};
 
 #[test]
 fn loop_allocates_nothing_in_any_state() {

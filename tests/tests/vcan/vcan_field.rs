@@ -215,7 +215,7 @@ fn drives_stop_when_taut_is_killed_over_vcan() {
     thread::sleep(Duration::from_millis(300));
     let list = nodes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(",");
     let mut child = Command::new(std::env::current_exe().unwrap())
-        .args(["field_master_child", "--exact", "--nocapture", "--test-threads=1"])
+        .args(["vcan_field::field_master_child", "--exact", "--nocapture", "--test-threads=1"])
         .env(CHILD_ENV, &list)
         .stdout(Stdio::piped())
         .stdin(Stdio::null())

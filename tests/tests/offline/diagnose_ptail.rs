@@ -9,8 +9,7 @@
 //! bound 1e-3 is what a calibrated test meets on one recording with probability ~0.994 (6 tests,
 //! correlated), and the test without the term must fall below it, so this cannot pass by accident.
 
-#[path = "support/null_cases.rs"]
-mod null_cases;
+use crate::null_cases;
 
 use null_cases::Variant;
 

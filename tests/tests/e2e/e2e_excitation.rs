@@ -160,7 +160,7 @@ fn the_design_meets_the_budget() {
 
 /// P(worst > 1 mm) of the design at each scale (`TAUT_SCALES=1.0,1.2`) and the largest scale
 /// with P below [`RECORDING_P_MAX`]:
-/// `cargo test -p taut-tests --test e2e_excitation design_scales -- --ignored --nocapture`.
+/// `cargo test -p taut-tests --test e2e e2e_excitation::design_scales -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn design_scales() {

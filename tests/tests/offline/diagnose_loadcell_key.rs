@@ -4,8 +4,7 @@
 //! without them the tensions are taken as exact. One fixed seed, so every outcome below is
 //! deterministic (no failure probability to state).
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use serde_json::Value;
 use std::path::Path;

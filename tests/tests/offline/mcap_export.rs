@@ -1,9 +1,8 @@
 //! `taut export REC.csv --mcap OUT.mcap`, and `taut calibrate` reading MCAP as it reads CSV; the
 //! files checked with the independent Python reader; hostile MCAP input gets clear errors.
 
+use crate::hostile;
 use std::path::Path;
-#[path = "../src/hostile.rs"]
-mod hostile;
 
 use hostile::taut_bin;
 use std::process::Command;

@@ -119,7 +119,7 @@ fn hostile_effect_values_are_refused_naming_file_line_and_key() {
 
 #[test]
 fn calibration_effects_key_is_validated() {
-    let base = include_str!("../../config/examples/aras-cam-sim.toml");
+    let base = include_str!("../../../config/examples/aras-cam-sim.toml");
     let with = |list: &str| {
         if base.contains("[calibration]") {
             base.replacen("[calibration]", &format!("[calibration]\neffects = {list}"), 1)

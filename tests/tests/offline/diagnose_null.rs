@@ -6,8 +6,7 @@
 //! (3.3e-5 at the default 1e-4), so this test of 12 recordings fails by chance with probability
 //! at most 12 x 3.3e-5 = 4e-4 < 1e-3.
 
-#[path = "support/null_cases.rs"]
-mod null_cases;
+use crate::null_cases;
 
 use taut_calib::diagnose::{DiagnoseOptions, DEFAULT_FAMILY_ALPHA};
 

@@ -13,8 +13,7 @@
 //! `scripts/setup-report` installs Chromium. Without it the test prints why it is skipped and
 //! passes, unless `TAUT_REQUIRE_EXTERNAL=1` (as in CI), where a missing Chromium fails.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::{good_recording, run_with_deadline, taut_bin, GOOD_CONFIG};
 use std::path::{Path, PathBuf};

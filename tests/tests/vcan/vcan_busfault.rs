@@ -5,7 +5,7 @@
 //! faults naming `vcan0`, and the recoveries. The scenario is `busfault/mod.rs`, shared with
 //! `canopen_busfault`.
 
-mod busfault;
+use crate::busfault;
 
 use socketcan::Socket;
 use std::io::Write;

@@ -5,8 +5,6 @@
 //! Also: the steady-state SYNC cycle allocates nothing (a counting global allocator).
 
 use proptest::prelude::*;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use taut_driver::canopen::master::{Master, MasterConfig, NodeConfig};
@@ -14,39 +12,10 @@ use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_driver::transport::{CanTransport, Frame};
 use taut_vdev::{rack_filters, DriveRack};
 
-struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-thread_local! {
-    // Only the measuring thread counts: the property tests of this binary run on other test
-    // threads at the same time and allocate freely. `const` init: reading it never allocates.
-    static COUNTING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-fn count() {
-    if COUNTING.with(|c| c.get()) {
-        // Relaxed: a statistic, read after the measured code on the same thread.
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-// SAFETY: forwards to the system allocator; only counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        count();
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        count();
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+// The counting global allocator of this test binary (one per binary): `crate::counting`. Only
+// the measuring thread counts: the property tests (and the other tests of this binary) run on
+// other test threads at the same time and allocate freely.
+use crate::counting::{ALLOCS, WATCHING};
 
 struct Rig {
     bus: VirtualBus,
@@ -150,8 +119,8 @@ fn the_sync_cycle_allocates_nothing() {
         r.step();
     }
     assert!(r.master.all_enabled());
-    let before = ALLOCS.load(Ordering::Relaxed);
-    COUNTING.with(|c| c.set(true));
+    let before = ALLOCS.with(|a| a.get());
+    WATCHING.with(|w| w.set(true));
     for k in 0..1000 {
         if k % 10 == 0 {
             let mut op = r.master.operational().unwrap();
@@ -159,7 +128,7 @@ fn the_sync_cycle_allocates_nothing() {
         }
         r.step();
     }
-    COUNTING.with(|c| c.set(false));
-    let after = ALLOCS.load(Ordering::Relaxed);
+    WATCHING.with(|w| w.set(false));
+    let after = ALLOCS.with(|a| a.get());
     assert_eq!(after - before, 0, "allocations in 1000 SYNC cycles of master + 8 virtual drives + bus");
 }

@@ -3,7 +3,7 @@
 //! and reach the loop's devices as faults that name the interface (see `busfault/mod.rs`; the
 //! same scenario runs on vcan0 in `vcan_busfault`).
 
-mod busfault;
+use crate::busfault;
 
 use std::time::Duration;
 use taut_driver::transport::virtual_bus::VirtualBus;

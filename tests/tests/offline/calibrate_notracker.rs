@@ -3,8 +3,7 @@
 //! in the parameters file; no tensions; missing lengths; tracker in some rows only (calibrated
 //! with the tracker on those rows, said in a note); 3 cables and no nominal anchors refused.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use std::path::Path;
 use std::process::Command;

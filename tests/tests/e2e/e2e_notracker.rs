@@ -5,7 +5,7 @@
 //! `e2e_notracker_3mm`, a serial step of `scripts/test`. The recalibration: the ignored
 //! `recalibrates_without_a_tracker`.
 
-mod notracker;
+use crate::notracker;
 
 use notracker::{report, start, Plan};
 
@@ -29,7 +29,7 @@ fn recalibrates_without_a_tracker() {
 }
 
 /// Seeds 1-5 with the test's plan:
-/// `cargo test -p taut-tests --test e2e_notracker seeds -- --ignored --nocapture`.
+/// `cargo test -p taut-tests --test e2e e2e_notracker::seeds -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn seeds() {

@@ -2,8 +2,7 @@
 //! parameters, unknown names. Each is refused before anything is simulated or allocated, with the
 //! argument named and the allowed range said; nothing panics or aborts.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::{good_recording, run_suite, Case};
 

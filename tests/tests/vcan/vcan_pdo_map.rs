@@ -37,7 +37,7 @@ fn counts(m: &[f64]) -> Vec<i32> {
 
 const IFACE: &str = "vcan0";
 /// The virtual drive's EDS, carried in the binary: the VM has no source tree.
-const EDS: &[u8] = include_bytes!("../data/eds/virtual_drive.eds");
+const EDS: &[u8] = include_bytes!("../../data/eds/virtual_drive.eds");
 
 #[test]
 fn custom_pdo_map_brings_up_and_runs_cycles_over_vcan() {

@@ -27,8 +27,9 @@ use taut_rt_core::FromRobot;
 const T: Duration = Duration::from_secs(10);
 
 /// Held by the memory test and by the tests that allocate much (a daemon with its calibrator):
-/// the memory test reads this process's resident size.
-static MEMORY: Mutex<()> = Mutex::new(());
+/// the memory test reads this process's resident size. Shared with the other tests of this binary
+/// that allocate much (`plugin_alloc`'s simulated robots): see main.rs.
+use crate::MEMORY;
 
 fn memory_lock() -> std::sync::MutexGuard<'static, ()> {
     MEMORY.lock().unwrap_or_else(|e| e.into_inner())

@@ -2,8 +2,7 @@
 //! chunks the independent Python reader reads (all but the last half second), and taut names
 //! the file and the problem instead of reading it half.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::taut_bin;
 use std::process::{Command, Stdio};

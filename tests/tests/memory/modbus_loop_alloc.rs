@@ -2,38 +2,21 @@
 //! global allocator checks `TensionReader::update/tension` and `PoseReader::latest` while the
 //! I/O threads run.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::time::{Duration, Instant};
 use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_driver::{loadcell, tracker};
 use taut_vdev::{TensionHandle, TrackerStream, VirtualLoadCells};
 
-thread_local! {
-    /// Allocations made by this thread while counting is on.
-    static COUNT: Cell<Option<u64>> = const { Cell::new(None) };
-}
+// The counting global allocator of this test binary (one per binary): `crate::counting`.
+use crate::counting::{ALLOCS, FREES, WATCHING};
 
-struct Counting;
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let _ = COUNT.try_with(|c| c.set(c.get().map(|n| n + 1)));
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        let _ = COUNT.try_with(|c| c.set(c.get().map(|n| n + 1)));
-        System.dealloc(p, l)
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
-
+/// Runs `f`, counting this thread's allocations and frees.
 fn counted<R>(f: impl FnOnce() -> R) -> (R, u64) {
-    COUNT.with(|c| c.set(Some(0)));
+    let before = ALLOCS.with(|a| a.get()) + FREES.with(|a| a.get());
+    WATCHING.with(|w| w.set(true));
     let r = f();
-    let n = COUNT.with(|c| c.replace(None)).unwrap_or(0);
+    WATCHING.with(|w| w.set(false));
+    let n = ALLOCS.with(|a| a.get()) + FREES.with(|a| a.get()) - before;
     (r, n)
 }
 

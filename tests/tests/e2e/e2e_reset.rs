@@ -10,7 +10,7 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
-use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use taut_driver::transport::virtual_bus::CanController;
 use taut_rt_core::calib_backend::TautCalib;
@@ -66,10 +66,37 @@ fn start() -> Rig {
     Rig { d, faults: sim.faults, can, sock, workspace, version, _dir: dir }
 }
 
-/// The shared robot, operating, for one test at a time.
-fn rig() -> MutexGuard<'static, Rig> {
-    static RIG: OnceLock<Mutex<Rig>> = OnceLock::new();
-    let g = RIG.get_or_init(|| Mutex::new(start())).lock().unwrap_or_else(|e| e.into_inner());
+/// How many tests of this module use the shared robot (calls of `rig`).
+const RIG_TESTS: usize = 6;
+
+/// The shared robot, operating, for one test at a time. Stopped when the last of this module's
+/// `RIG_TESTS` tests is done with it: the `e2e` binary's other tests, which run after these, need
+/// the machine (it starts again if a test still asks for it).
+struct RigGuard(MutexGuard<'static, Option<Rig>>);
+
+impl std::ops::Deref for RigGuard {
+    type Target = Rig;
+    fn deref(&self) -> &Rig {
+        self.0.as_ref().expect("the shared robot")
+    }
+}
+
+impl Drop for RigGuard {
+    fn drop(&mut self) {
+        static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        if DONE.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1 >= RIG_TESTS {
+            self.0.take();
+        }
+    }
+}
+
+fn rig() -> RigGuard {
+    static RIG: Mutex<Option<Rig>> = Mutex::new(None);
+    let mut g = RIG.lock().unwrap_or_else(|e| e.into_inner());
+    if g.is_none() {
+        *g = Some(start());
+    }
+    let g = RigGuard(g);
     let s = g.d.loop_status().snap;
     assert!(
         matches!(s.state, State::Operate | State::Holding) && s.fault.is_none(),

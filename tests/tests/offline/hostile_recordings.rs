@@ -2,8 +2,7 @@
 //! and `taut diagnose`. Each must end in a clear error naming the file, line and column (or be
 //! accepted where the format allows it), without a panic, a hang, or a changed file.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::{good_recording, run_suite, set_field, with_line, Case, Entry};
 

@@ -3,8 +3,7 @@
 //! (by any name) is refused; a write that fails midway leaves the old file; figures go into place
 //! all or nothing.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::{good_recording, run_suite, Case, Entry, GOOD_CONFIG};
 

@@ -6,10 +6,8 @@
 //! and writes the simulated CANopen drives, load cells and tracker itself). The event queue is
 //! kept tiny and never polled during the run, so its drop path is exercised too.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::sync::atomic::{AtomicU8, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use taut_rt_core::io::{Devices, Inputs};
 use taut_rt_core::motion::State;
@@ -17,44 +15,13 @@ use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHa
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
 use taut_tests::startup;
 
-struct Counting;
-
-thread_local! {
-    // const-initialised thread locals need no allocation on first use.
-    static WATCHING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-    static FREES: Cell<u64> = const { Cell::new(0) };
-}
-
-fn count(c: &'static std::thread::LocalKey<Cell<u64>>) {
-    let _ = WATCHING.try_with(|w| {
-        if w.get() {
-            c.with(|a| a.set(a.get() + 1));
-        }
-    });
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        count(&ALLOCS);
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        count(&FREES);
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        count(&ALLOCS);
-        System.realloc(p, l, n)
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+// The counting global allocator of this test binary (one per binary): `crate::counting`.
+use crate::counting::{ALLOCS, FREES, WATCHING};
 
 /// One simulated robot at a time: two at once on a loaded machine make the start-up's timing
-/// (and so the test) depend on the other.
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+/// (and so the test) depend on the other. The lock is this binary's `MEMORY`: a robot's start-up
+/// allocates much, and `hostile_ctl`'s memory test reads the process's resident size.
+use crate::MEMORY as ONE_AT_A_TIME;
 
 fn watched<T>(f: impl FnOnce() -> T) -> T {
     WATCHING.with(|w| w.set(true));

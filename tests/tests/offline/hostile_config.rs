@@ -1,8 +1,7 @@
 //! Hostile robot configurations (issue 13): every value with physical bounds, arrays of exactly
 //! three numbers, degenerate geometry; each refused with the file, line and key, never a panic.
 
-#[path = "../src/hostile.rs"]
-mod hostile;
+use crate::hostile;
 
 use hostile::{good_recording, run_suite, Case, Entry, GOOD_CONFIG};
 

@@ -1,0 +1,32 @@
+//! Tests that need no devices, no device threads and no motion in real time: the calibrator,
+//! the diagnosis and self-calibration on simulated recordings, the `taut` binary's offline
+//! commands (`calibrate`, `diagnose`, `export`, reports) under hostile input, parameter files,
+//! the workspace's dependency rules and the udev files. One test binary, a module per subject.
+
+/// The hostile-input suite's runner (the `taut` binary in a fresh directory with a deadline).
+#[path = "../../src/hostile.rs"]
+mod hostile;
+/// The effect-free recordings of the null-rate sweep.
+#[path = "../support/null_cases.rs"]
+mod null_cases;
+
+mod accuracy_sim;
+mod calibrate_notracker;
+mod crate_graph;
+mod diagnose_concealed;
+mod diagnose_data_problems;
+mod diagnose_eiv;
+mod diagnose_loadcell_key;
+mod diagnose_null;
+mod diagnose_pairs;
+mod diagnose_ptail;
+mod hostile_args;
+mod hostile_config;
+mod hostile_outputs;
+mod hostile_recordings;
+mod hostile_wild_values;
+mod mcap_export;
+mod params_v2;
+mod report_html;
+mod selfcal;
+mod udev_rules;
