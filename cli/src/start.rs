@@ -60,6 +60,19 @@ pub struct StartArgs {
     /// calibrates from the encoders and load cells (`motion.startup = "dwell"`).
     #[arg(long = "no-tracker", requires = "sim")]
     no_tracker: bool,
+    /// With --sim --once: run the start-up in simulated time, the whole robot stack in lockstep
+    /// on one simulated clock, as fast as the CPU allows (the same seed gives the same run, bit
+    /// for bit). The JSON gets a `sim_time` object with the speed-up over real time.
+    #[arg(long = "sim-time", requires = "sim", requires = "once", conflicts_with = "can")]
+    sim_time: bool,
+    /// With --sim-time: the simulated plant has dynamics (the platform swings on elastic,
+    /// damped cables) instead of moving from one static equilibrium to the next.
+    #[arg(long = "dynamic", requires = "sim_time")]
+    dynamic: bool,
+    /// With --sim-time: faults drawn from the seed (lost and late CAN frames, tracker dropouts,
+    /// a pause of the load cells).
+    #[arg(long = "sim-faults", requires = "sim_time")]
+    sim_faults: bool,
 }
 
 /// The simulated robot `taut start --sim` runs without --config (also loaded by the tests).
@@ -89,28 +102,20 @@ pub fn run(a: &StartArgs) -> Result<()> {
         let mut so =
             SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_rt_core::notracker::is_dwell(&cfg), ..Default::default() };
         crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
+        if a.dynamic {
+            so.physics.dynamics = Some(taut_sim::Dynamics::default());
+        }
         let p0 = simrig::rest_position(&cfg, &so, p0);
+        if a.sim_time {
+            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?);
+        }
         let sim = simrig::build(&cfg, p0, &so)?;
         (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
     } else {
         let (d, t) = hardware_devices(&cfg)?;
         (d, None, t)
     };
-    let mut backend = TautCalib::from_config(&cfg);
-    if let Some(p) = &a.params {
-        let file = taut_config::params::ParamsFile::load(p).map_err(|e| anyhow::anyhow!("{e}"))?;
-        anyhow::ensure!(
-            file.anchors_m.len() == cfg.cables.len(),
-            "{}: {} cables, but the robot configuration has {}; give the parameter file of this robot",
-            p.display(),
-            file.anchors_m.len(),
-            cfg.cables.len()
-        );
-        backend = backend.with_params(&file);
-    }
-    if !backend.effects().is_empty() {
-        eprintln!("taut start: modelling {}", backend.effects().join(", "));
-    }
+    let backend = backend(a, &cfg)?;
     let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
@@ -153,12 +158,123 @@ pub fn run(a: &StartArgs) -> Result<()> {
             eprintln!("{line}");
             last = line;
         }
-        startup_finished(l, c)
+        taut_rt_core::control::startup_finished(l, c)
     });
     let l = daemon.loop_status();
     let c = daemon.calib_status();
     let recording = daemon.recording.clone();
     let report = daemon.shutdown();
+    let loop_json = json!({
+        "rate_hz": cfg.rt.rate_hz,
+        "cycles": report.as_ref().map(|r| r.cycles),
+        "overruns": report.as_ref().map(|r| r.overruns),
+        "max_late_us": report.as_ref().map(|r| r.max_late_ns as f64 * 1e-3),
+        "max_compute_us": report.as_ref().map(|r| r.max_compute_ns as f64 * 1e-3),
+        "realtime": report.as_ref().map(|r| r.setup.realtime),
+    });
+    finish(a, &cfg, &l, &c, truth.as_ref(), &recording, done, loop_json, None)
+}
+
+/// The calibration backend of `taut start`: taut-calib from the configuration, with the
+/// effects of `--params` if given.
+fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
+    let mut backend = TautCalib::from_config(cfg);
+    if let Some(p) = &a.params {
+        let file = taut_config::params::ParamsFile::load(p).map_err(|e| anyhow::anyhow!("{e}"))?;
+        anyhow::ensure!(
+            file.anchors_m.len() == cfg.cables.len(),
+            "{}: {} cables, but the robot configuration has {}; give the parameter file of this robot",
+            p.display(),
+            file.anchors_m.len(),
+            cfg.cables.len()
+        );
+        backend = backend.with_params(&file);
+    }
+    if !backend.effects().is_empty() {
+        eprintln!("taut start: modelling {}", backend.effects().join(", "));
+    }
+    Ok(backend)
+}
+
+/// `taut start --sim --once --sim-time`: the start-up in simulated time.
+fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib) -> Result<()> {
+    let m = &cfg.motion;
+    let phase_s = 2.0 * m.init_reel_m.abs() / m.init_reel_speed_m_s + m.init_settle_s;
+    let budget_s = 3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s + 600.0;
+    let faults = if a.sim_faults { simrig::LockstepFaults::drawn(a.seed) } else { simrig::LockstepFaults::default() };
+    // A run of its own per seed, with an empty parameter history (the calibrator numbers its
+    // parameter sets after the ones on disk): the same seed gives the same summary.
+    let dir = std::path::Path::new(&cfg.daemon.data_dir).join("sim-time").join(format!("seed-{}", a.seed));
+    match std::fs::remove_dir_all(dir.join("params")) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("clearing the simulated run's parameter history {}", dir.join("params").display()))
+        }
+        _ => {}
+    }
+    let mut cfg = cfg.clone();
+    cfg.daemon.data_dir = dir.display().to_string();
+    let cfg = &cfg;
+    let recording = dir.join("recordings").join("start.csv");
+    eprintln!("taut start: simulated time (seed {}); recording {}", a.seed, recording.display());
+    let run = simrig::run_startup(
+        cfg,
+        p0,
+        so,
+        faults.clone(),
+        Box::new(backend),
+        taut_rt_core::plugin::RecordingPath::At(recording.clone()),
+        budget_s,
+        |_| false,
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let lc = run.loadcells;
+    let loop_json = json!({
+        "rate_hz": cfg.rt.rate_hz,
+        "cycles": run.cycles,
+        "overruns": 0,
+        "realtime": false,
+    });
+    let sim_json = json!({
+        "simulated_s": run.sim_s,
+        "wall_s": run.wall_s,
+        "speedup": run.sim_s / run.wall_s.max(1e-9),
+        "seed": a.seed,
+        "dynamic_plant": a.dynamic,
+        "faults": {
+            "frame_loss": faults.frame_loss,
+            "frame_late": faults.frame_late,
+            "tracker_dropout": faults.tracker_dropout,
+            "loadcell_silence_s": faults.loadcell_silence,
+        },
+        "can": {"frames": run.bus.frames, "lost": run.bus.lost, "late": run.bus.late, "load": run.bus.busy_s / run.sim_s.max(1e-9)},
+        "loadcells": {"ok": lc.ok, "timeouts": lc.timeouts, "retries": lc.retries, "failed": lc.failed},
+        "plant_failed_steps": run.plant_failed_steps,
+        "wall_clock_fields": ["sim_time.wall_s", "sim_time.speedup"],
+    });
+    eprintln!(
+        "taut start: {:.1} s simulated in {:.2} s of wall time ({:.0}x real time)",
+        run.sim_s,
+        run.wall_s,
+        run.sim_s / run.wall_s.max(1e-9)
+    );
+    let truth = Some(run.truth.clone());
+    finish(a, cfg, &run.loop_status, &run.calib_status, truth.as_ref(), &recording, run.finished, loop_json, Some(sim_json))
+}
+
+/// The summary of a start-up (JSON with --json, and the lines on stdout); fails when the
+/// start-up did not end with a hot-swap.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    a: &StartArgs,
+    cfg: &RobotConfig,
+    l: &LoopStatus,
+    c: &CalibStatus,
+    truth: Option<&Truth>,
+    recording: &std::path::Path,
+    done: bool,
+    loop_json: serde_json::Value,
+    sim_time: Option<serde_json::Value>,
+) -> Result<()> {
     let c_final = c.clone();
     let initial = c_final.outcomes.iter().find(|o| o.kind == OutcomeKind::Initial && o.run == 0);
     let calibrated = c_final.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration && o.run == 0);
@@ -201,15 +317,12 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "rejected": c.outcomes.iter().filter(|o| !o.accepted).map(|o| o.reason.clone()).collect::<Vec<_>>(),
         "fault": l.snap.fault.map(|(cause, r)| json!({"cause": cause.name(), "reaction": r.name(), "message": cause.to_string()})),
         "finished": done,
-        "loop": {
-            "rate_hz": cfg.rt.rate_hz,
-            "cycles": report.as_ref().map(|r| r.cycles),
-            "overruns": report.as_ref().map(|r| r.overruns),
-            "max_late_us": report.as_ref().map(|r| r.max_late_ns as f64 * 1e-3),
-            "max_compute_us": report.as_ref().map(|r| r.max_compute_ns as f64 * 1e-3),
-            "realtime": report.as_ref().map(|r| r.setup.realtime),
-        },
+        "loop": loop_json,
     });
+    let mut summary = summary;
+    if let Some(st) = sim_time {
+        summary["sim_time"] = st;
+    }
     if let Some(p) = &a.json {
         taut_config::write_atomic(p, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())
             .with_context(|| format!("writing {}", p.display()))?;
@@ -361,20 +474,6 @@ impl DeviceSource for Hardware {
         let peripherals = self.peripherals.take().ok_or(BringUpError::DevicesTaken)?;
         eprintln!("taut start: bringing up the drives on {}", can.interface);
         Ok(Box::new(RobotDevices::bring_up(&self.cfg, bus, peripherals)?))
-    }
-}
-
-/// True when the start-up is over, well or badly.
-fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
-    if l.snap.fault.is_some() || l.snap.state == State::Stopped {
-        return true;
-    }
-    if c.outcomes.iter().any(|o| o.run == 0 && !o.accepted) {
-        return true;
-    }
-    match c.outcomes.iter().find(|o| o.run == 0 && o.kind == OutcomeKind::Calibration && o.accepted) {
-        Some(o) => l.snap.params_version == o.version && !l.snap.swap_active,
-        None => false,
     }
 }
 

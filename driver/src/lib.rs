@@ -20,6 +20,7 @@
 //! | [`SocketCanTransport`], [`VirtualBus`], [`VirtualEndpoint`]             | [`transport::socketcan`], [`transport::virtual_bus`] |
 //! | [`LoadCellIo`], [`TensionReader`]                                       | [`loadcell`] (Modbus RTU I/O thread) |
 //! | [`TrackerThread`], [`PoseReader`]                                       | [`tracker`] (UDP receiver thread) |
+//! | [`Clock`], [`WallClock`], [`SimClock`], [`SharedClock`]                  | [`clock`] (wall or simulated time) |
 //!
 //! Codecs by path: [`canopen`]'s `nmt`, `sync`, `heartbeat`, `emcy`, `sdo`, `pdo`, `od`,
 //! `cia402`; [`modbus::rtu`], [`modbus::value`]; [`tracker::parse_line`]/[`tracker::format_line`];
@@ -37,6 +38,7 @@
 #![deny(missing_docs)]
 
 pub mod canopen;
+pub mod clock;
 pub mod loadcell;
 pub mod modbus;
 pub mod sched;
@@ -47,6 +49,7 @@ pub use canopen::cia402::{Mode, State};
 pub use canopen::drive_set::{DriveSet, DriveSetError};
 pub use canopen::master::{CommandError, ConfigProblem, Event, Master, MasterConfig, NodeConfig, NodeStatus, Phase};
 pub use canopen::NodeId;
+pub use clock::{Clock, SharedClock, SimClock, WallClock};
 pub use loadcell::{LoadCellIo, TensionReader};
 pub use tracker::{PoseReader, TrackerThread};
 pub use transport::socketcan::SocketCanTransport;

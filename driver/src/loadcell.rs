@@ -20,6 +20,7 @@
 //! # let _ = (io, t0);
 //! ```
 
+use crate::clock::{Clock, WallClock};
 use crate::modbus::link::{LinkError, SerialLink, SerialPortLink};
 use crate::modbus::master::{Backoff, CounterSnapshot, Counters, Event, Master, MasterConfig};
 use crate::modbus::rtu::{Function, Request};
@@ -196,6 +197,27 @@ where
     L: SerialLink,
     F: FnMut() -> Result<L, LinkError> + Send + 'static,
 {
+    let (polled, prod, cons) = prepare(bus, cells, cables)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let counters = Arc::new(Counters::default());
+    let worker =
+        Worker { bus: bus.clone(), mcfg: MasterConfig::from_bus(bus), cells: polled, prod, stop: stop.clone(), counters: counters.clone() };
+    let thread =
+        std::thread::Builder::new().name("taut-loadcells".into()).spawn(move || worker.run(open)).map_err(|_| SpawnError::Thread)?;
+    Ok((LoadCellIo { stop, counters, thread: Some(thread) }, reader(bus, cons, cables)))
+}
+
+fn reader(bus: &LoadCellBusConfig, cons: HeapCons<TensionSample>, cables: usize) -> TensionReader {
+    TensionReader { cons, latest: vec![None; cables].into_boxed_slice(), max_age: Duration::from_secs_f64(bus.max_age_s), missing: 0 }
+}
+
+/// Validates the bus and the cells and makes the ring between the I/O side and the reader.
+#[allow(clippy::type_complexity)]
+fn prepare(
+    bus: &LoadCellBusConfig,
+    cells: &[(usize, LoadCellConfig)],
+    cables: usize,
+) -> Result<(Vec<Cell>, HeapProd<TensionSample>, HeapCons<TensionSample>), SpawnError> {
     bus.validate().map_err(|(k, m)| SpawnError::Config(format!("loadcells.{k}"), m))?;
     let mut polled = Vec::with_capacity(cells.len());
     for (cable, c) in cells {
@@ -218,15 +240,118 @@ where
 
     let rb = HeapRb::<TensionSample>::new((RING_PER_CELL * cells.len()).max(16));
     let (prod, cons) = rb.split();
-    let stop = Arc::new(AtomicBool::new(false));
-    let counters = Arc::new(Counters::default());
-    let worker =
-        Worker { bus: bus.clone(), mcfg: MasterConfig::from_bus(bus), cells: polled, prod, stop: stop.clone(), counters: counters.clone() };
-    let thread =
-        std::thread::Builder::new().name("taut-loadcells".into()).spawn(move || worker.run(open)).map_err(|_| SpawnError::Thread)?;
-    let reader =
-        TensionReader { cons, latest: vec![None; cables].into_boxed_slice(), max_age: Duration::from_secs_f64(bus.max_age_s), missing: 0 };
-    Ok((LoadCellIo { stop, counters, thread: Some(thread) }, reader))
+    Ok((polled, prod, cons))
+}
+
+/// The load-cell bus without its thread, for a lockstep simulation: the caller runs each
+/// polling round ([`SteppedLoadCells::round`]) on a link and a clock of its own, with the same
+/// Modbus RTU master and the same reading code as the I/O thread. Readings reach the
+/// [`TensionReader`] when [`SteppedLoadCells::release`] is called at or after the instant
+/// their response was complete, never earlier.
+pub struct SteppedLoadCells {
+    port: String,
+    mcfg: MasterConfig,
+    cells: Vec<Cell>,
+    prod: HeapProd<TensionSample>,
+    counters: Arc<Counters>,
+    pending: std::collections::VecDeque<TensionSample>,
+    period: Duration,
+}
+
+impl SteppedLoadCells {
+    /// The bus of `bus` and `cells` (as [`spawn`]), its counters' handle and the loop's reader.
+    pub fn new(
+        bus: &LoadCellBusConfig,
+        cells: &[(usize, LoadCellConfig)],
+        cables: usize,
+    ) -> Result<(SteppedLoadCells, LoadCellIo, TensionReader), SpawnError> {
+        let (polled, prod, cons) = prepare(bus, cells, cables)?;
+        let counters = Arc::new(Counters::default());
+        let io = LoadCellIo { stop: Arc::new(AtomicBool::new(false)), counters: counters.clone(), thread: None };
+        let stepped = SteppedLoadCells {
+            port: bus.port.clone(),
+            mcfg: MasterConfig::from_bus(bus),
+            cells: polled,
+            prod,
+            counters,
+            pending: std::collections::VecDeque::with_capacity(4 * cells.len().max(1)),
+            period: Duration::from_secs_f64(bus.poll_period_s),
+        };
+        Ok((stepped, io, reader(bus, cons, cables)))
+    }
+
+    /// `loadcells.poll_period_s`: from the start of one round to the start of the next.
+    pub fn poll_period(&self) -> Duration {
+        self.period
+    }
+
+    /// One polling round on `link`, its transactions timed by `clock` (which the link advances
+    /// as the bytes take their time on the line). `false` if the link failed (counted).
+    pub fn round<L: SerialLink>(&mut self, link: &mut L, clock: &dyn Clock) -> bool {
+        let counters = self.counters.clone();
+        let mut master = Master::with_clock(link, self.mcfg, &counters, clock);
+        let pending = &mut self.pending;
+        poll_round(&self.port, &self.cells, &mut master, &counters, clock, |s| pending.push_back(s)).is_ok()
+    }
+
+    /// Hands the readings complete at `now` to the reader.
+    pub fn release(&mut self, now: Instant) {
+        while self.pending.front().is_some_and(|s| s.t <= now) {
+            let s = self.pending.pop_front().expect("checked");
+            push(&mut self.prod, &self.counters, s);
+        }
+    }
+
+    /// The bus counters (as [`LoadCellIo::counters`]).
+    pub fn counters(&self) -> CounterSnapshot {
+        self.counters.snapshot()
+    }
+
+    /// When the next held reading becomes visible.
+    pub fn next_release(&self) -> Option<Instant> {
+        self.pending.front().map(|s| s.t)
+    }
+}
+
+/// Pushes one reading into the ring (full: counted).
+fn push(prod: &mut HeapProd<TensionSample>, counters: &Counters, s: TensionSample) {
+    if prod.try_push(s).is_err() {
+        counters.count(Event::Overflow, format_args!("tension ring full: the real-time loop is not reading"));
+    }
+}
+
+/// The link failed during a round: reopen it.
+struct LinkLost;
+
+/// One polling round: every cell once, in order, each reading stamped with `clock` when its
+/// response was complete and handed to `out`.
+fn poll_round<L: SerialLink>(
+    port: &str,
+    cells: &[Cell],
+    master: &mut Master<'_, L>,
+    counters: &Counters,
+    clock: &dyn Clock,
+    mut out: impl FnMut(TensionSample),
+) -> Result<(), LinkLost> {
+    for cell in cells {
+        match master.read(&cell.req) {
+            Ok(regs) => {
+                let t = clock.now();
+                let v = regs.values();
+                match value::newtons([v[0], v[1]], &cell.cfg) {
+                    Some(newtons) => out(TensionSample { cable: cell.cable, newtons, t }),
+                    None => counters.count(Event::InvalidValue, format_args!("unit {}: reading is NaN or infinite", cell.cfg.unit_id)),
+                }
+            }
+            Err(crate::modbus::master::TransactionError::Link(e)) => {
+                counters.count(Event::LinkLost, format_args!("{port}: {e}; reopening with back-off"));
+                return Err(LinkLost);
+            }
+            // Counted and logged by the master; the reading of this round is missing.
+            Err(_) => {}
+        }
+    }
+    Ok(())
 }
 
 struct Worker {
@@ -279,31 +404,12 @@ impl Worker {
             let mut master = Master::new(link, self.mcfg, &counters);
             'poll: while !self.stopped() {
                 let round = Instant::now();
-                for i in 0..self.cells.len() {
-                    let cell = &self.cells[i];
-                    match master.read(&cell.req) {
-                        Ok(regs) => {
-                            let t = Instant::now();
-                            let v = regs.values();
-                            match value::newtons([v[0], v[1]], &cell.cfg) {
-                                Some(newtons) => {
-                                    if self.prod.try_push(TensionSample { cable: cell.cable, newtons, t }).is_err() {
-                                        self.counters
-                                            .count(Event::Overflow, format_args!("tension ring full: the real-time loop is not reading"));
-                                    }
-                                }
-                                None => self
-                                    .counters
-                                    .count(Event::InvalidValue, format_args!("unit {}: reading is NaN or infinite", cell.cfg.unit_id)),
-                            }
-                        }
-                        Err(crate::modbus::master::TransactionError::Link(e)) => {
-                            self.counters.count(Event::LinkLost, format_args!("{}: {e}; reopening with back-off", self.bus.port));
-                            break 'poll;
-                        }
-                        // Counted and logged by the master; the reading of this round is missing.
-                        Err(_) => {}
-                    }
+                if poll_round(&self.bus.port, &self.cells, &mut master, &self.counters, &WallClock, |s| {
+                    push(&mut self.prod, &self.counters, s)
+                })
+                .is_err()
+                {
+                    break 'poll;
                 }
                 if !period.is_zero() {
                     self.sleep(period.saturating_sub(round.elapsed()));

@@ -439,7 +439,8 @@ impl SourceFilter {
 /// The receiving end: a non-blocking UDP socket, the filter, the slot. Drive it with
 /// [`poll`](Self::poll) from any loop, or let [`spawn`] run it on its own thread.
 pub struct TrackerReceiver {
-    socket: UdpSocket,
+    /// `None`: a receiver fed by [`TrackerReceiver::on_datagram`] only (a lockstep simulation).
+    socket: Option<UdpSocket>,
     filter: PoseFilter,
     slot: Arc<PoseSlot>,
     counters: Arc<TrackerCounters>,
@@ -452,12 +453,20 @@ impl TrackerReceiver {
     pub fn bind(cfg: &TrackerConfig) -> io::Result<TrackerReceiver> {
         cfg.validate().map_err(|(k, m)| io::Error::new(io::ErrorKind::InvalidInput, format!("tracker.{k}: {m}")))?;
         let addr: SocketAddr = cfg.listen.parse().map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
-        let sources = SourceFilter::from_config(cfg)?;
+        let detached = TrackerReceiver::detached(cfg, Instant::now())?;
         let socket = UdpSocket::bind(addr)?;
         socket.set_nonblocking(true)?;
-        let epoch = Instant::now();
+        Ok(TrackerReceiver { socket: Some(socket), ..detached })
+    }
+
+    /// A receiver without a socket, whose datagrams come through
+    /// [`on_datagram`](Self::on_datagram) with their arrival instants on the caller's clock
+    /// (`epoch` is that clock's now). The same filter, slot and counters as a bound one.
+    pub fn detached(cfg: &TrackerConfig, epoch: Instant) -> io::Result<TrackerReceiver> {
+        cfg.validate().map_err(|(k, m)| io::Error::new(io::ErrorKind::InvalidInput, format!("tracker.{k}: {m}")))?;
+        let sources = SourceFilter::from_config(cfg)?;
         Ok(TrackerReceiver {
-            socket,
+            socket: None,
             filter: PoseFilter::new(cfg.max_age_s, epoch),
             slot: Arc::new(PoseSlot::new(epoch)),
             counters: Arc::new(TrackerCounters::default()),
@@ -468,7 +477,10 @@ impl TrackerReceiver {
 
     /// The address actually bound (port 0 in the config picks a free one).
     pub fn local_addr(&self) -> io::Result<SocketAddr> {
-        self.socket.local_addr()
+        match &self.socket {
+            Some(s) => s.local_addr(),
+            None => Err(io::Error::new(io::ErrorKind::NotConnected, "a detached tracker receiver has no socket")),
+        }
     }
 
     /// A reader of the poses this receiver accepts.
@@ -481,7 +493,8 @@ impl TrackerReceiver {
         let mut buf = [0u8; MAX_LINE + 1];
         let mut accepted = 0;
         loop {
-            let (n, from) = match self.socket.recv_from(&mut buf) {
+            let Some(socket) = &self.socket else { return Ok(0) };
+            let (n, from) = match socket.recv_from(&mut buf) {
                 Ok(x) => x,
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(accepted),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
@@ -633,7 +646,7 @@ pub fn spawn(cfg: &TrackerConfig) -> io::Result<(TrackerThread, PoseReader)> {
     let stop2 = stop.clone();
     let thread = std::thread::Builder::new().name("taut-tracker".into()).spawn(move || {
         use std::os::fd::AsRawFd;
-        let fd = rx.socket.as_raw_fd();
+        let fd = rx.socket.as_ref().map_or(-1, |s| s.as_raw_fd());
         while !stop2.load(Ordering::Acquire) {
             let mut pfd = libc::pollfd { fd, events: libc::POLLIN, revents: 0 };
             // SAFETY: one valid pollfd for the duration of the call.

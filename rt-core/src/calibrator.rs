@@ -560,8 +560,18 @@ struct JobResult {
     data_problems: Vec<String>,
 }
 
-/// The calibrator's ends of the worker's channels: jobs out, results back (each with the backend).
-type JobChannels = (mpsc::Sender<(Job, Box<dyn Calibrate>)>, mpsc::Receiver<(JobResult, Box<dyn Calibrate>)>);
+/// Where calibration jobs run.
+enum Jobs {
+    /// On the worker thread: jobs out, results back (each with the backend).
+    Thread {
+        tx: mpsc::Sender<(Job, Box<dyn Calibrate>)>,
+        rx: mpsc::Receiver<(JobResult, Box<dyn Calibrate>)>,
+        worker: std::thread::JoinHandle<()>,
+    },
+    /// In the step that submits them (lockstep simulation): the result waits here for the
+    /// same step's `poll_results`.
+    Inline { done: Option<(JobResult, Box<dyn Calibrate>)> },
+}
 
 /// The calibrator: owns the ring's consumer end and the parameter writer.
 pub struct Calibrator {
@@ -582,7 +592,7 @@ pub struct Calibrator {
     current: Option<Estimate>,
     current_params: LoopParams,
     version: u64,
-    jobs: Option<JobChannels>,
+    jobs: Option<Jobs>,
     busy: bool,
     outputs: Option<crate::channels::Outputs>,
 }
@@ -656,6 +666,23 @@ impl Calibrator {
     /// Runs until `quit` is set: drains, records, calibrates. Returns when the ring is empty
     /// after `quit`.
     pub fn run(mut self, quit: Arc<AtomicBool>) {
+        self.start_worker();
+        loop {
+            let got = self.step();
+            // Acquire: pairs with the daemon's Release store so the final drain sees every sample
+            // the loop pushed before it stopped.
+            if got == 0 && quit.load(Ordering::Acquire) && !self.busy {
+                break;
+            }
+            if got == 0 {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
+        self.finish();
+    }
+
+    /// Starts the calibration worker thread (jobs then run beside the loop's sample intake).
+    fn start_worker(&mut self) {
         let (job_tx, job_rx) = mpsc::channel::<(Job, Box<dyn Calibrate>)>();
         let (res_tx, res_rx) = mpsc::channel();
         let min_tension_n = self.cfg.min_tension_n;
@@ -670,33 +697,46 @@ impl Calibrator {
                 }
             })
             .expect("spawn the calibration worker");
-        self.jobs = Some((job_tx, res_rx));
-        loop {
-            let mut got = 0;
-            while let Some(s) = self.rx.pop() {
-                self.on_sample(&s);
-                got += 1;
-            }
-            self.poll_results();
-            if let Some(r) = &mut self.recorder {
-                if r.last_flush.elapsed() >= Duration::from_millis(500) {
-                    if let Err(e) = r.flush() {
-                        self.status.lock().unwrap().recorder_error = Some(r.error(e));
-                    }
+        self.jobs = Some(Jobs::Thread { tx: job_tx, rx: res_rx, worker });
+    }
+
+    /// The calibrator without threads, for a lockstep simulation: the host calls
+    /// [`step`](Self::step) at defined points (after every loop cycle), and a calibration runs to
+    /// its end inside the step that starts it, so that no result depends on the scheduler.
+    pub fn inline(mut self) -> Calibrator {
+        self.jobs = Some(Jobs::Inline { done: None });
+        self
+    }
+
+    /// Takes every sample waiting in the ring, hands out finished results, flushes the
+    /// recording; returns the number of samples taken.
+    pub fn step(&mut self) -> usize {
+        let mut got = 0;
+        while let Some(s) = self.rx.pop() {
+            self.on_sample(&s);
+            got += 1;
+        }
+        self.poll_results();
+        if let Some(r) = &mut self.recorder {
+            if r.last_flush.elapsed() >= Duration::from_millis(500) {
+                if let Err(e) = r.flush() {
+                    self.status.lock().unwrap().recorder_error = Some(r.error(e));
                 }
             }
-            if let Some(o) = &mut self.outputs {
-                o.tick();
-                if let Some(e) = o.error.take() {
-                    self.status.lock().unwrap().recorder_error = Some(RecorderError::Mcap(Arc::new(e)));
-                }
+        }
+        if let Some(o) = &mut self.outputs {
+            o.tick();
+            if let Some(e) = o.error.take() {
+                self.status.lock().unwrap().recorder_error = Some(RecorderError::Mcap(Arc::new(e)));
             }
-            // Acquire: pairs with the daemon's Release store so the final drain sees every sample
-            // the loop pushed before it stopped.
-            if got == 0 && quit.load(Ordering::Acquire) && !self.busy {
-                break;
-            }
-            if got == 0 {
+        }
+        got
+    }
+
+    /// Drains what is left, finishes the recording and the outputs, joins the worker.
+    pub fn finish(&mut self) {
+        while self.step() > 0 || self.busy {
+            if self.busy {
                 std::thread::sleep(Duration::from_millis(2));
             }
         }
@@ -706,8 +746,10 @@ impl Calibrator {
         if let Some(o) = &mut self.outputs {
             o.finish();
         }
-        self.jobs = None;
-        let _ = worker.join();
+        if let Some(Jobs::Thread { tx, rx, worker }) = self.jobs.take() {
+            drop((tx, rx));
+            let _ = worker.join();
+        }
     }
 
     fn on_sample(&mut self, s: &Sample) {
@@ -875,15 +917,34 @@ impl Calibrator {
             self.reject(kind, run, 0, None, Rejection::Busy);
             return;
         };
-        if let Some((tx, _)) = &self.jobs {
-            self.busy = true;
-            let _ = tx.send((job, backend));
+        let min_tension_n = self.cfg.min_tension_n;
+        match &mut self.jobs {
+            Some(Jobs::Thread { tx, .. }) => {
+                self.busy = true;
+                let _ = tx.send((job, backend));
+            }
+            Some(Jobs::Inline { done }) => {
+                let mut backend = backend;
+                let r = run_job(job, backend.as_mut(), min_tension_n);
+                *done = Some((r, backend));
+                self.busy = true;
+            }
+            None => self.backend = Some(backend),
         }
     }
 
     fn poll_results(&mut self) {
-        let Some((_, rx)) = &self.jobs else { return };
-        let Ok((r, backend)) = rx.try_recv() else { return };
+        let (r, backend) = match &mut self.jobs {
+            Some(Jobs::Thread { rx, .. }) => match rx.try_recv() {
+                Ok(x) => x,
+                Err(_) => return,
+            },
+            Some(Jobs::Inline { done }) => match done.take() {
+                Some(x) => x,
+                None => return,
+            },
+            None => return,
+        };
         self.backend = Some(backend);
         self.busy = false;
         self.stage("idle");

@@ -21,7 +21,7 @@
 //! operator group may use it; the loop sees only [`Command`]s from a bounded channel and the
 //! [`Urgent`] flags.
 
-use crate::calibrator::{OutcomeKind, SharedCalibStatus};
+use crate::calibrator::{CalibStatus, OutcomeKind, SharedCalibStatus};
 use crate::motion::{Command, ResetOutcome, State};
 use crate::runner::LoopStatus;
 use crate::triple::Reader;
@@ -402,4 +402,19 @@ pub fn request(path: &Path, req: &str, timeout: Duration) -> std::io::Result<Val
     }
     serde_json::from_str(&line)
         .map_err(|e| Error::new(ErrorKind::InvalidData, format!("the reply is not JSON ({e}): {:?}", excerpt(line.trim_end(), 80))))
+}
+
+/// True when the start-up is over, well or badly: a fault, a stop, a refused start-up
+/// calibration, or the accepted one hot-swapped into the loop.
+pub fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
+    if l.snap.fault.is_some() || l.snap.state == State::Stopped {
+        return true;
+    }
+    if c.outcomes.iter().any(|o| o.run == 0 && !o.accepted) {
+        return true;
+    }
+    match c.outcomes.iter().find(|o| o.run == 0 && o.kind == OutcomeKind::Calibration && o.accepted) {
+        Some(o) => l.snap.params_version == o.version && !l.snap.swap_active,
+        None => false,
+    }
 }

@@ -30,6 +30,7 @@ use std::fmt;
 use std::time::Instant;
 use taut_config::devices::DriveConfig;
 use taut_config::RobotConfig;
+use taut_driver::clock::SharedClock;
 use taut_driver::{
     BusEvent, CanTransport, DriveSet, Event, LoadCellIo, Master, MasterConfig, Mode, Phase, PoseReader, State, TensionReader,
     TrackerThread, TransportError,
@@ -333,6 +334,8 @@ pub struct RobotDevices<T: CanTransport> {
     /// When the last SYNC went out: the drives latch their actual values at SYNC, so the
     /// TPDOs that answer it carry values of that instant.
     last_sync: Option<Instant>,
+    /// The clock of the readings' ages: the wall clock, or a lockstep simulation's.
+    clock: SharedClock,
 }
 
 impl<T: CanTransport> RobotDevices<T> {
@@ -340,6 +343,12 @@ impl<T: CanTransport> RobotDevices<T> {
     /// start; within `can.bringup_timeout_s`), checks that every drive can run the modes the
     /// start-up motion needs, and combines them with `peripherals`.
     pub fn bring_up(cfg: &RobotConfig, bus: T, peripherals: Peripherals) -> Result<Self, BringUpError> {
+        Self::bring_up_with_clock(cfg, bus, peripherals, taut_driver::clock::wall())
+    }
+
+    /// [`bring_up`](Self::bring_up) on `clock` (a lockstep simulation's; the bring-up's
+    /// timeouts and every reading's age are then in simulated time).
+    pub fn bring_up_with_clock(cfg: &RobotConfig, bus: T, peripherals: Peripherals, clock: SharedClock) -> Result<Self, BringUpError> {
         let n = cfg.cables.len();
         if n > MAX_CABLES {
             return Err(BringUpError::TooManyCables { cables: n });
@@ -361,7 +370,7 @@ impl<T: CanTransport> RobotDevices<T> {
                 return Err(BringUpError::ModeFixed { cable: j, node, position: pos, torque: tq });
             }
         }
-        let set = DriveSet::new(bus, mcfg);
+        let set = DriveSet::new(bus, mcfg).with_clock(clock.clone());
         let set = set.bring_up().map_err(|r| BringUpError::Drives(r.error))?;
         let (bus, master) = set.into_parts();
         let bus_iface = bus.iface();
@@ -382,6 +391,7 @@ impl<T: CanTransport> RobotDevices<T> {
             last_request: DriveRequest::Disable,
             fault_reset_pending: false,
             last_sync: None,
+            clock,
         })
     }
 
@@ -476,7 +486,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         // Every age below is a difference of two wall-clock instants, taken against this one
         // `wall`: the loop's `now_s` is the host's (plugin) time, which need not run with the
         // wall clock (see the pose age).
-        let wall = Instant::now();
+        let wall = self.clock.now();
         self.drain(wall);
         inp.fault = self.bus_fault.take();
         while let Some(e) = self.master.poll_event() {
@@ -548,7 +558,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
     }
 
     fn write(&mut self, _now_s: f64, out: &Outputs) {
-        let wall = Instant::now();
+        let wall = self.clock.now();
         if out.request == DriveRequest::FaultReset && self.last_request != DriveRequest::FaultReset {
             // One fault reset per operator request: the rising edge of bit 7 goes out once
             // (the master holds it until the drive leaves FAULT or gives up).
@@ -603,7 +613,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         self.master.poll_timers(wall);
         self.master.sync_cycle();
         self.flush();
-        self.last_sync = Some(Instant::now());
+        self.last_sync = Some(self.clock.now());
     }
 }
 

@@ -423,11 +423,20 @@ impl DriveUnits {
     }
 }
 
-fn build_on<R, M>(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, rack_bus: R, master_bus: M) -> Result<SimRobot, BuildError>
-where
-    R: CanTransport + Send + 'static,
-    M: CanTransport + Send + 'static,
-{
+/// The simulated site before any device exists: its truth, the plant settled on the brakes at
+/// `p0`, the virtual drives reading the plant's encoders, and the cells' tensions.
+struct SiteParts {
+    truth: Truth,
+    plant: Plant,
+    units: Vec<DriveUnits>,
+    brake: Vec<f64>,
+    cmds: Vec<SimCommand>,
+    drives: Vec<VirtualDrive>,
+    cells: Vec<(usize, LoadCellConfig)>,
+    handle: TensionHandle,
+}
+
+fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteParts, BuildError> {
     let n = cfg.cables.len();
     if n > MAX_CABLES {
         return Err(BuildError::TooManyCables { n });
@@ -463,12 +472,71 @@ where
             d
         })
         .collect();
-    // Load cells: virtual Modbus RTU server on a pty.
     let cells: Vec<(usize, LoadCellConfig)> =
         cfg.cables.iter().enumerate().map(|(j, c)| (j, c.loadcell.clone().unwrap_or_else(|| LoadCellConfig::new(j as u8 + 1)))).collect();
     let handle = TensionHandle::new(n);
     handle.set_all(&ten);
-    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), handle.clone())
+    Ok(SiteParts { truth, plant, units, brake, cmds, drives, cells, handle })
+}
+
+/// What the site's devices and its clock are.
+struct SiteIo<R: CanTransport> {
+    rack_bus: R,
+    vlc: Option<VirtualLoadCells>,
+    sender: Option<TrackerSender>,
+    clock: taut_driver::clock::SharedClock,
+    now: Instant,
+}
+
+impl SiteParts {
+    fn into_site<R: CanTransport>(self, io: SiteIo<R>, opts: &SimOptions) -> Site<R> {
+        let platform = PlatformTruth::default();
+        platform.set(self.plant.position());
+        let now = io.now;
+        Site {
+            platform,
+            ramps: self.brake.iter().map(|&d| Ramp { from: d, to: d, target: None, start: now, dur_s: 0.0 }).collect(),
+            last_step: now,
+            prev_step: None,
+            last_enc: [0.0; MAX_CABLES],
+            last_tq: [0; MAX_CABLES],
+            last_sync: None,
+            sync_period_s: None,
+            sync_stats: Arc::new(SyncStats::default()),
+            rack: DriveRack::new(io.rack_bus, self.drives),
+            plant: self.plant,
+            units: self.units,
+            l0: self.truth.l0.clone(),
+            scale: self.truth.scale.clone(),
+            drum: self.brake,
+            cmds: self.cmds,
+            vlc: io.vlc,
+            handle: self.handle,
+            sender: io.sender,
+            clock: io.clock,
+            tracker: opts.tracker.then(|| Tracker::new(&opts.noise)),
+            rng: taut_sim::rng(opts.seed, 7),
+            faults: Arc::new(SimFaults::default()),
+            stop: Arc::new(AtomicBool::new(false)),
+            period: opts.site_period,
+            silenced: false,
+            emcy_sent: false,
+            hb_off: false,
+        }
+    }
+}
+
+fn build_on<R, M>(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, rack_bus: R, master_bus: M) -> Result<SimRobot, BuildError>
+where
+    R: CanTransport + Send + 'static,
+    M: CanTransport + Send + 'static,
+{
+    let n = cfg.cables.len();
+    let parts = draw_site(cfg, p0, opts)?;
+    let truth = parts.truth.clone();
+    let cells = parts.cells.clone();
+    // Load cells: virtual Modbus RTU server on a pty.
+    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), parts.handle.clone())
         .map_err(|e| BuildError::Device { what: "virtual load cells", error: e })?;
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
@@ -482,41 +550,9 @@ where
     let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
     let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e })?;
 
-    let faults = Arc::new(SimFaults::default());
-    let stop = Arc::new(AtomicBool::new(false));
-    let platform = PlatformTruth::default();
-    platform.set(plant.position());
-    let sync_stats = Arc::new(SyncStats::default());
-    let now = Instant::now();
-    let mut site = Site {
-        platform: platform.clone(),
-        ramps: brake.iter().map(|&d| Ramp { from: d, to: d, target: None, start: now, dur_s: 0.0 }).collect(),
-        last_step: now,
-        prev_step: None,
-        last_enc: [0.0; MAX_CABLES],
-        last_tq: [0; MAX_CABLES],
-        last_sync: None,
-        sync_period_s: None,
-        sync_stats: sync_stats.clone(),
-        rack: DriveRack::new(rack_bus, drives),
-        plant,
-        units,
-        l0: truth.l0.clone(),
-        scale: truth.scale.clone(),
-        drum: brake,
-        cmds,
-        vlc,
-        handle,
-        sender,
-        tracker: opts.tracker.then(|| Tracker::new(&opts.noise)),
-        rng: taut_sim::rng(opts.seed, 7),
-        faults: faults.clone(),
-        stop: stop.clone(),
-        period: opts.site_period,
-        silenced: false,
-        emcy_sent: false,
-        hb_off: false,
-    };
+    let io = SiteIo { rack_bus, vlc: Some(vlc), sender: Some(sender), clock: taut_driver::clock::wall(), now: Instant::now() };
+    let mut site = parts.into_site(io, opts);
+    let (faults, stop, platform, sync_stats) = (site.faults.clone(), site.stop.clone(), site.platform.clone(), site.sync_stats.clone());
     let thread = std::thread::Builder::new()
         .name("sim-robot".into())
         .spawn(move || site.run())
@@ -609,9 +645,14 @@ struct Site<R: CanTransport> {
     scale: Vec<f64>,
     drum: Vec<f64>,
     cmds: Vec<SimCommand>,
-    vlc: VirtualLoadCells,
+    /// The simulated load cells on a pseudo-terminal (`None` in lockstep, where the world
+    /// answers the master's requests itself).
+    vlc: Option<VirtualLoadCells>,
     handle: TensionHandle,
-    sender: TrackerSender,
+    /// UDP to the tracker receiver (`None` in lockstep).
+    sender: Option<TrackerSender>,
+    /// When a frame is handled: the wall clock, or the lockstep simulation's.
+    clock: taut_driver::clock::SharedClock,
     tracker: Option<Tracker>,
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
@@ -636,6 +677,11 @@ struct Site<R: CanTransport> {
     emcy_sent: bool,
     hb_off: bool,
 }
+
+mod lockstep;
+pub use lockstep::{
+    run_startup, BusStats, BusStatsHandle, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, StartupRun,
+};
 
 /// Tracker period, s (100 Hz).
 const TRACKER_PERIOD_S: f64 = 0.01;
@@ -678,8 +724,8 @@ impl<R: CanTransport> Site<R> {
                 next_pose = (next_pose + TRACKER_PERIOD_S).max(t);
                 // The platform where it is at `now`, stamped `now` (the plant was stepped to it).
                 let m = tracker.measure(self.plant.position(), &mut self.rng);
-                if m.iter().all(|v| v.is_finite()) {
-                    let _ = self.sender.send_pose(t, m, None);
+                if let (true, Some(sender)) = (m.iter().all(|v| v.is_finite()), &self.sender) {
+                    let _ = sender.send_pose(t, m, None);
                     self.sync_stats.record_pose(now.elapsed());
                 }
             }
@@ -688,7 +734,7 @@ impl<R: CanTransport> Site<R> {
 
     /// Delivers one frame to the drives at the instant it was on the bus; true for a SYNC.
     fn on_frame(&mut self, f: &taut_driver::Frame) -> bool {
-        let now = Instant::now();
+        let now = self.clock.now();
         // When the frame was on the bus: a real drive sees it then, whatever this thread was
         // doing (SocketCAN without time stamps: when it was read).
         let at = self.rack.transport().rx_timestamp().map_or(now, |t| t.min(now));
@@ -759,7 +805,9 @@ impl<R: CanTransport> Site<R> {
     fn inject_faults(&mut self) {
         // Relaxed: independent switches polled each tick.
         if self.faults.loadcell_silent.load(Ordering::Relaxed) && !self.silenced {
-            self.vlc.inject(None, LoadCellFault::Silence, u32::MAX);
+            if let Some(v) = &self.vlc {
+                v.inject(None, LoadCellFault::Silence, u32::MAX);
+            }
             self.silenced = true;
         }
         let second = 1.min(self.units.len() - 1);

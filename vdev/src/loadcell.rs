@@ -219,6 +219,40 @@ impl Drop for VirtualLoadCells {
     }
 }
 
+/// The load cells' answers without a line or a thread: frames in, frames out (sans-IO), for a
+/// lockstep simulation that carries the bytes itself. The same code answers on the
+/// pseudo-terminal of [`VirtualLoadCells`].
+pub struct LoadCellResponder {
+    server: Server,
+}
+
+impl LoadCellResponder {
+    /// Cells `cells` (cell `i` reads tension `i` of `tensions`).
+    pub fn new(cells: Vec<LoadCellConfig>, tensions: TensionHandle) -> LoadCellResponder {
+        LoadCellResponder {
+            server: Server { cells, tensions, shared: Arc::new(Shared::default()), link: PathBuf::new(), noise: 0x2545_F491 },
+        }
+    }
+
+    /// The answer to one received request frame, if the addressed cell answers (a fault may
+    /// silence it or spoil the answer). Allocates nothing.
+    pub fn answer(&mut self, frame: &[u8]) -> Option<([u8; 2 * MAX_FRAME], usize)> {
+        self.server.answer(frame)
+    }
+
+    /// Applies `fault` to the next `count` answers of `unit` (`None`: any unit).
+    pub fn inject(&self, unit: Option<u8>, fault: LoadCellFault, count: u32) {
+        self.server.shared.faults.lock().unwrap_or_else(|e| e.into_inner()).push(Injected { unit, fault, left: count });
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> ServerStats {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        let sh = &self.server.shared;
+        ServerStats { requests: l(&sh.requests), answered: l(&sh.answered), faults: l(&sh.faults_applied), bad_frames: l(&sh.bad_frames) }
+    }
+}
+
 struct Server {
     cells: Vec<LoadCellConfig>,
     tensions: TensionHandle,

@@ -5,8 +5,8 @@
 //!                                               ^   fault_reset()                     │ set_positions_counts()
 //!                                               └───────────── disable() ─────────────┘ set_torques_permille()
 //! ```
-//! Only `DriveSet<_, Enabled>` has methods that move cables. This layer owns the clock
-//! (`Instant::now()`) and pumps the transport; the protocol is in [`Master`]. It deals in drive
+//! Only `DriveSet<_, Enabled>` has methods that move cables. This layer reads the clock (the
+//! wall clock, or a simulated one: [`DriveSet::with_clock`]) and pumps the transport; the protocol is in [`Master`]. It deals in drive
 //! units (counts, ‰ of rated torque), like the master: metres and newtons belong to the robot I/O
 //! layer (`taut_rt_core::robot_io::Scaling`).
 //!
@@ -28,6 +28,7 @@
 use super::cia402::State;
 use super::master::{CommandError, Event, Master, MasterConfig, NodeStatus, Phase};
 use super::NodeId;
+use crate::clock::{self, SharedClock};
 use crate::transport::{CanTransport, TransportError};
 use std::fmt;
 use std::marker::PhantomData;
@@ -141,6 +142,7 @@ pub struct DriveSet<T: CanTransport, S> {
     master: Master,
     bringup_timeout: Duration,
     last_transport_error: Option<TransportError>,
+    clock: SharedClock,
     _state: PhantomData<S>,
 }
 
@@ -151,6 +153,7 @@ impl<T: CanTransport, S> DriveSet<T, S> {
             master: self.master,
             bringup_timeout: self.bringup_timeout,
             last_transport_error: self.last_transport_error,
+            clock: self.clock,
             _state: PhantomData,
         }
     }
@@ -184,7 +187,7 @@ impl<T: CanTransport, S> DriveSet<T, S> {
     /// transport error.
     pub fn run_until(&mut self, until: Instant) -> Result<(), DriveSetError> {
         loop {
-            let now = Instant::now();
+            let now = self.clock.now();
             self.master.poll(now);
             self.flush()?;
             if now >= until {
@@ -193,7 +196,7 @@ impl<T: CanTransport, S> DriveSet<T, S> {
             let wake = self.master.next_deadline().map_or(until, |d| d.min(until));
             match self.bus.recv_deadline(wake) {
                 Ok(Some(f)) => {
-                    self.master.on_frame(&f, Instant::now());
+                    self.master.on_frame(&f, self.clock.now());
                     // Drain what else is waiting before polling again.
                     self.drain()?;
                 }
@@ -206,7 +209,7 @@ impl<T: CanTransport, S> DriveSet<T, S> {
     fn drain(&mut self) -> Result<(), DriveSetError> {
         loop {
             match self.bus.try_recv() {
-                Ok(Some(f)) => self.master.on_frame(&f, Instant::now()),
+                Ok(Some(f)) => self.master.on_frame(&f, self.clock.now()),
                 Ok(None) => return Ok(()),
                 Err(e) => self.transport_error(e)?,
             }
@@ -241,19 +244,19 @@ impl<T: CanTransport, S> DriveSet<T, S> {
 
     /// Runs the protocol for `d`.
     pub fn run_for(&mut self, d: Duration) -> Result<(), DriveSetError> {
-        self.run_until(Instant::now() + d)
+        self.run_until(self.clock.now() + d)
     }
 
     fn wait_for(&mut self, timeout: Duration, mut done: impl FnMut(&Master) -> Result<bool, DriveSetError>) -> Result<(), DriveSetError> {
-        let end = Instant::now() + timeout;
+        let end = self.clock.now() + timeout;
         loop {
             if done(&self.master)? {
                 return Ok(());
             }
-            if Instant::now() >= end {
+            if self.clock.now() >= end {
                 return Err(self.not_ready());
             }
-            let step = (Instant::now() + self.master.sync_period()).min(end);
+            let step = (self.clock.now() + self.master.sync_period()).min(end);
             self.run_until(step)?;
         }
     }
@@ -282,7 +285,14 @@ impl<T: CanTransport> DriveSet<T, Configuring> {
     /// The drives of `cfg` on `bus`. Nothing is sent until [`bring_up`](Self::bring_up).
     pub fn new(bus: T, cfg: MasterConfig) -> Self {
         let bringup_timeout = cfg.bringup_timeout;
-        DriveSet { bus, master: Master::new(cfg), bringup_timeout, last_transport_error: None, _state: PhantomData }
+        DriveSet { bus, master: Master::new(cfg), bringup_timeout, last_transport_error: None, clock: clock::wall(), _state: PhantomData }
+    }
+
+    /// Reads `clock` instead of the wall clock (a lockstep simulation, whose transport advances
+    /// the simulated clock while it waits for frames).
+    pub fn with_clock(mut self, clock: SharedClock) -> Self {
+        self.clock = clock;
+        self
     }
 
     /// Finds, identifies and configures every drive and starts them (NMT operational), within

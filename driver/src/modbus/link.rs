@@ -46,6 +46,18 @@ pub trait SerialLink {
     fn discard_input(&mut self) -> Result<(), LinkError>;
 }
 
+impl<L: SerialLink + ?Sized> SerialLink for &mut L {
+    fn send(&mut self, frame: &[u8]) -> Result<(), LinkError> {
+        (**self).send(frame)
+    }
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+        (**self).recv(buf, timeout)
+    }
+    fn discard_input(&mut self) -> Result<(), LinkError> {
+        (**self).discard_input()
+    }
+}
+
 /// A real serial port.
 pub struct SerialPortLink {
     port: serialport::TTYPort,

@@ -12,6 +12,7 @@
 
 use super::link::{LinkError, SerialLink};
 use super::rtu::{self, ExceptionCode, Registers, Request, Response, RtuError, Timing, MAX_FRAME};
+use crate::clock::{Clock, WallClock};
 use std::fmt;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -200,12 +201,22 @@ pub struct Master<'c, L> {
     /// When the line last carried a frame: the next request waits t3.5 after it.
     last_activity: Option<Instant>,
     rx: [u8; 2 * MAX_FRAME],
+    clock: &'c dyn Clock,
 }
+
+/// The wall clock of masters made with [`Master::new`].
+static WALL: WallClock = WallClock;
 
 impl<'c, L: SerialLink> Master<'c, L> {
     /// A master on `link`, counting into `counters`.
     pub fn new(link: L, cfg: MasterConfig, counters: &'c Counters) -> Self {
-        Master { link, cfg, counters, last_activity: None, rx: [0; 2 * MAX_FRAME] }
+        Master::with_clock(link, cfg, counters, &WALL)
+    }
+
+    /// A master that reads `clock` for the inter-frame silence and the response timeout (a
+    /// simulated line advances a simulated clock as its bytes take their time).
+    pub fn with_clock(link: L, cfg: MasterConfig, counters: &'c Counters, clock: &'c dyn Clock) -> Self {
+        Master { link, cfg, counters, last_activity: None, rx: [0; 2 * MAX_FRAME], clock }
     }
 
     /// The link, e.g. to drop it after a failure.
@@ -259,16 +270,16 @@ impl<'c, L: SerialLink> Master<'c, L> {
         // Modbus over Serial Line 2.5.1.1: at least t3.5 of silence before a new frame.
         if let Some(t) = self.last_activity {
             let ready = t + self.cfg.timing.t35;
-            let now = Instant::now();
+            let now = self.clock.now();
             if ready > now {
-                std::thread::sleep(ready - now);
+                self.clock.sleep(ready - now);
             }
         }
         self.link.discard_input().map_err(link)?;
         let mut tx = [0u8; MAX_FRAME];
         let n = rtu::encode(req, &mut tx);
         self.link.send(&tx[..n]).map_err(link)?;
-        let sent = Instant::now();
+        let sent = self.clock.now();
         // The request takes its own time on the wire before the device can start answering.
         let deadline = sent + self.cfg.timing.frame_time(n) + self.cfg.response_timeout;
         let silence = self.cfg.timing.t35.max(Duration::from_millis(2));
@@ -282,7 +293,7 @@ impl<'c, L: SerialLink> Master<'c, L> {
             // preempted (a loaded machine), the device's answer may be waiting in the buffer,
             // and our own lateness is not the device's silence. Calling it a timeout would
             // also retry, discard the answer, and leave a late copy to spoil the next exchange.
-            let now = Instant::now();
+            let now = self.clock.now();
             let header_ok = len >= 2 && self.rx[0] == unit && (self.rx[1] & 0x7F) == fc;
             let wait = if len == 0 || header_ok {
                 deadline.saturating_duration_since(now)
@@ -301,7 +312,7 @@ impl<'c, L: SerialLink> Master<'c, L> {
             // Our header, announced length complete, still no valid frame: the CRC is bad.
             if let (true, Some(expect)) = (self.rx[0] == unit && (self.rx[1] & 0x7F) == fc, rtu::response_len(&self.rx[..len])) {
                 if len >= expect {
-                    self.last_activity = Some(Instant::now());
+                    self.last_activity = Some(self.clock.now());
                     return Err(if rtu::decode(&self.rx[..expect]).is_err_and(|e| matches!(e, RtuError::Crc { .. })) {
                         TransactionError::Crc { unit }
                     } else {
@@ -310,7 +321,7 @@ impl<'c, L: SerialLink> Master<'c, L> {
                 }
             }
         };
-        self.last_activity = Some(Instant::now());
+        self.last_activity = Some(self.clock.now());
         let Some((start, flen)) = result else {
             return Err(if len == 0 { TransactionError::Timeout { unit } } else { TransactionError::Garbage { unit, len, error: None } });
         };

@@ -89,6 +89,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::runtime::RtConfig;
 use taut_config::RobotConfig;
+use taut_driver::clock::{Clock, SimClock};
 use taut_rt::update::{BadTime, DeviceSlot, UpdatePath};
 
 pub use crate::io::Devices;
@@ -153,11 +154,15 @@ pub struct PluginOptions {
     pub backend: Option<Box<dyn Calibrate>>,
     /// Capacity of the event queue (full: events are dropped and counted).
     pub event_capacity: usize,
+    /// Simulated time (a lockstep simulation): the plugin's own cycles (activation, stop) advance
+    /// this clock by one period instead of waiting for the wall clock, and the calibrator runs
+    /// without threads, in [`Plugin::pump_calibrator`], which the host calls after every cycle.
+    pub sim_clock: Option<SimClock>,
 }
 
 impl Default for PluginOptions {
     fn default() -> Self {
-        PluginOptions { recording: RecordingPath::Default, backend: None, event_capacity: 256 }
+        PluginOptions { recording: RecordingPath::Default, backend: None, event_capacity: 256, sim_clock: None }
     }
 }
 
@@ -178,6 +183,7 @@ pub struct PluginBuilder {
     recording: Option<PathBuf>,
     csv: bool,
     outputs: Option<crate::channels::Outputs>,
+    sim_clock: Option<SimClock>,
 }
 
 impl PluginBuilder {
@@ -215,11 +221,16 @@ impl PluginBuilder {
             None => calibrator,
         };
         let calib_quit = Arc::new(AtomicBool::new(false));
-        let q = calib_quit.clone();
-        let calib_thread = std::thread::Builder::new()
-            .name("taut-calibrator".into())
-            .spawn(move || calibrator.run(q))
-            .map_err(|source| PluginError::Thread { name: "taut-calibrator", source })?;
+        let (calib_thread, inline_calibrator) = if b.sim_clock.is_some() {
+            (None, Some(calibrator.inline()))
+        } else {
+            let q = calib_quit.clone();
+            let t = std::thread::Builder::new()
+                .name("taut-calibrator".into())
+                .spawn(move || calibrator.run(q))
+                .map_err(|source| PluginError::Thread { name: "taut-calibrator", source })?;
+            (Some(t), None)
+        };
         Ok(Plugin {
             state: Lifecycle::Inactive,
             mode: b.mode.kind(),
@@ -231,7 +242,9 @@ impl PluginBuilder {
             rt: b.rt,
             path: b.path,
             handle: b.handle,
-            calib_thread: Some(calib_thread),
+            calib_thread,
+            inline_calibrator,
+            sim_clock: b.sim_clock,
             calib_quit,
             recording: b.recording,
             rearm: false,
@@ -250,6 +263,9 @@ pub struct Plugin {
     path: UpdatePath<Box<dyn Devices>, EventTx>,
     handle: PluginHandle,
     calib_thread: Option<JoinHandle<()>>,
+    /// The calibrator in simulated time: stepped by [`Plugin::pump_calibrator`].
+    inline_calibrator: Option<Calibrator>,
+    sim_clock: Option<SimClock>,
     calib_quit: Arc<AtomicBool>,
     recording: Option<PathBuf>,
     /// The controller must go back to Idle before the next activation.
@@ -322,6 +338,7 @@ impl Plugin {
             recording,
             csv: true,
             outputs: None,
+            sim_clock: opts.sim_clock,
         })
     }
 
@@ -406,7 +423,7 @@ impl Plugin {
         let mut timer = Periodic::new((period * 1e9).round() as i64);
         let n = self.ccfg.n;
         loop {
-            timer.wait();
+            self.pace(&mut timer, period);
             let t = self.path.t_last() + period;
             self.path.read(t);
             let inp = &self.path.core.inputs;
@@ -431,9 +448,9 @@ impl Plugin {
     /// no drive reports enabled, at most 0.5 s, so that the drives have taken the reaction
     /// before the plugin stops writing.
     fn settle_after_failure(&mut self, timer: &mut Periodic, period: f64) {
-        let until = Instant::now() + Duration::from_millis(500);
-        while Instant::now() < until {
-            timer.wait();
+        let until = self.now() + Duration::from_millis(500);
+        while self.now() < until {
+            self.pace(timer, period);
             let t = self.path.t_last() + period;
             self.path.read(t);
             self.path.step(t, period);
@@ -455,9 +472,9 @@ impl Plugin {
             self.handle.stop();
             let period = 1.0 / self.rt.rate_hz;
             let mut timer = Periodic::new((period * 1e9).round() as i64);
-            let until = Instant::now() + Duration::from_secs(2);
-            while !self.path.core.controller.finished() && Instant::now() < until {
-                timer.wait();
+            let until = self.now() + Duration::from_secs(2);
+            while !self.path.core.controller.finished() && self.now() < until {
+                self.pace(&mut timer, period);
                 let t = self.path.t_last() + period;
                 self.path.read(t);
                 self.path.step(t, period);
@@ -481,7 +498,38 @@ impl Plugin {
         Ok(())
     }
 
+    /// Waits for the next of the plugin's own cycles: one period of the wall clock, or of the
+    /// simulated clock (with the calibrator's step of the cycle before).
+    fn pace(&mut self, timer: &mut Periodic, period: f64) {
+        match &self.sim_clock {
+            Some(c) => {
+                c.advance(Duration::from_secs_f64(period));
+                self.pump_calibrator();
+            }
+            None => {
+                timer.wait();
+            }
+        }
+    }
+
+    fn now(&self) -> Instant {
+        self.sim_clock.as_ref().map_or_else(Instant::now, |c| c.now())
+    }
+
+    /// In simulated time ([`PluginOptions::sim_clock`]): the calibrator's work for the cycles
+    /// run so far (samples recorded, a calibration started and finished, parameters published
+    /// for the next cycle). Not real-time: call it from the host between cycles. Does nothing
+    /// when the calibrator has its own thread.
+    pub fn pump_calibrator(&mut self) {
+        if let Some(c) = &mut self.inline_calibrator {
+            c.step();
+        }
+    }
+
     fn stop_calibrator(&mut self) {
+        if let Some(mut c) = self.inline_calibrator.take() {
+            c.finish();
+        }
         // Release: the calibrator's Acquire load then sees every sample pushed before.
         self.calib_quit.store(true, Ordering::Release);
         if let Some(t) = self.calib_thread.take() {

@@ -1,0 +1,693 @@
+//! The simulated robot in simulated time: the whole robot stack in lockstep on one simulated
+//! clock, as fast as the CPU allows, the same run for the same seed, bit for bit.
+//!
+//! ```text
+//!  host: clock += period; plugin.update(); plugin.pump_calibrator()        (one thread)
+//!          │
+//!          └─ Devices::read ── world.advance_to(now) ── every event up to now, in time order:
+//!               · CAN frames on the in-memory bus reach the virtual CiA 402 drives at the end
+//!                 of their bits (bitrate, worst-case stuffing, one frame at a time); the
+//!                 drives' answers go back the same way
+//!               · the plant steps at `site_period` (the site's own physics)
+//!               · a Modbus RTU polling round: the driver's master and reading code on an
+//!                 in-memory line (character times at the configured baud rate, the cell's
+//!                 answer latency) against the virtual cells' answering code; each reading
+//!                 reaches the loop when its response is complete
+//!               · a tracker pose (100 Hz): the driver's line format, parsed by the driver's
+//!                 receiver, stamped with its arrival
+//!             then the robot's own device layer (`RobotDevices`) reads, as on hardware
+//! ```
+//!
+//! Nothing of the robot's logic is re-implemented here: the plugin (plugin-owned mode), the
+//! CANopen master with its bring-up, the Modbus RTU master, the tracker receiver, the loop and
+//! the calibrator are the robot's code. What is simulated is only what is outside the robot's
+//! computer: the wires, the devices and the physics. The calibrator runs without threads in
+//! the host's step after each cycle ([`taut_rt_core::plugin::Plugin::pump_calibrator`]): a
+//! calibration takes no simulated time (on the robot it takes a few seconds of holding).
+//!
+//! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a load-cell
+//! bus that stops answering for a while, tracker dropouts, a drive that reboots.
+
+use crate::{draw_site, BuildError, PlatformTruth, SimFaults, SimOptions, Site, SiteIo, SyncStats, TRACKER_PERIOD_S};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::VecDeque;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+use taut_config::devices::{LoadCellBusConfig, Parity, TrackerConfig};
+use taut_config::RobotConfig;
+use taut_driver::clock::{Clock, SimClock};
+use taut_driver::loadcell::SteppedLoadCells;
+use taut_driver::modbus::link::{LinkError, SerialLink};
+use taut_driver::tracker::{format_line, PoseLine, TrackerReceiver, TrackerStatsHandle, MAX_LINE};
+use taut_driver::transport::{CanTransport, Frame, TransportError};
+use taut_rt_core::calibrator::{CalibStatus, Calibrate};
+use taut_rt_core::io::{Devices, Inputs, Outputs};
+use taut_rt_core::plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
+use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+use taut_rt_core::runner::LoopStatus;
+use taut_sim::Truth;
+use taut_vdev::{LoadCellFault, LoadCellResponder};
+
+/// Faults the simulated devices and wires inject, drawn from the run's seed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LockstepFaults {
+    /// Probability that a CAN frame is lost (in either direction).
+    pub frame_loss: f64,
+    /// Probability that a device sends a frame late (its processor was busy), by `frame_late_s`.
+    pub frame_late: f64,
+    /// How late, s.
+    pub frame_late_s: f64,
+    /// Probability per pose that a tracker dropout of `tracker_gap_s` starts (occlusion).
+    pub tracker_dropout: f64,
+    /// Length of a tracker dropout, s.
+    pub tracker_gap_s: f64,
+    /// The load cells stop answering from `.0` s for `.1` s.
+    pub loadcell_silence: Option<(f64, f64)>,
+    /// The drive of cable 1 is power cycled at this simulated time, s.
+    pub drive_reboot_at_s: Option<f64>,
+}
+
+impl Default for LockstepFaults {
+    fn default() -> Self {
+        LockstepFaults {
+            frame_loss: 0.0,
+            frame_late: 0.0,
+            frame_late_s: 0.0,
+            tracker_dropout: 0.0,
+            tracker_gap_s: 0.0,
+            loadcell_silence: None,
+            drive_reboot_at_s: None,
+        }
+    }
+}
+
+impl LockstepFaults {
+    /// Faults a robot rides through, drawn from `seed`: up to 1 lost and 1 late frame (by up to
+    /// 0.5 ms) in 1,000, tracker dropouts of 20-200 ms (up to one every 5 s), and one pause of
+    /// the load cells of 50-200 ms (shorter than the staleness limit) in the first 60 s. No
+    /// drive reboot: that is a fault the loop must react to, chosen by a test on purpose.
+    pub fn drawn(seed: u64) -> LockstepFaults {
+        let mut r = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_FA17);
+        LockstepFaults {
+            frame_loss: r.gen_range(0.0..1e-3),
+            frame_late: r.gen_range(0.0..1e-3),
+            frame_late_s: r.gen_range(0.0..5e-4),
+            tracker_dropout: r.gen_range(0.0..2e-3),
+            tracker_gap_s: r.gen_range(0.02..0.2),
+            loadcell_silence: Some((r.gen_range(5.0..60.0), r.gen_range(0.05..0.2))),
+            drive_reboot_at_s: None,
+        }
+    }
+}
+
+/// Counts of the simulated CAN bus.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BusStats {
+    /// Frames put on the bus.
+    pub frames: u64,
+    /// Frames lost (fault injection).
+    pub lost: u64,
+    /// Frames sent late (fault injection).
+    pub late: u64,
+    /// Time the bus carried bits, s.
+    pub busy_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Master,
+    Rack,
+}
+
+/// The CAN bus in memory: one frame on the wire at a time, each delivered at the end of its
+/// bits.
+struct Bus {
+    clock: SimClock,
+    bit: Duration,
+    free_at: Instant,
+    to_rack: VecDeque<(Instant, Frame)>,
+    to_master: VecDeque<(Instant, Frame)>,
+    faults: LockstepFaults,
+    rng: ChaCha8Rng,
+    stats: BusStats,
+}
+
+impl Bus {
+    /// Bits of a frame on the wire: a base frame (11-bit id) has 47 bits of overhead (with the
+    /// 3 bits of intermission), an extended one 67, plus the data, plus worst-case bit stuffing
+    /// over the stuffed part (ISO 11898-1).
+    fn bits(f: &Frame) -> u32 {
+        let data = if f.rtr { 0 } else { 8 * u32::from(f.dlc.min(8)) };
+        let (overhead, stuffed) = if f.extended { (67, 54 + data) } else { (47, 34 + data) };
+        overhead + data + (stuffed - 1) / 4
+    }
+
+    fn send(&mut self, from: Side, f: &Frame) {
+        let now = self.clock.now();
+        if self.faults.frame_loss > 0.0 && self.rng.gen::<f64>() < self.faults.frame_loss {
+            self.stats.lost += 1;
+            return;
+        }
+        let mut start = self.free_at.max(now);
+        if self.faults.frame_late > 0.0 && self.rng.gen::<f64>() < self.faults.frame_late {
+            self.stats.late += 1;
+            start += Duration::from_secs_f64(self.faults.frame_late_s);
+        }
+        let on_wire = self.bit * Self::bits(f);
+        let end = start + on_wire;
+        self.free_at = self.free_at.max(end);
+        self.stats.frames += 1;
+        self.stats.busy_s += on_wire.as_secs_f64();
+        let q = match from {
+            Side::Master => &mut self.to_rack,
+            Side::Rack => &mut self.to_master,
+        };
+        // In time order (a late frame may land behind frames sent after it).
+        let at = q.iter().rposition(|(t, _)| *t <= end).map_or(0, |i| i + 1);
+        q.insert(at, (end, *f));
+    }
+
+    fn queue(&mut self, to: Side) -> &mut VecDeque<(Instant, Frame)> {
+        match to {
+            Side::Master => &mut self.to_master,
+            Side::Rack => &mut self.to_rack,
+        }
+    }
+
+    fn next_delivery(&mut self, to: Side) -> Option<Instant> {
+        self.queue(to).front().map(|(t, _)| *t)
+    }
+
+    fn recv(&mut self, to: Side) -> Option<(Instant, Frame)> {
+        let now = self.clock.now();
+        let q = self.queue(to);
+        if q.front().is_some_and(|(t, _)| *t <= now) {
+            q.pop_front()
+        } else {
+            None
+        }
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// One end of the in-memory bus. The master's end advances the simulated world while it waits
+/// for a frame (the drives' bring-up, before the loop runs).
+pub struct LockstepCan {
+    bus: Arc<Mutex<Bus>>,
+    side: Side,
+    world: Option<Arc<Mutex<World>>>,
+    last_rx: Option<Instant>,
+}
+
+impl CanTransport for LockstepCan {
+    fn send(&mut self, frame: &Frame) -> Result<(), TransportError> {
+        lock(&self.bus).send(self.side, frame);
+        Ok(())
+    }
+
+    fn try_recv(&mut self) -> Result<Option<Frame>, TransportError> {
+        Ok(lock(&self.bus).recv(self.side).map(|(t, f)| {
+            self.last_rx = Some(t);
+            f
+        }))
+    }
+
+    fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError> {
+        loop {
+            if let Some(f) = self.try_recv()? {
+                return Ok(Some(f));
+            }
+            let (now, next, clock) = {
+                let mut b = lock(&self.bus);
+                (b.clock.now(), b.next_delivery(self.side), b.clock.clone())
+            };
+            if now >= deadline {
+                return Ok(None);
+            }
+            let to = next.map_or(deadline, |t| t.min(deadline)).max(now);
+            match &self.world {
+                Some(w) => lock(w).advance_to(to),
+                None => clock.advance_to(to),
+            }
+            if clock.now() == now && to == now {
+                // Nothing due and no time to pass: a frame is due now but not taken (cannot
+                // happen with one reader); step on rather than spin.
+                clock.advance(Duration::from_micros(1));
+            }
+        }
+    }
+
+    fn iface(&self) -> taut_driver::transport::IfName {
+        taut_driver::transport::IfName::new("simcan")
+    }
+
+    fn rx_timestamp(&self) -> Option<Instant> {
+        self.last_rx
+    }
+}
+
+/// The load-cell line in memory: the master's request takes its character times, the
+/// addressed cell answers after its latency, and the answer takes its character times; the
+/// line's own clock (a fork of the world's, run ahead during one polling round) carries them.
+struct Line<'a> {
+    cells: &'a mut LoadCellResponder,
+    clock: &'a SimClock,
+    char_time: Duration,
+    latency: Duration,
+    silent: bool,
+    answer: Option<(Instant, [u8; 2 * taut_driver::modbus::rtu::MAX_FRAME], usize)>,
+}
+
+impl SerialLink for Line<'_> {
+    fn send(&mut self, frame: &[u8]) -> Result<(), LinkError> {
+        self.clock.advance(self.char_time * frame.len() as u32);
+        self.answer = if self.silent { None } else { self.cells.answer(frame).map(|(b, n)| (self.clock.now() + self.latency, b, n)) };
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+        let now = self.clock.now();
+        match self.answer.take() {
+            Some((at, bytes, n)) if at <= now + timeout => {
+                let n = n.min(buf.len());
+                buf[..n].copy_from_slice(&bytes[..n]);
+                self.clock.advance_to(at.max(now) + self.char_time * n as u32);
+                Ok(n)
+            }
+            other => {
+                self.answer = other;
+                self.clock.advance(timeout);
+                Ok(0)
+            }
+        }
+    }
+
+    fn discard_input(&mut self) -> Result<(), LinkError> {
+        self.answer = None;
+        Ok(())
+    }
+}
+
+/// The load-cell side in lockstep: the robot's stepped bus and the cells' answering code.
+struct Cells {
+    bus: SteppedLoadCells,
+    responder: LoadCellResponder,
+    char_time: Duration,
+    next_round: Instant,
+    silenced: bool,
+}
+
+/// Everything outside the robot's computer, advanced event by event.
+pub(crate) struct World {
+    site: Site<LockstepCan>,
+    clock: SimClock,
+    t0: Instant,
+    bus: Arc<Mutex<Bus>>,
+    next_tick: Instant,
+    cells: Cells,
+    receiver: Option<TrackerReceiver>,
+    next_pose: Instant,
+    tracker_gap_until: Option<Instant>,
+    faults: LockstepFaults,
+    rng: ChaCha8Rng,
+    rebooted: bool,
+}
+
+/// A Modbus device's time from the end of a request to the start of its answer.
+const CELL_LATENCY: Duration = Duration::from_millis(1);
+
+impl World {
+    fn secs(&self, t: Instant) -> f64 {
+        t.saturating_duration_since(self.t0).as_secs_f64()
+    }
+
+    /// Handles every event up to `t`, in time order, and leaves the clock at `t`.
+    pub(crate) fn advance_to(&mut self, t: Instant) {
+        loop {
+            let now = self.clock.now();
+            self.handle_due(now);
+            match self.next_event() {
+                Some(e) if e <= t => self.clock.advance_to(e.max(now + Duration::from_nanos(1))),
+                _ => break,
+            }
+        }
+        self.clock.advance_to(t);
+        self.handle_due(t.max(self.clock.now()));
+    }
+
+    fn next_event(&mut self) -> Option<Instant> {
+        let bus = lock(&self.bus).next_delivery(Side::Rack);
+        [bus, self.site.rack.next_deadline(), Some(self.next_tick), Some(self.cells.next_round), self.cells.bus.next_release()]
+            .into_iter()
+            .flatten()
+            .chain(self.receiver.is_some().then_some(self.next_pose))
+            .min()
+    }
+
+    fn handle_due(&mut self, now: Instant) {
+        // Frames that reached the drives, each at its own bus instant.
+        while let Ok(Some(f)) = self.site.rack.transport().try_recv() {
+            self.site.on_frame(&f);
+        }
+        self.site.rack.step(now);
+        if now >= self.next_tick {
+            self.next_tick += self.site.period;
+            self.scheduled_faults(now);
+            self.site.inject_faults();
+            if self.site.silenced && !self.cells.silenced {
+                self.cells.responder.inject(None, LoadCellFault::Silence, u32::MAX);
+                self.cells.silenced = true;
+            }
+            self.site.step_plant(now);
+        }
+        if now >= self.cells.next_round {
+            let silent = self.faults.loadcell_silence.is_some_and(|(from, dur)| (from..from + dur).contains(&self.secs(now)));
+            let line_clock = self.clock.fork();
+            let mut line = Line {
+                cells: &mut self.cells.responder,
+                clock: &line_clock,
+                char_time: self.cells.char_time,
+                latency: CELL_LATENCY,
+                silent,
+                answer: None,
+            };
+            self.cells.bus.round(&mut line, &line_clock);
+            let period = self.cells.bus.poll_period();
+            self.cells.next_round = (now + period).max(line_clock.now());
+        }
+        self.cells.bus.release(now);
+        if now >= self.next_pose {
+            self.next_pose += Duration::from_secs_f64(TRACKER_PERIOD_S);
+            self.pose(now);
+        }
+    }
+
+    fn scheduled_faults(&mut self, now: Instant) {
+        if let (Some(at), false) = (self.faults.drive_reboot_at_s, self.rebooted) {
+            if self.secs(now) >= at {
+                self.site.faults.drive_power_cycle.store(true, Ordering::Relaxed);
+                self.rebooted = true;
+            }
+        }
+    }
+
+    fn pose(&mut self, now: Instant) {
+        let Some(rx) = self.receiver.as_mut() else { return };
+        if self.site.faults.tracker_gone.load(Ordering::Relaxed) {
+            return;
+        }
+        if self.tracker_gap_until.is_some_and(|u| now < u) {
+            return;
+        }
+        if self.faults.tracker_dropout > 0.0 && self.rng.gen::<f64>() < self.faults.tracker_dropout {
+            self.tracker_gap_until = Some(now + Duration::from_secs_f64(self.faults.tracker_gap_s));
+            return;
+        }
+        let Some(tracker) = self.site.tracker.as_mut() else { return };
+        let m = tracker.measure(self.site.plant.position(), &mut self.site.rng);
+        if m.iter().all(|v| v.is_finite()) {
+            let t = now.saturating_duration_since(self.t0).as_secs_f64();
+            let mut buf = [0u8; MAX_LINE];
+            let n = format_line(&PoseLine { t, position: m, orientation: None }, &mut buf);
+            rx.on_datagram(&buf[..n], now);
+        }
+    }
+}
+
+/// The robot's devices with the world they talk to: each read first lets the world catch up to
+/// the clock.
+struct LockstepDevices {
+    devices: RobotDevices<LockstepCan>,
+    world: Arc<Mutex<World>>,
+    clock: SimClock,
+}
+
+impl Devices for LockstepDevices {
+    fn read(&mut self, now_s: f64, inputs: &mut Inputs) {
+        lock(&self.world).advance_to(self.clock.now());
+        self.devices.read(now_s, inputs)
+    }
+    fn write(&mut self, now_s: f64, outputs: &Outputs) {
+        self.devices.write(now_s, outputs)
+    }
+}
+
+/// A simulated robot in simulated time, ready for the plugin.
+pub struct LockstepRobot {
+    /// The site's true parameters (never seen by the robot).
+    pub truth: Truth,
+    /// Fault switches (as [`crate::SimRobot::faults`]).
+    pub faults: Arc<SimFaults>,
+    /// The devices for the plugin.
+    pub devices: Box<dyn Devices>,
+    /// The simulated clock everything runs on.
+    pub clock: SimClock,
+    /// Where the platform really is.
+    pub platform: PlatformTruth,
+    /// The tracker receiver's counters.
+    pub tracker_stats: Option<TrackerStatsHandle>,
+    /// How late the drives latched the SYNCs (0 in lockstep: they see each frame at its bus
+    /// instant).
+    pub sync_stats: Arc<SyncStats>,
+    bus: Arc<Mutex<Bus>>,
+    world: Arc<Mutex<World>>,
+}
+
+impl LockstepRobot {
+    /// Builds the robot of `cfg` with the platform at `p0` on a fresh simulated clock and
+    /// brings its drives up through the CANopen master (in simulated time).
+    pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, faults: LockstepFaults) -> Result<LockstepRobot, BuildError> {
+        let n = cfg.cables.len();
+        let clock = SimClock::new();
+        let t0 = clock.now();
+        let parts = draw_site(cfg, p0, opts)?;
+        let truth = parts.truth.clone();
+        let bitrate = cfg.can.as_ref().map_or(1_000_000, |c| c.bitrate).max(10_000);
+        let bus = Arc::new(Mutex::new(Bus {
+            clock: clock.clone(),
+            bit: Duration::from_nanos(1_000_000_000 / u64::from(bitrate)),
+            free_at: t0,
+            to_rack: VecDeque::new(),
+            to_master: VecDeque::new(),
+            faults: faults.clone(),
+            rng: taut_sim::rng(opts.seed, 11),
+            stats: BusStats::default(),
+        }));
+        let rack_end = LockstepCan { bus: bus.clone(), side: Side::Rack, world: None, last_rx: None };
+        // The robot's load-cell bus as configured, on the in-memory line.
+        let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new("simulated line"));
+        lc_bus.max_age_s = cfg.safety.tension_max_age_s;
+        let (stepped, loadcells, reader) = SteppedLoadCells::new(&lc_bus, &parts.cells, n).map_err(BuildError::LoadCells)?;
+        let bits = 1 + u32::from(lc_bus.data_bits) + u32::from(lc_bus.parity != Parity::None) + u32::from(lc_bus.stop_bits);
+        let char_time = Duration::from_secs_f64(f64::from(bits) / f64::from(lc_bus.baud.max(1)));
+        let responder = LoadCellResponder::new(parts.cells.iter().map(|c| c.1.clone()).collect(), parts.handle.clone());
+        let (receiver, pose) = if opts.tracker {
+            let mut tcfg = TrackerConfig::new("127.0.0.1:0");
+            tcfg.max_age_s = cfg.safety.tracker_max_age_s;
+            let rx = TrackerReceiver::detached(&tcfg, t0).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
+            let reader = rx.reader();
+            (Some(rx), Some(reader))
+        } else {
+            (None, None)
+        };
+        let tracker_stats = pose.as_ref().map(|p| p.stats_handle());
+        let io = SiteIo { rack_bus: rack_end, vlc: None, sender: None, clock: Arc::new(clock.clone()), now: t0 };
+        let site = parts.into_site(io, opts);
+        let (sim_faults, platform, sync_stats) = (site.faults.clone(), site.platform.clone(), site.sync_stats.clone());
+        let world = Arc::new(Mutex::new(World {
+            next_tick: t0,
+            site,
+            clock: clock.clone(),
+            t0,
+            bus: bus.clone(),
+            cells: Cells { bus: stepped, responder, char_time, next_round: t0, silenced: false },
+            receiver,
+            next_pose: t0,
+            tracker_gap_until: None,
+            faults,
+            rng: taut_sim::rng(opts.seed, 13),
+            rebooted: false,
+        }));
+        let master_end = LockstepCan { bus: bus.clone(), side: Side::Master, world: Some(world.clone()), last_rx: None };
+        let peripherals = Peripherals { loadcells: Some((loadcells, reader)), tracker: None, pose };
+        let devices =
+            RobotDevices::bring_up_with_clock(cfg, master_end, peripherals, Arc::new(clock.clone())).map_err(BuildError::BringUp)?;
+        Ok(LockstepRobot {
+            truth,
+            faults: sim_faults,
+            devices: Box::new(LockstepDevices { devices, world: world.clone(), clock: clock.clone() }),
+            clock,
+            platform,
+            tracker_stats,
+            sync_stats,
+            bus,
+            world,
+        })
+    }
+
+    /// The simulated CAN bus's counts so far.
+    pub fn bus_stats(&self) -> BusStatsHandle {
+        BusStatsHandle(self.bus.clone())
+    }
+
+    /// The robot's load-cell bus counters (timeouts, CRC errors, ...).
+    pub fn loadcell_counters(&self) -> taut_driver::modbus::master::CounterSnapshot {
+        lock(&self.world).cells.bus.counters()
+    }
+}
+
+/// Reads the simulated bus's counts.
+pub struct BusStatsHandle(Arc<Mutex<Bus>>);
+
+impl BusStatsHandle {
+    /// Counts so far.
+    pub fn get(&self) -> BusStats {
+        lock(&self.0).stats
+    }
+}
+
+/// How a start-up in simulated time ended.
+pub struct StartupRun {
+    /// The loop's last status.
+    pub loop_status: LoopStatus,
+    /// The calibrator's last status.
+    pub calib_status: CalibStatus,
+    /// The site's truth.
+    pub truth: Truth,
+    /// The start-up finished (well or badly) within the budget.
+    pub finished: bool,
+    /// Loop cycles run (activation included).
+    pub cycles: u64,
+    /// Simulated time, s.
+    pub sim_s: f64,
+    /// Wall-clock time the run took, s (not reproducible).
+    pub wall_s: f64,
+    /// The simulated CAN bus's counts.
+    pub bus: BusStats,
+    /// The robot's load-cell bus counters.
+    pub loadcells: taut_driver::modbus::master::CounterSnapshot,
+    /// Plant steps that found no equilibrium.
+    pub plant_failed_steps: u64,
+    /// Where the recording is, if any.
+    pub recording: Option<std::path::PathBuf>,
+}
+
+/// Why a start-up in simulated time could not run.
+#[derive(Debug)]
+pub enum LockstepError {
+    /// The simulated robot could not be built.
+    Build(BuildError),
+    /// The plugin refused (configuration, activation).
+    Plugin(PluginError),
+}
+
+impl std::fmt::Display for LockstepError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LockstepError::Build(e) => write!(f, "{e}"),
+            LockstepError::Plugin(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for LockstepError {}
+
+/// Runs the start-up of `cfg` (three-phase initialisation, excitation or dwell poses,
+/// calibration, hot-swap) on the simulated robot in simulated time: the plugin in
+/// plugin-owned mode, stepped by this thread, `budget_s` of simulated time at most.
+/// `on_cycle` sees the loop's status every 0.1 s of simulated time and may stop the run by
+/// returning true (a test that applies faults or commands).
+pub fn run_startup(
+    cfg: &RobotConfig,
+    p0: [f64; 3],
+    opts: &SimOptions,
+    faults: LockstepFaults,
+    backend: Box<dyn Calibrate>,
+    recording: RecordingPath,
+    budget_s: f64,
+    mut on_cycle: impl FnMut(&LockstepRobotView<'_>) -> bool,
+) -> Result<StartupRun, LockstepError> {
+    let wall = Instant::now();
+    let robot = LockstepRobot::build(cfg, p0, opts, faults).map_err(LockstepError::Build)?;
+    let LockstepRobot { truth, faults: sim_faults, devices, clock, platform, bus, world, .. } = robot;
+    let popts = PluginOptions { recording, backend: Some(backend), event_capacity: 256, sim_clock: Some(clock.clone()) };
+    let mut plugin = Plugin::configure(cfg, DeviceMode::ready(devices), popts).map_err(LockstepError::Plugin)?;
+    let recording = plugin.recording().map(|p| p.to_path_buf());
+    plugin.activate().map_err(LockstepError::Plugin)?;
+    let period = Duration::from_secs_f64(1.0 / plugin.rate_hz());
+    let every = ((0.1 / period.as_secs_f64()).round() as u64).max(1);
+    let mut cycles = 0u64;
+    let mut finished = false;
+    while clock.elapsed().as_secs_f64() < budget_s {
+        clock.advance(period);
+        let now_s = clock.elapsed().as_secs_f64();
+        let tick = plugin.update(now_s, period.as_secs_f64());
+        plugin.pump_calibrator();
+        cycles += 1;
+        if tick.is_ok_and(|t| t.finished) {
+            finished = true;
+            break;
+        }
+        if cycles % every == 0 {
+            let l = plugin.handle().loop_status();
+            let c = plugin.handle().calib_status();
+            if taut_rt_core::control::startup_finished(&l, &c) {
+                finished = true;
+                break;
+            }
+            let view = LockstepRobotView {
+                loop_status: &l,
+                calib_status: &c,
+                faults: &sim_faults,
+                platform: &platform,
+                sim_s: now_s,
+                plugin: &plugin,
+            };
+            if on_cycle(&view) {
+                break;
+            }
+        }
+    }
+    let loop_status = plugin.handle().loop_status();
+    let calib_status = plugin.handle().calib_status();
+    let sim_s = clock.elapsed().as_secs_f64();
+    let _ = plugin.deactivate();
+    let _ = plugin.cleanup();
+    let plant_failed_steps = sim_faults.plant_failed_steps.load(Ordering::Relaxed);
+    let bus = lock(&bus).stats;
+    let loadcells = lock(&world).cells.bus.counters();
+    Ok(StartupRun {
+        loop_status,
+        calib_status,
+        truth,
+        finished,
+        cycles,
+        sim_s,
+        wall_s: wall.elapsed().as_secs_f64(),
+        bus,
+        loadcells,
+        plant_failed_steps,
+        recording,
+    })
+}
+
+/// What a test sees of a running start-up in simulated time.
+pub struct LockstepRobotView<'a> {
+    /// The loop's status.
+    pub loop_status: &'a LoopStatus,
+    /// The calibrator's status.
+    pub calib_status: &'a CalibStatus,
+    /// Fault switches of the simulated devices.
+    pub faults: &'a SimFaults,
+    /// Where the platform really is.
+    pub platform: &'a PlatformTruth,
+    /// Simulated time, s.
+    pub sim_s: f64,
+    /// The plugin (its operator handle: commands, recalibration).
+    pub plugin: &'a Plugin,
+}
