@@ -259,14 +259,17 @@ struct Line<'a> {
     clock: &'a SimClock,
     char_time: Duration,
     latency: Duration,
-    silent: bool,
+    /// The cells do not answer requests sent in this span.
+    silence: Option<(Instant, Instant)>,
     answer: Option<(Instant, [u8; 2 * taut_driver::modbus::rtu::MAX_FRAME], usize)>,
 }
 
 impl SerialLink for Line<'_> {
     fn send(&mut self, frame: &[u8]) -> Result<(), LinkError> {
         self.clock.advance(self.char_time * frame.len() as u32);
-        self.answer = if self.silent { None } else { self.cells.answer(frame).map(|(b, n)| (self.clock.now() + self.latency, b, n)) };
+        let now = self.clock.now();
+        let silent = self.silence.is_some_and(|(from, to)| (from..to).contains(&now));
+        self.answer = if silent { None } else { self.cells.answer(frame).map(|(b, n)| (self.clock.now() + self.latency, b, n)) };
         Ok(())
     }
 
@@ -366,14 +369,18 @@ impl World {
             self.site.step_plant(now);
         }
         if now >= self.cells.next_round {
-            let silent = self.faults.loadcell_silence.is_some_and(|(from, dur)| (from..from + dur).contains(&self.secs(now)));
+            let t0 = self.t0;
+            let silence = self
+                .faults
+                .loadcell_silence
+                .map(|(from, dur)| (t0 + Duration::from_secs_f64(from), t0 + Duration::from_secs_f64(from + dur)));
             let line_clock = self.clock.fork();
             let mut line = Line {
                 cells: &mut self.cells.responder,
                 clock: &line_clock,
                 char_time: self.cells.char_time,
                 latency: CELL_LATENCY,
-                silent,
+                silence,
                 answer: None,
             };
             self.cells.bus.round(&mut line, &line_clock);

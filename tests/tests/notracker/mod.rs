@@ -109,6 +109,13 @@ pub struct Run {
 /// Starts the simulated robot without a tracker and checks the start-up; `recalibrate`: then
 /// `ctl recalibrate` and check that it visits the dwells again.
 pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
+    start_on(seed, plan_kind, recalibrate, false)
+}
+
+/// [`start`] with the robot stack in simulated time (`sim_time`: lockstep, `taut_simrig::run_startup`)
+/// or in real time on threads (the daemon, with its control socket for `recalibrate`).
+pub fn start_on(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool) -> Run {
+    assert!(!(sim_time && recalibrate), "the recalibration goes through the daemon's control socket: real time only");
     let t0 = std::time::Instant::now();
     let dir = tempfile::tempdir().unwrap();
     // TAUT_E2E_KEEP: keep the files (recording, parameters) for a look after a failure.
@@ -124,24 +131,47 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, tracker: false, ..Default::default() };
     let p0 = simrig::rest_position(&cfg, &so, p0);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
-    let truth = sim.truth.clone();
-    let faults = sim.faults.clone();
-    // TAUT_E2E_TRUTH (with TAUT_E2E_KEEP): the site's true platform position, tensions and drum
-    // lengths every 5 ms into truth.csv beside the recording (for tests/examples/notracker_truth).
-    let sampler = std::env::var_os("TAUT_E2E_TRUTH").map(|_| truth_sampler(sim.platform.clone(), cfg.cables.len(), dir.path()));
-    let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
-    eprintln!("e2e files in {}", dir.path().display());
     let mut states = Vec::new();
     let limit_s = if plan_kind == Plan::Example { 1500 } else { 300 };
-    let ok = d.wait_until(Duration::from_secs(limit_s), |l, c| {
-        if states.last() != Some(&l.snap.state) {
-            states.push(l.snap.state);
-        }
-        taut_tests::startup::start_up_over(l, c)
-    });
-    let l = d.loop_status();
-    let c = d.calib_status();
+    let mut sampler = None;
+    let (d, truth, ok, l, c, recording, failed_steps) = if sim_time {
+        let run = simrig::run_startup(
+            &cfg,
+            p0,
+            &so,
+            simrig::LockstepFaults::default(),
+            Box::new(TautCalib::from_config(&cfg)),
+            taut_rt_core::plugin::RecordingPath::Default,
+            limit_s as f64,
+            |v| {
+                if states.last() != Some(&v.loop_status.snap.state) {
+                    states.push(v.loop_status.snap.state);
+                }
+                false
+            },
+        )
+        .unwrap();
+        eprintln!("seed {seed}: {:.0} s simulated in {:.1} s", run.sim_s, run.wall_s);
+        (None, run.truth, run.finished, run.loop_status, run.calib_status, run.recording.unwrap(), run.plant_failed_steps)
+    } else {
+        let sim = simrig::build(&cfg, p0, &so).unwrap();
+        let truth = sim.truth.clone();
+        let faults = sim.faults.clone();
+        // TAUT_E2E_TRUTH (with TAUT_E2E_KEEP): the site's true platform position, tensions and drum
+        // lengths every 5 ms into truth.csv beside the recording (for tests/examples/notracker_truth).
+        sampler = std::env::var_os("TAUT_E2E_TRUTH").map(|_| truth_sampler(sim.platform.clone(), cfg.cables.len(), dir.path()));
+        let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
+        eprintln!("e2e files in {}", dir.path().display());
+        let ok = d.wait_until(Duration::from_secs(limit_s), |l, c| {
+            if states.last() != Some(&l.snap.state) {
+                states.push(l.snap.state);
+            }
+            taut_tests::startup::start_up_over(l, c)
+        });
+        let (l, c, rec) = (d.loop_status(), d.calib_status(), d.recording.clone());
+        let failed = faults.plant_failed_steps.load(std::sync::atomic::Ordering::Relaxed);
+        (Some(d), truth, ok, l, c, rec, failed)
+    };
     let outcomes: Vec<String> = c
         .outcomes
         .iter()
@@ -152,7 +182,7 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
         l.snap.fault.is_none(),
         "seed {seed}: fault {:?}, states {states:?}, plant failed steps {}, {outcomes:?}",
         l.snap.fault,
-        faults.plant_failed_steps.load(std::sync::atomic::Ordering::Relaxed)
+        failed_steps
     );
     // The rest dwell, then the dwell plan; never the three phases.
     assert_eq!(l.snap.phases_completed, 1, "{states:?}");
@@ -221,7 +251,7 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     assert!(l.snap.max_swap_step_m > 0.0 && l.snap.max_swap_step_m < 1e-2, "max swap step {} m", l.snap.max_swap_step_m);
     assert_eq!(l.dropped, 0);
     // The recording: every tracker column empty, tensions and lengths present.
-    let (rec, _) = taut_config::recording::Recording::load(&d.recording).unwrap();
+    let (rec, _) = taut_config::recording::Recording::load(&recording).unwrap();
     assert!(rec.len() > 5000 && rec.f.is_some());
     assert!(rec.p.iter().flatten().all(|v| v.is_nan()), "the recording has tracker values");
     // The tares were recorded: each tare's slack cable (the follower, or a position cable with
@@ -274,7 +304,7 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
     let (p3, p3_upper) = replan.worst_exceeds_probability(&nominal, 3e-3, ratio.max(1.0), 1_000_000);
     eprintln!("seed {seed}: P(worst aligned anchor > 3 mm) = {p3:.2e} (upper bound {p3_upper:.2e})");
 
-    if recalibrate {
+    if let (true, Some(d)) = (recalibrate, &d) {
         let sock = dir.path().join("taut.sock");
         let r = control::request(&sock, "recalibrate", Duration::from_secs(5)).unwrap();
         assert_eq!(r["ok"], true, "{r}");
@@ -300,8 +330,10 @@ pub fn start(seed: u64, plan_kind: Plan, recalibrate: bool) -> Run {
             assert_eq!(d.loop_status().snap.params_version, 2);
         }
     }
-    d.commands.try_send(taut_rt_core::motion::Command::Stop).unwrap();
-    d.wait().unwrap();
+    if let Some(d) = d {
+        d.commands.try_send(taut_rt_core::motion::Command::Stop).unwrap();
+        d.wait().unwrap();
+    }
     if let Some((stop, h)) = sampler {
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
         h.join().unwrap();

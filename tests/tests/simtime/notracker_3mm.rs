@@ -3,10 +3,9 @@
 //! about the vertical) at most 3 mm, hot-swapped, with the example's plan
 //! (config/examples/aras-cam-sim-notracker.toml).
 //!
-//! About 15 minutes of real time: NOT part of `cargo test --workspace` (`test = false` in
-//! tests/Cargo.toml) but its own serial step of `scripts/test`, after the workspace tests, on an
-//! otherwise idle machine: `cargo test -p taut-tests --test e2e_notracker_3mm -- --nocapture`
-//! (`TAUT_E2E_SEEDS=1,2,4` for other sites, one after the other).
+//! About 15 minutes of the robot's time, run in simulated time (the robot stack in lockstep,
+//! `taut_simrig::run_startup`): `cargo test -p taut-tests --test simtime notracker_3mm --
+//! --nocapture` (`TAUT_E2E_SEEDS=1,2,4` for other sites, one after the other).
 //!
 //! # Failure probability per run (one start-up, correct code): below 1e-4, computed
 //!
@@ -51,9 +50,7 @@
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
 
-mod notracker;
-
-use notracker::{report, robot, start, Plan};
+use crate::notracker::{report, robot, start_on, Plan};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 
@@ -149,7 +146,7 @@ fn worst_anchor_within_3_mm() {
     // two-core machine starve each other's device threads (stale load cells, missed heartbeats).
     let seeds: Vec<u64> = std::env::var("TAUT_E2E_SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.trim().parse().unwrap()).collect());
     for seed in seeds {
-        let r = start(seed, Plan::Example, false);
+        let r = start_on(seed, Plan::Example, false, true);
         report(seed, &r);
         // The ratio is the honesty of one more start-up (RATIOS); its CRB part (without the
         // variance factor) and the chi-square's tail say whether a larger one is the model's
