@@ -220,10 +220,8 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
         cfg,
         p0,
         so,
-        faults.clone(),
+        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s },
         Box::new(backend),
-        taut_rt_core::plugin::RecordingPath::At(recording.clone()),
-        budget_s,
         |_| false,
     )
     .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -297,14 +295,14 @@ fn finish(
         "anchors_m": final_est.map(|e| e.geometry.anchors.clone()),
         "l0_m": final_est.map(|e| e.geometry.l0.clone()),
         "anchor_sigma_m": final_est.map(|e| e.sigma.anchors.clone()),
-        "excitation": taut_rt_core::excite::status_json(&c),
+        "excitation": taut_rt_core::excite::status_json(c),
         "truth_anchors_m": truth.as_ref().map(|t| &t.anchors),
         "truth_l0_m": truth.as_ref().map(|t| &t.l0),
         "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
         "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors[..3.min(e.geometry.anchors.len())])),
         "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
         "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.geometry.anchors)),
-        "without_tracker": taut_rt_core::notracker::is_dwell(&cfg),
+        "without_tracker": taut_rt_core::notracker::is_dwell(cfg),
         "calibration_note": final_est.map(|e| e.note.clone()),
         "samples_recorded": c.samples_recorded,
         "samples_dropped": l.dropped,
@@ -340,7 +338,7 @@ fn finish(
     if let Some(e) = final_est {
         if truth.is_some() {
             println!("calibrated         max anchor error {:.2} mm", err(&e.geometry.anchors) * 1e3);
-            if taut_rt_core::notracker::is_dwell(&cfg) {
+            if taut_rt_core::notracker::is_dwell(cfg) {
                 println!(
                     "                   without a tracker: {:.2} mm after the best translation and rotation about the vertical ({})",
                     aligned(&e.geometry.anchors) * 1e3,

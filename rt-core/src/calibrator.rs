@@ -570,7 +570,7 @@ enum Jobs {
     },
     /// In the step that submits them (lockstep simulation): the result waits here for the
     /// same step's `poll_results`.
-    Inline { done: Option<(JobResult, Box<dyn Calibrate>)> },
+    Inline { done: Option<Box<(JobResult, Box<dyn Calibrate>)>> },
 }
 
 /// The calibrator: owns the ring's consumer end and the parameter writer.
@@ -926,7 +926,7 @@ impl Calibrator {
             Some(Jobs::Inline { done }) => {
                 let mut backend = backend;
                 let r = run_job(job, backend.as_mut(), min_tension_n);
-                *done = Some((r, backend));
+                *done = Some(Box::new((r, backend)));
                 self.busy = true;
             }
             None => self.backend = Some(backend),
@@ -940,7 +940,7 @@ impl Calibrator {
                 Err(_) => return,
             },
             Some(Jobs::Inline { done }) => match done.take() {
-                Some(x) => x,
+                Some(x) => *x,
                 None => return,
             },
             None => return,

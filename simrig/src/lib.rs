@@ -680,7 +680,8 @@ struct Site<R: CanTransport> {
 
 mod lockstep;
 pub use lockstep::{
-    run_startup, BusStats, BusStatsHandle, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, StartupRun,
+    run_startup, BusStats, BusStatsHandle, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, RunOptions,
+    StartupRun,
 };
 
 /// Tracker period, s (100 Hz).

@@ -558,6 +558,24 @@ impl BusStatsHandle {
     }
 }
 
+/// What a start-up in simulated time runs with, beside the robot and the site.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Faults the devices and wires inject.
+    pub faults: LockstepFaults,
+    /// Where the calibrator records.
+    pub recording: RecordingPath,
+    /// The most simulated time the start-up may take, s.
+    pub budget_s: f64,
+}
+
+impl Default for RunOptions {
+    /// No faults, no recording, 600 s.
+    fn default() -> Self {
+        RunOptions { faults: LockstepFaults::default(), recording: RecordingPath::Off, budget_s: 600.0 }
+    }
+}
+
 /// How a start-up in simulated time ended.
 pub struct StartupRun {
     /// The loop's last status.
@@ -613,12 +631,11 @@ pub fn run_startup(
     cfg: &RobotConfig,
     p0: [f64; 3],
     opts: &SimOptions,
-    faults: LockstepFaults,
+    run: RunOptions,
     backend: Box<dyn Calibrate>,
-    recording: RecordingPath,
-    budget_s: f64,
     mut on_cycle: impl FnMut(&LockstepRobotView<'_>) -> bool,
 ) -> Result<StartupRun, LockstepError> {
+    let RunOptions { faults, recording, budget_s } = run;
     let wall = Instant::now();
     let robot = LockstepRobot::build(cfg, p0, opts, faults).map_err(LockstepError::Build)?;
     let LockstepRobot { truth, faults: sim_faults, devices, clock, platform, bus, world, .. } = robot;
@@ -640,7 +657,7 @@ pub fn run_startup(
             finished = true;
             break;
         }
-        if cycles % every == 0 {
+        if cycles.is_multiple_of(every) {
             let l = plugin.handle().loop_status();
             let c = plugin.handle().calib_status();
             if taut_rt_core::control::startup_finished(&l, &c) {

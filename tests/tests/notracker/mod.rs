@@ -139,10 +139,8 @@ pub fn start_on(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool) -
             &cfg,
             p0,
             &so,
-            simrig::LockstepFaults::default(),
+            simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: limit_s as f64, ..Default::default() },
             Box::new(TautCalib::from_config(&cfg)),
-            taut_rt_core::plugin::RecordingPath::Default,
-            limit_s as f64,
             |v| {
                 if states.last() != Some(&v.loop_status.snap.state) {
                     states.push(v.loop_status.snap.state);

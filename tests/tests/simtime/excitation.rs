@@ -229,10 +229,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         &cfg,
         p0,
         &so,
-        simrig::LockstepFaults::default(),
+        simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, ..Default::default() },
         Box::new(TautCalib::from_config(&cfg)),
-        taut_rt_core::plugin::RecordingPath::Default,
-        600.0,
         |_| false,
     )
     .unwrap_or_else(|e| panic!("seed {seed}: {e}"));

@@ -6,9 +6,8 @@ use taut_config::RobotConfig;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::plugin::RecordingPath;
 use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, LockstepFaults, SimOptions, StartupRun};
+use taut_simrig::{self as simrig, LockstepFaults, RunOptions, SimOptions, StartupRun};
 
 fn robot(dir: &std::path::Path) -> RobotConfig {
     let mut cfg = RobotConfig::from_toml_str(include_str!("../../../config/examples/aras-cam-sim.toml")).unwrap();
@@ -23,8 +22,9 @@ fn startup(seed: u64, faults: LockstepFaults) -> StartupRun {
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
     let p0 = simrig::rest_position(&cfg, &so, p0);
-    let run = simrig::run_startup(&cfg, p0, &so, faults, Box::new(TautCalib::from_config(&cfg)), RecordingPath::Off, 600.0, |_| false)
-        .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+    let run =
+        simrig::run_startup(&cfg, p0, &so, RunOptions { faults, ..Default::default() }, Box::new(TautCalib::from_config(&cfg)), |_| false)
+            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
     eprintln!(
         "seed {seed}: {:.1} s simulated in {:.2} s ({:.0}x), {} cycles; CAN {} frames ({} lost, {} late), load {:.2}; load cells {:?}",
         run.sim_s,
