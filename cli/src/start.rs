@@ -148,9 +148,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
         return Ok(());
     }
 
-    let m = &cfg.motion;
-    let phase_s = 2.0 * m.init_reel_m.abs() / m.init_reel_speed_m_s + m.init_settle_s;
-    let budget = Duration::from_secs_f64(3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s + 300.0);
+    let budget = Duration::from_secs_f64(startup_motion_s(&cfg) + 300.0);
     let mut last = String::new();
     let done = daemon.wait_until(budget, |l, c| {
         let line = progress_line(l, c);
@@ -173,6 +171,14 @@ pub fn run(a: &StartArgs) -> Result<()> {
         "realtime": report.as_ref().map(|r| r.setup.realtime),
     });
     finish(a, &cfg, &l, &c, truth.as_ref(), &recording, done, loop_json, None)
+}
+
+/// How long the start-up's motions take, s (three phases, the excitation, the swap ramps), with
+/// 30 s for the calibrations: the budget of `--once` is this plus a margin.
+fn startup_motion_s(cfg: &RobotConfig) -> f64 {
+    let m = &cfg.motion;
+    let phase_s = 2.0 * m.init_reel_m.abs() / m.init_reel_speed_m_s + m.init_settle_s;
+    3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s
 }
 
 /// The calibration backend of `taut start`: taut-calib from the configuration, with the
@@ -198,9 +204,7 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
 
 /// `taut start --sim --once --sim-time`: the start-up in simulated time.
 fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib) -> Result<()> {
-    let m = &cfg.motion;
-    let phase_s = 2.0 * m.init_reel_m.abs() / m.init_reel_speed_m_s + m.init_settle_s;
-    let budget_s = 3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s + 600.0;
+    let budget_s = startup_motion_s(cfg) + 600.0;
     let faults = if a.sim_faults { simrig::LockstepFaults::drawn(a.seed) } else { simrig::LockstepFaults::default() };
     // A run of its own per seed, with an empty parameter history (the calibrator numbers its
     // parameter sets after the ones on disk): the same seed gives the same summary.

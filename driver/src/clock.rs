@@ -62,11 +62,6 @@ impl SimClock {
         Duration::from_nanos(self.ns.load(Ordering::Relaxed))
     }
 
-    /// The instant `t` after the clock's start.
-    pub fn at(&self, t: Duration) -> Instant {
-        self.base + t
-    }
-
     /// Simulated time of an instant of this clock (zero for instants before its start).
     pub fn since_start(&self, t: Instant) -> Duration {
         t.saturating_duration_since(self.base)

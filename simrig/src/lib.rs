@@ -680,8 +680,7 @@ struct Site<R: CanTransport> {
 
 mod lockstep;
 pub use lockstep::{
-    run_startup, BusStats, BusStatsHandle, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, RunOptions,
-    StartupRun,
+    run_startup, BusStats, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, RunOptions, StartupRun,
 };
 
 /// Tracker period, s (100 Hz).

@@ -28,7 +28,7 @@
 //! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a load-cell
 //! bus that stops answering for a while, tracker dropouts, a drive that reboots.
 
-use crate::{draw_site, BuildError, PlatformTruth, SimFaults, SimOptions, Site, SiteIo, SyncStats, TRACKER_PERIOD_S};
+use crate::{draw_site, BuildError, PlatformTruth, SimFaults, SimOptions, Site, SiteIo, TRACKER_PERIOD_S};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
@@ -458,9 +458,6 @@ pub struct LockstepRobot {
     pub platform: PlatformTruth,
     /// The tracker receiver's counters.
     pub tracker_stats: Option<TrackerStatsHandle>,
-    /// How late the drives latched the SYNCs (0 in lockstep: they see each frame at its bus
-    /// instant).
-    pub sync_stats: Arc<SyncStats>,
     bus: Arc<Mutex<Bus>>,
     world: Arc<Mutex<World>>,
 }
@@ -505,7 +502,7 @@ impl LockstepRobot {
         let tracker_stats = pose.as_ref().map(|p| p.stats_handle());
         let io = SiteIo { rack_bus: rack_end, vlc: None, sender: None, clock: Arc::new(clock.clone()), now: t0 };
         let site = parts.into_site(io, opts);
-        let (sim_faults, platform, sync_stats) = (site.faults.clone(), site.platform.clone(), site.sync_stats.clone());
+        let (sim_faults, platform) = (site.faults.clone(), site.platform.clone());
         let world = Arc::new(Mutex::new(World {
             next_tick: t0,
             site,
@@ -531,30 +528,9 @@ impl LockstepRobot {
             clock,
             platform,
             tracker_stats,
-            sync_stats,
             bus,
             world,
         })
-    }
-
-    /// The simulated CAN bus's counts so far.
-    pub fn bus_stats(&self) -> BusStatsHandle {
-        BusStatsHandle(self.bus.clone())
-    }
-
-    /// The robot's load-cell bus counters (timeouts, CRC errors, ...).
-    pub fn loadcell_counters(&self) -> taut_driver::modbus::master::CounterSnapshot {
-        lock(&self.world).cells.bus.counters()
-    }
-}
-
-/// Reads the simulated bus's counts.
-pub struct BusStatsHandle(Arc<Mutex<Bus>>);
-
-impl BusStatsHandle {
-    /// Counts so far.
-    pub fn get(&self) -> BusStats {
-        lock(&self.0).stats
     }
 }
 

@@ -4,11 +4,12 @@
 
 use std::path::Path;
 use taut_config::RobotConfig;
+use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, SimOptions, SimRobot};
+use taut_simrig::{self as simrig, LockstepRobotView, RunOptions, SimOptions, SimRobot, StartupRun};
 
 /// Excitation of the test start-ups, s (the example's is longer).
 pub const EXCITATION_S: f64 = 25.0;
@@ -27,11 +28,28 @@ pub fn sim_robot(dir: &Path) -> RobotConfig {
 /// The simulated robot for `cfg` with seed `seed`, the platform at rest below the middle of the
 /// workspace.
 pub fn build_at_rest(cfg: &RobotConfig, seed: u64) -> SimRobot {
-    let w = ControllerConfig::from_robot(cfg).expect("the example configuration is valid").workspace;
-    let centre = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
-    let p0 = simrig::rest_position(cfg, &so, centre);
-    simrig::build(cfg, p0, &so).unwrap_or_else(|e| panic!("building the simulated robot: {e}"))
+    simrig::build(cfg, rest_p0(cfg, &so), &so).unwrap_or_else(|e| panic!("building the simulated robot: {e}"))
+}
+
+/// Where the simulated platform of `cfg` rests before the start-up: the simulator's rest position
+/// below the middle of the workspace.
+pub fn rest_p0(cfg: &RobotConfig, so: &SimOptions) -> [f64; 3] {
+    let w = ControllerConfig::from_robot(cfg).expect("the configuration is valid").workspace;
+    let centre = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+    simrig::rest_position(cfg, so, centre)
+}
+
+/// The start-up of `cfg` on the simulated robot of `so` in simulated time (the robot stack in
+/// lockstep, `taut_simrig::run_startup`), from [`rest_p0`], calibrating with taut-calib.
+pub fn in_sim_time(
+    cfg: &RobotConfig,
+    so: &SimOptions,
+    run: RunOptions,
+    on_cycle: impl FnMut(&LockstepRobotView<'_>) -> bool,
+) -> StartupRun {
+    simrig::run_startup(cfg, rest_p0(cfg, so), so, run, Box::new(TautCalib::from_config(cfg)), on_cycle)
+        .unwrap_or_else(|e| panic!("seed {}: {e}", so.seed))
 }
 
 /// The start-up has hot-swapped to accepted calibrated parameters and the swap's ramp is over.

@@ -127,32 +127,26 @@ pub fn start_on(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool) -
     let cfg = robot(dir.path(), plan_kind);
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
-    let w = ccfg.workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, tracker: false, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
     let mut states = Vec::new();
     let limit_s = if plan_kind == Plan::Example { 1500 } else { 300 };
     let mut sampler = None;
     let (d, truth, ok, l, c, recording, failed_steps) = if sim_time {
-        let run = simrig::run_startup(
+        let run = taut_tests::startup::in_sim_time(
             &cfg,
-            p0,
             &so,
             simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: limit_s as f64, ..Default::default() },
-            Box::new(TautCalib::from_config(&cfg)),
             |v| {
                 if states.last() != Some(&v.loop_status.snap.state) {
                     states.push(v.loop_status.snap.state);
                 }
                 false
             },
-        )
-        .unwrap();
+        );
         eprintln!("seed {seed}: {:.0} s simulated in {:.1} s", run.sim_s, run.wall_s);
         (None, run.truth, run.finished, run.loop_status, run.calib_status, run.recording.unwrap(), run.plant_failed_steps)
     } else {
-        let sim = simrig::build(&cfg, p0, &so).unwrap();
+        let sim = simrig::build(&cfg, taut_tests::startup::rest_p0(&cfg, &so), &so).unwrap();
         let truth = sim.truth.clone();
         let faults = sim.faults.clone();
         // TAUT_E2E_TRUTH (with TAUT_E2E_KEEP): the site's true platform position, tensions and drum

@@ -25,11 +25,11 @@
 //! Sum for the 1 mm: [`PLAN_P_MAX`] + [`RECORDING_CHANCE_MAX`] per seed ([`BUDGET_1MM`],
 //! docs/test-robustness.md).
 
-use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::plugin::RecordingPath;
 use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, SimOptions};
+use taut_simrig::{RunOptions, SimOptions};
 
 /// The loop's Lissajous point `t` s after the approach (as `taut_rt_core::excite` predicts it).
 fn ccfg_lissajous(ccfg: &ControllerConfig, t: f64) -> [f64; 3] {
@@ -220,20 +220,10 @@ fn startup(seed: u64, designed: bool) -> Run {
     if let Ok(s) = std::env::var("TAUT_EXCITE_S") {
         cfg.motion.excitation_s = s.parse().expect("TAUT_EXCITE_S: the excitation's duration, s");
     }
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
     // In simulated time (the robot stack in lockstep): no machine load can starve it.
-    let run = simrig::run_startup(
-        &cfg,
-        p0,
-        &so,
-        simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, ..Default::default() },
-        Box::new(TautCalib::from_config(&cfg)),
-        |_| false,
-    )
-    .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+    let run =
+        taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, |_| false);
     let (truth, l, c) = (run.truth.clone(), &run.loop_status, &run.calib_status);
     assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
     assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);

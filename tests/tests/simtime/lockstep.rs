@@ -3,11 +3,8 @@
 //! timing (the bus load the SYNC cycle implies, the load cells' polling rate).
 
 use taut_config::RobotConfig;
-use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, LockstepFaults, RunOptions, SimOptions, StartupRun};
+use taut_simrig::{LockstepFaults, RunOptions, SimOptions, StartupRun};
 
 fn robot(dir: &std::path::Path) -> RobotConfig {
     let mut cfg = RobotConfig::from_toml_str(include_str!("../../../config/examples/aras-cam-sim.toml")).unwrap();
@@ -18,13 +15,8 @@ fn robot(dir: &std::path::Path) -> RobotConfig {
 fn startup(seed: u64, faults: LockstepFaults) -> StartupRun {
     let dir = tempfile::tempdir().unwrap();
     let cfg = robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
     let so = SimOptions { seed, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
-    let run =
-        simrig::run_startup(&cfg, p0, &so, RunOptions { faults, ..Default::default() }, Box::new(TautCalib::from_config(&cfg)), |_| false)
-            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+    let run = taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { faults, ..Default::default() }, |_| false);
     eprintln!(
         "seed {seed}: {:.1} s simulated in {:.2} s ({:.0}x), {} cycles; CAN {} frames ({} lost, {} late), load {:.2}; load cells {:?}",
         run.sim_s,
