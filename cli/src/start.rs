@@ -226,7 +226,7 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
         so,
         simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s },
         Box::new(backend),
-        |_| false,
+        |_, _| false,
     )
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     let lc = run.loadcells;

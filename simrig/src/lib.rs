@@ -679,9 +679,7 @@ struct Site<R: CanTransport> {
 }
 
 mod lockstep;
-pub use lockstep::{
-    run_startup, BusStats, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, LockstepRobotView, RunOptions, StartupRun,
-};
+pub use lockstep::{run_startup, BusStats, Lockstep, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, RunOptions, StartupRun};
 
 /// Tracker period, s (100 Hz).
 const TRACKER_PERIOD_S: f64 = 0.01;

@@ -598,96 +598,162 @@ impl std::fmt::Display for LockstepError {
 
 impl std::error::Error for LockstepError {}
 
+/// The plugin on the simulated robot in simulated time, stepped by its owner: a host like the
+/// robot's controller, with the operator's handle ([`Lockstep::handle`]) for commands between
+/// cycles. [`run_startup`] is the start-up on it.
+pub struct Lockstep {
+    plugin: Plugin,
+    clock: SimClock,
+    period: Duration,
+    cycles: u64,
+    truth: Truth,
+    faults: Arc<SimFaults>,
+    platform: PlatformTruth,
+    bus: Arc<Mutex<Bus>>,
+    world: Arc<Mutex<World>>,
+    recording: Option<std::path::PathBuf>,
+    wall: Instant,
+}
+
+impl Lockstep {
+    /// Builds the robot of `cfg` with the platform at `p0`, configures the plugin on it
+    /// (plugin-owned devices, the calibrator stepped inline) and activates it: the drives are
+    /// enabled, the start-up begins with the next cycle.
+    pub fn start(
+        cfg: &RobotConfig,
+        p0: [f64; 3],
+        opts: &SimOptions,
+        run: RunOptions,
+        backend: Box<dyn Calibrate>,
+    ) -> Result<Lockstep, LockstepError> {
+        let wall = Instant::now();
+        let robot = LockstepRobot::build(cfg, p0, opts, run.faults).map_err(LockstepError::Build)?;
+        let LockstepRobot { truth, faults, devices, clock, platform, bus, world, .. } = robot;
+        let popts = PluginOptions { recording: run.recording, backend: Some(backend), event_capacity: 256, sim_clock: Some(clock.clone()) };
+        let mut plugin = Plugin::configure(cfg, DeviceMode::ready(devices), popts).map_err(LockstepError::Plugin)?;
+        let recording = plugin.recording().map(|p| p.to_path_buf());
+        plugin.activate().map_err(LockstepError::Plugin)?;
+        let period = Duration::from_secs_f64(1.0 / plugin.rate_hz());
+        Ok(Lockstep { plugin, clock, period, cycles: 0, truth, faults, platform, bus, world, recording, wall })
+    }
+
+    /// One loop cycle: the clock advances by one period, the plugin reads, computes and writes,
+    /// the calibrator does its share. True when the controller has finished (stopped).
+    pub fn cycle(&mut self) -> bool {
+        self.clock.advance(self.period);
+        let tick = self.plugin.update(self.sim_s(), self.period.as_secs_f64());
+        self.plugin.pump_calibrator();
+        self.cycles += 1;
+        tick.is_ok_and(|t| t.finished)
+    }
+
+    /// Runs cycles until `done` holds (checked every 0.1 s of simulated time) or `max_s` of
+    /// simulated time have passed or the controller has finished; true if `done` held.
+    pub fn run_until(&mut self, max_s: f64, mut done: impl FnMut(&LoopStatus, &CalibStatus) -> bool) -> bool {
+        let every = ((0.1 / self.period.as_secs_f64()).round() as u64).max(1);
+        let end = self.sim_s() + max_s;
+        while self.sim_s() < end {
+            let finished = self.cycle();
+            if finished || self.cycles.is_multiple_of(every) {
+                if done(&self.loop_status(), &self.calib_status()) {
+                    return true;
+                }
+                if finished {
+                    return false;
+                }
+            }
+        }
+        false
+    }
+
+    /// Runs cycles for `s` of simulated time.
+    pub fn run_for(&mut self, s: f64) {
+        self.run_until(s, |_, _| false);
+    }
+
+    /// Simulated time since the start, s.
+    pub fn sim_s(&self) -> f64 {
+        self.clock.elapsed().as_secs_f64()
+    }
+
+    /// The operator's handle: commands, recalibration, stop, status.
+    pub fn handle(&self) -> &taut_rt_core::plugin::PluginHandle {
+        self.plugin.handle()
+    }
+
+    /// The loop's status now.
+    pub fn loop_status(&self) -> LoopStatus {
+        self.plugin.handle().loop_status()
+    }
+
+    /// The calibrator's status now.
+    pub fn calib_status(&self) -> CalibStatus {
+        self.plugin.handle().calib_status()
+    }
+
+    /// The site's truth (never seen by the robot).
+    pub fn truth(&self) -> &Truth {
+        &self.truth
+    }
+
+    /// The simulated devices' fault switches.
+    pub fn faults(&self) -> &SimFaults {
+        &self.faults
+    }
+
+    /// Where the platform really is.
+    pub fn platform(&self) -> &PlatformTruth {
+        &self.platform
+    }
+
+    /// The calibrator's recording, if any.
+    pub fn recording(&self) -> Option<&std::path::Path> {
+        self.recording.as_deref()
+    }
+
+    /// Stops the plugin (the controller's stop cycles, the calibrator's last work) and reports.
+    pub fn finish(mut self, finished: bool) -> StartupRun {
+        let loop_status = self.loop_status();
+        let calib_status = self.calib_status();
+        let sim_s = self.sim_s();
+        let _ = self.plugin.deactivate();
+        let _ = self.plugin.cleanup();
+        let bus = lock(&self.bus).stats;
+        let loadcells = lock(&self.world).cells.bus.counters();
+        StartupRun {
+            loop_status,
+            calib_status,
+            truth: self.truth,
+            finished,
+            cycles: self.cycles,
+            sim_s,
+            wall_s: self.wall.elapsed().as_secs_f64(),
+            bus,
+            loadcells,
+            plant_failed_steps: self.faults.plant_failed_steps.load(Ordering::Relaxed),
+            recording: self.recording,
+        }
+    }
+}
+
 /// Runs the start-up of `cfg` (three-phase initialisation, excitation or dwell poses,
-/// calibration, hot-swap) on the simulated robot in simulated time: the plugin in
-/// plugin-owned mode, stepped by this thread, `budget_s` of simulated time at most.
-/// `on_cycle` sees the loop's status every 0.1 s of simulated time and may stop the run by
-/// returning true (a test that applies faults or commands).
+/// calibration, hot-swap) on the simulated robot in simulated time, `run.budget_s` of simulated
+/// time at most. `on_check` sees the loop's and the calibrator's status every 0.1 s of
+/// simulated time and may end the run early by returning true.
 pub fn run_startup(
     cfg: &RobotConfig,
     p0: [f64; 3],
     opts: &SimOptions,
     run: RunOptions,
     backend: Box<dyn Calibrate>,
-    mut on_cycle: impl FnMut(&LockstepRobotView<'_>) -> bool,
+    mut on_check: impl FnMut(&LoopStatus, &CalibStatus) -> bool,
 ) -> Result<StartupRun, LockstepError> {
-    let RunOptions { faults, recording, budget_s } = run;
-    let wall = Instant::now();
-    let robot = LockstepRobot::build(cfg, p0, opts, faults).map_err(LockstepError::Build)?;
-    let LockstepRobot { truth, faults: sim_faults, devices, clock, platform, bus, world, .. } = robot;
-    let popts = PluginOptions { recording, backend: Some(backend), event_capacity: 256, sim_clock: Some(clock.clone()) };
-    let mut plugin = Plugin::configure(cfg, DeviceMode::ready(devices), popts).map_err(LockstepError::Plugin)?;
-    let recording = plugin.recording().map(|p| p.to_path_buf());
-    plugin.activate().map_err(LockstepError::Plugin)?;
-    let period = Duration::from_secs_f64(1.0 / plugin.rate_hz());
-    let every = ((0.1 / period.as_secs_f64()).round() as u64).max(1);
-    let mut cycles = 0u64;
-    let mut finished = false;
-    while clock.elapsed().as_secs_f64() < budget_s {
-        clock.advance(period);
-        let now_s = clock.elapsed().as_secs_f64();
-        let tick = plugin.update(now_s, period.as_secs_f64());
-        plugin.pump_calibrator();
-        cycles += 1;
-        if tick.is_ok_and(|t| t.finished) {
-            finished = true;
-            break;
-        }
-        if cycles.is_multiple_of(every) {
-            let l = plugin.handle().loop_status();
-            let c = plugin.handle().calib_status();
-            if taut_rt_core::control::startup_finished(&l, &c) {
-                finished = true;
-                break;
-            }
-            let view = LockstepRobotView {
-                loop_status: &l,
-                calib_status: &c,
-                faults: &sim_faults,
-                platform: &platform,
-                sim_s: now_s,
-                plugin: &plugin,
-            };
-            if on_cycle(&view) {
-                break;
-            }
-        }
-    }
-    let loop_status = plugin.handle().loop_status();
-    let calib_status = plugin.handle().calib_status();
-    let sim_s = clock.elapsed().as_secs_f64();
-    let _ = plugin.deactivate();
-    let _ = plugin.cleanup();
-    let plant_failed_steps = sim_faults.plant_failed_steps.load(Ordering::Relaxed);
-    let bus = lock(&bus).stats;
-    let loadcells = lock(&world).cells.bus.counters();
-    Ok(StartupRun {
-        loop_status,
-        calib_status,
-        truth,
-        finished,
-        cycles,
-        sim_s,
-        wall_s: wall.elapsed().as_secs_f64(),
-        bus,
-        loadcells,
-        plant_failed_steps,
-        recording,
-    })
-}
-
-/// What a test sees of a running start-up in simulated time.
-pub struct LockstepRobotView<'a> {
-    /// The loop's status.
-    pub loop_status: &'a LoopStatus,
-    /// The calibrator's status.
-    pub calib_status: &'a CalibStatus,
-    /// Fault switches of the simulated devices.
-    pub faults: &'a SimFaults,
-    /// Where the platform really is.
-    pub platform: &'a PlatformTruth,
-    /// Simulated time, s.
-    pub sim_s: f64,
-    /// The plugin (its operator handle: commands, recalibration).
-    pub plugin: &'a Plugin,
+    let budget_s = run.budget_s;
+    let mut host = Lockstep::start(cfg, p0, opts, run, backend)?;
+    let mut over = false;
+    host.run_until(budget_s, |l, c| {
+        over = taut_rt_core::control::startup_finished(l, c);
+        over || on_check(l, c)
+    });
+    Ok(host.finish(over))
 }

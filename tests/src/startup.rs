@@ -9,7 +9,7 @@ use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, LockstepRobotView, RunOptions, SimOptions, SimRobot, StartupRun};
+use taut_simrig::{self as simrig, RunOptions, SimOptions, SimRobot, StartupRun};
 
 /// Excitation of the test start-ups, s (the example's is longer).
 pub const EXCITATION_S: f64 = 25.0;
@@ -46,9 +46,9 @@ pub fn in_sim_time(
     cfg: &RobotConfig,
     so: &SimOptions,
     run: RunOptions,
-    on_cycle: impl FnMut(&LockstepRobotView<'_>) -> bool,
+    on_check: impl FnMut(&LoopStatus, &CalibStatus) -> bool,
 ) -> StartupRun {
-    simrig::run_startup(cfg, rest_p0(cfg, so), so, run, Box::new(TautCalib::from_config(cfg)), on_cycle)
+    simrig::run_startup(cfg, rest_p0(cfg, so), so, run, Box::new(TautCalib::from_config(cfg)), on_check)
         .unwrap_or_else(|e| panic!("seed {}: {e}", so.seed))
 }
 

@@ -14,7 +14,6 @@ mod hostile;
 mod notracker;
 
 mod e2e_effects;
-mod e2e_faults;
 mod e2e_notracker;
 mod e2e_reset;
 mod e2e_start;

@@ -136,9 +136,9 @@ pub fn start_on(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool) -
             &cfg,
             &so,
             simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: limit_s as f64, ..Default::default() },
-            |v| {
-                if states.last() != Some(&v.loop_status.snap.state) {
-                    states.push(v.loop_status.snap.state);
+            |l, _| {
+                if states.last() != Some(&l.snap.state) {
+                    states.push(l.snap.state);
                 }
                 false
             },

@@ -223,7 +223,7 @@ fn startup(seed: u64, designed: bool) -> Run {
     let so = SimOptions { seed, ..Default::default() };
     // In simulated time (the robot stack in lockstep): no machine load can starve it.
     let run =
-        taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, |_| false);
+        taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, |_, _| false);
     let (truth, l, c) = (run.truth.clone(), &run.loop_status, &run.calib_status);
     assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
     assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);

@@ -16,7 +16,7 @@ fn startup(seed: u64, faults: LockstepFaults) -> StartupRun {
     let dir = tempfile::tempdir().unwrap();
     let cfg = robot(dir.path());
     let so = SimOptions { seed, ..Default::default() };
-    let run = taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { faults, ..Default::default() }, |_| false);
+    let run = taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { faults, ..Default::default() }, |_, _| false);
     eprintln!(
         "seed {seed}: {:.1} s simulated in {:.2} s ({:.0}x), {} cycles; CAN {} frames ({} lost, {} late), load {:.2}; load cells {:?}",
         run.sim_s,

@@ -15,5 +15,6 @@
 mod notracker;
 
 mod excitation;
+mod faults;
 mod lockstep;
 mod notracker_3mm;

@@ -1,15 +1,14 @@
 //! The start-up with a fault injected at each stage (load cell silent, drive EMCY, heartbeat
 //! lost, tracker gone): each ends in its defined safety reaction, with the cause in the status,
-//! and the parameters in force are not changed by it.
+//! and the parameters in force are not changed by it. In simulated time (the robot stack in
+//! lockstep): the fault lands at a defined cycle, whatever the machine is doing.
 
 use std::sync::atomic::Ordering;
-use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::{ControllerConfig, State};
+use taut_rt_core::motion::State;
 use taut_rt_core::safety::{Cause, Reaction};
-use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, SimFaults, SimOptions};
+use taut_simrig::{Lockstep, RunOptions, SimFaults, SimOptions};
+use taut_tests::startup::rest_p0;
 
 fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
     // The simulated robot of `taut start --sim`, with faster phases and a shorter excitation.
@@ -22,31 +21,22 @@ fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
     cfg
 }
 
-/// Runs the start-up until `when` holds, injects the fault, and returns the latched cause and
-/// reaction, the parameter version before the fault and after.
+/// Runs the start-up in simulated time until `when` holds, injects the fault, and returns the
+/// latched cause and reaction, the parameter version before the fault and after.
 fn inject(when: fn(State, i8) -> bool, fault: fn(&SimFaults)) -> (Cause, Reaction, u64, u64, Vec<String>) {
-    // One simulated robot at a time: four at once starve each other's I/O threads on two cores.
-    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let cfg = robot(dir.path());
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let so = SimOptions { seed: 5, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
-    let faults = sim.faults.clone();
-    let d =
-        Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions { control: false, ..Default::default() })
-            .unwrap();
-    assert!(d.wait_until(Duration::from_secs(120), |l, _| when(l.snap.state, l.snap.phase) || l.snap.fault.is_some()), "stage not reached");
-    assert!(d.loop_status().snap.fault.is_none(), "fault before injection: {:?}", d.loop_status().snap.fault);
-    let before = d.loop_status().snap.params_version;
-    fault(&faults);
-    assert!(d.wait_until(Duration::from_secs(10), |l, _| l.snap.fault.is_some()), "no reaction");
+    let mut host = Lockstep::start(&cfg, rest_p0(&cfg, &so), &so, RunOptions::default(), Box::new(TautCalib::from_config(&cfg))).unwrap();
+    assert!(host.run_until(120.0, |l, _| when(l.snap.state, l.snap.phase) || l.snap.fault.is_some()), "stage not reached");
+    assert!(host.loop_status().snap.fault.is_none(), "fault before injection: {:?}", host.loop_status().snap.fault);
+    let before = host.loop_status().snap.params_version;
+    fault(host.faults());
+    assert!(host.run_until(10.0, |l, _| l.snap.fault.is_some()), "no reaction");
     // Let the calibrator see the interruption, then check nothing new was published.
-    std::thread::sleep(Duration::from_millis(500));
-    let l = d.loop_status();
-    let c = d.calib_status();
+    host.run_for(0.5);
+    let l = host.loop_status();
+    let c = host.calib_status();
     let (cause, reaction) = l.snap.fault.unwrap();
     assert_eq!(l.snap.state, State::Faulted);
     let reasons = c.outcomes.iter().filter(|o| !o.accepted).map(|o| o.reason.clone()).collect();
@@ -54,7 +44,7 @@ fn inject(when: fn(State, i8) -> bool, fault: fn(&SimFaults)) -> (Cause, Reactio
     let files = std::fs::read_dir(dir.path().join("data/params"))
         .map_or(0, |r| r.filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with("params-v")).count());
     assert_eq!(files as u64, after, "parameter files written after the fault");
-    d.shutdown();
+    host.finish(false);
     (cause, reaction, before, after, reasons)
 }
 
