@@ -18,3 +18,4 @@ mod excitation;
 mod faults;
 mod lockstep;
 mod notracker_3mm;
+mod notracker_short;

@@ -1,23 +1,23 @@
 //! End to end without a tracker, the short plan (16 poses of 2.5 s, settle 0.3 s, 0.5 m/s mean
 //! speed, 8 tares rotating through the cables: under two minutes): the start-up rests, dwells,
-//! calibrates and hot-swaps (checks in `notracker::start`). Its worst-anchor 1-sigma is ~2.3 mm,
-//! too wide for the 3 mm: that acceptance runs the example's plan in
-//! `e2e_notracker_3mm`, a serial step of `scripts/test`. The recalibration: the ignored
+//! calibrates and hot-swaps (checks in `notracker::start_on`), in simulated time. Its worst-anchor
+//! 1-sigma is ~2.3 mm, too wide for the 3 mm: that acceptance runs the example's plan in
+//! `notracker_3mm`. The recalibration over the control socket (real time): the ignored
 //! `recalibrates_without_a_tracker`.
 
 use crate::notracker;
 
-use notracker::{report, start, Plan};
+use notracker::{report, start, start_on, Plan};
 
 #[test]
 fn starts_without_a_tracker_dwells_calibrates_and_hot_swaps() {
-    report(3, &start(3, Plan::Short, false));
+    report(3, &start_on(3, Plan::Short, false, true));
 }
 
 /// A second site (seed 5: other anchors, offsets and load-cell offsets).
 #[test]
 fn starts_without_a_tracker_on_another_site() {
-    report(5, &start(5, Plan::Short, false));
+    report(5, &start_on(5, Plan::Short, false, true));
 }
 
 /// `ctl recalibrate` without a tracker visits the dwells again (about 80 s more; the loop's
@@ -29,11 +29,11 @@ fn recalibrates_without_a_tracker() {
 }
 
 /// Seeds 1-5 with the test's plan:
-/// `cargo test -p taut-tests --test e2e e2e_notracker::seeds -- --ignored --nocapture`.
+/// `cargo test -p taut-tests --test simtime notracker::seeds -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn seeds() {
     for seed in 1..=5 {
-        report(seed, &start(seed, Plan::Short, false));
+        report(seed, &start_on(seed, Plan::Short, false, true));
     }
 }
