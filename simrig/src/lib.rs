@@ -254,13 +254,19 @@ impl Default for SimOptions {
     }
 }
 
+/// The simulated site's true parameters for `cfg` and `opts` (its seed, site error, offsets and
+/// physics): what [`build`] and [`Lockstep::start`] build the robot on, for a test that needs
+/// them first (a backend that knows the truth).
+pub fn site_truth(cfg: &RobotConfig, opts: &SimOptions) -> Result<Truth, taut_sim::SimError> {
+    Truth::sample(cfg, &opts.physics, opts.site_error_m, opts.l0_range_m, &mut taut_sim::rng(opts.seed, 0))
+}
+
 /// Where an operator would park the platform before the start-up: the simulator's rest position
 /// for the three-phase motion of `cfg.motion` (most tension margin for the held cables), or
 /// `fallback` if it finds none.
 pub fn rest_position(cfg: &RobotConfig, opts: &SimOptions, fallback: [f64; 3]) -> [f64; 3] {
     let physics = opts.physics.clone();
-    let mut rng = taut_sim::rng(opts.seed, 0);
-    let Ok(truth) = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng) else { return fallback };
+    let Ok(truth) = site_truth(cfg, opts) else { return fallback };
     let m = &cfg.motion;
     // Phase k of the plan reels cables[k]; ours reels init_phases[k][2].
     let mut cables = [0usize; 3];
@@ -444,9 +450,7 @@ fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteP
     let nodes = node_ids(cfg)?;
     let units: Vec<DriveUnits> = cfg.cables.iter().map(|c| DriveUnits::of(c.drive.as_ref().expect("checked by node_ids"))).collect();
     let physics = opts.physics.clone();
-    let mut rng = taut_sim::rng(opts.seed, 0);
-    let truth = Truth::sample(cfg, &physics, opts.site_error_m, opts.l0_range_m, &mut rng)
-        .map_err(|error| BuildError::Site { what: String::new(), error })?;
+    let truth = site_truth(cfg, opts).map_err(|error| BuildError::Site { what: String::new(), error })?;
     let mut plant = Plant::new(&truth, &physics, p0).with_noise(&opts.noise, opts.seed);
     let tensions = rest_tensions(&truth.anchors, p0, truth.mass_kg, cfg.motion.init_follower_tension_n).ok_or(BuildError::NoRest { p0 })?;
     let brake =

@@ -11,7 +11,6 @@
 #[path = "../../src/hostile.rs"]
 mod hostile;
 
-mod e2e_effects;
 mod e2e_reset;
 mod e2e_start;
 mod mcap_kill;

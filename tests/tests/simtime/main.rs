@@ -14,6 +14,7 @@
 #[path = "../notracker/mod.rs"]
 mod notracker;
 
+mod effects;
 mod excitation;
 mod faults;
 mod lockstep;

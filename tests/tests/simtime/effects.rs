@@ -3,22 +3,22 @@
 //! `[calibration] effects = ["elasticity", "scale", "pulley"]`. The start-up calibration with
 //! the effect model reaches the noise floor of the held-out co-registration where the ideal
 //! model leaves millimetres, and the platform, commanded to poses across the workspace, ends up
-//! nearer them (the simulator's plant knows where it really is).
+//! nearer them (the simulator's plant knows where it really is). In simulated time (the robot
+//! stack in lockstep, `taut_simrig::Lockstep`).
 //!
 //! `TAUT_E2E_EFFECTS_SEEDS=3,4,5` runs more sites (for BENCHMARKS.md); the default is one.
 //! `TAUT_E2E_EFFECTS_MODEL=elasticity,scale` changes the modelled effects,
 //! `TAUT_E2E_EFFECTS_CONCEAL=elasticity,scale` the concealed ones.
 
-use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{Calibrate, Estimate, HeldoutBlocks, OutcomeKind};
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::kin::{LoopEffects, LoopParams};
-use taut_rt_core::motion::{Command, ControllerConfig};
+use taut_rt_core::motion::ControllerConfig;
+use taut_rt_core::plugin::RecordingPath;
 use taut_rt_core::EffectsFromFile;
 use taut_rt_core::FromRobot;
 use taut_sim::Physics;
-use taut_simrig::{self as simrig, SimOptions};
+use taut_simrig::{self as simrig, Lockstep, RunOptions, SimOptions};
 
 /// The simulated robot `taut start --sim` runs, with its files in `dir` and a test-length
 /// excitation.
@@ -48,18 +48,6 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
         // `max_l0_change_m` (0.5 m each), and the comparison run was refused.
         cfg.daemon.max_anchor_change_m = 1.0;
         cfg.daemon.max_l0_change_m = 1.0;
-    }
-    // Generous device timeouts: the test shares two cores with builds (load 8-12), and a
-    // start-up that stops on a late load-cell reading or heartbeat measures nothing here.
-    cfg.safety.tension_max_age_s = 2.0;
-    for c in &mut cfg.cables {
-        if let Some(d) = c.drive.as_mut() {
-            d.heartbeat_timeout_ms = Some(2000);
-        }
-    }
-    if let Some(can) = cfg.can.as_mut() {
-        // The drives' consumer of taut's heartbeat: 3 periods.
-        can.master_heartbeat_ms = 500;
     }
     cfg
 }
@@ -163,22 +151,16 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
     let half: [f64; 3] = std::array::from_fn(|i| (w[1][i] - w[0][i]) / 2.0);
     let so = SimOptions { seed, physics: concealed(cfg.cables.len()), ..Default::default() };
     let p0 = simrig::rest_position(&cfg, &so, centre);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
-    let truth = sim.truth.clone();
-    let platform = sim.platform.clone();
+    let truth = simrig::site_truth(&cfg, &so).unwrap();
     let calib: Box<dyn Calibrate> = match backend {
         Backend::Taut => Box::new(TautCalib::from_config(&cfg)),
         Backend::Truth => Box::new(TruthCalib::new(&truth, &so.physics)),
     };
-    let d = Daemon::start(&cfg, sim.devices, calib, DaemonOptions::default()).unwrap();
-    let ok = d.wait_until(Duration::from_secs(400), taut_tests::startup::start_up_over);
-    let l = d.loop_status();
-    let c = d.calib_status();
-    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
-        // Keep the recording for a look after a failure.
-        let name = format!("taut-e2e-effects-{seed}-{}.csv", if effects.is_empty() { "ideal" } else { "model" });
-        let _ = std::fs::copy(&d.recording, std::env::temp_dir().join(name));
-    }
+    // In simulated time: the robot stack in lockstep, the moves below commanded between cycles.
+    let mut host = Lockstep::start(&cfg, p0, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, calib).unwrap();
+    let ok = host.run_until(400.0, taut_tests::startup::start_up_over);
+    let l = host.loop_status();
+    let c = host.calib_status();
     let reasons: Vec<&str> = c.outcomes.iter().map(|o| o.reason.as_str()).collect();
     assert!(ok && l.snap.fault.is_none(), "seed {seed} {effects:?}: start-up did not finish: {:?} {reasons:?}", l.snap.fault);
     let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap();
@@ -192,18 +174,25 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
     let mut errs = vec![];
     for f in frac {
         let goal: [f64; 3] = std::array::from_fn(|i| centre[i] + f[i] * half[i]);
-        d.commands.send(Command::MoveTo(goal)).unwrap();
-        let arrived = d.wait_until(Duration::from_secs(60), |l, _| l.snap.fault.is_some() || dist(&l.snap.target_m, &goal) < 1e-9);
-        assert!(arrived && d.loop_status().snap.fault.is_none(), "seed {seed}: move to {goal:?} failed: {:?}", d.loop_status().snap.fault);
-        std::thread::sleep(Duration::from_secs(2));
-        let reached = platform.position();
+        host.handle().move_to(goal).unwrap_or_else(|r| panic!("seed {seed}: move to {goal:?} refused: {r}"));
+        let arrived = host.run_until(60.0, |l, _| l.snap.fault.is_some() || dist(&l.snap.target_m, &goal) < 1e-9);
+        let fault = host.loop_status().snap.fault;
+        assert!(arrived && fault.is_none(), "seed {seed}: move to {goal:?} failed: {fault:?}");
+        host.run_for(2.0);
+        let reached = host.platform().position();
         errs.push(dist(&reached, &goal));
         if std::env::var_os("TAUT_E2E_EFFECTS_DECOMPOSE").is_some() {
-            decompose(&d.loop_status().snap, &est, &truth, &so.physics, goal, reached);
+            decompose(&host.loop_status().snap, &est, &truth, &so.physics, goal, reached);
         }
     }
-    d.commands.send(Command::Stop).unwrap();
-    d.wait();
+    host.handle().stop();
+    let recording = host.recording().map(|p| p.to_path_buf());
+    host.finish(true);
+    if let (Some(rec), true) = (recording, std::env::var_os("TAUT_E2E_KEEP").is_some()) {
+        // Keep the recording for a look after a failure.
+        let name = format!("taut-e2e-effects-{seed}-{}.csv", if effects.is_empty() { "ideal" } else { "model" });
+        let _ = std::fs::copy(rec, std::env::temp_dir().join(name));
+    }
     let current = taut_config::params::ParamsFile::load(dir.path().join("data/params/current.toml")).unwrap();
     assert_eq!(current.format, taut_config::params::FORMAT);
     let reached_rms_m = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
