@@ -9,9 +9,6 @@ use std::sync::Arc;
 use std::time::Duration;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
-use taut_simrig::{self as simrig, SimOptions};
 use tungstenite::client::IntoClientRequest;
 use tungstenite::Message;
 
@@ -87,18 +84,10 @@ fn count_until(ws: &mut Ws, topics: &BTreeMap<u32, String>, stop: &AtomicBool) -
 #[test]
 fn a_client_receives_every_channel_during_the_start_up() {
     let dir = tempfile::tempdir().unwrap();
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.motion.excitation_s = 25.0;
-    cfg.daemon.socket = dir.path().join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.path().join("data").display().to_string();
+    let mut cfg = taut_tests::startup::sim_robot(dir.path());
     cfg.telemetry.enabled = true;
     cfg.telemetry.port = 0;
-    let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
-    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let so = SimOptions { seed: 3, ..Default::default() };
-    let p0 = simrig::rest_position(&cfg, &so, p0);
-    let sim = simrig::build(&cfg, p0, &so).unwrap();
+    let sim = taut_tests::startup::build_at_rest(&cfg, 3);
     let d = Daemon::start(&cfg, sim.devices, Box::new(TautCalib::from_config(&cfg)), DaemonOptions::default()).unwrap();
     let addr = d.telemetry.expect("telemetry enabled");
     assert!(addr.ip().is_loopback());
