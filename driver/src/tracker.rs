@@ -624,6 +624,16 @@ impl TrackerThread {
     pub fn local_addr(&self) -> SocketAddr {
         self.addr
     }
+
+    /// Runs the receiver thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]): on the
+    /// robot, just below the loop's, so that a busy machine does not delay the poses the loop's
+    /// staleness check waits for.
+    pub fn set_realtime(&self, priority: i32) -> io::Result<()> {
+        match &self.thread {
+            Some(t) => crate::sched::set_fifo(t, priority),
+            None => Ok(()),
+        }
+    }
 }
 
 impl std::ops::Drop for TrackerThread {

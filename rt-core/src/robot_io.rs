@@ -283,6 +283,15 @@ impl Peripherals {
             }
             None => (None, None),
         };
+        // The poses have the loop's staleness deadline too.
+        if let (Some(th), true) = (&tracker, cfg.rt.priority > 1) {
+            if let Err(e) = th.set_realtime(cfg.rt.priority - 1) {
+                eprintln!(
+                    "taut: SCHED_FIFO priority {} for the tracker thread refused ({e}): under load its poses may go stale; set LimitRTPRIO=99 (deploy/taut.service) or grant CAP_SYS_NICE",
+                    cfg.rt.priority - 1
+                );
+            }
+        }
         Ok(Peripherals { loadcells, tracker, pose })
     }
 }

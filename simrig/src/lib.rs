@@ -552,6 +552,12 @@ where
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
     let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
+    if cfg.rt.priority > 1 {
+        // The robot's rule (taut_rt_core::robot_io::Peripherals): just below a real-time loop.
+        if let Err(e) = tracker.set_realtime(cfg.rt.priority - 1) {
+            eprintln!("taut-simrig: SCHED_FIFO priority {} for the tracker thread refused ({e})", cfg.rt.priority - 1);
+        }
+    }
     let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e })?;
 
     let io = SiteIo { rack_bus, vlc: Some(vlc), sender: Some(sender), clock: taut_driver::clock::wall(), now: Instant::now() };
@@ -561,6 +567,15 @@ where
         .name("sim-robot".into())
         .spawn(move || site.run())
         .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
+    // The drives, the plant and the tracker stand in for hardware with processors of its own,
+    // which a loaded robot computer does not slow down: the site runs `SCHED_FIFO` like the
+    // simulated load cells. Under the normal scheduler two busy loops beside a start-up starved
+    // it (heartbeats and TPDOs late, the loop stopping on stale readings).
+    if let Err(e) = taut_driver::sched::set_fifo(&thread, sim_cells_priority(cfg)) {
+        eprintln!(
+            "taut-simrig: SCHED_FIFO for the simulated robot refused ({e}): on a loaded machine the drives may answer late; run as root or grant CAP_SYS_NICE"
+        );
+    }
     let site = SiteThread { stop, thread: Some(thread) };
     let tracker_stats = pose.stats_handle();
     let peripherals = if opts.tracker {

@@ -18,6 +18,12 @@ use taut_simrig::{self as simrig, RunOptions, SimOptions, SimRobot, StartupRun};
 /// excitation and [`INIT_REEL_SPEED_M_S`]); 10 s do not (the sigma gates refuse them).
 pub const EXCITATION_S: f64 = 15.0;
 
+/// `safety.tension_max_age_s` of the real-time test start-ups, s (the example's is 0.5 s).
+pub const TENSION_MAX_AGE_S: f64 = 2.0;
+
+/// `rt.priority` of the test start-ups: the deployed robot's (config's default).
+pub const REALTIME_PRIORITY: i32 = 80;
+
 /// Reel speed of the test start-ups' initialisation phases, m/s (the example's is 0.25).
 pub const INIT_REEL_SPEED_M_S: f64 = 0.5;
 
@@ -28,6 +34,16 @@ pub fn sim_robot(dir: &Path) -> RobotConfig {
     let mut cfg = RobotConfig::load(path).unwrap_or_else(|e| panic!("{path}: {e}"));
     cfg.motion.excitation_s = EXCITATION_S;
     cfg.motion.init_reel_speed_m_s = INIT_REEL_SPEED_M_S;
+    // As on a robot (deploy/taut.service): the loop under SCHED_FIFO, its device threads just
+    // below, so that other work on the machine cannot starve them (as root; otherwise each
+    // refusal is a warning and the normal scheduler runs them).
+    cfg.rt.priority = REALTIME_PRIORITY;
+    // A test-machine allowance, not the robot's: the simulated load cells answer over a
+    // pseudo-terminal, whose bytes pass through the kernel's tty work queue at the normal
+    // scheduler's priority whatever the threads at either end run at. With two busy loops beside
+    // the tests it held answers past the 0.5 s limit (TensionStale in 2 of 13 start-ups). These
+    // start-ups check flow; staleness itself is tested where time is simulated.
+    cfg.safety.tension_max_age_s = TENSION_MAX_AGE_S;
     cfg.daemon.socket = dir.join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.join("data").display().to_string();
     cfg
