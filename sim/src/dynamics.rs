@@ -34,25 +34,43 @@
 //! rate of the geometric length, `dL_j/dt = -u_j . v`.
 //!
 //! The drums:
-//! - [`CableCommand::Length`] (position mode): the drum pays out `D_j` directly. Within a
-//!   [`crate::Plant::step`] the drum moves at constant speed from where it was to the commanded
-//!   length, reaching it at the end of the step (the drive's position loop is ideal).
-//! - [`CableCommand::Tension`] (torque mode): the drum yields like a viscous admittance,
-//!   `dD_j/dt = (T_j - T_cmd) / (k_j tau)` with `tau` [`Dynamics::tension_time_constant_s`]: it
-//!   pays out while the cable pulls harder than commanded and reels in otherwise (at
-//!   `T_cmd / (k_j tau)` while slack). With the platform held still the tension error decays as
-//!   `exp(-t / tau)`; at rest the tension is the command. The dashpot term uses this same drum
-//!   speed, solved together with the tension.
+//! - [`CableCommand::Length`] (position mode): the drive's position loop moves the drum to the
+//!   commanded length. Within a [`crate::Plant::step`] the target moves at constant speed from
+//!   the last command to the new one (the drive's interpolation of cyclic targets, CiA 402 CSP),
+//!   and the drum follows it as a critically damped second-order servo of bandwidth
+//!   [`Dynamics::position_bandwidth_hz`] (`w_s`):
+//!
+//!   ```text
+//!   dw_j/dt = w_s² (x_j - D_j) - 2 w_s w_j,     dD_j/dt = w_j
+//!   ```
+//!
+//!   It lags a constant speed `v` by `2 v / w_s` (the following error the encoder shows) and
+//!   smooths the staircase of quantised or unevenly timed targets as a real drive does; the
+//!   cable's pull does not move it (the loop is stiff against load).
+//! - [`CableCommand::Tension`] (torque mode): the drum is a mass on the cable. Its motor pulls
+//!   the cable in with the commanded tension `T_cmd`; the cable pulls it out with `T_j`:
+//!
+//!   ```text
+//!   m_d dw_j/dt = T_j - T_cmd - b_d w_j,     dD_j/dt = w_j,     |w_j| <= w_max
+//!   ```
+//!
+//!   with `m_d` the drum's and motor's inertia seen at the cable ([`Dynamics::drum_mass_kg`],
+//!   `J / r²`), `b_d` the drive's viscous friction ([`Dynamics::drum_friction_n_s_m`]) and `w_max`
+//!   its speed limit ([`Dynamics::drum_max_speed_m_s`], CiA 402 0x6080). At rest the tension is the
+//!   command. A slack cable's drum reels in at `T_cmd / m_d` up to the speed limit, as a real drive
+//!   does; following a platform that accelerates at `a` costs a tension error of about `m_d a`.
+//!   The dashpot term uses the drum speed `w_j`. When a drum leaves position mode it keeps the
+//!   speed it had.
 //!
 //! # Integrator
 //!
 //! Semi-implicit (symplectic) Euler: `v += h a(p, v, D)`, `p += h v`, then the torque-mode drums
-//! `D += h dD/dt`. A step of `dt` is cut into equal sub-steps `h` no longer than
+//! `w += h dw/dt`, `D += h w`. A step of `dt` is cut into equal sub-steps `h` no longer than
 //! [`Dynamics::max_substep_s`] (1 ms) and inside the stability limit. For an oscillator of angular
 //! frequency `w` and damping ratio `z` the method is stable for `h < 2 (sqrt(1 + z²) - z) / w`;
 //! the plant bounds the highest frequency by `w_max² <= trace(K) / m` (stiffness `K` below, with
-//! every cable counted as taut) and takes half that limit, and at most `tau / 2` for the torque-mode
-//! drums. With 40 kN cables of a few metres on a few kg, `w_max` is ~100-300 rad/s and the 1 ms
+//! every cable counted as taut) and takes half that limit; likewise for each torque-mode drum on
+//! its cable (`w² = k_j / m_d`). With 40 kN cables of a few metres on a few kg, `w_max` is ~100-300 rad/s and the 1 ms
 //! cap decides. The outputs are the state at the end of the step; the tensions reported are the
 //! ones the next sub-step accelerates with (up to the change of a position-mode drum's speed at the
 //! next command), so `sum_j T_j u_j + m g` is `m a` of the positions'
@@ -96,15 +114,31 @@ pub struct Dynamics {
     pub ea_n: f64,
     /// Damping ratio `zeta` of each cable: `c_j = 2 zeta sqrt(k_j m)`, N s/m. Default 0.05.
     pub damping_ratio: f64,
-    /// Time constant `tau` of a torque-mode drum's tension loop, s. Default 10 ms.
-    pub tension_time_constant_s: f64,
+    /// Inertia of a drum with its motor and gear, seen at the cable (`J / r²`), kg. Default 1 kg:
+    /// a 30 mm drum on a small servo through a gear. Only torque-mode drums move by it.
+    pub drum_mass_kg: f64,
+    /// Viscous friction of a torque-mode drum, N s/m. Default 5.
+    pub drum_friction_n_s_m: f64,
+    /// Speed limit of a torque-mode drum, m/s. Default 2.
+    pub drum_max_speed_m_s: f64,
+    /// Bandwidth of a drive's position loop, Hz: a position-mode drum follows its target through
+    /// it. Default 40 Hz.
+    pub position_bandwidth_hz: f64,
     /// Longest integration sub-step, s (shorter when the stability limit requires). Default 1 ms.
     pub max_substep_s: f64,
 }
 
 impl Default for Dynamics {
     fn default() -> Self {
-        Dynamics { ea_n: 40_000.0, damping_ratio: 0.05, tension_time_constant_s: 0.01, max_substep_s: 1e-3 }
+        Dynamics {
+            ea_n: 40_000.0,
+            damping_ratio: 0.05,
+            drum_mass_kg: 1.0,
+            drum_friction_n_s_m: 5.0,
+            drum_max_speed_m_s: 2.0,
+            position_bandwidth_hz: 40.0,
+            max_substep_s: 1e-3,
+        }
     }
 }
 
@@ -242,7 +276,9 @@ pub(crate) struct DynState {
     drum: Vec<f64>,
     /// Drum lengths at the start of the step, m.
     start: Vec<f64>,
-    /// Drum speeds, m/s.
+    /// The last position-mode target, m (NaN while the drum was not in position mode).
+    target: Vec<f64>,
+    /// Drum speeds, m/s: a position-mode drum's over the step, a torque-mode drum's state.
     rate: Vec<f64>,
     /// Whether the first step placed the platform.
     pub started: bool,
@@ -257,7 +293,15 @@ pub(crate) struct Body<'a> {
 
 impl DynState {
     pub fn new(params: Dynamics, n: usize) -> Self {
-        DynState { params, v: [0.0; 3], drum: vec![0.0; n], start: vec![0.0; n], rate: vec![0.0; n], started: false }
+        DynState {
+            params,
+            v: [0.0; 3],
+            drum: vec![0.0; n],
+            start: vec![0.0; n],
+            target: vec![f64::NAN; n],
+            rate: vec![0.0; n],
+            started: false,
+        }
     }
 
     /// At rest with the drums of `loads` (an equilibrium).
@@ -265,15 +309,15 @@ impl DynState {
         for (d, l) in self.drum.iter_mut().zip(loads) {
             *d = l.drum_length;
         }
+        self.target.copy_from_slice(&self.drum);
         self.v = [0.0; 3];
         self.rate.fill(0.0);
         self.started = true;
     }
 
-    /// Cable forces at `p` with the current velocity, drums and drum speeds (torque-mode drum
-    /// speeds are solved here and written to `rate`); fills `loads`, returns the net force
-    /// including gravity, N.
-    fn forces(&mut self, body: &Body<'_>, p: [f64; 3], cmds: &[CableCommand], loads: &mut [CableLoad]) -> [f64; 3] {
+    /// Cable forces at `p` with the current velocity, drums and drum speeds; fills `loads`,
+    /// returns the net force including gravity, N.
+    fn forces(&self, body: &Body<'_>, p: [f64; 3], loads: &mut [CableLoad]) -> [f64; 3] {
         let mut f = [0.0, 0.0, -body.mass * G];
         let v = self.v;
         for (j, m) in body.models.iter().enumerate() {
@@ -286,23 +330,7 @@ impl DynState {
             let s = ell - d;
             let k = m.ea / d;
             let c = self.params.damping(k, body.mass);
-            let t = match cmds[j] {
-                CableCommand::Length(_) => {
-                    if s > 0.0 {
-                        (k * s + c * (ell_dot - self.rate[j])).max(0.0)
-                    } else {
-                        0.0
-                    }
-                }
-                CableCommand::Tension(tc) => {
-                    // T = k s + c (ell_dot - (T - tc) / (k tau)), solved for T.
-                    let kt = k * self.params.tension_time_constant_s;
-                    let beta = c / kt;
-                    let t = if s > 0.0 { ((k * s + c * ell_dot + beta * tc) / (1.0 + beta)).max(0.0) } else { 0.0 };
-                    self.rate[j] = (t - tc) / kt;
-                    t
-                }
-            };
+            let t = if s > 0.0 { (k * s + c * (ell_dot - self.rate[j])).max(0.0) } else { 0.0 };
             for a in 0..3 {
                 f[a] += t * u[a];
             }
@@ -318,19 +346,26 @@ impl DynState {
     }
 
     /// The longest stable sub-step at `p` (see the module doc), s.
-    fn substep_limit(&self, body: &Body<'_>, p: [f64; 3], loads: &[CableLoad]) -> f64 {
+    fn substep_limit(&self, body: &Body<'_>, p: [f64; 3], cmds: &[CableCommand], loads: &[CableLoad]) -> f64 {
+        // Half the limit `2 (sqrt(1 + z²) - z) / w` of an oscillator.
+        let half = |w: f64, z: f64| ((1.0 + z * z).sqrt() - z) / w;
         let (mut trace, mut csum) = (0.0, 0.0);
+        let mut limit = self.params.max_substep_s;
         for (j, m) in body.models.iter().enumerate() {
             let o = body.offsets[j];
             let path = m.path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
             let k = m.ea / self.drum[j].max(1e-6);
+            let c = self.params.damping(k, body.mass);
             trace += k + 2.0 * loads[j].tension.max(0.0) / path.straight.max(1e-6);
-            csum += self.params.damping(k, body.mass);
+            csum += c;
+            if let CableCommand::Tension(_) = cmds[j] {
+                let md = self.params.drum_mass_kg.max(1e-9);
+                let w = (k / md).sqrt();
+                limit = limit.min(half(w, (c + self.params.drum_friction_n_s_m) / (2.0 * md * w)));
+            }
         }
         let w = (trace / body.mass).sqrt();
-        let z = csum / (2.0 * body.mass * w);
-        let limit = 0.5 * 2.0 * ((1.0 + z * z).sqrt() - z) / w;
-        limit.min(self.params.max_substep_s).min(0.5 * self.params.tension_time_constant_s)
+        limit.min(half(w, csum / (2.0 * body.mass * w)))
     }
 
     /// Integrates `dt` under `cmds`; `p` and `loads` in and out. A non-finite result restores
@@ -349,52 +384,53 @@ impl DynState {
         let mut steps = 0usize;
         if dt > 0.0 {
             // The limit at the step's start, with the tensions of the last step's end.
-            let h_max = self.substep_limit(body, *p, loads);
+            let h_max = self.substep_limit(body, *p, cmds, loads);
             steps = ((dt / h_max).ceil() as usize).clamp(1, 1_000_000);
             let h = dt / steps as f64;
-            for j in 0..n {
-                if let CableCommand::Length(l) = cmds[j] {
-                    self.rate[j] = (l - self.start[j]) / dt;
-                }
-            }
+            let ws = 2.0 * std::f64::consts::PI * self.params.position_bandwidth_hz;
+            let (md, b, w_max) = (self.params.drum_mass_kg.max(1e-9), self.params.drum_friction_n_s_m, self.params.drum_max_speed_m_s);
             for i in 0..steps {
-                for j in 0..n {
-                    if let CableCommand::Length(l) = cmds[j] {
-                        self.drum[j] = self.start[j] + (l - self.start[j]) * (i as f64 / steps as f64);
-                    }
-                }
-                let f = self.forces(body, *p, cmds, loads);
+                let f = self.forces(body, *p, loads);
                 for a in 0..3 {
                     self.v[a] += h * f[a] / body.mass;
                     p[a] += h * self.v[a];
                 }
                 for j in 0..n {
-                    if let CableCommand::Tension(_) = cmds[j] {
-                        self.drum[j] += h * self.rate[j];
-                    }
-                }
-            }
-            for j in 0..n {
-                if let CableCommand::Length(l) = cmds[j] {
-                    self.drum[j] = l;
-                }
-            }
-        } else {
-            for j in 0..n {
-                if let CableCommand::Length(l) = cmds[j] {
-                    self.drum[j] = l;
-                    self.rate[j] = 0.0;
+                    let w = match cmds[j] {
+                        CableCommand::Length(l) => {
+                            // The drive's interpolated target and its speed over this step.
+                            let from = if self.target[j].is_finite() { self.target[j] } else { self.start[j] };
+                            let vt = (l - from) / dt;
+                            let xt = from + vt * (i as f64 + 1.0) * h;
+                            self.rate[j] + h * (ws * ws * (xt - self.drum[j]) - 2.0 * ws * self.rate[j])
+                        }
+                        CableCommand::Tension(tc) => {
+                            let w = self.rate[j] + h * (loads[j].tension - tc - b * self.rate[j]) / md;
+                            w.clamp(-w_max, w_max)
+                        }
+                    };
+                    self.rate[j] = w;
+                    self.drum[j] += h * w;
                 }
             }
         }
         // The loads at the step's end: what the next sub-step accelerates with.
-        let f = self.forces(body, *p, cmds, loads);
+        let f = self.forces(body, *p, loads);
         let ok = p.iter().chain(&self.v).chain(&self.drum).all(|x| x.is_finite());
         if !ok {
             *p = p0;
             self.v = v0;
             self.drum.copy_from_slice(&self.start);
-            self.forces(body, *p, cmds, loads);
+            self.rate.fill(0.0);
+            self.forces(body, *p, loads);
+        } else if dt > 0.0 {
+            // A step of no time changes nothing; the next one interpolates from the last target.
+            for j in 0..n {
+                self.target[j] = match cmds[j] {
+                    CableCommand::Length(l) => l,
+                    CableCommand::Tension(_) => f64::NAN,
+                };
+            }
         }
         EquilibriumReport { iterations: steps, residual_n: Vector3::from(f).norm(), converged: ok, stable: ok }
     }

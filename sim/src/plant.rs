@@ -144,8 +144,9 @@ impl Plant {
     /// Adds encoder noise and quantisation, load-cell noise and the truth's load-cell offsets
     /// (the tracker is not part of the plant), seeded.
     pub fn with_noise(mut self, noise: &Noise, seed: u64) -> Self {
-        for e in &mut self.encoders {
-            *e = e.clone().with_noise(noise);
+        for (j, e) in self.encoders.iter_mut().enumerate() {
+            let winding = crate::sensors::Winding::new(noise, seed ^ (0x5749_4E44 + j as u64));
+            *e = e.clone().with_noise(noise).with_winding(winding);
         }
         self.loadcells = self.loadcell_offsets.iter().map(|&o| LoadCell::with_offset(o, noise)).collect();
         self.rng = crate::rng(seed, crate::STREAM_PLANT);
@@ -201,6 +202,12 @@ impl Plant {
     /// load cells' offset and noise (for measurements of what the sensors report).
     pub fn true_tension(&self, j: usize) -> f64 {
         self.loads[j].tension
+    }
+
+    /// The drum length of cable `j` at which its encoder reads `reading` without noise, m: what
+    /// the drive holds when commanded that reading ([`crate::sensors::Encoder::drum_for`]).
+    pub fn drum_for_reading(&self, j: usize, reading: f64) -> f64 {
+        self.encoders[j].drum_for(reading)
     }
 
     /// Simulated time, s.

@@ -30,8 +30,16 @@ pub struct Noise {
     pub tracker_dropout_len: usize,
     /// Encoder quantum, m (0: not quantised).
     pub encoder_quantum_m: f64,
-    /// Encoder noise, 1-sigma, m.
+    /// Encoder noise, 1-sigma, m: white, drawn anew for every reading.
     pub encoder_sigma_m: f64,
+    /// Winding irregularity, RMS, m: how far the cable paid out departs from what the drum's
+    /// angle says, as a fixed function of the angle ([`Winding`]). Unlike the white noise it is
+    /// the same every time the drum passes an angle, and the drive's position loop, which works
+    /// on the angle, does not see it: a reading commanded back holds the drum where it was.
+    /// 0 (the default): none.
+    pub encoder_winding_m: f64,
+    /// Correlation length of the winding irregularity along the cable, m.
+    pub encoder_winding_wavelength_m: f64,
     /// Load-cell noise, 1-sigma, N.
     pub loadcell_sigma_n: f64,
     /// Load-cell offset, 1-sigma of the per-cell constant, N.
@@ -49,6 +57,8 @@ impl Default for Noise {
             tracker_dropout_len: 4,
             encoder_quantum_m: 1e-5,
             encoder_sigma_m: 5e-5,
+            encoder_winding_m: 0.0,
+            encoder_winding_wavelength_m: 5e-4,
             loadcell_sigma_n: 0.3,
             loadcell_offset_n: 0.5,
         }
@@ -67,6 +77,8 @@ impl Noise {
             tracker_dropout_len: 1,
             encoder_quantum_m: 0.0,
             encoder_sigma_m: 0.0,
+            encoder_winding_m: 0.0,
+            encoder_winding_wavelength_m: 5e-4,
             loadcell_sigma_n: 0.0,
             loadcell_offset_n: 0.0,
         }
@@ -180,12 +192,86 @@ pub struct Encoder {
     backlash: Backlash,
     sigma: f64,
     quantum: f64,
+    winding: Winding,
+}
+
+/// A drum's winding irregularity: a fixed, smooth, random function of the paid-out length with
+/// RMS `sigma` (m) and correlation length `wavelength` (m): Gaussian values on a lattice of that
+/// spacing, joined by smoothsteps, scaled to the RMS. Seeded per cable; deterministic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Winding {
+    sigma: f64,
+    wavelength: f64,
+    seed: u64,
+}
+
+impl Winding {
+    /// No irregularity.
+    pub const NONE: Winding = Winding { sigma: 0.0, wavelength: 1.0, seed: 0 };
+
+    /// The irregularity of `noise` for the drum seeded `seed`.
+    pub fn new(noise: &Noise, seed: u64) -> Self {
+        Winding { sigma: noise.encoder_winding_m, wavelength: noise.encoder_winding_wavelength_m.max(1e-9), seed }
+    }
+
+    /// The departure at paid-out length `d`, m.
+    pub fn at(&self, d: f64) -> f64 {
+        if self.sigma == 0.0 || !d.is_finite() {
+            return 0.0;
+        }
+        let x = d / self.wavelength;
+        let i = x.floor();
+        let f = x - i;
+        let s = f * f * (3.0 - 2.0 * f);
+        let (a, b) = (self.lattice(i as i64), self.lattice(i as i64 + 1));
+        // E[((1-s) a + s b)^2] over f is 26/35 for unit lattice values: rescale to sigma.
+        self.sigma * (a + s * (b - a)) / (26.0f64 / 35.0).sqrt()
+    }
+
+    /// A standard normal value for lattice point `i` (splitmix64 and Box-Muller).
+    fn lattice(&self, i: i64) -> f64 {
+        let mix = |mut z: u64| {
+            z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        let h1 = mix(self.seed ^ (i as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93));
+        let h2 = mix(h1);
+        let u1 = ((h1 >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        let u2 = (h2 >> 11) as f64 / (1u64 << 53) as f64;
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
 }
 
 impl Encoder {
     /// An encoder reading `scale x length + offset` through a play of `backlash_m`.
     pub fn new(scale: f64, offset: f64, backlash_m: f64, noise: &Noise) -> Self {
-        Encoder { scale, offset, backlash: Backlash::new(backlash_m), sigma: noise.encoder_sigma_m, quantum: noise.encoder_quantum_m }
+        Encoder {
+            scale,
+            offset,
+            backlash: Backlash::new(backlash_m),
+            sigma: noise.encoder_sigma_m,
+            quantum: noise.encoder_quantum_m,
+            winding: Winding::NONE,
+        }
+    }
+
+    /// The same encoder on a drum with winding irregularity `winding`.
+    pub fn with_winding(mut self, winding: Winding) -> Self {
+        self.winding = winding;
+        self
+    }
+
+    /// The drum's paid-out length at which a noise-free reading is `reading` (m): what a drive
+    /// whose position loop works on the drum's angle holds when commanded `reading` (backlash
+    /// aside).
+    pub fn drum_for(&self, reading: f64) -> f64 {
+        let mut d = (reading - self.offset) / self.scale;
+        for _ in 0..4 {
+            d = (reading - self.offset - self.winding.at(d)) / self.scale;
+        }
+        d
     }
 
     /// The same encoder with the noise and quantisation of `noise`.
@@ -199,7 +285,7 @@ impl Encoder {
     pub fn read(&mut self, length: f64, rng: &mut ChaCha8Rng) -> f64 {
         let y = self.backlash.update(length);
         let e = gauss(rng, 1.0);
-        let r = self.scale * y + self.offset + self.sigma * e;
+        let r = self.scale * y + self.offset + self.winding.at(y) + self.sigma * e;
         if self.quantum > 0.0 {
             (r / self.quantum).round() * self.quantum
         } else {
