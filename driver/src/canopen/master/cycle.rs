@@ -242,8 +242,22 @@ impl Operational<'_> {
 
     /// Target torque of drive `i`, ‰ of its rated torque (CST). The robot I/O layer converts
     /// tensions to torque and limits them; the master sends what it is given.
+    ///
+    /// Also taken while the drive is on its way to "operation enabled" (switch on disabled,
+    /// ready to switch on, switched on): the drive applies 0x6071 only once enabled, and a
+    /// cable that a drive enables into torque mode needs its tension from the first cycle. With
+    /// a zero target there the drum would pay out under the load until the next cycle's target.
     pub fn set_torque_permille(&mut self, i: usize, permille: i16) -> Result<(), CommandError> {
-        self.enabled(i, Mode::CyclicTorque)?.0.target_torque = permille;
+        let (ax, cfg) = self.axis(i)?;
+        let enabling =
+            matches!(ax.state, Some(State::SwitchOnDisabled | State::ReadyToSwitchOn | State::SwitchedOn | State::OperationEnabled));
+        if !enabling {
+            return Err(CommandError::NotEnabled { node: cfg.node_id });
+        }
+        if ax.mode != Mode::CyclicTorque {
+            return Err(CommandError::WrongMode { node: cfg.node_id });
+        }
+        ax.target_torque = permille;
         Ok(())
     }
 }
