@@ -506,12 +506,11 @@ impl SiteParts {
             last_tq: [0; MAX_CABLES],
             last_sync: None,
             sync_period_s: None,
+            sync_clock: None,
             sync_stats: Arc::new(SyncStats::default()),
             rack: DriveRack::new(io.rack_bus, self.drives),
             plant: self.plant,
             units: self.units,
-            l0: self.truth.l0.clone(),
-            scale: self.truth.scale.clone(),
             drum: self.brake,
             cmds: self.cmds,
             vlc: io.vlc,
@@ -660,8 +659,6 @@ struct Site<R: CanTransport> {
     rack: DriveRack<R>,
     plant: Plant,
     units: Vec<DriveUnits>,
-    l0: Vec<f64>,
-    scale: Vec<f64>,
     drum: Vec<f64>,
     cmds: Vec<SimCommand>,
     /// The simulated load cells on a pseudo-terminal (`None` in lockstep, where the world
@@ -689,6 +686,10 @@ struct Site<R: CanTransport> {
     /// Bus instant of the last SYNC, and the interval before it, s.
     last_sync: Option<Instant>,
     sync_period_s: Option<f64>,
+    /// The drives' SYNC clock: the last SYNC instant on their own time base and the period (s),
+    /// locked to the frames' arrival like the PLL a CSP drive interpolates on, so that a SYNC
+    /// delayed on a busy bus does not bend the drums' paths.
+    sync_clock: Option<(Instant, f64)>,
     sync_stats: Arc<SyncStats>,
     stop: Arc<AtomicBool>,
     period: Duration,
@@ -781,6 +782,26 @@ impl<R: CanTransport> Site<R> {
             self.sync_period_s = Some(at.duration_since(s).as_secs_f64().clamp(2e-4, 0.02));
         }
         self.last_sync = Some(self.last_sync.map_or(at, |s| s.max(at)));
+        let period_s = self.sync_period_s.unwrap_or(self.period.as_secs_f64());
+        self.sync_clock = Some(match self.sync_clock {
+            Some((t, p)) => {
+                let predicted = t + Duration::from_secs_f64(p);
+                let err =
+                    if at >= predicted { at.duration_since(predicted).as_secs_f64() } else { -predicted.duration_since(at).as_secs_f64() };
+                if err.abs() > 0.5 * p {
+                    // A SYNC lost or the master restarted: lock again.
+                    (at, period_s)
+                } else {
+                    let t = if err >= 0.0 {
+                        predicted + Duration::from_secs_f64(0.1 * err)
+                    } else {
+                        predicted - Duration::from_secs_f64(-0.1 * err)
+                    };
+                    (t, (p + 0.02 * err).clamp(2e-4, 0.02))
+                }
+            }
+            None => (at, period_s),
+        });
         if at > self.last_step {
             self.step_plant(at);
             return;
@@ -811,11 +832,15 @@ impl<R: CanTransport> Site<R> {
                 continue;
             }
             let u = self.units[j];
-            let to = (f64::from(t.position) / u.counts_per_m - self.l0[j]) / self.scale[j];
+            // The drive's position loop works on the drum's angle: the target is the drum length
+            // whose noise-free reading it is.
+            let to = self.plant.drum_for_reading(j, f64::from(t.position) / u.counts_per_m);
+            // The ramp runs on the drives' SYNC clock, not the frame's arrival.
+            let (start, sync_s) = self.sync_clock.map_or((at, period_s), |(t, p)| (t, p));
             let r = &mut self.ramps[j];
-            let from = if r.target.is_some() { r.at(at) } else { self.drum[j] };
-            let dur_s = r.target.map_or(0.0, |_| CSP_INTERPOLATION_PERIODS * self.sync_period_s.unwrap_or(period_s));
-            *r = Ramp { from, to, target: Some(t.position), start: at, dur_s };
+            let from = if r.target.is_some() { r.at(start) } else { self.drum[j] };
+            let dur_s = r.target.map_or(0.0, |_| CSP_INTERPOLATION_PERIODS * sync_s);
+            *r = Ramp { from, to, target: Some(t.position), start, dur_s };
         }
     }
 
@@ -928,7 +953,10 @@ impl Ramp {
         if self.dur_s <= 0.0 {
             return self.to;
         }
-        let s = (t.saturating_duration_since(self.start).as_secs_f64() / self.dur_s).min(1.0);
+        // Past the period without a new target (it missed its SYNC), the interpolator keeps the
+        // speed for at most one more period, as drives that extrapolate do: holding would stop
+        // the drum dead and start it again, a jerk a stiff cable turns into a tension spike.
+        let s = (t.saturating_duration_since(self.start).as_secs_f64() / self.dur_s).min(2.0);
         self.from + s * (self.to - self.from)
     }
 }
