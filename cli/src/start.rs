@@ -177,7 +177,8 @@ pub fn run(a: &StartArgs) -> Result<()> {
 /// 30 s for the calibrations: the budget of `--once` is this plus a margin.
 fn startup_motion_s(cfg: &RobotConfig) -> f64 {
     let m = &cfg.motion;
-    let phase_s = 2.0 * m.init_reel_m.abs() / m.init_reel_speed_m_s + m.init_settle_s;
+    let phase_s =
+        2.0 * taut_rt_core::motion::trapezoid_s(m.init_reel_m.abs(), m.init_reel_speed_m_s, m.init_reel_accel_m_s2) + m.init_settle_s;
     3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s
 }
 

@@ -91,6 +91,10 @@ pub struct MotionConfig {
     pub init_reel_m: f64,
     /// Speed of the reeled cable, m/s.
     pub init_reel_speed_m_s: f64,
+    /// Acceleration of the reeled cable at the start and end of its reel, m/s² (a trapezoidal
+    /// speed profile). A swinging platform on elastic cables needs it: a step in speed jerks the
+    /// platform and the followers go slack.
+    pub init_reel_accel_m_s2: f64,
     /// Tension of the follower cables during the phases (torque mode), N.
     pub init_follower_tension_n: f64,
     /// Pause between phases with every cable held, s.
@@ -164,6 +168,7 @@ impl Default for MotionConfig {
             init_phases: vec![[0, 1, 2], [1, 2, 0], [2, 0, 1]],
             init_reel_m: -0.5,
             init_reel_speed_m_s: 0.1,
+            init_reel_accel_m_s2: 0.5,
             init_follower_tension_n: 10.0,
             init_settle_s: 0.5,
             excitation_s: 60.0,
@@ -203,6 +208,7 @@ impl MotionConfig {
         for (k, v) in [
             ("enable_timeout_s", self.enable_timeout_s),
             ("init_reel_speed_m_s", self.init_reel_speed_m_s),
+            ("init_reel_accel_m_s2", self.init_reel_accel_m_s2),
             ("excitation_s", self.excitation_s),
             ("excitation_speed_m_s", self.excitation_speed_m_s),
             ("swap_ramp_s", self.swap_ramp_s),

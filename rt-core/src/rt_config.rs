@@ -85,6 +85,7 @@ impl FromRobot for ControllerConfig {
             phases,
             reel_m: m.init_reel_m,
             reel_speed_m_s: m.init_reel_speed_m_s,
+            reel_accel_m_s2: m.init_reel_accel_m_s2,
             init_follower_tension_n: m.init_follower_tension_n,
             settle_s: m.init_settle_s,
             held_min_tension_n: 2.0 * cfg.calibration.min_tension_n,
@@ -106,6 +107,12 @@ impl FromRobot for ControllerConfig {
             workspace_margin_m: s.workspace_margin_m,
             dwell: None,
             tour: None,
+            nominal_statics: cfg.anchors().map(|a| {
+                let mut p = taut_rt::kin::LoopParams::new(0, &a, &vec![0.0; n], &cfg.platform_points());
+                // Directions only: the offsets are unknown until the initialisation.
+                p.valid = true;
+                p
+            }),
         })
     }
 }

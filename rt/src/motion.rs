@@ -236,6 +236,9 @@ pub struct ControllerConfig {
     pub reel_m: f64,
     /// Reel speed, m/s.
     pub reel_speed_m_s: f64,
+    /// Reel acceleration, m/s²: the reel starts and stops on a trapezoidal speed profile, so that
+    /// the platform is not jerked into a swing the followers cannot follow.
+    pub reel_accel_m_s2: f64,
     /// Torque-mode tension of followers in the phases, N.
     pub init_follower_tension_n: f64,
     /// Pause after each phase, s.
@@ -272,6 +275,10 @@ pub struct ControllerConfig {
     pub dwell: Option<DwellLoopPlan>,
     /// The designed excitation path (`crate::excite`); `None`: the fixed Lissajous curve.
     pub tour: Option<taut_model::tour::Tour>,
+    /// The design's geometry (nominal anchors and platform points; offsets unknown, so not
+    /// valid for lengths), for the statics of the initialisation's follower tension before any
+    /// parameters exist. `None` without nominal anchors.
+    pub nominal_statics: Option<LoopParams>,
 }
 
 /// Most dwell poses the loop holds.
@@ -362,6 +369,8 @@ impl ControllerConfig {
 enum Segment {
     Lead,
     Reel,
+    /// The reel ended early: the reeled cable decelerates to rest before it returns.
+    Brake,
     Return,
     Settle,
 }
@@ -423,6 +432,16 @@ pub struct Controller {
     segment_t0: f64,
     reel_start_m: f64,
     reel_peak_m: f64,
+    /// Where and how fast the reel was when it ended early (m, m/s, signed).
+    brake_from: (f64, f64),
+    /// The held cables' tensions averaged over [`HELD_TENSION_TAU_S`] during the reel, N, and
+    /// when they were last updated, s.
+    held_avg_n: [f64; 2],
+    held_avg_t: f64,
+    /// The followers' tension in the initialisation phases, N ([`Controller::init_follower_tension`]).
+    init_follower_n: f64,
+    /// While enabling: the cables whose drive is enabled and whose hold length is latched.
+    enable_latched: [bool; MAX_CABLES],
     run: u16,
     fault: Option<(Cause, Reaction)>,
     hold_m: [f64; MAX_CABLES],
@@ -566,6 +585,11 @@ impl Controller {
             segment_t0: 0.0,
             reel_start_m: 0.0,
             reel_peak_m: 0.0,
+            brake_from: (0.0, 0.0),
+            held_avg_n: [f64::NAN; 2],
+            held_avg_t: 0.0,
+            init_follower_n: cfg.init_follower_tension_n,
+            enable_latched: [false; MAX_CABLES],
             run: 0,
             fault: None,
             hold_m: [0.0; MAX_CABLES],
@@ -659,7 +683,7 @@ impl Controller {
                 _ => -1,
             };
         }
-        if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Return) {
+        if self.state == State::InitPhase && matches!(self.segment, Segment::Reel | Segment::Brake | Segment::Return) {
             self.phase
         } else {
             -1
@@ -878,13 +902,27 @@ impl Controller {
         match self.state {
             State::Idle => {
                 out.request = DriveRequest::Disable;
+                self.enable_latched = [false; MAX_CABLES];
                 self.enter(State::Enabling, now);
                 next[..n].copy_from_slice(&inp.length_m[..n]);
             }
             State::Enabling => {
+                // A drive holds where it was when it came up: one latched reading, not every
+                // cycle's (a noisy encoder would shake a stiff cable). The cables that follow
+                // in the first motion come up in torque mode: four stiff cables held in
+                // position fight over the platform.
                 for j in 0..n {
-                    next[j] = inp.length_m[j];
-                    modes[j] = CableCommand::Position(next[j]);
+                    let enabled = inp.drive[j] == DriveStatus::Enabled;
+                    if !(enabled && self.enable_latched[j]) {
+                        self.hold_m[j] = inp.length_m[j];
+                        self.enable_latched[j] = enabled && inp.length_m[j].is_finite();
+                    }
+                    next[j] = self.hold_m[j];
+                    modes[j] = if self.enabling_follower(j) {
+                        CableCommand::Tension(self.cfg.init_follower_tension_n)
+                    } else {
+                        CableCommand::Position(next[j])
+                    };
                 }
                 let first_off = (0..n).find(|&j| inp.drive[j] != DriveStatus::Enabled);
                 // The phases need fresh tensions and poses: the I/O threads may still be starting.
@@ -916,25 +954,57 @@ impl Controller {
                 let k = self.phase as usize;
                 let [a, b, r] = self.cfg.phases[k];
                 let ts = now - self.segment_t0;
-                let travel_s = self.cfg.reel_m.abs() / self.cfg.reel_speed_m_s;
+                let (speed, accel) = (self.cfg.reel_speed_m_s, self.cfg.reel_accel_m_s2);
+                let travel_s = trapezoid_s(self.cfg.reel_m.abs(), speed, accel);
                 let reel = match self.segment {
                     Segment::Lead => {
                         // Let the platform settle with the followers in torque mode first.
                         if ts >= self.cfg.settle_s {
                             self.segment = Segment::Reel;
                             self.segment_t0 = now;
+                            self.held_avg_n = [f64::NAN; 2];
+                            self.held_avg_t = now;
                         }
                         0.0
                     }
                     Segment::Reel => {
-                        let r = self.cfg.reel_m * (ts / travel_s).min(1.0);
+                        let r = self.cfg.reel_m.signum() * trapezoid_at(self.cfg.reel_m.abs(), speed, accel, ts);
                         // A held cable going slack ends the reeling early: the platform would
                         // leave the circle about the held anchors.
                         // Only readings taken during the reel count (see `measured_after`).
-                        let slackened =
-                            |j: usize| measured_after(inp, j, ts, REEL_GRACE_S) && inp.tension_n[j] < self.cfg.held_min_tension_n;
-                        let slack = self.cfg.tension_max_age_s.is_finite() && (slackened(a) || slackened(b));
-                        if ts >= travel_s || slack {
+                        // A platform that swings makes the held tensions oscillate about
+                        // their trend; only the trend says that it leaves the circle.
+                        let w = ((now - self.held_avg_t) / HELD_TENSION_TAU_S).clamp(0.0, 1.0);
+                        self.held_avg_t = now;
+                        for (i, &j) in [a, b].iter().enumerate() {
+                            let t = inp.tension_n[j];
+                            let avg = &mut self.held_avg_n[i];
+                            if !measured_after(inp, j, ts, REEL_GRACE_S) || !t.is_finite() {
+                                continue;
+                            }
+                            *avg = if avg.is_finite() { *avg + w * (t - *avg) } else { t };
+                        }
+                        let slack =
+                            self.cfg.tension_max_age_s.is_finite() && self.held_avg_n.iter().any(|&t| t < self.cfg.held_min_tension_n);
+                        if ts >= travel_s {
+                            self.segment = Segment::Return;
+                            self.segment_t0 = now;
+                            self.reel_peak_m = r;
+                        } else if slack {
+                            // Decelerate to rest: a drum stopped dead would jerk the platform.
+                            let v = self.cfg.reel_m.signum() * trapezoid_speed(self.cfg.reel_m.abs(), speed, accel, ts);
+                            self.segment = Segment::Brake;
+                            self.segment_t0 = now;
+                            self.brake_from = (r, v);
+                        }
+                        r
+                    }
+                    Segment::Brake => {
+                        let (r0, v0) = self.brake_from;
+                        let stop_s = if accel > 0.0 { v0.abs() / accel } else { 0.0 };
+                        let t = ts.min(stop_s);
+                        let r = r0 + v0 * t - 0.5 * v0.signum() * accel * t * t;
+                        if ts >= stop_s {
                             self.segment = Segment::Return;
                             self.segment_t0 = now;
                             self.reel_peak_m = r;
@@ -942,15 +1012,16 @@ impl Controller {
                         r
                     }
                     Segment::Return => {
-                        let back_s = self.reel_peak_m.abs() / self.cfg.reel_speed_m_s;
-                        if ts >= back_s {
+                        let peak = self.reel_peak_m.abs();
+                        if ts >= trapezoid_s(peak, speed, accel) {
                             self.segment = Segment::Settle;
                             self.segment_t0 = now;
                         }
-                        self.reel_peak_m * (1.0 - (ts / back_s.max(1e-9)).min(1.0))
+                        self.reel_peak_m.signum() * (peak - trapezoid_at(peak, speed, accel, ts))
                     }
                     Segment::Settle => 0.0,
                 };
+                let follower_n = self.init_follower_tension([a, b, r], inp, dt);
                 for j in 0..n {
                     if j == a || j == b {
                         next[j] = self.hold_m[j];
@@ -960,16 +1031,11 @@ impl Controller {
                         modes[j] = CableCommand::Position(next[j]);
                     } else {
                         next[j] = inp.length_m[j];
-                        modes[j] = CableCommand::Tension(self.cfg.init_follower_tension_n);
+                        modes[j] = CableCommand::Tension(follower_n);
                     }
                 }
                 if self.segment == Segment::Settle {
                     // Everyone holds while the platform settles; the phase's data has ended.
-                    for (j, mode) in modes[..n].iter_mut().enumerate() {
-                        if j != a && j != b && j != r {
-                            *mode = CableCommand::Tension(self.cfg.init_follower_tension_n);
-                        }
-                    }
                     if now - self.segment_t0 >= self.cfg.settle_s {
                         self.phases_completed += 1;
                         self.hold_here(inp);
@@ -1268,6 +1334,16 @@ impl Controller {
     /// Holding: position mode at `len`, except the redundant cables, which keep their last
     /// tension (four rigid position-mode cables would fight over the platform; the last
     /// tension is what the statics needed where the platform stands).
+    /// Whether cable `j` follows in torque mode in the first motion after enabling: the first
+    /// initialisation phase's, or with the rest dwell the operation's.
+    fn enabling_follower(&self, j: usize) -> bool {
+        if self.cfg.dwell.is_some() {
+            self.cfg.follower[j]
+        } else {
+            !self.cfg.phases[0].contains(&j)
+        }
+    }
+
     fn hold_mode(&self, j: usize, len: f64) -> CableCommand {
         if self.cfg.follower[j] {
             CableCommand::Tension(self.follower_n)
@@ -1307,6 +1383,44 @@ impl Controller {
             Some(r) if r.lo_n.is_finite() => r.clamp(want).min(0.5 * self.cfg.max_tension_n).max(self.cfg.follower_tension_n),
             _ => self.cfg.follower_tension_n,
         }
+    }
+
+    /// The followers' tension in an initialisation phase that holds `[a, b]` and reels `r`:
+    /// the configured one, raised where the statics at the tracked pose need more to keep the
+    /// three position cables at twice `held_min_tension_n` (the held cables' tension falls as
+    /// the reel moves the platform; a slack one would end the reel), at most half of
+    /// `max_tension_n`, and changing by at most [`INIT_FOLLOWER_SLEW_N_S`] per second so that
+    /// it does not set the platform swinging. The configured one without a fresh pose or usable
+    /// statics.
+    fn init_follower_tension(&mut self, [a, b, r]: [usize; 3], inp: &Inputs, dt: f64) -> f64 {
+        let base = self.cfg.init_follower_tension_n;
+        let mut follower = [false; MAX_CABLES];
+        for (j, f) in follower.iter_mut().enumerate().take(self.cfg.n) {
+            *f = j != a && j != b && j != r;
+        }
+        let fresh = inp.pose_age_s <= self.cfg.tracker_max_age_s && inp.pose_m.iter().all(|x| x.is_finite());
+        let statics = if self.params.valid { Some(&self.params) } else { self.cfg.nominal_statics.as_ref() };
+        let range = if let (true, Some(params)) = (fresh, statics) {
+            crate::follower::distribute(
+                params,
+                &follower,
+                &inp.pose_m,
+                self.cfg.mass_kg,
+                2.0 * self.cfg.held_min_tension_n,
+                0.5 * self.cfg.max_tension_n,
+            )
+        } else {
+            None
+        };
+        // Only where some follower tension keeps every position cable in range: where none does,
+        // pulling harder only loads the others (the held-tension check ends the reel instead).
+        let want = match range {
+            Some(r) if r.lo_n.is_finite() && r.feasible() => r.clamp(base).min(0.5 * self.cfg.max_tension_n).max(base),
+            _ => base,
+        };
+        let step = INIT_FOLLOWER_SLEW_N_S * dt.clamp(0.0, 0.1);
+        self.init_follower_n += (want - self.init_follower_n).clamp(-step, step);
+        self.init_follower_n
     }
 
     fn start_phase(&mut self, k: usize, inp: &Inputs, now: f64) {
@@ -1576,13 +1690,13 @@ impl Controller {
         }
         if c.dwell.is_none()
             && self.state == State::InitPhase
-            && matches!(self.segment, Segment::Reel | Segment::Return)
+            && matches!(self.segment, Segment::Reel | Segment::Brake | Segment::Return)
             && c.tension_max_age_s.is_finite()
         {
             let r = c.phases[self.phase as usize][2];
             // Give the reeled cable a moment after the phase starts before calling it loose, and
             // judge it only on a reading taken since then.
-            let grace = if self.segment == Segment::Return { 0.0 } else { REEL_GRACE_S };
+            let grace = if self.segment == Segment::Reel { REEL_GRACE_S } else { 0.0 };
             if measured_after(inp, r, now - self.segment_t0, grace) && inp.tension_n[r] < c.loose_tension_n {
                 return Some(Cause::CableLoose { cable: r as u8, tension_n: inp.tension_n[r] as f32 });
             }
@@ -1639,10 +1753,102 @@ pub const IK_TENSION_TAU_S: f64 = 0.05;
 /// Time after the start of a reel before the reeled and the held cables' tensions are judged, s.
 const REEL_GRACE_S: f64 = 0.2;
 
+/// Fastest change of the followers' tension in the initialisation phases, N/s.
+pub const INIT_FOLLOWER_SLEW_N_S: f64 = 20.0;
+
+/// Time constant of the held cables' tension average during a reel, s: long against a
+/// platform's swing (2-10 Hz), short against the reel.
+pub const HELD_TENSION_TAU_S: f64 = 0.25;
+
+/// Duration of a move over `dist` (m) at up to `speed` (m/s) with acceleration and deceleration
+/// `accel` (m/s²): a trapezoidal speed profile, triangular when `dist` is too short to reach
+/// `speed`. A non-positive `accel` moves at `speed` from the start. Seconds.
+pub fn trapezoid_s(dist: f64, speed: f64, accel: f64) -> f64 {
+    if accel.is_nan() || accel <= 0.0 {
+        return dist / speed;
+    }
+    if dist * accel >= speed * speed {
+        dist / speed + speed / accel
+    } else {
+        2.0 * (dist / accel).sqrt()
+    }
+}
+
+/// Speed after `t` seconds of the move of [`trapezoid_s`], m/s (0 once it ended).
+pub fn trapezoid_speed(dist: f64, speed: f64, accel: f64, t: f64) -> f64 {
+    let total = trapezoid_s(dist, speed, accel);
+    if !(0.0..total).contains(&t) {
+        return 0.0;
+    }
+    if accel.is_nan() || accel <= 0.0 {
+        return speed;
+    }
+    let peak = speed.min((dist * accel).sqrt());
+    peak.min(accel * t).min(accel * (total - t))
+}
+
+/// Distance covered after `t` seconds of the move of [`trapezoid_s`], m (`dist` once it ended).
+pub fn trapezoid_at(dist: f64, speed: f64, accel: f64, t: f64) -> f64 {
+    let total = trapezoid_s(dist, speed, accel);
+    if t >= total {
+        return dist;
+    }
+    if accel.is_nan() || accel <= 0.0 {
+        return speed * t.max(0.0);
+    }
+    let t = t.max(0.0);
+    let peak = speed.min((dist * accel).sqrt());
+    let ramp = peak / accel;
+    if t < ramp {
+        0.5 * accel * t * t
+    } else if t < total - ramp {
+        0.5 * accel * ramp * ramp + peak * (t - ramp)
+    } else {
+        let left = total - t;
+        dist - 0.5 * accel * left * left
+    }
+}
+
 /// Whether cable `j`'s tension reading was measured more than `grace` s after a segment that
 /// began `since_start` s ago. A reading from before a reel began says nothing about the reel:
 /// after a stall of the loop (or of the load-cell thread) the newest reading can be old, still
 /// within `safety.tension_max_age_s`, and from a moment when the cable was loose at rest.
 fn measured_after(inp: &Inputs, j: usize, since_start: f64, grace: f64) -> bool {
     since_start - inp.tension_age_s[j] > grace
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{trapezoid_at, trapezoid_s, trapezoid_speed};
+
+    /// The reel profile starts and ends at rest, never exceeds its speed or acceleration, and
+    /// covers the distance: long moves (trapezoid) and short ones (triangle).
+    #[test]
+    fn trapezoid_is_continuous_and_bounded() {
+        for &(dist, speed, accel) in &[(0.85, 0.25, 0.5), (0.01, 0.25, 0.5), (0.5, 0.1, 0.0)] {
+            let total = trapezoid_s(dist, speed, accel);
+            let h = 1e-4;
+            let mut prev = (0.0, 0.0);
+            let steps = (total / h).ceil() as usize + 10;
+            for k in 1..=steps {
+                let t = k as f64 * h;
+                let (x, v) = (trapezoid_at(dist, speed, accel, t), trapezoid_speed(dist, speed, accel, t));
+                assert!(v <= speed + 1e-12 && v >= 0.0, "speed {v} at {t}");
+                let fd = (x - prev.0) / h;
+                // Without acceleration the speed steps at the ends.
+                let step = accel == 0.0 && (t - total).abs() < h;
+                assert!(step || (fd - v).abs() < speed.max(accel * h) * 0.02 + accel * h, "{dist}: speed {v} vs {fd} at {t}");
+                if accel > 0.0 {
+                    assert!((v - prev.1).abs() <= accel * h * 1.0001, "acceleration at {t}");
+                }
+                prev = (x, v);
+            }
+            assert!((prev.0 - dist).abs() < 1e-12 && prev.1 == 0.0);
+            if accel > 0.0 {
+                assert!(trapezoid_speed(dist, speed, accel, 1e-6) < 1e-5, "starts at rest");
+            }
+        }
+        // Triangle: the 1 cm move never reaches 0.25 m/s.
+        assert!((trapezoid_s(0.01, 0.25, 0.5) - 2.0 * (0.02f64).sqrt()).abs() < 1e-12);
+    }
 }
