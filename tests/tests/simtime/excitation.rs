@@ -225,15 +225,17 @@ fn startup(seed: u64, designed: bool) -> Run {
     let run =
         taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, |_, _| false);
     let (truth, l, c) = (run.truth.clone(), &run.loop_status, &run.calib_status);
-    assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
-    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
-    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).expect("a calibration outcome");
-    let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
-    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
-    assert!(ce.note.contains("predicted worst anchor 1-sigma"), "seed {seed}: the note lacks the prediction: {}", ce.note);
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {
         let _ = std::fs::copy(run.recording.as_ref().unwrap(), std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
     }
+    assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
+    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
+    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap_or_else(|| {
+        panic!("seed {seed}: no calibration outcome: state {:?}, stage {}, outcomes {:?}", l.snap.state, c.stage, c.outcomes)
+    });
+    let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
+    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
+    assert!(ce.note.contains("predicted worst anchor 1-sigma"), "seed {seed}: the note lacks the prediction: {}", ce.note);
     let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
     // The design predicts at the configured encoder noise; the calibration weighs the lengths
     // with the noise it measures in its residuals (`length noise X mm` in the note). The same
