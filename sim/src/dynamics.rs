@@ -109,8 +109,9 @@ use crate::truth::Truth;
 /// Options of the dynamic plant. Units in each field's name.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dynamics {
-    /// Axial stiffness EA of every cable when [`Physics::elasticity`] is off, N. Default 40 kN: a
-    /// 2-3 mm steel wire rope or a 3-4 mm Dynema braid.
+    /// Axial stiffness EA of every cable when [`Physics::elasticity`] is off, N. Default 1 MN: a
+    /// 5 mm steel wire rope (about 10 mm² of steel). A 2 mm rope or a Dyneema braid is nearer
+    /// 100-200 kN, and its stretch then needs the `elasticity` effect in the calibration.
     pub ea_n: f64,
     /// Damping ratio `zeta` of each cable: `c_j = 2 zeta sqrt(k_j m)`, N s/m. Default 0.05.
     pub damping_ratio: f64,
@@ -131,7 +132,7 @@ pub struct Dynamics {
 impl Default for Dynamics {
     fn default() -> Self {
         Dynamics {
-            ea_n: 40_000.0,
+            ea_n: 1_000_000.0,
             damping_ratio: 0.05,
             drum_mass_kg: 1.0,
             drum_friction_n_s_m: 5.0,

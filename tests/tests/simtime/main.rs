@@ -14,6 +14,7 @@
 #[path = "../notracker/mod.rs"]
 mod notracker;
 
+mod dynamic;
 mod effects;
 mod excitation;
 mod faults;
