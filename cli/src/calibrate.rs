@@ -11,7 +11,8 @@ use taut_config::RobotConfig;
 /// Arguments of `taut calibrate`.
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
-    /// The recording (cdpr-recording v1 CSV).
+    /// The recording: cdpr-recording v1 CSV, or an MCAP file taut wrote (recognised by its
+    /// first bytes).
     pub recording: PathBuf,
     /// Robot configuration (platform points, noise model). Without it: point-mass platform.
     #[arg(long)]
@@ -22,7 +23,8 @@ pub struct CalibrateArgs {
     /// Write figures (SVG and PNG) into this directory.
     #[arg(long)]
     pub plot: Option<PathBuf>,
-    /// Write the calibrated parameters (taut-params v1 TOML) to this file, atomically.
+    /// Write the calibrated parameters (taut-params v2 TOML: anchors, offsets, their 1-sigma) to
+    /// this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Write a self-contained HTML report (verdict, tables, figures) to this file, atomically.

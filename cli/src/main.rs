@@ -19,12 +19,19 @@ mod report;
 mod simulate;
 mod start;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
 #[command(name = "taut", version, about = "Cable robot calibration and control", long_about = None)]
 struct Cli {
+    /// Say more (`taut start`: also every change of the calibrator's stage).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    verbose: u8,
+    /// Say less (`taut start`: no log lines for people, only warnings and the results; `taut
+    /// ctl`: no progress lines).
+    #[arg(short, long, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -35,11 +42,11 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Write a recording (cdpr-recording v1) of a simulated robot.
     Simulate(simulate::SimulateArgs),
-    /// Calibrate anchors and encoder offsets from any recording, real or simulated.
+    /// Calibrate anchors and encoder offsets from any recording (CSV or MCAP), real or simulated.
     Calibrate(calibrate::CalibrateArgs),
     /// Run the robot's controller: start-up calibration, hot-swap, operation (--sim: simulated robot).
     Start(start::StartArgs),
-    /// Talk to a running `taut start`: status | recalibrate | stop | estop | reset | params | move X Y Z.
+    /// Talk to a running `taut start`: status, watch, move, recalibrate, stop, estop, reset, params, outcome.
     Ctl(ctl::CtlArgs),
     /// Find the physics the ideal model leaves out: name it, model it, show the fit improve.
     Diagnose(diagnose::DiagnoseArgs),
@@ -47,19 +54,37 @@ enum Command {
     Probe(probe::ProbeArgs),
     /// Convert a recording (cdpr-recording v1) to MCAP for Foxglove, PlotJuggler and rosbag2.
     Export(export::ExportArgs),
+    /// Print a shell completion script: taut completions bash > /etc/bash_completion.d/taut.
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff): taut man > taut.1; man ./taut.1.
+    Man,
+}
+
+/// The `taut` command line as clap sees it (for completions, the man page and their tests).
+pub fn command() -> clap::Command {
+    Cli::command()
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let verbosity: i8 = if cli.quiet { -1 } else { cli.verbose.min(3) as i8 };
     let result = match cli.command {
         Command::Demo(a) => demo::run(&a),
         Command::Simulate(a) => simulate::run(&a),
         Command::Calibrate(a) => calibrate::run(&a),
-        Command::Start(a) => start::run(&a),
-        Command::Ctl(a) => ctl::run(&a),
+        Command::Start(a) => start::run(&a, verbosity),
+        Command::Ctl(a) => ctl::run(&a, verbosity),
         Command::Diagnose(a) => diagnose::run(&a),
         Command::Probe(a) => probe::run(&a),
         Command::Export(a) => export::run(&a),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut command(), "taut", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man => clap_mangen::Man::new(command()).render(&mut std::io::stdout()).map_err(Into::into),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -79,7 +79,7 @@ pub struct StartArgs {
 const DEFAULT_SIM_ROBOT: &str = include_str!("../../config/examples/aras-cam-sim.toml");
 
 /// Runs `taut start`.
-pub fn run(a: &StartArgs) -> Result<()> {
+pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
     let mut cfg = match &a.config {
         Some(p) => RobotConfig::load(p).map_err(|e| anyhow::anyhow!("{e}"))?,
         None if a.sim => RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -116,7 +116,11 @@ pub fn run(a: &StartArgs) -> Result<()> {
         (d, None, t)
     };
     let backend = backend(a, &cfg)?;
-    let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
+    // The log for people (states and phases with their expected durations, calibration
+    // outcomes, goals, loop health): off with -q.
+    let log: taut_rt_core::daemon::WarnFn =
+        if verbosity < 0 { std::sync::Arc::new(|_: &str| {}) } else { std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")) };
+    let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, log, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
     if let Some(plan) = &daemon.calib_status().excitation {
@@ -139,10 +143,10 @@ pub fn run(a: &StartArgs) -> Result<()> {
             let l = daemon.loop_status();
             let c = daemon.calib_status();
             let line = progress_line(&l, &c);
-            if line != last {
+            if line != last && verbosity > 0 {
                 eprintln!("{line}");
-                last = line;
             }
+            last = line;
         }
         daemon.wait();
         return Ok(());
@@ -152,10 +156,10 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let mut last = String::new();
     let done = daemon.wait_until(budget, |l, c| {
         let line = progress_line(l, c);
-        if line != last {
+        if line != last && verbosity > 0 {
             eprintln!("{line}");
-            last = line;
         }
+        last = line;
         taut_rt_core::control::startup_finished(l, c)
     });
     let l = daemon.loop_status();

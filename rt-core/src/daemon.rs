@@ -32,11 +32,20 @@ pub struct DaemonOptions {
     pub warn: WarnFn,
     /// The tracker receiver's counters, shown by `status` (foreign senders included).
     pub tracker: Option<taut_driver::tracker::TrackerStatsHandle>,
+    /// Where the log lines for people go ([`crate::operator`]: each state and phase with its
+    /// expected duration, each calibration outcome, goals, loop health).
+    pub log: WarnFn,
 }
 
 impl Default for DaemonOptions {
     fn default() -> Self {
-        DaemonOptions { recording: None, control: true, warn: Arc::new(|w| eprintln!("warning: {w}")), tracker: None }
+        DaemonOptions {
+            recording: None,
+            control: true,
+            warn: Arc::new(|w| eprintln!("warning: {w}")),
+            tracker: None,
+            log: Arc::new(|l| eprintln!("taut: {l}")),
+        }
     }
 }
 
@@ -145,6 +154,7 @@ impl Daemon {
         };
         let builder = Plugin::builder(cfg, devices, popts)?;
         let handle = builder.handle().clone();
+        handle.operator().set_log(opts.log.clone());
         // The socket first: a second daemon is refused here, before it creates any file.
         let control = if opts.control {
             let path = PathBuf::from(&cfg.daemon.socket);
@@ -283,6 +293,11 @@ impl Daemon {
     }
 
     fn finish(&mut self) {
+        if self.plugin.is_some() {
+            // The loop has ended: its health once more, clean or not.
+            let ls = self.loop_status();
+            self.handle.operator().stopped(&ls);
+        }
         if let Some(mut p) = self.plugin.take() {
             // The loop has ended (the controller stopped): deactivate runs no further cycle;
             // cleanup drains the calibrator and joins it.

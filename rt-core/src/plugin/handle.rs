@@ -8,6 +8,7 @@ use super::error::Refusal;
 use crate::calibrator::{CalibStatus, SharedCalibStatus};
 use crate::control::{ControlLinks, SharedLoopStatus};
 use crate::motion::{Command, State};
+use crate::operator::{Expected, Operator};
 use crate::runner::LoopStatus;
 use crate::safety::{Cause, Reaction};
 use crate::urgent::Urgent;
@@ -76,6 +77,7 @@ struct Shared {
     events: Receiver<Event>,
     events_dropped: Arc<AtomicU64>,
     workspace: [[f64; 3]; 2],
+    operator: Operator,
 }
 
 /// The operator's handle: clone it into any non-real-time thread. Every call returns at once.
@@ -98,11 +100,22 @@ impl PluginHandle {
         calib: SharedCalibStatus,
         event_capacity: usize,
         workspace: [[f64; 3]; 2],
+        expected: Expected,
     ) -> (PluginHandle, EventTx) {
         let (tx, events) = crossbeam_channel::bounded(event_capacity.max(1));
         let events_dropped = Arc::new(AtomicU64::new(0));
+        let operator = Operator::new(Some(events.clone()), Some(commands.clone()), expected);
         let h = PluginHandle {
-            s: Arc::new(Shared { commands, urgent, loop_status, calib, events, events_dropped: events_dropped.clone(), workspace }),
+            s: Arc::new(Shared {
+                commands,
+                urgent,
+                loop_status,
+                calib,
+                events,
+                events_dropped: events_dropped.clone(),
+                workspace,
+                operator,
+            }),
         };
         (h, EventTx { tx, dropped: events_dropped })
     }
@@ -199,6 +212,14 @@ impl PluginHandle {
         self.send(Command::MoveTo(target_m))
     }
 
+    /// The operator's bookkeeping (goals, the return after a recalibration, the event journal,
+    /// the log lines), shared with every [`ControlLinks`] of this handle. Its
+    /// [`Operator::tick`] takes the events from the queue [`PluginHandle::poll_event`] reads:
+    /// a host uses one or the other.
+    pub fn operator(&self) -> &Operator {
+        &self.s.operator
+    }
+
     /// The next event, if any.
     pub fn poll_event(&self) -> Option<Event> {
         self.s.events.try_recv().ok()
@@ -219,6 +240,7 @@ impl PluginHandle {
             calib: self.s.calib.clone(),
             workspace: self.s.workspace,
             tracker,
+            operator: self.s.operator.clone(),
         }
     }
 }
