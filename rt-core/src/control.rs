@@ -690,18 +690,20 @@ pub fn status_text(v: &Value) -> String {
     let t = &v["tracker"];
     line(
         "tracker",
-        if t.is_null() {
-            "none".into()
-        } else {
-            let age = t["pose_age_s"].as_f64().map_or("no pose yet".to_string(), |a| format!("{a:.2} s old"));
-            format!(
-                "pose {} ({age}); {} received, {} malformed, {} late, {} from foreign senders",
-                pt(&v["pose_m"]),
-                t["received"],
-                t["malformed"],
-                t["late"],
-                t["foreign"]
-            )
+        match (v["pose_age_s"].as_f64(), t.is_null()) {
+            (None, true) => "none".into(),
+            (age, _) => {
+                let age = age.map_or("no pose yet".to_string(), |a| format!("{a:.2} s old"));
+                let counts = if t.is_null() {
+                    String::new()
+                } else {
+                    format!(
+                        "; {} received, {} malformed, {} late, {} from foreign senders",
+                        t["received"], t["malformed"], t["late"], t["foreign"]
+                    )
+                };
+                format!("pose {} ({age}){counts}", pt(&v["pose_m"]))
+            }
         },
     );
     let l = &v["loop"];
