@@ -18,6 +18,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
 
+/// How long the control socket is served after the loop has stopped: `taut ctl watch`'s poll
+/// period and a margin.
+const WATCH_LINGER: Duration = Duration::from_millis(300);
+
 /// Where warnings go (stderr in the binary, a buffer in tests).
 pub type WarnFn = Arc<dyn Fn(&str) + Send + Sync>;
 
@@ -303,6 +307,11 @@ impl Daemon {
             // cleanup drains the calibrator and joins it.
             let _ = p.deactivate();
             let _ = p.cleanup();
+        }
+        if self.control_thread.is_some() {
+            // `taut ctl watch` asks for the journal every 200 ms: the socket stays a little
+            // longer so that watchers get the last events (the stop, the loop's health).
+            std::thread::sleep(WATCH_LINGER);
         }
         // Relaxed: the control thread only needs to see the flag eventually.
         self.quit.store(true, Ordering::Relaxed);
