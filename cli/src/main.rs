@@ -9,6 +9,7 @@ mod demo;
 mod diagnose;
 mod export;
 mod figures;
+mod generated;
 mod heap;
 mod html;
 mod notracker;
@@ -59,8 +60,13 @@ enum Command {
         /// The shell.
         shell: clap_complete::Shell,
     },
-    /// Print the manual page (roff): taut man > taut.1; man ./taut.1.
-    Man,
+    /// Print the manual page (roff): taut man > taut.1; man ./taut.1. With --dir: write taut.1
+    /// and one page per subcommand (taut-ctl.1, ...) there.
+    Man {
+        /// Write every page into this directory instead of taut.1 to stdout.
+        #[arg(long)]
+        dir: Option<std::path::PathBuf>,
+    },
 }
 
 /// The `taut` command line as clap sees it (for completions, the man page and their tests).
@@ -84,7 +90,14 @@ fn main() -> ExitCode {
             clap_complete::generate(shell, &mut command(), "taut", &mut std::io::stdout());
             Ok(())
         }
-        Command::Man => clap_mangen::Man::new(command()).render(&mut std::io::stdout()).map_err(Into::into),
+        Command::Man { dir: None } => clap_mangen::Man::new(command()).render(&mut std::io::stdout()).map_err(Into::into),
+        Command::Man { dir: Some(d) } => generated::man_pages().and_then(|pages| {
+            for (name, bytes) in pages {
+                let p = d.join(name);
+                taut_config::write_atomic(&p, &bytes).map_err(|e| anyhow::anyhow!("writing {}: {e}", p.display()))?;
+            }
+            Ok(())
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
