@@ -76,7 +76,8 @@ enum Request {
     /// newest with their numbers.
     Outcome {
         /// The outcome's number (1 is the first).
-        n: usize,
+        #[arg(value_parser = clap::value_parser!(u64).range(1..))]
+        n: u64,
     },
 }
 

@@ -352,7 +352,7 @@ pub fn parse_request(line: &[u8]) -> Result<Request, RequestError> {
         "events" => match rest.as_slice() {
             [] => Ok(Request::Events(None)),
             [w] => w.parse().map(|q| Request::Events(Some(q))).map_err(|_| RequestError::BadCount { verb: "events", word: excerpt(w, 40) }),
-            _ => Err(RequestError::UnexpectedArguments { verb: "events", args: excerpt(&rest.join(" "), 40) }),
+            _ => Err(RequestError::BadCount { verb: "events", word: excerpt(&rest.join(" "), 40) }),
         },
         "outcome" => match rest.as_slice() {
             [w] => match w.parse::<usize>() {
@@ -720,4 +720,38 @@ pub fn status_text(v: &Value) -> String {
         ),
     );
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_journal_and_outcome_requests_parse_and_bad_numbers_are_refused_clearly() {
+        assert_eq!(parse_request(b"events"), Ok(Request::Events(None)));
+        assert_eq!(parse_request(b"events 12"), Ok(Request::Events(Some(12))));
+        assert_eq!(parse_request(b"outcome 3"), Ok(Request::Outcome(3)));
+        assert_eq!(parse_request(b"help"), Ok(Request::Help));
+        for (line, says) in [
+            ("outcome 0", "\"0\" is not a whole number from 1"),
+            ("outcome", "outcome N"),
+            ("outcome x", "\"x\" is not a whole number"),
+            ("events -1", "(events SEQ)"),
+            ("events 1 2", "\"1 2\" is not a whole number (events SEQ)"),
+            ("help me", "help takes no arguments"),
+            ("watch", "unknown request \"watch\": status | params"),
+        ] {
+            let e = parse_request(line.as_bytes()).unwrap_err().to_string();
+            assert!(e.contains(says), "{line:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_human_status_has_a_line_per_subject_even_when_empty() {
+        let text = status_text(&json!({"ok": true, "state": "enabling", "phase": -1, "params_version": 0}));
+        for key in ["state", "fault", "goal", "calibration", "drives", "load cells", "tracker", "loop"] {
+            assert!(text.lines().any(|l| l.starts_with(key)), "{key}: {text}");
+        }
+        assert!(text.contains("no parameters yet") && text.contains("fault        none"), "{text}");
+    }
 }

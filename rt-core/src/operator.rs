@@ -781,3 +781,69 @@ impl Inner {
         self.health_max_late_ns = ls.max_late_ns;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view(t_s: f64, id: u64, state: &str, reached: bool, error_m: Option<f64>) -> GoalView {
+        GoalView { t_s, id: Some(id), state: state.into(), fault: None, reached, error_m, ended: None }
+    }
+
+    #[test]
+    fn a_move_arrives_within_the_tolerance_and_not_before() {
+        let mut w = MoveWait::new(3, 0.005);
+        // From holding, the loop switches to operate within a cycle.
+        assert_eq!(w.observe(&view(0.0, 3, "holding", false, Some(1.0))), None);
+        assert_eq!(w.observe(&view(0.1, 3, "operate", false, Some(0.5))), None);
+        // The setpoint is there but the platform is 8 mm away: it may still settle.
+        assert_eq!(w.observe(&view(2.0, 3, "operate", true, Some(0.008))), None);
+        assert_eq!(w.observe(&view(2.5, 3, "operate", true, Some(0.004))), Some(GoalEnd::Arrived { error_m: Some(0.004) }));
+    }
+
+    #[test]
+    fn a_move_that_cannot_settle_faults_or_is_replaced_ends_with_its_reason() {
+        let mut w = MoveWait::new(3, 0.001);
+        assert_eq!(w.observe(&view(2.0, 3, "operate", true, Some(0.003))), None);
+        assert_eq!(w.observe(&view(3.1, 3, "operate", true, Some(0.003))), Some(GoalEnd::OffTarget { error_m: 0.003 }));
+        let mut w = MoveWait::new(3, 0.005);
+        let mut v = view(1.0, 3, "faulted", false, Some(0.2));
+        v.fault = Some("emergency stop".into());
+        assert!(matches!(w.observe(&v), Some(GoalEnd::Fault { error_m: Some(e), .. }) if e == 0.2));
+        let mut w = MoveWait::new(3, 0.005);
+        assert_eq!(w.observe(&view(1.0, 4, "operate", false, None)), Some(GoalEnd::Superseded { by: 4 }));
+        let mut w = MoveWait::new(3, 0.005);
+        assert!(matches!(w.observe(&view(1.0, 3, "excitation", false, None)), Some(GoalEnd::Interrupted { state: "excitation", .. })));
+        // Still holding a second after the move: the loop did not take it.
+        let mut w = MoveWait::new(3, 0.005);
+        assert_eq!(w.observe(&view(1.0, 3, "holding", false, None)), None);
+        assert_eq!(w.observe(&view(2.5, 3, "holding", false, None)), Some(GoalEnd::NotTaken));
+    }
+
+    #[test]
+    fn the_goal_round_trips_through_the_status_json() {
+        let end = GoalEnd::Arrived { error_m: Some(0.002) };
+        let st = json!({"t_s": 4.0, "state": "operate", "fault": null,
+                        "goal": {"id": 2, "reached": true, "error_m": 0.002, "ended": end.json()}});
+        let v = GoalView::from_status(&st);
+        assert_eq!((v.id, v.reached, v.error_m, v.ended), (Some(2), true, Some(0.002), Some(end)));
+    }
+
+    #[test]
+    fn the_journal_is_numbered_bounded_and_says_what_was_lost() {
+        let op = Operator::default();
+        op.set_log(Arc::new(|_| {}));
+        {
+            let mut s = lock(&op.inner);
+            for k in 0..(JOURNAL + 10) {
+                s.record(k as f64, "test", json!({}), "line");
+            }
+        }
+        let (ev, next, lost) = op.events_since(1);
+        assert_eq!((ev.len(), lost), (EVENTS_PER_REPLY, 10));
+        assert_eq!(ev[0]["seq"], 11);
+        assert_eq!(next, 11 + EVENTS_PER_REPLY as u64);
+        let (ev, next, lost) = op.events_since(op.next_seq());
+        assert_eq!((ev.len(), next, lost), (0, JOURNAL as u64 + 11, 0));
+    }
+}
