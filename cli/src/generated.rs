@@ -7,6 +7,7 @@ use anyhow::Result;
 use clap_complete::Shell;
 
 /// The shells whose completions are checked in.
+#[cfg(test)]
 pub const SHELLS: [Shell; 3] = [Shell::Bash, Shell::Zsh, Shell::Fish];
 
 /// `taut.1` and one page per subcommand (`taut-ctl.1`, ...), with their bytes.
@@ -35,6 +36,7 @@ pub fn completions(shell: Shell) -> Vec<u8> {
 }
 
 /// Every generated file under `cli/generated/`, relative paths and bytes.
+#[cfg(test)]
 pub fn all() -> Result<Vec<(String, Vec<u8>)>> {
     let mut files: Vec<(String, Vec<u8>)> = man_pages()?.into_iter().map(|(n, b)| (format!("man/{n}"), b)).collect();
     for sh in SHELLS {

@@ -87,8 +87,8 @@ fn main() -> ExitCode {
         Command::Probe(a) => probe::run(&a),
         Command::Export(a) => export::run(&a),
         Command::Completions { shell } => {
-            clap_complete::generate(shell, &mut command(), "taut", &mut std::io::stdout());
-            Ok(())
+            use std::io::Write;
+            std::io::stdout().write_all(&generated::completions(shell)).map_err(Into::into)
         }
         Command::Man { dir: None } => clap_mangen::Man::new(command()).render(&mut std::io::stdout()).map_err(Into::into),
         Command::Man { dir: Some(d) } => generated::man_pages().and_then(|pages| {

@@ -107,7 +107,7 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
         }
         let p0 = simrig::rest_position(&cfg, &so, p0);
         if a.sim_time {
-            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?);
+            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?, verbosity);
         }
         let sim = simrig::build(&cfg, p0, &so)?;
         (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
@@ -207,7 +207,7 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
 }
 
 /// `taut start --sim --once --sim-time`: the start-up in simulated time.
-fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib) -> Result<()> {
+fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib, verbosity: i8) -> Result<()> {
     let budget_s = startup_motion_s(cfg) + 600.0;
     let faults = if a.sim_faults { simrig::LockstepFaults::drawn(a.seed) } else { simrig::LockstepFaults::default() };
     // A run of its own per seed, with an empty parameter history (the calibrator numbers its
@@ -224,15 +224,23 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
     let cfg = &cfg;
     let recording = dir.join("recordings").join("start.csv");
     eprintln!("taut start: simulated time (seed {}); recording {}", a.seed, recording.display());
-    let run = simrig::run_startup(
-        cfg,
-        p0,
-        so,
-        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s },
-        Box::new(backend),
-        |_, _| false,
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // `simrig::run_startup`, with the control socket's bookkeeping ticked between cycles as the
+    // control thread does: the same log lines for people, in simulated time.
+    let opts =
+        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s };
+    let mut host = simrig::Lockstep::start(cfg, p0, so, opts, Box::new(backend)).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if verbosity < 0 {
+        host.handle().operator().set_log(std::sync::Arc::new(|_: &str| {}));
+    }
+    let links = host.handle().control_links(None);
+    let mut over = false;
+    host.run_until(budget_s, |l, c| {
+        links.tick();
+        over = taut_rt_core::control::startup_finished(l, c);
+        over
+    });
+    links.tick();
+    let run = host.finish(over);
     let lc = run.loadcells;
     let loop_json = json!({
         "rate_hz": cfg.rt.rate_hz,
