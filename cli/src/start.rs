@@ -229,8 +229,8 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
     let opts =
         simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s };
     let mut host = simrig::Lockstep::start(cfg, p0, so, opts, Box::new(backend)).map_err(|e| anyhow::anyhow!("{e}"))?;
-    if verbosity < 0 {
-        host.handle().operator().set_log(std::sync::Arc::new(|_: &str| {}));
+    if verbosity >= 0 {
+        host.handle().operator().set_log(std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")));
     }
     let links = host.handle().control_links(None);
     let mut over = false;

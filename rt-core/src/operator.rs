@@ -331,7 +331,7 @@ pub struct Operator {
 }
 
 impl Default for Operator {
-    /// No event queue, no command queue (goals are tracked, nothing is sent), log to stderr.
+    /// No event queue, no command queue (goals are tracked, nothing is sent), no log.
     fn default() -> Self {
         Operator::new(None, None, Expected::default())
     }
@@ -392,13 +392,14 @@ pub fn worst_sigma(anchor_sigma_m: &[[f64; 3]], l0_sigma_m: &[f64]) -> Option<(f
 
 impl Operator {
     /// An operator draining `events` (the plugin's event queue) and sending the return moves
-    /// on `commands`.
+    /// on `commands`; its log lines go nowhere until [`Operator::set_log`].
     pub fn new(events: Option<Receiver<Event>>, commands: Option<Sender<Command>>, expected: Expected) -> Operator {
         Operator {
             inner: Arc::new(Mutex::new(Inner {
                 events,
                 commands,
-                log: Arc::new(|l| eprintln!("taut: {l}")),
+                // Silent until a host asks for the lines (the daemon: `DaemonOptions::log`).
+                log: Arc::new(|_| {}),
                 expected,
                 journal: VecDeque::with_capacity(JOURNAL),
                 next_seq: 1,

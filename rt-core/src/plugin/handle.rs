@@ -179,8 +179,11 @@ impl PluginHandle {
     /// Runs the excitation again; the calibrator recalibrates from it and the result is
     /// hot-swapped if it is better. Refused unless operating without a fault.
     pub fn request_recalibration(&self) -> Result<(), Refusal> {
-        self.operating()?;
-        self.send(Command::Recalibrate)
+        let l = self.operating()?;
+        self.send(Command::Recalibrate)?;
+        // Where the platform is brought back to afterwards (by the operator's tick).
+        self.s.operator.recalibrate_accepted(&l);
+        Ok(())
     }
 
     /// Emergency stop: quick stop, latched, at the loop's next cycle. Never refused.
@@ -209,7 +212,10 @@ impl PluginHandle {
         if l.snap.params_version == 0 {
             return Err(Refusal::NoParameters);
         }
-        self.send(Command::MoveTo(target_m))
+        self.send(Command::MoveTo(target_m))?;
+        // The goal that status shows and the operator's tick follows.
+        self.s.operator.move_accepted(&l, target_m);
+        Ok(())
     }
 
     /// The operator's bookkeeping (goals, the return after a recalibration, the event journal,
