@@ -2,6 +2,7 @@
 
 use anyhow::{anyhow, bail, Result};
 use serde_json::Value;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use taut_rt_core::control::{request, status_text};
@@ -217,13 +218,19 @@ fn watch(socket: &Path, from: Option<u64>, json: bool) -> Result<()> {
         if let Some(lost) = v["lost"].as_u64().filter(|l| *l > 0) {
             println!("-- {lost} events were no longer kept");
         }
+        let mut out = std::io::stdout().lock();
         for e in v["events"].as_array().into_iter().flatten() {
-            if json {
-                println!("{e}");
+            let written = if json {
+                writeln!(out, "{e}")
             } else {
-                println!("[{:>9.3} s] {}", e["t_s"].as_f64().unwrap_or(0.0), e["text"].as_str().unwrap_or(""));
+                writeln!(out, "[{:>9.3} s] {}", e["t_s"].as_f64().unwrap_or(0.0), e["text"].as_str().unwrap_or(""))
+            };
+            // The reader went away (`taut ctl watch | head`): that is the end, not an error.
+            if written.and_then(|()| out.flush()).is_err() {
+                return Ok(());
             }
         }
+        drop(out);
         let more = v["events"].as_array().is_some_and(|a| a.len() == taut_rt_core::operator::EVENTS_PER_REPLY);
         next = v["next"].as_u64().unwrap_or(next);
         if !more {
