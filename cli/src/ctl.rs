@@ -14,7 +14,8 @@ use taut_rt_core::operator::{GoalView, MoveWait};
                         started from: `taut ctl --socket taut-sim-data/taut.sock status`.")]
 pub struct CtlArgs {
     /// Control socket; default: `daemon.socket` of --config, else /run/taut/taut.sock (the
-    /// robot's). The simulated robot's is taut-sim-data/taut.sock.
+    /// robot's), else, when that does not exist, the simulated robot's taut-sim-data/taut.sock
+    /// in the current directory.
     #[arg(long, global = true)]
     socket: Option<PathBuf>,
     /// Robot configuration to take the socket path from (`daemon.socket`).
@@ -82,11 +83,26 @@ enum Request {
     },
 }
 
-fn socket_of(a: &CtlArgs) -> Result<PathBuf> {
+/// Where `taut start --sim` puts its socket when nothing else is configured.
+const SIM_SOCKET: &str = "taut-sim-data/taut.sock";
+
+fn socket_of(a: &CtlArgs, verbosity: i8) -> Result<PathBuf> {
     Ok(match (&a.socket, &a.config) {
         (Some(s), _) => s.clone(),
         (None, Some(c)) => PathBuf::from(taut_config::RobotConfig::load(c).map_err(|e| anyhow!("{e}"))?.daemon.socket),
-        (None, None) => PathBuf::from(taut_config::runtime::DaemonConfig::default().socket),
+        (None, None) => {
+            let robot = PathBuf::from(taut_config::runtime::DaemonConfig::default().socket);
+            // No robot's daemon here, but the simulated robot started from this directory: use
+            // its socket, and say so.
+            if !robot.exists() && Path::new(SIM_SOCKET).exists() {
+                if verbosity >= 0 {
+                    eprintln!("taut ctl: no {}; using the simulated robot's {SIM_SOCKET} (give --socket to choose)", robot.display());
+                }
+                PathBuf::from(SIM_SOCKET)
+            } else {
+                robot
+            }
+        }
     })
 }
 
@@ -122,7 +138,7 @@ fn print_json(v: &Value) -> Result<()> {
 
 /// Runs `taut ctl`.
 pub fn run(a: &CtlArgs, verbosity: i8) -> Result<()> {
-    let socket = socket_of(a)?;
+    let socket = socket_of(a, verbosity)?;
     let s = socket.as_path();
     match &a.request {
         Request::Status => {

@@ -157,6 +157,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     let st = control::request(&sock, "status", Duration::from_secs(5)).unwrap();
     assert!(back && st["recalibrate"]["stage"] == "returned", "{}", st["recalibrate"]);
     let json = serde_json::to_string(&st).unwrap();
+    eprintln!("e2e_start: status after a recalibration: {} bytes of JSON", json.len());
     assert!(json.len() < 16 * 1024, "status is {} bytes", json.len());
     let r = control::request(&sock, "stop", Duration::from_secs(5)).unwrap();
     assert_eq!(r["ok"], true);
