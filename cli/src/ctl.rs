@@ -64,7 +64,15 @@ enum Request {
     },
     /// Run the excitation again, recalibrate, hot-swap if better; the platform is brought back
     /// to where it was (status and log say where it stopped if it could not be).
-    Recalibrate,
+    Recalibrate {
+        /// Wait for the calibration's outcome and the platform's return; exit status 1 if it did
+        /// not get back.
+        #[arg(long)]
+        wait: bool,
+        /// Give up waiting after this many seconds.
+        #[arg(long, default_value_t = 600.0, value_name = "S")]
+        timeout: f64,
+    },
     /// Controlled stop: hold, disable the drives, end the daemon.
     Stop,
     /// Emergency stop: quick stop, latched until `reset`.
@@ -172,14 +180,21 @@ pub fn run(a: &CtlArgs, verbosity: i8) -> Result<()> {
                 Ok(())
             }
         }
-        Request::Recalibrate => {
+        Request::Recalibrate { wait, timeout } => {
+            if !(timeout.is_finite() && *timeout > 0.0) {
+                bail!("--timeout {timeout}: give a positive number of seconds");
+            }
+            let before = ask_ok(s, "status")?["calibration"]["outcomes_total"].as_u64().unwrap_or(0);
             let v = ask_ok(s, "recalibrate")?;
-            if a.json {
+            if a.json && !wait {
                 return print_json(&v);
             }
             println!("recalibrate: {}", v["message"].as_str().unwrap_or("accepted"));
-            println!("follow it with `taut ctl watch`; the outcome and the return are in `taut ctl status`");
-            Ok(())
+            if !wait {
+                println!("follow it with `taut ctl watch`; the outcome and the return are in `taut ctl status`");
+                return Ok(());
+            }
+            wait_for_recalibration(s, before, Duration::from_secs_f64(*timeout))
         }
         Request::Stop | Request::Estop | Request::Params => {
             let req = match &a.request {
@@ -281,6 +296,48 @@ fn wait_for_goal(socket: &Path, goal: u64, tolerance_m: f64, timeout: Duration, 
             );
         }
         std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// `recalibrate --wait`: until the recalibration's outcome is in and the platform is back (or
+/// stopped elsewhere, or a fault).
+fn wait_for_recalibration(socket: &Path, outcomes_before: u64, timeout: Duration) -> Result<()> {
+    let t0 = Instant::now();
+    loop {
+        std::thread::sleep(Duration::from_millis(200));
+        let st = ask_ok(socket, "status")?;
+        let r = &st["recalibrate"];
+        let c = &st["calibration"];
+        let outcome_in = c["outcomes_total"].as_u64().unwrap_or(0) > outcomes_before;
+        let stage = r["stage"].as_str().unwrap_or("");
+        if let Some(m) = st["fault"]["message"].as_str() {
+            bail!("recalibration stopped by a safety reaction: {m}; see `taut ctl status`");
+        }
+        if stage == "stopped" || (outcome_in && stage == "returned") {
+            if let Some(o) = c["outcomes"].as_array().and_then(|a| a.last()).filter(|_| outcome_in) {
+                let verdict = if o["accepted"] == true {
+                    format!(
+                        "accepted as parameters v{} (worst 1-sigma {:.2} mm)",
+                        o["version"],
+                        o["worst_sigma_m"].as_f64().unwrap_or(f64::NAN) * 1e3
+                    )
+                } else {
+                    format!("rejected: {}", o["reason"].as_str().unwrap_or(""))
+                };
+                println!("outcome #{}: {verdict}", o["n"]);
+            }
+            let text = status_text(&st);
+            if let Some(l) = text.lines().find(|l| l.starts_with("recalibrate")) {
+                println!("{l}");
+            }
+            if stage == "stopped" {
+                bail!("the platform did not return: {}", r["why"].as_str().unwrap_or("see `taut ctl status`"));
+            }
+            return Ok(());
+        }
+        if t0.elapsed() > timeout {
+            bail!("the recalibration has not finished after {:.0} s (stage {stage:?}); see `taut ctl status`", timeout.as_secs_f64());
+        }
     }
 }
 

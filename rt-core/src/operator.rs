@@ -44,6 +44,9 @@ pub const SETTLE_S: f64 = 1.0;
 /// Loop time between two loop-health lines when the loop is not clean, s.
 pub const HEALTH_EVERY_S: f64 = 60.0;
 
+/// Loop time between two progress lines during the excitation, s.
+pub const PROGRESS_EVERY_S: f64 = 15.0;
+
 /// How long the start-up's motions are expected to take (from the configuration), for the log.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Expected {
@@ -322,6 +325,8 @@ struct Inner {
     health_overruns: u64,
     health_max_late_ns: i64,
     last: Option<LoopStatus>,
+    /// When the running excitation began and when its last progress line was, loop time, s.
+    excitation: Option<(f64, f64)>,
 }
 
 /// The operator's bookkeeping; cloneable, shared by the control thread and the daemon.
@@ -412,6 +417,7 @@ impl Operator {
                 health_overruns: 0,
                 health_max_late_ns: 0,
                 last: None,
+                excitation: None,
             })),
         }
     }
@@ -464,6 +470,7 @@ impl Operator {
         s.outcomes(ls, cs);
         s.follow_goal(ls);
         s.follow_return(ls);
+        s.progress(ls);
         s.health(ls, false);
         s.last = Some(*ls);
     }
@@ -753,6 +760,22 @@ impl Inner {
         }
         if let Some(x) = self.ret.as_mut() {
             x.stage = stage;
+        }
+    }
+
+    /// A line every [`PROGRESS_EVERY_S`] of a running excitation: how far it is.
+    fn progress(&mut self, ls: &LoopStatus) {
+        let t = ls.snap.t;
+        if ls.snap.state != State::Excitation {
+            self.excitation = None;
+            return;
+        }
+        let (t0, last) = *self.excitation.get_or_insert((t, t));
+        if t - last >= PROGRESS_EVERY_S {
+            let x = self.expected.excitation_s;
+            let line = format!("excitation: {:.0} s so far (the tour is about {x:.0} s, plus the approach)", t - t0);
+            self.record(t, "progress", json!({"state": "excitation", "elapsed_s": t - t0, "expected_s": x}), &line);
+            self.excitation = Some((t0, t));
         }
     }
 

@@ -510,12 +510,16 @@ _taut() {
             return 0
             ;;
         taut__subcmd__ctl__subcmd__recalibrate)
-            opts="-v -q -h --socket --config --json --verbose --quiet --help"
+            opts="-v -q -h --wait --timeout --socket --config --json --verbose --quiet --help"
             if [[ ${cur} == -* || ${COMP_CWORD} -eq 3 ]] ; then
                 COMPREPLY=( $(compgen -W "${opts}" -- "${cur}") )
                 return 0
             fi
             case "${prev}" in
+                --timeout)
+                    COMPREPLY=($(compgen -f "${cur}"))
+                    return 0
+                    ;;
                 --socket)
                     COMPREPLY=($(compgen -f "${cur}"))
                     return 0

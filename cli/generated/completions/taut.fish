@@ -131,8 +131,10 @@ complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcomman
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from move" -s v -l verbose -d 'Say more (`taut start`: also every change of the calibrator\'s stage)'
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from move" -s q -l quiet -d 'Say less (`taut start`: no log lines for people, only warnings and the results; `taut ctl`: no progress lines)'
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from move" -s h -l help -d 'Print help'
+complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -l timeout -d 'Give up waiting after this many seconds' -r
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -l socket -d 'Control socket; default: `daemon.socket` of --config, else /run/taut/taut.sock (the robot\'s), else, when that does not exist, the simulated robot\'s taut-sim-data/taut.sock in the current directory' -r -F
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -l config -d 'Robot configuration to take the socket path from (`daemon.socket`)' -r -F
+complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -l wait -d 'Wait for the calibration\'s outcome and the platform\'s return; exit status 1 if it did not get back'
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -l json -d 'Print the daemon\'s JSON replies instead of the summaries for people'
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -s v -l verbose -d 'Say more (`taut start`: also every change of the calibrator\'s stage)'
 complete -c taut -n "__fish_taut_using_subcommand ctl; and __fish_seen_subcommand_from recalibrate" -s q -l quiet -d 'Say less (`taut start`: no log lines for people, only warnings and the results; `taut ctl`: no progress lines)'

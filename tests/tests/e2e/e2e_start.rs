@@ -6,7 +6,6 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::State;
 use taut_tests::startup;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
@@ -128,17 +127,15 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     assert!(ok, "move --wait: {out}{err}");
     assert!(out.contains("arrived") && out.contains("mm from the goal"), "{out}");
 
-    let r = control::request(&sock, "recalibrate", Duration::from_secs(5)).unwrap();
-    assert_eq!(r["ok"], true, "{r}");
-    let back_to = r["return_to_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
-    assert!(dist(&[back_to[0], back_to[1], back_to[2]], &goal) < 1e-9, "returns to {back_to:?}, not to {goal:?}");
-    let mut saw_excitation = false;
-    let ok = d.wait_until(Duration::from_secs(180), |l, c| {
-        saw_excitation |= l.snap.state == State::Excitation;
-        l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.run == 1)
-    });
-    assert!(ok && saw_excitation);
+    // `taut ctl recalibrate --wait`: says before starting where the platform comes back to, and
+    // returns when the outcome is in and the platform is back.
+    let (ok, out, err) = taut(&["recalibrate", "--wait"]);
+    assert!(ok, "recalibrate --wait: {out}{err}");
+    assert!(out.contains("comes back to") && out.contains("outcome #3: ") && out.contains("back at"), "{out}");
     let st = control::request(&sock, "status", Duration::from_secs(5)).unwrap();
+    let back_to = st["recalibrate"]["return_to_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
+    assert!(dist(&[back_to[0], back_to[1], back_to[2]], &goal) < 1e-9, "returns to {back_to:?}, not to {goal:?}");
+    assert_eq!(st["recalibrate"]["stage"], "returned", "{}", st["recalibrate"]);
     let outcomes = st["calibration"]["outcomes"].as_array().unwrap();
     let last = outcomes.last().unwrap();
     assert_eq!(last["run"], 1);
@@ -149,13 +146,6 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         assert!(!last["reason"].as_str().unwrap().is_empty());
         assert_eq!(d.loop_status().snap.params_version, 2);
     }
-    // Back where the operator left it (or status says where it stopped).
-    let back = d.wait_until(Duration::from_secs(60), |_, _| {
-        let st = control::request(&sock, "status", Duration::from_secs(5)).unwrap();
-        matches!(st["recalibrate"]["stage"].as_str(), Some("returned" | "stopped"))
-    });
-    let st = control::request(&sock, "status", Duration::from_secs(5)).unwrap();
-    assert!(back && st["recalibrate"]["stage"] == "returned", "{}", st["recalibrate"]);
     let json = serde_json::to_string(&st).unwrap();
     eprintln!("e2e_start: status after a recalibration: {} bytes of JSON", json.len());
     assert!(json.len() < 16 * 1024, "status is {} bytes", json.len());
