@@ -168,11 +168,22 @@ fn the_operator_workflow_on_the_simulated_robot() {
     let bad = rig.req("outcome 99");
     assert!(bad["error"].as_str().unwrap().contains("1 to 7"), "{bad}");
 
-    // estop latches, reset brings the robot back holding, stop ends it.
+    // A sixth recalibration, stopped by an estop during its excitation: status and log say
+    // where the platform stopped instead of claiming it came back. The estop latches, reset
+    // brings the robot back holding, stop ends it.
+    assert_eq!(rig.req("recalibrate")["ok"], true);
+    assert!(rig.run_until(10.0, |st| st["state"] == "excitation"));
+    rig.run_until(3.0, |_| false);
     assert_eq!(rig.req("estop")["accepted"], "estop");
-    assert!(rig.run_until(2.0, |st| st["state"] == "faulted"));
-    let text = status_text(&rig.req("status"));
+    assert!(rig.run_until(2.0, |st| st["state"] == "faulted" && st["recalibrate"]["stage"] == "stopped"));
+    let st = rig.req("status");
+    let at = arr3(&st["recalibrate"]["at_m"]);
+    let there = rig.host.platform().position();
+    assert!(dist(&at, &there) < 0.02 && dist(&at, &goal2) > 0.05, "stopped at {at:?}, the platform is at {there:?}");
+    assert!(st["recalibrate"]["why"].as_str().unwrap().contains("emergency stop"), "{}", st["recalibrate"]);
+    let text = status_text(&st);
     assert!(text.contains("fault        ") && text.contains("taut ctl reset"), "{text}");
+    assert!(text.contains("recalibrate  did not return to"), "{text}");
     assert_eq!(rig.req("reset")["accepted"], "reset");
     assert!(rig.run_until(30.0, |st| st["reset"]["last"]["outcome"] == "done"), "{}", rig.req("status")["reset"]);
     assert_eq!(rig.req("stop")["accepted"], "stop");
@@ -206,7 +217,10 @@ fn the_operator_workflow_on_the_simulated_robot() {
         i = find(i, &|e| e["event"] == "goal" && e["origin"] == "recalibrate", "the return goal");
         i = find(i, &is("return", "stage", "returned"), "the return");
     }
+    i = find(i, &|e| e["event"] == "recalibrate", "recalibration 6");
+    i = find(i, &is("state", "to", "excitation"), "its excitation");
     i = find(i, &|e| e["event"] == "fault" && e["cause"] == "estop", "the estop");
+    i = find(i, &is("return", "stage", "stopped"), "the return that did not happen");
     i = find(i, &is("reset", "outcome", "done"), "the reset");
     find(i, &is("state", "to", "stopped"), "the stop");
 
@@ -221,6 +235,7 @@ fn the_operator_workflow_on_the_simulated_robot() {
         "{swaps:#?}"
     );
     assert!(swaps.len() >= 2, "{log:#?}");
+    assert!(log.iter().any(|l| l.starts_with("recalibrate: the platform did not return to ")), "{log:#?}");
     eprintln!(
         "operator workflow: {:.1} s simulated in {:.1} s; {} events; log:\n{}",
         rig.host.sim_s(),
