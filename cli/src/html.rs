@@ -253,7 +253,9 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
     page.verdict(tone, headline, &says);
 
     page.h2("What to do next");
-    let mut next: Vec<String> = f.notes.clone();
+    // Actions only; what the fit noticed (counts of loose readings, rows without a tracker)
+    // follows under "Notes".
+    let mut next: Vec<String> = Vec::new();
     if ctx.refused.is_some() {
         next.push("Record again with the cables taut and the platform moved through the whole workspace, then calibrate again.".into());
     } else if ctx.params_out.is_none() {
@@ -277,6 +279,10 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         next.push("Nothing: the fit is at the noise the sensors explain.".into());
     }
     page.list(&next);
+    if !f.notes.is_empty() {
+        page.h2("Notes");
+        page.list(&f.notes);
+    }
 
     page.h2("Recording");
     let dur = rec.t.last().unwrap_or(&0.0) - rec.t.first().unwrap_or(&0.0);
