@@ -11,7 +11,8 @@ use taut_config::RobotConfig;
 /// Arguments of `taut calibrate`.
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
-    /// The recording (cdpr-recording v1 CSV).
+    /// The recording: cdpr-recording v1 CSV, or an MCAP file taut wrote (recognised by its
+    /// first bytes).
     pub recording: PathBuf,
     /// Robot configuration (platform points, noise model). Without it: point-mass platform.
     #[arg(long)]
@@ -22,7 +23,8 @@ pub struct CalibrateArgs {
     /// Write figures (SVG and PNG) into this directory.
     #[arg(long)]
     pub plot: Option<PathBuf>,
-    /// Write the calibrated parameters (taut-params v1 TOML) to this file, atomically.
+    /// Write the calibrated parameters (taut-params v2 TOML: anchors, offsets, their 1-sigma) to
+    /// this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Write a self-contained HTML report (verdict, tables, figures) to this file, atomically.
@@ -64,11 +66,30 @@ pub fn load_recording(path: &Path) -> Result<(Recording, ParseReport)> {
     Ok((rec, rep))
 }
 
-/// The configuration to use for a recording: the given file, or a point-mass robot.
+/// The robot's name as the recording's comments give it: `# robot: NAME; written by taut start`
+/// (the daemon's recordings) or `# simulated by taut-sim: robot NAME, seed ...` (taut-sim's).
+pub fn robot_name(rec: &Recording) -> Option<String> {
+    rec.comments.iter().find_map(|c| {
+        let c = c.trim();
+        let rest =
+            c.strip_prefix("robot: ").or_else(|| c.split_once("robot ").filter(|(pre, _)| pre.ends_with("taut-sim: ")).map(|x| x.1))?;
+        let name = rest.split([';', ',']).next()?.trim();
+        (!name.is_empty() && name.len() <= 100 && !name.chars().any(char::is_control)).then(|| name.to_string())
+    })
+}
+
+/// The configuration to use for a recording: the given file, or a point-mass robot named as the
+/// recording names its robot.
 pub fn config_for(path: Option<&Path>, rec: &Recording) -> Result<RobotConfig> {
     let cfg = match path {
         Some(p) => RobotConfig::load(p)?,
-        None => RobotConfig::point_mass(rec.n_cables),
+        None => {
+            let mut c = RobotConfig::point_mass(rec.n_cables);
+            if let Some(name) = robot_name(rec) {
+                c.robot.name = name;
+            }
+            c
+        }
     };
     anyhow::ensure!(
         cfg.cables.len() == rec.n_cables,
@@ -232,4 +253,21 @@ pub fn wild_json(sc: &taut_calib::screen::Screen) -> serde_json::Value {
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_robot_is_named_as_the_recording_names_it() {
+        let mut rec = Recording::default();
+        assert_eq!(robot_name(&rec), None);
+        rec.comments = vec![" robot: aras-cam; written by taut start; state column: motion state of the loop".into()];
+        assert_eq!(robot_name(&rec).as_deref(), Some("aras-cam"));
+        rec.comments = vec![" tracker noise".into(), " simulated by taut-sim: robot aras-cam-sim, seed 3, 100 Hz".into()];
+        assert_eq!(robot_name(&rec).as_deref(), Some("aras-cam-sim"));
+        rec.comments = vec![" the robot arm was moved".into()];
+        assert_eq!(robot_name(&rec), None);
+    }
 }

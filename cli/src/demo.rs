@@ -38,6 +38,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
         s.rate_hz,
         s.loose_fraction * 100.0
     );
+    println!("taut demo: writing the recording to {} (-o FILE for elsewhere)", a.sim.output.display());
     let pb = progress(5);
     pb.set_message("simulating");
     let run = taut_sim::try_simulate(&s).map_err(|e| anyhow::anyhow!("cannot simulate this robot: {e}"))?;

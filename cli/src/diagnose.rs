@@ -11,7 +11,7 @@ use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect, Finding
 /// Arguments of `taut diagnose`.
 #[derive(clap::Args)]
 pub struct DiagnoseArgs {
-    /// The recording (cdpr-recording v1 CSV).
+    /// The recording: cdpr-recording v1 CSV, or an MCAP file taut wrote.
     pub recording: PathBuf,
     /// Robot configuration (platform points, noise model). Without it: point-mass platform.
     #[arg(long)]

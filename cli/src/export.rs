@@ -2,7 +2,7 @@
 //! wrote) as an MCAP file for Foxglove, PlotJuggler and rosbag2 (channels in
 //! `taut_config::mcap`).
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use std::path::PathBuf;
 
 /// Arguments of `taut export`.
@@ -10,16 +10,14 @@ use std::path::PathBuf;
 pub struct ExportArgs {
     /// The recording (cdpr-recording v1 CSV; an MCAP file is recognised by its first bytes).
     pub recording: PathBuf,
-    /// Write the recording as MCAP to this file, atomically.
-    #[arg(long)]
-    pub mcap: Option<PathBuf>,
+    /// Write the recording as MCAP to this file, atomically (the only output format).
+    #[arg(long, value_name = "OUT.mcap")]
+    pub mcap: PathBuf,
 }
 
 /// Runs `taut export`.
 pub fn run(a: &ExportArgs) -> Result<()> {
-    let Some(out) = &a.mcap else {
-        bail!("say what to write: taut export {} --mcap OUT.mcap", a.recording.display());
-    };
+    let out = &a.mcap;
     taut_config::atomic::check_output(out, &[a.recording.as_path()]).with_context(|| format!("--mcap {}", out.display()))?;
     let (rec, rep) = crate::calibrate::load_recording(&a.recording)?;
     let source = format!("taut export {}", a.recording.display());

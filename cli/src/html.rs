@@ -253,7 +253,9 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
     page.verdict(tone, headline, &says);
 
     page.h2("What to do next");
-    let mut next: Vec<String> = f.notes.clone();
+    // Actions only; what the fit noticed (counts of loose readings, rows without a tracker)
+    // follows under "Notes".
+    let mut next: Vec<String> = Vec::new();
     if ctx.refused.is_some() {
         next.push("Record again with the cables taut and the platform moved through the whole workspace, then calibrate again.".into());
     } else if ctx.params_out.is_none() {
@@ -277,6 +279,10 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         next.push("Nothing: the fit is at the noise the sensors explain.".into());
     }
     page.list(&next);
+    if !f.notes.is_empty() {
+        page.h2("Notes");
+        page.list(&f.notes);
+    }
 
     page.h2("Recording");
     let dur = rec.t.last().unwrap_or(&0.0) - rec.t.first().unwrap_or(&0.0);
@@ -350,6 +356,23 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
     Ok(page.finish())
 }
 
+/// A value and its 1-sigma rounded to the sigma's two significant digits: `19740 ± 570`,
+/// `1.0555 ± 0.0023`. Without a usable sigma, the value to 4 decimals.
+pub fn plus_minus(v: f64, s: f64) -> String {
+    if !(s.is_finite() && s > 0.0 && v.is_finite()) {
+        return format!("{v:.4}");
+    }
+    let decimals = 1 - s.log10().floor() as i32;
+    if decimals > 0 {
+        let d = decimals as usize;
+        format!("{v:.d$} ± {s:.d$}")
+    } else {
+        let unit = 10f64.powi(-decimals);
+        let r = |x: f64| (x / unit).round() * unit;
+        format!("{:.0} ± {:.0}", r(v), r(s))
+    }
+}
+
 /// The diagnosis report.
 pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<String>) -> Result<String> {
     let mut page = Page::new(&format!("Diagnosis of {robot} from {source}"));
@@ -415,12 +438,8 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
             .effects
             .iter()
             .map(|f| {
-                let vals: Vec<String> = f
-                    .values
-                    .iter()
-                    .zip(f.sigmas.iter().chain(std::iter::repeat(&f64::NAN)))
-                    .map(|(v, s)| if s.is_finite() { format!("{v:.4} ± {s:.4}") } else { format!("{v:.4}") })
-                    .collect();
+                let vals: Vec<String> =
+                    f.values.iter().zip(f.sigmas.iter().chain(std::iter::repeat(&f64::NAN))).map(|(v, s)| plus_minus(*v, *s)).collect();
                 vec![
                     f.effect.name().to_string(),
                     format!("{}: {}", f.effect.parameter(), vals.join(", ")),
@@ -471,4 +490,19 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
         page.figure(&fig)?;
     }
     Ok(page.finish())
+}
+
+#[cfg(test)]
+mod plus_minus_tests {
+    use super::plus_minus;
+
+    #[test]
+    fn values_are_rounded_to_their_uncertainty() {
+        assert_eq!(plus_minus(19737.0827, 565.2190), "19740 ± 570");
+        assert_eq!(plus_minus(1.05552, 0.0023), "1.0555 ± 0.0023");
+        assert_eq!(plus_minus(0.0123456, 0.00098), "0.01235 ± 0.00098");
+        assert_eq!(plus_minus(-2.71234, 0.25), "-2.71 ± 0.25");
+        assert_eq!(plus_minus(2.5, f64::NAN), "2.5000");
+        assert_eq!(plus_minus(2.5, 0.0), "2.5000");
+    }
 }

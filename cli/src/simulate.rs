@@ -12,7 +12,8 @@ pub struct SimulateArgs {
     /// Default: the built-in ARAS-CAM-like robot.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Output recording (cdpr-recording v1 CSV).
+    /// Output recording (cdpr-recording v1 CSV); by default recording.csv in the current
+    /// directory.
     #[arg(short, long, default_value = "recording.csv")]
     pub output: PathBuf,
     /// Write the simulation truth (anchors, offsets) as taut-params TOML here.

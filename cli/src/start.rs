@@ -79,7 +79,7 @@ pub struct StartArgs {
 const DEFAULT_SIM_ROBOT: &str = include_str!("../../config/examples/aras-cam-sim.toml");
 
 /// Runs `taut start`.
-pub fn run(a: &StartArgs) -> Result<()> {
+pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
     let mut cfg = match &a.config {
         Some(p) => RobotConfig::load(p).map_err(|e| anyhow::anyhow!("{e}"))?,
         None if a.sim => RobotConfig::from_toml_str(DEFAULT_SIM_ROBOT).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -107,7 +107,7 @@ pub fn run(a: &StartArgs) -> Result<()> {
         }
         let p0 = simrig::rest_position(&cfg, &so, p0);
         if a.sim_time {
-            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?);
+            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?, verbosity);
         }
         let sim = simrig::build(&cfg, p0, &so)?;
         (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
@@ -116,7 +116,11 @@ pub fn run(a: &StartArgs) -> Result<()> {
         (d, None, t)
     };
     let backend = backend(a, &cfg)?;
-    let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, ..DaemonOptions::default() })
+    // The log for people (states and phases with their expected durations, calibration
+    // outcomes, goals, loop health): off with -q.
+    let log: taut_rt_core::daemon::WarnFn =
+        if verbosity < 0 { std::sync::Arc::new(|_: &str| {}) } else { std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")) };
+    let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, log, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
     eprintln!("taut start: control socket {}, recording {}", cfg.daemon.socket, daemon.recording.display());
     if let Some(plan) = &daemon.calib_status().excitation {
@@ -139,10 +143,10 @@ pub fn run(a: &StartArgs) -> Result<()> {
             let l = daemon.loop_status();
             let c = daemon.calib_status();
             let line = progress_line(&l, &c);
-            if line != last {
+            if line != last && verbosity > 0 {
                 eprintln!("{line}");
-                last = line;
             }
+            last = line;
         }
         daemon.wait();
         return Ok(());
@@ -152,10 +156,10 @@ pub fn run(a: &StartArgs) -> Result<()> {
     let mut last = String::new();
     let done = daemon.wait_until(budget, |l, c| {
         let line = progress_line(l, c);
-        if line != last {
+        if line != last && verbosity > 0 {
             eprintln!("{line}");
-            last = line;
         }
+        last = line;
         taut_rt_core::control::startup_finished(l, c)
     });
     let l = daemon.loop_status();
@@ -204,7 +208,7 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
 }
 
 /// `taut start --sim --once --sim-time`: the start-up in simulated time.
-fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib) -> Result<()> {
+fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib, verbosity: i8) -> Result<()> {
     let budget_s = startup_motion_s(cfg) + 600.0;
     let faults = if a.sim_faults { simrig::LockstepFaults::drawn(a.seed) } else { simrig::LockstepFaults::default() };
     // A run of its own per seed, with an empty parameter history (the calibrator numbers its
@@ -221,15 +225,23 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
     let cfg = &cfg;
     let recording = dir.join("recordings").join("start.csv");
     eprintln!("taut start: simulated time (seed {}); recording {}", a.seed, recording.display());
-    let run = simrig::run_startup(
-        cfg,
-        p0,
-        so,
-        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s },
-        Box::new(backend),
-        |_, _| false,
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // `simrig::run_startup`, with the control socket's bookkeeping ticked between cycles as the
+    // control thread does: the same log lines for people, in simulated time.
+    let opts =
+        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s };
+    let mut host = simrig::Lockstep::start(cfg, p0, so, opts, Box::new(backend)).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if verbosity >= 0 {
+        host.handle().operator().set_log(std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")));
+    }
+    let links = host.handle().control_links(None);
+    let mut over = false;
+    host.run_until(budget_s, |l, c| {
+        links.tick();
+        over = taut_rt_core::control::startup_finished(l, c);
+        over
+    });
+    links.tick();
+    let run = host.finish(over);
     let lc = run.loadcells;
     let loop_json = json!({
         "rate_hz": cfg.rt.rate_hz,

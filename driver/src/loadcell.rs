@@ -117,6 +117,9 @@ pub struct TensionReader {
     latest: Box<[Option<(f64, Instant)>]>,
     max_age: Duration,
     missing: u64,
+    /// Set once the loop has taken a reading: from then on a full ring is worth a warning.
+    taken: Arc<AtomicBool>,
+    told: bool,
 }
 
 impl TensionReader {
@@ -128,6 +131,11 @@ impl TensionReader {
                 *slot = Some((s.newtons, s.t));
             }
             n += 1;
+        }
+        if n > 0 && !self.told {
+            // Relaxed: only decides whether a full ring is reported; no data goes with it.
+            self.taken.store(true, Ordering::Relaxed);
+            self.told = true;
         }
         n
     }
@@ -207,8 +215,21 @@ where
     Ok((LoadCellIo { stop, counters, thread: Some(thread) }, reader(bus, cons, cables)))
 }
 
-fn reader(bus: &LoadCellBusConfig, cons: HeapCons<TensionSample>, cables: usize) -> TensionReader {
-    TensionReader { cons, latest: vec![None; cables].into_boxed_slice(), max_age: Duration::from_secs_f64(bus.max_age_s), missing: 0 }
+fn reader(bus: &LoadCellBusConfig, (cons, taken): (HeapCons<TensionSample>, Arc<AtomicBool>), cables: usize) -> TensionReader {
+    TensionReader {
+        cons,
+        latest: vec![None; cables].into_boxed_slice(),
+        max_age: Duration::from_secs_f64(bus.max_age_s),
+        missing: 0,
+        taken,
+        told: false,
+    }
+}
+
+/// The I/O side of the ring, and whether the loop has taken a reading yet.
+struct Ring {
+    prod: HeapProd<TensionSample>,
+    taken: Arc<AtomicBool>,
 }
 
 /// Validates the bus and the cells and makes the ring between the I/O side and the reader.
@@ -217,7 +238,7 @@ fn prepare(
     bus: &LoadCellBusConfig,
     cells: &[(usize, LoadCellConfig)],
     cables: usize,
-) -> Result<(Vec<Cell>, HeapProd<TensionSample>, HeapCons<TensionSample>), SpawnError> {
+) -> Result<(Vec<Cell>, Ring, (HeapCons<TensionSample>, Arc<AtomicBool>)), SpawnError> {
     bus.validate().map_err(|(k, m)| SpawnError::Config(format!("loadcells.{k}"), m))?;
     let mut polled = Vec::with_capacity(cells.len());
     for (cable, c) in cells {
@@ -240,7 +261,8 @@ fn prepare(
 
     let rb = HeapRb::<TensionSample>::new((RING_PER_CELL * cells.len()).max(16));
     let (prod, cons) = rb.split();
-    Ok((polled, prod, cons))
+    let taken = Arc::new(AtomicBool::new(false));
+    Ok((polled, Ring { prod, taken: taken.clone() }, (cons, taken)))
 }
 
 /// The load-cell bus without its thread, for a lockstep simulation: the caller runs each
@@ -252,7 +274,7 @@ pub struct SteppedLoadCells {
     port: String,
     mcfg: MasterConfig,
     cells: Vec<Cell>,
-    prod: HeapProd<TensionSample>,
+    prod: Ring,
     counters: Arc<Counters>,
     pending: std::collections::VecDeque<TensionSample>,
     period: Duration,
@@ -313,10 +335,18 @@ impl SteppedLoadCells {
     }
 }
 
-/// Pushes one reading into the ring (full: counted).
-fn push(prod: &mut HeapProd<TensionSample>, counters: &Counters, s: TensionSample) {
-    if prod.try_push(s).is_err() {
-        counters.count(Event::Overflow, format_args!("tension ring full: the real-time loop is not reading"));
+/// Pushes one reading into the ring (full: counted). Before the loop has taken its first
+/// reading (the drives are still being brought up, the loop has not started) a full ring is
+/// expected: the readings are counted, not reported. After that a full ring means the loop has
+/// stopped taking them (stalled or ended), and the first time is reported.
+fn push(ring: &mut Ring, counters: &Counters, s: TensionSample) {
+    if ring.prod.try_push(s).is_err() {
+        // Relaxed: see `TensionReader::update`.
+        if ring.taken.load(Ordering::Relaxed) {
+            counters.count(Event::Overflow, format_args!("tension ring full: the real-time loop has stopped taking the readings"));
+        } else {
+            counters.count_quietly(Event::Overflow);
+        }
     }
 }
 
@@ -358,7 +388,7 @@ struct Worker {
     bus: LoadCellBusConfig,
     mcfg: MasterConfig,
     cells: Vec<Cell>,
-    prod: HeapProd<TensionSample>,
+    prod: Ring,
     stop: Arc<AtomicBool>,
     counters: Arc<Counters>,
 }

@@ -203,6 +203,7 @@ fn main() {
         calib: Arc::new(Mutex::new(CalibStatus::default())),
         workspace: ccfg.workspace,
         tracker: None,
+        operator: Default::default(),
     };
     let sock = dir.join("taut.sock");
     let server = ControlServer::bind(&sock, links, ServerLimits::default()).unwrap();

@@ -2,12 +2,15 @@
 //!
 //! ```text
 //! request         reply
-//! status          {"ok":true,"state":"operate","phase":-1,"fault":null,"calibration":{...},...}
+//! status          {"ok":true,"state":"operate","goal":{..},"calibration":{..},...}   (bounded size)
 //! params          {"ok":true,"params":{"version":3,"anchors_m":[[..]],...}}
-//! recalibrate     {"ok":true,"accepted":"recalibrate"}   (progress: see status)
+//! recalibrate     {"ok":true,"accepted":"recalibrate","return_to_m":[X,Y,Z],"message":..}
 //! estop | stop    {"ok":true,"accepted":"estop"}         (urgent: a flag the loop tests every cycle)
 //! reset           {"ok":true,"accepted":"reset"}
-//! move X Y Z      {"ok":true,"accepted":"move","target_m":[X,Y,Z]}
+//! move X Y Z      {"ok":true,"accepted":"move","target_m":[X,Y,Z],"goal":7}
+//! events [SEQ]    {"ok":true,"events":[{"seq":..,"t_s":..,"event":"state",..}],"next":..,"lost":0}
+//! outcome N       {"ok":true,"outcome":{..every data problem..}}
+//! help            {"ok":true,"requests":[{"request":"status","what":..},..]}
 //! anything else   {"ok":false,"error":"<what was wrong and what to send>"}
 //! ```
 //!
@@ -16,6 +19,11 @@
 //! a state other than operate/holding, no calibrated parameters yet). "Accepted" means handed to
 //! the loop, which may still decline a move if its state changed in between.
 //!
+//! `status` lists the newest [`STATUS_OUTCOMES`] calibration outcomes in short (their data
+//! problems counted); `outcome N` gives one in full. A move's goal, its progress and how it
+//! ended, the return after a recalibration and the event journal are the
+//! [`Operator`]'s ([`crate::operator`]).
+//!
 //! The server ([`ControlServer`], `ctl_server.rs`) serves many clients at once with a line
 //! length limit and a deadline per request. The socket is created with mode 0660, so the
 //! operator group may use it; the loop sees only [`Command`]s from a bounded channel and the
@@ -23,6 +31,7 @@
 
 use crate::calibrator::{CalibStatus, OutcomeKind, SharedCalibStatus};
 use crate::motion::{Command, ResetOutcome, State};
+use crate::operator::Operator;
 use crate::runner::LoopStatus;
 use crate::triple::Reader;
 use crate::urgent::Urgent;
@@ -49,35 +58,84 @@ fn finite(v: f64) -> Value {
     }
 }
 
-/// The status as JSON.
+/// Outcomes listed in `status` (the newest; the others by number with `outcome N`).
+pub const STATUS_OUTCOMES: usize = 4;
+
+/// Longest rejection reason quoted in `status`, characters (the whole one: `outcome N`).
+const REASON_CHARS: usize = 240;
+
+fn drive_name(d: crate::io::DriveStatus) -> &'static str {
+    use crate::io::DriveStatus::*;
+    match d {
+        Unknown => "unknown",
+        Disabled => "disabled",
+        Enabled => "enabled",
+        QuickStop => "quick-stop",
+        Fault => "fault",
+    }
+}
+
+/// One outcome in full (`outcome N`): the estimate, its sigmas, every data problem.
+pub fn outcome_json(n: usize, o: &crate::calibrator::Outcome) -> Value {
+    let est = o.estimate.as_ref().map(|e| {
+        json!({"anchors_m": e.geometry.anchors, "l0_m": e.geometry.l0, "anchor_sigma_m": e.sigma.anchors.iter().map(|s| s.map(finite)).collect::<Vec<_>>(),
+               "l0_sigma_m": e.sigma.l0.iter().map(|&s| finite(s)).collect::<Vec<_>>(), "note": e.note})
+    });
+    json!({
+        "n": n,
+        "run": o.run,
+        "kind": match o.kind { OutcomeKind::Initial => "initial", OutcomeKind::Calibration => "calibration" },
+        "accepted": o.accepted,
+        "reason": o.reason,
+        "version": o.version,
+        "samples": o.samples,
+        "heldout_rms_new_m": finite(o.heldout_rms_new_m),
+        "heldout_rms_old_m": finite(o.heldout_rms_old_m),
+        "heldout_outliers": o.heldout_outliers,
+        "heldout_rows": o.heldout_rows,
+        "estimate": est,
+        "data_problems": o.data_problems,
+    })
+}
+
+/// An outcome in short (`status`): the numbers, the reason cut, the data problems counted.
+fn outcome_summary(n: usize, o: &crate::calibrator::Outcome) -> Value {
+    json!({
+        "n": n,
+        "run": o.run,
+        "kind": match o.kind { OutcomeKind::Initial => "initial", OutcomeKind::Calibration => "calibration" },
+        "accepted": o.accepted,
+        "reason": excerpt(&o.reason, REASON_CHARS),
+        "version": o.version,
+        "samples": o.samples,
+        "heldout_rms_new_m": finite(o.heldout_rms_new_m),
+        "heldout_rms_old_m": finite(o.heldout_rms_old_m),
+        "heldout_outliers": o.heldout_outliers,
+        "worst_sigma_m": o.estimate.as_ref().and_then(|e| crate::operator::worst_sigma(&e.sigma.anchors, &e.sigma.l0)).map(|w| w.0),
+        "data_problems": o.data_problems.len(),
+    })
+}
+
+/// The status as JSON. Its size is bounded: the newest [`STATUS_OUTCOMES`] outcomes in short
+/// (`outcomes_total` counts them all; `outcome N` gives one in full).
 pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibStatus) -> Value {
     let s = &loop_status.snap;
     let n = s.inputs.n;
     let fault = s.fault.map(|(c, r)| json!({"cause": c.name(), "reaction": r.name(), "message": c.to_string()}));
-    let outcomes: Vec<Value> = calib
-        .outcomes
-        .iter()
-        .map(|o| {
-            json!({
-                "run": o.run,
-                "kind": match o.kind { OutcomeKind::Initial => "initial", OutcomeKind::Calibration => "calibration" },
-                "accepted": o.accepted,
-                "reason": o.reason,
-                "version": o.version,
-                "samples": o.samples,
-                "heldout_rms_new_m": finite(o.heldout_rms_new_m),
-                "heldout_rms_old_m": finite(o.heldout_rms_old_m),
-                "heldout_outliers": o.heldout_outliers,
-                "data_problems": o.data_problems,
-            })
-        })
-        .collect();
+    let total = calib.outcomes.len();
+    let outcomes: Vec<Value> =
+        calib.outcomes.iter().enumerate().skip(total.saturating_sub(STATUS_OUTCOMES)).map(|(k, o)| outcome_summary(k + 1, o)).collect();
     let reset = s.last_reset.map(|r| match r {
         ResetOutcome::InProgress => json!({"outcome": "in-progress"}),
         ResetOutcome::Done => json!({"outcome": "done"}),
         ResetOutcome::Refused(why) => json!({"outcome": "refused", "message": why.to_string()}),
     });
     let bus = &s.inputs.bus;
+    let current = calib.current.as_ref().map(|p| {
+        let worst = crate::operator::worst_sigma(&p.anchor_sigma_m, &p.l0_sigma_m);
+        json!({"version": p.version, "source": p.source, "worst_sigma_m": worst.as_ref().map(|w| w.0),
+               "worst_sigma_of": worst.map(|w| w.1), "heldout_rms_m": finite(p.heldout_rms_m)})
+    });
     json!({
         "ok": true,
         "t_s": s.t,
@@ -95,8 +153,11 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
         "max_swap_step_m": s.max_swap_step_m,
         "target_m": s.target_m,
         "pose_m": s.inputs.pose_m.map(finite),
+        "pose_age_s": finite(s.inputs.pose_age_s),
         "lengths_m": s.inputs.length_m[..n].iter().map(|&v| finite(v)).collect::<Vec<_>>(),
         "tensions_n": s.inputs.tension_n[..n].iter().map(|&v| finite(v)).collect::<Vec<_>>(),
+        "tension_age_s": s.inputs.tension_age_s[..n].iter().map(|&v| finite(v)).collect::<Vec<_>>(),
+        "drives": s.inputs.drive[..n].iter().map(|&d| drive_name(d)).collect::<Vec<_>>(),
         "loop": {
             "cycles": loop_status.cycles,
             "overruns": loop_status.overruns,
@@ -111,6 +172,8 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
             "dataset_samples": calib.dataset_samples,
             "recording": calib.recording.as_ref().map(|p| p.display().to_string()),
             "recorder_error": calib.recorder_error.as_ref().map(ToString::to_string),
+            "current": current,
+            "outcomes_total": total,
             "outcomes": outcomes,
             "excitation": crate::excite::status_json(calib),
         },
@@ -134,6 +197,13 @@ pub enum Request {
     Reset,
     /// `move X Y Z`, finite coordinates, m
     Move([f64; 3]),
+    /// `events [SEQ]`: the journal from event SEQ on (default: the next one; see
+    /// [`crate::operator`])
+    Events(Option<u64>),
+    /// `outcome N`: the calibrator's N-th outcome in full (1 is the first)
+    Outcome(usize),
+    /// `help`: the requests and what they do
+    Help,
 }
 
 impl Request {
@@ -143,7 +213,21 @@ impl Request {
     }
 }
 
-const VERBS: &str = "status | params | recalibrate | stop | estop | reset | move X Y Z";
+const VERBS: &str = "status | params | recalibrate | stop | estop | reset | move X Y Z | events [SEQ] | outcome N | help";
+
+/// What each request does (the reply to `help`).
+pub const HELP: &[(&str, &str)] = &[
+    ("status", "state, goal, calibration, drives, load cells, tracker, faults, loop health (bounded size)"),
+    ("params", "the parameters in force: anchors, offsets, their 1-sigma"),
+    ("recalibrate", "run the excitation again, calibrate, hot-swap if better; the platform comes back afterwards"),
+    ("move X Y Z", "move the platform to X Y Z (m) in a straight line; the reply's goal number is followed in status"),
+    ("estop", "emergency stop: quick stop, latched until reset (answered first)"),
+    ("stop", "controlled stop: hold, disable, end the daemon (answered first)"),
+    ("reset", "clear a latched safety reaction, re-enable the drives holding where they stand"),
+    ("events [SEQ]", "the event journal from number SEQ on (at most 64 per reply; `next` is the one to ask for next)"),
+    ("outcome N", "the calibrator's N-th outcome in full: estimate, sigmas, every data problem"),
+    ("help", "this list"),
+];
 
 /// At most `n` characters of `s` for an error message, with `...` when cut.
 fn excerpt(s: &str, n: usize) -> String {
@@ -190,6 +274,13 @@ pub enum RequestError {
         /// The word (quoted, cut).
         word: String,
     },
+    /// A number argument (`events SEQ`, `outcome N`) that is not a whole number in range.
+    BadCount {
+        /// The verb.
+        verb: &'static str,
+        /// The word (quoted, cut).
+        word: String,
+    },
     /// A `move` coordinate that is NaN or infinite.
     NotFinite {
         /// `X`, `Y` or `Z`.
@@ -218,6 +309,13 @@ impl fmt::Display for RequestError {
             }
             RequestError::NotANumber { axis, word } => write!(f, "move: {axis} = {word:?} is not a number"),
             RequestError::NotFinite { axis, word } => write!(f, "move refused: {axis} = {word:?} is not a finite number (m)"),
+            RequestError::BadCount { verb, word } => {
+                write!(
+                    f,
+                    "{verb}: {word:?} is not a whole number{}",
+                    if *verb == "outcome" { " from 1 (outcome N)" } else { " (events SEQ)" }
+                )
+            }
             RequestError::UnknownVerb { verb } => write!(f, "unknown request {verb:?}: {VERBS}"),
         }
     }
@@ -250,6 +348,19 @@ pub fn parse_request(line: &[u8]) -> Result<Request, RequestError> {
         "stop" => simple(Request::Stop, "stop"),
         "estop" => simple(Request::Estop, "estop"),
         "reset" => simple(Request::Reset, "reset"),
+        "help" => simple(Request::Help, "help"),
+        "events" => match rest.as_slice() {
+            [] => Ok(Request::Events(None)),
+            [w] => w.parse().map(|q| Request::Events(Some(q))).map_err(|_| RequestError::BadCount { verb: "events", word: excerpt(w, 40) }),
+            _ => Err(RequestError::BadCount { verb: "events", word: excerpt(&rest.join(" "), 40) }),
+        },
+        "outcome" => match rest.as_slice() {
+            [w] => match w.parse::<usize>() {
+                Ok(k) if k >= 1 => Ok(Request::Outcome(k)),
+                _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(w, 40) }),
+            },
+            _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(&rest.join(" "), 40) }),
+        },
         "move" => {
             if rest.len() != 3 {
                 return Err(RequestError::MoveArity { got: rest.len().min(4) });
@@ -284,6 +395,8 @@ pub struct ControlLinks {
     pub workspace: [[f64; 3]; 2],
     /// The tracker receiver's counters, for `status` (`None`: no tracker).
     pub tracker: Option<TrackerStatsHandle>,
+    /// Goals, the return after a recalibration, the event journal, the log lines.
+    pub operator: Operator,
 }
 
 /// A poisoned lock only means another thread panicked while holding it; the data is plain
@@ -318,9 +431,14 @@ impl ControlLinks {
                 let ls = *lock(&self.loop_status).read();
                 let cs = lock(&self.calib).clone();
                 let mut v = status_json(&ls, &cs);
+                let (goal, ret) = self.operator.status_json(&ls);
+                v["goal"] = goal;
+                v["recalibrate"] = ret;
+                v["events_next"] = json!(self.operator.next_seq());
                 if let Some(t) = &self.tracker {
                     let s = t.stats();
                     v["tracker"] = json!({
+                        "pose_age_s": finite(ls.snap.inputs.pose_age_s),
                         "received": s.received, "accepted": s.accepted, "malformed": s.malformed, "late": s.late,
                         "out_of_order": s.out_of_order, "restarts": s.restarts, "foreign": s.foreign,
                     });
@@ -342,7 +460,31 @@ impl ControlLinks {
                 if !matches!(ls.snap.state, State::Operate | State::Holding) || ls.snap.fault.is_some() {
                     return json!({"ok": false, "error": format!("recalibrate refused: it needs the robot operating without a fault; it is {}", ls.snap.state.name())});
                 }
-                send(Command::Recalibrate, "recalibrate")
+                match send(Command::Recalibrate, "recalibrate") {
+                    v if v["ok"] == true => {
+                        let to = self.operator.recalibrate_accepted(&ls);
+                        json!({"ok": true, "accepted": "recalibrate", "return_to_m": to,
+                               "message": format!("the excitation moves the platform; it comes back to {} afterwards (see status: recalibrate)", crate::operator::point(&to))})
+                    }
+                    v => v,
+                }
+            }
+            Request::Events(from) => {
+                let from = from.unwrap_or_else(|| self.operator.next_seq());
+                let (events, next, lost) = self.operator.events_since(from);
+                json!({"ok": true, "events": events, "next": next, "lost": lost})
+            }
+            Request::Outcome(k) => {
+                let cs = lock(&self.calib);
+                match cs.outcomes.get(k - 1) {
+                    Some(o) => json!({"ok": true, "outcome": outcome_json(k, o)}),
+                    None => {
+                        json!({"ok": false, "error": format!("outcome {k}: there are {} outcomes so far (1 to {})", cs.outcomes.len(), cs.outcomes.len())})
+                    }
+                }
+            }
+            Request::Help => {
+                json!({"ok": true, "requests": HELP.iter().map(|(r, what)| json!({"request": r, "what": what})).collect::<Vec<_>>()})
             }
             Request::Reset => send(Command::Reset, "reset"),
             Request::Move(p) => {
@@ -362,11 +504,23 @@ impl ControlLinks {
                     return json!({"ok": false, "error": "move refused: the robot is not operating: no calibrated parameters yet"});
                 }
                 match send(Command::MoveTo(p), "move") {
-                    v if v["ok"] == true => json!({"ok": true, "accepted": "move", "target_m": p}),
+                    v if v["ok"] == true => {
+                        let ls = *lock(&self.loop_status).read();
+                        let goal = self.operator.move_accepted(&ls, p);
+                        json!({"ok": true, "accepted": "move", "target_m": p, "goal": goal})
+                    }
                     v => v,
                 }
             }
         }
+    }
+
+    /// The operator's periodic work ([`Operator::tick`]): the control thread calls it every
+    /// round; a host that steps the loop itself calls it between cycles.
+    pub fn tick(&self) {
+        let ls = *lock(&self.loop_status).read();
+        let cs = lock(&self.calib);
+        self.operator.tick(&ls, &cs);
     }
 
     /// Parses and answers one request line (a convenience for tests and one-shot callers).
@@ -416,5 +570,188 @@ pub fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
     match c.outcomes.iter().find(|o| o.run == 0 && o.kind == OutcomeKind::Calibration && o.accepted) {
         Some(o) => l.snap.params_version == o.version && !l.snap.swap_active,
         None => false,
+    }
+}
+
+/// A `status` reply for people: one line per subject (state, fault, goal, recalibration,
+/// calibration, outcomes, drives, load cells, tracker, loop). Cables are numbered from 1.
+pub fn status_text(v: &Value) -> String {
+    let mut out = String::new();
+    let mut line = |k: &str, text: String| out.push_str(&format!("{k:<12} {text}\n"));
+    let mm = |x: &Value| x.as_f64().map_or("-".to_string(), |m| format!("{:.2} mm", m * 1e3));
+    let pt = |x: &Value| {
+        let a: Vec<f64> = x.as_array().map_or(Vec::new(), |a| a.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect());
+        if a.len() == 3 && a.iter().all(|v| v.is_finite()) {
+            crate::operator::point(&[a[0], a[1], a[2]])
+        } else {
+            "unknown".into()
+        }
+    };
+    let state = v["state"].as_str().unwrap_or("unknown");
+    let phase = v["phase"].as_i64().filter(|p| *p >= 0).map_or(String::new(), |p| format!(" (phase {} of 3)", p + 1));
+    let swap = if v["swap_active"] == true { ", swap ramp running" } else { "" };
+    line("state", format!("{state}{phase}, parameters v{}{swap}", v["params_version"]));
+    line(
+        "fault",
+        match v["fault"]["message"].as_str() {
+            Some(m) => format!("{}: {m} (`taut ctl reset` when it is safe)", v["fault"]["reaction"].as_str().unwrap_or("latched")),
+            None => "none".into(),
+        },
+    );
+    let g = &v["goal"];
+    line(
+        "goal",
+        match g["id"].as_u64() {
+            None => format!("none; setpoint {}", pt(&v["target_m"])),
+            Some(id) => {
+                let how = match g["ended"]["message"].as_str() {
+                    Some(m) => m.to_string(),
+                    None if g["reached"] == true => format!("setpoint there, settling ({} from it)", mm(&g["error_m"])),
+                    None => format!("moving, {} to go (setpoint {})", mm(&g["remaining_m"]), pt(&g["setpoint_m"])),
+                };
+                format!("#{id} {} ({}): {how}", pt(&g["target_m"]), g["origin"].as_str().unwrap_or("operator"))
+            }
+        },
+    );
+    let r = &v["recalibrate"];
+    if let Some(stage) = r["stage"].as_str() {
+        let to = pt(&r["return_to_m"]);
+        line(
+            "recalibrate",
+            match stage {
+                "returned" => format!("back at {to} ({} from it)", mm(&r["error_m"])),
+                "stopped" => format!("did not return to {to}: stopped at {}: {}", pt(&r["at_m"]), r["why"].as_str().unwrap_or("")),
+                "returning" => format!("returning to {to}"),
+                _ => format!("under way; the platform comes back to {to} afterwards"),
+            },
+        );
+    }
+    let c = &v["calibration"];
+    let cur = &c["current"];
+    line(
+        "calibration",
+        if cur.is_null() {
+            format!("no parameters yet; calibrator {}", c["stage"].as_str().unwrap_or("?"))
+        } else {
+            format!(
+                "v{} ({}), worst 1-sigma {} ({}), held-out RMS {}; calibrator {}",
+                cur["version"],
+                cur["source"].as_str().unwrap_or("?"),
+                mm(&cur["worst_sigma_m"]),
+                cur["worst_sigma_of"].as_str().unwrap_or("-"),
+                mm(&cur["heldout_rms_m"]),
+                c["stage"].as_str().unwrap_or("?")
+            )
+        },
+    );
+    if let Some(o) = c["outcomes"].as_array().and_then(|a| a.last()) {
+        let verdict = if o["accepted"] == true {
+            format!("accepted as v{}", o["version"])
+        } else {
+            format!("rejected: {}", o["reason"].as_str().unwrap_or(""))
+        };
+        line(
+            "outcomes",
+            format!(
+                "{} in all; latest #{} (run {}, {}) {verdict}; details: taut ctl outcome N",
+                c["outcomes_total"],
+                o["n"],
+                o["run"],
+                o["kind"].as_str().unwrap_or("?")
+            ),
+        );
+    }
+    let list = |x: &Value| x.as_array().cloned().unwrap_or_default();
+    let drives = list(&v["drives"]);
+    let bus = &v["bus"];
+    line(
+        "drives",
+        format!(
+            "{}; bus {} {}",
+            drives.iter().enumerate().map(|(j, d)| format!("{}: {}", j + 1, d.as_str().unwrap_or("?"))).collect::<Vec<_>>().join(", "),
+            bus["iface"].as_str().unwrap_or("?"),
+            bus["state"].as_str().unwrap_or("?")
+        ),
+    );
+    let ages = list(&v["tension_age_s"]);
+    line(
+        "load cells",
+        list(&v["tensions_n"])
+            .iter()
+            .enumerate()
+            .map(|(j, t)| match (t.as_f64(), ages.get(j).and_then(Value::as_f64)) {
+                (Some(t), Some(a)) => format!("{}: {t:.0} N ({a:.2} s old)", j + 1),
+                (Some(t), None) => format!("{}: {t:.0} N", j + 1),
+                _ => format!("{}: no reading", j + 1),
+            })
+            .collect::<Vec<_>>()
+            .join(", "),
+    );
+    let t = &v["tracker"];
+    line(
+        "tracker",
+        match (v["pose_age_s"].as_f64(), t.is_null()) {
+            (None, true) => "none".into(),
+            (age, _) => {
+                let age = age.map_or("no pose yet".to_string(), |a| format!("{a:.2} s old"));
+                let counts = if t.is_null() {
+                    String::new()
+                } else {
+                    format!(
+                        "; {} received, {} malformed, {} late, {} from foreign senders",
+                        t["received"], t["malformed"], t["late"], t["foreign"]
+                    )
+                };
+                format!("pose {} ({age}){counts}", pt(&v["pose_m"]))
+            }
+        },
+    );
+    let l = &v["loop"];
+    line(
+        "loop",
+        format!(
+            "{} cycles, {} overruns, worst lateness {:.2} ms, worst compute {:.2} ms, {} samples dropped, {}",
+            l["cycles"],
+            l["overruns"],
+            l["max_late_us"].as_f64().unwrap_or(0.0) * 1e-3,
+            l["max_compute_us"].as_f64().unwrap_or(0.0) * 1e-3,
+            l["samples_dropped"],
+            if l["realtime"] == true { "SCHED_FIFO" } else { "not real-time" }
+        ),
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_journal_and_outcome_requests_parse_and_bad_numbers_are_refused_clearly() {
+        assert_eq!(parse_request(b"events"), Ok(Request::Events(None)));
+        assert_eq!(parse_request(b"events 12"), Ok(Request::Events(Some(12))));
+        assert_eq!(parse_request(b"outcome 3"), Ok(Request::Outcome(3)));
+        assert_eq!(parse_request(b"help"), Ok(Request::Help));
+        for (line, says) in [
+            ("outcome 0", "\"0\" is not a whole number from 1"),
+            ("outcome", "outcome N"),
+            ("outcome x", "\"x\" is not a whole number"),
+            ("events -1", "(events SEQ)"),
+            ("events 1 2", "\"1 2\" is not a whole number (events SEQ)"),
+            ("help me", "help takes no arguments"),
+            ("watch", "unknown request \"watch\": status | params"),
+        ] {
+            let e = parse_request(line.as_bytes()).unwrap_err().to_string();
+            assert!(e.contains(says), "{line:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_human_status_has_a_line_per_subject_even_when_empty() {
+        let text = status_text(&json!({"ok": true, "state": "enabling", "phase": -1, "params_version": 0}));
+        for key in ["state", "fault", "goal", "calibration", "drives", "load cells", "tracker", "loop"] {
+            assert!(text.lines().any(|l| l.starts_with(key)), "{key}: {text}");
+        }
+        assert!(text.contains("no parameters yet") && text.contains("fault        none"), "{text}");
     }
 }

@@ -328,6 +328,9 @@ impl ControlServer {
             }
             conns.retain(|c| !(c.dead || (c.closing && !c.pending_out())));
             self.stats.open = conns.len() as u64;
+            // The operator's bookkeeping: events, goals, the return after a recalibration, the
+            // log lines (microseconds; at least every 50 ms).
+            self.links.tick();
         }
         drop(conns);
         let _ = std::fs::remove_file(&self.path);

@@ -18,6 +18,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
 
+/// How long the control socket is served after the loop has stopped: `taut ctl watch`'s poll
+/// period and a margin.
+const WATCH_LINGER: Duration = Duration::from_millis(300);
+
 /// Where warnings go (stderr in the binary, a buffer in tests).
 pub type WarnFn = Arc<dyn Fn(&str) + Send + Sync>;
 
@@ -32,11 +36,20 @@ pub struct DaemonOptions {
     pub warn: WarnFn,
     /// The tracker receiver's counters, shown by `status` (foreign senders included).
     pub tracker: Option<taut_driver::tracker::TrackerStatsHandle>,
+    /// Where the log lines for people go ([`crate::operator`]: each state and phase with its
+    /// expected duration, each calibration outcome, goals, loop health).
+    pub log: WarnFn,
 }
 
 impl Default for DaemonOptions {
     fn default() -> Self {
-        DaemonOptions { recording: None, control: true, warn: Arc::new(|w| eprintln!("warning: {w}")), tracker: None }
+        DaemonOptions {
+            recording: None,
+            control: true,
+            warn: Arc::new(|w| eprintln!("warning: {w}")),
+            tracker: None,
+            log: Arc::new(|l| eprintln!("taut: {l}")),
+        }
     }
 }
 
@@ -145,6 +158,7 @@ impl Daemon {
         };
         let builder = Plugin::builder(cfg, devices, popts)?;
         let handle = builder.handle().clone();
+        handle.operator().set_log(opts.log.clone());
         // The socket first: a second daemon is refused here, before it creates any file.
         let control = if opts.control {
             let path = PathBuf::from(&cfg.daemon.socket);
@@ -283,11 +297,21 @@ impl Daemon {
     }
 
     fn finish(&mut self) {
+        if self.plugin.is_some() {
+            // The loop has ended: its health once more, clean or not.
+            let ls = self.loop_status();
+            self.handle.operator().stopped(&ls);
+        }
         if let Some(mut p) = self.plugin.take() {
             // The loop has ended (the controller stopped): deactivate runs no further cycle;
             // cleanup drains the calibrator and joins it.
             let _ = p.deactivate();
             let _ = p.cleanup();
+        }
+        if self.control_thread.is_some() {
+            // `taut ctl watch` asks for the journal every 200 ms: the socket stays a little
+            // longer so that watchers get the last events (the stop, the loop's health).
+            std::thread::sleep(WATCH_LINGER);
         }
         // Relaxed: the control thread only needs to see the flag eventually.
         self.quit.store(true, Ordering::Relaxed);

@@ -50,6 +50,7 @@ pub mod heldout;
 #[cfg(test)]
 mod motion_tests;
 pub mod notracker;
+pub mod operator;
 pub mod plugin;
 pub mod robot_io;
 mod rt_config;

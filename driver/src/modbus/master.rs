@@ -149,6 +149,11 @@ impl Counters {
         }
     }
 
+    /// Counts an event without logging it (one that is expected where it happens).
+    pub fn count_quietly(&self, event: Event) {
+        self.events[event as usize].fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Reads every counter.
     pub fn snapshot(&self) -> CounterSnapshot {
         let e = |k: Event| self.events[k as usize].load(Ordering::Relaxed);

@@ -8,6 +8,7 @@ use super::error::Refusal;
 use crate::calibrator::{CalibStatus, SharedCalibStatus};
 use crate::control::{ControlLinks, SharedLoopStatus};
 use crate::motion::{Command, State};
+use crate::operator::{Expected, Operator};
 use crate::runner::LoopStatus;
 use crate::safety::{Cause, Reaction};
 use crate::urgent::Urgent;
@@ -76,6 +77,7 @@ struct Shared {
     events: Receiver<Event>,
     events_dropped: Arc<AtomicU64>,
     workspace: [[f64; 3]; 2],
+    operator: Operator,
 }
 
 /// The operator's handle: clone it into any non-real-time thread. Every call returns at once.
@@ -98,11 +100,22 @@ impl PluginHandle {
         calib: SharedCalibStatus,
         event_capacity: usize,
         workspace: [[f64; 3]; 2],
+        expected: Expected,
     ) -> (PluginHandle, EventTx) {
         let (tx, events) = crossbeam_channel::bounded(event_capacity.max(1));
         let events_dropped = Arc::new(AtomicU64::new(0));
+        let operator = Operator::new(Some(events.clone()), Some(commands.clone()), expected);
         let h = PluginHandle {
-            s: Arc::new(Shared { commands, urgent, loop_status, calib, events, events_dropped: events_dropped.clone(), workspace }),
+            s: Arc::new(Shared {
+                commands,
+                urgent,
+                loop_status,
+                calib,
+                events,
+                events_dropped: events_dropped.clone(),
+                workspace,
+                operator,
+            }),
         };
         (h, EventTx { tx, dropped: events_dropped })
     }
@@ -166,8 +179,11 @@ impl PluginHandle {
     /// Runs the excitation again; the calibrator recalibrates from it and the result is
     /// hot-swapped if it is better. Refused unless operating without a fault.
     pub fn request_recalibration(&self) -> Result<(), Refusal> {
-        self.operating()?;
-        self.send(Command::Recalibrate)
+        let l = self.operating()?;
+        self.send(Command::Recalibrate)?;
+        // Where the platform is brought back to afterwards (by the operator's tick).
+        self.s.operator.recalibrate_accepted(&l);
+        Ok(())
     }
 
     /// Emergency stop: quick stop, latched, at the loop's next cycle. Never refused.
@@ -196,7 +212,18 @@ impl PluginHandle {
         if l.snap.params_version == 0 {
             return Err(Refusal::NoParameters);
         }
-        self.send(Command::MoveTo(target_m))
+        self.send(Command::MoveTo(target_m))?;
+        // The goal that status shows and the operator's tick follows.
+        self.s.operator.move_accepted(&l, target_m);
+        Ok(())
+    }
+
+    /// The operator's bookkeeping (goals, the return after a recalibration, the event journal,
+    /// the log lines), shared with every [`ControlLinks`] of this handle. Its
+    /// [`Operator::tick`] takes the events from the queue [`PluginHandle::poll_event`] reads:
+    /// a host uses one or the other.
+    pub fn operator(&self) -> &Operator {
+        &self.s.operator
     }
 
     /// The next event, if any.
@@ -219,6 +246,7 @@ impl PluginHandle {
             calib: self.s.calib.clone(),
             workspace: self.s.workspace,
             tracker,
+            operator: self.s.operator.clone(),
         }
     }
 }

@@ -310,7 +310,15 @@ impl Plugin {
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
         let calib_status: SharedCalibStatus =
             Arc::new(Mutex::new(CalibStatus { excitation: excitation.clone(), ..CalibStatus::default() }));
-        let (handle, events) = PluginHandle::new(cmd_tx, urgent, loop_status, calib_status.clone(), opts.event_capacity, ccfg.workspace);
+        let (handle, events) = PluginHandle::new(
+            cmd_tx,
+            urgent,
+            loop_status,
+            calib_status.clone(),
+            opts.event_capacity,
+            ccfg.workspace,
+            crate::operator::Expected::from_robot(cfg),
+        );
         let recording = match opts.recording {
             RecordingPath::Off => None,
             RecordingPath::At(p) => Some(p),

@@ -6,7 +6,6 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::State;
 use taut_tests::startup;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
@@ -93,15 +92,50 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     assert_eq!(st["state"], "operate");
     let p = control::request(&sock, "params", Duration::from_secs(5)).unwrap();
     assert_eq!(p["params"]["version"], 2);
-    let r = control::request(&sock, "recalibrate", Duration::from_secs(5)).unwrap();
-    assert_eq!(r["ok"], true, "{r}");
-    let mut saw_excitation = false;
-    let ok = d.wait_until(Duration::from_secs(180), |l, c| {
-        saw_excitation |= l.snap.state == State::Excitation;
-        l.snap.fault.is_some() || c.outcomes.iter().any(|o| o.run == 1)
-    });
-    assert!(ok && saw_excitation);
+    // The `taut` binary over the real socket: the human status, a watcher following the events,
+    // a move waited on to arrival.
+    let taut = |args: &[&str]| {
+        let o = std::process::Command::new(crate::hostile::taut_bin()).arg("ctl").arg("--socket").arg(&sock).args(args).output().unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (ok, out, err) = taut(&["status"]);
+    assert!(ok, "{err}");
+    for key in
+        ["state        operate", "fault        none", "calibration  v2", "drives       1: enabled", "tracker      pose (", "loop         "]
+    {
+        assert!(out.contains(key), "no {key:?} in\n{out}");
+    }
+    let watch = std::process::Command::new(crate::hostile::taut_bin())
+        .args(["ctl", "--socket"])
+        .arg(&sock)
+        .args(["watch", "--from", "1"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let goal = {
+        use taut_rt_core::FromRobot;
+        let w = taut_rt_core::motion::ControllerConfig::from_robot(&cfg).unwrap().workspace;
+        let t = st["target_m"].as_array().unwrap();
+        // 0.15 m from where the start-up left the platform, towards the middle: a short move.
+        let here: [f64; 3] = std::array::from_fn(|i| t[i].as_f64().unwrap());
+        let mid: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
+        let d = dist(&here, &mid);
+        std::array::from_fn::<f64, 3, _>(|i| here[i] + 0.15 * (mid[i] - here[i]) / d)
+    };
+    let (xs, ys, zs) = (goal[0].to_string(), goal[1].to_string(), goal[2].to_string());
+    let (ok, out, err) = taut(&["move", &xs, &ys, &zs, "--wait", "--tolerance", "10"]);
+    assert!(ok, "move --wait: {out}{err}");
+    assert!(out.contains("arrived") && out.contains("mm from the goal"), "{out}");
+
+    // `taut ctl recalibrate --wait`: says before starting where the platform comes back to, and
+    // returns when the outcome is in and the platform is back.
+    let (ok, out, err) = taut(&["recalibrate", "--wait"]);
+    assert!(ok, "recalibrate --wait: {out}{err}");
+    assert!(out.contains("comes back to") && out.contains("outcome #3: ") && out.contains("back at"), "{out}");
     let st = control::request(&sock, "status", Duration::from_secs(5)).unwrap();
+    let back_to = st["recalibrate"]["return_to_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
+    assert!(dist(&[back_to[0], back_to[1], back_to[2]], &goal) < 1e-9, "returns to {back_to:?}, not to {goal:?}");
+    assert_eq!(st["recalibrate"]["stage"], "returned", "{}", st["recalibrate"]);
     let outcomes = st["calibration"]["outcomes"].as_array().unwrap();
     let last = outcomes.last().unwrap();
     assert_eq!(last["run"], 1);
@@ -112,9 +146,30 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         assert!(!last["reason"].as_str().unwrap().is_empty());
         assert_eq!(d.loop_status().snap.params_version, 2);
     }
+    let json = serde_json::to_string(&st).unwrap();
+    eprintln!("e2e_start: status after a recalibration: {} bytes of JSON", json.len());
+    assert!(json.len() < 16 * 1024, "status is {} bytes", json.len());
     let r = control::request(&sock, "stop", Duration::from_secs(5)).unwrap();
     assert_eq!(r["ok"], true);
     let rep = d.wait().unwrap();
     assert!(rep.cycles > 10_000);
     assert!(!sock.exists(), "the socket is removed on exit");
+    // The watcher saw the events in order and ended with the daemon.
+    let out = watch.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut at = 0;
+    for want in [
+        "initialisation phase 1 of 3",
+        "accepted as parameters v2",
+        "goal #1",
+        "arrived",
+        "recalibrate: the excitation",
+        "-> excitation",
+        "recalibrate: back at",
+        "-> stopped",
+        "-- the daemon has stopped",
+    ] {
+        let k = text[at..].find(want).unwrap_or_else(|| panic!("watch: no {want:?} after byte {at} in\n{text}"));
+        at += k + want.len();
+    }
 }

@@ -66,8 +66,15 @@ impl Rig {
         let loop_status: SharedLoopStatus = Arc::new(Mutex::new(status_rx));
         let calib: SharedCalibStatus = Arc::new(Mutex::new(CalibStatus::default()));
         let sock = dir.path().join("taut.sock");
-        let links =
-            ControlLinks { commands: cmd_tx, urgent, loop_status: loop_status.clone(), calib, workspace: ccfg.workspace, tracker: None };
+        let links = ControlLinks {
+            commands: cmd_tx,
+            urgent,
+            loop_status: loop_status.clone(),
+            calib,
+            workspace: ccfg.workspace,
+            tracker: None,
+            operator: Default::default(),
+        };
         let server = ControlServer::bind(&sock, links, limits).unwrap();
         let quit = Arc::new(AtomicBool::new(false));
         let q = quit.clone();
@@ -543,6 +550,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
         calib: Arc::new(Mutex::new(CalibStatus::default())),
         workspace: ccfg.workspace,
         tracker: None,
+        operator: Default::default(),
     };
     assert_eq!(links.handle_line("reset")["ok"], true);
     assert_eq!(links.handle_line("reset")["ok"], true);

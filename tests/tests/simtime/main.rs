@@ -21,3 +21,4 @@ mod faults;
 mod lockstep;
 mod notracker_3mm;
 mod notracker_short;
+mod operator;
