@@ -470,6 +470,11 @@ pub struct Controller {
     /// In a tare: each cable's measured length when it began (a follower not in the tare
     /// holds it in position mode), m.
     tare_hold_m: [f64; MAX_CABLES],
+    /// Sum and count of each cable's length readings over the current dwell's record, m: where
+    /// a follower that holds in position mode for a tare is held (one reading is off by its
+    /// noise, which a stiff cable turns into tension).
+    rec_sum_m: [f64; MAX_CABLES],
+    rec_n: [u32; MAX_CABLES],
     /// In a tare: each cable's tension when it began (the slack cables ramp from it to zero
     /// and back), N.
     tare_from_n: [f64; MAX_CABLES],
@@ -613,6 +618,8 @@ impl Controller {
             urgent: None,
             dwell: DwellRun { k: 0, seg: DwellSeg::Move, t0: 0.0, from: centre, move_s: 1.0 },
             tare_hold_m: [f64::NAN; MAX_CABLES],
+            rec_sum_m: [0.0; MAX_CABLES],
+            rec_n: [0; MAX_CABLES],
             tare_from_n: [0.0; MAX_CABLES],
         }
     }
@@ -1062,6 +1069,18 @@ impl Controller {
             State::Excitation if self.cfg.dwell.is_some() => {
                 let was = self.dwell.seg;
                 self.step_dwell_plan(now);
+                if self.dwell.seg == DwellSeg::Record {
+                    if was != DwellSeg::Record {
+                        self.rec_sum_m = [0.0; MAX_CABLES];
+                        self.rec_n = [0; MAX_CABLES];
+                    }
+                    for j in 0..n {
+                        if inp.length_m[j].is_finite() {
+                            self.rec_sum_m[j] += inp.length_m[j];
+                            self.rec_n[j] += 1;
+                        }
+                    }
+                }
                 if was == DwellSeg::Record && self.dwell.seg == DwellSeg::TareSettle {
                     // The tare begins: what each cable carries and where it is.
                     for j in 0..n {
@@ -1073,7 +1092,13 @@ impl Controller {
                         } else {
                             0.0
                         };
-                        self.tare_hold_m[j] = if inp.length_m[j].is_finite() { inp.length_m[j] } else { self.cmd[j] };
+                        self.tare_hold_m[j] = if self.rec_n[j] > 0 {
+                            self.rec_sum_m[j] / f64::from(self.rec_n[j])
+                        } else if inp.length_m[j].is_finite() {
+                            inp.length_m[j]
+                        } else {
+                            self.cmd[j]
+                        };
                     }
                     // A follower that holds in position mode starts from where it is: its last
                     // command was a tension (the inverse kinematics' length, by the running
