@@ -66,6 +66,26 @@ pub fn load_recording(path: &Path) -> Result<(Recording, ParseReport)> {
     Ok((rec, rep))
 }
 
+/// Refuses a recording in which nothing moves: every row's pose (where tracked) and lengths the
+/// same as the first's. It holds no information on any parameter, and the solvers would only
+/// report an unexcited first parameter.
+pub fn require_motion(path: &Path, rec: &Recording) -> Result<()> {
+    let n = rec.n_cables;
+    let same = |i: usize| {
+        let p_same = rec.p[i].iter().zip(&rec.p[0]).all(|(a, b)| a == b || (a.is_nan() && b.is_nan()));
+        let l_same = rec.l[i * n..(i + 1) * n].iter().zip(&rec.l[..n]).all(|(a, b)| a == b || (a.is_nan() && b.is_nan()));
+        p_same && l_same
+    };
+    if rec.len() > 1 && (1..rec.len()).all(same) {
+        anyhow::bail!(
+            "{}: all {} rows have the same pose and cable lengths: the platform never moved, so nothing can be calibrated or diagnosed; record while the robot moves",
+            path.display(),
+            rec.len()
+        );
+    }
+    Ok(())
+}
+
 /// The robot's name as the recording's comments give it: `# robot: NAME; written by taut start`
 /// (the daemon's recordings) or `# simulated by taut-sim: robot NAME, seed ...` (taut-sim's).
 pub fn robot_name(rec: &Recording) -> Option<String> {
@@ -161,6 +181,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         a.plot.as_deref(),
     )?;
     let (rec, parse) = load_recording(&a.recording)?;
+    require_motion(&a.recording, &rec)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     if crate::notracker::tracker_absent(&rec) {
         return crate::notracker::run(a, &rec, &parse, &cfg);
@@ -174,7 +195,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         );
     }
     let pb = progress(4);
-    let out = pipeline(&rec, &cfg, a.compare, &pb)?;
+    let out = pipeline(&rec, &cfg, a.compare, &pb).with_context(|| format!("calibrating {}", a.recording.display()))?;
     pb.finish_and_clear();
     let rec = out.screen.recording(&rec);
     print_wild(&out.screen);

@@ -243,6 +243,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
         a.plot.as_deref(),
     )?;
     let (rec, _parse) = load_recording(&a.recording)?;
+    crate::calibrate::require_motion(&a.recording, &rec)?;
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let opts = options(a, &cfg)?;
     let d = diagnose(&rec, &cfg.platform_points(), None, &opts).with_context(|| format!("diagnosing {}", a.recording.display()))?;

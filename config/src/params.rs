@@ -207,6 +207,10 @@ fn key_line(text: &str, key: &str) -> Option<usize> {
     None
 }
 
+/// Largest magnitude of an anchor coordinate or an encoder offset a parameter file may hold, m.
+/// The largest cable robots span tens of metres; a value beyond this is a unit or a typing error.
+pub const PLAUSIBLE_M: f64 = 1000.0;
+
 /// A calibrated parameter set with its provenance.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -275,15 +279,21 @@ impl ParamsFile {
                 message: format!("`{FORMAT_V1}` has no [effects] table: write format = \"{FORMAT}\""),
             });
         }
+        // The cable count first: the effects' vectors are judged against it.
+        if p.anchors_m.len() != p.l0_m.len() {
+            return Err(crate::ConfigError {
+                file: Some(path.to_path_buf()),
+                line: key_line(&text, "l0_m"),
+                key: Some("l0_m".into()),
+                message: format!("{} anchors but {} offsets: give one offset per anchor", p.anchors_m.len(), p.l0_m.len()),
+            });
+        }
         p.effects.check(p.anchors_m.len()).map_err(|(key, message)| crate::ConfigError {
             file: Some(path.to_path_buf()),
             line: key_line(&text, &key),
             key: Some(key),
             message,
         })?;
-        if p.anchors_m.len() != p.l0_m.len() {
-            return Err(err(None, format!("{} anchors but {} offsets", p.anchors_m.len(), p.l0_m.len())));
-        }
         let mut p = p;
         // A v1 file is a v2 file without effects: held (and written back) as v2.
         p.format = FORMAT.into();
@@ -294,7 +304,11 @@ impl ParamsFile {
         if p.l0_sigma_m.is_empty() {
             p.l0_sigma_m = vec![f64::NAN; n];
         }
-        p.check_finite().map_err(|m| err(None, m))?;
+        p.check_finite().map_err(|m| {
+            // The key the message starts with, for its line.
+            let key = m.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_')).next().unwrap_or("");
+            err(key_line(&text, key), m)
+        })?;
         Ok(p)
     }
 
@@ -341,6 +355,15 @@ impl ParamsFile {
             }
             Err(GeometryError::NotFinite { cable: j, .. }) => return Err(format!("l0_m[{j}] is not finite: {}", self.l0_m[j])),
             Err(e) => return Err(format!("l0_m: {e}")),
+        }
+        // Finite is not enough: a robot's anchors and cable offsets are metres, not kilometres.
+        if let Some((j, a)) = self.anchors_m.iter().enumerate().find(|(_, a)| a.iter().any(|v| v.abs() > PLAUSIBLE_M)) {
+            return Err(format!(
+                "anchors_m[{j}] = {a:?} m is more than {PLAUSIBLE_M} m from the origin: a parameter file holds metres in the tracker's frame"
+            ));
+        }
+        if let Some((j, l)) = self.l0_m.iter().enumerate().find(|(_, l)| l.abs() > PLAUSIBLE_M) {
+            return Err(format!("l0_m[{j}] = {l} m is more than {PLAUSIBLE_M} m: an encoder offset is a cable length in metres"));
         }
         match self.sigmas().check(n) {
             Ok(()) => {}
@@ -429,6 +452,21 @@ mod tests {
         std::fs::write(&f, text.replace("l0_m = [0.1,", "l0_m = [inf,")).unwrap();
         let e = ParamsFile::load(&f).unwrap_err();
         assert!(e.to_string().contains("l0_m[0]"), "{e}");
+        // Finite but not metres of a robot: refused, naming the key, its line and the file.
+        for (from, to, key) in
+            [("anchors_m = [[1.0,", "anchors_m = [[-1e300,", "anchors_m[0]"), ("l0_m = [0.1,", "l0_m = [-1e6,", "l0_m[0]")]
+        {
+            std::fs::write(&f, text.replace(from, to)).unwrap();
+            let e = ParamsFile::load(&f).unwrap_err();
+            let line = text.lines().position(|l| l.starts_with(key.split('[').next().unwrap())).unwrap() + 1;
+            assert_eq!(e.line, Some(line), "{e}");
+            assert!(e.to_string().contains(key) && e.to_string().contains("p.toml"), "{e}");
+        }
+        // Three anchors and four offsets: the offsets are blamed, not an effect.
+        std::fs::write(&f, text.replace("l0_m = [0.1,", "l0_m = [0.1, 0.1,")).unwrap();
+        let e = ParamsFile::load(&f).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("l0_m"), "{e}");
+        assert!(e.to_string().contains("3 anchors but 4 offsets"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -110,6 +110,18 @@ fn cases() -> Vec<Case> {
         Case::err("diagnose: phase 1.5", &["diagnose", "rec.csv"], &["rec.csv:9", "integer"])
             .file("rec.csv", with_line(&good, ROW + 5, |l| set_field(l, 12, "1.5"))),
     ];
+    // Every row the same (time aside): the platform never moved; both tools name the file.
+    let still: String = good
+        .lines()
+        .enumerate()
+        .map(|(i, l)| if i >= ROW { format!("{i},{}\n", row(0).split_once(',').unwrap().1) } else { format!("{l}\n") })
+        .collect();
+    for tool in ["calibrate", "diagnose"] {
+        c.push(
+            Case::err(format!("{tool}: all rows identical"), &[tool, "rec.csv"], &["rec.csv", "never moved"])
+                .file("rec.csv", still.clone()),
+        );
+    }
     // The 65-cable case has no data rows: its error is about the header line.
     c.iter_mut().for_each(|x| x.expect.retain(|s| !s.is_empty()));
     c
