@@ -1,9 +1,9 @@
 //! Physical bounds of a robot description: what a configuration must satisfy before anything
 //! (the simulator, the calibration, the loop) is built on it.
 
-/// Most cables taut drives: the real-time loop's fixed arrays (`taut_rt_core::MAX_CABLES`; a test
-/// in `tests/tests/hostile_config.rs` keeps the two equal).
-pub const MAX_CABLES: usize = 8;
+/// Most cables taut drives: the real-time loop's fixed arrays ([`taut_model::MAX_CABLES`], the one
+/// home of the number).
+pub use taut_model::MAX_CABLES;
 
 /// Platform mass bounds, kg: from a 10 g sensor to a 5 t load. Outside these, tensions of a few
 /// newtons (or kilonewtons) make no sense for the drives and load cells taut talks to.

@@ -65,9 +65,10 @@ use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
 };
 
-/// Largest number of cables (the size of every per-cable array).
+/// Largest number of cables (the size of every per-cable array). A literal for the C header's
+/// generator; it is `taut_model::MAX_CABLES`, which the assertion keeps it.
 pub const TAUT_MAX_CABLES: usize = 8;
-const _: () = assert!(TAUT_MAX_CABLES == taut_rt_core::MAX_CABLES);
+const _: () = assert!(TAUT_MAX_CABLES == taut_config::geometry::MAX_CABLES);
 
 /// ABI version: `TautOptions::struct_size` and this number change together.
 pub const TAUT_ABI_VERSION: u32 = 1;

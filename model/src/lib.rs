@@ -20,7 +20,13 @@
 //! in `taut-rt`'s safety causes), and the one home of the robot's geometry and its
 //! uncertainties ([`geometry`]: anchors, encoder offsets, their 1-sigma; owned `Vec`s built off
 //! the loop, converted at the edges to the loop's fixed-size form and to the parameter file).
+
 #![deny(missing_docs)]
+
+/// Most cables taut drives: the size of the real-time loop's fixed per-cable arrays, of the C
+/// ABI's and the bound a configuration is checked against (`taut_rt::MAX_CABLES`,
+/// `taut_config::geometry::MAX_CABLES` and the C header's `TAUT_MAX_CABLES` are this one).
+pub const MAX_CABLES: usize = 8;
 
 pub mod bus;
 mod cable;

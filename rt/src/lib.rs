@@ -44,4 +44,4 @@ pub use motion::{Command, CommandSource, Controller, ControllerConfig};
 pub use taut_model::geometry::{Geometry, GeometryError, Sigmas};
 
 /// Largest number of cables the loop is built for (fixed-size arrays, no allocation).
-pub const MAX_CABLES: usize = 8;
+pub use taut_model::MAX_CABLES;

@@ -13,7 +13,7 @@ use rand::Rng;
 use crate::physics::{CableModel, G};
 use crate::scenario::{Scenario, SimRun};
 use crate::sensors::{Encoder, LoadCell};
-use crate::tension::{distribute, MAX_CABLES};
+use crate::tension::{distribute, MAX_SIM_CABLES};
 use crate::{rng, SimError, STREAM_ENCODER, STREAM_LOADCELL, STREAM_TRAJECTORY};
 use taut_config::recording::Recording;
 
@@ -59,21 +59,21 @@ impl DwellPlan {
 }
 
 /// Static tensions holding the platform at `p`, or `None` where the floor cannot be kept.
-fn static_tensions(models: &[CableModel], b: &[[f64; 3]], mass: f64, p: [f64; 3], t_min: f64) -> Option<([f64; MAX_CABLES], usize)> {
+fn static_tensions(models: &[CableModel], b: &[[f64; 3]], mass: f64, p: [f64; 3], t_min: f64) -> Option<([f64; MAX_SIM_CABLES], usize)> {
     let (t, feasible) = tensions_at(models, b, mass, p, t_min);
     feasible.then_some((t, models.len()))
 }
 
 /// The controller's static tensions at `p` and whether every cable keeps the floor (where not,
 /// some cables are loose or below it).
-fn tensions_at(models: &[CableModel], b: &[[f64; 3]], mass: f64, p: [f64; 3], t_min: f64) -> ([f64; MAX_CABLES], bool) {
+fn tensions_at(models: &[CableModel], b: &[[f64; 3]], mass: f64, p: [f64; 3], t_min: f64) -> ([f64; MAX_SIM_CABLES], bool) {
     let n = models.len();
-    let mut dirs = [[0.0; 3]; MAX_CABLES];
+    let mut dirs = [[0.0; 3]; MAX_SIM_CABLES];
     for j in 0..n {
         let x = [p[0] + b[j][0], p[1] + b[j][1], p[2] + b[j][2]];
         dirs[j] = models[j].path(x).dir;
     }
-    let mut t = [0.0; MAX_CABLES];
+    let mut t = [0.0; MAX_SIM_CABLES];
     let d = distribute(&dirs[..n], [0.0, 0.0, mass * G], t_min, &mut t[..n]);
     (t, d.feasible)
 }

@@ -246,7 +246,7 @@ impl Plant {
     /// choose there (minimum norm, at least `min_tension_n`; see [`crate::tension`]).
     pub fn lengths_at_rest(&self, p: [f64; 3], min_tension_n: f64) -> Result<Vec<f64>, SimError> {
         let n = self.models.len();
-        let mut dirs = [[0.0; 3]; crate::tension::MAX_CABLES];
+        let mut dirs = [[0.0; 3]; crate::tension::MAX_SIM_CABLES];
         for j in 0..n {
             let o = self.offsets[j];
             dirs[j] = self.models[j].path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]).dir;

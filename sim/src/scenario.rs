@@ -19,7 +19,7 @@ use taut_config::RobotConfig;
 use crate::physics::{CableCommand, CableModel, Physics, G};
 use crate::plant::Plant;
 use crate::sensors::{Encoder, LoadCell, Noise, Tracker};
-use crate::tension::{distribute, Distribution, MAX_CABLES};
+use crate::tension::{distribute, Distribution, MAX_SIM_CABLES};
 use crate::three_phase::{self, ThreePhaseMotion, ThreePhasePlan};
 use crate::trajectory::{rotate, rotation, Excitation, Workspace};
 use crate::truth::Truth;
@@ -185,8 +185,8 @@ pub fn simulate(s: &Scenario) -> SimRun {
 struct Instant {
     p: [f64; 3],
     q: [f64; 4],
-    b: [[f64; 3]; MAX_CABLES],
-    t: [f64; MAX_CABLES],
+    b: [[f64; 3]; MAX_SIM_CABLES],
+    t: [f64; MAX_SIM_CABLES],
     dist: Distribution,
 }
 
@@ -207,8 +207,8 @@ impl ExcitationModel<'_> {
         let a = self.ex.acceleration(t);
         let q = if self.with_orientation { self.ex.orientation(t) } else { [1.0, 0.0, 0.0, 0.0] };
         let r = rotation(q);
-        let mut b = [[0.0; 3]; MAX_CABLES];
-        let mut dirs = [[0.0; 3]; MAX_CABLES];
+        let mut b = [[0.0; 3]; MAX_SIM_CABLES];
+        let mut dirs = [[0.0; 3]; MAX_SIM_CABLES];
         for j in 0..n {
             let o = rotate(&r, self.truth.platform_points[j]);
             b[j] = [p[0] + o[0], p[1] + o[1], p[2] + o[2]];
@@ -216,7 +216,7 @@ impl ExcitationModel<'_> {
         }
         let m = self.truth.mass_kg;
         let f = [m * a[0], m * a[1], m * (a[2] + G)];
-        let mut tt = [0.0; MAX_CABLES];
+        let mut tt = [0.0; MAX_SIM_CABLES];
         let mut dist = distribute(&dirs[..n], f, self.t_min, &mut tt[..n]);
         if refine && self.models.iter().any(|c| c.w > 0.0) {
             for _ in 0..2 {
@@ -253,7 +253,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     }
     let nominal = s.robot.anchors().ok_or(SimError::MissingAnchors)?;
     let n = nominal.len();
-    if !(3..=MAX_CABLES).contains(&n) {
+    if !(3..=MAX_SIM_CABLES).contains(&n) {
         return Err(SimError::BadScenario("the simulator handles 3 to 12 cables"));
     }
     let truth = s.truth()?;

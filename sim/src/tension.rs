@@ -13,12 +13,15 @@
 //! Steps 1 and 2 enumerate the active sets (cables held at the floor) and keep the feasible
 //! candidate of least norm: the QP is convex, so its optimum is one of these candidates. Step 3
 //! enumerates the supports of at most three cables. Exact and simple for the few cables of a
-//! suspended robot (at most [`MAX_CABLES`]).
+//! suspended robot (at most [`MAX_SIM_CABLES`]).
 
 use nalgebra::{Matrix3, Vector3};
 
-/// Most cables the enumeration handles (2^n candidates).
-pub const MAX_CABLES: usize = 12;
+/// Most cables the simulator's tension enumeration handles (2^n candidates). More than the
+/// robot's [`taut_config::geometry::MAX_CABLES`] on purpose: the simulator also models robots
+/// taut does not drive, for the offline tools.
+pub const MAX_SIM_CABLES: usize = 12;
+const _: () = assert!(MAX_SIM_CABLES >= taut_config::geometry::MAX_CABLES);
 
 /// The outcome of [`distribute`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,7 +38,7 @@ pub struct Distribution {
 fn min_norm_with_floor(u: &[[f64; 3]], f: [f64; 3], floor: f64, out: &mut [f64]) -> Option<u32> {
     let n = u.len();
     let mut best: Option<(f64, u32)> = None;
-    let mut cand = [0.0; MAX_CABLES];
+    let mut cand = [0.0; MAX_SIM_CABLES];
     for fixed in 0u32..(1 << n) {
         if n - (fixed.count_ones() as usize) < 3 {
             continue;
@@ -76,7 +79,7 @@ fn nnls(u: &[[f64; 3]], f: [f64; 3], out: &mut [f64]) -> [f64; 3] {
     let n = u.len();
     let fv = Vector3::from(f);
     let mut best: Option<(f64, u32)> = None;
-    let mut cand = [0.0; MAX_CABLES];
+    let mut cand = [0.0; MAX_SIM_CABLES];
     for support in 1u32..(1 << n) {
         let k = support.count_ones() as usize;
         if k > 3 {
@@ -126,10 +129,10 @@ fn nnls(u: &[[f64; 3]], f: [f64; 3], out: &mut [f64]) -> [f64; 3] {
 /// (N). Writes one tension per cable into `out`.
 ///
 /// # Panics
-/// With more than [`MAX_CABLES`] cables.
+/// With more than [`MAX_SIM_CABLES`] cables.
 pub fn distribute(u: &[[f64; 3]], f: [f64; 3], t_min: f64, out: &mut [f64]) -> Distribution {
     let n = u.len();
-    assert!((3..=MAX_CABLES).contains(&n), "tension distribution: 3..={MAX_CABLES} cables, got {n}");
+    assert!((3..=MAX_SIM_CABLES).contains(&n), "tension distribution: 3..={MAX_SIM_CABLES} cables, got {n}");
     if min_norm_with_floor(u, f, t_min, out).is_some() {
         return Distribution { loose: 0, feasible: true, residual: [0.0; 3] };
     }
