@@ -9,7 +9,7 @@
 //! 1. per-call latency of every cycle into a histogram: p50 / p99 / max for both, one run;
 //! 2. criterion's mean of the same call (`iter_custom`, the simulator stepped outside the timing).
 //!
-//! `cargo bench -p taut-ffi --bench update`
+//! `cargo bench -p taut-ffi --features sim --bench update`
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::ffi::CString;

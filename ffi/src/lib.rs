@@ -65,8 +65,8 @@ use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
 };
 
-/// Largest number of cables (the size of every per-cable array). A literal for the C header's
-/// generator; it is `taut_model::MAX_CABLES`, which the assertion keeps it.
+/// Largest number of cables (the size of every per-cable array).
+// A literal for the header's generator; the assertion keeps it `taut_model::MAX_CABLES`.
 pub const TAUT_MAX_CABLES: usize = 8;
 const _: () = assert!(TAUT_MAX_CABLES == taut_config::geometry::MAX_CABLES);
 

@@ -212,6 +212,11 @@ fn the_robot_build_contains_no_simulator() {
         violations("taut-rt-core", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
         "taut-rt-core is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
     );
+    // The plugin a robot's controller loads: the simulator only with `--features sim`.
+    assert_none(
+        violations("taut-ffi", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
+        "taut-ffi's default build is the robot's; its taut_sim_* functions are behind the `sim` feature",
+    );
 }
 
 /// The checker itself sees a real edge: the simulated rig does depend on taut-sim and taut-vdev,
