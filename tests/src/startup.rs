@@ -27,11 +27,20 @@ pub const REALTIME_PRIORITY: i32 = 80;
 /// Reel speed of the test start-ups' initialisation phases, m/s (the example's is 0.25).
 pub const INIT_REEL_SPEED_M_S: f64 = 0.5;
 
+/// The simulated robot of `taut start --sim` (`config/examples/aras-cam-sim.toml`) as written,
+/// with its socket and data directory in `dir`.
+pub fn example_robot(dir: &Path) -> RobotConfig {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
+    let mut cfg = RobotConfig::load(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
+    cfg.daemon.data_dir = dir.join("data").display().to_string();
+    cfg
+}
+
 /// The simulated robot of `taut start --sim` with its socket and data directory in `dir` and an
 /// excitation of [`EXCITATION_S`].
 pub fn sim_robot(dir: &Path) -> RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = RobotConfig::load(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let mut cfg = example_robot(dir);
     cfg.motion.excitation_s = EXCITATION_S;
     cfg.motion.init_reel_speed_m_s = INIT_REEL_SPEED_M_S;
     // As on a robot (deploy/taut.service): the loop under SCHED_FIFO, its device threads just
@@ -44,8 +53,6 @@ pub fn sim_robot(dir: &Path) -> RobotConfig {
     // the tests it held answers past the 0.5 s limit (TensionStale in 2 of 13 start-ups). These
     // start-ups check flow; staleness itself is tested where time is simulated.
     cfg.safety.tension_max_age_s = TENSION_MAX_AGE_S;
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
     cfg
 }
 
@@ -74,6 +81,28 @@ pub fn in_sim_time(
 ) -> StartupRun {
     simrig::run_startup(cfg, rest_p0(cfg, so), so, run, Box::new(TautCalib::from_config(cfg)), on_check)
         .unwrap_or_else(|e| panic!("seed {}: {e}", so.seed))
+}
+
+/// A start-up of `cfg` in simulated time ([`in_sim_time`]) that must end with its calibration
+/// accepted and no fault latched; the run and the calibration's outcome. With `TAUT_E2E_KEEP`
+/// its recording is kept as `taut-{tag}-{seed}.csv` in the temporary directory.
+pub fn accepted_in_sim_time(cfg: &RobotConfig, so: &SimOptions, tag: &str) -> (StartupRun, taut_rt_core::calibrator::Outcome) {
+    let seed = so.seed;
+    let run =
+        in_sim_time(cfg, so, RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, ..Default::default() }, |_, _| false);
+    let (l, c) = (&run.loop_status, &run.calib_status);
+    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
+        if let Some(r) = &run.recording {
+            let _ = std::fs::copy(r, std::env::temp_dir().join(format!("taut-{tag}-{seed}.csv")));
+        }
+    }
+    assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
+    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
+    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).cloned().unwrap_or_else(|| {
+        panic!("seed {seed}: no calibration outcome: state {:?}, stage {}, outcomes {:?}", l.snap.state, c.stage, c.outcomes)
+    });
+    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
+    (run, cal)
 }
 
 /// The start-up has hot-swapped to accepted calibrated parameters and the swap's ramp is over.

@@ -25,11 +25,9 @@
 //! Sum for the 1 mm: [`PLAN_P_MAX`] + [`RECORDING_CHANCE_MAX`] per seed ([`BUDGET_1MM`],
 //! docs/test-robustness.md).
 
-use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::plugin::RecordingPath;
 use taut_rt_core::FromRobot;
-use taut_simrig::{RunOptions, SimOptions};
+use taut_simrig::SimOptions;
 
 /// The loop's Lissajous point `t` s after the approach (as `taut_rt_core::excite` predicts it).
 fn ccfg_lissajous(ccfg: &ControllerConfig, t: f64) -> [f64; 3] {
@@ -115,13 +113,9 @@ const RATIO_FAMILY: f64 = 1e-5;
 /// sigma-ratio bound and the 1 mm (the design's and the recording's parts).
 const _: () = assert!(KSIGMA_FAMILY + RATIO_FAMILY + BUDGET_1MM < 1e-4);
 
-/// The simulated robot's configuration, with the test machine's allowances.
+/// The simulated robot's configuration as written.
 fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
-    let mut cfg = taut_config::RobotConfig::load(path).unwrap();
-    cfg.daemon.socket = dir.join("taut.sock").display().to_string();
-    cfg.daemon.data_dir = dir.join("data").display().to_string();
-    cfg
+    taut_tests::startup::example_robot(dir)
 }
 
 /// The recording check's chance failure from the measured ratios.
@@ -222,19 +216,9 @@ fn startup(seed: u64, designed: bool) -> Run {
     }
     let so = SimOptions { seed, ..Default::default() };
     // In simulated time (the robot stack in lockstep): no machine load can starve it.
-    let run =
-        taut_tests::startup::in_sim_time(&cfg, &so, RunOptions { recording: RecordingPath::Default, ..Default::default() }, |_, _| false);
-    let (truth, l, c) = (run.truth.clone(), &run.loop_status, &run.calib_status);
-    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
-        let _ = std::fs::copy(run.recording.as_ref().unwrap(), std::env::temp_dir().join(format!("taut-excite-{seed}.csv")));
-    }
-    assert!(run.finished, "seed {seed}: start-up did not finish: state {:?}, stage {}", l.snap.state, c.stage);
-    assert!(l.snap.fault.is_none(), "seed {seed}: fault {:?}", l.snap.fault);
-    let cal = c.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration).unwrap_or_else(|| {
-        panic!("seed {seed}: no calibration outcome: state {:?}, stage {}, outcomes {:?}", l.snap.state, c.stage, c.outcomes)
-    });
+    let (run, cal) = taut_tests::startup::accepted_in_sim_time(&cfg, &so, "excite");
+    let (truth, c) = (run.truth.clone(), &run.calib_status);
     let ce = cal.estimate.as_ref().unwrap_or_else(|| panic!("seed {seed}: {}", cal.reason));
-    assert!(cal.accepted, "seed {seed}: calibration rejected: {}", cal.reason);
     assert!(ce.note.contains("predicted worst anchor 1-sigma"), "seed {seed}: the note lacks the prediction: {}", ce.note);
     let predicted_m = c.excitation.as_ref().map_or(f64::NAN, |p| p.predicted_worst_m());
     // The design predicts at the configured encoder noise; the calibration weighs the lengths
