@@ -204,6 +204,11 @@ pub struct CalibOptions {
     /// Threads the per-cable work may use ([`par`]): 1 (the default) keeps it on the caller's
     /// thread; more gives the same results sooner on a machine with free cores.
     pub threads: usize,
+    /// The design's priors, one per cable: means and 1-sigmas of `[A_x, A_y, A_z, L0]`
+    /// (`RobotConfig::priors`; infinite sigma: none for that parameter). With them the
+    /// calibration is maximum a posteriori: a parameter the recording does not excite keeps
+    /// its prior's uncertainty instead of being refused ([`CableReport::data_share`]).
+    pub priors: Option<Vec<([f64; 4], [f64; 4])>>,
 }
 
 impl Default for CalibOptions {
@@ -231,6 +236,7 @@ impl CalibOptions {
             max_sigma_m: c.max_sigma_m,
             outlier_sigma: 6.0,
             threads: 1,
+            priors: None,
         }
     }
 }
@@ -401,6 +407,10 @@ pub struct CableReport {
     pub peak_m: f64,
     /// RMS on the held-out block with parameters from the training block, m (NaN if none).
     pub heldout_rms_m: f64,
+    /// Per parameter `[A_x, A_y, A_z, L0]`, how much of the estimate came from the data:
+    /// `1 - sigma_posterior^2 / sigma_prior^2` (0: the prior alone, 1: the data alone); NaN
+    /// where the parameter has no prior ([`CalibOptions::priors`]).
+    pub data_share: [f64; 4],
 }
 
 /// What [`calibrate`] found, and how sure it is.
@@ -555,6 +565,14 @@ fn calibrate_readings(
         }
     };
     let split = metrics::heldout_start(rec, opts.heldout_fraction);
+    if let Some(p) = &opts.priors {
+        if p.len() != n {
+            return Err(CalibError::CableCount { recording: n, platform_points: platform_points.len(), init: p.len() });
+        }
+        for (d, p) in data.iter_mut().zip(p) {
+            d.prior = Some(*p);
+        }
+    }
     // The cables are independent problems (on `opts.threads` threads); everything summed or
     // listed over them is summed and listed in cable order below, as one thread would.
     let cables = par::map_mut(opts.threads, data, |j, d| calibrate_cable(j, d, init, &nm, opts, split, rec.len()));
@@ -705,9 +723,31 @@ fn calibrate_cable(
     let mut order: [usize; 4] = [0, 1, 2, 3];
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
     let sv = order.map(|k| eig.eigenvalues[k].max(0.0).sqrt());
-    let vf = sol.at_x.chi2 / (m as f64 - 4.0);
+    // A prior's parameters are pseudo-readings: they count in the degrees of freedom.
+    let prior_sigma =
+        d.prior.map_or([f64::INFINITY; 4], |(mu, s)| std::array::from_fn(|k| if mu[k].is_finite() { s[k] } else { f64::INFINITY }));
+    let n_prior = prior_sigma.iter().filter(|s| s.is_finite() && **s > 0.0).count();
+    let vf = sol.at_x.chi2 / ((m + n_prior) as f64 - 4.0);
     let scale = vf.max(1.0);
-    let cov = h.try_inverse().map(|c| c * scale);
+    // The variance factor scales the data's information, not the prior's (whose variance is
+    // given): H = H_data / scale + H_prior.
+    let mut hs = h;
+    for k in 0..4 {
+        if prior_sigma[k].is_finite() && prior_sigma[k] > 0.0 {
+            let w = 1.0 / (prior_sigma[k] * prior_sigma[k]);
+            hs[(k, k)] -= w;
+        }
+    }
+    hs /= scale;
+    for k in 0..4 {
+        if prior_sigma[k].is_finite() && prior_sigma[k] > 0.0 {
+            hs[(k, k)] += 1.0 / (prior_sigma[k] * prior_sigma[k]);
+        }
+    }
+    // By Cholesky: nalgebra's 4x4 `try_inverse` is the adjugate formula, which loses the small
+    // eigenvalues of this matrix (1e9 along the cable against 1e3 across a short swing) to
+    // cancellation.
+    let cov = hs.cholesky().map(|c| c.inverse());
     let sig: [f64; 4] = match &cov {
         Some(c) => [0, 1, 2, 3].map(|k| c[(k, k)].max(0.0).sqrt()),
         None => [f64::INFINITY; 4],
@@ -715,12 +755,15 @@ fn calibrate_cable(
     // Observability by the predicted uncertainty: refuse beyond the user's tolerance (or
     // without any information in some direction), warn beyond the weak level.
     let singular = cov.is_none() || sig.iter().any(|s| !s.is_finite());
-    if singular || sig.iter().any(|s| !(*s <= opts.max_sigma_m)) {
+    // With a prior a parameter's sigma is at most the prior's: the refusal applies to the
+    // parameters the recording alone must determine.
+    let too_wide = |k: usize| !(sig[k] <= opts.max_sigma_m) && !prior_sigma[k].is_finite();
+    if singular || (0..4).any(too_wide) {
         let param = if singular {
             let weakest = eig.eigenvectors.column(order[3]).into_owned();
             dominant(&[weakest[0], weakest[1], weakest[2], weakest[3]])
         } else {
-            Param::from_index((0..4).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
+            Param::from_index((0..4).filter(|&k| too_wide(k)).max_by(|&a, &b| sig[a].total_cmp(&sig[b])).unwrap_or(0))
         };
         let k = param as usize;
         return Err(CalibError::NotObservable {
@@ -735,6 +778,21 @@ fn calibrate_cable(
     }
     let weak: Vec<WeakParam> = WeakParam::of_cable(j, sig, opts.weak_sigma_m).collect();
     let mut notes = Vec::new();
+    let data_share: [f64; 4] =
+        std::array::from_fn(
+            |k| if prior_sigma[k].is_finite() { (1.0 - (sig[k] / prior_sigma[k]).powi(2)).clamp(0.0, 1.0) } else { f64::NAN },
+        );
+    for (k, &share) in data_share.iter().enumerate() {
+        if share.is_finite() && share < 0.5 {
+            notes.push(format!(
+                "cable {j}: {} is mostly the design's prior ({:.0} % from the data; 1-sigma {:.1} mm of the prior's {:.1} mm)",
+                Param::from_index(k),
+                100.0 * share,
+                sig[k] * 1e3,
+                prior_sigma[k] * 1e3
+            ));
+        }
+    }
     // Held-out: the parameters of the training block alone, evaluated on the rest. The
     // training optimum is within about a standard deviation of the full-data one, where the
     // cost is quadratic: one Gauss-Newton step from the full solution on the training block
@@ -787,6 +845,7 @@ fn calibrate_cable(
         rms_m: (fin.sum_sq / m as f64).sqrt(),
         peak_m: fin.peak,
         heldout_rms_m: heldout,
+        data_share,
     };
     Ok(CableOutcome {
         x: sol.x,

@@ -174,6 +174,9 @@ pub struct CableData {
     pub loose: usize,
     /// Readings skipped as missing.
     pub missing: usize,
+    /// The design's prior on `[A_x, A_y, A_z, L0]`: means and 1-sigmas (infinite: none for that
+    /// parameter). Every pass of the solver adds it as four pseudo-readings ([`crate::solver`]).
+    pub prior: Option<([f64; 4], [f64; 4])>,
 }
 
 impl CableData {
@@ -192,6 +195,7 @@ impl CableData {
             used: l.len(),
             loose: 0,
             missing: 0,
+            prior: None,
         }
     }
 
@@ -448,7 +452,7 @@ pub fn gather(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOptions
             loose += is_loose as usize;
         }
         let missing = m - used - loose;
-        CableData { x, y, z, l, t, class, iv: Vec::new(), rho_min: f64::NAN, used, loose, missing }
+        CableData { x, y, z, l, t, class, iv: Vec::new(), rho_min: f64::NAN, used, loose, missing, prior: None }
     })
 }
 

@@ -128,7 +128,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     let b = cfg.platform_points();
     // A one-shot command: the cables and the screened channels on every core (same results).
     let threads = taut_calib::par::available(MAX_THREADS);
-    let opts = CalibOptions { threads, ..CalibOptions::from_config(&cfg.calibration) };
+    let opts = CalibOptions { threads, priors: cfg.priors(), ..CalibOptions::from_config(&cfg.calibration) };
     progress.set_message("screening for wild values");
     let screen = taut_calib::screen::screen(
         rec,
@@ -138,7 +138,17 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     progress.set_message("initialising");
     // The readings as the initialisation, the calibration and the bound use them, gathered once.
     let mut data = taut_calib::noise::gather(rec, &b, &opts, taut_calib::Weighting::of(rec, &opts));
-    let init = init::initialise_gathered(rec, &b, &opts, &data).context("initialisation failed")?;
+    // With the design's anchors as priors the calibration starts there: a recording that excites
+    // too little for the initialisation (a locked winch, a short swing) is still calibrated.
+    let design: Option<Vec<[f64; 4]>> = opts
+        .priors
+        .as_ref()
+        .filter(|p| p.iter().all(|(m, _)| m[..3].iter().all(|v| v.is_finite())))
+        .map(|p| p.iter().map(|(m, _)| *m).collect());
+    let init = match &design {
+        Some(d) => init::from_design(rec, &b, d, &data).context("initialisation from the design failed")?,
+        None => init::initialise_gathered(rec, &b, &opts, &data).context("initialisation failed")?,
+    };
     progress.inc(1);
     progress.set_message("calibrating (force-aware)");
     let force = taut_calib::calibrate_gathered(rec, &b, &init.params, &opts, &mut data).context("calibration failed")?;

@@ -143,6 +143,9 @@ fn report_json(r: &CalibReport) -> serde_json::Value {
         "termination": format!("{:?}", r.termination),
         "singular_values": r.singular_values,
         "used_tensions": r.used_tensions,
+        // Per cable [A_x, A_y, A_z, L0]: the share of the estimate from the data, 0-1 (null where
+        // the configuration gives no prior).
+        "data_share": r.per_cable.iter().map(|c| c.data_share.map(|v| v.is_finite().then_some(v))).collect::<Vec<_>>(),
     })
 }
 

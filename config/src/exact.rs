@@ -19,6 +19,23 @@ pub fn opt_three<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D:
     Option::<Vec<f64>>::deserialize(d)?.map(point).transpose()
 }
 
+/// An optional per-axis tolerance: one number for all three axes, or `[x, y, z]`.
+pub fn opt_sigma_three<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum ScalarOrThree {
+        One(f64),
+        Three(Vec<f64>),
+    }
+    match Option::<ScalarOrThree>::deserialize(d)? {
+        None => Ok(None),
+        Some(ScalarOrThree::One(s)) => Ok(Some([s; 3])),
+        Some(ScalarOrThree::Three(v)) => <[f64; 3]>::try_from(v.as_slice()).map(Some).map_err(|_| {
+            D::Error::custom(format!("expected one number (m, every axis) or exactly three [x, y, z], found {} numbers", v.len()))
+        }),
+    }
+}
+
 /// A list of `[a, b, c]` cable-index triples, each of exactly three.
 pub fn triples<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[usize; 3]>, D::Error> {
     Vec::<Vec<usize>>::deserialize(d)?

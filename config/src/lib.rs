@@ -91,6 +91,19 @@ pub struct Cable {
     /// not need it.
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::opt_three")]
     pub anchor: Option<[f64; 3]>,
+    /// The design's tolerance of `anchor`, 1-sigma per axis, m: one number or `[x, y, z]`. With
+    /// it the calibrations estimate the anchor with the design as a prior (maximum a posteriori)
+    /// and say how much of each coordinate came from the data; without it `anchor` is only a
+    /// start value.
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::opt_sigma_three")]
+    pub anchor_sigma_m: Option<[f64; 3]>,
+    /// Nominal encoder offset `L0_j`, m (optional): the reading of this cable's encoder minus
+    /// its length, e.g. from a measured cable. Without it the start value comes from the data.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub l0_m: Option<f64>,
+    /// Tolerance of `l0_m`, 1-sigma, m: the offset's prior, as `anchor_sigma_m` is the anchor's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub l0_sigma_m: Option<f64>,
     /// Attachment point `b_j` on the platform, m, platform frame.
     #[serde(default, deserialize_with = "exact::three")]
     pub platform_point: [f64; 3],
@@ -271,7 +284,17 @@ impl RobotConfig {
     pub fn point_mass(n: usize) -> Self {
         RobotConfig {
             robot: Robot { name: "unnamed".into(), mass_kg: 1.0 },
-            cables: (0..n).map(|_| Cable { anchor: None, platform_point: [0.0; 3], drive: None, loadcell: None }).collect(),
+            cables: (0..n)
+                .map(|_| Cable {
+                    anchor: None,
+                    anchor_sigma_m: None,
+                    l0_m: None,
+                    l0_sigma_m: None,
+                    platform_point: [0.0; 3],
+                    drive: None,
+                    loadcell: None,
+                })
+                .collect(),
             calibration: CalibrationConfig::default(),
             can: None,
             loadcells: None,
@@ -288,6 +311,24 @@ impl RobotConfig {
     /// Nominal anchors, if every cable has one.
     pub fn anchors(&self) -> Option<Vec<[f64; 3]>> {
         self.cables.iter().map(|c| c.anchor).collect()
+    }
+
+    /// The design's priors per cable: `(mean, 1-sigma)` of `[A_x, A_y, A_z, L0]`, a sigma of
+    /// infinity where the configuration gives none. `None` when no cable has a tolerance.
+    pub fn priors(&self) -> Option<Vec<([f64; 4], [f64; 4])>> {
+        if self.cables.iter().all(|c| c.anchor_sigma_m.is_none() && c.l0_sigma_m.is_none()) {
+            return None;
+        }
+        Some(
+            self.cables
+                .iter()
+                .map(|c| {
+                    let a = c.anchor.unwrap_or([f64::NAN; 3]);
+                    let sa = c.anchor_sigma_m.unwrap_or([f64::INFINITY; 3]);
+                    ([a[0], a[1], a[2], c.l0_m.unwrap_or(f64::NAN)], [sa[0], sa[1], sa[2], c.l0_sigma_m.unwrap_or(f64::INFINITY)])
+                })
+                .collect(),
+        )
     }
 
     /// Platform attachment points `b_j`.
@@ -336,6 +377,36 @@ impl RobotConfig {
             if let Some(a) = &c.anchor {
                 if !finite(a) {
                     return Err(err(line, format!("cable[{i}].anchor"), "must be three finite numbers (m)".into()));
+                }
+            }
+            let tolerance = |v: f64| v.is_finite() && v > 0.0 && v <= 1000.0;
+            if let Some(s) = &c.anchor_sigma_m {
+                if c.anchor.is_none() {
+                    return Err(err(
+                        line,
+                        format!("cable[{i}].anchor_sigma_m"),
+                        "a tolerance without its value: give cable.anchor too".into(),
+                    ));
+                }
+                if !s.iter().all(|&v| tolerance(v)) {
+                    return Err(err(
+                        line,
+                        format!("cable[{i}].anchor_sigma_m"),
+                        format!("must be positive and finite (m, 1-sigma), got {s:?}"),
+                    ));
+                }
+            }
+            if let Some(l) = c.l0_m {
+                if !(l.is_finite() && l.abs() <= 1000.0) {
+                    return Err(err(line, format!("cable[{i}].l0_m"), format!("must be a finite offset within 1000 m, got {l}")));
+                }
+            }
+            if let Some(s) = c.l0_sigma_m {
+                if c.l0_m.is_none() {
+                    return Err(err(line, format!("cable[{i}].l0_sigma_m"), "a tolerance without its value: give cable.l0_m too".into()));
+                }
+                if !tolerance(s) {
+                    return Err(err(line, format!("cable[{i}].l0_sigma_m"), format!("must be positive and finite (m, 1-sigma), got {s}")));
                 }
             }
             if !finite(&c.platform_point) {
@@ -635,6 +706,34 @@ mod tests {
         assert_eq!(c.calibration.min_tension_n, 3.0);
         assert_eq!(c.cables[0].platform_point, [0.0; 3]);
         assert!(c.anchors().is_none());
+    }
+
+    /// The design's tolerances: one number or three, beside their values; the priors they give.
+    #[test]
+    fn design_tolerances_become_priors() {
+        let head = "[robot]\nname = \"x\"\nmass_kg = 3.0\n";
+        let cable = |a: &str, extra: &str| format!("[[cable]]\nanchor = {a}\n{extra}");
+        let text = format!(
+            "{head}{}{}{}",
+            cable("[1, 2, 3]", "anchor_sigma_m = 0.02\n"),
+            cable("[-1, 2, 3]", "anchor_sigma_m = [0.01, 0.02, 0.05]\nl0_m = 2.5\nl0_sigma_m = 0.005\n"),
+            cable("[1, -2, 3]", "")
+        );
+        let c = RobotConfig::from_toml_str(&text).unwrap();
+        let p = c.priors().unwrap();
+        assert_eq!(p[0].1[..3], [0.02; 3]);
+        assert_eq!(p[1], ([-1.0, 2.0, 3.0, 2.5], [0.01, 0.02, 0.05, 0.005]));
+        assert!(p[2].1.iter().all(|s| s.is_infinite()) && p[0].0[3].is_nan());
+        assert!(RobotConfig::point_mass(3).priors().is_none());
+        for (extra, words) in [
+            ("anchor_sigma_m = [0.01, 0.02]\n", "exactly three"),
+            ("anchor_sigma_m = -0.01\n", "positive"),
+            ("l0_sigma_m = 0.01\n", "give cable.l0_m"),
+        ] {
+            let text = format!("{head}{}{}{}", cable("[1, 2, 3]", extra), cable("[-1, 2, 3]", ""), cable("[1, -2, 3]", ""));
+            let e = RobotConfig::from_toml_str(&text).unwrap_err();
+            assert!(e.to_string().contains(words), "{e}");
+        }
     }
 
     #[test]

@@ -31,6 +31,9 @@ impl TautCalib {
     pub fn from_config(cfg: &RobotConfig) -> TautCalib {
         let mut opts = CalibOptions::from_config(&cfg.calibration);
         opts.heldout_fraction = 0.0;
+        // The design's tolerances, where the configuration gives them: the start-up's and the
+        // recalibrations' estimates are maximum a posteriori.
+        opts.priors = cfg.priors();
         TautCalib {
             platform: cfg.platform_points(),
             nominal: cfg.anchors(),

@@ -69,6 +69,9 @@ pub enum Method {
     ThreePhase,
     /// Algebraic multilateration on the whole recording.
     Multilateration,
+    /// The design's anchors (a configuration with tolerances); offsets from the data where the
+    /// design gives none ([`from_design`]).
+    Design,
 }
 
 impl Method {
@@ -77,6 +80,7 @@ impl Method {
         match self {
             Method::ThreePhase => "three-phase",
             Method::Multilateration => "multilateration",
+            Method::Design => "design",
         }
     }
 }
@@ -86,6 +90,7 @@ impl fmt::Display for Method {
         f.write_str(match self {
             Method::ThreePhase => "three-phase circles (paper section III) with sphere refinement",
             Method::Multilateration => "algebraic multilateration",
+            Method::Design => "the design's anchors (priors from the configuration)",
         })
     }
 }
@@ -97,6 +102,8 @@ pub enum AnchorSource {
     HeldPhases,
     /// Multilateration on its readings.
     Multilateration,
+    /// The design (configuration).
+    Design,
 }
 
 /// What the three-phase method found in one phase.
@@ -289,6 +296,61 @@ fn initialise_with(
             Ok(r)
         }
     }
+}
+
+/// The start of a calibration with the design's priors: every cable's anchor from `design`
+/// (`[A_x, A_y, A_z, L0]` means, `RobotConfig::priors`), its offset from `design` where finite,
+/// else the median of `l - |X - A|` over the cable's used readings (`data`, gathered as for
+/// [`initialise_gathered`]). For recordings that excite too little for [`initialise`]: a
+/// locked winch, a short swing.
+pub fn from_design(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    design: &[[f64; 4]],
+    data: &[CableData],
+) -> Result<InitResult, InitError> {
+    check_count(rec, platform_points)?;
+    let n = rec.n_cables;
+    if design.len() != n || data.len() != n {
+        return Err(InitError::CableCount { recording: n, platform_points: design.len().min(data.len()) });
+    }
+    let mut anchors = Vec::with_capacity(n);
+    let mut l0 = Vec::with_capacity(n);
+    let mut cables = Vec::with_capacity(n);
+    for (j, (m, d)) in design.iter().zip(data).enumerate() {
+        let a = [m[0], m[1], m[2]];
+        let mut diffs: Vec<f64> = (0..d.len())
+            .filter(|&i| d.class[i] == crate::noise::USED)
+            .map(|i| d.l[i] - model::norm(model::sub([d.x[i], d.y[i], d.z[i]], a)))
+            .collect();
+        if diffs.len() < crate::MIN_READINGS {
+            return Err(InitError::TooFewReadings { cable: j, used: diffs.len(), needed: crate::MIN_READINGS });
+        }
+        let offset = if m[3].is_finite() {
+            m[3]
+        } else {
+            diffs.sort_by(f64::total_cmp);
+            diffs[diffs.len() / 2]
+        };
+        let rms = (diffs.iter().map(|e| (e - offset).powi(2)).sum::<f64>() / diffs.len() as f64).sqrt();
+        anchors.push(a);
+        l0.push(offset);
+        cables.push(CableInit {
+            source: AnchorSource::Design,
+            held_in: Vec::new(),
+            line_anchor: None,
+            geometric_anchor: Some(a),
+            rms_m: rms,
+            used: diffs.len(),
+        });
+    }
+    Ok(InitResult {
+        params: Params { anchors, l0 },
+        method: Method::Design,
+        phases: Vec::new(),
+        cables,
+        notes: vec!["started at the design's anchors (the configuration's tolerances are the calibration's priors)".into()],
+    })
 }
 
 fn check_count(rec: &Recording, platform_points: &[[f64; 3]]) -> Result<(), InitError> {

@@ -27,6 +27,7 @@ mod hostile_recordings;
 mod hostile_wild_values;
 mod mcap_export;
 mod params_v2;
+mod priors;
 mod report_html;
 mod selfcal;
 mod udev_rules;
