@@ -699,7 +699,10 @@ struct Site<R: CanTransport> {
 }
 
 mod lockstep;
-pub use lockstep::{run_startup, BusStats, Lockstep, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, RunOptions, StartupRun};
+pub use lockstep::{
+    run_startup, BusStats, CanState, CanStatus, Lockstep, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, RunOptions, SimFault,
+    StartupRun,
+};
 
 /// Tracker period, s (100 Hz).
 const TRACKER_PERIOD_S: f64 = 0.01;
