@@ -22,3 +22,4 @@ mod lockstep;
 mod notracker_3mm;
 mod notracker_short;
 mod operator;
+mod reset;
