@@ -1084,3 +1084,133 @@ pub fn run_startup(
     });
     Ok(host.finish(over))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use taut_driver::transport::BusEvent;
+
+    fn bus(restart_ms: Option<u32>) -> Bus {
+        let clock = SimClock::new();
+        let t0 = clock.now();
+        Bus {
+            clock,
+            bit: Duration::from_micros(1),
+            free_at: t0,
+            to_rack: VecDeque::new(),
+            to_master: VecDeque::new(),
+            faults: LockstepFaults::default(),
+            rng: taut_sim::rng(1, 11),
+            stats: BusStats::default(),
+            ctrl: Controller {
+                tec: 0,
+                state: CanState::ErrorActive,
+                off: None,
+                restart: restart_ms.map(|ms| Duration::from_millis(u64::from(ms))),
+                tx_fault: None,
+            },
+        }
+    }
+
+    /// Everything the master's socket has received by now, decoded.
+    fn drain(b: &mut Bus) -> Vec<Result<Frame, TransportError>> {
+        std::iter::from_fn(|| b.recv(Side::Master).map(|(_, r)| r)).collect()
+    }
+
+    fn bus_events(v: &[Result<Frame, TransportError>]) -> Vec<BusEvent> {
+        v.iter().filter_map(|r| if let Err(TransportError::Bus(e)) = r { Some(*e) } else { None }).collect()
+    }
+
+    /// A burst of transmit errors shorter than bus-off: the counter climbs by 8 per attempt
+    /// through error warning (96) to error-passive (128, 16 attempts), and comes back down one
+    /// frame sent at a time: warning at 127, error-active at 95.
+    #[test]
+    fn a_burst_of_transmit_errors_reaches_error_passive_and_comes_back() {
+        let mut b = bus(Some(100));
+        let t0 = b.clock.now();
+        let f = Frame::new(0x201, &[0; 8]);
+        // 16 attempts of 135 + 14 bits at 1 us: the 17th starts at 2.384 ms.
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_micros(2300)));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!((b.stats.tx_errors, b.ctrl.tec, b.ctrl.state), (16, 127, CanState::ErrorWarning), "sent at the 17th attempt");
+        assert_eq!(b.to_rack.len(), 1);
+        for k in 0..32 {
+            b.clock.advance(Duration::from_micros(200));
+            b.send(Side::Master, &f).unwrap();
+            assert_eq!(b.ctrl.state == CanState::ErrorActive, k == 31, "{k}: TEC {}", b.ctrl.tec);
+        }
+        b.clock.advance(Duration::from_millis(1));
+        let got = drain(&mut b);
+        assert_eq!(
+            bus_events(&got),
+            [
+                BusEvent::ErrorWarning { tx: 96, rx: 0 },
+                BusEvent::ErrorPassive { tx: 128, rx: 0 },
+                BusEvent::ErrorWarning { tx: 127, rx: 0 },
+                BusEvent::ErrorActive
+            ]
+        );
+        assert_eq!(b.ctrl.tec, 95);
+    }
+
+    /// A fault that lasts: warning at 96, error-passive at 128, bus-off past 255, each reported
+    /// as the kernel does; nothing received or sent while off; restarted after `restart-ms`.
+    #[test]
+    fn transmit_errors_take_the_controller_bus_off_and_restart_ms_brings_it_back() {
+        let mut b = bus(Some(100));
+        let t0 = b.clock.now();
+        let f = Frame::new(0x201, &[0; 8]);
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_secs(1)));
+        // The drive's frame before the fault is received; the master's frame goes bus-off, and
+        // the one behind it in the queue is lost with it.
+        b.send(Side::Rack, &Frame::new(0x181, &[1])).unwrap();
+        b.send(Side::Master, &f).unwrap();
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!((b.stats.tx_errors, b.stats.bus_offs, b.stats.tx_lost_off), (32, 1, 2));
+        assert!(b.to_rack.is_empty(), "nobody received a failed frame");
+        b.clock.advance(Duration::from_millis(10));
+        assert_eq!(b.send(Side::Master, &f), Err(TransportError::Full(f)), "ENOBUFS while off");
+        b.send(Side::Rack, &Frame::new(0x181, &[2])).unwrap();
+        let got = drain(&mut b);
+        assert_eq!(got[0], Ok(Frame::new(0x181, &[1])));
+        assert_eq!(
+            bus_events(&got),
+            [BusEvent::ErrorWarning { tx: 96, rx: 0 }, BusEvent::ErrorPassive { tx: 128, rx: 0 }, BusEvent::BusOff]
+        );
+        assert_eq!(got.len(), 4, "the drive's frame sent while off is not received: {got:?}");
+        assert_eq!(b.stats.rx_missed_off, 1);
+        // restart-ms: back 100 ms after the bus-off, counters at 0; the fault still there, the
+        // next frame takes it bus-off again.
+        b.clock.advance(Duration::from_millis(100));
+        assert_eq!(bus_events(&drain(&mut b)), [BusEvent::Restarted]);
+        assert_eq!((b.ctrl.tec, b.ctrl.state), (0, CanState::ErrorActive));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!(b.stats.bus_offs, 2);
+        // After the fault: restarted, and frames go through.
+        b.clock.advance(Duration::from_secs(1));
+        assert_eq!(bus_events(&drain(&mut b)).last(), Some(&BusEvent::Restarted));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!(b.to_rack.len(), 1);
+        assert_eq!((b.stats.restarts, b.ctrl.tec), (2, 0));
+    }
+
+    /// Without `restart-ms` only a restart by hand brings it back; a restart of a controller
+    /// that is not bus-off does nothing.
+    #[test]
+    fn without_restart_ms_the_controller_stays_off_until_restarted_by_hand() {
+        let mut b = bus(None);
+        let t0 = b.clock.now();
+        b.restart(t0);
+        assert!(drain(&mut b).is_empty(), "EBUSY: not bus-off");
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_millis(10)));
+        b.send(Side::Master, &Frame::new(0x80, &[])).unwrap();
+        b.clock.advance(Duration::from_secs(10));
+        assert_eq!(bus_events(&drain(&mut b)).last(), Some(&BusEvent::BusOff));
+        assert!(b.ctrl.is_off(b.clock.now()));
+        let now = b.clock.now();
+        b.restart(now);
+        assert_eq!(bus_events(&drain(&mut b)), [BusEvent::Restarted]);
+        b.send(Side::Master, &Frame::new(0x80, &[])).unwrap();
+        assert_eq!((b.to_rack.len(), b.stats.restarts), (1, 1));
+    }
+}
