@@ -85,7 +85,7 @@ fn start(seed: u64, faults: LockstepFaults) -> Rig {
     let p0 = startup::rest_p0(&cfg, &so);
     let run = RunOptions { faults, ..Default::default() };
     let mut host = Lockstep::start(&cfg, p0, &so, run, Box::new(TautCalib::from_config(&cfg))).unwrap();
-    let ok = host.run_until(400.0, |l, c| startup::start_up_over(l, c));
+    let ok = host.run_until(400.0, startup::start_up_over);
     let l = host.loop_status();
     assert!(ok && l.snap.fault.is_none(), "seed {seed}: start-up did not end calibrated: {:?} {:?}", l.snap.state, l.snap.fault);
     assert!(startup::hot_swapped(&l, &host.calib_status()), "seed {seed}: no accepted calibration");
@@ -148,17 +148,10 @@ impl Rig {
         );
     }
 
+    /// Runs cycle by cycle, traced, for `s` of simulated time.
     fn run_for(&mut self, s: f64) -> LoopStatus {
         let end = self.host.sim_s() + s;
-        let mut l = None;
-        self.until(s + 1.0, "run_for", |st| {
-            let over = st.snap.t >= end - 1e-9;
-            if over {
-                l = Some(st.clone());
-            }
-            over
-        });
-        l.expect("ran")
+        self.until(s + 1.0, "run_for", |l| l.snap.t >= end - 1e-9)
     }
 
     /// The cause latches with its reaction and stays latched for a second (the drives reach
@@ -278,8 +271,8 @@ fn still(r: &Rig, from: f64, done: f64) {
     assert!(reenable < REENABLE_M, "seed {}: the platform moved {:.3} mm in the re-enable", r.seed, reenable * 1e3);
 }
 
-fn drive_fault(seed: u64) -> (Rig, f64) {
-    let mut r = start(seed, LockstepFaults::default());
+fn drive_fault(seed: u64, faults: LockstepFaults) -> Rig {
+    let mut r = start(seed, faults);
     let cable = (draw(seed, 1) * 4.0) as usize;
     let node = r.node(cable);
     r.run_for(draw(seed, 2));
@@ -297,13 +290,13 @@ fn drive_fault(seed: u64) -> (Rig, f64) {
     }
     let done = r.reset_and_move();
     still(&r, t0, done);
-    (r, t0)
+    r
 }
 
 #[test]
 fn drive_fault_then_reset() {
-    for seed in [3] {
-        let (r, _) = drive_fault(seed);
+    for seed in [3, 4] {
+        let r = drive_fault(seed, LockstepFaults::default());
         let order = r.event_order();
         assert_eq!(
             order[..5],
@@ -522,14 +515,18 @@ fn a_reset_that_cannot_succeed_says_why_and_stays_safe() {
     still(&r, t0, done);
 }
 
-/// A scenario run twice with its seed is the same run: every cycle's state, fault, bus state,
-/// drive states and platform position, and every event, bit for bit.
+/// A scenario run twice with its seed is the same run, with the faults the seed draws (lost
+/// and late CAN frames, tracker dropouts, a load-cell pause) on top of the drive fault: every
+/// cycle's state, fault, bus state, drive states and platform position, and every event, bit
+/// for bit.
 #[test]
 fn a_seed_reproduces_a_reset_bit_for_bit() {
-    let (a, _) = drive_fault(4);
-    let (b, _) = drive_fault(4);
+    let a = drive_fault(5, LockstepFaults::drawn(5));
+    let b = drive_fault(5, LockstepFaults::drawn(5));
     assert_eq!(a.trace.len(), b.trace.len());
-    assert!(a.trace == b.trace, "seed 4: two runs differ");
+    assert!(a.trace == b.trace, "seed 5: two runs differ");
+    let lost = a.host.bus_stats().lost;
+    assert!(lost > 0, "seed 5 lost no frame");
     assert_eq!(format!("{:?}", a.events), format!("{:?}", b.events));
     // Not a trace of nothing: the move after the reset is in it.
     let (first, last) = (a.trace[0].platform, a.trace.last().unwrap().platform);
