@@ -970,8 +970,8 @@ impl Lockstep {
         self.run_until(s, |_, _| false);
     }
 
-    /// Injects `fault` now: it takes effect at this simulated instant, before the next cycle's
-    /// read.
+    /// Injects `fault` at this simulated instant. Like every event of the world that falls due
+    /// between two cycles, it is applied when the world catches up, at the next cycle's read.
     pub fn inject(&mut self, fault: SimFault) {
         let now = self.clock.now();
         lock(&self.world).schedule(now, fault);
