@@ -312,9 +312,9 @@ fn drive_power_cycle_then_reset() {
     let mut r = start(seed, LockstepFaults::default());
     let cable = (draw(seed, 1) * 4.0) as usize;
     let node = r.node(cable);
-    r.run_for(draw(seed, 2));
-    let t0 = r.host.sim_s();
-    r.host.inject(SimFault::DrivePowerCycle { cable });
+    // At a simulated instant drawn from the seed, up to a second ahead.
+    let t0 = r.host.sim_s() + draw(seed, 2);
+    r.host.inject_at(t0, SimFault::DrivePowerCycle { cable });
     let (c, _) = r.expect_reaction(|c| c == Cause::DriveRebooted { node }, Reaction::QuickStop);
     assert!(c.to_string().contains("rebooted"), "{c}");
     // The master configured it again (boot-up, SDO, NMT start): back, but not enabled by itself.
@@ -407,15 +407,16 @@ fn bus_off_then_reset() {
 
 /// With the deployed `restart-ms 100` the interface restarts the controller by itself: while
 /// the errors last it goes bus-off again at its next frame, once they are over it stays on the
-/// bus, and the reset brings the robot back.
+/// bus, and the reset brings the robot back. The errors are scheduled with the run's faults
+/// (`LockstepFaults::scheduled`), at an instant and for a time drawn from the seed, after the
+/// start-up (which ends at 32-33 s on these seeds).
 #[test]
 fn bus_off_with_automatic_restart_then_reset() {
     let seed = 7;
-    let mut r = start(seed, LockstepFaults::default());
-    r.run_for(draw(seed, 2));
-    let t0 = r.host.sim_s();
+    let t0 = 36.0 + 2.0 * draw(seed, 2);
     let for_s = 0.2 + 0.4 * draw(seed, 3);
-    r.host.inject(SimFault::MasterTxErrors { for_s });
+    let mut r = start(seed, LockstepFaults { scheduled: vec![(t0, SimFault::MasterTxErrors { for_s })], ..Default::default() });
+    assert!(r.host.sim_s() < t0, "the start-up ended at {} s, after the scheduled fault", r.host.sim_s());
     r.expect_reaction(|c| matches!(c, Cause::Bus { event: BusEvent::BusOff, .. }), Reaction::Disable);
     let l = r.run_for(t0 + for_s + 0.2 - r.host.sim_s());
     assert_eq!(l.snap.inputs.bus.state, BusState::Active);
