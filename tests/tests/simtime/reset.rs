@@ -533,3 +533,31 @@ fn a_seed_reproduces_a_reset_bit_for_bit() {
     let (first, last) = (a.trace[0].platform, a.trace.last().unwrap().platform);
     assert!(dist(first, last) > 0.04, "{first:?} -> {last:?}");
 }
+
+/// A burst of transmit errors too short for error-passive needs no reset: the error warning
+/// (TEC 96 and more) is counted and shown, not a fault, and the controller comes back to
+/// error-active as its frames go out again (TEC down by one per frame).
+#[test]
+fn a_short_burst_of_transmit_errors_is_counted_not_a_fault() {
+    let seed = 10;
+    let mut r = start(seed, LockstepFaults::default());
+    let before = r.host.loop_status().snap.inputs.bus;
+    // The master's next frames are the next cycle's, 2 ms on, behind the drives' TPDOs (the bus
+    // is busy about 0.85 ms after each SYNC): the rest of the 4.8 ms are 13 attempts of an
+    // 8-byte RPDO (149 bits).
+    r.host.inject(SimFault::MasterTxErrors { for_s: 0.0048 });
+    // The warning and the way back come in the same cycle's read: the failed RPDO goes out at
+    // last, and the cycle's other frames bring the counter below 96 one by one.
+    let l = r.until(0.1, "error warning and error-active reported", |l| l.snap.inputs.bus.events >= before.events + 2);
+    assert_eq!(l.snap.inputs.bus.events, before.events + 2, "warning, then active");
+    assert_eq!((l.snap.inputs.bus.state, l.snap.inputs.bus.last), (BusState::Active, Some(BusEvent::ErrorActive)));
+    let failed = r.host.bus_stats().tx_errors;
+    let peak = 8 * failed;
+    assert!((96..128).contains(&peak), "{failed} failed transmissions: TEC {peak}");
+    let l = r.run_for(1.0);
+    assert_eq!(l.snap.fault, None);
+    assert_eq!(l.snap.state, State::Operate);
+    assert!(r.events.iter().all(|e| !matches!(e, Event::Fault { .. })), "{:?}", r.events);
+    assert_eq!(r.host.bus_stats().bus_offs, 0);
+    eprintln!("seed {seed}: TEC peaked at {peak} ({failed} failed transmissions), now {}", r.host.can().tec);
+}
