@@ -586,6 +586,10 @@ pub(crate) struct World {
     schedule: VecDeque<(Instant, SimFault)>,
 }
 
+/// How long a simulated drive stays in FAULT REACTION ACTIVE before FAULT: its fault reaction
+/// (motor stopped, brake applied), tens of milliseconds on real drives.
+const FAULT_REACTION: Duration = Duration::from_millis(20);
+
 /// A Modbus device's time from the end of a request to the start of its answer.
 const CELL_LATENCY: Duration = Duration::from_millis(1);
 
@@ -794,7 +798,10 @@ impl LockstepRobot {
         };
         let tracker_stats = pose.as_ref().map(|p| p.stats_handle());
         let io = SiteIo { rack_bus: rack_end, vlc: None, sender: None, clock: Arc::new(clock.clone()), now: t0 };
-        let site = parts.into_site(io, opts);
+        let mut site = parts.into_site(io, opts);
+        for d in site.rack.drives() {
+            d.set_fault_reaction(FAULT_REACTION);
+        }
         let (sim_faults, platform) = (site.faults.clone(), site.platform.clone());
         let world = Arc::new(Mutex::new(World {
             next_tick: t0,
