@@ -306,6 +306,30 @@ fn drive_fault_then_reset() {
     }
 }
 
+/// A reset asked for while the drive is still in its fault reaction (FAULT REACTION ACTIVE for
+/// 20 ms after the EMCY, when a fault reset is not taken): the fault reset waits for FAULT,
+/// and the reset succeeds.
+#[test]
+fn a_reset_during_the_drive_fault_reaction_waits_for_it() {
+    let seed = 11;
+    let mut r = start(seed, LockstepFaults::default());
+    let cable = (draw(seed, 1) * 4.0) as usize;
+    let node = r.node(cable);
+    let t0 = r.host.sim_s();
+    r.host.inject(SimFault::DriveFault { cable, code: 0x2310 });
+    r.until(0.1, "safety reaction", |l| l.snap.fault.is_some());
+    assert_eq!(r.host.loop_status().snap.fault, Some((Cause::DriveFault { node, code: 0x2310 }, Reaction::QuickStop)));
+    let asked = r.host.sim_s();
+    assert!(asked - t0 < 0.01, "asked {:.1} ms after the fault, within its 20 ms reaction", (asked - t0) * 1e3);
+    let done = r.reset_and_move();
+    assert!(
+        done - asked > 0.016,
+        "seed {seed}: done {:.1} ms after the request: not before the fault reaction ended",
+        (done - asked) * 1e3
+    );
+    still(&r, t0, done);
+}
+
 #[test]
 fn drive_power_cycle_then_reset() {
     let seed = 5;
