@@ -699,7 +699,10 @@ struct Site<R: CanTransport> {
 }
 
 mod lockstep;
-pub use lockstep::{run_startup, BusStats, Lockstep, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, RunOptions, StartupRun};
+pub use lockstep::{
+    run_startup, BusStats, CanState, CanStatus, Lockstep, LockstepCan, LockstepError, LockstepFaults, LockstepRobot, RunOptions, SimFault,
+    StartupRun,
+};
 
 /// Tracker period, s (100 Hz).
 const TRACKER_PERIOD_S: f64 = 0.01;
@@ -868,7 +871,8 @@ impl<R: CanTransport> Site<R> {
         }
         let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
         let d = &mut self.rack.drives()[second];
-        if persists && d.state() != taut_driver::canopen::cia402::State::Fault {
+        use taut_driver::canopen::cia402::State;
+        if persists && !matches!(d.state(), State::Fault | State::FaultReactionActive) {
             // The cause is still there: a fault reset is followed by the same fault at once,
             // as on a drive whose over-current condition persists.
             d.inject_fault(0x2310);

@@ -26,7 +26,28 @@
 //! calibration takes no simulated time (on the robot it takes a few seconds of holding).
 //!
 //! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a load-cell
-//! bus that stops answering for a while, tracker dropouts, a drive that reboots.
+//! bus that stops answering for a while, tracker dropouts. Faults a test chooses ([`SimFault`]:
+//! a drive fault with its EMCY, a drive power cycle, a drive's heartbeat lost, the master's CAN
+//! controller driven bus-off by transmit errors, its restart) land at a simulated instant, from
+//! [`LockstepFaults::scheduled`] or [`Lockstep::inject_at`], as events of the world.
+//!
+//! The master's CAN controller keeps ISO 11898-1 fault confinement and reports it as SocketCAN
+//! does: every frame reaches the master as the kernel's `struct can_frame` bytes through the
+//! driver's parser (`taut_driver::transport::kernel::decode`), and the controller's state
+//! changes arrive among them as error frames (`linux/can/error.h`), as the kernel's
+//! `can_change_state`, `can_bus_off` and `can_restart` send them:
+//!
+//! ```text
+//!  a failed transmission (bit error): TEC += 8, the controller retries at once (an error-passive
+//!  one after 8 more bits); a frame sent: TEC -= 1
+//!  TEC >= 96   CAN_ERR_CRTL | CAN_ERR_CNT, data[1] CAN_ERR_CRTL_TX_WARNING, data[6] TEC
+//!  TEC >= 128  CAN_ERR_CRTL | CAN_ERR_CNT, data[1] CAN_ERR_CRTL_TX_PASSIVE
+//!  TEC > 255   CAN_ERR_BUSOFF | CAN_ERR_CNT: the controller neither sends nor receives; its
+//!              queue's frames are lost, a send fails (ENOBUFS: TransportError::Full)
+//!  back down   CAN_ERR_CRTL | CAN_ERR_CNT with TX_WARNING or CAN_ERR_CRTL_ACTIVE
+//!  restart     after `restart-ms` (the deployed udev rule's 100 ms) or by hand
+//!              (`ip link set can0 type can restart`): CAN_ERR_RESTARTED, TEC 0, error-active
+//! ```
 
 use crate::{draw_site, BuildError, PlatformTruth, SimFaults, SimOptions, Site, SiteIo, TRACKER_PERIOD_S};
 use rand::{Rng, SeedableRng};
@@ -41,6 +62,7 @@ use taut_driver::clock::{Clock, SimClock};
 use taut_driver::loadcell::SteppedLoadCells;
 use taut_driver::modbus::link::{LinkError, SerialLink};
 use taut_driver::tracker::{format_line, PoseLine, TrackerReceiver, TrackerStatsHandle, MAX_LINE};
+use taut_driver::transport::kernel::{self, err, CAN_ERR_FLAG, CAN_MTU};
 use taut_driver::transport::{CanTransport, Frame, TransportError};
 use taut_rt_core::calibrator::{CalibStatus, Calibrate};
 use taut_rt_core::io::{Devices, Inputs, Outputs};
@@ -65,11 +87,17 @@ pub struct LockstepFaults {
     pub tracker_gap_s: f64,
     /// The load cells stop answering from `.0` s for `.1` s.
     pub loadcell_silence: Option<(f64, f64)>,
-    /// The drive of cable 1 is power cycled at this simulated time, s.
-    pub drive_reboot_at_s: Option<f64>,
+    /// Faults at simulated instants (s since the start), each applied as an event of the world
+    /// at its instant (the same as [`Lockstep::inject_at`]).
+    pub scheduled: Vec<(f64, SimFault)>,
+    /// The master's CAN interface restarts its controller this long after a bus-off (SocketCAN
+    /// `restart-ms`; the robot's udev rule sets 100 ms), ms; `None`: only by hand
+    /// ([`SimFault::CanRestart`]).
+    pub can_restart_ms: Option<u32>,
 }
 
 impl Default for LockstepFaults {
+    /// No faults; the master's controller restarts 100 ms after a bus-off, as deployed.
     fn default() -> Self {
         LockstepFaults {
             frame_loss: 0.0,
@@ -78,7 +106,8 @@ impl Default for LockstepFaults {
             tracker_dropout: 0.0,
             tracker_gap_s: 0.0,
             loadcell_silence: None,
-            drive_reboot_at_s: None,
+            scheduled: Vec::new(),
+            can_restart_ms: Some(100),
         }
     }
 }
@@ -86,8 +115,9 @@ impl Default for LockstepFaults {
 impl LockstepFaults {
     /// Faults a robot rides through, drawn from `seed`: up to 1 lost and 1 late frame (by up to
     /// 0.5 ms) in 1,000, tracker dropouts of 20-200 ms (up to one every 5 s), and one pause of
-    /// the load cells of 50-200 ms (shorter than the staleness limit) in the first 60 s. No
-    /// drive reboot: that is a fault the loop must react to, chosen by a test on purpose.
+    /// the load cells of 50-200 ms (shorter than the staleness limit) in the first 60 s. Nothing
+    /// scheduled: drive faults, reboots and bus-off are faults the loop must react to, chosen by
+    /// a test on purpose.
     pub fn drawn(seed: u64) -> LockstepFaults {
         let mut r = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_FA17);
         LockstepFaults {
@@ -97,9 +127,89 @@ impl LockstepFaults {
             tracker_dropout: r.gen_range(0.0..2e-3),
             tracker_gap_s: r.gen_range(0.02..0.2),
             loadcell_silence: Some((r.gen_range(5.0..60.0), r.gen_range(0.05..0.2))),
-            drive_reboot_at_s: None,
+            ..LockstepFaults::default()
         }
     }
+}
+
+/// A fault of the simulated devices or wires at a chosen simulated instant
+/// ([`LockstepFaults::scheduled`], [`Lockstep::inject`], [`Lockstep::inject_at`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SimFault {
+    /// For `for_s` every frame the master's CAN controller transmits fails with a bit error (a
+    /// failing transceiver, a ground offset at the adapter): nobody receives it, the
+    /// controller's transmit error counter climbs by 8 per attempt through error warning and
+    /// error-passive to bus-off (about 32 attempts, 5 ms at 1 Mbit/s). The drives' frames
+    /// still reach the master while its controller is not bus-off. After a restart within the
+    /// span the controller goes bus-off again at its next frame.
+    MasterTxErrors {
+        /// How long, s.
+        for_s: f64,
+    },
+    /// The master's controller is restarted by hand (`ip link set can0 type can restart`);
+    /// nothing happens unless it is bus-off (the kernel answers EBUSY).
+    CanRestart,
+    /// The drive of `cable` faults (CiA 402 FAULT) and sends an EMCY with `code`.
+    DriveFault {
+        /// Cable index.
+        cable: usize,
+        /// CiA 402 error code (e.g. 0x2310 continuous over-current).
+        code: u16,
+    },
+    /// The drive of `cable` is power cycled: it boots with its power-on settings (boot-up
+    /// message, NMT pre-operational, the master's configuration gone), keeping its absolute
+    /// encoder position.
+    DrivePowerCycle {
+        /// Cable index.
+        cable: usize,
+    },
+    /// The drive of `cable` stops sending its heartbeat for `for_s` (PDOs and SDO go on).
+    HeartbeatLoss {
+        /// Cable index.
+        cable: usize,
+        /// How long, s; `f64::INFINITY` until [`SimFault::HeartbeatBack`].
+        for_s: f64,
+    },
+    /// The drive of `cable` sends its heartbeat again.
+    HeartbeatBack {
+        /// Cable index.
+        cable: usize,
+    },
+}
+
+/// Error state of the master's CAN controller (ISO 11898-1 fault confinement, as the kernel
+/// names it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum CanState {
+    /// Both error counters below 96.
+    ErrorActive,
+    /// An error counter at 96 or above.
+    ErrorWarning,
+    /// An error counter at 128 or above.
+    ErrorPassive,
+    /// The transmit error counter went past 255: off the bus until restarted.
+    BusOff,
+}
+
+impl CanState {
+    fn of(tec: u16) -> CanState {
+        match tec {
+            256.. => CanState::BusOff,
+            128.. => CanState::ErrorPassive,
+            96.. => CanState::ErrorWarning,
+            _ => CanState::ErrorActive,
+        }
+    }
+}
+
+/// The master's CAN controller now.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CanStatus {
+    /// Its error state.
+    pub state: CanState,
+    /// Its transmit error counter (the receive counter stays 0: no fault here disturbs
+    /// reception).
+    pub tec: u16,
 }
 
 /// Counts of the simulated CAN bus.
@@ -113,6 +223,16 @@ pub struct BusStats {
     pub late: u64,
     /// Time the bus carried bits, s.
     pub busy_s: f64,
+    /// Transmissions of the master's controller that failed (each retried at once).
+    pub tx_errors: u64,
+    /// Times the master's controller went bus-off.
+    pub bus_offs: u64,
+    /// Times it was restarted after a bus-off.
+    pub restarts: u64,
+    /// Frames of the master lost to bus-off (in its queue when it went off, or sent while off).
+    pub tx_lost_off: u64,
+    /// Frames of the drives the master missed while its controller was off.
+    pub rx_missed_off: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -121,17 +241,57 @@ enum Side {
     Rack,
 }
 
+/// A frame on its way, as the kernel's `struct can_frame` bytes (error frames among them).
+type Wire = (Instant, [u8; CAN_MTU]);
+
+/// The master's CAN controller: its transmit error counter, the state it last reported, and
+/// when it is off the bus.
+struct Controller {
+    tec: u16,
+    state: CanState,
+    /// Bus-off from `.0` until its restart at `.1` (`None`: until restarted by hand).
+    off: Option<(Instant, Option<Instant>)>,
+    /// `restart-ms`.
+    restart: Option<Duration>,
+    /// Its transmissions fail in this span.
+    tx_fault: Option<(Instant, Instant)>,
+}
+
+impl Controller {
+    fn is_off(&self, t: Instant) -> bool {
+        self.off.is_some_and(|(from, until)| t >= from && until.is_none_or(|u| t < u))
+    }
+}
+
+/// Bits a failed transmission takes beyond the frame: the error flag (6) and the error
+/// delimiter (8); the intermission is in [`Bus::bits`]. Counted over the whole frame: a bit
+/// error found at its end (CRC, ACK delimiter), the longest case.
+const ERROR_FRAME_BITS: u32 = 14;
+/// Suspend transmission: an error-passive transmitter waits 8 more bits before it tries again.
+const SUSPEND_BITS: u32 = 8;
+
 /// The CAN bus in memory: one frame on the wire at a time, each delivered at the end of its
 /// bits.
 struct Bus {
     clock: SimClock,
     bit: Duration,
     free_at: Instant,
-    to_rack: VecDeque<(Instant, Frame)>,
-    to_master: VecDeque<(Instant, Frame)>,
+    to_rack: VecDeque<Wire>,
+    to_master: VecDeque<Wire>,
     faults: LockstepFaults,
     rng: ChaCha8Rng,
     stats: BusStats,
+    ctrl: Controller,
+}
+
+fn is_error_frame(b: &[u8; CAN_MTU]) -> bool {
+    u32::from_ne_bytes([b[0], b[1], b[2], b[3]]) & CAN_ERR_FLAG != 0
+}
+
+/// In time order (a late frame may land behind frames sent after it).
+fn insert(q: &mut VecDeque<Wire>, at: Instant, bytes: [u8; CAN_MTU]) {
+    let i = q.iter().rposition(|(t, _)| *t <= at).map_or(0, |i| i + 1);
+    q.insert(i, (at, bytes));
 }
 
 impl Bus {
@@ -144,11 +304,24 @@ impl Bus {
         overhead + data + (stuffed - 1) / 4
     }
 
-    fn send(&mut self, from: Side, f: &Frame) {
+    fn send(&mut self, from: Side, f: &Frame) -> Result<(), TransportError> {
         let now = self.clock.now();
+        if from == Side::Master {
+            self.restart_due(now);
+            if self.ctrl.is_off(now) {
+                // The interface's queue is stopped while the controller is off (ENOBUFS).
+                self.stats.tx_lost_off += 1;
+                return Err(TransportError::Full(*f));
+            }
+            if self.ctrl.is_off(self.free_at.max(now)) || !self.transmit_errors(f, now) {
+                // Queued behind a frame that took the controller bus-off: lost with it.
+                self.stats.tx_lost_off += 1;
+                return Ok(());
+            }
+        }
         if self.faults.frame_loss > 0.0 && self.rng.gen::<f64>() < self.faults.frame_loss {
             self.stats.lost += 1;
-            return;
+            return Ok(());
         }
         let mut start = self.free_at.max(now);
         if self.faults.frame_late > 0.0 && self.rng.gen::<f64>() < self.faults.frame_late {
@@ -160,16 +333,99 @@ impl Bus {
         self.free_at = self.free_at.max(end);
         self.stats.frames += 1;
         self.stats.busy_s += on_wire.as_secs_f64();
-        let q = match from {
-            Side::Master => &mut self.to_rack,
-            Side::Rack => &mut self.to_master,
-        };
-        // In time order (a late frame may land behind frames sent after it).
-        let at = q.iter().rposition(|(t, _)| *t <= end).map_or(0, |i| i + 1);
-        q.insert(at, (end, *f));
+        match from {
+            Side::Master => {
+                insert(&mut self.to_rack, end, kernel::encode(f));
+                // A frame sent: the transmit error counter goes down by one.
+                if self.ctrl.tec > 0 {
+                    self.ctrl.tec -= 1;
+                    self.report_state(end);
+                }
+            }
+            Side::Rack if self.ctrl.is_off(end) => self.stats.rx_missed_off += 1,
+            Side::Rack => insert(&mut self.to_master, end, kernel::encode(f)),
+        }
+        Ok(())
     }
 
-    fn queue(&mut self, to: Side) -> &mut VecDeque<(Instant, Frame)> {
+    /// The master's frame `f` while its transmissions fail: each attempt costs its bits and an
+    /// error frame and counts 8; the controller retries until the span is over (true: the
+    /// frame goes out now) or it goes bus-off (false: the frame is lost).
+    fn transmit_errors(&mut self, f: &Frame, now: Instant) -> bool {
+        let Some((from, to)) = self.ctrl.tx_fault else { return true };
+        loop {
+            let start = self.free_at.max(now);
+            if !(from..to).contains(&start) {
+                return true;
+            }
+            let suspend = if self.ctrl.state >= CanState::ErrorPassive { SUSPEND_BITS } else { 0 };
+            let bits = Self::bits(f) + ERROR_FRAME_BITS + suspend;
+            let end = start + self.bit * bits;
+            self.free_at = end;
+            self.stats.busy_s += (self.bit * bits).as_secs_f64();
+            self.stats.tx_errors += 1;
+            self.ctrl.tec += 8;
+            if self.ctrl.tec > 255 {
+                self.bus_off(end);
+                return false;
+            }
+            self.report_state(end);
+        }
+    }
+
+    /// The controller goes bus-off at `at` (`can_bus_off`): what was on its way to the master
+    /// is not received, and the interface restarts it after `restart-ms` if set.
+    fn bus_off(&mut self, at: Instant) {
+        self.ctrl.state = CanState::BusOff;
+        let until = self.ctrl.restart.map(|d| at + d);
+        self.ctrl.off = Some((at, until));
+        self.stats.bus_offs += 1;
+        let before = self.to_master.len();
+        self.to_master.retain(|(t, b)| is_error_frame(b) || *t < at || until.is_some_and(|u| *t >= u));
+        self.stats.rx_missed_off += (before - self.to_master.len()) as u64;
+        let tec = self.ctrl.tec.min(255) as u8;
+        insert(&mut self.to_master, at, kernel::error_frame(err::BUSOFF | err::CNT, [0, 0, 0, 0, 0, 0, tec, 0]));
+    }
+
+    /// A restart that is due (`restart-ms` passed, or by hand): error-active, counters at 0,
+    /// `CAN_ERR_RESTARTED` reported at its instant.
+    fn restart_due(&mut self, now: Instant) {
+        let Some((_, Some(until))) = self.ctrl.off else { return };
+        if now < until {
+            return;
+        }
+        self.ctrl.off = None;
+        self.ctrl.tec = 0;
+        self.ctrl.state = CanState::ErrorActive;
+        self.stats.restarts += 1;
+        insert(&mut self.to_master, until, kernel::error_frame(err::RESTARTED, [0; 8]));
+    }
+
+    /// `ip link set can0 type can restart`: only a controller that is bus-off restarts.
+    fn restart(&mut self, now: Instant) {
+        if let Some((from, None)) = self.ctrl.off {
+            self.ctrl.off = Some((from, Some(now)));
+        }
+        self.restart_due(now);
+    }
+
+    /// Reports a change of the error state at `at` (`can_change_state`: the counters with it).
+    fn report_state(&mut self, at: Instant) {
+        let new = CanState::of(self.ctrl.tec);
+        if new == self.ctrl.state {
+            return;
+        }
+        self.ctrl.state = new;
+        let status = match new {
+            CanState::ErrorActive => err::CRTL_ACTIVE,
+            CanState::ErrorWarning => err::CRTL_TX_WARNING,
+            CanState::ErrorPassive | CanState::BusOff => err::CRTL_TX_PASSIVE,
+        };
+        let tec = self.ctrl.tec.min(255) as u8;
+        insert(&mut self.to_master, at, kernel::error_frame(err::CRTL | err::CNT, [0, status, 0, 0, 0, 0, tec, 0]));
+    }
+
+    fn queue(&mut self, to: Side) -> &mut VecDeque<Wire> {
         match to {
             Side::Master => &mut self.to_master,
             Side::Rack => &mut self.to_rack,
@@ -180,11 +436,16 @@ impl Bus {
         self.queue(to).front().map(|(t, _)| *t)
     }
 
-    fn recv(&mut self, to: Side) -> Option<(Instant, Frame)> {
+    /// The next frame due for `to`, as the receiving socket decodes it (an error frame is
+    /// [`TransportError::Bus`]).
+    fn recv(&mut self, to: Side) -> Option<(Instant, Result<Frame, TransportError>)> {
         let now = self.clock.now();
+        if to == Side::Master {
+            self.restart_due(now);
+        }
         let q = self.queue(to);
         if q.front().is_some_and(|(t, _)| *t <= now) {
-            q.pop_front()
+            q.pop_front().map(|(t, b)| (t, kernel::decode(&b)))
         } else {
             None
         }
@@ -206,15 +467,18 @@ pub struct LockstepCan {
 
 impl CanTransport for LockstepCan {
     fn send(&mut self, frame: &Frame) -> Result<(), TransportError> {
-        lock(&self.bus).send(self.side, frame);
-        Ok(())
+        lock(&self.bus).send(self.side, frame)
     }
 
     fn try_recv(&mut self) -> Result<Option<Frame>, TransportError> {
-        Ok(lock(&self.bus).recv(self.side).map(|(t, f)| {
-            self.last_rx = Some(t);
-            f
-        }))
+        match lock(&self.bus).recv(self.side) {
+            Some((t, Ok(f))) => {
+                self.last_rx = Some(t);
+                Ok(Some(f))
+            }
+            Some((_, Err(e))) => Err(e),
+            None => Ok(None),
+        }
     }
 
     fn recv_deadline(&mut self, deadline: Instant) -> Result<Option<Frame>, TransportError> {
@@ -318,17 +582,18 @@ pub(crate) struct World {
     tracker_gap_until: Option<Instant>,
     faults: LockstepFaults,
     rng: ChaCha8Rng,
-    rebooted: bool,
+    /// Faults to apply, in time order.
+    schedule: VecDeque<(Instant, SimFault)>,
 }
+
+/// How long a simulated drive stays in FAULT REACTION ACTIVE before FAULT: its fault reaction
+/// (motor stopped, brake applied), tens of milliseconds on real drives.
+const FAULT_REACTION: Duration = Duration::from_millis(20);
 
 /// A Modbus device's time from the end of a request to the start of its answer.
 const CELL_LATENCY: Duration = Duration::from_millis(1);
 
 impl World {
-    fn secs(&self, t: Instant) -> f64 {
-        t.saturating_duration_since(self.t0).as_secs_f64()
-    }
-
     /// Handles every event up to `t`, in time order, and leaves the clock at `t`.
     pub(crate) fn advance_to(&mut self, t: Instant) {
         loop {
@@ -345,7 +610,8 @@ impl World {
 
     fn next_event(&mut self) -> Option<Instant> {
         let bus = lock(&self.bus).next_delivery(Side::Rack);
-        [bus, self.site.rack.next_deadline(), Some(self.next_tick), Some(self.cells.next_round), self.cells.bus.next_release()]
+        let fault = self.schedule.front().map(|(t, _)| *t);
+        [bus, self.site.rack.next_deadline(), Some(self.next_tick), Some(self.cells.next_round), self.cells.bus.next_release(), fault]
             .into_iter()
             .flatten()
             .chain(self.receiver.is_some().then_some(self.next_pose))
@@ -353,6 +619,10 @@ impl World {
     }
 
     fn handle_due(&mut self, now: Instant) {
+        while self.schedule.front().is_some_and(|(t, _)| *t <= now) {
+            let (at, f) = self.schedule.pop_front().expect("checked");
+            self.apply(at, f);
+        }
         // Frames that reached the drives, each at its own bus instant.
         while let Ok(Some(f)) = self.site.rack.transport().try_recv() {
             self.site.on_frame(&f);
@@ -360,7 +630,6 @@ impl World {
         self.site.rack.step(now);
         if now >= self.next_tick {
             self.next_tick += self.site.period;
-            self.scheduled_faults(now);
             self.site.inject_faults();
             if self.site.silenced && !self.cells.silenced {
                 self.cells.responder.inject(None, LoadCellFault::Silence, u32::MAX);
@@ -394,12 +663,33 @@ impl World {
         }
     }
 
-    fn scheduled_faults(&mut self, now: Instant) {
-        if let (Some(at), false) = (self.faults.drive_reboot_at_s, self.rebooted) {
-            if self.secs(now) >= at {
-                self.site.faults.drive_power_cycle.store(true, Ordering::Relaxed);
-                self.rebooted = true;
+    /// Puts `fault` on the schedule at `at` (in time order; after those at the same instant).
+    fn schedule(&mut self, at: Instant, fault: SimFault) {
+        let i = self.schedule.iter().rposition(|(t, _)| *t <= at).map_or(0, |i| i + 1);
+        self.schedule.insert(i, (at, fault));
+    }
+
+    /// Applies a scheduled fault at its instant `at`.
+    fn apply(&mut self, at: Instant, fault: SimFault) {
+        let n = self.site.rack.drives().len();
+        let drive = |cable: usize| {
+            assert!(cable < n, "{fault:?}: the robot has {n} cables");
+            cable
+        };
+        match fault {
+            SimFault::MasterTxErrors { for_s } => {
+                lock(&self.bus).ctrl.tx_fault = Some((at, at + Duration::from_secs_f64(for_s.max(0.0))));
             }
+            SimFault::CanRestart => lock(&self.bus).restart(at),
+            SimFault::DriveFault { cable, code } => self.site.rack.drives()[drive(cable)].inject_fault(code),
+            SimFault::DrivePowerCycle { cable } => self.site.rack.drives()[drive(cable)].power_cycle(),
+            SimFault::HeartbeatLoss { cable, for_s } => {
+                self.site.rack.drives()[drive(cable)].set_heartbeat_off(true);
+                if for_s.is_finite() {
+                    self.schedule(at + Duration::from_secs_f64(for_s.max(0.0)), SimFault::HeartbeatBack { cable });
+                }
+            }
+            SimFault::HeartbeatBack { cable } => self.site.rack.drives()[drive(cable)].set_heartbeat_off(false),
         }
     }
 
@@ -481,6 +771,13 @@ impl LockstepRobot {
             faults: faults.clone(),
             rng: taut_sim::rng(opts.seed, 11),
             stats: BusStats::default(),
+            ctrl: Controller {
+                tec: 0,
+                state: CanState::ErrorActive,
+                off: None,
+                restart: faults.can_restart_ms.map(|ms| Duration::from_millis(u64::from(ms))),
+                tx_fault: None,
+            },
         }));
         let rack_end = LockstepCan { bus: bus.clone(), side: Side::Rack, world: None, last_rx: None };
         // The robot's load-cell bus as configured, on the in-memory line.
@@ -501,7 +798,10 @@ impl LockstepRobot {
         };
         let tracker_stats = pose.as_ref().map(|p| p.stats_handle());
         let io = SiteIo { rack_bus: rack_end, vlc: None, sender: None, clock: Arc::new(clock.clone()), now: t0 };
-        let site = parts.into_site(io, opts);
+        let mut site = parts.into_site(io, opts);
+        for d in site.rack.drives() {
+            d.set_fault_reaction(FAULT_REACTION);
+        }
         let (sim_faults, platform) = (site.faults.clone(), site.platform.clone());
         let world = Arc::new(Mutex::new(World {
             next_tick: t0,
@@ -515,8 +815,14 @@ impl LockstepRobot {
             tracker_gap_until: None,
             faults,
             rng: taut_sim::rng(opts.seed, 13),
-            rebooted: false,
+            schedule: VecDeque::new(),
         }));
+        {
+            let mut w = lock(&world);
+            for &(at_s, f) in &w.faults.scheduled.clone() {
+                w.schedule(t0 + Duration::from_secs_f64(at_s.max(0.0)), f);
+            }
+        }
         let master_end = LockstepCan { bus: bus.clone(), side: Side::Master, world: Some(world.clone()), last_rx: None };
         let peripherals = Peripherals { loadcells: Some((loadcells, reader)), tracker: None, pose };
         let devices =
@@ -671,6 +977,34 @@ impl Lockstep {
         self.run_until(s, |_, _| false);
     }
 
+    /// Injects `fault` at this simulated instant. Like every event of the world that falls due
+    /// between two cycles, it is applied when the world catches up, at the next cycle's read.
+    pub fn inject(&mut self, fault: SimFault) {
+        let now = self.clock.now();
+        lock(&self.world).schedule(now, fault);
+    }
+
+    /// Injects `fault` at the simulated time `at_s` (s since the start; now if that has passed).
+    pub fn inject_at(&mut self, at_s: f64, fault: SimFault) {
+        let mut w = lock(&self.world);
+        let at = self.clock.now().max(w.t0 + Duration::from_secs_f64(at_s.max(0.0)));
+        w.schedule(at, fault);
+    }
+
+    /// The master's CAN controller now.
+    pub fn can(&self) -> CanStatus {
+        let mut b = lock(&self.bus);
+        let now = b.clock.now();
+        b.restart_due(now);
+        let state = if b.ctrl.is_off(now) { CanState::BusOff } else { b.ctrl.state };
+        CanStatus { state, tec: b.ctrl.tec }
+    }
+
+    /// The simulated CAN bus's counts so far.
+    pub fn bus_stats(&self) -> BusStats {
+        lock(&self.bus).stats
+    }
+
     /// Simulated time since the start, s.
     pub fn sim_s(&self) -> f64 {
         self.clock.elapsed().as_secs_f64()
@@ -756,4 +1090,134 @@ pub fn run_startup(
         over || on_check(l, c)
     });
     Ok(host.finish(over))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use taut_driver::transport::BusEvent;
+
+    fn bus(restart_ms: Option<u32>) -> Bus {
+        let clock = SimClock::new();
+        let t0 = clock.now();
+        Bus {
+            clock,
+            bit: Duration::from_micros(1),
+            free_at: t0,
+            to_rack: VecDeque::new(),
+            to_master: VecDeque::new(),
+            faults: LockstepFaults::default(),
+            rng: taut_sim::rng(1, 11),
+            stats: BusStats::default(),
+            ctrl: Controller {
+                tec: 0,
+                state: CanState::ErrorActive,
+                off: None,
+                restart: restart_ms.map(|ms| Duration::from_millis(u64::from(ms))),
+                tx_fault: None,
+            },
+        }
+    }
+
+    /// Everything the master's socket has received by now, decoded.
+    fn drain(b: &mut Bus) -> Vec<Result<Frame, TransportError>> {
+        std::iter::from_fn(|| b.recv(Side::Master).map(|(_, r)| r)).collect()
+    }
+
+    fn bus_events(v: &[Result<Frame, TransportError>]) -> Vec<BusEvent> {
+        v.iter().filter_map(|r| if let Err(TransportError::Bus(e)) = r { Some(*e) } else { None }).collect()
+    }
+
+    /// A burst of transmit errors shorter than bus-off: the counter climbs by 8 per attempt
+    /// through error warning (96) to error-passive (128, 16 attempts), and comes back down one
+    /// frame sent at a time: warning at 127, error-active at 95.
+    #[test]
+    fn a_burst_of_transmit_errors_reaches_error_passive_and_comes_back() {
+        let mut b = bus(Some(100));
+        let t0 = b.clock.now();
+        let f = Frame::new(0x201, &[0; 8]);
+        // 16 attempts of 135 + 14 bits at 1 us: the 17th starts at 2.384 ms.
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_micros(2300)));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!((b.stats.tx_errors, b.ctrl.tec, b.ctrl.state), (16, 127, CanState::ErrorWarning), "sent at the 17th attempt");
+        assert_eq!(b.to_rack.len(), 1);
+        for k in 0..32 {
+            b.clock.advance(Duration::from_micros(200));
+            b.send(Side::Master, &f).unwrap();
+            assert_eq!(b.ctrl.state == CanState::ErrorActive, k == 31, "{k}: TEC {}", b.ctrl.tec);
+        }
+        b.clock.advance(Duration::from_millis(1));
+        let got = drain(&mut b);
+        assert_eq!(
+            bus_events(&got),
+            [
+                BusEvent::ErrorWarning { tx: 96, rx: 0 },
+                BusEvent::ErrorPassive { tx: 128, rx: 0 },
+                BusEvent::ErrorWarning { tx: 127, rx: 0 },
+                BusEvent::ErrorActive
+            ]
+        );
+        assert_eq!(b.ctrl.tec, 95);
+    }
+
+    /// A fault that lasts: warning at 96, error-passive at 128, bus-off past 255, each reported
+    /// as the kernel does; nothing received or sent while off; restarted after `restart-ms`.
+    #[test]
+    fn transmit_errors_take_the_controller_bus_off_and_restart_ms_brings_it_back() {
+        let mut b = bus(Some(100));
+        let t0 = b.clock.now();
+        let f = Frame::new(0x201, &[0; 8]);
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_secs(1)));
+        // The drive's frame before the fault is received; the master's frame goes bus-off, and
+        // the one behind it in the queue is lost with it.
+        b.send(Side::Rack, &Frame::new(0x181, &[1])).unwrap();
+        b.send(Side::Master, &f).unwrap();
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!((b.stats.tx_errors, b.stats.bus_offs, b.stats.tx_lost_off), (32, 1, 2));
+        assert!(b.to_rack.is_empty(), "nobody received a failed frame");
+        b.clock.advance(Duration::from_millis(10));
+        assert_eq!(b.send(Side::Master, &f), Err(TransportError::Full(f)), "ENOBUFS while off");
+        b.send(Side::Rack, &Frame::new(0x181, &[2])).unwrap();
+        let got = drain(&mut b);
+        assert_eq!(got[0], Ok(Frame::new(0x181, &[1])));
+        assert_eq!(
+            bus_events(&got),
+            [BusEvent::ErrorWarning { tx: 96, rx: 0 }, BusEvent::ErrorPassive { tx: 128, rx: 0 }, BusEvent::BusOff]
+        );
+        assert_eq!(got.len(), 4, "the drive's frame sent while off is not received: {got:?}");
+        assert_eq!(b.stats.rx_missed_off, 1);
+        // restart-ms: back 100 ms after the bus-off, counters at 0; the fault still there, the
+        // next frame takes it bus-off again.
+        b.clock.advance(Duration::from_millis(100));
+        assert_eq!(bus_events(&drain(&mut b)), [BusEvent::Restarted]);
+        assert_eq!((b.ctrl.tec, b.ctrl.state), (0, CanState::ErrorActive));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!(b.stats.bus_offs, 2);
+        // After the fault: restarted, and frames go through.
+        b.clock.advance(Duration::from_secs(1));
+        assert_eq!(bus_events(&drain(&mut b)).last(), Some(&BusEvent::Restarted));
+        b.send(Side::Master, &f).unwrap();
+        assert_eq!(b.to_rack.len(), 1);
+        assert_eq!((b.stats.restarts, b.ctrl.tec), (2, 0));
+    }
+
+    /// Without `restart-ms` only a restart by hand brings it back; a restart of a controller
+    /// that is not bus-off does nothing.
+    #[test]
+    fn without_restart_ms_the_controller_stays_off_until_restarted_by_hand() {
+        let mut b = bus(None);
+        let t0 = b.clock.now();
+        b.restart(t0);
+        assert!(drain(&mut b).is_empty(), "EBUSY: not bus-off");
+        b.ctrl.tx_fault = Some((t0, t0 + Duration::from_millis(10)));
+        b.send(Side::Master, &Frame::new(0x80, &[])).unwrap();
+        b.clock.advance(Duration::from_secs(10));
+        assert_eq!(bus_events(&drain(&mut b)).last(), Some(&BusEvent::BusOff));
+        assert!(b.ctrl.is_off(b.clock.now()));
+        let now = b.clock.now();
+        b.restart(now);
+        assert_eq!(bus_events(&drain(&mut b)), [BusEvent::Restarted]);
+        b.send(Side::Master, &Frame::new(0x80, &[])).unwrap();
+        assert_eq!((b.to_rack.len(), b.stats.restarts), (1, 1));
+    }
 }

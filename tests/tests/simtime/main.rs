@@ -6,7 +6,8 @@
 //!
 //! Which test covers which path (docs/testing.md has the whole table): the accuracy of the
 //! start-up with a tracker (`excitation`: the designed excitation's 1 mm on seeds 1-5), without a
-//! tracker (`notracker_3mm`), determinism and faults drawn from the seed (`lockstep`). The
+//! tracker (`notracker_3mm`), determinism and faults drawn from the seed (`lockstep`), reset after
+//! each cause (`reset`: estop, drive fault, power cycle, bus-off, heartbeat loss). The
 //! wall-clock path (threads, ptys, UDP, SocketCAN, the control socket, telemetry) keeps its smoke
 //! tests in the `e2e` and `vcan` targets.
 
@@ -22,3 +23,4 @@ mod lockstep;
 mod notracker_3mm;
 mod notracker_short;
 mod operator;
+mod reset;

@@ -105,6 +105,11 @@ pub struct DriveParams {
     /// goes on as before (its heartbeat timer may fire, SDO requests are answered), as firmware
     /// that handles NMT in its main loop does.
     pub reset_latency: Duration,
+    /// How long the drive stays in FAULT REACTION ACTIVE after a fault (its fault reaction,
+    /// 0x605E: the motor stopped, the brake applied) before FAULT (CiA 402 transition 14), as
+    /// real drives do for tens of milliseconds; zero: straight to FAULT. A fault reset is taken
+    /// only in FAULT.
+    pub fault_reaction: Duration,
 }
 
 impl DriveParams {
@@ -125,6 +130,7 @@ impl DriveParams {
             sdo_duplicate_every: 0,
             abort_connection_default: 0,
             reset_latency: Duration::ZERO,
+            fault_reaction: Duration::ZERO,
         }
     }
 }
@@ -210,6 +216,8 @@ pub struct VirtualDrive {
     abort_option: i16,
     /// An NMT reset waiting for [`DriveParams::reset_latency`].
     pending_reset: Option<(NmtCommand, Instant)>,
+    /// The end of the fault reaction (FAULT REACTION ACTIVE -> FAULT).
+    fault_reaction_until: Option<Instant>,
 }
 
 impl VirtualDrive {
@@ -252,6 +260,7 @@ impl VirtualDrive {
             consumer_lost: false,
             abort_option: 0,
             pending_reset: None,
+            fault_reaction_until: None,
         };
         d.abort_option = d.p.abort_connection_default;
         d.reset_communication();
@@ -321,10 +330,17 @@ impl VirtualDrive {
         self.counters = counters;
     }
 
-    /// Fault injection: a drive fault with this CiA 402 error code (EMCY + fault state).
+    /// Sets [`DriveParams::fault_reaction`] (kept across power cycles).
+    pub fn set_fault_reaction(&mut self, d: Duration) {
+        self.p.fault_reaction = d;
+    }
+
+    /// Fault injection: a drive fault with this CiA 402 error code (EMCY + fault state, after
+    /// [`DriveParams::fault_reaction`] in FAULT REACTION ACTIVE once the drive has been polled).
     pub fn inject_fault(&mut self, code: u16) {
         self.error_code = code;
-        self.state = State::Fault;
+        self.fault_reaction_until = self.clock.filter(|_| !self.p.fault_reaction.is_zero()).map(|t| t + self.p.fault_reaction);
+        self.state = if self.fault_reaction_until.is_some() { State::FaultReactionActive } else { State::Fault };
         self.torque = 0;
         self.send(emcy::encode(self.p.node_id, &Emcy { code, register: error_register(code), vendor: [0; 5] }));
     }
@@ -401,6 +417,12 @@ impl VirtualDrive {
             return;
         }
         self.clock = Some(now);
+        if self.fault_reaction_until.is_some_and(|t| now >= t) {
+            self.fault_reaction_until = None;
+            if self.state == State::FaultReactionActive {
+                self.state = State::Fault;
+            }
+        }
         if let Some((cmd, t)) = self.pending_reset {
             if now >= t {
                 self.pending_reset = None;
@@ -447,6 +469,7 @@ impl VirtualDrive {
             self.delayed.front().map(|(t, _)| *t),
             self.consumer_deadline().map(|t| t + Duration::from_millis(1)),
             self.pending_reset.map(|(_, t)| t),
+            self.fault_reaction_until,
         ]
         .into_iter()
         .flatten()
@@ -584,6 +607,41 @@ mod tests {
         }
         assert_eq!(sdo(&mut d, entry(0x5555_0010), t), abort(AbortCode::NO_OBJECT));
         assert_eq!(sdo(&mut d, entry(0x6064_0020), t), SdoResponse::DownloadInitiated { index: 0x1A02, sub: 1 });
+    }
+
+    /// A fault with a fault reaction: EMCY at once, FAULT REACTION ACTIVE (statusword 0x0F),
+    /// which takes no fault reset, then FAULT, which does.
+    #[test]
+    fn a_fault_passes_through_fault_reaction_active() {
+        let t = Instant::now();
+        let mut p = DriveParams::new(3);
+        p.fault_reaction = Duration::from_millis(20);
+        let mut d = VirtualDrive::new(p);
+        d.poll(t);
+        let _ = d.poll_tx();
+        d.inject_fault(0x2310);
+        assert_eq!(d.poll_tx(), Some(emcy::encode(3, &Emcy { code: 0x2310, register: 0x03, vendor: [0; 5] })));
+        assert_eq!((d.state(), d.statusword() & 0x6F), (State::FaultReactionActive, 0x0F));
+        assert_eq!(d.next_deadline(), Some(t + Duration::from_millis(20)));
+        d.on_controlword(0x0080);
+        assert_eq!(d.state(), State::FaultReactionActive, "no fault reset while reacting");
+        d.on_controlword(0x0000);
+        d.poll(t + Duration::from_millis(19));
+        assert_eq!(d.state(), State::FaultReactionActive);
+        d.poll(t + Duration::from_millis(20));
+        assert_eq!(d.state(), State::Fault);
+        d.on_controlword(0x0080);
+        assert_eq!(d.state(), State::SwitchOnDisabled);
+        // Kept across a power cycle; zero is straight to FAULT.
+        d.power_cycle();
+        d.poll(t + Duration::from_millis(30));
+        d.inject_fault(0x2310);
+        assert_eq!(d.state(), State::FaultReactionActive);
+        d.set_fault_reaction(Duration::ZERO);
+        d.on_controlword(0);
+        d.poll(t + Duration::from_millis(50));
+        d.inject_fault(0x2310);
+        assert_eq!(d.state(), State::Fault);
     }
 
     #[test]
