@@ -112,6 +112,10 @@ pub struct DiagnoseOptions {
     /// as the candidate); one the test cannot tell from nothing is dropped and not tried again.
     /// False gives the forward-only selection as it was before (for comparisons only).
     pub backward: bool,
+    /// Find stale rows ([`dataq::stale_rows`]: every encoder repeats the previous row while the
+    /// platform moves) and leave them out (true). False keeps them, as before (for comparisons
+    /// only: `tests/examples/short_recordings.rs`).
+    pub stale_rows: bool,
 }
 
 impl DiagnoseOptions {
@@ -132,6 +136,7 @@ impl DiagnoseOptions {
             family_alpha: DEFAULT_FAMILY_ALPHA,
             estimation_error: true,
             backward: true,
+            stale_rows: true,
         }
     }
 
@@ -1255,9 +1260,20 @@ pub fn diagnose(
     }
     let mut notes = vec![];
     // Wild values first: a single 1e308 must neither move the fit nor pass for physics.
+    // Stale rows before the screen: their repeated lengths, centimetres off on a moving
+    // platform, would otherwise pass for wild readings of some cables and stay on others.
+    let stale = if opts.stale_rows { dataq::stale_rows(rec, opts.tracker_sigma_m, opts.encoder_sigma_m) } else { vec![] };
+    let unstale = dataq::without_lengths(rec, &stale);
+    let rec = unstale.as_ref().unwrap_or(rec);
     let screen = crate::screen::screen(rec, &crate::screen::ScreenOptions::new(opts.min_tension_n));
     let rec = screen.recording(rec);
-    let (mut data_problems, masks) = dataq::detect_screened(rec, opts.tracker_sigma_m, &screen.removed_rows);
+    let (mut data_problems, masks) = dataq::detect_screened(
+        rec,
+        opts.tracker_sigma_m,
+        opts.encoder_sigma_m,
+        &screen.removed_rows,
+        opts.stale_rows.then_some(&stale[..]),
+    );
     data_problems.splice(0..0, dataq::from_screen(&screen));
     let mut prep = prepare(rec, platform_points, &masks, opts);
     let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();

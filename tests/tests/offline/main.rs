@@ -20,6 +20,7 @@ mod diagnose_loadcell_key;
 mod diagnose_null;
 mod diagnose_pairs;
 mod diagnose_ptail;
+mod diagnose_short;
 mod hostile_args;
 mod hostile_config;
 mod hostile_outputs;
