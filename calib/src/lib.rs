@@ -122,6 +122,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bundle;
+pub mod consistency;
 pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
@@ -453,8 +454,20 @@ pub struct CalibReport {
     pub per_cable: Vec<CableReport>,
     /// Parameters returned although their one-sigma exceeds `weak_sigma_m`.
     pub weak: Vec<WeakParam>,
-    /// Things a person should know (fallbacks, scaled sigmas, exclusions, weak parameters).
+    /// Things a person should know (fallbacks, scaled sigmas, exclusions, weak parameters);
+    /// first, when the model is inconsistent, the consistency test's words.
     pub notes: Vec<String>,
+    /// The held-out residual against the noise model ([`consistency`], every reading held out
+    /// once in a 5-block cross-fit); `None` without a held-out block on every cable.
+    pub consistency: Option<consistency::ModelConsistency>,
+}
+
+impl CalibReport {
+    /// False when the held-out test says the model does not explain the data
+    /// ([`consistency::ModelConsistency`]); true when it does or there is no held-out block.
+    pub fn model_consistent(&self) -> bool {
+        self.consistency.is_none_or(|c| c.consistent)
+    }
 }
 
 /// A parameter the recording determines only weakly (one-sigma above `weak_sigma_m`, below the
@@ -565,12 +578,18 @@ fn calibrate_readings(
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
     let mut weak = Vec::new();
+    let mut terms = vec![consistency::HeldoutTerm::default(); rec.len()];
+    let mut cables_crossfit = 0;
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
     for c in cables {
         let c = c?;
         notes.extend(c.weak.iter().map(|w| w.to_string()));
         weak.extend(c.weak);
+        cables_crossfit += usize::from(c.heldout_terms.len() == terms.len());
+        for (t, o) in terms.iter_mut().zip(&c.heldout_terms) {
+            t.merge(o);
+        }
         if let Some((sum, count, peak)) = c.heldout {
             ho_sum += sum;
             ho_n += count;
@@ -592,6 +611,11 @@ fn calibrate_readings(
         }
         Weighting::UniformByOption => notes.insert(0, "force weighting switched off: uniform weights, loose readings not excluded".into()),
         Weighting::ForceAware => {}
+    }
+    // Every cable's cross-fit must be there for the test to be of the model.
+    let consistency = if cables_crossfit == n { consistency::ModelConsistency::test(&terms, consistency::CONSISTENCY_ALPHA) } else { None };
+    if let Some(c) = consistency.filter(|c| !c.consistent) {
+        notes.insert(0, c.to_string());
     }
     let used: usize = per_cable.iter().map(|c| c.used).sum();
     let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
@@ -626,6 +650,7 @@ fn calibrate_readings(
         params,
         weak,
         notes,
+        consistency,
     })
 }
 
@@ -640,8 +665,68 @@ struct CableOutcome {
     notes: Vec<String>,
     /// Held-out sum of squares, readings and peak, when there is a held-out block.
     heldout: Option<(f64, usize, f64)>,
+    /// The consistency test's cross-fitted terms, one per row ([`crossfit_terms`]; empty without
+    /// a held-out block).
+    heldout_terms: Vec<consistency::HeldoutTerm>,
     /// Sum of squares, readings and peak over the used and the loose readings.
     all: (f64, usize, f64),
+}
+
+/// The consistency test's terms ([`consistency::HeldoutTerm`]) of cable data `d` on slots
+/// `lo..hi` (one per slot, from `lo`) at the training parameters `x` with the training block's
+/// inverse normal matrix `h_inv` (the parameters' covariance under the noise model).
+fn consistency_terms(
+    d: &noise::CableData,
+    lo: usize,
+    hi: usize,
+    x: &[f64; 4],
+    h_inv: &nalgebra::Matrix4<f64>,
+    outlier_sigma: f64,
+) -> Vec<consistency::HeldoutTerm> {
+    (lo..hi)
+        .map(|k| {
+            let mut t = consistency::HeldoutTerm::default();
+            if d.class[k] == noise::USED && d.iv[k] > 0.0 {
+                let (dx, dy, dz) = (d.x[k] - x[0], d.y[k] - x[1], d.z[k] - x[2]);
+                let rho = (dx * dx + dy * dy + dz * dz).sqrt();
+                let r = d.l[k] - (rho + x[3]);
+                let j = nalgebra::Vector4::new(-dx / rho, -dy / rho, -dz / rho, 1.0);
+                t.add(r, d.iv[k], (j.transpose() * h_inv * j)[0], outlier_sigma);
+            }
+            t
+        })
+        .collect()
+}
+
+/// Time blocks of the consistency test's cross-fit ([`crossfit_terms`]).
+const CROSSFIT_BLOCKS: usize = 5;
+
+/// The consistency test's terms of every slot `0..slots` of cable data `d`, each predicted by
+/// parameters fitted without its time block: the slots are cut into [`CROSSFIT_BLOCKS`]
+/// contiguous blocks, and each block is predicted from one Gauss-Newton step from the full
+/// solution `x` on the other blocks (as the held-out figures are: the step lands on the
+/// training optimum to a small fraction of a sigma). Every reading is then held out once, five
+/// times the readings of the last-block split, for five passes over the data. Empty when a
+/// block's training normal matrix is singular.
+fn crossfit_terms(d: &noise::CableData, slots: usize, x: &[f64; 4], opts: &CalibOptions) -> Vec<consistency::HeldoutTerm> {
+    let mut out = Vec::with_capacity(slots);
+    for b in 0..CROSSFIT_BLOCKS {
+        let (lo, hi) = (b * slots / CROSSFIT_BLOCKS, (b + 1) * slots / CROSSFIT_BLOCKS);
+        let (p1, p2) = (solver::pass(d, 0, lo, x, opts.loss), solver::pass(d, hi, slots, x, opts.loss));
+        let mut tp = p1;
+        tp.h.iter_mut().zip(&p2.h).for_each(|(a, b)| *a += b);
+        tp.g.iter_mut().zip(&p2.g).for_each(|(a, b)| *a += b);
+        let h = tp.h_matrix();
+        let (Some(step), Some(h_inv)) = (h.cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))), h.try_inverse()) else {
+            return Vec::new();
+        };
+        let xt = [x[0] + step[0], x[1] + step[1], x[2] + step[2], x[3] + step[3]];
+        if !xt.iter().all(|v| v.is_finite()) {
+            return Vec::new();
+        }
+        out.extend(consistency_terms(d, lo, hi, &xt, &h_inv, opts.outlier_sigma));
+    }
+    out
 }
 
 /// [`calibrate`] for cable `j` on its readings `d`; `split` is the first held-out slot, `rows`
@@ -742,6 +827,7 @@ fn calibrate_cable(
     // tests), for one pass instead of a whole solve.
     let ntrain = d.used_in(0..split);
     let (mut heldout, mut heldout_sums) = (f64::NAN, None);
+    let mut heldout_terms = Vec::new();
     if split < rows && ntrain >= MIN_READINGS && ntrain < m {
         let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
         if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
@@ -752,6 +838,9 @@ fn calibrate_cable(
                 heldout = (hs.sum_sq / (m - ntrain) as f64).sqrt();
             }
         }
+    }
+    if heldout.is_finite() {
+        heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts);
     }
     if d.loose > 0 {
         notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
@@ -796,6 +885,7 @@ fn calibrate_cable(
         weak,
         notes,
         heldout: heldout_sums,
+        heldout_terms,
         // All readings, loose ones included.
         all: (fin.sum_sq_all, m + d.loose, fin.peak_all),
     })

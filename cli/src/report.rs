@@ -55,6 +55,14 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     for note in &f.notes {
         println!("  note: {note}");
     }
+    match &f.consistency {
+        Some(c) if c.consistent => println!("model check: consistent with the noise model: {}", c.numbers()),
+        Some(c) => println!(
+            "model check: INCONSISTENT, the model does not explain the data: {}; run `taut diagnose` on this recording",
+            c.numbers()
+        ),
+        None => println!("model check: not made (no held-out block: calibration.heldout_fraction 0 or too few readings)"),
+    }
     println!();
     println!("anchors A_j, m (tracker frame)");
     println!(
@@ -143,6 +151,20 @@ fn report_json(r: &CalibReport) -> serde_json::Value {
         "termination": format!("{:?}", r.termination),
         "singular_values": r.singular_values,
         "used_tensions": r.used_tensions,
+        "model_consistent": r.model_consistent(),
+        "model_check": r.consistency.map(|c| json!({
+            "consistent": c.consistent,
+            "alpha": c.alpha,
+            "p_value": c.p_value,
+            "statistic": c.statistic,
+            "dof": c.dof,
+            "chi2_ratio": c.ratio,
+            "heldout_rms_m": c.heldout_rms_m,
+            "expected_rms_m": c.expected_rms_m,
+            "samples": c.samples,
+            "readings": c.readings,
+            "outliers": c.outliers,
+        })),
     })
 }
 

@@ -68,6 +68,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
                 "heldout_rms_new_m": finite(o.heldout_rms_new_m),
                 "heldout_rms_old_m": finite(o.heldout_rms_old_m),
                 "heldout_outliers": o.heldout_outliers,
+                "model_consistent": o.estimate.as_ref().and_then(|e| e.model_consistent),
                 "data_problems": o.data_problems,
             })
         })

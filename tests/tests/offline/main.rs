@@ -27,6 +27,7 @@ mod hostile_outputs;
 mod hostile_recordings;
 mod hostile_wild_values;
 mod mcap_export;
+mod model_consistency;
 mod params_v2;
 mod report_html;
 mod selfcal;
