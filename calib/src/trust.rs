@@ -141,6 +141,114 @@ pub fn check(c: &Candidate, rec: &Recording, nominal: Option<(&[[f64; 3]], f64)>
     Ok(())
 }
 
+/// Cables whose calibrated anchors landed at other cables' nominal anchors: a wiring or
+/// column-order mistake (the encoder column, drive or load cell of one cable recorded as
+/// another's) rather than a site error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Swap {
+    /// The cables in the cycle, in order: cable `cables[i]`'s anchor came out at the nominal
+    /// anchor of `cables[(i + 1) % len]` (a pair: two cables exchanged).
+    pub cables: Vec<usize>,
+    /// Per cable of the cycle, the distance from the nominal anchor it landed at, m.
+    pub distance_m: Vec<f64>,
+    /// Per cable of the cycle, the distance from its own nominal anchor, m.
+    pub own_distance_m: Vec<f64>,
+}
+
+impl fmt::Display for Swap {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.cables;
+        if c.len() == 2 {
+            write!(f, "cables {} and {} look swapped", c[0], c[1])?;
+        } else {
+            let names: Vec<String> = c.iter().map(|j| j.to_string()).collect();
+            write!(f, "cables {} look permuted", names.join(", "))?;
+        }
+        let each: Vec<String> = (0..c.len())
+            .map(|i| {
+                format!(
+                    "cable {}'s anchor came out {:.3} m from cable {}'s nominal anchor ({:.3} m from its own)",
+                    c[i],
+                    self.distance_m[i],
+                    c[(i + 1) % c.len()],
+                    self.own_distance_m[i]
+                )
+            })
+            .collect();
+        write!(
+            f,
+            ": {}; the recording's length columns (or the drives, encoders or load cells) of these cables are in another order than the configuration's [[cable]] tables",
+            each.join(", ")
+        )
+    }
+}
+
+/// The swaps of `anchors` against the configuration's `nominal` anchors: cable `j` landed at
+/// cable `k`'s nominal anchor when that is the nearest nominal anchor to it, within a third of
+/// the distance between the nominal anchors of `j` and `k` (so the site error, small against
+/// the robot, cannot make one), and closer than its own by that margin; a swap is the cycle
+/// of such cables (two cables exchanged, or more permuted). A cable that landed near another's
+/// anchor without closing a cycle is not a swap (two cables at one anchor: the far-from-nominal
+/// check refuses that).
+pub fn swaps(anchors: &[[f64; 3]], nominal: &[[f64; 3]]) -> Vec<Swap> {
+    let n = anchors.len().min(nominal.len());
+    let dist = |a: [f64; 3], b: [f64; 3]| crate::model::norm(crate::model::sub(a, b));
+    let target: Vec<Option<usize>> = (0..n)
+        .map(|j| {
+            let a = anchors[j];
+            if !a.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            let k = (0..n).min_by(|&x, &y| dist(a, nominal[x]).total_cmp(&dist(a, nominal[y])))?;
+            let sep = dist(nominal[j], nominal[k]);
+            (k != j && dist(a, nominal[k]) <= sep / 3.0 && dist(a, nominal[j]) >= 2.0 * sep / 3.0).then_some(k)
+        })
+        .collect();
+    let mut seen = vec![false; n];
+    let mut out = vec![];
+    for start in 0..n {
+        if seen[start] || target[start].is_none() {
+            continue;
+        }
+        let mut cycle = vec![start];
+        let mut at = start;
+        let closed = loop {
+            match target[at] {
+                Some(k) if k == start => break true,
+                Some(k) if !cycle.contains(&k) => {
+                    cycle.push(k);
+                    at = k;
+                }
+                _ => break false,
+            }
+        };
+        if closed {
+            for &j in &cycle {
+                seen[j] = true;
+            }
+            let next = |i: usize| cycle[(i + 1) % cycle.len()];
+            out.push(Swap {
+                distance_m: (0..cycle.len()).map(|i| dist(anchors[cycle[i]], nominal[next(i)])).collect(),
+                own_distance_m: cycle.iter().map(|&j| dist(anchors[j], nominal[j])).collect(),
+                cables: cycle,
+            });
+        }
+    }
+    out
+}
+
+/// `nominal` with the cables of `swaps` in the order the recording has them: entry `j` is the
+/// nominal anchor cable `j`'s anchor landed at.
+pub fn permuted_nominal(nominal: &[[f64; 3]], swaps: &[Swap]) -> Vec<[f64; 3]> {
+    let mut out = nominal.to_vec();
+    for s in swaps {
+        for (i, &j) in s.cables.iter().enumerate() {
+            out[j] = nominal[s.cables[(i + 1) % s.cables.len()]];
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,5 +271,31 @@ mod tests {
         let e = check(&Candidate { params: &far, ..ok }, &rec, Some((&truth.anchors, 1.0))).unwrap_err();
         assert!(matches!(e, Untrusted::FarFromNominal { cable: 2, .. }), "{e}");
         assert!(e.to_string().contains("cable[2].anchor"));
+    }
+
+    /// Two cables exchanged, three permuted, a site error, and two cables at one anchor.
+    #[test]
+    fn names_swapped_and_permuted_cables() {
+        let nominal = synth::aras_cam().anchors;
+        let site = |a: [f64; 3]| [a[0] + 0.05, a[1] - 0.04, a[2] + 0.03];
+        let mut a: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        assert!(swaps(&a, &nominal).is_empty());
+        a.swap(0, 1);
+        let s = swaps(&a, &nominal);
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].cables, vec![0, 1]);
+        assert!(s[0].to_string().starts_with("cables 0 and 1 look swapped: cable 0's anchor came out 0.071 m from cable 1's"), "{}", s[0]);
+        assert_eq!(permuted_nominal(&nominal, &s), vec![nominal[1], nominal[0], nominal[2], nominal[3]]);
+        // 0 -> 1 -> 2 -> 0 (cable 0 at 1's anchor, 1 at 2's, 2 at 0's).
+        let mut p: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        (p[0], p[1], p[2]) = (site(nominal[1]), site(nominal[2]), site(nominal[0]));
+        let s = swaps(&p, &nominal);
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].cables, vec![0, 1, 2]);
+        assert!(s[0].to_string().starts_with("cables 0, 1, 2 look permuted"), "{}", s[0]);
+        // Cable 0 at cable 1's anchor, cable 1 where it belongs: not a swap.
+        let mut q: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        q[0] = site(nominal[1]);
+        assert!(swaps(&q, &nominal).is_empty());
     }
 }

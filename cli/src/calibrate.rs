@@ -32,6 +32,11 @@ pub struct CalibrateArgs {
     /// JSON `unweighted`, figures). Off by default: it doubles the solve.
     #[arg(long)]
     pub compare: bool,
+    /// Calibrate cables whose anchors land at other cables' nominal anchors (a swapped pair of
+    /// length columns or drives) as recorded, instead of refusing: the nominal anchors they
+    /// are checked against follow the swap.
+    #[arg(long)]
+    pub allow_swapped: bool,
 }
 
 /// Most threads `taut calibrate` uses: the work comes in pieces of one cable or one channel
@@ -158,8 +163,29 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let rec = out.screen.recording(&rec);
     print_wild(&out.screen);
     report::print_calibration(rec, &parse, &out, None);
+    // Cables recorded in another order than the configuration's: named, and refused unless
+    // --allow-swapped (then checked against the nominal anchors in the recording's order).
+    let mut nominal = cfg.anchors();
+    let swaps = nominal.as_deref().map(|n| taut_calib::trust::swaps(&out.force.params.anchors, n)).unwrap_or_default();
+    if !swaps.is_empty() {
+        let words: Vec<String> = swaps.iter().map(|s| s.to_string()).collect();
+        if !a.allow_swapped {
+            let why = format!(
+                "{}; correct the column order (or the wiring) and calibrate again, or give --allow-swapped to calibrate the cables as recorded",
+                words.join("; ")
+            );
+            if let Some(r) = &a.report {
+                write_report(a, r, rec, &parse, &cfg, &out, Some(why.clone()))?;
+                anyhow::bail!("calibration refused, no parameters written (the report {} says why): {why}", r.display());
+            }
+            anyhow::bail!("calibration refused, nothing written: {why}");
+        }
+        for w in &words {
+            println!("swapped (--allow-swapped, calibrated as recorded): {w}");
+        }
+        nominal = nominal.map(|n| taut_calib::trust::permuted_nominal(&n, &swaps));
+    }
     // Nothing is written from a set that cannot be trusted.
-    let nominal = cfg.anchors();
     let limit = 2.0 * cfg.daemon.max_anchor_change_m;
     let trusted = taut_calib::trust::check(&taut_calib::trust::Candidate::of(&out.force), rec, nominal.as_deref().map(|n| (n, limit)));
     if let Err(e) = &trusted {
@@ -173,6 +199,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
+        v["swapped"] = serde_json::json!(swaps.iter().map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()})).collect::<Vec<_>>());
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {

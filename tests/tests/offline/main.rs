@@ -31,4 +31,5 @@ mod model_consistency;
 mod params_v2;
 mod report_html;
 mod selfcal;
+mod swapped_cables;
 mod udev_rules;
