@@ -95,11 +95,11 @@ pub fn field_scenario(seed: u64, logger: &Logger) -> Scenario {
 /// Simulates `s` on its grid (`s.rate_hz`, which must be `logger.grid_hz`) and samples it as
 /// `logger` does (seeded by `s.seed`).
 pub fn try_field_recording(s: &Scenario, logger: &Logger) -> Result<FieldRun, SimError> {
-    if !(logger.rate_hz > 0.0 && logger.grid_hz >= logger.rate_hz && (0.0..1.0).contains(&logger.jitter))
-        || !(0.0..1.0).contains(&logger.stale_fraction)
-        || logger.rows < 2
-        || (s.rate_hz - logger.grid_hz).abs() > 1e-9 * logger.grid_hz
-    {
+    let valid = logger.rate_hz > 0.0
+        && logger.grid_hz >= logger.rate_hz
+        && (0.0..1.0).contains(&logger.jitter)
+        && (0.0..1.0).contains(&logger.stale_fraction);
+    if !valid || logger.rows < 2 || (s.rate_hz - logger.grid_hz).abs() > 1e-9 * logger.grid_hz {
         return Err(SimError::BadScenario(
             "logger: rows >= 2, 0 < rate_hz <= grid_hz = the scenario's rate_hz, jitter and stale_fraction in [0, 1)",
         ));

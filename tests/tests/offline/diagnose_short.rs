@@ -32,10 +32,10 @@ fn run(seed: u64, offset_s: f64) -> (Diagnosis, Vec<String>) {
     assert!(truth > 50, "seed {seed}: only {truth} stale rows drawn");
     let fine = &run.sim.recording;
     let mut missed = vec![];
-    for i in 0..rec.len() {
-        assert!(!found[i] || run.stale[i], "seed {seed}: row {i} called stale");
+    for (i, (&found, &stale)) in found.iter().zip(&run.stale).enumerate() {
+        assert!(!found || stale, "seed {seed}: row {i} called stale");
         // (A row without a pose is left out as a tracker dropout whatever its lengths.)
-        if run.stale[i] && !found[i] && rec.p[i].iter().all(|v| v.is_finite()) {
+        if stale && !found && rec.p[i].iter().all(|v| v.is_finite()) {
             // Its error: the fresh reading minus the repeated one.
             let fresh = fine.lengths(run.grid_rows[i]);
             let err = fresh.iter().zip(rec.lengths(i)).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
