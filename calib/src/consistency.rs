@@ -37,16 +37,18 @@ pub const CONSISTENCY_ALPHA: f64 = 1e-3;
 /// Batches of the long-run variance (at most; at least 4 held-out samples each).
 const BATCHES: usize = 50;
 
-/// One held-out sample's contribution, summed over its cables.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct HeldoutTerm {
-    /// `sum_j (e_ij - E[e_ij])`.
-    pub score: f64,
-    /// `sum_j E[e_ij]`.
-    pub expected: f64,
-    /// `sum_j r_ij^2`, m^2.
+/// The held-out readings' contributions: per held-out sample (row) the score
+/// `sum_j (e_ij - E[e_ij])` and `sum_j E[e_ij]` over its cables (which share the sample's
+/// tracker noise), and totals.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HeldoutTerms {
+    /// Per row, `sum_j (e_ij - E[e_ij])`.
+    pub score: Vec<f64>,
+    /// Per row, `sum_j E[e_ij]` (0: no reading).
+    pub expected: Vec<f64>,
+    /// `sum r^2` over the readings, m^2.
     pub sum_sq: f64,
-    /// `sum_j v_ij E[e_ij]`: the noise model's expected `sum_j r_ij^2`, m^2.
+    /// The noise model's expected `sum r^2`, `sum v E[e]`, m^2.
     pub expected_sum_sq: f64,
     /// Readings.
     pub readings: usize,
@@ -54,13 +56,18 @@ pub struct HeldoutTerm {
     pub outliers: usize,
 }
 
-impl HeldoutTerm {
-    /// Adds one reading: residual `r` (m), noise-model inverse variance `iv` (1/m^2) and the
-    /// variance the training parameters' error adds, `q = j^T H_train^-1 j` (m^2); beyond
-    /// `outlier_sigma` it is only counted.
-    pub fn add(&mut self, r: f64, iv: f64, q: f64, outlier_sigma: f64) {
+impl HeldoutTerms {
+    /// No readings yet, `rows` rows.
+    pub fn with_rows(rows: usize) -> Self {
+        HeldoutTerms { score: vec![0.0; rows], expected: vec![0.0; rows], ..HeldoutTerms::default() }
+    }
+
+    /// Adds one reading of row `row`: residual `r` (m), noise-model inverse variance `iv`
+    /// (1/m^2) and the variance the training parameters' error adds, `q = j^T H_train^-1 j`
+    /// (m^2); beyond `outlier_sigma` it is only counted.
+    pub fn add(&mut self, row: usize, r: f64, iv: f64, q: f64, outlier_sigma: f64) {
         let e = r * r * iv;
-        if !(e.is_finite() && iv > 0.0) {
+        if !(e.is_finite() && iv > 0.0) || row >= self.score.len() {
             return;
         }
         if e > outlier_sigma * outlier_sigma {
@@ -68,17 +75,17 @@ impl HeldoutTerm {
             return;
         }
         let expected = 1.0 + q.max(0.0) * iv;
-        self.score += e - expected;
-        self.expected += expected;
+        self.score[row] += e - expected;
+        self.expected[row] += expected;
         self.sum_sq += r * r;
         self.expected_sum_sq += expected / iv;
         self.readings += 1;
     }
 
-    /// Adds another cable's contribution at the same sample.
-    pub fn merge(&mut self, o: &HeldoutTerm) {
-        self.score += o.score;
-        self.expected += o.expected;
+    /// Adds another cable's contributions (same rows).
+    pub fn merge(&mut self, o: &HeldoutTerms) {
+        self.score.iter_mut().zip(&o.score).for_each(|(a, b)| *a += b);
+        self.expected.iter_mut().zip(&o.expected).for_each(|(a, b)| *a += b);
         self.sum_sq += o.sum_sq;
         self.expected_sum_sq += o.expected_sum_sq;
         self.readings += o.readings;
@@ -114,37 +121,34 @@ pub struct ModelConsistency {
 }
 
 impl ModelConsistency {
-    /// The test over the held-out samples' terms in time order (samples without a reading are
-    /// skipped). `None` with fewer than 12 samples.
-    pub fn test(terms: &[HeldoutTerm], alpha: f64) -> Option<ModelConsistency> {
-        let used: Vec<&HeldoutTerm> = terms.iter().filter(|t| t.readings > 0).collect();
-        let n = used.len();
+    /// The test over the held-out rows in time order (rows without a reading are skipped).
+    /// `None` with fewer than 12 rows.
+    pub fn test(terms: &HeldoutTerms, alpha: f64) -> Option<ModelConsistency> {
+        let (u, w): (Vec<f64>, Vec<f64>) =
+            terms.score.iter().zip(&terms.expected).filter(|(_, e)| **e > 0.0).map(|(s, e)| (*s, *e)).unzip();
+        let n = u.len();
         if n < 12 {
             return None;
         }
         let b = BATCHES.min(n / 4);
-        let u: Vec<f64> = used.iter().map(|t| t.score).collect();
-        let w: Vec<f64> = used.iter().map(|t| t.expected).collect();
         let (var, dof) = long_run_variance(&u, &w, b);
         let sum: f64 = u.iter().sum();
         let expected: f64 = w.iter().sum();
         let statistic = if var > 0.0 { sum / var.sqrt() } else { f64::INFINITY * sum.signum() };
         let p_value = student_t_sf(statistic, dof);
-        let readings: usize = used.iter().map(|t| t.readings).sum();
-        let sum_sq: f64 = used.iter().map(|t| t.sum_sq).sum();
-        let expected_sum_sq: f64 = used.iter().map(|t| t.expected_sum_sq).sum();
+        let readings = terms.readings.max(1) as f64;
         Some(ModelConsistency {
             consistent: !(p_value < alpha),
             alpha,
-            heldout_rms_m: (sum_sq / readings.max(1) as f64).sqrt(),
-            expected_rms_m: (expected_sum_sq / readings.max(1) as f64).sqrt(),
+            heldout_rms_m: (terms.sum_sq / readings).sqrt(),
+            expected_rms_m: (terms.expected_sum_sq / readings).sqrt(),
             ratio: (sum + expected) / expected,
             statistic,
             dof,
             p_value,
             samples: n,
-            readings,
-            outliers: terms.iter().map(|t| t.outliers).sum(),
+            readings: terms.readings,
+            outliers: terms.outliers,
         })
     }
 
@@ -185,19 +189,17 @@ mod tests {
     use super::*;
     use crate::synth::Rng;
 
-    fn terms(rng: &mut Rng, n: usize, cables: usize, scale: f64, phi: f64) -> Vec<HeldoutTerm> {
+    fn terms(rng: &mut Rng, n: usize, cables: usize, scale: f64, phi: f64) -> HeldoutTerms {
         let mut shared = 0.0;
-        (0..n)
-            .map(|_| {
-                shared = phi * shared + (1.0 - phi * phi).sqrt() * rng.normal();
-                let mut t = HeldoutTerm::default();
-                for _ in 0..cables {
-                    let r = scale * 1e-3 * (0.7 * shared + 0.714 * rng.normal());
-                    t.add(r, 1e6, 0.0, 6.0);
-                }
-                t
-            })
-            .collect()
+        let mut t = HeldoutTerms::with_rows(n);
+        for i in 0..n {
+            shared = phi * shared + (1.0 - phi * phi).sqrt() * rng.normal();
+            for _ in 0..cables {
+                let r = scale * 1e-3 * (0.7 * shared + 0.714 * rng.normal());
+                t.add(i, r, 1e6, 0.0, 6.0);
+            }
+        }
+        t
     }
 
     /// The level by Monte Carlo: 2,000 held-out blocks of 400 samples x 4 readings that share a

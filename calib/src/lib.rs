@@ -578,7 +578,7 @@ fn calibrate_readings(
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
     let mut weak = Vec::new();
-    let mut terms = vec![consistency::HeldoutTerm::default(); rec.len()];
+    let mut terms = consistency::HeldoutTerms::with_rows(rec.len());
     let mut cables_crossfit = 0;
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
@@ -586,9 +586,9 @@ fn calibrate_readings(
         let c = c?;
         notes.extend(c.weak.iter().map(|w| w.to_string()));
         weak.extend(c.weak);
-        cables_crossfit += usize::from(c.heldout_terms.len() == terms.len());
-        for (t, o) in terms.iter_mut().zip(&c.heldout_terms) {
-            t.merge(o);
+        if let Some(t) = &c.heldout_terms {
+            cables_crossfit += usize::from(t.score.len() == terms.score.len());
+            terms.merge(t);
         }
         if let Some((sum, count, peak)) = c.heldout {
             ho_sum += sum;
@@ -667,14 +667,14 @@ struct CableOutcome {
     heldout: Option<(f64, usize, f64)>,
     /// The consistency test's cross-fitted terms, one per row ([`crossfit_terms`]; empty without
     /// a held-out block).
-    heldout_terms: Vec<consistency::HeldoutTerm>,
+    heldout_terms: Option<consistency::HeldoutTerms>,
     /// Sum of squares, readings and peak over the used and the loose readings.
     all: (f64, usize, f64),
 }
 
-/// The consistency test's terms ([`consistency::HeldoutTerm`]) of cable data `d` on slots
-/// `lo..hi` (one per slot, from `lo`) at the training parameters `x` with the training block's
-/// inverse normal matrix `h_inv` (the parameters' covariance under the noise model).
+/// Adds to `out` the consistency test's terms of cable data `d` on slots `lo..hi` at the
+/// training parameters `x` with the training block's inverse normal matrix `h_inv` (the
+/// parameters' covariance under the noise model).
 fn consistency_terms(
     d: &noise::CableData,
     lo: usize,
@@ -682,20 +682,23 @@ fn consistency_terms(
     x: &[f64; 4],
     h_inv: &nalgebra::Matrix4<f64>,
     outlier_sigma: f64,
-) -> Vec<consistency::HeldoutTerm> {
-    (lo..hi)
-        .map(|k| {
-            let mut t = consistency::HeldoutTerm::default();
-            if d.class[k] == noise::USED && d.iv[k] > 0.0 {
-                let (dx, dy, dz) = (d.x[k] - x[0], d.y[k] - x[1], d.z[k] - x[2]);
-                let rho = (dx * dx + dy * dy + dz * dz).sqrt();
-                let r = d.l[k] - (rho + x[3]);
-                let j = nalgebra::Vector4::new(-dx / rho, -dy / rho, -dz / rho, 1.0);
-                t.add(r, d.iv[k], (j.transpose() * h_inv * j)[0], outlier_sigma);
-            }
-            t
-        })
-        .collect()
+    out: &mut consistency::HeldoutTerms,
+) {
+    let c = h_inv;
+    for k in lo..hi {
+        if d.class[k] != noise::USED || !(d.iv[k] > 0.0) {
+            continue;
+        }
+        let (dx, dy, dz) = (d.x[k] - x[0], d.y[k] - x[1], d.z[k] - x[2]);
+        let rho = (dx * dx + dy * dy + dz * dz).sqrt();
+        let r = d.l[k] - (rho + x[3]);
+        let j = [-dx / rho, -dy / rho, -dz / rho, 1.0];
+        let mut q = 0.0;
+        for a in 0..4 {
+            q += j[a] * (c[(a, 0)] * j[0] + c[(a, 1)] * j[1] + c[(a, 2)] * j[2] + c[(a, 3)] * j[3]);
+        }
+        out.add(k, r, d.iv[k], q, outlier_sigma);
+    }
 }
 
 /// Time blocks of the consistency test's cross-fit ([`crossfit_terms`]).
@@ -705,28 +708,29 @@ const CROSSFIT_BLOCKS: usize = 5;
 /// parameters fitted without its time block: the slots are cut into [`CROSSFIT_BLOCKS`]
 /// contiguous blocks, and each block is predicted from one Gauss-Newton step from the full
 /// solution `x` on the other blocks (as the held-out figures are: the step lands on the
-/// training optimum to a small fraction of a sigma). Every reading is then held out once, five
-/// times the readings of the last-block split, for five passes over the data. Empty when a
-/// block's training normal matrix is singular.
-fn crossfit_terms(d: &noise::CableData, slots: usize, x: &[f64; 4], opts: &CalibOptions) -> Vec<consistency::HeldoutTerm> {
-    let mut out = Vec::with_capacity(slots);
+/// training optimum to a small fraction of a sigma); the other blocks' normal equations are the
+/// whole recording's less the block's. Every reading is then held out once, five times the
+/// readings of the last-block split, for two passes over the data. `None` when a block's
+/// training normal matrix is singular.
+fn crossfit_terms(d: &noise::CableData, slots: usize, x: &[f64; 4], opts: &CalibOptions) -> Option<consistency::HeldoutTerms> {
+    let mut out = consistency::HeldoutTerms::with_rows(slots);
+    let all = solver::pass(d, 0, slots, x, opts.loss);
     for b in 0..CROSSFIT_BLOCKS {
         let (lo, hi) = (b * slots / CROSSFIT_BLOCKS, (b + 1) * slots / CROSSFIT_BLOCKS);
-        let (p1, p2) = (solver::pass(d, 0, lo, x, opts.loss), solver::pass(d, hi, slots, x, opts.loss));
-        let mut tp = p1;
-        tp.h.iter_mut().zip(&p2.h).for_each(|(a, b)| *a += b);
-        tp.g.iter_mut().zip(&p2.g).for_each(|(a, b)| *a += b);
+        let blk = solver::pass(d, lo, hi, x, opts.loss);
+        let mut tp = all;
+        tp.h.iter_mut().zip(&blk.h).for_each(|(a, b)| *a -= b);
+        tp.g.iter_mut().zip(&blk.g).for_each(|(a, b)| *a -= b);
         let h = tp.h_matrix();
-        let (Some(step), Some(h_inv)) = (h.cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))), h.try_inverse()) else {
-            return Vec::new();
-        };
+        let step = h.cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g)))?;
+        let h_inv = h.try_inverse()?;
         let xt = [x[0] + step[0], x[1] + step[1], x[2] + step[2], x[3] + step[3]];
         if !xt.iter().all(|v| v.is_finite()) {
-            return Vec::new();
+            return None;
         }
-        out.extend(consistency_terms(d, lo, hi, &xt, &h_inv, opts.outlier_sigma));
+        consistency_terms(d, lo, hi, &xt, &h_inv, opts.outlier_sigma, &mut out);
     }
-    out
+    Some(out)
 }
 
 /// [`calibrate`] for cable `j` on its readings `d`; `split` is the first held-out slot, `rows`
@@ -827,7 +831,7 @@ fn calibrate_cable(
     // tests), for one pass instead of a whole solve.
     let ntrain = d.used_in(0..split);
     let (mut heldout, mut heldout_sums) = (f64::NAN, None);
-    let mut heldout_terms = Vec::new();
+    let mut heldout_terms = None;
     if split < rows && ntrain >= MIN_READINGS && ntrain < m {
         let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
         if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
