@@ -9,7 +9,8 @@
 //!
 //! `SHORT_BEFORE=1`: stale rows kept, as before issue 28; `SHORT_TRACKER_PHI=0.99`: AR(1) tracker
 //! noise (per 50 Hz grid sample: 0.88 from one row to the next); `SHORT_GRID_HZ`, `SHORT_FIRST`
-//! (first seed), `SHORT_VERBOSE=1` (data problems and every held-out test).
+//! (first seed), `SHORT_HELDOUT` (held-out fraction), `SHORT_VERBOSE=1` (data problems and every
+//! held-out test).
 
 use std::time::Instant;
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -27,7 +28,11 @@ fn main() {
     let cfg = field_robot();
     // SHORT_BEFORE=1: stale rows kept, as before issue 28 (`DiagnoseOptions::stale_rows`).
     let before = std::env::var("SHORT_BEFORE").is_ok_and(|v| v == "1");
-    let opts = DiagnoseOptions { stale_rows: !before, ..DiagnoseOptions::from_config(&cfg.calibration) };
+    let mut opts = DiagnoseOptions { stale_rows: !before, ..DiagnoseOptions::from_config(&cfg.calibration) };
+    // SHORT_HELDOUT: the held-out fraction (default the configuration's, 0.2).
+    if let Some(f) = std::env::var("SHORT_HELDOUT").ok().and_then(|v| v.parse().ok()) {
+        opts.heldout_fraction = f;
+    }
     // Offset bins: [lo, hi) ms -> (recordings, named, named within 20 %).
     let bins = [(10.0, 20.0), (20.0, 35.0), (35.0, 50.01)];
     let mut counts = vec![(0usize, 0usize, 0usize); bins.len()];
