@@ -199,7 +199,8 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
-        v["swapped"] = serde_json::json!(swaps.iter().map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()})).collect::<Vec<_>>());
+        v["swapped"] =
+            serde_json::json!(swaps.iter().map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()})).collect::<Vec<_>>());
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
