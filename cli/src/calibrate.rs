@@ -56,8 +56,12 @@ pub struct Outcome {
     pub before: metrics::RmsPeak,
     /// Cramér–Rao bound at the force-aware estimate.
     pub crb: metrics::CrbReport,
-    /// The wild values found and excluded before everything else.
+    /// The wild values found and excluded before everything else (its `recording` is the one
+    /// calibrated: stale rows' lengths set missing, wild values removed).
     pub screen: taut_calib::screen::Screen,
+    /// Rows found stale before the screen and left out (`taut_calib::diagnose::dataq::stale_rows`:
+    /// every encoder repeats the previous row while the platform moves).
+    pub stale_rows: usize,
 }
 
 /// Loads a recording (on every core: the same recording) and says what was skipped.
@@ -94,10 +98,18 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     let threads = taut_calib::par::available(MAX_THREADS);
     let opts = CalibOptions { threads, ..CalibOptions::from_config(&cfg.calibration) };
     progress.set_message("screening for wild values");
-    let screen = taut_calib::screen::screen(
-        rec,
+    // Stale rows first (as the diagnosis does): their lengths belong to an earlier pose; the
+    // screen would take some of them for wild readings of one cable and keep the others.
+    let stale = taut_calib::diagnose::dataq::stale_rows(rec, opts.tracker_sigma_m, opts.encoder_sigma_m);
+    let stale_rows = stale.iter().filter(|s| **s).count();
+    let unstale = taut_calib::diagnose::dataq::without_lengths(rec, &stale);
+    let mut screen = taut_calib::screen::screen(
+        unstale.as_ref().unwrap_or(rec),
         &taut_calib::screen::ScreenOptions { threads, ..taut_calib::screen::ScreenOptions::new(opts.min_tension_n) },
     );
+    if screen.cleaned.is_none() {
+        screen.cleaned = unstale;
+    }
     let rec = screen.recording(rec);
     progress.set_message("initialising");
     // The readings as the initialisation, the calibration and the bound use them, gathered once.
@@ -122,7 +134,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     );
     let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
-    Ok(Outcome { init, force, plain, before, crb, screen })
+    Ok(Outcome { init, force, plain, before, crb, screen, stale_rows })
 }
 
 /// A progress bar on a terminal; hidden when stderr is piped.
@@ -161,6 +173,12 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let out = pipeline(&rec, &cfg, a.compare, &pb)?;
     pb.finish_and_clear();
     let rec = out.screen.recording(&rec);
+    if out.stale_rows > 0 {
+        println!(
+            "data problem (stale-row): {} rows repeat every encoder reading of the row before while the platform moves (a new pose logged beside old lengths); left out",
+            out.stale_rows
+        );
+    }
     print_wild(&out.screen);
     report::print_calibration(rec, &parse, &out, None);
     // Cables recorded in another order than the configuration's: named, and refused unless
@@ -199,6 +217,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
+        v["stale_rows"] = serde_json::json!(out.stale_rows);
         v["swapped"] =
             serde_json::json!(swaps.iter().map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()})).collect::<Vec<_>>());
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
