@@ -185,8 +185,14 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     // --allow-swapped (then checked against the nominal anchors in the recording's order).
     let mut nominal = cfg.anchors();
     let swaps = nominal.as_deref().map(|n| taut_calib::trust::swaps(&out.force.params.anchors, n)).unwrap_or_default();
-    if !swaps.is_empty() {
-        let words: Vec<String> = swaps.iter().map(|s| s.to_string()).collect();
+    // Without nominal anchors: length columns that disagree with the tension columns.
+    let column_swap = if nominal.is_none() {
+        taut_calib::trust::tension_column_swap(rec, &cfg.platform_points(), &out.force.params.anchors, cfg.calibration.min_tension_n)
+    } else {
+        None
+    };
+    if !swaps.is_empty() || column_swap.is_some() {
+        let words: Vec<String> = swaps.iter().map(|s| s.to_string()).chain(column_swap.map(|c| c.to_string())).collect();
         if !a.allow_swapped {
             let why = format!(
                 "{}; correct the column order (or the wiring) and calibrate again, or give --allow-swapped to calibrate the cables as recorded",
@@ -218,8 +224,11 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
         v["stale_rows"] = serde_json::json!(out.stale_rows);
-        v["swapped"] =
-            serde_json::json!(swaps.iter().map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()})).collect::<Vec<_>>());
+        v["swapped"] = serde_json::json!(swaps
+            .iter()
+            .map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()}))
+            .chain(column_swap.map(|c| serde_json::json!({"cables": [c.cables.0, c.cables.1], "message": c.to_string()})))
+            .collect::<Vec<_>>());
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {
