@@ -205,6 +205,10 @@ pub struct CalibOptions {
     /// Threads the per-cable work may use ([`par`]): 1 (the default) keeps it on the caller's
     /// thread; more gives the same results sooner on a machine with free cores.
     pub threads: usize,
+    /// Test the held-out residual against the noise model ([`consistency`], a 5-block cross-fit
+    /// independent of `heldout_fraction`; true). The daemon's backend, which holds nothing out
+    /// itself, keeps it.
+    pub model_check: bool,
 }
 
 impl Default for CalibOptions {
@@ -232,6 +236,7 @@ impl CalibOptions {
             max_sigma_m: c.max_sigma_m,
             outlier_sigma: 6.0,
             threads: 1,
+            model_check: true,
         }
     }
 }
@@ -458,13 +463,14 @@ pub struct CalibReport {
     /// first, when the model is inconsistent, the consistency test's words.
     pub notes: Vec<String>,
     /// The held-out residual against the noise model ([`consistency`], every reading held out
-    /// once in a 5-block cross-fit); `None` without a held-out block on every cable.
+    /// once in a 5-block cross-fit); `None` when switched off ([`CalibOptions::model_check`]) or
+    /// when a cable's cross-fit is singular.
     pub consistency: Option<consistency::ModelConsistency>,
 }
 
 impl CalibReport {
     /// False when the held-out test says the model does not explain the data
-    /// ([`consistency::ModelConsistency`]); true when it does or there is no held-out block.
+    /// ([`consistency::ModelConsistency`]); true when it does or the test was not made.
     pub fn model_consistent(&self) -> bool {
         self.consistency.is_none_or(|c| c.consistent)
     }
@@ -665,8 +671,8 @@ struct CableOutcome {
     notes: Vec<String>,
     /// Held-out sum of squares, readings and peak, when there is a held-out block.
     heldout: Option<(f64, usize, f64)>,
-    /// The consistency test's cross-fitted terms, one per row ([`crossfit_terms`]; empty without
-    /// a held-out block).
+    /// The consistency test's cross-fitted terms, one per row ([`crossfit_terms`]; `None` when
+    /// switched off or singular).
     heldout_terms: Option<consistency::HeldoutTerms>,
     /// Sum of squares, readings and peak over the used and the loose readings.
     all: (f64, usize, f64),
@@ -843,7 +849,7 @@ fn calibrate_cable(
             }
         }
     }
-    if heldout.is_finite() {
+    if opts.model_check {
         heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts);
     }
     if d.loose > 0 {

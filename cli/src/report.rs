@@ -61,7 +61,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
             "model check: INCONSISTENT, the model does not explain the data: {}; run `taut diagnose` on this recording",
             c.numbers()
         ),
-        None => println!("model check: not made (no held-out block: calibration.heldout_fraction 0 or too few readings)"),
+        None => println!("model check: not made (a cable's cross-fit is singular: too few readings)"),
     }
     println!();
     println!("anchors A_j, m (tracker frame)");

@@ -1300,6 +1300,8 @@ pub fn diagnose(
             min_tension_n: opts.min_tension_n,
             tracker_sigma_m: opts.tracker_sigma_m,
             encoder_sigma_m: opts.encoder_sigma_m,
+            // Only a start for the diagnosis's own fits.
+            model_check: false,
             ..crate::CalibOptions::default()
         };
         if let Ok(init) = crate::init::initialise(rec, platform_points, &copts) {

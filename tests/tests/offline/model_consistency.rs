@@ -138,3 +138,43 @@ fn taut_calibrate_says_so_in_text_json_and_report() {
         }
     }
 }
+
+/// The daemon's calibrations go through the same `taut_calib::calibrate`: its backend's estimate
+/// carries `model_consistent` and, when false, a note that says so and names `taut diagnose`
+/// (the set is not refused for it).
+#[test]
+fn the_daemons_estimate_says_so_too() {
+    use taut_rt_core::calib_backend::TautCalib;
+    use taut_rt_core::calibrator::{Calibrate, Estimate};
+    for (physics, consistent) in [(Physics { elasticity: Some(20_000.0), ..Physics::default() }, false), (Physics::default(), true)] {
+        let mut s = Scenario::aras_cam(4);
+        s.three_phase = None;
+        s.duration_s = 90.0;
+        s.rate_hz = 20.0;
+        s.physics = physics;
+        let run = simulate(&s);
+        let b = s.robot.platform_points();
+        let opts = CalibOptions::from_config(&s.robot.calibration);
+        let init = init::initialise(&run.recording, &b, &opts).expect("initialisation");
+        let start = Estimate {
+            model_consistent: None,
+            sigma: taut_calib::Sigmas::unknown(4),
+            geometry: init.params,
+            rms_m: f64::NAN,
+            observable: true,
+            note: "test".into(),
+            effects: Default::default(),
+        };
+        let mut cfg = s.robot.clone();
+        // The test's recording has its own site error: no nominal-anchor bounds.
+        cfg.cables.iter_mut().for_each(|c| c.anchor = None);
+        let est = TautCalib::from_config(&cfg).calibrate(&run.recording, &start).expect("calibration");
+        assert_eq!(est.model_consistent, Some(consistent), "{}", est.note);
+        assert_eq!(
+            est.note.contains("the model does not explain the data") && est.note.contains("taut diagnose"),
+            !consistent,
+            "{}",
+            est.note
+        );
+    }
+}
