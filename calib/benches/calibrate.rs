@@ -11,7 +11,7 @@ fn bench(c: &mut Criterion) {
     let (rec, init) = synth::bench_recording(100_000);
     let b = vec![[0.0; 3]; rec.n_cables];
     let opts = CalibOptions::default();
-    let no_heldout = CalibOptions { heldout_fraction: 0.0, ..opts.clone() };
+    let no_heldout = CalibOptions { heldout_fraction: 0.0, model_check: false, ..opts.clone() };
     let mut g = c.benchmark_group("calibrate_100k_x4");
     g.sample_size(20);
     g.bench_function("calibrate", |bch| bch.iter(|| calibrate(black_box(&rec), &b, &init, &opts).expect("calibrates")));

@@ -122,6 +122,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bundle;
+pub mod consistency;
 pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
@@ -209,6 +210,10 @@ pub struct CalibOptions {
     /// calibration is maximum a posteriori: a parameter the recording does not excite keeps
     /// its prior's uncertainty instead of being refused ([`CableReport::data_share`]).
     pub priors: Option<Vec<([f64; 4], [f64; 4])>>,
+    /// Test the held-out residual against the noise model ([`consistency`], a 5-block cross-fit
+    /// independent of `heldout_fraction`; true). The daemon's backend, which holds nothing out
+    /// itself, keeps it.
+    pub model_check: bool,
 }
 
 impl Default for CalibOptions {
@@ -237,6 +242,7 @@ impl CalibOptions {
             outlier_sigma: 6.0,
             threads: 1,
             priors: None,
+            model_check: true,
         }
     }
 }
@@ -463,8 +469,21 @@ pub struct CalibReport {
     pub per_cable: Vec<CableReport>,
     /// Parameters returned although their one-sigma exceeds `weak_sigma_m`.
     pub weak: Vec<WeakParam>,
-    /// Things a person should know (fallbacks, scaled sigmas, exclusions, weak parameters).
+    /// Things a person should know (fallbacks, scaled sigmas, exclusions, weak parameters);
+    /// first, when the model is inconsistent, the consistency test's words.
     pub notes: Vec<String>,
+    /// The held-out residual against the noise model ([`consistency`], every reading held out
+    /// once in a 5-block cross-fit); `None` when switched off ([`CalibOptions::model_check`]) or
+    /// when a cable's cross-fit is singular.
+    pub consistency: Option<consistency::ModelConsistency>,
+}
+
+impl CalibReport {
+    /// False when the held-out test says the model does not explain the data
+    /// ([`consistency::ModelConsistency`]); true when it does or the test was not made.
+    pub fn model_consistent(&self) -> bool {
+        self.consistency.is_none_or(|c| c.consistent)
+    }
 }
 
 /// A parameter the recording determines only weakly (one-sigma above `weak_sigma_m`, below the
@@ -583,12 +602,18 @@ fn calibrate_readings(
     let mut singular_values = Vec::with_capacity(n);
     let mut notes = Vec::new();
     let mut weak = Vec::new();
+    let mut terms = consistency::HeldoutTerms::with_rows(rec.len());
+    let mut cables_crossfit = 0;
     let (mut ho_sum, mut ho_n, mut ho_peak) = (0.0, 0usize, 0.0f64);
     let (mut all_sum, mut all_n, mut all_peak) = (0.0, 0usize, 0.0f64);
     for c in cables {
         let c = c?;
         notes.extend(c.weak.iter().map(|w| w.to_string()));
         weak.extend(c.weak);
+        if let Some(t) = &c.heldout_terms {
+            cables_crossfit += usize::from(t.score.len() == terms.score.len());
+            terms.merge(t);
+        }
         if let Some((sum, count, peak)) = c.heldout {
             ho_sum += sum;
             ho_n += count;
@@ -610,6 +635,11 @@ fn calibrate_readings(
         }
         Weighting::UniformByOption => notes.insert(0, "force weighting switched off: uniform weights, loose readings not excluded".into()),
         Weighting::ForceAware => {}
+    }
+    // Every cable's cross-fit must be there for the test to be of the model.
+    let consistency = if cables_crossfit == n { consistency::ModelConsistency::test(&terms, consistency::CONSISTENCY_ALPHA) } else { None };
+    if let Some(c) = consistency.filter(|c| !c.consistent) {
+        notes.insert(0, c.to_string());
     }
     let used: usize = per_cable.iter().map(|c| c.used).sum();
     let sum_sq: f64 = per_cable.iter().map(|c| c.rms_m * c.rms_m * c.used as f64).sum();
@@ -644,6 +674,7 @@ fn calibrate_readings(
         params,
         weak,
         notes,
+        consistency,
     })
 }
 
@@ -658,8 +689,72 @@ struct CableOutcome {
     notes: Vec<String>,
     /// Held-out sum of squares, readings and peak, when there is a held-out block.
     heldout: Option<(f64, usize, f64)>,
+    /// The consistency test's cross-fitted terms, one per row ([`crossfit_terms`]; `None` when
+    /// switched off or singular).
+    heldout_terms: Option<consistency::HeldoutTerms>,
     /// Sum of squares, readings and peak over the used and the loose readings.
     all: (f64, usize, f64),
+}
+
+/// Adds to `out` the consistency test's terms of cable data `d` on slots `lo..hi` at the
+/// training parameters `x` with the training block's inverse normal matrix `h_inv` (the
+/// parameters' covariance under the noise model).
+fn consistency_terms(
+    d: &noise::CableData,
+    lo: usize,
+    hi: usize,
+    x: &[f64; 4],
+    h_inv: &nalgebra::Matrix4<f64>,
+    outlier_sigma: f64,
+    out: &mut consistency::HeldoutTerms,
+) {
+    let c = h_inv;
+    for k in lo..hi {
+        if d.class[k] != noise::USED || !(d.iv[k] > 0.0) {
+            continue;
+        }
+        let (dx, dy, dz) = (d.x[k] - x[0], d.y[k] - x[1], d.z[k] - x[2]);
+        let rho = (dx * dx + dy * dy + dz * dz).sqrt();
+        let r = d.l[k] - (rho + x[3]);
+        let j = [-dx / rho, -dy / rho, -dz / rho, 1.0];
+        let mut q = 0.0;
+        for a in 0..4 {
+            q += j[a] * (c[(a, 0)] * j[0] + c[(a, 1)] * j[1] + c[(a, 2)] * j[2] + c[(a, 3)] * j[3]);
+        }
+        out.add(k, r, d.iv[k], q, outlier_sigma);
+    }
+}
+
+/// Time blocks of the consistency test's cross-fit ([`crossfit_terms`]).
+const CROSSFIT_BLOCKS: usize = 5;
+
+/// The consistency test's terms of every slot `0..slots` of cable data `d`, each predicted by
+/// parameters fitted without its time block: the slots are cut into [`CROSSFIT_BLOCKS`]
+/// contiguous blocks, and each block is predicted from one Gauss-Newton step from the full
+/// solution `x` on the other blocks (as the held-out figures are: the step lands on the
+/// training optimum to a small fraction of a sigma); the other blocks' normal equations are the
+/// whole recording's less the block's. Every reading is then held out once, five times the
+/// readings of the last-block split, for two passes over the data. `None` when a block's
+/// training normal matrix is singular.
+fn crossfit_terms(d: &noise::CableData, slots: usize, x: &[f64; 4], opts: &CalibOptions) -> Option<consistency::HeldoutTerms> {
+    let mut out = consistency::HeldoutTerms::with_rows(slots);
+    let all = solver::pass(d, 0, slots, x, opts.loss);
+    for b in 0..CROSSFIT_BLOCKS {
+        let (lo, hi) = (b * slots / CROSSFIT_BLOCKS, (b + 1) * slots / CROSSFIT_BLOCKS);
+        let blk = solver::pass(d, lo, hi, x, opts.loss);
+        let mut tp = all;
+        tp.h.iter_mut().zip(&blk.h).for_each(|(a, b)| *a -= b);
+        tp.g.iter_mut().zip(&blk.g).for_each(|(a, b)| *a -= b);
+        let h = tp.h_matrix();
+        let step = h.cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g)))?;
+        let h_inv = h.try_inverse()?;
+        let xt = [x[0] + step[0], x[1] + step[1], x[2] + step[2], x[3] + step[3]];
+        if !xt.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        consistency_terms(d, lo, hi, &xt, &h_inv, opts.outlier_sigma, &mut out);
+    }
+    Some(out)
 }
 
 /// [`calibrate`] for cable `j` on its readings `d`; `split` is the first held-out slot, `rows`
@@ -800,6 +895,7 @@ fn calibrate_cable(
     // tests), for one pass instead of a whole solve.
     let ntrain = d.used_in(0..split);
     let (mut heldout, mut heldout_sums) = (f64::NAN, None);
+    let mut heldout_terms = None;
     if split < rows && ntrain >= MIN_READINGS && ntrain < m {
         let tp = solver::pass(d, 0, split, &sol.x, opts.loss);
         if let Some(step) = tp.h_matrix().cholesky().map(|c| c.solve(&nalgebra::Vector4::from(tp.g))) {
@@ -810,6 +906,9 @@ fn calibrate_cable(
                 heldout = (hs.sum_sq / (m - ntrain) as f64).sqrt();
             }
         }
+    }
+    if opts.model_check {
+        heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts);
     }
     if d.loose > 0 {
         notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
@@ -855,6 +954,7 @@ fn calibrate_cable(
         weak,
         notes,
         heldout: heldout_sums,
+        heldout_terms,
         // All readings, loose ones included.
         all: (fin.sum_sq_all, m + d.loose, fin.peak_all),
     })

@@ -141,6 +141,256 @@ pub fn check(c: &Candidate, rec: &Recording, nominal: Option<(&[[f64; 3]], f64)>
     Ok(())
 }
 
+/// Cables whose calibrated anchors landed at other cables' nominal anchors: a wiring or
+/// column-order mistake (the encoder column, drive or load cell of one cable recorded as
+/// another's) rather than a site error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Swap {
+    /// The cables in the cycle, in order: cable `cables[i]`'s anchor came out at the nominal
+    /// anchor of `cables[(i + 1) % len]` (a pair: two cables exchanged).
+    pub cables: Vec<usize>,
+    /// Per cable of the cycle, the distance from the nominal anchor it landed at, m.
+    pub distance_m: Vec<f64>,
+    /// Per cable of the cycle, the distance from its own nominal anchor, m.
+    pub own_distance_m: Vec<f64>,
+}
+
+impl fmt::Display for Swap {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.cables;
+        if c.len() == 2 {
+            write!(f, "cables {} and {} look swapped", c[0], c[1])?;
+        } else {
+            let names: Vec<String> = c.iter().map(|j| j.to_string()).collect();
+            write!(f, "cables {} look permuted", names.join(", "))?;
+        }
+        let each: Vec<String> = (0..c.len())
+            .map(|i| {
+                format!(
+                    "cable {}'s anchor came out {:.3} m from cable {}'s nominal anchor ({:.3} m from its own)",
+                    c[i],
+                    self.distance_m[i],
+                    c[(i + 1) % c.len()],
+                    self.own_distance_m[i]
+                )
+            })
+            .collect();
+        write!(
+            f,
+            ": {}; the recording's length columns (or the drives, encoders or load cells) of these cables are in another order than the configuration's [[cable]] tables",
+            each.join(", ")
+        )
+    }
+}
+
+/// The swaps of `anchors` against the configuration's `nominal` anchors: cable `j` landed at
+/// cable `k`'s nominal anchor when that is the nearest nominal anchor to it, within a third of
+/// the distance between the nominal anchors of `j` and `k` (so the site error, small against
+/// the robot, cannot make one), and closer than its own by that margin; a swap is the cycle
+/// of such cables (two cables exchanged, or more permuted). A cable that landed near another's
+/// anchor without closing a cycle is not a swap (two cables at one anchor: the far-from-nominal
+/// check refuses that).
+pub fn swaps(anchors: &[[f64; 3]], nominal: &[[f64; 3]]) -> Vec<Swap> {
+    let n = anchors.len().min(nominal.len());
+    let dist = |a: [f64; 3], b: [f64; 3]| crate::model::norm(crate::model::sub(a, b));
+    let target: Vec<Option<usize>> = (0..n)
+        .map(|j| {
+            let a = anchors[j];
+            if !a.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            let k = (0..n).min_by(|&x, &y| dist(a, nominal[x]).total_cmp(&dist(a, nominal[y])))?;
+            let sep = dist(nominal[j], nominal[k]);
+            (k != j && dist(a, nominal[k]) <= sep / 3.0 && dist(a, nominal[j]) >= 2.0 * sep / 3.0).then_some(k)
+        })
+        .collect();
+    let mut seen = vec![false; n];
+    let mut out = vec![];
+    for start in 0..n {
+        if seen[start] || target[start].is_none() {
+            continue;
+        }
+        let mut cycle = vec![start];
+        let mut at = start;
+        let closed = loop {
+            match target[at] {
+                Some(k) if k == start => break true,
+                Some(k) if !cycle.contains(&k) => {
+                    cycle.push(k);
+                    at = k;
+                }
+                _ => break false,
+            }
+        };
+        if closed {
+            for &j in &cycle {
+                seen[j] = true;
+            }
+            let next = |i: usize| cycle[(i + 1) % cycle.len()];
+            out.push(Swap {
+                distance_m: (0..cycle.len()).map(|i| dist(anchors[cycle[i]], nominal[next(i)])).collect(),
+                own_distance_m: cycle.iter().map(|&j| dist(anchors[j], nominal[j])).collect(),
+                cables: cycle,
+            });
+        }
+    }
+    out
+}
+
+/// `nominal` with the cables of `swaps` in the order the recording has them: entry `j` is the
+/// nominal anchor cable `j`'s anchor landed at.
+pub fn permuted_nominal(nominal: &[[f64; 3]], swaps: &[Swap]) -> Vec<[f64; 3]> {
+    let mut out = nominal.to_vec();
+    for s in swaps {
+        for (i, &j) in s.cables.iter().enumerate() {
+            out[j] = nominal[s.cables[(i + 1) % s.cables.len()]];
+        }
+    }
+    out
+}
+
+/// The length and tension columns of two cables disagree ([`tension_column_swap`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColumnSwap {
+    /// The two cables.
+    pub cables: (usize, usize),
+    /// How many times smaller the platform's force-balance residual is with their tensions
+    /// exchanged.
+    pub ratio: f64,
+    /// Rows compared.
+    pub rows: usize,
+}
+
+impl fmt::Display for ColumnSwap {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (a, b) = self.cables;
+        write!(
+            f,
+            "cables {a} and {b} look swapped: their length columns disagree with their tension columns (the platform's force balance at the calibrated anchors fits {:.0}x better with the tensions of cables {a} and {b} exchanged, over {} rows); the length columns (or the tension columns) of these cables are in another order than the robot's",
+            self.ratio, self.rows
+        )
+    }
+}
+
+/// The ratio above which [`tension_column_swap`] calls two cables swapped. Measured on the
+/// simulated ARAS-CAM-like robot (`taut simulate`, seeds 5 and 6, 100 Hz): with the length
+/// columns 0 and 1 exchanged 14.0 and 15.2; as recorded the best exchange is 8-11x *worse*
+/// (0.12, 0.09); in `tests/tests/offline/swapped_cables.rs` (20 Hz) 9x for 4 cables and 13x
+/// for 8.
+pub const COLUMN_SWAP_RATIO: f64 = 4.0;
+
+/// Without nominal anchors, the data can still say that two cables' length and tension columns
+/// belong to different cables: at the calibrated `anchors` the cables' tensions along their
+/// directions must hold the platform's weight and accelerate it, `sum_j T_j u_j = m (a - g)`
+/// (`m` fitted, `a` the tracker's second difference over about 0.1 s). When the
+/// residual with the tensions of some pair `(a, b)` exchanged is more than
+/// [`COLUMN_SWAP_RATIO`] times smaller than as recorded, the pair is returned. On rows where
+/// every cable is taut (`min_tension_n`), with a pose and every tension; `None` without
+/// tensions or with fewer than 50 such rows. A file whose length *and* tension columns are both
+/// exchanged is the recording of a robot numbered the other way round: nothing in it tells.
+pub fn tension_column_swap(rec: &Recording, platform_points: &[[f64; 3]], anchors: &[[f64; 3]], min_tension_n: f64) -> Option<ColumnSwap> {
+    let n = anchors.len();
+    let f = rec.f.as_ref()?;
+    if n < 2 || platform_points.len() != n || rec.n_cables != n {
+        return None;
+    }
+    // The platform's acceleration by a central second difference over about 0.1 s (the
+    // tracker's noise, 1.5 mm, gives ~0.4 m/s^2 there).
+    let posed = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
+    let dt = {
+        let mut d: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+        d.sort_by(f64::total_cmp);
+        d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    if !(dt > 0.0) {
+        return None;
+    }
+    let k = ((0.1 / dt).round() as usize).max(1);
+    let accel = |i: usize| -> Option<[f64; 3]> {
+        if i < k || i + k >= rec.len() || !posed(i - k) || !posed(i + k) {
+            return None;
+        }
+        let (t0, t1, t2) = (rec.t[i - k], rec.t[i], rec.t[i + k]);
+        let (h0, h1) = (t1 - t0, t2 - t1);
+        if !(h0 > 0.0 && h1 > 0.0) {
+            return None;
+        }
+        let a: [f64; 3] =
+            std::array::from_fn(|c| 2.0 * ((rec.p[i + k][c] - rec.p[i][c]) / h1 - (rec.p[i][c] - rec.p[i - k][c]) / h0) / (h0 + h1));
+        a.iter().all(|v| v.is_finite()).then_some(a)
+    };
+    let mut rows = vec![];
+    let mut acc = vec![];
+    for i in 0..rec.len() {
+        if !posed(i) || !f[i * n..(i + 1) * n].iter().all(|t| t.is_finite() && *t >= min_tension_n) {
+            continue;
+        }
+        if let Some(a) = accel(i) {
+            rows.push(i);
+            // What the cables hold: m (a - g), g = -9.81 e_z.
+            acc.push([a[0], a[1], a[2] + 9.81]);
+        }
+    }
+    if rows.len() < 50 {
+        return None;
+    }
+    let keep: Vec<usize> = (0..rows.len()).step_by(rows.len().div_ceil(5000)).collect();
+    let rows: Vec<usize> = keep.iter().map(|&q| rows[q]).collect();
+    let acc: Vec<[f64; 3]> = keep.iter().map(|&q| acc[q]).collect();
+    // Unit vectors from each attachment point to its anchor, per row.
+    let mut u = Vec::with_capacity(rows.len() * n);
+    for &i in &rows {
+        let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
+        for j in 0..n {
+            let b = r.as_ref().map_or(platform_points[j], |r| crate::model::mat_vec(r, platform_points[j]));
+            let d = crate::model::sub(anchors[j], [rec.p[i][0] + b[0], rec.p[i][1] + b[1], rec.p[i][2] + b[2]]);
+            let l = crate::model::norm(d);
+            u.push([d[0] / l, d[1] / l, d[2] / l]);
+        }
+    }
+    // The residual of `sum_j T_perm(j) u_j = m (a - g)` with the mass fitted.
+    let residual = |perm: &dyn Fn(usize) -> usize| -> f64 {
+        let forces: Vec<[f64; 3]> = rows
+            .iter()
+            .enumerate()
+            .map(|(q, &i)| {
+                let mut s = [0.0; 3];
+                for j in 0..n {
+                    let t = f[i * n + perm(j)];
+                    for c in 0..3 {
+                        s[c] += t * u[q * n + j][c];
+                    }
+                }
+                s
+            })
+            .collect();
+        let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let m = forces.iter().zip(&acc).map(|(s, a)| dot(s, a)).sum::<f64>() / acc.iter().map(|a| dot(a, a)).sum::<f64>();
+        forces.iter().zip(&acc).map(|(s, a)| (0..3).map(|c| (s[c] - m * a[c]).powi(2)).sum::<f64>()).sum()
+    };
+    let base = residual(&|j| j);
+    let mut best: Option<(f64, (usize, usize))> = None;
+    for a in 0..n {
+        for b in a + 1..n {
+            let r = residual(&|j| {
+                if j == a {
+                    b
+                } else if j == b {
+                    a
+                } else {
+                    j
+                }
+            });
+            if best.is_none_or(|(v, _)| r < v) {
+                best = Some((r, (a, b)));
+            }
+        }
+    }
+    let (r, cables) = best?;
+    let ratio = base / r.max(f64::MIN_POSITIVE);
+    (ratio > COLUMN_SWAP_RATIO).then_some(ColumnSwap { cables, ratio, rows: rows.len() })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,5 +413,31 @@ mod tests {
         let e = check(&Candidate { params: &far, ..ok }, &rec, Some((&truth.anchors, 1.0))).unwrap_err();
         assert!(matches!(e, Untrusted::FarFromNominal { cable: 2, .. }), "{e}");
         assert!(e.to_string().contains("cable[2].anchor"));
+    }
+
+    /// Two cables exchanged, three permuted, a site error, and two cables at one anchor.
+    #[test]
+    fn names_swapped_and_permuted_cables() {
+        let nominal = synth::aras_cam().anchors;
+        let site = |a: [f64; 3]| [a[0] + 0.05, a[1] - 0.04, a[2] + 0.03];
+        let mut a: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        assert!(swaps(&a, &nominal).is_empty());
+        a.swap(0, 1);
+        let s = swaps(&a, &nominal);
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].cables, vec![0, 1]);
+        assert!(s[0].to_string().starts_with("cables 0 and 1 look swapped: cable 0's anchor came out 0.071 m from cable 1's"), "{}", s[0]);
+        assert_eq!(permuted_nominal(&nominal, &s), vec![nominal[1], nominal[0], nominal[2], nominal[3]]);
+        // 0 -> 1 -> 2 -> 0 (cable 0 at 1's anchor, 1 at 2's, 2 at 0's).
+        let mut p: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        (p[0], p[1], p[2]) = (site(nominal[1]), site(nominal[2]), site(nominal[0]));
+        let s = swaps(&p, &nominal);
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].cables, vec![0, 1, 2]);
+        assert!(s[0].to_string().starts_with("cables 0, 1, 2 look permuted"), "{}", s[0]);
+        // Cable 0 at cable 1's anchor, cable 1 where it belongs: not a swap.
+        let mut q: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
+        q[0] = site(nominal[1]);
+        assert!(swaps(&q, &nominal).is_empty());
     }
 }

@@ -34,6 +34,11 @@ pub struct CalibrateArgs {
     /// JSON `unweighted`, figures). Off by default: it doubles the solve.
     #[arg(long)]
     pub compare: bool,
+    /// Calibrate cables whose anchors land at other cables' nominal anchors (a swapped pair of
+    /// length columns or drives) as recorded, instead of refusing: the nominal anchors they
+    /// are checked against follow the swap.
+    #[arg(long)]
+    pub allow_swapped: bool,
 }
 
 /// Most threads `taut calibrate` uses: the work comes in pieces of one cable or one channel
@@ -53,8 +58,12 @@ pub struct Outcome {
     pub before: metrics::RmsPeak,
     /// Cramér–Rao bound at the force-aware estimate.
     pub crb: metrics::CrbReport,
-    /// The wild values found and excluded before everything else.
+    /// The wild values found and excluded before everything else (its `recording` is the one
+    /// calibrated: stale rows' lengths set missing, wild values removed).
     pub screen: taut_calib::screen::Screen,
+    /// Rows found stale before the screen and left out (`taut_calib::diagnose::dataq::stale_rows`:
+    /// every encoder repeats the previous row while the platform moves).
+    pub stale_rows: usize,
 }
 
 /// Loads a recording (on every core: the same recording) and says what was skipped.
@@ -130,10 +139,18 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     let threads = taut_calib::par::available(MAX_THREADS);
     let opts = CalibOptions { threads, priors: cfg.priors(), ..CalibOptions::from_config(&cfg.calibration) };
     progress.set_message("screening for wild values");
-    let screen = taut_calib::screen::screen(
-        rec,
+    // Stale rows first (as the diagnosis does): their lengths belong to an earlier pose; the
+    // screen would take some of them for wild readings of one cable and keep the others.
+    let stale = taut_calib::diagnose::dataq::stale_rows(rec, opts.tracker_sigma_m, opts.encoder_sigma_m);
+    let stale_rows = stale.iter().filter(|s| **s).count();
+    let unstale = taut_calib::diagnose::dataq::without_lengths(rec, &stale);
+    let mut screen = taut_calib::screen::screen(
+        unstale.as_ref().unwrap_or(rec),
         &taut_calib::screen::ScreenOptions { threads, ..taut_calib::screen::ScreenOptions::new(opts.min_tension_n) },
     );
+    if screen.cleaned.is_none() {
+        screen.cleaned = unstale;
+    }
     let rec = screen.recording(rec);
     progress.set_message("initialising");
     // The readings as the initialisation, the calibration and the bound use them, gathered once.
@@ -168,7 +185,7 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
     );
     let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
-    Ok(Outcome { init, force, plain, before, crb, screen })
+    Ok(Outcome { init, force, plain, before, crb, screen, stale_rows })
 }
 
 /// A progress bar on a terminal; hidden when stderr is piped.
@@ -208,10 +225,43 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let out = pipeline(&rec, &cfg, a.compare, &pb).with_context(|| format!("calibrating {}", a.recording.display()))?;
     pb.finish_and_clear();
     let rec = out.screen.recording(&rec);
+    if out.stale_rows > 0 {
+        println!(
+            "data problem (stale-row): {} rows repeat every encoder reading of the row before while the platform moves (a new pose logged beside old lengths); left out",
+            out.stale_rows
+        );
+    }
     print_wild(&out.screen);
     report::print_calibration(rec, &parse, &out, None);
+    // Cables recorded in another order than the configuration's: named, and refused unless
+    // --allow-swapped (then checked against the nominal anchors in the recording's order).
+    let mut nominal = cfg.anchors();
+    let swaps = nominal.as_deref().map(|n| taut_calib::trust::swaps(&out.force.params.anchors, n)).unwrap_or_default();
+    // Without nominal anchors: length columns that disagree with the tension columns.
+    let column_swap = if nominal.is_none() {
+        taut_calib::trust::tension_column_swap(rec, &cfg.platform_points(), &out.force.params.anchors, cfg.calibration.min_tension_n)
+    } else {
+        None
+    };
+    if !swaps.is_empty() || column_swap.is_some() {
+        let words: Vec<String> = swaps.iter().map(|s| s.to_string()).chain(column_swap.map(|c| c.to_string())).collect();
+        if !a.allow_swapped {
+            let why = format!(
+                "{}; correct the column order (or the wiring) and calibrate again, or give --allow-swapped to calibrate the cables as recorded",
+                words.join("; ")
+            );
+            if let Some(r) = &a.report {
+                write_report(a, r, rec, &parse, &cfg, &out, Some(why.clone()))?;
+                anyhow::bail!("calibration refused, no parameters written (the report {} says why): {why}", r.display());
+            }
+            anyhow::bail!("calibration refused, nothing written: {why}");
+        }
+        for w in &words {
+            println!("swapped (--allow-swapped, calibrated as recorded): {w}");
+        }
+        nominal = nominal.map(|n| taut_calib::trust::permuted_nominal(&n, &swaps));
+    }
     // Nothing is written from a set that cannot be trusted.
-    let nominal = cfg.anchors();
     let limit = 2.0 * cfg.daemon.max_anchor_change_m;
     let trusted = taut_calib::trust::check(&taut_calib::trust::Candidate::of(&out.force), rec, nominal.as_deref().map(|n| (n, limit)));
     if let Err(e) = &trusted {
@@ -225,6 +275,12 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if let Some(j) = &a.json {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
+        v["stale_rows"] = serde_json::json!(out.stale_rows);
+        v["swapped"] = serde_json::json!(swaps
+            .iter()
+            .map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()}))
+            .chain(column_swap.map(|c| serde_json::json!({"cables": [c.cables.0, c.cables.1], "message": c.to_string()})))
+            .collect::<Vec<_>>());
         taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(dir) = &a.plot {

@@ -235,6 +235,14 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         ),
         format!("The least certain anchor coordinate is cable {} {}: 1-sigma {} mm.", worst_at.0, ["x", "y", "z"][worst_at.1], mm(worst)),
     ];
+    match &f.consistency {
+        Some(c) if !c.consistent => says.push(format!(
+            "The model does not explain the data: {}. The estimates may be biased beyond their stated sigmas; run `taut diagnose` on this recording.",
+            c.numbers()
+        )),
+        Some(c) => says.push(format!("Model check: consistent with the noise model ({}).", c.numbers())),
+        None => {}
+    }
     let (tone, headline) = match &ctx.refused {
         Some(why) => {
             says.insert(0, format!("{why}."));
@@ -242,6 +250,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
             (Tone::Fail, "Refused.")
         }
         None if !converged => (Tone::Warn, "Calibrated, but the solver did not converge."),
+        None if !f.model_consistent() => (Tone::Warn, "Calibrated, but the model does not explain the data."),
         None if !out.screen.findings.is_empty() => (Tone::Warn, "Calibrated, with data problems excluded."),
         None => (Tone::Ok, "Calibrated."),
     };

@@ -55,6 +55,14 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     for note in &f.notes {
         println!("  note: {note}");
     }
+    match &f.consistency {
+        Some(c) if c.consistent => println!("model check: consistent with the noise model: {}", c.numbers()),
+        Some(c) => println!(
+            "model check: INCONSISTENT, the model does not explain the data: {}; run `taut diagnose` on this recording",
+            c.numbers()
+        ),
+        None => println!("model check: not made (a cable's cross-fit is singular: too few readings)"),
+    }
     println!();
     println!("anchors A_j, m (tracker frame)");
     println!(
@@ -146,6 +154,20 @@ fn report_json(r: &CalibReport) -> serde_json::Value {
         // Per cable [A_x, A_y, A_z, L0]: the share of the estimate from the data, 0-1 (null where
         // the configuration gives no prior).
         "data_share": r.per_cable.iter().map(|c| c.data_share.map(|v| v.is_finite().then_some(v))).collect::<Vec<_>>(),
+        "model_consistent": r.model_consistent(),
+        "model_check": r.consistency.map(|c| json!({
+            "consistent": c.consistent,
+            "alpha": c.alpha,
+            "p_value": c.p_value,
+            "statistic": c.statistic,
+            "dof": c.dof,
+            "chi2_ratio": c.ratio,
+            "heldout_rms_m": c.heldout_rms_m,
+            "expected_rms_m": c.expected_rms_m,
+            "samples": c.samples,
+            "readings": c.readings,
+            "outliers": c.outliers,
+        })),
     })
 }
 

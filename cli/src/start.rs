@@ -321,6 +321,7 @@ fn finish(
         "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.geometry.anchors)),
         "without_tracker": taut_rt_core::notracker::is_dwell(cfg),
         "calibration_note": final_est.map(|e| e.note.clone()),
+        "model_consistent": final_est.and_then(|e| e.model_consistent),
         "samples_recorded": c.samples_recorded,
         "samples_dropped": l.dropped,
         "hot_swapped": hot_swapped,

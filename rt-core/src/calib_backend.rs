@@ -48,7 +48,7 @@ impl TautCalib {
     fn initialise_without_tracker(&self, rec: &Recording, o: &taut_calib::selfcal::SelfCalOptions) -> Result<Estimate, BackendError> {
         let nominal = self.nominal.as_ref().ok_or(taut_calib::selfcal::SelfCalError::NoNominalAnchors)?;
         let r = taut_calib::selfcal::rest::rest_estimate(rec, &self.platform, nominal, o.mass_kg, o.encoder_sigma_m)?;
-        Ok(Estimate {
+        Ok(Estimate { model_consistent: None,
             sigma: Sigmas::unknown(r.params.n_cables()),
             geometry: r.params,
             rms_m: f64::NAN,
@@ -86,7 +86,15 @@ impl TautCalib {
         if !self.effects.is_empty() {
             note.push_str(&format!("; {} not fitted (needs a tracker)", self.effects.join(", ")));
         }
-        Ok(Estimate { geometry: r.params, sigma: r.sigma, rms_m: f64::NAN, observable: true, note, effects: Effects::default() })
+        Ok(Estimate {
+            model_consistent: None,
+            geometry: r.params,
+            sigma: r.sigma,
+            rms_m: f64::NAN,
+            observable: true,
+            note,
+            effects: Effects::default(),
+        })
     }
 
     /// Also models the effects `file` carries, starting from its values (its time offset
@@ -134,6 +142,7 @@ impl TautCalib {
         }
         effects.check(anchors.len()).map_err(|(key, message)| BackendError::EffectOutOfRange { key, message })?;
         Ok(Estimate {
+            model_consistent: None,
             geometry: f.params,
             sigma: f.sigma,
             rms_m: f.rms_m,
@@ -205,6 +214,7 @@ impl Calibrate for TautCalib {
             note.push_str(&format!("; refined on all cables ({} samples, errors-in-variables)", b.samples));
         }
         Ok(Estimate {
+            model_consistent: None,
             geometry: Geometry { anchors, l0 },
             sigma: Sigmas::unknown(n),
             rms_m: f64::NAN,
@@ -225,6 +235,7 @@ impl Calibrate for TautCalib {
             Ok(r) => r,
             Err(e @ CalibError::NotObservable { .. }) => {
                 return Ok(Estimate {
+                    model_consistent: None,
                     geometry: init.geometry.clone(),
                     sigma: Sigmas::uniform(init.geometry.n_cables(), f64::INFINITY),
                     rms_m: f64::NAN,
@@ -274,16 +285,15 @@ impl Calibrate for TautCalib {
         // Nothing non-finite or absurd is offered as the robot's parameters.
         let cand = taut_calib::trust::Candidate { params: &geometry, sigma: &sigma, rms_m: r.rms_m };
         taut_calib::trust::check(&cand, rec, None)?;
+        // A model the held-out data contradict is said first (not refused).
+        let check: Vec<String> = r.consistency.filter(|c| !c.consistent).map(|c| c.to_string()).into_iter().collect();
         Ok(Estimate {
+            model_consistent: r.consistency.map(|c| c.consistent),
             geometry,
             sigma,
             rms_m: r.rms_m,
             observable: true,
-            note: if weak.is_empty() {
-                format!("{} readings{how}", r.samples_used)
-            } else {
-                format!("{} readings{how}; {}", r.samples_used, weak.join("; "))
-            },
+            note: std::iter::once(format!("{} readings{how}", r.samples_used)).chain(check).chain(weak).collect::<Vec<_>>().join("; "),
             effects: Effects { time_offset_s: init.effects.time_offset_s, ..Effects::default() },
         })
     }

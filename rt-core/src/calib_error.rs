@@ -367,6 +367,7 @@ mod tests {
             rec.push(f64::from(i) * 0.01, m, None, &l, Some(&[50.0; 4]), None);
         }
         let est = Estimate {
+            model_consistent: None,
             geometry: taut_rt::Geometry { anchors, l0 },
             sigma: taut_rt::Sigmas { anchors: vec![[1e-4; 3]; 4], l0: vec![1e-4; 4] },
             rms_m: 1e-3,

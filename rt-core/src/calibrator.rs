@@ -63,6 +63,10 @@ pub struct Estimate {
     pub note: String,
     /// The modelled effects' values (empty: the ideal model).
     pub effects: taut_config::params::Effects,
+    /// Whether the held-out residual of the calibration is what the noise model predicts
+    /// (`taut_calib::consistency`; `None`: not tested, e.g. an initial estimate or without a
+    /// tracker). False does not refuse the set: the note says so and names `taut diagnose`.
+    pub model_consistent: Option<bool>,
 }
 
 /// The calibration backend (`taut-calib` in the daemon; tests may use their own).

@@ -79,7 +79,8 @@ fn drive_name(d: crate::io::DriveStatus) -> &'static str {
 pub fn outcome_json(n: usize, o: &crate::calibrator::Outcome) -> Value {
     let est = o.estimate.as_ref().map(|e| {
         json!({"anchors_m": e.geometry.anchors, "l0_m": e.geometry.l0, "anchor_sigma_m": e.sigma.anchors.iter().map(|s| s.map(finite)).collect::<Vec<_>>(),
-               "l0_sigma_m": e.sigma.l0.iter().map(|&s| finite(s)).collect::<Vec<_>>(), "note": e.note})
+               "l0_sigma_m": e.sigma.l0.iter().map(|&s| finite(s)).collect::<Vec<_>>(), "note": e.note,
+               "model_consistent": e.model_consistent})
     });
     json!({
         "n": n,
@@ -112,6 +113,7 @@ fn outcome_summary(n: usize, o: &crate::calibrator::Outcome) -> Value {
         "heldout_rms_old_m": finite(o.heldout_rms_old_m),
         "heldout_outliers": o.heldout_outliers,
         "worst_sigma_m": o.estimate.as_ref().and_then(|e| crate::operator::worst_sigma(&e.sigma.anchors, &e.sigma.l0)).map(|w| w.0),
+        "model_consistent": o.estimate.as_ref().and_then(|e| e.model_consistent),
         "data_problems": o.data_problems.len(),
     })
 }

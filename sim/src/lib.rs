@@ -20,6 +20,7 @@
 //! | [`dwell`]         | dwell-pose recordings without a tracker (self-calibration)            |
 //! | [`sensors`]       | tracker, encoders (backlash, quantisation), load cells                |
 //! | [`scenario`]      | scenarios -> `cdpr-recording v1` + truth                              |
+//! | [`field`]         | recordings sampled as a real logger: slow, irregular, stale rows      |
 //! | [`plant`]         | the stepping plant for the real-time loop and the virtual drives      |
 //! | [`dynamics`]      | the plant's dynamic mode: mass on elastic, damped cables; its modes   |
 //!
@@ -38,6 +39,7 @@ pub mod catenary;
 pub mod dwell;
 pub mod dynamics;
 pub mod equilibrium;
+pub mod field;
 pub mod physics;
 pub mod plant;
 pub mod scenario;
@@ -68,6 +70,7 @@ pub(crate) const STREAM_TRACKER: u64 = 3;
 pub(crate) const STREAM_ENCODER: u64 = 4;
 pub(crate) const STREAM_LOADCELL: u64 = 5;
 pub(crate) const STREAM_PLANT: u64 = 6;
+// 7: the logger's sampling (`field`).
 
 /// The generator of one concern (`stream`) of a seeded simulation: ChaCha8, so the same seed
 /// gives the same numbers on every platform and version of this crate.

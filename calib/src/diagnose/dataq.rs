@@ -23,6 +23,9 @@ pub enum ProblemKind {
     EncoderSpike,
     /// An encoder step that stays: lost counts ([`crate::screen`]).
     EncoderJump,
+    /// A row whose encoder readings all repeat the previous row's exactly while the tracker
+    /// moved: the logger wrote a new pose beside old lengths ([`stale_rows`]).
+    StaleRow,
     /// Tensions that cannot be: not finite, negative beyond noise, above the maximum
     /// ([`crate::screen`]).
     ImpossibleTension,
@@ -40,6 +43,7 @@ impl ProblemKind {
             ProblemKind::DeadLoadCell => "dead-load-cell",
             ProblemKind::EncoderSpike => "encoder-spike",
             ProblemKind::EncoderJump => "encoder-jump",
+            ProblemKind::StaleRow => "stale-row",
             ProblemKind::ImpossibleTension => "impossible-tension",
         }
     }
@@ -182,16 +186,106 @@ pub(crate) fn tracker_outliers(rec: &Recording, tracker_sigma_m: f64) -> Option<
     Some((dev.iter().map(|&d| d.is_finite() && d > thr).collect(), thr))
 }
 
+/// `rec` with the lengths of the rows marked in `rows` set missing (NaN); `None` when no row is
+/// marked.
+pub fn without_lengths(rec: &Recording, rows: &[bool]) -> Option<Recording> {
+    if !rows.iter().any(|r| *r) {
+        return None;
+    }
+    let mut out = rec.clone();
+    let n = rec.n_cables;
+    for (i, _) in rows.iter().enumerate().filter(|(_, r)| **r) {
+        out.l[i * n..(i + 1) * n].iter_mut().for_each(|v| *v = f64::NAN);
+    }
+    Some(out)
+}
+
+/// How far the tracker must move between two rows for a repeat of every encoder reading to be
+/// stale rather than a rest: `3 sqrt(2)` tracker sigmas (the distance of two noisy readings of
+/// one point is `sqrt(2) s chi(3)`, above this with probability 0.03; a rest row excluded by
+/// chance costs one reading of a pose that is measured again), at least 0.1 mm.
+pub(crate) fn stale_motion_m(tracker_sigma_m: f64) -> f64 {
+    (3.0 * std::f64::consts::SQRT_2 * tracker_sigma_m).max(1e-4)
+}
+
+/// How far some encoder must move across a run of repeated readings (from the run's reading to
+/// the next different one) for the run to be stale rather than a rest: 20 encoder sigmas, at
+/// least 0.2 mm (1 mm at the default 0.05 mm).
+pub(crate) fn stale_encoder_step_m(encoder_sigma_m: f64) -> f64 {
+    (20.0 * encoder_sigma_m).max(2e-4)
+}
+
+/// Longest run of repeated rows (after its first) that the encoders alone call stale
+/// ([`stale_rows`]).
+const MAX_STALE_RUN: usize = 2;
+
+/// The stale rows of `rec`: row `i` repeats the reading of every cable of the row before it
+/// exactly (all finite) while the platform moved, a logger's new pose beside old lengths
+/// (their lengths belong to an earlier pose: on a moving platform centimetres off). The
+/// platform moved when the tracker moved more than [`stale_motion_m`] from the first row of the
+/// run of repeats that has a pose (a dropout inside the run does not hide it), or, for slow
+/// motion that the tracker's noise hides over an interval, when the repeat is at most two rows
+/// long and some encoder steps more than [`stale_encoder_step_m`] out of it (to the next row).
+/// The encoders' noise and quantum (0.05 mm, 0.01 mm) make an exact repeat of every cable
+/// impossible while the platform moves. A rest of the platform is a repeat without the tracker
+/// moving: one of three rows or more is kept; a pause of one or two rows before a motion is
+/// left out with the stale rows (it repeats a pose measured the row before, so little is lost).
+/// The first row of a run is never stale.
+pub fn stale_rows(rec: &Recording, tracker_sigma_m: f64, encoder_sigma_m: f64) -> Vec<bool> {
+    let (n, m) = (rec.n_cables, rec.len());
+    let thr = stale_motion_m(tracker_sigma_m);
+    let step_thr = stale_encoder_step_m(encoder_sigma_m);
+    let mut out = vec![false; m];
+    if n == 0 {
+        return out;
+    }
+    let same = |a: usize, b: usize| rec.lengths(a).iter().zip(rec.lengths(b)).all(|(x, y)| x.is_finite() && x == y);
+    let posed = |i: usize| rec.p[i].iter().all(|v| v.is_finite());
+    let mut s = 0;
+    while s < m {
+        let mut e = s + 1;
+        while e < m && same(s, e) {
+            e += 1;
+        }
+        // Rows s..e share one reading; e is the next different row (or the end).
+        if e - s > 1 {
+            let steps = |a: usize, b: usize| {
+                rec.lengths(a).iter().zip(rec.lengths(b)).any(|(x, y)| (x - y).is_finite() && (x - y).abs() > step_thr)
+            };
+            let stepped = e - s <= MAX_STALE_RUN + 1 && e < m && steps(s, e);
+            let first_posed = (s..e).find(|&k| posed(k));
+            for i in s + 1..e {
+                let moved = first_posed
+                    .filter(|&k| k < i && posed(i))
+                    .is_some_and(|k| (0..3).map(|c| (rec.p[i][c] - rec.p[k][c]).powi(2)).sum::<f64>().sqrt() > thr);
+                out[i] = stepped || moved;
+            }
+        }
+        s = e;
+    }
+    out
+}
+
 /// Finds the data problems of `rec`. `tracker_sigma_m` sets the smallest tracker jump that can be
 /// called an outlier.
-pub fn detect(rec: &Recording, tracker_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
-    detect_screened(rec, tracker_sigma_m, &[])
+pub fn detect(rec: &Recording, tracker_sigma_m: f64, encoder_sigma_m: f64) -> (Vec<DataProblem>, DataMasks) {
+    detect_screened(rec, tracker_sigma_m, encoder_sigma_m, &[], Some(&[]))
 }
 
 /// [`detect`] on a recording the wild-value screen has cleaned: `removed[i]` marks rows whose
 /// position the screen removed (already reported as wild), which are excluded but not reported
-/// again as tracker dropouts.
-pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) -> (Vec<DataProblem>, DataMasks) {
+/// again as tracker dropouts; `stale[i]` marks rows found stale before the screen ([`stale_rows`]
+/// of the recording as read, whose lengths the caller then set missing so that the screen does
+/// not take them for wild readings), reported and excluded as stale rows with those this finds
+/// (`None`: stale rows are neither looked for nor excluded).
+pub fn detect_screened(
+    rec: &Recording,
+    tracker_sigma_m: f64,
+    encoder_sigma_m: f64,
+    removed: &[bool],
+    stale: Option<&[bool]>,
+) -> (Vec<DataProblem>, DataMasks) {
+    let known_stale = stale;
     let n = rec.n_cables;
     let m = rec.len();
     let mut problems = vec![];
@@ -338,6 +432,28 @@ pub fn detect_screened(rec: &Recording, tracker_sigma_m: f64, removed: &[bool]) 
         }
     }
 
+    // Stale rows: single rows (shorter than a frozen run) whose lengths are the previous row's.
+    let mut stale = if known_stale.is_some() { stale_rows(rec, tracker_sigma_m, encoder_sigma_m) } else { vec![false; m] };
+    for (i, s) in stale.iter_mut().enumerate() {
+        // Already excluded on every cable as a frozen encoder's run.
+        *s &= (0..n).any(|j| cable_ok[j][i]);
+        *s |= known_stale.and_then(|k| k.get(i)).copied().unwrap_or(false);
+    }
+    if let Some(mut p) = summarise(ProblemKind::StaleRow, None, &rec.t, &stale, "stale rows") {
+        p.description = format!(
+            "{} (every encoder repeats the previous row's reading exactly while the platform moves: the tracker more than {:.1} mm or an encoder more than {:.1} mm across the repeat; a new pose logged beside old lengths)",
+            p.description,
+            stale_motion_m(tracker_sigma_m) * 1e3,
+            stale_encoder_step_m(encoder_sigma_m) * 1e3
+        );
+        problems.push(p);
+    }
+    for (s, ok) in stale.iter().zip(row_ok.iter_mut()) {
+        if *s {
+            *ok = false;
+        }
+    }
+
     // Dead load cells.
     let mut dead_loadcell = vec![false; n];
     if let Some(f) = &rec.f {
@@ -444,7 +560,7 @@ mod tests {
 
     #[test]
     fn clean_recording_has_no_problems() {
-        let (p, masks) = detect(&rec(2000), 1.5e-3);
+        let (p, masks) = detect(&rec(2000), 1.5e-3, 5e-5);
         assert!(p.is_empty(), "{p:?}");
         assert!(masks.row_ok.iter().all(|x| *x));
     }
@@ -463,7 +579,7 @@ mod tests {
         for i in 0..3000 {
             f[i * 3 + 2] = 0.0;
         }
-        let (p, masks) = detect(&r, 1.5e-3);
+        let (p, masks) = detect(&r, 1.5e-3, 5e-5);
         let kinds: Vec<_> = p.iter().map(|x| (x.kind, x.cable)).collect();
         assert!(kinds.contains(&(ProblemKind::FrozenEncoder, Some(1))), "{p:#?}");
         assert!(kinds.contains(&(ProblemKind::TrackerOutlier, None)), "{p:#?}");
@@ -480,9 +596,65 @@ mod tests {
             r.p[i] = [f64::NAN; 3];
         }
         r.p[805][1] += 0.05;
-        let (p, masks) = detect(&r, 1.5e-3);
+        let (p, masks) = detect(&r, 1.5e-3, 5e-5);
         assert!(p.iter().any(|x| x.kind == ProblemKind::TrackerOutlier), "{p:#?}");
         assert!(!masks.row_ok[805]);
         assert!(masks.row_ok[806] && masks.row_ok[799]);
+    }
+
+    /// Stale rows: a repeat of every encoder while the platform moves is found (also across a
+    /// tracker dropout inside the repeat, and in slow motion that only the encoders show);
+    /// a repeat at rest is not, nor a repeat of one cable.
+    #[test]
+    fn finds_stale_rows_but_not_rests() {
+        let mut r = rec(2000);
+        // Every 4th row of 200..280 (the tracker moves ~8 mm a row) repeats the row before it.
+        let stale: Vec<usize> = (200..280).step_by(4).collect();
+        for &i in &stale {
+            let prev: Vec<f64> = r.lengths(i - 1).to_vec();
+            r.l[i * 3..i * 3 + 3].copy_from_slice(&prev);
+        }
+        // A run of two stale rows whose first has no pose.
+        for i in [901, 902] {
+            let prev: Vec<f64> = r.lengths(900).to_vec();
+            r.l[i * 3..i * 3 + 3].copy_from_slice(&prev);
+        }
+        r.p[901] = [f64::NAN; 3];
+        // One cable repeats: not a stale row.
+        r.l[1201 * 3 + 1] = r.l[1200 * 3 + 1];
+        // A rest: pose and lengths constant over 1500..1504, moving before and after.
+        for i in 1501..1504 {
+            r.p[i] = r.p[1500];
+            let prev: Vec<f64> = r.lengths(1500).to_vec();
+            r.l[i * 3..i * 3 + 3].copy_from_slice(&prev);
+        }
+        let (p, masks) = detect(&r, 1.5e-3, 5e-5);
+        let found = stale_rows(&r, 1.5e-3, 5e-5);
+        let rows: Vec<usize> = (0..r.len()).filter(|&i| found[i]).collect();
+        let mut want = stale.clone();
+        want.extend([901, 902]);
+        assert_eq!(rows, want);
+        let ok = |i: usize| masks.row_ok[i];
+        // (The sudden stop at 1501 is a tracker outlier to its interpolation; not stale.)
+        assert!(want.iter().all(|&i| !ok(i)) && ok(1201) && !found[1502] && !found[1503], "{p:#?}");
+        let d = p.iter().find(|x| x.kind == ProblemKind::StaleRow).expect("reported");
+        assert_eq!(d.samples, want.len(), "{d:?}");
+        // Slow motion: 0.1 mm per row on the tracker (below its noise), the encoders step 1.5 mm
+        // a row: a repeat of one row is stale, a pause of three is not.
+        let mut r = rec(50);
+        for i in 0..50 {
+            r.p[i] = [0.0, 0.0, 1.0 + 1e-4 * i as f64];
+            for j in 0..3 {
+                r.l[i * 3 + j] = 3.0 + 1.5e-3 * i as f64;
+            }
+        }
+        let prev: Vec<f64> = r.lengths(20).to_vec();
+        r.l[21 * 3..21 * 3 + 3].copy_from_slice(&prev);
+        let prev: Vec<f64> = r.lengths(30).to_vec();
+        for i in 31..34 {
+            r.l[i * 3..i * 3 + 3].copy_from_slice(&prev);
+        }
+        let rows: Vec<usize> = stale_rows(&r, 1.5e-3, 5e-5).iter().enumerate().filter(|(_, s)| **s).map(|(i, _)| i).collect();
+        assert_eq!(rows, vec![21]);
     }
 }

@@ -112,6 +112,10 @@ pub struct DiagnoseOptions {
     /// as the candidate); one the test cannot tell from nothing is dropped and not tried again.
     /// False gives the forward-only selection as it was before (for comparisons only).
     pub backward: bool,
+    /// Find stale rows ([`dataq::stale_rows`]: every encoder repeats the previous row while the
+    /// platform moves) and leave them out (true). False keeps them, as before (for comparisons
+    /// only: `tests/examples/short_recordings.rs`).
+    pub stale_rows: bool,
 }
 
 impl DiagnoseOptions {
@@ -132,6 +136,7 @@ impl DiagnoseOptions {
             family_alpha: DEFAULT_FAMILY_ALPHA,
             estimation_error: true,
             backward: true,
+            stale_rows: true,
         }
     }
 
@@ -721,14 +726,11 @@ impl Ctx<'_> {
         if !r.x.iter().all(|v| v.is_finite()) {
             return None;
         }
-        let lag = if noise_lag > 1 {
-            fit::correlation_lag(phi.min(fit::noise_phi(self.prep, &s2, &self.train, &r.x)), fit::MAX_NOISE_LAG)
-        } else {
-            noise_lag
-        };
+        let cand_phi = fit::noise_phi(self.prep, &s2, &self.train, &r.x);
+        let lag = if noise_lag > 1 { fit::correlation_lag(phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
         let res = self.heldout_residuals(&s2, &r.x, (&red, &red_fit.x), lag);
         let res_w = self.heldout_factors(&s2, &r.x);
-        let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &terms, err.as_ref());
+        let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &terms, err.as_ref(), Some(cand_phi));
         Some((red, red_fit, test))
     }
 
@@ -1014,6 +1016,7 @@ fn weighted_test(
     w1: &[f64],
     terms: &Terms,
     err: Option<&esterr::EstimationError>,
+    cand_phi: Option<f64>,
 ) -> Option<HeldoutTest> {
     if r0.len() != terms.order.len() || r1.len() != terms.order.len() {
         return None;
@@ -1024,7 +1027,7 @@ fn weighted_test(
     let a: Vec<f64> = r0.iter().zip(&w).map(|(r, w)| r * w).collect();
     let b: Vec<f64> = r1.iter().zip(&w).map(|(r, w)| r * w).collect();
     let delta: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
-    let est = err.and_then(|e| e.variance(&delta, (!plain).then_some(&w[..])));
+    let est = err.and_then(|e| e.variance_with(&delta, (!plain).then_some(&w[..]), cand_phi));
     let a: Vec<f64> = terms.order.iter().map(|&k| a[k]).collect();
     let b: Vec<f64> = terms.order.iter().map(|&k| b[k]).collect();
     select::encompassing_test_with(&a, &b, &terms.rows, select::BATCHES, est)
@@ -1255,9 +1258,20 @@ pub fn diagnose(
     }
     let mut notes = vec![];
     // Wild values first: a single 1e308 must neither move the fit nor pass for physics.
+    // Stale rows before the screen: their repeated lengths, centimetres off on a moving
+    // platform, would otherwise pass for wild readings of some cables and stay on others.
+    let stale = if opts.stale_rows { dataq::stale_rows(rec, opts.tracker_sigma_m, opts.encoder_sigma_m) } else { vec![] };
+    let unstale = dataq::without_lengths(rec, &stale);
+    let rec = unstale.as_ref().unwrap_or(rec);
     let screen = crate::screen::screen(rec, &crate::screen::ScreenOptions::new(opts.min_tension_n));
     let rec = screen.recording(rec);
-    let (mut data_problems, masks) = dataq::detect_screened(rec, opts.tracker_sigma_m, &screen.removed_rows);
+    let (mut data_problems, masks) = dataq::detect_screened(
+        rec,
+        opts.tracker_sigma_m,
+        opts.encoder_sigma_m,
+        &screen.removed_rows,
+        opts.stale_rows.then_some(&stale[..]),
+    );
     data_problems.splice(0..0, dataq::from_screen(&screen));
     let mut prep = prepare(rec, platform_points, &masks, opts);
     let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();
@@ -1286,6 +1300,8 @@ pub fn diagnose(
             min_tension_n: opts.min_tension_n,
             tracker_sigma_m: opts.tracker_sigma_m,
             encoder_sigma_m: opts.encoder_sigma_m,
+            // Only a start for the diagnosis's own fits.
+            model_check: false,
             ..crate::CalibOptions::default()
         };
         if let Ok(init) = crate::init::initialise(rec, platform_points, &copts) {
@@ -1490,14 +1506,11 @@ pub fn diagnose(
             // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
             // was named on 1 of 24 recordings), the candidate that has the effect does not; under
             // the null both carry the same noise. Only where the span is more than one sample.
-            let lag = if noise_lag > 1 {
-                fit::correlation_lag(cur_phi.min(fit::noise_phi(&prep, &s2, &ctx.train, &r.x)), fit::MAX_NOISE_LAG)
-            } else {
-                noise_lag
-            };
+            let cand_phi = fit::noise_phi(&prep, &s2, &ctx.train, &r.x);
+            let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
             let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
             let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref());
+            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref(), Some(cand_phi));
             // The inflated sigmas and the gates (several residual passes per parameter) only
             // where they can matter: a candidate that passed, or a pulley (the absorbed note).
             let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
@@ -1587,6 +1600,7 @@ pub fn diagnose(
                     &cands[bi].1.res_w,
                     &ctx.heldout_terms(&c.spec, &c.report.x),
                     err.as_ref(),
+                    None,
                 );
                 if pair.is_none_or(|t| t.p_value >= alpha) {
                     let ho = (c.res.iter().map(|r| r * r).sum::<f64>() / c.res.len().max(1) as f64).sqrt();

@@ -288,6 +288,7 @@ fn one_wild_value_is_a_data_problem_in_calibrate_diagnose_and_the_daemon() {
     let ccfg = CalibratorConfig::from_robot(robot);
     let exc = clean.slice(first_exc..m);
     let mut init = Estimate {
+        model_consistent: None,
         geometry: clean_p.geometry(),
         sigma: clean_p.sigmas(),
         rms_m: clean_p.rms_m,

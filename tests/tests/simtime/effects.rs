@@ -107,6 +107,7 @@ impl TruthCalib {
             ..Default::default()
         };
         TruthCalib(Estimate {
+            model_consistent: None,
             geometry: truth.geometry(),
             sigma: taut_calib::Sigmas::uniform(n, 1e-4),
             rms_m: 0.0,
