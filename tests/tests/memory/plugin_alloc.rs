@@ -37,6 +37,13 @@ fn hot_swapped(h: &PluginHandle) -> bool {
 /// Runs the whole script, calling `cycle` once per period (it does the watched update); returns
 /// the states seen.
 fn script(p: &mut Plugin, rate_hz: f64, mut cycle: impl FnMut(&mut Plugin, f64, f64) -> Tick) -> Vec<State> {
+    // This thread is the host's real-time loop: under SCHED_FIFO as a controller runs it (as
+    // root; otherwise a warning and the normal scheduler), so that other work on the machine does
+    // not starve the cycles the start-up is timed by.
+    let rt = taut_config::runtime::RtConfig { priority: startup::REALTIME_PRIORITY, lock_memory: false, ..Default::default() };
+    for w in taut_rt_core::rtsys::setup_current_thread(&rt).warnings {
+        eprintln!("plugin_alloc: {w}");
+    }
     let h = p.handle().clone();
     let mut timer = Periodic::new((1e9 / rate_hz) as i64);
     let t0 = monotonic_ns();
