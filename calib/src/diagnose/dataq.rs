@@ -222,10 +222,10 @@ const MAX_STALE_RUN: usize = 2;
 /// The stale rows of `rec`: row `i` repeats the reading of every cable of the row before it
 /// exactly (all finite) while the platform moved, a logger's new pose beside old lengths
 /// (their lengths belong to an earlier pose: on a moving platform centimetres off). The
-/// platform moved when the tracker moved more than [`stale_motion_m`] from the first row of the
+/// platform moved when the tracker moved more than `stale_motion_m` from the first row of the
 /// run of repeats that has a pose (a dropout inside the run does not hide it), or, for slow
 /// motion that the tracker's noise hides over an interval, when the repeat is at most two rows
-/// long and some encoder steps more than [`stale_encoder_step_m`] out of it (to the next row).
+/// long and some encoder steps more than `stale_encoder_step_m` out of it (to the next row).
 /// The encoders' noise and quantum (0.05 mm, 0.01 mm) make an exact repeat of every cable
 /// impossible while the platform moves. A rest of the platform is a repeat without the tracker
 /// moving: one of three rows or more is kept; a pause of one or two rows before a motion is
