@@ -66,7 +66,8 @@ pub struct StartArgs {
     #[arg(long = "sim-time", requires = "sim", requires = "once", conflicts_with = "can")]
     sim_time: bool,
     /// With --sim-time: the simulated plant has dynamics (the platform swings on elastic,
-    /// damped cables) instead of moving from one static equilibrium to the next.
+    /// damped 1 MN cables) instead of moving from one static equilibrium to the next; the
+    /// initialisation phases reel at most 0.5 m.
     #[arg(long = "dynamic", requires = "sim_time")]
     dynamic: bool,
     /// With --sim-time: faults drawn from the seed (lost and late CAN frames, tracker dropouts,
@@ -77,6 +78,9 @@ pub struct StartArgs {
 
 /// The simulated robot `taut start --sim` runs without --config (also loaded by the tests).
 const DEFAULT_SIM_ROBOT: &str = include_str!("../../config/examples/aras-cam-sim.toml");
+
+/// The longest reel of the initialisation phases on the dynamic plant, m.
+const DYNAMIC_REEL_M: f64 = 0.5;
 
 /// Runs `taut start`.
 pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
@@ -94,6 +98,15 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
     }
     if let Some(note) = startup_mode(&mut cfg, a.sim, a.no_tracker) {
         eprintln!("taut start: {note}");
+    }
+    if a.dynamic && cfg.motion.init_reel_m.abs() > DYNAMIC_REEL_M {
+        // A swinging platform reeled 0.85 m (the example's) climbs to 3.65 m under 4 m anchors
+        // and its held cables go slack.
+        eprintln!(
+            "taut start: --dynamic: the phases reel {DYNAMIC_REEL_M} m instead of motion.init_reel_m = {} m (a swinging platform reeled further nears the anchors and slackens the held cables)",
+            cfg.motion.init_reel_m
+        );
+        cfg.motion.init_reel_m = cfg.motion.init_reel_m.signum() * DYNAMIC_REEL_M;
     }
     let (devices, truth, tracker): (DeviceMode, Option<Truth>, _) = if a.sim {
         let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;

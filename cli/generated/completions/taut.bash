@@ -190,7 +190,7 @@ _taut() {
             return 0
             ;;
         taut__subcmd__calibrate)
-            opts="-v -q -h --config --json --plot --out --report --compare --verbose --quiet --help"
+            opts="-v -q -h --config --json --plot --out --report --compare --allow-swapped --verbose --quiet --help"
             if [[ ${cur} == -* || ${COMP_CWORD} -eq 2 ]] ; then
                 COMPREPLY=( $(compgen -W "${opts}" -- "${cur}") )
                 return 0

@@ -73,6 +73,7 @@ complete -c taut -n "__fish_taut_using_subcommand calibrate" -l plot -d 'Write f
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -l out -d 'Write the calibrated parameters (taut-params v2 TOML: anchors, offsets, their 1-sigma) to this file, atomically' -r -F
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -l report -d 'Write a self-contained HTML report (verdict, tables, figures) to this file, atomically' -r -F
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -l compare -d 'Also calibrate without force weighting, to show what force weighting changes (tables, JSON `unweighted`, figures). Off by default: it doubles the solve'
+complete -c taut -n "__fish_taut_using_subcommand calibrate" -l allow-swapped -d 'Calibrate cables whose anchors land at other cables\' nominal anchors (a swapped pair of length columns or drives) as recorded, instead of refusing: the nominal anchors they are checked against follow the swap'
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -s v -l verbose -d 'Say more (`taut start`: also every change of the calibrator\'s stage)'
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -s q -l quiet -d 'Say less (`taut start`: no log lines for people, only warnings and the results; `taut ctl`: no progress lines)'
 complete -c taut -n "__fish_taut_using_subcommand calibrate" -s h -l help -d 'Print help'
@@ -88,7 +89,7 @@ complete -c taut -n "__fish_taut_using_subcommand start" -l sim -d 'Run against 
 complete -c taut -n "__fish_taut_using_subcommand start" -l once -d 'Exit after the start-up calibration with a summary'
 complete -c taut -n "__fish_taut_using_subcommand start" -l no-tracker -d 'With --sim: the simulated robot has no tracker; the start-up runs dwell poses and calibrates from the encoders and load cells (`motion.startup = "dwell"`)'
 complete -c taut -n "__fish_taut_using_subcommand start" -l sim-time -d 'With --sim --once: run the start-up in simulated time, the whole robot stack in lockstep on one simulated clock, as fast as the CPU allows (the same seed gives the same run, bit for bit). The JSON gets a `sim_time` object with the speed-up over real time'
-complete -c taut -n "__fish_taut_using_subcommand start" -l dynamic -d 'With --sim-time: the simulated plant has dynamics (the platform swings on elastic, damped cables) instead of moving from one static equilibrium to the next'
+complete -c taut -n "__fish_taut_using_subcommand start" -l dynamic -d 'With --sim-time: the simulated plant has dynamics (the platform swings on elastic, damped 1 MN cables) instead of moving from one static equilibrium to the next; the initialisation phases reel at most 0.5 m'
 complete -c taut -n "__fish_taut_using_subcommand start" -l sim-faults -d 'With --sim-time: faults drawn from the seed (lost and late CAN frames, tracker dropouts, a pause of the load cells)'
 complete -c taut -n "__fish_taut_using_subcommand start" -s v -l verbose -d 'Say more (`taut start`: also every change of the calibrator\'s stage)'
 complete -c taut -n "__fish_taut_using_subcommand start" -s q -l quiet -d 'Say less (`taut start`: no log lines for people, only warnings and the results; `taut ctl`: no progress lines)'
