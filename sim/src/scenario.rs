@@ -88,6 +88,17 @@ impl Scenario {
         }
     }
 
+    /// An 8-cable robot: anchors on a regular octagon of radius 4 m, 4 m up, 5 kg platform.
+    pub fn octagon(seed: u64) -> Self {
+        let anchors: Vec<[f64; 3]> = (0..8)
+            .map(|k| {
+                let a = (k as f64 + 0.5) * std::f64::consts::TAU / 8.0;
+                [4.0 * a.cos(), 4.0 * a.sin(), 4.0]
+            })
+            .collect();
+        Scenario { robot: robot("octagon-8", 5.0, &anchors), ..Scenario::aras_cam(seed) }
+    }
+
     /// A small 3-cable robot (anchors on a triangle 3 m up, 2 kg), as `config/examples`.
     pub fn three_cable(seed: u64) -> Self {
         Scenario { robot: robot("tri-3", 2.0, &[[2.0, 0.0, 3.0], [-1.0, 1.732, 3.0], [-1.0, -1.732, 3.0]]), ..Scenario::aras_cam(seed) }

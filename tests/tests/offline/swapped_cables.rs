@@ -13,19 +13,6 @@
 use crate::hostile::{run_with_deadline, taut_bin};
 use taut_sim::{simulate, Scenario};
 
-fn octagon(seed: u64) -> Scenario {
-    let mut s = Scenario::aras_cam(seed);
-    let mut cfg = taut_config::RobotConfig::point_mass(8);
-    cfg.robot.name = "octagon-8".into();
-    cfg.robot.mass_kg = 5.0;
-    for (k, c) in cfg.cables.iter_mut().enumerate() {
-        let a = (k as f64 + 0.5) * std::f64::consts::TAU / 8.0;
-        c.anchor = Some([4.0 * a.cos(), 4.0 * a.sin(), 4.0]);
-    }
-    s.robot = cfg;
-    s
-}
-
 /// Runs `taut calibrate` on `s`'s recording with columns `swap` exchanged (none: as recorded),
 /// with the robot's configuration; returns the exit code, stdout and stderr.
 fn calibrate(dir: &std::path::Path, s: Scenario, swap: Option<(usize, usize)>, extra: &[&str]) -> (Option<i32>, String, String) {
@@ -109,6 +96,6 @@ fn swapped_columns_of_4_cables_are_named() {
 
 #[test]
 fn swapped_columns_of_8_cables_are_named() {
-    check(|| octagon(6), (2, 5));
-    check_without_config(|| octagon(6), (2, 5));
+    check(|| Scenario::octagon(6), (2, 5));
+    check_without_config(|| Scenario::octagon(6), (2, 5));
 }

@@ -11,23 +11,6 @@ pub const GEOMETRIES: [&str; 4] = ["three-cable", "aras-cam", "octagon-8", "outd
 /// Noise levels (multiples of the default tracker and encoder noise).
 pub const NOISE_LEVELS: [f64; 3] = [0.5, 1.0, 2.0];
 
-/// An 8-cable robot: anchors on a regular octagon of radius 4 m, 4 m up, 5 kg platform.
-fn octagon(seed: u64) -> Scenario {
-    let mut s = Scenario::aras_cam(seed);
-    let mut cfg = taut_config::RobotConfig::point_mass(8);
-    cfg.robot.name = "octagon-8".into();
-    cfg.robot.mass_kg = 5.0;
-    for (k, c) in cfg.cables.iter_mut().enumerate() {
-        let a = (k as f64 + 0.5) * std::f64::consts::TAU / 8.0;
-        c.anchor = Some([4.0 * a.cos(), 4.0 * a.sin(), 4.0]);
-    }
-    s.robot = cfg;
-    // The three-phase plan pairs cables for 3 or 4 anchors; the 8-cable robot records the
-    // excitation only (the diagnosis then starts from the calibration's initialisation).
-    s.three_phase = None;
-    s
-}
-
 /// Effect-free case `k`: geometry `k % 4`, noise level `(k / 4) % 3`, seed `1000 + k`; loose
 /// cables are on (they are found and excluded, never an effect). Returns the scenario and the
 /// recording's duration, s.
@@ -37,7 +20,12 @@ pub fn case(k: usize) -> (Scenario, f64) {
     let mut s = match geometry {
         "three-cable" => Scenario::three_cable(seed),
         "aras-cam" => Scenario::aras_cam(seed),
-        "octagon-8" => octagon(seed),
+        "octagon-8" => Scenario {
+            // The three-phase plan pairs cables for 3 or 4 anchors; the 8-cable robot records the
+            // excitation only (the diagnosis then starts from the calibration's initialisation).
+            three_phase: None,
+            ..Scenario::octagon(seed)
+        },
         _ => Scenario::outdoor(seed),
     };
     s.physics = Physics::default();
