@@ -434,10 +434,8 @@ pub struct Controller {
     reel_peak_m: f64,
     /// Where and how fast the reel was when it ended early (m, m/s, signed).
     brake_from: (f64, f64),
-    /// The held cables' tensions averaged over [`HELD_TENSION_TAU_S`] during the reel, N, and
-    /// when they were last updated, s.
+    /// The held cables' tensions averaged over [`HELD_TENSION_TAU_S`] during the reel, N.
     held_avg_n: [f64; 2],
-    held_avg_t: f64,
     /// The followers' tension in the initialisation phases, N ([`Controller::init_follower_tension`]).
     init_follower_n: f64,
     /// While enabling: the cables whose drive is enabled and whose hold length is latched.
@@ -592,7 +590,6 @@ impl Controller {
             reel_peak_m: 0.0,
             brake_from: (0.0, 0.0),
             held_avg_n: [f64::NAN; 2],
-            held_avg_t: 0.0,
             init_follower_n: cfg.init_follower_tension_n,
             enable_latched: [false; MAX_CABLES],
             run: 0,
@@ -970,7 +967,6 @@ impl Controller {
                             self.segment = Segment::Reel;
                             self.segment_t0 = now;
                             self.held_avg_n = [f64::NAN; 2];
-                            self.held_avg_t = now;
                         }
                         0.0
                     }
@@ -981,8 +977,7 @@ impl Controller {
                         // Only readings taken during the reel count (see `measured_after`).
                         // A platform that swings makes the held tensions oscillate about
                         // their trend; only the trend says that it leaves the circle.
-                        let w = ((now - self.held_avg_t) / HELD_TENSION_TAU_S).clamp(0.0, 1.0);
-                        self.held_avg_t = now;
+                        let w = (dt / HELD_TENSION_TAU_S).clamp(0.0, 1.0);
                         for (i, &j) in [a, b].iter().enumerate() {
                             let t = inp.tension_n[j];
                             let avg = &mut self.held_avg_n[i];
