@@ -237,6 +237,20 @@ pub struct SimOptions {
     /// The site has a tracker (default). `false`: no pose is ever sent and the robot gets no
     /// tracker input (`taut start --sim --no-tracker`).
     pub tracker: bool,
+    /// What carries the load cells' RS-485 line in wall-clock time ([`build`]).
+    pub load_cell_line: LoadCellLine,
+}
+
+/// What carries the simulated load cells' Modbus RTU line to the robot's load-cell I/O thread
+/// in wall-clock time (the same bytes, master and thread either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LoadCellLine {
+    /// A Unix stream socket pair: no kernel terminal layer, whose work at the normal scheduler's
+    /// priority held a loaded machine's answers for up to 845 ms (`taut_vdev::loadcell`).
+    #[default]
+    Socket,
+    /// A pseudo-terminal, opened by path as the robot opens its serial port.
+    Pty,
 }
 
 impl Default for SimOptions {
@@ -250,6 +264,7 @@ impl Default for SimOptions {
             site_period: Duration::from_millis(1),
             physics: Physics::default(),
             tracker: true,
+            load_cell_line: LoadCellLine::default(),
         }
     }
 }
@@ -538,15 +553,23 @@ where
     let parts = draw_site(cfg, p0, opts)?;
     let truth = parts.truth.clone();
     let cells = parts.cells.clone();
-    // Load cells: virtual Modbus RTU server on a pty.
-    let vlc = VirtualLoadCells::spawn(cells.iter().map(|c| c.1.clone()).collect(), parts.handle.clone())
-        .map_err(|e| BuildError::Device { what: "virtual load cells", error: e })?;
+    // Load cells: virtual Modbus RTU server on a socket pair or a pty.
+    let cell_cfgs = cells.iter().map(|c| c.1.clone()).collect();
+    let vlc = match opts.load_cell_line {
+        LoadCellLine::Socket => VirtualLoadCells::spawn_socket(cell_cfgs, parts.handle.clone()),
+        LoadCellLine::Pty => VirtualLoadCells::spawn(cell_cfgs, parts.handle.clone()),
+    }
+    .map_err(|e| BuildError::Device { what: "virtual load cells", error: e })?;
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
     lc_bus.max_age_s = cfg.safety.tension_max_age_s;
-    // The robot side of the load cells and the tracker, as on hardware but on the pty and on
-    // a loopback port.
-    let loadcells = taut_driver::loadcell::spawn(&lc_bus, &cells, n).map_err(BuildError::LoadCells)?;
+    // The robot side of the load cells and the tracker, as on hardware but on the socket pair
+    // or the pty and on a loopback port.
+    let loadcells = match vlc.socket_port() {
+        Some(port) => taut_driver::loadcell::spawn_with(&lc_bus, &cells, n, move || port.open()),
+        None => taut_driver::loadcell::spawn(&lc_bus, &cells, n),
+    }
+    .map_err(BuildError::LoadCells)?;
     loadcells_realtime(cfg, &vlc, &loadcells.0);
     let mut tcfg = TrackerConfig::new("127.0.0.1:0");
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;

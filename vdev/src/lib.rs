@@ -32,5 +32,5 @@ mod loadcell;
 mod tracker;
 
 pub use drive::{rack_filters, spawn_rack, DriveCounters, DriveParams, DriveRack, RackHandle, Target, VirtualDrive};
-pub use loadcell::{LoadCellFault, LoadCellResponder, ServerStats, TensionHandle, VirtualLoadCells};
+pub use loadcell::{LoadCellFault, LoadCellResponder, ServerStats, SocketLink, SocketPort, TensionHandle, VirtualLoadCells};
 pub use tracker::{TrackerSender, TrackerStream};

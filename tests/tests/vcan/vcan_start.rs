@@ -53,7 +53,15 @@ fn start_up_over_socketcan_runs_every_stage() {
     let cfg = robot(dir.path());
     let w = ControllerConfig::from_robot(&cfg).unwrap().workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let so = SimOptions { seed: 3, can: Some(iface.to_string()), site_period: Duration::from_millis(5), ..Default::default() };
+    // The load cells on a pseudo-terminal, as the robot opens its serial port (the VM has the
+    // machine to itself; the host's start-ups use a socket pair, taut_simrig::LoadCellLine).
+    let so = SimOptions {
+        seed: 3,
+        can: Some(iface.to_string()),
+        site_period: Duration::from_millis(5),
+        load_cell_line: simrig::LoadCellLine::Pty,
+        ..Default::default()
+    };
     let p0 = simrig::rest_position(&cfg, &so, p0);
     let sim = simrig::build(&cfg, p0, &so).expect("bring-up over vcan0");
     let site = sim.faults.clone();
