@@ -33,12 +33,16 @@ pub fn taut_bin() -> &'static Path {
             return PathBuf::from(p);
         }
         let exe = std::env::current_exe().expect("test executable path");
-        // target/<profile>/deps/<test> -> target/debug/taut (the cli is built with the dev profile).
+        // target/<profile>/deps/<test> -> target/debug/taut. Built with the tests' profile and
+        // scripts/test's feature set (the whole workspace, the plugin's simulator on), so that
+        // only the cli crate itself is compiled on top of what the tests were built from: the
+        // dev profile rebuilt every workspace crate unoptimised (and the binary ran its
+        // calibrations several times slower in the tests that call it).
         let target = exe.parent().and_then(Path::parent).and_then(Path::parent).expect("target directory");
         let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let status = Command::new(cargo)
-            .args(["build", "-q", "-p", "taut-cli", "--bin", "taut", "--manifest-path"])
+            .args(["build", "-q", "--profile", "test", "--workspace", "--features", "taut-ffi/sim", "--bin", "taut", "--manifest-path"])
             .arg(&manifest)
             .env("CARGO_TARGET_DIR", target)
             .status()
