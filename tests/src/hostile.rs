@@ -28,7 +28,8 @@ pub const DEADLINE: Duration = Duration::from_secs(180);
 pub fn taut_bin() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
-        // To count what another build does (e.g. the code before issue 13): TAUT_HOSTILE_BIN=path.
+        // The binary scripts/test built, or to count what another build does (e.g. the code before
+        // issue 13): TAUT_HOSTILE_BIN=path.
         if let Some(p) = std::env::var_os("TAUT_HOSTILE_BIN") {
             return PathBuf::from(p);
         }
