@@ -95,6 +95,55 @@ pub fn require_motion(path: &Path, rec: &Recording) -> Result<()> {
     Ok(())
 }
 
+/// Below this magnitude in every row a load cell's column is not a reading, N.
+pub const DEAD_LOAD_CELL_N: f64 = 1e-3;
+
+/// Load cells that read nothing usable: every tension of the column missing or below
+/// [`DEAD_LOAD_CELL_N`] in magnitude (a dead cell, a wrong scale, an unwired channel). A data
+/// problem, the same for `calibrate` and `diagnose`, said with the file, the cable and what to
+/// check. With `per_cable` (the diagnosis, which weighs each cable on its own) the column is
+/// left out, its readings made missing; otherwise (the calibration's force-aware weighting
+/// needs every cable's tension: a cable without one would have no taut readings) and when no
+/// load cell is left, the recording is taken as one without tensions (uniform weights), not
+/// refused as if the cables were loose. Returns the cables (from 0) left out.
+pub fn drop_dead_load_cells(path: &Path, rec: &mut Recording, per_cable: bool) -> Vec<usize> {
+    let n = rec.n_cables;
+    let Some(f) = rec.f.as_mut() else { return Vec::new() };
+    let m = f.len() / n.max(1);
+    let dead: Vec<usize> = (0..n)
+        .filter(|&j| (0..m).map(|i| f[i * n + j]).all(|v| !v.is_finite() || v.abs() < DEAD_LOAD_CELL_N))
+        .filter(|&j| (0..m).any(|i| f[i * n + j].is_finite()))
+        .collect();
+    if dead.is_empty() {
+        return dead;
+    }
+    let live = (0..n).filter(|&j| (0..m).any(|i| f[i * n + j].is_finite() && f[i * n + j].abs() >= DEAD_LOAD_CELL_N)).count();
+    let names: Vec<String> = dead.iter().map(|j| format!("f{j} (cable {})", j + 1)).collect();
+    eprintln!(
+        "data problem: {}: load-cell column{} {} read{} below {DEAD_LOAD_CELL_N} N in every row: not a tension (a dead load cell, a wrong scale or an unwired channel); check the cell and its configuration",
+        path.display(),
+        if dead.len() > 1 { "s" } else { "" },
+        names.join(", "),
+        if dead.len() > 1 { "" } else { "s" },
+    );
+    if live == 0 || !per_cable {
+        eprintln!(
+            "note: {}: {}: treated as a recording without tensions (uniform weights; loose cables are not excluded)",
+            path.display(),
+            if live == 0 { "no load cell left" } else { "the force-aware weighting needs every cable's tension" }
+        );
+        rec.f = None;
+    } else {
+        for &j in &dead {
+            for i in 0..m {
+                f[i * n + j] = f64::NAN;
+            }
+        }
+        eprintln!("note: {}: the readings of {} are left out as missing", path.display(), names.join(", "));
+    }
+    dead
+}
+
 /// The robot's name as the recording's comments give it: `# robot: NAME; written by taut start`
 /// (the daemon's recordings) or `# simulated by taut-sim: robot NAME, seed ...` (taut-sim's).
 pub fn robot_name(rec: &Recording) -> Option<String> {
@@ -207,8 +256,9 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         a.report.as_deref(),
         a.plot.as_deref(),
     )?;
-    let (rec, parse) = load_recording(&a.recording)?;
+    let (mut rec, parse) = load_recording(&a.recording)?;
     require_motion(&a.recording, &rec)?;
+    drop_dead_load_cells(&a.recording, &mut rec, false);
     let cfg = config_for(a.config.as_deref(), &rec)?;
     if crate::notracker::tracker_absent(&rec) {
         return crate::notracker::run(a, &rec, &parse, &cfg);

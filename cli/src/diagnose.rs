@@ -242,8 +242,9 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
         a.report.as_deref(),
         a.plot.as_deref(),
     )?;
-    let (rec, _parse) = load_recording(&a.recording)?;
+    let (mut rec, _parse) = load_recording(&a.recording)?;
     crate::calibrate::require_motion(&a.recording, &rec)?;
+    crate::calibrate::drop_dead_load_cells(&a.recording, &mut rec, true);
     let cfg = config_for(a.config.as_deref(), &rec)?;
     let opts = options(a, &cfg)?;
     let d = diagnose(&rec, &cfg.platform_points(), None, &opts).with_context(|| format!("diagnosing {}", a.recording.display()))?;

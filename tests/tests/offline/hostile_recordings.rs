@@ -122,6 +122,35 @@ fn cases() -> Vec<Case> {
                 .file("rec.csv", still.clone()),
         );
     }
+    // Tension columns that are not readings (every value 0, or 1e-300): a data problem in both
+    // tools, named with the file and the columns; the recording is used without tensions.
+    let cols: Vec<usize> = header_line.split(',').enumerate().filter(|(_, h)| h.starts_with('f')).map(|(i, _)| i).collect();
+    assert!(!cols.is_empty(), "the base recording has tension columns: {header_line}");
+    for value in ["0", "1e-300"] {
+        let dead: String = good
+            .lines()
+            .enumerate()
+            .map(
+                |(i, l)| {
+                    if i + 1 >= ROW {
+                        cols.iter().fold(l.to_string(), |l, &k| set_field(&l, k, value)) + "\n"
+                    } else {
+                        format!("{l}\n")
+                    }
+                },
+            )
+            .collect();
+        for tool in ["calibrate", "diagnose"] {
+            c.push(
+                Case::ok(
+                    format!("{tool}: every tension {value}"),
+                    &[tool, "rec.csv"],
+                    &["data problem: rec.csv", "f0 (cable 1)", "below 0.001 N in every row", "without tensions"],
+                )
+                .file("rec.csv", dead.clone()),
+            );
+        }
+    }
     // The 65-cable case has no data rows: its error is about the header line.
     c.iter_mut().for_each(|x| x.expect.retain(|s| !s.is_empty()));
     c
