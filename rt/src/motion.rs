@@ -290,9 +290,9 @@ pub const MAX_DWELL_POSES: usize = 64;
 /// (`taut_calib::selfcal::plan`).
 ///
 /// Without a tracker the start-up is: hold at rest for `settle_s`, record `dwell_s` (phase 0:
-/// the rest estimate), then visit `poses` in order: move (smoothstep, at most `speed_m_s` on
-/// average... peak 1.5x), hold `settle_s`, record `dwell_s` (the sample's phase is the pose's
-/// index). Moves are smoothsteps at a mean speed of `speed_m_s` (peak 1.5x). Recalibration
+/// the rest estimate), then visit `poses` in order: move, hold `settle_s`, record `dwell_s` (the
+/// sample's phase is the pose's index). Moves are trapezoids in speed, up to `speed_m_s`, at the
+/// start-up's acceleration (`ControllerConfig::reel_accel_m_s2`). Recalibration
 /// visits the poses again. At the poses with a `tare` mask, the dwell is followed by a tare: the
 /// cables of the mask are ramped to zero tension (torque mode, a smoothstep over the first half
 /// of `settle_s`) while the others hold the platform where it is in position mode (a follower
@@ -436,6 +436,10 @@ pub struct Controller {
     brake_from: (f64, f64),
     /// The held cables' tensions averaged over [`HELD_TENSION_TAU_S`] during the reel, N.
     held_avg_n: [f64; 2],
+    /// The dwell plan's position cables' tensions averaged over [`HELD_TENSION_TAU_S`], N: a
+    /// swinging platform makes them oscillate about their trend, and only the trend says that
+    /// the plan does not hold the platform.
+    dwell_avg_n: [f64; MAX_CABLES],
     /// The followers' tension in the initialisation phases, N ([`Controller::init_follower_tension`]).
     init_follower_n: f64,
     /// While enabling: the cables whose drive is enabled and whose hold length is latched.
@@ -590,6 +594,7 @@ impl Controller {
             reel_peak_m: 0.0,
             brake_from: (0.0, 0.0),
             held_avg_n: [f64::NAN; 2],
+            dwell_avg_n: [f64::NAN; MAX_CABLES],
             init_follower_n: cfg.init_follower_tension_n,
             enable_latched: [false; MAX_CABLES],
             run: 0,
@@ -895,6 +900,7 @@ impl Controller {
         }
 
         self.track_tension(inp, dt);
+        self.track_dwell_slack(inp, now, dt);
         self.check_devices(inp, now);
         if !matches!(self.state, State::Idle | State::Faulted | State::Stopped) {
             self.check_limits(inp, now);
@@ -1351,6 +1357,24 @@ impl Controller {
         }
     }
 
+    /// The dwell plan's position cables' tension trend ([`Controller::dwell_avg_n`]), from the
+    /// readings taken since the plan began (a reading from before says nothing about it).
+    fn track_dwell_slack(&mut self, inp: &Inputs, now: f64, dt: f64) {
+        if self.cfg.dwell.is_none() || self.state != State::Excitation {
+            self.dwell_avg_n = [f64::NAN; MAX_CABLES];
+            return;
+        }
+        let w = if dt.is_finite() { (dt / HELD_TENSION_TAU_S).clamp(0.0, 1.0) } else { 1.0 };
+        for j in 0..self.cfg.n {
+            let t = inp.tension_n[j];
+            if !self.dwell_position_cable(j) || !t.is_finite() || !measured_after(inp, j, now - self.state_t0, REEL_GRACE_S) {
+                continue;
+            }
+            let avg = &mut self.dwell_avg_n[j];
+            *avg = if avg.is_finite() { *avg + w * (t - *avg) } else { t };
+        }
+    }
+
     /// Holding: position mode at `len`, except the redundant cables, which keep their last
     /// tension (four rigid position-mode cables would fight over the platform; the last
     /// tension is what the statics needed where the platform stands).
@@ -1536,7 +1560,7 @@ impl Controller {
             seg: DwellSeg::Move,
             t0: now,
             from: self.target,
-            move_s: move_time(self.target, plan.poses[0], plan.speed_m_s),
+            move_s: move_time(self.target, plan.poses[0], plan.speed_m_s, self.cfg.reel_accel_m_s2),
         };
         self.enter_ik(State::Excitation, now);
     }
@@ -1549,10 +1573,12 @@ impl Controller {
         let to = plan.poses[d.k.min(plan.count.saturating_sub(1))];
         let after = plan.poses[(d.k + 1).min(MAX_DWELL_POSES - 1)];
         let (count, settle_s, dwell_s, speed_m_s) = (plan.count, plan.settle_s, plan.dwell_s, plan.speed_m_s);
+        let accel = self.cfg.reel_accel_m_s2;
         let t = now - d.t0;
         match d.seg {
             DwellSeg::Move => {
-                let w = smoothstep(t / d.move_s);
+                let dist = distance(d.from, to);
+                let w = if dist > 0.0 { trapezoid_at(dist, speed_m_s, accel, t) / dist } else { 1.0 };
                 self.target = std::array::from_fn(|i| d.from[i] + w * (to[i] - d.from[i]));
                 if t >= d.move_s {
                     d.seg = DwellSeg::Settle;
@@ -1594,7 +1620,7 @@ impl Controller {
                         self.goal = self.target;
                         self.enter(State::Operate, now);
                     } else {
-                        *d = DwellRun { k: d.k, seg: DwellSeg::Move, t0: now, from: to, move_s: move_time(to, after, speed_m_s) };
+                        *d = DwellRun { k: d.k, seg: DwellSeg::Move, t0: now, from: to, move_s: move_time(to, after, speed_m_s, accel) };
                     }
                 }
             }
@@ -1700,11 +1726,8 @@ impl Controller {
             // Without a tracker the robot moves with its nominal geometry: a position-controlled
             // cable going loose means the plan does not hold the platform as planned.
             for j in 0..c.n {
-                if self.dwell_position_cable(j)
-                    && measured_after(inp, j, now - self.state_t0, REEL_GRACE_S)
-                    && inp.tension_n[j] < c.loose_tension_n
-                {
-                    return Some(Cause::CableLoose { cable: j as u8, tension_n: inp.tension_n[j] as f32 });
+                if self.dwell_position_cable(j) && self.dwell_avg_n[j] < c.loose_tension_n {
+                    return Some(Cause::CableLoose { cable: j as u8, tension_n: self.dwell_avg_n[j] as f32 });
                 }
             }
         }
@@ -1738,11 +1761,16 @@ impl Controller {
     }
 }
 
-/// Duration of a smoothstep move from `a` to `b` at mean speed `v` (its peak is 1.5 v), s; at
-/// least 1 s.
-fn move_time(a: [f64; 3], b: [f64; 3], v: f64) -> f64 {
-    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-    (d / v.max(1e-3)).max(1.0)
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Duration of a dwell plan's move from `a` to `b`: the trapezoid of [`trapezoid_s`] at up to
+/// `v` with acceleration `accel` (the start-up's, `motion.init_reel_accel_m_s2`), s. A swinging
+/// platform needs the bounded acceleration: the smoothstep this replaced peaked at 6 d / T^2,
+/// 5 m/s^2 for 0.3 m at 0.5 m/s, and loosened a position cable of the dynamic plant.
+fn move_time(a: [f64; 3], b: [f64; 3], v: f64, accel: f64) -> f64 {
+    trapezoid_s(distance(a, b), v.max(1e-3), accel)
 }
 
 /// Solves the 3x3 system `h x = r` by Cramer's rule; `None` when singular.
