@@ -23,6 +23,9 @@ pub struct TautCalib {
     start_effects: Effects,
     /// Without a tracker (`motion.startup = "dwell"`): the self-calibration's options.
     selfcal: Option<taut_calib::selfcal::SelfCalOptions>,
+    /// The cables' stretch modelled in the refinement: the stiffness known to its tolerance
+    /// (`[calibration] cable_ea_sigma_n` above 0).
+    stretch: Option<taut_calib::bundle::Stretch>,
 }
 
 impl TautCalib {
@@ -41,6 +44,7 @@ impl TautCalib {
             effects: cfg.calibration.effects.clone(),
             start_effects: Effects::default(),
             selfcal: crate::notracker::is_dwell(cfg).then(|| taut_calib::selfcal::SelfCalOptions::from_config(cfg)),
+            stretch: stretch_of(&cfg.calibration),
         }
     }
 
@@ -170,6 +174,7 @@ impl TautCalib {
             min_tension_n: self.opts.min_tension_n,
             // The length noise from the residuals, never below the encoders' (see `bundle::refine`).
             length_sigma_floor_m: crate::excite::length_sigma_floor_m(self.opts.encoder_sigma_m),
+            stretch: self.stretch,
             ..Default::default()
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
@@ -265,9 +270,13 @@ impl Calibrate for TautCalib {
                 b.params,
                 b.sigma,
                 format!(
-                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm)",
+                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm{})",
                     b.samples,
-                    b.length_sigma_m * 1e3
+                    b.length_sigma_m * 1e3,
+                    b.ea.as_ref().map_or(String::new(), |ea| format!(
+                        ", stretch modelled: EA {} kN",
+                        ea.iter().map(|(v, s)| format!("{:.0}±{:.0}", v / 1e3, s / 1e3)).collect::<Vec<_>>().join(", ")
+                    ))
                 ),
             ),
             None => (r.params, r.sigma, String::new()),
@@ -297,6 +306,13 @@ impl Calibrate for TautCalib {
             effects: Effects { time_offset_s: init.effects.time_offset_s, ..Effects::default() },
         })
     }
+}
+
+/// The stretch the refinement models: with `cable_ea_sigma_n` above 0 the configured stiffness
+/// is a datasheet value (validated below `cable_ea_n`), else none.
+fn stretch_of(c: &taut_config::CalibrationConfig) -> Option<taut_calib::bundle::Stretch> {
+    (c.cable_ea_sigma_n > 0.0 && c.cable_ea_n > 0.0 && c.cable_ea_n.is_finite())
+        .then(|| taut_calib::bundle::Stretch { ea_n: c.cable_ea_n, rel_sigma: c.cable_ea_sigma_n / c.cable_ea_n })
 }
 
 /// Median of `l - |p + b - a|` over the taut readings of cable `j`.
