@@ -1380,14 +1380,14 @@ mod tests {
         for k in 0..200 {
             let t = 0.002 * f64::from(k);
             s.t = t;
-            for j in 0..n {
-                s.length_m[j] = 3.0;
-                s.length_age_s[j] = 0.002;
+            s.length_m[..n].fill(3.0);
+            s.length_age_s[..n].fill(0.002);
+            for (j, rj) in read[..n].iter_mut().enumerate() {
                 if (k % 8) as usize == 2 * j {
-                    read[j] = t;
+                    *rj = t;
                     s.tension_n[j] = truth(j, t);
                 }
-                s.tension_age_s[j] = t - read[j];
+                s.tension_age_s[j] = t - *rj;
             }
             if k % 5 == 0 {
                 pose_t = t - 0.0005;
@@ -1400,15 +1400,14 @@ mod tests {
         assert!(rows >= 36, "{rows} rows");
         let mut held = 0.0f64;
         for i in 0..rows {
-            let f = c.exc_set.tensions(i).unwrap();
-            for j in 0..n {
-                if f[j].is_nan() {
+            for (j, &fj) in c.exc_set.tensions(i).unwrap().iter().enumerate() {
+                if fj.is_nan() {
                     // Before the cell's first reading.
                     assert!(c.exc_set.t[i] < 0.004 * j as f64, "row {i} cable {j}");
                     continue;
                 }
                 let t = c.exc_set.t[i];
-                let err = f[j] - truth(j, t);
+                let err = fj - truth(j, t);
                 // Before a cell's second reading there is nothing to interpolate between.
                 if t > 0.004 * j as f64 + 0.016 {
                     assert!(err.abs() < 1e-9, "row {i} cable {j}: {err:e} N");
