@@ -25,13 +25,18 @@
 //! Measured (2026-11-29), worst anchor on seeds 1-5: 0.78 / 0.40 / 0.57 / 0.80 / 0.55 mm,
 //! sigmas 0.33-0.36 mm (a datasheet of 1.1 MN: 0.56 / 0.36 / 0.49 / 0.88 / 0.69 mm; the exact
 //! 1 MN taken as known: 0.43 / 0.49 / 0.47 / 0.70 / 0.38 mm). The fitted stiffnesses lean the
-//! same way on every seed (cable 0 softer, 0.72-0.94 MN; cable 2 stiffer, 1.2-1.6 MN), and the
-//! worst coordinate is 3-4.4 of its sigmas: what is left is dynamic. The platform swings in
-//! modes of 6-13 Hz (`taut_sim::dynamics` tests) with damping ratios of 0.015-0.03, and a
-//! straight line between two polling rounds ~15 ms apart misses part of the tension, and of
-//! the stretch, in between; with the cables' damping ratio at 0.5 instead of 0.05 (datasheet
-//! 1 MN, seeds 1, 4, 5) the fitted stiffnesses are 0.88-1.19 MN and the worst coordinate
-//! 2.2-3.0 sigma. The bound is the acceptance itself, the seeds' worst 0.8 mm.
+//! same way on every seed (cable 0 softer, 0.72-0.88 MN; cable 2 stiffer, 1.2-1.6 MN), and the
+//! worst coordinate is 1.6-4.4 of its sigmas: the sigmas are about 1.5 times too small there.
+//! What is left is the simulated load cells' timing. A polling round runs at one simulated
+//! instant against the plant's last step, so every cell answers with the tension at the round's
+//! start, and each reading is stamped when its response is complete: cell `j`'s reading is about
+//! `4 (j + 1)` ms older than its age says (a real cell answers with what it measured just
+//! before the request). Read that much later from the history (an experiment, not in the
+//! robot's code: `3.5 (j + 1)` ms), cable 2's fitted EA is 1.03-1.13 MN, the worst anchor
+//! 0.45-0.66 mm and the worst coordinate 2.1-3.6 sigma; cable 0's lean (0.77-0.87 MN) stays,
+//! unexplained. A cubic through four readings instead
+//! of the straight line between two changed nothing (0.54-0.84 mm): the rounds are fast enough
+//! for the swing. The bound is the acceptance itself, the seeds' worst 0.8 mm.
 
 use taut_simrig::SimOptions;
 
