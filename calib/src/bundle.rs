@@ -42,6 +42,22 @@ pub struct BundleOptions {
     /// Re-estimate the length noise from the residuals (variance components, see [`refine`]),
     /// never below this, m; 0: keep `length_sigma_m`.
     pub length_sigma_floor_m: f64,
+    /// The cables' stretch, modelled: `None`, the ideal model (a length reading is the
+    /// distance plus the offset). See [`Stretch`].
+    pub stretch: Option<Stretch>,
+}
+
+/// A known axial stiffness: the length reading of a cable under tension `T` is the distance
+/// less the stretch, `l = d (1 - s T / EA) + L0`, with `EA` the datasheet stiffness and `s` a
+/// per-cable factor (1 when the datasheet is right) fitted with the prior `1 +- rel_sigma`.
+/// The drum pays out the unstretched length, so the encoder reads `d / (1 + T / EA_true)`;
+/// to first order in `T / EA` (1e-4 at most on a steel rope) that is the model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stretch {
+    /// The cables' axial stiffness EA, N (datasheet value).
+    pub ea_n: f64,
+    /// Its relative 1-sigma (0.15: +-15 %); 0: taken as exact (not fitted).
+    pub rel_sigma: f64,
 }
 
 impl Default for BundleOptions {
@@ -53,6 +69,7 @@ impl Default for BundleOptions {
             huber_k: 3.0,
             max_iterations: 30,
             length_sigma_floor_m: 0.0,
+            stretch: None,
         }
     }
 }
@@ -75,6 +92,9 @@ pub struct BundleResult {
     /// The length noise of the final fit (the weights and the sigmas are computed with it), m:
     /// `length_sigma_m`, or the re-estimated one (see [`refine`]).
     pub length_sigma_m: f64,
+    /// With [`BundleOptions::stretch`]: each cable's fitted stiffness EA and its 1-sigma, N
+    /// (the datasheet's when it is taken as exact: sigma 0).
+    pub ea: Option<Vec<(f64, f64)>>,
 }
 
 struct Row {
@@ -82,6 +102,8 @@ struct Row {
     pos: [f64; 3],
     /// Lengths (NaN: not used).
     l: Vec<f64>,
+    /// Tensions divided by the datasheet EA (0: no stretch modelled or no tension reading).
+    te: Vec<f64>,
 }
 
 fn rows(rec: &Recording, opts: &BundleOptions) -> Vec<Row> {
@@ -104,7 +126,13 @@ fn rows(rec: &Recording, opts: &BundleOptions) -> Vec<Row> {
                     }
                 })
                 .collect();
-            (l.iter().filter(|x| x.is_finite()).count() >= 4).then_some(Row { pos, l })
+            let te: Vec<f64> = (0..n)
+                .map(|j| match (opts.stretch, f) {
+                    (Some(st), Some(f)) if f[j].is_finite() && st.ea_n > 0.0 && st.ea_n.is_finite() => f[j] / st.ea_n,
+                    _ => 0.0,
+                })
+                .collect();
+            (l.iter().filter(|x| x.is_finite()).count() >= 4).then_some(Row { pos, l, te })
         })
         .collect()
 }
@@ -273,18 +301,25 @@ struct Solved {
 fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &[f64], sl: f64, opts: &BundleOptions) -> Option<Solved> {
     let n = anchors.len();
     let b = |j: usize| platform_points.get(j).copied().unwrap_or([0.0; 3]);
-    let m = 4 * n;
+    // Per cable A_x, A_y, A_z, L0 and, when the stiffness is fitted, its factor `s`.
+    let fit_ea = opts.stretch.filter(|s| s.rel_sigma > 0.0);
+    let np = if fit_ea.is_some() { 5 } else { 4 };
+    let m = np * n;
     let (st, k) = (opts.tracker_sigma_m, opts.huber_k);
-    let mut g: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j]]).collect();
+    let mut g: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j], 1.0].into_iter().take(np)).collect();
+    // The stretch factor of cable j (1 when not fitted).
+    let factor = |g: &[f64], j: usize| if np == 5 { g[np * j + 4] } else { 1.0 };
+    // The prior's cost on the stretch factors.
+    let prior = |g: &[f64]| fit_ea.map_or(0.0, |f| (0..n).map(|j| 0.5 * ((g[np * j + 4] - 1.0) / f.rel_sigma).powi(2)).sum());
     let mut p: Vec<[f64; 3]> = data.iter().map(|r| r.pos).collect();
     let cost = |g: &[f64], p: &[[f64; 3]]| -> f64 {
-        let mut c = 0.0;
+        let mut c = prior(g);
         for (r, pi) in data.iter().zip(p) {
             for j in 0..n {
                 if r.l[j].is_finite() {
-                    let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                    let a = [g[np * j], g[np * j + 1], g[np * j + 2]];
                     let d = model::norm(model::sub(add(*pi, b(j)), a));
-                    c += huber_cost((d + g[4 * j + 3] - r.l[j]) / sl, k);
+                    c += huber_cost((d * (1.0 - factor(g, j) * r.te[j]) + g[np * j + 3] - r.l[j]) / sl, k);
                 }
             }
             let e = model::sub(*pi, r.pos);
@@ -327,7 +362,7 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
             let before = if finishing { rhs.clone() } else { vec![] };
             let mut hpp = [[0.0; 3]; 3];
             let mut bp = [0.0; 3];
-            let mut cols: Vec<(usize, [f64; 3])> = Vec::with_capacity(4 * n);
+            let mut cols: Vec<(usize, [f64; 3])> = Vec::with_capacity(np * n);
             let e = model::sub(*pi, r.pos);
             // Quadratic: the tracker is what fixes the frame (a robust loss let a wrong model
             // drift it, e2e_effects' ideal-model run).
@@ -340,15 +375,19 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                 if !r.l[j].is_finite() {
                     continue;
                 }
-                let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                let a = [g[np * j], g[np * j + 1], g[np * j + 2]];
                 let v = model::sub(add(*pi, b(j)), a);
                 let d = model::norm(v);
-                let u = [v[0] / d, v[1] / d, v[2] / d];
-                let res = (d + g[4 * j + 3] - r.l[j]) / sl;
+                // The distance's share of the reading (1 less the stretch per metre).
+                let q = 1.0 - factor(&g, j) * r.te[j];
+                let u = [q * v[0] / d, q * v[1] / d, q * v[2] / d];
+                let res = (d * q + g[np * j + 3] - r.l[j]) / sl;
                 let w = huber_w(res, k) / (sl * sl);
                 let rr = res * sl;
-                // d res / d p = u, d res / d A = -u, d res / d L0 = 1 (times 1/sl, folded in w).
-                let jg = [-u[0], -u[1], -u[2], 1.0];
+                // d res / d p = u, d res / d A = -u, d res / d L0 = 1, d res / d s = -d T / EA
+                // (times 1/sl, folded in w).
+                let jg = [-u[0], -u[1], -u[2], 1.0, -d * r.te[j]];
+                let jg = &jg[..np];
                 for x in 0..3 {
                     for y in 0..3 {
                         hpp[x][y] += w * u[x] * u[y];
@@ -356,9 +395,9 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                     bp[x] -= w * u[x] * rr;
                 }
                 for (c, &jc) in jg.iter().enumerate() {
-                    let col = 4 * j + c;
+                    let col = np * j + c;
                     for (c2, &jc2) in jg.iter().enumerate() {
-                        s[col * m + 4 * j + c2] += w * jc * jc2;
+                        s[col * m + np * j + c2] += w * jc * jc2;
                     }
                     rhs[col] -= w * jc * rr;
                     cols.push((col, [w * u[0] * jc, w * u[1] * jc, w * u[2] * jc]));
@@ -392,6 +431,14 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                 for ((gx, after), b) in g.iter_mut().zip(&rhs).zip(&before) {
                     *gx += after - b;
                 }
+            }
+        }
+        // The stiffness prior (not in the time blocks' gradients: it is no data).
+        if let Some(f) = fit_ea {
+            for j in 0..n {
+                let x = np * j + 4;
+                s[x * m + x] += 1.0 / (f.rel_sigma * f.rel_sigma);
+                rhs[x] -= (g[x] - 1.0) / (f.rel_sigma * f.rel_sigma);
             }
         }
         for x in 0..m {
@@ -459,16 +506,17 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
         }
         for j in 0..n {
             if r.l[j].is_finite() {
-                let a = [g[4 * j], g[4 * j + 1], g[4 * j + 2]];
+                let a = [g[np * j], g[np * j + 1], g[np * j + 2]];
                 let v = model::sub(add(*pi, b(j)), a);
                 let d = model::norm(v);
-                let res = d + g[4 * j + 3] - r.l[j];
+                let q = 1.0 - factor(&g, j) * r.te[j];
+                let res = d * q + g[np * j + 3] - r.l[j];
                 sl2 += res * res;
                 nl += 1;
                 if res.abs() <= 4.0 * sl {
                     in2 += res * res;
                     n_in += 1;
-                    let u = [v[0] / d, v[1] / d, v[2] / d];
+                    let u = [q * v[0] / d, q * v[1] / d, q * v[2] / d];
                     for x in 0..3 {
                         for y in 0..3 {
                             lpart[x][y] += u[x] * u[y] / (sl * sl);
@@ -485,20 +533,30 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
     }
     let redundancy = n_in as f64 - hat - m as f64;
     let length_sigma_estimate = (redundancy > 0.1 * n_in as f64).then(|| (in2 / redundancy).sqrt());
+    let var: Vec<f64> = match &sandwich_var {
+        Some(sw) => diag_inv.iter().zip(sw).map(|(a, b)| a.max(*b)).collect(),
+        None => diag_inv.clone(),
+    };
+    // Anchors and offsets packed four per cable, as `Geometry` and `Sigmas` take them.
+    let four = |x: &[f64]| -> Vec<f64> { (0..n).flat_map(|j| x[np * j..np * j + 4].to_vec()).collect() };
+    let ea = opts.stretch.map(|st| {
+        (0..n)
+            .map(|j| match fit_ea {
+                // EA = EA_0 / s, its sigma to first order.
+                Some(_) => (st.ea_n / g[np * j + 4], st.ea_n * var[np * j + 4].max(0.0).sqrt() / (g[np * j + 4] * g[np * j + 4])),
+                None => (st.ea_n, 0.0),
+            })
+            .collect()
+    });
     let result = BundleResult {
-        params: Geometry::from_packed(&g, n),
-        sigma: Sigmas::from_variances(
-            &match &sandwich_var {
-                Some(sw) => diag_inv.iter().zip(sw).map(|(a, b)| a.max(*b)).collect::<Vec<f64>>(),
-                None => diag_inv.clone(),
-            },
-            n,
-        ),
+        params: Geometry::from_packed(&four(&g), n),
+        sigma: Sigmas::from_variances(&four(&var), n),
         samples: data.len(),
         length_rms_m: (sl2 / nl.max(1) as f64).sqrt(),
         tracker_rms_m: (st2 / (3 * data.len()) as f64).sqrt(),
         iterations,
         length_sigma_m: sl,
+        ea,
     };
     Some(Solved { result, length_sigma_estimate })
 }
@@ -604,6 +662,72 @@ mod tests {
         let est = refine(&rec, &[[0.0; 3]; 4], &truth, &l0, &o).unwrap();
         assert!(est.length_sigma_m > 2.0 * 5e-5, "estimated length sigma {:.4} mm", est.length_sigma_m * 1e3);
         assert!(est.length_sigma_m <= o.length_sigma_m, "never above the start");
+    }
+}
+
+#[cfg(test)]
+mod stretch_tests {
+    use super::*;
+    use crate::synth::Rng;
+
+    /// 2,000 samples in the box on cables of stiffness `ea` (N) under 10-60 N that vary with
+    /// the pose (as a platform's weight shares do), lengths as a drum pays them out:
+    /// `d / (1 + T / EA)`.
+    fn stretched(seed: u64, ea: f64) -> (Recording, [[f64; 3]; 4], [f64; 4]) {
+        let truth = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+        let l0 = [1.0, -0.5, 0.25, 2.0];
+        let mut rng = Rng::new(seed);
+        let mut rec = Recording::with_capacity(4, 2000, true, false, false);
+        for i in 0..2000 {
+            let p = [rng.range(-1.5, 1.5), rng.range(-0.8, 0.8), rng.range(1.2, 2.8)];
+            let (mut l, mut f) = ([0.0; 4], [0.0; 4]);
+            for j in 0..4 {
+                let d = model::norm(model::sub(p, truth[j]));
+                f[j] = 35.0 + 25.0 * ((p[0] * truth[j][0] + p[1] * truth[j][1]) / 6.0 + 0.3 * rng.normal()).tanh();
+                l[j] = d / (1.0 + f[j] / ea) + l0[j] + 5e-5 * rng.normal();
+            }
+            let m = [p[0] + 1.5e-3 * rng.normal(), p[1] + 1.5e-3 * rng.normal(), p[2] + 1.5e-3 * rng.normal()];
+            rec.push(i as f64 * 0.01, m, None, &l, Some(&f), None);
+        }
+        (rec, truth, l0)
+    }
+
+    #[test]
+    fn a_known_stiffness_takes_the_stretch_from_the_anchors() {
+        let (rec, truth, l0) = stretched(3, 2e5);
+        let start: Vec<[f64; 3]> = truth.iter().map(|a| [a[0] + 0.02, a[1] - 0.015, a[2] + 0.01]).collect();
+        let l0s: Vec<f64> = l0.iter().map(|x| x + 0.01).collect();
+        let worst =
+            |r: &BundleResult| r.params.anchors.iter().zip(&truth).map(|(a, t)| model::norm(model::sub(*a, *t))).fold(0.0, f64::max);
+        let base = BundleOptions { length_sigma_floor_m: 1e-5, ..Default::default() };
+        let ideal = refine(&rec, &[[0.0; 3]; 4], &start, &l0s, &base).unwrap();
+        assert!(ideal.ea.is_none());
+        // The datasheet 15 % soft, fitted within +-20 %; and taken as exact.
+        let fitted =
+            refine(&rec, &[[0.0; 3]; 4], &start, &l0s, &BundleOptions { stretch: Some(Stretch { ea_n: 1.7e5, rel_sigma: 0.2 }), ..base })
+                .unwrap();
+        let exact =
+            refine(&rec, &[[0.0; 3]; 4], &start, &l0s, &BundleOptions { stretch: Some(Stretch { ea_n: 2e5, rel_sigma: 0.0 }), ..base })
+                .unwrap();
+        assert!(worst(&exact) < 0.2 * worst(&ideal), "exact EA {:.3} mm, ideal {:.3} mm", worst(&exact) * 1e3, worst(&ideal) * 1e3);
+        assert!(worst(&fitted) < 0.3 * worst(&ideal), "fitted EA {:.3} mm, ideal {:.3} mm", worst(&fitted) * 1e3, worst(&ideal) * 1e3);
+        assert_eq!(exact.ea.as_ref().unwrap(), &vec![(2e5, 0.0); 4]);
+        for (j, &(ea, sd)) in fitted.ea.as_ref().unwrap().iter().enumerate() {
+            assert!(sd > 0.0 && sd < 0.2 * 1.7e5, "cable {j}: EA sigma {sd}");
+            assert!((ea - 2e5).abs() < 4.0 * sd, "cable {j}: EA {ea:.0} ± {sd:.0} N, truth 200000");
+        }
+        // Honest sigmas with the stiffness fitted: every coordinate within 4.5 of its sigmas.
+        for (j, (a, t)) in fitted.params.anchors.iter().zip(&truth).enumerate() {
+            for x in 0..3 {
+                let e = (a[x] - t[x]).abs();
+                assert!(
+                    e < 4.5 * fitted.sigma.anchors[j][x],
+                    "anchor {j}[{x}] off {:.3} mm, sigma {:.3} mm",
+                    e * 1e3,
+                    fitted.sigma.anchors[j][x] * 1e3
+                );
+            }
+        }
     }
 }
 

@@ -128,6 +128,13 @@ pub struct CalibrationConfig {
     /// Expected axial stiffness EA of the cables, N. Sets how fast the variance of a length reading
     /// grows with tension x length (unobserved stretch T·L/EA).
     pub cable_ea_n: f64,
+    /// 1-sigma of `cable_ea_n`, N: the datasheet's tolerance of the cables' stiffness. 0 (the
+    /// default): `cable_ea_n` is a guess and only sets the variance above. Above 0: the
+    /// stiffness is known, and the calibration with a tracker models each reading's stretch
+    /// `T L / EA` (the tension-tagged samples) instead of leaving it to the anchors, with each
+    /// cable's EA fitted within this prior (docs/effects.md).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub cable_ea_sigma_n: f64,
     /// Fraction of the recording held out for validation (with a tracker: the ends of eight
     /// time blocks of the excitation; without: every `1/fraction`-th dwell).
     pub heldout_fraction: f64,
@@ -193,6 +200,7 @@ impl Default for CalibrationConfig {
             tracker_sigma_m: 1.5e-3,
             encoder_sigma_m: 0.05e-3,
             cable_ea_n: 2.0e5,
+            cable_ea_sigma_n: 0.0,
             heldout_fraction: 0.2,
             weak_sigma_m: 2e-3,
             // An estimate known to 10 cm still improves on a tape-measured nominal geometry
@@ -468,10 +476,23 @@ impl RobotConfig {
             ("tracker_sigma_m", cal.tracker_sigma_m),
             ("encoder_sigma_m", cal.encoder_sigma_m),
             ("cable_ea_n", cal.cable_ea_n),
+            ("cable_ea_sigma_n", cal.cable_ea_sigma_n),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(err(cal_line, format!("calibration.{k}"), format!("must be a finite non-negative number, got {v}")));
             }
+        }
+        // A stiffness known to its tolerance needs a stiffness, and a tolerance below it (a
+        // sigma of EA or more says nothing of the stretch).
+        if cal.cable_ea_sigma_n > 0.0 && !(cal.cable_ea_n > 0.0 && cal.cable_ea_sigma_n < cal.cable_ea_n) {
+            return Err(err(
+                key_line(text, "[calibration]", "cable_ea_sigma_n").or(cal_line),
+                "calibration.cable_ea_sigma_n".into(),
+                format!(
+                    "the stiffness's 1-sigma {} N must be below calibration.cable_ea_n = {} N (a datasheet's tolerance, e.g. 15 % of it); 0 leaves the stretch unmodelled",
+                    cal.cable_ea_sigma_n, cal.cable_ea_n
+                ),
+            ));
         }
         if !(cal.heldout_fraction >= 0.0 && cal.heldout_fraction < 0.9) {
             return Err(err(cal_line, "calibration.heldout_fraction".into(), format!("must be in [0, 0.9), got {}", cal.heldout_fraction)));
@@ -672,6 +693,23 @@ mod tests {
             assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(7)), "{e}");
             assert!(e.to_string().contains(words), "{e}");
         }
+    }
+
+    #[test]
+    fn a_known_cable_stiffness_is_validated_on_its_line() {
+        let base = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n[calibration]\ncable_ea_n = 1e6\n";
+        assert_eq!(RobotConfig::from_toml_str(base).unwrap().calibration.cable_ea_sigma_n, 0.0);
+        let c = RobotConfig::from_toml_str(&format!("{base}cable_ea_sigma_n = 1.5e5\n")).unwrap();
+        assert_eq!(c.calibration.cable_ea_sigma_n, 1.5e5);
+        for (extra, words) in
+            [("cable_ea_sigma_n = 2e6\n", "must be below calibration.cable_ea_n"), ("cable_ea_sigma_n = -1.0\n", "non-negative")]
+        {
+            let e = RobotConfig::from_toml_str(&format!("{base}{extra}")).unwrap_err();
+            assert_eq!(e.key.as_deref(), Some("calibration.cable_ea_sigma_n"), "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
+        let e = RobotConfig::from_toml_str(&format!("{base}cable_ea_sigma_n = 2e6\n")).unwrap_err();
+        assert_eq!(e.line, Some(9), "{e}");
     }
 
     #[test]

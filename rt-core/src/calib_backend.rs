@@ -23,6 +23,9 @@ pub struct TautCalib {
     start_effects: Effects,
     /// Without a tracker (`motion.startup = "dwell"`): the self-calibration's options.
     selfcal: Option<taut_calib::selfcal::SelfCalOptions>,
+    /// The cables' stretch modelled in the refinement: the stiffness known to its tolerance
+    /// (`[calibration] cable_ea_sigma_n` above 0).
+    stretch: Option<taut_calib::bundle::Stretch>,
 }
 
 impl TautCalib {
@@ -41,6 +44,7 @@ impl TautCalib {
             effects: cfg.calibration.effects.clone(),
             start_effects: Effects::default(),
             selfcal: crate::notracker::is_dwell(cfg).then(|| taut_calib::selfcal::SelfCalOptions::from_config(cfg)),
+            stretch: stretch_of(&cfg.calibration),
         }
     }
 
@@ -101,7 +105,10 @@ impl TautCalib {
     /// aligns the data from the start).
     pub fn with_params(mut self, file: &ParamsFile) -> TautCalib {
         for name in file.effects.names() {
-            if !self.effects.iter().any(|e| e == name) {
+            // A known stiffness (`cable_ea_sigma_n`): the refinement models the stretch, and a
+            // file written by it carries the fitted EA.
+            let refined = name == "elasticity" && self.stretch.is_some();
+            if !refined && !self.effects.iter().any(|e| e == name) {
                 self.effects.push(name.to_string());
             }
         }
@@ -170,6 +177,7 @@ impl TautCalib {
             min_tension_n: self.opts.min_tension_n,
             // The length noise from the residuals, never below the encoders' (see `bundle::refine`).
             length_sigma_floor_m: crate::excite::length_sigma_floor_m(self.opts.encoder_sigma_m),
+            stretch: self.stretch,
             ..Default::default()
         };
         let b = taut_calib::bundle::refine(rec, &self.platform, anchors, l0, &o)?;
@@ -209,9 +217,16 @@ impl Calibrate for TautCalib {
         }
         // Every taut cable's length at once, with the platform positions as unknowns: the
         // redundant cables (the follower too) pin the geometry better than the tracker alone.
+        // Only the file's time offset: it aligns the excitation data the calibration gets.
+        // The other effects belong to anchors fitted with them, which the initial estimate's
+        // are not; they return with the calibration. The stretch of a known stiffness is
+        // fitted with them in the refinement: its EA goes with them (the loop's inverse
+        // kinematics and the held-out check model the same stretch).
+        let mut effects = Effects { time_offset_s: self.start_effects.time_offset_s, ..Effects::default() };
         if let Some(b) = self.refine(rec, &anchors, &l0) {
+            note.push_str(&format!("; refined on all cables ({} samples, errors-in-variables{})", b.samples, stretch_note(&b)));
+            with_stretch(&mut effects, &b);
             (anchors, l0) = (b.params.anchors, b.params.l0);
-            note.push_str(&format!("; refined on all cables ({} samples, errors-in-variables)", b.samples));
         }
         Ok(Estimate {
             model_consistent: None,
@@ -220,10 +235,7 @@ impl Calibrate for TautCalib {
             rms_m: f64::NAN,
             observable: true,
             note,
-            // Only the file's time offset: it aligns the excitation data the calibration gets.
-            // The other effects belong to anchors fitted with them, which the initial estimate's
-            // are not; they return with the calibration.
-            effects: Effects { time_offset_s: self.start_effects.time_offset_s, ..Effects::default() },
+            effects,
         })
     }
 
@@ -260,16 +272,20 @@ impl Calibrate for TautCalib {
             // per-cable first pass (which named parameters the refinement determines well).
             weak = taut_calib::WeakParam::of_sigmas(&b.sigma, self.opts.weak_sigma_m).iter().map(|w| w.to_string()).collect();
         }
+        let mut effects = Effects { time_offset_s: init.effects.time_offset_s, ..Effects::default() };
+        if let Some(b) = &refined {
+            with_stretch(&mut effects, b);
+        }
         let (geometry, sigma, how) = match refined {
-            Some(b) => (
-                b.params,
-                b.sigma,
-                format!(
-                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm)",
+            Some(b) => {
+                let how = format!(
+                    ", refined on all cables ({} samples, errors-in-variables, length noise {:.3} mm{})",
                     b.samples,
-                    b.length_sigma_m * 1e3
-                ),
-            ),
+                    b.length_sigma_m * 1e3,
+                    stretch_note(&b)
+                );
+                (b.params, b.sigma, how)
+            }
             None => (r.params, r.sigma, String::new()),
         };
         // With effects: all of it again, the effects' parameters with the anchors and offsets
@@ -294,9 +310,35 @@ impl Calibrate for TautCalib {
             rms_m: r.rms_m,
             observable: true,
             note: std::iter::once(format!("{} readings{how}", r.samples_used)).chain(check).chain(weak).collect::<Vec<_>>().join("; "),
-            effects: Effects { time_offset_s: init.effects.time_offset_s, ..Effects::default() },
+            effects,
         })
     }
+}
+
+/// The refinement's modelled stretch for a note: `, stretch modelled: EA 950±70, ... kN`.
+fn stretch_note(b: &taut_calib::bundle::BundleResult) -> String {
+    b.ea.as_ref().map_or(String::new(), |ea| {
+        format!(
+            ", stretch modelled: EA {} kN",
+            ea.iter().map(|(v, s)| format!("{:.0}±{:.0}", v / 1e3, s / 1e3)).collect::<Vec<_>>().join(", ")
+        )
+    })
+}
+
+/// The refinement's fitted stiffness as the estimate's `elasticity` effect (the loop then
+/// models the stretch the anchors and offsets were fitted with).
+fn with_stretch(effects: &mut Effects, b: &taut_calib::bundle::BundleResult) {
+    if let Some(ea) = &b.ea {
+        effects.ea_n = Some(ea.iter().map(|e| e.0).collect());
+        effects.ea_sigma_n = Some(ea.iter().map(|e| e.1).collect());
+    }
+}
+
+/// The stretch the refinement models: with `cable_ea_sigma_n` above 0 the configured stiffness
+/// is a datasheet value (validated below `cable_ea_n`), else none.
+fn stretch_of(c: &taut_config::CalibrationConfig) -> Option<taut_calib::bundle::Stretch> {
+    (c.cable_ea_sigma_n > 0.0 && c.cable_ea_n > 0.0 && c.cable_ea_n.is_finite())
+        .then(|| taut_calib::bundle::Stretch { ea_n: c.cable_ea_n, rel_sigma: c.cable_ea_sigma_n / c.cable_ea_n })
 }
 
 /// Median of `l - |p + b - a|` over the taut readings of cable `j`.

@@ -302,8 +302,9 @@ impl Recorder {
     }
 }
 
-/// The recent encoder lengths with the times they were measured (`t - length_age`), to read
-/// them at the instant a tracker pose was measured.
+/// The recent encoder lengths (or load-cell tensions) with the times they were measured
+/// (`t - length_age`, `t - tension_age`), to read them at the instant a tracker pose was
+/// measured.
 #[derive(Debug, Default)]
 struct LengthHistory {
     rows: std::collections::VecDeque<([f64; crate::MAX_CABLES], [f64; crate::MAX_CABLES])>,
@@ -317,9 +318,14 @@ const MAX_EXTRAPOLATION_S: f64 = 0.01;
 
 impl LengthHistory {
     fn push(&mut self, s: &Sample, n: usize) {
+        self.push_readings(s.t, &s.length_age_s, &s.length_m, n);
+    }
+
+    /// The readings `v` of a sample at `t`, each `age` old.
+    fn push_readings(&mut self, now: f64, age: &[f64; crate::MAX_CABLES], v: &[f64; crate::MAX_CABLES], n: usize) {
         let mut t = [f64::NAN; crate::MAX_CABLES];
-        for (tj, age) in t[..n].iter_mut().zip(&s.length_age_s[..n]) {
-            *tj = s.t - age.max(0.0);
+        for (tj, age) in t[..n].iter_mut().zip(&age[..n]) {
+            *tj = now - age.max(0.0);
         }
         if self.rows.back().is_some_and(|(tb, _)| tb[..n] == t[..n]) {
             return;
@@ -327,7 +333,7 @@ impl LengthHistory {
         if self.rows.len() == HISTORY {
             self.rows.pop_front();
         }
-        self.rows.push_back((t, s.length_m));
+        self.rows.push_back((t, *v));
     }
 
     /// Has every cable with readings a reading at or after `at`? Then [`LengthHistory::at`]
@@ -344,12 +350,18 @@ impl LengthHistory {
     /// extrapolated from the last two readings, up to [`MAX_EXTRAPOLATION_S`]; older than the
     /// history, the oldest reading.
     fn at(&self, j: usize, at: f64) -> f64 {
+        self.at_within(j, at, MAX_EXTRAPOLATION_S)
+    }
+
+    /// [`LengthHistory::at`], extrapolating at most `max_extrapolation_s` past the newest
+    /// reading (0: the newest reading is held).
+    fn at_within(&self, j: usize, at: f64, max_extrapolation_s: f64) -> f64 {
         // Cable j's readings, newest first.
         let mut it = self.rows.iter().rev().filter_map(|(t, l)| (t[j].is_finite() && l[j].is_finite()).then_some((t[j], l[j])));
         let Some(mut b) = it.next() else { return f64::NAN };
         if at >= b.0 {
             return match it.next() {
-                Some(a) if b.0 > a.0 && at - b.0 <= MAX_EXTRAPOLATION_S => b.1 + (at - b.0) / (b.0 - a.0) * (b.1 - a.1),
+                Some(a) if b.0 > a.0 && at - b.0 <= max_extrapolation_s => b.1 + (at - b.0) / (b.0 - a.0) * (b.1 - a.1),
                 _ => b.1,
             };
         }
@@ -367,6 +379,11 @@ impl LengthHistory {
 /// cycles late on a loaded machine); after that its lengths are extrapolated.
 const MAX_PENDING_S: f64 = 0.02;
 
+/// Longest a tracker row waits for every load cell's next reading after its pose's instant, s
+/// (a polling round of four cells at 115200 baud is ~15 ms; a lost frame or a slower bus
+/// more); after that a cable's tension is its newest reading.
+const MAX_PENDING_TENSION_S: f64 = 0.1;
+
 /// The data set a tracker row goes to.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum RowSet {
@@ -381,7 +398,19 @@ enum RowSet {
 ///
 /// With a time offset `delta` in the running parameters (the encoders lag the tracker: a
 /// reading at `t` is the length at `t - delta`), the lengths are read at `t_pose + delta`.
-fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &CalibratorConfig, time_offset_s: f64) {
+///
+/// The tensions likewise, interpolated at the lengths' instant between the load cells'
+/// readings around it (a cell's reading is up to a polling round old; while the platform
+/// swings the tension, and with it a cable's stretch `T L / EA`, changes within a round). A
+/// cable whose newest reading at the sample is older than `tension_max_age_s` has none.
+fn push_sample(
+    rec: &mut Recording,
+    hist: &LengthHistory,
+    tensions: &LengthHistory,
+    s: &Sample,
+    cfg: &CalibratorConfig,
+    time_offset_s: f64,
+) {
     let n = cfg.n;
     let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
     let tp = s.t - s.pose_age_s.max(0.0);
@@ -390,9 +419,9 @@ fn push_sample(rec: &mut Recording, hist: &LengthHistory, s: &Sample, cfg: &Cali
         *x = hist.at(j, tp + time_offset_s);
     }
     let mut f = [f64::NAN; crate::MAX_CABLES];
-    for ((fj, &age), &tension) in f[..n].iter_mut().zip(&s.tension_age_s[..n]).zip(&s.tension_n[..n]) {
+    for (j, (fj, &age)) in f[..n].iter_mut().zip(&s.tension_age_s[..n]).enumerate() {
         if age <= cfg.tension_max_age_s {
-            *fj = tension;
+            *fj = tensions.at_within(j, tp + time_offset_s, 0.0);
         }
     }
     rec.push(tp, p, None, &l[..n], Some(&f[..n]), Some(i32::from(s.phase)));
@@ -590,8 +619,11 @@ pub struct Calibrator {
     prev_state: State,
     prev_sample: Option<Sample>,
     lengths: LengthHistory,
-    /// A fresh tracker row waiting for the encoder readings after its pose (see `on_sample`).
-    pending: Option<(Sample, RowSet)>,
+    /// The load cells' recent readings, as `lengths`.
+    tensions: LengthHistory,
+    /// Fresh tracker rows waiting for the encoder and load-cell readings after their poses (see
+    /// `on_sample`), oldest first.
+    pending: std::collections::VecDeque<(Sample, RowSet)>,
     decim: usize,
     current: Option<Estimate>,
     current_params: LoopParams,
@@ -634,7 +666,8 @@ impl Calibrator {
             prev_state: State::Idle,
             prev_sample: None,
             lengths: LengthHistory::default(),
-            pending: None,
+            tensions: LengthHistory::default(),
+            pending: std::collections::VecDeque::new(),
             decim: 0,
             current: None,
             current_params: LoopParams::invalid(n),
@@ -773,6 +806,7 @@ impl Calibrator {
         let prev = self.prev_state;
         self.prev_state = state;
         self.lengths.push(s, self.cfg.n);
+        self.tensions.push_readings(s.t, &s.tension_age_s, &s.tension_n, self.cfg.n);
         // A row waiting for its lengths goes into its set before the set is handed on.
         self.flush_pending(s.t, state != prev);
         if state != prev {
@@ -800,29 +834,34 @@ impl Calibrator {
         // of the cycle before; the tracker's datagram comes within a millisecond): read at
         // once, the lengths would be extrapolated from the last two readings, which multiplies
         // their noise ((1 + f) l_k - f l_(k-1), f up to ~1.5: the refinement measured 0.11 mm
-        // on 0.05 mm encoders). The row waits for the next readings and is interpolated.
-        self.flush_pending(s.t, true);
-        self.pending = Some((*s, set));
+        // on 0.05 mm encoders). The row waits for the next readings and is interpolated; and
+        // for the load cells' next readings, up to a polling round later.
+        self.pending.push_back((*s, set));
         self.flush_pending(s.t, false);
     }
 
-    /// Appends the waiting tracker row once the encoder readings cover its pose's instant
-    /// (`force`: now, e.g. before its data set is handed on).
+    /// Appends the waiting tracker rows, oldest first, once the encoder readings cover a
+    /// row's pose instant (after [`MAX_PENDING_S`]: extrapolated) and the load cells' readings
+    /// do too (after [`MAX_PENDING_TENSION_S`]: the newest held); `force`: all now, e.g.
+    /// before their data set is handed on.
     fn flush_pending(&mut self, now_t: f64, force: bool) {
-        let Some((p, set)) = self.pending else { return };
         let offset = self.current_params.effects.time_offset_s;
-        let at = p.t - p.pose_age_s.max(0.0) + offset;
-        if !(force || self.lengths.covers(self.cfg.n, at) || now_t - p.t > MAX_PENDING_S) {
-            return;
+        while let Some(&(p, set)) = self.pending.front() {
+            let at = p.t - p.pose_age_s.max(0.0) + offset;
+            let lengths = self.lengths.covers(self.cfg.n, at) || now_t - p.t > MAX_PENDING_S;
+            let tensions = self.tensions.covers(self.cfg.n, at) || now_t - p.t > MAX_PENDING_TENSION_S;
+            if !(force || lengths && tensions) {
+                return;
+            }
+            self.pending.pop_front();
+            let rec = match set {
+                RowSet::Init => &mut self.init_set,
+                RowSet::Excitation => &mut self.exc_set,
+            };
+            push_sample(rec, &self.lengths, &self.tensions, &p, &self.cfg, offset);
+            let len = rec.len();
+            self.status.lock().unwrap().dataset_samples = len;
         }
-        self.pending = None;
-        let rec = match set {
-            RowSet::Init => &mut self.init_set,
-            RowSet::Excitation => &mut self.exc_set,
-        };
-        push_sample(rec, &self.lengths, &p, &self.cfg, offset);
-        let len = rec.len();
-        self.status.lock().unwrap().dataset_samples = len;
     }
 
     /// Without a tracker: every `decimation`-th sample of a recorded dwell (phase label >= 0),
@@ -1315,6 +1354,71 @@ mod tests {
                 assert!(err.abs() <= e * (1.0 + 1e-9), "row {i} cable {j}: {err:e}");
             }
         }
+    }
+
+    /// The dynamic plant's start-up: a load cell's reading is up to a polling round old while
+    /// the swing changes the tension, and with it the stretch the refinement models. A tracker
+    /// row's tensions are interpolated at its instant between the readings around it.
+    #[test]
+    fn tracker_rows_interpolate_the_tensions_between_the_polling_rounds() {
+        let cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
+        let mut ccfg = CalibratorConfig::from_robot(&cfg);
+        ccfg.decimation = 1;
+        let n = ccfg.n;
+        let (_tx, rx) = crate::sample::sample_ring(16);
+        let (params_tx, _params_rx) = crate::triple::triple_buffer(LoopParams::invalid(n));
+        let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
+        let mut c = Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap();
+        // Tensions rising at 200 N/s; the cells read in turn, a round every 16 ms (cable j at
+        // 4 j ms into it); encoders every 2 ms; a pose every 10 ms, 0.5 ms old.
+        let truth = |j: usize, t: f64| 20.0 + 5.0 * j as f64 + 200.0 * t;
+        let mut s = Sample::empty(n);
+        s.state = State::Excitation as u8;
+        s.phase = 0;
+        let mut read = [f64::NAN; crate::MAX_CABLES];
+        let mut pose_t = f64::NAN;
+        for k in 0..200 {
+            let t = 0.002 * f64::from(k);
+            s.t = t;
+            s.length_m[..n].fill(3.0);
+            s.length_age_s[..n].fill(0.002);
+            for (j, rj) in read[..n].iter_mut().enumerate() {
+                if (k % 8) as usize == 2 * j {
+                    *rj = t;
+                    s.tension_n[j] = truth(j, t);
+                }
+                s.tension_age_s[j] = t - *rj;
+            }
+            if k % 5 == 0 {
+                pose_t = t - 0.0005;
+                s.pose_m = [t, 0.0, 2.0];
+            }
+            s.pose_age_s = t - pose_t;
+            c.on_sample(&s);
+        }
+        let rows = c.exc_set.len();
+        assert!(rows >= 36, "{rows} rows");
+        let mut held = 0.0f64;
+        for i in 0..rows {
+            for (j, &fj) in c.exc_set.tensions(i).unwrap().iter().enumerate() {
+                if fj.is_nan() {
+                    // Before the cell's first reading.
+                    assert!(c.exc_set.t[i] < 0.004 * j as f64, "row {i} cable {j}");
+                    continue;
+                }
+                let t = c.exc_set.t[i];
+                let err = fj - truth(j, t);
+                // Before a cell's second reading there is nothing to interpolate between.
+                if t > 0.004 * j as f64 + 0.016 {
+                    assert!(err.abs() < 1e-9, "row {i} cable {j}: {err:e} N");
+                    // The newest reading at the row's instant, which the row held before.
+                    let newest = ((t - 0.004 * j as f64) / 0.016).floor() * 0.016 + 0.004 * j as f64;
+                    held = held.max(200.0 * (t - newest));
+                }
+            }
+        }
+        // That was up to a round (3.2 N) off.
+        assert!(held > 2.0, "{held}");
     }
 
     #[test]

@@ -4,28 +4,53 @@
 //! and during the excitation, and the tensions carry `m a`.
 //!
 //! Asserted, seeds 1-5 (`TAUT_DYNAMIC_SEEDS`): the three phases complete, the calibration is
-//! accepted and hot-swapped, no fault latches. The anchors' error against the truth is printed
-//! (`RESULT`) and bounded by the stretch the ideal model leaves out (below): it is not the 1 mm
-//! of the quasi-static plant's cables, which do not stretch.
+//! accepted and hot-swapped, no fault latches, and the worst anchor is within 1 mm of the truth
+//! ([`ACCEPTANCE_M`]: the quasi-static plant's accuracy, issue 27). The anchors' errors, their
+//! sigmas and the fitted stiffnesses are printed (`RESULT`).
 //!
-//! # Why the bound is what it is
+//! # The stretch, modelled
 //!
-//! The robot calibrates with the ideal model (no `elasticity` effect). A 1 MN cable of 4-6 m
-//! stretches `T L / EA` = 0.04-0.36 mm over the 10-60 N the start-up's cables carry, and the
-//! anchors absorb the variation of that stretch over the excitation. Measured (2026-11-28): the
-//! quasi-static plant with the same 1 MN stretch gives 1.9 and 1.6 mm (seeds 1, 2; honest sigmas
-//! of 0.29-0.33 mm), with 300 kN 6.2 mm (seed 1). The dynamic plant gives 2.6-3.0 mm on seeds 1-5
-//! with sigmas of 0.47-0.55 mm: about 1 mm more, from the swing (a load cell's reading is up to
-//! a polling round old while the swing changes the stretch). [`STRETCH_BOUND_M`] is 5 mm, under
-//! twice the largest measured; 1 mm on this plant needs the stretch modelled (open, docs/testing.md).
+//! A 1 MN cable of 4-6 m stretches `T L / EA` = 0.04-0.36 mm over the 10-60 N the start-up's
+//! cables carry. With the ideal model the anchors absorb the variation of that stretch over the
+//! excitation: 2.6-3.0 mm worst anchor on seeds 1-5 (sigmas 0.47-0.55 mm; the quasi-static
+//! plant with the same stretch 1.6-1.9 mm). The robot's configuration here says what a
+//! datasheet would: the cables' stiffness, 0.9 MN with a 1-sigma of 0.15 MN
+//! (`calibration.cable_ea_n`, `cable_ea_sigma_n`; the truth, 1 MN, is 0.7 sigma off). The
+//! refinement then models each reading's stretch from its tension, each cable's EA fitted
+//! within that prior, and the estimate carries the fitted EA to the loop (docs/effects.md). The
+//! calibrator reads a row's tensions at its pose's instant between the load cells' readings
+//! around it (a reading is up to a polling round, ~15 ms, old while the swing changes the
+//! tension).
+//!
+//! Measured (2026-11-29), worst anchor on seeds 1-5: 0.78 / 0.40 / 0.57 / 0.80 / 0.55 mm,
+//! sigmas 0.33-0.36 mm (a datasheet of 1.1 MN: 0.56 / 0.36 / 0.49 / 0.88 / 0.69 mm; the exact
+//! 1 MN taken as known: 0.43 / 0.49 / 0.47 / 0.70 / 0.38 mm). The fitted stiffnesses lean the
+//! same way on every seed (cable 0 softer, 0.72-0.88 MN; cable 2 stiffer, 1.2-1.6 MN), and the
+//! worst coordinate is 1.6-4.4 of its sigmas: the sigmas are about 1.5 times too small there.
+//! What is left is the simulated load cells' timing. A polling round runs at one simulated
+//! instant against the plant's last step, so every cell answers with the tension at the round's
+//! start, and each reading is stamped when its response is complete: cell `j`'s reading is about
+//! `4 (j + 1)` ms older than its age says (a real cell answers with what it measured just
+//! before the request). Read that much later from the history (an experiment, not in the
+//! robot's code: `3.5 (j + 1)` ms), cable 2's fitted EA is 1.03-1.13 MN, the worst anchor
+//! 0.45-0.66 mm and the worst coordinate 2.1-3.6 sigma; cable 0's lean (0.77-0.87 MN) stays,
+//! unexplained. A cubic through four readings instead
+//! of the straight line between two changed nothing (0.54-0.84 mm): the rounds are fast enough
+//! for the swing. The bound is the acceptance itself, the seeds' worst 0.8 mm.
 
 use taut_simrig::SimOptions;
 
 /// The phases' reel on the dynamic plant, m.
 pub const DYNAMIC_REEL_M: f64 = -0.5;
 
-/// The bound on the worst anchor error the unmodelled stretch allows (module doc), m.
-const STRETCH_BOUND_M: f64 = 5e-3;
+/// The acceptance: the worst anchor within this of the truth, m (issue 27).
+const ACCEPTANCE_M: f64 = 1e-3;
+
+/// The cables' stiffness as a datasheet gives it, N: 10 % below the plant's 1 MN.
+const DATASHEET_EA_N: f64 = 0.9e6;
+
+/// Its tolerance, 1-sigma, N (17 %).
+const DATASHEET_EA_SIGMA_N: f64 = 0.15e6;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
@@ -39,6 +64,9 @@ fn startup(seed: u64) -> (f64, f64) {
     // A swinging platform reeled the example's 0.85 m climbs to 3.65 m under 4 m anchors and
     // its held cables go slack: the phases reel 0.5 m (the default of `motion.init_reel_m`).
     cfg.motion.init_reel_m = DYNAMIC_REEL_M;
+    // What the robot's configuration knows of its cables (module doc).
+    cfg.calibration.cable_ea_n = DATASHEET_EA_N;
+    cfg.calibration.cable_ea_sigma_n = DATASHEET_EA_SIGMA_N;
     let mut so = SimOptions { seed, ..Default::default() };
     so.physics.dynamics = Some(taut_sim::Dynamics::default());
     let (run, cal) = taut_tests::startup::accepted_in_sim_time(&cfg, &so, "dynamic");
@@ -49,8 +77,11 @@ fn startup(seed: u64) -> (f64, f64) {
     let errs: Vec<f64> = ce.geometry.anchors.iter().zip(&run.truth.anchors).map(|(a, t)| dist(a, t)).collect();
     let worst = errs.iter().cloned().fold(0.0, f64::max);
     let sigma = ce.sigma.anchors.iter().map(|s| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt()).fold(0.0, f64::max);
+    // The largest coordinate error in its own sigmas (honest sigmas: a few at most).
+    let z = ce.geometry.anchors.iter().zip(&run.truth.anchors).zip(&ce.sigma.anchors);
+    let z = z.flat_map(|((a, t), s)| (0..3).map(move |x| (a[x] - t[x]).abs() / s[x])).fold(0.0, f64::max);
     eprintln!(
-        "RESULT seed {seed} dynamic: worst anchor error {:.3} mm, worst anchor sigma {:.3} mm, errors {:?} mm; {:.1} s simulated in {:.1} s; note {}",
+        "RESULT seed {seed} dynamic: worst anchor error {:.3} mm, worst anchor sigma {:.3} mm, worst coordinate {z:.1} sigma, errors {:?} mm; {:.1} s simulated in {:.1} s; note {}",
         worst * 1e3,
         sigma * 1e3,
         errs.iter().map(|e| (e * 1e5).round() / 100.0).collect::<Vec<_>>(),
@@ -69,7 +100,7 @@ fn tracker_start_up_on_the_dynamic_plant() {
     let mut failures = Vec::new();
     for seed in seeds {
         let (worst, _) = startup(seed);
-        if worst > STRETCH_BOUND_M {
+        if worst > ACCEPTANCE_M {
             failures.push(format!("seed {seed}: worst anchor error {:.2} mm", worst * 1e3));
         }
     }
