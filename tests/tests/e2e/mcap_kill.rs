@@ -10,22 +10,38 @@ use std::time::{Duration, Instant};
 use taut_config::recording::Recording;
 use taut_tests::mcap::{count, read_with_python};
 
+/// The daemon under test, killed when the test ends however it ends: a failed assertion must not
+/// leave a simulated robot running beside the rest of the suite.
+struct Daemon(std::process::Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 #[test]
 fn killed_writer_leaves_every_closed_chunk_readable() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let mut child = Command::new(taut_bin())
-        .args(["start", "--sim", "--data-dir", data.to_str().unwrap(), "--socket", dir.path().join("s.sock").to_str().unwrap()])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = Daemon(
+        Command::new(taut_bin())
+            .args(["start", "--sim", "--data-dir", data.to_str().unwrap(), "--socket", dir.path().join("s.sock").to_str().unwrap()])
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(dir.path().join("taut.log")).unwrap())
+            .spawn()
+            .unwrap(),
+    );
     let recs = data.join("recordings");
     let find = |ext: &str| std::fs::read_dir(&recs).ok()?.flatten().map(|e| e.path()).find(|p| p.extension().is_some_and(|x| x == ext));
     // Run until the MCAP file holds several chunks (a few seconds of the start-up).
     let t0 = Instant::now();
     loop {
-        assert!(t0.elapsed() < Duration::from_secs(120), "no MCAP recording grew in {}", recs.display());
+        assert!(t0.elapsed() < Duration::from_secs(120), "no MCAP recording grew in {}; the daemon's log:\n{}", recs.display(), {
+            let log = std::fs::read_to_string(dir.path().join("taut.log")).unwrap_or_default();
+            log.lines().rev().take(30).collect::<Vec<_>>().into_iter().rev().collect::<Vec<_>>().join("\n")
+        });
         if let Some(p) = find("mcap") {
             if std::fs::metadata(&p).map_or(0, |m| m.len()) > 3 << 20 {
                 break;
@@ -33,8 +49,8 @@ fn killed_writer_leaves_every_closed_chunk_readable() {
         }
         std::thread::sleep(Duration::from_millis(50));
     }
-    child.kill().unwrap(); // SIGKILL: no destructor, no summary, no footer.
-    child.wait().unwrap();
+    child.0.kill().unwrap(); // SIGKILL: no destructor, no summary, no footer.
+    child.0.wait().unwrap();
     let mcap = find("mcap").unwrap();
     let csv = find("csv").unwrap();
 
