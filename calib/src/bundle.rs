@@ -566,6 +566,20 @@ mod tests {
     use super::*;
     use crate::synth::Rng;
 
+    /// Every anchor coordinate of `r` within `k` of its own sigma of `truth`.
+    pub(super) fn assert_within_sigmas(r: &BundleResult, truth: &[[f64; 3]], k: f64) {
+        for (j, (a, t)) in r.params.anchors.iter().zip(truth).enumerate() {
+            for x in 0..3 {
+                let e = (a[x] - t[x]).abs();
+                assert!(
+                    e < k * r.sigma.anchors[j][x],
+                    "anchor {j}[{x}] off {:.3} mm, sigma {:.3} mm",
+                    e * 1e3,
+                    r.sigma.anchors[j][x] * 1e3
+                );
+            }
+        }
+    }
     #[test]
     fn redundant_cables_refine_the_anchors_beyond_the_calibration() {
         let truth = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
@@ -637,17 +651,7 @@ mod tests {
         let worst_sigma = |r: &BundleResult| r.sigma.anchors.iter().flatten().fold(0.0f64, |a, s| a.max(*s));
         assert!(worst_sigma(&est) < 0.7 * worst_sigma(&fixed), "{} vs {}", worst_sigma(&est), worst_sigma(&fixed));
         // The sigmas are honest: every coordinate within 4.5 of its sigmas (12 comparisons).
-        for (j, (a, t)) in est.params.anchors.iter().zip(&truth).enumerate() {
-            for x in 0..3 {
-                let e = (a[x] - t[x]).abs();
-                assert!(
-                    e < 4.5 * est.sigma.anchors[j][x],
-                    "anchor {j}[{x}] off {:.3} mm, sigma {:.3} mm",
-                    e * 1e3,
-                    est.sigma.anchors[j][x] * 1e3
-                );
-            }
-        }
+        assert_within_sigmas(&est, &truth, 4.5);
         // The floor holds.
         let floor =
             refine(&rec, &[[0.0; 3]; 4], &start, &l0s, &BundleOptions { length_sigma_floor_m: 1e-4, ..Default::default() }).unwrap();
@@ -667,6 +671,7 @@ mod tests {
 
 #[cfg(test)]
 mod stretch_tests {
+    use super::tests::assert_within_sigmas;
     use super::*;
     use crate::synth::Rng;
 
@@ -717,17 +722,7 @@ mod stretch_tests {
             assert!((ea - 2e5).abs() < 4.0 * sd, "cable {j}: EA {ea:.0} ± {sd:.0} N, truth 200000");
         }
         // Honest sigmas with the stiffness fitted: every coordinate within 4.5 of its sigmas.
-        for (j, (a, t)) in fitted.params.anchors.iter().zip(&truth).enumerate() {
-            for x in 0..3 {
-                let e = (a[x] - t[x]).abs();
-                assert!(
-                    e < 4.5 * fitted.sigma.anchors[j][x],
-                    "anchor {j}[{x}] off {:.3} mm, sigma {:.3} mm",
-                    e * 1e3,
-                    fitted.sigma.anchors[j][x] * 1e3
-                );
-            }
-        }
+        assert_within_sigmas(&fitted, &truth, 4.5);
     }
 }
 

@@ -1305,6 +1305,20 @@ mod tests {
         assert!(h.covers(2, 0.011) && !h.covers(2, 0.0111));
     }
 
+    /// The example robot's calibrator taking every sample (decimation 1), fed by the tests
+    /// through `on_sample`; with the ring's producer and the parameters' reader, kept alive.
+    #[allow(clippy::type_complexity)]
+    fn example_calibrator() -> (Calibrator, (crate::sample::SampleTx, crate::triple::Reader<LoopParams>)) {
+        let cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
+        let mut ccfg = CalibratorConfig::from_robot(&cfg);
+        ccfg.decimation = 1;
+        let n = ccfg.n;
+        let (tx, rx) = crate::sample::sample_ring(16);
+        let (params_tx, params_rx) = crate::triple::triple_buffer(LoopParams::invalid(n));
+        let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
+        (Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap(), (tx, params_rx))
+    }
+
     /// Regression (the 0.11 mm length noise of the start-up refinement on 0.05 mm encoders): a
     /// tracker pose is newer than the newest encoder reading (TPDOs answer the SYNC of the cycle
     /// before, the pose datagram comes within a millisecond), and its row's lengths were
@@ -1312,14 +1326,8 @@ mod tests {
     /// their noise. The row now waits for the next readings and interpolates between two.
     #[test]
     fn tracker_rows_interpolate_the_encoder_readings_not_extrapolate() {
-        let cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
-        let mut ccfg = CalibratorConfig::from_robot(&cfg);
-        ccfg.decimation = 1;
-        let n = ccfg.n;
-        let (_tx, rx) = crate::sample::sample_ring(16);
-        let (params_tx, _params_rx) = crate::triple::triple_buffer(LoopParams::invalid(n));
-        let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
-        let mut c = Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap();
+        let (mut c, _ends) = example_calibrator();
+        let n = c.cfg.n;
         // Every cable paying out at 1 m/s; readings every 2 ms, each 2 ms old (the SYNC before),
         // with +-e of noise alternating; a pose every 10 ms, 0.5 ms old.
         let e = 1e-4;
@@ -1361,14 +1369,8 @@ mod tests {
     /// row's tensions are interpolated at its instant between the readings around it.
     #[test]
     fn tracker_rows_interpolate_the_tensions_between_the_polling_rounds() {
-        let cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
-        let mut ccfg = CalibratorConfig::from_robot(&cfg);
-        ccfg.decimation = 1;
-        let n = ccfg.n;
-        let (_tx, rx) = crate::sample::sample_ring(16);
-        let (params_tx, _params_rx) = crate::triple::triple_buffer(LoopParams::invalid(n));
-        let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
-        let mut c = Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap();
+        let (mut c, _ends) = example_calibrator();
+        let n = c.cfg.n;
         // Tensions rising at 200 N/s; the cells read in turn, a round every 16 ms (cable j at
         // 4 j ms into it); encoders every 2 ms; a pose every 10 ms, 0.5 ms old.
         let truth = |j: usize, t: f64| 20.0 + 5.0 * j as f64 + 200.0 * t;
