@@ -236,7 +236,34 @@ impl fmt::Display for ConfigError {
 
 impl std::error::Error for ConfigError {}
 
+/// How people are shown cable `j` (0-based index into `[[cable]]`): `cable 1` for the first.
+/// Node ids and Modbus unit ids count from 1, so do the cables in every text for people (reports,
+/// `taut ctl status`, the daemon's log); machine-facing JSON indices stay 0-based where their
+/// documentation says so.
+pub fn cable_name(j: usize) -> String {
+    format!("cable {}", j + 1)
+}
+
 impl RobotConfig {
+    /// [`cable_name`] with the devices behind the cable where the configuration gives them:
+    /// `cable 1 (drive node 3, load cell unit 2)`; just `cable 1` without either.
+    pub fn cable_label(&self, j: usize) -> String {
+        let mut parts = Vec::new();
+        if let Some(c) = self.cables.get(j) {
+            if let Some(d) = &c.drive {
+                parts.push(format!("drive node {}", d.node_id));
+            }
+            if let Some(l) = &c.loadcell {
+                parts.push(format!("load cell unit {}", l.unit_id));
+            }
+        }
+        if parts.is_empty() {
+            cable_name(j)
+        } else {
+            format!("{} ({})", cable_name(j), parts.join(", "))
+        }
+    }
+
     /// Reads and validates a configuration file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
@@ -590,6 +617,16 @@ mod tests {
             }
         }
         assert!(n >= 2, "expected the example configs in {}", dir.display());
+    }
+
+    #[test]
+    fn cables_are_shown_from_1_with_their_devices() {
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[cable.drive]\nnode_id = 5\n[cable.loadcell]\nunit_id = 7\n[[cable]]\n[cable.drive]\nnode_id = 6\n[[cable]]\n";
+        let cfg = RobotConfig::from_toml_str(text).unwrap();
+        assert_eq!(cfg.cable_label(0), "cable 1 (drive node 5, load cell unit 7)");
+        assert_eq!(cfg.cable_label(1), "cable 2 (drive node 6)");
+        assert_eq!(cfg.cable_label(2), "cable 3");
+        assert_eq!(cable_name(0), "cable 1");
     }
 
     #[test]
