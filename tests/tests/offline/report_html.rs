@@ -174,7 +174,7 @@ fn calibration_and_diagnosis_reports_render_in_chromium() {
     run(&["diagnose", EVIL_FILE, "--config", "robot.toml", "--report", "diag.html"]);
 
     let calib = std::fs::read_to_string(dir.path().join("calib.html")).unwrap();
-    check_page(&calib, &["fig7-lengths", "fig8-errors", "fig9-histogram", "fig10-excluded", "fig11-anchors"]);
+    check_page(&calib, &["lengths-before-after", "errors-taut", "errors-histogram", "readings-excluded", "anchors"]);
     assert!(calib.contains("&lt;img src=x onerror=alert(1)&gt;&amp;amp;&quot;robot&quot;"), "the robot name is not shown escaped");
     for words in ["Calibrated", "σx, mm", "held-out RMS", "without force weighting"] {
         assert!(calib.contains(words), "the calibration report lacks `{words}`");
