@@ -516,7 +516,7 @@ pub fn calibration_verdict(cfg: &RobotConfig, out: &Outcome, ctx: &CalibrationCo
         ));
     } else if ctx.refused.is_none() && f.heldout_rms_m.is_finite() && f.heldout_rms_m > 2.0 * noise {
         next.push(format!(
-            "The held-out error ({} mm) is more than twice the sensors' noise ({} mm): check the noise model in [calibration], or run `taut diagnose {}`.",
+            "Check the noise model in [calibration]: the held-out error ({} mm) is more than twice the sensors' noise ({} mm); or run `taut diagnose {}`.",
             mm(f.heldout_rms_m),
             mm(noise),
             ctx.source
@@ -823,13 +823,13 @@ pub fn diagnosis(d: &Diagnosis, source: &str, cfg: &RobotConfig, refused: Option
                 vec![
                     f.effect.name().to_string(),
                     effect_values(f),
+                    f.evidence.clone(),
                     mm(f.heldout_rms_before_m),
                     mm(f.heldout_rms_after_m),
-                    f.evidence.clone(),
                 ]
             })
             .collect();
-        page.table(&["effect", "parameters ± 1-sigma", "held-out before, mm", "held-out after, mm", "evidence"], &rows, 2);
+        page.table(&["effect", "parameters ± 1-sigma", "evidence", "held-out before, mm", "held-out after, mm"], &rows, 3);
     }
     if !d.rejected.is_empty() {
         page.h2("Candidates not named");
