@@ -194,7 +194,7 @@ impl fmt::Display for WildValue {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let axis = ["x", "y", "z"];
         let who = match (self.cable, self.axis) {
-            (Some(j), _) => format!("cable {j}"),
+            (Some(j), _) => taut_config::cable_name(j),
             (None, Some(a)) => format!("tracker {}", axis[a.min(2)]),
             (None, None) => "tracker".to_string(),
         };

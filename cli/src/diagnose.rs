@@ -196,7 +196,8 @@ pub fn print(d: &Diagnosis) {
     println!("final model: RMS {:.2} mm, held out {:.2} mm", mm(d.final_fit.rms_m), mm(d.final_fit.heldout_rms_m));
     for (j, (a, s)) in d.final_fit.params.anchors.iter().zip(&d.final_fit.sigma.anchors).enumerate() {
         println!(
-            "  cable {j}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
+            "  cable {}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
+            j + 1,
             a[0],
             a[1],
             a[2],

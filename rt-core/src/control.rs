@@ -437,6 +437,15 @@ impl ControlLinks {
                 v["goal"] = goal;
                 v["recalibrate"] = ret;
                 v["events_next"] = json!(self.operator.next_seq());
+                // How people name the cables (from 1) and the devices behind them; the arrays
+                // above are indexed from 0 in the same order.
+                let ids = self.operator.cables();
+                v["cables"] = json!((0..ls.snap.inputs.n)
+                    .map(|j| {
+                        let (node, unit) = ids.get(j).copied().unwrap_or_default();
+                        json!({"name": taut_config::cable_name(j), "node_id": node, "unit_id": unit})
+                    })
+                    .collect::<Vec<_>>());
                 if let Some(t) = &self.tracker {
                     let s = t.stats();
                     v["tracker"] = json!({
@@ -576,7 +585,8 @@ pub fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
 }
 
 /// A `status` reply for people: one line per subject (state, fault, goal, recalibration,
-/// calibration, outcomes, drives, load cells, tracker, loop). Cables are numbered from 1.
+/// calibration, outcomes, drives, load cells, tracker, loop). Cables are numbered from 1, with
+/// the drive's CANopen node id or the load cell's Modbus unit id beside them where configured.
 pub fn status_text(v: &Value) -> String {
     let mut out = String::new();
     let mut line = |k: &str, text: String| out.push_str(&format!("{k:<12} {text}\n"));
@@ -664,13 +674,24 @@ pub fn status_text(v: &Value) -> String {
         );
     }
     let list = |x: &Value| x.as_array().cloned().unwrap_or_default();
+    // The cables from 1, with the drive's node id or the load cell's unit id beside them.
+    let cables = list(&v["cables"]);
+    let name = |j: usize, id: &str, what: &str| match cables.get(j).and_then(|c| c[id].as_u64()) {
+        Some(k) => format!("{} ({what} {k})", taut_config::cable_name(j)),
+        None => taut_config::cable_name(j),
+    };
     let drives = list(&v["drives"]);
     let bus = &v["bus"];
     line(
         "drives",
         format!(
             "{}; bus {} {}",
-            drives.iter().enumerate().map(|(j, d)| format!("{}: {}", j + 1, d.as_str().unwrap_or("?"))).collect::<Vec<_>>().join(", "),
+            drives
+                .iter()
+                .enumerate()
+                .map(|(j, d)| format!("{}: {}", name(j, "node_id", "node"), d.as_str().unwrap_or("?")))
+                .collect::<Vec<_>>()
+                .join(", "),
             bus["iface"].as_str().unwrap_or("?"),
             bus["state"].as_str().unwrap_or("?")
         ),
@@ -682,9 +703,9 @@ pub fn status_text(v: &Value) -> String {
             .iter()
             .enumerate()
             .map(|(j, t)| match (t.as_f64(), ages.get(j).and_then(Value::as_f64)) {
-                (Some(t), Some(a)) => format!("{}: {t:.0} N ({a:.2} s old)", j + 1),
-                (Some(t), None) => format!("{}: {t:.0} N", j + 1),
-                _ => format!("{}: no reading", j + 1),
+                (Some(t), Some(a)) => format!("{}: {t:.0} N ({a:.2} s old)", name(j, "unit_id", "unit")),
+                (Some(t), None) => format!("{}: {t:.0} N", name(j, "unit_id", "unit")),
+                _ => format!("{}: no reading", name(j, "unit_id", "unit")),
             })
             .collect::<Vec<_>>()
             .join(", "),
@@ -755,5 +776,11 @@ mod tests {
             assert!(text.lines().any(|l| l.starts_with(key)), "{key}: {text}");
         }
         assert!(text.contains("no parameters yet") && text.contains("fault        none"), "{text}");
+        let text = status_text(&json!({
+            "ok": true, "state": "operate", "drives": ["enabled", "enabled"], "tensions_n": [20.0, null],
+            "cables": [{"name": "cable 1", "node_id": 5, "unit_id": 7}, {"name": "cable 2", "node_id": null, "unit_id": null}],
+        }));
+        assert!(text.contains("drives       cable 1 (node 5): enabled, cable 2: enabled"), "{text}");
+        assert!(text.contains("load cells   cable 1 (unit 7): 20 N, cable 2: no reading"), "{text}");
     }
 }

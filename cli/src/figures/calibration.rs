@@ -39,7 +39,7 @@ pub fn anchor_moves(stem: &str, what: &str, from: &[[f64; 3]], to: &[[f64; 3]], 
     panel.hlines.push(HLine { label: String::new(), y: 0.0, color: colors::GREY });
     let pts: Vec<(f64, f64, f64)> =
         (0..3 * n).map(|q| (q as f64, (to[q / 3][q % 3] - from[q / 3][q % 3]) * 1e3, 2.0 * sigma[q / 3][q % 3] * 1e3)).collect();
-    panel.bars.push(Bars { label: "move ± 2σ".into(), points: pts, color: colors::BLACK, marker: Marker::Dot });
+    panel.bars.push(Bars { label: "move ± 2σ".into(), points: pts, color: colors::BLUE, marker: Marker::Dot });
     Figure {
         stem: stem.into(),
         question: "How far did each anchor move, and how sure are we?".into(),

@@ -320,6 +320,7 @@ impl Plugin {
             ccfg.workspace,
             crate::operator::Expected::from_robot(cfg),
         );
+        handle.operator().set_cables((0..n).map(|j| cfg.cable_ids(j)).collect());
         let recording = match opts.recording {
             RecordingPath::Off => None,
             RecordingPath::At(p) => Some(p),

@@ -294,10 +294,7 @@ fn check_actions(name: &str, next: &[String]) {
     assert!(!next.is_empty() && next.len() <= 8, "{name}: {} next steps: {next:#?}", next.len());
     for item in next {
         let verb = item.split_whitespace().next().unwrap_or_default();
-        assert!(
-            ["Check", "Run", "Write", "Record", "Fix", "Look", "Calibrate"].contains(&verb),
-            "{name}: `{item}` is not an action"
-        );
+        assert!(["Check", "Run", "Write", "Record", "Fix", "Look", "Calibrate"].contains(&verb), "{name}: `{item}` is not an action");
         for bad in ["loose readings excluded", "row ", "e0 m", "e-1 m"] {
             assert!(!item.contains(bad), "{name}: `{item}` lists `{bad}` instead of an action");
         }
@@ -427,10 +424,7 @@ fn verdicts_agree_with_the_body() {
         // The verdict box is drawn in its tone's colour (green #009e73, amber #e69f00).
         let want: [i32; 3] = if tone == "ok" { [0, 158, 115] } else { [230, 159, 0] };
         let (_, _, ch, buf) = pixels(&png);
-        let border = buf
-            .chunks_exact(ch)
-            .filter(|p| (0..3).all(|i| (p[i] as i32 - want[i]).abs() <= 10))
-            .count();
+        let border = buf.chunks_exact(ch).filter(|p| (0..3).all(|i| (p[i] as i32 - want[i]).abs() <= 10)).count();
         assert!(border > 500, "{name}: the {tone} verdict box is not drawn ({border} px of its colour)");
         if shots {
             std::fs::create_dir_all(&docs).unwrap();
