@@ -177,7 +177,7 @@ fn generated() -> String {
 }
 
 /// How the solver stopped, in words.
-fn termination_words(t: taut_calib::solver::Termination) -> &'static str {
+pub(crate) fn termination_words(t: taut_calib::solver::Termination) -> &'static str {
     use taut_calib::solver::Termination::*;
     match t {
         SmallStep => "its steps became negligible",

@@ -45,9 +45,10 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     );
     println!("initialisation: {}", out.init.method);
     println!(
-        "calibration: {:?} after {} iterations; {} samples used, {} excluded{}",
-        f.termination,
+        "calibration: {} after {} iterations ({}); {} samples used, {} excluded{}",
+        if f.termination.was_successful() { "converged" } else { "NOT converged" },
         f.iterations,
+        crate::html::termination_words(f.termination),
         f.samples_used,
         f.samples_excluded,
         if f.used_tensions { "" } else { " (no tensions: uniform weights)" }
