@@ -247,3 +247,68 @@ fn anchors_shows_nominal_initial_and_calibrated() {
     let h = super::calibration::anchors(None, &out.init.params.anchors, &out.force.params.anchors, &out.force.sigma.anchors);
     assert!(h.panels[0].series.iter().all(|s| !s.label.starts_with("nominal")) && h.caption.contains("no nominal anchors"));
 }
+
+/// A diagnosis of a 40 s recording at 50 Hz with a concealed cable stretch.
+fn diagnosis() -> &'static taut_calib::diagnose::Diagnosis {
+    static D: OnceLock<taut_calib::diagnose::Diagnosis> = OnceLock::new();
+    D.get_or_init(|| {
+        let mut s = taut_sim::Scenario::aras_cam(11);
+        s.duration_s = 40.0;
+        s.rate_hz = 50.0;
+        s.physics = taut_sim::Physics { elasticity: Some(20_000.0), ..taut_sim::Physics::default() };
+        let run = taut_sim::simulate(&s);
+        let opts = taut_calib::diagnose::DiagnoseOptions::from_config(&s.robot.calibration);
+        taut_calib::diagnose::diagnose(&run.recording, &s.robot.platform_points(), None, &opts).expect("diagnosis")
+    })
+}
+
+fn diagnosis_figure(stem: &str) -> Figure {
+    super::diagnosis::figures(diagnosis()).into_iter().find(|f| f.stem == stem).unwrap_or_else(|| panic!("no figure {stem}"))
+}
+
+#[test]
+fn diagnose_residual_vs_time_shows_both_models() {
+    let d = diagnosis();
+    let f = diagnosis_figure("diagnose-residual-vs-time");
+    assert_eq!(f.panels.len(), d.cables);
+    for p in &f.panels {
+        assert!(series(p, "ideal model").points.iter().any(|q| q.1.is_finite()), "{}", p.title);
+        assert!(series(p, "with the named effects").points.iter().any(|q| q.1.is_finite()), "{}", p.title);
+        assert!(p.hlines.iter().all(|h| h.label.is_empty()), "{}: a legend entry for the zero line", p.title);
+    }
+    assert!(f.panels[0].title.starts_with("cable 1:"), "{}", f.panels[0].title);
+    no_spurious_ticks(&f);
+    let img = render(&f);
+    assert!(count(&img, colors::SKY, chart_rows(0)) > 300, "the ideal model's residuals are not drawn");
+    assert!(count(&img, colors::BLACK, chart_rows(0)) > 300, "the final residuals are not drawn");
+}
+
+#[test]
+fn diagnose_effect_figure_shows_the_residual_before_and_after() {
+    let d = diagnosis();
+    let named: Vec<&str> = d.effects.iter().filter(|f| f.plot.is_some()).map(|f| f.effect.name()).collect();
+    assert!(named.contains(&"elasticity"), "the concealed stretch is not named with a figure: {named:?}");
+    let f = diagnosis_figure("diagnose-elasticity");
+    for p in &f.panels {
+        assert!(series(p, "before").points.len() > 10 && series(p, "with elasticity").points.len() > 10, "{}", p.title);
+    }
+    no_spurious_ticks(&f);
+    let img = render(&f);
+    assert!(count(&img, colors::SKY, chart_rows(0)) > 300 && count(&img, colors::BLACK, chart_rows(0)) > 300, "series not drawn");
+}
+
+#[test]
+fn diagnose_anchors_shows_each_move_with_its_bar() {
+    let d = diagnosis();
+    let f = diagnosis_figure("diagnose-anchors");
+    let bars = &f.panels[0].bars[0];
+    assert_eq!(bars.points.len(), 3 * d.cables);
+    for (q, b) in bars.points.iter().enumerate() {
+        let want = (d.final_fit.params.anchors[q / 3][q % 3] - d.baseline.params.anchors[q / 3][q % 3]) * 1e3;
+        assert!((b.1 - want).abs() < 1e-9 && b.2 > 0.0, "marker {q}: {} ± {} mm, expected {want} mm", b.1, b.2);
+    }
+    assert_eq!(f.panels[0].categories.as_ref().unwrap()[0], "cable 1 x");
+    no_spurious_ticks(&f);
+    let img = render(&f);
+    assert!(count(&img, colors::BLUE, chart_rows(0)) > 100, "the moves are not drawn");
+}
