@@ -511,7 +511,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
             ],
             vec!["initialisation".into(), out.init.method.to_string()],
         ],
-        1,
+        2,
     );
 
     page.h2("Anchors and encoder offsets");

@@ -370,7 +370,10 @@ fn poll_round<L: SerialLink>(
                 let v = regs.values();
                 match value::newtons([v[0], v[1]], &cell.cfg) {
                     Some(newtons) => out(TensionSample { cable: cell.cable, newtons, t }),
-                    None => counters.count(Event::InvalidValue, format_args!("cable {}, unit {}: reading is NaN or infinite", u32::from(cell.cable) + 1, cell.cfg.unit_id)),
+                    None => counters.count(
+                        Event::InvalidValue,
+                        format_args!("cable {}, unit {}: reading is NaN or infinite", u32::from(cell.cable) + 1, cell.cfg.unit_id),
+                    ),
                 }
             }
             Err(crate::modbus::master::TransactionError::Link(e)) => {
