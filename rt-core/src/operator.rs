@@ -668,7 +668,7 @@ impl Inner {
                 let c = change.map_or("first estimate".to_string(), |(d, j)| {
                     let (node, unit) = self.cables.get(j).copied().unwrap_or_default();
                     let who = taut_config::cable_label_with(j, node, unit);
-                    format!("largest anchor change {:.2} mm ({who})", d * 1e3)
+                    format!("largest anchor change {:.2} mm, {who}", d * 1e3)
                 });
                 let h = if o.heldout_rms_new_m.is_finite() {
                     format!(", held-out RMS {:.2} mm (was {:.2} mm)", o.heldout_rms_new_m * 1e3, o.heldout_rms_old_m * 1e3)
