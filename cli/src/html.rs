@@ -38,7 +38,7 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1040px;margin:1.5em a
 h1{font-size:1.5em;margin-bottom:.2em}h2{font-size:1.2em;border-bottom:1px solid #aaa;margin-top:1.6em}\
 h3{font-size:1.05em;margin-bottom:.2em}table{border-collapse:collapse;margin:.6em 0}\
 th,td{border:1px solid #bbb;padding:.2em .6em;text-align:right;font-variant-numeric:tabular-nums}\
-th{background:#eee}td.l,th.l{text-align:left}.verdict{border:2px solid #333;padding:.6em 1em;margin:1em 0}\
+th{background:#eee}td.l,th.l{text-align:left}td.l:first-child{white-space:nowrap}.verdict{border:2px solid #333;padding:.6em 1em;margin:1em 0}\
 .ok{border-color:#009e73}.warn{border-color:#e69f00}.fail{border-color:#d55e00}\
 figure{margin:1em 0}figure svg{max-width:100%;height:auto;display:block}figcaption{font-size:.92em;color:#333}\
 .meta{color:#444;font-size:.92em}dt{font-weight:bold;margin-top:.5em}dd{margin-left:1.5em}";
