@@ -236,6 +236,21 @@ fn data_actions(cfg: &RobotConfig, groups: &[(&'static str, Option<usize>, usize
     v
 }
 
+/// The next steps in order: the main actions, the sensor checks, then the last step (use the
+/// result); at most `MAX_ACTIONS + 2`, the checks cut first (the rest are under Data problems).
+fn finish_next(mut next: Vec<String>, mut checks: Vec<String>, last: Option<String>) -> Vec<String> {
+    let limit = MAX_ACTIONS + 2;
+    next.truncate(limit - usize::from(last.is_some()) - usize::from(!checks.is_empty()));
+    let room = limit - next.len() - usize::from(last.is_some());
+    if checks.len() > room {
+        checks.truncate(room.saturating_sub(1));
+        checks.push("Look at the other data problems listed under Data problems.".into());
+    }
+    next.extend(checks);
+    next.extend(last);
+    next
+}
+
 /// A verdict: how it reads, its headline, the sentences that back it, and what to do next.
 #[derive(Debug, Clone)]
 pub struct Verdict {
@@ -463,17 +478,14 @@ pub fn calibration_verdict(cfg: &RobotConfig, out: &Outcome, ctx: &CalibrationCo
         None,
         out.stale_rows,
     ))));
-    next.extend(data_actions(cfg, &groups));
-    if ctx.refused.is_none() && converged && consistent {
-        match ctx.params_out {
-            None => next.push(format!(
-                "Write the parameters with `taut calibrate {} --out params.toml` and run the robot with them: `taut start --params params.toml`.",
-                ctx.source
-            )),
-            Some(p) => next.push(format!("Run the robot with them: `taut start --params {p}`.")),
-        }
-    }
-    next.truncate(MAX_ACTIONS + 2);
+    let last = (ctx.refused.is_none() && converged && consistent).then(|| match ctx.params_out {
+        None => format!(
+            "Write the parameters with `taut calibrate {} --out params.toml` and run the robot with them: `taut start --params params.toml`.",
+            ctx.source
+        ),
+        Some(p) => format!("Run the robot with them: `taut start --params {p}`."),
+    });
+    let next = finish_next(next, data_actions(cfg, &groups), last);
     Verdict { tone, headline: headline.into(), sentences: says, next }
 }
 
@@ -725,18 +737,17 @@ pub fn diagnosis_verdict(d: &Diagnosis, cfg: &RobotConfig, source: &str, refused
         }
     }
     let groups = grouped(d.data_problems.iter().map(|p| (p.kind.name(), p.cable, p.samples.max(1))));
-    next.extend(data_actions(cfg, &groups));
-    if refused.is_none() {
+    let last = refused.is_none().then(|| {
         if physics.is_empty() {
-            next.push(format!("Calibrate with the ideal model: `taut calibrate {source} --out params.toml`."));
+            format!("Calibrate with the ideal model: `taut calibrate {source} --out params.toml`.")
         } else {
-            next.push(format!(
+            format!(
                 "Write the model with {}: `taut diagnose {source} --out params.toml`, and run the robot with it: `taut start --params params.toml`.",
                 names.join(" and ")
-            ));
+            )
         }
-    }
-    next.truncate(MAX_ACTIONS + 2);
+    });
+    let next = finish_next(next, data_actions(cfg, &groups), last);
     Verdict { tone, headline, sentences: says, next }
 }
 
@@ -830,4 +841,21 @@ pub fn diagnosis(d: &Diagnosis, source: &str, cfg: &RobotConfig, refused: Option
         ],
     );
     Ok(page.finish())
+}
+
+#[cfg(test)]
+mod next_tests {
+    use super::{finish_next, MAX_ACTIONS};
+
+    #[test]
+    fn the_last_step_survives_many_checks() {
+        let checks: Vec<String> = (0..20).map(|k| format!("Check sensor {k}.")).collect();
+        let next = finish_next(vec!["Run taut diagnose.".into()], checks, Some("Write the parameters.".into()));
+        assert_eq!(next.len(), MAX_ACTIONS + 2, "{next:#?}");
+        assert_eq!(next[0], "Run taut diagnose.");
+        assert_eq!(next.last().unwrap(), "Write the parameters.");
+        assert!(next[next.len() - 2].starts_with("Look at the other data problems"), "{next:#?}");
+        let few = finish_next(vec![], vec!["Check the tracker.".into()], None);
+        assert_eq!(few, vec!["Check the tracker.".to_string()]);
+    }
 }
