@@ -110,12 +110,13 @@ impl fmt::Display for EffectFitError {
             EffectFitError::TooManyEffects { count } => write!(f, "{count} effects: at most 4 are fitted together"),
             EffectFitError::NoEffects => write!(f, "no effect to fit"),
             EffectFitError::NoTensions => write!(f, "elasticity needs the cable tensions and the data have none"),
-            EffectFitError::TooFewReadings { cable, usable } => write!(f, "cable {cable}: only {usable} usable readings"),
+            EffectFitError::TooFewReadings { cable, usable } => write!(f, "cable {}: only {usable} usable readings", cable + 1),
             EffectFitError::Diverged => write!(f, "the fit with effects diverged"),
             EffectFitError::NotPhysical { effect, cable, value } => write!(
                 f,
-                "{} of cable {cable} came out {value:.4e} {}, outside its physical range: the data do not support the model (run taut diagnose)",
+                "{} of cable {} came out {value:.4e} {}, outside its physical range: the data do not support the model (run taut diagnose)",
                 effect.name(),
+                cable + 1,
                 effect.parameter()
             ),
         }

@@ -351,27 +351,27 @@ impl fmt::Display for CalibError {
                 "the recording has {recording} cables, the configuration {platform_points} platform points and the initial estimate {init} cables; use the configuration of the robot that made the recording"
             ),
             CalibError::BadInit { cable } => {
-                write!(f, "cable {cable}: the initial anchor or offset is not a finite number; run the initialisation first")
+                write!(f, "cable {}: the initial anchor or offset is not a finite number; run the initialisation first", cable + 1)
             }
             CalibError::TooFewReadings { cable, used, loose, missing, needed } => write!(
                 f,
-                "cable {cable}: only {used} usable readings ({loose} loose, {missing} missing), at least {needed} needed; record with this cable under tension (>= min_tension_n) while the tracker sees the platform"
+                "cable {}: only {used} usable readings ({loose} loose, {missing} missing), at least {needed} needed; record with this cable under tension (>= min_tension_n) while the tracker sees the platform", cable + 1
             ),
             CalibError::NotObservable { cable, param, singular: true, .. } => write!(
                 f,
-                "cable {cable}: {param} is not observable from this recording (no information in its direction): {}",
+                "cable {}: {param} is not observable from this recording (no information in its direction): {}", cable + 1,
                 param.advice()
             ),
             CalibError::NotObservable { cable, param, sigma_m, max_sigma_m, singular: false, .. } => write!(
                 f,
-                "cable {cable}: {param} is too weakly determined by this recording (1-sigma {:.1} mm, above calibration.max_sigma_m = {:.1} mm): {}; or move the platform over a larger part of the workspace, in all three directions, or record longer (or raise calibration.max_sigma_m to accept it)",
+                "cable {}: {param} is too weakly determined by this recording (1-sigma {:.1} mm, above calibration.max_sigma_m = {:.1} mm): {}; or move the platform over a larger part of the workspace, in all three directions, or record longer (or raise calibration.max_sigma_m to accept it)", cable + 1,
                 sigma_m * 1e3,
                 max_sigma_m * 1e3,
                 param.advice()
             ),
             CalibError::Diverged { cable } => write!(
                 f,
-                "cable {cable}: the calibration diverged (non-finite parameters); check the initial estimate and that the tracker and encoder columns belong together"
+                "cable {}: the calibration diverged (non-finite parameters); check the initial estimate and that the tracker and encoder columns belong together", cable + 1
             ),
         }
     }
@@ -519,7 +519,7 @@ impl fmt::Display for WeakParam {
         write!(
             f,
             "cable {}: {} is weakly determined (1-sigma {:.1} mm, above calibration.weak_sigma_m): estimate kept; to improve it, {}",
-            self.cable,
+            self.cable + 1,
             self.param,
             self.sigma_m * 1e3,
             self.param.advice()
@@ -880,7 +880,8 @@ fn calibrate_cable(
     for (k, &share) in data_share.iter().enumerate() {
         if share.is_finite() && share < 0.5 {
             notes.push(format!(
-                "cable {j}: {} is mostly the design's prior ({:.0} % from the data; 1-sigma {:.1} mm of the prior's {:.1} mm)",
+                "cable {}: {} is mostly the design's prior ({:.0} % from the data; 1-sigma {:.1} mm of the prior's {:.1} mm)",
+                j + 1,
                 Param::from_index(k),
                 100.0 * share,
                 sig[k] * 1e3,
@@ -911,16 +912,16 @@ fn calibrate_cable(
         heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts);
     }
     if d.loose > 0 {
-        notes.push(format!("cable {j}: {} loose readings excluded (tension < {} N)", d.loose, opts.min_tension_n));
+        notes.push(format!("cable {}: {} loose readings excluded (tension < {} N)", j + 1, d.loose, opts.min_tension_n));
     }
     if vf > 1.5 {
         notes.push(format!(
-            "cable {j}: residuals are {:.1}x larger than the noise model predicts (variance factor {vf:.2}); its sigmas are scaled up accordingly",
+            "cable {}: residuals are {:.1}x larger than the noise model predicts (variance factor {vf:.2}); its sigmas are scaled up accordingly", j + 1,
             vf.sqrt()
         ));
     }
     if !sol.termination.was_successful() {
-        notes.push(format!("cable {j}: {} after {} iterations", sol.termination, sol.iterations));
+        notes.push(format!("cable {}: {} after {} iterations", j + 1, sol.termination, sol.iterations));
     }
     let mut c4 = [[0.0; 4]; 4];
     if let Some(c) = &cov {

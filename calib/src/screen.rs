@@ -194,7 +194,7 @@ impl fmt::Display for WildValue {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let axis = ["x", "y", "z"];
         let who = match (self.cable, self.axis) {
-            (Some(j), _) => format!("cable {j}"),
+            (Some(j), _) => taut_config::cable_name(j),
             (None, Some(a)) => format!("tracker {}", axis[a.min(2)]),
             (None, None) => "tracker".to_string(),
         };
@@ -202,7 +202,8 @@ impl fmt::Display for WildValue {
         let sig = if self.sigmas.is_finite() { format!("{:.1} noise sigmas", self.sigmas) } else { "absurd".to_string() };
         match self.kind {
             WildKind::EncoderSpike | WildKind::TrackerJump => {
-                write!(f, "{} {:e} m", if self.kind == WildKind::EncoderSpike { "encoder reading" } else { "position" }, self.value)?;
+                let what = if self.kind == WildKind::EncoderSpike { "encoder reading" } else { "position" };
+                write!(f, "{what} {} m", plain(self.value))?;
                 if self.expected.is_finite() {
                     write!(f, " where its neighbours give {:.4} m", self.expected)?;
                 }
@@ -210,7 +211,7 @@ impl fmt::Display for WildValue {
             }
             WildKind::EncoderJump => write!(f, "encoder steps by {:+.2} mm and stays ({sig})", self.value * 1e3)?,
             WildKind::ImpossibleTension => {
-                write!(f, "tension {:e} N", self.value)?;
+                write!(f, "tension {} N", plain(self.value))?;
                 if self.expected.is_finite() {
                     write!(f, " (limit {:.2} N)", self.expected)?;
                 }
@@ -224,6 +225,16 @@ impl fmt::Display for WildValue {
             }
             Action::RowsExcluded { first, rows } => write!(f, "; rows {first}..{} (the shorter side) excluded", first + rows - 1),
         }
+    }
+}
+
+/// A read value as people write it: 4 decimals (0.1 mm, 0.1 mN) where that is a sensible
+/// number (`1.0555`, not `1.05552e0`), scientific notation only for the absurd (`1e308`).
+fn plain(v: f64) -> String {
+    if v.is_finite() && v.abs() < 1e6 {
+        format!("{v:.4}")
+    } else {
+        format!("{v:e}")
     }
 }
 

@@ -47,18 +47,18 @@ impl fmt::Display for Untrusted {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             Untrusted::NonFinite { cable: Some(j), what } => {
-                write!(f, "cable {j}: the {what} is not a finite number; the calibration cannot be trusted (look for data problems above, or record again)")
+                write!(f, "cable {}: the {what} is not a finite number; the calibration cannot be trusted (look for data problems above, or record again)", j + 1)
             }
             Untrusted::NonFinite { cable: None, what } => {
                 write!(f, "the {what} is not a finite number; the calibration cannot be trusted (look for data problems above, or record again)")
             }
             Untrusted::AnchorAbsurd { cable, distance_m, limit_m } => write!(
                 f,
-                "cable {cable}: the anchor came out {distance_m:.3e} m from the tracked positions (more than {limit_m:.0} m): not a cable robot; check that the tracker and encoder columns belong together"
+                "cable {}: the anchor came out {distance_m:.3e} m from the tracked positions (more than {limit_m:.0} m): not a cable robot; check that the tracker and encoder columns belong together", cable + 1
             ),
             Untrusted::FarFromNominal { cable, distance_m, limit_m } => write!(
                 f,
-                "cable {cable}: the anchor came out {distance_m:.3} m from the nominal anchor of the configuration (more than {limit_m:.3} m = 2 x daemon.max_anchor_change_m); check the recording, or correct cable[{cable}].anchor"
+                "cable {}: the anchor came out {distance_m:.3} m from the nominal anchor of the configuration (more than {limit_m:.3} m = 2 x daemon.max_anchor_change_m); check the recording, or correct cable[{cable}].anchor", cable + 1
             ),
             Untrusted::NoPositions => write!(f, "the recording has no tracked position to judge the anchors against"),
         }
@@ -159,18 +159,18 @@ impl fmt::Display for Swap {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let c = &self.cables;
         if c.len() == 2 {
-            write!(f, "cables {} and {} look swapped", c[0], c[1])?;
+            write!(f, "cables {} and {} look swapped", c[0] + 1, c[1] + 1)?;
         } else {
-            let names: Vec<String> = c.iter().map(|j| j.to_string()).collect();
+            let names: Vec<String> = c.iter().map(|j| (j + 1).to_string()).collect();
             write!(f, "cables {} look permuted", names.join(", "))?;
         }
         let each: Vec<String> = (0..c.len())
             .map(|i| {
                 format!(
                     "cable {}'s anchor came out {:.3} m from cable {}'s nominal anchor ({:.3} m from its own)",
-                    c[i],
+                    c[i] + 1,
                     self.distance_m[i],
-                    c[(i + 1) % c.len()],
+                    c[(i + 1) % c.len()] + 1,
                     self.own_distance_m[i]
                 )
             })
@@ -263,10 +263,12 @@ pub struct ColumnSwap {
 
 impl fmt::Display for ColumnSwap {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let (a, b) = self.cables;
+        // Cables from 1; the recording's columns are named from 0 (l0, f0).
+        let (ca, cb) = self.cables;
+        let (a, b) = (ca + 1, cb + 1);
         write!(
             f,
-            "cables {a} and {b} look swapped: their length columns disagree with their tension columns (the platform's force balance at the calibrated anchors fits {:.0}x better with the tensions of cables {a} and {b} exchanged, over {} rows); the length columns (or the tension columns) of these cables are in another order than the robot's",
+            "cables {a} and {b} look swapped: their length columns disagree with their tension columns (l{ca}/f{ca} and l{cb}/f{cb}; the platform's force balance at the calibrated anchors fits {:.0}x better with the tensions of cables {a} and {b} exchanged, over {} rows); the length columns (or the tension columns) of these cables are in another order than the robot's",
             self.ratio, self.rows
         )
     }
@@ -426,7 +428,7 @@ mod tests {
         let s = swaps(&a, &nominal);
         assert_eq!(s.len(), 1);
         assert_eq!(s[0].cables, vec![0, 1]);
-        assert!(s[0].to_string().starts_with("cables 0 and 1 look swapped: cable 0's anchor came out 0.071 m from cable 1's"), "{}", s[0]);
+        assert!(s[0].to_string().starts_with("cables 1 and 2 look swapped: cable 1's anchor came out 0.071 m from cable 2's"), "{}", s[0]);
         assert_eq!(permuted_nominal(&nominal, &s), vec![nominal[1], nominal[0], nominal[2], nominal[3]]);
         // 0 -> 1 -> 2 -> 0 (cable 0 at 1's anchor, 1 at 2's, 2 at 0's).
         let mut p: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
@@ -434,7 +436,7 @@ mod tests {
         let s = swaps(&p, &nominal);
         assert_eq!(s.len(), 1);
         assert_eq!(s[0].cables, vec![0, 1, 2]);
-        assert!(s[0].to_string().starts_with("cables 0, 1, 2 look permuted"), "{}", s[0]);
+        assert!(s[0].to_string().starts_with("cables 1, 2, 3 look permuted"), "{}", s[0]);
         // Cable 0 at cable 1's anchor, cable 1 where it belongs: not a swap.
         let mut q: Vec<[f64; 3]> = nominal.iter().map(|&x| site(x)).collect();
         q[0] = site(nominal[1]);

@@ -326,6 +326,11 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         let mut v = report::json(rec, &parse, &out, None);
         v["data_problems"] = wild_json(&out.screen);
         v["stale_rows"] = serde_json::json!(out.stale_rows);
+        v["robot"] = serde_json::json!(cfg.robot.name);
+        let source = a.recording.display().to_string();
+        let params_out = a.out.as_ref().map(|p| p.display().to_string());
+        let ctx = crate::html::CalibrationContext { source: &source, config: None, refused: None, params_out: params_out.as_deref() };
+        v["verdict"] = crate::html::calibration_verdict(&cfg, &out, &ctx).json();
         v["swapped"] = serde_json::json!(swaps
             .iter()
             .map(|s| serde_json::json!({"cables": s.cables, "message": s.to_string()}))

@@ -203,8 +203,12 @@ pub fn run(a: &CtlArgs, verbosity: i8) -> Result<()> {
                 _ => "params",
             };
             let v = ask_ok(s, req)?;
-            if a.json || req == "params" {
+            if a.json {
                 return print_json(&v);
+            }
+            if req == "params" {
+                print!("{}", taut_rt_core::control::params_text(&v));
+                return Ok(());
             }
             println!("{req}: accepted");
             Ok(())

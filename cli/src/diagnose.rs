@@ -196,7 +196,8 @@ pub fn print(d: &Diagnosis) {
     println!("final model: RMS {:.2} mm, held out {:.2} mm", mm(d.final_fit.rms_m), mm(d.final_fit.heldout_rms_m));
     for (j, (a, s)) in d.final_fit.params.anchors.iter().zip(&d.final_fit.sigma.anchors).enumerate() {
         println!(
-            "  cable {j}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
+            "  cable {}: anchor [{:.4}, {:.4}, {:.4}] m (1-sigma {:.2} {:.2} {:.2} mm), L0 {:.4} m",
+            j + 1,
             a[0],
             a[1],
             a[2],
@@ -256,7 +257,7 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     let trusted = taut_calib::trust::check(&cand, &rec, None);
     let write_report = |refused: Option<String>| -> Result<()> {
         let Some(r) = &a.report else { return Ok(()) };
-        let html = crate::html::diagnosis(&d, &a.recording.display().to_string(), &cfg.robot.name, refused)?;
+        let html = crate::html::diagnosis(&d, &a.recording.display().to_string(), &cfg, refused)?;
         taut_config::write_atomic(r, html.as_bytes()).with_context(|| format!("writing {}", r.display()))
     };
     if let Err(e) = &trusted {
@@ -268,8 +269,10 @@ pub fn run(a: &DiagnoseArgs) -> Result<()> {
     }
     trusted.map_err(|e| anyhow::anyhow!("diagnosis refused, nothing written: {e}"))?;
     if let Some(j) = &a.json {
-        taut_config::write_atomic(j, serde_json::to_string_pretty(&to_json(&d))?.as_bytes())
-            .with_context(|| format!("writing {}", j.display()))?;
+        let mut v = to_json(&d);
+        v["robot"] = json!(cfg.robot.name);
+        v["verdict"] = crate::html::diagnosis_verdict(&d, &cfg, &a.recording.display().to_string(), None).json();
+        taut_config::write_atomic(j, serde_json::to_string_pretty(&v)?.as_bytes()).with_context(|| format!("writing {}", j.display()))?;
     }
     if let Some(p) = &a.out {
         let (effects, notes) = taut_calib::effect_fit::effects_of(&d);

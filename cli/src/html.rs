@@ -10,7 +10,7 @@ use crate::calibrate::Outcome;
 use crate::figures::Figure;
 use anyhow::Result;
 use std::fmt::Write as _;
-use taut_calib::diagnose::Diagnosis;
+use taut_calib::diagnose::{Diagnosis, Effect, Finding, Sharing};
 use taut_config::recording::{ParseReport, Recording};
 use taut_config::RobotConfig;
 
@@ -38,10 +38,10 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1040px;margin:1.5em a
 h1{font-size:1.5em;margin-bottom:.2em}h2{font-size:1.2em;border-bottom:1px solid #aaa;margin-top:1.6em}\
 h3{font-size:1.05em;margin-bottom:.2em}table{border-collapse:collapse;margin:.6em 0}\
 th,td{border:1px solid #bbb;padding:.2em .6em;text-align:right;font-variant-numeric:tabular-nums}\
-th{background:#eee}td.l,th.l{text-align:left}.verdict{border:2px solid #333;padding:.6em 1em;margin:1em 0}\
+th{background:#eee}td.l,th.l{text-align:left}td.l:first-child{white-space:nowrap}.verdict{border:2px solid #333;padding:.6em 1em;margin:1em 0}\
 .ok{border-color:#009e73}.warn{border-color:#e69f00}.fail{border-color:#d55e00}\
 figure{margin:1em 0}figure svg{max-width:100%;height:auto;display:block}figcaption{font-size:.92em;color:#333}\
-.meta{color:#444;font-size:.92em}";
+.meta{color:#444;font-size:.92em}dt{font-weight:bold;margin-top:.5em}dd{margin-left:1.5em}";
 
 /// How a verdict reads: good, to look at, or refused.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -160,6 +160,8 @@ impl Page {
     }
 }
 
+/// Metres as millimetres, 2 decimals (an RMS of thousands of readings is known to well below
+/// 0.01 mm relative to its size); `-` when not a number.
 fn mm(v: f64) -> String {
     if v.is_finite() {
         format!("{:.2}", v * 1e3)
@@ -168,17 +170,193 @@ fn mm(v: f64) -> String {
     }
 }
 
-fn m4(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v:.4}")
-    } else {
-        "-".into()
+use taut_config::numfmt::{plus_minus, rounded, sig2};
+
+fn generated() -> String {
+    format!("written by taut {} on {}", env!("CARGO_PKG_VERSION"), taut_rt_core::localtime::now())
+}
+
+/// How the solver stopped, in words.
+pub(crate) fn termination_words(t: taut_calib::solver::Termination) -> &'static str {
+    use taut_calib::solver::Termination::*;
+    match t {
+        SmallStep => "its steps became negligible",
+        SmallCostChange => "the error stopped falling",
+        SmallGradient => "the error has no slope left",
+        MaxIterations => "it ran out of iterations",
+        Stalled => "no step lowered the error any more",
     }
 }
 
-fn generated() -> String {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-    format!("written by taut {} at Unix time {secs}", env!("CARGO_PKG_VERSION"))
+/// What to do about a data problem of kind `kind` (the `name()` of a screen's wild value or of
+/// a diagnosis's data problem) on `who` (a cable's label, or the tracker), `count` times.
+fn data_action(kind: &str, who: Option<&str>, count: usize) -> String {
+    let who = who.unwrap_or("the tracker");
+    match kind {
+        "tracker-jump" | "tracker-outlier" => {
+            format!("Check the tracker's markers and line of sight: {count} position(s) jumped beyond its noise and were excluded.")
+        }
+        "tracker-dropout" => format!("Check the tracker's line of sight: {count} sample(s) had no position and were excluded."),
+        "frozen-tracker" => "Check the tracker: it repeated one position while the encoders moved.".into(),
+        "frozen-encoder" => format!("Check the encoder of {who}: it repeated one reading while the platform moved."),
+        "encoder-spike" => format!("Check the encoder wiring of {who}: {count} reading(s) far from their neighbours were excluded."),
+        "encoder-jump" => format!("Check {who} for lost encoder counts: {count} step(s) that stay were re-referenced."),
+        "dead-load-cell" => format!("Check the load cell of {who}: it reads nothing, so its tensions were ignored."),
+        "impossible-tension" => format!("Check the load cell of {who}: {count} impossible tension(s) were excluded."),
+        "stale-row" => format!("Check the logger: {count} row(s) paired a new pose with the previous lengths and were left out."),
+        "clock-jump" => "Check the logger's clock: time went backwards, repeated or jumped.".into(),
+        other => format!("Look at the {other} data problems listed below ({count})."),
+    }
+}
+
+/// One action per kind of problem and cable, in the order first met: (kind, cable, count).
+fn grouped(items: impl Iterator<Item = (&'static str, Option<usize>, usize)>) -> Vec<(&'static str, Option<usize>, usize)> {
+    let mut out: Vec<(&'static str, Option<usize>, usize)> = Vec::new();
+    for (k, c, n) in items {
+        // The tracker's problems are the tracker's, whatever cable they were found on.
+        let c = if k.starts_with("tracker") { None } else { c };
+        match out.iter_mut().find(|g| g.0 == k && g.1 == c) {
+            Some(g) => g.2 += n,
+            None => out.push((k, c, n)),
+        }
+    }
+    out
+}
+
+/// At most this many actions; the rest are counted.
+const MAX_ACTIONS: usize = 6;
+
+/// The data problems' actions, short.
+fn data_actions(cfg: &RobotConfig, groups: &[(&'static str, Option<usize>, usize)]) -> Vec<String> {
+    let mut v: Vec<String> =
+        groups.iter().take(MAX_ACTIONS).map(|(k, c, n)| data_action(k, c.map(|j| cfg.cable_label(j)).as_deref(), *n)).collect();
+    if groups.len() > MAX_ACTIONS {
+        v.push(format!("Look at the other {} kinds of data problem listed under Data problems.", groups.len() - MAX_ACTIONS));
+    }
+    v
+}
+
+/// The next steps in order: the main actions, the sensor checks, then the last step (use the
+/// result); at most `MAX_ACTIONS + 2`, the checks cut first (the rest are under Data problems).
+fn finish_next(mut next: Vec<String>, mut checks: Vec<String>, last: Option<String>) -> Vec<String> {
+    let limit = MAX_ACTIONS + 2;
+    next.truncate(limit - usize::from(last.is_some()) - usize::from(!checks.is_empty()));
+    let room = limit - next.len() - usize::from(last.is_some());
+    if checks.len() > room {
+        checks.truncate(room.saturating_sub(1));
+        checks.push("Look at the other data problems listed under Data problems.".into());
+    }
+    next.extend(checks);
+    next.extend(last);
+    next
+}
+
+/// A verdict: how it reads, its headline, the sentences that back it, and what to do next.
+#[derive(Debug, Clone)]
+pub struct Verdict {
+    /// Good, to look at, or refused.
+    pub tone: Tone,
+    /// One line.
+    pub headline: String,
+    /// The numbers behind it.
+    pub sentences: Vec<String>,
+    /// Actions, a short list.
+    pub next: Vec<String>,
+}
+
+impl Verdict {
+    /// The verdict as JSON (`verdict` in the `--json` documents).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "tone": match self.tone { Tone::Ok => "ok", Tone::Warn => "warn", Tone::Fail => "fail" },
+            "headline": self.headline,
+            "sentences": self.sentences,
+            "next": self.next,
+        })
+    }
+}
+
+/// The words for the report's appendix: what each term means and where `docs/` explains it.
+const TERMS: &[(&str, &str, &str)] = &[
+    (
+        "taut reading",
+        "A reading of a cable taken while its tension was at or above the loose threshold (calibration.min_tension_n). Only taut \
+         readings measure the straight line from anchor to platform; loose (slack) ones are excluded from the fit.",
+        "docs/reports.md#taut-and-loose-readings",
+    ),
+    (
+        "measured minus modelled length",
+        "The encoder's cable length minus the length the model predicts from the tracked pose: the fit's error, per reading.",
+        "docs/reports.md#the-fit",
+    ),
+    (
+        "held-out RMS",
+        "The RMS error on the end of the recording the fit did not see: how well the model predicts, not how well it memorises.",
+        "docs/diagnosis.md#held-out-time-blocked-data",
+    ),
+    (
+        "1-sigma (σ)",
+        "The standard uncertainty of an estimate: about 2 in 3 repeats of the recording would land within ± 1 σ. Values are \
+         rounded to two significant digits of their σ.",
+        "docs/reports.md#numbers",
+    ),
+    (
+        "Cramér-Rao bound",
+        "The smallest σ any unbiased estimator could reach with these readings and this noise model; the calibration's σ near \
+         it means the data were used well.",
+        "docs/reports.md#the-fit",
+    ),
+    (
+        "model check",
+        "Every reading is held out once (a 5-block cross-fit) and its error compared with what the noise model predicts; t, \
+         dof (degrees of freedom) and p are the one-sided t test of that comparison. p below the false-alarm rate (1e-3) says \
+         the readings are not what the model and its noise predict.",
+        "docs/diagnosis.md#when-taut-calibrate-says-the-model-does-not-explain-the-data",
+    ),
+    (
+        "solver stop",
+        "The least-squares solver stops when its steps become negligible (SmallStep), the error stops falling \
+         (SmallCostChange) or has no slope left (SmallGradient): all three mean converged. MaxIterations and Stalled do not.",
+        "docs/reports.md#the-fit",
+    ),
+    (
+        "held-out test (t, dof, n, n_eff, p)",
+        "A candidate effect is named only when it predicts held-out data better than the current model: t is the test \
+         statistic, dof its degrees of freedom, n the held-out samples compared, n_eff how many independent ones they are worth \
+         (fewer when the noise is correlated), p the chance of a gain this large from noise alone.",
+        "docs/diagnosis.md#the-test-does-the-candidate-predict-held-out-data-better",
+    ),
+    (
+        "slack",
+        "The diagnosis's name for loose-cable readings: excluded below the threshold tension, not a physical effect to model.",
+        "docs/reports.md#taut-and-loose-readings",
+    ),
+    (
+        "data problem",
+        "A reading that cannot be right (a tracker jump, a frozen or lost encoder count, an impossible tension, a stale row): \
+         found before the fit, excluded or repaired, and listed.",
+        "docs/inputs.md#recordings",
+    ),
+];
+
+/// The appendix: the terms the page uses, each with the `docs/` page that explains it.
+fn terms(page: &mut Page, used: &[&str]) {
+    page.h2("Terms used in this report");
+    page.html.push_str("<dl id=\"terms\">");
+    for (term, words, doc) in TERMS.iter().filter(|t| used.contains(&t.0)) {
+        let _ = write!(page.html, "<dt>{}</dt><dd>{} See <code>{}</code>.</dd>", escape(term), escape(words), escape(doc));
+    }
+    page.html.push_str("</dl>\n");
+}
+
+/// "What to do next" as a numbered list (`id="next"`).
+fn next_steps(page: &mut Page, items: &[String]) {
+    page.h2("What to do next");
+    page.html.push_str("<ol id=\"next\">");
+    for i in items {
+        let _ = write!(page.html, "<li>{}</li>", escape(i));
+    }
+    page.html.push_str("</ol>\n");
 }
 
 /// What a calibration report needs beyond the outcome.
@@ -193,18 +371,16 @@ pub struct CalibrationContext<'a> {
     pub params_out: Option<&'a str>,
 }
 
-/// The calibration report.
-pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out: &Outcome, ctx: &CalibrationContext) -> Result<String> {
+/// The sensors' noise as one length: tracker and encoder 1-sigma combined, m.
+fn noise_of(cfg: &RobotConfig) -> f64 {
+    (cfg.calibration.tracker_sigma_m.powi(2) + cfg.calibration.encoder_sigma_m.powi(2)).sqrt()
+}
+
+/// The calibration's verdict and next steps, from the outcome alone (the page's body shows the
+/// same numbers).
+pub fn calibration_verdict(cfg: &RobotConfig, out: &Outcome, ctx: &CalibrationContext) -> Verdict {
     let f = &out.force;
-    let n = rec.n_cables;
-    let mut page = Page::new(&format!("Calibration of {} from {}", cfg.robot.name, ctx.source));
-    page.meta(&format!(
-        "recording {}; configuration {}; {}",
-        ctx.source,
-        ctx.config.unwrap_or("none (point-mass platform, default noise model)"),
-        generated()
-    ));
-    // The verdict: the largest 1-sigma, the fit, and whether the result may be used.
+    let n = f.params.anchors.len();
     let (mut worst, mut worst_at) = (0.0f64, (0usize, 0usize));
     for (j, s) in f.sigma.anchors.iter().enumerate() {
         for (k, v) in s.iter().enumerate() {
@@ -214,34 +390,51 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
             }
         }
     }
-    let converged = !matches!(f.termination, taut_calib::solver::Termination::MaxIterations | taut_calib::solver::Termination::Stalled);
-    let noise = (cfg.calibration.tracker_sigma_m.powi(2) + cfg.calibration.encoder_sigma_m.powi(2)).sqrt();
+    let converged = f.termination.was_successful();
+    let noise = noise_of(cfg);
     let mut says = vec![
         format!(
-            "The solver {} ({:?}, {} iterations) on {} readings of {} cables ({} excluded).",
+            "The solver {} after {} iterations ({}), on {} taut readings of {} cables ({} excluded).",
             if converged { "converged" } else { "did not converge" },
-            f.termination,
             f.iterations,
+            termination_words(f.termination),
             f.samples_used,
             n,
             f.samples_excluded
         ),
         format!(
-            "Measured minus modelled length: RMS {} mm on the fitted readings, {} mm on the held-out end of the recording; the noise model \
-             alone expects about {} mm.",
+            "Measured minus modelled length: RMS {} mm on the fitted readings, {} mm held out; the sensors' noise alone gives about {} mm.",
             mm(f.rms_m),
             mm(f.heldout_rms_m),
             mm(noise)
         ),
-        format!("The least certain anchor coordinate is cable {} {}: 1-sigma {} mm.", worst_at.0, ["x", "y", "z"][worst_at.1], mm(worst)),
+        format!(
+            "The least certain anchor coordinate is {} {}: 1-sigma {} mm.",
+            taut_config::cable_name(worst_at.0),
+            ["x", "y", "z"][worst_at.1],
+            sig2(worst * 1e3)
+        ),
     ];
     match &f.consistency {
         Some(c) if !c.consistent => says.push(format!(
-            "The model does not explain the data: {}. The estimates may be biased beyond their stated sigmas; run `taut diagnose` on this recording.",
-            c.numbers()
+            "The model does not explain the data: in the model check's cross-fit the RMS is {} mm against {} mm predicted by the \
+             noise model. The estimates may be biased beyond their stated sigmas.",
+            mm(c.heldout_rms_m),
+            mm(c.expected_rms_m)
         )),
-        Some(c) => says.push(format!("Model check: consistent with the noise model ({}).", c.numbers())),
+        Some(c) => says.push(format!(
+            "Model check: consistent with the noise model (cross-fit RMS {} mm against {} mm predicted).",
+            mm(c.heldout_rms_m),
+            mm(c.expected_rms_m)
+        )),
         None => {}
+    }
+    let wild = out.screen.findings.len();
+    if wild > 0 || out.stale_rows > 0 {
+        says.push(format!(
+            "{} data problem(s) were excluded before the fit (listed under Data problems).",
+            wild + usize::from(out.stale_rows > 0)
+        ));
     }
     let (tone, headline) = match &ctx.refused {
         Some(why) => {
@@ -251,7 +444,6 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         }
         None if !converged => (Tone::Warn, "Calibrated, but the solver did not converge."),
         None if !f.model_consistent() => (Tone::Warn, "Calibrated, but the model does not explain the data."),
-        None if !out.screen.findings.is_empty() => (Tone::Warn, "Calibrated, with data problems excluded."),
         None => (Tone::Ok, "Calibrated."),
     };
     if let Some(p) = ctx.params_out {
@@ -259,35 +451,58 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
             says.push(format!("The parameters were written to {p}."));
         }
     }
-    page.verdict(tone, headline, &says);
-
-    page.h2("What to do next");
-    // Actions only; what the fit noticed (counts of loose readings, rows without a tracker)
-    // follows under "Notes".
+    // Actions only; what the fit noticed goes under Notes.
     let mut next: Vec<String> = Vec::new();
     if ctx.refused.is_some() {
-        next.push("Record again with the cables taut and the platform moved through the whole workspace, then calibrate again.".into());
-    } else if ctx.params_out.is_none() {
-        next.push("Write these parameters with `--out params.toml` to use them in the robot.".into());
+        next.push("Fix what the verdict names, record again with the cables taut and the platform moved through the whole workspace, then calibrate again.".into());
+    } else if !converged {
+        next.push("Record again, moving the platform over more of the workspace in all three directions, and calibrate again.".into());
     }
-    if f.heldout_rms_m.is_finite() && f.heldout_rms_m > 2.0 * noise {
+    let consistent = f.model_consistent();
+    if ctx.refused.is_none() && !consistent {
         next.push(format!(
-            "The held-out error ({} mm) is more than twice what the sensors' noise explains ({} mm): run `taut diagnose` on this \
-             recording to look for physics the ideal model leaves out (sag, elasticity, pulleys, time offset, backlash).",
+            "Run `taut diagnose {} --out params.toml` to find the physics the ideal model leaves out (stretch, sag, pulleys, scale, \
+             time offset, backlash) and write the model with it.",
+            ctx.source
+        ));
+    } else if ctx.refused.is_none() && f.heldout_rms_m.is_finite() && f.heldout_rms_m > 2.0 * noise {
+        next.push(format!(
+            "Check the noise model in [calibration]: the held-out error ({} mm) is more than twice the sensors' noise ({} mm); or run `taut diagnose {}`.",
             mm(f.heldout_rms_m),
-            mm(noise)
+            mm(noise),
+            ctx.source
         ));
     }
-    if !out.screen.findings.is_empty() {
-        next.push(format!(
-            "{} wild values were screened out as data problems (listed below): check the sensors and cables named there.",
-            out.screen.findings.len()
-        ));
-    }
-    if next.is_empty() {
-        next.push("Nothing: the fit is at the noise the sensors explain.".into());
-    }
-    page.list(&next);
+    let groups = grouped(out.screen.findings.iter().map(|w| (w.kind.name(), w.cable, 1)).chain((out.stale_rows > 0).then_some((
+        "stale-row",
+        None,
+        out.stale_rows,
+    ))));
+    let last = (ctx.refused.is_none() && converged && consistent).then(|| match ctx.params_out {
+        None => format!(
+            "Write the parameters with `taut calibrate {} --out params.toml` and run the robot with them: `taut start --params params.toml`.",
+            ctx.source
+        ),
+        Some(p) => format!("Run the robot with them: `taut start --params {p}`."),
+    });
+    let next = finish_next(next, data_actions(cfg, &groups), last);
+    Verdict { tone, headline: headline.into(), sentences: says, next }
+}
+
+/// The calibration report.
+pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out: &Outcome, ctx: &CalibrationContext) -> Result<String> {
+    let f = &out.force;
+    let n = rec.n_cables;
+    let mut page = Page::new(&format!("Calibration of {}", cfg.robot.name));
+    page.meta(&format!(
+        "recording {}; configuration {}; {}",
+        ctx.source,
+        ctx.config.unwrap_or("none (point-mass platform, default noise model)"),
+        generated()
+    ));
+    let v = calibration_verdict(cfg, out, ctx);
+    page.verdict(v.tone, &v.headline, &v.sentences);
+    next_steps(&mut page, &v.next);
     if !f.notes.is_empty() {
         page.h2("Notes");
         page.list(&f.notes);
@@ -308,36 +523,51 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
             ],
             vec!["initialisation".into(), out.init.method.to_string()],
         ],
-        1,
+        2,
     );
 
     page.h2("Anchors and encoder offsets");
-    page.p("Anchors A_j in the tracker frame, m; 1-sigma uncertainties in mm (scaled by the fit's reduced chi-square when it exceeds 1).");
+    page.p("Anchors in the tracker frame, m, each coordinate rounded to two significant digits of its 1-sigma (in mm beside it; \
+         scaled by the fit's reduced chi-square when that exceeds 1).");
+    let nominal = cfg.anchors().filter(|a| a.len() == n);
     let rows: Vec<Vec<String>> = (0..n)
         .map(|j| {
             let a = f.params.anchors[j];
             let i = out.init.params.anchors[j];
             let s = f.sigma.anchors[j];
+            let smax = s.iter().copied().fold(0.0, f64::max);
             let moved = ((a[0] - i[0]).powi(2) + (a[1] - i[1]).powi(2) + (a[2] - i[2]).powi(2)).sqrt();
-            vec![
-                format!("cable {j}"),
-                m4(a[0]),
-                m4(a[1]),
-                m4(a[2]),
-                mm(s[0]),
-                mm(s[1]),
-                mm(s[2]),
-                mm(moved),
-                m4(f.params.l0[j]),
-                mm(f.sigma.l0[j]),
-            ]
+            let from_nominal = nominal.as_ref().map_or("-".to_string(), |nom| {
+                let d = ((a[0] - nom[j][0]).powi(2) + (a[1] - nom[j][1]).powi(2) + (a[2] - nom[j][2]).powi(2)).sqrt();
+                rounded(d * 1e3, smax * 1e3)
+            });
+            let mut row = vec![
+                cfg.cable_label(j),
+                rounded(a[0], s[0]),
+                rounded(a[1], s[1]),
+                rounded(a[2], s[2]),
+                sig2(s[0] * 1e3),
+                sig2(s[1] * 1e3),
+                sig2(s[2] * 1e3),
+                rounded(moved * 1e3, smax * 1e3),
+            ];
+            if nominal.is_some() {
+                row.push(from_nominal);
+            }
+            row.extend([rounded(f.params.l0[j], f.sigma.l0[j]), sig2(f.sigma.l0[j] * 1e3)]);
+            row
         })
         .collect();
-    page.table(&["cable", "x, m", "y, m", "z, m", "σx, mm", "σy, mm", "σz, mm", "moved from initial, mm", "L0, m", "σL0, mm"], &rows, 1);
+    let mut head = vec!["cable", "x, m", "y, m", "z, m", "σx, mm", "σy, mm", "σz, mm", "moved from initial, mm"];
+    if nominal.is_some() {
+        head.push("from nominal, mm");
+    }
+    head.extend(["L0, m", "σL0, mm"]);
+    page.table(&head, &rows, 1);
     let crb = crate::report::rms_sigma(&out.crb.anchor_sigma);
     page.p(&format!(
         "Cramér-Rao bound at this estimate (the best any unbiased estimator could do with these readings): RMS anchor 1-sigma {} mm.",
-        mm(crb)
+        sig2(crb * 1e3)
     ));
 
     page.h2("Fit");
@@ -346,98 +576,188 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
         rows.push(vec!["after, without force weighting".into(), mm(p.rms_m), mm(p.peak_m), mm(p.heldout_rms_m)]);
     }
     rows.push(vec!["after, force-aware".into(), mm(f.rms_m), mm(f.peak_m), mm(f.heldout_rms_m)]);
-    page.table(&["measured - modelled length, taut readings", "RMS, mm", "peak, mm", "held-out RMS, mm"], &rows, 1);
+    page.table(&["measured minus modelled length, taut readings", "RMS, mm", "peak, mm", "held-out RMS, mm"], &rows, 1);
+    page.p(&format!(
+        "The solver stopped after {} iterations because {} ({:?}).",
+        f.iterations,
+        termination_words(f.termination),
+        f.termination
+    ));
+    if let Some(c) = &f.consistency {
+        page.p(&format!(
+            "Model check: held-out RMS {} mm against {} mm predicted; chi-square ratio {:.2}, t = {:.1} with {:.0} degrees of freedom, \
+             p = {:.1e} (false-alarm rate {:.0e}); {} readings at {} held-out samples.",
+            mm(c.heldout_rms_m),
+            mm(c.expected_rms_m),
+            c.ratio,
+            c.statistic,
+            c.dof,
+            c.p_value,
+            c.alpha,
+            c.readings,
+            c.samples
+        ));
+    }
 
-    if !out.screen.findings.is_empty() || !parse.notes.is_empty() {
-        page.h2("Data problems and notes");
+    if !out.screen.findings.is_empty() || !parse.notes.is_empty() || out.stale_rows > 0 {
+        page.h2("Data problems");
         let mut items: Vec<String> = out.screen.findings.iter().take(50).map(|w| format!("{w} ({})", w.kind.name())).collect();
         if out.screen.findings.len() > 50 {
             items.push(format!("and {} more wild values", out.screen.findings.len() - 50));
         }
+        if out.stale_rows > 0 {
+            items.push(format!(
+                "{} rows repeat every encoder reading of the row before while the platform moves (stale-row); left out",
+                out.stale_rows
+            ));
+        }
         items.extend(parse.notes.iter().cloned());
         page.list(&items);
+        page.meta("Rows are counted from 0, the first data row after the header.");
     }
 
     page.h2("Figures");
     for fig in crate::figures::calibration::figures(rec, cfg, out) {
         page.figure(&fig)?;
     }
+    terms(
+        &mut page,
+        &[
+            "taut reading",
+            "measured minus modelled length",
+            "held-out RMS",
+            "1-sigma (σ)",
+            "Cramér-Rao bound",
+            "model check",
+            "solver stop",
+            "data problem",
+        ],
+    );
     Ok(page.finish())
 }
 
-/// A value and its 1-sigma rounded to the sigma's two significant digits: `19740 ± 570`,
-/// `1.0555 ± 0.0023`. Without a usable sigma, the value to 4 decimals.
-pub fn plus_minus(v: f64, s: f64) -> String {
-    if !(s.is_finite() && s > 0.0 && v.is_finite()) {
-        return format!("{v:.4}");
-    }
-    let decimals = 1 - s.log10().floor() as i32;
-    if decimals > 0 {
-        let d = decimals as usize;
-        format!("{v:.d$} ± {s:.d$}")
-    } else {
-        let unit = 10f64.powi(-decimals);
-        let r = |x: f64| (x / unit).round() * unit;
-        format!("{:.0} ± {:.0}", r(v), r(s))
+/// An effect's parameter as people write it: label, unit and scale from the model's SI value.
+fn parameter_words(e: Effect) -> (&'static str, &'static str, f64) {
+    match e {
+        Effect::Elasticity => ("EA", "N", 1.0),
+        Effect::Sag => ("weight per length", "N/m", 1.0),
+        Effect::Pulley => ("pulley radius", "mm", 1e3),
+        Effect::Scale => ("length scale", "", 1.0),
+        Effect::TimeOffset => ("time offset", "ms", 1e3),
+        Effect::Backlash => ("play", "mm", 1e3),
+        Effect::Slack => ("loose below", "N", 1.0),
     }
 }
 
-/// The diagnosis report.
-pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<String>) -> Result<String> {
-    let mut page = Page::new(&format!("Diagnosis of {robot} from {source}"));
-    page.meta(&format!("recording {source}; {}", generated()));
+/// An effect's values with their 1-sigma: `EA 19740 ± 570 N` (shared) or one per cable.
+fn effect_values(f: &Finding) -> String {
+    let (label, unit, k) = parameter_words(f.effect);
+    let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+    let vals: Vec<String> = f
+        .values
+        .iter()
+        .zip(f.sigmas.iter().chain(std::iter::repeat(&f64::NAN)))
+        .map(|(v, s)| format!("{}{unit}", plus_minus(v * k, s * k)))
+        .collect();
+    if f.effect.sharing() == Sharing::PerCable && vals.len() > 1 {
+        let per: Vec<String> = vals.iter().enumerate().map(|(j, v)| format!("{v} ({})", taut_config::cable_name(j))).collect();
+        format!("{label} {}", per.join(", "))
+    } else {
+        format!("{label} {}", vals.join(", "))
+    }
+}
+
+/// The diagnosis's verdict and next steps.
+pub fn diagnosis_verdict(d: &Diagnosis, cfg: &RobotConfig, source: &str, refused: Option<&str>) -> Verdict {
+    let physics: Vec<&Finding> = d.effects.iter().filter(|f| f.effect != Effect::Slack).collect();
+    let slack = d.effects.iter().find(|f| f.effect == Effect::Slack);
     let mut says = Vec::new();
-    if let Some(why) = &refused {
+    if let Some(why) = refused {
         says.push(format!("{why}."));
     }
-    if d.effects.is_empty() {
-        says.push("No effect beyond the ideal model was found.".into());
+    let names: Vec<&str> = physics.iter().map(|f| f.effect.name()).collect();
+    if !physics.is_empty() {
+        says.push(format!(
+            "Modelling {} brings the held-out error from {} mm (ideal model) to {} mm.",
+            names.join(" and "),
+            mm(d.baseline.heldout_rms_m),
+            mm(d.final_fit.heldout_rms_m)
+        ));
+        for f in &physics {
+            says.push(format!("{}: {}.", f.effect.name(), effect_values(f)));
+        }
     } else {
-        let names: Vec<&str> = d.effects.iter().map(|f| f.effect.name()).collect();
-        says.push(format!("Named: {}.", names.join(", ")));
+        says.push(format!(
+            "Held-out error {} mm with the ideal model; no candidate effect predicts the data better.",
+            mm(d.final_fit.heldout_rms_m)
+        ));
     }
-    says.push(format!(
-        "Held-out RMS {} mm with the ideal model, {} mm with the named effects.",
-        mm(d.baseline.heldout_rms_m),
-        mm(d.final_fit.heldout_rms_m)
-    ));
+    if let Some(s) = slack {
+        says.push(format!("{} readings of loose cables were excluded.", s.samples.unwrap_or(0)));
+    }
+    if !d.data_problems.is_empty() {
+        says.push(format!("{} data problem(s) were excluded (listed under Data problems).", d.data_problems.len()));
+    }
     if let Some(u) = &d.unexplained {
         says.push(u.clone());
     }
-    let tone = if refused.is_some() {
-        Tone::Fail
-    } else if d.unexplained.is_some() || !d.data_problems.is_empty() {
-        Tone::Warn
+    let (tone, headline) = if refused.is_some() {
+        (Tone::Fail, "Refused.".to_string())
+    } else if d.unexplained.is_some() {
+        (
+            Tone::Warn,
+            format!(
+                "Something is left unexplained{}.",
+                if names.is_empty() { String::new() } else { format!(" after modelling {}", names.join(" and ")) }
+            ),
+        )
+    } else if !names.is_empty() {
+        (Tone::Ok, format!("Found: {}. With it modelled, what is left is noise.", names.join(" and ")))
     } else {
-        Tone::Ok
+        (Tone::Ok, "No effect beyond the ideal model: what is left is noise.".to_string())
     };
-    let headline = match tone {
-        Tone::Fail => "Refused.",
-        Tone::Warn => "Diagnosed, with something left to look at.",
-        Tone::Ok => "Diagnosed.",
-    };
-    page.verdict(tone, headline, &says);
-
-    page.h2("What to do next");
     let mut next: Vec<String> = Vec::new();
-    for p in &d.data_problems {
-        next.push(format!("Data problem ({}): {}", p.kind.name(), p.description));
+    if refused.is_some() {
+        next.push("Fix what the verdict names and record again.".into());
     }
-    for f in &d.effects {
-        for (e, r) in &f.equally_good {
+    if d.unexplained.is_some() {
+        next.push(
+            "Look at the residual figures below for drifts, steps or episodes, and at the data problems; record again with the suspect \
+             part of the robot exercised."
+                .into(),
+        );
+    }
+    for f in &physics {
+        for (e, _) in &f.equally_good {
             next.push(format!(
-                "{} and {} fit equally well (held-out {} mm): a recording that moves along the direction where they differ would tell them apart.",
+                "Record moving where {} and {} differ (they fit equally well here), then diagnose again to tell them apart.",
                 f.effect.name(),
-                e.name(),
-                mm(*r)
+                e.name()
             ));
         }
     }
-    next.extend(d.notes.iter().cloned());
-    if next.is_empty() {
-        next.push("Nothing: the named effects bring the fit to the noise.".into());
-    }
-    page.list(&next);
+    let groups = grouped(d.data_problems.iter().map(|p| (p.kind.name(), p.cable, p.samples.max(1))));
+    let last = refused.is_none().then(|| {
+        if physics.is_empty() {
+            format!("Calibrate with the ideal model: `taut calibrate {source} --out params.toml`.")
+        } else {
+            format!(
+                "Write the model with {}: `taut diagnose {source} --out params.toml`, and run the robot with it: `taut start --params params.toml`.",
+                names.join(" and ")
+            )
+        }
+    });
+    let next = finish_next(next, data_actions(cfg, &groups), last);
+    Verdict { tone, headline, sentences: says, next }
+}
+
+/// The diagnosis report.
+pub fn diagnosis(d: &Diagnosis, source: &str, cfg: &RobotConfig, refused: Option<String>) -> Result<String> {
+    let mut page = Page::new(&format!("Diagnosis of {}", cfg.robot.name));
+    page.meta(&format!("recording {source}; {}", generated()));
+    let v = diagnosis_verdict(d, cfg, source, refused.as_deref());
+    page.verdict(v.tone, &v.headline, &v.sentences);
+    next_steps(&mut page, &v.next);
 
     page.h2("Effects");
     if d.effects.is_empty() {
@@ -447,22 +767,25 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
             .effects
             .iter()
             .map(|f| {
-                let vals: Vec<String> =
-                    f.values.iter().zip(f.sigmas.iter().chain(std::iter::repeat(&f64::NAN))).map(|(v, s)| plus_minus(*v, *s)).collect();
                 vec![
                     f.effect.name().to_string(),
-                    format!("{}: {}", f.effect.parameter(), vals.join(", ")),
+                    effect_values(f),
+                    f.evidence.clone(),
                     mm(f.heldout_rms_before_m),
                     mm(f.heldout_rms_after_m),
-                    f.evidence.clone(),
                 ]
             })
             .collect();
-        page.table(&["effect", "parameters ± 1-sigma", "held-out before, mm", "held-out after, mm", "evidence"], &rows, 2);
+        page.table(&["effect", "parameters ± 1-sigma", "evidence", "held-out before, mm", "held-out after, mm"], &rows, 3);
     }
     if !d.rejected.is_empty() {
         page.h2("Candidates not named");
+        page.p("Each candidate's held-out test (see Terms): a candidate is named only when its p is below its alpha.");
         page.list(&d.rejected);
+    }
+    if !d.notes.is_empty() {
+        page.h2("Notes");
+        page.list(&d.notes);
     }
     page.h2("Model");
     let fin = &d.final_fit;
@@ -470,16 +793,17 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
         .map(|j| {
             let a = fin.params.anchors[j];
             let s = fin.sigma.anchors.get(j).copied().unwrap_or([f64::NAN; 3]);
+            let sl0 = fin.sigma.l0.get(j).copied().unwrap_or(f64::NAN);
             vec![
-                format!("cable {j}"),
-                m4(a[0]),
-                m4(a[1]),
-                m4(a[2]),
-                mm(s[0]),
-                mm(s[1]),
-                mm(s[2]),
-                m4(fin.params.l0[j]),
-                mm(fin.sigma.l0.get(j).copied().unwrap_or(f64::NAN)),
+                cfg.cable_label(j),
+                rounded(a[0], s[0]),
+                rounded(a[1], s[1]),
+                rounded(a[2], s[2]),
+                sig2(s[0] * 1e3),
+                sig2(s[1] * 1e3),
+                sig2(s[2] * 1e3),
+                rounded(fin.params.l0[j], sl0),
+                sig2(sl0 * 1e3),
                 mm(d.baseline.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
                 mm(fin.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
             ]
@@ -494,24 +818,44 @@ pub fn diagnosis(d: &Diagnosis, source: &str, robot: &str, refused: Option<Strin
         page.h2("Where the ideal model misses");
         page.list(&d.mismatch.words);
     }
+    if !d.data_problems.is_empty() {
+        page.h2("Data problems");
+        let items: Vec<String> = d.data_problems.iter().map(|p| format!("{} ({})", p.description, p.kind.name())).collect();
+        page.list(&items);
+        page.meta("Rows are counted from 0, the first data row after the header.");
+    }
     page.h2("Figures");
     for fig in crate::figures::diagnosis::figures(d) {
         page.figure(&fig)?;
     }
+    terms(
+        &mut page,
+        &[
+            "taut reading",
+            "measured minus modelled length",
+            "held-out RMS",
+            "1-sigma (σ)",
+            "held-out test (t, dof, n, n_eff, p)",
+            "slack",
+            "data problem",
+        ],
+    );
     Ok(page.finish())
 }
 
 #[cfg(test)]
-mod plus_minus_tests {
-    use super::plus_minus;
+mod next_tests {
+    use super::{finish_next, MAX_ACTIONS};
 
     #[test]
-    fn values_are_rounded_to_their_uncertainty() {
-        assert_eq!(plus_minus(19737.0827, 565.2190), "19740 ± 570");
-        assert_eq!(plus_minus(1.05552, 0.0023), "1.0555 ± 0.0023");
-        assert_eq!(plus_minus(0.0123456, 0.00098), "0.01235 ± 0.00098");
-        assert_eq!(plus_minus(-2.71234, 0.25), "-2.71 ± 0.25");
-        assert_eq!(plus_minus(2.5, f64::NAN), "2.5000");
-        assert_eq!(plus_minus(2.5, 0.0), "2.5000");
+    fn the_last_step_survives_many_checks() {
+        let checks: Vec<String> = (0..20).map(|k| format!("Check sensor {k}.")).collect();
+        let next = finish_next(vec!["Run taut diagnose.".into()], checks, Some("Write the parameters.".into()));
+        assert_eq!(next.len(), MAX_ACTIONS + 2, "{next:#?}");
+        assert_eq!(next[0], "Run taut diagnose.");
+        assert_eq!(next.last().unwrap(), "Write the parameters.");
+        assert!(next[next.len() - 2].starts_with("Look at the other data problems"), "{next:#?}");
+        let few = finish_next(vec![], vec!["Check the tracker.".into()], None);
+        assert_eq!(few, vec!["Check the tracker.".to_string()]);
     }
 }

@@ -103,7 +103,8 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     for j in 0..rec.n_cables {
         let (a, s) = (r.params.anchors[j], r.sigma.anchors[j]);
         println!(
-            "{j:>5}  {:>9.4} {:>9.4} {:>9.4}   {:>6.2} {:>6.2} {:>6.2}   {:>9.4}   {:>6.2}",
+            "{:>5}  {:>9.4} {:>9.4} {:>9.4}   {:>6.2} {:>6.2} {:>6.2}   {:>9.4}   {:>6.2}",
+            j + 1,
             a[0],
             a[1],
             a[2],
@@ -117,16 +118,16 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     println!("Cramér–Rao bound on the anchors: {:.2} mm RMS after the frame alignment", r.anchor_rms_crb_m * 1e3);
     println!("frame-free quantities:");
     for (i, j, e) in &r.distances {
-        println!("  distance anchor {i} - anchor {j}: {:.4} m +- {:.2} mm", e.value, e.sigma * 1e3);
+        println!("  distance anchor {} - anchor {}: {:.4} m +- {:.2} mm", i + 1, j + 1, e.value, e.sigma * 1e3);
     }
     if let Some(h) = &r.heights {
         for (j, e) in h.iter().enumerate().skip(1) {
-            println!("  height of anchor {j} above anchor 0: {:.4} m +- {:.2} mm", e.value, e.sigma * 1e3);
+            println!("  height of anchor {} above anchor 1: {:.4} m +- {:.2} mm", j + 1, e.value, e.sigma * 1e3);
         }
     }
     if let Some(c) = &r.loadcell_offsets {
         for (j, e) in c.iter().enumerate() {
-            println!("  load-cell offset {j}: {:.3} N +- {:.3} N", e.value, e.sigma);
+            println!("  load-cell offset of cable {}: {:.3} N +- {:.3} N", j + 1, e.value, e.sigma);
         }
     }
     if let Some(m) = &r.mass {

@@ -45,9 +45,10 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     );
     println!("initialisation: {}", out.init.method);
     println!(
-        "calibration: {:?} after {} iterations; {} samples used, {} excluded{}",
-        f.termination,
+        "calibration: {} after {} iterations ({}); {} samples used, {} excluded{}",
+        if f.termination.was_successful() { "converged" } else { "NOT converged" },
         f.iterations,
+        crate::html::termination_words(f.termination),
         f.samples_used,
         f.samples_excluded,
         if f.used_tensions { "" } else { " (no tensions: uniform weights)" }
@@ -77,7 +78,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
         let s = f.sigma.anchors[j];
         print!(
             "  {:<5} {:<28} {:<28} {:<22}",
-            j,
+            j + 1,
             fmt3(&out.init.params.anchors[j]),
             fmt3(&f.params.anchors[j]),
             format!("{} {} {}", mm(s[0]), mm(s[1]), mm(s[2]))
@@ -95,7 +96,7 @@ pub fn print_calibration(rec: &Recording, parse: &ParseReport, out: &Outcome, tr
     println!();
     println!("encoder offsets L0_j, m");
     for j in 0..n {
-        print!("  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm", j, out.init.params.l0[j], f.params.l0[j], mm(f.sigma.l0[j]));
+        print!("  {:<5} initial {:9.4}  calibrated {:9.4} +- {} mm", j + 1, out.init.params.l0[j], f.params.l0[j], mm(f.sigma.l0[j]));
         if let Some(t) = truth {
             print!("   truth {:9.4}  error {} mm", t.l0[j], mm((f.params.l0[j] - t.l0[j]).abs()));
         }

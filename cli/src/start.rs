@@ -382,7 +382,7 @@ fn finish(
         }
         if truth.is_none() {
             for (j, a) in e.geometry.anchors.iter().enumerate() {
-                println!("calibrated         anchor {j} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", a[0], a[1], a[2], e.geometry.l0[j]);
+                println!("calibrated         anchor {} [{:.4}, {:.4}, {:.4}] m, l0 {:.4} m", j + 1, a[0], a[1], a[2], e.geometry.l0[j]);
             }
         }
     }

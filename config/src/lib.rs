@@ -21,6 +21,7 @@ pub mod live;
 pub mod loadcell_timing;
 #[cfg(feature = "mcap")]
 pub mod mcap;
+pub mod numfmt;
 pub mod params;
 pub mod pdo;
 pub mod recording;
@@ -244,7 +245,54 @@ impl fmt::Display for ConfigError {
 
 impl std::error::Error for ConfigError {}
 
+/// How people are shown cable `j` (0-based index into `[[cable]]`): `cable 1` for the first.
+/// Node ids and Modbus unit ids count from 1, so do the cables in every text for people (reports,
+/// `taut ctl status`, the daemon's log); machine-facing JSON indices stay 0-based where their
+/// documentation says so.
+pub fn cable_name(j: usize) -> String {
+    format!("cable {}", j + 1)
+}
+
+/// Several cables for people, from 1: `cable 2`, `cables 1 and 3`, `cables 1, 2 and 4`.
+pub fn cable_list(js: &[usize]) -> String {
+    let names: Vec<String> = js.iter().map(|j| (j + 1).to_string()).collect();
+    match names.len() {
+        0 => "no cable".into(),
+        1 => format!("cable {}", names[0]),
+        k => format!("cables {} and {}", names[..k - 1].join(", "), names[k - 1]),
+    }
+}
+
+/// [`cable_name`] with the devices behind the cable where known: `cable 1 (drive node 3, load
+/// cell unit 2)`; just `cable 1` without either.
+pub fn cable_label_with(j: usize, node_id: Option<u8>, unit_id: Option<u8>) -> String {
+    let mut parts = Vec::new();
+    if let Some(n) = node_id {
+        parts.push(format!("drive node {n}"));
+    }
+    if let Some(u) = unit_id {
+        parts.push(format!("load cell unit {u}"));
+    }
+    if parts.is_empty() {
+        cable_name(j)
+    } else {
+        format!("{} ({})", cable_name(j), parts.join(", "))
+    }
+}
+
 impl RobotConfig {
+    /// The CANopen node id of cable `j`'s drive and the Modbus unit id of its load cell, where
+    /// the configuration gives them.
+    pub fn cable_ids(&self, j: usize) -> (Option<u8>, Option<u8>) {
+        self.cables.get(j).map_or((None, None), |c| (c.drive.as_ref().map(|d| d.node_id), c.loadcell.as_ref().map(|l| l.unit_id)))
+    }
+
+    /// [`cable_label_with`] from the configuration: `cable 1 (drive node 3, load cell unit 2)`.
+    pub fn cable_label(&self, j: usize) -> String {
+        let (n, u) = self.cable_ids(j);
+        cable_label_with(j, n, u)
+    }
+
     /// Reads and validates a configuration file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
@@ -611,6 +659,19 @@ mod tests {
             }
         }
         assert!(n >= 2, "expected the example configs in {}", dir.display());
+    }
+
+    #[test]
+    fn cables_are_shown_from_1_with_their_devices() {
+        let text = "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[cable.drive]\nnode_id = 5\n[cable.loadcell]\nunit_id = 7\n[[cable]]\n[cable.drive]\nnode_id = 6\n[[cable]]\n";
+        let cfg = RobotConfig::from_toml_str(text).unwrap();
+        assert_eq!(cfg.cable_label(0), "cable 1 (drive node 5, load cell unit 7)");
+        assert_eq!(cfg.cable_label(1), "cable 2 (drive node 6)");
+        assert_eq!(cfg.cable_label(2), "cable 3");
+        assert_eq!(cable_name(0), "cable 1");
+        assert_eq!(cable_list(&[1]), "cable 2");
+        assert_eq!(cable_list(&[0, 2]), "cables 1 and 3");
+        assert_eq!(cable_list(&[0, 1, 3]), "cables 1, 2 and 4");
     }
 
     #[test]

@@ -364,13 +364,16 @@ fn poll_round<L: SerialLink>(
     mut out: impl FnMut(TensionSample),
 ) -> Result<(), LinkLost> {
     for cell in cells {
-        match master.read(&cell.req) {
+        match master.read_for(&cell.req, Some(cell.cable)) {
             Ok(regs) => {
                 let t = clock.now();
                 let v = regs.values();
                 match value::newtons([v[0], v[1]], &cell.cfg) {
                     Some(newtons) => out(TensionSample { cable: cell.cable, newtons, t }),
-                    None => counters.count(Event::InvalidValue, format_args!("unit {}: reading is NaN or infinite", cell.cfg.unit_id)),
+                    None => counters.count(
+                        Event::InvalidValue,
+                        format_args!("cable {}, unit {}: reading is NaN or infinite", u32::from(cell.cable) + 1, cell.cfg.unit_id),
+                    ),
                 }
             }
             Err(crate::modbus::master::TransactionError::Link(e)) => {

@@ -211,7 +211,7 @@ impl Calibrate for TautCalib {
                 if c.source != init::AnchorSource::HeldPhases {
                     anchors[j] = nominal[j];
                     l0[j] = median_offset(rec, &self.platform, j, nominal[j], self.opts.min_tension_n).unwrap_or(l0[j]);
-                    note.push_str(&format!("; cable {j}: nominal anchor"));
+                    note.push_str(&format!("; {}: nominal anchor", taut_config::cable_name(j)));
                 }
             }
         }

@@ -437,6 +437,15 @@ impl ControlLinks {
                 v["goal"] = goal;
                 v["recalibrate"] = ret;
                 v["events_next"] = json!(self.operator.next_seq());
+                // How people name the cables (from 1) and the devices behind them; the arrays
+                // above are indexed from 0 in the same order.
+                let ids = self.operator.cables();
+                v["cables"] = json!((0..ls.snap.inputs.n)
+                    .map(|j| {
+                        let (node, unit) = ids.get(j).copied().unwrap_or_default();
+                        json!({"name": taut_config::cable_name(j), "node_id": node, "unit_id": unit})
+                    })
+                    .collect::<Vec<_>>());
                 if let Some(t) = &self.tracker {
                     let s = t.stats();
                     v["tracker"] = json!({
@@ -575,8 +584,49 @@ pub fn startup_finished(l: &LoopStatus, c: &CalibStatus) -> bool {
     }
 }
 
+/// A `params` reply for people: the version, when it was made (local ISO 8601) and from what,
+/// then per cable (from 1) the anchor and the encoder offset rounded to their 1-sigma.
+pub fn params_text(v: &Value) -> String {
+    use taut_config::numfmt::{rounded, sig2};
+    let p = &v["params"];
+    if p.is_null() {
+        return "no parameters yet: the start-up calibration has not finished\n".into();
+    }
+    let f = |x: &Value| x.as_f64().unwrap_or(f64::NAN);
+    let mm = |x: &Value| x.as_f64().filter(|m| m.is_finite()).map_or("-".to_string(), |m| format!("{:.2} mm", m * 1e3));
+    let created = p["created_unix_s"].as_f64().filter(|t| t.is_finite() && *t > 0.0).map_or("at an unknown time".to_string(), |t| {
+        format!("on {}", crate::localtime::iso8601(std::time::UNIX_EPOCH + std::time::Duration::from_secs_f64(t)))
+    });
+    let mut out = format!(
+        "parameters v{} ({}), made {created}; RMS {}, held-out RMS {}\n",
+        p["version"],
+        p["source"].as_str().unwrap_or("?"),
+        mm(&p["rms_m"]),
+        mm(&p["heldout_rms_m"])
+    );
+    let list = |x: &Value| x.as_array().cloned().unwrap_or_default();
+    let (anchors, sig, l0, l0s) = (list(&p["anchors_m"]), list(&p["anchor_sigma_m"]), list(&p["l0_m"]), list(&p["l0_sigma_m"]));
+    for (j, a) in anchors.iter().enumerate() {
+        let a = list(a);
+        let s = sig.get(j).map(list).unwrap_or_default();
+        let xyz: Vec<String> = (0..3).map(|k| rounded(a.get(k).map_or(f64::NAN, f), s.get(k).map_or(f64::NAN, f))).collect();
+        let sxyz: Vec<String> = (0..3).map(|k| sig2(s.get(k).map_or(f64::NAN, f) * 1e3)).collect();
+        let (o, os) = (l0.get(j).map_or(f64::NAN, f), l0s.get(j).map_or(f64::NAN, f));
+        out.push_str(&format!(
+            "{}: anchor [{}] m ± [{}] mm; L0 {} m ± {} mm\n",
+            taut_config::cable_name(j),
+            xyz.join(", "),
+            sxyz.join(", "),
+            rounded(o, os),
+            sig2(os * 1e3)
+        ));
+    }
+    out
+}
+
 /// A `status` reply for people: one line per subject (state, fault, goal, recalibration,
-/// calibration, outcomes, drives, load cells, tracker, loop). Cables are numbered from 1.
+/// calibration, outcomes, drives, load cells, tracker, loop). Cables are numbered from 1, with
+/// the drive's CANopen node id or the load cell's Modbus unit id beside them where configured.
 pub fn status_text(v: &Value) -> String {
     let mut out = String::new();
     let mut line = |k: &str, text: String| out.push_str(&format!("{k:<12} {text}\n"));
@@ -664,13 +714,24 @@ pub fn status_text(v: &Value) -> String {
         );
     }
     let list = |x: &Value| x.as_array().cloned().unwrap_or_default();
+    // The cables from 1, with the drive's node id or the load cell's unit id beside them.
+    let cables = list(&v["cables"]);
+    let name = |j: usize, id: &str, what: &str| match cables.get(j).and_then(|c| c[id].as_u64()) {
+        Some(k) => format!("{} ({what} {k})", taut_config::cable_name(j)),
+        None => taut_config::cable_name(j),
+    };
     let drives = list(&v["drives"]);
     let bus = &v["bus"];
     line(
         "drives",
         format!(
             "{}; bus {} {}",
-            drives.iter().enumerate().map(|(j, d)| format!("{}: {}", j + 1, d.as_str().unwrap_or("?"))).collect::<Vec<_>>().join(", "),
+            drives
+                .iter()
+                .enumerate()
+                .map(|(j, d)| format!("{}: {}", name(j, "node_id", "node"), d.as_str().unwrap_or("?")))
+                .collect::<Vec<_>>()
+                .join(", "),
             bus["iface"].as_str().unwrap_or("?"),
             bus["state"].as_str().unwrap_or("?")
         ),
@@ -682,9 +743,9 @@ pub fn status_text(v: &Value) -> String {
             .iter()
             .enumerate()
             .map(|(j, t)| match (t.as_f64(), ages.get(j).and_then(Value::as_f64)) {
-                (Some(t), Some(a)) => format!("{}: {t:.0} N ({a:.2} s old)", j + 1),
-                (Some(t), None) => format!("{}: {t:.0} N", j + 1),
-                _ => format!("{}: no reading", j + 1),
+                (Some(t), Some(a)) => format!("{}: {t:.0} N ({a:.2} s old)", name(j, "unit_id", "unit")),
+                (Some(t), None) => format!("{}: {t:.0} N", name(j, "unit_id", "unit")),
+                _ => format!("{}: no reading", name(j, "unit_id", "unit")),
             })
             .collect::<Vec<_>>()
             .join(", "),
@@ -749,11 +810,29 @@ mod tests {
     }
 
     #[test]
+    fn the_human_params_round_to_the_sigma_and_count_cables_from_1() {
+        let text = params_text(&json!({"ok": true, "params": {
+            "version": 3, "created_unix_s": 1_795_921_205.0, "source": "recalibration", "anchors_m": [[3.5090237, -1.78101, 3.98640]],
+            "anchor_sigma_m": [[0.00063, 0.00038, 0.00064]], "l0_m": [-1.06265], "l0_sigma_m": [0.00091], "rms_m": 0.0015, "heldout_rms_m": 0.00154,
+        }}));
+        assert!(text.starts_with("parameters v3 (recalibration), made on 2026-11-"), "{text}");
+        assert!(text.contains("RMS 1.50 mm, held-out RMS 1.54 mm"), "{text}");
+        assert!(text.contains("cable 1: anchor [3.50902, -1.78101, 3.98640] m ± [0.63, 0.38, 0.64] mm; L0 -1.06265 m ± 0.91 mm"), "{text}");
+        assert!(params_text(&json!({"ok": true, "params": null})).starts_with("no parameters yet"));
+    }
+
+    #[test]
     fn the_human_status_has_a_line_per_subject_even_when_empty() {
         let text = status_text(&json!({"ok": true, "state": "enabling", "phase": -1, "params_version": 0}));
         for key in ["state", "fault", "goal", "calibration", "drives", "load cells", "tracker", "loop"] {
             assert!(text.lines().any(|l| l.starts_with(key)), "{key}: {text}");
         }
         assert!(text.contains("no parameters yet") && text.contains("fault        none"), "{text}");
+        let text = status_text(&json!({
+            "ok": true, "state": "operate", "drives": ["enabled", "enabled"], "tensions_n": [20.0, null],
+            "cables": [{"name": "cable 1", "node_id": 5, "unit_id": 7}, {"name": "cable 2", "node_id": null, "unit_id": null}],
+        }));
+        assert!(text.contains("drives       cable 1 (node 5): enabled, cable 2: enabled"), "{text}");
+        assert!(text.contains("load cells   cable 1 (unit 7): 20 N, cable 2: no reading"), "{text}");
     }
 }

@@ -28,7 +28,7 @@ pub type WarnFn = Arc<dyn Fn(&str) + Send + Sync>;
 /// Options beyond the configuration.
 #[derive(Clone)]
 pub struct DaemonOptions {
-    /// Recording path; default `data_dir/recordings/start-<unix time>.csv`.
+    /// Recording path; default `data_dir/recordings/start-<local time, ISO 8601 basic>.csv`.
     pub recording: Option<PathBuf>,
     /// Serve the control socket (`daemon.socket`).
     pub control: bool,

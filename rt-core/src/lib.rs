@@ -47,6 +47,7 @@ pub mod daemon;
 mod dwell_tare_tests;
 pub mod excite;
 pub mod heldout;
+pub mod localtime;
 #[cfg(test)]
 mod motion_tests;
 pub mod notracker;

@@ -314,6 +314,8 @@ struct Inner {
     commands: Option<Sender<Command>>,
     log: LogFn,
     expected: Expected,
+    /// Each cable's drive node id and load-cell unit id, where configured (empty: unknown).
+    cables: Vec<(Option<u8>, Option<u8>)>,
     journal: VecDeque<Value>,
     next_seq: u64,
     goal: Option<Goal>,
@@ -406,6 +408,7 @@ impl Operator {
                 // Silent until a host asks for the lines (the daemon: `DaemonOptions::log`).
                 log: Arc::new(|_| {}),
                 expected,
+                cables: Vec::new(),
                 journal: VecDeque::with_capacity(JOURNAL),
                 next_seq: 1,
                 goal: None,
@@ -430,6 +433,17 @@ impl Operator {
     /// Sets the expected durations the log quotes.
     pub fn set_expected(&self, e: Expected) {
         lock(&self.inner).expected = e;
+    }
+
+    /// The cables' drive node ids and load-cell unit ids (`RobotConfig::cable_ids`), for the
+    /// log lines and `status`.
+    pub fn set_cables(&self, ids: Vec<(Option<u8>, Option<u8>)>) {
+        lock(&self.inner).cables = ids;
+    }
+
+    /// Each cable's drive node id and load-cell unit id (empty when not set).
+    pub fn cables(&self) -> Vec<(Option<u8>, Option<u8>)> {
+        lock(&self.inner).cables.clone()
     }
 
     /// A `move` was handed to the loop: it is the goal now. Returns its number.
@@ -651,8 +665,11 @@ impl Inner {
             let line = if o.accepted {
                 let w =
                     worst.as_ref().map_or("no uncertainty".to_string(), |(w, what)| format!("worst 1-sigma {:.2} mm ({what})", w * 1e3));
-                let c = change
-                    .map_or("first estimate".to_string(), |(d, j)| format!("largest anchor change {:.2} mm (cable {})", d * 1e3, j + 1));
+                let c = change.map_or("first estimate".to_string(), |(d, j)| {
+                    let (node, unit) = self.cables.get(j).copied().unwrap_or_default();
+                    let who = taut_config::cable_label_with(j, node, unit);
+                    format!("largest anchor change {:.2} mm, {who}", d * 1e3)
+                });
                 let h = if o.heldout_rms_new_m.is_finite() {
                     format!(", held-out RMS {:.2} mm (was {:.2} mm)", o.heldout_rms_new_m * 1e3, o.heldout_rms_old_m * 1e3)
                 } else {

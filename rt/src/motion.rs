@@ -187,14 +187,14 @@ impl std::fmt::Display for ResetRefusal {
             ),
             ResetRefusal::NotOperational { cable, node } => write!(
                 f,
-                "drive node {node} (cable {cable}) is not operational: it is still booting or being configured, or its heartbeat is lost; check its power and CAN cable, then reset again"
+                "drive node {node} (cable {}) is not operational: it is still booting or being configured, or its heartbeat is lost; check its power and CAN cable, then reset again", cable + 1
             ),
             ResetRefusal::StillInFault { cable, node, code } => write!(
                 f,
-                "drive node {node} (cable {cable}) is still in fault after a fault reset (last EMCY 0x{code:04X}): its cause is still present; see the drive's error, then reset again"
+                "drive node {node} (cable {}) is still in fault after a fault reset (last EMCY 0x{code:04X}): its cause is still present; see the drive's error, then reset again", cable + 1
             ),
             ResetRefusal::NotEnabled { cable, node } => {
-                write!(f, "drive node {node} (cable {cable}) did not reach operation enabled within motion.enable_timeout_s")
+                write!(f, "drive node {node} (cable {}) did not reach operation enabled within motion.enable_timeout_s", cable + 1)
             }
             ResetRefusal::NewCause(c) => write!(f, "a new cause during the reset: {c}"),
         }

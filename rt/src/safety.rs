@@ -154,18 +154,20 @@ impl fmt::Display for Cause {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             Cause::TensionHigh { cable, tension_n } => {
-                write!(f, "cable {cable} tension {tension_n:.1} N above the limit (safety.max_tension_n)")
+                write!(f, "cable {} tension {tension_n:.1} N above the limit (safety.max_tension_n)", cable + 1)
             }
             Cause::CableLoose { cable, tension_n } => {
-                write!(f, "reeled cable {cable} went loose ({tension_n:.1} N, safety.loose_tension_n)")
+                write!(f, "reeled cable {} went loose ({tension_n:.1} N, safety.loose_tension_n)", cable + 1)
             }
-            Cause::TensionStale { cable } => write!(f, "no fresh tension reading of cable {cable}: check its load cell and the RS-485 bus"),
+            Cause::TensionStale { cable } => {
+                write!(f, "no fresh tension reading of cable {}: check its load cell and the RS-485 bus", cable + 1)
+            }
             Cause::TrackerStale => write!(f, "no fresh tracker pose: check the tracker and its UDP stream"),
             Cause::SpeedLimit { cable, speed_m_s } => {
-                write!(f, "cable {cable} commanded at {speed_m_s:.2} m/s, above safety.max_cable_speed_m_s")
+                write!(f, "cable {} commanded at {speed_m_s:.2} m/s, above safety.max_cable_speed_m_s", cable + 1)
             }
             Cause::Workspace => write!(f, "platform outside the workspace box (motion.workspace_*_m plus safety.workspace_margin_m)"),
-            Cause::EnableTimeout { cable } => write!(f, "drive of cable {cable} did not enable within motion.enable_timeout_s"),
+            Cause::EnableTimeout { cable } => write!(f, "drive of cable {} did not enable within motion.enable_timeout_s", cable + 1),
             Cause::DriveFault { node, code } => write!(f, "drive node {node} fault, EMCY code 0x{code:04X}"),
             Cause::HeartbeatLost { node } => write!(f, "heartbeat of drive node {node} lost: check its power and the CAN cable"),
             Cause::DriveRebooted { node } => write!(

@@ -245,8 +245,10 @@ pub fn analyse(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], anchors: &[
     if let (Some(w), Some(b)) = (worst, best) {
         if per_cable_rms_m[w] > 1.5 * per_cable_rms_m[b] {
             words.push(format!(
-                "cable {w} carries most of it ({:.2} mm RMS; cable {b}: {:.2} mm)",
+                "cable {} carries most of it ({:.2} mm RMS; cable {}: {:.2} mm)",
+                w + 1,
                 per_cable_rms_m[w] * 1e3,
+                b + 1,
                 per_cable_rms_m[b] * 1e3
             ));
         }
@@ -278,7 +280,7 @@ pub fn analyse(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], anchors: &[
         }
         let lo = strong.iter().map(|&j| rs[j]).fold(f64::INFINITY, f64::min);
         let hi = strong.iter().map(|&j| rs[j]).fold(f64::NEG_INFINITY, f64::max);
-        let which = if strong.len() == n { "every cable".to_string() } else { format!("cable(s) {strong:?}") };
+        let which = if strong.len() == n { "every cable".to_string() } else { taut_config::cable_list(&strong) };
         words.push(format!("follows {} on {which} (r = {lo:.2} .. {hi:.2})", reg.name()));
     }
     Mismatch { per_cable_rms_m, per_cable_noise_m, correlations, time_blocks, region, words }

@@ -116,7 +116,7 @@ fn summarise(kind: ProblemKind, cable: Option<usize>, t: &[f64], flags: &[bool],
     let samples: usize = rs.iter().map(|(a, b)| b - a).sum();
     let first = rs[0];
     let last = rs[rs.len() - 1];
-    let who = cable.map(|c| format!("cable {c}: ")).unwrap_or_default();
+    let who = cable.map(|c| format!("{}: ", taut_config::cable_name(c))).unwrap_or_default();
     let places: Vec<String> = rs.iter().take(4).map(|(a, b)| format!("t = {:.2}-{:.2} s", t[*a], t[b - 1])).collect();
     let more = if rs.len() > 4 { format!(" and {} more", rs.len() - 4) } else { String::new() };
     Some(DataProblem {
@@ -489,7 +489,7 @@ pub fn detect_screened(
                     t_end: rec.t.last().copied().unwrap_or(0.0),
                     samples: m,
                     description: format!(
-                        "cable {j}: load cell {w}; its tensions are ignored (not taken as a loose cable), and effects that need tension are not fitted for this cable"
+                        "cable {}: load cell {w}; its tensions are ignored (not taken as a loose cable), and effects that need tension are not fitted for this cable", j + 1
                     ),
                 });
             }

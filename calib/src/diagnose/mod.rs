@@ -186,7 +186,7 @@ impl fmt::Display for DiagnoseError {
             ),
             DiagnoseError::TooFewSamples { cable, usable } => write!(
                 f,
-                "cable {cable}: only {usable} usable readings after excluding data problems and loose samples; record longer with the cable under tension"
+                "cable {}: only {usable} usable readings after excluding data problems and loose samples; record longer with the cable under tension", cable + 1
             ),
             DiagnoseError::BaselineFailed => {
                 write!(f, "the ideal-model fit diverged; check that the tracker and encoder columns belong to the same robot")
@@ -801,11 +801,17 @@ impl Ctx<'_> {
                 }
             }
             let param_text = match e.sharing() {
-                Sharing::Shared => format!("{} = {:.4e} ± {:.1e}", e.parameter(), f.values[0], f.sigmas[0]),
+                Sharing::Shared => format!("{} = {}", e.parameter(), taut_config::numfmt::plus_minus(f.values[0], f.sigmas[0])),
                 Sharing::PerCable => format!(
-                    "{} = [{}]",
+                    "{} = {}",
                     e.parameter(),
-                    f.values.iter().zip(&f.sigmas).map(|(v, s)| format!("{v:.4e} ± {s:.1e}")).collect::<Vec<_>>().join(", ")
+                    f.values
+                        .iter()
+                        .zip(&f.sigmas)
+                        .enumerate()
+                        .map(|(j, (v, s))| format!("{} ({})", taut_config::numfmt::plus_minus(*v, *s), taut_config::cable_name(j)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 ),
             };
             f.evidence.push_str(&format!("; {param_text}"));
@@ -1659,7 +1665,7 @@ pub fn diagnose(
             } else if strong.is_empty() {
                 "no cable clearly".to_string()
             } else {
-                format!("cables {strong:?}")
+                taut_config::cable_list(&strong)
             };
             format!("residual follows {} on {which} (r = {lo:.2} .. {hi:.2}); ", best.signature(),)
         };
@@ -1827,7 +1833,8 @@ pub fn diagnose(
         None
     } else {
         let mut s = format!(
-            "structure remains that no effect in the library explains on cable(s) {unexplained_cables:?} (RMS {} mm vs noise {} mm)",
+            "structure remains that no effect in the library explains on {} (RMS {} mm vs noise {} mm)",
+            taut_config::cable_list(&unexplained_cables),
             unexplained_cables.iter().map(|&j| format!("{:.2}", after.per_cable_rms_m[j] * 1e3)).collect::<Vec<_>>().join(", "),
             unexplained_cables.iter().map(|&j| format!("{:.2}", after.per_cable_noise_m[j] * 1e3)).collect::<Vec<_>>().join(", ")
         );

@@ -247,11 +247,11 @@ impl fmt::Display for InitError {
             ),
             InitError::TooFewReadings { cable, used, needed } => write!(
                 f,
-                "cable {cable}: only {used} taut readings with a tracker position, at least {needed} needed; record with this cable under tension"
+                "cable {}: only {used} taut readings with a tracker position, at least {needed} needed; record with this cable under tension", cable + 1
             ),
             InitError::NotExcited { cable, param, ratio } => write!(
                 f,
-                "cable {cable}: {param} is not excited by this recording (weakest direction {ratio:.1e} of the strongest): {}",
+                "cable {}: {param} is not excited by this recording (weakest direction {ratio:.1e} of the strongest): {}", cable + 1,
                 param.advice()
             ),
         }
@@ -695,7 +695,8 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
                         [sol.x[0], sol.x[1], sol.x[2]]
                     } else {
                         notes.push(format!(
-                            "cable {j}: the sphere refinement did not converge near the circle axes; kept the line estimate"
+                            "cable {}: the sphere refinement did not converge near the circle axes; kept the line estimate",
+                            j + 1
                         ));
                         a_line
                     }
@@ -706,7 +707,8 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
             }
             None => {
                 notes.push(format!(
-                    "cable {j}: held in {} phase(s); its anchor comes from multilateration on all its readings",
+                    "cable {}: held in {} phase(s); its anchor comes from multilateration on all its readings",
+                    j + 1,
                     held_in.len()
                 ));
                 (multilaterate(d, sigma, j)?.0, AnchorSource::Multilateration)
@@ -729,7 +731,8 @@ pub fn three_phase(rec: &Recording, platform_points: &[[f64; 3]], opts: &CalibOp
             fitted
         } else {
             notes.push(format!(
-                "cable {j}: the fit on all readings did not converge near the geometric estimate; kept the geometric estimate"
+                "cable {}: the fit on all readings did not converge near the geometric estimate; kept the geometric estimate",
+                j + 1
             ));
             a
         };

@@ -147,8 +147,8 @@ pub enum Quantity {
 impl fmt::Display for Quantity {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            Quantity::Anchor(j, a) => write!(f, "anchor {j} {}", ["x", "y", "z"][a.min(2)]),
-            Quantity::Offset(j) => write!(f, "offset L0 of cable {j}"),
+            Quantity::Anchor(j, a) => write!(f, "anchor of cable {} {}", j + 1, ["x", "y", "z"][a.min(2)]),
+            Quantity::Offset(j) => write!(f, "offset L0 of cable {}", j + 1),
         }
     }
 }

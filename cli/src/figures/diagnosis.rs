@@ -18,7 +18,7 @@ fn before_after(title: String, x_label: String, before: (Vec<(f64, f64)>, &str),
         colors::BLACK,
         Style::Points(Marker::Dot),
     );
-    p.hlines.push(HLine { label: "zero".into(), y: 0.0, color: colors::GREY });
+    p.hlines.push(HLine { label: String::new(), y: 0.0, color: colors::GREY });
     p
 }
 
@@ -30,7 +30,7 @@ pub fn figures(d: &Diagnosis) -> Vec<Figure> {
             let (tb, rb) = &d.baseline_residuals[j];
             let (ta, ra) = &d.final_residuals[j];
             before_after(
-                format!("cable {j}: residual (reading - model) against time"),
+                format!("{}: residual (reading - model) against time", taut_config::cable_name(j)),
                 "time, s".into(),
                 (mm_points(tb, rb), "ideal model"),
                 mm_points(ta, ra),
@@ -55,7 +55,7 @@ pub fn figures(d: &Diagnosis) -> Vec<Figure> {
             .enumerate()
             .map(|(j, (x, b, a))| {
                 before_after(
-                    format!("cable {j}: residual against {}", p.regressor.name()),
+                    format!("{}: residual against {}", taut_config::cable_name(j), p.regressor.name()),
                     x_label.clone(),
                     (mm_points(x, b), "before"),
                     mm_points(x, a),

@@ -10,6 +10,9 @@
 
 pub mod calibration;
 pub mod diagnosis;
+#[cfg(test)]
+#[path = "tests.rs"]
+mod figure_tests;
 
 use anyhow::{Context, Result};
 use plotters::coord::Shift;
@@ -17,15 +20,18 @@ use plotters::prelude::*;
 use taut_config::atomic::Staging;
 
 /// Width of every figure, px.
-const WIDTH: u32 = 1000;
+pub(crate) const WIDTH: u32 = 1000;
 /// Height of one panel, px (title, legend strip and chart).
-const PANEL_H: u32 = 290;
+pub(crate) const PANEL_H: u32 = 290;
 
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Style {
     /// A solid line.
     Line,
+    /// A thick solid line (3 px): a comparison drawn under a thin line stays visible around it
+    /// where the two agree and beside it where they differ.
+    Thick,
     /// A dashed line.
     Dashed,
     /// Markers of this shape, no line.
@@ -73,11 +79,21 @@ pub struct Bars {
 
 /// A horizontal reference line (a threshold, zero).
 pub struct HLine {
-    /// Legend label.
+    /// Legend label; empty for a line that needs none (zero).
     pub label: String,
     /// Where, in y units.
     pub y: f64,
     /// Colour.
+    pub color: RGBColor,
+}
+
+/// Shaded stretches of x (loose cable), the full height of the chart.
+pub struct Shade {
+    /// Legend label.
+    pub label: String,
+    /// (start, end) of each stretch, in x units.
+    pub spans: Vec<(f64, f64)>,
+    /// Colour (drawn light).
     pub color: RGBColor,
 }
 
@@ -95,6 +111,8 @@ pub struct Panel {
     pub bars: Vec<Bars>,
     /// Reference lines, drawn first.
     pub hlines: Vec<HLine>,
+    /// Shaded stretches, drawn under everything.
+    pub shades: Vec<Shade>,
     /// Integer x positions are categories with these names (e.g. "cable 0"); other ticks unlabelled.
     pub categories: Option<Vec<String>>,
     /// y range to show instead of the data's (e.g. robust percentiles), if any.
@@ -111,6 +129,7 @@ impl Panel {
             series: Vec::new(),
             bars: Vec::new(),
             hlines: Vec::new(),
+            shades: Vec::new(),
             categories: None,
             y_range: None,
         }
@@ -197,7 +216,7 @@ impl Figure {
         Ok(())
     }
 
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    pub(crate) fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
@@ -209,6 +228,28 @@ impl Figure {
             draw_panel(area, panel)?;
         }
         Ok(())
+    }
+}
+
+/// Opacity of a shaded stretch.
+const SHADE_ALPHA: f64 = 0.18;
+
+/// A tick label: at most 6 significant digits, trailing zeros dropped, integers as integers
+/// (`1800`, not `1800.0`) and no negative zero (`0`, not `-0.0`).
+pub fn tick(v: f64) -> String {
+    if !v.is_finite() {
+        return String::new();
+    }
+    if v.abs() < 1e-9 {
+        return "0".into();
+    }
+    let d = (5 - v.abs().log10().floor() as i32).clamp(0, 12) as usize;
+    let s = format!("{v:.d$}");
+    let s = if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s };
+    if s == "-0" {
+        "0".into()
+    } else {
+        s
     }
 }
 
@@ -289,7 +330,7 @@ fn marker_element<DB: DrawingBackend>(m: Marker, at: (i32, i32), c: RGBColor) ->
     match m {
         Marker::Dot => Circle::new(at, 2, c.filled()).into_dyn(),
         Marker::Cross => Cross::new(at, 3, c.stroke_width(1)).into_dyn(),
-        Marker::Circle => Circle::new(at, 3, c.stroke_width(1)).into_dyn(),
+        Marker::Circle => Circle::new(at, 4, c.stroke_width(2)).into_dyn(),
         Marker::Triangle => TriangleMarker::new(at, 4, c.filled()).into_dyn(),
         Marker::Square => Rectangle::new([(at.0 - 3, at.1 - 3), (at.0 + 3, at.1 + 3)], c.stroke_width(1)).into_dyn(),
     }
@@ -310,6 +351,8 @@ where
     let y = 10 + row * LEGEND_ROW;
     match glyph {
         Glyph::Line => area.draw(&PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(2))).map_err(e)?,
+        Glyph::Thick => area.draw(&PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(4))).map_err(e)?,
+        Glyph::Box => area.draw(&Rectangle::new([(x, y - 6), (x + 24, y + 6)], c.mix(SHADE_ALPHA).filled())).map_err(e)?,
         Glyph::Dashed => {
             for k in 0..3 {
                 area.draw(&PathElement::new(vec![(x + 9 * k, y), (x + 9 * k + 5, y)], c.stroke_width(2))).map_err(e)?;
@@ -328,6 +371,8 @@ where
 #[derive(Clone, Copy)]
 enum Glyph {
     Line,
+    Thick,
+    Box,
     Dashed,
     Marker(Marker),
     Bar(Marker),
@@ -341,10 +386,12 @@ where
     let area = area.titled(&panel.title, ("sans-serif", 15)).map_err(e)?;
     // The legend strip: rows above the chart, starting where the plot area starts.
     let mut entries: Vec<(Glyph, RGBColor, &str)> = Vec::new();
-    entries.extend(panel.hlines.iter().map(|h| (Glyph::Dashed, h.color, h.label.as_str())));
-    entries.extend(panel.series.iter().map(|s| {
+    entries.extend(panel.shades.iter().filter(|s| !s.spans.is_empty()).map(|s| (Glyph::Box, s.color, s.label.as_str())));
+    entries.extend(panel.hlines.iter().filter(|h| !h.label.is_empty()).map(|h| (Glyph::Dashed, h.color, h.label.as_str())));
+    entries.extend(panel.series.iter().filter(|s| !s.label.is_empty()).map(|s| {
         let g = match s.style {
             Style::Line => Glyph::Line,
+            Style::Thick => Glyph::Thick,
             Style::Dashed => Glyph::Dashed,
             Style::Points(m) => Glyph::Marker(m),
         };
@@ -372,6 +419,8 @@ where
                 .chain(panel.hlines.iter().map(|h| h.y)),
         )
     });
+    // A given range that is empty (all data equal) still gets a height.
+    let (y0, y1) = if y1 > y0 { (y0, y1) } else { finite_range([y0, y1].into_iter()) };
     let mut chart = ChartBuilder::on(&chart_area)
         .margin(6)
         .x_label_area_size(36)
@@ -389,15 +438,28 @@ where
                     String::new()
                 }
             }
-            None => format!("{v}"),
+            None => tick(*v),
         }
     };
+    let fmt_y = |v: &f64| tick(*v);
     let mut mesh = chart.configure_mesh();
-    mesh.x_desc(panel.x_label.as_str()).y_desc(panel.y_label.as_str()).label_style(("sans-serif", 12)).light_line_style(WHITE.mix(0.0));
+    mesh.x_desc(panel.x_label.as_str())
+        .y_desc(panel.y_label.as_str())
+        .label_style(("sans-serif", 12))
+        .light_line_style(WHITE.mix(0.0))
+        .x_label_formatter(&fmt_x)
+        .y_label_formatter(&fmt_y);
     if let Some(c) = &panel.categories {
-        mesh.x_labels(c.len() * 2 + 1).x_label_formatter(&fmt_x);
+        mesh.x_labels(c.len() * 2 + 1);
     }
     mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
+    // Shades over the grid (they are light), under every line and marker.
+    for sh in &panel.shades {
+        let c = sh.color.mix(SHADE_ALPHA).filled();
+        chart
+            .draw_series(sh.spans.iter().map(|&(a, b)| Rectangle::new([(a.max(x0), y0), (b.min(x1), y1)], c)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
     for h in &panel.hlines {
         let c = h.color;
         chart.draw_series(DashedLineSeries::new([(x0, h.y), (x1, h.y)], 6, 4, c.stroke_width(1))).map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -415,12 +477,13 @@ where
                     )
                     .map_err(|e| anyhow::anyhow!("{e}"))?;
             }
-            Style::Line | Style::Dashed => {
+            Style::Line | Style::Thick | Style::Dashed => {
                 // Split at non-finite values so gaps stay gaps.
                 for seg in s.points.split(|p| !p.1.is_finite() || !p.0.is_finite()).filter(|seg| seg.len() > 1) {
                     let seg = envelope(seg);
-                    if s.style == Style::Line {
-                        chart.draw_series(LineSeries::new(seg.iter().copied(), c.stroke_width(1))).map_err(|e| anyhow::anyhow!("{e}"))?;
+                    if s.style != Style::Dashed {
+                        let w = if s.style == Style::Thick { 3 } else { 1 };
+                        chart.draw_series(LineSeries::new(seg.iter().copied(), c.stroke_width(w))).map_err(|e| anyhow::anyhow!("{e}"))?;
                     } else {
                         chart
                             .draw_series(DashedLineSeries::new(seg.iter().copied(), 5, 4, c.stroke_width(2)))

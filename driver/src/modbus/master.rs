@@ -209,6 +209,18 @@ pub struct Master<'c, L> {
     clock: &'c dyn Clock,
 }
 
+/// Who a transaction is for, in the counted events' messages: `cable 1, ` (from 1) or nothing.
+struct Who(Option<u16>);
+
+impl fmt::Display for Who {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            Some(c) => write!(f, "cable {}, ", u32::from(c) + 1),
+            None => Ok(()),
+        }
+    }
+}
+
 /// The wall clock of masters made with [`Master::new`].
 static WALL: WallClock = WallClock;
 
@@ -232,6 +244,13 @@ impl<'c, L: SerialLink> Master<'c, L> {
     /// Reads registers, retrying as configured. Returns the first success, or the last failure;
     /// a [`TransactionError::Link`] returns at once (the port must be reopened).
     pub fn read(&mut self, req: &Request) -> Result<Registers, TransactionError> {
+        self.read_for(req, None)
+    }
+
+    /// [`Master::read`] for the load cell of `cable` (0-based): the counted events' messages
+    /// name it for people, from 1, beside the unit (`cable 1, unit 1: no response (timeout)`).
+    pub fn read_for(&mut self, req: &Request, cable: Option<u16>) -> Result<Registers, TransactionError> {
+        let who = Who(cable);
         let mut attempt = 0u8;
         loop {
             let err = match self.try_once(req) {
@@ -244,29 +263,29 @@ impl<'c, L: SerialLink> Master<'c, L> {
             let retry = match err {
                 TransactionError::Link(_) => return Err(err),
                 TransactionError::Timeout { .. } => {
-                    self.counters.count(Event::Timeout, format_args!("{err}"));
+                    self.counters.count(Event::Timeout, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Crc { .. } => {
-                    self.counters.count(Event::Crc, format_args!("{err}"));
+                    self.counters.count(Event::Crc, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Garbage { .. } => {
-                    self.counters.count(Event::Garbage, format_args!("{err}"));
+                    self.counters.count(Event::Garbage, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Exception { code, .. } => {
-                    self.counters.count(Event::Exception, format_args!("{err}"));
+                    self.counters.count(Event::Exception, format_args!("{who}{err}"));
                     // An illegal address or function will be refused every time: no retry.
                     code.is_transient()
                 }
             };
             if !retry || attempt >= self.cfg.retries {
-                self.counters.count(Event::Failed, format_args!("gave up on a reading after {} tries: {err}", attempt + 1));
+                self.counters.count(Event::Failed, format_args!("{who}gave up on a reading after {} tries: {err}", attempt + 1));
                 return Err(err);
             }
             attempt += 1;
-            self.counters.count(Event::Retry, format_args!("retrying after: {err}"));
+            self.counters.count(Event::Retry, format_args!("{who}retrying after: {err}"));
         }
     }
 

@@ -137,7 +137,8 @@ impl DeviceMode {
 /// Where the calibrator records the sample stream.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub enum RecordingPath {
-    /// `daemon.data_dir/recordings/start-<unix time>.csv`.
+    /// `daemon.data_dir/recordings/start-<local time, ISO 8601 basic>.csv`
+    /// (`start-20261129T041005+0100.csv`).
     #[default]
     Default,
     /// This file.
@@ -319,11 +320,12 @@ impl Plugin {
             ccfg.workspace,
             crate::operator::Expected::from_robot(cfg),
         );
+        handle.operator().set_cables((0..n).map(|j| cfg.cable_ids(j)).collect());
         let recording = match opts.recording {
             RecordingPath::Off => None,
             RecordingPath::At(p) => Some(p),
             RecordingPath::Default => {
-                let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+                let t = crate::localtime::iso8601_basic(std::time::SystemTime::now());
                 Some(PathBuf::from(&cfg.daemon.data_dir).join("recordings").join(format!("start-{t}.csv")))
             }
         };

@@ -44,7 +44,7 @@ fn empty_tracker_columns_calibrate_without_a_tracker_and_say_so() {
     let (ok, out, err) = taut(d.path(), &ARGS);
     assert!(ok, "{err}");
     assert!(out.contains("calibrated WITHOUT a tracker") && out.contains("encoders + load cells"), "{out}");
-    assert!(out.contains("distance anchor 0 - anchor 1") && out.contains("load-cell offset 3"), "{out}");
+    assert!(out.contains("distance anchor 1 - anchor 2") && out.contains("load-cell offset of cable 4"), "{out}");
     let params = std::fs::read_to_string(d.path().join("params.toml")).unwrap();
     assert!(params.contains("without tracker"), "{params}");
     let p = taut_config::params::ParamsFile::load(d.path().join("params.toml")).unwrap();

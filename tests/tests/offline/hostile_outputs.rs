@@ -77,10 +77,10 @@ fn cases() -> Vec<Case> {
             .entry("figs", Entry::Symlink("f".into())),
         // A figure that would replace a symlink: the whole set is refused after rendering, the
         // old figures stay as they were, no staging directory is left behind.
-        cal("--plot over a symlinked figure", &["--plot", "figs"], &["fig7-lengths.svg: is a symlink"])
-            .file("figs/fig8-errors.svg", "<svg>old figure</svg>")
+        cal("--plot over a symlinked figure", &["--plot", "figs"], &["lengths-before-after.svg: is a symlink"])
+            .file("figs/errors-taut.svg", "<svg>old figure</svg>")
             .file("elsewhere.svg", "keep")
-            .entry("figs/fig7-lengths.svg", Entry::Symlink("../elsewhere.svg".into())),
+            .entry("figs/lengths-before-after.svg", Entry::Symlink("../elsewhere.svg".into())),
         // simulate's outputs.
         sim("-o /dev/full", &["-o", "/dev/full"], &["--output: /dev/full: is a device node"]).after(dev_full_is_a_device),
         sim("-o a symlink", &["-o", "rec.csv"], &["--output: rec.csv: is a symlink"])
@@ -119,16 +119,16 @@ fn cases() -> Vec<Case> {
         Case::err(
             "interrupted --plot keeps the old figures",
             &[],
-            &["writing figs/fig7-lengths.svg", "figures already there are kept", "File too large"],
+            &["writing figs/lengths-before-after.svg", "figures already there are kept", "File too large"],
         )
         .shell("trap '' XFSZ; ulimit -f 2; exec \"$TAUT\" calibrate rec.csv --plot figs")
         .file("rec.csv", good_recording())
-        .file("figs/fig7-lengths.svg", "<svg>old 7</svg>")
-        .file("figs/fig8-errors.svg", "<svg>old 8</svg>"),
+        .file("figs/lengths-before-after.svg", "<svg>old 7</svg>")
+        .file("figs/errors-taut.svg", "<svg>old 8</svg>"),
         Case::err(
             "interrupted --plot into a new directory leaves no directory",
             &[],
-            &["writing newfigs/fig7-lengths.svg", "File too large"],
+            &["writing newfigs/lengths-before-after.svg", "File too large"],
         )
         .shell("trap '' XFSZ; ulimit -f 2; exec \"$TAUT\" calibrate rec.csv --plot newfigs")
         .file("rec.csv", good_recording()),

@@ -174,14 +174,14 @@ fn calibration_and_diagnosis_reports_render_in_chromium() {
     run(&["diagnose", EVIL_FILE, "--config", "robot.toml", "--report", "diag.html"]);
 
     let calib = std::fs::read_to_string(dir.path().join("calib.html")).unwrap();
-    check_page(&calib, &["fig7-lengths", "fig8-errors", "fig9-histogram", "fig10-excluded", "fig11-anchors"]);
+    check_page(&calib, &["lengths-before-after", "errors-taut", "errors-histogram", "readings-excluded", "anchors"]);
     assert!(calib.contains("&lt;img src=x onerror=alert(1)&gt;&amp;amp;&quot;robot&quot;"), "the robot name is not shown escaped");
     for words in ["Calibrated", "σx, mm", "held-out RMS", "without force weighting"] {
         assert!(calib.contains(words), "the calibration report lacks `{words}`");
     }
     let diag = std::fs::read_to_string(dir.path().join("diag.html")).unwrap();
     check_page(&diag, &["diagnose-residual-vs-time", "diagnose-anchors"]);
-    for words in ["Diagnosed", "Effects", "σx, mm"] {
+    for words in ["Diagnosis of", "Effects", "σx, mm", "What to do next"] {
         assert!(diag.contains(words), "the diagnosis report lacks `{words}`");
     }
 
@@ -242,5 +242,193 @@ fn a_report_over_an_input_or_another_output_is_refused_before_any_work() {
         assert!(r.stderr.contains(expect), "taut {args:?}: message lacks `{expect}`:\n{}", r.stderr);
         assert_eq!(std::fs::read_to_string(dir.path().join("rec.csv")).unwrap(), rec, "taut {args:?} changed the recording");
         assert!(!dir.path().join("out.html").exists(), "taut {args:?} wrote an output");
+    }
+}
+
+/// The text of the element that starts at `open` (up to its closing `close`), tags removed and
+/// entities decoded (the few the report writes).
+fn element_text(html: &str, open: &str, close: &str) -> String {
+    let k = html.find(open).unwrap_or_else(|| panic!("no `{open}` in the page"));
+    let rest = &html[k..];
+    let body = &rest[..rest.find(close).unwrap_or_else(|| panic!("`{open}` not closed"))];
+    let mut text = String::new();
+    let mut in_tag = false;
+    for c in body.chars() {
+        match c {
+            '<' => in_tag = true,
+            '>' => in_tag = false,
+            c if !in_tag => text.push(c),
+            _ => {}
+        }
+    }
+    text.replace("&amp;", "&").replace("&lt;", "<").replace("&gt;", ">").replace("&quot;", "\"").replace("&#39;", "'")
+}
+
+/// The verdict box: (tone class, headline, whole text).
+fn verdict_box(html: &str) -> (String, String, String) {
+    let k = html.find("<div class=\"verdict ").expect("a verdict box");
+    let tone = html[k + 20..].split('"').next().unwrap().to_string();
+    let headline = element_text(&html[k..], "<strong>", "</strong>");
+    let text = element_text(&html[k..], "<div", "</div>");
+    (tone, headline, text)
+}
+
+/// The "What to do next" items.
+fn next_items(html: &str) -> Vec<String> {
+    let k = html.find("<ol id=\"next\">").expect("a numbered list of next steps");
+    let list = &html[k..k + html[k..].find("</ol>").unwrap()];
+    list.split("<li>").skip(1).map(|i| element_text(&format!("<li>{i}"), "<li>", "</li>")).collect()
+}
+
+/// The number just before ` mm` after `after` in `text`.
+fn mm_after(text: &str, after: &str) -> f64 {
+    let k = text.find(after).unwrap_or_else(|| panic!("`{after}` not in: {text}"));
+    let rest = &text[k + after.len()..];
+    let num: String = rest.trim_start().chars().take_while(|c| c.is_ascii_digit() || *c == '.' || *c == '-').collect();
+    num.parse().unwrap_or_else(|_| panic!("no number after `{after}` in: {text}"))
+}
+
+/// Actions, not observations: each step starts with a verb, none is a count of loose readings
+/// or a raw row of a data problem, and there are few.
+fn check_actions(name: &str, next: &[String]) {
+    assert!(!next.is_empty() && next.len() <= 8, "{name}: {} next steps: {next:#?}", next.len());
+    for item in next {
+        let verb = item.split_whitespace().next().unwrap_or_default();
+        assert!(["Check", "Run", "Write", "Record", "Fix", "Look", "Calibrate"].contains(&verb), "{name}: `{item}` is not an action");
+        for bad in ["loose readings excluded", "row ", "e0 m", "e-1 m"] {
+            assert!(!item.contains(bad), "{name}: `{item}` lists `{bad}` instead of an action");
+        }
+    }
+}
+
+/// Calibrate's verdict from the page agrees with the numbers in its JSON.
+fn check_calibration(name: &str, html: &str, v: &serde_json::Value) {
+    let (tone, headline, text) = verdict_box(html);
+    assert_eq!(tone, v["verdict"]["tone"].as_str().unwrap(), "{name}: the page's tone is not the JSON's");
+    assert_eq!(headline, v["verdict"]["headline"].as_str().unwrap(), "{name}: headline");
+    let consistent = v["model_consistent"].as_bool().unwrap();
+    let next = next_items(html);
+    check_actions(name, &next);
+    if consistent {
+        assert_eq!((tone.as_str(), headline.as_str()), ("ok", "Calibrated."), "{name}: {text}");
+        assert!(text.contains("consistent with the noise model") && !text.contains("does not explain"), "{name}: {text}");
+        assert!(next.iter().any(|i| i.contains("--out")), "{name}: no step to write the parameters: {next:#?}");
+    } else {
+        assert_eq!(tone, "warn", "{name}");
+        assert!(headline.contains("does not explain the data"), "{name}: {headline}");
+        assert!(next.iter().any(|i| i.contains("taut diagnose")), "{name}: no step to diagnose: {next:#?}");
+    }
+    // The numbers the verdict quotes are the body's.
+    let rms = mm_after(&text, "RMS");
+    assert!((rms - v["rms_m"].as_f64().unwrap() * 1e3).abs() <= 0.006, "{name}: verdict RMS {rms} mm vs {}", v["rms_m"]);
+    let held = mm_after(&text, "fitted readings,");
+    assert!((held - v["heldout_rms_m"].as_f64().unwrap() * 1e3).abs() <= 0.006, "{name}: verdict held-out {held} mm");
+    let sig = v["anchor_sigma_m"].as_array().unwrap();
+    let (mut worst, mut at) = (0.0, (0, 0));
+    for (j, s) in sig.iter().enumerate() {
+        for (k, x) in s.as_array().unwrap().iter().enumerate() {
+            if x.as_f64().unwrap() > worst {
+                worst = x.as_f64().unwrap();
+                at = (j, k);
+            }
+        }
+    }
+    let words = format!("cable {} {}: 1-sigma", at.0 + 1, ["x", "y", "z"][at.1]);
+    let quoted = mm_after(&text, &words);
+    assert!((quoted - worst * 1e3).abs() <= 0.05 * worst * 1e3, "{name}: worst sigma {quoted} mm quoted, {} mm in the JSON", worst * 1e3);
+}
+
+/// Diagnose's verdict from the page agrees with the effects and numbers in its JSON.
+fn check_diagnosis(name: &str, html: &str, v: &serde_json::Value, concealed: &str) {
+    let (tone, headline, text) = verdict_box(html);
+    assert_eq!(tone, v["verdict"]["tone"].as_str().unwrap(), "{name}: tone");
+    assert_eq!(headline, v["verdict"]["headline"].as_str().unwrap(), "{name}: headline");
+    let physics: Vec<&str> =
+        v["effects"].as_array().unwrap().iter().map(|e| e["effect"].as_str().unwrap()).filter(|e| *e != "slack").collect();
+    let next = next_items(html);
+    check_actions(name, &next);
+    assert!(!text.contains("Named: slack") && !headline.contains("left to look at"), "{name}: {text}");
+    if v["unexplained"].is_null() {
+        assert_eq!(tone, "ok", "{name}: nothing is unexplained but the tone is {tone}: {text}");
+        assert!(headline.contains("what is left is noise"), "{name}: {headline}");
+    } else {
+        assert!(headline.contains("unexplained"), "{name}: the body says something is unexplained, the headline does not: {headline}");
+    }
+    if concealed.is_empty() {
+        assert!(physics.is_empty(), "{name}: effects named on a clean recording: {physics:?}");
+        assert!(headline.starts_with("No effect beyond the ideal model"), "{name}: {headline}");
+        assert!(next.iter().any(|i| i.starts_with("Calibrate")), "{name}: {next:#?}");
+    } else {
+        assert!(physics.contains(&concealed), "{name}: {concealed} not named: {physics:?}");
+        for e in &physics {
+            assert!(headline.contains(e), "{name}: {e} named in the body, not in the headline `{headline}`");
+        }
+        let before = mm_after(&text, "from");
+        let after = mm_after(&text, "(ideal model) to");
+        assert!((before - v["baseline"]["heldout_rms_m"].as_f64().unwrap() * 1e3).abs() <= 0.006, "{name}: {before}");
+        assert!((after - v["final"]["heldout_rms_m"].as_f64().unwrap() * 1e3).abs() <= 0.006, "{name}: {after}");
+        assert!(next.iter().any(|i| i.contains("taut diagnose") && i.contains("--out")), "{name}: {next:#?}");
+    }
+    // The body's effects table names the same effects.
+    let effects = element_text(html, "<h2>Effects</h2>", "</table>");
+    for e in &physics {
+        assert!(effects.contains(e), "{name}: {e} missing from the Effects table");
+    }
+}
+
+/// The verdicts of `taut calibrate` and `taut diagnose` agree with their bodies (issue 24), on a
+/// clean simulated recording and on one with a concealed cable stretch; the pages are rendered
+/// in headless Chromium with the verdict box's colour. `TAUT_UPDATE_SCREENSHOTS=1` copies the
+/// top of each page into docs/screenshots/ for the README.
+#[test]
+fn verdicts_agree_with_the_body() {
+    use taut_sim::{simulate, Physics, Scenario};
+    let dir = tempfile::tempdir().unwrap();
+    let mut pages = Vec::new();
+    for (name, physics, concealed) in
+        [("clean", Physics::default(), ""), ("stretch", Physics { elasticity: Some(20_000.0), ..Physics::default() }, "elasticity")]
+    {
+        let mut s = Scenario::aras_cam(3);
+        s.three_phase = None;
+        s.duration_s = 90.0;
+        s.rate_hz = 20.0;
+        s.physics = physics;
+        let rec = format!("{name}.csv");
+        simulate(&s).recording.save_atomic(dir.path().join(&rec)).unwrap();
+        for cmd in ["calibrate", "diagnose"] {
+            let (json, html) = (format!("{cmd}-{name}.json"), format!("{cmd}-{name}.html"));
+            let mut c = Command::new(taut_bin());
+            c.current_dir(dir.path()).args([cmd, rec.as_str(), "--json", json.as_str(), "--report", html.as_str()]);
+            let r = run_with_deadline(c, Duration::from_secs(300));
+            assert!(!r.timed_out && r.code == Some(0), "taut {cmd} {rec}:\n{}", r.stderr);
+            let page = std::fs::read_to_string(dir.path().join(&html)).unwrap();
+            let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join(&json)).unwrap()).unwrap();
+            assert_eq!(v["robot"], "aras-cam", "{cmd} {name}: the robot is named as the recording names it");
+            assert!(page.contains("<title>") && page.contains("of aras-cam"), "{cmd} {name}: not named after the recording's robot");
+            assert!(!page.contains("Unix time") && page.contains("written by taut"), "{cmd} {name}: time stamp");
+            assert!(page.contains("id=\"terms\"") && page.contains("docs/reports.md"), "{cmd} {name}: no Terms appendix into docs/");
+            if cmd == "calibrate" {
+                check_calibration(&format!("{cmd} {name}"), &page, &v);
+            } else {
+                check_diagnosis(&format!("{cmd} {name}"), &page, &v, concealed);
+            }
+            pages.push((format!("{cmd}-{name}"), v["verdict"]["tone"].as_str().unwrap().to_string()));
+        }
+    }
+    let Some(chromium) = chromium() else { return };
+    let shots = std::env::var("TAUT_UPDATE_SCREENSHOTS").is_ok_and(|v| v == "1");
+    let docs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/screenshots");
+    for (name, tone) in &pages {
+        let png = dir.path().join(format!("{name}.png"));
+        render(&chromium, &dir.path().join(format!("{name}.html")), &png, (1100, 1500));
+        // The verdict box is drawn in its tone's colour (green #009e73, amber #e69f00).
+        let want: [i32; 3] = if tone == "ok" { [0, 158, 115] } else { [230, 159, 0] };
+        let (_, _, ch, buf) = pixels(&png);
+        let border = buf.chunks_exact(ch).filter(|p| (0..3).all(|i| (p[i] as i32 - want[i]).abs() <= 10)).count();
+        assert!(border > 500, "{name}: the {tone} verdict box is not drawn ({border} px of its colour)");
+        if shots {
+            std::fs::create_dir_all(&docs).unwrap();
+            std::fs::copy(&png, docs.join(format!("{name}.png"))).unwrap();
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! Swapped length columns (issue 28, wiring checks): with the configuration's nominal anchors,
 //! a calibration whose anchors land at other cables' nominal anchors is called out by name
-//! ("cables 0 and 1 look swapped") and `taut calibrate` exits non-zero unless `--allow-swapped`;
+//! ("cables 1 and 2 look swapped") and `taut calibrate` exits non-zero unless `--allow-swapped`;
 //! the same recording unswapped calibrates without a word about it. 4 and 8 cables.
 //!
 //! Without a configuration the lengths alone cannot tell: the platform is then a point mass, and
@@ -61,7 +61,7 @@ fn check(s: impl Fn() -> Scenario, swap: (usize, usize)) {
     assert_eq!(code, Some(0), "as recorded: {err}");
     assert!(!out.contains("swapped") && !err.contains("swapped"), "{out}\n{err}");
     let (code, out, err) = calibrate(dir.path(), s(), Some(swap), &[]);
-    let named = format!("cables {} and {} look swapped", swap.0, swap.1);
+    let named = format!("cables {} and {} look swapped", swap.0 + 1, swap.1 + 1);
     assert_ne!(code, Some(0), "swapped: {out}");
     assert!(err.contains(&named) && err.contains("--allow-swapped"), "{err}");
     let (code, out, err) = calibrate(dir.path(), s(), Some(swap), &["--allow-swapped"]);
@@ -78,7 +78,7 @@ fn check_without_config(s: impl Fn() -> Scenario, swap: (usize, usize)) {
         assert_eq!(code, Some(0), "{sw:?} {both}: {err}");
         assert!(!out.contains("swapped") && !err.contains("swapped"), "{out}\n{err}");
     }
-    let named = format!("cables {} and {} look swapped: their length columns disagree with their tension columns", swap.0, swap.1);
+    let named = format!("cables {} and {} look swapped: their length columns disagree with their tension columns", swap.0 + 1, swap.1 + 1);
     let (code, out, err) = calibrate_with(dir.path(), s(), Some(swap), false, false, &[]);
     assert_ne!(code, Some(0), "lengths swapped: {out}");
     assert!(err.contains(&named) && err.contains("--allow-swapped"), "{err}");

@@ -110,7 +110,10 @@ fn the_operator_workflow_on_the_simulated_robot() {
     assert!(text.contains("state        operate") && text.contains("parameters v2"), "{text}");
     assert!(text.contains("fault        none"), "{text}");
     assert!(text.contains("worst 1-sigma") && text.contains(" mm ("), "{text}");
-    assert!(text.contains("1: enabled, 2: enabled, 3: enabled, 4: enabled"), "{text}");
+    assert!(
+        text.contains("cable 1 (node 1): enabled, cable 2 (node 2): enabled, cable 3 (node 3): enabled, cable 4 (node 4): enabled"),
+        "{text}"
+    );
     assert!(text.contains("tracker      pose ("), "{text}");
 
     // move --wait: returns on arrival within the tolerance; the platform is there.
