@@ -9,10 +9,12 @@
 //!                 of their bits (bitrate, worst-case stuffing, one frame at a time); the
 //!                 drives' answers go back the same way
 //!               · the plant steps at `site_period` (the site's own physics)
-//!               · a Modbus RTU polling round: the driver's master and reading code on an
-//!                 in-memory line (character times at the configured baud rate, the cell's
-//!                 answer latency) against the virtual cells' answering code; each reading
-//!                 reaches the loop when its response is complete
+//!               · a Modbus RTU polling round, one transaction at a time among the other
+//!                 events: the driver's master and reading code on an in-memory line
+//!                 (character times at the configured baud rate, t3.5 between frames, the
+//!                 cell's answer latency) against the virtual cells' answering code; a cell
+//!                 answers with the plant's tension of the instant its request reached it, and
+//!                 each reading reaches the loop when its response is complete
 //!               · a tracker pose (100 Hz): the driver's line format, parsed by the driver's
 //!                 receiver, stamped with its arrival
 //!             then the robot's own device layer (`RobotDevices`) reads, as on hardware
@@ -515,12 +517,42 @@ impl CanTransport for LockstepCan {
     }
 }
 
+/// The load-cell line's clock during one transaction: it starts where the transaction starts on
+/// the line (the world is then at the instant its request reaches the cell, a little later)
+/// and runs ahead as the bytes take their time.
+struct LineClock(Mutex<Instant>);
+
+impl LineClock {
+    fn at(t: Instant) -> LineClock {
+        LineClock(Mutex::new(t))
+    }
+
+    fn advance(&self, d: Duration) {
+        *lock(&self.0) += d;
+    }
+
+    fn advance_to(&self, t: Instant) {
+        let mut now = lock(&self.0);
+        *now = (*now).max(t);
+    }
+}
+
+impl Clock for LineClock {
+    fn now(&self) -> Instant {
+        *lock(&self.0)
+    }
+
+    fn sleep(&self, d: Duration) {
+        self.advance(d);
+    }
+}
+
 /// The load-cell line in memory: the master's request takes its character times, the
 /// addressed cell answers after its latency, and the answer takes its character times; the
-/// line's own clock (a fork of the world's, run ahead during one polling round) carries them.
+/// line's own clock carries them through one transaction.
 struct Line<'a> {
     cells: &'a mut LoadCellResponder,
-    clock: &'a SimClock,
+    clock: &'a LineClock,
     char_time: Duration,
     latency: Duration,
     /// The cells do not answer requests sent in this span.
@@ -565,8 +597,51 @@ struct Cells {
     bus: SteppedLoadCells,
     responder: LoadCellResponder,
     char_time: Duration,
+    /// When the next polling round starts.
     next_round: Instant,
+    /// When the round under way started.
+    round_start: Instant,
+    /// The transaction under way: where it starts on the line, and the instant its request
+    /// reaches the cell (when it is run).
+    tx: Option<(Instant, Instant)>,
     silenced: bool,
+}
+
+impl Cells {
+    /// The next instant the line has work: the request under way reaching its cell, or the
+    /// next round's start.
+    fn next_event(&self) -> Instant {
+        self.tx.map_or(self.next_round, |(_, at)| at)
+    }
+
+    /// The line's work due at `now`, as a polling round runs on the wire, one transaction after
+    /// the other: a round starts; a transaction whose request has reached its cell by `now` is
+    /// run, so that the cell answers with the tension of that instant (the plant has been
+    /// stepped up to it), its answer taking its time on the line after; the next transaction
+    /// starts where it ended. Readings reach the loop when their answer is complete.
+    fn advance(&mut self, now: Instant, silence: Option<(Instant, Instant)>) {
+        if self.tx.is_none() && now >= self.next_round {
+            self.round_start = now;
+            self.tx = Some((now, self.bus.request_complete_at(now)));
+        }
+        while let Some((start, at)) = self.tx {
+            if at > now {
+                break;
+            }
+            let clock = LineClock::at(start);
+            let mut line =
+                Line { cells: &mut self.responder, clock: &clock, char_time: self.char_time, latency: CELL_LATENCY, silence, answer: None };
+            let over = self.bus.transaction(&mut line, &clock);
+            let end = clock.now();
+            self.tx = if over {
+                self.next_round = (self.round_start + self.bus.poll_period()).max(end);
+                None
+            } else {
+                Some((end, self.bus.request_complete_at(end)))
+            };
+        }
+        self.bus.release(now);
+    }
 }
 
 /// Everything outside the robot's computer, advanced event by event.
@@ -611,7 +686,7 @@ impl World {
     fn next_event(&mut self) -> Option<Instant> {
         let bus = lock(&self.bus).next_delivery(Side::Rack);
         let fault = self.schedule.front().map(|(t, _)| *t);
-        [bus, self.site.rack.next_deadline(), Some(self.next_tick), Some(self.cells.next_round), self.cells.bus.next_release(), fault]
+        [bus, self.site.rack.next_deadline(), Some(self.next_tick), Some(self.cells.next_event()), self.cells.bus.next_release(), fault]
             .into_iter()
             .flatten()
             .chain(self.receiver.is_some().then_some(self.next_pose))
@@ -637,26 +712,10 @@ impl World {
             }
             self.site.step_plant(now);
         }
-        if now >= self.cells.next_round {
-            let t0 = self.t0;
-            let silence = self
-                .faults
-                .loadcell_silence
-                .map(|(from, dur)| (t0 + Duration::from_secs_f64(from), t0 + Duration::from_secs_f64(from + dur)));
-            let line_clock = self.clock.fork();
-            let mut line = Line {
-                cells: &mut self.cells.responder,
-                clock: &line_clock,
-                char_time: self.cells.char_time,
-                latency: CELL_LATENCY,
-                silence,
-                answer: None,
-            };
-            self.cells.bus.round(&mut line, &line_clock);
-            let period = self.cells.bus.poll_period();
-            self.cells.next_round = (now + period).max(line_clock.now());
-        }
-        self.cells.bus.release(now);
+        let t0 = self.t0;
+        let silence =
+            self.faults.loadcell_silence.map(|(from, dur)| (t0 + Duration::from_secs_f64(from), t0 + Duration::from_secs_f64(from + dur)));
+        self.cells.advance(now, silence);
         if now >= self.next_pose {
             self.next_pose += Duration::from_secs_f64(TRACKER_PERIOD_S);
             self.pose(now);
@@ -809,7 +868,7 @@ impl LockstepRobot {
             clock: clock.clone(),
             t0,
             bus: bus.clone(),
-            cells: Cells { bus: stepped, responder, char_time, next_round: t0, silenced: false },
+            cells: Cells { bus: stepped, responder, char_time, next_round: t0, round_start: t0, tx: None, silenced: false },
             receiver,
             next_pose: t0,
             tracker_gap_until: None,
@@ -1219,5 +1278,60 @@ mod tests {
         assert_eq!(bus_events(&drain(&mut b)), [BusEvent::Restarted]);
         b.send(Side::Master, &Frame::new(0x80, &[])).unwrap();
         assert_eq!((b.to_rack.len(), b.stats.restarts), (1, 1));
+    }
+
+    /// A polling round on a ramped tension, stepped every 1 ms as the plant is: each cell
+    /// answers with the tension of the instant its request reached it (the last plant step at
+    /// or before it), not the round's start, and its reading reaches the loop when its answer
+    /// is complete: one request (8 characters), the cell's latency and the answer (9
+    /// characters) after the previous answer and t3.5 of silence.
+    #[test]
+    fn each_cell_answers_with_the_tension_of_its_request_and_arrives_at_its_answer() {
+        use taut_config::devices::LoadCellConfig;
+        const N: usize = 4;
+        let bus_cfg = LoadCellBusConfig::new("simulated line");
+        let cells: Vec<(usize, LoadCellConfig)> = (0..N).map(|i| (i, LoadCellConfig::new(i as u8 + 1))).collect();
+        let (stepped, _io, mut reader) = SteppedLoadCells::new(&bus_cfg, &cells, N).unwrap();
+        let tensions = taut_vdev::TensionHandle::new(N);
+        let responder = LoadCellResponder::new(cells.iter().map(|c| c.1.clone()).collect(), tensions.clone());
+        let timing = taut_driver::modbus::master::MasterConfig::from_bus(&bus_cfg).timing;
+        let t0 = Instant::now();
+        let mut c =
+            Cells { bus: stepped, responder, char_time: timing.char_time, next_round: t0, round_start: t0, tx: None, silenced: false };
+        // 10 kN/s from 100 N; the cells report whole newtons.
+        let ramp = |t: Instant| 100.0 + 1e4 * (t - t0).as_secs_f64();
+        let plant_step = Duration::from_millis(1);
+        let (mut now, mut next_step) = (t0, t0);
+        let mut got: Vec<(usize, f64, Instant)> = Vec::new();
+        while now < t0 + Duration::from_millis(100) {
+            if now >= next_step {
+                tensions.set_all(&[ramp(now); N]);
+                next_step += plant_step;
+            }
+            c.advance(now, None);
+            reader.update();
+            for k in 0..N {
+                if let Some((v, t)) = reader.latest(k) {
+                    if got.iter().rev().find(|g| g.0 == k).is_none_or(|g| g.2 != t) {
+                        assert_eq!(t, now, "cell {k}: the reading reaches the loop when its answer is complete");
+                        got.push((k, v, t));
+                    }
+                }
+            }
+            now = [Some(next_step), Some(c.next_event()), c.bus.next_release()].into_iter().flatten().min().unwrap();
+        }
+        let (request, answer) = (timing.frame_time(8), timing.frame_time(9));
+        assert!(got.len() >= 3 * N, "{} readings", got.len());
+        for (i, &(k, v, t)) in got.iter().enumerate() {
+            assert_eq!(k, i % N, "the cells in order");
+            let reached = t - answer - CELL_LATENCY;
+            let start = if i == 0 { t0 } else { got[i - 1].2 + timing.t35 };
+            assert_eq!(reached - request, start, "reading {i}: one transaction after the other");
+            let (lo, hi) = (ramp(reached - plant_step) - 0.5, ramp(reached) + 0.5);
+            assert!(
+                (lo..=hi).contains(&v),
+                "reading {i} of cell {k}: {v} N, the tension when its request reached the cell is {lo:.1}..{hi:.1} N"
+            );
+        }
     }
 }
