@@ -281,7 +281,8 @@ pub struct SteppedLoadCells {
     period: Duration,
     /// The cell the next transaction polls (index in `cells`).
     next: usize,
-    /// The end of the last transaction: the next request waits t3.5 of silence after it.
+    /// The end of the last transaction of the round under way: the next request waits t3.5 of
+    /// silence after it.
     last: Option<Instant>,
 }
 
@@ -316,11 +317,11 @@ impl SteppedLoadCells {
 
     /// When the request of the next transaction ([`transaction`](Self::transaction)), started
     /// on the line at `now`, has reached the addressed cell whole: after the master's t3.5 of
-    /// silence since the last transaction and the request's character times. A simulator lets
-    /// the cell answer at this instant.
+    /// silence since the round's previous transaction and the request's character times. A
+    /// simulator lets the cell answer at this instant.
     pub fn request_complete_at(&self, now: Instant) -> Instant {
         let Some(cell) = self.cells.get(self.next) else { return now };
-        let start = self.last.map_or(now, |t| now.max(t + self.mcfg.timing.t35));
+        let start = self.last.filter(|_| self.next > 0).map_or(now, |t| now.max(t + self.mcfg.timing.t35));
         let mut tx = [0u8; crate::modbus::rtu::MAX_FRAME];
         start + self.mcfg.timing.frame_time(crate::modbus::rtu::encode(&cell.req, &mut tx))
     }
@@ -328,12 +329,13 @@ impl SteppedLoadCells {
     /// One transaction of the polling round: the next cell in the round's order, read by the
     /// same Modbus RTU master and reading code as the I/O thread, on `link`, timed by `clock`
     /// from where it stands (the line advances it as the bytes take their time; the master
-    /// keeps t3.5 of silence after the previous transaction). True when the round is over
+    /// keeps t3.5 of silence after the round's previous transaction; a round's first request
+    /// goes out at once, as with a master made for the round). True when the round is over
     /// (its last cell was read, or the link failed: counted), so that the next transaction
     /// starts a new round.
     pub fn transaction<L: SerialLink>(&mut self, link: &mut L, clock: &dyn Clock) -> bool {
         let Some(cell) = self.cells.get(self.next) else { return true };
-        if let Some(t) = self.last {
+        if let Some(t) = self.last.filter(|_| self.next > 0) {
             let (ready, now) = (t + self.mcfg.timing.t35, clock.now());
             if ready > now {
                 clock.sleep(ready - now);

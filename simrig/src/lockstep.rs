@@ -71,8 +71,9 @@ use taut_rt_core::io::{Devices, Inputs, Outputs};
 use taut_rt_core::plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
+use taut_rt_core::MAX_CABLES;
 use taut_sim::Truth;
-use taut_vdev::{LoadCellFault, LoadCellResponder};
+use taut_vdev::{LoadCellFault, LoadCellResponder, TensionHandle};
 
 /// Faults the simulated devices and wires inject, drawn from the run's seed.
 #[derive(Debug, Clone, PartialEq)]
@@ -547,11 +548,64 @@ impl Clock for LineClock {
     }
 }
 
+/// The tensions at the load cells at the plant's last steps. The world handles its events when
+/// the loop's clock has passed them (at the loop's cycle), the plant's steps first: a cell
+/// answers with the tension at the instant its request reached it, linear between the steps
+/// around it.
+struct PlantTensions {
+    n: usize,
+    steps: VecDeque<(Instant, [f64; MAX_CABLES])>,
+}
+
+impl PlantTensions {
+    /// Steps kept: a cycle's and its neighbours', with the world's 1 ns re-steps among them.
+    const KEEP: usize = 8;
+
+    fn new(n: usize) -> PlantTensions {
+        PlantTensions { n: n.min(MAX_CABLES), steps: VecDeque::with_capacity(Self::KEEP) }
+    }
+
+    /// The plant's tensions (`handle`) after its step at `at`.
+    fn record(&mut self, at: Instant, handle: &TensionHandle) {
+        if self.steps.len() == Self::KEEP {
+            self.steps.pop_front();
+        }
+        let mut t = [0.0; MAX_CABLES];
+        for (i, x) in t.iter_mut().enumerate().take(self.n) {
+            *x = handle.get(i);
+        }
+        self.steps.push_back((at, t));
+    }
+
+    /// Sets `out` to the tensions at `at`: linear between the steps around it, the newest
+    /// after them, the oldest before.
+    fn set_at(&self, at: Instant, out: &TensionHandle) {
+        let Some(newest) = self.steps.back() else { return };
+        let k = self.steps.iter().position(|(t, _)| *t >= at);
+        for i in 0..self.n {
+            let v = match k {
+                None => newest.1[i],
+                Some(0) => self.steps[0].1[i],
+                Some(k) => {
+                    let ((ta, a), (tb, b)) = (&self.steps[k - 1], &self.steps[k]);
+                    let f = (at - *ta).as_secs_f64() / (*tb - *ta).as_secs_f64();
+                    a[i] + f * (b[i] - a[i])
+                }
+            };
+            out.set(i, v);
+        }
+    }
+}
+
 /// The load-cell line in memory: the master's request takes its character times, the
-/// addressed cell answers after its latency, and the answer takes its character times; the
-/// line's own clock carries them through one transaction.
+/// addressed cell answers after its latency with the tension at the instant the request
+/// reached it, and the answer takes its character times; the line's own clock carries them
+/// through one transaction.
 struct Line<'a> {
     cells: &'a mut LoadCellResponder,
+    /// What the cells read (the responder's tensions) and where it comes from.
+    reads: &'a TensionHandle,
+    plant: &'a PlantTensions,
     clock: &'a LineClock,
     char_time: Duration,
     latency: Duration,
@@ -565,6 +619,9 @@ impl SerialLink for Line<'_> {
         self.clock.advance(self.char_time * frame.len() as u32);
         let now = self.clock.now();
         let silent = self.silence.is_some_and(|(from, to)| (from..to).contains(&now));
+        if !silent {
+            self.plant.set_at(now, self.reads);
+        }
         self.answer = if silent { None } else { self.cells.answer(frame).map(|(b, n)| (self.clock.now() + self.latency, b, n)) };
         Ok(())
     }
@@ -596,6 +653,9 @@ impl SerialLink for Line<'_> {
 struct Cells {
     bus: SteppedLoadCells,
     responder: LoadCellResponder,
+    /// The tensions the responder reads, set for each request from `plant`.
+    reads: TensionHandle,
+    plant: PlantTensions,
     char_time: Duration,
     /// When the next polling round starts.
     next_round: Instant,
@@ -629,8 +689,16 @@ impl Cells {
                 break;
             }
             let clock = LineClock::at(start);
-            let mut line =
-                Line { cells: &mut self.responder, clock: &clock, char_time: self.char_time, latency: CELL_LATENCY, silence, answer: None };
+            let mut line = Line {
+                cells: &mut self.responder,
+                reads: &self.reads,
+                plant: &self.plant,
+                clock: &clock,
+                char_time: self.char_time,
+                latency: CELL_LATENCY,
+                silence,
+                answer: None,
+            };
             let over = self.bus.transaction(&mut line, &clock);
             let end = clock.now();
             self.tx = if over {
@@ -711,6 +779,7 @@ impl World {
                 self.cells.silenced = true;
             }
             self.site.step_plant(now);
+            self.cells.plant.record(now, &self.site.handle);
         }
         let t0 = self.t0;
         let silence =
@@ -845,7 +914,10 @@ impl LockstepRobot {
         let (stepped, loadcells, reader) = SteppedLoadCells::new(&lc_bus, &parts.cells, n).map_err(BuildError::LoadCells)?;
         let bits = 1 + u32::from(lc_bus.data_bits) + u32::from(lc_bus.parity != Parity::None) + u32::from(lc_bus.stop_bits);
         let char_time = Duration::from_secs_f64(f64::from(bits) / f64::from(lc_bus.baud.max(1)));
-        let responder = LoadCellResponder::new(parts.cells.iter().map(|c| c.1.clone()).collect(), parts.handle.clone());
+        let reads = TensionHandle::new(n);
+        let responder = LoadCellResponder::new(parts.cells.iter().map(|c| c.1.clone()).collect(), reads.clone());
+        let mut plant_tensions = PlantTensions::new(n);
+        plant_tensions.record(t0, &parts.handle);
         let (receiver, pose) = if opts.tracker {
             let mut tcfg = TrackerConfig::new("127.0.0.1:0");
             tcfg.max_age_s = cfg.safety.tracker_max_age_s;
@@ -868,7 +940,17 @@ impl LockstepRobot {
             clock: clock.clone(),
             t0,
             bus: bus.clone(),
-            cells: Cells { bus: stepped, responder, char_time, next_round: t0, round_start: t0, tx: None, silenced: false },
+            cells: Cells {
+                bus: stepped,
+                responder,
+                reads,
+                plant: plant_tensions,
+                char_time,
+                next_round: t0,
+                round_start: t0,
+                tx: None,
+                silenced: false,
+            },
             receiver,
             next_pose: t0,
             tracker_gap_until: None,
@@ -1280,11 +1362,12 @@ mod tests {
         assert_eq!((b.to_rack.len(), b.stats.restarts), (1, 1));
     }
 
-    /// A polling round on a ramped tension, stepped every 1 ms as the plant is: each cell
-    /// answers with the tension of the instant its request reached it (the last plant step at
-    /// or before it), not the round's start, and its reading reaches the loop when its answer
+    /// A polling round on a ramped tension, the world handled as the loop does it: at every
+    /// 2 ms cycle the plant steps, then the line does the work that has fallen due. Each cell
+    /// answers with the tension of the instant its request reached it (not the round's start
+    /// nor the cycle's), and its reading reaches the loop at the first cycle after its answer
     /// is complete: one request (8 characters), the cell's latency and the answer (9
-    /// characters) after the previous answer and t3.5 of silence.
+    /// characters), t3.5 of silence after the previous answer within a round.
     #[test]
     fn each_cell_answers_with_the_tension_of_its_request_and_arrives_at_its_answer() {
         use taut_config::devices::LoadCellConfig;
@@ -1292,45 +1375,62 @@ mod tests {
         let bus_cfg = LoadCellBusConfig::new("simulated line");
         let cells: Vec<(usize, LoadCellConfig)> = (0..N).map(|i| (i, LoadCellConfig::new(i as u8 + 1))).collect();
         let (stepped, _io, mut reader) = SteppedLoadCells::new(&bus_cfg, &cells, N).unwrap();
-        let tensions = taut_vdev::TensionHandle::new(N);
-        let responder = LoadCellResponder::new(cells.iter().map(|c| c.1.clone()).collect(), tensions.clone());
+        let plant = TensionHandle::new(N);
+        let reads = TensionHandle::new(N);
+        let responder = LoadCellResponder::new(cells.iter().map(|c| c.1.clone()).collect(), reads.clone());
         let timing = taut_driver::modbus::master::MasterConfig::from_bus(&bus_cfg).timing;
         let t0 = Instant::now();
-        let mut c =
-            Cells { bus: stepped, responder, char_time: timing.char_time, next_round: t0, round_start: t0, tx: None, silenced: false };
-        // 10 kN/s from 100 N; the cells report whole newtons.
-        let ramp = |t: Instant| 100.0 + 1e4 * (t - t0).as_secs_f64();
-        let plant_step = Duration::from_millis(1);
-        let (mut now, mut next_step) = (t0, t0);
-        let mut got: Vec<(usize, f64, Instant)> = Vec::new();
+        let mut c = Cells {
+            bus: stepped,
+            responder,
+            reads,
+            plant: PlantTensions::new(N),
+            char_time: timing.char_time,
+            next_round: t0,
+            round_start: t0,
+            tx: None,
+            silenced: false,
+        };
+        // 10 kN/s from 100 N, a different tension on each cable; the cells report whole newtons.
+        let ramp = |k: usize, t: Instant| 100.0 * (k + 1) as f64 + 1e4 * (t - t0).as_secs_f64();
+        let cycle = Duration::from_millis(2);
+        let mut got: Vec<(usize, f64, Instant, Instant)> = Vec::new();
+        let mut now = t0;
         while now < t0 + Duration::from_millis(100) {
-            if now >= next_step {
-                tensions.set_all(&[ramp(now); N]);
-                next_step += plant_step;
+            for k in 0..N {
+                plant.set(k, ramp(k, now));
             }
+            c.plant.record(now, &plant);
             c.advance(now, None);
             reader.update();
             for k in 0..N {
                 if let Some((v, t)) = reader.latest(k) {
                     if got.iter().rev().find(|g| g.0 == k).is_none_or(|g| g.2 != t) {
-                        assert_eq!(t, now, "cell {k}: the reading reaches the loop when its answer is complete");
-                        got.push((k, v, t));
+                        got.push((k, v, t, now));
                     }
                 }
             }
-            now = [Some(next_step), Some(c.next_event()), c.bus.next_release()].into_iter().flatten().min().unwrap();
+            now += cycle;
         }
         let (request, answer) = (timing.frame_time(8), timing.frame_time(9));
         assert!(got.len() >= 3 * N, "{} readings", got.len());
-        for (i, &(k, v, t)) in got.iter().enumerate() {
+        for (i, &(k, v, t, seen)) in got.iter().enumerate() {
             assert_eq!(k, i % N, "the cells in order");
+            assert!(seen >= t && seen < t + cycle, "reading {i}: seen at the first cycle after its answer");
             let reached = t - answer - CELL_LATENCY;
-            let start = if i == 0 { t0 } else { got[i - 1].2 + timing.t35 };
-            assert_eq!(reached - request, start, "reading {i}: one transaction after the other");
-            let (lo, hi) = (ramp(reached - plant_step) - 0.5, ramp(reached) + 0.5);
+            let start = reached - request;
+            match i {
+                0 => assert_eq!(start, t0),
+                _ if i % N == 0 => assert!(
+                    start >= got[i - 1].2 && start < got[i - 1].2 + cycle,
+                    "reading {i}: a round starts at the cycle after the last"
+                ),
+                _ => assert_eq!(start, got[i - 1].2 + timing.t35, "reading {i}: one transaction after the other"),
+            }
+            let want = ramp(k, reached);
             assert!(
-                (lo..=hi).contains(&v),
-                "reading {i} of cell {k}: {v} N, the tension when its request reached the cell is {lo:.1}..{hi:.1} N"
+                (v - want).abs() <= 0.5,
+                "reading {i} of cell {k}: {v} N, the tension when its request reached the cell is {want:.1} N"
             );
         }
     }
