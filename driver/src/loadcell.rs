@@ -266,8 +266,9 @@ fn prepare(
 }
 
 /// The load-cell bus without its thread, for a lockstep simulation: the caller runs each
-/// polling round ([`SteppedLoadCells::round`]) on a link and a clock of its own, with the same
-/// Modbus RTU master and the same reading code as the I/O thread. Readings reach the
+/// transaction of a polling round ([`SteppedLoadCells::transaction`]) on a link and a clock of
+/// its own, when its simulated time has come, with the same Modbus RTU master and the same
+/// reading code as the I/O thread. Readings reach the
 /// [`TensionReader`] when [`SteppedLoadCells::release`] is called at or after the instant
 /// their response was complete, never earlier.
 pub struct SteppedLoadCells {
@@ -278,6 +279,11 @@ pub struct SteppedLoadCells {
     counters: Arc<Counters>,
     pending: std::collections::VecDeque<TensionSample>,
     period: Duration,
+    /// The cell the next transaction polls (index in `cells`).
+    next: usize,
+    /// The end of the last transaction of the round under way: the next request waits t3.5 of
+    /// silence after it.
+    last: Option<Instant>,
 }
 
 impl SteppedLoadCells {
@@ -298,6 +304,8 @@ impl SteppedLoadCells {
             counters,
             pending: std::collections::VecDeque::with_capacity(4 * cells.len().max(1)),
             period: Duration::from_secs_f64(bus.poll_period_s),
+            next: 0,
+            last: None,
         };
         Ok((stepped, io, reader(bus, cons, cables)))
     }
@@ -307,13 +315,43 @@ impl SteppedLoadCells {
         self.period
     }
 
-    /// One polling round on `link`, its transactions timed by `clock` (which the link advances
-    /// as the bytes take their time on the line). `false` if the link failed (counted).
-    pub fn round<L: SerialLink>(&mut self, link: &mut L, clock: &dyn Clock) -> bool {
+    /// When the request of the next transaction ([`transaction`](Self::transaction)), started
+    /// on the line at `now`, has reached the addressed cell whole: after the master's t3.5 of
+    /// silence since the round's previous transaction and the request's character times. A
+    /// simulator lets the cell answer at this instant.
+    pub fn request_complete_at(&self, now: Instant) -> Instant {
+        let Some(cell) = self.cells.get(self.next) else { return now };
+        let start = self.last.filter(|_| self.next > 0).map_or(now, |t| now.max(t + self.mcfg.timing.t35));
+        let mut tx = [0u8; crate::modbus::rtu::MAX_FRAME];
+        start + self.mcfg.timing.frame_time(crate::modbus::rtu::encode(&cell.req, &mut tx))
+    }
+
+    /// One transaction of the polling round: the next cell in the round's order, read by the
+    /// same Modbus RTU master and reading code as the I/O thread, on `link`, timed by `clock`
+    /// from where it stands (the line advances it as the bytes take their time; the master
+    /// keeps t3.5 of silence after the round's previous transaction; a round's first request
+    /// goes out at once, as with a master made for the round). True when the round is over
+    /// (its last cell was read, or the link failed: counted), so that the next transaction
+    /// starts a new round.
+    pub fn transaction<L: SerialLink>(&mut self, link: &mut L, clock: &dyn Clock) -> bool {
+        let Some(cell) = self.cells.get(self.next) else { return true };
+        if let Some(t) = self.last.filter(|_| self.next > 0) {
+            let (ready, now) = (t + self.mcfg.timing.t35, clock.now());
+            if ready > now {
+                clock.sleep(ready - now);
+            }
+        }
         let counters = self.counters.clone();
         let mut master = Master::with_clock(link, self.mcfg, &counters, clock);
         let pending = &mut self.pending;
-        poll_round(&self.port, &self.cells, &mut master, &counters, clock, |s| pending.push_back(s)).is_ok()
+        let ok = poll_round(&self.port, std::slice::from_ref(cell), &mut master, &counters, clock, |s| pending.push_back(s)).is_ok();
+        self.last = Some(clock.now());
+        self.next = if ok { self.next + 1 } else { self.cells.len() };
+        if self.next >= self.cells.len() {
+            self.next = 0;
+            return true;
+        }
+        false
     }
 
     /// Hands the readings complete at `now` to the reader.
