@@ -1,0 +1,382 @@
+//! The start-up's wiring check (issue 28): in each initialisation phase, while cable `r` is
+//! reeled with cables `a` and `b` held, the loop compares what the sensors report with what the
+//! tracked motion and the nominal geometry predict, and stops the robot when they disagree,
+//! naming the cable and the miswiring that explains what it saw.
+//!
+//! What is compared, from the start of the reel (every quantity low-passed over
+//! [`WIRING_TAU_S`] alike, so that a swinging platform and the readings' lags cancel):
+//!
+//! - **Encoders.** Each cable's encoder length change `Δl_j` against the change of its straight
+//!   length `|P + b_j - A_j|` between the tracked poses, with the nominal anchors `A_j`: the
+//!   reeled cable must show the reel, the held ones nothing, the followers what the motion pays
+//!   out. Tolerance `LENGTH_TOL_M + LENGTH_TOL_REL |ΔP|` (nominal anchors a few cm off turn the
+//!   directions by a few per cent of the displacement).
+//! - **Load cells.** Each cable's tension against the statics at the tracked pose
+//!   ([`crate::follower::statics`]: the followers at their commanded tension, the three
+//!   position cables from the force balance with the nominal anchors). Tolerance
+//!   `TENSION_TOL_N + TENSION_TOL_REL T` (anchors off, the swing's `m a` that the low-pass
+//!   leaves, a torque-mode drum's friction). Tensions, not their changes over the reel: on the
+//!   dynamic plant the swing a reel starts changes the held cables' tensions by as much as the
+//!   reel does (5 N of 0.4 N predicted, measured), while the levels of held and following cables
+//!   differ by 10-15 N.
+//!
+//! When a comparison fails, the check tries the single miswirings that could explain it: one
+//! encoder's sign inverted (its change matches with the sign flipped), two drives swapped (each
+//! encoder matches the other's predicted change), two load cells swapped; the first that brings
+//! every cable within its tolerance is named, otherwise the worst cable. A verdict must hold for
+//! [`PERSIST_S`] before the robot stops (reaction: hold). The comparison starts once the reel
+//! has gone `min(MIN_REEL_M, |reel_m| / 2)`.
+//!
+//! The platform's direction of motion is reported beside the verdict: with `a` and `b` held it
+//! moves on the circle about `A_a`, `A_b`, to first order along `±u_a × u_b` (unit vectors from
+//! the platform to the anchors), the sign set by `u_r`: a reel that moves the platform the other
+//! way (an inverted encoder on the reeled cable) shows as 180°.
+//!
+//! What cannot be seen in a phase: a swap of its two held cables (both hold, nothing changes)
+//! and a swap of two load cells whose cables carry the same tension change (two followers). The
+//! next phase that reels or lets follow one of them sees the first; the second does not matter
+//! while they follow alike, and shows as soon as one of them holds.
+//!
+//! Fixed size; nothing here allocates.
+
+use crate::io::Inputs;
+use crate::kin::LoopParams;
+use crate::safety::{Cause, Miswiring};
+use crate::MAX_CABLES;
+
+/// Time constant of the low-pass on the pose, lengths, tensions and follower tension, s: long
+/// against a platform's swing, short against the reel.
+pub const WIRING_TAU_S: f64 = 0.25;
+
+/// Absolute tolerance of an encoder change, m.
+pub const LENGTH_TOL_M: f64 = 0.03;
+
+/// Tolerance of an encoder change per metre of the platform's displacement.
+pub const LENGTH_TOL_REL: f64 = 0.15;
+
+/// Absolute tolerance of a tension, N.
+pub const TENSION_TOL_N: f64 = 3.0;
+
+/// Tolerance of a tension per newton of the predicted tension.
+pub const TENSION_TOL_REL: f64 = 0.3;
+
+/// How long a verdict must hold before the robot stops, s.
+pub const PERSIST_S: f64 = 0.1;
+
+/// The reel after which the comparison starts (at most half the phase's reel), m.
+pub const MIN_REEL_M: f64 = 0.15;
+
+/// The filtered state of the check in one phase.
+#[derive(Debug, Clone, Copy)]
+pub struct WiringCheck {
+    /// Filters started (the first cycle of the phase).
+    started: bool,
+    /// Reference taken (the first cycle of the reel).
+    have_ref: bool,
+    p: [f64; 3],
+    l: [f64; MAX_CABLES],
+    t: [f64; MAX_CABLES],
+    tf: f64,
+    ref_p: [f64; 3],
+    ref_l: [f64; MAX_CABLES],
+    /// How long the current verdict has held, s.
+    bad_s: f64,
+    /// The current verdict (not yet held for [`PERSIST_S`]).
+    pending: Option<Cause>,
+    /// Largest normalised residual of the wiring as configured, over the start-up so far:
+    /// encoders, load cells (1: at the tolerance).
+    worst: [f64; 2],
+}
+
+impl Default for WiringCheck {
+    fn default() -> Self {
+        WiringCheck::new()
+    }
+}
+
+/// What one comparison needs beside the filtered readings.
+#[derive(Debug, Clone, Copy)]
+pub struct Phase<'a> {
+    /// The nominal geometry (anchors and platform points).
+    pub params: &'a LoopParams,
+    /// Cables.
+    pub n: usize,
+    /// `[held_a, held_b, reeled]`.
+    pub cables: [usize; 3],
+    /// Commanded reel since the reel began, m (signed: negative reels in).
+    pub progress_m: f64,
+    /// Platform mass, kg.
+    pub mass_kg: f64,
+    /// The robot has load cells.
+    pub loads: bool,
+    /// Below this tension a cable is slack and its encoder is not compared, N.
+    pub loose_n: f64,
+}
+
+impl WiringCheck {
+    /// A check that has seen nothing.
+    pub const fn new() -> WiringCheck {
+        WiringCheck {
+            started: false,
+            have_ref: false,
+            p: [0.0; 3],
+            l: [0.0; MAX_CABLES],
+            t: [0.0; MAX_CABLES],
+            tf: 0.0,
+            ref_p: [0.0; 3],
+            ref_l: [0.0; MAX_CABLES],
+            bad_s: 0.0,
+            pending: None,
+            worst: [0.0; 2],
+        }
+    }
+
+    /// Largest normalised residuals of the configured wiring so far (encoders, load cells; 1 is
+    /// the tolerance, where the check would stop the robot if it held for [`PERSIST_S`]).
+    pub fn worst(&self) -> [f64; 2] {
+        self.worst
+    }
+
+    /// The verdict the check is forming (inconsistent, not yet held for [`PERSIST_S`]).
+    pub fn pending(&self) -> Option<Cause> {
+        self.pending
+    }
+
+    /// Starts a phase afresh: new filters, no reference, no verdict (the worst residuals are
+    /// kept).
+    pub fn restart(&mut self) {
+        self.started = false;
+        self.have_ref = false;
+        self.bad_s = 0.0;
+        self.pending = None;
+    }
+
+    /// Low-passes this cycle's pose, lengths, tensions and the followers' commanded tension.
+    pub fn track(&mut self, n: usize, inp: &Inputs, follower_n: f64, dt: f64) {
+        let w = if self.started { (dt / WIRING_TAU_S).clamp(0.0, 1.0) } else { 1.0 };
+        let f = |x: &mut f64, v: f64| {
+            if v.is_finite() {
+                *x = if x.is_finite() { *x + w * (v - *x) } else { v };
+            }
+        };
+        if !self.started {
+            self.p = [f64::NAN; 3];
+            self.l = [f64::NAN; MAX_CABLES];
+            self.t = [f64::NAN; MAX_CABLES];
+            self.tf = f64::NAN;
+        }
+        for i in 0..3 {
+            f(&mut self.p[i], inp.pose_m[i]);
+        }
+        for j in 0..n {
+            f(&mut self.l[j], inp.length_m[j]);
+            f(&mut self.t[j], inp.tension_n[j]);
+        }
+        f(&mut self.tf, follower_n);
+        self.started = true;
+    }
+
+    /// Takes the reference the reel is compared with (the first cycle of the reel).
+    pub fn mark(&mut self) {
+        if !self.have_ref {
+            (self.ref_p, self.ref_l) = (self.p, self.l);
+            self.have_ref = true;
+        }
+    }
+
+    /// Forgets the verdict being formed (the reel is too short to judge).
+    pub fn idle(&mut self) {
+        self.bad_s = 0.0;
+        self.pending = None;
+    }
+
+    /// Compares the readings with the prediction; the cause once a verdict has held for
+    /// [`PERSIST_S`].
+    pub fn judge(&mut self, ph: &Phase<'_>, dt: f64) -> Option<Cause> {
+        if !self.have_ref {
+            return None;
+        }
+        let verdict = self.verdict(ph);
+        match verdict {
+            Some(c) => {
+                self.bad_s += dt;
+                self.pending = Some(c);
+                (self.bad_s >= PERSIST_S).then_some(c)
+            }
+            None => {
+                self.idle();
+                None
+            }
+        }
+    }
+
+    /// This cycle's verdict, and the worst residuals kept.
+    fn verdict(&mut self, ph: &Phase<'_>) -> Option<Cause> {
+        let n = ph.n.min(MAX_CABLES);
+        let prm = ph.params;
+        let rho = |j: usize, p: &[f64; 3]| {
+            let d: [f64; 3] = std::array::from_fn(|i| p[i] + prm.platform[j][i] - prm.anchors[j][i]);
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        };
+        let dp: [f64; 3] = std::array::from_fn(|i| self.p[i] - self.ref_p[i]);
+        let disp = norm(dp);
+        if !disp.is_finite() {
+            return None;
+        }
+        let [a, b, r] = ph.cables;
+        let angle = self.angle_deg(ph, dp, disp);
+        // Encoders: measured and predicted changes, m.
+        let mut dl = [0.0; MAX_CABLES];
+        let mut drho = [0.0; MAX_CABLES];
+        let mut used = [false; MAX_CABLES];
+        for j in 0..n {
+            dl[j] = self.l[j] - self.ref_l[j];
+            drho[j] = rho(j, &self.p) - rho(j, &self.ref_p);
+            // A slack cable's encoder says nothing about the straight length.
+            let slack = ph.loads && self.t[j].is_finite() && self.t[j] < ph.loose_n;
+            used[j] = dl[j].is_finite() && drho[j].is_finite() && !slack;
+        }
+        let tol = LENGTH_TOL_M + LENGTH_TOL_REL * disp;
+        let z = |m: f64, p: f64| (m - p).abs() / tol;
+        let (worst0, j0) = worst_of(n, &used, |j| z(dl[j], drho[j]));
+        self.worst[0] = self.worst[0].max(worst0);
+        // `+ 0.0` turns a -0 into 0 for the text.
+        let cause = |fault, cable: usize, other: usize, measured: f64, predicted: f64, for_other: f64| Cause::Miswired {
+            fault,
+            cable: cable as u8,
+            other: other as u8,
+            reeled: r as u8,
+            measured: measured as f32 + 0.0,
+            predicted: predicted as f32 + 0.0,
+            for_other: for_other as f32 + 0.0,
+            angle_deg: angle as f32,
+        };
+        if worst0 > 1.0 {
+            // The single miswiring that explains every encoder, the best if several do.
+            let mut best = (f64::INFINITY, Miswiring::Encoder, j0, j0);
+            for k in (0..n).filter(|&k| used[k]) {
+                let s = worst_of(n, &used, |j| if j == k { z(-dl[j], drho[j]) } else { z(dl[j], drho[j]) }).0;
+                if s < best.0 {
+                    best = (s, Miswiring::EncoderInverted, k, k);
+                }
+            }
+            for i in (0..n).filter(|&i| used[i]) {
+                for k in (i + 1..n).filter(|&k| used[k]) {
+                    let s = worst_of(n, &used, |j| {
+                        if j == i {
+                            z(dl[i], drho[k])
+                        } else if j == k {
+                            z(dl[k], drho[i])
+                        } else {
+                            z(dl[j], drho[j])
+                        }
+                    })
+                    .0;
+                    if s < best.0 {
+                        best = (s, Miswiring::DrivesSwapped, i, k);
+                    }
+                }
+            }
+            let (fault, i, k) = if best.0 <= 1.0 { (best.1, best.2, best.3) } else { (Miswiring::Encoder, j0, j0) };
+            return Some(cause(fault, i, k, dl[i] * 1e3, drho[i] * 1e3, drho[k] * 1e3));
+        }
+        if !ph.loads {
+            return None;
+        }
+        // Load cells: measured tensions against the statics at the tracked pose, N.
+        let mut follower = [false; MAX_CABLES];
+        for (j, f) in follower.iter_mut().enumerate().take(n) {
+            *f = j != a && j != b && j != r;
+        }
+        let want = crate::follower::statics(prm, &follower, &self.p, ph.mass_kg, self.tf)?;
+        let mut usable = [false; MAX_CABLES];
+        for j in 0..n {
+            usable[j] = self.t[j].is_finite() && want[j].is_finite();
+        }
+        let t = self.t;
+        let zt = |m: f64, p: f64| (m - p).abs() / (TENSION_TOL_N + TENSION_TOL_REL * p.abs());
+        let (worst1, j1) = worst_of(n, &usable, |j| zt(t[j], want[j]));
+        self.worst[1] = self.worst[1].max(worst1);
+        if worst1 <= 1.0 {
+            return None;
+        }
+        let mut best = (f64::INFINITY, j1, j1);
+        for i in (0..n).filter(|&i| usable[i]) {
+            for k in (i + 1..n).filter(|&k| usable[k]) {
+                let s = worst_of(n, &usable, |j| {
+                    if j == i {
+                        zt(t[i], want[k])
+                    } else if j == k {
+                        zt(t[k], want[i])
+                    } else {
+                        zt(t[j], want[j])
+                    }
+                })
+                .0;
+                if s < best.0 {
+                    best = (s, i, k);
+                }
+            }
+        }
+        if best.0 > 1.0 {
+            return Some(cause(Miswiring::LoadCell, j1, j1, t[j1], want[j1], want[j1]));
+        }
+        let (i, k) = (best.1, best.2);
+        // A follower's drive swapped with a position cable's puts the same tensions on the
+        // two cells as the two cells swapped; the encoders tell them apart unless the two
+        // cables' length changes are alike in this motion (a pair symmetric about it).
+        let drives_too = follower[i] != follower[k] && {
+            let s = worst_of(n, &used, |j| {
+                if j == i {
+                    z(dl[i], drho[k])
+                } else if j == k {
+                    z(dl[k], drho[i])
+                } else {
+                    z(dl[j], drho[j])
+                }
+            });
+            s.0 <= 1.0
+        };
+        let fault = if drives_too { Miswiring::DrivesOrLoadCellsSwapped } else { Miswiring::LoadCellsSwapped };
+        Some(cause(fault, i, k, t[i], want[i], want[k]))
+    }
+
+    /// Angle between the tracked displacement `dp` and the direction reeling the phase's cable
+    /// with its two cables held predicts, degrees; NaN when either is undefined.
+    fn angle_deg(&self, ph: &Phase<'_>, dp: [f64; 3], disp: f64) -> f64 {
+        let prm = ph.params;
+        let u = |j: usize| {
+            let d: [f64; 3] = std::array::from_fn(|i| prm.anchors[j][i] - self.ref_p[i] - prm.platform[j][i]);
+            let r = norm(d);
+            [d[0] / r, d[1] / r, d[2] / r]
+        };
+        let [a, b, r] = ph.cables;
+        let (ua, ub, ur) = (u(a), u(b), u(r));
+        let nrm = [ua[1] * ub[2] - ua[2] * ub[1], ua[2] * ub[0] - ua[0] * ub[2], ua[0] * ub[1] - ua[1] * ub[0]];
+        let g = ur[0] * nrm[0] + ur[1] * nrm[1] + ur[2] * nrm[2];
+        // d rho_r = -u_r . dP; along s * nrm: s = -progress / (u_r . nrm).
+        let s = -ph.progress_m / g;
+        let len = norm(nrm);
+        if !(disp > 1e-2 && g.abs() > 1e-6 && len > 1e-9 && s.is_finite()) {
+            return f64::NAN;
+        }
+        let c = s.signum() * (dp[0] * nrm[0] + dp[1] * nrm[1] + dp[2] * nrm[2]) / (len * disp);
+        c.clamp(-1.0, 1.0).acos().to_degrees()
+    }
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// The largest `f(j)` over the cables `used`, and its cable (0, 0 if none).
+fn worst_of(n: usize, used: &[bool; MAX_CABLES], f: impl Fn(usize) -> f64) -> (f64, usize) {
+    let mut w = (0.0, 0);
+    for j in (0..n).filter(|&j| used[j]) {
+        let v = f(j);
+        if v > w.0 || v.is_nan() {
+            w = (if v.is_nan() { f64::INFINITY } else { v }, j);
+        }
+    }
+    w
+}
