@@ -380,3 +380,113 @@ fn worst_of(n: usize, used: &[bool; MAX_CABLES], f: impl Fn(usize) -> f64) -> (f
     }
     w
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::follower::statics;
+
+    /// The ARAS-CAM-like robot's nominal anchors.
+    const NOMINAL: [[f64; 3]; 4] = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+
+    /// A platform heavy enough that the held cables carry three times the follower's 10 N.
+    const MASS_KG: f64 = 6.0;
+
+    fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+        norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+    }
+
+    /// Rotates `p` about the axis through `a` and `b` by `th` (Rodrigues).
+    fn rotate(p: [f64; 3], a: [f64; 3], b: [f64; 3], th: f64) -> [f64; 3] {
+        let k = {
+            let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let l = norm(d);
+            [d[0] / l, d[1] / l, d[2] / l]
+        };
+        let v = [p[0] - a[0], p[1] - a[1], p[2] - a[2]];
+        let kv = [k[1] * v[2] - k[2] * v[1], k[2] * v[0] - k[0] * v[2], k[0] * v[1] - k[1] * v[0]];
+        let kd = k[0] * v[0] + k[1] * v[1] + k[2] * v[2];
+        let (c, s) = (th.cos(), th.sin());
+        std::array::from_fn(|i| a[i] + v[i] * c + kv[i] * s + k[i] * kd * (1.0 - c))
+    }
+
+    /// A quasi-static reel of cable 2 with cables 0 and 1 held on a site whose anchors are off
+    /// the nominal ones by a few cm, fed to the check as 500 Hz inputs with `miswire` applied
+    /// to them; the first cause.
+    fn reel(miswire: impl Fn(&mut Inputs, &Inputs)) -> Option<Cause> {
+        let truth: Vec<[f64; 3]> = NOMINAL
+            .iter()
+            .enumerate()
+            .map(|(j, a)| [a[0] + 0.03 * (j as f64 - 1.5), a[1] - 0.02 * j as f64, a[2] + 0.04 * (j % 2) as f64])
+            .collect();
+        let nominal = LoopParams::new(0, &NOMINAL, &[0.0; 4], &[[0.0; 3]; 4]);
+        let site = LoopParams::new(0, &truth, &[0.0; 4], &[[0.0; 3]; 4]);
+        let follower: [bool; MAX_CABLES] = std::array::from_fn(|j| j == 3);
+        let p0 = [0.3, 0.1, 1.6];
+        // The direction that shortens cable 2.
+        let sign = if dist(rotate(p0, truth[0], truth[1], 1e-3), truth[2]) < dist(p0, truth[2]) { 1.0 } else { -1.0 };
+        let mut check = WiringCheck::new();
+        let dt = 0.002;
+        let mut clean = Inputs::new(4);
+        let mut first_set = clean;
+        for k in 0..2000 {
+            let t = k as f64 * dt;
+            // 0.5 s at rest, then 3 s of a smooth reel.
+            let w = ((t - 0.5) / 3.0).clamp(0.0, 1.0);
+            let th = sign * 0.35 * w * w * (3.0 - 2.0 * w);
+            let p = rotate(p0, truth[0], truth[1], th);
+            let tensions = statics(&site, &follower, &p, MASS_KG, 10.0).expect("statics");
+            clean.pose_m = p;
+            for j in 0..4 {
+                clean.length_m[j] = dist(p, truth[j]) + 1.0;
+                clean.tension_n[j] = tensions[j];
+            }
+            if k == 0 {
+                first_set = clean;
+            }
+            let mut fed = clean;
+            miswire(&mut fed, &first_set);
+            check.track(4, &fed, 10.0, dt);
+            if t >= 0.5 {
+                check.mark();
+                let progress_m = clean.length_m[2] - first_set.length_m[2];
+                let ph = Phase { params: &nominal, n: 4, cables: [0, 1, 2], progress_m, mass_kg: MASS_KG, loads: true, loose_n: 1.0 };
+                if progress_m.abs() >= MIN_REEL_M {
+                    if let Some(c) = check.judge(&ph, dt) {
+                        return Some(c);
+                    }
+                } else {
+                    check.idle();
+                }
+            }
+        }
+        assert!(check.worst()[0] < 0.5 && check.worst()[1] < 0.5, "margins {:?}", check.worst());
+        None
+    }
+
+    fn kind(c: Option<Cause>) -> (Miswiring, u8, u8) {
+        match c {
+            Some(Cause::Miswired { fault, cable, other, .. }) => (fault, cable, other),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// Wired as configured, nothing is found, with the nominal anchors a few cm off; each
+    /// miswiring of the readings is named.
+    #[test]
+    fn the_check_names_what_the_readings_show() {
+        assert_eq!(reel(|_, _| {}), None);
+        // The follower's encoder counting the other way, mirrored about its first reading.
+        let inverted = kind(reel(|i, first| i.length_m[3] = 2.0 * first.length_m[3] - i.length_m[3]));
+        assert_eq!(inverted, (Miswiring::EncoderInverted, 3, 3));
+        // Two load cells exchanged: a held cable's and the follower's.
+        let cells = kind(reel(|i, _| i.tension_n.swap(1, 3)));
+        assert_eq!(cells, (Miswiring::LoadCellsSwapped, 1, 3));
+        // Two encoders' readings exchanged (a held cable's and the follower's).
+        let drives = kind(reel(|i, _| i.length_m.swap(0, 3)));
+        assert_eq!(drives, (Miswiring::DrivesSwapped, 0, 3));
+        // A load cell that reads nothing like any cable: named, unexplained.
+        let odd = kind(reel(|i, _| i.tension_n[1] += 40.0));
+        assert_eq!(odd, (Miswiring::LoadCell, 1, 1));
+    }
+}

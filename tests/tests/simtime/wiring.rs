@@ -186,3 +186,75 @@ fn correct_wiring_never_stops() {
     }
     assert!(stops.is_empty(), "false stops: {stops:#?}");
 }
+
+/// The detection rates of docs/testing.md: each miswiring on seeds `TAUT_WIRING_SEEDS`
+/// (default 1-3), counted as named in phase 1 (the right cause and cables), named later (before
+/// the excitation), stopped with another cause, or not stopped. A measurement: it asserts only
+/// that every case ran.
+#[test]
+#[ignore = "measurement: TAUT_WIRING_SEEDS=1-20 cargo test -p taut-tests --test simtime wiring_detection_rates -- --ignored --nocapture"]
+fn wiring_detection_rates() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut dynamic = four(dir.path());
+    dynamic.motion.init_reel_m = super::dynamic::DYNAMIC_REEL_M;
+    let (c4, c8) = (four(dir.path()), eight(dir.path()));
+    type Case<'a> = (&'a str, &'a RobotConfig, bool, Wiring, &'a [Miswiring], (u8, u8));
+    let drives: &[Miswiring] = &[Miswiring::DrivesSwapped];
+    let either: &[Miswiring] = &[Miswiring::DrivesSwapped, Miswiring::DrivesOrLoadCellsSwapped];
+    let cells: &[Miswiring] = &[Miswiring::LoadCellsSwapped];
+    let cells_either: &[Miswiring] = &[Miswiring::LoadCellsSwapped, Miswiring::DrivesOrLoadCellsSwapped];
+    let inverted: &[Miswiring] = &[Miswiring::EncoderInverted];
+    let cases: Vec<Case> = vec![
+        ("4 drives 0-3 (held, follower)", &c4, false, Wiring::swapped_drives(4, 0, 3), drives, (0, 3)),
+        ("4 drives 1-2 (held, reeled)", &c4, false, Wiring::swapped_drives(4, 1, 2), drives, (1, 2)),
+        ("4 drives 2-3 (reeled, follower)", &c4, false, Wiring::swapped_drives(4, 2, 3), either, (2, 3)),
+        ("4 drives 0-1 (both held)", &c4, false, Wiring::swapped_drives(4, 0, 1), drives, (0, 1)),
+        ("4 encoder 2 inverted (reeled)", &c4, false, Wiring::inverted_encoder(4, 2), inverted, (2, 2)),
+        ("4 encoder 3 inverted (follower)", &c4, false, Wiring::inverted_encoder(4, 3), inverted, (3, 3)),
+        ("4 encoder 0 inverted (held)", &c4, false, Wiring::inverted_encoder(4, 0), inverted, (0, 0)),
+        ("4 cells 1-3 (held, follower)", &c4, false, Wiring::swapped_load_cells(4, 1, 3), cells, (1, 3)),
+        ("4 cells 0-2 (held, reeled)", &c4, false, Wiring::swapped_load_cells(4, 0, 2), cells, (0, 2)),
+        ("4 cells 2-3 (reeled, follower)", &c4, false, Wiring::swapped_load_cells(4, 2, 3), cells_either, (2, 3)),
+        ("4 cells 0-1 (both held)", &c4, false, Wiring::swapped_load_cells(4, 0, 1), cells, (0, 1)),
+        ("4 dynamic drives 0-3", &dynamic, true, Wiring::swapped_drives(4, 0, 3), drives, (0, 3)),
+        ("4 dynamic encoder 2 inverted", &dynamic, true, Wiring::inverted_encoder(4, 2), inverted, (2, 2)),
+        ("4 dynamic encoder 3 inverted", &dynamic, true, Wiring::inverted_encoder(4, 3), inverted, (3, 3)),
+        ("4 dynamic cells 1-3", &dynamic, true, Wiring::swapped_load_cells(4, 1, 3), cells, (1, 3)),
+        ("8 drives 2-5 (reeled, follower)", &c8, false, Wiring::swapped_drives(8, 2, 5), either, (2, 5)),
+        ("8 drives 0-6 (held, follower)", &c8, false, Wiring::swapped_drives(8, 0, 6), either, (0, 6)),
+        ("8 drives 4-7 (two followers)", &c8, false, Wiring::swapped_drives(8, 4, 7), drives, (4, 7)),
+        ("8 encoder 5 inverted (follower)", &c8, false, Wiring::inverted_encoder(8, 5), inverted, (5, 5)),
+        ("8 cells 1-6 (held, follower)", &c8, false, Wiring::swapped_load_cells(8, 1, 6), cells_either, (1, 6)),
+    ];
+    for (name, cfg, dyn_plant, wiring, faults, pair) in cases {
+        let (mut first, mut later, mut other, mut none) = (0, 0, Vec::new(), 0);
+        let seeds = seeds();
+        for &seed in &seeds {
+            let mut so = SimOptions { seed, wiring: wiring.clone(), ..Default::default() };
+            if dyn_plant {
+                so.physics.dynamics = Some(taut_sim::Dynamics::default());
+            }
+            let l = phases(cfg, &so);
+            match l.snap.fault {
+                Some((c @ Cause::Miswired { fault, cable, other: o, .. }, _)) if faults.contains(&fault) && (cable, o) == pair => {
+                    if l.snap.phases_completed == 0 {
+                        first += 1;
+                    } else {
+                        later += 1;
+                    }
+                    let _ = c;
+                }
+                Some((c, _)) => other.push(format!("seed {seed} phase {}: {c}", l.snap.phases_completed + 1)),
+                None => none += 1,
+            }
+        }
+        eprintln!(
+            "RESULT wiring detection {name}: {} seeds: named in phase 1 {first}, named later {later}, other cause {}, not stopped {none}",
+            seeds.len(),
+            other.len()
+        );
+        for o in &other {
+            eprintln!("    {o}");
+        }
+    }
+}
