@@ -14,8 +14,10 @@
 //! - **Load cells.** Each cable's tension against the statics at the tracked pose
 //!   ([`crate::follower::statics`]: the followers at their commanded tension, the three
 //!   position cables from the force balance with the nominal anchors). Tolerance
-//!   `TENSION_TOL_N + TENSION_TOL_REL T` (anchors off, the swing's `m a` that the low-pass
-//!   leaves, a torque-mode drum's friction). Tensions, not their changes over the reel: on the
+//!   `TENSION_TOL_N + TENSION_TOL_REL T` (the swing's `m a` that the low-pass leaves, a
+//!   torque-mode drum's friction) plus, for the position cables, what anchors
+//!   [`ANCHOR_TOL_M`] off do to the statics there (large where the three cables' directions are
+//!   nearly coplanar; the followers' tension does not depend on the geometry). Tensions, not their changes over the reel: on the
 //!   dynamic plant the swing a reel starts changes the held cables' tensions by as much as the
 //!   reel does (5 N of 0.4 N predicted, measured), while the levels of held and following cables
 //!   differ by 10-15 N.
@@ -53,6 +55,11 @@ pub const LENGTH_TOL_M: f64 = 0.03;
 
 /// Tolerance of an encoder change per metre of the platform's displacement.
 pub const LENGTH_TOL_REL: f64 = 0.15;
+
+/// How far the nominal anchors may be from the true ones for the load cells' comparison, m
+/// (the simulated sites' `site_error_m`, 0.2 m): sets how much the statics may be off
+/// ([`statics_spread`]).
+pub const ANCHOR_TOL_M: f64 = 0.2;
 
 /// Absolute tolerance of a tension, N.
 pub const TENSION_TOL_N: f64 = 3.0;
@@ -294,8 +301,10 @@ impl WiringCheck {
             usable[j] = self.t[j].is_finite() && want[j].is_finite();
         }
         let t = self.t;
-        let zt = |m: f64, p: f64| (m - p).abs() / (TENSION_TOL_N + TENSION_TOL_REL * p.abs());
-        let (worst1, j1) = worst_of(n, &usable, |j| zt(t[j], want[j]));
+        let spread = statics_spread(prm, ph.cables, n, &self.p, &want);
+        // Cable `j`'s reading against cable `k`'s prediction, in `k`'s tolerance.
+        let zt = |j: usize, k: usize| (t[j] - want[k]).abs() / (TENSION_TOL_N + TENSION_TOL_REL * want[k].abs() + spread[k]);
+        let (worst1, j1) = worst_of(n, &usable, |j| zt(j, j));
         self.worst[1] = self.worst[1].max(worst1);
         if worst1 <= 1.0 {
             return None;
@@ -305,11 +314,11 @@ impl WiringCheck {
             for k in (i + 1..n).filter(|&k| usable[k]) {
                 let s = worst_of(n, &usable, |j| {
                     if j == i {
-                        zt(t[i], want[k])
+                        zt(i, k)
                     } else if j == k {
-                        zt(t[k], want[i])
+                        zt(k, i)
                     } else {
-                        zt(t[j], want[j])
+                        zt(j, j)
                     }
                 })
                 .0;
@@ -363,6 +372,37 @@ impl WiringCheck {
         let c = s.signum() * (dp[0] * nrm[0] + dp[1] * nrm[1] + dp[2] * nrm[2]) / (len * disp);
         c.clamp(-1.0, 1.0).acos().to_degrees()
     }
+}
+
+/// How far the statics' tensions of the three position cables `cables` may be off when every
+/// anchor may be [`ANCHOR_TOL_M`] from its nominal place, N (0 for the followers): each cable's
+/// direction turns by up to `ANCHOR_TOL_M / rho_j`, which changes the force balance
+/// `M t_P = w` by `dM t_P + dw`; to first order `dt_P = -M^-1 (dM t_P + dw)`, bounded row by
+/// row, doubled for what the first order leaves out. Near a pose where the three directions
+/// are nearly coplanar `M^-1` is large and so is the spread: the statics say little there.
+fn statics_spread(prm: &LoopParams, cables: [usize; 3], n: usize, p: &[f64; 3], t: &[f64; MAX_CABLES]) -> [f64; MAX_CABLES] {
+    let mut out = [0.0; MAX_CABLES];
+    let dir = |j: usize| {
+        let d: [f64; 3] = std::array::from_fn(|i| prm.anchors[j][i] - p[i] - prm.platform[j][i]);
+        let r = norm(d);
+        ([d[0] / r, d[1] / r, d[2] / r], r)
+    };
+    // The size of dM t_P + dw: every cable's pull turned by its angle.
+    let mut push = 0.0;
+    for j in 0..n {
+        let (_, rho) = dir(j);
+        push += ANCHOR_TOL_M / rho * t[j].abs();
+    }
+    let (c0, c1, c2) = (dir(cables[0]).0, dir(cables[1]).0, dir(cables[2]).0);
+    // Rows of M^-1 (columns c0 c1 c2): the cross products over the determinant.
+    let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let rows = [cross(c1, c2), cross(c2, c0), cross(c0, c1)];
+    let det = c0[0] * rows[0][0] + c0[1] * rows[0][1] + c0[2] * rows[0][2];
+    for (k, row) in rows.iter().enumerate() {
+        let s = 2.0 * norm(*row) / det.abs() * push;
+        out[cables[k]] = if s.is_finite() { s } else { f64::INFINITY };
+    }
+    out
 }
 
 fn norm(v: [f64; 3]) -> f64 {
