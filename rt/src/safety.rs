@@ -223,18 +223,21 @@ impl fmt::Display for Cause {
             Cause::Estop => write!(f, "emergency stop requested by the operator"),
             Cause::Miswired { fault, cable, other, reeled, measured, predicted, for_other, angle_deg } => {
                 let moved = Moved { reeled, angle_deg };
+                // Whole millimetres, without a "-0".
+                let mm = |x: f32| x.round() + 0.0;
+                let (m_mm, p_mm, o_mm) = (mm(measured), mm(predicted), mm(for_other));
                 match fault {
                     Miswiring::EncoderInverted if cable == reeled => write!(
                         f,
-                        "{moved}: its encoder sign looks inverted (encoder {measured:+.0} mm, the tracked motion {predicted:+.0} mm); check the drive's direction (`invert` in [cable.drive])"
+                        "{moved}: its encoder sign looks inverted (encoder {m_mm:+.0} mm, the tracked motion {p_mm:+.0} mm); check the drive's direction (`invert` in [cable.drive])"
                     ),
                     Miswiring::EncoderInverted => write!(
                         f,
-                        "{moved}; cable {cable}'s encoder changed {measured:+.0} mm where the tracked motion predicts {predicted:+.0} mm: its encoder sign looks inverted (check `invert` in its [cable.drive])"
+                        "{moved}; cable {cable}'s encoder changed {m_mm:+.0} mm where the tracked motion predicts {p_mm:+.0} mm: its encoder sign looks inverted (check `invert` in its [cable.drive])"
                     ),
                     Miswiring::DrivesSwapped => write!(
                         f,
-                        "drives of cables {cable} and {other} look swapped: {moved}, and cable {cable}'s encoder changed {measured:+.0} mm, which the tracked motion predicts for cable {other} ({for_other:+.0} mm; for cable {cable} {predicted:+.0} mm); check the drives' node ids and motor cables"
+                        "drives of cables {cable} and {other} look swapped: {moved}, and cable {cable}'s encoder changed {m_mm:+.0} mm, which the tracked motion predicts for cable {other} ({o_mm:+.0} mm; for cable {cable} {p_mm:+.0} mm); check the drives' node ids and motor cables"
                     ),
                     Miswiring::LoadCellsSwapped => write!(
                         f,
@@ -246,7 +249,7 @@ impl fmt::Display for Cause {
                     ),
                     Miswiring::Encoder => write!(
                         f,
-                        "{moved}; cable {cable}'s encoder changed {measured:+.0} mm where the tracked motion predicts {predicted:+.0} mm, and no single swap or inversion explains it: check the drives' wiring"
+                        "{moved}; cable {cable}'s encoder changed {m_mm:+.0} mm where the tracked motion predicts {p_mm:+.0} mm, and no single swap or inversion explains it: check the drives' wiring"
                     ),
                     Miswiring::LoadCell => write!(
                         f,
