@@ -22,7 +22,10 @@
 //! In each initialisation phase two cables hold their length in position mode, one is reeled by
 //! `motion.init_reel_m` at `motion.init_reel_speed_m_s` and back, and every other cable follows in
 //! torque mode at `motion.init_follower_tension_n`. The phase is aborted (hold) when a held cable
-//! exceeds `safety.max_tension_n` or the reeled one goes loose. The calibrator watches the states
+//! exceeds `safety.max_tension_n` or the reeled one goes loose, or when the wiring check
+//! ([`crate::wiring`]: encoders against the tracked motion, load cells against the statics, with
+//! the nominal geometry) finds a swapped drive or load cell or an inverted encoder
+//! ([`Cause::Miswired`]). The calibrator watches the states
 //! in the sample stream: the end of the phases asks it for the initial estimate, the end of an
 //! excitation for a calibration; whatever it publishes is picked up at a cycle boundary and faded
 //! in by the swap ramp.
