@@ -1703,23 +1703,24 @@ impl Controller {
     }
 
     /// The wiring check of an initialisation phase ([`crate::wiring`]): filters every cycle of
-    /// the phase, takes its reference when the reel begins, compares once the reel has gone far
+    /// the phase, compares the load cells from the lead on, takes its reference when the reel
+    /// begins, compares the encoders (and may stop the robot) once the reel has gone far
     /// enough. Off without nominal anchors.
     fn check_wiring(&mut self, inp: &Inputs, dt: f64) -> Option<Cause> {
         let params = self.cfg.nominal_statics.as_ref()?;
         let k = self.phase.clamp(0, 2);
         let cables = self.cfg.phases[k as usize];
         self.wiring.track(self.cfg.n, inp, self.init_follower_n, dt);
-        if !matches!(self.segment, Segment::Reel | Segment::Brake | Segment::Return) {
-            return None;
-        }
-        self.wiring.mark();
-        // What was commanded last cycle: the reel so far.
-        let progress_m = self.cmd[cables[2]] - self.reel_start_m;
-        if !(progress_m.abs() >= MIN_REEL_M.min(0.5 * self.cfg.reel_m.abs())) {
+        let reel = matches!(self.segment, Segment::Reel | Segment::Brake | Segment::Return);
+        if !(reel || self.segment == Segment::Lead) {
             self.wiring.idle();
             return None;
         }
+        if reel {
+            self.wiring.mark();
+        }
+        // What was commanded last cycle: the reel so far.
+        let progress_m = if reel { self.cmd[cables[2]] - self.reel_start_m } else { 0.0 };
         let ph = Phase {
             params,
             n: self.cfg.n,
@@ -1728,6 +1729,9 @@ impl Controller {
             mass_kg: self.cfg.mass_kg,
             loads: self.cfg.tension_max_age_s.is_finite(),
             loose_n: self.cfg.loose_tension_n,
+            // Before the reel has gone far enough: the load cells only, a verdict held for a
+            // limit the reel may break first.
+            encoders: progress_m.abs() >= MIN_REEL_M.min(0.5 * self.cfg.reel_m.abs()),
         };
         self.wiring.judge(&ph, dt)
     }

@@ -88,6 +88,8 @@ pub struct WiringCheck {
     ref_l: [f64; MAX_CABLES],
     /// How long the current verdict has held, s.
     bad_s: f64,
+    /// Time since the phase's filters started, s.
+    age_s: f64,
     /// The current verdict (not yet held for [`PERSIST_S`]).
     pending: Option<Cause>,
     /// Largest normalised residual of the wiring as configured, over the start-up so far:
@@ -118,6 +120,9 @@ pub struct Phase<'a> {
     pub loads: bool,
     /// Below this tension a cable is slack and its encoder is not compared, N.
     pub loose_n: f64,
+    /// The reel has gone far enough to compare the encoders (and to stop the robot). Before,
+    /// the load cells are compared and a verdict only held ([`WiringCheck::pending`]).
+    pub encoders: bool,
 }
 
 impl WiringCheck {
@@ -133,6 +138,7 @@ impl WiringCheck {
             ref_p: [0.0; 3],
             ref_l: [0.0; MAX_CABLES],
             bad_s: 0.0,
+            age_s: 0.0,
             pending: None,
             worst: [0.0; 2],
         }
@@ -144,9 +150,10 @@ impl WiringCheck {
         self.worst
     }
 
-    /// The verdict the check is forming (inconsistent, not yet held for [`PERSIST_S`]).
+    /// The verdict that has held for [`PERSIST_S`] before the reel went far enough to stop the
+    /// robot on it: the cause to name when a limit breaks meanwhile.
     pub fn pending(&self) -> Option<Cause> {
-        self.pending
+        self.pending.filter(|_| self.bad_s >= PERSIST_S)
     }
 
     /// Starts a phase afresh: new filters, no reference, no verdict (the worst residuals are
@@ -154,6 +161,7 @@ impl WiringCheck {
     pub fn restart(&mut self) {
         self.started = false;
         self.have_ref = false;
+        self.age_s = 0.0;
         self.bad_s = 0.0;
         self.pending = None;
     }
@@ -180,6 +188,7 @@ impl WiringCheck {
             f(&mut self.t[j], inp.tension_n[j]);
         }
         f(&mut self.tf, follower_n);
+        self.age_s += if self.started { dt } else { 0.0 };
         self.started = true;
     }
 
@@ -197,10 +206,10 @@ impl WiringCheck {
         self.pending = None;
     }
 
-    /// Compares the readings with the prediction; the cause once a verdict has held for
-    /// [`PERSIST_S`].
+    /// Compares the readings with the prediction (once the filters have run [`WIRING_TAU_S`]);
+    /// the cause once a verdict has held for [`PERSIST_S`] and `ph.encoders`.
     pub fn judge(&mut self, ph: &Phase<'_>, dt: f64) -> Option<Cause> {
-        if !self.have_ref {
+        if self.age_s < WIRING_TAU_S || (ph.encoders && !self.have_ref) {
             return None;
         }
         let verdict = self.verdict(ph);
@@ -208,7 +217,7 @@ impl WiringCheck {
             Some(c) => {
                 self.bad_s += dt;
                 self.pending = Some(c);
-                (self.bad_s >= PERSIST_S).then_some(c)
+                (ph.encoders && self.bad_s >= PERSIST_S).then_some(c)
             }
             None => {
                 self.idle();
@@ -225,7 +234,7 @@ impl WiringCheck {
             let d: [f64; 3] = std::array::from_fn(|i| p[i] + prm.platform[j][i] - prm.anchors[j][i]);
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
         };
-        let dp: [f64; 3] = std::array::from_fn(|i| self.p[i] - self.ref_p[i]);
+        let dp: [f64; 3] = if self.have_ref { std::array::from_fn(|i| self.p[i] - self.ref_p[i]) } else { [0.0; 3] };
         let disp = norm(dp);
         if !disp.is_finite() {
             return None;
@@ -241,7 +250,7 @@ impl WiringCheck {
             drho[j] = rho(j, &self.p) - rho(j, &self.ref_p);
             // A slack cable's encoder says nothing about the straight length.
             let slack = ph.loads && self.t[j].is_finite() && self.t[j] < ph.loose_n;
-            used[j] = dl[j].is_finite() && drho[j].is_finite() && !slack;
+            used[j] = ph.encoders && dl[j].is_finite() && drho[j].is_finite() && !slack;
         }
         let tol = LENGTH_TOL_M + LENGTH_TOL_REL * disp;
         let z = |m: f64, p: f64| (m - p).abs() / tol;
@@ -333,7 +342,8 @@ impl WiringCheck {
         let (i, k) = (best.1, best.2);
         // A follower's drive swapped with a position cable's puts the same tensions on the
         // two cells as the two cells swapped; the encoders tell them apart unless the two
-        // cables' length changes are alike in this motion (a pair symmetric about it).
+        // cables' length changes are alike in this motion (a pair symmetric about it), or are
+        // not compared yet.
         let drives_too = follower[i] != follower[k] && {
             let s = worst_of(n, &used, |j| {
                 if j == i {
@@ -489,15 +499,13 @@ mod tests {
             check.track(4, &fed, 10.0, dt);
             if t >= 0.5 {
                 check.mark();
-                let progress_m = clean.length_m[2] - first_set.length_m[2];
-                let ph = Phase { params: &nominal, n: 4, cables: [0, 1, 2], progress_m, mass_kg: MASS_KG, loads: true, loose_n: 1.0 };
-                if progress_m.abs() >= MIN_REEL_M {
-                    if let Some(c) = check.judge(&ph, dt) {
-                        return Some(c);
-                    }
-                } else {
-                    check.idle();
-                }
+            }
+            let progress_m = clean.length_m[2] - first_set.length_m[2];
+            let encoders = progress_m.abs() >= MIN_REEL_M;
+            let ph = Phase { params: &nominal, n: 4, cables: [0, 1, 2], progress_m, mass_kg: MASS_KG, loads: true, loose_n: 1.0, encoders };
+            if let Some(c) = check.judge(&ph, dt) {
+                assert!(encoders, "stopped before the reel went {MIN_REEL_M} m: {c}");
+                return Some(c);
             }
         }
         assert!(check.worst()[0] < 0.5 && check.worst()[1] < 0.5, "margins {:?}", check.worst());
