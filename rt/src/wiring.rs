@@ -398,11 +398,7 @@ fn statics_spread(prm: &LoopParams, cables: [usize; 3], n: usize, p: &[f64; 3], 
         ([d[0] / r, d[1] / r, d[2] / r], r)
     };
     // The size of dM t_P + dw: every cable's pull turned by its angle.
-    let mut push = 0.0;
-    for j in 0..n {
-        let (_, rho) = dir(j);
-        push += ANCHOR_TOL_M / rho * t[j].abs();
-    }
+    let push: f64 = t.iter().take(n).enumerate().map(|(j, tj)| ANCHOR_TOL_M / dir(j).1 * tj.abs()).sum();
     let (c0, c1, c2) = (dir(cables[0]).0, dir(cables[1]).0, dir(cables[2]).0);
     // Rows of M^-1 (columns c0 c1 c2): the cross products over the determinant.
     let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
