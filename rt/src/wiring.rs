@@ -26,8 +26,10 @@
 //! encoder's sign inverted (its change matches with the sign flipped), two drives swapped (each
 //! encoder matches the other's predicted change), two load cells swapped; the first that brings
 //! every cable within its tolerance is named, otherwise the worst cable. A verdict must hold for
-//! [`PERSIST_S`] before the robot stops (reaction: hold). The comparison starts once the reel
-//! has gone `min(MIN_REEL_M, |reel_m| / 2)`.
+//! [`PERSIST_S`] before the robot stops (reaction: hold). The encoders are compared once the
+//! reel has gone `min(MIN_REEL_M, |reel_m| / 2)`, the load cells from the phase's lead on (the
+//! platform at rest); before the reel has gone that far a verdict is only held
+//! ([`WiringCheck::pending`]): the loop names it when a limit the reel breaks comes first.
 //!
 //! The platform's direction of motion is reported beside the verdict: with `a` and `b` held it
 //! moves on the circle about `A_a`, `A_b`, to first order along `±u_a × u_b` (unit vectors from
