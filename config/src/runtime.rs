@@ -99,6 +99,12 @@ pub struct MotionConfig {
     pub init_follower_tension_n: f64,
     /// Pause between phases with every cable held, s.
     pub init_settle_s: f64,
+    /// The initialisation phases check the wiring (default): the encoders' changes against
+    /// the tracked motion and the load cells against the statics, with the nominal anchors; a
+    /// swapped drive or load cell or an inverted encoder stops the robot with the cause named
+    /// (`taut_rt::wiring`). Needs nominal anchors. `false`: not checked (a stand-in robot
+    /// whose load cells do not measure the cables).
+    pub init_wiring_check: bool,
     /// Duration of the excitation trajectory, s.
     pub excitation_s: f64,
     /// Largest speed of the platform on the excitation trajectory, m/s.
@@ -171,6 +177,7 @@ impl Default for MotionConfig {
             init_reel_accel_m_s2: 0.5,
             init_follower_tension_n: 10.0,
             init_settle_s: 0.5,
+            init_wiring_check: true,
             excitation_s: 60.0,
             excitation_speed_m_s: 0.3,
             workspace_min_m: None,

@@ -835,4 +835,32 @@ mod tests {
         assert!(text.contains("drives       cable 1 (node 5): enabled, cable 2: enabled"), "{text}");
         assert!(text.contains("load cells   cable 1 (unit 7): 20 N, cable 2: no reading"), "{text}");
     }
+
+    /// The wiring check's cause as `taut ctl status` shows it: the reaction, the cause naming the
+    /// cables, what to do.
+    #[test]
+    fn the_human_status_names_a_miswiring() {
+        use crate::safety::{Cause, Miswiring};
+        let c = Cause::Miswired {
+            fault: Miswiring::DrivesSwapped,
+            cable: 0,
+            other: 3,
+            reeled: 2,
+            measured: 0.0,
+            predicted: 150.4,
+            for_other: -0.2,
+            angle_deg: 73.2,
+        };
+        let r = c.reaction();
+        let text = status_text(&json!({"ok": true, "state": "faulted", "phase": 0, "params_version": 0,
+            "fault": {"cause": c.name(), "reaction": r.name(), "message": c.to_string()}}));
+        let line = text.lines().find(|l| l.starts_with("fault")).unwrap();
+        assert_eq!(
+            line,
+            "fault        hold: drives of cables 0 and 3 look swapped: reeling cable 2 moved the platform 73° from the direction the nominal \
+             geometry predicts, and cable 0's encoder changed +0 mm, which the tracked motion predicts for cable 3 (+0 mm; for cable 0 \
+             +150 mm); check the drives' node ids and motor cables (`taut ctl reset` when it is safe)"
+        );
+        assert_eq!(c.name(), "miswired");
+    }
 }

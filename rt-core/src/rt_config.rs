@@ -88,6 +88,7 @@ impl FromRobot for ControllerConfig {
             reel_accel_m_s2: m.init_reel_accel_m_s2,
             init_follower_tension_n: m.init_follower_tension_n,
             settle_s: m.init_settle_s,
+            wiring_check: m.init_wiring_check,
             held_min_tension_n: 2.0 * cfg.calibration.min_tension_n,
             enable_timeout_s: m.enable_timeout_s,
             excitation_s: m.excitation_s,

@@ -135,6 +135,66 @@ pub fn distribute(
     Some(FollowerRange { lo_n: lo, hi_n: hi })
 }
 
+/// Every cable's tension at platform position `p` by the statics of a platform of `mass_kg` at
+/// rest, with the cables of `follower` in torque mode at `follower_n` and the three others
+/// solving the force balance (`t_P = a + k t_f`, see the module documentation); `None` where
+/// [`distribute`] has no statics. Allocates nothing.
+pub fn statics(
+    params: &LoopParams,
+    follower: &[bool; MAX_CABLES],
+    p: &[f64; 3],
+    mass_kg: f64,
+    follower_n: f64,
+) -> Option<[f64; MAX_CABLES]> {
+    let n = params.n;
+    if !params.valid || n > MAX_CABLES {
+        return None;
+    }
+    let u = |j: usize| {
+        let (a, b) = (params.anchors[j], params.platform[j]);
+        let d = [a[0] - p[0] - b[0], a[1] - p[1] - b[1], a[2] - p[2] - b[2]];
+        let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        [d[0] / r, d[1] / r, d[2] / r]
+    };
+    let mut pos = [0usize; 3];
+    let mut np = 0;
+    let mut rhs = [0.0, 0.0, mass_kg * G];
+    let mut out = [0.0; MAX_CABLES];
+    for (j, &follows) in follower.iter().enumerate().take(n) {
+        let uj = u(j);
+        if !uj.iter().all(|x| x.is_finite()) {
+            return None;
+        }
+        if follows {
+            out[j] = follower_n;
+            for i in 0..3 {
+                rhs[i] -= follower_n * uj[i];
+            }
+        } else {
+            if np == 3 {
+                return None;
+            }
+            pos[np] = j;
+            np += 1;
+        }
+    }
+    if np != 3 {
+        return None;
+    }
+    let (c0, c1, c2) = (u(pos[0]), u(pos[1]), u(pos[2]));
+    let det = |c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]| {
+        c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
+    };
+    let d = det(c0, c1, c2);
+    if d.is_nan() || d.abs() <= 1e-6 {
+        return None;
+    }
+    out[pos[0]] = det(rhs, c1, c2) / d;
+    out[pos[1]] = det(c0, rhs, c2) / d;
+    out[pos[2]] = det(c0, c1, rhs) / d;
+    Some(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -222,6 +282,16 @@ mod tests {
                 assert!(!inside(r.hi_n + 1e-3), "{p:?}: upper end not tight");
             }
         }
+        // `statics` at the range's lower end puts the position cables where the independent
+        // solve does.
+        let p = [0.5, 0.3, 1.2];
+        let r = distribute(&robot(), &follower(), &p, 3.0, 5.0, 100.0).unwrap();
+        let t = statics(&robot(), &follower(), &p, 3.0, r.lo_n).unwrap();
+        let want = position_tensions(p, r.lo_n);
+        for k in 0..3 {
+            assert!((t[k] - want[k]).abs() < 1e-9, "{t:?} vs {want:?}");
+        }
+        assert_eq!(t[3], r.lo_n);
         // Not three position cables, or invalid parameters: no statics.
         assert!(distribute(&robot(), &[false; MAX_CABLES], &[0.0, 0.0, 2.0], 3.0, 5.0, 100.0).is_none());
         assert!(distribute(&LoopParams::invalid(4), &follower(), &[0.0, 0.0, 2.0], 3.0, 5.0, 100.0).is_none());

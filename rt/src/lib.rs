@@ -38,6 +38,7 @@ mod sync;
 pub mod triple;
 pub mod update;
 pub mod urgent;
+pub mod wiring;
 
 pub use kin::{LoopEffects, LoopParams};
 pub use motion::{Command, CommandSource, Controller, ControllerConfig};

@@ -22,7 +22,10 @@
 //! In each initialisation phase two cables hold their length in position mode, one is reeled by
 //! `motion.init_reel_m` at `motion.init_reel_speed_m_s` and back, and every other cable follows in
 //! torque mode at `motion.init_follower_tension_n`. The phase is aborted (hold) when a held cable
-//! exceeds `safety.max_tension_n` or the reeled one goes loose. The calibrator watches the states
+//! exceeds `safety.max_tension_n` or the reeled one goes loose, or when the wiring check
+//! ([`crate::wiring`]: encoders against the tracked motion, load cells against the statics, with
+//! the nominal geometry) finds a swapped drive or load cell or an inverted encoder
+//! ([`Cause::Miswired`]). The calibrator watches the states
 //! in the sample stream: the end of the phases asks it for the initial estimate, the end of an
 //! excitation for a calibration; whatever it publishes is picked up at a cycle boundary and faded
 //! in by the swap ramp.
@@ -35,6 +38,7 @@ use crate::ramp::Ramp;
 use crate::safety::{Cause, Reaction};
 use crate::triple::Reader;
 use crate::urgent::Urgent;
+use crate::wiring::{Phase, WiringCheck, MIN_REEL_M};
 use crate::MAX_CABLES;
 use std::sync::Arc;
 
@@ -243,6 +247,8 @@ pub struct ControllerConfig {
     pub init_follower_tension_n: f64,
     /// Pause after each phase, s.
     pub settle_s: f64,
+    /// The phases check the wiring ([`crate::wiring`]; also needs `nominal_statics`).
+    pub wiring_check: bool,
     /// A held cable below this tension ends the reeling early (the platform would leave the
     /// circle the three-phase method fits), N.
     pub held_min_tension_n: f64,
@@ -411,6 +417,9 @@ pub struct Snapshot {
     /// Largest per-cycle change of a commanded length since the last reset, m (see the module
     /// documentation).
     pub reenable_step_m: f64,
+    /// The start-up's wiring check ([`crate::wiring`]): the largest normalised residual of the
+    /// configured wiring so far, encoders and load cells (1: at the tolerance).
+    pub wiring_worst: [f64; 2],
 }
 
 /// The motion state machine and safety checks.
@@ -480,6 +489,8 @@ pub struct Controller {
     /// In a tare: each cable's tension when it began (the slack cables ramp from it to zero
     /// and back), N.
     tare_from_n: [f64; MAX_CABLES],
+    /// The start-up's wiring check ([`crate::wiring`]).
+    wiring: WiringCheck,
 }
 
 /// Where the dwell plan is (see [`DwellLoopPlan`]).
@@ -623,6 +634,7 @@ impl Controller {
             rec_sum_m: [0.0; MAX_CABLES],
             rec_n: [0; MAX_CABLES],
             tare_from_n: [0.0; MAX_CABLES],
+            wiring: WiringCheck::new(),
         }
     }
 
@@ -743,6 +755,7 @@ impl Controller {
             last_reset: self.reset.last,
             resets: self.reset.done,
             reenable_step_m: self.reset.max_step_m,
+            wiring_worst: self.wiring.worst(),
         }
     }
 
@@ -902,6 +915,11 @@ impl Controller {
         self.track_tension(inp, dt);
         self.track_dwell_slack(inp, now, dt);
         self.check_devices(inp, now);
+        if self.state == State::InitPhase && self.cfg.dwell.is_none() {
+            if let Some(cause) = self.check_wiring(inp, dt) {
+                self.latch(cause, inp, now);
+            }
+        }
         if !matches!(self.state, State::Idle | State::Faulted | State::Stopped) {
             self.check_limits(inp, now);
         }
@@ -1470,6 +1488,7 @@ impl Controller {
     fn start_phase(&mut self, k: usize, inp: &Inputs, now: f64) {
         self.enter(State::InitPhase, now);
         self.phase = k as i8;
+        self.wiring.restart();
         self.segment = Segment::Lead;
         self.segment_t0 = now;
         let r = self.cfg.phases[k][2];
@@ -1699,8 +1718,53 @@ impl Controller {
 
     fn check_limits(&mut self, inp: &Inputs, now: f64) {
         if let Some(cause) = self.limit_breach(inp, now) {
-            self.latch(cause, inp, now);
+            // A limit the reel breaks while the wiring check is forming a verdict: the
+            // miswiring is the cause (the reaction is the same hold).
+            let wiring = match cause {
+                Cause::TensionHigh { .. } | Cause::CableLoose { .. } | Cause::Workspace if self.state == State::InitPhase => {
+                    self.wiring.pending()
+                }
+                _ => None,
+            };
+            self.latch(wiring.unwrap_or(cause), inp, now);
         }
+    }
+
+    /// The wiring check of an initialisation phase ([`crate::wiring`]): filters every cycle of
+    /// the phase, compares the load cells from the lead on, takes its reference when the reel
+    /// begins, compares the encoders (and may stop the robot) once the reel has gone far
+    /// enough. Off without nominal anchors.
+    fn check_wiring(&mut self, inp: &Inputs, dt: f64) -> Option<Cause> {
+        if !self.cfg.wiring_check {
+            return None;
+        }
+        let params = self.cfg.nominal_statics.as_ref()?;
+        let k = self.phase.clamp(0, 2);
+        let cables = self.cfg.phases[k as usize];
+        self.wiring.track(self.cfg.n, inp, self.init_follower_n, dt);
+        let reel = matches!(self.segment, Segment::Reel | Segment::Brake | Segment::Return);
+        if !(reel || self.segment == Segment::Lead) {
+            self.wiring.idle();
+            return None;
+        }
+        if reel {
+            self.wiring.mark();
+        }
+        // What was commanded last cycle: the reel so far.
+        let progress_m = if reel { self.cmd[cables[2]] - self.reel_start_m } else { 0.0 };
+        let ph = Phase {
+            params,
+            n: self.cfg.n,
+            cables,
+            progress_m,
+            mass_kg: self.cfg.mass_kg,
+            loads: self.cfg.tension_max_age_s.is_finite(),
+            loose_n: self.cfg.loose_tension_n,
+            // Before the reel has gone far enough: the load cells only, a verdict held for a
+            // limit the reel may break first.
+            encoders: progress_m.abs() >= MIN_REEL_M.min(0.5 * self.cfg.reel_m.abs()),
+        };
+        self.wiring.judge(&ph, dt)
     }
 
     /// The first limit `inp` breaks, if any. Takes `&self` so that the configuration is read in

@@ -15,6 +15,7 @@
 //! | CAN error-passive, overflow,   | hold       |
 //! | transceiver fault              |            |
 //! | operator estop                 | quick stop |
+//! | miswiring found at start-up    | hold       |
 //!
 //! A CAN cause names the interface ("can0: bus-off"). Bus-off disables: the drives cannot be
 //! reached, and once the bus is back nothing may move before the operator says so. The milder
@@ -111,6 +112,50 @@ pub enum Cause {
     },
     /// The operator asked for an emergency stop.
     Estop,
+    /// The start-up's wiring check ([`crate::wiring`]): while an initialisation phase reeled
+    /// `reeled`, the encoders or load cells did not change as the tracked motion and the nominal
+    /// geometry predict.
+    Miswired {
+        /// What the check found.
+        fault: Miswiring,
+        /// The cable named first (the inverted encoder, the first of the swapped pair).
+        cable: u8,
+        /// The other cable of a swap (`cable` otherwise).
+        other: u8,
+        /// The cable the phase reeled.
+        reeled: u8,
+        /// What `cable`'s sensor reported: its encoder length's change over the reel, mm; or its
+        /// tension, N.
+        measured: f32,
+        /// What the tracked motion and the nominal geometry predict for it (mm), or the statics
+        /// at the tracked pose (N).
+        predicted: f32,
+        /// The same prediction for `other`.
+        for_other: f32,
+        /// Angle between the platform's tracked motion and the direction reeling `reeled` with
+        /// the phase's two cables held predicts, degrees.
+        angle_deg: f32,
+    },
+}
+
+/// What the start-up's wiring check found ([`Cause::Miswired`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Miswiring {
+    /// The encoder's changes match the motion with the sign inverted.
+    EncoderInverted = 1,
+    /// The encoders of two cables each match the other's predicted change: the drives are on
+    /// each other's cables.
+    DrivesSwapped = 2,
+    /// The load cells of two cables each read the other's predicted tension.
+    LoadCellsSwapped = 3,
+    /// As [`Miswiring::LoadCellsSwapped`], for a follower and a position cable whose length
+    /// changes are alike in this motion: their drives swapped would read the same.
+    DrivesOrLoadCellsSwapped = 6,
+    /// An encoder does not match the motion and no single swap or inversion explains it.
+    Encoder = 4,
+    /// A load cell does not follow the statics and no single swap explains it.
+    LoadCell = 5,
 }
 
 impl Cause {
@@ -122,7 +167,8 @@ impl Cause {
             | Cause::TensionStale { .. }
             | Cause::TrackerStale
             | Cause::SpeedLimit { .. }
-            | Cause::Workspace => Reaction::Hold,
+            | Cause::Workspace
+            | Cause::Miswired { .. } => Reaction::Hold,
             Cause::DriveFault { .. } | Cause::HeartbeatLost { .. } | Cause::DriveRebooted { .. } | Cause::Estop => Reaction::QuickStop,
             Cause::Bus { event: BusEvent::BusOff, .. } => Reaction::Disable,
             Cause::Bus { .. } => Reaction::Hold,
@@ -146,6 +192,7 @@ impl Cause {
             Cause::Bus { event: BusEvent::BusOff, .. } => "bus-off",
             Cause::Bus { .. } => "can-bus",
             Cause::Estop => "estop",
+            Cause::Miswired { .. } => "miswired",
         }
     }
 }
@@ -176,6 +223,60 @@ impl fmt::Display for Cause {
             ),
             Cause::Bus { iface, event } => write!(f, "{iface}: {event}"),
             Cause::Estop => write!(f, "emergency stop requested by the operator"),
+            Cause::Miswired { fault, cable, other, reeled, measured, predicted, for_other, angle_deg } => {
+                let moved = Moved { reeled, angle_deg };
+                // Whole millimetres, without a "-0".
+                let mm = |x: f32| x.round() + 0.0;
+                let (m_mm, p_mm, o_mm) = (mm(measured), mm(predicted), mm(for_other));
+                match fault {
+                    Miswiring::EncoderInverted if cable == reeled => write!(
+                        f,
+                        "{moved}: its encoder sign looks inverted (encoder {m_mm:+.0} mm, the tracked motion {p_mm:+.0} mm); check the drive's direction (`invert` in [cable.drive])"
+                    ),
+                    Miswiring::EncoderInverted => write!(
+                        f,
+                        "{moved}; cable {cable}'s encoder changed {m_mm:+.0} mm where the tracked motion predicts {p_mm:+.0} mm: its encoder sign looks inverted (check `invert` in its [cable.drive])"
+                    ),
+                    Miswiring::DrivesSwapped => write!(
+                        f,
+                        "drives of cables {cable} and {other} look swapped: {moved}, and cable {cable}'s encoder changed {m_mm:+.0} mm, which the tracked motion predicts for cable {other} ({o_mm:+.0} mm; for cable {cable} {p_mm:+.0} mm); check the drives' node ids and motor cables"
+                    ),
+                    Miswiring::LoadCellsSwapped => write!(
+                        f,
+                        "load cell of cable {cable} reads cable {other}'s tension (and the other way round): {measured:.1} N, where the statics predict {predicted:.1} N for cable {cable} and {for_other:.1} N for cable {other} while cable {reeled} was reeled; check the load cells' unit ids and wiring"
+                    ),
+                    Miswiring::DrivesOrLoadCellsSwapped => write!(
+                        f,
+                        "drives or load cells of cables {cable} and {other} look swapped: the load cell of cable {cable} reads {measured:.1} N, where the statics predict {predicted:.1} N for cable {cable} and {for_other:.1} N for cable {other}, while cable {reeled} was reeled (the two cables' lengths change alike here, so the encoders cannot tell which); check the drives' node ids and the load cells' unit ids"
+                    ),
+                    Miswiring::Encoder => write!(
+                        f,
+                        "{moved}; cable {cable}'s encoder changed {m_mm:+.0} mm where the tracked motion predicts {p_mm:+.0} mm, and no single swap or inversion explains it: check the drives' wiring"
+                    ),
+                    Miswiring::LoadCell => write!(
+                        f,
+                        "the load cell of cable {cable} reads {measured:.1} N where the statics predict {predicted:.1} N while cable {reeled} was reeled, and no swap of two load cells explains it: check the load cells' unit ids and wiring"
+                    ),
+                }
+            }
+        }
+    }
+}
+
+/// "reeling cable r moved the platform x° from the predicted direction" (or, without an angle,
+/// "while cable r was reeled").
+struct Moved {
+    reeled: u8,
+    angle_deg: f32,
+}
+
+impl fmt::Display for Moved {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Moved { reeled, angle_deg } = *self;
+        if angle_deg.is_finite() {
+            write!(f, "reeling cable {reeled} moved the platform {angle_deg:.0}° from the direction the nominal geometry predicts")
+        } else {
+            write!(f, "while cable {reeled} was reeled")
         }
     }
 }

@@ -239,6 +239,8 @@ pub struct SimOptions {
     pub tracker: bool,
     /// What carries the load cells' RS-485 line in wall-clock time ([`build`]).
     pub load_cell_line: LoadCellLine,
+    /// How the drives and load cells are really wired to the cables (default: as configured).
+    pub wiring: Wiring,
 }
 
 /// What carries the simulated load cells' Modbus RTU line to the robot's load-cell I/O thread
@@ -253,6 +255,129 @@ pub enum LoadCellLine {
     Pty,
 }
 
+/// How the simulated site's drives and load cells are really wired to its cables: a wiring
+/// mistake the robot is not told of. Empty vectors: as configured.
+///
+/// - `drive_of_cable[j] = c`: the drive configured for cable `j` (its node id, units and
+///   encoder map) really winds cable `c`'s drum: its position target moves that drum, its
+///   torque pulls that cable, its encoder reads that drum.
+/// - `load_cell_of_cable[j] = c`: the load cell configured for cable `j` (its Modbus unit)
+///   really measures cable `c`'s tension.
+/// - `encoder_inverted[j]`: the position counts of cable `j`'s drive run opposite to the cable
+///   length the configuration's encoder map assumes (an encoder or its direction parameter
+///   mounted the other way round; the motor's torque keeps its sign). The drive closes its
+///   position loop on those counts: commanded a length, it turns the drum the other way, by as
+///   much, and reports counts that map back to what was commanded. The counts are mirrored
+///   about the reading at build time, so the first reading is the configured one.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Wiring {
+    /// The cable each configured cable's drive really winds (a permutation; empty: identity).
+    pub drive_of_cable: Vec<usize>,
+    /// The cable each configured cable's load cell really measures (a permutation; empty:
+    /// identity).
+    pub load_cell_of_cable: Vec<usize>,
+    /// Each configured cable's drive counts opposite to the encoder map (empty: none).
+    pub encoder_inverted: Vec<bool>,
+}
+
+impl Wiring {
+    /// As configured.
+    pub fn correct() -> Wiring {
+        Wiring::default()
+    }
+
+    /// The drives of cables `i` and `j` of an `n`-cable robot exchanged (each winds the other's
+    /// drum).
+    pub fn swapped_drives(n: usize, i: usize, j: usize) -> Wiring {
+        Wiring { drive_of_cable: swapped(n, i, j), ..Wiring::default() }
+    }
+
+    /// The load cells of cables `i` and `j` exchanged (each measures the other's tension).
+    pub fn swapped_load_cells(n: usize, i: usize, j: usize) -> Wiring {
+        Wiring { load_cell_of_cable: swapped(n, i, j), ..Wiring::default() }
+    }
+
+    /// The encoder of cable `j`'s drive counting the other way.
+    pub fn inverted_encoder(n: usize, j: usize) -> Wiring {
+        Wiring { encoder_inverted: (0..n).map(|k| k == j).collect(), ..Wiring::default() }
+    }
+
+    /// The wiring resolved for `n` cables: `None` when a map is not a permutation of `0..n`
+    /// (or has another length).
+    fn resolve(&self, n: usize) -> Option<Wires> {
+        let perm = |v: &[usize]| -> Option<[usize; MAX_CABLES]> {
+            let mut out: [usize; MAX_CABLES] = std::array::from_fn(|j| j);
+            if v.is_empty() {
+                return Some(out);
+            }
+            let mut seen = [false; MAX_CABLES];
+            if v.len() != n {
+                return None;
+            }
+            for (j, &c) in v.iter().enumerate() {
+                if c >= n || seen[c] {
+                    return None;
+                }
+                seen[c] = true;
+                out[j] = c;
+            }
+            Some(out)
+        };
+        if !(self.encoder_inverted.is_empty() || self.encoder_inverted.len() == n) {
+            return None;
+        }
+        Some(Wires {
+            drive_on: perm(&self.drive_of_cable)?,
+            cell_on: perm(&self.load_cell_of_cable)?,
+            inverted: std::array::from_fn(|j| self.encoder_inverted.get(j).copied().unwrap_or(false)),
+            mirror_m: [0.0; MAX_CABLES],
+        })
+    }
+}
+
+fn swapped(n: usize, i: usize, j: usize) -> Vec<usize> {
+    let mut v: Vec<usize> = (0..n).collect();
+    v.swap(i, j);
+    v
+}
+
+/// [`Wiring`] as the site applies it.
+#[derive(Debug, Clone, Copy)]
+struct Wires {
+    /// The plant cable of each drive.
+    drive_on: [usize; MAX_CABLES],
+    /// The plant cable of each load cell.
+    cell_on: [usize; MAX_CABLES],
+    /// Per drive: its counts run opposite to the encoder map.
+    inverted: [bool; MAX_CABLES],
+    /// Per inverted drive: the reading its counts are mirrored about, m.
+    mirror_m: [f64; MAX_CABLES],
+}
+
+impl Wires {
+    /// What drive `d` reports for its drum's true reading `reading`, m of the encoder map.
+    fn reported(&self, d: usize, reading: f64) -> f64 {
+        if self.inverted[d] {
+            2.0 * self.mirror_m[d] - reading
+        } else {
+            reading
+        }
+    }
+
+    /// The drum's true reading at which drive `d` reports `reported` (the inverse).
+    fn true_reading(&self, d: usize, reported: f64) -> f64 {
+        // The mirror is its own inverse.
+        self.reported(d, reported)
+    }
+
+    /// The load cells' tensions from the plant's cables'.
+    fn cells(&self, plant_n: &[f64], out: &mut [f64]) {
+        for (j, t) in out.iter_mut().enumerate() {
+            *t = plant_n[self.cell_on[j]];
+        }
+    }
+}
+
 impl Default for SimOptions {
     fn default() -> Self {
         SimOptions {
@@ -265,6 +390,7 @@ impl Default for SimOptions {
             physics: Physics::default(),
             tracker: true,
             load_cell_line: LoadCellLine::default(),
+            wiring: Wiring::default(),
         }
     }
 }
@@ -322,6 +448,11 @@ pub enum BuildError {
         /// The simulator's reason.
         error: taut_sim::SimError,
     },
+    /// `SimOptions::wiring` is not a permutation of the robot's cables.
+    Wiring {
+        /// Cables in the configuration.
+        n: usize,
+    },
     /// The platform cannot hang at `p0` with every cable in tension.
     NoRest {
         /// The asked position, m.
@@ -361,6 +492,9 @@ impl std::fmt::Display for BuildError {
             BuildError::NoDrive { cable } => write!(f, "cable[{cable}]: the simulated robot needs a [cable.drive] table with a node_id"),
             BuildError::Site { what, error } if what.is_empty() => write!(f, "simulated site: {error}"),
             BuildError::Site { what, error } => write!(f, "simulated site: {what}: {error}"),
+            BuildError::Wiring { n } => {
+                write!(f, "simulated site: the wiring's maps must be permutations of the {n} cables (and one inversion flag per cable)")
+            }
             BuildError::NoRest { p0 } => write!(f, "simulated site: the platform cannot rest at {p0:?} with positive tensions"),
             BuildError::Can { who, iface, error } => {
                 write!(f, "{who} on CAN interface {iface}: {error} (is it up? `ip link set {iface} up`)")
@@ -380,9 +514,11 @@ impl std::error::Error for BuildError {
             BuildError::Can { error, .. } | BuildError::Device { error, .. } => Some(error),
             BuildError::LoadCells(e) => Some(e),
             BuildError::BringUp(e) => Some(e),
-            BuildError::TooManyCables { .. } | BuildError::NoDrive { .. } | BuildError::NoRest { .. } | BuildError::NoSocketCan { .. } => {
-                None
-            }
+            BuildError::TooManyCables { .. }
+            | BuildError::NoDrive { .. }
+            | BuildError::Wiring { .. }
+            | BuildError::NoRest { .. }
+            | BuildError::NoSocketCan { .. } => None,
         }
     }
 }
@@ -455,6 +591,7 @@ struct SiteParts {
     drives: Vec<VirtualDrive>,
     cells: Vec<(usize, LoadCellConfig)>,
     handle: TensionHandle,
+    wires: Wires,
 }
 
 fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteParts, BuildError> {
@@ -463,6 +600,7 @@ fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteP
         return Err(BuildError::TooManyCables { n });
     }
     let nodes = node_ids(cfg)?;
+    let mut wires = opts.wiring.resolve(n).ok_or(BuildError::Wiring { n })?;
     let units: Vec<DriveUnits> = cfg.cables.iter().map(|c| DriveUnits::of(c.drive.as_ref().expect("checked by node_ids"))).collect();
     let physics = opts.physics.clone();
     let truth = site_truth(cfg, opts).map_err(|error| BuildError::Site { what: String::new(), error })?;
@@ -479,23 +617,28 @@ fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteP
         enc.copy_from_slice(out.encoder_m);
         ten.copy_from_slice(out.tension_n);
     }
-    // Drives: the plant owns their position and torque.
+    // Drives: the plant owns their position and torque, each on the drum it is wired to.
+    for d in 0..n {
+        wires.mirror_m[d] = enc[wires.drive_on[d]];
+    }
     let drives: Vec<VirtualDrive> = nodes
         .iter()
         .zip(&units)
-        .zip(&enc)
-        .map(|((&id, u), &e)| {
+        .enumerate()
+        .map(|(k, (&id, u))| {
             let mut d = VirtualDrive::new(DriveParams::new(id));
             d.set_external(true);
-            d.set_actual(counts(e * u.counts_per_m), 0);
+            d.set_actual(counts(wires.reported(k, enc[wires.drive_on[k]]) * u.counts_per_m), 0);
             d
         })
         .collect();
     let cells: Vec<(usize, LoadCellConfig)> =
         cfg.cables.iter().enumerate().map(|(j, c)| (j, c.loadcell.clone().unwrap_or_else(|| LoadCellConfig::new(j as u8 + 1)))).collect();
     let handle = TensionHandle::new(n);
-    handle.set_all(&ten);
-    Ok(SiteParts { truth, plant, units, brake, cmds, drives, cells, handle })
+    let mut cell_n = vec![0.0; n];
+    wires.cells(&ten, &mut cell_n);
+    handle.set_all(&cell_n);
+    Ok(SiteParts { truth, plant, units, brake, cmds, drives, cells, handle, wires })
 }
 
 /// What the site's devices and its clock are.
@@ -530,6 +673,7 @@ impl SiteParts {
             cmds: self.cmds,
             vlc: io.vlc,
             handle: self.handle,
+            wires: self.wires,
             sender: io.sender,
             clock: io.clock,
             tracker: opts.tracker.then(|| Tracker::new(&opts.noise)),
@@ -688,6 +832,8 @@ struct Site<R: CanTransport> {
     /// answers the master's requests itself).
     vlc: Option<VirtualLoadCells>,
     handle: TensionHandle,
+    /// How the drives and load cells are really wired (see [`Wiring`]).
+    wires: Wires,
     /// UDP to the tracker receiver (`None` in lockstep).
     sender: Option<TrackerSender>,
     /// When a frame is handled: the wall clock, or the lockstep simulation's.
@@ -859,12 +1005,13 @@ impl<R: CanTransport> Site<R> {
             }
             let u = self.units[j];
             // The drive's position loop works on the drum's angle: the target is the drum length
-            // whose noise-free reading it is.
-            let to = self.plant.drum_for_reading(j, f64::from(t.position) / u.counts_per_m);
+            // whose noise-free reading it is (of the drum the drive is wired to, in its counts).
+            let c = self.wires.drive_on[j];
+            let to = self.plant.drum_for_reading(c, self.wires.true_reading(j, f64::from(t.position) / u.counts_per_m));
             // The ramp runs on the drives' SYNC clock, not the frame's arrival.
             let (start, sync_s) = self.sync_clock.map_or((at, period_s), |(t, p)| (t, p));
             let r = &mut self.ramps[j];
-            let from = if r.target.is_some() { r.at(start) } else { self.drum[j] };
+            let from = if r.target.is_some() { r.at(start) } else { self.drum[c] };
             let dur_s = r.target.map_or(0.0, |_| CSP_INTERPOLATION_PERIODS * sync_s);
             *r = Ramp { from, to, target: Some(t.position), start, dur_s };
         }
@@ -907,29 +1054,35 @@ impl<R: CanTransport> Site<R> {
     fn step_plant(&mut self, at: Instant) {
         let n = self.units.len();
         let dt = at.saturating_duration_since(self.last_step).as_secs_f64().min(0.02);
+        // Drive `j` commands the drum it is wired to, `c`.
         for j in 0..n {
             let t = self.rack.drives()[j].target();
             let u = self.units[j];
-            self.cmds[j] = match (t.enabled, t.mode, self.ramps[j].target) {
+            let c = self.wires.drive_on[j];
+            self.cmds[c] = match (t.enabled, t.mode, self.ramps[j].target) {
                 (true, Mode::CyclicPosition, Some(_)) => {
-                    self.drum[j] = self.ramps[j].at(at);
-                    SimCommand::Length(self.drum[j])
+                    self.drum[c] = self.ramps[j].at(at);
+                    SimCommand::Length(self.drum[c])
                 }
                 (true, Mode::CyclicTorque, _) => SimCommand::Tension((f64::from(t.torque) * u.n_per_permille).max(0.0)),
                 // Brakes hold the drum where it is.
-                _ => SimCommand::Length(self.drum[j]),
+                _ => SimCommand::Length(self.drum[c]),
             };
         }
         let o = self.plant.step(dt, &self.cmds);
-        self.handle.set_all(o.tension_n);
+        let mut cell_n = [0.0; MAX_CABLES];
+        self.wires.cells(o.tension_n, &mut cell_n[..n]);
+        self.handle.set_all(&cell_n[..n]);
         let mut enc = [0.0; MAX_CABLES];
         let mut tq = [0i16; MAX_CABLES];
         for j in 0..n {
             // A drum in torque mode pays out whatever the platform pulls.
             self.drum[j] = o.drum_m[j];
-            let u = self.units[j];
-            enc[j] = o.encoder_m[j] * u.counts_per_m;
-            tq[j] = permille(o.tension_n[j] / u.n_per_permille);
+        }
+        for j in 0..n {
+            let (u, c) = (self.units[j], self.wires.drive_on[j]);
+            enc[j] = self.wires.reported(j, o.encoder_m[c]) * u.counts_per_m;
+            tq[j] = permille(o.tension_n[c] / u.n_per_permille);
         }
         for j in 0..n {
             self.rack.drives()[j].set_actual(counts(enc[j]), tq[j]);

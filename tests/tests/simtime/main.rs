@@ -24,3 +24,4 @@ mod notracker_3mm;
 mod notracker_short;
 mod operator;
 mod reset;
+mod wiring;
