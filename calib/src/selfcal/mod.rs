@@ -92,6 +92,10 @@ pub struct SelfCalOptions {
     pub min_dwell_samples: usize,
     /// LM iteration limit per solve.
     pub max_iterations: usize,
+    /// The cables' stretch under tension (with the load cells): `None`, the ideal model; a
+    /// datasheet stiffness with its tolerance (`rel_sigma` above 0: each cable's EA fitted within
+    /// it; 0: held), as the tracker's refinement ([`crate::bundle::Stretch`]).
+    pub stretch: Option<crate::bundle::Stretch>,
 }
 
 impl SelfCalOptions {
@@ -109,6 +113,9 @@ impl SelfCalOptions {
             max_sigma_m: c.max_sigma_m,
             min_dwell_samples: 20,
             max_iterations: 200,
+            // `[calibration] cable_ea_sigma_n` above 0: `cable_ea_n` is a datasheet value.
+            stretch: (c.cable_ea_sigma_n > 0.0 && c.cable_ea_n > 0.0 && c.cable_ea_n.is_finite())
+                .then(|| crate::bundle::Stretch { ea_n: c.cable_ea_n, rel_sigma: c.cable_ea_sigma_n / c.cable_ea_n }),
         }
     }
 }
@@ -294,6 +301,9 @@ pub struct SelfCalReport {
     pub loadcell_offsets: Option<Vec<Estimate>>,
     /// The mass, kg, when estimated.
     pub mass: Option<Estimate>,
+    /// With [`SelfCalOptions::stretch`] and tensions: each cable's stiffness EA, N (fitted
+    /// within the tolerance, or the datasheet value held).
+    pub cable_ea_n: Option<Vec<Estimate>>,
     /// The dwell positions, m, in the frame.
     pub poses: Vec<[f64; 3]>,
     /// The dwells used.
@@ -346,7 +356,8 @@ pub fn calibrate_without_tracker(
     }
     let found = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
     let tensions = opts.use_tensions && rec.f.is_some() && found.dwells.iter().any(|d| d.nf.iter().all(|&c| c > 0));
-    let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass };
+    let stretch = opts.stretch.filter(|st| tensions && st.ea_n > 0.0 && st.ea_n.is_finite());
+    let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass, ea: stretch.is_some_and(|st| st.rel_sigma > 0.0) };
     let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
     let (c, d) = gauge(nominal, lay, frame);
     // Enough dwells that the globals are over-determined twice: each dwell adds (rows - 3).
@@ -369,6 +380,7 @@ pub fn calibrate_without_tracker(
         var_f: sigma_f * sigma_f * found.tension_inflation,
         mass: opts.mass_kg,
         min_tension_n: opts.min_tension_n,
+        stretch,
         c,
         d,
     };
@@ -464,6 +476,22 @@ pub fn calibrate_without_tracker(
     });
     let loadcell_offsets = tensions.then(|| (0..n).map(|j| est(s.g[lay.c(j)], cov[(lay.c(j), lay.c(j))])).collect());
     let mass = lay.mass.then(|| est(s.g[lay.m()], cov[(lay.m(), lay.m())]));
+    // EA_j = EA / s_j, its sigma to first order.
+    let cable_ea_n = stretch.map(|st| {
+        (0..n)
+            .map(|j| match lay.ea {
+                true => {
+                    let (sf, var) = (s.g[lay.s(j)], cov[(lay.s(j), lay.s(j))]);
+                    Estimate {
+                        value: st.ea_n / sf,
+                        sigma: st.ea_n * var.max(0.0).sqrt() * scale / (sf * sf),
+                        crb: st.ea_n * var.max(0.0).sqrt() / (sf * sf),
+                    }
+                }
+                false => Estimate { value: st.ea_n, sigma: 0.0, crb: 0.0 },
+            })
+            .collect()
+    });
     let anchor_rms_crb_m = ((0..3 * n).map(|i| cov[(i, i)]).sum::<f64>() / n as f64).sqrt();
     let shape_rms_crb_m = shape_rms(&anchors, &cov);
     if !tensions {
@@ -485,6 +513,7 @@ pub fn calibrate_without_tracker(
         heights,
         loadcell_offsets,
         mass,
+        cable_ea_n,
         poses: s.p.clone(),
         samples_used: found.samples,
         dwells: found.dwells.clone(),
@@ -562,6 +591,11 @@ fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
     }
     if lay.mass {
         g[lay.m()] = pr.mass;
+    }
+    if lay.ea {
+        for j in 0..n {
+            g[lay.s(j)] = 1.0;
+        }
     }
     let z_top = nominal.iter().map(|a| a[2]).fold(f64::INFINITY, f64::min);
     let span = nominal.iter().map(|a| a[0]).fold(f64::NEG_INFINITY, f64::max) - nominal.iter().map(|a| a[0]).fold(f64::INFINITY, f64::min);
@@ -722,7 +756,7 @@ mod tests {
         // C g = d holds for the nominal anchors, and the rotation rows are the derivative of the
         // Procrustes cross term: a small yaw of the nominal changes row 3 by yaw * sum |r_xy|^2.
         let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
-        let lay = Layout { n: 4, offsets: true, mass: false };
+        let lay = Layout { n: 4, offsets: true, mass: false, ea: false };
         let (c, d) = gauge(&nom, lay, Frame::NominalRigid);
         let mut g = DVector::zeros(lay.count());
         for j in 0..4 {
