@@ -783,3 +783,141 @@ mod tests {
         assert!((chi2_quantile(1000, 3.09) - 1143.9).abs() < 2.0);
     }
 }
+
+#[cfg(test)]
+mod stretch_tests {
+    // Index loops over parallel per-cable arrays, as in the library.
+    #![allow(clippy::needless_range_loop)]
+    use super::*;
+    use crate::bundle::Stretch;
+    use crate::synth::Rng;
+    use nalgebra::{Matrix3x4, Vector4};
+
+    const NOMINAL: [[f64; 3]; 4] = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+
+    /// The minimum-norm static tensions of a 3 kg point mass moved along the null direction to
+    /// keep every one at `t_min` or above (as the selfcal bench); `None` where none does.
+    fn tensions(anchors: &[[f64; 3]], p: [f64; 3], t_min: f64) -> Option<[f64; 4]> {
+        let mut u = Matrix3x4::zeros();
+        for j in 0..4 {
+            let d = Vector3::new(anchors[j][0] - p[0], anchors[j][1] - p[1], anchors[j][2] - p[2]);
+            u.set_column(j, &(d / d.norm()));
+        }
+        let pinv = u.transpose() * (u * u.transpose()).try_inverse()?;
+        let t0: Vector4<f64> = pinv * Vector3::new(0.0, 0.0, 3.0 * G);
+        let e = Vector4::new(1.0, -1.0, 1.0, -1.0);
+        let null = e - pinv * (u * e);
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for j in 0..4 {
+            let b = (t_min - t0[j]) / null[j];
+            if null[j] > 1e-9 {
+                lo = lo.max(b);
+            } else if null[j] < -1e-9 {
+                hi = hi.min(b);
+            } else if t0[j] < t_min {
+                return None;
+            }
+        }
+        (lo <= hi).then(|| {
+            let t = t0 + null * 0.0f64.clamp(lo, hi);
+            [t[0], t[1], t[2], t[3]]
+        })
+    }
+
+    /// 60 dwells of 100 readings on cables of stiffness `ea` (N): the drum pays out the
+    /// unstretched length, the encoder reads `d / (1 + T / EA)`.
+    fn stretched(seed: u64, ea: f64) -> (Recording, Vec<[f64; 3]>) {
+        let mut rng = Rng::new(seed);
+        let truth: Vec<[f64; 3]> = NOMINAL
+            .iter()
+            .map(|a| {
+                let v = rng.unit_vector();
+                let m = rng.range(0.05, 0.2);
+                [a[0] + m * v[0], a[1] + m * v[1], a[2] + m * v[2]]
+            })
+            .collect();
+        let l0: Vec<f64> = (0..4).map(|_| rng.range(-2.0, 2.0)).collect();
+        let cell: Vec<f64> = (0..4).map(|_| 0.5 * rng.normal()).collect();
+        let mut rec = Recording::with_capacity(4, 6000, true, false, false);
+        let (mut k, mut t) = (0, 0.0);
+        while k < 60 {
+            let p = [rng.range(-2.5, 2.5), rng.range(-1.2, 1.2), rng.range(0.6, 3.4)];
+            let Some(tt) = tensions(&truth, p, 5.0) else { continue };
+            k += 1;
+            for _ in 0..100 {
+                let (mut l, mut f) = ([0.0; 4], [0.0; 4]);
+                for j in 0..4 {
+                    let d = ((p[0] - truth[j][0]).powi(2) + (p[1] - truth[j][1]).powi(2) + (p[2] - truth[j][2]).powi(2)).sqrt();
+                    l[j] = d / (1.0 + tt[j] / ea) + l0[j] + 5e-5 * rng.normal();
+                    f[j] = tt[j] + cell[j] + 0.3 * rng.normal();
+                }
+                rec.push(t, [f64::NAN; 3], None, &l, Some(&f), None);
+                t += 0.01;
+            }
+        }
+        (rec, truth)
+    }
+
+    fn opts(stretch: Option<Stretch>) -> SelfCalOptions {
+        SelfCalOptions {
+            encoder_sigma_m: 5e-5,
+            loadcell_sigma_n: None,
+            min_tension_n: 3.0,
+            mass_kg: 3.0,
+            estimate_mass: false,
+            use_tensions: true,
+            weak_sigma_m: 2e-3,
+            max_sigma_m: 0.1,
+            min_dwell_samples: 20,
+            max_iterations: 200,
+            stretch,
+        }
+    }
+
+    #[test]
+    fn a_known_stiffness_takes_the_stretch_from_the_dwells() {
+        // EA 1e5 N under 5-30 N over 2-6 m: 0.1-1.8 mm of stretch, many sigmas of a dwell mean.
+        let (rec, truth) = stretched(7, 1e5);
+        let b = [[0.0; 3]; 4];
+        let worst = |r: &SelfCalReport| {
+            let al = align::align_translation_yaw(&r.params.anchors, &truth);
+            al.iter()
+                .zip(&truth)
+                .map(|(a, t)| ((a[0] - t[0]).powi(2) + (a[1] - t[1]).powi(2) + (a[2] - t[2]).powi(2)).sqrt())
+                .fold(0.0, f64::max)
+        };
+        let ideal = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(None)).unwrap();
+        assert!(!ideal.chi2_ok && ideal.cable_ea_n.is_none(), "ideal model: chi2/dof {:.2}", ideal.chi2 / ideal.dof as f64);
+        // The datasheet 10 % soft, its tolerance 15 %.
+        let st = Stretch { ea_n: 0.9e5, rel_sigma: 0.15 / 0.9 };
+        let fitted = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(Some(st))).unwrap();
+        let vf = fitted.chi2 / fitted.dof as f64;
+        eprintln!(
+            "ideal: worst {:.3} mm, chi2/dof {:.2}; stretch modelled: worst {:.3} mm, chi2/dof {vf:.2}",
+            worst(&ideal) * 1e3,
+            ideal.chi2 / ideal.dof as f64,
+            worst(&fitted) * 1e3
+        );
+        eprintln!(
+            "stretch modelled: largest anchor coordinate sigma {:.3} mm",
+            fitted.sigma.anchors.iter().flatten().fold(0.0f64, |m, &v| m.max(v)) * 1e3
+        );
+        assert!(fitted.chi2_ok, "chi2/dof {vf:.2}: {:?}", fitted.notes);
+        // Worst anchor 2.95 mm (the largest coordinate sigma 3.4 mm here), the ideal model's 5.25 mm.
+        assert!(worst(&fitted) < worst(&ideal));
+        let al = align::align_translation_yaw(&fitted.params.anchors, &truth);
+        for j in 0..4 {
+            for a in 0..3 {
+                let (e, s) = ((al[j][a] - truth[j][a]).abs(), fitted.sigma.anchors[j][a]);
+                assert!(e < 4.9 * s, "anchor {j}[{a}] off by {:.3} mm, sigma {:.3} mm", e * 1e3, s * 1e3);
+            }
+        }
+        for (j, e) in fitted.cable_ea_n.as_ref().unwrap().iter().enumerate() {
+            assert!(e.sigma > 0.0 && e.sigma < 0.15e5, "cable {j}: EA sigma {}", e.sigma);
+            assert!((e.value - 1e5).abs() < 4.0 * e.sigma, "cable {j}: EA {:.0} +- {:.0} N, truth 100000", e.value, e.sigma);
+        }
+        // Held at the datasheet value (tolerance 0): reported as it is.
+        let held = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(Some(Stretch { ea_n: 1e5, rel_sigma: 0.0 }))).unwrap();
+        assert!(held.chi2_ok && held.cable_ea_n.as_ref().unwrap().iter().all(|e| e.value == 1e5 && e.sigma == 0.0));
+    }
+}
