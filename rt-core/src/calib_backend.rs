@@ -83,6 +83,11 @@ impl TautCalib {
             r.anchor_rms_crb_m * 1e3,
             if r.used_tensions { "encoders and load cells" } else { "encoders only" }
         );
+        if let Some(ea) = &r.cable_ea_n {
+            // The stretch modelled with the datasheet stiffness (`cable_ea_sigma_n`).
+            let each: Vec<String> = ea.iter().map(|e| format!("{:.2} ± {:.2}", e.value * 1e-6, e.sigma * 1e-6)).collect();
+            note.push_str(&format!("; stretch modelled, cable EA {} MN", each.join(", ")));
+        }
         for w in &r.notes {
             note.push_str("; ");
             note.push_str(w);
