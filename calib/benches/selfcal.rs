@@ -97,6 +97,7 @@ fn bench(c: &mut Criterion) {
         max_sigma_m: 0.1,
         min_dwell_samples: 20,
         max_iterations: 200,
+        stretch: None,
     };
     let b = [[0.0; 3]; 4];
     let r = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts).expect("the bench recording calibrates");

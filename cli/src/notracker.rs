@@ -133,6 +133,11 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     if let Some(m) = &r.mass {
         println!("  platform mass: {:.4} kg +- {:.4} kg", m.value, m.sigma);
     }
+    if let Some(ea) = &r.cable_ea_n {
+        for (j, e) in ea.iter().enumerate() {
+            println!("  stiffness EA of cable {} (stretch modelled): {:.4} MN +- {:.4} MN", j + 1, e.value * 1e-6, e.sigma * 1e-6);
+        }
+    }
     for n in &r.notes {
         println!("note: {n}");
     }
@@ -153,6 +158,7 @@ fn json(r: &SelfCalReport, screen: &taut_calib::screen::Screen) -> serde_json::V
         "heights_m": r.heights.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),
         "loadcell_offsets_n": r.loadcell_offsets.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),
         "mass_kg": r.mass.as_ref().map(est),
+        "cable_ea_n": r.cable_ea_n.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),
         "dwells": r.dwells.len(),
         "samples_used": r.samples_used,
         "chi2": r.chi2,

@@ -131,9 +131,9 @@ pub struct CalibrationConfig {
     pub cable_ea_n: f64,
     /// 1-sigma of `cable_ea_n`, N: the datasheet's tolerance of the cables' stiffness. 0 (the
     /// default): `cable_ea_n` is a guess and only sets the variance above. Above 0: the
-    /// stiffness is known, and the calibration with a tracker models each reading's stretch
-    /// `T L / EA` (the tension-tagged samples) instead of leaving it to the anchors, with each
-    /// cable's EA fitted within this prior (docs/effects.md).
+    /// stiffness is known, and the calibration models each reading's stretch `T L / EA` (with a
+    /// tracker the tension-tagged samples, without one the dwells' means) instead of leaving it
+    /// to the anchors, with each cable's EA fitted within this prior (docs/effects.md).
     #[serde(skip_serializing_if = "is_zero")]
     pub cable_ea_sigma_n: f64,
     /// Fraction of the recording held out for validation (with a tracker: the ends of eight

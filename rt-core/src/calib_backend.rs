@@ -83,6 +83,16 @@ impl TautCalib {
             r.anchor_rms_crb_m * 1e3,
             if r.used_tensions { "encoders and load cells" } else { "encoders only" }
         );
+        // The stretch modelled with the datasheet stiffness (`cable_ea_sigma_n`): named as the
+        // refinement with a tracker names it, and carried as the estimate's `elasticity` (the
+        // loop then models the stretch the anchors and offsets were fitted with).
+        let mut effects = Effects::default();
+        if let Some(ea) = &r.cable_ea_n {
+            let each: Vec<String> = ea.iter().map(|e| format!("{:.0}±{:.0}", e.value / 1e3, e.sigma / 1e3)).collect();
+            note.push_str(&format!("; stretch modelled: EA {} kN", each.join(", ")));
+            effects.ea_n = Some(ea.iter().map(|e| e.value).collect());
+            effects.ea_sigma_n = Some(ea.iter().map(|e| e.sigma).collect());
+        }
         for w in &r.notes {
             note.push_str("; ");
             note.push_str(w);
@@ -90,15 +100,7 @@ impl TautCalib {
         if !self.effects.is_empty() {
             note.push_str(&format!("; {} not fitted (needs a tracker)", self.effects.join(", ")));
         }
-        Ok(Estimate {
-            model_consistent: None,
-            geometry: r.params,
-            sigma: r.sigma,
-            rms_m: f64::NAN,
-            observable: true,
-            note,
-            effects: Effects::default(),
-        })
+        Ok(Estimate { model_consistent: None, geometry: r.params, sigma: r.sigma, rms_m: f64::NAN, observable: true, note, effects })
     }
 
     /// Also models the effects `file` carries, starting from its values (its time offset

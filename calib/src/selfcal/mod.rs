@@ -92,6 +92,10 @@ pub struct SelfCalOptions {
     pub min_dwell_samples: usize,
     /// LM iteration limit per solve.
     pub max_iterations: usize,
+    /// The cables' stretch under tension (with the load cells): `None`, the ideal model; a
+    /// datasheet stiffness with its tolerance (`rel_sigma` above 0: each cable's EA fitted within
+    /// it; 0: held), as the tracker's refinement ([`crate::bundle::Stretch`]).
+    pub stretch: Option<crate::bundle::Stretch>,
 }
 
 impl SelfCalOptions {
@@ -109,6 +113,9 @@ impl SelfCalOptions {
             max_sigma_m: c.max_sigma_m,
             min_dwell_samples: 20,
             max_iterations: 200,
+            // `[calibration] cable_ea_sigma_n` above 0: `cable_ea_n` is a datasheet value.
+            stretch: (c.cable_ea_sigma_n > 0.0 && c.cable_ea_n > 0.0 && c.cable_ea_n.is_finite())
+                .then(|| crate::bundle::Stretch { ea_n: c.cable_ea_n, rel_sigma: c.cable_ea_sigma_n / c.cable_ea_n }),
         }
     }
 }
@@ -294,6 +301,9 @@ pub struct SelfCalReport {
     pub loadcell_offsets: Option<Vec<Estimate>>,
     /// The mass, kg, when estimated.
     pub mass: Option<Estimate>,
+    /// With [`SelfCalOptions::stretch`] and tensions: each cable's stiffness EA, N (fitted
+    /// within the tolerance, or the datasheet value held).
+    pub cable_ea_n: Option<Vec<Estimate>>,
     /// The dwell positions, m, in the frame.
     pub poses: Vec<[f64; 3]>,
     /// The dwells used.
@@ -346,7 +356,8 @@ pub fn calibrate_without_tracker(
     }
     let found = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
     let tensions = opts.use_tensions && rec.f.is_some() && found.dwells.iter().any(|d| d.nf.iter().all(|&c| c > 0));
-    let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass };
+    let stretch = opts.stretch.filter(|st| tensions && st.ea_n > 0.0 && st.ea_n.is_finite());
+    let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass, ea: stretch.is_some_and(|st| st.rel_sigma > 0.0) };
     let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
     let (c, d) = gauge(nominal, lay, frame);
     // Enough dwells that the globals are over-determined twice: each dwell adds (rows - 3).
@@ -369,6 +380,7 @@ pub fn calibrate_without_tracker(
         var_f: sigma_f * sigma_f * found.tension_inflation,
         mass: opts.mass_kg,
         min_tension_n: opts.min_tension_n,
+        stretch,
         c,
         d,
     };
@@ -464,6 +476,22 @@ pub fn calibrate_without_tracker(
     });
     let loadcell_offsets = tensions.then(|| (0..n).map(|j| est(s.g[lay.c(j)], cov[(lay.c(j), lay.c(j))])).collect());
     let mass = lay.mass.then(|| est(s.g[lay.m()], cov[(lay.m(), lay.m())]));
+    // EA_j = EA / s_j, its sigma to first order.
+    let cable_ea_n = stretch.map(|st| {
+        (0..n)
+            .map(|j| match lay.ea {
+                true => {
+                    let (sf, var) = (s.g[lay.s(j)], cov[(lay.s(j), lay.s(j))]);
+                    Estimate {
+                        value: st.ea_n / sf,
+                        sigma: st.ea_n * var.max(0.0).sqrt() * scale / (sf * sf),
+                        crb: st.ea_n * var.max(0.0).sqrt() / (sf * sf),
+                    }
+                }
+                false => Estimate { value: st.ea_n, sigma: 0.0, crb: 0.0 },
+            })
+            .collect()
+    });
     let anchor_rms_crb_m = ((0..3 * n).map(|i| cov[(i, i)]).sum::<f64>() / n as f64).sqrt();
     let shape_rms_crb_m = shape_rms(&anchors, &cov);
     if !tensions {
@@ -485,6 +513,7 @@ pub fn calibrate_without_tracker(
         heights,
         loadcell_offsets,
         mass,
+        cable_ea_n,
         poses: s.p.clone(),
         samples_used: found.samples,
         dwells: found.dwells.clone(),
@@ -562,6 +591,11 @@ fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
     }
     if lay.mass {
         g[lay.m()] = pr.mass;
+    }
+    if lay.ea {
+        for j in 0..n {
+            g[lay.s(j)] = 1.0;
+        }
     }
     let z_top = nominal.iter().map(|a| a[2]).fold(f64::INFINITY, f64::min);
     let span = nominal.iter().map(|a| a[0]).fold(f64::NEG_INFINITY, f64::max) - nominal.iter().map(|a| a[0]).fold(f64::INFINITY, f64::min);
@@ -722,7 +756,7 @@ mod tests {
         // C g = d holds for the nominal anchors, and the rotation rows are the derivative of the
         // Procrustes cross term: a small yaw of the nominal changes row 3 by yaw * sum |r_xy|^2.
         let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
-        let lay = Layout { n: 4, offsets: true, mass: false };
+        let lay = Layout { n: 4, offsets: true, mass: false, ea: false };
         let (c, d) = gauge(&nom, lay, Frame::NominalRigid);
         let mut g = DVector::zeros(lay.count());
         for j in 0..4 {
@@ -747,5 +781,143 @@ mod tests {
         assert!((chi2_quantile(10, 3.09) - 29.59).abs() < 0.5);
         assert!((chi2_quantile(100, 3.09) - 149.4).abs() < 1.0);
         assert!((chi2_quantile(1000, 3.09) - 1143.9).abs() < 2.0);
+    }
+}
+
+#[cfg(test)]
+mod stretch_tests {
+    // Index loops over parallel per-cable arrays, as in the library.
+    #![allow(clippy::needless_range_loop)]
+    use super::*;
+    use crate::bundle::Stretch;
+    use crate::synth::Rng;
+    use nalgebra::{Matrix3x4, Vector4};
+
+    const NOMINAL: [[f64; 3]; 4] = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+
+    /// The minimum-norm static tensions of a 3 kg point mass moved along the null direction to
+    /// keep every one at `t_min` or above (as the selfcal bench); `None` where none does.
+    fn tensions(anchors: &[[f64; 3]], p: [f64; 3], t_min: f64) -> Option<[f64; 4]> {
+        let mut u = Matrix3x4::zeros();
+        for j in 0..4 {
+            let d = Vector3::new(anchors[j][0] - p[0], anchors[j][1] - p[1], anchors[j][2] - p[2]);
+            u.set_column(j, &(d / d.norm()));
+        }
+        let pinv = u.transpose() * (u * u.transpose()).try_inverse()?;
+        let t0: Vector4<f64> = pinv * Vector3::new(0.0, 0.0, 3.0 * G);
+        let e = Vector4::new(1.0, -1.0, 1.0, -1.0);
+        let null = e - pinv * (u * e);
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for j in 0..4 {
+            let b = (t_min - t0[j]) / null[j];
+            if null[j] > 1e-9 {
+                lo = lo.max(b);
+            } else if null[j] < -1e-9 {
+                hi = hi.min(b);
+            } else if t0[j] < t_min {
+                return None;
+            }
+        }
+        (lo <= hi).then(|| {
+            let t = t0 + null * 0.0f64.clamp(lo, hi);
+            [t[0], t[1], t[2], t[3]]
+        })
+    }
+
+    /// 60 dwells of 100 readings on cables of stiffness `ea` (N): the drum pays out the
+    /// unstretched length, the encoder reads `d / (1 + T / EA)`.
+    fn stretched(seed: u64, ea: f64) -> (Recording, Vec<[f64; 3]>) {
+        let mut rng = Rng::new(seed);
+        let truth: Vec<[f64; 3]> = NOMINAL
+            .iter()
+            .map(|a| {
+                let v = rng.unit_vector();
+                let m = rng.range(0.05, 0.2);
+                [a[0] + m * v[0], a[1] + m * v[1], a[2] + m * v[2]]
+            })
+            .collect();
+        let l0: Vec<f64> = (0..4).map(|_| rng.range(-2.0, 2.0)).collect();
+        let cell: Vec<f64> = (0..4).map(|_| 0.5 * rng.normal()).collect();
+        let mut rec = Recording::with_capacity(4, 6000, true, false, false);
+        let (mut k, mut t) = (0, 0.0);
+        while k < 60 {
+            let p = [rng.range(-2.5, 2.5), rng.range(-1.2, 1.2), rng.range(0.6, 3.4)];
+            let Some(tt) = tensions(&truth, p, 5.0) else { continue };
+            k += 1;
+            for _ in 0..100 {
+                let (mut l, mut f) = ([0.0; 4], [0.0; 4]);
+                for j in 0..4 {
+                    let d = ((p[0] - truth[j][0]).powi(2) + (p[1] - truth[j][1]).powi(2) + (p[2] - truth[j][2]).powi(2)).sqrt();
+                    l[j] = d / (1.0 + tt[j] / ea) + l0[j] + 5e-5 * rng.normal();
+                    f[j] = tt[j] + cell[j] + 0.3 * rng.normal();
+                }
+                rec.push(t, [f64::NAN; 3], None, &l, Some(&f), None);
+                t += 0.01;
+            }
+        }
+        (rec, truth)
+    }
+
+    fn opts(stretch: Option<Stretch>) -> SelfCalOptions {
+        SelfCalOptions {
+            encoder_sigma_m: 5e-5,
+            loadcell_sigma_n: None,
+            min_tension_n: 3.0,
+            mass_kg: 3.0,
+            estimate_mass: false,
+            use_tensions: true,
+            weak_sigma_m: 2e-3,
+            max_sigma_m: 0.1,
+            min_dwell_samples: 20,
+            max_iterations: 200,
+            stretch,
+        }
+    }
+
+    #[test]
+    fn a_known_stiffness_takes_the_stretch_from_the_dwells() {
+        // EA 1e5 N under 5-30 N over 2-6 m: 0.1-1.8 mm of stretch, many sigmas of a dwell mean.
+        let (rec, truth) = stretched(7, 1e5);
+        let b = [[0.0; 3]; 4];
+        let worst = |r: &SelfCalReport| {
+            let al = align::align_translation_yaw(&r.params.anchors, &truth);
+            al.iter()
+                .zip(&truth)
+                .map(|(a, t)| ((a[0] - t[0]).powi(2) + (a[1] - t[1]).powi(2) + (a[2] - t[2]).powi(2)).sqrt())
+                .fold(0.0, f64::max)
+        };
+        let ideal = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(None)).unwrap();
+        assert!(!ideal.chi2_ok && ideal.cable_ea_n.is_none(), "ideal model: chi2/dof {:.2}", ideal.chi2 / ideal.dof as f64);
+        // The datasheet 10 % soft, its tolerance 15 %.
+        let st = Stretch { ea_n: 0.9e5, rel_sigma: 0.15 / 0.9 };
+        let fitted = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(Some(st))).unwrap();
+        let vf = fitted.chi2 / fitted.dof as f64;
+        eprintln!(
+            "ideal: worst {:.3} mm, chi2/dof {:.2}; stretch modelled: worst {:.3} mm, chi2/dof {vf:.2}",
+            worst(&ideal) * 1e3,
+            ideal.chi2 / ideal.dof as f64,
+            worst(&fitted) * 1e3
+        );
+        eprintln!(
+            "stretch modelled: largest anchor coordinate sigma {:.3} mm",
+            fitted.sigma.anchors.iter().flatten().fold(0.0f64, |m, &v| m.max(v)) * 1e3
+        );
+        assert!(fitted.chi2_ok, "chi2/dof {vf:.2}: {:?}", fitted.notes);
+        // Worst anchor 2.95 mm (the largest coordinate sigma 3.4 mm here), the ideal model's 5.25 mm.
+        assert!(worst(&fitted) < worst(&ideal));
+        let al = align::align_translation_yaw(&fitted.params.anchors, &truth);
+        for j in 0..4 {
+            for a in 0..3 {
+                let (e, s) = ((al[j][a] - truth[j][a]).abs(), fitted.sigma.anchors[j][a]);
+                assert!(e < 4.9 * s, "anchor {j}[{a}] off by {:.3} mm, sigma {:.3} mm", e * 1e3, s * 1e3);
+            }
+        }
+        for (j, e) in fitted.cable_ea_n.as_ref().unwrap().iter().enumerate() {
+            assert!(e.sigma > 0.0 && e.sigma < 0.15e5, "cable {j}: EA sigma {}", e.sigma);
+            assert!((e.value - 1e5).abs() < 4.0 * e.sigma, "cable {j}: EA {:.0} +- {:.0} N, truth 100000", e.value, e.sigma);
+        }
+        // Held at the datasheet value (tolerance 0): reported as it is.
+        let held = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts(Some(Stretch { ea_n: 1e5, rel_sigma: 0.0 }))).unwrap();
+        assert!(held.chi2_ok && held.cable_ea_n.as_ref().unwrap().iter().all(|e| e.value == 1e5 && e.sigma == 0.0));
     }
 }

@@ -257,7 +257,7 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
         return Err(PlanError::TooFewFeasible { feasible: cand.len(), wanted: inp.poses });
     }
     let tensions = inp.loadcell_sigma_n.is_some();
-    let lay = Layout { n, offsets: tensions, mass: false };
+    let lay = Layout { n, offsets: tensions, mass: false, ea: false };
     let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
     let (c, d) = gauge(inp.nominal, lay, frame);
     let ng = lay.count();
@@ -292,6 +292,7 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
             var_f,
             mass: inp.mass_kg,
             min_tension_n: inp.min_tension_n,
+            stretch: None,
             c: c.clone(),
             d: d.clone(),
         };

@@ -4,11 +4,19 @@
 //! globals  g = (A_0 .. A_(n-1), L0_0 .. L0_(n-1), c_0 .. c_(n-1) [tensions], m [if estimated])
 //! per dwell k: P_k (3)
 //!
-//! length   r_kj = l_kj - (|P_k + b_j - A_j| + L0_j)          var sigma_enc^2 / N_kj
+//! length   r_kj = l_kj - (|P_k + b_j - A_j| (1 - s_j T_kj / EA) + L0_j)   var sigma_enc^2 / N_kj
 //! force    r_k  = -(sum_j (f_kj - c_j) v_kj + m g_vec)         cov sum_j sigma_f^2 / N_kj v_kj v_kj^T
 //!          v_kj = (A_j - X_kj) / |A_j - X_kj|,  g_vec = (0, 0, -9.81)
 //! tare     r_kj = f_kj - c_j                                   var sigma_f^2 / N_kj
+//! prior    r_j  = 1 - s_j                                       var (sigma_EA / EA)^2
 //! ```
+//!
+//! With a known stiffness ([`Problem::stretch`], the datasheet `EA`) a length reading is the
+//! distance less the cable's stretch under its tension `T_kj = f_kj - c_j` (as
+//! [`crate::bundle::Stretch`]: the drum pays out the unstretched length, the encoder reads
+//! `d / (1 + T / EA_true)`, to first order the model). With a tolerance above 0 each cable's
+//! factor `s_j = EA / EA_j` is a global (after the mass) tied to 1 by its prior row; with 0 it
+//! is held at 1; without a stretch (or without tensions) the ideal model `s_j T = 0`.
 //!
 //! In a tare dwell ([`Dwell::tared`]) the tared cables carry no tension: each gives the tare
 //! row (its reading is its load cell's offset) instead of a term of the force balance, and no
@@ -46,12 +54,14 @@ pub struct Layout {
     pub offsets: bool,
     /// The mass is an unknown.
     pub mass: bool,
+    /// The cables' stretch factors `s_j` are unknowns (a stiffness with a tolerance).
+    pub ea: bool,
 }
 
 impl Layout {
     /// Number of globals.
     pub fn count(&self) -> usize {
-        4 * self.n + if self.offsets { self.n } else { 0 } + usize::from(self.mass)
+        4 * self.n + if self.offsets { self.n } else { 0 } + usize::from(self.mass) + if self.ea { self.n } else { 0 }
     }
     /// First index of anchor `j`.
     pub fn a(&self, j: usize) -> usize {
@@ -68,6 +78,10 @@ impl Layout {
     /// Index of the mass.
     pub fn m(&self) -> usize {
         4 * self.n + if self.offsets { self.n } else { 0 }
+    }
+    /// Index of the stretch factor `s_j` (with [`Layout::ea`]).
+    pub fn s(&self, j: usize) -> usize {
+        self.m() + usize::from(self.mass) + j
     }
 }
 
@@ -87,6 +101,9 @@ pub struct Problem<'a> {
     pub mass: f64,
     /// Readings below this tension are loose: their lengths are not used.
     pub min_tension_n: f64,
+    /// The cables' stretch (used with tensions): `None`, the ideal model. Its `rel_sigma`
+    /// above 0 needs [`Layout::ea`] (the factors fitted), 0 holds the stiffness.
+    pub stretch: Option<crate::bundle::Stretch>,
     /// Gauge constraints `C g = d`.
     pub c: DMatrix<f64>,
     /// Right-hand side of the gauge constraints.
@@ -137,6 +154,27 @@ impl Problem<'_> {
         self.lay.offsets && d.nf.iter().all(|&c| c > 0) && d.f.iter().all(|v| v.is_finite())
     }
 
+    /// `T / EA` of cable `j` in dwell `d` at `s` and the stretch factor (`(0, 1)`: none).
+    fn stretch_of(&self, s: &State, d: &Dwell, j: usize) -> (f64, f64) {
+        match self.stretch {
+            Some(st) if self.lay.offsets && st.ea_n > 0.0 && st.ea_n.is_finite() && d.f[j].is_finite() => {
+                let sf = if self.lay.ea { s.g[self.lay.s(j)] } else { 1.0 };
+                ((d.f[j] - s.g[self.lay.c(j)]) / st.ea_n, sf)
+            }
+            _ => (0.0, 1.0),
+        }
+    }
+
+    /// The prior rows of the stretch factors: `(index, whitened residual, weight)`.
+    fn prior_rows(&self, s: &State) -> Vec<(usize, f64, f64)> {
+        match self.stretch {
+            Some(st) if self.lay.ea && st.rel_sigma > 0.0 => {
+                (0..self.lay.n).map(|j| (self.lay.s(j), (1.0 - s.g[self.lay.s(j)]) / st.rel_sigma, 1.0 / st.rel_sigma)).collect()
+            }
+            _ => Vec::new(),
+        }
+    }
+
     fn mass_of(&self, s: &State) -> f64 {
         if self.lay.mass {
             s.g[self.lay.m()]
@@ -184,11 +222,22 @@ impl Problem<'_> {
             }
             let (rho, v) = self.dir(s, p, j);
             let sw = (d.nl[j] as f64 / self.var_l).sqrt();
-            // model = rho + L0; d rho / dP = -v, d rho / dA = v.
-            rows.r.push(sw * (d.l[j] - rho - s.g[lay.l0(j)]));
-            rows.jp.push([-sw * v[0], -sw * v[1], -sw * v[2]]);
+            // model = rho (1 - s_j T / EA) + L0; d rho / dP = -v, d rho / dA = v,
+            // d model / d s_j = -rho T / EA, d model / d c_j = rho s_j / EA.
+            let (te, sf) = self.stretch_of(s, d, j);
+            let k = 1.0 - sf * te;
+            rows.r.push(sw * (d.l[j] - rho * k - s.g[lay.l0(j)]));
+            rows.jp.push([-sw * k * v[0], -sw * k * v[1], -sw * k * v[2]]);
             let a = lay.a(j);
-            rows.jg.push(vec![(a, sw * v[0]), (a + 1, sw * v[1]), (a + 2, sw * v[2]), (lay.l0(j), sw)]);
+            let mut jg = vec![(a, sw * k * v[0]), (a + 1, sw * k * v[1]), (a + 2, sw * k * v[2]), (lay.l0(j), sw)];
+            if te != 0.0 {
+                let ea = self.stretch.map_or(f64::INFINITY, |st| st.ea_n);
+                jg.push((lay.c(j), sw * rho * sf / ea));
+                if lay.ea {
+                    jg.push((lay.s(j), -sw * rho * te));
+                }
+            }
+            rows.jg.push(jg);
         }
         if let Some(wm) = w {
             let m = self.mass_of(s);
@@ -239,7 +288,9 @@ impl Problem<'_> {
             c += rows.r.iter().map(|r| r * r).sum::<f64>();
             m += rows.r.len();
         }
-        (c, m)
+        let prior = self.prior_rows(s);
+        c += prior.iter().map(|(_, r, _)| r * r).sum::<f64>();
+        (c, m + prior.len())
     }
 }
 
@@ -288,6 +339,10 @@ fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
         nm.hpp.push(hpp);
         nm.hpg.push(hpg);
         nm.bp.push(bp);
+    }
+    for (i, r, jw) in pr.prior_rows(s) {
+        nm.hgg[(i, i)] += jw * jw;
+        nm.bg[i] += jw * r;
     }
     nm
 }

@@ -121,8 +121,9 @@ pub fn start_on(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool) -
 
 /// [`start_on`] on the quasi-static plant or on the dynamic one (`dynamics`: the platform
 /// swings on 1 MN cables after every move, and the rests begin while it swings). On the dynamic
-/// plant every check holds but the chi-square of the static model, which the swing and the
-/// unmodelled stretch exceed (printed; issue 28's accuracy there is open, docs/testing.md).
+/// plant every check holds, the chi-square too: the configuration gives the cables' datasheet
+/// stiffness and the calibration models their stretch (issue 28's 3 mm there is open,
+/// docs/testing.md).
 pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: bool, dynamics: bool) -> Run {
     assert!(!(sim_time && recalibrate), "the recalibration goes through the daemon's control socket: real time only");
     let t0 = std::time::Instant::now();
@@ -133,7 +134,13 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     } else {
         Dir::Temp(dir)
     };
-    let cfg = robot(dir.path(), plan_kind);
+    let mut cfg = robot(dir.path(), plan_kind);
+    if dynamics {
+        // The dynamic plant's cables stretch (EA 1 MN): the configuration knows the datasheet's
+        // stiffness, 0.9 MN +- 0.15 MN, as simtime dynamic's (the calibration models the stretch).
+        cfg.calibration.cable_ea_n = 0.9e6;
+        cfg.calibration.cable_ea_sigma_n = 0.15e6;
+    }
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
     let mut so = SimOptions { seed, tracker: false, ..Default::default() };
@@ -238,14 +245,12 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     let chi = field("chi2/dof ", ',').and_then(|s| s.parse::<f64>().ok()).unwrap();
     let dof = ce.note.split(" degrees of freedom").next().and_then(|s| s.rsplit(' ').next()).and_then(|s| s.parse::<usize>().ok()).unwrap();
     let chi_bound = taut_calib::selfcal::chi2_quantile(dof, CHI2_Z) / dof as f64;
-    if dynamics {
-        eprintln!("seed {seed}: chi2/dof {chi} ({dof} dof; bound {chi_bound:.2} on the quasi-static plant)");
-    } else {
-        assert!(
-            chi < chi_bound,
-            "seed {seed}: chi2/dof {chi} above {chi_bound:.2} ({dof} dof): the readings disagree with the static model beyond their noise"
-        );
-    }
+    // On the dynamic plant too, with the cables' stretch modelled (the datasheet's stiffness,
+    // above): seeds 1-5 0.92/1.27/1.34/0.89/0.95 (without it 7.6/8.2/5.2/7.4/10.2).
+    assert!(
+        chi < chi_bound,
+        "seed {seed}: chi2/dof {chi} above {chi_bound:.2} ({dof} dof): the readings disagree with the static model beyond their noise"
+    );
     // Hot-swapped, parameter version 1 (rest estimate) -> 2 (calibration), said in the file.
     assert_eq!(l.snap.params_version, 2);
     let params_dir = dir.path().join("data/params");
@@ -303,8 +308,8 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     // of the 16 poses (every 5th held out; sqrt(16/13) = 1.11), at the estimated rather than
     // the nominal geometry, with the measured variance factor.
     let ratio = achieved / replan.worst_anchor_sigma_m;
-    // On the dynamic plant the achieved sigma carries the chi-square's scale (above).
-    assert!(dynamics || (0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
+    // On the dynamic plant too (seeds 1-5: 0.89-1.11 with the stretch modelled).
+    assert!((0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
     // The probability that a correct calibration of this recording has its worst aligned
     // anchor beyond the issue's 3 mm: the planner's covariance at the measured reading rate,
     // scaled up to the achieved sigma where that is larger, by Monte Carlo (1e6 draws, with a

@@ -21,12 +21,27 @@ fn starts_without_a_tracker_on_another_site() {
 }
 
 /// The short plan on the dynamic plant: the platform swings after every move and the rests
-/// begin while it swings. The start-up completes, calibrates within its own (chi-square scaled)
-/// sigmas and hot-swaps; its accuracy is open (issue 28: the static model leaves out the
-/// swing and the cables' stretch).
+/// begin while it swings. With the cables' datasheet stiffness (0.9 MN +- 0.15 MN, truth 1 MN)
+/// the calibration models their stretch: the start-up completes, fits to its noise (chi-square),
+/// calibrates within its own sigmas and hot-swaps (seeds 1-5: chi2/dof 0.89-1.34, worst anchor
+/// 1.7-5.1 mm; without the stretch 5.2-10.2 and 4.9-7.4 mm). Its 3 mm is open (issue 28: the
+/// short plan's sigma is ~3 mm).
 #[test]
 fn starts_without_a_tracker_on_the_dynamic_plant() {
     report(1, &notracker::start_on_plant(1, Plan::Short, false, true, true));
+}
+
+/// Seeds 1-5 on the dynamic plant, each seed's failure reported and the loop going on:
+/// `cargo test -p taut-tests --test simtime notracker_short::dynamic_seeds -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn dynamic_seeds() {
+    let failed: Vec<u64> = (1..=5)
+        .filter(|&seed| {
+            std::panic::catch_unwind(|| report(seed, &notracker::start_on_plant(seed, Plan::Short, false, true, true))).is_err()
+        })
+        .collect();
+    assert!(failed.is_empty(), "seeds {failed:?} failed");
 }
 
 /// `ctl recalibrate` without a tracker visits the dwells again (about 80 s more; the loop's
