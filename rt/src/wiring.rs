@@ -60,7 +60,7 @@ pub const LENGTH_TOL_REL: f64 = 0.15;
 
 /// How far the nominal anchors may be from the true ones for the load cells' comparison, m
 /// (the simulated sites' `site_error_m`, 0.2 m): sets how much the statics may be off
-/// ([`statics_spread`]).
+/// (`statics_spread`).
 pub const ANCHOR_TOL_M: f64 = 0.2;
 
 /// Absolute tolerance of a tension, N.
