@@ -100,9 +100,14 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
     };
     let (ok, out, err) = taut(&["status"]);
     assert!(ok, "{err}");
-    for key in
-        ["state        operate", "fault        none", "calibration  v2", "drives       1: enabled", "tracker      pose (", "loop         "]
-    {
+    for key in [
+        "state        operate",
+        "fault        none",
+        "calibration  v2",
+        "drives       cable 1 (node 1): enabled",
+        "tracker      pose (",
+        "loop         ",
+    ] {
         assert!(out.contains(key), "no {key:?} in\n{out}");
     }
     let watch = std::process::Command::new(crate::hostile::taut_bin())
