@@ -105,9 +105,6 @@ pub fn distribute(
         [d[0] / r, d[1] / r, d[2] / r]
     };
     let (c0, c1, c2) = (u(pos[0]), u(pos[1]), u(pos[2]));
-    let det = |c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]| {
-        c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
-    };
     let d = det(c0, c1, c2);
     // Unit columns: |det| is the volume they span; below 1e-6 the tensions are meaningless.
     if d.is_nan() || d.abs() <= 1e-6 {
@@ -182,9 +179,6 @@ pub fn statics(
         return None;
     }
     let (c0, c1, c2) = (u(pos[0]), u(pos[1]), u(pos[2]));
-    let det = |c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]| {
-        c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
-    };
     let d = det(c0, c1, c2);
     if d.is_nan() || d.abs() <= 1e-6 {
         return None;
@@ -193,6 +187,11 @@ pub fn statics(
     out[pos[1]] = det(c0, rhs, c2) / d;
     out[pos[2]] = det(c0, c1, rhs) / d;
     Some(out)
+}
+
+/// Determinant of the 3x3 matrix with columns `c0`, `c1`, `c2` (Cramer's rule above).
+fn det(c0: [f64; 3], c1: [f64; 3], c2: [f64; 3]) -> f64 {
+    c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1]) + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
 }
 
 #[cfg(test)]

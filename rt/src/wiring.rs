@@ -256,6 +256,17 @@ impl WiringCheck {
         }
         let tol = LENGTH_TOL_M + LENGTH_TOL_REL * disp;
         let z = |m: f64, p: f64| (m - p).abs() / tol;
+        // Cable `j`'s encoder residual with the drives of cables `i` and `k` exchanged.
+        let z_exchanged = |i: usize, k: usize, j: usize| {
+            let other = if j == i {
+                k
+            } else if j == k {
+                i
+            } else {
+                j
+            };
+            z(dl[j], drho[other])
+        };
         let (worst0, j0) = worst_of(n, &used, |j| z(dl[j], drho[j]));
         self.worst[0] = self.worst[0].max(worst0);
         // `+ 0.0` turns a -0 into 0 for the text.
@@ -280,16 +291,7 @@ impl WiringCheck {
             }
             for i in (0..n).filter(|&i| used[i]) {
                 for k in (i + 1..n).filter(|&k| used[k]) {
-                    let s = worst_of(n, &used, |j| {
-                        if j == i {
-                            z(dl[i], drho[k])
-                        } else if j == k {
-                            z(dl[k], drho[i])
-                        } else {
-                            z(dl[j], drho[j])
-                        }
-                    })
-                    .0;
+                    let s = worst_of(n, &used, |j| z_exchanged(i, k, j)).0;
                     if s < best.0 {
                         best = (s, Miswiring::DrivesSwapped, i, k);
                     }
@@ -347,15 +349,7 @@ impl WiringCheck {
         // cables' length changes are alike in this motion (a pair symmetric about it), or are
         // not compared yet.
         let drives_too = follower[i] != follower[k] && {
-            let s = worst_of(n, &used, |j| {
-                if j == i {
-                    z(dl[i], drho[k])
-                } else if j == k {
-                    z(dl[k], drho[i])
-                } else {
-                    z(dl[j], drho[j])
-                }
-            });
+            let s = worst_of(n, &used, |j| z_exchanged(i, k, j));
             s.0 <= 1.0
         };
         let fault = if drives_too { Miswiring::DrivesOrLoadCellsSwapped } else { Miswiring::LoadCellsSwapped };
