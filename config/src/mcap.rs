@@ -553,6 +553,75 @@ pub fn read_from(path: &Path, mut r: impl Read) -> Result<(Recording, ParseRepor
     parse(&buf).map_err(err)
 }
 
+/// A reading error, for a person.
+fn read_error(e: mcap::McapError) -> String {
+    match e {
+        mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => format!(
+            "the file ends in the middle of a record ({e}): the writer was stopped before it finished the file \
+             (power loss, kill). `mcap recover` (the MCAP command-line tool) writes a readable copy of every complete chunk"
+        ),
+        e => format!("damaged MCAP file: {e}"),
+    }
+}
+
+/// The records of a file, in order, those of every chunk in the chunk's place: `(opcode, body)`
+/// up to the data end (or the footer; `true` when there is one: a file whose writer was stopped
+/// between two records has none), every length checked against what holds it, every
+/// chunk's CRC checked. Only the records taut reads are then parsed by the `mcap` crate: its
+/// readers (0.24 to 0.26) panic on some hostile files (a record length near 2^64, a chunk's
+/// record that runs past the chunk's end, an attachment shorter than its header), found by
+/// `fuzz/run mcap_read`.
+fn records(buf: &[u8]) -> Result<(Vec<RawRecord<'_>>, bool), String> {
+    use mcap::records::{op, Record};
+    let truncated = || read_error(mcap::McapError::UnexpectedEof);
+    let mut out = Vec::new();
+    let mut at = MAGIC.len();
+    while at < buf.len() {
+        let (opcode, body, next) = record_at(buf, at).ok_or_else(truncated)?;
+        at = next;
+        match opcode {
+            op::CHUNK => {
+                let Record::Chunk { header, data: std::borrow::Cow::Borrowed(data) } =
+                    mcap::parse_record(opcode, body).map_err(read_error)?
+                else {
+                    return Err("a chunk record that does not read as one".into());
+                };
+                if !header.compression.is_empty() {
+                    return Err(format!(
+                        "a chunk is compressed with `{}`, which this reader does not read: taut writes uncompressed chunks \
+                         (the `mcap` command-line tool's `mcap compress --compression none` writes such a copy)",
+                        crate::recording::excerpt(&header.compression)
+                    ));
+                }
+                if header.uncompressed_crc != 0 && crc32fast::hash(data) != header.uncompressed_crc {
+                    return Err(format!("damaged MCAP file: the chunk ending at byte {at} fails its CRC"));
+                }
+                let mut k = 0;
+                while k < data.len() {
+                    let (opcode, body, next) = record_at(data, k)
+                        .ok_or_else(|| format!("damaged MCAP file: a record of the chunk ending at byte {at} runs past the chunk's end"))?;
+                    out.push((opcode, body));
+                    k = next;
+                }
+            }
+            op::DATA_END | op::FOOTER => return Ok((out, true)),
+            _ => out.push((opcode, body)),
+        }
+    }
+    Ok((out, false))
+}
+
+/// A record's opcode and body.
+type RawRecord<'a> = (u8, &'a [u8]);
+
+/// The record at byte `at` of `buf`: opcode, body and the byte after it, if it fits.
+fn record_at(buf: &[u8], at: usize) -> Option<(u8, &[u8], usize)> {
+    let opcode = *buf.get(at)?;
+    let len = u64::from_le_bytes(buf.get(at + 1..at + 9)?.try_into().ok()?);
+    let end = u64::try_from(at + 9).ok()?.checked_add(len).filter(|&end| end <= buf.len() as u64)? as usize;
+    Some((opcode, &buf[at + 9..end], end))
+}
+
 /// Parses the bytes of a taut MCAP file. The error says what is wrong, for a person.
 pub fn parse(buf: &[u8]) -> Result<(Recording, ParseReport), String> {
     if !is_mcap_bytes(buf) {
@@ -562,18 +631,13 @@ pub fn parse(buf: &[u8]) -> Result<(Recording, ParseReport), String> {
     let mut schemas: BTreeMap<u16, (String, String)> = BTreeMap::new();
     let mut cables: Option<u16> = None;
     let mut msgs: Vec<(u32, Vec<u8>)> = Vec::new();
-    let mut ended = false;
-    let reader = mcap::read::ChunkFlattener::new(buf).map_err(|e| format!("not a readable MCAP file: {e}"))?;
-    for r in reader {
-        let r = r.map_err(|e| match e {
-            mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => format!(
-                "the file ends in the middle of a record ({e}): the writer was stopped before it finished the file \
-                 (power loss, kill). `mcap recover` (the MCAP command-line tool) writes a readable copy of every complete chunk"
-            ),
-            e => format!("damaged MCAP file: {e}"),
-        })?;
-        use mcap::records::Record;
-        match r {
+    let (records, ended) = records(buf)?;
+    for (opcode, body) in records {
+        use mcap::records::{op, Record};
+        if !matches!(opcode, op::METADATA | op::SCHEMA | op::CHANNEL | op::MESSAGE) {
+            continue;
+        }
+        match mcap::parse_record(opcode, body).map_err(read_error)? {
             Record::Metadata(m) if m.name == METADATA_NAME => meta = Some(m.metadata),
             Record::Schema { header, .. } => {
                 schemas.insert(header.id, (header.name, header.encoding));
@@ -590,12 +654,7 @@ pub fn parse(buf: &[u8]) -> Result<(Recording, ParseReport), String> {
                 cables = Some(c.id);
             }
             Record::Message { header, data } if Some(header.channel_id) == cables => msgs.push((header.sequence, data.into_owned())),
-            Record::DataEnd(_) => ended = true,
-            Record::Footer(_) => {}
             _ => {}
-        }
-        if ended {
-            break;
         }
     }
     let Some(meta) = meta else {
@@ -702,4 +761,30 @@ pub fn parse(buf: &[u8]) -> Result<(Recording, ParseReport), String> {
         ));
     }
     Ok((rec, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A chunk without a CRC whose record claims more bytes than the chunk holds.
+    #[test]
+    fn a_chunk_record_past_the_chunk_end_is_damage() {
+        let mut chunk = Vec::new();
+        chunk.extend_from_slice(&[0u8; 24]); // start time, end time, uncompressed size
+        chunk.extend_from_slice(&0u32.to_le_bytes()); // no CRC
+        chunk.extend_from_slice(&0u32.to_le_bytes()); // compression "" (none)
+        let records = [&[mcap::records::op::MESSAGE][..], &100u64.to_le_bytes()].concat();
+        chunk.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        chunk.extend_from_slice(&records);
+        let mut file = MAGIC.to_vec();
+        file.push(mcap::records::op::CHUNK);
+        file.extend_from_slice(&(chunk.len() as u64).to_le_bytes());
+        file.extend_from_slice(&chunk);
+        let e = parse(&file).unwrap_err();
+        assert!(e.contains("runs past the chunk's end"), "{e}");
+        // The same file cut inside the chunk: truncated, not damaged.
+        let e = parse(&file[..file.len() - 3]).unwrap_err();
+        assert!(e.contains("ends in the middle of a record"), "{e}");
+    }
 }

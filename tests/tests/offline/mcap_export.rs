@@ -94,6 +94,24 @@ fn hostile_mcap_input_is_refused_with_the_file_and_the_reason() {
             },
             "MCAP",
         ),
+        // Files `fuzz/run mcap_read` found, on which the mcap crate's readers panicked (the
+        // first and the last even in release builds): a record whose length is near 2^64, a
+        // record that runs past the end of its chunk, an attachment shorter than its header.
+        (
+            "record-longer-than-file.mcap",
+            std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../fuzz/seeds/mcap_read/record-longer-than-file.mcap")).unwrap(),
+            "ends in the middle of a record",
+        ),
+        (
+            "chunk-record-past-chunk-end.mcap",
+            std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../fuzz/seeds/mcap_read/chunk-record-past-chunk-end.mcap")).unwrap(),
+            "damaged MCAP file",
+        ),
+        (
+            "attachment-shorter-than-its-header.mcap",
+            std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../fuzz/seeds/mcap_read/attachment-shorter-than-its-header.mcap")).unwrap(),
+            "MCAP",
+        ),
     ];
     for (name, b, want) in cases {
         let p = dir.path().join(name);
