@@ -597,7 +597,10 @@ impl RobotConfig {
 
 /// 1-based line number of byte offset `pos` in `text`.
 pub fn line_of(text: &str, pos: usize) -> usize {
-    text[..pos.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+    // A position at the end of a text that ends in a newline (a string left open to the end of
+    // the file) is on the last line, not on the empty one after it.
+    let pos = if pos >= text.len() { text.trim_end_matches('\n').len() } else { pos };
+    text[..pos].bytes().filter(|&b| b == b'\n').count() + 1
 }
 
 /// 1-based line of `key = ...` in the first table `header`, or of the header if the key is not

@@ -266,8 +266,15 @@ impl ParamsFile {
         let path = path.as_ref();
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let text = crate::input::read_text(path).map_err(|e| err(None, format!("cannot read the file: {e}")))?;
+        Self::parse(path, &text)
+    }
+
+    /// Parses the text of a parameter file; `path` names it in errors, which name the line and
+    /// key.
+    pub fn parse(path: &Path, text: &str) -> Result<Self, crate::ConfigError> {
+        let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let p: ParamsFile =
-            toml::from_str(&text).map_err(|e| err(e.span().map(|s| crate::line_of(&text, s.start)), e.message().trim().to_string()))?;
+            toml::from_str(text).map_err(|e| err(e.span().map(|s| crate::line_of(text, s.start)), e.message().trim().to_string()))?;
         if p.format != FORMAT && p.format != FORMAT_V1 {
             return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V1}`)", p.format)));
         }
@@ -283,14 +290,14 @@ impl ParamsFile {
         if p.anchors_m.len() != p.l0_m.len() {
             return Err(crate::ConfigError {
                 file: Some(path.to_path_buf()),
-                line: key_line(&text, "l0_m"),
+                line: key_line(text, "l0_m"),
                 key: Some("l0_m".into()),
                 message: format!("{} anchors but {} offsets: give one offset per anchor", p.anchors_m.len(), p.l0_m.len()),
             });
         }
         p.effects.check(p.anchors_m.len()).map_err(|(key, message)| crate::ConfigError {
             file: Some(path.to_path_buf()),
-            line: key_line(&text, &key),
+            line: key_line(text, &key),
             key: Some(key),
             message,
         })?;
@@ -307,7 +314,7 @@ impl ParamsFile {
         p.check_finite().map_err(|m| {
             // The key the message starts with, for its line.
             let key = m.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_')).next().unwrap_or("");
-            err(key_line(&text, key), m)
+            err(key_line(text, key), m)
         })?;
         Ok(p)
     }
@@ -393,8 +400,13 @@ impl ParamsFile {
     pub fn save_atomic(&self, path: impl AsRef<Path>) -> std::io::Result<()> {
         self.check_finite()
             .map_err(|m| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("refusing to write a parameter file: {m}")))?;
-        let text = toml::to_string(self).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+        let text = self.to_text().map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
         crate::write_atomic(path.as_ref(), text.as_bytes())
+    }
+
+    /// The file's text, as [`ParamsFile::save_atomic`] writes it.
+    pub fn to_text(&self) -> Result<String, String> {
+        toml::to_string(self).map_err(|e| e.to_string())
     }
 }
 

@@ -342,6 +342,19 @@ impl Recording {
     }
 }
 
+/// Entry points for the fuzz targets (`fuzz/`), compiled only with `--cfg fuzzing`.
+#[cfg(fuzzing)]
+#[doc(hidden)]
+pub mod fuzzing {
+    use super::{ParseReport, Recording, RecordingError};
+
+    /// The reader [`Recording::load_with`] uses for a file in memory: the rows after the header
+    /// cut into pieces of at least `min_piece` bytes, read on up to `threads` threads.
+    pub fn parse_in_pieces(bytes: &[u8], threads: usize, min_piece: usize) -> Result<(Recording, ParseReport), RecordingError> {
+        super::pieces::parse_bytes(bytes, threads, min_piece)
+    }
+}
+
 fn push_num(s: &mut String, v: f64, decimals: usize) {
     use std::fmt::Write as _;
     if v.is_nan() {
