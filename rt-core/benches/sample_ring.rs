@@ -1,6 +1,7 @@
 //! Cost of handing one sample over the sample ring (push on the loop's side, pop on the
-//! calibrator's), taut's own SPSC ring against `ringbuf`'s `HeapRb` that it replaced. One thread,
-//! so this is the instruction cost of the two calls, not cross-core cache traffic.
+//! calibrator's), taut's own SPSC ring against `ringbuf`'s `HeapRb` that it replaced and `rtrb`'s
+//! `RingBuffer`, the other standard. One thread, so this is the instruction cost of the two
+//! calls, not cross-core cache traffic.
 //!
 //! `cargo bench -p taut-rt-core --bench sample_ring`
 
@@ -31,6 +32,24 @@ fn push_pop(c: &mut Criterion) {
         })
     });
 
+    let (mut tx, mut rx) = taut_rt_core::spsc::ring::<Sample>(16_384);
+    g.bench_function("taut spsc (bare)", |b| {
+        b.iter(|| {
+            s.t += 1.0;
+            assert!(tx.push(*black_box(&s)).is_ok());
+            black_box(rx.pop().unwrap());
+        })
+    });
+
+    let (mut prod, mut cons) = rtrb::RingBuffer::<Sample>::new(16_384);
+    g.bench_function("rtrb RingBuffer", |b| {
+        b.iter(|| {
+            s.t += 1.0;
+            assert!(prod.push(*black_box(&s)).is_ok());
+            black_box(cons.pop().unwrap());
+        })
+    });
+
     // Full ring: the refused push the loop sees when the calibrator falls behind. The bare
     // rings side by side, then `SampleTx::push`, which also counts the drop.
     let (mut tx, _rx) = taut_rt_core::spsc::ring::<Sample>(16);
@@ -42,6 +61,9 @@ fn push_pop(c: &mut Criterion) {
     let (mut prod, _cons) = HeapRb::<Sample>::new(16).split();
     while prod.try_push(s).is_ok() {}
     g.bench_function("ringbuf HeapRb, full", |b| b.iter(|| assert!(prod.try_push(*black_box(&s)).is_err())));
+    let (mut prod, _cons) = rtrb::RingBuffer::<Sample>::new(16);
+    while prod.push(s).is_ok() {}
+    g.bench_function("rtrb RingBuffer, full", |b| b.iter(|| assert!(prod.push(*black_box(&s)).is_err())));
     g.finish();
 }
 
