@@ -9,11 +9,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use taut_config::devices::{CanConfig, DriveConfig};
 use taut_config::RobotConfig;
 use taut_driver::canopen::master::Counters;
 use taut_driver::transport::candump::Recorder;
-use taut_driver::{CanTransport, DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport, VirtualBus};
+use taut_driver::{DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport, VirtualBus};
+use taut_proto::can::CanTransport;
+use taut_proto::devices::{CanConfig, DriveConfig};
 use taut_rt_core::robot_io::CableUnits;
 use taut_vdev::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
@@ -51,7 +52,7 @@ fn eds_summary(cfg: &RobotConfig, mcfg: &MasterConfig) -> anyhow::Result<String>
     for n in &mcfg.nodes {
         let Some(path) = cfg.cables[n.cable].drive.as_ref().and_then(|d| d.eds.as_ref()) else { continue };
         any = true;
-        let eds = taut_config::eds::Eds::load(path)?;
+        let eds = taut_proto::eds::Eds::load(path)?;
         let uses = eds_check::check(n, &eds).map_err(|p| anyhow::anyhow!("{path}: {p}"))?;
         out += &eds_check::summary(n.node_id, path, &uses);
     }

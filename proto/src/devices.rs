@@ -4,7 +4,7 @@
 //! Each `validate` returns `(key, message)` for the first bad field; the caller adds the file, line
 //! and the path of the enclosing table.
 
-use crate::pdo::{Dir, PdoMaps, PdoObject};
+use crate::pdo_map::{Dir, PdoMaps, PdoObject};
 use serde::{Deserialize, Serialize};
 use toml::Spanned;
 
