@@ -18,7 +18,8 @@
 //!   opens no file or socket outside its tests.
 //! - `taut-model` (the cable model formulas both calib and the loop call) has no dependencies.
 //! - `taut-rt-core` (the robot build) contains no simulator: the simulated rig is `taut-simrig`.
-//!   Nor does `taut-ffi` by default (the `taut_sim_*` functions are its `sim` feature).
+//!   Nor does `taut-ffi` by default (the `taut_sim_*` functions are its `sim` feature), nor
+//!   `taut-cli` without its `sim` feature (on by default for development and the tests).
 //! - `testkit` (a feature of `taut-rt-core`: the kinematic stand-in robot) is not on in a normal
 //!   `cargo build --workspace`: only dev-dependencies turn it on.
 //! - `taut-sim` does not use the model the calibration fits: no direct `taut-model` dependency
@@ -255,6 +256,13 @@ fn the_robot_build_contains_no_simulator() {
         violations("taut-rt-core", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
         "taut-rt-core is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
     );
+    // The robot's `taut`: taut-cli without its `sim` feature (`taut demo`, `simulate`, `start --sim`).
+    assert_none(
+        violations("taut-cli", "normal,build", &["--no-default-features"], &["taut-sim", "taut-vdev", "taut-simrig"]),
+        "the robot's taut binary (taut-cli --no-default-features) links no simulator; `sim` is the feature that does",
+    );
+    // With its default features the checker does see it there.
+    assert_eq!(violations("taut-cli", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]).len(), 3);
 }
 
 /// The plugin a robot's controller loads: the simulator only with `--features sim` (which
