@@ -22,6 +22,8 @@
 //!   `taut-cli` without its `sim` feature (on by default for development and the tests).
 //! - `testkit` (a feature of `taut-rt-core`: the kinematic stand-in robot) is not on in a normal
 //!   `cargo build --workspace`: only dev-dependencies turn it on.
+//! - One number of cables: `taut_model::MAX_CABLES` is the only `MAX_CABLES` written as a number;
+//!   the others (the C ABI's `TAUT_MAX_CABLES`) are defined from it or re-export it.
 //! - `taut-sim` does not use the model the calibration fits: no direct `taut-model` dependency
 //!   and no `taut_model` in its source. It reaches `taut-model` only through `taut-config`
 //!   (allowed edge: the parameter file converts to the shared geometry type in one place), and
@@ -325,4 +327,58 @@ fn the_simulator_does_not_use_the_model_crate() {
     assert_eq!(names("sim/src"), Vec::<String>::new(), "taut-sim's source names taut_model");
     // The scan sees what it looks for: the calibration does use the model crate.
     assert!(!names("calib/src").is_empty());
+}
+
+/// The `.rs` files under `dir`, recursively, `target/` left out.
+fn rust_files(dir: &std::path::Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            if p.file_name().is_some_and(|n| n != "target") {
+                rust_files(&p, out);
+            }
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// One `MAX_CABLES`: the loop's arrays, the configuration's bound and the C ABI's arrays are one
+/// number. Every constant named `*MAX_CABLES` in the workspace's source is either
+/// `taut_model::MAX_CABLES` (the one written as a number) or defined from another constant.
+#[test]
+fn one_max_cables() {
+    let members = ["model", "proto", "config", "calib", "sim", "vdev", "driver", "rt", "rt-core", "simrig", "ffi", "cli", "tests", "fuzz"];
+    let mut files = Vec::new();
+    for m in members {
+        rust_files(&workspace().join(m), &mut files);
+    }
+    files.sort();
+    let (mut numbers, mut derived) = (Vec::new(), Vec::new());
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        for (k, line) in text.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            let Some((name, rest)) = code.split_once("MAX_CABLES:") else { continue };
+            if !name.contains("const ") {
+                continue;
+            }
+            let Some((_, value)) = rest.split_once('=') else { continue };
+            let at = format!("{}:{}: {}", f.strip_prefix(workspace()).unwrap_or(f).display(), k + 1, line.trim());
+            if value.trim_start().starts_with(|c: char| c.is_ascii_digit()) {
+                numbers.push(at);
+            } else {
+                derived.push(at);
+            }
+        }
+    }
+    assert_eq!(
+        numbers.len(),
+        1,
+        "crate graph rule broken: one MAX_CABLES (docs/architecture.md); constants written as numbers:\n{}",
+        numbers.join("\n")
+    );
+    assert!(numbers[0].starts_with("model/src/lib.rs:"), "the one MAX_CABLES is taut_model's: {numbers:?}");
+    // The scan sees the C ABI's constant, defined from the one (the header's generator writes it).
+    assert!(derived.iter().any(|l| l.starts_with("ffi/src/lib.rs:") && l.contains("TAUT_MAX_CABLES")), "{derived:?}");
 }
