@@ -5,6 +5,7 @@
 
 mod calibrate;
 mod ctl;
+#[cfg(feature = "sim")]
 mod demo;
 mod diagnose;
 mod export;
@@ -17,6 +18,7 @@ mod outputs;
 mod plot;
 mod probe;
 mod report;
+#[cfg(feature = "sim")]
 mod simulate;
 mod start;
 
@@ -40,8 +42,10 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Simulate a robot, record its initialisation and excitation, calibrate it, print the results.
+    #[cfg(feature = "sim")]
     Demo(demo::DemoArgs),
     /// Write a recording (cdpr-recording v1) of a simulated robot.
+    #[cfg(feature = "sim")]
     Simulate(simulate::SimulateArgs),
     /// Calibrate anchors and encoder offsets from any recording (CSV or MCAP), real or simulated.
     Calibrate(calibrate::CalibrateArgs),
@@ -78,7 +82,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let verbosity: i8 = if cli.quiet { -1 } else { cli.verbose.min(3) as i8 };
     let result = match cli.command {
+        #[cfg(feature = "sim")]
         Command::Demo(a) => demo::run(&a),
+        #[cfg(feature = "sim")]
         Command::Simulate(a) => simulate::run(&a),
         Command::Calibrate(a) => calibrate::run(&a),
         Command::Start(a) => start::run(&a, verbosity),

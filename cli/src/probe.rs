@@ -9,13 +9,17 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use taut_config::devices::{CanConfig, DriveConfig};
 use taut_config::RobotConfig;
 use taut_driver::canopen::master::Counters;
 use taut_driver::transport::candump::Recorder;
-use taut_driver::{CanTransport, DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport, VirtualBus};
+#[cfg(feature = "sim")]
+use taut_driver::VirtualBus;
+use taut_driver::{DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport};
+use taut_proto::can::CanTransport;
+use taut_proto::devices::{CanConfig, DriveConfig};
 use taut_rt_core::robot_io::CableUnits;
-use taut_vdev::{rack_filters, spawn_rack, DriveParams, RackHandle, VirtualDrive};
+#[cfg(feature = "sim")]
+use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
 /// Arguments of `taut probe`.
 #[derive(clap::Args, Debug)]
@@ -51,7 +55,7 @@ fn eds_summary(cfg: &RobotConfig, mcfg: &MasterConfig) -> anyhow::Result<String>
     for n in &mcfg.nodes {
         let Some(path) = cfg.cables[n.cable].drive.as_ref().and_then(|d| d.eds.as_ref()) else { continue };
         any = true;
-        let eds = taut_config::eds::Eds::load(path)?;
+        let eds = taut_proto::eds::Eds::load(path)?;
         let uses = eds_check::check(n, &eds).map_err(|p| anyhow::anyhow!("{path}: {p}"))?;
         out += &eds_check::summary(n.node_id, path, &uses);
     }
@@ -59,6 +63,33 @@ fn eds_summary(cfg: &RobotConfig, mcfg: &MasterConfig) -> anyhow::Result<String>
         bail!("--eds-summary: no [cable.drive] has an `eds = \"FILE\"`; add the drives' EDS files to the configuration");
     }
     Ok(out)
+}
+
+/// `--sim`: virtual drives with these node ids on an in-process bus, on their own thread; the
+/// master's port, and the rack's handle to keep until the probe ends.
+#[cfg(feature = "sim")]
+fn virtual_drives(nodes: &[u8]) -> anyhow::Result<(Box<dyn CanTransport>, Box<dyn std::any::Any>)> {
+    let bus = VirtualBus::new();
+    // As drives in the field: heartbeating (100 ms stored in 0x1017) before taut speaks, so
+    // the probe starts on a bus that is already busy.
+    let drives = nodes
+        .iter()
+        .map(|&n| {
+            let mut p = DriveParams::new(n);
+            p.stored_heartbeat_ms = 100;
+            VirtualDrive::new(p)
+        })
+        .collect();
+    let rack = spawn_rack(bus.endpoint_with(4096, &rack_filters(nodes)), drives);
+    std::thread::sleep(Duration::from_millis(250));
+    println!("bus: in-process virtual bus with {} virtual drives (--sim)", nodes.len());
+    Ok((Box::new(bus.endpoint()), Box::new(rack)))
+}
+
+/// A robot's build has no virtual drives.
+#[cfg(not(feature = "sim"))]
+fn virtual_drives(_: &[u8]) -> anyhow::Result<(Box<dyn CanTransport>, Box<dyn std::any::Any>)> {
+    bail!("--sim: this taut was built without the simulator (taut-cli's `sim` feature, on by default)")
 }
 
 /// A robot with `n` cables and drives 1..=n, for `--sim` without a configuration.
@@ -169,24 +200,12 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
         );
     }
 
-    let mut _rack: Option<RackHandle> = None;
+    // The virtual drives' thread, kept until the probe ends.
+    let mut _rack: Option<Box<dyn std::any::Any>> = None;
     let transport: Box<dyn CanTransport> = if args.sim {
-        let bus = VirtualBus::new();
-        let nodes: Vec<u8> = mcfg.nodes.iter().map(|n| n.node_id).collect();
-        // As drives in the field: heartbeating (100 ms stored in 0x1017) before taut speaks, so
-        // the probe starts on a bus that is already busy.
-        let drives = nodes
-            .iter()
-            .map(|&n| {
-                let mut p = DriveParams::new(n);
-                p.stored_heartbeat_ms = 100;
-                VirtualDrive::new(p)
-            })
-            .collect();
-        _rack = Some(spawn_rack(bus.endpoint_with(4096, &rack_filters(&nodes)), drives));
-        std::thread::sleep(Duration::from_millis(250));
-        println!("bus: in-process virtual bus with {} virtual drives (--sim)", nodes.len());
-        Box::new(bus.endpoint())
+        let (port, rack) = virtual_drives(&mcfg.nodes.iter().map(|n| n.node_id).collect::<Vec<u8>>())?;
+        _rack = Some(rack);
+        port
     } else {
         let t = SocketCanTransport::open(&can.interface)?;
         println!("bus: SocketCAN {}", can.interface);

@@ -12,13 +12,15 @@ use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
 use taut_rt_core::io::Devices;
-use taut_rt_core::motion::{ControllerConfig, State};
+use taut_rt_core::motion::State;
 use taut_rt_core::plugin::{DeviceMode, DeviceSource};
 use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::FromRobot;
-use taut_sim::Truth;
+#[cfg(feature = "sim")]
 use taut_simrig::{self as simrig, SimOptions};
+
+/// The simulated site's true anchors and encoder offsets, for the start-up's summary.
+type SiteTruth = (Vec<[f64; 3]>, Vec<f64>);
 
 /// Arguments of `taut start`.
 #[derive(clap::Args)]
@@ -108,22 +110,12 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
         );
         cfg.motion.init_reel_m = cfg.motion.init_reel_m.signum() * DYNAMIC_REEL_M;
     }
-    let (devices, truth, tracker): (DeviceMode, Option<Truth>, _) = if a.sim {
-        let ccfg = ControllerConfig::from_robot(&cfg).map_err(|e| anyhow::anyhow!(e))?;
-        let w = ccfg.workspace;
-        let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-        let mut so =
-            SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_rt_core::notracker::is_dwell(&cfg), ..Default::default() };
-        crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
-        if a.dynamic {
-            so.physics.dynamics = Some(taut_sim::Dynamics::default());
+    let (devices, truth, tracker): (DeviceMode, Option<SiteTruth>, _) = if a.sim {
+        match simulated_devices(a, &cfg, verbosity)? {
+            Some((devices, truth, stats)) => (devices, Some(truth), Some(stats)),
+            // --sim-time ran the whole start-up in simulated time.
+            None => return Ok(()),
         }
-        let p0 = simrig::rest_position(&cfg, &so, p0);
-        if a.sim_time {
-            return run_sim_time(a, &cfg, p0, &so, backend(a, &cfg)?, verbosity);
-        }
-        let sim = simrig::build(&cfg, p0, &so)?;
-        (DeviceMode::ready(sim.devices), Some(sim.truth), Some(sim.tracker_stats))
     } else {
         let (d, t) = hardware_devices(&cfg)?;
         (d, None, t)
@@ -220,7 +212,37 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
     Ok(backend)
 }
 
+/// `taut start --sim`: the simulated robot's devices and its truth, or `None` when `--sim-time`
+/// ran the start-up in simulated time to its summary.
+#[cfg(feature = "sim")]
+fn simulated_devices(a: &StartArgs, cfg: &RobotConfig, verbosity: i8) -> Result<Option<(DeviceMode, SiteTruth, TrackerStatsHandle)>> {
+    use taut_rt_core::motion::ControllerConfig;
+    use taut_rt_core::FromRobot;
+    let ccfg = ControllerConfig::from_robot(cfg).map_err(|e| anyhow::anyhow!(e))?;
+    let w = ccfg.workspace;
+    let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
+    let mut so = SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_rt_core::notracker::is_dwell(cfg), ..Default::default() };
+    crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
+    if a.dynamic {
+        so.physics.dynamics = Some(taut_sim::Dynamics::default());
+    }
+    let p0 = simrig::rest_position(cfg, &so, p0);
+    if a.sim_time {
+        run_sim_time(a, cfg, p0, &so, backend(a, cfg)?, verbosity)?;
+        return Ok(None);
+    }
+    let sim = simrig::build(cfg, p0, &so)?;
+    Ok(Some((DeviceMode::ready(sim.devices), (sim.truth.anchors, sim.truth.l0), sim.tracker_stats)))
+}
+
+/// A robot's build has no simulated robot.
+#[cfg(not(feature = "sim"))]
+fn simulated_devices(_: &StartArgs, _: &RobotConfig, _: i8) -> Result<Option<(DeviceMode, SiteTruth, TrackerStatsHandle)>> {
+    bail!("--sim: this taut was built without the simulator (taut-cli's `sim` feature, on by default)")
+}
+
 /// `taut start --sim --once --sim-time`: the start-up in simulated time.
+#[cfg(feature = "sim")]
 fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions, backend: TautCalib, verbosity: i8) -> Result<()> {
     let budget_s = startup_motion_s(cfg) + 600.0;
     let faults = if a.sim_faults { simrig::LockstepFaults::drawn(a.seed) } else { simrig::LockstepFaults::default() };
@@ -285,7 +307,7 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
         run.wall_s,
         run.sim_s / run.wall_s.max(1e-9)
     );
-    let truth = Some(run.truth.clone());
+    let truth = Some((run.truth.anchors.clone(), run.truth.l0.clone()));
     finish(a, cfg, &run.loop_status, &run.calib_status, truth.as_ref(), &recording, run.finished, loop_json, Some(sim_json))
 }
 
@@ -297,7 +319,7 @@ fn finish(
     cfg: &RobotConfig,
     l: &LoopStatus,
     c: &CalibStatus,
-    truth: Option<&Truth>,
+    truth: Option<&SiteTruth>,
     recording: &std::path::Path,
     done: bool,
     loop_json: serde_json::Value,
@@ -308,7 +330,7 @@ fn finish(
     let calibrated = c_final.outcomes.iter().find(|o| o.kind == OutcomeKind::Calibration && o.run == 0);
     let accepted = calibrated.filter(|o| o.accepted);
     let hot_swapped = accepted.is_some_and(|o| l.snap.params_version == o.version && !l.snap.swap_active);
-    let truth_anchors = truth.as_ref().map_or(&[][..], |t| &t.anchors[..]);
+    let truth_anchors = truth.as_ref().map_or(&[][..], |t| &t.0[..]);
     let err = |a: &[[f64; 3]]| -> f64 {
         a.iter()
             .zip(truth_anchors)
@@ -326,8 +348,8 @@ fn finish(
         "l0_m": final_est.map(|e| e.geometry.l0.clone()),
         "anchor_sigma_m": final_est.map(|e| e.sigma.anchors.clone()),
         "excitation": taut_rt_core::excite::status_json(c),
-        "truth_anchors_m": truth.as_ref().map(|t| &t.anchors),
-        "truth_l0_m": truth.as_ref().map(|t| &t.l0),
+        "truth_anchors_m": truth.as_ref().map(|t| &t.0),
+        "truth_l0_m": truth.as_ref().map(|t| &t.1),
         "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
         "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors[..3.min(e.geometry.anchors.len())])),
         "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),

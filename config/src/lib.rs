@@ -11,8 +11,6 @@
 #![deny(missing_docs)]
 
 pub mod atomic;
-pub mod devices;
-pub mod eds;
 mod exact;
 pub mod followers;
 pub mod geometry;
@@ -23,13 +21,13 @@ pub mod loadcell_timing;
 pub mod mcap;
 pub mod numfmt;
 pub mod params;
-pub mod pdo;
 pub mod recording;
 pub mod runtime;
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
+use taut_proto::devices;
 
 pub use atomic::write_atomic;
 

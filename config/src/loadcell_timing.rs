@@ -24,7 +24,7 @@
 //! turnaround, no adapter latency), so the gap is a lower bound: a `tension_max_age_s` below it
 //! trips on the first lost frame with every device healthy, whatever the machine does.
 
-use crate::devices::{LoadCellBusConfig, Parity};
+use taut_proto::devices::{LoadCellBusConfig, Parity};
 
 /// Bytes of a "read two registers" request: unit, function, address (2), quantity (2), CRC (2).
 const REQUEST_BYTES: f64 = 8.0;

@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use taut_driver::modbus::link::SerialPortLink;
 use taut_driver::modbus::master::{Counters, Master, MasterConfig};
-use taut_driver::modbus::rtu::{self, Function, Registers, Request, Response, Timing, MAX_FRAME};
+use taut_proto::modbus::rtu::{self, Function, Registers, Request, Response, Timing, MAX_FRAME};
 
 fn codec(c: &mut Criterion) {
     let req = Request { unit: 3, function: Function::ReadInputRegisters, address: 0, quantity: 2 };

@@ -1,33 +1,34 @@
-//! Device drivers of the robot: the CAN transports, the CANopen master and CiA 402 drive
-//! profile, the Modbus RTU load cells and the tracker input.
+//! Device drivers of the robot, the master side of each bus: the CAN transports, the CANopen
+//! master for CiA 402 drives, the Modbus RTU load-cell master and the tracker input.
 //!
-//! Protocol code is sans-IO (frames and time in, frames and events out); only `transport`, the
-//! load-cell I/O thread and the tracker receiver open sockets, ttys and threads. The driver deals
+//! The codecs and the device configuration are `taut-proto`'s, shared with the device side
+//! (`taut-vdev`). The master is sans-IO (frames and time in, frames and events out); only
+//! `transport`, the load-cell I/O thread and the tracker receiver open sockets, ttys and threads. The driver deals
 //! in drive units (encoder counts, torque in ‰ of rated torque): metres and newtons belong to the
 //! robot I/O layer (`taut_rt_core::robot_io`).
 //!
 //! # Public surface
 //!
-//! What an application uses is re-exported here; the modules stay public for the codecs that the
-//! device side (`taut-vdev`), the fuzz targets and the tests need by path.
+//! What an application uses is re-exported here; the modules stay public for the tests and the
+//! fuzz targets, which need parts by path.
 //!
 //! | re-export                                                               | from                    |
 //! |-------------------------------------------------------------------------|-------------------------|
 //! | [`Master`], [`MasterConfig`], [`NodeConfig`], [`NodeStatus`], [`Event`], [`Phase`], [`CommandError`], [`ConfigProblem`] | [`canopen::master`] (sans-IO master) |
 //! | [`DriveSet`], [`DriveSetError`]                                         | [`canopen::drive_set`] (master + transport, lifecycle in types) |
-//! | [`Mode`], [`State`], [`NodeId`]                                         | [`canopen::cia402`], [`canopen`] |
-//! | [`CanTransport`], [`Frame`], [`BusEvent`], [`TransportError`]           | [`transport`]           |
+//! | [`BusEvent`]                                                            | [`transport`]           |
 //! | [`SocketCanTransport`], [`VirtualBus`], [`VirtualEndpoint`]             | [`transport::socketcan`], [`transport::virtual_bus`] |
 //! | [`LoadCellIo`], [`TensionReader`]                                       | [`loadcell`] (Modbus RTU I/O thread) |
 //! | [`TrackerThread`], [`PoseReader`]                                       | [`tracker`] (UDP receiver thread) |
 //! | [`Clock`], [`WallClock`], [`SimClock`], [`SharedClock`]                  | [`clock`] (wall or simulated time) |
 //!
-//! Codecs by path: [`canopen`]'s `nmt`, `sync`, `heartbeat`, `emcy`, `sdo`, `pdo`, `od`,
-//! `cia402`; [`modbus::rtu`], [`modbus::value`]; [`tracker::parse_line`]/[`tracker::format_line`];
-//! [`transport::candump`] and [`transport::kernel`].
+//! Frames, the transport trait, node ids and the CiA 402 states are `taut_proto::can` and
+//! `taut_proto::canopen`. By path here: [`transport::candump`] and [`transport::kernel`] (log
+//! and kernel frame formats, which only the transports use).
 //!
 //! ```no_run
-//! use taut_driver::{CanTransport, Master, MasterConfig, SocketCanTransport};
+//! use taut_driver::{Master, MasterConfig, SocketCanTransport};
+//! use taut_proto::can::CanTransport;
 //! let cfg = taut_config::RobotConfig::load("robot.toml").unwrap();
 //! let mut bus = SocketCanTransport::open("can0").unwrap();
 //! let mut master = Master::new(MasterConfig::from_robot(&cfg).unwrap());
@@ -45,13 +46,11 @@ pub mod sched;
 pub mod tracker;
 pub mod transport;
 
-pub use canopen::cia402::{Mode, State};
 pub use canopen::drive_set::{DriveSet, DriveSetError};
 pub use canopen::master::{CommandError, ConfigProblem, Event, Master, MasterConfig, NodeConfig, NodeStatus, Phase};
-pub use canopen::NodeId;
 pub use clock::{Clock, SharedClock, SimClock, WallClock};
 pub use loadcell::{LoadCellIo, TensionReader};
 pub use tracker::{PoseReader, TrackerThread};
 pub use transport::socketcan::SocketCanTransport;
 pub use transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-pub use transport::{BusEvent, CanTransport, Frame, TransportError};
+pub use transport::BusEvent;

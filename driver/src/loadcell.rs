@@ -21,17 +21,18 @@
 //! ```
 
 use crate::clock::{Clock, WallClock};
-use crate::modbus::link::{LinkError, SerialLink, SerialPortLink};
+use crate::modbus::link::SerialPortLink;
 use crate::modbus::master::{Backoff, CounterSnapshot, Counters, Event, Master, MasterConfig};
-use crate::modbus::rtu::{Function, Request};
-use crate::modbus::value;
 use ringbuf::traits::{Consumer, Producer, Split};
 use ringbuf::{HeapCons, HeapProd, HeapRb};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind};
+use taut_proto::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind};
+use taut_proto::modbus::link::{LinkError, SerialLink};
+use taut_proto::modbus::rtu::{Function, Request};
+use taut_proto::modbus::value;
 
 /// One tension reading. `Copy`, fixed size: what goes through the ring.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -256,7 +257,7 @@ fn prepare(
             req: Request { unit: c.unit_id, function, address: c.register, quantity: 2 },
         });
     }
-    taut_config::devices::validate_unit_ids(cells.iter().map(|(_, c)| Some(c)))
+    taut_proto::devices::validate_unit_ids(cells.iter().map(|(_, c)| Some(c)))
         .map_err(|(i, m)| SpawnError::Config(format!("cable[{}].loadcell.unit_id", cells[i].0), m))?;
 
     let rb = HeapRb::<TensionSample>::new((RING_PER_CELL * cells.len()).max(16));
@@ -322,8 +323,8 @@ impl SteppedLoadCells {
     pub fn request_complete_at(&self, now: Instant) -> Instant {
         let Some(cell) = self.cells.get(self.next) else { return now };
         let start = self.last.filter(|_| self.next > 0).map_or(now, |t| now.max(t + self.mcfg.timing.t35));
-        let mut tx = [0u8; crate::modbus::rtu::MAX_FRAME];
-        start + self.mcfg.timing.frame_time(crate::modbus::rtu::encode(&cell.req, &mut tx))
+        let mut tx = [0u8; taut_proto::modbus::rtu::MAX_FRAME];
+        start + self.mcfg.timing.frame_time(taut_proto::modbus::rtu::encode(&cell.req, &mut tx))
     }
 
     /// One transaction of the polling round: the next cell in the round's order, read by the

@@ -6,7 +6,7 @@
 //! transaction (three wake-ups: the t3.5 pause, the device, the answer) then took ~16 ms instead
 //! of ~2 ms, and readings went 100-300 ms stale with every device healthy. Under `SCHED_FIFO`
 //! just below the loop the same thread kept every reading under 100 ms (measured with
-//! `cargo run -p taut-vdev --example loadcell_ages` under load 10-12).
+//! `cargo run -p taut-simrig --example loadcell_ages` under load 10-12).
 
 use std::os::unix::thread::JoinHandleExt;
 use std::thread::JoinHandle;

@@ -14,7 +14,9 @@
  * The calibrator runs on its own thread in wall-clock time, so a moderate speed-up keeps the
  * start-up's timing realistic while a test runs in less time.
  *
- * Build (see ffi/tests/hosts.rs): cc -std=c11 -I ffi/include host.c -L target/debug -ltaut
+ * Build (see ffi/tests/hosts.rs): `cargo build -p taut-ffi --features sim` (the taut_sim_*
+ * functions; the default library is the robot's, without the simulator), then
+ * cc -std=c11 -I ffi/include host.c -L target/debug -ltaut
  */
 /* clock_gettime and clock_nanosleep are POSIX, not C11. */
 #define _POSIX_C_SOURCE 200809L

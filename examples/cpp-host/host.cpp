@@ -6,7 +6,8 @@
 //
 // The "hardware" is taut's simulated robot (taut_sim_*): in a real component read() would take
 // the drives' position actual values, the load cells and the tracker from their buses, and
-// write() would send the controlword intent and the CSP/CST targets.
+// write() would send the controlword intent and the CSP/CST targets. The simulated robot is in
+// libtaut built with `cargo build -p taut-ffi --features sim` (see ffi/tests/hosts.rs).
 //
 //   cpp-host CONFIG.toml DATA_DIR [SEED [SPEED]]   (exit status 0: hot-swapped, anchors near the truth)
 #include "taut.h"

@@ -26,8 +26,8 @@
  *    undefined behaviour.
  *
  * The taut_sim_* functions (a simulated robot for hosts to test against) are in the library when
- * it was built with the cargo feature `sim` (the default; `--no-default-features` leaves them
- * out, and a host that calls them then fails to link).
+ * it was built with the cargo feature `sim` (not the default: the robot's build leaves them out,
+ * and a host that calls them then fails to link).
  */
 
 

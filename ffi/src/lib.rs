@@ -65,10 +65,10 @@ use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
 };
 
-/// Largest number of cables (the size of every per-cable array).
-// A literal for the header's generator; the assertion keeps it `taut_model::MAX_CABLES`.
-pub const TAUT_MAX_CABLES: usize = 8;
-const _: () = assert!(TAUT_MAX_CABLES == taut_config::geometry::MAX_CABLES);
+/// Largest number of cables (the size of every per-cable array): `taut_model::MAX_CABLES`. The
+/// header's `#define` is written from this value by its generator (`ffi/tests/header.rs`), as
+/// cbindgen does not evaluate another crate's constant.
+pub const TAUT_MAX_CABLES: usize = taut_config::geometry::MAX_CABLES;
 
 /// ABI version: `TautOptions::struct_size` and this number change together.
 pub const TAUT_ABI_VERSION: u32 = 1;

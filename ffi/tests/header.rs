@@ -7,7 +7,16 @@ use std::path::Path;
 fn checked_in_header_matches_the_source() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"));
     let config = cbindgen::Config::from_file(dir.join("cbindgen.toml")).expect("ffi/cbindgen.toml");
-    let bindings = cbindgen::Builder::new().with_crate(dir).with_config(config).generate().expect("cbindgen could not generate the header");
+    // cbindgen leaves out a constant defined from another crate's: the one number of cables is
+    // written here from its value.
+    let max_cables =
+        format!("\n// Largest number of cables (the size of every per-cable array).\n#define TAUT_MAX_CABLES {}", taut::TAUT_MAX_CABLES);
+    let bindings = cbindgen::Builder::new()
+        .with_crate(dir)
+        .with_config(config)
+        .with_after_include(max_cables)
+        .generate()
+        .expect("cbindgen could not generate the header");
     let mut fresh = Vec::new();
     bindings.write(&mut fresh);
     let path = dir.join("include/taut.h");

@@ -1,7 +1,7 @@
 //! EMCY decoder and error-code names on arbitrary bytes.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use taut_driver::canopen::emcy;
+use taut_proto::canopen::emcy;
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(e) = emcy::decode(data) {

@@ -3,7 +3,7 @@
 use libfuzzer_sys::fuzz_target;
 use std::time::{Duration, Instant};
 use taut_driver::canopen::master::{Master, MasterConfig, NodeConfig};
-use taut_driver::transport::Frame;
+use taut_proto::can::Frame;
 
 fuzz_target!(|data: &[u8]| {
     let mut m = Master::new(MasterConfig::new(vec![NodeConfig::new(1, 0), NodeConfig::new(2, 1)]));

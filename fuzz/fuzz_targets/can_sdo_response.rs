@@ -2,7 +2,7 @@
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use std::time::{Duration, Instant};
-use taut_driver::canopen::sdo::{SdoClient, SdoRequest, SdoResponse};
+use taut_proto::canopen::sdo::{SdoClient, SdoRequest, SdoResponse};
 
 fuzz_target!(|data: &[u8]| {
     let _ = SdoResponse::decode(data);

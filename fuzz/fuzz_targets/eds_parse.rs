@@ -2,7 +2,7 @@
 //! text, never a panic; a parsed file answers every lookup.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use taut_config::eds::Eds;
+use taut_proto::eds::Eds;
 
 fuzz_target!(|data: &[u8]| {
     let lines = data.iter().filter(|&&b| b == b'\n').count() + 1;

@@ -2,7 +2,7 @@
 //! and whatever decodes re-encodes to the same bytes.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use taut_driver::modbus::rtu::{self, Function, MAX_FRAME};
+use taut_proto::modbus::rtu::{self, Function, MAX_FRAME};
 
 fuzz_target!(|data: &[u8]| {
     let mut buf = [0u8; MAX_FRAME];

@@ -2,7 +2,7 @@
 //! and parses back to the same pose.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use taut_driver::tracker::{format_line, parse_line, MAX_LINE};
+use taut_proto::tracker::{format_line, parse_line, MAX_LINE};
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(p) = parse_line(data) {

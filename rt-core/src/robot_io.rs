@@ -28,13 +28,12 @@ use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFau
 use crate::MAX_CABLES;
 use std::fmt;
 use std::time::Instant;
-use taut_config::devices::DriveConfig;
 use taut_config::RobotConfig;
 use taut_driver::clock::SharedClock;
-use taut_driver::{
-    BusEvent, CanTransport, DriveSet, Event, LoadCellIo, Master, MasterConfig, Mode, Phase, PoseReader, State, TensionReader,
-    TrackerThread, TransportError,
-};
+use taut_driver::{BusEvent, DriveSet, Event, LoadCellIo, Master, MasterConfig, Phase, PoseReader, TensionReader, TrackerThread};
+use taut_proto::can::{CanTransport, TransportError};
+use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::devices::DriveConfig;
 
 /// Why the devices could not be brought up. [`BringUpError::key`] names the configuration key
 /// or device; the message says what to do.

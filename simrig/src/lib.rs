@@ -24,12 +24,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use taut_config::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_config::RobotConfig;
-use taut_driver::canopen::cia402::Mode;
-use taut_driver::canopen::NodeId;
 use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
-use taut_driver::transport::CanTransport;
+use taut_proto::can::CanTransport;
+use taut_proto::canopen::cia402::Mode;
+use taut_proto::canopen::NodeId;
+use taut_proto::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_rt_core::io::{Devices, Inputs, Outputs};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_rt_core::MAX_CABLES;
@@ -923,7 +923,7 @@ impl<R: CanTransport> Site<R> {
     }
 
     /// Delivers one frame to the drives at the instant it was on the bus; true for a SYNC.
-    fn on_frame(&mut self, f: &taut_driver::Frame) -> bool {
+    fn on_frame(&mut self, f: &taut_proto::can::Frame) -> bool {
         let now = self.clock.now();
         // When the frame was on the bus: a real drive sees it then, whatever this thread was
         // doing (SocketCAN without time stamps: when it was read).
@@ -1041,7 +1041,7 @@ impl<R: CanTransport> Site<R> {
         }
         let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
         let d = &mut self.rack.drives()[second];
-        use taut_driver::canopen::cia402::State;
+        use taut_proto::canopen::cia402::State;
         if persists && !matches!(d.state(), State::Fault | State::FaultReactionActive) {
             // The cause is still there: a fault reset is followed by the same fault at once,
             // as on a drive whose over-current condition persists.

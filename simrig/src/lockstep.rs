@@ -59,14 +59,15 @@ use std::collections::VecDeque;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, Parity, TrackerConfig};
 use taut_config::RobotConfig;
 use taut_driver::clock::{Clock, SimClock};
 use taut_driver::loadcell::SteppedLoadCells;
-use taut_driver::modbus::link::{LinkError, SerialLink};
-use taut_driver::tracker::{format_line, PoseLine, TrackerReceiver, TrackerStatsHandle, MAX_LINE};
+use taut_driver::tracker::{TrackerReceiver, TrackerStatsHandle};
 use taut_driver::transport::kernel::{self, err, CAN_ERR_FLAG, CAN_MTU};
-use taut_driver::transport::{CanTransport, Frame, TransportError};
+use taut_proto::can::{CanTransport, Frame, TransportError};
+use taut_proto::devices::{LoadCellBusConfig, Parity, TrackerConfig};
+use taut_proto::modbus::link::{LinkError, SerialLink};
+use taut_proto::tracker::{format_line, PoseLine, MAX_LINE};
 use taut_rt_core::calibrator::{CalibStatus, Calibrate};
 use taut_rt_core::io::{Devices, Inputs, Outputs};
 use taut_rt_core::plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
@@ -609,7 +610,7 @@ struct Line<'a> {
     latency: Duration,
     /// The cells do not answer requests sent in this span.
     silence: Option<(Instant, Instant)>,
-    answer: Option<(Instant, [u8; 2 * taut_driver::modbus::rtu::MAX_FRAME], usize)>,
+    answer: Option<(Instant, [u8; 2 * taut_proto::modbus::rtu::MAX_FRAME], usize)>,
 }
 
 impl SerialLink for Line<'_> {
@@ -1368,7 +1369,7 @@ mod tests {
     /// characters), t3.5 of silence after the previous answer within a round.
     #[test]
     fn each_cell_answers_with_the_tension_of_its_request_and_arrives_at_its_answer() {
-        use taut_config::devices::LoadCellConfig;
+        use taut_proto::devices::LoadCellConfig;
         const N: usize = 4;
         let bus_cfg = LoadCellBusConfig::new("simulated line");
         let cells: Vec<(usize, LoadCellConfig)> = (0..N).map(|i| (i, LoadCellConfig::new(i as u8 + 1))).collect();

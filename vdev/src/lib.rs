@@ -1,5 +1,5 @@
 //! Virtual devices for the simulated robot and the tests: the device side of the protocols the
-//! master in `taut-driver` speaks, on the same transports as the real devices.
+//! master in `taut-driver` speaks, on any transport the master can use.
 //!
 //! | item                                   | what                                                        |
 //! |----------------------------------------|-------------------------------------------------------------|
@@ -10,20 +10,22 @@
 //! | [`VirtualLoadCells`], [`TensionHandle`]| Modbus RTU load cells behind a pseudo-terminal, with [`LoadCellFault`]s to inject |
 //! | [`TrackerSender`], [`TrackerStream`]   | pose datagrams in the tracker line format over UDP          |
 //!
-//! The crate graph: `taut-vdev` depends on `taut-driver` (frames, codecs, transports) and
-//! `taut-config`, never on `taut-sim`. The physics stays in `taut-sim`; `taut-rt-core`'s simulated
-//! rig couples the two (the plant reads [`VirtualDrive::target`] and writes
-//! [`VirtualDrive::set_actual`], and sets the load cells' [`TensionHandle`]). `taut-driver`
-//! depends on neither, not even for its benches: the master's round-trip bench is `benches/master.rs` here.
+//! The crate graph: `taut-vdev` depends on `taut-proto` (frames, codecs, the transport trait,
+//! the device configuration), never on the master (`taut-driver`) nor on the physics
+//! (`taut-sim`). `taut-simrig` couples them: the plant reads [`VirtualDrive::target`] and writes
+//! [`VirtualDrive::set_actual`], and sets the load cells' [`TensionHandle`]; the master's
+//! round-trip bench against these drives is `simrig/benches/master.rs`.
 //!
 //! ```no_run
-//! use taut_driver::VirtualBus;
+//! use taut_proto::can::CanTransport;
 //! use taut_vdev::{rack_filters, DriveRack};
-//! let bus = VirtualBus::new();
-//! let master_port = bus.endpoint();
-//! let mut rack = DriveRack::with_nodes(bus.endpoint_with(256, &rack_filters(&[1, 2])), &[1, 2]);
-//! rack.step(std::time::Instant::now());
-//! # drop(master_port);
+//! // Any transport: `taut_driver`'s in-process bus endpoint, filtered with `rack_filters(&[1, 2])`,
+//! // or a SocketCAN socket.
+//! fn run(port: impl CanTransport) {
+//!     let mut rack = DriveRack::with_nodes(port, &[1, 2]);
+//!     rack.step(std::time::Instant::now());
+//! }
+//! # let _ = rack_filters(&[1, 2]);
 //! ```
 #![deny(missing_docs)]
 

@@ -23,7 +23,7 @@
 //! no answer, as on a real RS-485 line.
 //!
 //! ```no_run
-//! use taut_config::devices::LoadCellConfig;
+//! use taut_proto::devices::LoadCellConfig;
 //! use taut_vdev::{LoadCellFault, TensionHandle, VirtualLoadCells};
 //! let tensions = TensionHandle::new(2);
 //! let server = VirtualLoadCells::spawn(vec![LoadCellConfig::new(1), LoadCellConfig::new(2)], tensions.clone()).unwrap();
@@ -40,10 +40,10 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellConfig, RegisterKind};
-use taut_driver::modbus::link::{LinkError, SerialLink};
-use taut_driver::modbus::rtu::{self, ExceptionCode, Function, Registers, Response, RtuError, MAX_FRAME};
-use taut_driver::modbus::value;
+use taut_proto::devices::{LoadCellConfig, RegisterKind};
+use taut_proto::modbus::link::{LinkError, SerialLink};
+use taut_proto::modbus::rtu::{self, ExceptionCode, Function, Registers, Response, RtuError, MAX_FRAME};
+use taut_proto::modbus::value;
 
 /// Tensions of the simulated cells, N, shared between the simulator (writer) and the server.
 /// One `f64` per cell as atomic bits: each value stands alone, so `Relaxed` suffices.
@@ -269,6 +269,21 @@ fn open_pty(link: &Path) -> io::Result<Pty> {
     Ok(Pty { master, _slave: slave })
 }
 
+/// Puts the server thread under `SCHED_FIFO` at `priority` (1..=99). The master's I/O thread
+/// has its own (`taut_driver::sched`): the device side does not link the master.
+fn set_fifo<T>(thread: &JoinHandle<T>, priority: i32) -> io::Result<()> {
+    use std::os::unix::thread::JoinHandleExt;
+    let param = libc::sched_param { sched_priority: priority };
+    // SAFETY: the pthread_t belongs to a thread that has not been joined (we hold its handle);
+    // `param` outlives the call.
+    let rc = unsafe { libc::pthread_setschedparam(thread.as_pthread_t(), libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::from_raw_os_error(rc))
+    }
+}
+
 impl VirtualLoadCells {
     /// Starts a server for `cells` (cell `i` reads tension `i` of `tensions`) behind a fresh
     /// symlink in the temporary directory.
@@ -308,7 +323,7 @@ impl VirtualLoadCells {
     /// cell would have delivered.
     pub fn set_realtime(&self, priority: i32) -> io::Result<()> {
         match &self.thread {
-            Some(t) => taut_driver::sched::set_fifo(t, priority),
+            Some(t) => set_fifo(t, priority),
             None => Ok(()),
         }
     }

@@ -1,5 +1,5 @@
 //! A simulated position tracker: sends pose datagrams in the tracker line format
-//! (`t px py pz [qw qx qy qz]`, see `taut_driver::tracker`) over UDP, normally to loopback.
+//! (`t px py pz [qw qx qy qz]`, see `taut_proto::tracker`) over UDP, normally to loopback.
 //!
 //! ```no_run
 //! use taut_vdev::TrackerSender;
@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use taut_driver::tracker::{format_line, PoseLine, MAX_LINE};
+use taut_proto::tracker::{format_line, PoseLine, MAX_LINE};
 
 /// Sends pose lines to one address.
 #[derive(Debug)]

@@ -8,8 +8,8 @@
 //! PDO is at most 135 bits, a SYNC 55.
 
 #[cfg(test)]
-use super::pdo::PdoLayout;
-use super::pdo::{byte_len, PdoDef};
+use taut_proto::canopen::pdo::PdoLayout;
+use taut_proto::canopen::pdo::{byte_len, PdoDef};
 
 /// Worst-case length of a frame on the wire, bits.
 pub fn frame_bits(data_bytes: u8, extended: bool) -> u32 {

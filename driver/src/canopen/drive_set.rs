@@ -25,14 +25,14 @@
 //! # Ok(()) }
 //! ```
 
-use super::cia402::State;
 use super::master::{CommandError, Event, Master, MasterConfig, NodeStatus, Phase};
-use super::NodeId;
 use crate::clock::{self, SharedClock};
-use crate::transport::{CanTransport, TransportError};
 use std::fmt;
 use std::marker::PhantomData;
 use std::time::{Duration, Instant};
+use taut_proto::can::{CanTransport, TransportError};
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::NodeId;
 
 /// Typestate: drives being found and configured.
 pub struct Configuring;
@@ -100,7 +100,7 @@ impl fmt::Display for DriveSetError {
                 Ok(())
             }
             DriveSetError::Fault { node, code } => {
-                write!(f, "node {node}: drive fault 0x{code:04X} ({})", super::emcy::error_code_name(*code))
+                write!(f, "node {node}: drive fault 0x{code:04X} ({})", taut_proto::canopen::emcy::error_code_name(*code))
             }
             DriveSetError::NotOperational { node, phase } => write!(f, "node {node}: no longer operational ({})", phase.name()),
             DriveSetError::Disabled { node, state } => write!(

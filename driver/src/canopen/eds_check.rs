@@ -7,7 +7,7 @@
 
 use super::master::{NodeConfig, ObjectUse, Use};
 use std::fmt;
-use taut_config::eds::{Eds, EdsVar};
+use taut_proto::eds::{Eds, EdsVar};
 
 /// An object the EDS does not allow for its use.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -1,42 +1,12 @@
-//! CANopen (CiA 301) master and the CiA 402 drive profile, sans-IO.
+//! The CANopen (CiA 301) master for CiA 402 drives, sans-IO.
 //!
-//! Files are named after the services of CiA 301 (`nmt`, `sync`, `heartbeat`, `emcy`, `sdo`,
-//! `pdo`) and the profile (`cia402`); [`master`] combines them into one state machine that takes
-//! frames and time in and hands frames and [`master::Event`]s out, and [`drive_set`] puts a
-//! transport under it with the lifecycle in types.
-//!
-//! Predefined connection set (CiA 301 7.3.5), 11-bit ids, `n` = node id 1..=127:
-//!
-//! ```text
-//! 0x000      NMT command (master -> all)     0x180+n  TPDO1   0x200+n  RPDO1
-//! 0x080      SYNC                            0x280+n  TPDO2   0x300+n  RPDO2
-//! 0x080+n    EMCY                            0x380+n  TPDO3   0x400+n  RPDO3
-//! 0x580+n    SDO server -> client            0x480+n  TPDO4   0x500+n  RPDO4
-//! 0x600+n    SDO client -> server            0x700+n  heartbeat / boot-up (NMT error control)
-//! ```
+//! [`master`] combines the services of `taut_proto::canopen` (NMT, SYNC, heartbeat, EMCY, SDO,
+//! PDO, the CiA 402 state machine) into one state machine that takes frames and time in and hands
+//! frames and [`master::Event`]s out; [`drive_set`] puts a transport under it with the lifecycle
+//! in types. [`busload`] estimates the bus load of a configuration and [`eds_check`] checks a
+//! configuration against the drives' electronic data sheets.
 
 pub mod busload;
-pub mod cia402;
 pub mod drive_set;
 pub mod eds_check;
-pub mod emcy;
-pub mod heartbeat;
 pub mod master;
-pub mod nmt;
-pub mod od;
-pub mod pdo;
-pub mod sdo;
-pub mod sync;
-
-/// A CANopen node id, 1..=127.
-pub type NodeId = u8;
-
-/// Function code of an 11-bit CANopen COB-ID (its upper 4 bits, CiA 301 7.3.5).
-pub fn function_code(cob_id: u16) -> u16 {
-    cob_id & 0x780
-}
-
-/// Node id part of an 11-bit CANopen COB-ID (its lower 7 bits).
-pub fn node_of(cob_id: u16) -> u8 {
-    (cob_id & 0x7F) as u8
-}

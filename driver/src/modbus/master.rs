@@ -2,7 +2,7 @@
 //! the response timeout, retries, and every failure counted by kind.
 //!
 //! It runs on the load-cell I/O thread ([`crate::loadcell`]), never on the real-time loop: it
-//! blocks on the link. The framing underneath is the sans-IO [`super::rtu`].
+//! blocks on the link. The framing underneath is the sans-IO [`taut_proto::modbus::rtu`].
 //!
 //! How the end of a response is found: the serial-line spec delimits frames by 3.5 character
 //! times of silence, which USB adapters (1-16 ms latency) cannot keep. So the master reads the
@@ -10,12 +10,12 @@
 //! as soon as a frame with a good CRC from the addressed unit is in the buffer, skipping line
 //! noise in front of it. Silence only ends a reception that does not start like our answer.
 
-use super::link::{LinkError, SerialLink};
-use super::rtu::{self, ExceptionCode, Registers, Request, Response, RtuError, Timing, MAX_FRAME};
 use crate::clock::{Clock, WallClock};
 use std::fmt;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
+use taut_proto::modbus::link::{LinkError, SerialLink};
+use taut_proto::modbus::rtu::{self, ExceptionCode, Registers, Request, Response, RtuError, Timing, MAX_FRAME};
 
 /// Why one transaction failed. `Copy`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -187,8 +187,8 @@ pub struct MasterConfig {
 
 impl MasterConfig {
     /// Settings of a configured bus.
-    pub fn from_bus(bus: &taut_config::devices::LoadCellBusConfig) -> MasterConfig {
-        let parity = u32::from(bus.parity != taut_config::devices::Parity::None);
+    pub fn from_bus(bus: &taut_proto::devices::LoadCellBusConfig) -> MasterConfig {
+        let parity = u32::from(bus.parity != taut_proto::devices::Parity::None);
         let bits = 1 + u32::from(bus.data_bits) + parity + u32::from(bus.stop_bits);
         MasterConfig {
             timing: Timing::new(bus.baud, bits),
@@ -389,8 +389,8 @@ impl Backoff {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::modbus::rtu::Function;
     use std::collections::VecDeque;
+    use taut_proto::modbus::rtu::Function;
 
     /// An expected-transaction mock (embedded-hal-mock style): each request must match the next
     /// expectation, which supplies the reply chunks; unmet expectations fail on drop.

@@ -18,7 +18,8 @@
 //! kernel's CAN drivers report them.
 //!
 //! ```
-//! use taut_driver::transport::{virtual_bus::VirtualBus, CanTransport, Frame};
+//! use taut_driver::transport::virtual_bus::VirtualBus;
+//! use taut_proto::can::{CanTransport, Frame};
 //! let bus = VirtualBus::new();
 //! let (mut a, mut b) = (bus.endpoint(), bus.endpoint());
 //! a.send(&Frame::new(0x080, &[])).unwrap();
@@ -27,36 +28,13 @@
 //! ```
 
 use super::kernel::{self, err, CAN_MTU};
-use super::{CanTransport, Frame, IfName, TransportError};
+use super::{CanTransport, Filter, Frame, IfName, TransportError};
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
 
 /// Receive queue length of an endpoint, frames.
 pub const DEFAULT_QUEUE: usize = 4096;
-
-/// An acceptance filter, as SocketCAN's `CAN_RAW_FILTER`: a frame passes when
-/// `frame.id & mask == id & mask` and its format (standard/extended) equals `extended`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Filter {
-    /// Identifier to compare.
-    pub id: u32,
-    /// Bits of the identifier that must match.
-    pub mask: u32,
-    /// Frame format the filter applies to.
-    pub extended: bool,
-}
-
-impl Filter {
-    /// A filter for one standard id.
-    pub const fn exact(id: u16) -> Filter {
-        Filter { id: id as u32, mask: 0x7FF, extended: false }
-    }
-
-    fn accepts(&self, f: &Frame) -> bool {
-        f.extended == self.extended && (f.id & self.mask) == (self.id & self.mask)
-    }
-}
 
 struct Slot {
     alive: bool,

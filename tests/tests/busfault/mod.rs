@@ -7,7 +7,7 @@
 
 use std::time::{Duration, Instant};
 use taut_driver::transport::kernel::{err, error_frame, CAN_MTU};
-use taut_driver::transport::CanTransport;
+use taut_proto::can::CanTransport;
 use taut_rt_core::io::{BusEvent, BusState, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 

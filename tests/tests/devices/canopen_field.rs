@@ -5,11 +5,11 @@
 
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::master::{Counters, Event, Master, MasterConfig, NodeConfig, Phase};
-use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-use taut_driver::transport::CanTransport;
+use taut_proto::can::CanTransport;
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::nmt::NmtState;
 use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
 const MS: Duration = Duration::from_millis(1);
@@ -372,7 +372,7 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
 /// or, when they answer the same request again, taken: bring-up still succeeds.
 #[test]
 fn every_client_abort_reaches_the_bus() {
-    use taut_driver::transport::virtual_bus::Filter;
+    use taut_proto::can::Filter;
     let mut f = Field::new(vec![VirtualDrive::new(params(1, |p| p.sdo_delay = Duration::from_millis(150)))]);
     let mut monitor = f.bus.endpoint_with(65_536, &[Filter { id: 0x600, mask: 0x780, extended: false }]);
     f.run(Duration::from_millis(300));

@@ -6,12 +6,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::cia402::{Mode, State};
 use taut_driver::canopen::master::{CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem};
-use taut_driver::canopen::pdo::PdoLayout;
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-use taut_driver::transport::{CanTransport, Frame};
+use taut_proto::can::{CanTransport, Frame};
+use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::canopen::pdo::PdoLayout;
 use taut_rt_core::robot_io::Scaling;
 use taut_vdev::{rack_filters, DriveRack};
 
@@ -404,7 +404,7 @@ fn master_config_from_a_robot_file() {
 
 #[test]
 fn nmt_reset_node_and_pre_operational_are_followed_by_reconfiguration_and_restart() {
-    use taut_driver::canopen::nmt::{NmtCommand, NmtState};
+    use taut_proto::canopen::nmt::{NmtCommand, NmtState};
     let mut r = rig(config(&NODES));
     r.bring_up();
     r.master.send_nmt(NmtCommand::ResetNode, 2);
@@ -424,7 +424,7 @@ fn nmt_reset_node_and_pre_operational_are_followed_by_reconfiguration_and_restar
 
 #[test]
 fn segmented_sdo_download_and_upload_against_a_virtual_drive() {
-    use taut_driver::canopen::sdo::{SdoClient, SdoOutcome};
+    use taut_proto::canopen::sdo::{SdoClient, SdoOutcome};
     let mut r = rig(config(&[8]));
     r.step();
     let mut client = SdoClient::new(8, Duration::from_millis(100));

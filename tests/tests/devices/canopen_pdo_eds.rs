@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
-use taut_config::eds::Eds;
 use taut_config::RobotConfig;
-use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeFailure, Phase};
-use taut_driver::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-use taut_driver::transport::{CanTransport, Frame};
+use taut_proto::can::{CanTransport, Frame};
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
+use taut_proto::eds::Eds;
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
@@ -278,7 +278,7 @@ fn a_bad_pdo_table_names_file_line_and_key() {
     // A configuration built in code skips the file check: bring-up refuses it all the same,
     // naming the key, before a frame is sent.
     let mut cfg = RobotConfig::from_toml_str(&robot_text("")).unwrap();
-    cfg.cables[0].drive.as_mut().unwrap().tpdo[1] = taut_config::devices::PdoTable::new(["0x606C:0/32", "0x606C:0/32"]);
+    cfg.cables[0].drive.as_mut().unwrap().tpdo[1] = taut_proto::devices::PdoTable::new(["0x606C:0/32", "0x606C:0/32"]);
     let bus = VirtualBus::new();
     let e = RobotDevices::bring_up(&cfg, bus.endpoint(), Peripherals { loadcells: None, tracker: None, pose: None }).err().unwrap();
     assert_eq!(e.key(), "cable[0].drive.tpdo[1].map[1]", "{e}");

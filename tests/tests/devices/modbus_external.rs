@@ -11,11 +11,11 @@ use std::io::Read;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind, ValueFormat, WordOrder};
 use taut_driver::modbus::link::SerialPortLink;
 use taut_driver::modbus::master::{Counters, Master, MasterConfig, TransactionError};
-use taut_driver::modbus::rtu::{ExceptionCode, Function, Request};
-use taut_driver::modbus::value;
+use taut_proto::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind, ValueFormat, WordOrder};
+use taut_proto::modbus::rtu::{ExceptionCode, Function, Request};
+use taut_proto::modbus::value;
 use taut_vdev::{TensionHandle, VirtualLoadCells};
 
 fn python() -> String {

@@ -2,11 +2,12 @@
 //! normal reads, each injected fault, and the port vanishing and coming back.
 
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind, ValueFormat, WordOrder};
 use taut_driver::loadcell;
-use taut_driver::modbus::link::{LinkError, SerialPortLink};
+use taut_driver::modbus::link::SerialPortLink;
 use taut_driver::modbus::master::{Counters, Master, MasterConfig, TransactionError};
-use taut_driver::modbus::rtu::{ExceptionCode, Function, Request};
+use taut_proto::devices::{LoadCellBusConfig, LoadCellConfig, RegisterKind, ValueFormat, WordOrder};
+use taut_proto::modbus::link::LinkError;
+use taut_proto::modbus::rtu::{ExceptionCode, Function, Request};
 use taut_vdev::{LoadCellFault, TensionHandle, VirtualLoadCells};
 
 fn cells() -> Vec<LoadCellConfig> {
@@ -55,7 +56,7 @@ fn reads_every_encoding() {
     for (i, c) in cells().iter().enumerate() {
         let r = m.read(&req(c)).unwrap();
         let v = r.values();
-        let n = taut_driver::modbus::value::newtons([v[0], v[1]], c).unwrap();
+        let n = taut_proto::modbus::value::newtons([v[0], v[1]], c).unwrap();
         assert!((n - t.get(i)).abs() < 1e-3, "cell {i}: {n} vs {}", t.get(i));
     }
     // Wrong table and out-of-range addresses: exception 02, not retried.

@@ -5,8 +5,9 @@
 
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
-use taut_config::devices::TrackerConfig;
-use taut_driver::tracker::{self, format_line, PoseLine, TrackerReceiver, MAX_LINE};
+use taut_driver::tracker::{self, TrackerReceiver};
+use taut_proto::devices::TrackerConfig;
+use taut_proto::tracker::{format_line, PoseLine, MAX_LINE};
 
 fn send(from: &UdpSocket, to: SocketAddr, t: f64, p: [f64; 3]) {
     let mut buf = [0u8; MAX_LINE];

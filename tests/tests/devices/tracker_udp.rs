@@ -3,8 +3,8 @@
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
-use taut_config::devices::TrackerConfig;
 use taut_driver::tracker::{self, TrackerReceiver};
+use taut_proto::devices::TrackerConfig;
 use taut_vdev::{TrackerSender, TrackerStream};
 
 fn loopback(max_age_s: f64) -> TrackerConfig {

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use taut_driver::canopen::master::{Master, MasterConfig, NodeConfig};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-use taut_driver::transport::{CanTransport, Frame};
+use taut_proto::can::{CanTransport, Frame};
 use taut_vdev::{rack_filters, DriveRack};
 
 // The counting global allocator of this test binary (one per binary): `crate::counting`. Only

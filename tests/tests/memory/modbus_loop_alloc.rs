@@ -3,8 +3,8 @@
 //! I/O threads run.
 
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_driver::{loadcell, tracker};
+use taut_proto::devices::{LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_vdev::{TensionHandle, TrackerStream, VirtualLoadCells};
 
 // The counting global allocator of this test binary (one per binary): `crate::counting`.

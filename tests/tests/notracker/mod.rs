@@ -294,7 +294,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     let fresh = dwell_rows.iter().filter(|&&i| rec.tensions(i).unwrap()[0] != rec.tensions(i - 1).unwrap()[0]).count();
     let rate = fresh as f64 / (dwell_rows.len() as f64 / cfg.rt.rate_hz);
     let mut measured = cfg.clone();
-    measured.loadcells.get_or_insert_with(|| taut_config::devices::LoadCellBusConfig::new("")).poll_period_s = 1.0 / rate;
+    measured.loadcells.get_or_insert_with(|| taut_proto::devices::LoadCellBusConfig::new("")).poll_period_s = 1.0 / rate;
     let replan = taut_rt_core::notracker::dwell_plan(&measured, &ccfg).unwrap();
     let norm = |s: &[f64; 3]| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
     let achieved = ce.sigma.anchors.iter().map(norm).fold(0.0, f64::max);

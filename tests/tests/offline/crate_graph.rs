@@ -6,6 +6,11 @@
 //!   test that needs virtual drives lives in `taut-vdev` or `tests/`.
 //! - `taut-sim` is physics only: no `taut-vdev`, no `taut-driver`.
 //! - `taut-vdev` (the device side) does not depend on `taut-sim`: the simulated rig couples them.
+//! - `taut-proto` (frames, codecs, device configuration) has no I/O crates (`socketcan`,
+//!   `serialport`, `libc`, `tungstenite`, `mcap`), no nalgebra or serde_json, and none of the
+//!   workspace's crates but `taut-model`.
+//! - The master (`taut-driver`) and the device side (`taut-vdev`) do not depend on each other, not
+//!   even as a dev-dependency: both use `taut-proto`, and `taut-simrig` puts them together.
 //! - `taut-calib` is pure: no I/O crates (`socketcan`, `serialport`, `libc`).
 //! - `taut-rt` (what the real-time loop runs every cycle) has none of: nalgebra, serde,
 //!   serde_json, toml, crossbeam, libc, the I/O crates, the configuration, the calibration, the
@@ -13,6 +18,12 @@
 //!   opens no file or socket outside its tests.
 //! - `taut-model` (the cable model formulas both calib and the loop call) has no dependencies.
 //! - `taut-rt-core` (the robot build) contains no simulator: the simulated rig is `taut-simrig`.
+//!   Nor does `taut-ffi` by default (the `taut_sim_*` functions are its `sim` feature), nor
+//!   `taut-cli` without its `sim` feature (on by default for development and the tests).
+//! - `testkit` (a feature of `taut-rt-core`: the kinematic stand-in robot) is not on in a normal
+//!   `cargo build --workspace`: only dev-dependencies turn it on.
+//! - One number of cables: `taut_model::MAX_CABLES` is the only `MAX_CABLES` written as a number;
+//!   the others (the C ABI's `TAUT_MAX_CABLES`) are defined from it or re-export it.
 //! - `taut-sim` does not use the model the calibration fits: no direct `taut-model` dependency
 //!   and no `taut_model` in its source. It reaches `taut-model` only through `taut-config`
 //!   (allowed edge: the parameter file converts to the shared geometry type in one place), and
@@ -106,6 +117,41 @@ fn calib_has_no_io_crates() {
         violations("taut-calib", "normal,build", &[], &["socketcan", "serialport", "libc", "taut-driver"]),
         "taut-calib is pure computation (no I/O)",
     );
+}
+
+#[test]
+fn the_protocol_crate_has_no_io() {
+    assert_none(
+        violations(
+            "taut-proto",
+            "normal,build",
+            &[],
+            &["socketcan", "serialport", "libc", "tungstenite", "mcap", "nalgebra", "serde_json", "crossbeam-channel"],
+        ),
+        "taut-proto holds formats only: no socket, tty, thread or maths library; transports are taut-driver's",
+    );
+    let taut: BTreeSet<String> = deps("taut-proto", "normal,build", &[]).into_iter().filter(|p| p.starts_with("taut-")).collect();
+    assert_eq!(
+        taut,
+        ["taut-model", "taut-proto"].map(str::to_owned).into(),
+        "taut-proto's workspace dependencies: only the model crate (the bus status types)"
+    );
+}
+
+#[test]
+fn master_and_device_side_do_not_depend_on_each_other() {
+    assert_none(
+        violations("taut-vdev", "normal,build", &[], &["taut-driver", "taut-simrig", "taut-rt-core"]),
+        "taut-vdev (the device side) uses taut-proto's codecs, not the master in taut-driver",
+    );
+    assert_none(
+        violations("taut-vdev", "dev", &["--depth", "1"], &["taut-driver", "taut-simrig"]),
+        "taut-vdev's benches and tests must not need the master; put them in taut-simrig or tests/",
+    );
+    // Both sides do use the protocol crate (the rules above do not pass because the graph is empty).
+    for side in ["taut-vdev", "taut-driver"] {
+        assert_eq!(violations(side, "normal", &["--depth", "1"], &["taut-proto"]).len(), 1, "{side} uses taut-proto");
+    }
 }
 
 /// What may be linked into the real-time crate: nothing that allocates behind its back, locks,
@@ -212,11 +258,42 @@ fn the_robot_build_contains_no_simulator() {
         violations("taut-rt-core", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
         "taut-rt-core is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
     );
-    // The plugin a robot's controller loads: the simulator only with `--features sim`.
+    // The robot's `taut`: taut-cli without its `sim` feature (`taut demo`, `simulate`, `start --sim`).
+    assert_none(
+        violations("taut-cli", "normal,build", &["--no-default-features"], &["taut-sim", "taut-vdev", "taut-simrig"]),
+        "the robot's taut binary (taut-cli --no-default-features) links no simulator; `sim` is the feature that does",
+    );
+    // With its default features the checker does see it there.
+    assert_eq!(violations("taut-cli", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]).len(), 3);
+}
+
+/// The plugin a robot's controller loads: the simulator only with `--features sim` (which
+/// scripts/test, tests/vcan/run and the C hosts' builds pass).
+#[test]
+fn the_plugin_library_contains_no_simulator_by_default() {
     assert_none(
         violations("taut-ffi", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
         "taut-ffi's default build is the robot's; its taut_sim_* functions are behind the `sim` feature",
     );
+    // With the feature the checker does see the simulator.
+    let with = violations("taut-ffi", "normal,build", &["--features", "sim"], &["taut-sim", "taut-simrig"]);
+    assert_eq!(with.len(), 2, "{with:?}");
+}
+
+/// `testkit` is for tests and benches. `cargo tree -e normal,build` resolves features as
+/// `cargo build --workspace` does (resolver 2: dev-dependencies are not unified into it).
+#[test]
+fn testkit_is_off_in_a_normal_workspace_build() {
+    let features = |edges: &str| cargo_tree(&["--workspace", "-e", edges, "-i", "taut-rt-core", "--depth", "0", "-f", "{p} [{f}]"]);
+    let build = features("normal,build");
+    assert!(
+        !build.contains("testkit"),
+        "crate graph rule broken: taut-rt-core's `testkit` is on in `cargo build --workspace` (docs/architecture.md); \
+         a normal dependency turns it on, make it a dev-dependency:\n{build}\n{}",
+        cargo_tree(&["--workspace", "-e", "features,normal,build", "-i", "taut-rt-core", "--prefix", "depth"])
+    );
+    // The checker sees the feature where it is on: the tests' and benches' builds.
+    assert!(features("normal,build,dev").contains("testkit"), "{}", features("normal,build,dev"));
 }
 
 /// The checker itself sees a real edge: the simulated rig does depend on taut-sim and taut-vdev,
@@ -250,4 +327,58 @@ fn the_simulator_does_not_use_the_model_crate() {
     assert_eq!(names("sim/src"), Vec::<String>::new(), "taut-sim's source names taut_model");
     // The scan sees what it looks for: the calibration does use the model crate.
     assert!(!names("calib/src").is_empty());
+}
+
+/// The `.rs` files under `dir`, recursively, `target/` left out.
+fn rust_files(dir: &std::path::Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            if p.file_name().is_some_and(|n| n != "target") {
+                rust_files(&p, out);
+            }
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// One `MAX_CABLES`: the loop's arrays, the configuration's bound and the C ABI's arrays are one
+/// number. Every constant named `*MAX_CABLES` in the workspace's source is either
+/// `taut_model::MAX_CABLES` (the one written as a number) or defined from another constant.
+#[test]
+fn one_max_cables() {
+    let members = ["model", "proto", "config", "calib", "sim", "vdev", "driver", "rt", "rt-core", "simrig", "ffi", "cli", "tests", "fuzz"];
+    let mut files = Vec::new();
+    for m in members {
+        rust_files(&workspace().join(m), &mut files);
+    }
+    files.sort();
+    let (mut numbers, mut derived) = (Vec::new(), Vec::new());
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        for (k, line) in text.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            let Some((name, rest)) = code.split_once("MAX_CABLES:") else { continue };
+            if !name.contains("const ") {
+                continue;
+            }
+            let Some((_, value)) = rest.split_once('=') else { continue };
+            let at = format!("{}:{}: {}", f.strip_prefix(workspace()).unwrap_or(f).display(), k + 1, line.trim());
+            if value.trim_start().starts_with(|c: char| c.is_ascii_digit()) {
+                numbers.push(at);
+            } else {
+                derived.push(at);
+            }
+        }
+    }
+    assert_eq!(
+        numbers.len(),
+        1,
+        "crate graph rule broken: one MAX_CABLES (docs/architecture.md); constants written as numbers:\n{}",
+        numbers.join("\n")
+    );
+    assert!(numbers[0].starts_with("model/src/lib.rs:"), "the one MAX_CABLES is taut_model's: {numbers:?}");
+    // The scan sees the C ABI's constant, defined from the one (the header's generator writes it).
+    assert!(derived.iter().any(|l| l.starts_with("ffi/src/lib.rs:") && l.contains("TAUT_MAX_CABLES")), "{derived:?}");
 }

@@ -13,12 +13,12 @@ use std::sync::{Mutex, MutexGuard};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::drive_set::{DriveSet, DriveSetError, Enabled, Operational};
 use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
-use taut_driver::transport::CanTransport;
+use taut_proto::can::CanTransport;
+use taut_proto::canopen::cia402::State;
 use taut_rt_core::robot_io::Scaling;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};

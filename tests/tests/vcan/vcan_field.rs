@@ -14,12 +14,12 @@ use std::sync::{Mutex, MutexGuard};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::cia402::State;
 use taut_driver::canopen::drive_set::{Configuring, DriveSet, DriveSetError, Operational};
 use taut_driver::canopen::master::{Event, MasterConfig};
-use taut_driver::canopen::nmt::NmtState;
 use taut_driver::transport::socketcan::SocketCanTransport;
-use taut_driver::transport::CanTransport;
+use taut_proto::can::CanTransport;
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::nmt::NmtState;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 

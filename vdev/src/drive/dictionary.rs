@@ -3,8 +3,8 @@
 
 use super::sdo_server::SDO_MAX;
 use super::VirtualDrive;
-use taut_driver::canopen::od;
-use taut_driver::canopen::sdo::AbortCode;
+use taut_proto::canopen::od;
+use taut_proto::canopen::sdo::AbortCode;
 
 /// Following error actual value, counts.
 pub(super) const FOLLOWING_ERROR: u16 = 0x60F4;

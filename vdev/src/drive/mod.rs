@@ -6,7 +6,7 @@
 //! several on one transport endpoint, and [`spawn_rack`] runs a rack on its own thread for
 //! wall-clock use (probe, vcan tests).
 //!
-//! Object dictionary (see `taut_driver::canopen::od` for types and units):
+//! Object dictionary (see `taut_proto::canopen::od` for types and units):
 //!
 //! ```text
 //! 0x1000 device type (0x00020192)     0x1008 device name (segmented upload)   0x1017 heartbeat ms
@@ -57,13 +57,14 @@ use sdo_server::SdoServer;
 use state_machine::error_register;
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
-use taut_driver::canopen::cia402::{Mode, State};
-use taut_driver::canopen::emcy::{self, Emcy};
-use taut_driver::canopen::heartbeat;
-use taut_driver::canopen::nmt::{self, NmtCommand, NmtState};
-use taut_driver::canopen::pdo::COB_ID_INVALID;
-use taut_driver::canopen::sync;
-use taut_driver::{Frame, NodeId};
+use taut_proto::can::Frame;
+use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::canopen::emcy::{self, Emcy};
+use taut_proto::canopen::heartbeat;
+use taut_proto::canopen::nmt::{self, NmtCommand, NmtState};
+use taut_proto::canopen::pdo::COB_ID_INVALID;
+use taut_proto::canopen::sync;
+use taut_proto::canopen::NodeId;
 
 /// Fixed properties of a virtual drive.
 #[derive(Debug, Clone, PartialEq)]
@@ -523,7 +524,7 @@ impl VirtualDrive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use taut_driver::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
+    use taut_proto::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
 
     fn sdo(d: &mut VirtualDrive, req: SdoRequest, now: Instant) -> SdoResponse {
         d.on_frame(&req.encode(d.node_id()), now);

@@ -5,9 +5,9 @@ use super::pdo_engine::factory_pdos;
 use super::sdo_server::SdoServer;
 use super::VirtualDrive;
 use std::time::{Duration, Instant};
-use taut_driver::canopen::cia402::State;
-use taut_driver::canopen::emcy::{self, Emcy};
-use taut_driver::canopen::nmt::{NmtCommand, NmtState};
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::emcy::{self, Emcy};
+use taut_proto::canopen::nmt::{NmtCommand, NmtState};
 
 impl VirtualDrive {
     pub(super) fn reset_communication(&mut self) {

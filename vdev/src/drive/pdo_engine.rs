@@ -4,11 +4,12 @@
 use super::dictionary::{object_exists, FOLLOWING_ERROR};
 use super::VirtualDrive;
 use std::time::Instant;
-use taut_driver::canopen::emcy::{self, Emcy};
-use taut_driver::canopen::od;
-use taut_driver::canopen::pdo::{self, MapEntry, COB_ID_INVALID};
-use taut_driver::canopen::sdo::AbortCode;
-use taut_driver::{Frame, NodeId};
+use taut_proto::can::Frame;
+use taut_proto::canopen::emcy::{self, Emcy};
+use taut_proto::canopen::od;
+use taut_proto::canopen::pdo::{self, MapEntry, COB_ID_INVALID};
+use taut_proto::canopen::sdo::AbortCode;
+use taut_proto::canopen::NodeId;
 
 /// CiA 301: general parameter incompatibility (here: sub 0 counts an empty mapping entry).
 const PARAM_INCOMPATIBLE: AbortCode = AbortCode(0x0604_0043);

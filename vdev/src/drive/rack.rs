@@ -6,8 +6,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use taut_driver::transport::virtual_bus::Filter;
-use taut_driver::{CanTransport, Frame, NodeId, TransportError};
+use taut_proto::can::Filter;
+use taut_proto::can::{CanTransport, Frame, TransportError};
+use taut_proto::canopen::NodeId;
 
 /// Several virtual drives on one transport endpoint.
 pub struct DriveRack<T: CanTransport> {

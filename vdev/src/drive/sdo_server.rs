@@ -2,7 +2,7 @@
 //! duplicated answers; reads and writes go to the object dictionary (`dictionary`).
 
 use super::VirtualDrive;
-use taut_driver::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse, Segment};
+use taut_proto::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse, Segment};
 
 /// Largest object the SDO server moves in one transfer, bytes.
 pub(super) const SDO_MAX: usize = 64;

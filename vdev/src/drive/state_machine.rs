@@ -2,8 +2,8 @@
 //! model used when no plant is coupled.
 
 use super::VirtualDrive;
-use taut_driver::canopen::cia402::{self, Command, Mode, State};
-use taut_driver::canopen::emcy::{self, Emcy};
+use taut_proto::canopen::cia402::{self, Command, Mode, State};
+use taut_proto::canopen::emcy::{self, Emcy};
 
 impl VirtualDrive {
     pub(super) fn on_controlword(&mut self, cw: u16) {

@@ -4,11 +4,11 @@
 use super::node::Node;
 use super::script::Step;
 use super::DEFAULT_BOOT_WAIT;
-use crate::canopen::cia402::Mode;
-use crate::canopen::pdo::{self, PdoLayout, PdoSet};
-use crate::canopen::{od, NodeId};
 use std::fmt;
 use std::time::Duration;
+use taut_proto::canopen::cia402::Mode;
+use taut_proto::canopen::pdo::{self, PdoLayout, PdoSet};
+use taut_proto::canopen::{od, NodeId};
 
 /// Settings of one drive, in driver units.
 #[derive(Debug, Clone, PartialEq)]
@@ -214,7 +214,7 @@ impl MasterConfig {
     /// Builds the master's configuration from the robot description: the `[can]` table and
     /// every `[cable.drive]`.
     pub fn from_robot(cfg: &taut_config::RobotConfig) -> Result<Self, ConfigProblem> {
-        use taut_config::devices::DriveMode;
+        use taut_proto::devices::DriveMode;
         let problem = |key: String, message: String| ConfigProblem { key, message };
         let can = cfg
             .can
@@ -248,7 +248,7 @@ impl MasterConfig {
                 // CiA 306: every object bring-up touches must be in the drive's EDS, checked
                 // before a frame is sent.
                 let key = format!("cable[{i}].drive.eds");
-                let eds = taut_config::eds::Eds::load(path).map_err(|e| problem(key.clone(), e.to_string()))?;
+                let eds = taut_proto::eds::Eds::load(path).map_err(|e| problem(key.clone(), e.to_string()))?;
                 crate::canopen::eds_check::check(&node, &eds).map_err(|p| {
                     let at = p.line.map_or(String::new(), |l| format!(":{l}"));
                     problem(key.clone(), format!("{path}{at}: {p}"))

@@ -3,13 +3,13 @@
 
 use super::node::Axis;
 use super::{Event, Master, NodeConfig, Phase, Problem, FAULT_RESET_CYCLES};
-use crate::canopen::cia402::{self, Mode, State, Want};
-use crate::canopen::nmt::NmtState;
-use crate::canopen::pdo;
-use crate::canopen::sync;
-use crate::canopen::{od, NodeId};
-use crate::transport::Frame;
 use std::fmt;
+use taut_proto::can::Frame;
+use taut_proto::canopen::cia402::{self, Mode, State, Want};
+use taut_proto::canopen::nmt::NmtState;
+use taut_proto::canopen::pdo;
+use taut_proto::canopen::sync;
+use taut_proto::canopen::{od, NodeId};
 
 impl Master {
     pub(super) fn on_tpdo(&mut self, k: usize, id: u16, f: &Frame) {

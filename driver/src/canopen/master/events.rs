@@ -1,12 +1,12 @@
 //! What the master reports: [`Event`]s, the kinds of bad input ([`Problem`]) and the [`Counters`].
 
 use super::{Identity, NodeFailure};
-use crate::canopen::cia402::State;
-use crate::canopen::emcy::Emcy;
-use crate::canopen::sdo::SdoAbort;
-use crate::canopen::NodeId;
 use crate::transport::BusEvent;
 use std::fmt;
+use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::emcy::Emcy;
+use taut_proto::canopen::sdo::SdoAbort;
+use taut_proto::canopen::NodeId;
 
 /// Kinds of bad or unexpected input, each reported once by [`Event::FirstOfKind`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -32,16 +32,17 @@ pub use cycle::{CommandError, Operational};
 pub use events::{Counters, Event, Problem};
 pub use node::{Axis, Identity, NodeFailure, NodeStatus, Phase};
 
-use super::cia402::{State, Want};
-use super::emcy;
-use super::heartbeat;
-use super::nmt::{self, NmtCommand, NmtState};
-use super::sdo::SdoDiscard;
-use super::sync::SyncProducer;
-use super::{function_code, node_of, NodeId};
-use crate::transport::{BusEvent, Frame};
+use crate::transport::BusEvent;
 use node::Node;
 use std::time::{Duration, Instant};
+use taut_proto::can::Frame;
+use taut_proto::canopen::cia402::{State, Want};
+use taut_proto::canopen::emcy;
+use taut_proto::canopen::heartbeat;
+use taut_proto::canopen::nmt::{self, NmtCommand, NmtState};
+use taut_proto::canopen::sdo::SdoDiscard;
+use taut_proto::canopen::sync::SyncProducer;
+use taut_proto::canopen::{function_code, node_of, NodeId};
 
 /// Capacity of the transmit queue, frames.
 pub const TX_QUEUE: usize = 256;

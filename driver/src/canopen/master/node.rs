@@ -3,15 +3,15 @@
 
 use super::script::{script, Step};
 use super::{NodeConfig, Supervision};
-use crate::canopen::cia402::{Mode, State, Want};
-use crate::canopen::emcy::Emcy;
-use crate::canopen::heartbeat::HeartbeatConsumer;
-use crate::canopen::nmt::NmtState;
-use crate::canopen::pdo;
-use crate::canopen::sdo::{SdoAbort, SdoClient};
-use crate::canopen::NodeId;
 use std::fmt;
 use std::time::{Duration, Instant};
+use taut_proto::canopen::cia402::{Mode, State, Want};
+use taut_proto::canopen::emcy::Emcy;
+use taut_proto::canopen::heartbeat::HeartbeatConsumer;
+use taut_proto::canopen::nmt::NmtState;
+use taut_proto::canopen::pdo;
+use taut_proto::canopen::sdo::{SdoAbort, SdoClient};
+use taut_proto::canopen::NodeId;
 
 /// The identity of a node (0x1000, 0x1018).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -3,12 +3,12 @@
 
 use super::node::{Axis, Identity};
 use super::{Event, Master, NodeConfig, NodeFailure, Phase, Problem, Supervision};
-use crate::canopen::cia402::{self, State};
-use crate::canopen::nmt::NmtCommand;
-use crate::canopen::od;
-use crate::canopen::pdo::{self, SdoWrite};
-use crate::canopen::sdo::{AbortCode, SdoOutcome};
 use std::time::Instant;
+use taut_proto::canopen::cia402::{self, State};
+use taut_proto::canopen::nmt::NmtCommand;
+use taut_proto::canopen::od;
+use taut_proto::canopen::pdo::{self, SdoWrite};
+use taut_proto::canopen::sdo::{AbortCode, SdoOutcome};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Field {

@@ -1,7 +1,7 @@
 //! SYNC producer (CiA 301 7.2.5): an empty frame on COB-ID 0x080 every cycle. Synchronous PDOs
 //! are sampled (TPDO) and applied (RPDO) at each SYNC.
 
-use crate::transport::Frame;
+use crate::can::Frame;
 use std::time::{Duration, Instant};
 
 /// COB-ID of SYNC.

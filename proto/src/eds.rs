@@ -20,7 +20,7 @@
 //! file and line. Sections other than objects (`[FileInfo]`, `[DeviceInfo]`, ..) are kept as
 //! key/value pairs. Caps: 4 MiB, 200 000 lines, 65 536 sections.
 
-use crate::pdo::Access;
+use crate::pdo_map::Access;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};

@@ -6,7 +6,7 @@ use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criteri
 use std::time::{Duration, Instant};
 use taut_driver::canopen::master::{Master, MasterConfig, NodeConfig};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
-use taut_driver::transport::{CanTransport, Frame};
+use taut_proto::can::{CanTransport, Frame};
 use taut_vdev::{rack_filters, DriveRack};
 
 struct Rig {

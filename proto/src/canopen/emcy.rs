@@ -10,7 +10,7 @@
 //! ```
 
 use super::NodeId;
-use crate::transport::Frame;
+use crate::can::Frame;
 use std::fmt;
 
 /// Base COB-ID of EMCY.

@@ -8,7 +8,7 @@
 //! Inside each register the bytes are big-endian, as Modbus sends them. A float32 is the IEEE 754
 //! bit pattern of those 32 bits. Tension = raw * scale + offset, N.
 
-use taut_config::devices::{LoadCellConfig, ValueFormat, WordOrder};
+use crate::devices::{LoadCellConfig, ValueFormat, WordOrder};
 
 /// The 32 bits of two registers in the given word order.
 pub fn join_words(regs: [u16; 2], order: WordOrder) -> u32 {

@@ -23,7 +23,7 @@ const TABLE: [u16; 256] = {
 /// CRC-16/MODBUS of `bytes`.
 ///
 /// ```
-/// use taut_driver::modbus::crc::crc16;
+/// use taut_proto::modbus::crc::crc16;
 /// // Read 10 holding registers from unit 1: the CRC goes out as C5 CD.
 /// assert_eq!(crc16(&[0x01, 0x03, 0x00, 0x00, 0x00, 0x0A]).to_le_bytes(), [0xC5, 0xCD]);
 /// ```

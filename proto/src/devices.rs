@@ -4,7 +4,7 @@
 //! Each `validate` returns `(key, message)` for the first bad field; the caller adds the file, line
 //! and the path of the enclosing table.
 
-use crate::pdo::{Dir, PdoMaps, PdoObject};
+use crate::pdo_map::{Dir, PdoMaps, PdoObject};
 use serde::{Deserialize, Serialize};
 use toml::Spanned;
 
@@ -159,7 +159,7 @@ pub enum PdoMapping {
 }
 
 /// One `[[cable.drive.rpdo]]` / `[[cable.drive.tpdo]]` table: the objects of one PDO, in order
-/// (see [`crate::pdo`] for the syntax and the rules).
+/// (see [`crate::pdo_map`] for the syntax and the rules).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PdoTable {
@@ -291,7 +291,7 @@ impl DriveConfig {
     }
 
     /// The PDO maps: the `rpdo`/`tpdo` tables, or the preset. Checked against the rules of
-    /// [`crate::pdo`]; an error carries the span of the bad text where the tables came from a file.
+    /// [`crate::pdo_map`]; an error carries the span of the bad text where the tables came from a file.
     pub fn pdo_maps(&self) -> Result<PdoMaps, (String, Option<std::ops::Range<usize>>, String)> {
         if self.rpdo.is_empty() && self.tpdo.is_empty() {
             let m = PdoMaps::preset(self.pdo.unwrap_or_default());

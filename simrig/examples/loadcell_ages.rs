@@ -1,9 +1,9 @@
 //! How old the tension readings of the simulated load cells get, seen from a loop at 500 Hz:
 //! the virtual Modbus RTU server on a pty and the driver's load-cell I/O thread, as in the
 //! simulated rig. Run it on a loaded machine to see what the real-time loop's staleness limit
-//! meets. `[FIFO=server|both] cargo run -p taut-vdev --example loadcell_ages -- SECONDS [CELLS]`
+//! meets. `[FIFO=server|both] cargo run -p taut-simrig --example loadcell_ages -- SECONDS [CELLS]`
 use std::time::{Duration, Instant};
-use taut_config::devices::{LoadCellBusConfig, LoadCellConfig};
+use taut_proto::devices::{LoadCellBusConfig, LoadCellConfig};
 use taut_vdev::{TensionHandle, VirtualLoadCells};
 
 fn main() {

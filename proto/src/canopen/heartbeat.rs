@@ -7,7 +7,7 @@
 
 use super::nmt::NmtState;
 use super::NodeId;
-use crate::transport::Frame;
+use crate::can::Frame;
 use std::time::{Duration, Instant};
 
 /// Base COB-ID of heartbeat / boot-up messages.

@@ -17,7 +17,7 @@
 //! Block transfer (ccs/scs 5, 6) is not supported and is answered with an abort.
 
 use super::NodeId;
-use crate::transport::Frame;
+use crate::can::Frame;
 use std::fmt;
 use std::time::{Duration, Instant};
 

@@ -259,8 +259,8 @@ pub struct PdoSet {
 }
 
 impl PdoSet {
-    /// The PDOs of checked configuration maps (see `taut_config::pdo`).
-    pub fn from_maps(m: &taut_config::pdo::PdoMaps) -> PdoSet {
+    /// The PDOs of checked configuration maps (see `crate::pdo_map`).
+    pub fn from_maps(m: &crate::pdo_map::PdoMaps) -> PdoSet {
         let mut pdos = heapless::Vec::new();
         for (dir, list) in [(Direction::Rx, &m.rx), (Direction::Tx, &m.tx)] {
             for (k, objs) in list.iter().enumerate().take(4) {
@@ -339,7 +339,7 @@ impl SdoWrite {
 }
 
 /// The two named presets of the configuration (`pdo = "compact"` / `"with_mode"`); the maps
-/// themselves are `taut_config::pdo::PdoMaps::preset`, the one place they are written down.
+/// themselves are `crate::pdo_map::PdoMaps::preset`, the one place they are written down.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PdoLayout {
     /// One RPDO and one TPDO of 8 bytes per drive; the mode is set by SDO.
@@ -352,8 +352,8 @@ pub enum PdoLayout {
 impl PdoLayout {
     /// The PDOs of this preset.
     pub fn pdos(&self) -> PdoSet {
-        use taut_config::devices::PdoMapping;
-        PdoSet::from_maps(&taut_config::pdo::PdoMaps::preset(match self {
+        use crate::devices::PdoMapping;
+        PdoSet::from_maps(&crate::pdo_map::PdoMaps::preset(match self {
             PdoLayout::Compact => PdoMapping::Compact,
             PdoLayout::WithMode => PdoMapping::WithMode,
         }))

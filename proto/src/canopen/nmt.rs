@@ -5,7 +5,7 @@
 //! ```
 
 use super::NodeId;
-use crate::transport::Frame;
+use crate::can::Frame;
 
 /// COB-ID of NMT commands.
 pub const NMT_COB_ID: u16 = 0x000;
