@@ -21,6 +21,7 @@ mod excitation;
 mod faults;
 mod lockstep;
 mod notracker_3mm;
+mod notracker_3mm_dynamic;
 mod notracker_short;
 mod operator;
 mod reset;
