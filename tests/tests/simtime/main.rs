@@ -23,6 +23,7 @@ mod lockstep;
 mod notracker_3mm;
 mod notracker_3mm_dynamic;
 mod notracker_short;
+mod notracker_short_rests;
 mod operator;
 mod reset;
 mod wiring;
