@@ -97,6 +97,12 @@ const CREEP_M_S: [f64; 3] = [1e-4, 3e-4, 1e-3];
 
 fn measure(seed: u64, rest_s: f64) -> Figures {
     let (rec, labels, truth, cfg) = short_rests(seed, 60, rest_s, 0.0);
+    if std::env::var_os("TAUT_E2E_KEEP").is_some() {
+        // For `taut calibrate REC --config ...` by hand.
+        let path = std::env::temp_dir().join(format!("taut-short-rests-{seed}-{rest_s}.csv"));
+        rec.save_atomic(&path).unwrap();
+        eprintln!("recording kept in {}", path.display());
+    }
     let sigma = cfg.calibration.encoder_sigma_m;
     let d = taut_calib::selfcal::dwell::find(&rec, sigma, 20);
     let (rests, found, biased) = score(&rec, &d, &labels, 20, sigma);
