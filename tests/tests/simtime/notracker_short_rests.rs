@@ -154,8 +154,9 @@ fn measure(seed: u64, rest_s: f64) -> Figures {
 /// 60 rests of 0.5 s on the dynamic plant, without labels (seed 1): the rests are found and
 /// calibrate; a creep of 1 mm/s through each rest is refused. Measured over seeds 1-3 with
 /// rests of 0.5 and 1 s (`short_rests_sweep`): 365 of 366 rests found, 3 of 368 dwells
-/// biased beyond 5 sigma of the rest's mean or outside every labelled rest, no creep of 1 mm/s
-/// accepted (0 of 366); the bounds below leave a seed's recording room for one more of each.
+/// biased beyond 5 sigma of the rest's mean or outside every labelled rest (seed 1's: the hold
+/// after the last move, still but no labelled rest), no creep of 1 mm/s accepted (0 of 366);
+/// the bounds below leave a seed's recording room for one more of each.
 #[test]
 fn short_rests_on_the_dynamic_plant_are_found_and_creep_is_refused() {
     let f = measure(1, 0.5);
