@@ -80,6 +80,9 @@ pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPla
         poses: m.dwell_poses.min(MAX_DWELL_POSES),
         start: Some([(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]),
         grid: [7, 5, 4],
+        // The stretch the calibration models (`[calibration] cable_ea_n` with its sigma): the
+        // prediction then carries the stiffness unknowns the calibration fits.
+        stretch: taut_calib::selfcal::SelfCalOptions::from_config(cfg).stretch,
     })
 }
 
@@ -274,31 +277,38 @@ mod plan_predictions {
             (16, 32.0, 8, true, 128.0),
             (16, 34.0, 8, true, 128.0),
         ] {
-            let mut cfg = base.clone();
-            cfg.motion.dwell_poses = poses;
-            cfg.motion.dwell_s = dwell;
-            cfg.motion.dwell_tares = tares;
-            cfg.motion.dwell_tare_each_cable = each;
-            cfg.motion.dwell_settle_s = 0.5;
-            cfg.motion.dwell_speed_m_s = 0.5;
-            cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
-            let ccfg = <crate::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
-            let p = super::dwell_plan(&cfg, &ccfg).unwrap();
-            let nominal = cfg.anchors().unwrap();
-            let m = &cfg.motion;
-            let ntares = p.tare.iter().filter(|&&t| t != 0).count();
-            let wall = poses as f64 * (m.dwell_s + m.dwell_settle_s)
-                + ntares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
-                + p.path_m / m.dwell_speed_m_s;
-            let mc = |scale: f64| p.worst_exceeds_probability(&nominal, 3e-3, scale, 4_000_000);
-            let ((pr, up), (_, up118), (_, up145)) = (mc(1.0), mc(1.181), mc(1.45));
-            eprintln!(
-                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s: worst-anchor sigma {:.3} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}); at 1.181 sigma <= {up118:.1e}, at 1.45 sigma <= {up145:.1e}; ~{wall:.0} s (path {:.1} m), z sigmas {:?} mm, tare masks {:?}",
+            for ea in [false, true] {
+                let mut cfg = base.clone();
+                cfg.motion.dwell_poses = poses;
+                cfg.motion.dwell_s = dwell;
+                cfg.motion.dwell_tares = tares;
+                cfg.motion.dwell_tare_each_cable = each;
+                cfg.motion.dwell_settle_s = 0.5;
+                cfg.motion.dwell_speed_m_s = 0.5;
+                cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
+                if ea {
+                    // The dynamic plant's datasheet stiffness (tests/tests/notracker).
+                    cfg.calibration.cable_ea_n = 0.9e6;
+                    cfg.calibration.cable_ea_sigma_n = 0.15e6;
+                }
+                let ccfg = <crate::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
+                let p = super::dwell_plan(&cfg, &ccfg).unwrap();
+                let nominal = cfg.anchors().unwrap();
+                let m = &cfg.motion;
+                let ntares = p.tare.iter().filter(|&&t| t != 0).count();
+                let wall = poses as f64 * (m.dwell_s + m.dwell_settle_s)
+                    + ntares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
+                    + p.path_m / m.dwell_speed_m_s;
+                let mc = |scale: f64| p.worst_exceeds_probability(&nominal, 3e-3, scale, 4_000_000);
+                let ((pr, up), (_, up118), (_, up145)) = (mc(1.0), mc(1.181), mc(1.45));
+                eprintln!(
+                "{poses} x {dwell} s, {tares} tares (each cable {each}), {rate}/s, stiffness fitted {ea}: worst-anchor sigma {:.3} mm, P(worst > 3 mm) {pr:.1e} (<= {up:.1e}); at 1.181 sigma <= {up118:.1e}, at 1.45 sigma <= {up145:.1e}; ~{wall:.0} s (path {:.1} m), z sigmas {:?} mm, tare masks {:?}",
                 p.worst_anchor_sigma_m * 1e3,
                 p.path_m,
                 p.anchor_sigma_m.iter().map(|s| (s[2] * 1e4).round() / 10.0).collect::<Vec<_>>(),
                 p.tare.iter().filter(|&&t| t != 0).collect::<Vec<_>>()
             );
+            }
         }
     }
 }

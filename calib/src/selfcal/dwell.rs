@@ -12,6 +12,15 @@
 //! their 5-sigma band (false alarm ~6e-7 per cable), and the run's first half (the settling after
 //! a move) is dropped and the test repeated once; a run that still drifts is not a dwell.
 //!
+//! The step test passes every speed below 6 sqrt(2) sigma per reading (212 mm/s at 500 Hz), so
+//! without labels a run also holds the end of the move before a rest and the start of the move
+//! after it (a trapezoid's deceleration and acceleration), and a rest of 0.5-1 s fails the drift
+//! test with them inside. Such a run is cut into stretches whose readings stay within
+//! `6 sigma sqrt(1 + 1 / 8)` (0.32 mm at 50 µm) of the mean of their first 8 readings, each
+//! starting where the previous one left that band; the longest is the rest when it holds more
+//! than half of the rows of all stretches of `min_samples` or more (a creep leaves the band
+//! again and again, in stretches of equal length) and passes the drift test.
+//!
 //! A recording with phase labels (the loop's dwell plan labels each recorded dwell with its
 //! pose's index, the moves and the settling after them with -1) is split where the label
 //! changes, and only labelled rows form dwells: the loop knows when the platform has settled,
@@ -120,38 +129,51 @@ impl Dwells {
     }
 }
 
+/// Readings averaged into a run's reference (module documentation).
+const REF_ROWS: usize = 8;
+
 /// Finds the dwells of `rec`; `sigma_enc` is one encoder reading's 1-sigma, m.
 pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
     let n = rec.n_cables;
     let min_samples = min_samples.max(4);
+    let band = 6.0 * sigma_enc * (1.0 + 1.0 / REF_ROWS as f64).sqrt();
     let step = 6.0 * std::f64::consts::SQRT_2 * sigma_enc;
     let label = |i: usize| rec.phase.as_ref().map_or(-1, |p| p[i]);
     let labelled = rec.phase.as_ref().is_some_and(|p| p.iter().any(|&x| x >= 0));
-    let still = |i: usize| {
-        let (a, b) = (rec.lengths(i - 1), rec.lengths(i));
-        label(i) == label(i - 1) && (0..n).all(|j| (b[j] - a[j]).abs() <= step)
-    };
+    let finite = |i: usize| rec.lengths(i).iter().all(|v| v.is_finite());
     let mut out =
         Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None };
+    let still =
+        |i: usize| finite(i) && label(i) == label(i - 1) && (0..n).all(|j| (rec.lengths(i)[j] - rec.lengths(i - 1)[j]).abs() <= step);
     let mut i = 0;
     while i < rec.len() {
-        if !rec.lengths(i).iter().all(|v| v.is_finite()) {
+        if !finite(i) {
             i += 1;
             continue;
         }
         let s = i;
         i += 1;
-        while i < rec.len() && rec.lengths(i).iter().all(|v| v.is_finite()) && still(i) {
+        while i < rec.len() && still(i) {
             i += 1;
         }
         if i - s < min_samples || (labelled && label(s) < 0) {
             continue;
         }
         let mut lo = s;
-        let mut ok = drift_free(rec, lo, i, sigma_enc);
+        let mut hi = i;
+        let mut ok = drift_free(rec, lo, hi, sigma_enc);
         if !ok && (i - s) / 2 >= min_samples {
             lo = s + (i - s) / 2;
-            ok = drift_free(rec, lo, i, sigma_enc);
+            ok = drift_free(rec, lo, hi, sigma_enc);
+        }
+        if !ok && !labelled {
+            // A short rest between two moves (module documentation): the one stretch of the run
+            // that stays within the band of its start, if it holds most of such stretches' rows
+            // (a creep leaves the band again and again) and is free of drift.
+            if let Some((a, b)) = rest_within(rec, s, i, band, min_samples) {
+                (lo, hi) = (a, b);
+                ok = drift_free(rec, lo, hi, sigma_enc);
+            }
         }
         if !ok {
             out.drifting += 1;
@@ -159,7 +181,7 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
         }
         // The first and last readings of a run may already be a few tenths of a millimetre into
         // the move (a smooth start is slower than the step test): left out.
-        let (lo, hi) = if i - lo >= min_samples + 4 { (lo + 2, i - 2) } else { (lo, i) };
+        let (lo, hi) = if hi - lo >= min_samples + 4 { (lo + 2, hi - 2) } else { (lo, hi) };
         out.samples += hi - lo;
         out.dwells.push(average(rec, lo, hi));
     }
@@ -215,6 +237,28 @@ fn inflation(dwells: &[Dwell], get: impl Fn(usize, usize) -> f64, n: usize) -> (
     }
     let row = ss_r / dof_r as f64;
     ((ss_b / dof_b as f64 / row).max(1.0), Some(row.sqrt()))
+}
+
+/// The stretches of rows `s..e` whose readings stay within `band` of the mean of their first
+/// [`REF_ROWS`] readings (each starts where the previous one left the band); the longest, if it
+/// has at least `min_samples` rows and more than half of the rows of all stretches that long.
+fn rest_within(rec: &Recording, s: usize, e: usize, band: f64, min_samples: usize) -> Option<(usize, usize)> {
+    let n = rec.n_cables;
+    let mut runs = Vec::new();
+    let mut i = s;
+    while i < e {
+        let a = i;
+        let reference: Vec<f64> = (0..n).map(|j| mean_l(rec, a, e.min(a + REF_ROWS), j)).collect();
+        while i < e && (0..n).all(|j| (rec.lengths(i)[j] - reference[j]).abs() <= band) {
+            i += 1;
+        }
+        i = i.max(a + 1);
+        if i - a >= min_samples {
+            runs.push((a, i));
+        }
+    }
+    let total: usize = runs.iter().map(|(a, b)| b - a).sum();
+    runs.into_iter().max_by_key(|(a, b)| b - a).filter(|(a, b)| 2 * (b - a) > total)
 }
 
 fn mean_l(rec: &Recording, lo: usize, hi: usize, j: usize) -> f64 {

@@ -15,6 +15,13 @@
 //! prediction  the Cramér–Rao bound of the chosen set without the prior: per-anchor 1-sigma
 //! ```
 //!
+//! With a datasheet stiffness ([`PlanInput::stretch`], `[calibration] cable_ea_n` with its
+//! sigma) the calibration fits each cable's stretch factor within its tolerance
+//! ([`super::solve`]); the planner's information then carries those factors too, with their
+//! prior added once to the sum (not per candidate), so the predicted anchor covariance
+//! includes what the unknown stiffness costs. Without it the layout and the bound are the
+//! ideal model's.
+//!
 //! The information of a set of dwells is the sum of theirs (each dwell's pose is its own
 //! unknown), so the greedy choice is cheap; greedy selection of a trace criterion is not
 //! guaranteed optimal, but every step is the best single addition and the bound it reports is
@@ -73,6 +80,10 @@ pub struct PlanInput<'a> {
     pub poses: usize,
     /// Where the path starts (the platform's rest position, if known), m.
     pub start: Option<[f64; 3]>,
+    /// The cables' stretch as the calibration models it ([`super::SelfCalOptions::stretch`]):
+    /// `None`, the ideal model; with `rel_sigma` above 0 the stretch factors are unknowns
+    /// with their prior. Used with load cells only (as the calibration).
+    pub stretch: Option<crate::bundle::Stretch>,
     /// Candidate grid points per axis `[x, y, z]`.
     pub grid: [usize; 3],
 }
@@ -257,7 +268,9 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
         return Err(PlanError::TooFewFeasible { feasible: cand.len(), wanted: inp.poses });
     }
     let tensions = inp.loadcell_sigma_n.is_some();
-    let lay = Layout { n, offsets: tensions, mass: false, ea: false };
+    let stretch = inp.stretch.filter(|st| tensions && st.ea_n > 0.0 && st.ea_n.is_finite());
+    let fitted = stretch.filter(|st| st.rel_sigma > 0.0);
+    let lay = Layout { n, offsets: tensions, mass: false, ea: fitted.is_some() };
     let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
     let (c, d) = gauge(inp.nominal, lay, frame);
     let ng = lay.count();
@@ -265,6 +278,9 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     for j in 0..n {
         for a in 0..3 {
             g[lay.a(j) + a] = inp.nominal[j][a];
+        }
+        if lay.ea {
+            g[lay.s(j)] = 1.0;
         }
     }
     let var_f = inp.loadcell_sigma_n.unwrap_or(1.0).max(1e-6).powi(2);
@@ -292,7 +308,8 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
             var_f,
             mass: inp.mass_kg,
             min_tension_n: inp.min_tension_n,
-            stretch: None,
+            // The factors' prior is added once to the sum below: none per candidate.
+            stretch: stretch.map(|st| crate::bundle::Stretch { rel_sigma: 0.0, ..st }),
             c: c.clone(),
             d: d.clone(),
         };
@@ -322,6 +339,11 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     // Greedy A-optimal selection with a weak prior.
     let prior = DMatrix::<f64>::identity(ng, ng);
     let mut sum = DMatrix::<f64>::zeros(ng, ng);
+    if let Some(st) = fitted {
+        for j in 0..n {
+            sum[(lay.s(j), lay.s(j))] += 1.0 / (st.rel_sigma * st.rel_sigma);
+        }
+    }
     for &(_, g) in &tare_at {
         for j in (0..n).filter(|&j| g & (1 << j) != 0) {
             sum[(lay.c(j), lay.c(j))] += inp.tension_samples.max(1) as f64 / var_f;
@@ -491,6 +513,7 @@ mod tests {
             poses,
             start: Some([0.0, 0.0, 2.0]),
             grid: [5, 5, 4],
+            stretch: None,
         }
     }
 
@@ -594,6 +617,35 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn fitted_stiffness_widens_the_bound_and_a_tight_prior_gives_the_held_one() {
+        // EA 1e5 N (a soft cable: up to ~2 mm of stretch at these tensions), 16 poses with
+        // tares. Fitting each cable's stiffness within +-15 % costs anchor precision; a prior
+        // of +-1e-6 is the stiffness held, which the ideal model's bound equals to the stretch's
+        // small change of the Jacobian.
+        let b = [[0.0; 3]; 4];
+        let fol = [false, false, false, true];
+        let base = PlanInput { length_samples: 1250, tension_samples: 320, min_tension_n: 5.0, tares: 6, ..input(&NOM, &b, &fol, 16) };
+        let ideal = plan(&base).unwrap();
+        let st = |rel_sigma| Some(crate::bundle::Stretch { ea_n: 1e5, rel_sigma });
+        let fitted = plan(&PlanInput { stretch: st(0.15), ..base.clone() }).unwrap();
+        let held = plan(&PlanInput { stretch: st(0.0), ..base.clone() }).unwrap();
+        let tight = plan(&PlanInput { stretch: st(1e-6), ..base.clone() }).unwrap();
+        eprintln!(
+            "worst-anchor sigma: ideal {:.3} mm, stiffness held {:.3} mm, fitted +-15 % {:.3} mm, +-1e-6 {:.3} mm",
+            ideal.worst_anchor_sigma_m * 1e3,
+            held.worst_anchor_sigma_m * 1e3,
+            fitted.worst_anchor_sigma_m * 1e3,
+            tight.worst_anchor_sigma_m * 1e3
+        );
+        assert!(fitted.worst_anchor_sigma_m > 1.01 * held.worst_anchor_sigma_m);
+        assert!((tight.worst_anchor_sigma_m / held.worst_anchor_sigma_m - 1.0).abs() < 1e-3);
+        assert!((held.worst_anchor_sigma_m / ideal.worst_anchor_sigma_m - 1.0).abs() < 0.05);
+        // No load cells: the stretch is not modelled (as the calibration), the bound unchanged.
+        let enc = PlanInput { loadcell_sigma_n: None, ..base.clone() };
+        assert_eq!(plan(&PlanInput { stretch: st(0.15), ..enc.clone() }).unwrap(), plan(&enc).unwrap());
     }
 
     #[test]

@@ -44,7 +44,16 @@ pub enum Plan {
     /// readings a second per cable for a predicted P(worst aligned anchor > 3 mm) well below
     /// 5e-4 (BENCHMARKS.md).
     Example,
+    /// The example's poses and tares with dwells of [`BUS_DWELL_S`]: the dynamic plant's 3 mm
+    /// acceptance (simtime `notracker_3mm_dynamic`) at the ~62 tension readings a second per
+    /// cable that the simulated-time bus delivers (the example's 34 s were chosen at the ~128
+    /// a second of load cells on a pseudo-terminal).
+    Bus,
 }
+
+/// The dwell of [`Plan::Bus`], s: the plan that meets the 3 mm budget on the dynamic plant at
+/// 62 readings a second with its measured honesty (simtime `notracker_3mm_dynamic`).
+pub const BUS_DWELL_S: f64 = 130.0;
 
 /// The tracker-free example robot with its files in `dir`, running `plan`.
 pub fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
@@ -59,7 +68,10 @@ pub fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
         cfg.motion.dwell_speed_m_s = 0.5;
         cfg.motion.dwell_tares = 8;
     }
-    if plan == Plan::Example {
+    if plan == Plan::Bus {
+        cfg.motion.dwell_s = BUS_DWELL_S;
+    }
+    if plan != Plan::Short {
         // A test-machine allowance, not the robot's: the example's 0.5 s (the default is
         // 0.1 s) stays in the configuration that `taut start` runs. In session 13 three of three
         // 12-minute start-ups on the shared two-core machine (load 5-7) latched a hold on stale
@@ -148,7 +160,11 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
         so.physics.dynamics = Some(taut_sim::Dynamics::default());
     }
     let mut states = Vec::new();
-    let limit_s = if plan_kind == Plan::Example { 1500 } else { 300 };
+    let limit_s = match plan_kind {
+        Plan::Short => 300,
+        Plan::Example => 1500,
+        Plan::Bus => 4000,
+    };
     let mut sampler = None;
     let (d, truth, ok, l, c, recording, failed_steps) = if sim_time {
         let run = taut_tests::startup::in_sim_time(
@@ -308,8 +324,15 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     // of the 16 poses (every 5th held out; sqrt(16/13) = 1.11), at the estimated rather than
     // the nominal geometry, with the measured variance factor.
     let ratio = achieved / replan.worst_anchor_sigma_m;
-    // On the dynamic plant too (seeds 1-5: 0.89-1.11 with the stretch modelled).
-    assert!((0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
+    // On the dynamic plant too (seeds 1-5: 0.89-1.11 with the stretch modelled). Not for
+    // [`Plan::Bus`]: its acceptance (simtime `notracker_3mm_dynamic`) states the ratio's
+    // distribution over the dynamic plant's sites (36 runs: 0.79-1.34, mean 1.04, sd 0.145), so
+    // this range would fail about 6 % of its correct runs below 0.8 (a site whose geometry the
+    // nominal prediction underrates: seed 20 at 0.79, worst anchor 0.13 mm) and 2e-3 above 1.5;
+    // its high side is the recording's check there.
+    if plan_kind != Plan::Bus {
+        assert!((0.8..1.5).contains(&ratio), "seed {seed}: achieved / predicted worst-anchor sigma {ratio:.2}");
+    }
     // The probability that a correct calibration of this recording has its worst aligned
     // anchor beyond the 3 mm: the planner's covariance at the measured reading rate,
     // scaled up to the achieved sigma where that is larger, by Monte Carlo (1e6 draws, with a

@@ -65,21 +65,21 @@ const RATIOS: [f64; 15] = [0.884, 0.942, 0.904, 0.922, 0.930, 0.938, 0.843, 0.94
 
 /// At least the 99.9 % upper prediction bound of the next ratio ([`honesty_bound`]: 1.180 over
 /// the first ten, when the plan was chosen; 1.141 over twelve, 1.165 over all fifteen).
-const HONESTY_UP: f64 = 1.181;
+pub(crate) const HONESTY_UP: f64 = 1.181;
 
 /// The plan's P(worst aligned anchor > 3 mm) at [`HONESTY_UP`] x its predicted covariance.
-const PLAN_P_MAX: f64 = 6e-5;
+pub(crate) const PLAN_P_MAX: f64 = 6e-5;
 
 /// The recording's own P(worst aligned anchor > 3 mm) from its achieved sigmas.
-const RECORDING_P_MAX: f64 = 1e-3;
+pub(crate) const RECORDING_P_MAX: f64 = 1e-3;
 
 /// The plan keeps P(worst > 3 mm) below [`RECORDING_P_MAX`] up to this many times its predicted
 /// sigma: the recording's check passes unless the achieved sigma is that much larger.
-const SCALE_CHECKED: f64 = 1.45;
+pub(crate) const SCALE_CHECKED: f64 = 1.45;
 
 /// The largest chance a correct run's ratio exceeds [`SCALE_CHECKED`] (the prediction over
 /// [`RATIOS`]: 4.2e-6 over the first ten, 3.9e-7 over twelve and over all fifteen).
-const RECORDING_CHANCE_MAX: f64 = 5e-6;
+pub(crate) const RECORDING_CHANCE_MAX: f64 = 5e-6;
 
 /// The failure probability per run with the asserted bounds: the plan, the recording check, the
 /// k-sigma check (12 coordinates at 4.89 sigma) and the chi-square check (its 1e-5 quantile).
@@ -170,7 +170,7 @@ fn worst_anchor_within_3_mm() {
 
 /// P(chi2 / dof >= v) for a chi-square with `dof` degrees of freedom (Wilson–Hilferty, the
 /// inverse of `taut_calib::selfcal::chi2_quantile`).
-fn chi2_tail(dof: usize, v: f64) -> f64 {
+pub(crate) fn chi2_tail(dof: usize, v: f64) -> f64 {
     let h = 2.0 / (9.0 * dof.max(1) as f64);
     let z = (v.cbrt() - (1.0 - h)) / h.sqrt();
     0.5 * erfc(z / std::f64::consts::SQRT_2)
@@ -218,13 +218,21 @@ fn plan_candidates() {
     let list = |key: &str, default: &str| std::env::var(key).unwrap_or_else(|_| default.to_string());
     let scales: Vec<f64> = list("TAUT_SCALES", "1.0,1.1,1.2").split(',').map(|s| s.trim().parse().unwrap()).collect();
     let nominal = base.anchors().unwrap();
+    // TAUT_RATE: tension readings a second per cable (default RATE_HZ); TAUT_EA=1: the
+    // dynamic plant's datasheet stiffness (the planner with its unknowns).
+    let rate: f64 = list("TAUT_RATE", &RATE_HZ.to_string()).parse().unwrap();
+    let ea = std::env::var_os("TAUT_EA").is_some();
     for spec in list("TAUT_PLANS", "16x30x8,16x32x8,16x34x8,16x36x8").split(',') {
         let v: Vec<f64> = spec.trim().split('x').map(|s| s.parse().unwrap()).collect();
         let mut cfg = base.clone();
         cfg.motion.dwell_poses = v[0] as usize;
         cfg.motion.dwell_s = v[1];
         cfg.motion.dwell_tares = v[2] as usize;
-        cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / RATE_HZ;
+        cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
+        if ea {
+            cfg.calibration.cable_ea_n = 0.9e6;
+            cfg.calibration.cable_ea_sigma_n = 0.15e6;
+        }
         let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
         let p = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
         let m = &cfg.motion;
