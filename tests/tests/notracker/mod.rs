@@ -35,7 +35,7 @@ pub const K_SIGMA: f64 = 4.89;
 pub const CHI2_Z: f64 = 4.265;
 
 /// Which dwell plan a start-up runs.
-#[derive(Clone, Copy, PartialEq)]
+#[derive(Clone, Copy, PartialEq, Debug)]
 pub enum Plan {
     /// The CI test's: 16 poses of 2.5 s, settle 0.3 s, 0.5 m/s, 8 tares.
     Short,
