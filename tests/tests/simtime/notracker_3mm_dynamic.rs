@@ -28,7 +28,7 @@
 //!    ([`HONESTY_UP`] = 1.54), above the quasi-static 1.181, which the dynamic plant exceeds
 //!    (seed 4: 1.24-1.34). The spread is mostly the sites' (the CRB part 0.79-1.18), then the
 //!    chi-square. The plan has P(worst > 3 mm) <= 2.9e-5 at [`HONESTY_UP`] x its covariance,
-//!    asserted below [`PLAN_P_MAX`].
+//!    asserted below [`super::notracker_3mm::PLAN_P_MAX`].
 //! 2. The recording's own P(worst > 3 mm) from its achieved sigma below [`RECORDING_P_MAX`]:
 //!    the plan keeps it there up to [`SCALE_CHECKED`] x its sigma (4.2e-4 there, checked), which
 //!    a correct run's ratio exceeds with a chance of 1.7e-6 (below [`RECORDING_CHANCE_MAX`]).
@@ -38,10 +38,8 @@
 //!
 //! Sum: 6e-5 + 5e-6 + 1.2e-5 + 1e-5 = 8.7e-5 per run.
 
-use super::notracker_3mm::{chi2_tail, PLAN_P_MAX, RECORDING_CHANCE_MAX, RECORDING_P_MAX};
+use super::notracker_3mm::{check_plan, chi2_tail, RECORDING_CHANCE_MAX, RECORDING_P_MAX, SIM_RATE_HZ};
 use crate::notracker::{report, robot, start_on_plant, Plan, Run};
-use taut_rt_core::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
 
 /// Achieved / predicted (at the measured rate) worst-anchor sigma of tracker-free start-ups on
 /// the dynamic plant with the stiffness modelled, every run measured: 16 poses with 8 tares,
@@ -64,9 +62,6 @@ const HONESTY_UP: f64 = 1.54;
 /// The plan keeps P(worst > 3 mm) below [`RECORDING_P_MAX`] up to this many times its sigma
 /// (checked); a correct run's ratio exceeds it with a chance of 1.7e-6 over [`RATIOS`].
 const SCALE_CHECKED: f64 = 1.85;
-
-/// Tension readings a second per cable on the simulated-time bus (62 in every run measured).
-const SIM_RATE_HZ: f64 = 62.0;
 
 /// The dynamic plant's configuration: the example robot running [`Plan::Bus`] with the cables'
 /// datasheet stiffness (as `start_on_plant`).
@@ -95,31 +90,7 @@ fn the_measured_dynamic_ratios_give_the_budget() {
 #[test]
 fn the_plan_meets_the_budget_on_the_dynamic_plant() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path());
-    let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let run = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
-    let mut at_rate = cfg.clone();
-    at_rate.loadcells.as_mut().unwrap().poll_period_s = 1.0 / SIM_RATE_HZ;
-    let plan = taut_rt_core::notracker::dwell_plan(&at_rate, &ccfg).unwrap();
-    assert_eq!(plan.tare, run.tare);
-    for (a, b) in plan.poses.iter().zip(&run.poses) {
-        assert!(
-            (0..3).all(|i| (a[i] - b[i]).abs() < 1e-9),
-            "the plan at {SIM_RATE_HZ}/s differs from the one the loop runs: {a:?} vs {b:?}"
-        );
-    }
-    let nominal = cfg.anchors().unwrap();
-    let (_, p_honest) = plan.worst_exceeds_probability(&nominal, 3e-3, HONESTY_UP, 4_000_000);
-    let (_, p_checked) = plan.worst_exceeds_probability(&nominal, 3e-3, SCALE_CHECKED, 4_000_000);
-    eprintln!(
-        "plan: {} poses x {} s, {} tares; worst-anchor sigma {:.3} mm at {SIM_RATE_HZ}/s with the stiffness unknowns; P(worst > 3 mm) <= {p_honest:.1e} at {HONESTY_UP} sigma, <= {p_checked:.1e} at {SCALE_CHECKED} sigma",
-        cfg.motion.dwell_poses,
-        cfg.motion.dwell_s,
-        plan.tare.iter().filter(|&&t| t != 0).count(),
-        plan.worst_anchor_sigma_m * 1e3
-    );
-    assert!(p_honest < PLAN_P_MAX, "P(worst > 3 mm) up to {p_honest:.1e} at {HONESTY_UP} sigma");
-    assert!(p_checked < RECORDING_P_MAX, "P(worst > 3 mm) up to {p_checked:.1e} at {SCALE_CHECKED} sigma");
+    check_plan(&config(dir.path()), SIM_RATE_HZ, HONESTY_UP, SCALE_CHECKED);
 }
 
 /// One start-up on the dynamic plant (the checks of `start_on_plant`: k-sigma, chi-square,
