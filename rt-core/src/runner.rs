@@ -5,12 +5,12 @@
 
 pub use taut_rt::cycle::{LoopCore, LoopStatus, LoopTiming};
 
-use crate::io::Devices;
 use crate::rtsys::{monotonic_ns, setup_current_thread, Periodic, RtSetupReport};
-use crate::triple::Writer;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use taut_config::runtime::RtConfig;
+use taut_rt::io::Devices;
+use taut_rt::triple::Writer;
 
 /// How the loop ended.
 #[derive(Debug, Clone)]

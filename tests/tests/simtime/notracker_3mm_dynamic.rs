@@ -40,7 +40,7 @@
 
 use super::notracker_3mm::{chi2_tail, PLAN_P_MAX, RECORDING_CHANCE_MAX, RECORDING_P_MAX};
 use crate::notracker::{report, robot, start_on_plant, Plan, Run};
-use taut_rt_core::motion::ControllerConfig;
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 
 /// Achieved / predicted (at the measured rate) worst-anchor sigma of tracker-free start-ups on
