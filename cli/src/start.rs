@@ -8,11 +8,11 @@ use std::path::PathBuf;
 use std::time::Duration;
 use taut_config::RobotConfig;
 use taut_driver::tracker::TrackerStatsHandle;
+use taut_rt::io::Devices;
+use taut_rt::motion::State;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::io::Devices;
-use taut_rt_core::motion::State;
 use taut_rt_core::plugin::{DeviceMode, DeviceSource};
 use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
@@ -143,7 +143,7 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
         let mut last = String::new();
         while !daemon.wait_until(Duration::from_millis(500), |l, _| l.snap.state == State::Stopped) {
             if taut_rt_core::rtsys::stop_requested() {
-                let _ = daemon.commands.try_send(taut_rt_core::motion::Command::Stop);
+                let _ = daemon.commands.try_send(taut_rt::motion::Command::Stop);
             }
             let l = daemon.loop_status();
             let c = daemon.calib_status();
@@ -186,8 +186,7 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
 /// 30 s for the calibrations: the budget of `--once` is this plus a margin.
 fn startup_motion_s(cfg: &RobotConfig) -> f64 {
     let m = &cfg.motion;
-    let phase_s =
-        2.0 * taut_rt_core::motion::trapezoid_s(m.init_reel_m.abs(), m.init_reel_speed_m_s, m.init_reel_accel_m_s2) + m.init_settle_s;
+    let phase_s = 2.0 * taut_rt::motion::trapezoid_s(m.init_reel_m.abs(), m.init_reel_speed_m_s, m.init_reel_accel_m_s2) + m.init_settle_s;
     3.0 * phase_s + m.excitation_s + 30.0 + 10.0 * m.swap_ramp_s
 }
 
@@ -216,7 +215,7 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
 /// ran the start-up in simulated time to its summary.
 #[cfg(feature = "sim")]
 fn simulated_devices(a: &StartArgs, cfg: &RobotConfig, verbosity: i8) -> Result<Option<(DeviceMode, SiteTruth, TrackerStatsHandle)>> {
-    use taut_rt_core::motion::ControllerConfig;
+    use taut_rt::motion::ControllerConfig;
     use taut_rt_core::FromRobot;
     let ccfg = ControllerConfig::from_robot(cfg).map_err(|e| anyhow::anyhow!(e))?;
     let w = ccfg.workspace;
@@ -533,7 +532,7 @@ fn progress_line(l: &LoopStatus, c: &CalibStatus) -> String {
     let fault = l.snap.fault.map_or(String::new(), |(cause, r)| format!(" [{}: {}]", r.name(), cause));
     // Bus trouble and recoveries are reported as they happen (the reaction is in `fault`).
     let b = &l.snap.inputs.bus;
-    let bus = if b.state != taut_rt_core::io::BusState::Active || b.recoveries > 0 {
+    let bus = if b.state != taut_rt::io::BusState::Active || b.recoveries > 0 {
         format!("; {} {} ({} recoveries)", b.iface, b.state.name(), b.recoveries)
     } else {
         String::new()

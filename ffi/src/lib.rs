@@ -59,8 +59,8 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Mutex;
 use taut_config::RobotConfig;
+use taut_rt::motion::{ResetOutcome, State};
 use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::motion::{ResetOutcome, State};
 use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
 };

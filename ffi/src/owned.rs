@@ -2,7 +2,7 @@
 //! configuration, brought up by `taut_activate` exactly as `taut start` does on hardware.
 
 use taut_config::RobotConfig;
-use taut_rt_core::io::Devices;
+use taut_rt::io::Devices;
 use taut_rt_core::plugin::DeviceSource;
 use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 

@@ -18,7 +18,7 @@ use crate::error::{self, TautError};
 use crate::{TautCableMode, TautCommands, TautDriveRequest, TautDriveState, TautInputs, TAUT_MAX_CABLES};
 use std::ffi::c_char;
 use taut_config::RobotConfig;
-use taut_rt_core::motion::ControllerConfig;
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand, Physics, Plant, Truth};
@@ -81,7 +81,7 @@ enum SimSetupError {
         n: usize,
     },
     /// The configuration cannot drive the controller.
-    Controller(taut_rt_core::motion::ControllerConfigError),
+    Controller(taut_rt::motion::ControllerConfigError),
     /// No simulated site from the configuration.
     Site(taut_sim::SimError),
     /// The platform has no rest position at its parking place.

@@ -13,14 +13,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use taut_config::runtime::RtConfig;
-use taut_rt_core::io::{CableCommand, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt_core::kin::LoopParams;
-use taut_rt_core::motion::{Command, Controller, ControllerConfig, State};
+use taut_rt::io::{CableCommand, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
+use taut_rt::kin::LoopParams;
+use taut_rt::motion::{Command, Controller, ControllerConfig, State};
+use taut_rt::sample::sample_ring;
+use taut_rt::triple::triple_buffer;
 use taut_rt_core::rtsys::{monotonic_ns, setup_current_thread, Periodic};
 use taut_rt_core::runner::LoopCore;
-use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::triple::triple_buffer;
 use taut_rt_core::FromRobot;
 
 /// Devices that echo the commands back (no physics): the loop's own cost only.
@@ -64,7 +64,7 @@ fn compute_bench(n: usize, kinematic: bool) {
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let truth = truth_params(n, 0.1);
     let (mut ptx, prx) = triple_buffer(LoopParams::invalid(n));
-    let (ctx, crx) = taut_rt_core::crossbeam_channel::bounded(16);
+    let (ctx, crx) = crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(1 << 14);
     let (mut status_tx, _status_rx) = triple_buffer(0u64);
     let p0 = [0.2, 0.1, 2.0];
@@ -176,7 +176,7 @@ fn soak(seconds: f64) {
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let truth = truth_params(n, 0.1);
     let (mut ptx, prx) = triple_buffer(LoopParams::invalid(n));
-    let (_ctx, crx) = taut_rt_core::crossbeam_channel::bounded(16);
+    let (_ctx, crx) = crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(cfg.rt.ring_capacity);
     let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus::initial(
         Controller::new(ccfg, || None, triple_buffer(LoopParams::invalid(n)).1).snapshot(0.0, &Inputs::new(n)),

@@ -8,7 +8,7 @@
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use ringbuf::traits::{Consumer, Producer, Split};
 use ringbuf::HeapRb;
-use taut_rt_core::sample::{sample_ring, Sample};
+use taut_rt::sample::{sample_ring, Sample};
 
 fn push_pop(c: &mut Criterion) {
     let mut g = c.benchmark_group("sample push+pop");
@@ -32,7 +32,7 @@ fn push_pop(c: &mut Criterion) {
         })
     });
 
-    let (mut tx, mut rx) = taut_rt_core::spsc::ring::<Sample>(16_384);
+    let (mut tx, mut rx) = taut_rt::spsc::ring::<Sample>(16_384);
     g.bench_function("taut spsc (bare)", |b| {
         b.iter(|| {
             s.t += 1.0;
@@ -52,7 +52,7 @@ fn push_pop(c: &mut Criterion) {
 
     // Full ring: the refused push the loop sees when the calibrator falls behind. The bare
     // rings side by side, then `SampleTx::push`, which also counts the drop.
-    let (mut tx, _rx) = taut_rt_core::spsc::ring::<Sample>(16);
+    let (mut tx, _rx) = taut_rt::spsc::ring::<Sample>(16);
     while tx.push(s).is_ok() {}
     g.bench_function("taut spsc, full", |b| b.iter(|| assert!(tx.push(*black_box(&s)).is_err())));
     let (mut tx, _rx) = sample_ring(16);

@@ -8,7 +8,6 @@
 //! Outcomes are shared as clones, so the wrapped I/O errors are reference-counted.
 
 use crate::calibrator::OutcomeKind;
-use crate::motion::State;
 use std::fmt;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -18,6 +17,7 @@ use taut_calib::selfcal::rest::RestError;
 use taut_calib::selfcal::SelfCalError;
 use taut_calib::trust::Untrusted;
 use taut_calib::{CalibError, Termination};
+use taut_rt::motion::State;
 
 /// Why a calibration backend ([`crate::calibrator::Calibrate`]) gave no estimate.
 #[derive(Debug, Clone)]
@@ -331,9 +331,9 @@ impl std::error::Error for RecorderError {
 mod tests {
     use super::*;
     use crate::calibrator::{evaluate, Calibrate, CalibratorConfig, Estimate};
-    use crate::kin::LoopParams;
     use std::error::Error as _;
     use taut_config::recording::Recording;
+    use taut_rt::kin::LoopParams;
 
     type Answer = Box<dyn FnMut(&Estimate) -> Result<Estimate, BackendError> + Send>;
 

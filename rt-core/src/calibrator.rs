@@ -32,10 +32,6 @@
 
 pub use crate::calib_error::{BackendError, RecorderError, Rejection};
 use crate::heldout::{HeldoutComparison, HeldoutRms};
-use crate::kin::{LoopEffects, LoopParams};
-use crate::motion::State;
-use crate::sample::{Sample, SampleRx};
-use crate::triple::Writer;
 use crate::EffectsFromFile;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -46,6 +42,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use taut_config::params::{ParamsFile, FORMAT};
 use taut_config::recording::Recording;
 use taut_config::RobotConfig;
+use taut_rt::kin::{LoopEffects, LoopParams};
+use taut_rt::motion::State;
+use taut_rt::sample::{Sample, SampleRx};
+use taut_rt::triple::Writer;
 use taut_rt::{Geometry, Sigmas};
 
 /// A parameter estimate from the calibration backend.
@@ -307,7 +307,7 @@ impl Recorder {
 /// measured.
 #[derive(Debug, Default)]
 struct LengthHistory {
-    rows: std::collections::VecDeque<([f64; crate::MAX_CABLES], [f64; crate::MAX_CABLES])>,
+    rows: std::collections::VecDeque<([f64; taut_rt::MAX_CABLES], [f64; taut_rt::MAX_CABLES])>,
 }
 
 /// Rows kept: 128 loop cycles (a quarter of a second at 500 Hz), far more than any pose age
@@ -322,8 +322,8 @@ impl LengthHistory {
     }
 
     /// The readings `v` of a sample at `t`, each `age` old.
-    fn push_readings(&mut self, now: f64, age: &[f64; crate::MAX_CABLES], v: &[f64; crate::MAX_CABLES], n: usize) {
-        let mut t = [f64::NAN; crate::MAX_CABLES];
+    fn push_readings(&mut self, now: f64, age: &[f64; taut_rt::MAX_CABLES], v: &[f64; taut_rt::MAX_CABLES], n: usize) {
+        let mut t = [f64::NAN; taut_rt::MAX_CABLES];
         for (tj, age) in t[..n].iter_mut().zip(&age[..n]) {
             *tj = now - age.max(0.0);
         }
@@ -414,11 +414,11 @@ fn push_sample(
     let n = cfg.n;
     let p = if s.pose_age_s <= cfg.tracker_max_age_s { s.pose_m } else { [f64::NAN; 3] };
     let tp = s.t - s.pose_age_s.max(0.0);
-    let mut l = [f64::NAN; crate::MAX_CABLES];
+    let mut l = [f64::NAN; taut_rt::MAX_CABLES];
     for (j, x) in l.iter_mut().enumerate().take(n) {
         *x = hist.at(j, tp + time_offset_s);
     }
-    let mut f = [f64::NAN; crate::MAX_CABLES];
+    let mut f = [f64::NAN; taut_rt::MAX_CABLES];
     for (j, (fj, &age)) in f[..n].iter_mut().zip(&s.tension_age_s[..n]).enumerate() {
         if age <= cfg.tension_max_age_s {
             *fj = tensions.at_within(j, tp + time_offset_s, 0.0);
@@ -878,7 +878,7 @@ impl Calibrator {
         if s.phase < 0 {
             return;
         }
-        let nan = [f64::NAN; crate::MAX_CABLES];
+        let nan = [f64::NAN; taut_rt::MAX_CABLES];
         if prev.is_none_or(|q| q.phase != s.phase) && !set.is_empty() {
             set.push(s.t, [f64::NAN; 3], None, &nan[..n], Some(&nan[..n]), Some(-1));
         }
@@ -1308,13 +1308,13 @@ mod tests {
     /// The example robot's calibrator taking every sample (decimation 1), fed by the tests
     /// through `on_sample`; with the ring's producer and the parameters' reader, kept alive.
     #[allow(clippy::type_complexity)]
-    fn example_calibrator() -> (Calibrator, (crate::sample::SampleTx, crate::triple::Reader<LoopParams>)) {
+    fn example_calibrator() -> (Calibrator, (taut_rt::sample::SampleTx, taut_rt::triple::Reader<LoopParams>)) {
         let cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
         let mut ccfg = CalibratorConfig::from_robot(&cfg);
         ccfg.decimation = 1;
         let n = ccfg.n;
-        let (tx, rx) = crate::sample::sample_ring(16);
-        let (params_tx, params_rx) = crate::triple::triple_buffer(LoopParams::invalid(n));
+        let (tx, rx) = taut_rt::sample::sample_ring(16);
+        let (params_tx, params_rx) = taut_rt::triple::triple_buffer(LoopParams::invalid(n));
         let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
         (Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap(), (tx, params_rx))
     }
@@ -1377,7 +1377,7 @@ mod tests {
         let mut s = Sample::empty(n);
         s.state = State::Excitation as u8;
         s.phase = 0;
-        let mut read = [f64::NAN; crate::MAX_CABLES];
+        let mut read = [f64::NAN; taut_rt::MAX_CABLES];
         let mut pose_t = f64::NAN;
         for k in 0..200 {
             let t = 0.002 * f64::from(k);

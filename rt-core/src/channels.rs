@@ -6,13 +6,13 @@
 //! ring, as before.
 
 use crate::calibrator::{Outcome, OutcomeKind};
-use crate::io::{CableCommand, DriveStatus};
-use crate::motion::State;
-use crate::sample::Sample;
-use crate::MAX_CABLES;
 use std::sync::Arc;
 use taut_config::mcap::{frame_transform, opt, pose_in_frame, scene_update, CablesMsg, McapWriter, Topic};
 use taut_config::params::ParamsFile;
+use taut_rt::io::{CableCommand, DriveStatus};
+use taut_rt::motion::State;
+use taut_rt::sample::Sample;
+use taut_rt::MAX_CABLES;
 
 /// One encoded message.
 #[derive(Debug, Clone)]
@@ -38,7 +38,7 @@ pub struct Encoder {
     last_t: f64,
     last_drive: Option<[DriveStatus; MAX_CABLES]>,
     last_phase: Option<(u8, i8, u16)>,
-    last_fault: Option<Option<(crate::safety::Cause, crate::safety::Reaction)>>,
+    last_fault: Option<Option<(taut_rt::safety::Cause, taut_rt::safety::Reaction)>>,
     last_scene_t: f64,
     last_pose: [f64; 3],
     last_stage: String,

@@ -30,11 +30,8 @@
 //! [`Urgent`] flags.
 
 use crate::calibrator::{CalibStatus, OutcomeKind, SharedCalibStatus};
-use crate::motion::{Command, ResetOutcome, State};
 use crate::operator::Operator;
 use crate::runner::LoopStatus;
-use crate::triple::Reader;
-use crate::urgent::Urgent;
 use crossbeam_channel::Sender;
 use serde_json::{json, Value};
 use std::fmt;
@@ -44,6 +41,9 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use taut_driver::tracker::TrackerStatsHandle;
+use taut_rt::motion::{Command, ResetOutcome, State};
+use taut_rt::triple::Reader;
+use taut_rt::urgent::Urgent;
 
 pub use crate::ctl_server::{ControlServer, ServerLimits, ServerStats};
 
@@ -64,8 +64,8 @@ pub const STATUS_OUTCOMES: usize = 4;
 /// Longest rejection reason quoted in `status`, characters (the whole one: `outcome N`).
 const REASON_CHARS: usize = 240;
 
-fn drive_name(d: crate::io::DriveStatus) -> &'static str {
-    use crate::io::DriveStatus::*;
+fn drive_name(d: taut_rt::io::DriveStatus) -> &'static str {
+    use taut_rt::io::DriveStatus::*;
     match d {
         Unknown => "unknown",
         Disabled => "disabled",
@@ -840,7 +840,7 @@ mod tests {
     /// cables, what to do.
     #[test]
     fn the_human_status_names_a_miswiring() {
-        use crate::safety::{Cause, Miswiring};
+        use taut_rt::safety::{Cause, Miswiring};
         let c = Cause::Miswired {
             fault: Miswiring::DrivesSwapped,
             cable: 0,

@@ -31,7 +31,6 @@
 //! Counters of all of this are in the `control` part of the `status` reply.
 
 use crate::control::{parse_request, ControlLinks, Request, RequestError};
-use crate::urgent::Urgent;
 use serde_json::{json, Value};
 use std::io::Read;
 use std::os::fd::AsRawFd;
@@ -41,6 +40,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use taut_rt::urgent::Urgent;
 
 /// Limits of the control server.
 #[derive(Debug, Clone, Copy, PartialEq)]

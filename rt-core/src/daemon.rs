@@ -5,8 +5,6 @@
 
 use crate::calibrator::{CalibStatus, Calibrate, CalibratorConfig, SharedCalibStatus};
 use crate::control::{ControlServer, ServerLimits, SharedLoopStatus};
-use crate::io::Devices;
-use crate::motion::Command;
 use crate::plugin::{DeviceMode, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath};
 use crate::runner::{run_periodic, LoopReport, LoopStatus};
 use crossbeam_channel::Sender;
@@ -17,6 +15,8 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
+use taut_rt::io::Devices;
+use taut_rt::motion::Command;
 
 /// How long the control socket is served after the loop has stopped: `taut ctl watch`'s poll
 /// period and a margin.

@@ -3,14 +3,14 @@
 //! in position mode) and the tare is recorded with the label `MAX_DWELL_POSES + index`; then
 //! the slack cables are ramped back.
 
-use crate::motion::*;
 use crate::testkit::quick_config;
 use crate::FromRobot;
 use taut_rt::io::CableCommand;
+use taut_rt::motion::*;
 
 #[test]
 fn tares_follow_their_dwells_with_the_masked_cables_at_zero_tension() {
-    let (_cmd_tx, cmd_rx) = crate::crossbeam_channel::bounded::<Command>(4);
+    let (_cmd_tx, cmd_rx) = crossbeam_channel::bounded::<Command>(4);
     let mut cfg = quick_config(4, &std::env::temp_dir());
     cfg.safety.tension_max_age_s = 5.0;
     let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];

@@ -6,9 +6,9 @@
 //! [`ControllerConfig`]; the prediction goes to the calibrator (its report compares it with the
 //! achieved sigmas) and to `ctl status`.
 
-use crate::motion::ControllerConfig;
 use taut_calib::design::{self, DesignInput, Prediction};
 use taut_config::RobotConfig;
+use taut_rt::motion::ControllerConfig;
 
 /// Acceleration of the tour's speed profile, m/s^2: a tenth of g changes the cables' tensions
 /// by 10 % and lets a 0.8 m/s cruise start and stop within 0.8 s.
@@ -107,8 +107,8 @@ fn lissajous(ccfg: &ControllerConfig) -> impl Fn(f64) -> [f64; 3] + '_ {
         let c: [f64; 3] = std::array::from_fn(|i| (w[0][i] + w[1][i]) / 2.0);
         let amp: [f64; 3] = std::array::from_fn(|i| 0.8 * (w[1][i] - w[0][i]) / 2.0);
         std::array::from_fn(|i| {
-            let omega = crate::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp[i].max(1e-3));
-            c[i] + amp[i] * (omega * t + crate::motion::LISSAJOUS_PHASE[i]).sin()
+            let omega = taut_rt::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp[i].max(1e-3));
+            c[i] + amp[i] * (omega * t + taut_rt::motion::LISSAJOUS_PHASE[i]).sin()
         })
     }
 }

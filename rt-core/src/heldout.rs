@@ -47,9 +47,9 @@
 //!
 //! Fewer than [`MIN_ROWS`] rows with three taut cables: too few for a scale, nothing is excluded.
 
-use crate::kin::LoopParams;
-use crate::MAX_CABLES;
 use taut_config::recording::Recording;
+use taut_rt::kin::LoopParams;
+use taut_rt::MAX_CABLES;
 
 /// Chance that a held-out set without tracker outliers loses any row to the rule, under
 /// Gaussian tracker noise (Bonferroni over the rows).

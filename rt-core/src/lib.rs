@@ -4,9 +4,10 @@
 //!
 //! What runs every cycle (motion state machine, safety, inverse kinematics, ramps, the
 //! lock-free hand-overs) lives in the `taut-rt` crate, which has no threads, no I/O and no
-//! dependency but the cable model; its modules are re-exported here at their old paths
-//! ([`motion`], [`kin`], [`io`], [`safety`], [`ramp`], [`sample`], [`spsc`], [`triple`],
-//! [`urgent`]). This crate fills its plain configuration from the robot's files ([`FromRobot`],
+//! dependency but the cable model. Code here names those modules by their crate
+//! ([`taut_rt::motion`], [`taut_rt::kin`], [`taut_rt::io`], [`taut_rt::safety`], ...), so every
+//! import shows which side of the real-time boundary it reaches; nothing is re-exported. This
+//! crate fills its plain configuration from the robot's files ([`FromRobot`],
 //! [`EffectsFromFile`]) and owns the threads, the channels and the files.
 //!
 //! ```text
@@ -23,13 +24,13 @@
 //! host. The plugin's module documentation states what may run in the real-time thread.
 //!
 //! The loop allocates nothing after start-up: everything it touches is fixed size
-//! ([`MAX_CABLES`]), parameters arrive through a [`triple`] buffer that returns old values to
+//! ([`taut_rt::MAX_CABLES`]), parameters arrive through a [`taut_rt::triple`] buffer that returns old values to
 //! the writer, samples leave through a fixed-capacity ring that drops (and counts) when full.
 //!
 //! ```no_run
 //! use taut_rt_core::daemon::{Daemon, DaemonOptions};
 //! let cfg = taut_config::RobotConfig::load("robot.toml").unwrap();
-//! # fn devices() -> Box<dyn taut_rt_core::io::Devices> { unimplemented!() }
+//! # fn devices() -> Box<dyn taut_rt::io::Devices> { unimplemented!() }
 //! # fn calibrator() -> Box<dyn taut_rt_core::calibrator::Calibrate> { unimplemented!() }
 //! let d = Daemon::start(&cfg, devices(), calibrator(), DaemonOptions::default()).unwrap();
 //! d.wait();
@@ -61,8 +62,4 @@ pub mod telemetry;
 #[cfg(any(test, feature = "testkit"))]
 pub mod testkit;
 
-// The real-time crate's modules, at their old paths (`taut_rt_core::motion`, `crate::kin`).
-pub use taut_rt::{follower, io, kin, motion, ramp, safety, sample, spsc, triple, urgent, MAX_CABLES};
-
-pub use crossbeam_channel;
 pub use rt_config::{EffectsFromFile, FromRobot};

@@ -1,22 +1,22 @@
 //! Tests of the motion state machine that run it in the loop core against the kinematic test
 //! robot (`runner`, `testkit`): they stay on this side of the split with those.
 
-use crate::motion::*;
 use crate::runner::LoopCore;
-use crate::safety::*;
-use crate::sample::sample_ring;
 use crate::testkit::{quick_config, truth_params, KinematicRobot};
-use crate::triple::triple_buffer;
 use crate::FromRobot;
+use taut_rt::motion::*;
+use taut_rt::safety::*;
+use taut_rt::sample::sample_ring;
+use taut_rt::triple::triple_buffer;
 
 /// The 4-cable kinematic robot without a tracker in the loop core, running `ccfg`, with no
 /// parameters yet: the core, the writer of the loop's parameters and the robot's truth.
 pub(crate) fn dwell_rig(
     ccfg: ControllerConfig,
-    cmd_rx: crate::crossbeam_channel::Receiver<Command>,
-) -> (LoopCore<KinematicRobot>, crate::triple::Writer<crate::kin::LoopParams>, crate::kin::LoopParams) {
+    cmd_rx: crossbeam_channel::Receiver<Command>,
+) -> (LoopCore<KinematicRobot>, taut_rt::triple::Writer<taut_rt::kin::LoopParams>, taut_rt::kin::LoopParams) {
     let truth = truth_params(4, 0.1);
-    let (params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+    let (params_tx, params_rx) = triple_buffer(taut_rt::kin::LoopParams::invalid(4));
     let (sample_tx, _sample_rx) = sample_ring(64);
     let mut robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
     robot.inject.tracker_gone = true;
@@ -28,8 +28,8 @@ fn core(dir: &std::path::Path) -> LoopCore<KinematicRobot> {
     cfg.safety.tension_max_age_s = 5.0;
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let truth = truth_params(4, 0.1);
-    let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
-    let (_cmd_tx, cmd_rx) = crate::crossbeam_channel::bounded(4);
+    let (_params_tx, params_rx) = triple_buffer(taut_rt::kin::LoopParams::invalid(4));
+    let (_cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
     let (sample_tx, _sample_rx) = sample_ring(64);
     LoopCore::new(
         4,
@@ -82,11 +82,11 @@ fn a_reeled_cable_is_judged_loose_only_on_readings_taken_during_the_reel() {
 /// the reaction latched.
 #[test]
 fn a_reset_holds_where_the_drives_stand_now() {
-    let (cmd_tx, cmd_rx) = crate::crossbeam_channel::bounded(4);
+    let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
     let mut cfg = quick_config(4, &std::env::temp_dir());
     cfg.safety.tension_max_age_s = 5.0;
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let (_params_tx, params_rx) = triple_buffer(crate::kin::LoopParams::invalid(4));
+    let (_params_tx, params_rx) = triple_buffer(taut_rt::kin::LoopParams::invalid(4));
     let (sample_tx, _sample_rx) = sample_ring(64);
     let robot = KinematicRobot::new(truth_params(4, 0.1), [0.2, 0.1, 2.0]);
     let mut c = LoopCore::new(4, robot, Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx), sample_tx);
@@ -134,7 +134,7 @@ fn a_reset_holds_where_the_drives_stand_now() {
 /// pose), operate; `Recalibrate` visits the poses again. No tracker pose is ever read.
 #[test]
 fn dwell_startup_runs_the_plan_and_recalibrates() {
-    let (cmd_tx, cmd_rx) = crate::crossbeam_channel::bounded(4);
+    let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(4);
     let mut cfg = quick_config(4, &std::env::temp_dir());
     cfg.safety.tension_max_age_s = 5.0;
     let poses = [[1.0, 0.5, 2.5], [-1.0, -0.5, 1.5], [0.5, -0.5, 2.0]];

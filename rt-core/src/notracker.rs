@@ -8,7 +8,7 @@
 //! and at most `safety.max_tension_n` / [`TENSION_MARGIN`], the moves are slow
 //! (`motion.dwell_speed_m_s`), and the loop's safety checks stay active (tension limit, loose
 //! position-controlled cables, speed limit, stale load cells). The loop gets the poses as a
-//! fixed-size table ([`crate::motion::DwellLoopPlan`]).
+//! fixed-size table ([`taut_rt::motion::DwellLoopPlan`]).
 //!
 //! The calibrator collects the recorded dwells ([`crate::calibrator`]), the backend calibrates
 //! them with `taut_calib::selfcal` ([`crate::calib_backend`]), and the result goes through the
@@ -18,15 +18,15 @@
 //! frame.
 
 use crate::calibrator::{CalibratorConfig, Estimate, Rejection};
-use crate::kin::{LoopEffects, LoopParams};
-use crate::motion::{ControllerConfig, MAX_DWELL_POSES};
 use crate::plugin::PluginError;
-use crate::MAX_CABLES;
 use crate::{EffectsFromFile, FromRobot};
 use taut_calib::selfcal::plan::{plan, DwellPlan, PlanError, PlanInput};
 use taut_config::recording::Recording;
 use taut_config::runtime::Startup;
 use taut_config::RobotConfig;
+use taut_rt::kin::{LoopEffects, LoopParams};
+use taut_rt::motion::{ControllerConfig, MAX_DWELL_POSES};
+use taut_rt::MAX_CABLES;
 
 /// Factor between the planned tensions and the tension bounds (the nominal geometry is a few
 /// cm off: the real tensions differ from the planned ones by a few N).
@@ -192,7 +192,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
                 }
             }
         }
-        let step = crate::motion::solve3(h, r)?;
+        let step = taut_rt::motion::solve3(h, r)?;
         let len = (step[0] * step[0] + step[1] * step[1] + step[2] * step[2]).sqrt();
         let k = if len > 0.3 { 0.3 / len } else { 1.0 };
         for a in 0..3 {
@@ -291,7 +291,7 @@ mod plan_predictions {
                     cfg.calibration.cable_ea_n = 0.9e6;
                     cfg.calibration.cable_ea_sigma_n = 0.15e6;
                 }
-                let ccfg = <crate::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
+                let ccfg = <taut_rt::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
                 let p = super::dwell_plan(&cfg, &ccfg).unwrap();
                 let nominal = cfg.anchors().unwrap();
                 let m = &cfg.motion;

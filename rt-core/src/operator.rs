@@ -17,12 +17,12 @@
 //! same journal for the same seed.
 
 use crate::calibrator::{CalibStatus, OutcomeKind};
-use crate::motion::{Command, ResetOutcome, State};
 use crate::runner::LoopStatus;
 use crossbeam_channel::{Receiver, Sender};
 use serde_json::{json, Value};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
+use taut_rt::motion::{Command, ResetOutcome, State};
 
 pub use taut_rt::update::Event;
 

@@ -24,8 +24,6 @@
 //! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
 //! (`heapless`), frames are `Copy`, readers are lock-free.
 
-use crate::io::{bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-use crate::MAX_CABLES;
 use std::fmt;
 use std::time::Instant;
 use taut_config::RobotConfig;
@@ -34,6 +32,10 @@ use taut_driver::{BusEvent, DriveSet, Event, LoadCellIo, Master, MasterConfig, P
 use taut_proto::can::{CanTransport, TransportError};
 use taut_proto::canopen::cia402::{Mode, State};
 use taut_proto::devices::DriveConfig;
+use taut_rt::io::{
+    bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs,
+};
+use taut_rt::MAX_CABLES;
 
 /// Why the devices could not be brought up. [`BringUpError::key`] names the configuration key
 /// or device; the message says what to do.

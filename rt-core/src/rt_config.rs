@@ -2,10 +2,10 @@
 //! `taut-rt` knows neither `taut-config` nor TOML. Import the traits to call
 //! `ControllerConfig::from_robot(&cfg)` and `LoopEffects::from_file(&effects)`.
 
-use crate::kin::LoopEffects;
-use crate::motion::{ControllerConfig, ControllerConfigError};
-use crate::MAX_CABLES;
 use taut_config::params::Effects;
+use taut_rt::kin::LoopEffects;
+use taut_rt::motion::{ControllerConfig, ControllerConfigError};
+use taut_rt::MAX_CABLES;
 
 /// [`ControllerConfig::from_robot`]: the controller's numbers from the robot's configuration.
 pub trait FromRobot: Sized {
@@ -125,8 +125,8 @@ mod tests {
     /// The loop's fixed dwell table holds every plan the configuration accepts.
     #[test]
     fn the_loops_dwell_table_matches_the_configurations_bound() {
-        assert_eq!(crate::motion::MAX_DWELL_POSES, taut_config::runtime::MAX_DWELL_POSES);
-        assert_eq!(crate::MAX_CABLES, taut_config::geometry::MAX_CABLES);
+        assert_eq!(taut_rt::motion::MAX_DWELL_POSES, taut_config::runtime::MAX_DWELL_POSES);
+        assert_eq!(taut_rt::MAX_CABLES, taut_config::geometry::MAX_CABLES);
     }
 
     #[test]

@@ -1,16 +1,17 @@
 //! The periodic loop thread: real-time set-up of the calling thread, then one
 //! [`LoopCore::cycle`] per period. The cycle itself (and [`LoopStatus`], [`LoopTiming`]) is in
-//! the real-time crate (`taut_rt::cycle`), re-exported here at its old path; the clock, the
+//! the real-time crate (`taut_rt::cycle`); these three types are re-exported here because
+//! [`run_loop`] and [`run_periodic`] take and give them. The clock, the
 //! thread and the stop flag are this side's.
 
 pub use taut_rt::cycle::{LoopCore, LoopStatus, LoopTiming};
 
-use crate::io::Devices;
 use crate::rtsys::{monotonic_ns, setup_current_thread, Periodic, RtSetupReport};
-use crate::triple::Writer;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use taut_config::runtime::RtConfig;
+use taut_rt::io::Devices;
+use taut_rt::triple::Writer;
 
 /// How the loop ended.
 #[derive(Debug, Clone)]

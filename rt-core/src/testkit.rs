@@ -5,9 +5,9 @@
 //! It is not the simulator (`taut-sim` has the physics and the virtual devices on the real
 //! driver code paths); it exists so that the loop can be exercised without any I/O.
 
-use crate::io::{CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-use crate::kin::LoopParams;
-use crate::MAX_CABLES;
+use taut_rt::io::{CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
+use taut_rt::kin::LoopParams;
+use taut_rt::MAX_CABLES;
 
 /// Faults a test can inject.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -18,8 +18,8 @@
 //!
 //! The non-real-time side (`taut-rt-core`: the plugin lifecycle, threads, the calibrator, the
 //! control socket, the configuration) fills [`motion::ControllerConfig`] and [`kin::LoopParams`]
-//! from the robot's files and re-exports these modules at its root, so `taut_rt_core::motion`
-//! and `taut_rt::motion` are the same module.
+//! from the robot's files and names these modules by this crate's paths (`taut_rt::motion`); it
+//! does not re-export them, so every import shows which code is the real-time side.
 #![deny(missing_docs)]
 
 pub mod cycle;

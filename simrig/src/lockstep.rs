@@ -64,16 +64,16 @@ use taut_driver::clock::{Clock, SimClock};
 use taut_driver::loadcell::SteppedLoadCells;
 use taut_driver::tracker::{TrackerReceiver, TrackerStatsHandle};
 use taut_driver::transport::kernel::{self, err, CAN_ERR_FLAG, CAN_MTU};
+use taut_model::MAX_CABLES;
 use taut_proto::can::{CanTransport, Frame, TransportError};
 use taut_proto::devices::{LoadCellBusConfig, Parity, TrackerConfig};
 use taut_proto::modbus::link::{LinkError, SerialLink};
 use taut_proto::tracker::{format_line, PoseLine, MAX_LINE};
+use taut_rt::io::{Devices, Inputs, Outputs};
 use taut_rt_core::calibrator::{CalibStatus, Calibrate};
-use taut_rt_core::io::{Devices, Inputs, Outputs};
 use taut_rt_core::plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::MAX_CABLES;
 use taut_sim::Truth;
 use taut_vdev::{LoadCellFault, LoadCellResponder, TensionHandle};
 

@@ -23,7 +23,7 @@
 
 use taut_calib::selfcal::{self, SelfCalOptions};
 use taut_config::recording::Recording;
-use taut_rt_core::motion::{ControllerConfig, MAX_DWELL_POSES};
+use taut_rt::motion::{ControllerConfig, MAX_DWELL_POSES};
 use taut_rt_core::FromRobot;
 use taut_sim::sensors::{Encoder, LoadCell};
 use taut_sim::{CableCommand, Noise, Physics, Plant, Truth};

@@ -5,9 +5,9 @@
 
 use std::path::Path;
 use taut_config::RobotConfig;
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
-use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::runner::LoopStatus;
 use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, RunOptions, SimOptions, SimRobot, StartupRun};

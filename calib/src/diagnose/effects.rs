@@ -20,7 +20,7 @@
 //!
 //! Loose cables (`slack`) are not modelled: their samples are found and excluded.
 
-use super::dual::Dual;
+use taut_model::dual::Dual;
 
 /// One effect of the library. Names are the `taut-diagnosis v1` names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

@@ -51,7 +51,6 @@
 
 pub mod analysis;
 pub mod dataq;
-pub use taut_model::dual;
 pub mod effects;
 pub mod esterr;
 pub mod fit;

@@ -2,11 +2,11 @@
 //! deactivate, cleanup; not real-time), [`UpdateError`] (small, `Copy`) for `update`, and
 //! [`Refusal`] for operator requests. Each has a stable [`ErrorKind`] for C error codes.
 
-use crate::motion::{ControllerConfigError, State};
 use crate::robot_io::BringUpError;
-use crate::safety::{Cause, Reaction};
 use std::fmt;
 use std::path::PathBuf;
+use taut_rt::motion::{ControllerConfigError, State};
+use taut_rt::safety::{Cause, Reaction};
 
 /// Where the plugin is in its lifecycle (ros2_control's states, without "unconfigured": a
 /// [`Plugin`](super::Plugin) exists only once configured).

@@ -7,16 +7,16 @@
 use super::error::Refusal;
 use crate::calibrator::{CalibStatus, SharedCalibStatus};
 use crate::control::{ControlLinks, SharedLoopStatus};
-use crate::motion::{Command, State};
 use crate::operator::{Expected, Operator};
 use crate::runner::LoopStatus;
-use crate::safety::{Cause, Reaction};
-use crate::urgent::Urgent;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use taut_config::params::ParamsFile;
+use taut_rt::motion::{Command, State};
+use taut_rt::safety::{Cause, Reaction};
 use taut_rt::update::EventSink;
+use taut_rt::urgent::Urgent;
 
 pub use taut_rt::update::Event;
 

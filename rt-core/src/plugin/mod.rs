@@ -16,7 +16,7 @@
 //!   enables the drives, each [`Plugin::update`] reads, computes and writes.
 //! - **host-owned** ([`DeviceMode::Host`]): the host reads its devices, passes the readings
 //!   in and applies the commands: [`Plugin::update_with`] with the plain C-shaped structs of
-//!   [`host`]. `activate` only arms the loop: the first cycles ask for the drives to be enabled
+//!   [`taut_rt::host`]. `activate` only arms the loop: the first cycles ask for the drives to be enabled
 //!   (`request = REQUEST_ENABLE`, each cable commanded where it stands) and the start-up begins
 //!   once the host reports them enabled.
 //!
@@ -62,25 +62,18 @@
 
 mod error;
 mod handle;
-pub use taut_rt::host;
 
 pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
 pub use handle::{Event, PluginHandle, Status};
-pub use host::{BadInput, HostInputs, HostOutputs};
+pub use taut_rt::host::{BadInput, HostInputs, HostOutputs};
 pub use taut_rt::update::Tick;
 
 use crate::calib_backend::TautCalib;
 use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
 use crate::control::SharedLoopStatus;
-use crate::io::{DriveStatus, Inputs};
-use crate::kin::LoopParams;
-use crate::motion::{Controller, ControllerConfig, State};
 use crate::robot_io::BringUpError;
 use crate::rtsys::Periodic;
 use crate::runner::{LoopCore, LoopStatus, LoopTiming};
-use crate::sample::{sample_ring, SampleRx};
-use crate::triple::{triple_buffer, Writer};
-use crate::urgent::Urgent;
 use handle::EventTx;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -90,9 +83,15 @@ use std::time::{Duration, Instant};
 use taut_config::runtime::RtConfig;
 use taut_config::RobotConfig;
 use taut_driver::clock::{Clock, SimClock};
+use taut_rt::io::{DriveStatus, Inputs};
+use taut_rt::kin::LoopParams;
+use taut_rt::motion::{Controller, ControllerConfig, State};
+use taut_rt::sample::{sample_ring, SampleRx};
+use taut_rt::triple::{triple_buffer, Writer};
 use taut_rt::update::{BadTime, DeviceSlot, UpdatePath};
+use taut_rt::urgent::Urgent;
 
-pub use crate::io::Devices;
+pub use taut_rt::io::Devices;
 
 /// Brings plugin-owned devices up. Called by [`Plugin::activate`] on the host's non-real-time
 /// thread (it may block: CANopen configuration by SDO, opening ports), and again on a retry

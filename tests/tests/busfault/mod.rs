@@ -8,7 +8,7 @@
 use std::time::{Duration, Instant};
 use taut_driver::transport::kernel::{err, error_frame, CAN_MTU};
 use taut_proto::can::CanTransport;
-use taut_rt_core::io::{BusEvent, BusState, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
+use taut_rt::io::{BusEvent, BusState, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 
 /// The robot of `taut start --sim` (four drives, `with_mode` PDOs).
@@ -21,7 +21,7 @@ pub fn robot() -> taut_config::RobotConfig {
 #[derive(Debug, Default)]
 struct Seen {
     faults: Vec<DeviceFault>,
-    last: Option<taut_rt_core::io::BusStatus>,
+    last: Option<taut_rt::io::BusStatus>,
 }
 
 /// Runs the scenario. `inject` writes 16 bytes of `struct can_frame` where the master's
@@ -85,7 +85,7 @@ pub fn bus_faults_reach_the_loop_with<T: CanTransport + Send>(
     assert_eq!(s.faults[0], passive);
     assert_eq!(inp.bus.state, BusState::Passive);
     assert_eq!(
-        taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::ErrorPassive { tx: 128, rx: 0 } }.to_string(),
+        taut_rt::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::ErrorPassive { tx: 128, rx: 0 } }.to_string(),
         format!("{iface}: error-passive (tx errors 128, rx errors 0)")
     );
     // Back to error-active: a recovery.
@@ -101,7 +101,7 @@ pub fn bus_faults_reach_the_loop_with<T: CanTransport + Send>(
     assert!(s.faults.iter().all(|f| *f == off), "{s:?}");
     assert_eq!(inp.bus.state, BusState::Off);
     assert_eq!(
-        taut_rt_core::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::BusOff }.to_string()[..iface.len() + 9],
+        taut_rt::safety::Cause::Bus { iface: inp.bus.iface, event: BusEvent::BusOff }.to_string()[..iface.len() + 9],
         format!("{iface}: bus-off")
     );
     // Bytes that are no frame are not trusted and change nothing.

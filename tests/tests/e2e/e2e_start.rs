@@ -119,7 +119,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         .unwrap();
     let goal = {
         use taut_rt_core::FromRobot;
-        let w = taut_rt_core::motion::ControllerConfig::from_robot(&cfg).unwrap().workspace;
+        let w = taut_rt::motion::ControllerConfig::from_robot(&cfg).unwrap().workspace;
         let t = st["target_m"].as_array().unwrap();
         // 0.15 m from where the start-up left the platform, towards the middle: a short move.
         let here: [f64; 3] = std::array::from_fn(|i| t[i].as_f64().unwrap());

@@ -6,21 +6,21 @@
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use taut_rt::io::{DriveRequest, DriveStatus, Inputs, Outputs};
+use taut_rt::motion::{ResetOutcome, State};
+use taut_rt::safety::{Cause, Reaction};
 use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::io::{DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt_core::motion::{ResetOutcome, State};
 use taut_rt_core::plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, Lifecycle, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
     UpdateError,
 };
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
-use taut_rt_core::safety::{Cause, Reaction};
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_tests::startup;
 
 /// The host's side of one cycle: the simulated devices' readings in, the plugin's commands out.
 struct Host {
-    devices: Box<dyn taut_rt_core::io::Devices>,
+    devices: Box<dyn taut_rt::io::Devices>,
     inputs: Inputs,
     hin: HostInputs,
     hout: HostOutputs,
@@ -30,7 +30,7 @@ struct Host {
 }
 
 impl Host {
-    fn new(devices: Box<dyn taut_rt_core::io::Devices>, n: usize, rate_hz: f64) -> Host {
+    fn new(devices: Box<dyn taut_rt::io::Devices>, n: usize, rate_hz: f64) -> Host {
         Host {
             devices,
             inputs: Inputs::new(n),
@@ -89,7 +89,7 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let tick = host.cycle(&mut p);
     assert_eq!(tick.state, State::Enabling);
     host.cycle(&mut p);
-    assert_eq!(host.hout.request, taut_rt_core::plugin::host::REQUEST_ENABLE);
+    assert_eq!(host.hout.request, taut_rt::host::REQUEST_ENABLE);
     assert_eq!(usize::from(host.hout.n_cables), n);
 
     let swapped = |p: &Plugin| startup::start_up_over(&p.handle().loop_status(), &p.handle().calib_status());
@@ -197,7 +197,7 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     // Stop: the loop holds, disables and finishes; then the lifecycle ends.
     handle.stop();
     assert!(host.run_until(&mut p, Duration::from_secs(5), |p| p.finished()));
-    assert_eq!(host.hout.request, taut_rt_core::plugin::host::REQUEST_DISABLE);
+    assert_eq!(host.hout.request, taut_rt::host::REQUEST_DISABLE);
     p.deactivate().unwrap();
     p.cleanup().unwrap();
     let (recording, _) = taut_config::recording::Recording::load(&rec).unwrap();
@@ -212,7 +212,7 @@ struct Refusing {
     last_request: Arc<AtomicU8>,
 }
 
-impl taut_rt_core::io::Devices for Refusing {
+impl taut_rt::io::Devices for Refusing {
     fn read(&mut self, now: f64, inp: &mut Inputs) {
         self.robot.read(now, inp);
         if self.refuse.load(Ordering::SeqCst) {
@@ -259,9 +259,9 @@ fn lifecycle_calls_out_of_order_are_errors() {
     // have restarted.
     p.activate().unwrap();
     let t = p.update_with(0.001, 0.002, &i, &mut o).unwrap();
-    assert_eq!((t.state, o.request), (State::Enabling, taut_rt_core::plugin::host::REQUEST_DISABLE));
+    assert_eq!((t.state, o.request), (State::Enabling, taut_rt::host::REQUEST_DISABLE));
     let t = p.update_with(0.003, 0.002, &i, &mut o).unwrap();
-    assert_eq!((t.state, o.request), (State::Enabling, taut_rt_core::plugin::host::REQUEST_ENABLE));
+    assert_eq!((t.state, o.request), (State::Enabling, taut_rt::host::REQUEST_ENABLE));
     p.deactivate().unwrap();
     p.cleanup().unwrap();
     let e = p.activate().unwrap_err();

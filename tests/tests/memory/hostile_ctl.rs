@@ -13,15 +13,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use taut_rt::kin::LoopParams;
+use taut_rt::motion::{Command, Controller, ControllerConfig, State};
+use taut_rt::sample::sample_ring;
+use taut_rt::triple::{triple_buffer, Writer};
+use taut_rt::urgent::Urgent;
 use taut_rt_core::calibrator::{CalibStatus, SharedCalibStatus};
 use taut_rt_core::control::{self, ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
-use taut_rt_core::kin::LoopParams;
-use taut_rt_core::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt_core::runner::{run_loop, LoopCore, LoopReport, LoopStatus};
-use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::triple::{triple_buffer, Writer};
-use taut_rt_core::urgent::Urgent;
 use taut_rt_core::FromRobot;
 
 const T: Duration = Duration::from_secs(10);
@@ -56,7 +56,7 @@ impl Rig {
         // Valid parameters from the start: after estop + reset the robot holds and takes moves.
         let (mut params_tx, params_rx) = triple_buffer(LoopParams::invalid(4));
         params_tx.write(LoopParams { version: 1, ..truth });
-        let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(cfg.rt.command_capacity);
+        let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(cfg.rt.command_capacity);
         let (sample_tx, _sample_rx) = sample_ring(1024);
         let urgent = Arc::new(Urgent::default());
         let controller = Controller::new(ccfg, move || cmd_rx.try_recv().ok(), params_rx).with_urgent(urgent.clone());
@@ -535,7 +535,7 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = quick_config(4, dir.path());
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded::<Command>(2);
+    let (cmd_tx, cmd_rx) = crossbeam_channel::bounded::<Command>(2);
     let (_ptx, prx) = triple_buffer(LoopParams::invalid(4));
     let urgent = Arc::new(Urgent::default());
     let (sample_tx, _rx) = sample_ring(64);

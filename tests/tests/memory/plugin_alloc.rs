@@ -9,8 +9,8 @@
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use taut_rt_core::io::{Devices, Inputs};
-use taut_rt_core::motion::State;
+use taut_rt::io::{Devices, Inputs};
+use taut_rt::motion::State;
 use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHandle, PluginOptions, RecordingPath, Tick};
 use taut_rt_core::rtsys::{monotonic_ns, Periodic};
 use taut_tests::startup;

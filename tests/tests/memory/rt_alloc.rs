@@ -3,13 +3,13 @@
 //! sample ring.
 
 use std::cell::Cell;
-use taut_rt_core::io::{BusEvent, DeviceFault, IfName};
-use taut_rt_core::kin::LoopParams;
-use taut_rt_core::motion::{Command, Controller, ControllerConfig, State};
+use taut_rt::io::{BusEvent, DeviceFault, IfName};
+use taut_rt::kin::LoopParams;
+use taut_rt::motion::{Command, Controller, ControllerConfig, State};
+use taut_rt::sample::sample_ring;
+use taut_rt::triple::triple_buffer;
 use taut_rt_core::runner::LoopCore;
-use taut_rt_core::sample::sample_ring;
 use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::triple::triple_buffer;
 use taut_rt_core::FromRobot;
 
 // The counting global allocator of this test binary (one per binary): `crate::counting`.
@@ -22,7 +22,7 @@ fn loop_allocates_nothing_in_any_state() {
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
     let truth = truth_params(4, 0.1);
     let (mut params_tx, params_rx) = triple_buffer(LoopParams::invalid(4));
-    let (cmd_tx, cmd_rx) = taut_rt_core::crossbeam_channel::bounded(16);
+    let (cmd_tx, cmd_rx) = crossbeam_channel::bounded(16);
     // A small ring nobody drains: it is full for most of the run, so drops are exercised too.
     let (sample_tx, _sample_rx) = sample_ring(1024);
     let robot = KinematicRobot::new(truth, [0.2, 0.1, 2.0]);
@@ -155,7 +155,7 @@ fn the_counter_sees_allocations() {
 #[test]
 fn robot_devices_allocate_nothing_per_cycle() {
     use taut_driver::transport::virtual_bus::VirtualBus;
-    use taut_rt_core::io::{CableCommand, Devices, DriveRequest, Inputs, Outputs};
+    use taut_rt::io::{CableCommand, Devices, DriveRequest, Inputs, Outputs};
     use taut_rt_core::robot_io::{Peripherals, RobotDevices};
     use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
@@ -201,7 +201,7 @@ fn robot_devices_allocate_nothing_per_cycle() {
             _ => {}
         }
         cycle(&mut dev, &out, &mut inp);
-        enabled += usize::from(inp.drive[..4].iter().all(|d| *d == taut_rt_core::io::DriveStatus::Enabled));
+        enabled += usize::from(inp.drive[..4].iter().all(|d| *d == taut_rt::io::DriveStatus::Enabled));
         faults += usize::from(inp.fault.is_some());
     }
     rack.stop();

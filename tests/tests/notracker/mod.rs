@@ -18,11 +18,11 @@
 
 use std::time::Duration;
 use taut_calib::selfcal::align::worst_aligned_error;
+use taut_rt::motion::{ControllerConfig, State};
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::OutcomeKind;
 use taut_rt_core::control;
 use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 
@@ -368,7 +368,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
         }
     }
     if let Some(d) = d {
-        d.commands.try_send(taut_rt_core::motion::Command::Stop).unwrap();
+        d.commands.try_send(taut_rt::motion::Command::Stop).unwrap();
         d.wait().unwrap();
     }
     if let Some((stop, h)) = sampler {

@@ -28,6 +28,10 @@
 //!   and no `taut_model` in its source. It reaches `taut-model` only through `taut-config`
 //!   (allowed edge: the parameter file converts to the shared geometry type in one place), and
 //!   names the plain data type `Geometry` only through `taut_config::params`.
+//! - No crate re-exports another crate's modules or a whole crate (`pub use taut_rt::motion;`,
+//!   `pub use crossbeam_channel;`): code names the crate it uses, so an import shows the real-time
+//!   boundary. Another crate's single items stay re-exported only where listed with a reason
+//!   (`ITEM_REEXPORTS`: the model's shared data types, the plugin's API types from `taut-rt`).
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -381,4 +385,227 @@ fn one_max_cables() {
     assert!(numbers[0].starts_with("model/src/lib.rs:"), "the one MAX_CABLES is taut_model's: {numbers:?}");
     // The scan sees the C ABI's constant, defined from the one (the header's generator writes it).
     assert!(derived.iter().any(|l| l.starts_with("ffi/src/lib.rs:") && l.contains("TAUT_MAX_CABLES")), "{derived:?}");
+}
+
+/// The workspace's member directories (`taut_rt_core` is `rt-core/`), as `use` paths name them.
+const MEMBERS: &[(&str, &str)] = &[
+    ("taut_model", "model"),
+    ("taut_proto", "proto"),
+    ("taut_config", "config"),
+    ("taut_calib", "calib"),
+    ("taut_sim", "sim"),
+    ("taut_vdev", "vdev"),
+    ("taut_driver", "driver"),
+    ("taut_rt", "rt"),
+    ("taut_rt_core", "rt-core"),
+    ("taut_simrig", "simrig"),
+    ("taut_ffi", "ffi"),
+    ("taut_cli", "cli"),
+    ("taut_tests", "tests"),
+];
+
+/// The `pub use` of another crate's single items (types, functions, constants) that stay, each
+/// with its reason: (file, the path re-exported). A new one is added here with a reason, or the
+/// user names the item's own crate. Modules and whole crates are never re-exported.
+const ITEM_REEXPORTS: &[(&str, &str, &str)] = &[
+    // The model's shared data types, in the signatures of the crate that re-exports them.
+    ("calib/src/lib.rs", "taut_model::geometry::Geometry", "calib's fit returns the shared geometry"),
+    ("calib/src/lib.rs", "taut_model::geometry::GeometryError", "calib's fit returns the shared geometry"),
+    ("calib/src/lib.rs", "taut_model::geometry::Sigmas", "calib's fit returns the shared geometry"),
+    ("calib/src/design.rs", "taut_model::tour::segment_distance", "the excitation design's result, run by the loop"),
+    ("calib/src/design.rs", "taut_model::tour::segment_time", "the excitation design's result, run by the loop"),
+    ("calib/src/design.rs", "taut_model::tour::Tour", "the excitation design's result, run by the loop"),
+    ("calib/src/design.rs", "taut_model::tour::MAX_WAYPOINTS", "the excitation design's result, run by the loop"),
+    ("calib/src/diagnose/effects.rs", "taut_model::pulley_length", "the effect diagnosis's pulley formula is the model's"),
+    ("config/src/geometry.rs", "taut_model::MAX_CABLES", "the configuration's bound is the loop's one number"),
+    ("config/src/params.rs", "taut_model::geometry::Geometry", "the parameter file converts to the shared geometry"),
+    ("config/src/params.rs", "taut_model::geometry::Sigmas", "the parameter file converts to the shared geometry"),
+    ("driver/src/transport/mod.rs", "taut_model::bus::BusEvent", "the transports report the shared bus status"),
+    ("driver/src/transport/mod.rs", "taut_model::bus::IfName", "the transports report the shared bus status"),
+    ("rt/src/io.rs", "taut_model::bus::BusEvent", "the loop's inputs carry the shared bus status"),
+    ("rt/src/io.rs", "taut_model::bus::IfName", "the loop's inputs carry the shared bus status"),
+    ("rt/src/lib.rs", "taut_model::geometry::Geometry", "the loop's parameters are built from the shared geometry"),
+    ("rt/src/lib.rs", "taut_model::geometry::GeometryError", "the loop's parameters are built from the shared geometry"),
+    ("rt/src/lib.rs", "taut_model::geometry::Sigmas", "the loop's parameters are built from the shared geometry"),
+    ("rt/src/lib.rs", "taut_model::MAX_CABLES", "the loop's fixed arrays' size"),
+    // The plugin's and the loop thread's API: types of taut-rt in their signatures.
+    ("rt-core/src/plugin/mod.rs", "taut_rt::host::BadInput", "Plugin::update_with's error"),
+    ("rt-core/src/plugin/mod.rs", "taut_rt::host::HostInputs", "Plugin::update_with's argument"),
+    ("rt-core/src/plugin/mod.rs", "taut_rt::host::HostOutputs", "Plugin::update_with's argument"),
+    ("rt-core/src/plugin/mod.rs", "taut_rt::update::Tick", "Plugin::update's result"),
+    ("rt-core/src/plugin/mod.rs", "taut_rt::io::Devices", "DeviceSource::bring_up returns them"),
+    ("rt-core/src/plugin/handle.rs", "taut_rt::update::Event", "the plugin's event queue carries them"),
+    ("rt-core/src/operator.rs", "taut_rt::update::Event", "the operator's event queue carries them"),
+    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopCore", "run_loop's argument"),
+    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopStatus", "run_loop's status output"),
+    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopTiming", "run_periodic's per-cycle timing"),
+];
+
+/// The paths a `use` tree names: `a::{b, c::{d as e, self}}` is `a::b`, `a::c::d`, `a::c`.
+fn use_leaves(tree: &str) -> Vec<String> {
+    let tree: String = tree.chars().filter(|c| !c.is_whitespace() || *c == ' ').collect();
+    let tree = tree.trim();
+    let Some(open) = tree.find('{') else {
+        let path = tree.split(" as ").next().unwrap().replace(' ', "");
+        return vec![path.strip_suffix("::self").unwrap_or(&path).to_owned()];
+    };
+    let (prefix, body) = (tree[..open].trim().trim_end_matches("::"), &tree[open + 1..tree.rfind('}').unwrap()]);
+    // Split the body at its top-level commas.
+    let (mut parts, mut depth, mut start) = (Vec::new(), 0, 0);
+    for (i, c) in body.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                parts.push(&body[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    parts.push(&body[start..]);
+    let mut out = Vec::new();
+    for p in parts.into_iter().map(str::trim).filter(|p| !p.is_empty()) {
+        for leaf in use_leaves(p) {
+            out.push(if leaf == "self" { prefix.to_owned() } else { format!("{prefix}::{leaf}") });
+        }
+    }
+    out
+}
+
+/// The `pub use` statements (not `pub(crate) use`) of a source text, outside comments, each with
+/// its first line's number and the paths it names.
+fn pub_uses(text: &str) -> Vec<(usize, Vec<String>)> {
+    let lines: Vec<&str> = text.lines().map(|l| l.split("//").next().unwrap_or("")).collect();
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < lines.len() {
+        if let Some(rest) = lines[k].trim_start().strip_prefix("pub use ") {
+            let (first, mut stmt) = (k, rest.to_owned());
+            while !stmt.contains(';') && k + 1 < lines.len() {
+                k += 1;
+                stmt.push(' ');
+                stmt.push_str(lines[k].trim());
+            }
+            out.push((first + 1, use_leaves(stmt.split(';').next().unwrap())));
+        }
+        k += 1;
+    }
+    out
+}
+
+/// The crates a member's `Cargo.toml` names as dependencies (`crossbeam-channel` is
+/// `crossbeam_channel`), and the standard ones.
+fn dependency_names(member: &str) -> BTreeSet<String> {
+    let toml = std::fs::read_to_string(workspace().join(member).join("Cargo.toml")).unwrap();
+    let mut names: BTreeSet<String> = ["std", "core", "alloc"].map(str::to_owned).into();
+    let mut in_deps = false;
+    for line in toml.lines().map(str::trim) {
+        if line.starts_with('[') {
+            in_deps = line.contains("dependencies]");
+            continue;
+        }
+        if in_deps && !line.starts_with('#') {
+            if let Some(name) = line.split(['=', '.', ' ']).next().filter(|n| !n.is_empty()) {
+                names.insert(name.replace('-', "_"));
+            }
+        }
+    }
+    names
+}
+
+/// Whether `path` (`taut_rt::motion`, `taut_rt`) is a workspace crate or one of its modules: a
+/// file `<dir>/src/motion.rs` or `<dir>/src/motion/mod.rs` (taut declares no inline public modules).
+fn is_workspace_module(path: &str) -> bool {
+    let mut segs = path.split("::");
+    let first = segs.next();
+    let Some(&(_, dir)) = MEMBERS.iter().find(|(name, _)| Some(*name) == first) else { return false };
+    let rest: Vec<&str> = segs.collect();
+    if rest.is_empty() {
+        return true;
+    }
+    let base = workspace().join(dir).join("src").join(rest.join("/"));
+    base.with_extension("rs").is_file() || base.join("mod.rs").is_file()
+}
+
+/// Why one `pub use` path in `file` (relative to the workspace) breaks the rule, if it does:
+/// another workspace crate or one of its modules, a whole external crate, a glob of another
+/// crate, or another crate's item not in [`ITEM_REEXPORTS`].
+fn reexport_problem(file: &str, path: &str, deps: &BTreeSet<String>) -> Option<String> {
+    let first = path.split("::").next().unwrap();
+    if !deps.contains(first) && !MEMBERS.iter().any(|(n, _)| *n == first) {
+        return None; // crate-local (`crate::`, `self::`, `super::`, a module of this crate)
+    }
+    if path.ends_with("::*") {
+        Some(format!("a glob of another crate, `{path}`"))
+    } else if is_workspace_module(path) {
+        Some(format!("another workspace crate's module, `{path}`"))
+    } else if !path.contains("::") {
+        Some(format!("a whole crate, `{path}`"))
+    } else if ITEM_REEXPORTS.iter().any(|(f, p, _)| *f == file && *p == path) {
+        None
+    } else {
+        Some(format!("another crate's item `{path}`, not among the listed exceptions (ITEM_REEXPORTS, with a reason)"))
+    }
+}
+
+/// The rule's violations in one member's source text.
+fn reexport_problems(file: &str, text: &str, deps: &BTreeSet<String>) -> Vec<String> {
+    let mut found = Vec::new();
+    for (line, paths) in pub_uses(text) {
+        for p in paths {
+            if let Some(why) = reexport_problem(file, &p, deps) {
+                found.push(format!("{file}:{line}: re-exports {why}"));
+            }
+        }
+    }
+    found
+}
+
+/// No workspace crate re-exports another crate's modules or a whole crate: code that uses
+/// `taut_rt::motion` names `taut_rt`, so every import shows which side of the real-time boundary
+/// it reaches (issue 25). Single items stay re-exported where a crate's own API uses them
+/// ([`ITEM_REEXPORTS`], each with its reason).
+#[test]
+fn no_crate_reexports_another_crates_modules() {
+    let mut found = Vec::new();
+    let mut listed_seen = BTreeSet::new();
+    for (_, dir) in MEMBERS {
+        let deps = dependency_names(dir);
+        let mut files = Vec::new();
+        rust_files(&workspace().join(dir).join("src"), &mut files);
+        files.sort();
+        for f in files {
+            let rel = f.strip_prefix(workspace()).unwrap_or(&f).display().to_string();
+            let text = std::fs::read_to_string(&f).unwrap();
+            found.extend(reexport_problems(&rel, &text, &deps));
+            for (_, paths) in pub_uses(&text) {
+                listed_seen.extend(paths.into_iter().map(|p| (rel.clone(), p)));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "crate graph rule broken: no crate re-exports another crate's modules (docs/architecture.md)\n{}",
+        found.join("\n")
+    );
+    // Every listed exception is still there (a stale entry would hide a new one).
+    for (f, p, why) in ITEM_REEXPORTS {
+        assert!(
+            listed_seen.contains(&(f.to_string(), p.to_string())),
+            "listed re-export gone: {f}: {p} ({why}); remove it from ITEM_REEXPORTS"
+        );
+    }
+    // The check sees what it looks for: rt-core's old re-exports of taut-rt's modules and of
+    // crossbeam_channel, and a module re-export spread over lines.
+    let rt_core = dependency_names("rt-core");
+    let old = "pub use taut_rt::{follower, io, kin, motion, ramp, safety, sample, spsc, triple, urgent, MAX_CABLES};\n\
+               pub use crossbeam_channel;\npub use rt_config::{EffectsFromFile, FromRobot};\n";
+    let v = reexport_problems("rt-core/src/lib.rs", old, &rt_core);
+    assert_eq!(v.len(), 12, "{v:#?}"); // ten modules, MAX_CABLES not listed for rt-core, the crate
+    assert!(v[3].contains("`taut_rt::motion`") && v[3].contains("module"), "{}", v[3]);
+    assert!(v[11].contains("whole crate, `crossbeam_channel`"), "{}", v[11]);
+    let spread = "pub use taut_rt::{\n    host, // the host structs\n    update::Tick,\n};\npub(crate) use taut_rt::io;\n";
+    assert_eq!(reexport_problems("rt-core/src/plugin/mod.rs", spread, &rt_core).len(), 1);
+    assert_eq!(use_leaves("a::{b, c::{d as e, self}}"), ["a::b", "a::c::d", "a::c"]);
 }

@@ -186,7 +186,7 @@ fn cases() -> Vec<Case> {
 
 #[test]
 fn config_cable_limit_is_the_loops() {
-    assert_eq!(taut_config::geometry::MAX_CABLES, taut_rt_core::MAX_CABLES);
+    assert_eq!(taut_config::geometry::MAX_CABLES, taut_rt::MAX_CABLES);
 }
 
 #[test]

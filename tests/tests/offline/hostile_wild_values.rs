@@ -12,9 +12,9 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 use taut_config::params::ParamsFile;
 use taut_config::recording::Recording;
+use taut_rt::kin::LoopParams;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{evaluate, CalibratorConfig, Estimate, HeldoutBlocks};
-use taut_rt_core::kin::LoopParams;
 use taut_sim::{simulate, Scenario};
 
 #[derive(Debug, Clone, Copy)]

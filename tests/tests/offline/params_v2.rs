@@ -6,7 +6,7 @@
 use taut_calib::diagnose::{diagnose, DiagnoseOptions};
 use taut_calib::effect_fit::effects_of;
 use taut_config::params::{ParamsFile, FORMAT};
-use taut_rt_core::kin::{LoopEffects, LoopParams};
+use taut_rt::kin::{LoopEffects, LoopParams};
 use taut_rt_core::EffectsFromFile;
 use taut_sim::{simulate, Physics, Scenario};
 

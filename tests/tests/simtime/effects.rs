@@ -10,10 +10,10 @@
 //! `TAUT_E2E_EFFECTS_MODEL=elasticity,scale` changes the modelled effects,
 //! `TAUT_E2E_EFFECTS_CONCEAL=elasticity,scale` the concealed ones.
 
+use taut_rt::kin::{LoopEffects, LoopParams};
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::calibrator::{Calibrate, Estimate, HeldoutBlocks, OutcomeKind};
-use taut_rt_core::kin::{LoopEffects, LoopParams};
-use taut_rt_core::motion::ControllerConfig;
 use taut_rt_core::plugin::RecordingPath;
 use taut_rt_core::EffectsFromFile;
 use taut_rt_core::FromRobot;
@@ -235,7 +235,7 @@ fn run_with(seed: u64, effects: &[&str], backend: Backend) -> Run {
 /// tension), the measured one (the drive's following), and the truth's model at the goal and at
 /// the reached position under the same tension (parameter error; the model against the plant).
 fn decompose(
-    snap: &taut_rt_core::motion::Snapshot,
+    snap: &taut_rt::motion::Snapshot,
     est: &Estimate,
     truth: &taut_sim::Truth,
     physics: &Physics,

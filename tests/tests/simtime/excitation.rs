@@ -25,7 +25,7 @@
 //! Sum for the 1 mm: [`PLAN_P_MAX`] + [`RECORDING_CHANCE_MAX`] per seed ([`BUDGET_1MM`],
 //! docs/test-robustness.md).
 
-use taut_rt_core::motion::ControllerConfig;
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 use taut_simrig::SimOptions;
 
@@ -36,8 +36,8 @@ fn ccfg_lissajous(ccfg: &ControllerConfig, t: f64) -> [f64; 3] {
     std::array::from_fn(|i| {
         let c = (w[0][i] + w[1][i]) / 2.0;
         let amp = 0.8 * (w[1][i] - w[0][i]) / 2.0;
-        let omega = taut_rt_core::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp.max(1e-3));
-        c + amp * (omega * t + taut_rt_core::motion::LISSAJOUS_PHASE[i]).sin()
+        let omega = taut_rt::motion::LISSAJOUS_RATIO[i] * v / (3f64.sqrt() * amp.max(1e-3));
+        c + amp * (omega * t + taut_rt::motion::LISSAJOUS_PHASE[i]).sin()
     })
 }
 

@@ -64,7 +64,7 @@
 //! allowance, not the robot's.
 
 use crate::notracker::{report, robot, start_on, Plan};
-use taut_rt_core::motion::ControllerConfig;
+use taut_rt::motion::ControllerConfig;
 use taut_rt_core::FromRobot;
 
 /// Achieved / predicted (at the measured reading rate) worst-anchor sigma of every tracker-free

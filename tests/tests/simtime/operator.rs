@@ -11,9 +11,9 @@
 use serde_json::Value;
 use std::sync::{Arc, Mutex};
 use taut_config::RobotConfig;
+use taut_rt::motion::{ControllerConfig, State};
 use taut_rt_core::calib_backend::TautCalib;
 use taut_rt_core::control::{status_text, ControlLinks};
-use taut_rt_core::motion::{ControllerConfig, State};
 use taut_rt_core::operator::{GoalEnd, GoalView, MoveWait};
 use taut_rt_core::FromRobot;
 use taut_simrig::{Lockstep, RunOptions, SimOptions};
