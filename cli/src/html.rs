@@ -541,16 +541,9 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
                 let d = ((a[0] - nom[j][0]).powi(2) + (a[1] - nom[j][1]).powi(2) + (a[2] - nom[j][2]).powi(2)).sqrt();
                 rounded(d * 1e3, smax * 1e3)
             });
-            let mut row = vec![
-                cfg.cable_label(j),
-                rounded(a[0], s[0]),
-                rounded(a[1], s[1]),
-                rounded(a[2], s[2]),
-                sig2(s[0] * 1e3),
-                sig2(s[1] * 1e3),
-                sig2(s[2] * 1e3),
-                rounded(moved * 1e3, smax * 1e3),
-            ];
+            let mut row = vec![cfg.cable_label(j)];
+            row.extend(anchor_cells(a, s));
+            row.push(rounded(moved * 1e3, smax * 1e3));
             if nominal.is_some() {
                 row.push(from_nominal);
             }
@@ -794,19 +787,15 @@ pub fn diagnosis(d: &Diagnosis, source: &str, cfg: &RobotConfig, refused: Option
             let a = fin.params.anchors[j];
             let s = fin.sigma.anchors.get(j).copied().unwrap_or([f64::NAN; 3]);
             let sl0 = fin.sigma.l0.get(j).copied().unwrap_or(f64::NAN);
-            vec![
-                cfg.cable_label(j),
-                rounded(a[0], s[0]),
-                rounded(a[1], s[1]),
-                rounded(a[2], s[2]),
-                sig2(s[0] * 1e3),
-                sig2(s[1] * 1e3),
-                sig2(s[2] * 1e3),
+            let mut row = vec![cfg.cable_label(j)];
+            row.extend(anchor_cells(a, s));
+            row.extend([
                 rounded(fin.params.l0[j], sl0),
                 sig2(sl0 * 1e3),
                 mm(d.baseline.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
                 mm(fin.per_cable_rms_m.get(j).copied().unwrap_or(f64::NAN)),
-            ]
+            ]);
+            row
         })
         .collect();
     page.table(
@@ -841,6 +830,12 @@ pub fn diagnosis(d: &Diagnosis, source: &str, cfg: &RobotConfig, refused: Option
         ],
     );
     Ok(page.finish())
+}
+
+/// An anchor's three coordinates rounded to their sigmas, then the three sigmas in mm: the
+/// cells every anchor table of the reports has after the cable.
+fn anchor_cells(a: [f64; 3], s: [f64; 3]) -> [String; 6] {
+    [rounded(a[0], s[0]), rounded(a[1], s[1]), rounded(a[2], s[2]), sig2(s[0] * 1e3), sig2(s[1] * 1e3), sig2(s[2] * 1e3)]
 }
 
 #[cfg(test)]
