@@ -4,7 +4,11 @@
 see the same machine load. Each timing is the process from exec to exit: reading and parsing the
 file, the calibration, the output (stdout to /dev/null).
 
-    whole_process.py TAUT REC.csv [--runs N] [--scipy-runs M] [--old OLD_TAUT]
+    whole_process.py TAUT REC.csv [--runs N] [--scipy-runs M] [--old OLD_TAUT] [--parse-only READER]
+
+With --parse-only, READER (`calib/examples/read_recording`: the same reader, the same threads)
+runs interleaved too: the process that only reads and parses REC, the floor under the whole
+calibration. Its row gives the whole process as a multiple of it.
 
 With --old, an older build's `calibrate REC` runs interleaved with the new one's (old, new, old,
 ...) so that a speed change is measured side by side under the same load.
@@ -43,6 +47,7 @@ def main():
     ap.add_argument("--label", default="taut calibrate REC", help="name of the taut row (e.g. an older build)")
     ap.add_argument("--no-compare", action="store_true", help="skip the --compare row (builds before the flag existed)")
     ap.add_argument("--old", help="an older taut build, run interleaved with TAUT and reported beside it")
+    ap.add_argument("--parse-only", help="a program that only reads REC (calib/examples/read_recording), run interleaved")
     a = ap.parse_args()
     here = os.path.dirname(os.path.abspath(__file__))
     ours_cmd = [a.taut, "calibrate", a.recording]
@@ -50,7 +55,8 @@ def main():
     scipy_cmd = [a.py, os.path.join(here, "scipy_compare.py"), a.recording, "--runs", "1"]
     timed(ours_cmd)  # page cache warm for both
     old_cmd = [a.old, "calibrate", a.recording] if a.old else None
-    ours, compare, scipy, old = [], [], [], []
+    parse_cmd = [a.parse_only, a.recording] if a.parse_only else None
+    ours, compare, scipy, old, parse = [], [], [], [], []
     per = max(1, a.runs // max(1, a.scipy_runs))
     while len(ours) < a.runs or len(scipy) < a.scipy_runs:
         for _ in range(per):
@@ -58,6 +64,8 @@ def main():
                 if old_cmd:
                     old.append(timed(old_cmd))
                 ours.append(timed(ours_cmd))
+                if parse_cmd:
+                    parse.append(timed(parse_cmd))
                 if not a.no_compare:
                     compare.append(timed(compare_cmd))
         if len(scipy) < a.scipy_runs:
@@ -75,9 +83,12 @@ def main():
     ref = row("python3 bench/scipy_compare.py REC --runs 1", scipy)
     if old:
         row(f"old build: {a.old} calibrate REC", old, ref)
-    row(a.label, ours, ref)
+    whole = row(a.label, ours, ref)
     if compare:
         row(a.label + " --compare", compare, ref)
+    if parse:
+        p = row("parse only: " + os.path.basename(a.parse_only) + " REC", parse, ref)
+        print(f"whole process / parse only: {whole[0] / p[0]:.2f}x by wall, {whole[1] / p[1]:.2f}x by CPU (goal <= 3x by wall)")
 
 if __name__ == "__main__":
     sys.exit(main())
