@@ -96,6 +96,7 @@ fn bench(c: &mut Criterion) {
         weak_sigma_m: 2e-3,
         max_sigma_m: 0.1,
         min_dwell_samples: 20,
+        window_s: taut_calib::selfcal::WINDOW_S,
         max_iterations: 200,
         stretch: None,
     };

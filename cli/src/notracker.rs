@@ -86,8 +86,10 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     );
     println!("calibrated WITHOUT a tracker ({})", method(r));
     println!(
-        "dwells: {} static poses, {} samples; load-cell noise {:.2} N; chi2/dof {:.2} ({}); {} iterations",
+        "{}: {} {}, {} samples; load-cell noise {:.2} N; chi2/dof {:.2} ({}); {} iterations",
+        if r.moving { "poses" } else { "dwells" },
         r.dwells.len(),
+        if r.moving { "moving windows (no rests)" } else { "static poses" },
         r.samples_used,
         r.loadcell_sigma_n,
         r.chi2 / r.dof as f64,
@@ -160,6 +162,7 @@ fn json(r: &SelfCalReport, screen: &taut_calib::screen::Screen) -> serde_json::V
         "mass_kg": r.mass.as_ref().map(est),
         "cable_ea_n": r.cable_ea_n.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),
         "dwells": r.dwells.len(),
+        "poses_from": if r.moving { "moving_windows" } else { "rests" },
         "samples_used": r.samples_used,
         "chi2": r.chi2,
         "dof": r.dof,

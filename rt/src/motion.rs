@@ -292,6 +292,11 @@ pub struct ControllerConfig {
 /// rt-core keeps the two equal.)
 pub const MAX_DWELL_POSES: usize = 64;
 
+/// The shortest recording of the tracker-free start-up's first rest, s: the rest estimate
+/// averages it, also when the plan's poses are passed without a dwell (`dwell_s` 0, a continuous
+/// motion calibrated from moving windows).
+pub const MIN_REST_S: f64 = 1.0;
+
 /// The dwell plan as the loop holds it: fixed size, computed before the loop starts
 /// (`taut_calib::selfcal::plan`).
 ///
@@ -1496,7 +1501,8 @@ impl Controller {
     }
 
     /// Without a tracker, the initialisation is one dwell at rest: hold (followers in torque
-    /// mode) for `settle_s`, record for `dwell_s` (phase 0), then wait for the rest estimate.
+    /// mode) for `settle_s`, record for `dwell_s` but at least [`MIN_REST_S`] (phase 0), then
+    /// wait for the rest estimate.
     fn rest_dwell(&mut self, now: f64, next: &mut [f64; MAX_CABLES], modes: &mut [CableCommand; MAX_CABLES]) {
         // Two scalars, not the plan: a copy of the plan is its whole pose table, every cycle.
         let Some((settle_s, dwell_s)) = self.cfg.dwell.as_ref().map(|p| (p.settle_s, p.dwell_s)) else { return };
@@ -1510,7 +1516,7 @@ impl Controller {
                 self.segment = Segment::Reel;
                 self.segment_t0 = now;
             }
-            Segment::Reel if ts >= dwell_s => {
+            Segment::Reel if ts >= dwell_s.max(MIN_REST_S) => {
                 self.segment = Segment::Settle;
                 self.phases_completed += 1;
                 self.awaited_version = self.params.version;

@@ -74,6 +74,14 @@ pub struct Dwell {
     pub f_ss: Vec<f64>,
     /// The phase label of the dwell's rows (-1: none).
     pub label: i32,
+    /// The platform's mean acceleration over the dwell, m/s²: zero at a rest; on a moving window
+    /// ([`windows`]) estimated from the path, so that the equilibrium balances `m (a - g)`.
+    pub accel: [f64; 3],
+    /// On a moving window: each cable's rate of change and second derivative at the window's mean
+    /// time, m/s and m/s² (its readings' quadratic in time); empty at a rest.
+    pub l_rate: Vec<f64>,
+    /// See [`Dwell::l_rate`].
+    pub l_curve: Vec<f64>,
 }
 
 /// Phase labels from this on mark a tare dwell (`label - TARE_LABEL_BASE`: the pose's index);
@@ -101,7 +109,8 @@ pub struct Dwells {
     pub dwells: Vec<Dwell>,
     /// Samples inside a dwell.
     pub samples: usize,
-    /// Runs dropped because the encoders crept through them.
+    /// Runs dropped because the encoders crept through them (moving windows: those holding a
+    /// jerk, [`windows`]).
     pub drifting: usize,
     /// Variance of a dwell's mean encoder reading over white noise's (`sigma_lr^2 /
     /// sigma_row^2`, at least 1; module documentation).
@@ -291,7 +300,215 @@ fn average(rec: &Recording, lo: usize, hi: usize) -> Dwell {
             }
         }
     }
-    Dwell { start: lo, end: hi, l, nl: vec![hi - lo; n], f, nf, f_ss, label: rec.phase.as_ref().map_or(-1, |p| p[lo]) }
+    Dwell {
+        start: lo,
+        end: hi,
+        l,
+        nl: vec![hi - lo; n],
+        f,
+        nf,
+        f_ss,
+        label: rec.phase.as_ref().map_or(-1, |p| p[lo]),
+        accel: [0.0; 3],
+        l_rate: Vec::new(),
+        l_curve: Vec::new(),
+    }
+}
+
+/// A moving recording cut into consecutive windows of `window_s`, each averaged as one pose
+/// (slow continuous motion without rests).
+///
+/// ```text
+/// window  = consecutive rows spanning less than window_s, every encoder present, and no
+///           length more than max_travel_m from its first reading
+/// pose    = means of the window's lengths and tensions (their values at the mean time: along a
+///           path that is straight over the window, to travel^2 / (24 |l|): 2 µm for 10 mm of
+///           travel at 2 m; the curvature of |P - A| is what a longer window would add)
+/// scatter = about each cable's quadratic trend over the window's time (the motion's own change
+///           is not noise); the tensions' residual variance (c - 3 dof over the rows) times the
+///           readings' count less one, so that [`Dwells::loadcell_sigma`]'s pooled dof weigh it
+/// count   = tensions: the distinct readings (a load cell polled 62 times a second and recorded
+///           at 500 Hz repeats each reading over ~8 rows), their inflation from the windows'
+///           second differences (`window_inflation`); lengths: the rows, with their inflation by
+///           batch means
+/// ```
+///
+/// A window whose lengths do not follow their quadratic within the encoder noise (`sigma_enc`,
+/// 1-sigma of one reading) holds a jerk and is left out, counted in [`Dwells::drifting`]. The
+/// long-run inflation of correlated or held readings is estimated as for rests, by batch means
+/// of the detrended readings (windows of 40 rows or more). Loose cables and the platform's
+/// acceleration are the solver's business: a window's [`Dwell::accel`] is zero until the
+/// calibration estimates it from the solved path. Rows with a missing length end a window.
+pub fn windows(rec: &Recording, sigma_enc: f64, window_s: f64, max_travel_m: f64, min_samples: usize) -> Dwells {
+    let n = rec.n_cables;
+    let min_samples = min_samples.max(4);
+    let finite = |i: usize| rec.lengths(i).iter().all(|v| v.is_finite());
+    let mut out =
+        Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None };
+    // Detrended lengths (row-major like the recording's; NaN outside every window), for the
+    // inflation estimate.
+    let mut det_l = vec![f64::NAN; rec.len() * n];
+    // Each window with its lengths' residual sum of squares about their quadratics and its dof.
+    let mut found: Vec<(Dwell, f64, usize)> = Vec::new();
+    let mut i = 0;
+    while i < rec.len() {
+        if !finite(i) {
+            i += 1;
+            continue;
+        }
+        let s = i;
+        let near = |i: usize| (0..n).all(|j| (rec.lengths(i)[j] - rec.lengths(s)[j]).abs() <= max_travel_m);
+        while i < rec.len() && finite(i) && rec.t[i] - rec.t[s] < window_s && near(i) {
+            i += 1;
+        }
+        if i - s < min_samples {
+            continue;
+        }
+        let mut d = average(rec, s, i);
+        d.label = -1;
+        let tm = rec.t[s..i].iter().sum::<f64>() / (i - s) as f64;
+        let (mut ss_l, mut dof_l) = (0.0, 0usize);
+        for j in 0..n {
+            let (ss, c, coef) = detrend(s..i, |k| rec.t[k] - tm, |k| rec.lengths(k)[j], |k, v| det_l[k * n + j] = v);
+            d.l_rate.push(coef[1]);
+            d.l_curve.push(2.0 * coef[2]);
+            ss_l += ss;
+            dof_l += c.saturating_sub(3);
+            if rec.f.is_some() {
+                let (ss, c, _) = detrend(s..i, |k| rec.t[k] - tm, |k| rec.tensions(k).map_or(f64::NAN, |t| t[j]), |_, _| {});
+                // The readings, not the rows: a held reading repeats (module documentation).
+                d.nf[j] = runs(s..i, |k| rec.tensions(k).map_or(f64::NAN, |t| t[j]));
+                d.f_ss[j] = if c > 3 { ss / (c - 3) as f64 * d.nf[j].saturating_sub(1) as f64 } else { 0.0 };
+            }
+        }
+        found.push((d, ss_l, dof_l));
+    }
+    // A window whose lengths leave their quadratics by more than the encoders' noise holds a
+    // jerk (a move starting or stopping, a knock): its mean is not the length at a pose that a
+    // constant acceleration reached, and its tensions step with the inertia. Tested at a 1e-3
+    // false-alarm rate against the configured noise or, when the readings are noisier, the
+    // median window's (robust to the jerky minority).
+    let mut ratios: Vec<f64> = found.iter().filter(|w| w.2 > 0).map(|w| w.1 / w.2 as f64).collect();
+    let median = if ratios.is_empty() {
+        0.0
+    } else {
+        let mid = ratios.len() / 2;
+        *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let var = (sigma_enc * sigma_enc).max(median);
+    for (d, ss, dof) in found {
+        if dof > 0 && ss / var > super::chi2_quantile(dof, 3.09) {
+            out.drifting += 1;
+            continue;
+        }
+        out.samples += d.end - d.start;
+        out.dwells.push(d);
+    }
+    let l = inflation(&out.dwells, |i, j| det_l[i * n + j], n);
+    out.length_inflation = l.0;
+    out.length_row_sigma = l.1;
+    if let Some(row) = out.loadcell_sigma() {
+        out.tension_inflation = window_inflation(&out.dwells, row * row);
+    }
+    out
+}
+
+/// The variance of a moving window's mean tension over `row_var / readings`, pooled over the
+/// cables and the windows joined to both neighbours, from the second differences of their
+/// means: along a smooth path `f_(k-1) - 2 f_k + f_(k+1)` is the noise alone (the path's own
+/// curvature over 0.2 s windows is a few mN), with variance `row_var (1/n_(k-1) + 4/n_k +
+/// 1/n_(k+1))` times the inflation when the readings are independent. A platform that
+/// vibrates between the readings (or faster than the cell reads, aliased) correlates them over
+/// a window. The median of the triples' ratios, so that the few where the inertia steps do not
+/// count; a few hundred triples give the inflation to some 10 %. At least 1.
+fn window_inflation(w: &[Dwell], row_var: f64) -> f64 {
+    let mut ratios = Vec::new();
+    for k in 1..w.len().saturating_sub(1) {
+        if w[k - 1].end != w[k].start || w[k].end != w[k + 1].start {
+            continue;
+        }
+        for j in 0..w[k].f.len() {
+            let (a, b, c) = (&w[k - 1], &w[k], &w[k + 1]);
+            if a.nf[j] == 0 || b.nf[j] == 0 || c.nf[j] == 0 {
+                continue;
+            }
+            let r = a.f[j] - 2.0 * b.f[j] + c.f[j];
+            let expect = row_var * (1.0 / a.nf[j] as f64 + 4.0 / b.nf[j] as f64 + 1.0 / c.nf[j] as f64);
+            if r.is_finite() && expect > 0.0 {
+                ratios.push(r * r / expect);
+            }
+        }
+    }
+    if ratios.is_empty() {
+        return 1.0;
+    }
+    // The median over chi-square(1)'s (0.4549): robust to the triples where the inertia steps
+    // (a move starting or stopping between two windows).
+    let mid = ratios.len() / 2;
+    (*ratios.select_nth_unstable_by(mid, f64::total_cmp).1 / 0.4549).max(1.0)
+}
+
+/// The number of distinct readings among the finite `value(k)` over `rows`: runs of an
+/// identical value count once (a reading held over several rows).
+fn runs(rows: std::ops::Range<usize>, value: impl Fn(usize) -> f64) -> usize {
+    let mut last = f64::NAN;
+    let mut count = 0;
+    for k in rows {
+        let v = value(k);
+        if v.is_finite() {
+            if v != last {
+                count += 1;
+            }
+            last = v;
+        }
+    }
+    count
+}
+
+/// Least-squares quadratic of the finite `value(k)` against `x(k)` over `rows`; `put(k, mean +
+/// residual)` for each, the residual scaled for the 3 dof the fit took (the mean kept, the
+/// path's change over the window removed: a line leaves an accelerating platform's `a t^2 / 2`
+/// in the scatter). Returns the residuals' sum of squares (unscaled), their count and the
+/// quadratic's coefficients `[c0, c1, c2]` (`c0 + c1 x + c2 x^2`).
+fn detrend(
+    rows: std::ops::Range<usize>,
+    x: impl Fn(usize) -> f64,
+    value: impl Fn(usize) -> f64,
+    mut put: impl FnMut(usize, f64),
+) -> (f64, usize, [f64; 3]) {
+    let mut c = 0usize;
+    let mut m = nalgebra::Matrix3::<f64>::zeros();
+    let mut r = nalgebra::Vector3::<f64>::zeros();
+    for k in rows.clone() {
+        let y = value(k);
+        if y.is_finite() {
+            let u = x(k);
+            let b = nalgebra::Vector3::new(1.0, u, u * u);
+            m += b * b.transpose();
+            r += b * y;
+            c += 1;
+        }
+    }
+    if c == 0 {
+        return (0.0, 0, [0.0; 3]);
+    }
+    let mean = r[0] / c as f64;
+    // Fewer than three distinct times: the mean alone.
+    let coef = m.cholesky().map_or(nalgebra::Vector3::new(mean, 0.0, 0.0), |ch| ch.solve(&r));
+    // The residuals scaled by sqrt((c - 1) / (c - 3)): their scatter then estimates the
+    // readings' with the c - 1 dof that the pooled row variance counts.
+    let scale = if c > 3 { ((c - 1) as f64 / (c - 3) as f64).sqrt() } else { 1.0 };
+    let mut ss = 0.0;
+    for k in rows {
+        let y = value(k);
+        if y.is_finite() {
+            let u = x(k);
+            let res = y - coef[0] - coef[1] * u - coef[2] * u * u;
+            ss += res * res;
+            put(k, mean + scale * res);
+        }
+    }
+    (ss, c, [coef[0], coef[1], coef[2]])
 }
 
 #[cfg(test)]
@@ -382,6 +599,9 @@ mod tests {
             nf: vec![25; 4],
             f_ss: vec![0.0; 4],
             label: TARE_LABEL_BASE + 3,
+            accel: [0.0; 3],
+            l_rate: Vec::new(),
+            l_curve: Vec::new(),
         };
         assert_eq!(d.tared(5.0), vec![false, false, false, true]);
         let normal = Dwell { label: 3, ..d };

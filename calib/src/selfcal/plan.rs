@@ -298,6 +298,9 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
             nf: vec![if tensions { inp.tension_samples.max(1) } else { 0 }; n],
             f_ss: vec![0.0; n],
             label: -1,
+            accel: [0.0; 3],
+            l_rate: Vec::new(),
+            l_curve: Vec::new(),
         };
         let dws = [dw];
         let pr = Problem {

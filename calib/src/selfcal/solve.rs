@@ -241,7 +241,9 @@ impl Problem<'_> {
         }
         if let Some(wm) = w {
             let m = self.mass_of(s);
-            let mut f = Vector3::new(0.0, 0.0, -m * G);
+            // m (g - a): gravity, less the force that accelerates the platform (zero at a rest).
+            let ga = Vector3::new(-d.accel[0], -d.accel[1], -G - d.accel[2]);
+            let mut f = m * ga;
             let mut dfdp = Matrix3::zeros();
             // Columns of dF/dg, sparse: (index, 3-vector).
             let mut cols: Vec<(usize, Vector3<f64>)> = Vec::with_capacity(4 * lay.n + 1);
@@ -266,7 +268,7 @@ impl Problem<'_> {
                 cols.push((lay.c(j), -v));
             }
             if lay.mass {
-                cols.push((lay.m(), Vector3::new(0.0, 0.0, -G)));
+                cols.push((lay.m(), ga));
             }
             // Residual -F (the measured force balance is zero), whitened.
             let r = wm * (-f);

@@ -22,6 +22,7 @@ mod faults;
 mod lockstep;
 mod notracker_3mm;
 mod notracker_3mm_dynamic;
+mod notracker_continuous;
 mod notracker_short;
 mod notracker_short_rests;
 mod operator;
