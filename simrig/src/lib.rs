@@ -555,6 +555,55 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
     }
 }
 
+/// The simulated site alone, for a robot side that opens its devices itself (a C host's plugin
+/// in plugin-owned mode, `taut start` on the configuration): the virtual drives on the
+/// SocketCAN interface `opts.can`, the load cells on a pseudo-terminal, the tracker's datagrams
+/// sent to `tracker_to` (when `opts.tracker`). The robot's configuration then names
+/// [`SiteOnly::loadcell_port`] as its `[loadcells] port`, the interface, and `tracker_to` as its
+/// `[tracker] listen`. The site stops when the value is dropped.
+#[cfg(target_os = "linux")]
+pub fn build_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, tracker_to: std::net::SocketAddr) -> Result<SiteOnly, BuildError> {
+    use taut_driver::transport::socketcan::SocketCanTransport;
+    let Some(iface) = &opts.can else { return Err(BuildError::NoSocketCan { iface: String::new() }) };
+    let rack_bus =
+        SocketCanTransport::open(iface).map_err(|error| BuildError::Can { who: "virtual drives", iface: iface.clone(), error })?;
+    let parts = draw_site(cfg, p0, opts)?;
+    let truth = parts.truth.clone();
+    let cell_cfgs = parts.cells.iter().map(|c| c.1.clone()).collect();
+    let vlc = VirtualLoadCells::spawn(cell_cfgs, parts.handle.clone())
+        .map_err(|e| BuildError::Device { what: "virtual load cells", error: e })?;
+    let loadcell_port = vlc.path().to_path_buf();
+    if let Err(e) = vlc.set_realtime(sim_cells_priority(cfg)) {
+        eprintln!("taut-simrig: SCHED_FIFO for the simulated load cells refused ({e})");
+    }
+    let sender = match opts.tracker {
+        true => Some(TrackerSender::new(tracker_to).map_err(|e| BuildError::Device { what: "tracker sender", error: e })?),
+        false => None,
+    };
+    let io = SiteIo { rack_bus, vlc: Some(vlc), sender, clock: taut_driver::clock::wall(), now: Instant::now() };
+    let mut site = parts.into_site(io, opts);
+    let (faults, stop) = (site.faults.clone(), site.stop.clone());
+    let thread = std::thread::Builder::new()
+        .name("sim-site".into())
+        .spawn(move || site.run())
+        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
+    if let Err(e) = taut_driver::sched::set_fifo(&thread, sim_cells_priority(cfg)) {
+        eprintln!("taut-simrig: SCHED_FIFO for the simulated robot refused ({e})");
+    }
+    Ok(SiteOnly { truth, faults, loadcell_port, _site: SiteThread { stop, thread: Some(thread) } })
+}
+
+/// A running simulated site without the robot's side ([`build_site`]).
+pub struct SiteOnly {
+    /// The site's true parameters.
+    pub truth: Truth,
+    /// Fault switches.
+    pub faults: Arc<SimFaults>,
+    /// The pseudo-terminal the virtual load cells answer on.
+    pub loadcell_port: std::path::PathBuf,
+    _site: SiteThread,
+}
+
 fn node_ids(cfg: &RobotConfig) -> Result<Vec<NodeId>, BuildError> {
     cfg.cables.iter().enumerate().map(|(j, c)| c.drive.as_ref().map(|d| d.node_id).ok_or(BuildError::NoDrive { cable: j })).collect()
 }

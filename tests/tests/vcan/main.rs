@@ -10,5 +10,6 @@ mod vcan_busfault;
 mod vcan_canopen;
 mod vcan_field;
 mod vcan_pdo_map;
+mod vcan_plugin_owned;
 mod vcan_socketcan;
 mod vcan_start;

@@ -17,7 +17,8 @@ use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 use taut_tests::vcan;
 
-fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
+/// The simulated robot slowed for an emulated CPU (shared with `vcan_plugin_owned`).
+pub(crate) fn robot(dir: &std::path::Path) -> taut_config::RobotConfig {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
     let mut cfg = taut_config::RobotConfig::load(path).unwrap();
     // An emulated CPU: a slow loop, short motions, and patience with every device.
