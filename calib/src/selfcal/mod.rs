@@ -237,6 +237,9 @@ pub enum SelfCalError {
         needed: usize,
         /// Runs dropped because the encoders crept.
         drifting: usize,
+        /// Why the recording's motion, cut into moving windows, did not calibrate either
+        /// (`None`: not tried).
+        moving: Option<String>,
     },
     /// The information is singular beyond the frame.
     Singular {
@@ -273,10 +276,16 @@ impl fmt::Display for SelfCalError {
                 f,
                 "the recording has {recording} cables, the configuration {platform_points} platform points and {nominal} nominal anchors; use the configuration of the robot that made the recording"
             ),
-            SelfCalError::TooFewDwells { found, needed, drifting } => write!(
-                f,
-                "only {found} dwell poses found (stretches where every encoder is still), at least {needed} needed ({drifting} stretches dropped because the encoders crept); hold the platform still at each pose for a second or more, at poses spread through the height and the width of the workspace"
-            ),
+            SelfCalError::TooFewDwells { found, needed, drifting, moving } => {
+                write!(
+                    f,
+                    "only {found} dwell poses found (stretches where every encoder is still), at least {needed} needed ({drifting} stretches dropped because the encoders crept); hold the platform still at each pose for a second or more, at poses spread through the height and the width of the workspace"
+                )?;
+                match moving {
+                    Some(why) => write!(f, " (the motion between them, as a slow continuous motion, did not calibrate either: {why})"),
+                    None => Ok(()),
+                }
+            }
             SelfCalError::Singular { advice } => {
                 write!(f, "the recording does not determine the robot's geometry (the information is singular beyond the frame): {advice}")
             }
@@ -374,9 +383,36 @@ pub fn calibrate_without_tracker(
         return Err(SelfCalError::TooFewCables { n });
     }
     let rests = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
-    // What the poses can determine: with every tension at some pose, the load-cell offsets (and
-    // the mass, the stiffness) beside the anchors and offsets, in the frame that gravity fixes.
-    let setup = |found: &dwell::Dwells| {
+    let needed = needed_poses(rec, &rests, opts);
+    if rests.dwells.len() >= needed {
+        return solve_poses(rec, platform_points, nominal, opts, rests, false);
+    }
+    let too_few =
+        |moving: Option<String>| SelfCalError::TooFewDwells { found: rests.dwells.len(), needed, drifting: rests.drifting, moving };
+    if opts.window_s <= 0.0 {
+        return Err(too_few(None));
+    }
+    // Too few rests: a slow continuous motion, each window a pose with its inertia. When that
+    // fails too, the refusal is the rests' (what to record), with the windows' reason beside it.
+    let w = dwell::windows(rec, opts.encoder_sigma_m.max(1e-7), opts.window_s, MAX_WINDOW_TRAVEL_M, MIN_WINDOW_ROWS);
+    let needed_w = needed_poses(rec, &w, opts);
+    if w.dwells.len() < needed_w {
+        return Err(too_few(Some(format!("{} moving windows, {needed_w} needed", w.dwells.len()))));
+    }
+    solve_poses(rec, platform_points, nominal, opts, w, true).map_err(|e| too_few(Some(e.to_string())))
+}
+
+/// The poses `found` must hold for the unknowns they determine (module documentation).
+fn needed_poses(rec: &Recording, found: &dwell::Dwells, opts: &SelfCalOptions) -> usize {
+    setup(rec, found, opts).4
+}
+
+/// What the poses can determine: with every tension at some pose, the load-cell offsets (and
+/// the mass, the stiffness) beside the anchors and offsets, in the frame that gravity fixes;
+/// `(tensions, stretch, layout, frame, poses needed)`.
+fn setup(rec: &Recording, found: &dwell::Dwells, opts: &SelfCalOptions) -> (bool, Option<crate::bundle::Stretch>, Layout, Frame, usize) {
+    let n = rec.n_cables;
+    {
         let tensions = opts.use_tensions && rec.f.is_some() && found.dwells.iter().any(|d| d.nf.iter().all(|&c| c > 0));
         let stretch = opts.stretch.filter(|st| tensions && st.ea_n > 0.0 && st.ea_n.is_finite());
         let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass, ea: stretch.is_some_and(|st| st.rel_sigma > 0.0) };
@@ -386,21 +422,23 @@ pub fn calibrate_without_tracker(
         let free = lay.count() - if tensions { 4 } else { 6 };
         let needed = (2 * free).div_ceil(per_dwell).max(10);
         (tensions, stretch, lay, frame, needed)
-    };
-    let (mut found, mut moving) = (rests, false);
-    if found.dwells.len() < setup(&found).4 && opts.window_s > 0.0 {
-        // Too few rests: a slow continuous motion, each window a pose with its inertia.
-        let w = dwell::windows(rec, opts.encoder_sigma_m.max(1e-7), opts.window_s, MAX_WINDOW_TRAVEL_M, MIN_WINDOW_ROWS);
-        if w.dwells.len() >= setup(&w).4 {
-            (found, moving) = (w, true);
-        }
     }
-    let (tensions, stretch, lay, frame, needed) = setup(&found);
+}
+
+/// The calibration on the poses `found`: rests, or the windows of a moving recording
+/// (`moving`).
+fn solve_poses(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    nominal: &[[f64; 3]],
+    opts: &SelfCalOptions,
+    found: dwell::Dwells,
+    moving: bool,
+) -> Result<SelfCalReport, SelfCalError> {
+    let n = rec.n_cables;
+    let (tensions, stretch, lay, frame, _) = setup(rec, &found, opts);
     let (c, d) = gauge(nominal, lay, frame);
     let free = lay.count() - c.nrows();
-    if found.dwells.len() < needed {
-        return Err(SelfCalError::TooFewDwells { found: found.dwells.len(), needed, drifting: found.drifting });
-    }
     let sigma_f = opts.loadcell_sigma_n.or_else(|| found.loadcell_sigma()).unwrap_or(0.3).max(1e-3);
     // The variance of a dwell mean: one reading's variance (the encoders' at least the
     // configured one) times the long-run inflation of correlated or repeated readings
