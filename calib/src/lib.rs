@@ -127,6 +127,7 @@ pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
 pub mod init;
+pub mod lm;
 mod mc;
 pub mod metrics;
 pub mod model;
