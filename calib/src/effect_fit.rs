@@ -284,17 +284,7 @@ const ENCODER_TIME_REFITS: usize = 3;
 
 /// The internal starting value of `e` from `start` (the running model), else [`Effect::start`].
 fn start_value(e: Effect, start: &Effects, j: usize) -> f64 {
-    let per = |v: &Option<Vec<f64>>| v.as_ref().and_then(|v| v.get(j).copied());
-    let v = match e {
-        Effect::Elasticity => per(&start.ea_n).map(|ea| 1.0 / ea),
-        Effect::Scale => per(&start.drum_scale).map(|s| s - 1.0),
-        Effect::Pulley => per(&start.pulley_radius_m),
-        Effect::Backlash => per(&start.backlash_m).filter(|w| *w > 0.0),
-        // The data were aligned by the running offset: what is left starts at zero.
-        Effect::TimeOffset => Some(0.0),
-        _ => None,
-    };
-    v.filter(|v| v.is_finite()).unwrap_or(e.start())
+    e.model().start_from(start, j).filter(|v| v.is_finite()).unwrap_or(e.start())
 }
 
 /// Fits anchors, offsets and the effects of `o.effects` to `rec`, starting from `anchors`,
@@ -436,21 +426,15 @@ pub fn fit_effects(
             vals.push(v);
             sigmas.push(sv);
         }
-        // One pulley radius for all cables in the model; the file keeps one per cable.
-        if e.sharing() == Sharing::Shared && e != Effect::TimeOffset {
+        // One pulley radius for all cables in the model; the file keeps one per cable (and one
+        // time offset for the robot, the first).
+        if e.sharing() == Sharing::Shared {
             vals = vec![vals[0]; n];
             sigmas = vec![sigmas[0]; n];
         }
         let known = sigmas.iter().all(|s| s.is_finite());
         let sig_opt = known.then_some(sigmas);
-        match e {
-            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig_opt),
-            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig_opt),
-            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig_opt),
-            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig_opt),
-            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig_opt.map(|s| s[0])),
-            Effect::Sag | Effect::Slack => unreachable!("refused by parse_effects"),
-        }
+        e.model().store(&mut out, vals, sig_opt).expect("sag is refused by parse_effects");
     }
     let delta = spec.offset(Effect::TimeOffset, n).filter(|_| spec.effects.contains(&Effect::Backlash)).map(|o| r.x[o]);
     let (ss, m) = fit::sum_squares(&fitted_rows(&prep, &usable_before_play, delta, o.encoder_sigma_m), &spec, &samples, &r.x);
@@ -474,28 +458,21 @@ pub fn effects_of(d: &Diagnosis) -> (Effects, Vec<String>) {
     let mut notes = vec![];
     let n = d.cables;
     for f in &d.effects {
-        let vals: Vec<f64> = match f.effect.sharing() {
-            Sharing::PerCable => f.values.clone(),
-            Sharing::Shared if f.effect == Effect::TimeOffset => f.values.clone(),
-            Sharing::Shared => vec![f.values.first().copied().unwrap_or(f64::NAN); n],
-        };
-        let sigmas: Vec<f64> = match f.effect.sharing() {
-            Sharing::Shared if f.effect != Effect::TimeOffset => vec![f.sigmas.first().copied().unwrap_or(f64::NAN); n],
-            _ => f.sigmas.clone(),
+        // A robot-wide value is repeated per cable (the file keeps a pulley radius per cable,
+        // and the time offset's store takes the first).
+        let (vals, sigmas): (Vec<f64>, Vec<f64>) = match f.effect.sharing() {
+            Sharing::PerCable => (f.values.clone(), f.sigmas.clone()),
+            Sharing::Shared => {
+                (vec![f.values.first().copied().unwrap_or(f64::NAN); n], vec![f.sigmas.first().copied().unwrap_or(f64::NAN); n])
+            }
         };
         if vals.iter().any(|v| !v.is_finite()) || vals.is_empty() {
             notes.push(format!("{} not written: a cable had no data to fit it", f.effect.name()));
             continue;
         }
         let sig = (sigmas.len() == vals.len() && sigmas.iter().all(|s| s.is_finite() && *s >= 0.0)).then_some(sigmas);
-        match f.effect {
-            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig),
-            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig),
-            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig),
-            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig),
-            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig.map(|s| s[0])),
-            Effect::Sag => notes.push("sag not written: the running robot does not model it".into()),
-            Effect::Slack => {}
+        if let Err(note) = f.effect.model().store(&mut out, vals, sig) {
+            notes.push(note.into());
         }
     }
     (out, notes)

@@ -126,6 +126,7 @@ pub mod consistency;
 pub mod design;
 pub mod diagnose;
 pub mod effect_fit;
+pub mod effects;
 pub mod init;
 pub mod lm;
 mod mc;

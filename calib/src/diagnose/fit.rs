@@ -455,21 +455,12 @@ impl<'a> Joint<'a> {
     /// reading: the lookups were a sixth of a diagnosis's time).
     fn offsets(&self) -> Offsets {
         let n = self.prep.n;
-        let of = |e: Effect| self.spec.offset(e, n);
-        Offsets {
-            time_offset: of(Effect::TimeOffset),
-            pulley: of(Effect::Pulley),
-            sag: of(Effect::Sag),
-            elasticity: of(Effect::Elasticity),
-            scale: of(Effect::Scale),
-            backlash: of(Effect::Backlash),
-            slack: of(Effect::Slack),
-        }
+        Offsets(Effect::ALL.map(|e| self.spec.offset(e, n)))
     }
 
     fn predict_with(&self, x: &[f64], i: usize, j: usize, rep: Option<&Rep>, offs: &Offsets) -> Prediction {
-        let play = offs.backlash.map(|o| (o + j, x[o + j]));
-        let Some(ko) = offs.time_offset else {
+        let play = offs.of(Effect::Backlash).map(|o| (o + j, x[o + j]));
+        let Some(ko) = offs.of(Effect::TimeOffset) else {
             let Some((kw, w)) = play else {
                 return self.reading(x, i, j, rep, None, offs);
             };
@@ -540,7 +531,7 @@ impl<'a> Joint<'a> {
         delta: f64,
     ) -> Prediction {
         let pl = &self.prep.play;
-        let ko = offs.time_offset.expect("a time offset");
+        let ko = offs.of(Effect::TimeOffset).expect("a time offset");
         let pushed = |q: usize| pl.contact[j][q] as usize == q;
         let seg = self.prep.segment[i];
         let ok = |q: usize| self.prep.segment[q] == seg && self.enc_ok(q, j);
@@ -745,17 +736,17 @@ impl<'a> Joint<'a> {
         let offs = self.offsets();
         let pl = &self.prep.play;
         let (mut poses, mut encs) = (vec![], vec![]);
-        match offs.time_offset.map(|o| x[o]) {
+        match offs.of(Effect::TimeOffset).map(|o| x[o]) {
             None => {
                 encs.push(i);
-                poses.push(if offs.backlash.is_some() { pl.contact[j][i] as usize } else { i });
+                poses.push(if offs.of(Effect::Backlash).is_some() { pl.contact[j][i] as usize } else { i });
             }
             Some(delta) => {
                 let (k, s, dt) = self.locate(i, self.prep.t[i] + delta);
                 let _ = s;
                 let k1 = if dt > 0.0 { k + 1 } else { k };
                 encs.extend([k, k1]);
-                if offs.backlash.is_none() {
+                if offs.of(Effect::Backlash).is_none() {
                     poses.push(i);
                 } else {
                     for q in [k, k1] {
@@ -954,28 +945,13 @@ fn runs(v: &[usize]) -> Vec<(usize, usize)> {
     out
 }
 
-/// The first parameter of each active effect ([`ModelSpec::offset`]), `None` when inactive.
-struct Offsets {
-    time_offset: Option<usize>,
-    pulley: Option<usize>,
-    sag: Option<usize>,
-    elasticity: Option<usize>,
-    scale: Option<usize>,
-    backlash: Option<usize>,
-    slack: Option<usize>,
-}
+/// The first parameter of each active effect ([`ModelSpec::offset`]), `None` when inactive,
+/// indexed by [`Effect::index`].
+struct Offsets([Option<usize>; Effect::ALL.len()]);
 
 impl Offsets {
     fn of(&self, e: Effect) -> Option<usize> {
-        match e {
-            Effect::TimeOffset => self.time_offset,
-            Effect::Pulley => self.pulley,
-            Effect::Sag => self.sag,
-            Effect::Elasticity => self.elasticity,
-            Effect::Scale => self.scale,
-            Effect::Backlash => self.backlash,
-            Effect::Slack => self.slack,
-        }
+        self.0[e.index()]
     }
 }
 
@@ -1274,17 +1250,7 @@ impl LeastSquares for Joint<'_> {
         let n = self.prep.n;
         for &e in &self.spec.effects {
             let o = self.spec.offset(e, n).expect("active");
-            let (lo, hi) = match e {
-                // A compliance, weight or radius below zero is not physics: fit on the boundary.
-                Effect::Elasticity => (0.0, 1e-2),
-                Effect::Sag => (0.0, 100.0),
-                Effect::Pulley => (0.0, 1.0),
-                Effect::Scale => (-0.2, 0.2),
-                Effect::TimeOffset => (-1.0, 1.0),
-                // A play has no negative width.
-                Effect::Backlash => (0.0, 0.1),
-                Effect::Slack => (f64::NEG_INFINITY, f64::INFINITY),
-            };
+            let (lo, hi) = e.model().bounds();
             for v in &mut x[o..o + width(e, n)] {
                 *v = v.clamp(lo, hi);
             }
@@ -1997,7 +1963,7 @@ mod tests {
             let mut near = prep.clone();
             let offs = p.offsets();
             for j in 0..4 {
-                match offs.time_offset {
+                match offs.of(Effect::TimeOffset) {
                     // With a time offset the model reads the encoder at t + delta: readings
                     // late by delta, the own-pose model interpolated at t - delta, +- 1 mm.
                     Some(o) => {

@@ -1154,18 +1154,6 @@ fn correlation(r: &lm::LmReport, spec: &ModelSpec, e: Effect, other: Option<Effe
     best
 }
 
-fn signature_regressor(e: Effect) -> Regressor {
-    match e {
-        Effect::Elasticity => Regressor::TensionLength,
-        Effect::Sag => Regressor::SagTerm,
-        Effect::Pulley => Regressor::Elevation,
-        Effect::Scale => Regressor::Length,
-        Effect::TimeOffset => Regressor::Velocity,
-        Effect::Backlash => Regressor::Direction,
-        Effect::Slack => Regressor::Tension,
-    }
-}
-
 fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
     let s = samples.len().div_ceil(max.max(1)).max(1);
     res.iter()
@@ -1640,7 +1628,7 @@ pub fn diagnose(
             Sharing::Shared => (0..n).filter(|&j| !best.needs_tension() || has_t[j]).collect(),
         };
         // Evidence: the residual before against the effect's signature regressor.
-        let reg = signature_regressor(best);
+        let reg = best.model().regressor();
         let before_res = fit::residuals(&prep, &spec, &plot_samples, &cur_train.x);
         let after_res = fit::residuals(&prep, &new_spec, &plot_samples, &full.x);
         let mut rs = vec![];
