@@ -53,15 +53,17 @@ pub mod analysis;
 pub mod dataq;
 pub mod effects;
 pub mod esterr;
-pub mod fit;
-pub mod lm;
+/// The joint model the diagnosis fits: [`crate::effects::model`].
+pub use crate::effects::model as fit;
+/// The dense least-squares problems the diagnosis solves: [`crate::lm::dense`].
+pub use crate::lm::dense as lm;
 pub mod select;
 
 use crate::{Geometry, Params, Sigmas};
 use analysis::{rms, Mismatch, Regressor};
 pub use dataq::{DataProblem, ProblemKind};
 pub use effects::{Effect, Sharing, TensionEnd};
-use fit::{ModelSpec, Prepared};
+use fit::{clear_push_weights, encoder_time_prep, exclude_unseen_pushes, ModelSpec, Prepared};
 pub use select::HeldoutTest;
 use std::fmt;
 use taut_config::recording::Recording;
@@ -366,58 +368,21 @@ pub struct Diagnosis {
     pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
 }
 
-use crate::model::rotation;
-
-/// Builds the per-cable columns, velocities, directions and masks.
+/// The effect models' columns of the rows without data problems ([`fit::prepare`]), with the
+/// diagnosis's errors-in-variables weights, velocities, directions and held-out blocks.
 fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &DiagnoseOptions) -> Prepared {
     let n = rec.n_cables;
-    let rows: Vec<usize> = (0..rec.len()).filter(|&i| masks.row_ok[i]).collect();
-    let m = rows.len();
-    let mut prep = Prepared {
-        n,
-        t: rows.iter().map(|&i| rec.t[i]).collect(),
-        rows: rows.clone(),
-        x: vec![Vec::with_capacity(m); n],
-        l: vec![Vec::with_capacity(m); n],
-        f: vec![Vec::with_capacity(m); n],
-        vel: vec![vec![0.0; m]; n],
-        dir: vec![vec![0.0; m]; n],
-        play: fit::PlayState::default(),
-        usable: vec![Vec::with_capacity(m); n],
-        loose: vec![Vec::with_capacity(m); n],
-        segment: rows.iter().map(|&i| masks.segment[i]).collect(),
-        heldout: vec![false; m],
-        hold_weight: vec![],
-        // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
-        // sag: the tension's noise): see `fit::Eiv`.
-        eiv: Some(fit::Eiv::new(opts.tracker_sigma_m, opts.encoder_sigma_m, opts.loadcell_sigma_n)),
+    let sel = fit::Selection {
+        rows: (0..rec.len()).filter(|&i| masks.row_ok[i]).collect(),
+        segment: &masks.segment,
+        cable_ok: Some(&masks.cable_ok),
+        dead_loadcell: Some(&masks.dead_loadcell),
     };
-    for &i in &rows {
-        let r = rec.q.as_ref().and_then(|q| rotation(q[i]));
-        for j in 0..n {
-            let rb = match &r {
-                Some(r) => [
-                    r[0][0] * b[j][0] + r[0][1] * b[j][1] + r[0][2] * b[j][2],
-                    r[1][0] * b[j][0] + r[1][1] * b[j][1] + r[1][2] * b[j][2],
-                    r[2][0] * b[j][0] + r[2][1] * b[j][1] + r[2][2] * b[j][2],
-                ],
-                None => b[j],
-            };
-            let p = rec.p[i];
-            prep.x[j].push([p[0] + rb[0], p[1] + rb[1], p[2] + rb[2]]);
-            let l = rec.l[i * n + j];
-            prep.l[j].push(l);
-            let f = match &rec.f {
-                Some(f) if !masks.dead_loadcell[j] => f[i * n + j],
-                _ => f64::NAN,
-            };
-            prep.f[j].push(f);
-            let loose = f.is_finite() && f < opts.min_tension_n;
-            let ok = masks.cable_ok[j][i] && l.is_finite();
-            prep.usable[j].push(ok && !loose);
-            prep.loose[j].push(ok && loose);
-        }
-    }
+    let mut prep = fit::prepare(rec, b, &sel, opts.min_tension_n, false, opts.encoder_sigma_m);
+    let m = prep.t.len();
+    // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
+    // sag: the tension's noise): see `fit::Eiv`.
+    prep.eiv = Some(fit::Eiv::new(opts.tracker_sigma_m, opts.encoder_sigma_m, opts.loadcell_sigma_n));
     // Encoder velocity by a central difference over about 40 ms (at least one sample), inside
     // a segment; the direction of motion is held through pauses.
     let k = ((0.02 / masks.dt.max(1e-6)).round() as usize).max(1);
@@ -443,7 +408,6 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
             prep.dir[j][i] = last;
         }
     }
-    prep.play = fit::PlayState::of_readings(&prep.l, opts.encoder_sigma_m);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
@@ -949,7 +913,7 @@ const BLOCKS: usize = 20;
 /// absorb must not count (nor may structure the others leave in the profiled direction be
 /// missed: the raw score's blocks under-covered EA under backlash, 52 / 75 / 85 % within 1 / 2 /
 /// 3 sigma over 48 estimates).
-fn sandwich_inflation(
+pub(crate) fn sandwich_inflation(
     prep: &Prepared,
     spec: &ModelSpec,
     samples: &[usize],
@@ -1195,46 +1159,6 @@ fn play_prep(prep: &Prepared, spec: &ModelSpec, x: &[f64], encoder_sigma_m: f64)
     let mut p = prep.clone();
     p.hold_weight = clear_push_weights(prep, &prep.usable, delta, encoder_sigma_m);
     Some(p)
-}
-
-/// Weight 1 on the `usable` rows of `prep` that read clear pushes at the time offset `delta`
-/// (`None`: the model has none; steps beyond 3 sigmas of an encoder difference: [`fit::clear_push_rows`]), 0 elsewhere.
-fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
-    let clear = fit::clear_push_rows(prep, usable, delta, 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
-    clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
-}
-
-/// Leaves out of the fit the readings held since a push while the cable was loose
-/// ([`PlayState::exclude_unseen_pushes`]: the play's level is unknown there) and keeps them
-/// readings, as a loose cable's are ([`Prepared::loose`]): the encoder's interpolation under a
-/// time offset reads them ([`fit::Joint::predict`]; taken for data problems, the rows beside them
-/// fell back to one encoder sample, millimetres off at speed). Returns the usable mask before
-/// the exclusion, which a fit with a time offset and a play redoes in encoder time
-/// ([`encoder_time_prep`]). Shared by the diagnosis and the running robot's effect fit
-/// ([`crate::effect_fit`]).
-pub(crate) fn exclude_unseen_pushes(prep: &mut Prepared) -> Vec<Vec<bool>> {
-    let before = prep.usable.clone();
-    prep.play.exclude_unseen_pushes(&mut prep.usable);
-    for ((loose, now), was) in prep.loose.iter_mut().zip(&prep.usable).zip(&before) {
-        for ((l, now), was) in loose.iter_mut().zip(now).zip(was) {
-            *l |= *was && !*now;
-        }
-    }
-    before
-}
-
-/// `prep` for a fit of a model with a play and a time offset `delta`, in encoder time: every
-/// row of `usable_before_play` (the mask before [`exclude_unseen_pushes`]) stays a reading, and
-/// weight 1 goes to the rows that are not held since a push while loose in encoder time
-/// ([`fit::encoder_time_exclusion`]) and read clear pushes ([`clear_push_weights`]), 0 to the
-/// others (a hold's level is the input's extreme, which a mistaken push end misses on one side).
-/// The diagnosis's final estimates and the running robot's effect fit ([`crate::effect_fit`])
-/// both fit on it.
-pub(crate) fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Prepared {
-    let kept = fit::encoder_time_exclusion(prep, usable_before_play, delta);
-    let mut p = Prepared { usable: usable_before_play.to_vec(), ..prep.clone() };
-    p.hold_weight = clear_push_weights(&p, &kept, Some(delta), encoder_sigma_m);
-    p
 }
 
 /// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used

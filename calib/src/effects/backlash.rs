@@ -6,7 +6,7 @@
 //! ```
 //!
 //! Per cable. Needs the readings in time order (the play's history,
-//! [`crate::diagnose::fit::PlayState`]); a time offset mimics it at reversals.
+//! [`super::model::PlayState`]); a time offset mimics it at reversals.
 
 use super::{Effect, EffectModel, Needs, Sharing};
 use crate::diagnose::analysis::Regressor;

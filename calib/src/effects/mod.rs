@@ -9,7 +9,7 @@
 //! a fit that lands outside is not claimed.
 //!
 //! The modelled encoder reading of cable `j` at sample `i` is built up in this order (the
-//! prediction and its derivatives: [`crate::diagnose::fit`]):
+//! prediction and its derivatives, the data it reads and the joint fit: [`model`]):
 //!
 //! ```text
 //! X      = P(t_i - delta) + R b_j                      time-offset: delta > 0, encoder lags tracker
@@ -20,7 +20,7 @@
 //! l_hat  = play(v; w_b)                                backlash: play operator of width w_b
 //! ```
 //!
-//! The play runs over the samples in time order (see [`crate::diagnose::fit::PlayState`]): the
+//! The play runs over the samples in time order (see [`model::PlayState`]): the
 //! reading stays put while `v` moves inside `[l_hat - w_b/2, l_hat + w_b/2]` and is pushed
 //! along once `v` leaves it, so `l_hat_i = v_c - sigma w_b / 2` with `c` the last sample that
 //! pushed and `sigma = +1` paying out, `-1` reeling in.
@@ -33,6 +33,7 @@
 
 mod backlash;
 mod drum_scale;
+pub mod model;
 mod pulley;
 mod sag;
 mod slack;

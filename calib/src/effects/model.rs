@@ -1,11 +1,12 @@
 //! The joint model: anchors, encoder offsets and the parameters of the active effects, fitted
-//! together by [`super::lm`].
+//! together by [`crate::lm::dense`].
 //!
 //! Parameter layout: `[A_0 (3), L0_0, A_1, L0_1, .., A_{n-1}, L0_{n-1}]`, then for each active
 //! effect in [`ModelSpec::effects`] order either one parameter per cable or one shared.
 
-use super::effects::{pulley_length, sag_excess, Effect, Sharing, TensionEnd};
-use super::lm::{self, LeastSquares, LmOptions, LmReport};
+use super::{pulley_length, sag_excess, Effect, Sharing, TensionEnd};
+use crate::lm::dense::{self as lm, LeastSquares, LmOptions, LmReport};
+use taut_config::recording::Recording;
 
 /// A recording prepared for fitting: per-cable columns, derived quantities and masks.
 #[derive(Debug, Clone)]
@@ -44,6 +45,126 @@ pub struct Prepared {
     /// The sensors' noise for errors-in-variables weights ([`Eiv`]); `None`: every reading
     /// weighs the same (times its hold weight).
     pub eiv: Option<Eiv>,
+}
+
+/// Which rows and readings of a recording a fit may use ([`prepare`]).
+#[derive(Debug, Clone)]
+pub struct Selection<'a> {
+    /// Rows of the recording kept (a pose, no data problem), in time order.
+    pub rows: Vec<usize>,
+    /// Continuous stretch of time of every row of the recording (a clock jump or a dropout
+    /// starts a new one).
+    pub segment: &'a [u32],
+    /// Per cable and row of the recording: the reading is no data problem (`None`: all are).
+    pub cable_ok: Option<&'a [Vec<bool>]>,
+    /// Per cable: its load cell is dead and its tensions are ignored (`None`: none is).
+    pub dead_loadcell: Option<&'a [bool]>,
+}
+
+/// The recording as the effect models read it: per cable the attachment points
+/// `X = P + R b_j`, readings and tensions of the rows `sel` keeps, which readings are usable
+/// and which loose (`T < min_tension_n`; with `needs_tension` a reading without a tension is
+/// not usable), the segments, and the play pattern of the readings ([`PlayState::of_readings`]).
+/// The diagnosis adds velocities, held-out blocks and its errors-in-variables weights; the
+/// running robot's effect fit ([`crate::effect_fit`]) its play exclusions.
+pub fn prepare(
+    rec: &Recording,
+    platform: &[[f64; 3]],
+    sel: &Selection<'_>,
+    min_tension_n: f64,
+    needs_tension: bool,
+    encoder_sigma_m: f64,
+) -> Prepared {
+    let n = rec.n_cables;
+    let rows = &sel.rows;
+    let m = rows.len();
+    let mut prep = Prepared {
+        n,
+        t: rows.iter().map(|&i| rec.t[i]).collect(),
+        rows: rows.clone(),
+        x: vec![Vec::with_capacity(m); n],
+        l: vec![Vec::with_capacity(m); n],
+        f: vec![Vec::with_capacity(m); n],
+        vel: vec![vec![0.0; m]; n],
+        dir: vec![vec![0.0; m]; n],
+        play: PlayState::default(),
+        usable: vec![Vec::with_capacity(m); n],
+        loose: vec![Vec::with_capacity(m); n],
+        segment: rows.iter().map(|&i| sel.segment[i]).collect(),
+        heldout: vec![false; m],
+        hold_weight: vec![],
+        eiv: None,
+    };
+    for &i in rows {
+        let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
+        let p = rec.p[i];
+        let f = rec.tensions(i);
+        for j in 0..n {
+            let b = platform[j];
+            let rb = match &r {
+                Some(r) => std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2]),
+                None => b,
+            };
+            let x = [p[0] + rb[0], p[1] + rb[1], p[2] + rb[2]];
+            let l = rec.lengths(i)[j];
+            let t = match f {
+                Some(f) if !sel.dead_loadcell.is_some_and(|d| d[j]) => f[j],
+                _ => f64::NAN,
+            };
+            let loose = t.is_finite() && t < min_tension_n;
+            let ok = sel.cable_ok.is_none_or(|c| c[j][i])
+                && l.is_finite()
+                && x.iter().all(|v| v.is_finite())
+                && (t.is_finite() || !needs_tension);
+            prep.x[j].push(x);
+            prep.l[j].push(l);
+            prep.f[j].push(t);
+            prep.usable[j].push(ok && !loose);
+            prep.loose[j].push(ok && loose);
+        }
+    }
+    prep.play = PlayState::of_readings(&prep.l, encoder_sigma_m);
+    prep
+}
+
+/// Weight 1 on the `usable` rows of `prep` that read clear pushes at the time offset `delta`
+/// (`None`: the model has none; steps beyond 3 sigmas of an encoder difference: [`clear_push_rows`]), 0 elsewhere.
+pub fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
+    let clear = clear_push_rows(prep, usable, delta, 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
+    clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
+}
+
+/// Leaves out of the fit the readings held since a push while the cable was loose
+/// ([`PlayState::exclude_unseen_pushes`]: the play's level is unknown there) and keeps them
+/// readings, as a loose cable's are ([`Prepared::loose`]): the encoder's interpolation under a
+/// time offset reads them ([`Joint::predict`]; taken for data problems, the rows beside them
+/// fell back to one encoder sample, millimetres off at speed). Returns the usable mask before
+/// the exclusion, which a fit with a time offset and a play redoes in encoder time
+/// ([`encoder_time_prep`]). Shared by the diagnosis and the running robot's effect fit
+/// ([`crate::effect_fit`]).
+pub fn exclude_unseen_pushes(prep: &mut Prepared) -> Vec<Vec<bool>> {
+    let before = prep.usable.clone();
+    prep.play.exclude_unseen_pushes(&mut prep.usable);
+    for ((loose, now), was) in prep.loose.iter_mut().zip(&prep.usable).zip(&before) {
+        for ((l, now), was) in loose.iter_mut().zip(now).zip(was) {
+            *l |= *was && !*now;
+        }
+    }
+    before
+}
+
+/// `prep` for a fit of a model with a play and a time offset `delta`, in encoder time: every
+/// row of `usable_before_play` (the mask before [`exclude_unseen_pushes`]) stays a reading, and
+/// weight 1 goes to the rows that are not held since a push while loose in encoder time
+/// ([`encoder_time_exclusion`]) and read clear pushes ([`clear_push_weights`]), 0 to the
+/// others (a hold's level is the input's extreme, which a mistaken push end misses on one side).
+/// The diagnosis's final estimates and the running robot's effect fit ([`crate::effect_fit`])
+/// both fit on it.
+pub fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Prepared {
+    let kept = encoder_time_exclusion(prep, usable_before_play, delta);
+    let mut p = Prepared { usable: usable_before_play.to_vec(), ..prep.clone() };
+    p.hold_weight = clear_push_weights(&p, &kept, Some(delta), encoder_sigma_m);
+    p
 }
 
 /// Errors-in-variables weights: the noise of the inputs a prediction is made from enters the
@@ -687,7 +808,7 @@ impl<'a> Joint<'a> {
         self.prep.l[j][i] - self.predict(x, i, j).value
     }
 
-    /// Residual of cable `j` at held-out sample `i` for the held-out test ([`super::select`]) of
+    /// Residual of cable `j` at held-out sample `i` for the held-out test ([`crate::diagnose::select`]) of
     /// this model against the current one, `cur` at `x_cur`: the test needs the candidate's change
     /// `r0 - r1` to be independent of the noise in the current model's residual `r0`.
     ///
@@ -877,7 +998,7 @@ pub fn correlation_lag(phi: f64, max: usize) -> usize {
 
 /// The tracker noise's lag-1 autocorrelation `phi` (AR(1), per sample, in [0, 0.995]) in the
 /// residuals of `spec` at `x` on `samples` (time order), for [`correlation_lag`] and the
-/// estimation error's long-run factor ([`super::esterr::EstimationError::new`]).
+/// estimation error's long-run factor ([`crate::diagnose::esterr::EstimationError::new`]).
 ///
 /// `phi` comes from the residuals' first differences, not the residuals: an effect the model
 /// leaves out is slow (or a step at each reversal, for a play) and would read as noise

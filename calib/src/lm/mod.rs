@@ -10,7 +10,7 @@
 //!
 //! The fits differ in their linear algebra, not in the iteration: the per-cable calibration
 //! ([`crate::solver`]) solves a 4x4 system accumulated in a SIMD pass over 100 000 readings, the
-//! diagnosis ([`crate::diagnose::lm`]) a dense system from sparse Jacobian rows, the
+//! effect models ([`dense`]) a dense system from sparse Jacobian rows, the
 //! self-calibration ([`crate::selfcal::solve`]) and the bundle adjustment ([`crate::bundle`]) a
 //! Schur complement over thousands of poses (the first with gauge constraints), the circle fit
 //! ([`crate::init::circle`]) a 6x6 system on a sphere of normals, the rest estimate
@@ -24,6 +24,8 @@
 //! factors otherwise. Iterations count either every solve ([`Count::Attempts`], where one
 //! attempt is one pass over the data) or every accepted step with a budget of retries per step
 //! ([`Count::Steps`]).
+
+pub mod dense;
 
 /// A least-squares problem, as far as the iteration needs to know it.
 ///
