@@ -12,6 +12,11 @@ use taut_config::params::Effects;
 /// The drum-scale effect (`scale` in the reports).
 pub struct DrumScale;
 
+/// The reading's factor `1 + k` for the internal parameter `k` (`dv/dk = U`).
+pub fn factor(k: f64) -> f64 {
+    1.0 + k
+}
+
 impl EffectModel for DrumScale {
     fn id(&self) -> Effect {
         Effect::Scale

@@ -92,6 +92,59 @@ pub struct Needs {
     pub time_series: bool,
 }
 
+/// The cable's path from its anchor to its attachment `X` as the prediction builds it (the
+/// geometry and the effects that lengthen it): its length `G`, `dG/dX`, and for the
+/// errors-in-variables weights (`model::Eiv`) `dG/dT` and `d^2 G / dT dw`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Path {
+    /// `G`, m.
+    pub g: f64,
+    /// `dG/dX`.
+    pub gx: [f64; 3],
+    /// `dG/dT`, m/N.
+    pub g_t: f64,
+    /// `d^2 G / dT dw` (the sag weight `w`).
+    pub g_tw: f64,
+}
+
+impl Path {
+    /// The straight cable `G = |X - A|`.
+    pub fn straight(x: [f64; 3], anchor: [f64; 3]) -> Path {
+        let d = [x[0] - anchor[0], x[1] - anchor[1], x[2] - anchor[2]];
+        let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        Path { g: rho, gx: [d[0] / rho, d[1] / rho, d[2] / rho], g_t: 0.0, g_tw: 0.0 }
+    }
+}
+
+/// The length the encoder sees, `U`, built from a [`Path`] (the elasticity's stage: a rigid
+/// cable's `U` is `G`), with its derivatives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Unstretched {
+    /// `U`, m.
+    pub u: f64,
+    /// `dU/dG`.
+    pub du_dg: f64,
+    /// `dU/dc` (the compliance).
+    pub du_dc: f64,
+    /// `dU/dT` and its derivatives by the compliance and the sag weight.
+    pub u_t: f64,
+    /// `d^2 U / dT dc`.
+    pub u_tc: f64,
+    /// `d^2 U / dT dw`.
+    pub u_tw: f64,
+    /// `d (dU/dT) / dG`.
+    pub u_tg: f64,
+    /// The path's share of `d (dU/dT) / dX`.
+    pub u_tx: [f64; 3],
+}
+
+impl Unstretched {
+    /// A rigid cable: `U = G`; `g_tx` the path's `d (dG/dT) / dX`.
+    pub fn rigid(path: &Path, g_tx: [f64; 3]) -> Unstretched {
+        Unstretched { u: path.g, du_dg: 1.0, du_dc: 0.0, u_t: path.g_t, u_tc: 0.0, u_tw: path.g_tw, u_tg: 0.0, u_tx: g_tx }
+    }
+}
+
 /// The measurement that separates an effect from a shifted anchor (and from a pulley, whose
 /// fitted form a shifted anchor mimics).
 pub(crate) const ANCHOR_SEPARATION: &str = "poses at large wrap angles (the platform far out, cables near horizontal) separate a swivel pulley from a shifted anchor; or measure the pulley radius or the anchor positions";

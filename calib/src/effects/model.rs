@@ -4,7 +4,7 @@
 //! Parameter layout: `[A_0 (3), L0_0, A_1, L0_1, .., A_{n-1}, L0_{n-1}]`, then for each active
 //! effect in [`ModelSpec::effects`] order either one parameter per cable or one shared.
 
-use super::{pulley_length, sag_excess, Effect, Sharing, TensionEnd};
+use super::{Effect, Path, Sharing, TensionEnd, Unstretched};
 use crate::lm::dense::{self as lm, LeastSquares, LmOptions, LmReport};
 use taut_config::recording::Recording;
 
@@ -419,76 +419,42 @@ impl<'a> Joint<'a> {
         };
         let has_t = tension.is_finite();
         let delta = get(Effect::TimeOffset);
-        // Geometry: straight or over the pulley.
-        let mut g;
-        let mut gx; // dG/dX
+        // Path: straight or over the pulley, plus the sag's excess.
         let mut dg_dr = None;
-        let straight = || {
-            let d = [xp[0] - anchor[0], xp[1] - anchor[1], xp[2] - anchor[2]];
-            let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            (rho, [d[0] / rho, d[1] / rho, d[2] / rho])
-        };
-        match get(Effect::Pulley).and_then(|(k, r)| pulley_length(xp, anchor, r).map(|v| (k, v))) {
-            Some((k, (len, d))) => {
-                g = len;
-                gx = [d[0], d[1], d[2]];
-                dg_dr = Some((k, d[3]));
-            }
-            None => {
-                (g, gx) = straight();
-                if let Some((k, _)) = get(Effect::Pulley) {
-                    dg_dr = Some((k, 0.0));
+        let mut path = match get(Effect::Pulley) {
+            Some((k, r)) => match super::pulley::path(xp, anchor, r) {
+                Some((path, dr)) => {
+                    dg_dr = Some((k, dr));
+                    path
                 }
-            }
-        }
-        let mut dg_dw = None;
-        // d G / d T and d^2 G / dT dw (sag only; see `Eiv`).
-        let (mut g_t, mut g_tw) = (0.0, 0.0);
+                None => {
+                    dg_dr = Some((k, 0.0));
+                    Path::straight(xp, anchor)
+                }
+            },
+            None => Path::straight(xp, anchor),
+        };
+        let dg_dw = get(Effect::Sag).map(|(k, w)| (k, super::sag::add_excess(&mut path, xp, anchor, w, tension, spec.tension_end)));
         // d(dG/dT)/dX of the sag is left out of the weight's derivative: it moves ln w by a few
         // thousandths per metre (the elasticity's share, through G, is kept).
         let g_tx = [0.0; 3];
-        if let Some((k, w)) = get(Effect::Sag) {
-            let mut dw = 0.0;
-            if has_t && w > 0.0 {
-                if let Some((e, d)) = sag_excess(xp, anchor, w, tension, spec.tension_end) {
-                    g += e;
-                    gx = [gx[0] + d[0], gx[1] + d[1], gx[2] + d[2]];
-                    dw = d[3];
-                    g_t = d[4];
-                    // The excess grows about as w^2 (a function of w / T): d(dG/dT)/dw = 2 g_t / w.
-                    g_tw = 2.0 * d[4] / w;
-                }
-            }
-            dg_dw = Some((k, dw));
-        }
+        let (gx, g_t) = (path.gx, path.g_t);
         // Elasticity: the encoder sees the unstretched length G / (1 + c T).
-        let mut u = g;
-        let mut du_dg = 1.0;
+        let mut un = Unstretched::rigid(&path, g_tx);
         let mut du_dc = None;
-        // d u / d T and its derivatives by the compliance and the sag weight.
-        let (mut u_t, mut u_tc, mut u_tw) = (g_t, 0.0, g_tw);
-        // d u_T / d G and the sag's d u_T / d X (the anchors and the shifted pose move both).
-        let (mut u_tg, mut u_tx) = (0.0, g_tx);
         let mut c_index = None;
         if let Some((k, c)) = get(Effect::Elasticity) {
             if has_t {
-                let q = 1.0 + c * tension;
-                u = taut_model::unstretched(g, c, tension);
-                du_dg = 1.0 / q;
-                du_dc = Some((k, -g * tension / (q * q)));
-                // u = G / (1 + c T): du/dT = G_T / q - G c / q^2.
-                u_t = g_t / q - g * c / (q * q);
-                u_tc = -g_t * tension / (q * q) - g / (q * q) + 2.0 * g * c * tension / (q * q * q);
-                u_tw = g_tw / q;
-                u_tg = -c / (q * q);
-                u_tx = g_tx.map(|v| v / q);
+                un = super::stretch::unstretch(&path, g_tx, c, tension);
+                du_dc = Some((k, un.du_dc));
                 c_index = Some(k);
             } else {
                 du_dc = Some((k, 0.0));
             }
         }
+        let Unstretched { u, du_dg, u_t, u_tc, u_tw, u_tg, u_tx, .. } = un;
         let (scale, dk) = match get(Effect::Scale) {
-            Some((k, s)) => (1.0 + s, Some((k, u))),
+            Some((k, s)) => (super::drum_scale::factor(s), Some((k, u))),
             None => (1.0, None),
         };
         let mut dg_t = [(0usize, 0.0f64); 7];

@@ -7,12 +7,18 @@
 //!
 //! One radius for the robot. A shifted anchor mimics it over a small workspace.
 
-use super::{Effect, EffectModel, Sharing, ANCHOR_SEPARATION};
+use super::{pulley_length, Effect, EffectModel, Path, Sharing, ANCHOR_SEPARATION};
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
 
 /// The pulley effect.
 pub struct Pulley;
+
+/// The path from the anchor over a swivel pulley of radius `r` to `x`, and `dG/dr`; `None`
+/// where the pulley has no path there (the prediction then takes the straight cable).
+pub fn path(x: [f64; 3], anchor: [f64; 3], r: f64) -> Option<(Path, f64)> {
+    pulley_length(x, anchor, r).map(|(len, d)| (Path { g: len, gx: [d[0], d[1], d[2]], g_t: 0.0, g_tw: 0.0 }, d[3]))
+}
 
 impl EffectModel for Pulley {
     fn id(&self) -> Effect {
@@ -103,6 +109,15 @@ mod tests {
         // beta = 90 deg, free segment = 1, G = pi/2 + 1.
         let (g, _) = crate::effects::pulley_length([2.0, 0.0, -1.0], [0.0; 3], 1.0).unwrap();
         assert!((g - (std::f64::consts::FRAC_PI_2 + 1.0)).abs() < 1e-12, "{g}");
+    }
+
+    /// A pulley of radius 0 is the straight cable.
+    #[test]
+    fn a_vanishing_pulley_is_the_straight_path() {
+        let (x, a) = ([1.5, 0.7, -3.0], [0.2, -0.1, 0.3]);
+        let (p, _) = path(x, a, 1e-12).unwrap();
+        let s = Path::straight(x, a);
+        assert!((p.g - s.g).abs() < 1e-9 && (0..3).all(|k| (p.gx[k] - s.gx[k]).abs() < 1e-9), "{p:?} {s:?}");
     }
 
     /// The pulley is separated from everything by the same measurement (large wrap angles).

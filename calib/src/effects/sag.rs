@@ -9,13 +9,30 @@
 //! sits, [`TensionEnd`]); elasticity mimics it over a narrow range of tensions. The running
 //! robot does not model it.
 
-use super::{Effect, EffectModel, Needs, Sharing, TensionEnd};
+use super::{Effect, EffectModel, Needs, Path, Sharing, TensionEnd};
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
 use taut_model::dual::Dual;
 
 /// The sag effect.
 pub struct Sag;
+
+/// Adds the catenary's excess of a cable of weight `w` per metre at the measured tension `t`
+/// (at `end`) to `path` (length, `dG/dX`, `dG/dT`, `d^2 G / dT dw`), and returns `dG/dw`.
+/// Without a tension, or where no taut catenary carries it, the path is left straight
+/// (`dG/dw = 0`).
+pub fn add_excess(path: &mut Path, x: [f64; 3], anchor: [f64; 3], w: f64, t: f64, end: TensionEnd) -> f64 {
+    if !(t.is_finite() && w > 0.0) {
+        return 0.0;
+    }
+    let Some((e, d)) = sag_excess(x, anchor, w, t, end) else { return 0.0 };
+    path.g += e;
+    path.gx = [path.gx[0] + d[0], path.gx[1] + d[1], path.gx[2] + d[2]];
+    path.g_t = d[4];
+    // The excess grows about as w^2 (a function of w / T): d(dG/dT)/dw = 2 g_t / w.
+    path.g_tw = 2.0 * d[4] / w;
+    d[3]
+}
 
 impl EffectModel for Sag {
     fn id(&self) -> Effect {

@@ -8,12 +8,30 @@
 //! Fitted in the compliance: the model is linear in it and `c = 0` (a rigid cable) is inside
 //! the bounds, where `EA` would be infinite.
 
-use super::{Effect, EffectModel, Needs, Sharing};
+use super::{Effect, EffectModel, Needs, Path, Sharing, Unstretched};
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
 
 /// The elasticity effect.
 pub struct Stretch;
+
+/// The unstretched length `U = G / (1 + c T)` of `path` at compliance `c` and tension `t`, and
+/// its derivatives; `g_tx` the path's `d (dG/dT) / dX`.
+pub fn unstretch(path: &Path, g_tx: [f64; 3], c: f64, t: f64) -> Unstretched {
+    let (g, g_t, g_tw) = (path.g, path.g_t, path.g_tw);
+    let q = 1.0 + c * t;
+    Unstretched {
+        u: taut_model::unstretched(g, c, t),
+        du_dg: 1.0 / q,
+        du_dc: -g * t / (q * q),
+        // u = G / (1 + c T): du/dT = G_T / q - G c / q^2.
+        u_t: g_t / q - g * c / (q * q),
+        u_tc: -g_t * t / (q * q) - g / (q * q) + 2.0 * g * c * t / (q * q * q),
+        u_tw: g_tw / q,
+        u_tg: -c / (q * q),
+        u_tx: g_tx.map(|v| v / q),
+    }
+}
 
 impl EffectModel for Stretch {
     fn id(&self) -> Effect {
@@ -66,6 +84,19 @@ impl EffectModel for Stretch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The derivatives of `U` by `G`, `c` and `T` match finite differences.
+    #[test]
+    fn unstretch_derivatives_match_finite_differences() {
+        let (g, c, t) = (7.5, 5e-6, 300.0);
+        let at = |g: f64, c: f64, t: f64| unstretch(&Path { g, gx: [1.0, 0.0, 0.0], g_t: 0.0, g_tw: 0.0 }, [0.0; 3], c, t);
+        let u = at(g, c, t);
+        let fd = |f: &dyn Fn(f64) -> f64, x: f64, h: f64| (f(x + h) - f(x - h)) / (2.0 * h);
+        assert!((u.du_dg - fd(&|v| at(v, c, t).u, g, 1e-4)).abs() < 1e-9);
+        assert!((u.du_dc - fd(&|v| at(g, v, t).u, c, 1e-9)).abs() < 1e-6 * u.du_dc.abs());
+        assert!((u.u_t - fd(&|v| at(g, c, v).u, t, 1e-2)).abs() < 1e-9);
+        assert!((u.u_tc - fd(&|v| at(g, v, t).u_t, c, 1e-9)).abs() < 1e-6 * u.u_tc.abs());
+    }
 
     #[test]
     fn compliance_converts_to_stiffness_and_back_from_the_running_model() {
