@@ -155,12 +155,13 @@ pub struct EffectFit {
 /// accepts, a stretch below a micron at any tension a CDPR cable carries.
 pub const RIGID_EA_N: f64 = 1e10;
 
-/// The effects of a list of names, in the fit's order. Unknown or unfit names are errors.
+/// The effects of a list of names, in the fit's order. Unknown names and effects the running
+/// robot does not model (no parameter-file key: sag, slack) are errors.
 pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
     let mut out = vec![];
     for (index, s) in names.iter().enumerate() {
         match Effect::from_name(s) {
-            Some(e) if e != Effect::Slack && e != Effect::Sag => {
+            Some(e) if e.model().parameter_key().is_some() => {
                 if !out.contains(&e) {
                     out.push(e);
                 }

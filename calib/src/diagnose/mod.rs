@@ -1724,7 +1724,7 @@ fn name_effects(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions, effects: &m
         for j in 0..n {
             let an = [cur_train.x[4 * j], cur_train.x[4 * j + 1], cur_train.x[4 * j + 2]];
             let xs: Vec<f64> = plot_samples.iter().map(|&i| reg.value(prep, an, i, j)).collect();
-            let sign = if best == Effect::Elasticity || best == Effect::TimeOffset { -1.0 } else { 1.0 };
+            let sign = best.model().signature_sign();
             rs.push(sign * analysis::correlation(&xs, &before_res[j]));
             pcables.push((xs, before_res[j].clone(), after_res[j].clone()));
         }

@@ -54,6 +54,9 @@ impl EffectModel for Backlash {
     fn regressor(&self) -> Regressor {
         Regressor::Direction
     }
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("backlash_m")
+    }
     /// A running width of zero is no play: the fit starts at [`EffectModel::start`].
     fn start_from(&self, running: &Effects, j: usize) -> Option<f64> {
         running.backlash_m.as_ref().and_then(|v| v.get(j).copied()).filter(|w| *w > 0.0)

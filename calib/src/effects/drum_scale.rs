@@ -56,6 +56,9 @@ impl EffectModel for DrumScale {
     fn regressor(&self) -> Regressor {
         Regressor::Length
     }
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("drum_scale")
+    }
     fn start_from(&self, running: &Effects, j: usize) -> Option<f64> {
         running.drum_scale.as_ref().and_then(|v| v.get(j).copied()).map(|s| s - 1.0)
     }

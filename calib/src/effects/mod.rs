@@ -189,8 +189,18 @@ pub trait EffectModel: Sync {
     }
     /// What the residual follows when this effect is left out, in words.
     fn signature(&self) -> &'static str;
+    /// The sign of [`signature`](EffectModel::signature): `-1` where the residual follows the
+    /// regressor's negative (a stretch shortens the reading as `T L` grows).
+    fn signature_sign(&self) -> f64 {
+        1.0
+    }
     /// The regressor of [`signature`](EffectModel::signature) in the residual analysis.
     fn regressor(&self) -> Regressor;
+    /// The key of the parameter file's `[effects]` table that carries this effect
+    /// (`taut_config::params::Effects`); `None`: the running robot does not model it.
+    fn parameter_key(&self) -> Option<&'static str> {
+        None
+    }
     /// The internal start of cable `j` from the running robot's parameters, where they have
     /// one.
     fn start_from(&self, _running: &Effects, _j: usize) -> Option<f64> {
@@ -316,6 +326,24 @@ mod tests {
             assert!(lo <= e.start() && e.start() <= hi, "{e:?}");
             for m in e.mimics().iter().flatten() {
                 assert!(m.mimics().contains(&Some(e)), "{e:?} / {m:?}");
+            }
+        }
+    }
+
+    /// An effect with a parameter-file key writes that key (and no other) into the running
+    /// robot's parameters, and the file knows its range; the others are refused by `store`.
+    #[test]
+    fn parameter_file_keys_match_what_store_writes() {
+        for e in Effect::ALL {
+            let mut out = Effects::default();
+            let stored = e.model().store(&mut out, vec![0.01; 4], None);
+            match e.model().parameter_key() {
+                Some(key) => {
+                    assert!(stored.is_ok(), "{e:?}");
+                    assert_eq!(out.names(), vec![e.name()], "{e:?}");
+                    assert!(taut_config::params::EFFECT_RANGES.iter().any(|r| r.0 == key), "{key}");
+                }
+                None => assert!(out.is_empty(), "{e:?}"),
             }
         }
     }

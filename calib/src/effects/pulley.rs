@@ -54,6 +54,9 @@ impl EffectModel for Pulley {
     fn regressor(&self) -> Regressor {
         Regressor::Elevation
     }
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("pulley_radius_m")
+    }
     fn start_from(&self, running: &Effects, j: usize) -> Option<f64> {
         running.pulley_radius_m.as_ref().and_then(|v| v.get(j).copied())
     }

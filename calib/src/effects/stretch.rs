@@ -72,6 +72,12 @@ impl EffectModel for Stretch {
     fn regressor(&self) -> Regressor {
         Regressor::TensionLength
     }
+    fn signature_sign(&self) -> f64 {
+        -1.0
+    }
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("ea_n")
+    }
     fn start_from(&self, running: &Effects, j: usize) -> Option<f64> {
         running.ea_n.as_ref().and_then(|v| v.get(j).copied()).map(|ea| 1.0 / ea)
     }

@@ -49,6 +49,12 @@ impl EffectModel for TimeOffset {
     fn regressor(&self) -> Regressor {
         Regressor::Velocity
     }
+    fn signature_sign(&self) -> f64 {
+        -1.0
+    }
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("time_offset_s")
+    }
     /// The data were aligned by the running offset: what is left starts at zero.
     fn start_from(&self, _running: &Effects, _j: usize) -> Option<f64> {
         Some(0.0)
