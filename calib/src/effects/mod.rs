@@ -44,7 +44,6 @@ use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
 
 pub use sag::{catenary, sag_excess};
-pub use taut_model::pulley_length;
 
 /// One effect of the library. Names are the `taut-diagnosis v1` names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

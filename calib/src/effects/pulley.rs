@@ -7,9 +7,10 @@
 //!
 //! One radius for the robot. A shifted anchor mimics it over a small workspace.
 
-use super::{pulley_length, Effect, EffectModel, Path, Sharing, ANCHOR_SEPARATION};
+use super::{Effect, EffectModel, Path, Sharing, ANCHOR_SEPARATION};
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
+use taut_model::pulley_length;
 
 /// The pulley effect.
 pub struct Pulley;
@@ -78,24 +79,24 @@ mod tests {
     fn pulley_reduces_to_straight_cable_for_small_radius_and_jacobian_is_right() {
         let x = [1.5, 0.7, -3.0];
         let an = [0.0, 0.0, 0.0];
-        let (g, _) = crate::effects::pulley_length(x, an, 1e-9).unwrap();
+        let (g, _) = pulley_length(x, an, 1e-9).unwrap();
         let straight = (1.5f64 * 1.5 + 0.49 + 9.0).sqrt();
         assert!((g - straight).abs() < 1e-8);
         let r = 0.06;
-        let (_, d) = crate::effects::pulley_length(x, an, r).unwrap();
+        let (_, d) = pulley_length(x, an, r).unwrap();
         for k in 0..3 {
             let num = fd(
                 |v| {
                     let mut xx = x;
                     xx[k] = v;
-                    crate::effects::pulley_length(xx, an, r).unwrap().0
+                    pulley_length(xx, an, r).unwrap().0
                 },
                 x[k],
                 1e-6,
             );
             assert!((d[k] - num).abs() < 1e-7, "dX{k}: {} vs {num}", d[k]);
         }
-        let num = fd(|v| crate::effects::pulley_length(x, an, v).unwrap().0, r, 1e-7);
+        let num = fd(|v| pulley_length(x, an, v).unwrap().0, r, 1e-7);
         assert!((d[3] - num).abs() < 1e-6, "dr: {} vs {num}", d[3]);
         // The gradient wrt X is the unit direction of the free segment.
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
@@ -110,7 +111,7 @@ mod tests {
         // case computed by hand: X = (r + 1, -1) relative to the anchor, r = 1:
         // C = (1, 0), d_c = sqrt(2), psi = -45 deg, acos(1/sqrt 2) = 45 deg -> phi_e = -90 deg = 270 deg,
         // beta = 90 deg, free segment = 1, G = pi/2 + 1.
-        let (g, _) = crate::effects::pulley_length([2.0, 0.0, -1.0], [0.0; 3], 1.0).unwrap();
+        let (g, _) = pulley_length([2.0, 0.0, -1.0], [0.0; 3], 1.0).unwrap();
         assert!((g - (std::f64::consts::FRAC_PI_2 + 1.0)).abs() < 1e-12, "{g}");
     }
 
