@@ -25,6 +25,9 @@ impl EffectModel for Backlash {
     fn parameter(&self) -> &'static str {
         "width_m"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("play", "mm", 1e3)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::PerCable
     }

@@ -27,6 +27,9 @@ impl EffectModel for DrumScale {
     fn parameter(&self) -> &'static str {
         "scale"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("length scale", "", 1.0)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::PerCable
     }

@@ -160,6 +160,9 @@ pub trait EffectModel: Sync {
     fn name(&self) -> &'static str;
     /// The parameter's name in the output, with its unit.
     fn parameter(&self) -> &'static str;
+    /// The parameter as people write it: a label, a unit and the factor from the reported
+    /// value ([`EffectModel::to_physical`], SI) to that unit.
+    fn parameter_words(&self) -> (&'static str, &'static str, f64);
     /// One parameter per cable, or one shared.
     fn sharing(&self) -> Sharing;
     /// What it needs from a recording.

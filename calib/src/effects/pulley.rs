@@ -31,6 +31,9 @@ impl EffectModel for Pulley {
     fn parameter(&self) -> &'static str {
         "radius_m"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("pulley radius", "mm", 1e3)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::Shared
     }

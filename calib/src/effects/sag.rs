@@ -44,6 +44,9 @@ impl EffectModel for Sag {
     fn parameter(&self) -> &'static str {
         "weight_per_length_N_per_m"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("weight per length", "N/m", 1.0)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::Shared
     }

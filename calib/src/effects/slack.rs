@@ -17,6 +17,9 @@ impl EffectModel for Slack {
     fn parameter(&self) -> &'static str {
         "threshold_N"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("loose below", "N", 1.0)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::Shared
     }

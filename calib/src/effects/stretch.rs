@@ -43,6 +43,9 @@ impl EffectModel for Stretch {
     fn parameter(&self) -> &'static str {
         "EA_N"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("EA", "N", 1.0)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::PerCable
     }

@@ -25,6 +25,9 @@ impl EffectModel for TimeOffset {
     fn parameter(&self) -> &'static str {
         "offset_s"
     }
+    fn parameter_words(&self) -> (&'static str, &'static str, f64) {
+        ("time offset", "ms", 1e3)
+    }
     fn sharing(&self) -> Sharing {
         Sharing::Shared
     }
