@@ -27,18 +27,25 @@
 //!
 //! Loose cables (`slack`) are not modelled: their samples are found and excluded.
 //!
-//! Adding an effect: a module here implementing [`EffectModel`] with its test, a variant of
-//! [`Effect`] and its line in [`Effect::model`], its stage in the prediction, its key in the
-//! parameter file (`taut_config::params::Effects`) and its physics in the simulator.
+//! Each module also holds its stage of the prediction with its derivatives on the library's
+//! [`Path`] and [`Unstretched`] ([`pulley::path`], [`sag::add_excess`], [`stretch::unstretch`],
+//! [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
+//! offset and the play, which act on the sample series rather than on one reading, live there.
+//!
+//! Adding an effect: a module here implementing [`EffectModel`] with its stage and its test; a
+//! variant of [`Effect`], its line in [`Effect::model`] and in [`Effect::ALL`]; the stage's
+//! call in [`model::Joint`]; its key in the parameter file (`taut_config::params::Effects`,
+//! which [`EffectModel::store`] and [`EffectModel::start_from`] read and write); and its
+//! physics in the simulator.
 
-mod backlash;
-mod drum_scale;
+pub mod backlash;
+pub mod drum_scale;
 pub mod model;
-mod pulley;
-mod sag;
-mod slack;
-mod stretch;
-mod time_offset;
+pub mod pulley;
+pub mod sag;
+pub mod slack;
+pub mod stretch;
+pub mod time_offset;
 
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
