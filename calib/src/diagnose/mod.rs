@@ -1517,7 +1517,7 @@ fn name_effects(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions, effects: &m
     let prep = ctx.prep;
     let n = prep.n;
     let all_rows: Vec<usize> = (0..prep.t.len()).collect();
-    let (ideal, base, has_t, used_tensions, sigma) = (&b.ideal, &b.fit, &b.has_t, b.used_tensions, b.sigma);
+    let (ideal, base, has_t, sigma) = (&b.ideal, &b.fit, &b.has_t, b.sigma);
     // Forward selection: every round refits each remaining candidate on top of the effects named
     // so far and tests it on the held-out blocks (see [`select`]); the best that passes is named.
     let alpha = opts.test_alpha();
@@ -1535,84 +1535,7 @@ fn name_effects(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions, effects: &m
     // At most `max_effects` rounds (the Bonferroni count of `test_alpha`), drops or not.
     while spec.effects.len() < opts.max_effects && round < opts.max_effects {
         round += 1;
-        // How far apart the current model's residuals stay correlated (the tracker noise's
-        // correlation length, 1 when white): the held-out replacement's span.
-        // `noise_phi` once per round: the same residuals give the estimation error's long-run
-        // factor below (the clear-push weights of `cur_pp` do not enter the residuals).
-        let cur_phi = fit::noise_phi(prep, &spec, &ctx.train, &cur_train.x);
-        let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
-        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
-        let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
-        let cur_terms = ctx.heldout_terms(&spec, &cur_train.x);
-        // The current model's own estimation error on the training blocks: part of every
-        // held-out test's variance (see [`esterr`]).
-        let cur_pp = play_prep(prep, &spec, &cur_train.x, opts.encoder_sigma_m);
-        let cur_err = opts
-            .estimation_error
-            .then(|| {
-                esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(prep), &spec, &ctx.train, &ctx.heldout, &cur_train, sigma, cur_phi)
-            })
-            .flatten();
-        let mut cands: Vec<(Effect, Candidate)> = vec![];
-        rejected.clear();
-        for &e in &opts.library {
-            if spec.effects.contains(&e) || e == Effect::Slack {
-                continue;
-            }
-            if dropped.contains(&e) {
-                rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
-                continue;
-            }
-            if e.needs_tension() && !used_tensions {
-                rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
-                continue;
-            }
-            let mut s2 = spec.clone();
-            s2.effects.push(e);
-            let x0 = s2.extend(n, &spec, &cur_train.x);
-            // On the clear-push rows only once the current model has both a play and a time
-            // offset: a candidate that adds the second of them, fitted on other rows than the
-            // current model, predicted the holds differently and "won" the held-out test
-            // (a spurious time offset under EA and a play on 3 of 50 recordings).
-            let pp = cur_pp.as_ref().and_then(|_| play_prep(prep, &s2, &x0, opts.encoder_sigma_m));
-            let cctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
-            let r = cctx.fit_candidate(e, &s2, &x0, 30);
-            if !r.x.iter().all(|v| v.is_finite()) {
-                rejected.push(format!("{}: the fit diverged", e.name()));
-                continue;
-            }
-            // The replacement's span from the smaller of the two models' noise correlation: a
-            // model that leaves out a slow effect reads it as correlated noise (the holds of a
-            // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
-            // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
-            // was named on 1 of 24 recordings), the candidate that has the effect does not; under
-            // the null both carry the same noise. Only where the span is more than one sample.
-            let cand_phi = fit::noise_phi(prep, &s2, &ctx.train, &r.x);
-            let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
-            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
-            let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref(), Some(cand_phi));
-            // The inflated sigmas and the gates (several residual passes per parameter) only
-            // where they can matter: a candidate that passed, or a pulley (the absorbed note).
-            let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
-                cctx.values(e, &s2, &r, has_t, &ctx.screen_train)
-            } else {
-                cctx.raw_values(e, &s2, &r, has_t)
-            };
-            let physical = v.plausible.iter().all(|p| *p);
-            let better = test.is_some_and(|t| t.p_value < alpha);
-            let decision = if !better {
-                Decision::NotBetter
-            } else if !physical {
-                Decision::NotPhysical
-            } else {
-                Decision::Passed
-            };
-            cands.push((
-                e,
-                Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision },
-            ));
-        }
+        let (mut cands, cur_pp) = round_candidates(ctx, b, opts, &spec, &cur_train, &dropped, alpha, &mut rejected);
         let gain = |c: &Candidate| c.test.map_or(f64::NEG_INFINITY, |t| t.gain);
         // A pulley whose radius is clearly not zero but which does not predict held-out data
         // better: the ideal model's anchors, shifted, absorb it (on many geometries the two are
@@ -1779,61 +1702,177 @@ fn name_effects(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions, effects: &m
         });
         spec = new_spec;
         cur_train = full;
-        // Backward step: each earlier-named effect is tested for removal (see
-        // [`Ctx::removal_test`]); of those the test cannot keep at `alpha`, the one with the
-        // largest p-value is dropped, and the rest are tested again on the smaller model.
-        while opts.backward && spec.effects.len() >= 2 {
-            let last = *spec.effects.last().expect("named");
-            let mut results = vec![];
-            for e in spec.effects.clone().into_iter().filter(|&e| e != last) {
-                if let Some((red, red_fit, test)) = ctx.removal_test(e, &spec, &cur_train, opts) {
-                    results.push((e, red, red_fit, test));
-                }
-            }
-            let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
-            let worst = results
-                .iter()
-                .enumerate()
-                .filter(|(_, r)| p(&r.3) >= alpha)
-                .max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3)))
-                .map(|(i, _)| i);
-            let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
-                let f = effects.iter().find(|f| f.effect == e).expect("named");
-                CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
-            };
-            let Some(wi) = worst else {
-                // Every earlier effect is still needed.
-                for (e, _, _, test) in &results {
-                    tests.push(record(*e, *test, Decision::Kept, effects));
-                }
-                break;
-            };
-            let (e, red, red_fit, test) = results.swap_remove(wi);
-            tests.push(record(e, test, Decision::Dropped, effects));
-            let named_in = tests.iter().find(|t| t.effect == e && t.decision == Decision::Named).map_or(0, |t| t.round);
-            let words = format!(
-                "{} (named in round {named_in}) was dropped in round {round} once {} was named: the model without it predicts the held-out data as well ({}; not significant at alpha {alpha:.1e})",
-                e.name(),
-                last.name(),
-                test.map_or("no test".into(), |t| t.to_string())
-            );
-            effects.retain(|f| f.effect != e);
-            let pp = play_prep(prep, &red, &red_fit.x, opts.encoder_sigma_m);
-            let rctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
-            if let Some(f) = effects.iter_mut().find(|f| f.effect == last) {
-                let v = rctx.values(last, &red, &red_fit, has_t, &ctx.train);
-                (f.values, f.sigmas) = (v.vals, v.sigs);
-                f.rms_after_m = rms_of(prep, &red, &ctx.train, &red_fit.x);
-                f.heldout_rms_after_m = rms_of(prep, &red, &ctx.heldout, &red_fit.x);
-                f.evidence.push_str(&format!("; {words}"));
-            }
-            notes.push(words);
-            dropped.push(e);
-            spec = red;
-            cur_train = red_fit;
-        }
+        backward_step(ctx, b, opts, round, alpha, &mut spec, &mut cur_train, effects, &mut tests, notes, &mut dropped);
     }
     Named { spec, cur_train, rejected, tests, last_round }
+}
+/// One round of step 4: every effect of the library not in `spec` (nor dropped) fitted
+/// jointly with the current model on the screening samples and tested against it on the
+/// held-out blocks ([`weighted_test`]), with its values and the decision. Returns the
+/// candidates and the current model's clear-push data (`None`: it has not both a play and a
+/// time offset); the effects not tried go to `rejected` with the reason.
+#[allow(clippy::too_many_arguments)]
+fn round_candidates(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    opts: &DiagnoseOptions,
+    spec: &ModelSpec,
+    cur_train: &lm::LmReport,
+    dropped: &[Effect],
+    alpha: f64,
+    rejected: &mut Vec<String>,
+) -> (Vec<(Effect, Candidate)>, Option<Prepared>) {
+    let prep = ctx.prep;
+    let n = prep.n;
+    let (has_t, used_tensions, sigma) = (&b.has_t, b.used_tensions, b.sigma);
+    // How far apart the current model's residuals stay correlated (the tracker noise's
+    // correlation length, 1 when white): the held-out replacement's span.
+    // `noise_phi` once per round: the same residuals give the estimation error's long-run
+    // factor below (the clear-push weights of `cur_pp` do not enter the residuals).
+    let cur_phi = fit::noise_phi(prep, spec, &ctx.train, &cur_train.x);
+    let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
+    let cur_res = ctx.heldout_residuals(spec, &cur_train.x, (spec, &cur_train.x), noise_lag);
+    let cur_w = ctx.heldout_factors(spec, &cur_train.x);
+    let cur_terms = ctx.heldout_terms(spec, &cur_train.x);
+    // The current model's own estimation error on the training blocks: part of every
+    // held-out test's variance (see [`esterr`]).
+    let cur_pp = play_prep(prep, spec, &cur_train.x, opts.encoder_sigma_m);
+    let cur_err = opts
+        .estimation_error
+        .then(|| esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(prep), spec, &ctx.train, &ctx.heldout, cur_train, sigma, cur_phi))
+        .flatten();
+    let mut cands: Vec<(Effect, Candidate)> = vec![];
+    rejected.clear();
+    for &e in &opts.library {
+        if spec.effects.contains(&e) || e == Effect::Slack {
+            continue;
+        }
+        if dropped.contains(&e) {
+            rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
+            continue;
+        }
+        if e.needs_tension() && !used_tensions {
+            rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
+            continue;
+        }
+        let mut s2 = spec.clone();
+        s2.effects.push(e);
+        let x0 = s2.extend(n, spec, &cur_train.x);
+        // On the clear-push rows only once the current model has both a play and a time
+        // offset: a candidate that adds the second of them, fitted on other rows than the
+        // current model, predicted the holds differently and "won" the held-out test
+        // (a spurious time offset under EA and a play on 3 of 50 recordings).
+        let pp = cur_pp.as_ref().and_then(|_| play_prep(prep, &s2, &x0, opts.encoder_sigma_m));
+        let cctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
+        let r = cctx.fit_candidate(e, &s2, &x0, 30);
+        if !r.x.iter().all(|v| v.is_finite()) {
+            rejected.push(format!("{}: the fit diverged", e.name()));
+            continue;
+        }
+        // The replacement's span from the smaller of the two models' noise correlation: a
+        // model that leaves out a slow effect reads it as correlated noise (the holds of a
+        // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
+        // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
+        // was named on 1 of 24 recordings), the candidate that has the effect does not; under
+        // the null both carry the same noise. Only where the span is more than one sample.
+        let cand_phi = fit::noise_phi(prep, &s2, &ctx.train, &r.x);
+        let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
+        let res = ctx.heldout_residuals(&s2, &r.x, (spec, &cur_train.x), lag);
+        let res_w = ctx.heldout_factors(&s2, &r.x);
+        let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref(), Some(cand_phi));
+        // The inflated sigmas and the gates (several residual passes per parameter) only
+        // where they can matter: a candidate that passed, or a pulley (the absorbed note).
+        let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
+            cctx.values(e, &s2, &r, has_t, &ctx.screen_train)
+        } else {
+            cctx.raw_values(e, &s2, &r, has_t)
+        };
+        let physical = v.plausible.iter().all(|p| *p);
+        let better = test.is_some_and(|t| t.p_value < alpha);
+        let decision = if !better {
+            Decision::NotBetter
+        } else if !physical {
+            Decision::NotPhysical
+        } else {
+            Decision::Passed
+        };
+        cands.push((
+            e,
+            Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision },
+        ));
+    }
+    (cands, cur_pp)
+}
+
+/// The backward step of step 4, after `spec`'s last effect was named: each earlier-named
+/// effect is tested for removal ([`Ctx::removal_test`]); of those the test cannot keep at
+/// `alpha`, the one with the largest p-value is dropped (its finding removed, the last one's
+/// values refitted without it), and the rest are tested again on the smaller model.
+#[allow(clippy::too_many_arguments)]
+fn backward_step(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    opts: &DiagnoseOptions,
+    round: usize,
+    alpha: f64,
+    spec: &mut ModelSpec,
+    cur_train: &mut lm::LmReport,
+    effects: &mut Vec<Finding>,
+    tests: &mut Vec<CandidateTest>,
+    notes: &mut Vec<String>,
+    dropped: &mut Vec<Effect>,
+) {
+    let prep = ctx.prep;
+    let has_t = &b.has_t;
+    // Backward step: each earlier-named effect is tested for removal (see
+    // [`Ctx::removal_test`]); of those the test cannot keep at `alpha`, the one with the
+    // largest p-value is dropped, and the rest are tested again on the smaller model.
+    while opts.backward && spec.effects.len() >= 2 {
+        let last = *spec.effects.last().expect("named");
+        let mut results = vec![];
+        for e in spec.effects.clone().into_iter().filter(|&e| e != last) {
+            if let Some((red, red_fit, test)) = ctx.removal_test(e, spec, cur_train, opts) {
+                results.push((e, red, red_fit, test));
+            }
+        }
+        let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
+        let worst =
+            results.iter().enumerate().filter(|(_, r)| p(&r.3) >= alpha).max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3))).map(|(i, _)| i);
+        let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
+            let f = effects.iter().find(|f| f.effect == e).expect("named");
+            CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
+        };
+        let Some(wi) = worst else {
+            // Every earlier effect is still needed.
+            for (e, _, _, test) in &results {
+                tests.push(record(*e, *test, Decision::Kept, effects));
+            }
+            break;
+        };
+        let (e, red, red_fit, test) = results.swap_remove(wi);
+        tests.push(record(e, test, Decision::Dropped, effects));
+        let named_in = tests.iter().find(|t| t.effect == e && t.decision == Decision::Named).map_or(0, |t| t.round);
+        let words = format!(
+            "{} (named in round {named_in}) was dropped in round {round} once {} was named: the model without it predicts the held-out data as well ({}; not significant at alpha {alpha:.1e})",
+            e.name(),
+            last.name(),
+            test.map_or("no test".into(), |t| t.to_string())
+        );
+        effects.retain(|f| f.effect != e);
+        let pp = play_prep(prep, &red, &red_fit.x, opts.encoder_sigma_m);
+        let rctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
+        if let Some(f) = effects.iter_mut().find(|f| f.effect == last) {
+            let v = rctx.values(last, &red, &red_fit, has_t, &ctx.train);
+            (f.values, f.sigmas) = (v.vals, v.sigs);
+            f.rms_after_m = rms_of(prep, &red, &ctx.train, &red_fit.x);
+            f.heldout_rms_after_m = rms_of(prep, &red, &ctx.heldout, &red_fit.x);
+            f.evidence.push_str(&format!("; {words}"));
+        }
+        notes.push(words);
+        dropped.push(e);
+        *spec = red;
+        *cur_train = red_fit;
+    }
 }
 
 /// The named effects' final values (end of step 4): the training fit the figures come from and
