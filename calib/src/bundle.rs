@@ -292,6 +292,54 @@ fn sandwich(s: &[f64], block_grad: &[Vec<f64>], m: usize) -> Option<Vec<f64>> {
     Some((0..m).map(|k| cov[(k, k)].max(0.0)).collect())
 }
 
+/// One pass of [`solve`]'s fit.
+enum Pass {
+    /// A damped step: the trial globals and poses, and `max |dg|`.
+    Step(Vec<f64>, Vec<[f64; 3]>, f64),
+    /// The undamped pass at the solution: the diagonal of the inverse reduced normal matrix and
+    /// the sandwich variances.
+    Final(Vec<f64>, Option<Vec<f64>>),
+}
+
+/// [`solve`]'s fit for [`crate::lm`]: globals and poses, the cost and one pass per step
+/// (the damping enters the elimination of the poses, so each step is a pass over the samples).
+struct Fit<C, P> {
+    cost: C,
+    pass: P,
+}
+
+/// Globals and poses.
+type Poses = (Vec<f64>, Vec<[f64; 3]>);
+
+impl<C, P> crate::lm::Problem for Fit<C, P>
+where
+    C: Fn(&[f64], &[[f64; 3]]) -> f64,
+    P: Fn(&[f64], &[[f64; 3]], f64, bool) -> Option<Pass>,
+{
+    type X = Poses;
+    /// The trial point and `max |dg|`.
+    type Step = (Vec<f64>, Vec<[f64; 3]>, f64);
+
+    fn cost(&mut self, x: &Poses) -> f64 {
+        (self.cost)(&x.0, &x.1)
+    }
+
+    fn step(&mut self, x: &Poses, lambda: f64) -> Option<Self::Step> {
+        match (self.pass)(&x.0, &x.1, lambda, false)? {
+            Pass::Step(g, p, step) => Some((g, p, step)),
+            Pass::Final(..) => None,
+        }
+    }
+
+    fn apply(&self, _x: &Poses, s: &Self::Step) -> Poses {
+        (s.0.clone(), s.1.clone())
+    }
+
+    fn small_step(&self, _x: &Poses, s: &Self::Step) -> bool {
+        s.2 < 1e-7
+    }
+}
+
 /// A fit at one length noise, with the variance-component estimate of the length noise.
 struct Solved {
     result: BundleResult,
@@ -306,12 +354,12 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
     let np = if fit_ea.is_some() { 5 } else { 4 };
     let m = np * n;
     let (st, k) = (opts.tracker_sigma_m, opts.huber_k);
-    let mut g: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j], 1.0].into_iter().take(np)).collect();
+    let g: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j], 1.0].into_iter().take(np)).collect();
     // The stretch factor of cable j (1 when not fitted).
     let factor = |g: &[f64], j: usize| if np == 5 { g[np * j + 4] } else { 1.0 };
     // The prior's cost on the stretch factors.
     let prior = |g: &[f64]| fit_ea.map_or(0.0, |f| (0..n).map(|j| 0.5 * ((g[np * j + 4] - 1.0) / f.rel_sigma).powi(2)).sum());
-    let mut p: Vec<[f64; 3]> = data.iter().map(|r| r.pos).collect();
+    let p: Vec<[f64; 3]> = data.iter().map(|r| r.pos).collect();
     let cost = |g: &[f64], p: &[[f64; 3]]| -> f64 {
         let mut c = prior(g);
         for (r, pi) in data.iter().zip(p) {
@@ -327,25 +375,10 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
         }
         c
     };
-    let mut lambda = 1e-3;
-    let mut current = cost(&g, &p);
-    let mut iterations = 0;
-    let mut diag_inv = vec![f64::NAN; m];
-    // After the last step one more pass, undamped, for the sigmas at the solution: the last
-    // step's matrix carries the damping, and when the steps stalled (lambda grown towards 1e8 by
-    // rejected steps at the optimum) its inverse is ~0 (a start-up calibration reported a
-    // worst-anchor sigma of 0.00 mm).
-    let mut finishing = false;
-    let mut sandwich_var: Option<Vec<f64>> = None;
-    for it in 0..=opts.max_iterations {
-        if it == opts.max_iterations {
-            finishing = true;
-        }
-        if finishing {
-            lambda = 0.0;
-        } else {
-            iterations = it + 1;
-        }
+    // One pass at `(g, p)`: the normal equations with the samples eliminated on the fly, damped
+    // by `lambda`. A step gives its trial point `(g + dg, p + dp)` and `max |dg|`; the finishing
+    // pass (undamped) the diagonal of the inverse and the sandwich variances.
+    let pass = |g: &[f64], p: &[[f64; 3]], lambda: f64, finishing: bool| -> Option<Pass> {
         // Normal equations, samples eliminated on the fly.
         let mut s = vec![0.0; m * m];
         let mut rhs = vec![0.0; m];
@@ -358,7 +391,7 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
         let mut blocks = Vec::with_capacity(data.len());
         // In the final pass: each time block's share of the reduced gradient (the sandwich).
         let mut block_grad = vec![vec![0.0; m]; if finishing { SANDWICH_BLOCKS } else { 0 }];
-        for (i, (r, pi)) in data.iter().zip(&p).enumerate() {
+        for (i, (r, pi)) in data.iter().zip(p).enumerate() {
             let before = if finishing { rhs.clone() } else { vec![] };
             let mut hpp = [[0.0; 3]; 3];
             let mut bp = [0.0; 3];
@@ -379,7 +412,7 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                 let v = model::sub(add(*pi, b(j)), a);
                 let d = model::norm(v);
                 // The distance's share of the reading (1 less the stretch per metre).
-                let q = 1.0 - factor(&g, j) * r.te[j];
+                let q = 1.0 - factor(g, j) * r.te[j];
                 let u = [q * v[0] / d, q * v[1] / d, q * v[2] / d];
                 let res = (d * q + g[np * j + 3] - r.l[j]) / sl;
                 let w = huber_w(res, k) / (sl * sl);
@@ -446,18 +479,16 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
             s[x * m + x] += 1e-12;
         }
         let (dg, dinv) = cholesky_solve(&s, &rhs, m)?;
-        diag_inv = dinv;
         if finishing {
-            sandwich_var = sandwich(&s, &block_grad, m);
-            break;
+            return Some(Pass::Final(dinv, sandwich(&s, &block_grad, m)));
         }
-        let mut g2 = g.clone();
+        let mut g2 = g.to_vec();
         for (x, d) in g2.iter_mut().zip(&dg) {
             *x += d;
         }
         let p2: Vec<[f64; 3]> = blocks
             .iter()
-            .zip(&p)
+            .zip(p)
             .map(|(bk, pi)| {
                 // dp = Hpp^-1 (bp - Hpg dg)
                 let mut r = bk.bp;
@@ -474,24 +505,29 @@ fn solve(data: &[Row], platform_points: &[[f64; 3]], anchors: &[[f64; 3]], l0: &
                 ]
             })
             .collect();
-        let c2 = cost(&g2, &p2);
-        if c2.is_finite() && c2 <= current {
-            let rel = (current - c2) / current.max(1e-300);
-            g = g2;
-            p = p2;
-            current = c2;
-            lambda = (lambda / 3.0).max(1e-9);
-            let step = dg.iter().fold(0.0f64, |a, d| a.max(d.abs()));
-            if step < 1e-7 || rel < 1e-10 {
-                finishing = true;
-            }
-        } else {
-            lambda *= 10.0;
-            if lambda > 1e8 {
-                finishing = true;
-            }
-        }
+        let step = dg.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+        Some(Pass::Step(g2, p2, step))
+    };
+    let policy = crate::lm::Policy {
+        min_lambda: 1e-9,
+        max_lambda: 1e8,
+        accept_ties: true,
+        singular_stops: true,
+        cost_test: crate::lm::CostTest::Relative(1e-10),
+        ..crate::lm::Policy::factors(1e-3, 10.0, opts.max_iterations)
+    };
+    let r = crate::lm::minimize(&mut Fit { cost, pass: &pass }, (g, p), &policy);
+    if r.stop == crate::lm::Stop::Singular {
+        return None;
     }
+    let ((g, p), iterations) = (r.x, r.iterations);
+    // After the last step one more pass, undamped, for the sigmas at the solution: the last
+    // step's matrix carries the damping, and when the steps stalled (lambda grown towards 1e8 by
+    // rejected steps at the optimum) its inverse is ~0 (a start-up calibration reported a
+    // worst-anchor sigma of 0.00 mm).
+    let Some(Pass::Final(diag_inv, sandwich_var)) = pass(&g, &p, 0.0, true) else {
+        return None;
+    };
     // Residual statistics at the solution, and the variance component of the lengths: the
     // residuals within 4 s_l over their redundancy (see `refine`).
     let (mut sl2, mut nl, mut st2) = (0.0, 0usize, 0.0);

@@ -2,8 +2,8 @@
 //! named effects fitted together, as the running robot refits them (no model selection: the
 //! model comes from the parameter file or the `[calibration] effects` key).
 //!
-//! The model and its Jacobian are the diagnosis's ([`crate::diagnose::fit`], documented in
-//! [`crate::diagnose::effects`]); this module builds the data set from a recording without the
+//! The model and its Jacobian are the effect library's ([`crate::effects::model`], documented
+//! in [`crate::effects`]), the same the diagnosis fits; this module builds the data set from a recording without the
 //! diagnosis's selection machinery, fits, and checks that the result is physics:
 //!
 //! ```text
@@ -11,7 +11,7 @@
 //! U = G / (1 + T / EA)          (T: the measured tension of the reading)
 //! v = drum_scale U + L0,   l_hat = play(v; backlash)
 //! X = P(t) + b_j,  l(t + delta)  (delta: the time offset still left in the data; the encoder
-//!                                 series is shifted, see `diagnose::fit::Joint::predict`)
+//!                                 series is shifted, see `effects::model::Joint::predict`)
 //! ```
 //!
 //! Readings are weighted uniformly (`sigma^2 = sigma_enc^2 + sigma_tracker^2`), as in the
@@ -26,9 +26,10 @@
 //! println!("EA {:?}", f.effects.ea_n);
 //! ```
 
-use crate::diagnose::effects::{Effect, TensionEnd};
-use crate::diagnose::fit::{self, ModelSpec, PlayState, Prepared};
-use crate::diagnose::{encoder_time_prep, Diagnosis, Sharing};
+use crate::diagnose::Diagnosis;
+use crate::effects::model::{self as fit, encoder_time_prep, ModelSpec, Prepared};
+use crate::effects::{Effect, Sharing, TensionEnd};
+use crate::lm::dense::LmReport;
 use crate::{Geometry, Sigmas};
 use std::fmt;
 use taut_config::params::Effects;
@@ -154,12 +155,13 @@ pub struct EffectFit {
 /// accepts, a stretch below a micron at any tension a CDPR cable carries.
 pub const RIGID_EA_N: f64 = 1e10;
 
-/// The effects of a list of names, in the fit's order. Unknown or unfit names are errors.
+/// The effects of a list of names, in the fit's order. Unknown names and effects the running
+/// robot does not model (no parameter-file key: sag, slack) are errors.
 pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
     let mut out = vec![];
     for (index, s) in names.iter().enumerate() {
         match Effect::from_name(s) {
-            Some(e) if e != Effect::Slack && e != Effect::Sag => {
+            Some(e) if e.model().parameter_key().is_some() => {
                 if !out.contains(&e) {
                     out.push(e);
                 }
@@ -181,70 +183,34 @@ pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
 /// the 1.50 mm floor to 1.99 mm and spread its estimates: BENCHMARKS.md, branch efoutlier), time
 /// segments split at gaps of the recording's clock, the play pattern read off the readings. Also returns the usable mask before the readings held
 /// since a push while loose were left out (a fit with a time offset and a play redoes that in
-/// encoder time: [`crate::diagnose::encoder_time_prep`]), and the number of tracker outliers
+/// encoder time: [`encoder_time_prep`]), and the number of tracker outliers
 /// left out.
 fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> (Prepared, Vec<Vec<bool>>, usize) {
-    let n = rec.n_cables;
     let outlier = crate::diagnose::dataq::tracker_outliers(rec, o.tracker_sigma_m).map_or_else(|| vec![false; rec.len()], |(f, _)| f);
     let outliers = outlier.iter().filter(|o| **o).count();
-    let rows: Vec<usize> = (0..rec.len()).filter(|&i| !crate::diagnose::dataq::pose_missing(rec, i) && !outlier[i]).collect();
-    let m = rows.len();
-    let mut p = Prepared {
-        n,
-        t: rows.iter().map(|&i| rec.t[i]).collect(),
-        rows: rows.clone(),
-        x: vec![Vec::with_capacity(m); n],
-        l: vec![Vec::with_capacity(m); n],
-        f: vec![Vec::with_capacity(m); n],
-        vel: vec![vec![0.0; m]; n],
-        dir: vec![vec![0.0; m]; n],
-        play: PlayState::default(),
-        usable: vec![Vec::with_capacity(m); n],
-        loose: vec![Vec::with_capacity(m); n],
-        segment: Vec::with_capacity(m),
-        heldout: vec![false; m],
-        hold_weight: vec![],
-        eiv: None,
-    };
     let mut dts: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
     dts.sort_by(|a, b| a.total_cmp(b));
     let dt = dts.get(dts.len() / 2).copied().unwrap_or(0.01);
     let mut seg = 0u32;
-    let mut next = rows.iter().copied().peekable();
-    for i in 0..rec.len() {
-        if i > 0 && !(rec.t[i] - rec.t[i - 1] > 0.0 && rec.t[i] - rec.t[i - 1] < 5.0 * dt) {
-            seg += 1;
-        }
-        if next.next_if_eq(&i).is_none() {
-            continue;
-        }
-        p.segment.push(seg);
-        let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
-        let pos = rec.p[i];
-        let f = rec.tensions(i);
-        for j in 0..n {
-            let b = platform[j];
-            let rb = match &r {
-                Some(r) => std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2]),
-                None => b,
-            };
-            let x = [pos[0] + rb[0], pos[1] + rb[1], pos[2] + rb[2]];
-            let l = rec.lengths(i)[j];
-            let t = f.map_or(f64::NAN, |f| f[j]);
-            let loose = t.is_finite() && t < o.min_tension_n;
-            let ok = l.is_finite() && x.iter().all(|v| v.is_finite()) && (t.is_finite() || !needs_tension);
-            p.x[j].push(x);
-            p.l[j].push(l);
-            p.f[j].push(t);
-            p.usable[j].push(ok && !loose);
-            p.loose[j].push(ok && loose);
-        }
-    }
+    let segment: Vec<u32> = (0..rec.len())
+        .map(|i| {
+            if i > 0 && !(rec.t[i] - rec.t[i - 1] > 0.0 && rec.t[i] - rec.t[i - 1] < 5.0 * dt) {
+                seg += 1;
+            }
+            seg
+        })
+        .collect();
+    let sel = fit::Selection {
+        rows: (0..rec.len()).filter(|&i| !crate::diagnose::dataq::pose_missing(rec, i) && !outlier[i]).collect(),
+        segment: &segment,
+        cable_ok: None,
+        dead_loadcell: None,
+    };
+    let mut p = fit::prepare(rec, platform, &sel, o.min_tension_n, needs_tension, o.encoder_sigma_m);
     // The diagnosis's pattern; readings held since a push while loose go out of the fit (the
     // play's level after a loose episode is unknown: see `PlayState::exclude_unseen_pushes`)
     // and stay readings for the encoder's interpolation under a time offset, as the diagnosis's.
-    p.play = PlayState::of_readings(&p.l, o.encoder_sigma_m);
-    let usable_before_play = crate::diagnose::exclude_unseen_pushes(&mut p);
+    let usable_before_play = fit::exclude_unseen_pushes(&mut p);
     p.hold_weight = p.play.hold_weights(&p.usable, o.tracker_sigma_m, o.encoder_sigma_m);
     (p, usable_before_play, outliers)
 }
@@ -284,17 +250,7 @@ const ENCODER_TIME_REFITS: usize = 3;
 
 /// The internal starting value of `e` from `start` (the running model), else [`Effect::start`].
 fn start_value(e: Effect, start: &Effects, j: usize) -> f64 {
-    let per = |v: &Option<Vec<f64>>| v.as_ref().and_then(|v| v.get(j).copied());
-    let v = match e {
-        Effect::Elasticity => per(&start.ea_n).map(|ea| 1.0 / ea),
-        Effect::Scale => per(&start.drum_scale).map(|s| s - 1.0),
-        Effect::Pulley => per(&start.pulley_radius_m),
-        Effect::Backlash => per(&start.backlash_m).filter(|w| *w > 0.0),
-        // The data were aligned by the running offset: what is left starts at zero.
-        Effect::TimeOffset => Some(0.0),
-        _ => None,
-    };
-    v.filter(|v| v.is_finite()).unwrap_or(e.start())
+    e.model().start_from(start, j).filter(|v| v.is_finite()).unwrap_or(e.start())
 }
 
 /// Fits anchors, offsets and the effects of `o.effects` to `rec`, starting from `anchors`,
@@ -339,7 +295,7 @@ pub fn fit_effects(
     let step = all.len().div_ceil(o.max_samples.max(1)).max(1);
     let samples: Vec<usize> = all.iter().step_by(step).copied().collect();
     let sigma = (o.encoder_sigma_m.powi(2) + o.tracker_sigma_m.powi(2)).sqrt().max(1e-6);
-    let staged = |order: &[Effect]| -> Result<(crate::diagnose::lm::LmReport, ModelSpec, f64), EffectFitError> {
+    let staged = |order: &[Effect]| -> Result<(LmReport, ModelSpec, f64), EffectFitError> {
         let effects: Vec<Effect> = order.iter().copied().filter(|e| effects.contains(e)).collect();
         let mut prev = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
         let mut x: Vec<f64> = (0..n).flat_map(|j| [anchors[j][0], anchors[j][1], anchors[j][2], l0[j]]).collect();
@@ -436,21 +392,15 @@ pub fn fit_effects(
             vals.push(v);
             sigmas.push(sv);
         }
-        // One pulley radius for all cables in the model; the file keeps one per cable.
-        if e.sharing() == Sharing::Shared && e != Effect::TimeOffset {
+        // One pulley radius for all cables in the model; the file keeps one per cable (and one
+        // time offset for the robot, the first).
+        if e.sharing() == Sharing::Shared {
             vals = vec![vals[0]; n];
             sigmas = vec![sigmas[0]; n];
         }
         let known = sigmas.iter().all(|s| s.is_finite());
         let sig_opt = known.then_some(sigmas);
-        match e {
-            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig_opt),
-            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig_opt),
-            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig_opt),
-            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig_opt),
-            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig_opt.map(|s| s[0])),
-            Effect::Sag | Effect::Slack => unreachable!("refused by parse_effects"),
-        }
+        e.model().store(&mut out, vals, sig_opt).expect("sag is refused by parse_effects");
     }
     let delta = spec.offset(Effect::TimeOffset, n).filter(|_| spec.effects.contains(&Effect::Backlash)).map(|o| r.x[o]);
     let (ss, m) = fit::sum_squares(&fitted_rows(&prep, &usable_before_play, delta, o.encoder_sigma_m), &spec, &samples, &r.x);
@@ -474,28 +424,21 @@ pub fn effects_of(d: &Diagnosis) -> (Effects, Vec<String>) {
     let mut notes = vec![];
     let n = d.cables;
     for f in &d.effects {
-        let vals: Vec<f64> = match f.effect.sharing() {
-            Sharing::PerCable => f.values.clone(),
-            Sharing::Shared if f.effect == Effect::TimeOffset => f.values.clone(),
-            Sharing::Shared => vec![f.values.first().copied().unwrap_or(f64::NAN); n],
-        };
-        let sigmas: Vec<f64> = match f.effect.sharing() {
-            Sharing::Shared if f.effect != Effect::TimeOffset => vec![f.sigmas.first().copied().unwrap_or(f64::NAN); n],
-            _ => f.sigmas.clone(),
+        // A robot-wide value is repeated per cable (the file keeps a pulley radius per cable,
+        // and the time offset's store takes the first).
+        let (vals, sigmas): (Vec<f64>, Vec<f64>) = match f.effect.sharing() {
+            Sharing::PerCable => (f.values.clone(), f.sigmas.clone()),
+            Sharing::Shared => {
+                (vec![f.values.first().copied().unwrap_or(f64::NAN); n], vec![f.sigmas.first().copied().unwrap_or(f64::NAN); n])
+            }
         };
         if vals.iter().any(|v| !v.is_finite()) || vals.is_empty() {
             notes.push(format!("{} not written: a cable had no data to fit it", f.effect.name()));
             continue;
         }
         let sig = (sigmas.len() == vals.len() && sigmas.iter().all(|s| s.is_finite() && *s >= 0.0)).then_some(sigmas);
-        match f.effect {
-            Effect::Elasticity => (out.ea_n, out.ea_sigma_n) = (Some(vals), sig),
-            Effect::Scale => (out.drum_scale, out.drum_scale_sigma) = (Some(vals), sig),
-            Effect::Pulley => (out.pulley_radius_m, out.pulley_radius_sigma_m) = (Some(vals), sig),
-            Effect::Backlash => (out.backlash_m, out.backlash_sigma_m) = (Some(vals), sig),
-            Effect::TimeOffset => (out.time_offset_s, out.time_offset_sigma_s) = (Some(vals[0]), sig.map(|s| s[0])),
-            Effect::Sag => notes.push("sag not written: the running robot does not model it".into()),
-            Effect::Slack => {}
+        if let Err(note) = f.effect.model().store(&mut out, vals, sig) {
+            notes.push(note.into());
         }
     }
     (out, notes)
@@ -633,7 +576,7 @@ mod tests {
         (rec, anchors, l0)
     }
 
-    /// A play with a time offset, as the diagnosis fits them (`diagnose::encoder_time_prep`): the
+    /// A play with a time offset, as the diagnosis fits them (`effects::model::encoder_time_prep`): the
     /// rows held since a push while loose are out of the fit but stay readings for the encoder's
     /// interpolation, and the fit on the clear-push rows in encoder time has no bias in the
     /// offset or the play (measured: 20.0024 ± 0.0021 ms, plays within 0.6 sigma of 8 mm). Before,

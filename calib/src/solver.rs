@@ -501,85 +501,129 @@ pub fn solve(d: &CableData, lo: usize, hi: usize, x0: [f64; 4], loss: RobustLoss
     second
 }
 
-/// Damped Gauss–Newton (Levenberg–Marquardt) with Nielsen's damping update.
-#[allow(clippy::too_many_arguments)]
-pub fn lm(d: &CableData, lo: usize, hi: usize, x0: [f64; 4], loss: RobustLoss, max_iterations: usize, tol: Tolerances) -> Solution {
-    let mut x = x0;
-    let mut cur = pass(d, lo, hi, &x, loss);
-    // Start almost at Gauss–Newton: J^T W J is ill-conditioned along (A along the mean cable
-    // direction, L0) (eigenvalue ratios 1e4..1e5), and a Marquardt damping of 1e-3 diag(H) would
-    // shrink the step along exactly that direction tenfold, turning quadratic convergence into
-    // a crawl. The gain ratio raises lambda when a step fails.
-    let mut lambda = 1e-9;
-    let mut nu = 2.0;
-    let mut it = 0;
-    let done = |termination, iterations, x, at_x| Solution { x, termination, iterations, at_x };
-    while it < max_iterations {
-        // Gradient test (MINPACK's gtol): the residual is orthogonal to every column of J.
-        let gmax = (0..4)
-            .map(|k| cur.g[k].abs() / (cur.h[DIAG[k]] * 2.0 * cur.cost.max(f64::MIN_POSITIVE)).sqrt().max(f64::MIN_POSITIVE))
-            .fold(0.0, f64::max);
-        if gmax <= tol.gtol || cur.cost == 0.0 {
-            return done(Termination::SmallGradient, it, x, cur);
-        }
-        it += 1;
-        let h = cur.h_matrix();
+/// One cable's problem for [`crate::lm`]: the pass gives the cost and the normal equations at
+/// once, so a trial point's pass is kept as the current one when the step is accepted.
+struct Cable<'a> {
+    d: &'a CableData,
+    lo: usize,
+    hi: usize,
+    loss: RobustLoss,
+    tol: Tolerances,
+    /// The pass at the current point.
+    cur: Pass,
+    /// The pass at the last point evaluated.
+    trial: Pass,
+}
+
+/// A step of [`Cable`] with what the stopping tests need.
+struct CableStep {
+    dx: Vector4<f64>,
+    /// `dx^T H dx`: the step's length in standard deviations, squared.
+    mstep: f64,
+    /// Predicted decrease `g.dx - dx^T H dx / 2`.
+    pred: f64,
+    /// `|dx|`.
+    norm: f64,
+}
+
+impl Cable<'_> {
+    /// The step-length test: `|dx| <= xtol (|x| + xtol)`.
+    fn tiny(&self, x: &[f64; 4], s: &CableStep) -> bool {
+        let xn_norm = (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
+        s.norm <= self.tol.xtol * (xn_norm + self.tol.xtol)
+    }
+}
+
+impl crate::lm::Problem for Cable<'_> {
+    type X = [f64; 4];
+    type Step = CableStep;
+
+    fn cost(&mut self, x: &[f64; 4]) -> f64 {
+        self.trial = pass(self.d, self.lo, self.hi, x, self.loss);
+        self.trial.cost
+    }
+
+    fn accepted(&mut self) {
+        self.cur = self.trial;
+    }
+
+    fn step(&mut self, _x: &[f64; 4], lambda: f64) -> Option<CableStep> {
+        let h = self.cur.h_matrix();
         let dmax = (0..4).map(|k| h[(k, k)]).fold(0.0, f64::max);
         let mut a = h;
         for k in 0..4 {
             // Floor the scaling so an unexcited direction still gets damped.
             a[(k, k)] += lambda * h[(k, k)].max(1e-12 * dmax).max(f64::MIN_POSITIVE);
         }
-        let g = Vector4::from(cur.g);
-        let Some(chol) = a.cholesky() else {
-            lambda *= nu;
-            nu *= 2.0;
-            if lambda > 1e20 {
-                return done(Termination::Stalled, it, x, cur);
-            }
-            continue;
-        };
-        let dx = chol.solve(&g);
-        let xn_norm = (x.iter().map(|v| v * v).sum::<f64>()).sqrt();
-        let step = dx.norm();
-        let xn = [x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3]];
+        let g = Vector4::from(self.cur.g);
+        let dx = a.cholesky()?.solve(&g);
         let mstep = dx.dot(&(h * dx));
-        // The proposed step is already below the statistical tolerance: x is converged, and
-        // evaluating x + dx would cost a pass to learn nothing (x is returned, with its pass).
-        if mstep <= tol.step_sigma2 {
-            return done(Termination::SmallStep, it, x, cur);
-        }
-        let trial = pass(d, lo, hi, &xn, loss);
-        // Predicted decrease of the local quadratic model: g.dx - dx^T H dx / 2.
-        let pred = dx.dot(&g) - 0.5 * mstep;
-        let act = cur.cost - trial.cost;
-        if trial.cost.is_finite() && act > 0.0 {
-            let rho = act / pred.max(f64::MIN_POSITIVE);
-            let old_cost = cur.cost;
-            x = xn;
-            cur = trial;
-            lambda = (lambda * (1.0 - (2.0 * rho - 1.0).powi(3)).max(0.1)).max(1e-12);
-            nu = 2.0;
-            if mstep <= tol.step_sigma2 || step <= tol.xtol * (xn_norm + tol.xtol) {
-                return done(Termination::SmallStep, it, x, cur);
-            }
-            if act <= tol.ftol * old_cost && pred <= tol.ftol * old_cost {
-                return done(Termination::SmallCostChange, it, x, cur);
-            }
-        } else {
-            // A step that cannot even change x (or whose predicted gain is at round-off) means
-            // we are at the minimum to machine precision.
-            if step <= tol.xtol * (xn_norm + tol.xtol) || pred.abs() <= 1e-15 * cur.cost {
-                return done(Termination::SmallStep, it, x, cur);
-            }
-            lambda *= nu;
-            nu *= 2.0;
-            if lambda > 1e20 {
-                return done(Termination::Stalled, it, x, cur);
-            }
-        }
+        Some(CableStep { dx, mstep, pred: dx.dot(&g) - 0.5 * mstep, norm: dx.norm() })
     }
-    done(Termination::MaxIterations, it, x, cur)
+
+    fn apply(&self, x: &[f64; 4], s: &CableStep) -> [f64; 4] {
+        [x[0] + s.dx[0], x[1] + s.dx[1], x[2] + s.dx[2], x[3] + s.dx[3]]
+    }
+
+    /// Gradient test (MINPACK's gtol): the residual is orthogonal to every column of J.
+    fn converged(&self, _x: &[f64; 4], _cost: f64) -> bool {
+        let cur = &self.cur;
+        let gmax = (0..4)
+            .map(|k| cur.g[k].abs() / (cur.h[DIAG[k]] * 2.0 * cur.cost.max(f64::MIN_POSITIVE)).sqrt().max(f64::MIN_POSITIVE))
+            .fold(0.0, f64::max);
+        gmax <= self.tol.gtol || cur.cost == 0.0
+    }
+
+    /// The proposed step is already below the statistical tolerance: x is converged, and
+    /// evaluating x + dx would cost a pass to learn nothing (x is returned, with its pass).
+    fn negligible(&self, s: &CableStep) -> bool {
+        s.mstep <= self.tol.step_sigma2
+    }
+
+    fn small_step(&self, x: &[f64; 4], s: &CableStep) -> bool {
+        s.mstep <= self.tol.step_sigma2 || self.tiny(x, s)
+    }
+
+    /// A step that cannot even change x (or whose predicted gain is at round-off) means we are
+    /// at the minimum to machine precision.
+    fn at_minimum(&self, x: &[f64; 4], s: &CableStep, cost: f64) -> bool {
+        self.tiny(x, s) || s.pred.abs() <= 1e-15 * cost
+    }
+
+    fn predicted_decrease(&self, s: &CableStep) -> f64 {
+        s.pred
+    }
+}
+
+/// Damped Gauss–Newton (Levenberg–Marquardt, [`crate::lm`]) with Nielsen's damping update.
+#[allow(clippy::too_many_arguments)]
+pub fn lm(d: &CableData, lo: usize, hi: usize, x0: [f64; 4], loss: RobustLoss, max_iterations: usize, tol: Tolerances) -> Solution {
+    use crate::lm::{minimize, CostTest, Count, Damping, Policy, Stop};
+    // Start almost at Gauss–Newton: J^T W J is ill-conditioned along (A along the mean cable
+    // direction, L0) (eigenvalue ratios 1e4..1e5), and a Marquardt damping of 1e-3 diag(H) would
+    // shrink the step along exactly that direction tenfold, turning quadratic convergence into
+    // a crawl. The gain ratio raises lambda when a step fails.
+    let policy = Policy {
+        lambda0: 1e-9,
+        damping: Damping::Nielsen { min_factor: 0.1 },
+        min_lambda: 1e-12,
+        max_lambda: 1e20,
+        max_iterations,
+        count: Count::Attempts,
+        accept_ties: false,
+        singular_stops: false,
+        cost_test: CostTest::WithPredicted(tol.ftol),
+    };
+    let mut p = Cable { d, lo, hi, loss, tol, cur: Pass::default(), trial: Pass::default() };
+    let r = minimize(&mut p, x0, &policy);
+    let termination = match r.stop {
+        Stop::SmallGradient => Termination::SmallGradient,
+        Stop::SmallStep => Termination::SmallStep,
+        Stop::SmallCostChange => Termination::SmallCostChange,
+        Stop::MaxIterations => Termination::MaxIterations,
+        Stop::NoDecrease | Stop::Singular | Stop::NotFinite => Termination::Stalled,
+    };
+    Solution { x: r.x, termination, iterations: r.iterations, at_x: p.cur }
 }
 
 /// Index of `H_kk` in [`Pass::h`].

@@ -631,15 +631,7 @@ pub fn calibration(rec: &Recording, parse: &ParseReport, cfg: &RobotConfig, out:
 
 /// An effect's parameter as people write it: label, unit and scale from the model's SI value.
 fn parameter_words(e: Effect) -> (&'static str, &'static str, f64) {
-    match e {
-        Effect::Elasticity => ("EA", "N", 1.0),
-        Effect::Sag => ("weight per length", "N/m", 1.0),
-        Effect::Pulley => ("pulley radius", "mm", 1e3),
-        Effect::Scale => ("length scale", "", 1.0),
-        Effect::TimeOffset => ("time offset", "ms", 1e3),
-        Effect::Backlash => ("play", "mm", 1e3),
-        Effect::Slack => ("loose below", "N", 1.0),
-    }
+    e.model().parameter_words()
 }
 
 /// An effect's values with their 1-sigma: `EA 19740 ± 570 N` (shared) or one per cable.

@@ -53,15 +53,17 @@ pub mod analysis;
 pub mod dataq;
 pub mod effects;
 pub mod esterr;
-pub mod fit;
-pub mod lm;
+/// The joint model the diagnosis fits: [`crate::effects::model`].
+pub use crate::effects::model as fit;
+/// The dense least-squares problems the diagnosis solves: [`crate::lm::dense`].
+pub use crate::lm::dense as lm;
 pub mod select;
 
 use crate::{Geometry, Params, Sigmas};
 use analysis::{rms, Mismatch, Regressor};
 pub use dataq::{DataProblem, ProblemKind};
 pub use effects::{Effect, Sharing, TensionEnd};
-use fit::{ModelSpec, Prepared};
+use fit::{clear_push_weights, encoder_time_prep, exclude_unseen_pushes, ModelSpec, Prepared};
 pub use select::HeldoutTest;
 use std::fmt;
 use taut_config::recording::Recording;
@@ -366,58 +368,21 @@ pub struct Diagnosis {
     pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
 }
 
-use crate::model::rotation;
-
-/// Builds the per-cable columns, velocities, directions and masks.
+/// The effect models' columns of the rows without data problems ([`fit::prepare`]), with the
+/// diagnosis's errors-in-variables weights, velocities, directions and held-out blocks.
 fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &DiagnoseOptions) -> Prepared {
     let n = rec.n_cables;
-    let rows: Vec<usize> = (0..rec.len()).filter(|&i| masks.row_ok[i]).collect();
-    let m = rows.len();
-    let mut prep = Prepared {
-        n,
-        t: rows.iter().map(|&i| rec.t[i]).collect(),
-        rows: rows.clone(),
-        x: vec![Vec::with_capacity(m); n],
-        l: vec![Vec::with_capacity(m); n],
-        f: vec![Vec::with_capacity(m); n],
-        vel: vec![vec![0.0; m]; n],
-        dir: vec![vec![0.0; m]; n],
-        play: fit::PlayState::default(),
-        usable: vec![Vec::with_capacity(m); n],
-        loose: vec![Vec::with_capacity(m); n],
-        segment: rows.iter().map(|&i| masks.segment[i]).collect(),
-        heldout: vec![false; m],
-        hold_weight: vec![],
-        // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
-        // sag: the tension's noise): see `fit::Eiv`.
-        eiv: Some(fit::Eiv::new(opts.tracker_sigma_m, opts.encoder_sigma_m, opts.loadcell_sigma_n)),
+    let sel = fit::Selection {
+        rows: (0..rec.len()).filter(|&i| masks.row_ok[i]).collect(),
+        segment: &masks.segment,
+        cable_ok: Some(&masks.cable_ok),
+        dead_loadcell: Some(&masks.dead_loadcell),
     };
-    for &i in &rows {
-        let r = rec.q.as_ref().and_then(|q| rotation(q[i]));
-        for j in 0..n {
-            let rb = match &r {
-                Some(r) => [
-                    r[0][0] * b[j][0] + r[0][1] * b[j][1] + r[0][2] * b[j][2],
-                    r[1][0] * b[j][0] + r[1][1] * b[j][1] + r[1][2] * b[j][2],
-                    r[2][0] * b[j][0] + r[2][1] * b[j][1] + r[2][2] * b[j][2],
-                ],
-                None => b[j],
-            };
-            let p = rec.p[i];
-            prep.x[j].push([p[0] + rb[0], p[1] + rb[1], p[2] + rb[2]]);
-            let l = rec.l[i * n + j];
-            prep.l[j].push(l);
-            let f = match &rec.f {
-                Some(f) if !masks.dead_loadcell[j] => f[i * n + j],
-                _ => f64::NAN,
-            };
-            prep.f[j].push(f);
-            let loose = f.is_finite() && f < opts.min_tension_n;
-            let ok = masks.cable_ok[j][i] && l.is_finite();
-            prep.usable[j].push(ok && !loose);
-            prep.loose[j].push(ok && loose);
-        }
-    }
+    let mut prep = fit::prepare(rec, b, &sel, opts.min_tension_n, false, opts.encoder_sigma_m);
+    let m = prep.t.len();
+    // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
+    // sag: the tension's noise): see `fit::Eiv`.
+    prep.eiv = Some(fit::Eiv::new(opts.tracker_sigma_m, opts.encoder_sigma_m, opts.loadcell_sigma_n));
     // Encoder velocity by a central difference over about 40 ms (at least one sample), inside
     // a segment; the direction of motion is held through pauses.
     let k = ((0.02 / masks.dt.max(1e-6)).round() as usize).max(1);
@@ -443,7 +408,6 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
             prep.dir[j][i] = last;
         }
     }
-    prep.play = fit::PlayState::of_readings(&prep.l, opts.encoder_sigma_m);
     // Held-out time blocks.
     let nb = 10;
     let k_out = ((opts.heldout_fraction * nb as f64).round() as usize).clamp(1, nb - 1);
@@ -949,7 +913,7 @@ const BLOCKS: usize = 20;
 /// absorb must not count (nor may structure the others leave in the profiled direction be
 /// missed: the raw score's blocks under-covered EA under backlash, 52 / 75 / 85 % within 1 / 2 /
 /// 3 sigma over 48 estimates).
-fn sandwich_inflation(
+pub(crate) fn sandwich_inflation(
     prep: &Prepared,
     spec: &ModelSpec,
     samples: &[usize],
@@ -1154,18 +1118,6 @@ fn correlation(r: &lm::LmReport, spec: &ModelSpec, e: Effect, other: Option<Effe
     best
 }
 
-fn signature_regressor(e: Effect) -> Regressor {
-    match e {
-        Effect::Elasticity => Regressor::TensionLength,
-        Effect::Sag => Regressor::SagTerm,
-        Effect::Pulley => Regressor::Elevation,
-        Effect::Scale => Regressor::Length,
-        Effect::TimeOffset => Regressor::Velocity,
-        Effect::Backlash => Regressor::Direction,
-        Effect::Slack => Regressor::Tension,
-    }
-}
-
 fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
     let s = samples.len().div_ceil(max.max(1)).max(1);
     res.iter()
@@ -1209,46 +1161,6 @@ fn play_prep(prep: &Prepared, spec: &ModelSpec, x: &[f64], encoder_sigma_m: f64)
     Some(p)
 }
 
-/// Weight 1 on the `usable` rows of `prep` that read clear pushes at the time offset `delta`
-/// (`None`: the model has none; steps beyond 3 sigmas of an encoder difference: [`fit::clear_push_rows`]), 0 elsewhere.
-fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
-    let clear = fit::clear_push_rows(prep, usable, delta, 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
-    clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
-}
-
-/// Leaves out of the fit the readings held since a push while the cable was loose
-/// ([`PlayState::exclude_unseen_pushes`]: the play's level is unknown there) and keeps them
-/// readings, as a loose cable's are ([`Prepared::loose`]): the encoder's interpolation under a
-/// time offset reads them ([`fit::Joint::predict`]; taken for data problems, the rows beside them
-/// fell back to one encoder sample, millimetres off at speed). Returns the usable mask before
-/// the exclusion, which a fit with a time offset and a play redoes in encoder time
-/// ([`encoder_time_prep`]). Shared by the diagnosis and the running robot's effect fit
-/// ([`crate::effect_fit`]).
-pub(crate) fn exclude_unseen_pushes(prep: &mut Prepared) -> Vec<Vec<bool>> {
-    let before = prep.usable.clone();
-    prep.play.exclude_unseen_pushes(&mut prep.usable);
-    for ((loose, now), was) in prep.loose.iter_mut().zip(&prep.usable).zip(&before) {
-        for ((l, now), was) in loose.iter_mut().zip(now).zip(was) {
-            *l |= *was && !*now;
-        }
-    }
-    before
-}
-
-/// `prep` for a fit of a model with a play and a time offset `delta`, in encoder time: every
-/// row of `usable_before_play` (the mask before [`exclude_unseen_pushes`]) stays a reading, and
-/// weight 1 goes to the rows that are not held since a push while loose in encoder time
-/// ([`fit::encoder_time_exclusion`]) and read clear pushes ([`clear_push_weights`]), 0 to the
-/// others (a hold's level is the input's extreme, which a mistaken push end misses on one side).
-/// The diagnosis's final estimates and the running robot's effect fit ([`crate::effect_fit`])
-/// both fit on it.
-pub(crate) fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Prepared {
-    let kept = fit::encoder_time_exclusion(prep, usable_before_play, delta);
-    let mut p = Prepared { usable: usable_before_play.to_vec(), ..prep.clone() };
-    p.hold_weight = clear_push_weights(&p, &kept, Some(delta), encoder_sigma_m);
-    p
-}
-
 /// Diagnoses `rec`: see the module documentation. `start` (e.g. from the calibration) is used
 /// as the starting point of the baseline fit; without it the calibration's initialisation runs.
 pub fn diagnose(
@@ -1262,23 +1174,119 @@ pub fn diagnose(
         return Err(DiagnoseError::CableCount { recording: n, platform_points: platform_points.len() });
     }
     let mut notes = vec![];
+    let screened = find_data_problems(rec, opts);
+    let rec = screened.recording(rec);
+    let mut prep = prepare(rec, platform_points, &screened.masks, opts);
+    let base = fit_baseline(rec, platform_points, start, &mut prep, opts, &mut notes)?;
+    let prep = prep; // frozen from here on
+    let ctx = Ctx::new(&prep, &base, opts);
+    let located = locate(&ctx, &base, opts);
+    let mut effects: Vec<Finding> = loose_cables(&ctx, &base, &located.baseline, opts).into_iter().collect();
+    let named = name_effects(&ctx, &base, opts, &mut effects, &mut notes);
+    let (final_train, final_all) = final_estimates(&ctx, &base, &named, opts, &mut effects);
+    let final_fit = ctx.summary(&named.spec, &final_train, &final_all);
+    let (final_res, unexplained) =
+        leftover_structure(&ctx, &base, &named.spec, &final_train, &final_fit, &located.an_sub, screened.masks.dt);
+    if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
+        notes.push("no effect beyond loose cables was found: the residual is noise".into());
+    }
+    let all_rows: Vec<usize> = (0..prep.t.len()).collect();
+    Ok(Diagnosis {
+        cables: n,
+        samples: rec.len(),
+        used_tensions: base.used_tensions,
+        baseline: located.baseline,
+        mismatch: located.mismatch,
+        effects,
+        final_fit,
+        unexplained,
+        data_problems: screened.problems,
+        rejected: named.rejected,
+        tests: named.tests,
+        family_alpha: opts.family_alpha,
+        notes,
+        baseline_residuals: subsample_series(&prep, &all_rows, &located.base_res, 2000),
+        final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
+    })
+}
+
+/// The recording after step 1, its data problems and the masks of what is left.
+struct Screened {
+    /// The recording with the stale rows' lengths removed, if there were any.
+    unstale: Option<Recording>,
+    /// The screen of wild values.
+    screen: crate::screen::Screen,
+    /// Every data problem found, the screen's first.
+    problems: Vec<DataProblem>,
+    /// What is left usable.
+    masks: dataq::DataMasks,
+}
+
+impl Screened {
+    /// The recording the diagnosis works on: stale lengths removed, wild values screened.
+    fn recording<'a>(&'a self, rec: &'a Recording) -> &'a Recording {
+        self.screen.recording(self.unstale.as_ref().unwrap_or(rec))
+    }
+}
+
+/// Step 1, **data problems** ([`dataq`], [`crate::screen`]): stale rows, wild values, frozen
+/// readings, tracker outliers and dropouts, clock jumps and dead load cells, found, reported
+/// and masked out before any fit.
+fn find_data_problems(rec: &Recording, opts: &DiagnoseOptions) -> Screened {
     // Wild values first: a single 1e308 must neither move the fit nor pass for physics.
     // Stale rows before the screen: their repeated lengths, centimetres off on a moving
     // platform, would otherwise pass for wild readings of some cables and stay on others.
     let stale = if opts.stale_rows { dataq::stale_rows(rec, opts.tracker_sigma_m, opts.encoder_sigma_m) } else { vec![] };
     let unstale = dataq::without_lengths(rec, &stale);
-    let rec = unstale.as_ref().unwrap_or(rec);
-    let screen = crate::screen::screen(rec, &crate::screen::ScreenOptions::new(opts.min_tension_n));
-    let rec = screen.recording(rec);
-    let (mut data_problems, masks) = dataq::detect_screened(
+    let screen = crate::screen::screen(unstale.as_ref().unwrap_or(rec), &crate::screen::ScreenOptions::new(opts.min_tension_n));
+    let rec = screen.recording(unstale.as_ref().unwrap_or(rec));
+    let (mut problems, masks) = dataq::detect_screened(
         rec,
         opts.tracker_sigma_m,
         opts.encoder_sigma_m,
         &screen.removed_rows,
         opts.stale_rows.then_some(&stale[..]),
     );
-    data_problems.splice(0..0, dataq::from_screen(&screen));
-    let mut prep = prepare(rec, platform_points, &masks, opts);
+    problems.splice(0..0, dataq::from_screen(&screen));
+    Screened { unstale, screen, problems, masks }
+}
+
+/// The ideal model fitted after step 2, and what the later steps need of it.
+struct Baseline {
+    /// The ideal model (no effect).
+    ideal: ModelSpec,
+    /// Its fit on the training blocks.
+    fit: lm::LmReport,
+    /// Noise sigma of a reading, m.
+    sigma: f64,
+    /// Per cable: the recording has tensions.
+    has_t: Vec<bool>,
+    /// Some cable has tensions.
+    used_tensions: bool,
+    /// Readings found loose by their tension, and (cables without tensions) by their residual.
+    loose_by_tension: usize,
+    loose_by_residual: usize,
+    /// Training and held-out samples.
+    train: Vec<usize>,
+    heldout: Vec<usize>,
+    /// The usable mask before the readings held since a push while loose were left out
+    /// ([`exclude_unseen_pushes`]).
+    usable_before_play: Vec<Vec<bool>>,
+}
+
+/// Step 2, **baseline**: the ideal model `l = |P + R b - A| + L0` fitted on the training blocks
+/// from `start` (or the calibration's start), loose readings excluded (`T < min_tension_n`, or
+/// without tensions, readings whose encoder shows clearly more cable than the straight line),
+/// and the readings held since a push while loose left out of the fits.
+fn fit_baseline(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    start: Option<&Params>,
+    prep: &mut Prepared,
+    opts: &DiagnoseOptions,
+    notes: &mut Vec<String>,
+) -> Result<Baseline, DiagnoseError> {
+    let n = rec.n_cables;
     let has_t: Vec<bool> = (0..n).map(|j| prep.f[j].iter().any(|v| v.is_finite())).collect();
     let used_tensions = has_t.iter().any(|x| *x);
     if !used_tensions {
@@ -1318,14 +1326,14 @@ pub fn diagnose(
         Some(x) if x.iter().all(|v| v.is_finite()) => x,
         _ => {
             notes.push("the calibration's initialisation failed; started from algebraic multilateration".into());
-            multilaterate(&prep, &stride(&all_rows, 4000)).ok_or(DiagnoseError::BaselineFailed)?
+            multilaterate(prep, &stride(&all_rows, 4000)).ok_or(DiagnoseError::BaselineFailed)?
         }
     };
 
     let ideal = ModelSpec { effects: vec![], tension_end: opts.tension_end };
     let train: Vec<usize> = (0..m).filter(|&i| !prep.heldout[i]).collect();
     let heldout: Vec<usize> = (0..m).filter(|&i| prep.heldout[i]).collect();
-    let mut base = fit::fit(&prep, &ideal, &train, &x0, sigma, opts.max_iterations);
+    let mut base = fit::fit(prep, &ideal, &train, &x0, sigma, opts.max_iterations);
     if !base.x.iter().all(|v| v.is_finite()) {
         return Err(DiagnoseError::BaselineFailed);
     }
@@ -1335,7 +1343,7 @@ pub fn diagnose(
     let mut loose_by_residual = 0;
     if has_t.iter().any(|h| !h) {
         for _ in 0..3 {
-            let res = fit::residuals(&prep, &ideal, &all_rows, &base.x);
+            let res = fit::residuals(prep, &ideal, &all_rows, &base.x);
             let mut flagged = 0;
             for j in (0..n).filter(|&j| !has_t[j]) {
                 let mut a: Vec<f64> = res[j].iter().copied().filter(|v| v.is_finite()).collect();
@@ -1361,41 +1369,83 @@ pub fn diagnose(
             if flagged == 0 {
                 break;
             }
-            base = fit::fit(&prep, &ideal, &train, &base.x, sigma, opts.max_iterations);
+            base = fit::fit(prep, &ideal, &train, &base.x, sigma, opts.max_iterations);
         }
     }
     // Readings held since a push while the cable was loose: the play's level is unknown there.
     // (With a time offset the final refit redoes this in encoder time from the mask before it:
     // `fit::encoder_time_play`.)
-    let usable_before_play = exclude_unseen_pushes(&mut prep);
-    let prep = prep; // frozen from here on
-    let mut heldout_rows = vec![0];
-    for &i in &heldout {
-        heldout_rows.push(heldout_rows.last().copied().unwrap_or(0) + (0..n).filter(|&j| prep.usable[j][i]).count());
-    }
-    let mut ctx = Ctx {
-        prep: &prep,
-        sigma,
-        tension_offset_sigma: opts.loadcell_offset_n,
-        train,
-        heldout,
-        screen_train: vec![],
-        heldout_rows,
-        tracker_var: opts.tracker_sigma_m.powi(2),
-        encoder_var: opts.encoder_sigma_m.powi(2),
-    };
-    let frac = opts.screen_samples as f64 / m.max(1) as f64;
-    ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
+    // Readings held since a push while the cable was loose: the play's level is unknown there.
+    // (With a time offset the final refit redoes this in encoder time from the mask before it:
+    // `fit::encoder_time_play`.)
+    let usable_before_play = exclude_unseen_pushes(prep);
+    Ok(Baseline { ideal, fit: base, sigma, has_t, used_tensions, loose_by_tension, loose_by_residual, train, heldout, usable_before_play })
+}
 
-    let base_all = ctx.fit(&ideal, &all_rows, &base.x, opts.max_iterations);
-    let baseline = ctx.summary(&ideal, &base, &base_all);
-    let base_res = fit::residuals(&prep, &ideal, &all_rows, &base.x);
+impl<'a> Ctx<'a> {
+    /// The fitting context on `prep` after the baseline: its training, held-out and screening
+    /// samples and the noise.
+    fn new(prep: &'a Prepared, b: &Baseline, opts: &DiagnoseOptions) -> Ctx<'a> {
+        let (n, m) = (prep.n, prep.t.len());
+        let (train, heldout) = (b.train.clone(), b.heldout.clone());
+        let sigma = b.sigma;
+        let mut heldout_rows = vec![0];
+        for &i in &heldout {
+            heldout_rows.push(heldout_rows.last().copied().unwrap_or(0) + (0..n).filter(|&j| prep.usable[j][i]).count());
+        }
+        let mut ctx = Ctx {
+            prep,
+            sigma,
+            tension_offset_sigma: opts.loadcell_offset_n,
+            train,
+            heldout,
+            screen_train: vec![],
+            heldout_rows,
+            tracker_var: opts.tracker_sigma_m.powi(2),
+            encoder_var: opts.encoder_sigma_m.powi(2),
+        };
+        let frac = opts.screen_samples as f64 / m.max(1) as f64;
+        ctx.screen_train = stride(&ctx.train, (frac * ctx.train.len() as f64).ceil() as usize);
+        ctx
+    }
+}
+
+/// What step 3 found: the baseline's summary and residuals and where they mismatch.
+struct Located {
+    /// The baseline's fit summary.
+    baseline: FitSummary,
+    /// Its residuals on every sample, per cable.
+    base_res: Vec<Vec<f64>>,
+    /// Where the mismatch is.
+    mismatch: Mismatch,
+    /// The samples the analysis uses.
+    an_sub: Vec<usize>,
+}
+
+/// Step 3, **locate** the mismatch ([`analysis`]): the baseline's residual per cable, time
+/// block and workspace octant, and its correlation with the effects' signature regressors.
+fn locate(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions) -> Located {
+    let prep = ctx.prep;
+    let m = prep.t.len();
+    let all_rows: Vec<usize> = (0..m).collect();
+    let (ideal, base, has_t) = (&b.ideal, &b.fit, &b.has_t);
+    let base_all = ctx.fit(ideal, &all_rows, &base.x, opts.max_iterations);
+    let baseline = ctx.summary(ideal, base, &base_all);
+    let base_res = fit::residuals(prep, ideal, &all_rows, &base.x);
     let anchors0: Vec<[f64; 3]> = baseline.params.anchors.clone();
     let an_sub = stride(&all_rows, 6000);
     let sub_res: Vec<Vec<f64>> = base_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
-    let mismatch = analysis::analyse(&prep, &an_sub, &sub_res, &anchors0, &has_t);
+    let mismatch = analysis::analyse(prep, &an_sub, &sub_res, &anchors0, has_t);
 
-    let mut effects = vec![];
+    Located { baseline, base_res, mismatch, an_sub }
+}
+
+/// The `slack` finding of step 2's loose readings: the baseline's RMS on every present reading
+/// (loose ones included) against without them.
+fn loose_cables(ctx: &Ctx<'_>, b: &Baseline, baseline: &FitSummary, opts: &DiagnoseOptions) -> Option<Finding> {
+    let prep = ctx.prep;
+    let (n, m) = (prep.n, prep.t.len());
+    let (ideal, base, loose_by_tension, loose_by_residual) = (&b.ideal, &b.fit, b.loose_by_tension, b.loose_by_residual);
     if loose_by_tension + loose_by_residual > 0 {
         // Before: the baseline on every present reading, loose ones included.
         let mut ss = 0.0;
@@ -1407,7 +1457,7 @@ pub fn diagnose(
         for i in 0..m {
             for j in 0..n {
                 if probe.usable[j][i] {
-                    let r = fit::Joint { prep: &probe, spec: &ideal, samples: &[], sigma: 1.0 }.residual(&base.x, i, j);
+                    let r = fit::Joint { prep: &probe, spec: ideal, samples: &[], sigma: 1.0 }.residual(&base.x, i, j);
                     if prep.heldout[i] {
                         ss_ho += r * r;
                         cnt_ho += 1;
@@ -1420,7 +1470,7 @@ pub fn diagnose(
         }
         let cables: Vec<usize> = (0..n).filter(|&j| (0..m).any(|i| probe.usable[j][i] && !prep.usable[j][i])).collect();
         let samples = loose_by_tension + loose_by_residual;
-        effects.push(Finding {
+        return Some(Finding {
             effect: Effect::Slack,
             cables,
             values: vec![if loose_by_tension > 0 { opts.min_tension_n } else { f64::NAN }],
@@ -1442,6 +1492,32 @@ pub fn diagnose(
         });
     }
 
+    None
+}
+
+/// The model step 4 arrived at, and the record of its tests.
+struct Named {
+    /// The final model.
+    spec: ModelSpec,
+    /// Its fit on the training blocks.
+    cur_train: lm::LmReport,
+    /// Candidates of the last round that were not named, and why.
+    rejected: Vec<String>,
+    /// Every candidate test of every round.
+    tests: Vec<CandidateTest>,
+    /// The last round's candidates when it named nothing (reused by the joint fits).
+    last_round: Vec<(Effect, Candidate)>,
+}
+
+/// Step 4, **name and model**: forward selection over the effect library ([`select`]), each
+/// round's candidates fitted jointly with the effects named so far and tested on the held-out
+/// blocks; the best that passes is named (with the candidates that explain the data equally
+/// well), then a backward step drops an earlier effect the new one made redundant.
+fn name_effects(ctx: &Ctx<'_>, b: &Baseline, opts: &DiagnoseOptions, effects: &mut Vec<Finding>, notes: &mut Vec<String>) -> Named {
+    let prep = ctx.prep;
+    let n = prep.n;
+    let all_rows: Vec<usize> = (0..prep.t.len()).collect();
+    let (ideal, base, has_t, sigma) = (&b.ideal, &b.fit, &b.has_t, b.sigma);
     // Forward selection: every round refits each remaining candidate on top of the effects named
     // so far and tests it on the held-out blocks (see [`select`]); the best that passes is named.
     let alpha = opts.test_alpha();
@@ -1459,84 +1535,7 @@ pub fn diagnose(
     // At most `max_effects` rounds (the Bonferroni count of `test_alpha`), drops or not.
     while spec.effects.len() < opts.max_effects && round < opts.max_effects {
         round += 1;
-        // How far apart the current model's residuals stay correlated (the tracker noise's
-        // correlation length, 1 when white): the held-out replacement's span.
-        // `noise_phi` once per round: the same residuals give the estimation error's long-run
-        // factor below (the clear-push weights of `cur_pp` do not enter the residuals).
-        let cur_phi = fit::noise_phi(&prep, &spec, &ctx.train, &cur_train.x);
-        let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
-        let cur_res = ctx.heldout_residuals(&spec, &cur_train.x, (&spec, &cur_train.x), noise_lag);
-        let cur_w = ctx.heldout_factors(&spec, &cur_train.x);
-        let cur_terms = ctx.heldout_terms(&spec, &cur_train.x);
-        // The current model's own estimation error on the training blocks: part of every
-        // held-out test's variance (see [`esterr`]).
-        let cur_pp = play_prep(&prep, &spec, &cur_train.x, opts.encoder_sigma_m);
-        let cur_err = opts
-            .estimation_error
-            .then(|| {
-                esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(&prep), &spec, &ctx.train, &ctx.heldout, &cur_train, sigma, cur_phi)
-            })
-            .flatten();
-        let mut cands: Vec<(Effect, Candidate)> = vec![];
-        rejected.clear();
-        for &e in &opts.library {
-            if spec.effects.contains(&e) || e == Effect::Slack {
-                continue;
-            }
-            if dropped.contains(&e) {
-                rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
-                continue;
-            }
-            if e.needs_tension() && !used_tensions {
-                rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
-                continue;
-            }
-            let mut s2 = spec.clone();
-            s2.effects.push(e);
-            let x0 = s2.extend(n, &spec, &cur_train.x);
-            // On the clear-push rows only once the current model has both a play and a time
-            // offset: a candidate that adds the second of them, fitted on other rows than the
-            // current model, predicted the holds differently and "won" the held-out test
-            // (a spurious time offset under EA and a play on 3 of 50 recordings).
-            let pp = cur_pp.as_ref().and_then(|_| play_prep(&prep, &s2, &x0, opts.encoder_sigma_m));
-            let cctx = Ctx { prep: pp.as_ref().unwrap_or(&prep), ..ctx.clone() };
-            let r = cctx.fit_candidate(e, &s2, &x0, 30);
-            if !r.x.iter().all(|v| v.is_finite()) {
-                rejected.push(format!("{}: the fit diverged", e.name()));
-                continue;
-            }
-            // The replacement's span from the smaller of the two models' noise correlation: a
-            // model that leaves out a slow effect reads it as correlated noise (the holds of a
-            // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
-            // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
-            // was named on 1 of 24 recordings), the candidate that has the effect does not; under
-            // the null both carry the same noise. Only where the span is more than one sample.
-            let cand_phi = fit::noise_phi(&prep, &s2, &ctx.train, &r.x);
-            let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
-            let res = ctx.heldout_residuals(&s2, &r.x, (&spec, &cur_train.x), lag);
-            let res_w = ctx.heldout_factors(&s2, &r.x);
-            let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref(), Some(cand_phi));
-            // The inflated sigmas and the gates (several residual passes per parameter) only
-            // where they can matter: a candidate that passed, or a pulley (the absorbed note).
-            let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
-                cctx.values(e, &s2, &r, &has_t, &ctx.screen_train)
-            } else {
-                cctx.raw_values(e, &s2, &r, &has_t)
-            };
-            let physical = v.plausible.iter().all(|p| *p);
-            let better = test.is_some_and(|t| t.p_value < alpha);
-            let decision = if !better {
-                Decision::NotBetter
-            } else if !physical {
-                Decision::NotPhysical
-            } else {
-                Decision::Passed
-            };
-            cands.push((
-                e,
-                Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision },
-            ));
-        }
+        let (mut cands, cur_pp) = round_candidates(ctx, b, opts, &spec, &cur_train, &dropped, alpha, &mut rejected);
         let gain = |c: &Candidate| c.test.map_or(f64::NEG_INFINITY, |t| t.gain);
         // A pulley whose radius is clearly not zero but which does not predict held-out data
         // better: the ideal model's anchors, shifted, absorb it (on many geometries the two are
@@ -1592,8 +1591,8 @@ pub fn diagnose(
                 let err = opts
                     .estimation_error
                     .then(|| {
-                        let pp = cur_pp.as_ref().and_then(|_| play_prep(&prep, &c.spec, &c.report.x, opts.encoder_sigma_m));
-                        let pp = pp.as_ref().unwrap_or(&prep);
+                        let pp = cur_pp.as_ref().and_then(|_| play_prep(prep, &c.spec, &c.report.x, opts.encoder_sigma_m));
+                        let pp = pp.as_ref().unwrap_or(prep);
                         let phi = fit::noise_phi(pp, &c.spec, &ctx.screen_train, &c.report.x);
                         esterr::EstimationError::new(pp, &c.spec, &ctx.screen_train, &ctx.heldout, &c.report, sigma, phi)
                     })
@@ -1631,24 +1630,24 @@ pub fn diagnose(
         }
         let cand = cands.swap_remove(bi).1;
         let new_spec = cand.spec.clone();
-        let pp = play_prep(&prep, &new_spec, &cand.report.x, opts.encoder_sigma_m);
-        let fctx = Ctx { prep: pp.as_ref().unwrap_or(&prep), ..ctx.clone() };
+        let pp = play_prep(prep, &new_spec, &cand.report.x, opts.encoder_sigma_m);
+        let fctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
         let full = fctx.fit(&new_spec, &ctx.train, &cand.report.x, opts.max_iterations);
-        let v = fctx.values(best, &new_spec, &full, &has_t, &ctx.train);
+        let v = fctx.values(best, &new_spec, &full, has_t, &ctx.train);
         let cables: Vec<usize> = match best.sharing() {
             Sharing::PerCable => (0..n).filter(|&j| v.significant[j]).collect(),
             Sharing::Shared => (0..n).filter(|&j| !best.needs_tension() || has_t[j]).collect(),
         };
         // Evidence: the residual before against the effect's signature regressor.
-        let reg = signature_regressor(best);
-        let before_res = fit::residuals(&prep, &spec, &plot_samples, &cur_train.x);
-        let after_res = fit::residuals(&prep, &new_spec, &plot_samples, &full.x);
+        let reg = best.model().regressor();
+        let before_res = fit::residuals(prep, &spec, &plot_samples, &cur_train.x);
+        let after_res = fit::residuals(prep, &new_spec, &plot_samples, &full.x);
         let mut rs = vec![];
         let mut pcables = vec![];
         for j in 0..n {
             let an = [cur_train.x[4 * j], cur_train.x[4 * j + 1], cur_train.x[4 * j + 2]];
-            let xs: Vec<f64> = plot_samples.iter().map(|&i| reg.value(&prep, an, i, j)).collect();
-            let sign = if best == Effect::Elasticity || best == Effect::TimeOffset { -1.0 } else { 1.0 };
+            let xs: Vec<f64> = plot_samples.iter().map(|&i| reg.value(prep, an, i, j)).collect();
+            let sign = best.model().signature_sign();
             rs.push(sign * analysis::correlation(&xs, &before_res[j]));
             pcables.push((xs, before_res[j].clone(), after_res[j].clone()));
         }
@@ -1668,10 +1667,10 @@ pub fn diagnose(
             };
             format!("residual follows {} on {which} (r = {lo:.2} .. {hi:.2}); ", best.signature(),)
         };
-        let rms_before = rms_of(&prep, &spec, &ctx.train, &cur_train.x);
-        let rms_after = rms_of(&prep, &new_spec, &ctx.train, &full.x);
-        let ho_before = rms_of(&prep, &spec, &ctx.heldout, &cur_train.x);
-        let ho_after = rms_of(&prep, &new_spec, &ctx.heldout, &full.x);
+        let rms_before = rms_of(prep, &spec, &ctx.train, &cur_train.x);
+        let rms_after = rms_of(prep, &new_spec, &ctx.train, &full.x);
+        let ho_before = rms_of(prep, &spec, &ctx.heldout, &cur_train.x);
+        let ho_after = rms_of(prep, &new_spec, &ctx.heldout, &full.x);
         let mut evidence = format!(
             "{follows}held-out RMS {:.2} -> {:.2} mm; {}",
             ho_before * 1e3,
@@ -1703,60 +1702,193 @@ pub fn diagnose(
         });
         spec = new_spec;
         cur_train = full;
-        // Backward step: each earlier-named effect is tested for removal (see
-        // [`Ctx::removal_test`]); of those the test cannot keep at `alpha`, the one with the
-        // largest p-value is dropped, and the rest are tested again on the smaller model.
-        while opts.backward && spec.effects.len() >= 2 {
-            let last = *spec.effects.last().expect("named");
-            let mut results = vec![];
-            for e in spec.effects.clone().into_iter().filter(|&e| e != last) {
-                if let Some((red, red_fit, test)) = ctx.removal_test(e, &spec, &cur_train, opts) {
-                    results.push((e, red, red_fit, test));
-                }
-            }
-            let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
-            let worst = results
-                .iter()
-                .enumerate()
-                .filter(|(_, r)| p(&r.3) >= alpha)
-                .max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3)))
-                .map(|(i, _)| i);
-            let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
-                let f = effects.iter().find(|f| f.effect == e).expect("named");
-                CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
-            };
-            let Some(wi) = worst else {
-                // Every earlier effect is still needed.
-                for (e, _, _, test) in &results {
-                    tests.push(record(*e, *test, Decision::Kept, &effects));
-                }
-                break;
-            };
-            let (e, red, red_fit, test) = results.swap_remove(wi);
-            tests.push(record(e, test, Decision::Dropped, &effects));
-            let named_in = tests.iter().find(|t| t.effect == e && t.decision == Decision::Named).map_or(0, |t| t.round);
-            let words = format!(
-                "{} (named in round {named_in}) was dropped in round {round} once {} was named: the model without it predicts the held-out data as well ({}; not significant at alpha {alpha:.1e})",
-                e.name(),
-                last.name(),
-                test.map_or("no test".into(), |t| t.to_string())
-            );
-            effects.retain(|f| f.effect != e);
-            let pp = play_prep(&prep, &red, &red_fit.x, opts.encoder_sigma_m);
-            let rctx = Ctx { prep: pp.as_ref().unwrap_or(&prep), ..ctx.clone() };
-            if let Some(f) = effects.iter_mut().find(|f| f.effect == last) {
-                let v = rctx.values(last, &red, &red_fit, &has_t, &ctx.train);
-                (f.values, f.sigmas) = (v.vals, v.sigs);
-                f.rms_after_m = rms_of(&prep, &red, &ctx.train, &red_fit.x);
-                f.heldout_rms_after_m = rms_of(&prep, &red, &ctx.heldout, &red_fit.x);
-                f.evidence.push_str(&format!("; {words}"));
-            }
-            notes.push(words);
-            dropped.push(e);
-            spec = red;
-            cur_train = red_fit;
-        }
+        backward_step(ctx, b, opts, round, alpha, &mut spec, &mut cur_train, effects, &mut tests, notes, &mut dropped);
     }
+    Named { spec, cur_train, rejected, tests, last_round }
+}
+/// One round of step 4: every effect of the library not in `spec` (nor dropped) fitted
+/// jointly with the current model on the screening samples and tested against it on the
+/// held-out blocks ([`weighted_test`]), with its values and the decision. Returns the
+/// candidates and the current model's clear-push data (`None`: it has not both a play and a
+/// time offset); the effects not tried go to `rejected` with the reason.
+#[allow(clippy::too_many_arguments)]
+fn round_candidates(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    opts: &DiagnoseOptions,
+    spec: &ModelSpec,
+    cur_train: &lm::LmReport,
+    dropped: &[Effect],
+    alpha: f64,
+    rejected: &mut Vec<String>,
+) -> (Vec<(Effect, Candidate)>, Option<Prepared>) {
+    let prep = ctx.prep;
+    let n = prep.n;
+    let (has_t, used_tensions, sigma) = (&b.has_t, b.used_tensions, b.sigma);
+    // How far apart the current model's residuals stay correlated (the tracker noise's
+    // correlation length, 1 when white): the held-out replacement's span.
+    // `noise_phi` once per round: the same residuals give the estimation error's long-run
+    // factor below (the clear-push weights of `cur_pp` do not enter the residuals).
+    let cur_phi = fit::noise_phi(prep, spec, &ctx.train, &cur_train.x);
+    let noise_lag = fit::correlation_lag(cur_phi, fit::MAX_NOISE_LAG);
+    let cur_res = ctx.heldout_residuals(spec, &cur_train.x, (spec, &cur_train.x), noise_lag);
+    let cur_w = ctx.heldout_factors(spec, &cur_train.x);
+    let cur_terms = ctx.heldout_terms(spec, &cur_train.x);
+    // The current model's own estimation error on the training blocks: part of every
+    // held-out test's variance (see [`esterr`]).
+    let cur_pp = play_prep(prep, spec, &cur_train.x, opts.encoder_sigma_m);
+    let cur_err = opts
+        .estimation_error
+        .then(|| esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(prep), spec, &ctx.train, &ctx.heldout, cur_train, sigma, cur_phi))
+        .flatten();
+    let mut cands: Vec<(Effect, Candidate)> = vec![];
+    rejected.clear();
+    for &e in &opts.library {
+        if spec.effects.contains(&e) || e == Effect::Slack {
+            continue;
+        }
+        if dropped.contains(&e) {
+            rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
+            continue;
+        }
+        if e.needs_tension() && !used_tensions {
+            rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
+            continue;
+        }
+        let mut s2 = spec.clone();
+        s2.effects.push(e);
+        let x0 = s2.extend(n, spec, &cur_train.x);
+        // On the clear-push rows only once the current model has both a play and a time
+        // offset: a candidate that adds the second of them, fitted on other rows than the
+        // current model, predicted the holds differently and "won" the held-out test
+        // (a spurious time offset under EA and a play on 3 of 50 recordings).
+        let pp = cur_pp.as_ref().and_then(|_| play_prep(prep, &s2, &x0, opts.encoder_sigma_m));
+        let cctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
+        let r = cctx.fit_candidate(e, &s2, &x0, 30);
+        if !r.x.iter().all(|v| v.is_finite()) {
+            rejected.push(format!("{}: the fit diverged", e.name()));
+            continue;
+        }
+        // The replacement's span from the smaller of the two models' noise correlation: a
+        // model that leaves out a slow effect reads it as correlated noise (the holds of a
+        // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
+        // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
+        // was named on 1 of 24 recordings), the candidate that has the effect does not; under
+        // the null both carry the same noise. Only where the span is more than one sample.
+        let cand_phi = fit::noise_phi(prep, &s2, &ctx.train, &r.x);
+        let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };
+        let res = ctx.heldout_residuals(&s2, &r.x, (spec, &cur_train.x), lag);
+        let res_w = ctx.heldout_factors(&s2, &r.x);
+        let test = weighted_test(&cur_res, &cur_w, &res, &res_w, &cur_terms, cur_err.as_ref(), Some(cand_phi));
+        // The inflated sigmas and the gates (several residual passes per parameter) only
+        // where they can matter: a candidate that passed, or a pulley (the absorbed note).
+        let v = if test.is_some_and(|t| t.p_value < alpha) || e == Effect::Pulley {
+            cctx.values(e, &s2, &r, has_t, &ctx.screen_train)
+        } else {
+            cctx.raw_values(e, &s2, &r, has_t)
+        };
+        let physical = v.plausible.iter().all(|p| *p);
+        let better = test.is_some_and(|t| t.p_value < alpha);
+        let decision = if !better {
+            Decision::NotBetter
+        } else if !physical {
+            Decision::NotPhysical
+        } else {
+            Decision::Passed
+        };
+        cands.push((
+            e,
+            Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision },
+        ));
+    }
+    (cands, cur_pp)
+}
+
+/// The backward step of step 4, after `spec`'s last effect was named: each earlier-named
+/// effect is tested for removal ([`Ctx::removal_test`]); of those the test cannot keep at
+/// `alpha`, the one with the largest p-value is dropped (its finding removed, the last one's
+/// values refitted without it), and the rest are tested again on the smaller model.
+#[allow(clippy::too_many_arguments)]
+fn backward_step(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    opts: &DiagnoseOptions,
+    round: usize,
+    alpha: f64,
+    spec: &mut ModelSpec,
+    cur_train: &mut lm::LmReport,
+    effects: &mut Vec<Finding>,
+    tests: &mut Vec<CandidateTest>,
+    notes: &mut Vec<String>,
+    dropped: &mut Vec<Effect>,
+) {
+    let prep = ctx.prep;
+    let has_t = &b.has_t;
+    // Backward step: each earlier-named effect is tested for removal (see
+    // [`Ctx::removal_test`]); of those the test cannot keep at `alpha`, the one with the
+    // largest p-value is dropped, and the rest are tested again on the smaller model.
+    while opts.backward && spec.effects.len() >= 2 {
+        let last = *spec.effects.last().expect("named");
+        let mut results = vec![];
+        for e in spec.effects.clone().into_iter().filter(|&e| e != last) {
+            if let Some((red, red_fit, test)) = ctx.removal_test(e, spec, cur_train, opts) {
+                results.push((e, red, red_fit, test));
+            }
+        }
+        let p = |t: &Option<HeldoutTest>| t.map_or(0.0, |t| t.p_value);
+        let worst =
+            results.iter().enumerate().filter(|(_, r)| p(&r.3) >= alpha).max_by(|a, b| p(&a.1 .3).total_cmp(&p(&b.1 .3))).map(|(i, _)| i);
+        let record = |e: Effect, test: Option<HeldoutTest>, decision: Decision, effects: &[Finding]| {
+            let f = effects.iter().find(|f| f.effect == e).expect("named");
+            CandidateTest { round, effect: e, test, alpha, decision, values: f.values.clone(), sigmas: f.sigmas.clone() }
+        };
+        let Some(wi) = worst else {
+            // Every earlier effect is still needed.
+            for (e, _, _, test) in &results {
+                tests.push(record(*e, *test, Decision::Kept, effects));
+            }
+            break;
+        };
+        let (e, red, red_fit, test) = results.swap_remove(wi);
+        tests.push(record(e, test, Decision::Dropped, effects));
+        let named_in = tests.iter().find(|t| t.effect == e && t.decision == Decision::Named).map_or(0, |t| t.round);
+        let words = format!(
+            "{} (named in round {named_in}) was dropped in round {round} once {} was named: the model without it predicts the held-out data as well ({}; not significant at alpha {alpha:.1e})",
+            e.name(),
+            last.name(),
+            test.map_or("no test".into(), |t| t.to_string())
+        );
+        effects.retain(|f| f.effect != e);
+        let pp = play_prep(prep, &red, &red_fit.x, opts.encoder_sigma_m);
+        let rctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
+        if let Some(f) = effects.iter_mut().find(|f| f.effect == last) {
+            let v = rctx.values(last, &red, &red_fit, has_t, &ctx.train);
+            (f.values, f.sigmas) = (v.vals, v.sigs);
+            f.rms_after_m = rms_of(prep, &red, &ctx.train, &red_fit.x);
+            f.heldout_rms_after_m = rms_of(prep, &red, &ctx.heldout, &red_fit.x);
+            f.evidence.push_str(&format!("; {words}"));
+        }
+        notes.push(words);
+        dropped.push(e);
+        *spec = red;
+        *cur_train = red_fit;
+    }
+}
+
+/// The named effects' final values (end of step 4): the training fit the figures come from and
+/// the fit on every sample.
+fn final_estimates(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    named: &Named,
+    opts: &DiagnoseOptions,
+    effects: &mut [Finding],
+) -> (lm::LmReport, lm::LmReport) {
+    let prep = ctx.prep;
+    let n = prep.n;
+    let all_rows: Vec<usize> = (0..prep.t.len()).collect();
+    let (has_t, usable_before_play) = (&b.has_t, &b.usable_before_play);
+    let (spec, cur_train, last_round) = (&named.spec, &named.cur_train, &named.last_round);
     // The named effects' values from the final model (each one fitted jointly with every other
     // named effect), and the mimicking pairs fitted jointly.
     //
@@ -1776,9 +1908,9 @@ pub fn diagnose(
     // floor, `diagnose_concealed`); with a time offset as well the selection's clear-push fit, as
     // since session 16.
     let refit = (spec.effects.contains(&Effect::Backlash) && spec.offset(Effect::TimeOffset, n).is_none())
-        .then(|| ctx.fit(&spec, &ctx.train, &cur_train.x, opts.max_iterations))
+        .then(|| ctx.fit(spec, &ctx.train, &cur_train.x, opts.max_iterations))
         .filter(|r| r.x.iter().all(|v| v.is_finite()));
-    let final_train = refit.as_ref().unwrap_or(&cur_train);
+    let final_train = refit.unwrap_or_else(|| cur_train.clone());
     let final_all = if spec.effects.contains(&Effect::Backlash) {
         // The rows that keep a weight: not held since a push while loose (in encoder time with
         // a time offset, whose excluded rows stay readings for the encoder's interpolation:
@@ -1786,44 +1918,61 @@ pub fn diagnose(
         // (`fit::clear_push_rows`: a hold's level is the input's extreme, which a mistaken push
         // end misses on one side).
         let prep_w = match spec.offset(Effect::TimeOffset, n).map(|o| cur_train.x[o]) {
-            Some(d) => encoder_time_prep(&prep, &usable_before_play, d, opts.encoder_sigma_m),
+            Some(d) => encoder_time_prep(prep, usable_before_play, d, opts.encoder_sigma_m),
             // Without a time offset the holds stay, weighted (see `play_prep`).
             None => {
                 Prepared { hold_weight: prep.play.hold_weights(&prep.usable, opts.tracker_sigma_m, opts.encoder_sigma_m), ..prep.clone() }
             }
         };
         let wctx = Ctx { prep: &prep_w, ..ctx.clone() };
-        let cur_w = wctx.fit(&spec, &wctx.train, &cur_train.x, opts.max_iterations);
+        let cur_w = wctx.fit(spec, &wctx.train, &cur_train.x, opts.max_iterations);
         // Every named effect's values from the weighted fit (none reused from the unweighted one).
         let keep: Vec<(Vec<f64>, Vec<f64>)> = effects.iter().map(|f| (f.values.clone(), f.sigmas.clone())).collect();
         if let Some(f) = effects.iter_mut().find(|f| spec.effects.last() == Some(&f.effect)) {
-            let v = wctx.values(f.effect, &spec, &cur_w, &has_t, &wctx.train);
+            let v = wctx.values(f.effect, spec, &cur_w, has_t, &wctx.train);
             (f.values, f.sigmas) = (v.vals, v.sigs);
         }
         if cur_w.x.iter().all(|v| v.is_finite()) {
-            wctx.joint_fits(&mut effects, &spec, &cur_w, &has_t, opts, &[]);
-            wctx.fit(&spec, &all_rows, &cur_w.x, opts.max_iterations)
+            wctx.joint_fits(effects, spec, &cur_w, has_t, opts, &[]);
+            wctx.fit(spec, &all_rows, &cur_w.x, opts.max_iterations)
         } else {
             for (f, (v, s)) in effects.iter_mut().zip(keep) {
                 (f.values, f.sigmas) = (v, s);
             }
-            ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
-            ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations)
+            ctx.joint_fits(effects, spec, cur_train, has_t, opts, last_round);
+            ctx.fit(spec, &all_rows, &cur_train.x, opts.max_iterations)
         }
     } else {
-        ctx.joint_fits(&mut effects, &spec, &cur_train, &has_t, opts, &last_round);
-        ctx.fit(&spec, &all_rows, &cur_train.x, opts.max_iterations)
+        ctx.joint_fits(effects, spec, cur_train, has_t, opts, last_round);
+        ctx.fit(spec, &all_rows, &cur_train.x, opts.max_iterations)
     };
-    let final_fit = ctx.summary(&spec, final_train, &final_all);
-    let final_res = fit::residuals(&prep, &spec, &all_rows, &final_train.x);
+    (final_train, final_all)
+}
+
+/// Step 5, **show** the fit improve: the final model's residuals on every sample, and the
+/// structure no effect in the library explains (per cable, above twice the noise floor).
+fn leftover_structure(
+    ctx: &Ctx<'_>,
+    b: &Baseline,
+    spec: &ModelSpec,
+    final_train: &lm::LmReport,
+    final_fit: &FitSummary,
+    an_sub: &[usize],
+    dt: f64,
+) -> (Vec<Vec<f64>>, Option<String>) {
+    let prep = ctx.prep;
+    let n = prep.n;
+    let all_rows: Vec<usize> = (0..prep.t.len()).collect();
+    let (has_t, sigma) = (&b.has_t, b.sigma);
+    let final_res = fit::residuals(prep, spec, &all_rows, &final_train.x);
 
     // Structure left over.
     let fsub: Vec<Vec<f64>> = final_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
-    let after = analysis::analyse(&prep, &an_sub, &fsub, &final_fit.params.anchors, &has_t);
+    let after = analysis::analyse(prep, an_sub, &fsub, &final_fit.params.anchors, has_t);
     let expected = sigma;
     let mut unexplained_cables = vec![];
     for j in 0..n {
-        let floor = if masks.dt < 0.05 { after.per_cable_noise_m[j].max(0.5 * expected) } else { expected };
+        let floor = if dt < 0.05 { after.per_cable_noise_m[j].max(0.5 * expected) } else { expected };
         if after.per_cable_rms_m[j] > 2.0 * floor {
             unexplained_cables.push(j);
         }
@@ -1843,26 +1992,7 @@ pub fn diagnose(
         }
         Some(s)
     };
-    if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
-        notes.push("no effect beyond loose cables was found: the residual is noise".into());
-    }
-    Ok(Diagnosis {
-        cables: n,
-        samples: rec.len(),
-        used_tensions,
-        baseline,
-        mismatch,
-        effects,
-        final_fit,
-        unexplained,
-        data_problems,
-        rejected,
-        tests,
-        family_alpha: opts.family_alpha,
-        notes,
-        baseline_residuals: subsample_series(&prep, &all_rows, &base_res, 2000),
-        final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
-    })
+    (final_res, unexplained)
 }
 
 #[cfg(test)]

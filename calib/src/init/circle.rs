@@ -124,56 +124,76 @@ fn cost(points: &[[f64; 3]], c: &Circle3) -> f64 {
     points.iter().map(|p| residuals(*p, c).iter().map(|r| r * r).sum::<f64>()).sum()
 }
 
-/// Geometric refinement by Levenberg–Marquardt (6 parameters, normal equations in one pass).
-fn refine(points: &[[f64; 3]], start: Circle3) -> Circle3 {
-    let mut c = start;
-    let mut f = cost(points, &c);
-    let mut lambda = 1e-3;
-    for _ in 0..100 {
-        let (e1, e2) = plane_basis(c.normal);
-        let mut h = SMatrix::<f64, 6, 6>::zeros();
-        let mut g = SVector::<f64, 6>::zeros();
-        for p in points {
-            let r = residuals(*p, &c);
-            let j = jacobian(*p, &c, e1, e2);
-            for k in 0..2 {
-                let row = SVector::<f64, 6>::from(j[k]);
-                h += row * row.transpose();
-                g -= row * r[k];
-            }
-        }
-        let mut improved = false;
-        while lambda < 1e12 {
-            let mut a = h;
-            for k in 0..6 {
-                a[(k, k)] += lambda * h[(k, k)].max(1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let dx = ch.solve(&g);
-            let cand = step(&c, &std::array::from_fn(|k| dx[k]), e1, e2);
-            let fc = cost(points, &cand);
-            if fc < f {
-                let small = dx.norm() < 1e-12 * (1.0 + c.radius);
-                let rel = (f - fc) / f.max(f64::MIN_POSITIVE);
-                c = cand;
-                f = fc;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = true;
-                if small || rel < 1e-14 {
-                    return c;
-                }
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
+/// The geometric fit for [`crate::lm`]: the 6x6 normal equations at the current circle, in
+/// the plane basis of its normal.
+struct Geometric<'a> {
+    points: &'a [[f64; 3]],
+    /// `(H, -g, e1, e2)` at the current circle (`None`: not built since it changed).
+    normal: Option<Normal6>,
+}
+
+/// `(H, -g, e1, e2)` of the geometric fit.
+type Normal6 = (SMatrix<f64, 6, 6>, SVector<f64, 6>, [f64; 3], [f64; 3]);
+
+impl crate::lm::Problem for Geometric<'_> {
+    type X = Circle3;
+    /// `(dc, alpha, beta, dr)` and the plane basis `alpha`, `beta` refer to.
+    type Step = (SVector<f64, 6>, [f64; 3], [f64; 3]);
+
+    fn cost(&mut self, c: &Circle3) -> f64 {
+        cost(self.points, c)
     }
-    c
+
+    fn accepted(&mut self) {
+        self.normal = None;
+    }
+
+    fn step(&mut self, c: &Circle3, lambda: f64) -> Option<Self::Step> {
+        let points = self.points;
+        let (h, g, e1, e2) = *self.normal.get_or_insert_with(|| {
+            let (e1, e2) = plane_basis(c.normal);
+            let mut h = SMatrix::<f64, 6, 6>::zeros();
+            let mut g = SVector::<f64, 6>::zeros();
+            for p in points {
+                let r = residuals(*p, c);
+                let j = jacobian(*p, c, e1, e2);
+                for k in 0..2 {
+                    let row = SVector::<f64, 6>::from(j[k]);
+                    h += row * row.transpose();
+                    g -= row * r[k];
+                }
+            }
+            (h, g, e1, e2)
+        });
+        let mut a = h;
+        for k in 0..6 {
+            a[(k, k)] += lambda * h[(k, k)].max(1e-12);
+        }
+        Some((a.cholesky()?.solve(&g), e1, e2))
+    }
+
+    fn apply(&self, c: &Circle3, (dx, e1, e2): &Self::Step) -> Circle3 {
+        step(c, &std::array::from_fn(|k| dx[k]), *e1, *e2)
+    }
+
+    fn small_step(&self, c: &Circle3, s: &Self::Step) -> bool {
+        s.0.norm() < 1e-12 * (1.0 + c.radius)
+    }
+}
+
+/// Geometric refinement by Levenberg–Marquardt ([`crate::lm`]; 6 parameters, normal equations
+/// in one pass; at most 100 accepted steps, each retried until `lambda` reaches 1e12).
+fn refine(points: &[[f64; 3]], start: Circle3) -> Circle3 {
+    use crate::lm::{CostTest, Count, Damping, Policy};
+    let policy = Policy {
+        damping: Damping::Factors { down: 10.0, up: 10.0, singular: 10.0 },
+        // Stop once lambda >= 1e12.
+        max_lambda: f64::from_bits(1e12f64.to_bits() - 1),
+        count: Count::Steps { max_tries: usize::MAX },
+        cost_test: CostTest::Relative(1e-14),
+        ..Policy::factors(1e-3, 10.0, 100)
+    };
+    crate::lm::minimize(&mut Geometric { points, normal: None }, start, &policy).x
 }
 
 #[cfg(test)]

@@ -63,6 +63,53 @@ impl fmt::Display for RestError {
 
 impl std::error::Error for RestError {}
 
+/// The force balance for [`crate::lm`]: cost `|F(P)|`, Gauss–Newton on `F`, steps at most
+/// 0.3 m and the platform kept below the anchors.
+struct Balance<B> {
+    balance: B,
+    /// Highest platform position, m.
+    z_max: f64,
+    /// `(F, dF/dP)` at the current point and at the last point evaluated.
+    cur: (Vector3<f64>, Matrix3<f64>),
+    trial: (Vector3<f64>, Matrix3<f64>),
+}
+
+impl<B: Fn(&Vector3<f64>) -> (Vector3<f64>, Matrix3<f64>)> crate::lm::Problem for Balance<B> {
+    type X = Vector3<f64>;
+    /// The Gauss–Newton step and its length before the bound.
+    type Step = (Vector3<f64>, f64);
+
+    fn cost(&mut self, p: &Vector3<f64>) -> f64 {
+        self.trial = (self.balance)(p);
+        self.trial.0.norm()
+    }
+
+    fn accepted(&mut self) {
+        self.cur = self.trial;
+    }
+
+    fn step(&mut self, _p: &Vector3<f64>, lambda: f64) -> Option<Self::Step> {
+        let (f, jac) = self.cur;
+        let h = jac.transpose() * jac;
+        let mut hd = h;
+        for a in 0..3 {
+            hd[(a, a)] += lambda * h[(a, a)].max(1e-9);
+        }
+        let step = hd.lu().solve(&(-(jac.transpose() * f)))?;
+        Some((step, step.norm()))
+    }
+
+    fn apply(&self, p: &Vector3<f64>, &(step, len): &Self::Step) -> Vector3<f64> {
+        let mut q = p + if len > 0.3 { step * (0.3 / len) } else { step };
+        q[2] = q[2].min(self.z_max);
+        q
+    }
+
+    fn small_step(&self, _p: &Vector3<f64>, s: &Self::Step) -> bool {
+        s.1 < 1e-9
+    }
+}
+
 /// The rest estimate from the longest still stretch of `rec` (tracker columns unused).
 pub fn rest_estimate(
     rec: &Recording,
@@ -101,35 +148,11 @@ pub fn rest_estimate(
         (f, jac)
     };
     // Damped Newton on the 3x3 balance (least squares when there are more cables).
-    let mut p = centre;
-    let mut lambda = 1e-3;
-    let (mut f, mut jac) = balance(&p);
-    for _ in 0..200 {
-        let h = jac.transpose() * jac;
-        let mut hd = h;
-        for a in 0..3 {
-            hd[(a, a)] += lambda * h[(a, a)].max(1e-9);
-        }
-        let Some(step) = hd.lu().solve(&(-(jac.transpose() * f))) else { break };
-        let len = step.norm();
-        let mut q = p + if len > 0.3 { step * (0.3 / len) } else { step };
-        q[2] = q[2].min(z_top - 0.05);
-        let (f2, j2) = balance(&q);
-        if f2.norm() < f.norm() {
-            p = q;
-            f = f2;
-            jac = j2;
-            lambda = (lambda / 3.0).max(1e-9);
-            if len < 1e-9 {
-                break;
-            }
-        } else {
-            lambda *= 4.0;
-            if lambda > 1e9 {
-                break;
-            }
-        }
-    }
+    let policy =
+        crate::lm::Policy { min_lambda: 1e-9, max_lambda: 1e9, singular_stops: true, ..crate::lm::Policy::factors(1e-3, 4.0, 200) };
+    let mut problem = Balance { balance, z_max: z_top - 0.05, cur: Default::default(), trial: Default::default() };
+    let r = crate::lm::minimize(&mut problem, centre, &policy);
+    let (p, f) = (r.x, problem.cur.0);
     // A balance within a few load-cell offsets: 2 N per cable.
     let residual_n = f.norm();
     if residual_n.is_nan() || residual_n > 2.0 * n as f64 || !p.iter().all(|v| v.is_finite()) {

@@ -401,27 +401,37 @@ pub struct SolveReport {
     pub converged: bool,
 }
 
-/// Levenberg–Marquardt on the whole problem from `s` (whitening fixed).
-pub fn lm(pr: &Problem<'_>, s: &mut State, w: &Whitening, max_iter: usize) -> SolveReport {
-    let (mut cost, rows) = pr.cost(s, w);
-    let mut lambda = 1e-4;
-    let mut it = 0;
-    let mut converged = false;
-    let mut nm = normal(pr, s, w);
-    while it < max_iter {
-        it += 1;
-        let Some((sm, rhs, invs)) = reduce(&nm, lambda) else {
-            lambda *= 10.0;
-            continue;
-        };
-        let e = &pr.d - &pr.c * &s.g;
-        let Some(dg) = bordered(&sm, &pr.c, &rhs, &e) else {
-            lambda *= 10.0;
-            if lambda > 1e12 {
-                break;
-            }
-            continue;
-        };
+/// The self-calibration for [`crate::lm`]: the cost alone at a trial point, the block-arrow
+/// normal equations at the current point when a step needs them.
+struct Selfcal<'p, 'a> {
+    pr: &'p Problem<'a>,
+    w: &'p Whitening,
+    /// The normal equations at the current point (`None`: not built since it changed).
+    nm: Option<Normal>,
+    /// Rows of the problem (the same at every point).
+    rows: usize,
+}
+
+impl crate::lm::Problem for Selfcal<'_, '_> {
+    type X = State;
+    /// The trial state (the pose updates need the eliminated blocks, so the step builds it).
+    type Step = State;
+
+    fn cost(&mut self, s: &State) -> f64 {
+        let (c, rows) = self.pr.cost(s, self.w);
+        self.rows = rows;
+        c
+    }
+
+    fn accepted(&mut self) {
+        self.nm = None;
+    }
+
+    fn step(&mut self, s: &State, lambda: f64) -> Option<State> {
+        let nm = self.nm.get_or_insert_with(|| normal(self.pr, s, self.w));
+        let (sm, rhs, invs) = reduce(nm, lambda)?;
+        let e = &self.pr.d - &self.pr.c * &s.g;
+        let dg = bordered(&sm, &self.pr.c, &rhs, &e)?;
         let mut trial = State { g: &s.g + &dg, p: s.p.clone() };
         for k in 0..trial.p.len() {
             let dp = invs[k] * (nm.bp[k] - &nm.hpg[k] * &dg);
@@ -429,28 +439,30 @@ pub fn lm(pr: &Problem<'_>, s: &mut State, w: &Whitening, max_iter: usize) -> So
                 trial.p[k][a] += dp[a];
             }
         }
-        let (c_new, _) = pr.cost(&trial, w);
-        if c_new.is_finite() && c_new <= cost {
-            let drop = cost - c_new;
-            *s = trial;
-            cost = c_new;
-            lambda = (lambda / 3.0).max(1e-12);
-            // A chi-square change of 1e-4 moves the parameters by ~1e-2 sigma: converged.
-            if drop < 1e-4 {
-                converged = true;
-                break;
-            }
-            nm = normal(pr, s, w);
-        } else {
-            lambda *= 4.0;
-            if lambda > 1e12 {
-                // No step decreases the cost: at the minimum to round-off.
-                converged = true;
-                break;
-            }
-        }
+        Some(trial)
     }
-    SolveReport { iterations: it, chi2: cost, rows, converged }
+
+    fn apply(&self, _s: &State, trial: &State) -> State {
+        trial.clone()
+    }
+}
+
+/// Levenberg–Marquardt ([`crate::lm`]) on the whole problem from `s` (whitening fixed). A
+/// chi-square change of 1e-4 moves the parameters by ~1e-2 sigma: converged; so is a point
+/// where no damping finds a lower cost (the minimum to round-off).
+pub fn lm(pr: &Problem<'_>, s: &mut State, w: &Whitening, max_iter: usize) -> SolveReport {
+    use crate::lm::{CostTest, Policy, Stop};
+    let policy =
+        Policy { max_lambda: 1e12, accept_ties: true, cost_test: CostTest::Absolute(1e-4), ..Policy::factors(1e-4, 4.0, max_iter) };
+    let mut p = Selfcal { pr, w, nm: None, rows: 0 };
+    let r = crate::lm::minimize(&mut p, s.clone(), &policy);
+    *s = r.x;
+    SolveReport {
+        iterations: r.iterations,
+        chi2: r.cost,
+        rows: p.rows,
+        converged: matches!(r.stop, Stop::SmallCostChange | Stop::NoDecrease),
+    }
 }
 
 /// The Fisher information on the globals with the poses eliminated (the Schur complement

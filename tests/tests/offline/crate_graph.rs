@@ -416,7 +416,6 @@ const ITEM_REEXPORTS: &[(&str, &str, &str)] = &[
     ("calib/src/design.rs", "taut_model::tour::segment_time", "the excitation design's result, run by the loop"),
     ("calib/src/design.rs", "taut_model::tour::Tour", "the excitation design's result, run by the loop"),
     ("calib/src/design.rs", "taut_model::tour::MAX_WAYPOINTS", "the excitation design's result, run by the loop"),
-    ("calib/src/diagnose/effects.rs", "taut_model::pulley_length", "the effect diagnosis's pulley formula is the model's"),
     ("config/src/geometry.rs", "taut_model::MAX_CABLES", "the configuration's bound is the loop's one number"),
     ("config/src/params.rs", "taut_model::geometry::Geometry", "the parameter file converts to the shared geometry"),
     ("config/src/params.rs", "taut_model::geometry::Sigmas", "the parameter file converts to the shared geometry"),

@@ -4,7 +4,7 @@
 //! ```text
 //! minimise  F(x) = sum_i r_i(x)^2           r_i already divided by the noise sigma
 //! step      (J^T J + lambda diag(J^T J)) dx = -J^T r          (paper eq. 5)
-//! accept    when F(x + dx) < F(x): lambda /= 3, else lambda *= 4 and retry
+//! accept    when F(x + dx) < F(x): lambda /= 3, else lambda *= 4 and retry   (crate::lm)
 //! covariance  Cov = s^2 (J^T J)^-1,  s^2 = F / (m - p)        (reduced chi-square)
 //! ```
 //!
@@ -118,81 +118,97 @@ fn normal_equations(p: &dyn LeastSquares, x: &[f64]) -> (DMatrix<f64>, DVector<f
     (jtj, jtr, cost, m)
 }
 
-/// Minimises the problem from `x0`.
+/// A [`LeastSquares`] problem for [`crate::lm`]: the trial point's normal equations are built
+/// with its cost (an accepted step, most are, needs them next, so the model is evaluated once
+/// per accepted step instead of twice).
+struct Dense<'a> {
+    p: &'a dyn LeastSquares,
+    /// `(J^T J, J^T r, cost, m)` at the current point.
+    cur: (DMatrix<f64>, DVector<f64>, f64, usize),
+    /// The same at the last point evaluated.
+    trial: Option<(DMatrix<f64>, DVector<f64>, f64, usize)>,
+}
+
+impl crate::lm::Problem for Dense<'_> {
+    type X = Vec<f64>;
+    /// The step and its relative length `sqrt(sum (dx_k / (|x_k| + 1e-6))^2)`.
+    type Step = (DVector<f64>, f64);
+
+    fn cost(&mut self, x: &Vec<f64>) -> f64 {
+        let t = normal_equations(self.p, x);
+        let c = t.2;
+        self.trial = Some(t);
+        c
+    }
+
+    fn accepted(&mut self) {
+        if let Some(t) = self.trial.take() {
+            self.cur = t;
+        }
+    }
+
+    fn step(&mut self, x: &Vec<f64>, lambda: f64) -> Option<(DVector<f64>, f64)> {
+        let jtj = &self.cur.0;
+        let mut a = jtj.clone();
+        for k in 0..a.nrows() {
+            // A floor on the diagonal keeps parameters that nothing constrains (a dead load
+            // cell's elasticity) from making the system singular.
+            let dk = jtj[(k, k)].max(1e-12);
+            a[(k, k)] += lambda * dk;
+            if jtj[(k, k)] == 0.0 {
+                a[(k, k)] = 1.0;
+            }
+        }
+        let dx = a.cholesky()?.solve(&(-&self.cur.1));
+        let step: f64 = dx.iter().zip(x).map(|(d, v)| (d / (v.abs() + 1e-6)).powi(2)).sum::<f64>().sqrt();
+        Some((dx, step))
+    }
+
+    fn apply(&self, x: &Vec<f64>, s: &(DVector<f64>, f64)) -> Vec<f64> {
+        let mut xn: Vec<f64> = x.iter().zip(s.0.iter()).map(|(a, b)| a + b).collect();
+        self.p.project(&mut xn);
+        xn
+    }
+
+    fn small_step(&self, _x: &Vec<f64>, s: &(DVector<f64>, f64)) -> bool {
+        s.1 < 1e-12
+    }
+}
+
+/// Minimises the problem from `x0` ([`crate::lm::minimize`]: damping `lambda` / 3 on success,
+/// `* 4` on failure, 25 retries per step).
 pub fn minimize(p: &dyn LeastSquares, x0: &[f64], opts: LmOptions) -> LmReport {
+    use crate::lm::{CostTest, Count, Policy, Stop};
     let n = p.n_params();
     let mut x = x0.to_vec();
     p.project(&mut x);
-    let (mut jtj, mut jtr, mut cost, mut m) = normal_equations(p, &x);
-    if !cost.is_finite() {
-        return LmReport { x, cost, m, iterations: 0, termination: Termination::NotFinite, inv_normal: None };
+    let policy = Policy {
+        count: Count::Steps { max_tries: 25 },
+        cost_test: CostTest::Relative(opts.cost_tolerance),
+        ..Policy::factors(1e-3, 4.0, opts.max_iterations)
+    };
+    let mut dense = Dense { p, cur: (DMatrix::zeros(n, n), DVector::zeros(n), 0.0, 0), trial: None };
+    let r = crate::lm::minimize(&mut dense, x, &policy);
+    let termination = match r.stop {
+        Stop::NotFinite => Termination::NotFinite,
+        Stop::SmallCostChange | Stop::SmallGradient => Termination::Converged,
+        Stop::SmallStep => Termination::SmallStep,
+        Stop::MaxIterations => Termination::MaxIterations,
+        Stop::NoDecrease if r.iterations > 1 => Termination::Converged,
+        Stop::NoDecrease | Stop::Singular => Termination::Stalled,
+    };
+    let (jtj, _, cost, m) = dense.cur;
+    if termination == Termination::NotFinite {
+        return LmReport { x: r.x, cost, m, iterations: 0, termination, inv_normal: None };
     }
-    let mut lambda = 1e-3;
-    let mut termination = Termination::MaxIterations;
-    let mut it = 0;
-    'outer: while it < opts.max_iterations {
-        it += 1;
-        let mut tries = 0;
-        loop {
-            let mut a = jtj.clone();
-            for k in 0..n {
-                // A floor on the diagonal keeps parameters that nothing constrains (a dead load
-                // cell's elasticity) from making the system singular.
-                let dk = jtj[(k, k)].max(1e-12);
-                a[(k, k)] += lambda * dk;
-                if jtj[(k, k)] == 0.0 {
-                    a[(k, k)] = 1.0;
-                }
-            }
-            let Some(ch) = a.cholesky() else {
-                lambda *= 10.0;
-                tries += 1;
-                if tries > 30 {
-                    termination = Termination::Stalled;
-                    break 'outer;
-                }
-                continue;
-            };
-            let dx = ch.solve(&(-&jtr));
-            let mut xn: Vec<f64> = x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
-            p.project(&mut xn);
-            // The trial point's normal equations at once: their cost is the same sum of r^2 in
-            // the same order as a cost-only pass, and an accepted step (most are) needs them
-            // next, so the model is evaluated once per accepted step instead of twice.
-            let trial = normal_equations(p, &xn);
-            let cn = trial.2;
-            if cn.is_finite() && cn < cost {
-                let rel = (cost - cn) / cost.max(1e-300);
-                let step: f64 = dx.iter().zip(&x).map(|(d, v)| (d / (v.abs() + 1e-6)).powi(2)).sum::<f64>().sqrt();
-                x = xn;
-                (jtj, jtr, cost, m) = trial;
-                lambda = (lambda / 3.0).max(1e-12);
-                if rel < opts.cost_tolerance {
-                    termination = Termination::Converged;
-                    break 'outer;
-                }
-                if step < 1e-12 {
-                    termination = Termination::SmallStep;
-                    break 'outer;
-                }
-                break;
-            }
-            lambda *= 4.0;
-            tries += 1;
-            if tries > 25 {
-                termination = if it > 1 { Termination::Converged } else { Termination::Stalled };
-                break 'outer;
-            }
-        }
-    }
-    let mut a = jtj.clone();
+    let mut a = jtj;
     for k in 0..n {
         if a[(k, k)] == 0.0 {
             a[(k, k)] = 1.0;
         }
     }
     let inv_normal = a.try_inverse();
-    LmReport { x, cost, m, iterations: it, termination, inv_normal }
+    LmReport { x: r.x, cost, m, iterations: r.iterations, termination, inv_normal }
 }
 
 #[cfg(test)]

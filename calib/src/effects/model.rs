@@ -1,11 +1,12 @@
 //! The joint model: anchors, encoder offsets and the parameters of the active effects, fitted
-//! together by [`super::lm`].
+//! together by [`crate::lm::dense`].
 //!
 //! Parameter layout: `[A_0 (3), L0_0, A_1, L0_1, .., A_{n-1}, L0_{n-1}]`, then for each active
 //! effect in [`ModelSpec::effects`] order either one parameter per cable or one shared.
 
-use super::effects::{pulley_length, sag_excess, Effect, Sharing, TensionEnd};
-use super::lm::{self, LeastSquares, LmOptions, LmReport};
+use super::{Effect, Path, Sharing, TensionEnd, Unstretched};
+use crate::lm::dense::{self as lm, LeastSquares, LmOptions, LmReport};
+use taut_config::recording::Recording;
 
 /// A recording prepared for fitting: per-cable columns, derived quantities and masks.
 #[derive(Debug, Clone)]
@@ -44,6 +45,126 @@ pub struct Prepared {
     /// The sensors' noise for errors-in-variables weights ([`Eiv`]); `None`: every reading
     /// weighs the same (times its hold weight).
     pub eiv: Option<Eiv>,
+}
+
+/// Which rows and readings of a recording a fit may use ([`prepare`]).
+#[derive(Debug, Clone)]
+pub struct Selection<'a> {
+    /// Rows of the recording kept (a pose, no data problem), in time order.
+    pub rows: Vec<usize>,
+    /// Continuous stretch of time of every row of the recording (a clock jump or a dropout
+    /// starts a new one).
+    pub segment: &'a [u32],
+    /// Per cable and row of the recording: the reading is no data problem (`None`: all are).
+    pub cable_ok: Option<&'a [Vec<bool>]>,
+    /// Per cable: its load cell is dead and its tensions are ignored (`None`: none is).
+    pub dead_loadcell: Option<&'a [bool]>,
+}
+
+/// The recording as the effect models read it: per cable the attachment points
+/// `X = P + R b_j`, readings and tensions of the rows `sel` keeps, which readings are usable
+/// and which loose (`T < min_tension_n`; with `needs_tension` a reading without a tension is
+/// not usable), the segments, and the play pattern of the readings ([`PlayState::of_readings`]).
+/// The diagnosis adds velocities, held-out blocks and its errors-in-variables weights; the
+/// running robot's effect fit ([`crate::effect_fit`]) its play exclusions.
+pub fn prepare(
+    rec: &Recording,
+    platform: &[[f64; 3]],
+    sel: &Selection<'_>,
+    min_tension_n: f64,
+    needs_tension: bool,
+    encoder_sigma_m: f64,
+) -> Prepared {
+    let n = rec.n_cables;
+    let rows = &sel.rows;
+    let m = rows.len();
+    let mut prep = Prepared {
+        n,
+        t: rows.iter().map(|&i| rec.t[i]).collect(),
+        rows: rows.clone(),
+        x: vec![Vec::with_capacity(m); n],
+        l: vec![Vec::with_capacity(m); n],
+        f: vec![Vec::with_capacity(m); n],
+        vel: vec![vec![0.0; m]; n],
+        dir: vec![vec![0.0; m]; n],
+        play: PlayState::default(),
+        usable: vec![Vec::with_capacity(m); n],
+        loose: vec![Vec::with_capacity(m); n],
+        segment: rows.iter().map(|&i| sel.segment[i]).collect(),
+        heldout: vec![false; m],
+        hold_weight: vec![],
+        eiv: None,
+    };
+    for &i in rows {
+        let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
+        let p = rec.p[i];
+        let f = rec.tensions(i);
+        for j in 0..n {
+            let b = platform[j];
+            let rb = match &r {
+                Some(r) => std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2]),
+                None => b,
+            };
+            let x = [p[0] + rb[0], p[1] + rb[1], p[2] + rb[2]];
+            let l = rec.lengths(i)[j];
+            let t = match f {
+                Some(f) if !sel.dead_loadcell.is_some_and(|d| d[j]) => f[j],
+                _ => f64::NAN,
+            };
+            let loose = t.is_finite() && t < min_tension_n;
+            let ok = sel.cable_ok.is_none_or(|c| c[j][i])
+                && l.is_finite()
+                && x.iter().all(|v| v.is_finite())
+                && (t.is_finite() || !needs_tension);
+            prep.x[j].push(x);
+            prep.l[j].push(l);
+            prep.f[j].push(t);
+            prep.usable[j].push(ok && !loose);
+            prep.loose[j].push(ok && loose);
+        }
+    }
+    prep.play = PlayState::of_readings(&prep.l, encoder_sigma_m);
+    prep
+}
+
+/// Weight 1 on the `usable` rows of `prep` that read clear pushes at the time offset `delta`
+/// (`None`: the model has none; steps beyond 3 sigmas of an encoder difference: [`clear_push_rows`]), 0 elsewhere.
+pub fn clear_push_weights(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, encoder_sigma_m: f64) -> Vec<Vec<f64>> {
+    let clear = clear_push_rows(prep, usable, delta, 3.0 * std::f64::consts::SQRT_2 * encoder_sigma_m);
+    clear.iter().map(|c| c.iter().map(|ok| if *ok { 1.0 } else { 0.0 }).collect()).collect()
+}
+
+/// Leaves out of the fit the readings held since a push while the cable was loose
+/// ([`PlayState::exclude_unseen_pushes`]: the play's level is unknown there) and keeps them
+/// readings, as a loose cable's are ([`Prepared::loose`]): the encoder's interpolation under a
+/// time offset reads them ([`Joint::predict`]; taken for data problems, the rows beside them
+/// fell back to one encoder sample, millimetres off at speed). Returns the usable mask before
+/// the exclusion, which a fit with a time offset and a play redoes in encoder time
+/// ([`encoder_time_prep`]). Shared by the diagnosis and the running robot's effect fit
+/// ([`crate::effect_fit`]).
+pub fn exclude_unseen_pushes(prep: &mut Prepared) -> Vec<Vec<bool>> {
+    let before = prep.usable.clone();
+    prep.play.exclude_unseen_pushes(&mut prep.usable);
+    for ((loose, now), was) in prep.loose.iter_mut().zip(&prep.usable).zip(&before) {
+        for ((l, now), was) in loose.iter_mut().zip(now).zip(was) {
+            *l |= *was && !*now;
+        }
+    }
+    before
+}
+
+/// `prep` for a fit of a model with a play and a time offset `delta`, in encoder time: every
+/// row of `usable_before_play` (the mask before [`exclude_unseen_pushes`]) stays a reading, and
+/// weight 1 goes to the rows that are not held since a push while loose in encoder time
+/// ([`encoder_time_exclusion`]) and read clear pushes ([`clear_push_weights`]), 0 to the
+/// others (a hold's level is the input's extreme, which a mistaken push end misses on one side).
+/// The diagnosis's final estimates and the running robot's effect fit ([`crate::effect_fit`])
+/// both fit on it.
+pub fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delta: f64, encoder_sigma_m: f64) -> Prepared {
+    let kept = encoder_time_exclusion(prep, usable_before_play, delta);
+    let mut p = Prepared { usable: usable_before_play.to_vec(), ..prep.clone() };
+    p.hold_weight = clear_push_weights(&p, &kept, Some(delta), encoder_sigma_m);
+    p
 }
 
 /// Errors-in-variables weights: the noise of the inputs a prediction is made from enters the
@@ -298,76 +419,42 @@ impl<'a> Joint<'a> {
         };
         let has_t = tension.is_finite();
         let delta = get(Effect::TimeOffset);
-        // Geometry: straight or over the pulley.
-        let mut g;
-        let mut gx; // dG/dX
+        // Path: straight or over the pulley, plus the sag's excess.
         let mut dg_dr = None;
-        let straight = || {
-            let d = [xp[0] - anchor[0], xp[1] - anchor[1], xp[2] - anchor[2]];
-            let rho = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            (rho, [d[0] / rho, d[1] / rho, d[2] / rho])
-        };
-        match get(Effect::Pulley).and_then(|(k, r)| pulley_length(xp, anchor, r).map(|v| (k, v))) {
-            Some((k, (len, d))) => {
-                g = len;
-                gx = [d[0], d[1], d[2]];
-                dg_dr = Some((k, d[3]));
-            }
-            None => {
-                (g, gx) = straight();
-                if let Some((k, _)) = get(Effect::Pulley) {
-                    dg_dr = Some((k, 0.0));
+        let mut path = match get(Effect::Pulley) {
+            Some((k, r)) => match super::pulley::path(xp, anchor, r) {
+                Some((path, dr)) => {
+                    dg_dr = Some((k, dr));
+                    path
                 }
-            }
-        }
-        let mut dg_dw = None;
-        // d G / d T and d^2 G / dT dw (sag only; see `Eiv`).
-        let (mut g_t, mut g_tw) = (0.0, 0.0);
+                None => {
+                    dg_dr = Some((k, 0.0));
+                    Path::straight(xp, anchor)
+                }
+            },
+            None => Path::straight(xp, anchor),
+        };
+        let dg_dw = get(Effect::Sag).map(|(k, w)| (k, super::sag::add_excess(&mut path, xp, anchor, w, tension, spec.tension_end)));
         // d(dG/dT)/dX of the sag is left out of the weight's derivative: it moves ln w by a few
         // thousandths per metre (the elasticity's share, through G, is kept).
         let g_tx = [0.0; 3];
-        if let Some((k, w)) = get(Effect::Sag) {
-            let mut dw = 0.0;
-            if has_t && w > 0.0 {
-                if let Some((e, d)) = sag_excess(xp, anchor, w, tension, spec.tension_end) {
-                    g += e;
-                    gx = [gx[0] + d[0], gx[1] + d[1], gx[2] + d[2]];
-                    dw = d[3];
-                    g_t = d[4];
-                    // The excess grows about as w^2 (a function of w / T): d(dG/dT)/dw = 2 g_t / w.
-                    g_tw = 2.0 * d[4] / w;
-                }
-            }
-            dg_dw = Some((k, dw));
-        }
+        let (gx, g_t) = (path.gx, path.g_t);
         // Elasticity: the encoder sees the unstretched length G / (1 + c T).
-        let mut u = g;
-        let mut du_dg = 1.0;
+        let mut un = Unstretched::rigid(&path, g_tx);
         let mut du_dc = None;
-        // d u / d T and its derivatives by the compliance and the sag weight.
-        let (mut u_t, mut u_tc, mut u_tw) = (g_t, 0.0, g_tw);
-        // d u_T / d G and the sag's d u_T / d X (the anchors and the shifted pose move both).
-        let (mut u_tg, mut u_tx) = (0.0, g_tx);
         let mut c_index = None;
         if let Some((k, c)) = get(Effect::Elasticity) {
             if has_t {
-                let q = 1.0 + c * tension;
-                u = taut_model::unstretched(g, c, tension);
-                du_dg = 1.0 / q;
-                du_dc = Some((k, -g * tension / (q * q)));
-                // u = G / (1 + c T): du/dT = G_T / q - G c / q^2.
-                u_t = g_t / q - g * c / (q * q);
-                u_tc = -g_t * tension / (q * q) - g / (q * q) + 2.0 * g * c * tension / (q * q * q);
-                u_tw = g_tw / q;
-                u_tg = -c / (q * q);
-                u_tx = g_tx.map(|v| v / q);
+                un = super::stretch::unstretch(&path, g_tx, c, tension);
+                du_dc = Some((k, un.du_dc));
                 c_index = Some(k);
             } else {
                 du_dc = Some((k, 0.0));
             }
         }
+        let Unstretched { u, du_dg, u_t, u_tc, u_tw, u_tg, u_tx, .. } = un;
         let (scale, dk) = match get(Effect::Scale) {
-            Some((k, s)) => (1.0 + s, Some((k, u))),
+            Some((k, s)) => (super::drum_scale::factor(s), Some((k, u))),
             None => (1.0, None),
         };
         let mut dg_t = [(0usize, 0.0f64); 7];
@@ -455,21 +542,12 @@ impl<'a> Joint<'a> {
     /// reading: the lookups were a sixth of a diagnosis's time).
     fn offsets(&self) -> Offsets {
         let n = self.prep.n;
-        let of = |e: Effect| self.spec.offset(e, n);
-        Offsets {
-            time_offset: of(Effect::TimeOffset),
-            pulley: of(Effect::Pulley),
-            sag: of(Effect::Sag),
-            elasticity: of(Effect::Elasticity),
-            scale: of(Effect::Scale),
-            backlash: of(Effect::Backlash),
-            slack: of(Effect::Slack),
-        }
+        Offsets(Effect::ALL.map(|e| self.spec.offset(e, n)))
     }
 
     fn predict_with(&self, x: &[f64], i: usize, j: usize, rep: Option<&Rep>, offs: &Offsets) -> Prediction {
-        let play = offs.backlash.map(|o| (o + j, x[o + j]));
-        let Some(ko) = offs.time_offset else {
+        let play = offs.of(Effect::Backlash).map(|o| (o + j, x[o + j]));
+        let Some(ko) = offs.of(Effect::TimeOffset) else {
             let Some((kw, w)) = play else {
                 return self.reading(x, i, j, rep, None, offs);
             };
@@ -540,7 +618,7 @@ impl<'a> Joint<'a> {
         delta: f64,
     ) -> Prediction {
         let pl = &self.prep.play;
-        let ko = offs.time_offset.expect("a time offset");
+        let ko = offs.of(Effect::TimeOffset).expect("a time offset");
         let pushed = |q: usize| pl.contact[j][q] as usize == q;
         let seg = self.prep.segment[i];
         let ok = |q: usize| self.prep.segment[q] == seg && self.enc_ok(q, j);
@@ -696,7 +774,7 @@ impl<'a> Joint<'a> {
         self.prep.l[j][i] - self.predict(x, i, j).value
     }
 
-    /// Residual of cable `j` at held-out sample `i` for the held-out test ([`super::select`]) of
+    /// Residual of cable `j` at held-out sample `i` for the held-out test ([`crate::diagnose::select`]) of
     /// this model against the current one, `cur` at `x_cur`: the test needs the candidate's change
     /// `r0 - r1` to be independent of the noise in the current model's residual `r0`.
     ///
@@ -745,17 +823,17 @@ impl<'a> Joint<'a> {
         let offs = self.offsets();
         let pl = &self.prep.play;
         let (mut poses, mut encs) = (vec![], vec![]);
-        match offs.time_offset.map(|o| x[o]) {
+        match offs.of(Effect::TimeOffset).map(|o| x[o]) {
             None => {
                 encs.push(i);
-                poses.push(if offs.backlash.is_some() { pl.contact[j][i] as usize } else { i });
+                poses.push(if offs.of(Effect::Backlash).is_some() { pl.contact[j][i] as usize } else { i });
             }
             Some(delta) => {
                 let (k, s, dt) = self.locate(i, self.prep.t[i] + delta);
                 let _ = s;
                 let k1 = if dt > 0.0 { k + 1 } else { k };
                 encs.extend([k, k1]);
-                if offs.backlash.is_none() {
+                if offs.of(Effect::Backlash).is_none() {
                     poses.push(i);
                 } else {
                     for q in [k, k1] {
@@ -886,7 +964,7 @@ pub fn correlation_lag(phi: f64, max: usize) -> usize {
 
 /// The tracker noise's lag-1 autocorrelation `phi` (AR(1), per sample, in [0, 0.995]) in the
 /// residuals of `spec` at `x` on `samples` (time order), for [`correlation_lag`] and the
-/// estimation error's long-run factor ([`super::esterr::EstimationError::new`]).
+/// estimation error's long-run factor ([`crate::diagnose::esterr::EstimationError::new`]).
 ///
 /// `phi` comes from the residuals' first differences, not the residuals: an effect the model
 /// leaves out is slow (or a step at each reversal, for a play) and would read as noise
@@ -954,28 +1032,13 @@ fn runs(v: &[usize]) -> Vec<(usize, usize)> {
     out
 }
 
-/// The first parameter of each active effect ([`ModelSpec::offset`]), `None` when inactive.
-struct Offsets {
-    time_offset: Option<usize>,
-    pulley: Option<usize>,
-    sag: Option<usize>,
-    elasticity: Option<usize>,
-    scale: Option<usize>,
-    backlash: Option<usize>,
-    slack: Option<usize>,
-}
+/// The first parameter of each active effect ([`ModelSpec::offset`]), `None` when inactive,
+/// indexed by [`Effect::index`].
+struct Offsets([Option<usize>; Effect::ALL.len()]);
 
 impl Offsets {
     fn of(&self, e: Effect) -> Option<usize> {
-        match e {
-            Effect::TimeOffset => self.time_offset,
-            Effect::Pulley => self.pulley,
-            Effect::Sag => self.sag,
-            Effect::Elasticity => self.elasticity,
-            Effect::Scale => self.scale,
-            Effect::Backlash => self.backlash,
-            Effect::Slack => self.slack,
-        }
+        self.0[e.index()]
     }
 }
 
@@ -1274,17 +1337,7 @@ impl LeastSquares for Joint<'_> {
         let n = self.prep.n;
         for &e in &self.spec.effects {
             let o = self.spec.offset(e, n).expect("active");
-            let (lo, hi) = match e {
-                // A compliance, weight or radius below zero is not physics: fit on the boundary.
-                Effect::Elasticity => (0.0, 1e-2),
-                Effect::Sag => (0.0, 100.0),
-                Effect::Pulley => (0.0, 1.0),
-                Effect::Scale => (-0.2, 0.2),
-                Effect::TimeOffset => (-1.0, 1.0),
-                // A play has no negative width.
-                Effect::Backlash => (0.0, 0.1),
-                Effect::Slack => (f64::NEG_INFINITY, f64::INFINITY),
-            };
+            let (lo, hi) = e.model().bounds();
             for v in &mut x[o..o + width(e, n)] {
                 *v = v.clamp(lo, hi);
             }
@@ -1997,7 +2050,7 @@ mod tests {
             let mut near = prep.clone();
             let offs = p.offsets();
             for j in 0..4 {
-                match offs.time_offset {
+                match offs.of(Effect::TimeOffset) {
                     // With a time offset the model reads the encoder at t + delta: readings
                     // late by delta, the own-pose model interpolated at t - delta, +- 1 mm.
                     Some(o) => {
