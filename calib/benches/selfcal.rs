@@ -1,4 +1,4 @@
-//! Tracker-free calibration of 200 dwell poses / 20,000 samples (issue 11): dwell search,
+//! Tracker-free calibration of 200 dwell poses / 20,000 samples: dwell search,
 //! averaging, start, Schur-complement LM, covariance, frame-free quantities.
 //!
 //! The recording: 4 cables on a 7 x 3.5 x 4 m frame (ARAS-CAM), 3 kg point mass, 200 poses

@@ -55,7 +55,7 @@
 //! ARAS-CAM-like robot (config/examples/aras-cam-sim.toml: 30 s, 80 % for training, tracker
 //! 1.5 mm at 100 Hz, encoders 0.05 mm, follower at 10 N, 3 N least tension, 0.8 m/s, 1 m/s^2;
 //! `cargo run --release -p taut-calib --example design_study [knobs|tensions|paths]`):
-//! - The waypoints. A beam search over the 8 corners (until session 16) found 0.44 mm: with
+//! - The waypoints. A beam search over the 8 corners finds 0.44 mm: with
 //!   cable 3 following at 10 N, three of the corners (the two on cable 3's side, and the low one
 //!   beside it at 2.1 N) cannot be rested at, and the long moves between the remaining ones
 //!   left 7 corner visits in 30 s. The grid's waypoints near the infeasible corners and inside

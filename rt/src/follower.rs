@@ -242,7 +242,7 @@ mod tests {
         std::array::from_fn(|i| m[i][3] / m[i][i])
     }
 
-    /// Regression (e2e_effects, issue 14): at a pose near the follower's anchor a 10 N
+    /// Regression (e2e_effects): at a pose near the follower's anchor a 10 N
     /// follower let the opposite position cable go slack and the platform missed the pose by
     /// 35 mm even with the true parameters in the loop. The range's lower end keeps it taut.
     #[test]

@@ -1,4 +1,4 @@
-//! The start-up's wiring check (issue 28): in each initialisation phase, while cable `r` is
+//! The start-up's wiring check: in each initialisation phase, while cable `r` is
 //! reeled with cables `a` and `b` held, the loop compares what the sensors report with what the
 //! tracked motion and the nominal geometry predict, and stops the robot when they disagree,
 //! naming the cable and the miswiring that explains what it saw.

@@ -1155,13 +1155,10 @@ impl<R: CanTransport> Site<R> {
 /// motion. 0 would take each set-point at the SYNC that applies it (a staircase).
 ///
 /// Measured on the calibrator's own rows (e2e_excitation's start-up, seed 1, tracker at 1 mm
-/// noise; one time offset fitted against the true geometry, BENCHMARKS.md "Session 15"): with 1
-/// the lengths of a row are from 0.05 ms later than its pose (the tracker's fixed transit, which
-/// its receiver counts as zero); with 0 from 0.97 ms earlier (half the 2 ms SYNC period: the
-/// row interpolates linearly between readings of a staircase). Session 14 kept 0 because 1 gave
-/// 1.4-1.8 mm anchor errors: the rows then were 1.58 ms off the other way, from the device layer's
-/// pose age (plugin time against a wall-clock epoch, fixed in `taut_rt_core::robot_io`), which
-/// the staircase's -1 ms happened to cancel.
+/// noise; one time offset fitted against the true geometry): with 1 the lengths of a row are
+/// from 0.05 ms later than its pose (the tracker's fixed transit, which its receiver counts as
+/// zero); with 0 from 0.97 ms earlier (half the 2 ms SYNC period: the row interpolates linearly
+/// between readings of a staircase).
 const CSP_INTERPOLATION_PERIODS: f64 = 1.0;
 
 /// A drum in cyclic synchronous position: from its last target to the new one, linearly, over

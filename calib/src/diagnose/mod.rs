@@ -1905,8 +1905,7 @@ fn final_estimates(
     // unweighted refit (the clear-push fit leaves out the holds and the push ends the play
     // pattern misreads, and the GLS weights give a hold the weight of one reading: on EA 20 kN
     // under 8 mm play either gave 1.72 mm held out over every reading, against a 1.50 mm noise
-    // floor, `diagnose_concealed`); with a time offset as well the selection's clear-push fit, as
-    // since session 16.
+    // floor, `diagnose_concealed`); with a time offset as well the selection's clear-push fit.
     let refit = (spec.effects.contains(&Effect::Backlash) && spec.offset(Effect::TimeOffset, n).is_none())
         .then(|| ctx.fit(spec, &ctx.train, &cur_train.x, opts.max_iterations))
         .filter(|r| r.x.iter().all(|v| v.is_finite()));

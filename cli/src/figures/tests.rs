@@ -1,4 +1,4 @@
-//! One test per figure of a calibration (issue 24): each is drawn from a simulated robot's
+//! One test per figure of a calibration: each is drawn from a simulated robot's
 //! calibration and rendered to pixels, and the test asserts what the figure must show, from
 //! its data and from the rendered colours.
 

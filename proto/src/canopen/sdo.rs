@@ -877,7 +877,7 @@ mod tests {
         assert_eq!(c.data(), b"abc");
     }
 
-    /// The issue 9 sequence: the same upload sent twice, the server answers both. The second
+    /// A field drive's sequence: the same upload sent twice, the server answers both. The second
     /// answer arrives while the next request is in flight and must not be taken for it.
     #[test]
     fn a_stale_answer_is_neither_taken_nor_answered() {

@@ -99,8 +99,8 @@ pub struct DriveParams {
     /// a frame it wrongly believes lost does.
     pub sdo_duplicate_every: u32,
     /// Power-on value of 0x6007 abort connection option code (CiA 402): 0 no action, 1 fault,
-    /// 2 disable voltage, 3 quick stop. 0 is what the drives of issue 9 did: nothing on the
-    /// drive side noticed that the master had gone.
+    /// 2 disable voltage, 3 quick stop. 0 is what the field drives this models did: nothing on
+    /// the drive side noticed that the master had gone.
     pub abort_connection_default: i16,
     /// How long an NMT reset (communication or node) takes to take effect: until then the drive
     /// goes on as before (its heartbeat timer may fire, SDO requests are answered), as firmware
