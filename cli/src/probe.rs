@@ -15,9 +15,9 @@ use taut_driver::transport::candump::Recorder;
 #[cfg(feature = "sim")]
 use taut_driver::VirtualBus;
 use taut_driver::{DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport};
+use taut_io::robot_io::CableUnits;
 use taut_proto::can::CanTransport;
 use taut_proto::devices::{CanConfig, DriveConfig};
-use taut_rt_core::robot_io::CableUnits;
 #[cfg(feature = "sim")]
 use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 

@@ -5,7 +5,7 @@
 //! (`taut-vdev`). The master is sans-IO (frames and time in, frames and events out); only
 //! `transport`, the load-cell I/O thread and the tracker receiver open sockets, ttys and threads. The driver deals
 //! in drive units (encoder counts, torque in ‰ of rated torque): metres and newtons belong to the
-//! robot I/O layer (`taut_rt_core::robot_io`).
+//! robot I/O layer (`taut_io::robot_io`).
 //!
 //! # Public surface
 //!

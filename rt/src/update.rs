@@ -1,5 +1,5 @@
 //! The plugin's per-cycle path: what `Plugin::update` and `Plugin::update_with` (in
-//! `taut_rt_core::plugin`) run on the host's real-time thread once their lifecycle check has
+//! `taut_plugin`) run on the host's real-time thread once their lifecycle check has
 //! passed.
 //!
 //! ```text

@@ -8,7 +8,7 @@
 //! Only `DriveSet<_, Enabled>` has methods that move cables. This layer reads the clock (the
 //! wall clock, or a simulated one: [`DriveSet::with_clock`]) and pumps the transport; the protocol is in [`Master`]. It deals in drive
 //! units (counts, ‰ of rated torque), like the master: metres and newtons belong to the robot I/O
-//! layer (`taut_rt_core::robot_io::Scaling`).
+//! layer (`taut_io::robot_io::Scaling`).
 //!
 //! ```no_run
 //! use taut_driver::canopen::drive_set::DriveSet;

@@ -9,10 +9,10 @@ use std::time::{Duration, Instant};
 use taut_driver::canopen::master::{CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem};
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
+use taut_io::robot_io::Scaling;
 use taut_proto::can::{CanTransport, Frame};
 use taut_proto::canopen::cia402::{Mode, State};
 use taut_proto::canopen::pdo::PdoLayout;
-use taut_rt_core::robot_io::Scaling;
 use taut_vdev::{rack_filters, DriveRack};
 
 /// The virtual drives' default drum in cable units (the master deals in counts and ‰; the robot

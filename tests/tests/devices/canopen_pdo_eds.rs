@@ -8,11 +8,11 @@ use proptest::prelude::*;
 use taut_config::RobotConfig;
 use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeFailure, Phase};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
+use taut_io::robot_io::{Peripherals, RobotDevices};
 use taut_proto::can::{CanTransport, Frame};
 use taut_proto::canopen::cia402::State;
 use taut_proto::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
 use taut_proto::eds::Eds;
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
 const MS: Duration = Duration::from_millis(1);

@@ -6,16 +6,16 @@
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use taut_rt::io::{DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt::motion::{ResetOutcome, State};
-use taut_rt::safety::{Cause, Reaction};
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::plugin::{
+use taut_calibrator::vocab::OutcomeKind;
+use taut_io::rtsys::{monotonic_ns, Periodic};
+use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_plugin::{
     DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, Lifecycle, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
     UpdateError,
 };
-use taut_rt_core::rtsys::{monotonic_ns, Periodic};
-use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_rt::io::{DriveRequest, DriveStatus, Inputs, Outputs};
+use taut_rt::motion::{ResetOutcome, State};
+use taut_rt::safety::{Cause, Reaction};
 use taut_tests::startup;
 
 /// The host's side of one cycle: the simulated devices' readings in, the plugin's commands out.
@@ -43,7 +43,7 @@ impl Host {
     }
 
     /// One period: wait, read the devices, update the plugin, write the devices.
-    fn cycle(&mut self, p: &mut Plugin) -> taut_rt_core::plugin::Tick {
+    fn cycle(&mut self, p: &mut Plugin) -> taut_plugin::Tick {
         self.timer.wait();
         let now = (monotonic_ns() - self.t0) as f64 * 1e-9;
         let dt = if self.last == 0.0 { 1.0 / p.rate_hz() } else { now - self.last };
@@ -253,7 +253,7 @@ fn lifecycle_calls_out_of_order_are_errors() {
     let mut bad = i;
     bad.drive[2] = 77;
     let t = p.update_with(1.002, 0.002, &bad, &mut o).unwrap();
-    assert_eq!(t.bad_input, Some(taut_rt_core::plugin::BadInput::Drive { cable: 2, code: 77 }));
+    assert_eq!(t.bad_input, Some(taut_plugin::BadInput::Drive { cable: 2, code: 77 }));
     p.deactivate().unwrap();
     // Re-activation: the loop starts over (enable, then the phases), and the host's clock may
     // have restarted.

@@ -10,14 +10,14 @@
 //!
 //! Each scenario draws from its seed which cable's drive fails, when, and for how long.
 
+use taut_calibrator::calib_backend::TautCalib;
 use taut_config::RobotConfig;
+use taut_io::runner::LoopStatus;
+use taut_io::FromRobot;
+use taut_plugin::Event;
 use taut_rt::io::{BusEvent, BusState, DriveStatus};
 use taut_rt::motion::{ControllerConfig, ResetOutcome, ResetRefusal, State};
 use taut_rt::safety::{Cause, Reaction};
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::plugin::Event;
-use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::FromRobot;
 use taut_simrig::{CanState, Lockstep, LockstepFaults, RunOptions, SimFault, SimOptions};
 use taut_tests::startup;
 

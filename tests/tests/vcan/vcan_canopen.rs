@@ -17,9 +17,9 @@ use taut_driver::canopen::drive_set::{DriveSet, DriveSetError, Enabled, Operatio
 use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
+use taut_io::robot_io::Scaling;
 use taut_proto::can::CanTransport;
 use taut_proto::canopen::cia402::State;
-use taut_rt_core::robot_io::Scaling;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 

@@ -2,11 +2,11 @@
 //! samples, parameter sets and calibrator progress become JSON frames, encoded once and handed
 //! to the MCAP recording and to the live telemetry server.
 //!
-//! Runs on the calibrator thread (it allocates); the loop only pushes `Copy` samples into the
-//! ring, as before.
+//! Runs on the calibrator thread (it allocates), as the calibrator's [`RunOutputs`]; the loop
+//! only pushes `Copy` samples into the ring.
 
-use crate::calibrator::{Outcome, OutcomeKind};
 use std::sync::Arc;
+use taut_calibrator::vocab::{Outcome, OutcomeKind, RunOutputs};
 use taut_config::mcap::{frame_transform, opt, pose_in_frame, scene_update, CablesMsg, McapWriter, Topic};
 use taut_config::params::ParamsFile;
 use taut_rt::io::{CableCommand, DriveStatus};
@@ -250,10 +250,31 @@ impl Outputs {
     }
 }
 
+impl RunOutputs for Outputs {
+    fn sample(&mut self, s: &Sample) {
+        Outputs::sample(self, s);
+    }
+    fn params(&mut self, p: &ParamsFile) {
+        Outputs::params(self, p);
+    }
+    fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&Outcome>) {
+        Outputs::calibrator(self, stage, samples, outcome);
+    }
+    fn tick(&mut self) {
+        Outputs::tick(self);
+    }
+    fn take_error(&mut self) -> Option<std::io::Error> {
+        self.error.take()
+    }
+    fn finish(&mut self) {
+        Outputs::finish(self);
+    }
+}
+
 /// The MCAP recording at `mcap` and the telemetry server of `cfg.telemetry`, each if asked for
 /// (None when neither is). Errors name the file or the configuration key.
 pub fn open_outputs(
-    c: &crate::calibrator::CalibratorConfig,
+    c: &taut_calibrator::vocab::CalibratorConfig,
     cfg: &taut_config::RobotConfig,
     mcap: Option<&std::path::Path>,
 ) -> Result<(Option<Outputs>, Option<crate::telemetry::TelemetryServer>), OutputsError> {

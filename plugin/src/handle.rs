@@ -5,14 +5,14 @@
 //! without blocking (full: the event is dropped and counted).
 
 use super::error::Refusal;
-use crate::calibrator::{CalibStatus, SharedCalibStatus};
-use crate::control::{ControlLinks, SharedLoopStatus};
-use crate::operator::{Expected, Operator};
-use crate::runner::LoopStatus;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use taut_calibrator::vocab::{CalibStatus, SharedCalibStatus};
 use taut_config::params::ParamsFile;
+use taut_io::runner::LoopStatus;
+use taut_operator::control::{ControlLinks, SharedLoopStatus};
+use taut_operator::operator::{Expected, Operator};
 use taut_rt::motion::{Command, State};
 use taut_rt::safety::{Cause, Reaction};
 use taut_rt::update::EventSink;

@@ -16,12 +16,12 @@
 //! Every time here is the loop's time (`Snapshot::t`), so a run in simulated time gives the
 //! same journal for the same seed.
 
-use crate::calibrator::{CalibStatus, OutcomeKind};
-use crate::runner::LoopStatus;
 use crossbeam_channel::{Receiver, Sender};
 use serde_json::{json, Value};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
+use taut_calibrator::vocab::{CalibStatus, OutcomeKind};
+use taut_rt::cycle::LoopStatus;
 use taut_rt::motion::{Command, ResetOutcome, State};
 
 pub use taut_rt::update::Event;
