@@ -4,8 +4,12 @@
 //! - [`vocab`]: the types the calibrator shares with the operator's services and the plugin
 //!   (configuration, estimate, outcome, status, errors, the held-out split, the outputs trait).
 //!   It imports nothing from the rest of the crate.
-//! - [`calibrator`]: the calibrator thread's state machine, its worker thread, the recorder, the
-//!   acceptance of a new set and the versioned parameter files.
+//! - [`calibrator`]: the calibrator thread's state machine, its worker thread and the versioned
+//!   parameter files.
+//! - [`recorder`]: the recording file and the data sets' rows (lengths and tensions
+//!   interpolated to the pose's time).
+//! - [`acceptance`]: whether a new set may replace the running one (bounds and the held-out
+//!   test).
 //! - [`calib_backend`]: the calibration backend on `taut-calib` ([`calib_backend::TautCalib`]).
 //! - [`heldout`]: the held-out comparison and its tracker-outlier rule.
 //! - [`excite`]: the start-up excitation's design and predicted uncertainty.
@@ -15,9 +19,11 @@
 //! reads parameters from a triple buffer; this crate is on the other end of both.
 #![deny(missing_docs)]
 
+pub mod acceptance;
 pub mod calib_backend;
 pub mod calibrator;
 pub mod excite;
 pub mod heldout;
 pub mod notracker;
+pub mod recorder;
 pub mod vocab;

@@ -197,7 +197,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// see), the RMS length closure residual of the new set against the running one, per degree of
 /// freedom. The new set is taken when it is lower, or not higher by more than
 /// `daemon.heldout_tolerance_m` at 99.9 % confidence (paired differences per dwell,
-/// as `calibrator::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
+/// as `acceptance::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
@@ -217,7 +217,7 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
     }
     let (n_rms, o_rms) = ((sn / dof as f64).sqrt(), (so / dof as f64).sqrt());
     // The pairs sum to dof times the mean-square difference.
-    let worse = crate::calibrator::clearly_worse(&pairs, dof as f64, o_rms, c.heldout_tolerance_m, crate::calibrator::HELDOUT_ALPHA);
+    let worse = crate::acceptance::clearly_worse(&pairs, dof as f64, o_rms, c.heldout_tolerance_m, crate::acceptance::HELDOUT_ALPHA);
     if n_rms < o_rms || !worse {
         Ok((n_rms, o_rms))
     } else {
