@@ -27,10 +27,10 @@
 
 use crate::acceptance::validate;
 use crate::heldout::HeldoutRms;
-use crate::recorder::{push_sample, LengthHistory, Recorder, RowSet, MAX_PENDING_S, MAX_PENDING_TENSION_S};
+use crate::recorder::{push_sample, LengthHistory, RecordingWriter, RowSet, MAX_PENDING_S, MAX_PENDING_TENSION_S};
 use crate::vocab::{
-    BackendError, Calibrate, CalibratorConfig, Estimate, HeldoutBlocks, Outcome, OutcomeKind, RecorderError, Rejection, RunOutputs,
-    SharedCalibStatus,
+    BackendError, Calibrate, CalibrationOutcome, CalibratorConfig, Estimate, HeldoutBlocks, OutcomeKind, RecorderError, Rejection,
+    RunOutputs, SharedCalibStatus,
 };
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -124,7 +124,7 @@ pub struct Calibrator {
     params_tx: Writer<LoopParams>,
     status: SharedCalibStatus,
     backend: Option<Box<dyn Calibrate>>,
-    recorder: Option<Recorder>,
+    recorder: Option<RecordingWriter>,
     init_set: Recording,
     exc_set: Recording,
     prev_state: State,
@@ -155,7 +155,7 @@ impl Calibrator {
         status: SharedCalibStatus,
     ) -> std::io::Result<Calibrator> {
         let recorder = match &recording {
-            Some(p) => Some(Recorder::create(p, cfg.n, &cfg.robot, cfg.tracker_max_age_s, cfg.tension_max_age_s)?),
+            Some(p) => Some(RecordingWriter::create(p, cfg.n, &cfg.robot, cfg.tracker_max_age_s, cfg.tension_max_age_s)?),
             None => None,
         };
         let version = last_version(&cfg.data_dir.join("params"));
@@ -574,7 +574,7 @@ impl Calibrator {
         }
         let mut st = self.status.lock().unwrap();
         st.current = Some(file);
-        st.outcomes.push(Outcome {
+        st.outcomes.push(CalibrationOutcome {
             run,
             kind,
             accepted: true,
@@ -596,7 +596,7 @@ impl Calibrator {
 
     fn reject(&mut self, kind: OutcomeKind, run: u16, samples: usize, est: Option<Estimate>, why: Rejection) {
         let mut st = self.status.lock().unwrap();
-        st.outcomes.push(Outcome {
+        st.outcomes.push(CalibrationOutcome {
             run,
             kind,
             accepted: false,
@@ -621,7 +621,13 @@ impl Calibrator {
 /// `rec` split into training and held-out rows, both screened for wild values, the backend's
 /// calibration from `init`, and the acceptance rules against `current` (the running set). The
 /// outcome says whether the daemon would publish the result, and why not.
-pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recording, init: &Estimate, current: LoopParams) -> Outcome {
+pub fn evaluate(
+    cfg: &CalibratorConfig,
+    backend: &mut dyn Calibrate,
+    rec: &Recording,
+    init: &Estimate,
+    current: LoopParams,
+) -> CalibrationOutcome {
     let (train, heldout) = HeldoutBlocks::new(rec.len(), cfg.heldout_fraction).split(rec);
     let job = Job::Calibrate { train, heldout, init: init.clone(), current, run: 1 };
     let r = run_job(job, backend, cfg.min_tension_n);
@@ -633,7 +639,7 @@ pub fn evaluate(cfg: &CalibratorConfig, backend: &mut dyn Calibrate, rec: &Recor
             Err(why) => (Some(why), Some(est), none),
         },
     };
-    Outcome {
+    CalibrationOutcome {
         run: r.run,
         kind: r.kind,
         accepted: rejection.is_none(),

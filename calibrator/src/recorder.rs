@@ -1,5 +1,5 @@
 //! What the calibrator thread writes and collects from the loop's samples: the
-//! `cdpr-recording v1` file ([`Recorder`], flushed and synced at least once a second), and the
+//! `cdpr-recording v1` file ([`RecordingWriter`], flushed and synced at least once a second), and the
 //! data sets' rows, each with the encoder lengths and load-cell tensions interpolated to the time
 //! of the row's pose (the readings and the pose arrive with their own ages).
 
@@ -15,7 +15,7 @@ use taut_rt::sample::Sample;
 
 /// Writes samples as `cdpr-recording v1` rows as they come, flushed (and synced) at least once a
 /// second, so a crash loses at most the last second.
-pub struct Recorder {
+pub struct RecordingWriter {
     pub(crate) path: PathBuf,
     pub(crate) file: std::io::BufWriter<std::fs::File>,
     pub(crate) n: usize,
@@ -27,9 +27,9 @@ pub struct Recorder {
     pub rows: u64,
 }
 
-impl Recorder {
+impl RecordingWriter {
     /// Creates the file and writes the header.
-    pub fn create(path: &Path, n: usize, robot: &str, tracker_max_age_s: f64, tension_max_age_s: f64) -> std::io::Result<Recorder> {
+    pub fn create(path: &Path, n: usize, robot: &str, tracker_max_age_s: f64, tension_max_age_s: f64) -> std::io::Result<RecordingWriter> {
         if let Some(d) = path.parent() {
             std::fs::create_dir_all(d)?;
         }
@@ -46,7 +46,7 @@ impl Recorder {
         h.push_str(",phase,state");
         writeln!(file, "{h}")?;
         file.flush()?;
-        Ok(Recorder {
+        Ok(RecordingWriter {
             path: path.to_path_buf(),
             file,
             n,

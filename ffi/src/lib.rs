@@ -61,7 +61,8 @@ use std::sync::Mutex;
 use taut_calibrator::vocab::OutcomeKind;
 use taut_config::RobotConfig;
 use taut_plugin::{
-    DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
+    DeviceMode, ErrorKind, HostInputs, HostOutputs, LoopEvent, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath,
+    Tick,
 };
 use taut_rt::motion::{ResetOutcome, State};
 
@@ -984,11 +985,11 @@ fn next_event(p: &TautPlugin) -> Option<TautEvent> {
     }
     let state = p.handle.loop_status().snap.state;
     Some(match p.handle.poll_event()? {
-        Event::State { t_s, from, to } => TautEvent { from_state: from as u8, ..base(TautEventKind::MotionState, t_s, to) },
-        Event::Phase { t_s, phase } => TautEvent { phase, ..base(TautEventKind::Phase, t_s, state) },
-        Event::Fault { t_s, .. } => base(TautEventKind::Fault, t_s, state),
-        Event::ParamsSwapped { t_s, version } => TautEvent { value: version, ..base(TautEventKind::ParamsSwapped, t_s, state) },
-        Event::Reset { t_s, outcome } => {
+        LoopEvent::State { t_s, from, to } => TautEvent { from_state: from as u8, ..base(TautEventKind::MotionState, t_s, to) },
+        LoopEvent::Phase { t_s, phase } => TautEvent { phase, ..base(TautEventKind::Phase, t_s, state) },
+        LoopEvent::Fault { t_s, .. } => base(TautEventKind::Fault, t_s, state),
+        LoopEvent::ParamsSwapped { t_s, version } => TautEvent { value: version, ..base(TautEventKind::ParamsSwapped, t_s, state) },
+        LoopEvent::Reset { t_s, outcome } => {
             TautEvent { accepted: (outcome == ResetOutcome::Done) as u8, ..base(TautEventKind::Reset, t_s, state) }
         }
     })

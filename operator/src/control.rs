@@ -76,7 +76,7 @@ fn drive_name(d: taut_rt::io::DriveStatus) -> &'static str {
 }
 
 /// One outcome in full (`outcome N`): the estimate, its sigmas, every data problem.
-pub fn outcome_json(n: usize, o: &taut_calibrator::vocab::Outcome) -> Value {
+pub fn outcome_json(n: usize, o: &taut_calibrator::vocab::CalibrationOutcome) -> Value {
     let est = o.estimate.as_ref().map(|e| {
         json!({"anchors_m": e.geometry.anchors, "l0_m": e.geometry.l0, "anchor_sigma_m": e.sigma.anchors.iter().map(|s| s.map(finite)).collect::<Vec<_>>(),
                "l0_sigma_m": e.sigma.l0.iter().map(|&s| finite(s)).collect::<Vec<_>>(), "note": e.note,
@@ -100,7 +100,7 @@ pub fn outcome_json(n: usize, o: &taut_calibrator::vocab::Outcome) -> Value {
 }
 
 /// An outcome in short (`status`): the numbers, the reason cut, the data problems counted.
-fn outcome_summary(n: usize, o: &taut_calibrator::vocab::Outcome) -> Value {
+fn outcome_summary(n: usize, o: &taut_calibrator::vocab::CalibrationOutcome) -> Value {
     json!({
         "n": n,
         "run": o.run,
@@ -203,7 +203,7 @@ pub enum Request {
     /// [`crate::operator`])
     Events(Option<u64>),
     /// `outcome N`: the calibrator's N-th outcome in full (1 is the first)
-    Outcome(usize),
+    CalibrationOutcome(usize),
     /// `help`: the requests and what they do
     Help,
 }
@@ -358,7 +358,7 @@ pub fn parse_request(line: &[u8]) -> Result<Request, RequestError> {
         },
         "outcome" => match rest.as_slice() {
             [w] => match w.parse::<usize>() {
-                Ok(k) if k >= 1 => Ok(Request::Outcome(k)),
+                Ok(k) if k >= 1 => Ok(Request::CalibrationOutcome(k)),
                 _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(w, 40) }),
             },
             _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(&rest.join(" "), 40) }),
@@ -485,7 +485,7 @@ impl ControlLinks {
                 let (events, next, lost) = self.operator.events_since(from);
                 json!({"ok": true, "events": events, "next": next, "lost": lost})
             }
-            Request::Outcome(k) => {
+            Request::CalibrationOutcome(k) => {
                 let cs = lock(&self.calib);
                 match cs.outcomes.get(k - 1) {
                     Some(o) => json!({"ok": true, "outcome": outcome_json(k, o)}),
@@ -814,7 +814,7 @@ mod tests {
     fn the_journal_and_outcome_requests_parse_and_bad_numbers_are_refused_clearly() {
         assert_eq!(parse_request(b"events"), Ok(Request::Events(None)));
         assert_eq!(parse_request(b"events 12"), Ok(Request::Events(Some(12))));
-        assert_eq!(parse_request(b"outcome 3"), Ok(Request::Outcome(3)));
+        assert_eq!(parse_request(b"outcome 3"), Ok(Request::CalibrationOutcome(3)));
         assert_eq!(parse_request(b"help"), Ok(Request::Help));
         for (line, says) in [
             ("outcome 0", "\"0\" is not a whole number from 1"),

@@ -76,7 +76,7 @@ pub enum DaemonError {
     },
     /// The MCAP recording or the telemetry server could not be opened (`[recording]`,
     /// `[telemetry]`).
-    Outputs(taut_operator::channels::OutputsError),
+    Outputs(taut_operator::channels::FrameSinksError),
     /// A thread could not be started.
     Thread {
         /// Its name.
@@ -181,7 +181,7 @@ impl Daemon {
         let fmt = cfg.recording.format;
         let base = builder.recording().map(PathBuf::from).unwrap_or_default();
         let mcap = (fmt.mcap() && !base.as_os_str().is_empty()).then(|| base.with_extension("mcap"));
-        let (outputs, telemetry) = taut_operator::channels::open_outputs(&CalibratorConfig::from_robot(cfg), cfg, mcap.as_deref())
+        let (outputs, telemetry) = taut_operator::channels::open_frame_sinks(&CalibratorConfig::from_robot(cfg), cfg, mcap.as_deref())
             .map_err(DaemonError::Outputs)?;
         let mut builder = builder.with_csv(fmt.csv());
         if let Some(o) = outputs {

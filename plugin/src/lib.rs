@@ -66,7 +66,7 @@ mod error;
 mod handle;
 
 pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
-pub use handle::{Event, PluginHandle, Status};
+pub use handle::{LoopEvent, PluginHandle, Status};
 pub use taut_rt::host::{BadInput, HostInputs, HostOutputs};
 pub use taut_rt::update::Tick;
 
@@ -185,7 +185,7 @@ pub struct PluginBuilder {
     backend: Box<dyn Calibrate>,
     recording: Option<PathBuf>,
     csv: bool,
-    outputs: Option<taut_operator::channels::Outputs>,
+    outputs: Option<taut_operator::channels::FrameSinks>,
     sim_clock: Option<SimClock>,
 }
 
@@ -198,7 +198,7 @@ impl PluginBuilder {
 
     /// Also sends every sample, parameter set and stage to `o` (MCAP recording, telemetry), from
     /// the calibrator thread.
-    pub fn with_outputs(mut self, o: taut_operator::channels::Outputs) -> PluginBuilder {
+    pub fn with_outputs(mut self, o: taut_operator::channels::FrameSinks) -> PluginBuilder {
         self.outputs = Some(o);
         self
     }

@@ -86,7 +86,7 @@ pub fn in_sim_time(
 /// A start-up of `cfg` in simulated time ([`in_sim_time`]) that must end with its calibration
 /// accepted and no fault latched; the run and the calibration's outcome. With `TAUT_E2E_KEEP`
 /// its recording is kept as `taut-{tag}-{seed}.csv` in the temporary directory.
-pub fn accepted_in_sim_time(cfg: &RobotConfig, so: &SimOptions, tag: &str) -> (StartupRun, taut_calibrator::vocab::Outcome) {
+pub fn accepted_in_sim_time(cfg: &RobotConfig, so: &SimOptions, tag: &str) -> (StartupRun, taut_calibrator::vocab::CalibrationOutcome) {
     let seed = so.seed;
     let run = in_sim_time(cfg, so, RunOptions { recording: taut_plugin::RecordingPath::Default, ..Default::default() }, |_, _| false);
     let (l, c) = (&run.loop_status, &run.calib_status);

@@ -379,7 +379,7 @@ mod tests {
         (c, rec, est, truth)
     }
 
-    fn outcome(answer: Answer) -> crate::vocab::Outcome {
+    fn outcome(answer: Answer) -> crate::vocab::CalibrationOutcome {
         let (c, rec, est, truth) = setup();
         evaluate(&c, &mut Fixed(answer), &rec, &est, truth)
     }

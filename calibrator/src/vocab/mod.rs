@@ -1,6 +1,6 @@
 //! The calibrator's vocabulary: what it is configured with ([`CalibratorConfig`]), what a
 //! backend returns ([`Estimate`], through the [`Calibrate`] trait), what became of a run
-//! ([`Outcome`], [`OutcomeKind`], and in [`error`] why a set was refused), what it reports to
+//! ([`CalibrationOutcome`], [`OutcomeKind`], and in [`error`] why a set was refused), what it reports to
 //! the operator ([`CalibStatus`]), how an excitation is split into training and held-out rows
 //! ([`HeldoutBlocks`]) and where its samples and results may also go ([`RunOutputs`]).
 //!
@@ -60,7 +60,7 @@ pub enum OutcomeKind {
 
 /// What became of one calibration.
 #[derive(Debug, Clone)]
-pub struct Outcome {
+pub struct CalibrationOutcome {
     /// Calibration run (0: start-up).
     pub run: u16,
     /// Initial estimate or calibration.
@@ -107,7 +107,7 @@ pub struct CalibStatus {
     /// The recording's path.
     pub recording: Option<PathBuf>,
     /// Every outcome so far, oldest first.
-    pub outcomes: Vec<Outcome>,
+    pub outcomes: Vec<CalibrationOutcome>,
     /// The parameters in force (as written).
     pub current: Option<ParamsFile>,
     /// The newest recorder error (disk full...), if any.
@@ -256,7 +256,7 @@ impl ExcitationPlan {
 }
 
 /// Where the calibrator also sends every sample, published parameter set and stage (the MCAP
-/// recording and the live telemetry, `taut_operator::channels::Outputs`). Called on the
+/// recording and the live telemetry, `taut_operator::channels::FrameSinks`). Called on the
 /// calibrator thread.
 pub trait RunOutputs: Send {
     /// A loop sample.
@@ -264,7 +264,7 @@ pub trait RunOutputs: Send {
     /// A published parameter set.
     fn params(&mut self, p: &ParamsFile);
     /// The calibrator's stage and sample count, and the newest outcome if there is one.
-    fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&Outcome>);
+    fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&CalibrationOutcome>);
     /// Called when the calibrator is idle: time to close a chunk that is due.
     fn tick(&mut self);
     /// The first write error since the last call, if any.

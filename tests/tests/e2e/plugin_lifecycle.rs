@@ -10,7 +10,7 @@ use taut_calibrator::vocab::OutcomeKind;
 use taut_io::rtsys::{monotonic_ns, Periodic};
 use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_plugin::{
-    DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, Lifecycle, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
+    DeviceMode, ErrorKind, HostInputs, HostOutputs, Lifecycle, LoopEvent, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
     UpdateError,
 };
 use taut_rt::io::{DriveRequest, DriveStatus, Inputs, Outputs};
@@ -135,9 +135,9 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let mut states = Vec::new();
     while let Some(e) = handle.poll_event() {
         match e {
-            Event::Phase { phase, .. } => phases.push(phase),
-            Event::ParamsSwapped { version, .. } => versions.push(version),
-            Event::State { to, .. } => states.push(to),
+            LoopEvent::Phase { phase, .. } => phases.push(phase),
+            LoopEvent::ParamsSwapped { version, .. } => versions.push(version),
+            LoopEvent::State { to, .. } => states.push(to),
             other => panic!("unexpected event {other:?}"),
         }
     }
@@ -187,8 +187,8 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let mut saw = (false, false);
     while let Some(e) = handle.poll_event() {
         match e {
-            Event::Fault { cause: Cause::Estop, reaction: Reaction::QuickStop, .. } => saw.0 = true,
-            Event::Reset { outcome: ResetOutcome::Done, .. } => saw.1 = true,
+            LoopEvent::Fault { cause: Cause::Estop, reaction: Reaction::QuickStop, .. } => saw.0 = true,
+            LoopEvent::Reset { outcome: ResetOutcome::Done, .. } => saw.1 = true,
             _ => {}
         }
     }
@@ -312,7 +312,7 @@ fn a_failed_activation_leaves_the_robot_safe_and_a_retry_succeeds() {
     assert_eq!(last_request.load(Ordering::SeqCst), DriveRequest::Disable as u8);
     assert_eq!(p.lifecycle(), Lifecycle::Inactive);
     assert_eq!(p.update(10.0, 0.002).unwrap_err(), UpdateError::NotActive { state: Lifecycle::Inactive });
-    assert!(matches!(h.poll_event(), Some(Event::State { to: State::Enabling, .. })));
+    assert!(matches!(h.poll_event(), Some(LoopEvent::State { to: State::Enabling, .. })));
 
     // The drive is fixed: the retry enables every drive and the start-up runs from its first
     // phase.
