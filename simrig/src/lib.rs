@@ -1041,8 +1041,8 @@ impl<R: CanTransport> Site<R> {
         }
         let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
         let d = &mut self.rack.drives()[second];
-        use taut_proto::canopen::cia402::State;
-        if persists && !matches!(d.state(), State::Fault | State::FaultReactionActive) {
+        use taut_proto::canopen::cia402::PowerState;
+        if persists && !matches!(d.state(), PowerState::Fault | PowerState::FaultReactionActive) {
             // The cause is still there: a fault reset is followed by the same fault at once,
             // as on a drive whose over-current condition persists.
             d.inject_fault(0x2310);
