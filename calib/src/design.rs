@@ -314,7 +314,7 @@ fn worst(info: &DMatrix<f64>, n: usize) -> f64 {
 
 /// The rows the calibration fits out of `rows` consecutive excitation rows: the last
 /// `1 - used_fraction` of each of `blocks` consecutive blocks is held out (the daemon's
-/// `calibrator::HeldoutBlocks`, kept equal to this by a test in taut-rt-core).
+/// `taut_calibrator::vocab::HeldoutBlocks`, kept equal to this by a test in taut-calibrator).
 pub fn training_rows(rows: usize, used_fraction: f64, blocks: usize) -> impl Iterator<Item = usize> {
     let held = 1.0 - used_fraction;
     (0..blocks.max(1)).flat_map(move |b| heldout_block(rows, held, blocks, b).0)
@@ -322,7 +322,7 @@ pub fn training_rows(rows: usize, used_fraction: f64, blocks: usize) -> impl Ite
 
 /// Block `b` of `blocks` consecutive blocks over `rows` rows, the last `held_fraction` of it
 /// held out: its training rows, then its held-out rows. The daemon's split
-/// (`taut_rt_core::calibrator::HeldoutBlocks`) and [`training_rows`] are both this.
+/// (`taut_calibrator::vocab::HeldoutBlocks`) and [`training_rows`] are both this.
 pub fn heldout_block(rows: usize, held_fraction: f64, blocks: usize, b: usize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
     let blocks = blocks.max(1);
     let (start, end) = (b * rows / blocks, (b + 1) * rows / blocks);

@@ -5,8 +5,8 @@ use serde_json::Value;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-use taut_rt_core::control::{request, status_text};
-use taut_rt_core::operator::{GoalView, MoveWait};
+use taut_operator::control::{request, status_text};
+use taut_operator::operator::{GoalView, MoveWait};
 
 /// Arguments of `taut ctl`.
 #[derive(clap::Args)]
@@ -207,7 +207,7 @@ pub fn run(a: &CtlArgs, verbosity: i8) -> Result<()> {
                 return print_json(&v);
             }
             if req == "params" {
-                print!("{}", taut_rt_core::control::params_text(&v));
+                print!("{}", taut_operator::control::params_text(&v));
                 return Ok(());
             }
             println!("{req}: accepted");
@@ -266,7 +266,7 @@ fn watch(socket: &Path, from: Option<u64>, json: bool) -> Result<()> {
             }
         }
         drop(out);
-        let more = v["events"].as_array().is_some_and(|a| a.len() == taut_rt_core::operator::EVENTS_PER_REPLY);
+        let more = v["events"].as_array().is_some_and(|a| a.len() == taut_operator::operator::EVENTS_PER_REPLY);
         next = v["next"].as_u64().unwrap_or(next);
         if !more {
             std::thread::sleep(Duration::from_millis(200));

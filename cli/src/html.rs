@@ -173,7 +173,7 @@ fn mm(v: f64) -> String {
 use taut_config::numfmt::{plus_minus, rounded, sig2};
 
 fn generated() -> String {
-    format!("written by taut {} on {}", env!("CARGO_PKG_VERSION"), taut_rt_core::localtime::now())
+    format!("written by taut {} on {}", env!("CARGO_PKG_VERSION"), taut_operator::localtime::now())
 }
 
 /// How the solver stopped, in words.

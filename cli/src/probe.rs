@@ -14,10 +14,10 @@ use taut_driver::canopen::master::Counters;
 use taut_driver::transport::candump::Recorder;
 #[cfg(feature = "sim")]
 use taut_driver::VirtualBus;
-use taut_driver::{DriveSet, Event, MasterConfig, NodeStatus, Phase, SocketCanTransport};
+use taut_driver::{DriveSet, MasterConfig, NodeEvent, NodeStatus, Phase, SocketCanTransport};
+use taut_io::robot_io::CableUnits;
 use taut_proto::can::CanTransport;
 use taut_proto::devices::{CanConfig, DriveConfig};
-use taut_rt_core::robot_io::CableUnits;
 #[cfg(feature = "sim")]
 use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
@@ -267,7 +267,7 @@ pub fn run(args: &ProbeArgs) -> anyhow::Result<()> {
     result
 }
 
-fn drain(next: impl FnMut() -> Option<Event>) -> Vec<Event> {
+fn drain(next: impl FnMut() -> Option<NodeEvent>) -> Vec<NodeEvent> {
     std::iter::from_fn(next).collect()
 }
 

@@ -6,16 +6,16 @@ use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Duration;
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::{CalibStatus, OutcomeKind};
 use taut_config::RobotConfig;
 use taut_driver::tracker::TrackerStatsHandle;
+use taut_io::robot_io::{BringUpError, Peripherals, RobotDevices};
+use taut_io::runner::LoopStatus;
+use taut_plugin::daemon::{Daemon, DaemonOptions};
+use taut_plugin::{DeviceMode, DeviceSource};
 use taut_rt::io::Devices;
 use taut_rt::motion::State;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::plugin::{DeviceMode, DeviceSource};
-use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
-use taut_rt_core::runner::LoopStatus;
 #[cfg(feature = "sim")]
 use taut_simrig::{self as simrig, SimOptions};
 
@@ -123,7 +123,7 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
     let backend = backend(a, &cfg)?;
     // The log for people (states and phases with their expected durations, calibration
     // outcomes, goals, loop health): off with -q.
-    let log: taut_rt_core::daemon::WarnFn =
+    let log: taut_plugin::daemon::WarnFn =
         if verbosity < 0 { std::sync::Arc::new(|_: &str| {}) } else { std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")) };
     let daemon = Daemon::start_with(&cfg, devices, Box::new(backend), DaemonOptions { tracker, log, ..DaemonOptions::default() })
         .map_err(|e| anyhow::anyhow!(e))?;
@@ -139,10 +139,10 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
     }
 
     if !a.once {
-        taut_rt_core::rtsys::install_stop_signals();
+        taut_io::rtsys::install_stop_signals();
         let mut last = String::new();
         while !daemon.wait_until(Duration::from_millis(500), |l, _| l.snap.state == State::Stopped) {
-            if taut_rt_core::rtsys::stop_requested() {
+            if taut_io::rtsys::stop_requested() {
                 let _ = daemon.commands.try_send(taut_rt::motion::Command::Stop);
             }
             let l = daemon.loop_status();
@@ -165,7 +165,7 @@ pub fn run(a: &StartArgs, verbosity: i8) -> Result<()> {
             eprintln!("{line}");
         }
         last = line;
-        taut_rt_core::control::startup_finished(l, c)
+        taut_operator::control::startup_finished(l, c)
     });
     let l = daemon.loop_status();
     let c = daemon.calib_status();
@@ -215,12 +215,12 @@ fn backend(a: &StartArgs, cfg: &RobotConfig) -> Result<TautCalib> {
 /// ran the start-up in simulated time to its summary.
 #[cfg(feature = "sim")]
 fn simulated_devices(a: &StartArgs, cfg: &RobotConfig, verbosity: i8) -> Result<Option<(DeviceMode, SiteTruth, TrackerStatsHandle)>> {
+    use taut_io::FromRobot;
     use taut_rt::motion::ControllerConfig;
-    use taut_rt_core::FromRobot;
     let ccfg = ControllerConfig::from_robot(cfg).map_err(|e| anyhow::anyhow!(e))?;
     let w = ccfg.workspace;
     let p0 = [(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0];
-    let mut so = SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_rt_core::notracker::is_dwell(cfg), ..Default::default() };
+    let mut so = SimOptions { seed: a.seed, can: a.can.clone(), tracker: !taut_calibrator::notracker::is_dwell(cfg), ..Default::default() };
     crate::simulate::apply_effects(&a.sim_effects, cfg.cables.len(), &mut so.physics, "--sim-effect")?;
     if a.dynamic {
         so.physics.dynamics = Some(taut_sim::Dynamics::default());
@@ -261,8 +261,7 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
     eprintln!("taut start: simulated time (seed {}); recording {}", a.seed, recording.display());
     // `simrig::run_startup`, with the control socket's bookkeeping ticked between cycles as the
     // control thread does: the same log lines for people, in simulated time.
-    let opts =
-        simrig::RunOptions { faults: faults.clone(), recording: taut_rt_core::plugin::RecordingPath::At(recording.clone()), budget_s };
+    let opts = simrig::RunOptions { faults: faults.clone(), recording: taut_plugin::RecordingPath::At(recording.clone()), budget_s };
     let mut host = simrig::Lockstep::start(cfg, p0, so, opts, Box::new(backend)).map_err(|e| anyhow::anyhow!("{e}"))?;
     if verbosity >= 0 {
         host.handle().operator().set_log(std::sync::Arc::new(|l: &str| eprintln!("taut: {l}")));
@@ -271,7 +270,7 @@ fn run_sim_time(a: &StartArgs, cfg: &RobotConfig, p0: [f64; 3], so: &SimOptions,
     let mut over = false;
     host.run_until(budget_s, |l, c| {
         links.tick();
-        over = taut_rt_core::control::startup_finished(l, c);
+        over = taut_operator::control::startup_finished(l, c);
         over
     });
     links.tick();
@@ -346,14 +345,14 @@ fn finish(
         "anchors_m": final_est.map(|e| e.geometry.anchors.clone()),
         "l0_m": final_est.map(|e| e.geometry.l0.clone()),
         "anchor_sigma_m": final_est.map(|e| e.sigma.anchors.clone()),
-        "excitation": taut_rt_core::excite::status_json(c),
+        "excitation": taut_operator::control::excitation_json(c),
         "truth_anchors_m": truth.as_ref().map(|t| &t.0),
         "truth_l0_m": truth.as_ref().map(|t| &t.1),
         "initial_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
         "initial_held_anchor_error_max_m": init_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors[..3.min(e.geometry.anchors.len())])),
         "anchor_error_max_m": final_est.filter(|_| truth.is_some()).map(|e| err(&e.geometry.anchors)),
         "anchor_error_aligned_max_m": final_est.filter(|_| truth.is_some()).map(|e| aligned(&e.geometry.anchors)),
-        "without_tracker": taut_rt_core::notracker::is_dwell(cfg),
+        "without_tracker": taut_calibrator::notracker::is_dwell(cfg),
         "calibration_note": final_est.map(|e| e.note.clone()),
         "model_consistent": final_est.and_then(|e| e.model_consistent),
         "samples_recorded": c.samples_recorded,
@@ -390,7 +389,7 @@ fn finish(
     if let Some(e) = final_est {
         if truth.is_some() {
             println!("calibrated         max anchor error {:.2} mm", err(&e.geometry.anchors) * 1e3);
-            if taut_rt_core::notracker::is_dwell(cfg) {
+            if taut_calibrator::notracker::is_dwell(cfg) {
                 println!(
                     "                   without a tracker: {:.2} mm after the best translation and rotation about the vertical ({})",
                     aligned(&e.geometry.anchors) * 1e3,
@@ -399,7 +398,7 @@ fn finish(
             }
         }
         if let Some(plan) = &c.excitation {
-            println!("uncertainty        {}", taut_rt_core::excite::predicted_vs_achieved(plan, &e.sigma.anchors));
+            println!("uncertainty        {}", taut_calibrator::excite::predicted_vs_achieved(plan, &e.sigma.anchors));
         }
         if truth.is_none() {
             for (j, a) in e.geometry.anchors.iter().enumerate() {

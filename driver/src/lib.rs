@@ -5,7 +5,7 @@
 //! (`taut-vdev`). The master is sans-IO (frames and time in, frames and events out); only
 //! `transport`, the load-cell I/O thread and the tracker receiver open sockets, ttys and threads. The driver deals
 //! in drive units (encoder counts, torque in ‰ of rated torque): metres and newtons belong to the
-//! robot I/O layer (`taut_rt_core::robot_io`).
+//! robot I/O layer (`taut_io::robot_io`).
 //!
 //! # Public surface
 //!
@@ -14,7 +14,7 @@
 //!
 //! | re-export                                                               | from                    |
 //! |-------------------------------------------------------------------------|-------------------------|
-//! | [`Master`], [`MasterConfig`], [`NodeConfig`], [`NodeStatus`], [`Event`], [`Phase`], [`CommandError`], [`ConfigProblem`] | [`canopen::master`] (sans-IO master) |
+//! | [`Master`], [`MasterConfig`], [`NodeConfig`], [`NodeStatus`], [`NodeEvent`], [`Phase`], [`CommandError`], [`ConfigProblem`] | [`canopen::master`] (sans-IO master) |
 //! | [`DriveSet`], [`DriveSetError`]                                         | [`canopen::drive_set`] (master + transport, lifecycle in types) |
 //! | [`BusEvent`]                                                            | [`transport`]           |
 //! | [`SocketCanTransport`], [`VirtualBus`], [`VirtualEndpoint`]             | [`transport::socketcan`], [`transport::virtual_bus`] |
@@ -47,7 +47,7 @@ pub mod tracker;
 pub mod transport;
 
 pub use canopen::drive_set::{DriveSet, DriveSetError};
-pub use canopen::master::{CommandError, ConfigProblem, Event, Master, MasterConfig, NodeConfig, NodeStatus, Phase};
+pub use canopen::master::{CommandError, ConfigProblem, Master, MasterConfig, NodeConfig, NodeEvent, NodeStatus, Phase};
 pub use clock::{Clock, SharedClock, SimClock, WallClock};
 pub use loadcell::{LoadCellIo, TensionReader};
 pub use tracker::{PoseReader, TrackerThread};

@@ -22,7 +22,7 @@
 
 use crate::clock::{Clock, WallClock};
 use crate::modbus::link::SerialPortLink;
-use crate::modbus::master::{Backoff, CounterSnapshot, Counters, Event, Master, MasterConfig};
+use crate::modbus::master::{Backoff, CounterSnapshot, Counters, LoadCellBusEvent, Master, MasterConfig};
 use ringbuf::traits::{Consumer, Producer, Split};
 use ringbuf::{HeapCons, HeapProd, HeapRb};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -382,9 +382,10 @@ fn push(ring: &mut Ring, counters: &Counters, s: TensionSample) {
     if ring.prod.try_push(s).is_err() {
         // Relaxed: see `TensionReader::update`.
         if ring.taken.load(Ordering::Relaxed) {
-            counters.count(Event::Overflow, format_args!("tension ring full: the real-time loop has stopped taking the readings"));
+            counters
+                .count(LoadCellBusEvent::Overflow, format_args!("tension ring full: the real-time loop has stopped taking the readings"));
         } else {
-            counters.count_quietly(Event::Overflow);
+            counters.count_quietly(LoadCellBusEvent::Overflow);
         }
     }
 }
@@ -410,13 +411,13 @@ fn poll_round<L: SerialLink>(
                 match value::newtons([v[0], v[1]], &cell.cfg) {
                     Some(newtons) => out(TensionSample { cable: cell.cable, newtons, t }),
                     None => counters.count(
-                        Event::InvalidValue,
+                        LoadCellBusEvent::InvalidValue,
                         format_args!("cable {}, unit {}: reading is NaN or infinite", u32::from(cell.cable) + 1, cell.cfg.unit_id),
                     ),
                 }
             }
             Err(crate::modbus::master::TransactionError::Link(e)) => {
-                counters.count(Event::LinkLost, format_args!("{port}: {e}; reopening with back-off"));
+                counters.count(LoadCellBusEvent::LinkLost, format_args!("{port}: {e}; reopening with back-off"));
                 return Err(LinkLost);
             }
             // Counted and logged by the master; the reading of this round is missing.
@@ -461,14 +462,15 @@ impl Worker {
             let link = match open() {
                 Ok(l) => l,
                 Err(e) => {
-                    self.counters.count(Event::OpenFailed, format_args!("cannot open {}: {e}; retrying with back-off", self.bus.port));
+                    self.counters
+                        .count(LoadCellBusEvent::OpenFailed, format_args!("cannot open {}: {e}; retrying with back-off", self.bus.port));
                     let d = backoff.next_delay();
                     self.sleep(d);
                     continue;
                 }
             };
             if was_connected {
-                self.counters.count(Event::Reconnect, format_args!("{} reopened", self.bus.port));
+                self.counters.count(LoadCellBusEvent::Reconnect, format_args!("{} reopened", self.bus.port));
             }
             was_connected = true;
             backoff.reset();

@@ -16,7 +16,7 @@ use std::ffi::CString;
 use std::time::{Duration, Instant};
 use taut::sim::*;
 use taut::*;
-use taut_rt_core::plugin::HostOutputs;
+use taut_plugin::HostOutputs;
 
 const CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");
 const PERIOD: f64 = 0.002;

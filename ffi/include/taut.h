@@ -331,7 +331,7 @@ typedef struct TautCommands {
   uint8_t bad_input;
 } TautCommands;
 
-// What the operator sees. Motion states are rt-core's (`taut_motion_state_name` names them).
+// What the operator sees. Motion states are the loop's (`taut_motion_state_name` names them).
 typedef struct TautStatus {
   // A `TautLifecycle`.
   uint8_t lifecycle;

@@ -58,12 +58,13 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Mutex;
+use taut_calibrator::vocab::OutcomeKind;
 use taut_config::RobotConfig;
-use taut_rt::motion::{ResetOutcome, State};
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::plugin::{
-    DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath, Tick,
+use taut_plugin::{
+    DeviceMode, ErrorKind, HostInputs, HostOutputs, LoopEvent, ModeKind, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath,
+    Tick,
 };
+use taut_rt::motion::{ResetOutcome, State};
 
 /// Largest number of cables (the size of every per-cable array): `taut_model::MAX_CABLES`. The
 /// header's `#define` is written from this value by its generator (`ffi/tests/header.rs`), as
@@ -266,7 +267,7 @@ pub struct TautCommands {
     pub bad_input: u8,
 }
 
-/// What the operator sees. Motion states are rt-core's (`taut_motion_state_name` names them).
+/// What the operator sees. Motion states are the loop's (`taut_motion_state_name` names them).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default)]
 pub struct TautStatus {
@@ -646,7 +647,7 @@ pub unsafe extern "C" fn taut_cleanup(h: *mut TautPlugin) -> TautError {
         // SAFETY: the caller hands back ownership of a handle from taut_configure.
         let mut b = unsafe { Box::from_raw(h) };
         let p = b.plugin.get_mut();
-        if p.lifecycle() == taut_rt_core::plugin::Lifecycle::Active {
+        if p.lifecycle() == taut_plugin::Lifecycle::Active {
             if let Err(e) = p.deactivate() {
                 return plugin_error("taut_cleanup", &e);
             }
@@ -748,8 +749,8 @@ pub unsafe extern "C" fn taut_update(
 fn update_host(p: &mut Plugin, n: usize, now_s: f64, period_s: f64, i: &TautInputs, c: &mut TautCommands) -> TautError {
     const NAME: &str = "taut_update";
     // The lifecycle first: a host that has not activated learns that, whatever it passed.
-    if p.lifecycle() != taut_rt_core::plugin::Lifecycle::Active {
-        let e = taut_rt_core::plugin::UpdateError::NotActive { state: p.lifecycle() };
+    if p.lifecycle() != taut_plugin::Lifecycle::Active {
+        let e = taut_plugin::UpdateError::NotActive { state: p.lifecycle() };
         return error::fail(code(e.kind()), format_args!("{NAME}: {e}"));
     }
     if i.n_cables as usize != n {
@@ -836,7 +837,7 @@ pub unsafe extern "C" fn taut_status_json(h: *const TautPlugin, buf: *mut c_char
             if buf.is_null() && len > 0 {
                 return error::fail(TautError::NullPointer, format_args!("taut_status_json: buf is NULL with len {len}"));
             }
-            let v = taut_rt_core::control::status_json(&p.handle.loop_status(), &p.handle.calib_status()).to_string();
+            let v = taut_operator::control::status_json(&p.handle.loop_status(), &p.handle.calib_status()).to_string();
             let out = if buf.is_null() { &mut [][..] } else { std::slice::from_raw_parts_mut(buf.cast::<u8>(), len) };
             let n = error::copy_str(v.as_bytes(), out);
             if let Some(l) = len_out.as_mut() {
@@ -984,11 +985,11 @@ fn next_event(p: &TautPlugin) -> Option<TautEvent> {
     }
     let state = p.handle.loop_status().snap.state;
     Some(match p.handle.poll_event()? {
-        Event::State { t_s, from, to } => TautEvent { from_state: from as u8, ..base(TautEventKind::MotionState, t_s, to) },
-        Event::Phase { t_s, phase } => TautEvent { phase, ..base(TautEventKind::Phase, t_s, state) },
-        Event::Fault { t_s, .. } => base(TautEventKind::Fault, t_s, state),
-        Event::ParamsSwapped { t_s, version } => TautEvent { value: version, ..base(TautEventKind::ParamsSwapped, t_s, state) },
-        Event::Reset { t_s, outcome } => {
+        LoopEvent::State { t_s, from, to } => TautEvent { from_state: from as u8, ..base(TautEventKind::MotionState, t_s, to) },
+        LoopEvent::Phase { t_s, phase } => TautEvent { phase, ..base(TautEventKind::Phase, t_s, state) },
+        LoopEvent::Fault { t_s, .. } => base(TautEventKind::Fault, t_s, state),
+        LoopEvent::ParamsSwapped { t_s, version } => TautEvent { value: version, ..base(TautEventKind::ParamsSwapped, t_s, state) },
+        LoopEvent::Reset { t_s, outcome } => {
             TautEvent { accepted: (outcome == ResetOutcome::Done) as u8, ..base(TautEventKind::Reset, t_s, state) }
         }
     })

@@ -2,9 +2,9 @@
 //! configuration, brought up by `taut_activate` exactly as `taut start` does on hardware.
 
 use taut_config::RobotConfig;
+use taut_io::robot_io::{BringUpError, Peripherals, RobotDevices};
+use taut_plugin::DeviceSource;
 use taut_rt::io::Devices;
-use taut_rt_core::plugin::DeviceSource;
-use taut_rt_core::robot_io::{BringUpError, Peripherals, RobotDevices};
 
 /// The CANopen drives on the configuration's SocketCAN interface, its Modbus load cells and
 /// its tracker port.

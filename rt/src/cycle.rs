@@ -1,7 +1,7 @@
 //! One cycle of the loop without the clock: `read -> update -> write -> push sample`.
 //!
 //! [`LoopCore`] is what every host runs once per period (the daemon's loop thread through
-//! `taut_rt_core::runner::run_periodic`, the plugin's `update`, the allocation tests and the
+//! `taut_io::runner::run_periodic`, the plugin's `update`, the allocation tests and the
 //! benchmarks); the clock, the thread and its real-time set-up belong to the host. Its
 //! configuration is the [`Controller`], built from plain data on the non-real-time side.
 

@@ -49,7 +49,7 @@ impl LoopEffects {
     };
 
     /// From per-cable values as a parameter file holds them (the non-real-time side reads and
-    /// validates the file: `taut_rt_core::EffectsFromFile`): stiffness `EA` in N (0 or
+    /// validates the file: `taut_io::EffectsFromFile`): stiffness `EA` in N (0 or
     /// negative: rigid), drum scale, pulley radius and backlash width in m; absent effects are
     /// off, values for cables beyond `MAX_CABLES` ignored.
     pub fn from_values(

@@ -16,8 +16,8 @@
 //! lock-free hand-overs are model-checked under loom (`scripts/loom`). See
 //! `docs/architecture.md`, "The real-time rule".
 //!
-//! The non-real-time side (`taut-rt-core`: the plugin lifecycle, threads, the calibrator, the
-//! control socket, the configuration) fills [`motion::ControllerConfig`] and [`kin::LoopParams`]
+//! The non-real-time side (`taut-io`: devices and the loop thread; `taut-calibrator`;
+//! `taut-operator`: the control socket and telemetry; `taut-plugin`: the lifecycle) fills [`motion::ControllerConfig`] and [`kin::LoopParams`]
 //! from the robot's files and names these modules by this crate's paths (`taut_rt::motion`); it
 //! does not re-export them, so every import shows which code is the real-time side.
 #![deny(missing_docs)]

@@ -122,7 +122,7 @@ pub enum Command {
 ///
 /// Runs in the real-time thread: `try_next` must not block, take a lock or allocate. taut's
 /// hosts pass a closure over the receiving end of a bounded lock-free channel
-/// (`move || rx.try_recv().ok()`, in `taut-rt-core`, which owns the channel); a host without
+/// (`move || rx.try_recv().ok()`, in `taut-plugin`, which owns the channel); a host without
 /// one can use this crate's own [`spsc`](crate::spsc) ring, whose [`Consumer`](crate::spsc::Consumer)
 /// is a source (with the producer behind the host's own hand-over).
 pub trait CommandSource: Send {
@@ -289,7 +289,7 @@ pub struct ControllerConfig {
 
 /// Most dwell poses the loop holds.
 /// (Equal to `taut_config::runtime::MAX_DWELL_POSES`, which bounds `motion.dwell_poses`: a test in
-/// rt-core keeps the two equal.)
+/// taut-io (`rt_config`) keeps the two equal.)
 pub const MAX_DWELL_POSES: usize = 64;
 
 /// The shortest recording of the tracker-free start-up's first rest, s: the rest estimate

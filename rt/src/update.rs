@@ -1,5 +1,5 @@
 //! The plugin's per-cycle path: what `Plugin::update` and `Plugin::update_with` (in
-//! `taut_rt_core::plugin`) run on the host's real-time thread once their lifecycle check has
+//! `taut_plugin`) run on the host's real-time thread once their lifecycle check has
 //! passed.
 //!
 //! ```text
@@ -23,7 +23,7 @@ use crate::triple::Writer;
 
 /// Something the loop did, for the operator. `Copy`; `t_s` is the plugin's loop time.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Event {
+pub enum LoopEvent {
     /// The motion state changed.
     State {
         /// Loop time, s.
@@ -69,7 +69,7 @@ pub enum Event {
 /// lock (a full queue drops the event and counts it).
 pub trait EventSink: Send {
     /// Hands one event on, or drops it.
-    fn push(&mut self, e: Event);
+    fn push(&mut self, e: LoopEvent);
 }
 
 /// What one cycle did. `Copy`.
@@ -258,22 +258,22 @@ impl<D: Devices, E: EventSink> UpdatePath<D, E> {
         let now = Seen::of(&snap);
         let was = self.seen;
         if now.state != was.state {
-            self.events.push(Event::State { t_s: t, from: was.state, to: now.state });
+            self.events.push(LoopEvent::State { t_s: t, from: was.state, to: now.state });
         }
         if now.phase >= 0 && now.phase != was.phase {
-            self.events.push(Event::Phase { t_s: t, phase: now.phase });
+            self.events.push(LoopEvent::Phase { t_s: t, phase: now.phase });
         }
         if let Some((cause, reaction)) = now.fault {
             if was.fault != now.fault {
-                self.events.push(Event::Fault { t_s: t, cause, reaction });
+                self.events.push(LoopEvent::Fault { t_s: t, cause, reaction });
             }
         }
         if now.version != was.version {
-            self.events.push(Event::ParamsSwapped { t_s: t, version: now.version });
+            self.events.push(LoopEvent::ParamsSwapped { t_s: t, version: now.version });
         }
         if let Some(outcome) = now.reset {
             if was.reset != now.reset && outcome != ResetOutcome::InProgress {
-                self.events.push(Event::Reset { t_s: t, outcome });
+                self.events.push(LoopEvent::Reset { t_s: t, outcome });
             }
         }
         self.seen = now;

@@ -1,8 +1,8 @@
 //! Simulated cable robot: physics, sensors and the guided motions.
 //!
 //! Physics only: the virtual devices (CiA 402 drives, Modbus load cells, tracker sender) are in
-//! `taut-vdev`, and this crate depends on no device or driver crate. `taut-rt-core`'s simulated
-//! rig couples the [`Plant`] to the virtual devices.
+//! `taut-vdev`, and this crate depends on no device or driver crate. `taut-simrig`, the simulated
+//! rig, couples the [`Plant`] to the virtual devices.
 //!
 //! The simulator is the tests' ground truth. Its physics is written independently of
 //! `taut-calib`'s models on purpose: a wrong model must not hide behind a simulator that makes the

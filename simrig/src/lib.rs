@@ -26,13 +26,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use taut_config::RobotConfig;
 use taut_driver::transport::virtual_bus::{CanController, VirtualBus};
+use taut_io::robot_io::{Peripherals, RobotDevices};
 use taut_model::MAX_CABLES;
 use taut_proto::can::CanTransport;
 use taut_proto::canopen::cia402::Mode;
 use taut_proto::canopen::NodeId;
 use taut_proto::devices::{DriveConfig, LoadCellBusConfig, LoadCellConfig, TrackerConfig};
 use taut_rt::io::{Devices, Inputs, Outputs};
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_sim::sensors::Tracker;
 use taut_sim::{CableCommand as SimCommand, Noise, Physics, Plant, Truth};
 use taut_vdev::{rack_filters, DriveParams, DriveRack, LoadCellFault, TensionHandle, TrackerSender, VirtualDrive, VirtualLoadCells};
@@ -482,7 +482,7 @@ pub enum BuildError {
     /// The robot's load-cell bus (on the simulated cells' pseudo-terminal) did not start.
     LoadCells(taut_driver::loadcell::SpawnError),
     /// The robot's devices did not come up.
-    BringUp(taut_rt_core::robot_io::BringUpError),
+    BringUp(taut_io::robot_io::BringUpError),
 }
 
 impl std::fmt::Display for BuildError {
@@ -768,7 +768,7 @@ where
     tcfg.max_age_s = cfg.safety.tracker_max_age_s;
     let (tracker, pose) = taut_driver::tracker::spawn(&tcfg).map_err(|e| BuildError::Device { what: "tracker receiver", error: e })?;
     if cfg.rt.priority > 1 {
-        // The robot's rule (taut_rt_core::robot_io::Peripherals): just below a real-time loop.
+        // The robot's rule (taut_io::robot_io::Peripherals): just below a real-time loop.
         if let Err(e) = tracker.set_realtime(cfg.rt.priority - 1) {
             eprintln!("taut-simrig: SCHED_FIFO priority {} for the tracker thread refused ({e})", cfg.rt.priority - 1);
         }
@@ -816,7 +816,7 @@ fn sim_cells_priority(cfg: &RobotConfig) -> i32 {
 /// `loadcell_ages` (4 cells, load ~9 plus 4 busy loops, 15 s) counted 3 timeouts and 10 late
 /// answers landing in the next unit's exchange, 0 and 0 with the server under `SCHED_FIFO`. A
 /// late answer is the device's fault here, and the master rightly counts it. The robot's end follows the robot's
-/// rule (`taut_rt_core::robot_io::Peripherals`): real-time just below a real-time loop,
+/// rule (`taut_io::robot_io::Peripherals`): real-time just below a real-time loop,
 /// otherwise the normal scheduler, as on hardware with that configuration. A refused priority
 /// is a warning, as there.
 fn loadcells_realtime(cfg: &RobotConfig, vlc: &VirtualLoadCells, io: &taut_driver::loadcell::LoadCellIo) {
@@ -1090,8 +1090,8 @@ impl<R: CanTransport> Site<R> {
         }
         let persists = self.faults.drive_fault_persists.load(Ordering::Relaxed);
         let d = &mut self.rack.drives()[second];
-        use taut_proto::canopen::cia402::State;
-        if persists && !matches!(d.state(), State::Fault | State::FaultReactionActive) {
+        use taut_proto::canopen::cia402::PowerState;
+        if persists && !matches!(d.state(), PowerState::Fault | PowerState::FaultReactionActive) {
             // The cause is still there: a fault reset is followed by the same fault at once,
             // as on a drive whose over-current condition persists.
             d.inject_fault(0x2310);

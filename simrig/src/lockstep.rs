@@ -25,7 +25,7 @@
 //! CANopen master with its bring-up, the Modbus RTU master, the tracker receiver, the loop and
 //! the calibrator are the robot's code. What is simulated is only what is outside the robot's
 //! computer: the wires, the devices and the physics. The calibrator runs without threads in
-//! the host's step after each cycle ([`taut_rt_core::plugin::Plugin::pump_calibrator`]): a
+//! the host's step after each cycle ([`taut_plugin::Plugin::pump_calibrator`]): a
 //! calibration takes no simulated time (on the robot it takes a few seconds of holding).
 //!
 //! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a load-cell
@@ -59,21 +59,21 @@ use std::collections::VecDeque;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
+use taut_calibrator::vocab::{CalibStatus, Calibrate};
 use taut_config::RobotConfig;
 use taut_driver::clock::{Clock, SimClock};
 use taut_driver::loadcell::SteppedLoadCells;
 use taut_driver::tracker::{TrackerReceiver, TrackerStatsHandle};
 use taut_driver::transport::kernel::{self, err, CAN_ERR_FLAG, CAN_MTU};
+use taut_io::robot_io::{Peripherals, RobotDevices};
+use taut_io::runner::LoopStatus;
 use taut_model::MAX_CABLES;
+use taut_plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
 use taut_proto::can::{CanTransport, Frame, TransportError};
 use taut_proto::devices::{LoadCellBusConfig, Parity, TrackerConfig};
 use taut_proto::modbus::link::{LinkError, SerialLink};
 use taut_proto::tracker::{format_line, PoseLine, MAX_LINE};
 use taut_rt::io::{Devices, Inputs, Outputs};
-use taut_rt_core::calibrator::{CalibStatus, Calibrate};
-use taut_rt_core::plugin::{DeviceMode, Plugin, PluginError, PluginOptions, RecordingPath};
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
-use taut_rt_core::runner::LoopStatus;
 use taut_sim::Truth;
 use taut_vdev::{LoadCellFault, LoadCellResponder, TensionHandle};
 
@@ -1151,7 +1151,7 @@ impl Lockstep {
     }
 
     /// The operator's handle: commands, recalibration, stop, status.
-    pub fn handle(&self) -> &taut_rt_core::plugin::PluginHandle {
+    pub fn handle(&self) -> &taut_plugin::PluginHandle {
         self.plugin.handle()
     }
 
@@ -1226,7 +1226,7 @@ pub fn run_startup(
     let mut host = Lockstep::start(cfg, p0, opts, run, backend)?;
     let mut over = false;
     host.run_until(budget_s, |l, c| {
-        over = taut_rt_core::control::startup_finished(l, c);
+        over = taut_operator::control::startup_finished(l, c);
         over || on_check(l, c)
     });
     Ok(host.finish(over))

@@ -23,8 +23,8 @@
 
 use taut_calib::selfcal::{self, SelfCalOptions};
 use taut_config::recording::Recording;
+use taut_io::FromRobot;
 use taut_rt::motion::{ControllerConfig, MAX_DWELL_POSES};
-use taut_rt_core::FromRobot;
 use taut_sim::sensors::{Encoder, LoadCell};
 use taut_sim::{CableCommand, Noise, Physics, Plant, Truth};
 
@@ -44,7 +44,7 @@ fn main() {
     let first: u64 = args[3].parse().expect("FIRST_SEED");
     let seeds: u64 = args[4].parse().expect("SEEDS");
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+    let plan = taut_calibrator::notracker::dwell_plan(&cfg, &ccfg).unwrap();
     let nominal = cfg.anchors().unwrap();
     let platform = cfg.platform_points();
     let opts = SelfCalOptions::from_config(&cfg);
@@ -62,7 +62,7 @@ fn main() {
         let sets = recordings(&cfg, &ccfg, &plan, &truth, &physics, seed);
         let mut line = format!("seed {seed}:");
         for (v, rec) in sets.iter().enumerate() {
-            let (train, _) = taut_rt_core::notracker::split_dwells(rec, cfg.calibration.heldout_fraction);
+            let (train, _) = taut_calibrator::notracker::split_dwells(rec, cfg.calibration.heldout_fraction);
             match selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts) {
                 Ok(r) => {
                     sums[v].0 += r.chi2;

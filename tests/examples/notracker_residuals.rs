@@ -48,7 +48,7 @@ fn main() {
     // before it (state `init-phase`) went to the initial estimate.
     let rec = excitation_rows(&rec, &args[2]);
     let set = calibrator_set(&rec, cfg.daemon.calib_decimation.max(1), 0.0, (0.0, 1.0));
-    let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
+    let (train, _) = taut_calibrator::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
     let r = selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts).unwrap_or_else(|e| panic!("{e}"));
     let vf = r.chi2 / r.dof as f64;
     println!(
@@ -72,7 +72,7 @@ fn main() {
     println!("\nleaving out the start of every dwell (training dwells as above):");
     for skip in [2.0, 5.0, 10.0] {
         let set = calibrator_set(&rec, cfg.daemon.calib_decimation.max(1), skip, (0.0, 1.0));
-        let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
+        let (train, _) = taut_calibrator::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
         summary(&format!("first {skip} s left out"), selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts), &truth);
     }
     // The lengths corrected by the simulated cables' stretch (the truth's offsets and the row's
@@ -94,7 +94,7 @@ fn main() {
         stretched.push(rec.t[i], rec.p[i], None, &l, Some(&f), rec.phase.as_ref().map(|p| p[i]));
     }
     let set = calibrator_set(&stretched, cfg.daemon.calib_decimation.max(1), 0.0, (0.0, 1.0));
-    let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
+    let (train, _) = taut_calibrator::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
     summary(
         "lengths corrected by the cables' stretch T L / EA",
         selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts),
@@ -102,7 +102,7 @@ fn main() {
     );
     for (name, part) in [("first half of every dwell", (0.0, 0.5)), ("second half of every dwell", (0.5, 1.0))] {
         let set = calibrator_set(&rec, cfg.daemon.calib_decimation.max(1), 0.0, part);
-        let (train, _) = taut_rt_core::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
+        let (train, _) = taut_calibrator::notracker::split_dwells(&set, cfg.calibration.heldout_fraction);
         summary(name, selfcal::calibrate_without_tracker(&train, &platform, Some(&nominal), &opts), &truth);
     }
 }

@@ -4,12 +4,12 @@
 //! conditions that end a start-up.
 
 use std::path::Path;
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::{CalibStatus, OutcomeKind};
 use taut_config::RobotConfig;
+use taut_io::runner::LoopStatus;
+use taut_io::FromRobot;
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{CalibStatus, OutcomeKind};
-use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, RunOptions, SimOptions, SimRobot, StartupRun};
 
 /// Excitation of the test start-ups, s (the example's is 30 s). The real-time tests check flow
@@ -86,10 +86,9 @@ pub fn in_sim_time(
 /// A start-up of `cfg` in simulated time ([`in_sim_time`]) that must end with its calibration
 /// accepted and no fault latched; the run and the calibration's outcome. With `TAUT_E2E_KEEP`
 /// its recording is kept as `taut-{tag}-{seed}.csv` in the temporary directory.
-pub fn accepted_in_sim_time(cfg: &RobotConfig, so: &SimOptions, tag: &str) -> (StartupRun, taut_rt_core::calibrator::Outcome) {
+pub fn accepted_in_sim_time(cfg: &RobotConfig, so: &SimOptions, tag: &str) -> (StartupRun, taut_calibrator::vocab::CalibrationOutcome) {
     let seed = so.seed;
-    let run =
-        in_sim_time(cfg, so, RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, ..Default::default() }, |_, _| false);
+    let run = in_sim_time(cfg, so, RunOptions { recording: taut_plugin::RecordingPath::Default, ..Default::default() }, |_, _| false);
     let (l, c) = (&run.loop_status, &run.calib_status);
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {
         if let Some(r) = &run.recording {

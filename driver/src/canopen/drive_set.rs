@@ -8,7 +8,7 @@
 //! Only `DriveSet<_, Enabled>` has methods that move cables. This layer reads the clock (the
 //! wall clock, or a simulated one: [`DriveSet::with_clock`]) and pumps the transport; the protocol is in [`Master`]. It deals in drive
 //! units (counts, ‰ of rated torque), like the master: metres and newtons belong to the robot I/O
-//! layer (`taut_rt_core::robot_io::Scaling`).
+//! layer (`taut_io::robot_io::Scaling`).
 //!
 //! ```no_run
 //! use taut_driver::canopen::drive_set::DriveSet;
@@ -25,13 +25,13 @@
 //! # Ok(()) }
 //! ```
 
-use super::master::{CommandError, Event, Master, MasterConfig, NodeStatus, Phase};
+use super::master::{CommandError, Master, MasterConfig, NodeEvent, NodeStatus, Phase};
 use crate::clock::{self, SharedClock};
 use std::fmt;
 use std::marker::PhantomData;
 use std::time::{Duration, Instant};
 use taut_proto::can::{CanTransport, TransportError};
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::NodeId;
 
 /// Typestate: drives being found and configured.
@@ -51,7 +51,7 @@ pub enum DriveSetError {
         /// Its phase.
         phase: Phase,
         /// Its drive state, if known.
-        state: Option<State>,
+        state: Option<PowerState>,
         /// How many nodes are not there.
         count: usize,
     },
@@ -75,7 +75,7 @@ pub enum DriveSetError {
         /// Node.
         node: NodeId,
         /// Its drive state now, if known.
-        state: Option<State>,
+        state: Option<PowerState>,
     },
     /// A command was refused.
     Command(CommandError),
@@ -169,7 +169,7 @@ impl<T: CanTransport, S> DriveSet<T, S> {
     }
 
     /// The next event.
-    pub fn poll_event(&mut self) -> Option<Event> {
+    pub fn poll_event(&mut self) -> Option<NodeEvent> {
         self.master.poll_event()
     }
 
@@ -262,8 +262,11 @@ impl<T: CanTransport, S> DriveSet<T, S> {
     }
 
     fn not_ready(&self) -> DriveSetError {
-        let bad: Vec<NodeStatus> =
-            self.master.statuses().filter(|s| s.phase != Phase::Operational || s.axis.state != Some(State::OperationEnabled)).collect();
+        let bad: Vec<NodeStatus> = self
+            .master
+            .statuses()
+            .filter(|s| s.phase != Phase::Operational || s.axis.state != Some(PowerState::OperationEnabled))
+            .collect();
         let first = bad.iter().find(|s| s.phase != Phase::Operational).or(bad.first());
         match first {
             Some(s) => DriveSetError::Timeout { node: s.node, phase: s.phase, state: s.axis.state, count: bad.len() },
@@ -331,7 +334,7 @@ impl<T: CanTransport> DriveSet<T, Operational> {
                 if s.phase != Phase::Operational {
                     return Err(DriveSetError::NotOperational { node: s.node, phase: s.phase });
                 }
-                if s.axis.state == Some(State::Fault) {
+                if s.axis.state == Some(PowerState::Fault) {
                     return Err(DriveSetError::Fault { node: s.node, code: s.axis.error_code });
                 }
             }
@@ -351,7 +354,7 @@ impl<T: CanTransport> DriveSet<T, Operational> {
                 let _ = op.fault_reset(i);
             }
         }
-        self.wait_for(timeout, |m| Ok(m.statuses().all(|s| s.axis.state.is_some_and(|st| st != State::Fault))))
+        self.wait_for(timeout, |m| Ok(m.statuses().all(|s| s.axis.state.is_some_and(|st| st != PowerState::Fault))))
     }
 
     /// Runs one SYNC cycle (waits for it).
@@ -366,12 +369,12 @@ impl<T: CanTransport> DriveSet<T, Enabled> {
     fn check(&self) -> Result<(), DriveSetError> {
         self.check_operational()?;
         for s in self.master.statuses() {
-            if matches!(s.axis.state, Some(State::Fault | State::FaultReactionActive)) {
+            if matches!(s.axis.state, Some(PowerState::Fault | PowerState::FaultReactionActive)) {
                 return Err(DriveSetError::Fault { node: s.node, code: s.axis.error_code });
             }
             // A drive that rebooted fast enough to be configured and operational again between
             // two checks is only seen here: its power stage came back off.
-            if s.axis.state != Some(State::OperationEnabled) {
+            if s.axis.state != Some(PowerState::OperationEnabled) {
                 return Err(DriveSetError::Disabled { node: s.node, state: s.axis.state });
             }
         }

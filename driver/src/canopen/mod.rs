@@ -2,7 +2,7 @@
 //!
 //! [`master`] combines the services of `taut_proto::canopen` (NMT, SYNC, heartbeat, EMCY, SDO,
 //! PDO, the CiA 402 state machine) into one state machine that takes frames and time in and hands
-//! frames and [`master::Event`]s out; [`drive_set`] puts a transport under it with the lifecycle
+//! frames and [`master::NodeEvent`]s out; [`drive_set`] puts a transport under it with the lifecycle
 //! in types. [`busload`] estimates the bus load of a configuration and [`eds_check`] checks a
 //! configuration against the drives' electronic data sheets.
 

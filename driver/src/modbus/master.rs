@@ -66,7 +66,7 @@ impl fmt::Display for TransactionError {
 /// Kinds of events the load-cell bus counts; the first of each kind is logged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
-pub enum Event {
+pub enum LoadCellBusEvent {
     /// A response with a bad CRC.
     Crc,
     /// No response in time.
@@ -93,7 +93,7 @@ pub enum Event {
 
 const EVENTS: usize = 11;
 
-/// Event counters shared between the I/O thread (writer) and whoever reports them.
+/// Counters of the load-cell bus events, shared between the I/O thread (writer) and whoever reports them.
 ///
 /// Every counter is a statistic read on its own, so `Relaxed` is enough throughout: nothing else
 /// is published through them.
@@ -141,7 +141,7 @@ impl Counters {
 
     /// Counts an event; logs it on stderr if it is the first of its kind, saying that later ones
     /// are only counted. Called from the I/O thread only, where printing is fine.
-    pub fn count(&self, event: Event, detail: fmt::Arguments<'_>) {
+    pub fn count(&self, event: LoadCellBusEvent, detail: fmt::Arguments<'_>) {
         self.events[event as usize].fetch_add(1, Ordering::Relaxed);
         let bit = 1u32 << (event as u32);
         if self.logged.fetch_or(bit, Ordering::Relaxed) & bit == 0 {
@@ -150,26 +150,26 @@ impl Counters {
     }
 
     /// Counts an event without logging it (one that is expected where it happens).
-    pub fn count_quietly(&self, event: Event) {
+    pub fn count_quietly(&self, event: LoadCellBusEvent) {
         self.events[event as usize].fetch_add(1, Ordering::Relaxed);
     }
 
     /// Reads every counter.
     pub fn snapshot(&self) -> CounterSnapshot {
-        let e = |k: Event| self.events[k as usize].load(Ordering::Relaxed);
+        let e = |k: LoadCellBusEvent| self.events[k as usize].load(Ordering::Relaxed);
         CounterSnapshot {
             ok: self.ok.load(Ordering::Relaxed),
-            crc_errors: e(Event::Crc),
-            timeouts: e(Event::Timeout),
-            exceptions: e(Event::Exception),
-            garbage: e(Event::Garbage),
-            retries: e(Event::Retry),
-            failed: e(Event::Failed),
-            links_lost: e(Event::LinkLost),
-            open_failures: e(Event::OpenFailed),
-            reconnects: e(Event::Reconnect),
-            overflows: e(Event::Overflow),
-            invalid_values: e(Event::InvalidValue),
+            crc_errors: e(LoadCellBusEvent::Crc),
+            timeouts: e(LoadCellBusEvent::Timeout),
+            exceptions: e(LoadCellBusEvent::Exception),
+            garbage: e(LoadCellBusEvent::Garbage),
+            retries: e(LoadCellBusEvent::Retry),
+            failed: e(LoadCellBusEvent::Failed),
+            links_lost: e(LoadCellBusEvent::LinkLost),
+            open_failures: e(LoadCellBusEvent::OpenFailed),
+            reconnects: e(LoadCellBusEvent::Reconnect),
+            overflows: e(LoadCellBusEvent::Overflow),
+            invalid_values: e(LoadCellBusEvent::InvalidValue),
         }
     }
 }
@@ -263,29 +263,29 @@ impl<'c, L: SerialLink> Master<'c, L> {
             let retry = match err {
                 TransactionError::Link(_) => return Err(err),
                 TransactionError::Timeout { .. } => {
-                    self.counters.count(Event::Timeout, format_args!("{who}{err}"));
+                    self.counters.count(LoadCellBusEvent::Timeout, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Crc { .. } => {
-                    self.counters.count(Event::Crc, format_args!("{who}{err}"));
+                    self.counters.count(LoadCellBusEvent::Crc, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Garbage { .. } => {
-                    self.counters.count(Event::Garbage, format_args!("{who}{err}"));
+                    self.counters.count(LoadCellBusEvent::Garbage, format_args!("{who}{err}"));
                     true
                 }
                 TransactionError::Exception { code, .. } => {
-                    self.counters.count(Event::Exception, format_args!("{who}{err}"));
+                    self.counters.count(LoadCellBusEvent::Exception, format_args!("{who}{err}"));
                     // An illegal address or function will be refused every time: no retry.
                     code.is_transient()
                 }
             };
             if !retry || attempt >= self.cfg.retries {
-                self.counters.count(Event::Failed, format_args!("{who}gave up on a reading after {} tries: {err}", attempt + 1));
+                self.counters.count(LoadCellBusEvent::Failed, format_args!("{who}gave up on a reading after {} tries: {err}", attempt + 1));
                 return Err(err);
             }
             attempt += 1;
-            self.counters.count(Event::Retry, format_args!("{who}retrying after: {err}"));
+            self.counters.count(LoadCellBusEvent::Retry, format_args!("{who}retrying after: {err}"));
         }
     }
 

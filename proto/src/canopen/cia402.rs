@@ -38,7 +38,7 @@ pub const SW_FOLLOWING: u16 = 1 << 12;
 
 /// The power state of a drive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum State {
+pub enum PowerState {
     /// Initialising.
     NotReadyToSwitchOn,
     /// Power stage off; waits for "shutdown".
@@ -57,18 +57,18 @@ pub enum State {
     Fault,
 }
 
-impl State {
+impl PowerState {
     /// Decodes a statusword; `None` for patterns that are no state.
-    pub fn from_statusword(sw: u16) -> Option<State> {
+    pub fn from_statusword(sw: u16) -> Option<PowerState> {
         Some(match (sw & 0x4F, sw & 0x6F) {
-            (0x00, _) => State::NotReadyToSwitchOn,
-            (0x40, _) => State::SwitchOnDisabled,
-            (0x0F, _) => State::FaultReactionActive,
-            (0x08, _) => State::Fault,
-            (_, 0x21) => State::ReadyToSwitchOn,
-            (_, 0x23) => State::SwitchedOn,
-            (_, 0x27) => State::OperationEnabled,
-            (_, 0x07) => State::QuickStopActive,
+            (0x00, _) => PowerState::NotReadyToSwitchOn,
+            (0x40, _) => PowerState::SwitchOnDisabled,
+            (0x0F, _) => PowerState::FaultReactionActive,
+            (0x08, _) => PowerState::Fault,
+            (_, 0x21) => PowerState::ReadyToSwitchOn,
+            (_, 0x23) => PowerState::SwitchedOn,
+            (_, 0x27) => PowerState::OperationEnabled,
+            (_, 0x07) => PowerState::QuickStopActive,
             _ => return None,
         })
     }
@@ -76,28 +76,28 @@ impl State {
     /// The statusword bits of this state (bits 0..6; bit 4 "voltage enabled" set when powered).
     pub fn statusword_bits(&self) -> u16 {
         match self {
-            State::NotReadyToSwitchOn => 0x00,
-            State::SwitchOnDisabled => 0x40,
-            State::ReadyToSwitchOn => 0x21,
-            State::SwitchedOn => 0x23 | 0x10,
-            State::OperationEnabled => 0x27 | 0x10,
-            State::QuickStopActive => 0x07 | 0x10,
-            State::FaultReactionActive => 0x0F,
-            State::Fault => 0x08,
+            PowerState::NotReadyToSwitchOn => 0x00,
+            PowerState::SwitchOnDisabled => 0x40,
+            PowerState::ReadyToSwitchOn => 0x21,
+            PowerState::SwitchedOn => 0x23 | 0x10,
+            PowerState::OperationEnabled => 0x27 | 0x10,
+            PowerState::QuickStopActive => 0x07 | 0x10,
+            PowerState::FaultReactionActive => 0x0F,
+            PowerState::Fault => 0x08,
         }
     }
 
     /// Short name for tables.
     pub fn name(&self) -> &'static str {
         match self {
-            State::NotReadyToSwitchOn => "not ready",
-            State::SwitchOnDisabled => "switch on disabled",
-            State::ReadyToSwitchOn => "ready to switch on",
-            State::SwitchedOn => "switched on",
-            State::OperationEnabled => "operation enabled",
-            State::QuickStopActive => "quick stop",
-            State::FaultReactionActive => "fault reaction",
-            State::Fault => "FAULT",
+            PowerState::NotReadyToSwitchOn => "not ready",
+            PowerState::SwitchOnDisabled => "switch on disabled",
+            PowerState::ReadyToSwitchOn => "ready to switch on",
+            PowerState::SwitchedOn => "switched on",
+            PowerState::OperationEnabled => "operation enabled",
+            PowerState::QuickStopActive => "quick stop",
+            PowerState::FaultReactionActive => "fault reaction",
+            PowerState::Fault => "FAULT",
         }
     }
 }
@@ -153,17 +153,17 @@ pub enum Want {
 /// The controlword that moves a drive in `state` one step towards `want`. A fault is reset
 /// only when `reset_fault` (the caller asks for it explicitly, and sends a 0 first so bit 7
 /// rises).
-pub fn next_controlword(state: State, want: Want, reset_fault: bool) -> u16 {
+pub fn next_controlword(state: PowerState, want: Want, reset_fault: bool) -> u16 {
     match (state, want) {
-        (State::Fault, _) if reset_fault => CW_FAULT_RESET,
-        (State::Fault | State::FaultReactionActive | State::NotReadyToSwitchOn, _) => CW_DISABLE_VOLTAGE,
+        (PowerState::Fault, _) if reset_fault => CW_FAULT_RESET,
+        (PowerState::Fault | PowerState::FaultReactionActive | PowerState::NotReadyToSwitchOn, _) => CW_DISABLE_VOLTAGE,
         (_, Want::QuickStop) => CW_QUICK_STOP,
-        (State::QuickStopActive, _) => CW_DISABLE_VOLTAGE,
-        (State::SwitchOnDisabled, _) => CW_SHUTDOWN,
-        (State::ReadyToSwitchOn, Want::Disabled) => CW_SHUTDOWN,
-        (State::ReadyToSwitchOn, Want::Enabled) => CW_SWITCH_ON,
-        (State::SwitchedOn, Want::Enabled) | (State::OperationEnabled, Want::Enabled) => CW_ENABLE_OPERATION,
-        (State::SwitchedOn | State::OperationEnabled, Want::Disabled) => CW_SHUTDOWN,
+        (PowerState::QuickStopActive, _) => CW_DISABLE_VOLTAGE,
+        (PowerState::SwitchOnDisabled, _) => CW_SHUTDOWN,
+        (PowerState::ReadyToSwitchOn, Want::Disabled) => CW_SHUTDOWN,
+        (PowerState::ReadyToSwitchOn, Want::Enabled) => CW_SWITCH_ON,
+        (PowerState::SwitchedOn, Want::Enabled) | (PowerState::OperationEnabled, Want::Enabled) => CW_ENABLE_OPERATION,
+        (PowerState::SwitchedOn | PowerState::OperationEnabled, Want::Disabled) => CW_SHUTDOWN,
     }
 }
 
@@ -213,22 +213,22 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const ALL: [State; 8] = [
-        State::NotReadyToSwitchOn,
-        State::SwitchOnDisabled,
-        State::ReadyToSwitchOn,
-        State::SwitchedOn,
-        State::OperationEnabled,
-        State::QuickStopActive,
-        State::FaultReactionActive,
-        State::Fault,
+    const ALL: [PowerState; 8] = [
+        PowerState::NotReadyToSwitchOn,
+        PowerState::SwitchOnDisabled,
+        PowerState::ReadyToSwitchOn,
+        PowerState::SwitchedOn,
+        PowerState::OperationEnabled,
+        PowerState::QuickStopActive,
+        PowerState::FaultReactionActive,
+        PowerState::Fault,
     ];
 
     #[test]
     fn statusword_roundtrip_with_extra_bits() {
         for s in ALL {
             for extra in [0u16, SW_REMOTE, SW_WARNING | SW_FOLLOWING | 0x8000] {
-                assert_eq!(State::from_statusword(s.statusword_bits() | extra), Some(s), "{s:?} {extra:x}");
+                assert_eq!(PowerState::from_statusword(s.statusword_bits() | extra), Some(s), "{s:?} {extra:x}");
             }
         }
     }
@@ -236,33 +236,33 @@ mod tests {
     #[test]
     fn controlwords_drive_a_model_to_enabled_and_back() {
         // A minimal drive obeying table 28 reaches the wanted state from anywhere but fault.
-        let step = |s: State, cw: u16| match (s, Command::from_controlword(cw)) {
-            (State::SwitchOnDisabled, Command::Shutdown) => State::ReadyToSwitchOn,
-            (State::ReadyToSwitchOn, Command::SwitchOn) => State::SwitchedOn,
-            (State::SwitchedOn, Command::EnableOperation) => State::OperationEnabled,
-            (State::OperationEnabled, Command::Shutdown) | (State::SwitchedOn, Command::Shutdown) => State::ReadyToSwitchOn,
-            (State::QuickStopActive, Command::DisableVoltage) => State::SwitchOnDisabled,
-            (State::Fault, Command::FaultReset) => State::SwitchOnDisabled,
+        let step = |s: PowerState, cw: u16| match (s, Command::from_controlword(cw)) {
+            (PowerState::SwitchOnDisabled, Command::Shutdown) => PowerState::ReadyToSwitchOn,
+            (PowerState::ReadyToSwitchOn, Command::SwitchOn) => PowerState::SwitchedOn,
+            (PowerState::SwitchedOn, Command::EnableOperation) => PowerState::OperationEnabled,
+            (PowerState::OperationEnabled, Command::Shutdown) | (PowerState::SwitchedOn, Command::Shutdown) => PowerState::ReadyToSwitchOn,
+            (PowerState::QuickStopActive, Command::DisableVoltage) => PowerState::SwitchOnDisabled,
+            (PowerState::Fault, Command::FaultReset) => PowerState::SwitchOnDisabled,
             (s, _) => s,
         };
-        let mut s = State::SwitchOnDisabled;
+        let mut s = PowerState::SwitchOnDisabled;
         for _ in 0..5 {
             s = step(s, next_controlword(s, Want::Enabled, false));
         }
-        assert_eq!(s, State::OperationEnabled);
+        assert_eq!(s, PowerState::OperationEnabled);
         for _ in 0..5 {
             s = step(s, next_controlword(s, Want::Disabled, false));
         }
-        assert_eq!(s, State::ReadyToSwitchOn);
-        assert_eq!(next_controlword(State::Fault, Want::Enabled, false), CW_DISABLE_VOLTAGE);
-        assert_eq!(step(State::Fault, next_controlword(State::Fault, Want::Disabled, true)), State::SwitchOnDisabled);
+        assert_eq!(s, PowerState::ReadyToSwitchOn);
+        assert_eq!(next_controlword(PowerState::Fault, Want::Enabled, false), CW_DISABLE_VOLTAGE);
+        assert_eq!(step(PowerState::Fault, next_controlword(PowerState::Fault, Want::Disabled, true)), PowerState::SwitchOnDisabled);
         assert_eq!(Command::from_controlword(0x1F), Command::EnableOperation);
     }
 
     proptest! {
         #[test]
         fn any_statusword_decodes_without_panic(sw: u16, cw: u16) {
-            let _ = State::from_statusword(sw);
+            let _ = PowerState::from_statusword(sw);
             let _ = Command::from_controlword(cw);
         }
     }

@@ -7,9 +7,9 @@
 
 use std::time::{Duration, Instant};
 use taut_driver::transport::kernel::{err, error_frame, CAN_MTU};
+use taut_io::robot_io::{Peripherals, RobotDevices};
 use taut_proto::can::CanTransport;
 use taut_rt::io::{BusEvent, BusState, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 
 /// The robot of `taut start --sim` (four drives, `with_mode` PDOs).
 pub fn robot() -> taut_config::RobotConfig {

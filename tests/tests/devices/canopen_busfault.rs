@@ -27,8 +27,8 @@ fn bus_faults_reach_the_loop_on_the_virtual_bus() {
 #[test]
 fn a_bus_off_master_reaches_nobody_until_restarted() {
     use std::time::Instant;
+    use taut_io::robot_io::{Peripherals, RobotDevices};
     use taut_rt::io::{BusState, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-    use taut_rt_core::robot_io::{Peripherals, RobotDevices};
     let bus = VirtualBus::named("can4");
     let nodes = [1u8, 2, 3, 4];
     let master = bus.endpoint_with(1024, &[]);

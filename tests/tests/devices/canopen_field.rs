@@ -5,10 +5,10 @@
 
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::master::{Counters, Event, Master, MasterConfig, NodeConfig, Phase};
+use taut_driver::canopen::master::{Counters, Master, MasterConfig, NodeConfig, NodeEvent, Phase};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
 use taut_proto::can::CanTransport;
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::nmt::NmtState;
 use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
@@ -20,7 +20,7 @@ struct Field {
     t: Instant,
     rack: DriveRack<VirtualEndpoint>,
     master: Option<(Master, VirtualEndpoint)>,
-    events: Vec<Event>,
+    events: Vec<NodeEvent>,
 }
 
 impl Field {
@@ -94,7 +94,7 @@ impl Field {
         self.t - start
     }
 
-    fn count(&self, f: impl Fn(&Event) -> bool) -> usize {
+    fn count(&self, f: impl Fn(&NodeEvent) -> bool) -> usize {
         self.events.iter().filter(|e| f(e)).count()
     }
 }
@@ -139,7 +139,7 @@ fn heartbeating_drives_are_brought_up_without_sdo_aborts_or_retries() {
             f.events
         );
         for n in NODES {
-            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "startup {startup_ms} ms: node {n} configured once");
+            assert_eq!(f.count(|e| *e == NodeEvent::Configured { node: n }), 1, "startup {startup_ms} ms: node {n} configured once");
         }
         for d in f.rack.drives() {
             assert_eq!(d.counters().sdo_aborts, 0, "startup {startup_ms} ms: node {} answered a request with an abort", d.node_id());
@@ -176,7 +176,7 @@ fn heartbeats_sent_while_the_reset_takes_effect_do_not_start_configuration() {
             "offset {offset_ms} ms: {c:?}"
         );
         for n in NODES {
-            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "offset {offset_ms} ms: node {n}");
+            assert_eq!(f.count(|e| *e == NodeEvent::Configured { node: n }), 1, "offset {offset_ms} ms: node {n}");
         }
     }
 }
@@ -200,23 +200,23 @@ fn a_drive_left_enabled_is_switched_off_without_moving_and_a_faulted_one_stays_i
     {
         let d2 = f.rack.drive(2).unwrap();
         d2.set_actual(50_000, 0);
-        d2.left_by_previous_run(State::OperationEnabled, 0);
-        f.rack.drive(3).unwrap().left_by_previous_run(State::Fault, 0x2310);
+        d2.left_by_previous_run(PowerState::OperationEnabled, 0);
+        f.rack.drive(3).unwrap().left_by_previous_run(PowerState::Fault, 0x2310);
     }
     f.run(Duration::from_millis(300));
     f.start_master_after(config(&NODES), Duration::from_millis(40));
     let mut moved = 0i32;
     f.until(Duration::from_secs(3), "bring-up", |f| {
         moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
-        assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault, "fault left alone");
+        assert_eq!(f.rack.drive(3).unwrap().state(), PowerState::Fault, "fault left alone");
         f.master().all_operational()
     });
     f.run(Duration::from_millis(300));
-    assert_eq!(f.count(|e| *e == Event::FoundPowered { node: 2, state: State::OperationEnabled }), 1, "{:#?}", f.events);
-    assert_eq!(f.count(|e| matches!(e, Event::FoundPowered { .. })), 1);
-    assert_eq!(f.rack.drive(2).unwrap().state(), State::ReadyToSwitchOn);
-    assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault);
-    assert_eq!(f.master().status(2).unwrap().axis.state, Some(State::Fault));
+    assert_eq!(f.count(|e| *e == NodeEvent::FoundPowered { node: 2, state: PowerState::OperationEnabled }), 1, "{:#?}", f.events);
+    assert_eq!(f.count(|e| matches!(e, NodeEvent::FoundPowered { .. })), 1);
+    assert_eq!(f.rack.drive(2).unwrap().state(), PowerState::ReadyToSwitchOn);
+    assert_eq!(f.rack.drive(3).unwrap().state(), PowerState::Fault);
+    assert_eq!(f.master().status(2).unwrap().axis.state, Some(PowerState::Fault));
     assert_eq!(f.master().status(1).unwrap().axis.position, 50_000);
     // Enabled again on request, drive 2 holds where it stood; drive 3 needs a fault reset.
     {
@@ -227,14 +227,14 @@ fn a_drive_left_enabled_is_switched_off_without_moving_and_a_faulted_one_stays_i
     }
     f.until(Duration::from_secs(1), "enable", |f| {
         moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
-        f.rack.drive(2).unwrap().state() == State::OperationEnabled
+        f.rack.drive(2).unwrap().state() == PowerState::OperationEnabled
     });
     f.run(Duration::from_millis(300));
     moved = moved.max((f.rack.drive(2).unwrap().position() - 50_000).abs());
     assert_eq!(moved, 0, "drive 2 moved by {moved} counts");
-    assert_eq!(f.rack.drive(3).unwrap().state(), State::Fault, "no automatic fault reset");
+    assert_eq!(f.rack.drive(3).unwrap().state(), PowerState::Fault, "no automatic fault reset");
     f.master().operational().unwrap().fault_reset(2).unwrap();
-    f.until(Duration::from_secs(1), "fault reset on request", |f| f.rack.drive(3).unwrap().state() != State::Fault);
+    f.until(Duration::from_secs(1), "fault reset on request", |f| f.rack.drive(3).unwrap().state() != PowerState::Fault);
     let c = f.counters();
     assert_eq!((c.sdo_aborts, c.sdo_retries), (0, 0), "{c:?}");
 }
@@ -267,7 +267,7 @@ fn slow_and_duplicated_sdo_answers_do_not_desynchronise_bring_up() {
         // the last one (no transfer: unexpected).
         assert_eq!(c.sdo_discarded + c.unexpected_sdo, dups, "every {every}: {c:?}");
         for n in NODES {
-            assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "every {every}: node {n}");
+            assert_eq!(f.count(|e| *e == NodeEvent::Configured { node: n }), 1, "every {every}: node {n}");
         }
         for d in f.rack.drives() {
             assert_eq!(d.counters().sdo_aborts, 0, "every {every}: node {} got a request it refused", d.node_id());
@@ -296,9 +296,9 @@ fn a_lost_boot_up_is_configured_once_after_the_boot_wait() {
     assert_eq!(f.rack.drive(3).unwrap().counters().boots_lost, 1);
     assert_eq!((c.sdo_aborts, c.sdo_retries, c.sdo_discarded), (0, 0, 0), "{c:?}");
     for n in NODES {
-        assert_eq!(f.count(|e| *e == Event::Configured { node: n }), 1, "node {n}");
+        assert_eq!(f.count(|e| *e == NodeEvent::Configured { node: n }), 1, "node {n}");
     }
-    assert_eq!(f.count(|e| *e == Event::Booted { node: 3 }), 0);
+    assert_eq!(f.count(|e| *e == NodeEvent::Booted { node: 3 }), 0);
 }
 
 /// taut configures each drive's heartbeat consumer for its own heartbeat and the abort
@@ -307,7 +307,7 @@ fn a_lost_boot_up_is_configured_once_after_the_boot_wait() {
 #[test]
 fn drives_leave_operation_enabled_when_the_master_stops() {
     const NODES: [u8; 4] = [1, 2, 3, 4];
-    for (code, want) in [(3i16, State::QuickStopActive), (1, State::Fault), (2, State::SwitchOnDisabled)] {
+    for (code, want) in [(3i16, PowerState::QuickStopActive), (1, PowerState::Fault), (2, PowerState::SwitchOnDisabled)] {
         let mut f = Field::new(heartbeating(&NODES, 100));
         f.run(Duration::from_millis(300));
         let mut cfg = config(&NODES);
@@ -334,7 +334,7 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
         let gone = f.master.take();
         let stopped = f.t;
         let took = f.until(consumer + period, "drives leave operation enabled", |f| {
-            f.rack.drives().iter().all(|d| d.state() != State::OperationEnabled)
+            f.rack.drives().iter().all(|d| d.state() != PowerState::OperationEnabled)
         });
         assert!(took + period > consumer, "code {code}: not before the consumer time: {took:?}");
         for (d, p) in f.rack.drives().iter().zip(&held) {
@@ -360,7 +360,7 @@ fn drives_leave_operation_enabled_when_the_master_stops() {
         f.until(Duration::from_secs(2), "operational again", |f| f.rack.drives().iter().all(|d| d.nmt_state() == NmtState::Operational));
         f.run(Duration::from_millis(500));
         for (d, p) in f.rack.drives().iter().zip(&held) {
-            assert_ne!(d.state(), State::OperationEnabled, "code {code}: node {} enabled again without a request", d.node_id());
+            assert_ne!(d.state(), PowerState::OperationEnabled, "code {code}: node {} enabled again without a request", d.node_id());
             assert_eq!(d.position(), *p);
         }
         assert!(f.master().all_operational() && !f.master().all_enabled());
@@ -391,5 +391,5 @@ fn every_client_abort_reaches_the_bus() {
     // A timeout is retried unless its tries are used up (the optional device name, whose
     // segments are all late, is given up after 2 retries).
     assert!(c.sdo_retries > 10 && c.sdo_retries <= c.sdo_timeouts, "{c:?}");
-    assert_eq!(f.count(|e| *e == Event::Configured { node: 1 }), 1);
+    assert_eq!(f.count(|e| *e == NodeEvent::Configured { node: 1 }), 1);
 }

@@ -6,13 +6,13 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use taut_driver::canopen::master::{CommandError, Event, Master, MasterConfig, NodeConfig, NodeFailure, Phase, Problem};
+use taut_driver::canopen::master::{CommandError, Master, MasterConfig, NodeConfig, NodeEvent, NodeFailure, Phase, Problem};
 use taut_driver::transport::candump::{self, Recorder, Replay};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
+use taut_io::robot_io::Scaling;
 use taut_proto::can::{CanTransport, Frame};
-use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::canopen::cia402::{Mode, PowerState};
 use taut_proto::canopen::pdo::PdoLayout;
-use taut_rt_core::robot_io::Scaling;
 use taut_vdev::{rack_filters, DriveRack};
 
 /// The virtual drives' default drum in cable units (the master deals in counts and ‰; the robot
@@ -29,7 +29,7 @@ struct Rig<T: CanTransport> {
     master: Master,
     port: T,
     rack: DriveRack<VirtualEndpoint>,
-    events: Vec<Event>,
+    events: Vec<NodeEvent>,
 }
 
 fn config(nodes: &[u8]) -> MasterConfig {
@@ -92,7 +92,7 @@ impl<T: CanTransport> Rig<T> {
         self.until(Duration::from_secs(1), "enable", |r| r.master.all_enabled());
     }
 
-    fn count(&self, f: impl Fn(&Event) -> bool) -> usize {
+    fn count(&self, f: impl Fn(&NodeEvent) -> bool) -> usize {
         self.events.iter().filter(|e| f(e)).count()
     }
 }
@@ -113,7 +113,7 @@ fn bring_up_identifies_configures_and_starts_every_drive() {
         assert_eq!(s.boots, 1);
     }
     for n in NODES {
-        for want in [Event::Booted { node: n }, Event::Configured { node: n }, Event::Operational { node: n }] {
+        for want in [NodeEvent::Booted { node: n }, NodeEvent::Configured { node: n }, NodeEvent::Operational { node: n }] {
             assert_eq!(r.count(|e| *e == want), 1, "{want:?}");
         }
     }
@@ -121,7 +121,7 @@ fn bring_up_identifies_configures_and_starts_every_drive() {
     r.run(Duration::from_millis(50));
     for s in r.master.statuses() {
         assert!(s.axis.tpdos > 10, "TPDOs flow every SYNC");
-        assert_eq!(s.axis.state, Some(State::ReadyToSwitchOn), "held at ready to switch on until enabled");
+        assert_eq!(s.axis.state, Some(PowerState::ReadyToSwitchOn), "held at ready to switch on until enabled");
     }
     for d in r.rack.drives() {
         assert_eq!(d.target().mode, Mode::CyclicPosition);
@@ -158,7 +158,7 @@ fn csp_motion_moves_the_cable_by_the_commanded_metres() {
     );
     assert!((DRUM.counts_to_m(s1.axis.position) - (start[1] - 0.05)).abs() <= 1.5 * count_m);
     assert!((DRUM.counts_to_m(s2.axis.position) - start[2]).abs() <= 1.5 * count_m, "an enabled drive holds where it stood");
-    assert_eq!(s0.axis.state, Some(State::OperationEnabled));
+    assert_eq!(s0.axis.state, Some(PowerState::OperationEnabled));
 }
 
 #[test]
@@ -186,26 +186,26 @@ fn emcy_is_decoded_and_a_fault_is_reset_on_request_only() {
     r.bring_up();
     r.enable_all();
     r.rack.drive(2).unwrap().inject_fault(0x2310);
-    r.until(Duration::from_millis(100), "fault seen", |r| r.master.status(1).unwrap().axis.state == Some(State::Fault));
+    r.until(Duration::from_millis(100), "fault seen", |r| r.master.status(1).unwrap().axis.state == Some(PowerState::Fault));
     let emcy = r.events.iter().find_map(|e| match e {
-        Event::Emergency { node: 2, emcy } => Some(*emcy),
+        NodeEvent::Emergency { node: 2, emcy } => Some(*emcy),
         _ => None,
     });
     let emcy = emcy.expect("EMCY event");
     assert_eq!(emcy.code, 0x2310);
     assert_eq!(emcy.name(), "continuous over-current (motor side)");
-    assert!(format!("{}", Event::Emergency { node: 2, emcy }).contains("over-current"));
+    assert!(format!("{}", NodeEvent::Emergency { node: 2, emcy }).contains("over-current"));
     assert_eq!(r.master.counters().emergencies, 1);
     // No automatic reset, and no motion commands to the faulted drive.
     r.run(Duration::from_millis(100));
-    assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::Fault));
+    assert_eq!(r.master.status(1).unwrap().axis.state, Some(PowerState::Fault));
     assert_eq!(r.master.operational().unwrap().set_position_counts(1, DRUM.m_to_counts(0.0)), Err(CommandError::NotEnabled { node: 2 }));
     // The other drives stay enabled.
-    assert_eq!(r.master.status(0).unwrap().axis.state, Some(State::OperationEnabled));
+    assert_eq!(r.master.status(0).unwrap().axis.state, Some(PowerState::OperationEnabled));
 
     r.master.operational().unwrap().fault_reset(1).unwrap();
-    r.until(Duration::from_millis(100), "fault reset", |r| r.master.status(1).unwrap().axis.state != Some(State::Fault));
-    assert!(r.events.iter().any(|e| matches!(e, Event::Emergency { node: 2, emcy } if emcy.is_reset())));
+    r.until(Duration::from_millis(100), "fault reset", |r| r.master.status(1).unwrap().axis.state != Some(PowerState::Fault));
+    assert!(r.events.iter().any(|e| matches!(e, NodeEvent::Emergency { node: 2, emcy } if emcy.is_reset())));
     r.enable_all();
 }
 
@@ -218,13 +218,13 @@ fn heartbeat_loss_is_detected_and_the_node_is_configured_again_when_it_returns()
     // 100 ms period, 300 ms timeout.
     assert!(took > Duration::from_millis(250) && took < Duration::from_millis(450), "{took:?}");
     assert!(r.master.operational().is_none(), "no motion interface while a drive is lost");
-    assert_eq!(r.count(|e| *e == Event::HeartbeatLost { node: 3 }), 1);
+    assert_eq!(r.count(|e| *e == NodeEvent::HeartbeatLost { node: 3 }), 1);
     assert_eq!(r.master.counters().heartbeat_losses, 1);
 
     r.rack.drive(3).unwrap().set_heartbeat_off(false);
     r.bring_up();
-    assert_eq!(r.count(|e| *e == Event::HeartbeatRecovered { node: 3 }), 1);
-    assert_eq!(r.count(|e| *e == Event::Configured { node: 3 }), 2, "configured again");
+    assert_eq!(r.count(|e| *e == NodeEvent::HeartbeatRecovered { node: 3 }), 1);
+    assert_eq!(r.count(|e| *e == NodeEvent::Configured { node: 3 }), 2, "configured again");
 }
 
 #[test]
@@ -237,7 +237,7 @@ fn a_silent_node_is_lost_and_comes_back_after_a_power_cycle() {
     d.set_silent(false);
     d.power_cycle();
     r.bring_up();
-    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 1 }), 1);
+    assert_eq!(r.count(|e| *e == NodeEvent::Rebooted { node: 1 }), 1);
 }
 
 #[test]
@@ -249,7 +249,7 @@ fn a_node_rebooting_mid_run_is_noticed_and_configured_again() {
     r.run(Duration::from_millis(50));
     r.rack.drive(4).unwrap().power_cycle();
     r.run(Duration::from_millis(5));
-    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 4 }), 1);
+    assert_eq!(r.count(|e| *e == NodeEvent::Rebooted { node: 4 }), 1);
     assert!(r.master.operational().is_none(), "the set is not operational while node 4 is reconfigured");
     r.bring_up();
     let s = r.master.status(3).unwrap();
@@ -257,7 +257,7 @@ fn a_node_rebooting_mid_run_is_noticed_and_configured_again() {
     assert_eq!(r.master.counters().reboots, 1);
     r.run(Duration::from_millis(20));
     // Power-on state: disabled; the master does not re-enable by itself.
-    assert_eq!(r.master.status(3).unwrap().axis.state, Some(State::ReadyToSwitchOn));
+    assert_eq!(r.master.status(3).unwrap().axis.state, Some(PowerState::ReadyToSwitchOn));
     // The absolute encoder kept its position.
     assert!((DRUM.counts_to_m(r.master.status(3).unwrap().axis.position) - 0.02).abs() < 1e-3);
     r.enable_all();
@@ -294,7 +294,7 @@ fn malformed_frames_and_unknown_nodes_are_counted_and_reported_once() {
     // One from the junk, one from drive 1 answering the other client's request.
     assert_eq!(c.unexpected_sdo, 2, "{c:?}");
     for kind in [Problem::Malformed, Problem::UnknownNode, Problem::Ignored, Problem::UnexpectedSdo] {
-        assert_eq!(r.count(|e| matches!(e, Event::FirstOfKind { kind: k, .. } if *k == kind)), 1, "{kind:?} once");
+        assert_eq!(r.count(|e| matches!(e, NodeEvent::FirstOfKind { kind: k, .. } if *k == kind)), 1, "{kind:?} once");
     }
     assert!(r.rack.drives().iter().all(|d| d.counters().short_rpdos == 0), "the master never sends short RPDOs");
 }
@@ -309,7 +309,7 @@ fn a_drive_with_the_wrong_identity_is_refused() {
     assert_eq!(s.phase, Phase::Failed(NodeFailure::WrongDevice { sub: 1, expected: 0x1234, found: 0xACE }));
     assert!(r.master.operational().is_none());
     assert_eq!(r.master.status(0).unwrap().phase, Phase::Operational);
-    let msg = r.events.iter().find(|e| matches!(e, Event::Failed { .. })).unwrap().to_string();
+    let msg = r.events.iter().find(|e| matches!(e, NodeEvent::Failed { .. })).unwrap().to_string();
     assert!(msg.contains("0x1018sub1") && msg.contains("wrong drive"), "{msg}");
 }
 
@@ -325,7 +325,7 @@ fn sdo_timeouts_are_retried_then_the_node_fails() {
     assert!(matches!(s.phase, Phase::Failed(NodeFailure::Sdo(a)) if !a.by_server), "{:?}", s.phase);
     let c = r.master.counters();
     assert_eq!(c.sdo_timeouts, 3, "first try and two retries: {c:?}");
-    assert_eq!(r.count(|e| matches!(e, Event::FirstOfKind { kind: Problem::SdoTimeout, .. })), 1);
+    assert_eq!(r.count(|e| matches!(e, NodeEvent::FirstOfKind { kind: Problem::SdoTimeout, .. })), 1);
 }
 
 #[test]
@@ -409,7 +409,7 @@ fn nmt_reset_node_and_pre_operational_are_followed_by_reconfiguration_and_restar
     r.bring_up();
     r.master.send_nmt(NmtCommand::ResetNode, 2);
     r.run(Duration::from_millis(5));
-    assert_eq!(r.count(|e| *e == Event::Rebooted { node: 2 }), 1);
+    assert_eq!(r.count(|e| *e == NodeEvent::Rebooted { node: 2 }), 1);
     r.bring_up();
     assert_eq!(r.master.status(1).unwrap().boots, 2);
 
@@ -419,7 +419,7 @@ fn nmt_reset_node_and_pre_operational_are_followed_by_reconfiguration_and_restar
     assert_eq!(r.rack.drive(3).unwrap().nmt_state(), NmtState::PreOperational);
     r.until(Duration::from_millis(300), "restarted", |r| r.rack.drive(3).unwrap().nmt_state() == NmtState::Operational);
     r.bring_up();
-    assert_eq!(r.count(|e| *e == Event::Operational { node: 3 }), 2);
+    assert_eq!(r.count(|e| *e == NodeEvent::Operational { node: 3 }), 2);
 }
 
 #[test]
@@ -468,14 +468,14 @@ fn quick_stop_then_enable_again() {
     r.bring_up();
     r.enable_all();
     r.master.operational().unwrap().quick_stop(0).unwrap();
-    r.until(Duration::from_millis(50), "quick stop", |r| r.master.status(0).unwrap().axis.state == Some(State::QuickStopActive));
+    r.until(Duration::from_millis(50), "quick stop", |r| r.master.status(0).unwrap().axis.state == Some(PowerState::QuickStopActive));
     assert_eq!(r.master.operational().unwrap().set_position_counts(0, DRUM.m_to_counts(0.0)), Err(CommandError::NotEnabled { node: 1 }));
-    assert_eq!(r.master.status(1).unwrap().axis.state, Some(State::OperationEnabled), "the other drive is untouched");
+    assert_eq!(r.master.status(1).unwrap().axis.state, Some(PowerState::OperationEnabled), "the other drive is untouched");
     r.enable_all();
     let mut op = r.master.operational().unwrap();
     op.disable(0).unwrap();
     op.disable(1).unwrap();
-    r.until(Duration::from_millis(50), "disabled", |r| r.master.statuses().all(|s| s.axis.state == Some(State::ReadyToSwitchOn)));
+    r.until(Duration::from_millis(50), "disabled", |r| r.master.statuses().all(|s| s.axis.state == Some(PowerState::ReadyToSwitchOn)));
 }
 
 /// The typed drive set, in wall-clock time with the drives on their own thread: a drive that

@@ -6,13 +6,13 @@ use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
 use taut_config::RobotConfig;
-use taut_driver::canopen::master::{Event, Master, MasterConfig, NodeFailure, Phase};
+use taut_driver::canopen::master::{Master, MasterConfig, NodeEvent, NodeFailure, Phase};
 use taut_driver::transport::virtual_bus::{VirtualBus, VirtualEndpoint};
+use taut_io::robot_io::{Peripherals, RobotDevices};
 use taut_proto::can::{CanTransport, Frame};
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::sdo::{AbortCode, Initiate, SdoRequest, SdoResponse};
 use taut_proto::eds::Eds;
-use taut_rt_core::robot_io::{Peripherals, RobotDevices};
 use taut_vdev::{rack_filters, DriveParams, DriveRack, VirtualDrive};
 
 const MS: Duration = Duration::from_millis(1);
@@ -43,7 +43,7 @@ struct Rig {
     port: VirtualEndpoint,
     monitor: VirtualEndpoint,
     rack: DriveRack<VirtualEndpoint>,
-    events: Vec<Event>,
+    events: Vec<NodeEvent>,
     /// Frames the drives sent, by id.
     seen: Vec<Frame>,
     /// Changes SDO answers on their way to the master (fault injection).
@@ -114,7 +114,7 @@ fn a_custom_map_with_velocity_is_written_read_back_and_runs_cycles() {
     assert!((s.axis.position - (start + 200_000)).abs() < 10, "position {} after the move", s.axis.position);
     // The drive's speed limit is 400 000 counts/s: the velocity in TPDO2 reaches it mid-move.
     assert!((300_000..=400_000).contains(&max_v), "largest velocity actual {max_v} counts/s");
-    assert_eq!(s.axis.state, Some(State::OperationEnabled));
+    assert_eq!(s.axis.state, Some(PowerState::OperationEnabled));
     // The frames on the bus follow the maps: node 5 sends TPDO1 of 6 bytes and TPDO2 of 8; the
     // compact drive 6 nothing on 0x286 (its factory TPDO2 was switched off); node 7 TPDO2 3 bytes.
     let dlc = |id: u16| r.seen.iter().filter(|f| f.id == u32::from(id)).map(|f| f.dlc).collect::<std::collections::BTreeSet<_>>();

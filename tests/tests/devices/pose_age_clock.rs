@@ -11,9 +11,9 @@
 //! 0.3 s and more, the tracker sends every 10 ms.
 
 use std::time::{Duration, Instant};
+use taut_io::FromRobot;
 use taut_rt::io::{Inputs, Outputs};
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 
 #[test]

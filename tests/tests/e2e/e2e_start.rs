@@ -2,10 +2,10 @@
 //! against the running daemon, over its Unix socket.
 
 use std::time::Duration;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::control;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::OutcomeKind;
+use taut_operator::control;
+use taut_plugin::daemon::{Daemon, DaemonOptions};
 use taut_tests::startup;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
@@ -70,7 +70,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         cal.heldout_rms_old_m * 1e3
     );
     // Accepted by the daemon's held-out rule (not clearly worse than the running set by more than
-    // daemon.heldout_tolerance_m: unit-tested with its error rates in rt-core's calibrator). Its
+    // daemon.heldout_tolerance_m: unit-tested with its error rates in taut-calibrator). Its
     // RMS values are reported; comparing them again here (it was: new < 1.05 old) asserted on
     // held-out noise, a few hundredths of a mm either way when the initial estimate is good.
     assert!(cal.heldout_rms_new_m > 0.0 && cal.heldout_rms_old_m > 0.0, "{} vs {}", cal.heldout_rms_new_m, cal.heldout_rms_old_m);
@@ -118,7 +118,7 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         .spawn()
         .unwrap();
     let goal = {
-        use taut_rt_core::FromRobot;
+        use taut_io::FromRobot;
         let w = taut_rt::motion::ControllerConfig::from_robot(&cfg).unwrap().workspace;
         let t = st["target_m"].as_array().unwrap();
         // 0.15 m from where the start-up left the platform, towards the middle: a short move.

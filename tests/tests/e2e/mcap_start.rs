@@ -4,10 +4,10 @@
 //! client (compare telemetry_ws.rs, with one).
 
 use std::time::Duration;
+use taut_calibrator::calib_backend::TautCalib;
 use taut_config::live::RecordingFormat;
 use taut_config::recording::Recording;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
+use taut_plugin::daemon::{Daemon, DaemonOptions};
 use taut_tests::mcap::{count, read_with_python};
 use taut_tests::startup;
 

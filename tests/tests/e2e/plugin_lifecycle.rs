@@ -6,16 +6,16 @@
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use taut_calibrator::vocab::OutcomeKind;
+use taut_io::rtsys::{monotonic_ns, Periodic};
+use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_plugin::{
+    DeviceMode, ErrorKind, HostInputs, HostOutputs, Lifecycle, LoopEvent, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
+    UpdateError,
+};
 use taut_rt::io::{DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt::motion::{ResetOutcome, State};
 use taut_rt::safety::{Cause, Reaction};
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::plugin::{
-    DeviceMode, ErrorKind, Event, HostInputs, HostOutputs, Lifecycle, ModeKind, Op, Plugin, PluginError, PluginOptions, RecordingPath,
-    UpdateError,
-};
-use taut_rt_core::rtsys::{monotonic_ns, Periodic};
-use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_tests::startup;
 
 /// The host's side of one cycle: the simulated devices' readings in, the plugin's commands out.
@@ -43,7 +43,7 @@ impl Host {
     }
 
     /// One period: wait, read the devices, update the plugin, write the devices.
-    fn cycle(&mut self, p: &mut Plugin) -> taut_rt_core::plugin::Tick {
+    fn cycle(&mut self, p: &mut Plugin) -> taut_plugin::Tick {
         self.timer.wait();
         let now = (monotonic_ns() - self.t0) as f64 * 1e-9;
         let dt = if self.last == 0.0 { 1.0 / p.rate_hz() } else { now - self.last };
@@ -135,9 +135,9 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let mut states = Vec::new();
     while let Some(e) = handle.poll_event() {
         match e {
-            Event::Phase { phase, .. } => phases.push(phase),
-            Event::ParamsSwapped { version, .. } => versions.push(version),
-            Event::State { to, .. } => states.push(to),
+            LoopEvent::Phase { phase, .. } => phases.push(phase),
+            LoopEvent::ParamsSwapped { version, .. } => versions.push(version),
+            LoopEvent::State { to, .. } => states.push(to),
             other => panic!("unexpected event {other:?}"),
         }
     }
@@ -187,8 +187,8 @@ fn host_owned_start_up_to_a_hot_swap_then_operator_from_another_thread() {
     let mut saw = (false, false);
     while let Some(e) = handle.poll_event() {
         match e {
-            Event::Fault { cause: Cause::Estop, reaction: Reaction::QuickStop, .. } => saw.0 = true,
-            Event::Reset { outcome: ResetOutcome::Done, .. } => saw.1 = true,
+            LoopEvent::Fault { cause: Cause::Estop, reaction: Reaction::QuickStop, .. } => saw.0 = true,
+            LoopEvent::Reset { outcome: ResetOutcome::Done, .. } => saw.1 = true,
             _ => {}
         }
     }
@@ -253,7 +253,7 @@ fn lifecycle_calls_out_of_order_are_errors() {
     let mut bad = i;
     bad.drive[2] = 77;
     let t = p.update_with(1.002, 0.002, &bad, &mut o).unwrap();
-    assert_eq!(t.bad_input, Some(taut_rt_core::plugin::BadInput::Drive { cable: 2, code: 77 }));
+    assert_eq!(t.bad_input, Some(taut_plugin::BadInput::Drive { cable: 2, code: 77 }));
     p.deactivate().unwrap();
     // Re-activation: the loop starts over (enable, then the phases), and the host's clock may
     // have restarted.
@@ -312,7 +312,7 @@ fn a_failed_activation_leaves_the_robot_safe_and_a_retry_succeeds() {
     assert_eq!(last_request.load(Ordering::SeqCst), DriveRequest::Disable as u8);
     assert_eq!(p.lifecycle(), Lifecycle::Inactive);
     assert_eq!(p.update(10.0, 0.002).unwrap_err(), UpdateError::NotActive { state: Lifecycle::Inactive });
-    assert!(matches!(h.poll_event(), Some(Event::State { to: State::Enabling, .. })));
+    assert!(matches!(h.poll_event(), Some(LoopEvent::State { to: State::Enabling, .. })));
 
     // The drive is fixed: the retry enables every drive and the start-up runs from its first
     // phase.

@@ -7,8 +7,8 @@ use std::net::{SocketAddr, TcpStream};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
+use taut_calibrator::calib_backend::TautCalib;
+use taut_plugin::daemon::{Daemon, DaemonOptions};
 use tungstenite::client::IntoClientRequest;
 use tungstenite::Message;
 

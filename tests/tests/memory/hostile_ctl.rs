@@ -13,16 +13,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use taut_calibrator::vocab::{CalibStatus, SharedCalibStatus};
+use taut_io::runner::{run_loop, LoopCore, LoopReport, LoopStatus};
+use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_io::FromRobot;
+use taut_operator::control::{self, ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
 use taut_rt::kin::LoopParams;
 use taut_rt::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt::sample::sample_ring;
 use taut_rt::triple::{triple_buffer, Writer};
 use taut_rt::urgent::Urgent;
-use taut_rt_core::calibrator::{CalibStatus, SharedCalibStatus};
-use taut_rt_core::control::{self, ControlLinks, ControlServer, ServerLimits, SharedLoopStatus};
-use taut_rt_core::runner::{run_loop, LoopCore, LoopReport, LoopStatus};
-use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::FromRobot;
 
 const T: Duration = Duration::from_secs(10);
 
@@ -594,8 +594,8 @@ fn estop_reaches_the_controller_when_the_command_queue_is_full() {
 #[test]
 fn a_refused_second_daemon_leaves_no_file_behind() {
     let _m = memory_lock();
-    use taut_rt_core::calib_backend::TautCalib;
-    use taut_rt_core::daemon::{Daemon, DaemonOptions};
+    use taut_calibrator::calib_backend::TautCalib;
+    use taut_plugin::daemon::{Daemon, DaemonOptions};
     let dir = tempfile::tempdir().unwrap();
     let cfg = quick_config(4, dir.path());
     let robot = || Box::new(KinematicRobot::new(truth_params(4, 0.0), [0.2, 0.1, 2.0]));
@@ -636,7 +636,7 @@ proptest::proptest! {
     /// Any bytes at all: a request or a refusal with a message, never a panic.
     #[test]
     fn arbitrary_request_bytes_are_parsed_or_refused(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..300)) {
-        match taut_rt_core::control::parse_request(&bytes) {
+        match taut_operator::control::parse_request(&bytes) {
             Ok(_) => {}
             Err(e) => {
                 let e = e.to_string();
@@ -648,7 +648,7 @@ proptest::proptest! {
     /// Any text made of request words and numbers, finite or not.
     #[test]
     fn request_like_text_is_parsed_or_refused(s in "(move|status|estop|stop|reset|params|x| |\t|nan|-?inf|1e30[0-9]|-?[0-9]{1,4}(\\.[0-9]{1,3})?){0,8}") {
-        if let Ok(taut_rt_core::control::Request::Move(p)) = taut_rt_core::control::parse_request(s.as_bytes()) {
+        if let Ok(taut_operator::control::Request::Move(p)) = taut_operator::control::parse_request(s.as_bytes()) {
             proptest::prop_assert!(p.iter().all(|v| v.is_finite()), "{s:?} -> {p:?}");
         }
     }
@@ -660,8 +660,8 @@ proptest::proptest! {
 #[test]
 fn the_simulated_robot_daemon_answers_hostile_clients_and_estops() {
     let _m = memory_lock();
-    use taut_rt_core::calib_backend::TautCalib;
-    use taut_rt_core::daemon::{Daemon, DaemonOptions};
+    use taut_calibrator::calib_backend::TautCalib;
+    use taut_plugin::daemon::{Daemon, DaemonOptions};
     use taut_simrig::{self as simrig, SimOptions};
     let dir = tempfile::tempdir().unwrap();
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml");

@@ -9,10 +9,10 @@
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use taut_io::rtsys::{monotonic_ns, Periodic};
+use taut_plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHandle, PluginOptions, RecordingPath, Tick};
 use taut_rt::io::{Devices, Inputs};
 use taut_rt::motion::State;
-use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginHandle, PluginOptions, RecordingPath, Tick};
-use taut_rt_core::rtsys::{monotonic_ns, Periodic};
 use taut_tests::startup;
 
 // The counting global allocator of this test binary (one per binary): `crate::counting`.
@@ -41,7 +41,7 @@ fn script(p: &mut Plugin, rate_hz: f64, mut cycle: impl FnMut(&mut Plugin, f64, 
     // root; otherwise a warning and the normal scheduler), so that other work on the machine does
     // not starve the cycles the start-up is timed by.
     let rt = taut_config::runtime::RtConfig { priority: startup::REALTIME_PRIORITY, lock_memory: false, ..Default::default() };
-    for w in taut_rt_core::rtsys::setup_current_thread(&rt).warnings {
+    for w in taut_io::rtsys::setup_current_thread(&rt).warnings {
         eprintln!("plugin_alloc: {w}");
     }
     let h = p.handle().clone();

@@ -3,14 +3,14 @@
 //! sample ring.
 
 use std::cell::Cell;
+use taut_io::runner::LoopCore;
+use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_io::FromRobot;
 use taut_rt::io::{BusEvent, DeviceFault, IfName};
 use taut_rt::kin::LoopParams;
 use taut_rt::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt::sample::sample_ring;
 use taut_rt::triple::triple_buffer;
-use taut_rt_core::runner::LoopCore;
-use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::FromRobot;
 
 // The counting global allocator of this test binary (one per binary): `crate::counting`.
 use crate::counting::{ALLOCS, FREES, WATCHING};
@@ -155,8 +155,8 @@ fn the_counter_sees_allocations() {
 #[test]
 fn robot_devices_allocate_nothing_per_cycle() {
     use taut_driver::transport::virtual_bus::VirtualBus;
+    use taut_io::robot_io::{Peripherals, RobotDevices};
     use taut_rt::io::{CableCommand, Devices, DriveRequest, Inputs, Outputs};
-    use taut_rt_core::robot_io::{Peripherals, RobotDevices};
     use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
     let mut t = String::from("[robot]\nname = \"alloc\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\n");

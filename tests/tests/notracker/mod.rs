@@ -18,12 +18,12 @@
 
 use std::time::Duration;
 use taut_calib::selfcal::align::worst_aligned_error;
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::OutcomeKind;
+use taut_io::FromRobot;
+use taut_operator::control;
+use taut_plugin::daemon::{Daemon, DaemonOptions};
 use taut_rt::motion::{ControllerConfig, State};
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::control;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 
 /// Each aligned anchor coordinate within this many of its sigmas: two-sided normal tail 1.0e-6,
@@ -154,7 +154,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
         cfg.calibration.cable_ea_sigma_n = 0.15e6;
     }
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let plan = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+    let plan = taut_calibrator::notracker::dwell_plan(&cfg, &ccfg).unwrap();
     let mut so = SimOptions { seed, tracker: false, ..Default::default() };
     if dynamics {
         so.physics.dynamics = Some(taut_sim::Dynamics::default());
@@ -170,7 +170,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
         let run = taut_tests::startup::in_sim_time(
             &cfg,
             &so,
-            simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: limit_s as f64, ..Default::default() },
+            simrig::RunOptions { recording: taut_plugin::RecordingPath::Default, budget_s: limit_s as f64, ..Default::default() },
             |l, _| {
                 if states.last() != Some(&l.snap.state) {
                     states.push(l.snap.state);
@@ -311,7 +311,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     let rate = fresh as f64 / (dwell_rows.len() as f64 / cfg.rt.rate_hz);
     let mut measured = cfg.clone();
     measured.loadcells.get_or_insert_with(|| taut_proto::devices::LoadCellBusConfig::new("")).poll_period_s = 1.0 / rate;
-    let replan = taut_rt_core::notracker::dwell_plan(&measured, &ccfg).unwrap();
+    let replan = taut_calibrator::notracker::dwell_plan(&measured, &ccfg).unwrap();
     let norm = |s: &[f64; 3]| (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
     let achieved = ce.sigma.anchors.iter().map(norm).fold(0.0, f64::max);
     eprintln!(

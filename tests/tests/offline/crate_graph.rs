@@ -17,10 +17,17 @@
 //!   driver, the simulator; its source (and the model crate's) spawns no thread, takes no lock and
 //!   opens no file or socket outside its tests.
 //! - `taut-model` (the cable model formulas both calib and the loop call) has no dependencies.
-//! - `taut-rt-core` (the robot build) contains no simulator: the simulated rig is `taut-simrig`.
-//!   Nor does `taut-ffi` by default (the `taut_sim_*` functions are its `sim` feature), nor
+//! - `taut-io` (the robot's devices and the loop thread, which the real-time thread calls into)
+//!   links no calibration (`taut-calib`, nalgebra, `taut-calibrator`), no JSON (serde_json), no
+//!   MCAP and no WebSocket (tungstenite), and none of the crates above it (`taut-operator`,
+//!   `taut-plugin`).
+//! - `taut-calibrator` depends on neither the operator's services (`taut-operator`: control
+//!   socket, MCAP channels, telemetry) nor the plugin; its vocabulary module (`vocab`) imports
+//!   nothing from the rest of the crate.
+//! - The robot build (`taut-plugin` and everything below it) contains no simulator: the
+//!   simulated rig is `taut-simrig`. Nor does `taut-ffi` by default (the `taut_sim_*` functions are its `sim` feature), nor
 //!   `taut-cli` without its `sim` feature (on by default for development and the tests).
-//! - `testkit` (a feature of `taut-rt-core`: the kinematic stand-in robot) is not on in a normal
+//! - `testkit` (a feature of `taut-io`: the kinematic stand-in robot) is not on in a normal
 //!   `cargo build --workspace`: only dev-dependencies turn it on.
 //! - One number of cables: `taut_model::MAX_CABLES` is the only `MAX_CABLES` written as a number;
 //!   the others (the C ABI's `TAUT_MAX_CABLES`) are defined from it or re-export it.
@@ -87,7 +94,12 @@ fn assert_none(v: Vec<String>, rule: &str) {
 #[test]
 fn driver_depends_on_neither_the_simulator_nor_the_virtual_devices() {
     assert_none(
-        violations("taut-driver", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig", "taut-rt", "taut-rt-core"]),
+        violations(
+            "taut-driver",
+            "normal,build",
+            &[],
+            &["taut-sim", "taut-vdev", "taut-simrig", "taut-rt", "taut-io", "taut-calibrator", "taut-operator", "taut-plugin"],
+        ),
         "the driver must build without the physics and without the device side",
     );
     // Dev-dependencies too: a dev-dependency on a crate that depends on the driver is a cycle
@@ -145,7 +157,7 @@ fn the_protocol_crate_has_no_io() {
 #[test]
 fn master_and_device_side_do_not_depend_on_each_other() {
     assert_none(
-        violations("taut-vdev", "normal,build", &[], &["taut-driver", "taut-simrig", "taut-rt-core"]),
+        violations("taut-vdev", "normal,build", &[], &["taut-driver", "taut-simrig", "taut-io", "taut-plugin"]),
         "taut-vdev (the device side) uses taut-proto's codecs, not the master in taut-driver",
     );
     assert_none(
@@ -179,7 +191,10 @@ const NOT_REAL_TIME: &[&str] = &[
     "taut-driver",
     "taut-sim",
     "taut-vdev",
-    "taut-rt-core",
+    "taut-io",
+    "taut-calibrator",
+    "taut-operator",
+    "taut-plugin",
 ];
 
 #[test]
@@ -250,8 +265,8 @@ fn the_real_time_source_spawns_no_thread_takes_no_lock_and_does_no_io() {
     let mut found = scan(&workspace().join("rt/src"));
     found.extend(scan(&workspace().join("model/src")));
     assert!(found.is_empty(), "the real-time rule (docs/architecture.md) broken in taut-rt / taut-model:\n{}", found.join("\n"));
-    // The scan sees what it looks for: rt-core's daemon side spawns threads and takes locks.
-    let daemon_side = scan(&workspace().join("rt-core/src"));
+    // The scan sees what it looks for: the plugin's daemon spawns threads and the plugin takes locks.
+    let daemon_side = scan(&workspace().join("plugin/src"));
     assert!(daemon_side.iter().any(|l| l.contains("thread::spawn") || l.contains("std::thread")), "{daemon_side:?}");
     assert!(daemon_side.iter().any(|l| l.contains("Mutex")), "{daemon_side:?}");
 }
@@ -259,8 +274,8 @@ fn the_real_time_source_spawns_no_thread_takes_no_lock_and_does_no_io() {
 #[test]
 fn the_robot_build_contains_no_simulator() {
     assert_none(
-        violations("taut-rt-core", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
-        "taut-rt-core is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
+        violations("taut-plugin", "normal,build", &[], &["taut-sim", "taut-vdev", "taut-simrig"]),
+        "taut-plugin (with taut-io, taut-calibrator and taut-operator below it) is the robot's build; the simulated rig is taut-simrig (used by `taut start --sim`, ffi and tests)",
     );
     // The robot's `taut`: taut-cli without its `sim` feature (`taut demo`, `simulate`, `start --sim`).
     assert_none(
@@ -288,16 +303,85 @@ fn the_plugin_library_contains_no_simulator_by_default() {
 /// `cargo build --workspace` does (resolver 2: dev-dependencies are not unified into it).
 #[test]
 fn testkit_is_off_in_a_normal_workspace_build() {
-    let features = |edges: &str| cargo_tree(&["--workspace", "-e", edges, "-i", "taut-rt-core", "--depth", "0", "-f", "{p} [{f}]"]);
+    let features = |edges: &str| cargo_tree(&["--workspace", "-e", edges, "-i", "taut-io", "--depth", "0", "-f", "{p} [{f}]"]);
     let build = features("normal,build");
     assert!(
         !build.contains("testkit"),
-        "crate graph rule broken: taut-rt-core's `testkit` is on in `cargo build --workspace` (docs/architecture.md); \
+        "crate graph rule broken: taut-io's `testkit` is on in `cargo build --workspace` (docs/architecture.md); \
          a normal dependency turns it on, make it a dev-dependency:\n{build}\n{}",
-        cargo_tree(&["--workspace", "-e", "features,normal,build", "-i", "taut-rt-core", "--prefix", "depth"])
+        cargo_tree(&["--workspace", "-e", "features,normal,build", "-i", "taut-io", "--prefix", "depth"])
     );
     // The checker sees the feature where it is on: the tests' and benches' builds.
     assert!(features("normal,build,dev").contains("testkit"), "{}", features("normal,build,dev"));
+}
+
+/// The device and loop-thread crate, which the real-time thread calls into (`robot_io`'s read and
+/// write, the runner's cycle): no calibration, no JSON, no MCAP, no WebSocket, and none of the
+/// crates above it. Its configuration comes from `taut-config` without the `mcap` feature, which
+/// is the one that needs serde_json.
+const NOT_IN_THE_LOOP_THREAD_CRATE: &[&str] =
+    &["taut-calib", "nalgebra", "serde_json", "mcap", "tungstenite", "taut-calibrator", "taut-operator", "taut-plugin"];
+
+#[test]
+fn the_loop_thread_crate_links_no_calibration_json_mcap_or_websocket() {
+    assert_none(
+        violations("taut-io", "normal,build", &[], NOT_IN_THE_LOOP_THREAD_CRATE),
+        "taut-io (devices and the loop thread) links neither the calibration nor nalgebra, serde_json, mcap or tungstenite; \
+         the calibrator, the operator's services and the plugin are crates above it",
+    );
+    // The checker sees these crates where they are: the plugin links every one of them but itself.
+    let above = violations("taut-plugin", "normal,build", &[], NOT_IN_THE_LOOP_THREAD_CRATE);
+    assert_eq!(above.len(), NOT_IN_THE_LOOP_THREAD_CRATE.len(), "{above:#?}");
+    // And the loop-thread crate's real edges: the loop and the master.
+    assert_eq!(violations("taut-io", "normal", &["--depth", "1"], &["taut-rt", "taut-driver"]).len(), 2);
+}
+
+#[test]
+fn the_calibrator_depends_on_neither_the_operators_services_nor_the_plugin() {
+    assert_none(
+        violations("taut-calibrator", "normal,build", &[], &["taut-operator", "taut-plugin", "serde_json", "mcap", "tungstenite"]),
+        "taut-calibrator sends its samples and results through its own `vocab::RunOutputs` trait; \
+         the MCAP channels and the telemetry (taut-operator) implement it",
+    );
+    // The checker sees the edge the other way: the operator's services use the calibrator's vocabulary.
+    assert_eq!(violations("taut-operator", "normal", &["--depth", "1"], &["taut-calibrator"]).len(), 1);
+}
+
+/// The `crate::` paths of a file's non-test code that do not start with `allowed`.
+fn crate_paths_outside(text: &str, allowed: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    for (k, line) in code_of(text).lines().enumerate() {
+        let mut rest = line;
+        while let Some(i) = rest.find("crate::") {
+            let path: String = rest[i..].chars().take_while(|c| c.is_alphanumeric() || *c == '_' || *c == ':').collect();
+            if !path.starts_with(allowed) {
+                found.push(format!("code line {}: `{path}` in `{}`", k + 1, line.trim()));
+            }
+            rest = &rest[i + 7..];
+        }
+    }
+    found
+}
+
+/// The calibrator's vocabulary (configuration, estimate, outcome, status, errors) is the module
+/// the rest of the calibrator, the operator's services and the plugin import; it imports nothing
+/// from the rest of its crate, so no two modules import each other in a circle through it.
+#[test]
+fn the_calibrators_vocabulary_imports_nothing_from_the_rest_of_its_crate() {
+    let mut files = Vec::new();
+    rust_files(&workspace().join("calibrator/src/vocab"), &mut files);
+    files.sort();
+    assert!(files.len() >= 2, "{files:?}");
+    let mut found = Vec::new();
+    for f in &files {
+        for l in crate_paths_outside(&std::fs::read_to_string(f).unwrap(), "crate::vocab") {
+            found.push(format!("{}: {l}", f.display()));
+        }
+    }
+    assert!(found.is_empty(), "crate graph rule broken: the calibrator's vocabulary imports the rest of its crate:\n{}", found.join("\n"));
+    // The scan sees what it looks for: the calibrator thread's module does use other modules.
+    let thread = std::fs::read_to_string(workspace().join("calibrator/src/calibrator.rs")).unwrap();
+    assert!(crate_paths_outside(&thread, "crate::vocab").iter().any(|l| l.contains("crate::heldout")));
 }
 
 /// The checker itself sees a real edge: the simulated rig does depend on taut-sim and taut-vdev,
@@ -352,7 +436,25 @@ fn rust_files(dir: &std::path::Path, out: &mut Vec<PathBuf>) {
 /// `taut_model::MAX_CABLES` (the one written as a number) or defined from another constant.
 #[test]
 fn one_max_cables() {
-    let members = ["model", "proto", "config", "calib", "sim", "vdev", "driver", "rt", "rt-core", "simrig", "ffi", "cli", "tests", "fuzz"];
+    let members = [
+        "model",
+        "proto",
+        "config",
+        "calib",
+        "sim",
+        "vdev",
+        "driver",
+        "rt",
+        "io",
+        "calibrator",
+        "operator",
+        "plugin",
+        "simrig",
+        "ffi",
+        "cli",
+        "tests",
+        "fuzz",
+    ];
     let mut files = Vec::new();
     for m in members {
         rust_files(&workspace().join(m), &mut files);
@@ -387,7 +489,7 @@ fn one_max_cables() {
     assert!(derived.iter().any(|l| l.starts_with("ffi/src/lib.rs:") && l.contains("TAUT_MAX_CABLES")), "{derived:?}");
 }
 
-/// The workspace's member directories (`taut_rt_core` is `rt-core/`), as `use` paths name them.
+/// The workspace's member directories (`taut_io` is `io/`), as `use` paths name them.
 const MEMBERS: &[(&str, &str)] = &[
     ("taut_model", "model"),
     ("taut_proto", "proto"),
@@ -397,7 +499,10 @@ const MEMBERS: &[(&str, &str)] = &[
     ("taut_vdev", "vdev"),
     ("taut_driver", "driver"),
     ("taut_rt", "rt"),
-    ("taut_rt_core", "rt-core"),
+    ("taut_io", "io"),
+    ("taut_calibrator", "calibrator"),
+    ("taut_operator", "operator"),
+    ("taut_plugin", "plugin"),
     ("taut_simrig", "simrig"),
     ("taut_ffi", "ffi"),
     ("taut_cli", "cli"),
@@ -427,17 +532,17 @@ const ITEM_REEXPORTS: &[(&str, &str, &str)] = &[
     ("rt/src/lib.rs", "taut_model::geometry::GeometryError", "the loop's parameters are built from the shared geometry"),
     ("rt/src/lib.rs", "taut_model::geometry::Sigmas", "the loop's parameters are built from the shared geometry"),
     ("rt/src/lib.rs", "taut_model::MAX_CABLES", "the loop's fixed arrays' size"),
-    // The plugin's and the loop thread's API: types of taut-rt in their signatures.
-    ("rt-core/src/plugin/mod.rs", "taut_rt::host::BadInput", "Plugin::update_with's error"),
-    ("rt-core/src/plugin/mod.rs", "taut_rt::host::HostInputs", "Plugin::update_with's argument"),
-    ("rt-core/src/plugin/mod.rs", "taut_rt::host::HostOutputs", "Plugin::update_with's argument"),
-    ("rt-core/src/plugin/mod.rs", "taut_rt::update::Tick", "Plugin::update's result"),
-    ("rt-core/src/plugin/mod.rs", "taut_rt::io::Devices", "DeviceSource::bring_up returns them"),
-    ("rt-core/src/plugin/handle.rs", "taut_rt::update::Event", "the plugin's event queue carries them"),
-    ("rt-core/src/operator.rs", "taut_rt::update::Event", "the operator's event queue carries them"),
-    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopCore", "run_loop's argument"),
-    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopStatus", "run_loop's status output"),
-    ("rt-core/src/runner.rs", "taut_rt::cycle::LoopTiming", "run_periodic's per-cycle timing"),
+    // The plugin's, the operator queue's and the loop thread's API: types of taut-rt in their signatures.
+    ("plugin/src/lib.rs", "taut_rt::host::BadInput", "Plugin::update_with's error"),
+    ("plugin/src/lib.rs", "taut_rt::host::HostInputs", "Plugin::update_with's argument"),
+    ("plugin/src/lib.rs", "taut_rt::host::HostOutputs", "Plugin::update_with's argument"),
+    ("plugin/src/lib.rs", "taut_rt::update::Tick", "Plugin::update's result"),
+    ("plugin/src/lib.rs", "taut_rt::io::Devices", "DeviceSource::bring_up returns them"),
+    ("plugin/src/handle.rs", "taut_rt::update::LoopEvent", "the plugin's event queue carries them"),
+    ("operator/src/operator.rs", "taut_rt::update::LoopEvent", "the operator's event queue carries them"),
+    ("io/src/runner.rs", "taut_rt::cycle::LoopCore", "run_loop's argument"),
+    ("io/src/runner.rs", "taut_rt::cycle::LoopStatus", "run_loop's status output"),
+    ("io/src/runner.rs", "taut_rt::cycle::LoopTiming", "run_periodic's per-cycle timing"),
 ];
 
 /// The paths a `use` tree names: `a::{b, c::{d as e, self}}` is `a::b`, `a::c::d`, `a::c`.
@@ -595,16 +700,17 @@ fn no_crate_reexports_another_crates_modules() {
             "listed re-export gone: {f}: {p} ({why}); remove it from ITEM_REEXPORTS"
         );
     }
-    // The check sees what it looks for: rt-core's old re-exports of taut-rt's modules and of
-    // crossbeam_channel, and a module re-export spread over lines.
-    let rt_core = dependency_names("rt-core");
+    // The check sees what it looks for: the old non-real-time crate's re-exports of taut-rt's
+    // modules and of crossbeam_channel (put in the plugin's lib.rs), and a module re-export
+    // spread over lines.
+    let plugin = dependency_names("plugin");
     let old = "pub use taut_rt::{follower, io, kin, motion, ramp, safety, sample, spsc, triple, urgent, MAX_CABLES};\n\
                pub use crossbeam_channel;\npub use rt_config::{EffectsFromFile, FromRobot};\n";
-    let v = reexport_problems("rt-core/src/lib.rs", old, &rt_core);
-    assert_eq!(v.len(), 12, "{v:#?}"); // ten modules, MAX_CABLES not listed for rt-core, the crate
+    let v = reexport_problems("plugin/src/lib.rs", old, &plugin);
+    assert_eq!(v.len(), 12, "{v:#?}"); // ten modules, MAX_CABLES not listed for the plugin, the crate
     assert!(v[3].contains("`taut_rt::motion`") && v[3].contains("module"), "{}", v[3]);
     assert!(v[11].contains("whole crate, `crossbeam_channel`"), "{}", v[11]);
     let spread = "pub use taut_rt::{\n    host, // the host structs\n    update::Tick,\n};\npub(crate) use taut_rt::io;\n";
-    assert_eq!(reexport_problems("rt-core/src/plugin/mod.rs", spread, &rt_core).len(), 1);
+    assert_eq!(reexport_problems("plugin/src/lib.rs", spread, &plugin).len(), 1);
     assert_eq!(use_leaves("a::{b, c::{d as e, self}}"), ["a::b", "a::c::d", "a::c"]);
 }

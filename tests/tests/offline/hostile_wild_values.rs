@@ -10,11 +10,12 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::calibrator::evaluate;
+use taut_calibrator::vocab::{CalibratorConfig, Estimate, HeldoutBlocks};
 use taut_config::params::ParamsFile;
 use taut_config::recording::Recording;
 use taut_rt::kin::LoopParams;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{evaluate, CalibratorConfig, Estimate, HeldoutBlocks};
 use taut_sim::{simulate, Scenario};
 
 #[derive(Debug, Clone, Copy)]

@@ -144,8 +144,8 @@ fn taut_calibrate_says_so_in_text_json_and_report() {
 /// (the set is not refused for it).
 #[test]
 fn the_daemons_estimate_says_so_too() {
-    use taut_rt_core::calib_backend::TautCalib;
-    use taut_rt_core::calibrator::{Calibrate, Estimate};
+    use taut_calibrator::calib_backend::TautCalib;
+    use taut_calibrator::vocab::{Calibrate, Estimate};
     for (physics, consistent) in [(Physics { elasticity: Some(20_000.0), ..Physics::default() }, false), (Physics::default(), true)] {
         let mut s = Scenario::aras_cam(4);
         s.three_phase = None;

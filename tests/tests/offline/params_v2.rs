@@ -6,8 +6,8 @@
 use taut_calib::diagnose::{diagnose, DiagnoseOptions};
 use taut_calib::effect_fit::effects_of;
 use taut_config::params::{ParamsFile, FORMAT};
+use taut_io::EffectsFromFile;
 use taut_rt::kin::{LoopEffects, LoopParams};
-use taut_rt_core::EffectsFromFile;
 use taut_sim::{simulate, Physics, Scenario};
 
 const V1: &str = r#"format = "taut-params v1"

@@ -10,13 +10,13 @@
 //! `TAUT_E2E_EFFECTS_MODEL=elasticity,scale` changes the modelled effects,
 //! `TAUT_E2E_EFFECTS_CONCEAL=elasticity,scale` the concealed ones.
 
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::{Calibrate, Estimate, HeldoutBlocks, OutcomeKind};
+use taut_io::EffectsFromFile;
+use taut_io::FromRobot;
+use taut_plugin::RecordingPath;
 use taut_rt::kin::{LoopEffects, LoopParams};
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::{Calibrate, Estimate, HeldoutBlocks, OutcomeKind};
-use taut_rt_core::plugin::RecordingPath;
-use taut_rt_core::EffectsFromFile;
-use taut_rt_core::FromRobot;
 use taut_sim::Physics;
 use taut_simrig::{self as simrig, Lockstep, RunOptions, SimOptions};
 
@@ -119,14 +119,10 @@ impl TruthCalib {
 }
 
 impl Calibrate for TruthCalib {
-    fn initialise(&mut self, _: &taut_config::recording::Recording) -> Result<Estimate, taut_rt_core::calibrator::BackendError> {
+    fn initialise(&mut self, _: &taut_config::recording::Recording) -> Result<Estimate, taut_calibrator::vocab::BackendError> {
         Ok(self.0.clone())
     }
-    fn calibrate(
-        &mut self,
-        _: &taut_config::recording::Recording,
-        _: &Estimate,
-    ) -> Result<Estimate, taut_rt_core::calibrator::BackendError> {
+    fn calibrate(&mut self, _: &taut_config::recording::Recording, _: &Estimate) -> Result<Estimate, taut_calibrator::vocab::BackendError> {
         Ok(self.0.clone())
     }
 }
@@ -317,7 +313,7 @@ fn floor_bound(heldout_rows: usize, training_rows: usize, parameters: usize, z: 
 /// (a slack cable put one pose 35 mm off with any parameters), the excitation's tension swing
 /// (stretch told from scale) and a held-out check robust to tracker outliers (the simulator's
 /// 0.2 % of ~5 cm: two in seed 3's held-out rows took the model from 1.55 to 2.06 mm; the
-/// daemon now leaves them out, `taut_rt_core::heldout`).
+/// daemon now leaves them out, `taut_calibrator::heldout`).
 ///
 /// The floor bound (`floor_bound`) at z = 3.72: a model truly at the floor fails it with
 /// probability 1e-4 per seed (the run's one random assertion that is near its bound; the
@@ -435,7 +431,7 @@ fn offline_fit_of_a_kept_start_up_recording() {
     let lp = |g: &taut_calib::Geometry, e: &taut_config::params::Effects| {
         LoopParams::from_geometry(1, g, &platform).unwrap().with_effects(LoopEffects::from_file(e))
     };
-    let cmp = taut_rt_core::heldout::HeldoutComparison::new(
+    let cmp = taut_calibrator::heldout::HeldoutComparison::new(
         &lp(&est.geometry, &est.effects),
         &lp(&t.geometry, &t.effects),
         &held,
@@ -448,7 +444,7 @@ fn offline_fit_of_a_kept_start_up_recording() {
         &taut_calib::screen::ScreenOptions { jumps: false, ..taut_calib::screen::ScreenOptions::new(cfg.calibration.min_tension_n) },
     );
     let screened = sc.cleaned.unwrap_or(held.clone());
-    let cmp = taut_rt_core::heldout::HeldoutComparison::new(
+    let cmp = taut_calibrator::heldout::HeldoutComparison::new(
         &lp(&est.geometry, &est.effects),
         &lp(&t.geometry, &t.effects),
         &screened,

@@ -25,11 +25,11 @@
 //! Sum for the 1 mm: [`PLAN_P_MAX`] + [`RECORDING_CHANCE_MAX`] per seed ([`BUDGET_1MM`],
 //! docs/test-robustness.md).
 
+use taut_io::FromRobot;
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
 use taut_simrig::SimOptions;
 
-/// The loop's Lissajous point `t` s after the approach (as `taut_rt_core::excite` predicts it).
+/// The loop's Lissajous point `t` s after the approach (as `taut_calibrator::excite` predicts it).
 fn ccfg_lissajous(ccfg: &ControllerConfig, t: f64) -> [f64; 3] {
     let w = ccfg.workspace;
     let v = ccfg.excitation_speed_m_s;
@@ -136,7 +136,7 @@ fn the_design_meets_the_budget() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = robot(dir.path());
     let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let plan = taut_rt_core::excite::plan(&cfg, &mut ccfg);
+    let plan = taut_calibrator::excite::plan(&cfg, &mut ccfg);
     assert!(ccfg.tour.is_some(), "{}", plan.summary());
     let pred = plan.predicted.as_ref().expect("a prediction");
     let p_plan = taut_tests::honesty::integrated_failure(&RATIOS, |c| pred.worst_exceeds_bound(1e-3, c));
@@ -159,7 +159,7 @@ fn design_scales() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = robot(dir.path());
     let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let plan = taut_rt_core::excite::plan(&cfg, &mut ccfg);
+    let plan = taut_calibrator::excite::plan(&cfg, &mut ccfg);
     let pred = plan.predicted.as_ref().expect("a prediction");
     let scales: Vec<f64> = std::env::var("TAUT_SCALES")
         .unwrap_or_else(|_| "1.0,1.1,1.2,1.3,1.4".into())
@@ -233,8 +233,8 @@ fn startup(seed: u64, designed: bool) -> Run {
         .map(|mm| mm * 1e-3)
         .unwrap_or_else(|| panic!("seed {seed}: the note lacks the measured length noise: {}", ce.note));
     let mut ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let _ = taut_rt_core::excite::plan(&cfg, &mut ccfg);
-    let mut inp = taut_rt_core::excite::design_input(&cfg, &ccfg).unwrap();
+    let _ = taut_calibrator::excite::plan(&cfg, &mut ccfg);
+    let mut inp = taut_calibrator::excite::design_input(&cfg, &ccfg).unwrap();
     inp.length_sigma_m = noise_m;
     let pred = match ccfg.tour {
         Some(tour) => taut_calib::design::predict_tour(&inp, &tour),

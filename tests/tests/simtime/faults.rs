@@ -4,9 +4,9 @@
 //! lockstep): the fault lands at a defined cycle, whatever the machine is doing.
 
 use std::sync::atomic::Ordering;
+use taut_calibrator::calib_backend::TautCalib;
 use taut_rt::motion::State;
 use taut_rt::safety::{Cause, Reaction};
-use taut_rt_core::calib_backend::TautCalib;
 use taut_simrig::{Lockstep, RunOptions, SimFaults, SimOptions};
 use taut_tests::startup::rest_p0;
 

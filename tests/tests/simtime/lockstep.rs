@@ -2,8 +2,8 @@
 //! rides through the faults its seed draws, and the simulated devices keep the protocols'
 //! timing (the bus load the SYNC cycle implies, the load cells' polling rate).
 
+use taut_calibrator::vocab::OutcomeKind;
 use taut_config::RobotConfig;
-use taut_rt_core::calibrator::OutcomeKind;
 use taut_simrig::{LockstepFaults, RunOptions, SimOptions, StartupRun};
 
 fn robot(dir: &std::path::Path) -> RobotConfig {

@@ -64,8 +64,8 @@
 //! allowance, not the robot's.
 
 use crate::notracker::{report, robot, start_on, Plan};
+use taut_io::FromRobot;
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
 
 /// Achieved / predicted (at the measured reading rate) worst-anchor sigma of every tracker-free
 /// start-up measured: session 13 (seeds 3, 5 of the 6-tare long plan: 0.884, 0.942; the short
@@ -147,10 +147,10 @@ fn the_suite_plan_meets_the_budget_at_the_bus_rate() {
 /// [`RECORDING_P_MAX`] at `scale_checked` x.
 pub fn check_plan(cfg: &taut_config::RobotConfig, rate: f64, honesty_up: f64, scale_checked: f64) {
     let ccfg = ControllerConfig::from_robot(cfg).unwrap();
-    let run = taut_rt_core::notracker::dwell_plan(cfg, &ccfg).unwrap();
+    let run = taut_calibrator::notracker::dwell_plan(cfg, &ccfg).unwrap();
     let mut at_rate = cfg.clone();
     at_rate.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
-    let plan = taut_rt_core::notracker::dwell_plan(&at_rate, &ccfg).unwrap();
+    let plan = taut_calibrator::notracker::dwell_plan(&at_rate, &ccfg).unwrap();
     assert_eq!(plan.tare, run.tare);
     for (a, b) in plan.poses.iter().zip(&run.poses) {
         assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-9), "the plan at {rate}/s differs from the one the loop runs: {a:?} vs {b:?}");
@@ -268,7 +268,7 @@ fn plan_candidates() {
             cfg.calibration.cable_ea_sigma_n = 0.15e6;
         }
         let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-        let p = taut_rt_core::notracker::dwell_plan(&cfg, &ccfg).unwrap();
+        let p = taut_calibrator::notracker::dwell_plan(&cfg, &ccfg).unwrap();
         let m = &cfg.motion;
         let tares = p.tare.iter().filter(|&&t| t != 0).count();
         let wall = p.poses.len() as f64 * (m.dwell_s + m.dwell_settle_s)

@@ -23,7 +23,7 @@ fn continuous(seed: u64, poses: usize, speed_m_s: f64) -> (taut_config::recordin
     let run = taut_tests::startup::in_sim_time(
         &cfg,
         &so,
-        simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: 900.0, ..Default::default() },
+        simrig::RunOptions { recording: taut_plugin::RecordingPath::Default, budget_s: 900.0, ..Default::default() },
         |_, _| false,
     );
     eprintln!(

@@ -27,7 +27,7 @@ fn short_rests(
     let run = taut_tests::startup::in_sim_time(
         &cfg,
         &so,
-        simrig::RunOptions { recording: taut_rt_core::plugin::RecordingPath::Default, budget_s: 900.0, ..Default::default() },
+        simrig::RunOptions { recording: taut_plugin::RecordingPath::Default, budget_s: 900.0, ..Default::default() },
         |_, _| false,
     );
     eprintln!("seed {seed}: {:.0} s simulated in {:.1} s, finished {}", run.sim_s, run.wall_s, run.finished);

@@ -10,12 +10,12 @@
 
 use serde_json::Value;
 use std::sync::{Arc, Mutex};
+use taut_calibrator::calib_backend::TautCalib;
 use taut_config::RobotConfig;
+use taut_io::FromRobot;
+use taut_operator::control::{status_text, ControlLinks};
+use taut_operator::operator::{GoalEnd, GoalView, MoveWait};
 use taut_rt::motion::{ControllerConfig, State};
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::control::{status_text, ControlLinks};
-use taut_rt_core::operator::{GoalEnd, GoalView, MoveWait};
-use taut_rt_core::FromRobot;
 use taut_simrig::{Lockstep, RunOptions, SimOptions};
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {

@@ -10,14 +10,14 @@
 //!
 //! Each scenario draws from its seed which cable's drive fails, when, and for how long.
 
+use taut_calibrator::calib_backend::TautCalib;
 use taut_config::RobotConfig;
+use taut_io::runner::LoopStatus;
+use taut_io::FromRobot;
+use taut_plugin::LoopEvent;
 use taut_rt::io::{BusEvent, BusState, DriveStatus};
 use taut_rt::motion::{ControllerConfig, ResetOutcome, ResetRefusal, State};
 use taut_rt::safety::{Cause, Reaction};
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::plugin::Event;
-use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::FromRobot;
 use taut_simrig::{CanState, Lockstep, LockstepFaults, RunOptions, SimFault, SimOptions};
 use taut_tests::startup;
 
@@ -67,7 +67,7 @@ struct Rig {
     /// Every cycle from the injection on.
     trace: Vec<Obs>,
     /// The plugin's events from the injection on.
-    events: Vec<Event>,
+    events: Vec<LoopEvent>,
     seed: u64,
     /// When a reset was asked for, s.
     asked: Vec<f64>,
@@ -222,9 +222,9 @@ impl Rig {
         let mut v: Vec<String> = Vec::new();
         for e in &self.events {
             let s = match e {
-                Event::State { to, .. } => format!("state {to:?}"),
-                Event::Fault { cause, reaction, .. } => format!("fault {} {}", cause.name(), reaction.name()),
-                Event::Reset { outcome, .. } => format!("reset {}", if *outcome == ResetOutcome::Done { "done" } else { "refused" }),
+                LoopEvent::State { to, .. } => format!("state {to:?}"),
+                LoopEvent::Fault { cause, reaction, .. } => format!("fault {} {}", cause.name(), reaction.name()),
+                LoopEvent::Reset { outcome, .. } => format!("reset {}", if *outcome == ResetOutcome::Done { "done" } else { "refused" }),
                 _ => continue,
             };
             if v.last() != Some(&s) {
@@ -352,7 +352,10 @@ fn drive_power_cycle_then_reset() {
 
 /// The fault events from the injection on, in order.
 fn faults_seen(r: &Rig) -> Vec<(Cause, Reaction)> {
-    r.events.iter().filter_map(|e| if let Event::Fault { cause, reaction, .. } = e { Some((*cause, *reaction)) } else { None }).collect()
+    r.events
+        .iter()
+        .filter_map(|e| if let LoopEvent::Fault { cause, reaction, .. } = e { Some((*cause, *reaction)) } else { None })
+        .collect()
 }
 
 /// Waits until every drive is NMT operational again (configured by the master).
@@ -581,7 +584,7 @@ fn a_short_burst_of_transmit_errors_is_counted_not_a_fault() {
     let l = r.run_for(1.0);
     assert_eq!(l.snap.fault, None);
     assert_eq!(l.snap.state, State::Operate);
-    assert!(r.events.iter().all(|e| !matches!(e, Event::Fault { .. })), "{:?}", r.events);
+    assert!(r.events.iter().all(|e| !matches!(e, LoopEvent::Fault { .. })), "{:?}", r.events);
     assert_eq!(r.host.bus_stats().bus_offs, 0);
     eprintln!("seed {seed}: TEC peaked at {peak} ({failed} failed transmissions), now {}", r.host.can().tec);
 }

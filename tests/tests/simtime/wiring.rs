@@ -8,9 +8,9 @@
 //! rate in docs/testing.md); `wiring_detection_rates` (ignored) sweeps the miswirings.
 
 use taut_config::RobotConfig;
+use taut_io::runner::LoopStatus;
 use taut_rt::motion::State;
 use taut_rt::safety::{Cause, Miswiring, Reaction};
-use taut_rt_core::runner::LoopStatus;
 use taut_simrig::{RunOptions, SimOptions, Wiring};
 use taut_tests::startup::{example_robot, in_sim_time};
 

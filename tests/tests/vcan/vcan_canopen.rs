@@ -14,12 +14,12 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use taut_driver::canopen::drive_set::{DriveSet, DriveSetError, Enabled, Operational};
-use taut_driver::canopen::master::{Event, Master, MasterConfig, Phase};
+use taut_driver::canopen::master::{Master, MasterConfig, NodeEvent, Phase};
 use taut_driver::transport::candump::Replay;
 use taut_driver::transport::socketcan::SocketCanTransport;
+use taut_io::robot_io::Scaling;
 use taut_proto::can::CanTransport;
-use taut_proto::canopen::cia402::State;
-use taut_rt_core::robot_io::Scaling;
+use taut_proto::canopen::cia402::PowerState;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
 
@@ -70,7 +70,7 @@ fn enable(set: DriveSet<SocketCanTransport, Operational>) -> DriveSet<SocketCanT
     set.enable(Duration::from_secs(30)).unwrap_or_else(|r| panic!("enable: {}; {:#?}", r.error, r.set.statuses()))
 }
 
-fn events<T: CanTransport, S>(set: &mut DriveSet<T, S>) -> Vec<Event> {
+fn events<T: CanTransport, S>(set: &mut DriveSet<T, S>) -> Vec<NodeEvent> {
     std::iter::from_fn(|| set.poll_event()).collect()
 }
 
@@ -121,11 +121,11 @@ fn emcy_and_fault_reset_over_vcan() {
     assert_eq!(err, DriveSetError::Fault { node: 22, code: 0x4310 });
     assert!(err.to_string().contains("excess temperature, drive"), "{err}");
     let ev = events(&mut set);
-    assert!(ev.iter().any(|e| matches!(e, Event::Emergency { node: 22, emcy } if emcy.code == 0x4310)), "{ev:#?}");
+    assert!(ev.iter().any(|e| matches!(e, NodeEvent::Emergency { node: 22, emcy } if emcy.code == 0x4310)), "{ev:#?}");
     let mut set = set.disable();
     set.fault_reset(Duration::from_secs(30)).unwrap();
     let set = enable(set);
-    assert!(set.statuses().iter().all(|s| s.axis.state == Some(State::OperationEnabled)));
+    assert!(set.statuses().iter().all(|s| s.axis.state == Some(PowerState::OperationEnabled)));
     rack.stop();
 }
 
@@ -141,7 +141,7 @@ fn heartbeat_loss_over_vcan() {
         set.run_for(Duration::from_millis(100)).unwrap();
         assert!(t.elapsed() < Duration::from_secs(60), "heartbeat loss not detected");
     }
-    assert!(events(&mut set).contains(&Event::HeartbeatLost { node: 32 }));
+    assert!(events(&mut set).contains(&NodeEvent::HeartbeatLost { node: 32 }));
     assert!(set.cycle().is_err(), "an operational set with a lost drive reports it");
     rack.with_drive(32, |d| d.set_heartbeat_off(false)).unwrap();
     let t = Instant::now();
@@ -149,7 +149,7 @@ fn heartbeat_loss_over_vcan() {
         set.run_for(Duration::from_millis(100)).unwrap();
         assert!(t.elapsed() < Duration::from_secs(60), "node 32 not back: {:?}", set.statuses()[1].phase);
     }
-    assert!(events(&mut set).contains(&Event::HeartbeatRecovered { node: 32 }));
+    assert!(events(&mut set).contains(&NodeEvent::HeartbeatRecovered { node: 32 }));
     rack.stop();
 }
 
@@ -186,7 +186,7 @@ fn node_rebooting_mid_run_over_vcan() {
         assert!(t.elapsed() < Duration::from_secs(60), "node 41 not configured again");
     }
     assert_eq!(set.master().counters().reboots, 1);
-    assert!(events(&mut set).contains(&Event::Rebooted { node: 41 }));
+    assert!(events(&mut set).contains(&NodeEvent::Rebooted { node: 41 }));
     let _set = enable(set);
     rack.stop();
 }

@@ -15,10 +15,10 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use taut_driver::canopen::drive_set::{Configuring, DriveSet, DriveSetError, Operational};
-use taut_driver::canopen::master::{Event, MasterConfig};
+use taut_driver::canopen::master::{MasterConfig, NodeEvent};
 use taut_driver::transport::socketcan::SocketCanTransport;
 use taut_proto::can::CanTransport;
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::nmt::NmtState;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, RackHandle, VirtualDrive};
@@ -75,7 +75,7 @@ fn up(set: DriveSet<SocketCanTransport, Configuring>) -> DriveSet<SocketCanTrans
     set.bring_up().unwrap_or_else(|r| panic!("bring-up over vcan0: {}; {:?}; {:#?}", r.error, r.set.master().counters(), r.set.statuses()))
 }
 
-fn events<T: CanTransport, S>(set: &mut DriveSet<T, S>) -> Vec<Event> {
+fn events<T: CanTransport, S>(set: &mut DriveSet<T, S>) -> Vec<NodeEvent> {
     std::iter::from_fn(|| set.poll_event()).collect()
 }
 
@@ -98,7 +98,7 @@ fn eight_heartbeating_drives_come_up_without_sdo_aborts_or_retries_over_vcan() {
     assert_eq!((c.sdo_aborts, c.sdo_timeouts, c.sdo_retries, c.boot_ups_missing), (0, 0, 0, 0), "{c:?}");
     let ev = events(&mut set);
     for n in nodes {
-        assert_eq!(ev.iter().filter(|e| **e == Event::Configured { node: n }).count(), 1, "node {n}: {ev:#?}");
+        assert_eq!(ev.iter().filter(|e| **e == NodeEvent::Configured { node: n }).count(), 1, "node {n}: {ev:#?}");
     }
     rack.with(|ds| ds.iter().for_each(|d| assert_eq!(d.counters().sdo_aborts, 0, "node {}", d.node_id())));
     rack.stop();
@@ -113,24 +113,24 @@ fn a_drive_left_enabled_is_switched_off_and_a_fault_waits_for_the_operator_over_
     let (set, rack) = field(&nodes, drives(&nodes, |_| {}), |rack| {
         rack.with_drive(82, |d| {
             d.set_actual(50_000, 0);
-            d.left_by_previous_run(State::OperationEnabled, 0);
+            d.left_by_previous_run(PowerState::OperationEnabled, 0);
         });
-        rack.with_drive(83, |d| d.left_by_previous_run(State::Fault, 0x2310));
+        rack.with_drive(83, |d| d.left_by_previous_run(PowerState::Fault, 0x2310));
     });
     let mut set = up(set);
     set.run_for(Duration::from_millis(500)).unwrap();
     let ev = events(&mut set);
-    assert!(ev.contains(&Event::FoundPowered { node: 82, state: State::OperationEnabled }), "{ev:#?}");
-    assert_eq!(rack.with_drive(82, |d| (d.state(), d.position())), Some((State::ReadyToSwitchOn, 50_000)));
-    assert_eq!(rack.with_drive(83, |d| d.state()), Some(State::Fault));
+    assert!(ev.contains(&NodeEvent::FoundPowered { node: 82, state: PowerState::OperationEnabled }), "{ev:#?}");
+    assert_eq!(rack.with_drive(82, |d| (d.state(), d.position())), Some((PowerState::ReadyToSwitchOn, 50_000)));
+    assert_eq!(rack.with_drive(83, |d| d.state()), Some(PowerState::Fault));
     // Enabling is refused while a drive is in fault: nothing resets it but the operator.
     let refused = set.enable(Duration::from_secs(20)).err().expect("enable refused with a drive in fault");
     assert!(matches!(refused.error, DriveSetError::Fault { node: 83, .. } | DriveSetError::Timeout { node: 83, .. }), "{}", refused.error);
     let mut set = refused.set;
-    assert_eq!(rack.with_drive(83, |d| d.state()), Some(State::Fault));
+    assert_eq!(rack.with_drive(83, |d| d.state()), Some(PowerState::Fault));
     set.fault_reset(Duration::from_secs(30)).unwrap();
     let set = set.enable(Duration::from_secs(30)).unwrap_or_else(|r| panic!("enable: {}", r.error));
-    assert_eq!(rack.with_drive(82, |d| (d.state(), d.position())), Some((State::OperationEnabled, 50_000)), "enabled where it stood");
+    assert_eq!(rack.with_drive(82, |d| (d.state(), d.position())), Some((PowerState::OperationEnabled, 50_000)), "enabled where it stood");
     let _ = set.disable();
     rack.stop();
 }
@@ -176,7 +176,7 @@ fn a_lost_boot_up_over_vcan() {
     assert_eq!((c.sdo_aborts, c.sdo_retries), (0, 0), "{c:?}");
     assert_eq!(rack.with_drive(102, |d| d.counters().boots_lost), Some(1));
     let ev = events(&mut set);
-    assert_eq!(ev.iter().filter(|e| **e == Event::Configured { node: 102 }).count(), 1, "{ev:#?}");
+    assert_eq!(ev.iter().filter(|e| **e == NodeEvent::Configured { node: 102 }).count(), 1, "{ev:#?}");
     rack.stop();
 }
 
@@ -235,7 +235,7 @@ fn drives_stop_when_taut_is_killed_over_vcan() {
     thread::sleep(Duration::from_secs(2));
     rack.with(|ds| {
         for d in ds.iter() {
-            assert_eq!(d.state(), State::OperationEnabled, "node {} while taut runs", d.node_id());
+            assert_eq!(d.state(), PowerState::OperationEnabled, "node {} while taut runs", d.node_id());
             assert_eq!(d.heartbeat_consumer() & 0xFFFF, 1500, "0x1016: 3 x 500 ms");
             assert_eq!(d.abort_connection_option(), 3);
         }
@@ -244,14 +244,14 @@ fn drives_stop_when_taut_is_killed_over_vcan() {
     child.kill().expect("SIGKILL the taut child");
     let killed = Instant::now();
     let _ = child.wait();
-    while rack.with(|ds| ds.iter().any(|d| d.state() == State::OperationEnabled)) {
+    while rack.with(|ds| ds.iter().any(|d| d.state() == PowerState::OperationEnabled)) {
         assert!(killed.elapsed() < Duration::from_secs(60), "drives still enabled 60 s after taut was killed");
         thread::sleep(Duration::from_millis(10));
     }
     println!("{TEST}: drives left operation enabled {:?} after SIGKILL (consumer time 1.5 s; TCG timing)", killed.elapsed());
     rack.with(|ds| {
         for (d, p) in ds.iter().zip(&held) {
-            assert_eq!(d.state(), State::QuickStopActive, "node {}", d.node_id());
+            assert_eq!(d.state(), PowerState::QuickStopActive, "node {}", d.node_id());
             assert_eq!(d.counters().consumer_timeouts, 1, "node {}", d.node_id());
             assert_eq!(d.nmt_state(), NmtState::PreOperational);
             assert_eq!(d.position(), *p, "node {} held where it stood", d.node_id());

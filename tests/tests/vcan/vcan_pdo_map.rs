@@ -17,9 +17,9 @@ use taut_config::RobotConfig;
 use taut_driver::canopen::drive_set::{DriveSet, Enabled};
 use taut_driver::canopen::master::MasterConfig;
 use taut_driver::transport::socketcan::SocketCanTransport;
+use taut_io::robot_io::Scaling;
 use taut_proto::can::CanTransport;
 use taut_proto::canopen::sdo::{Initiate, SdoRequest, SdoResponse};
-use taut_rt_core::robot_io::Scaling;
 use taut_tests::vcan;
 use taut_vdev::{spawn_rack, DriveParams, VirtualDrive};
 

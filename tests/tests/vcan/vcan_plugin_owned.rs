@@ -11,8 +11,8 @@
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use taut_io::FromRobot;
 use taut_rt::motion::ControllerConfig;
-use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 use taut_tests::vcan;
 

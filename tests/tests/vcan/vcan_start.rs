@@ -9,11 +9,11 @@
 //! virtual bus). Elsewhere it skips unless `TAUT_VCAN_REQUIRED=1`.
 
 use std::time::Duration;
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::vocab::OutcomeKind;
+use taut_io::FromRobot;
+use taut_plugin::daemon::{Daemon, DaemonOptions};
 use taut_rt::motion::{ControllerConfig, State};
-use taut_rt_core::calib_backend::TautCalib;
-use taut_rt_core::calibrator::OutcomeKind;
-use taut_rt_core::daemon::{Daemon, DaemonOptions};
-use taut_rt_core::FromRobot;
 use taut_simrig::{self as simrig, SimOptions};
 use taut_tests::vcan;
 

@@ -58,7 +58,7 @@ use state_machine::error_register;
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 use taut_proto::can::Frame;
-use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::canopen::cia402::{Mode, PowerState};
 use taut_proto::canopen::emcy::{self, Emcy};
 use taut_proto::canopen::heartbeat;
 use taut_proto::canopen::nmt::{self, NmtCommand, NmtState};
@@ -186,7 +186,7 @@ pub struct VirtualDrive {
     latched: [Option<([u8; 8], u8)>; 4],
     sync_count: [u8; 4],
     controlword: u16,
-    state: State,
+    state: PowerState,
     mode: i8,
     position: f64,
     torque: i16,
@@ -235,7 +235,7 @@ impl VirtualDrive {
             latched: [None; 4],
             sync_count: [0; 4],
             controlword: 0,
-            state: State::SwitchOnDisabled,
+            state: PowerState::SwitchOnDisabled,
             mode: 0,
             position: 0.0,
             torque: 0,
@@ -279,7 +279,7 @@ impl VirtualDrive {
     }
 
     /// CiA 402 state.
-    pub fn state(&self) -> State {
+    pub fn state(&self) -> PowerState {
         self.state
     }
 
@@ -299,7 +299,7 @@ impl VirtualDrive {
             mode: Mode::from_code(self.mode),
             position: self.target_position,
             torque: self.target_torque,
-            enabled: self.state == State::OperationEnabled,
+            enabled: self.state == PowerState::OperationEnabled,
         }
     }
 
@@ -341,7 +341,7 @@ impl VirtualDrive {
     pub fn inject_fault(&mut self, code: u16) {
         self.error_code = code;
         self.fault_reaction_until = self.clock.filter(|_| !self.p.fault_reaction.is_zero()).map(|t| t + self.p.fault_reaction);
-        self.state = if self.fault_reaction_until.is_some() { State::FaultReactionActive } else { State::Fault };
+        self.state = if self.fault_reaction_until.is_some() { PowerState::FaultReactionActive } else { PowerState::Fault };
         self.torque = 0;
         self.send(emcy::encode(self.p.node_id, &Emcy { code, register: error_register(code), vendor: [0; 5] }));
     }
@@ -350,7 +350,7 @@ impl VirtualDrive {
     /// or fault with `error_code`) and NMT operational, with the power-on PDOs. A restarted
     /// master finds drives like this; power cycles and NMT commands do not change the CiA 402
     /// state (that is the application's, CiA 402 6.3), except through 0x6007.
-    pub fn left_by_previous_run(&mut self, state: State, error_code: u16) {
+    pub fn left_by_previous_run(&mut self, state: PowerState, error_code: u16) {
         self.state = state;
         self.error_code = error_code;
         self.mode = Mode::CyclicPosition.code();
@@ -420,8 +420,8 @@ impl VirtualDrive {
         self.clock = Some(now);
         if self.fault_reaction_until.is_some_and(|t| now >= t) {
             self.fault_reaction_until = None;
-            if self.state == State::FaultReactionActive {
-                self.state = State::Fault;
+            if self.state == PowerState::FaultReactionActive {
+                self.state = PowerState::Fault;
             }
         }
         if let Some((cmd, t)) = self.pending_reset {
@@ -622,27 +622,27 @@ mod tests {
         let _ = d.poll_tx();
         d.inject_fault(0x2310);
         assert_eq!(d.poll_tx(), Some(emcy::encode(3, &Emcy { code: 0x2310, register: 0x03, vendor: [0; 5] })));
-        assert_eq!((d.state(), d.statusword() & 0x6F), (State::FaultReactionActive, 0x0F));
+        assert_eq!((d.state(), d.statusword() & 0x6F), (PowerState::FaultReactionActive, 0x0F));
         assert_eq!(d.next_deadline(), Some(t + Duration::from_millis(20)));
         d.on_controlword(0x0080);
-        assert_eq!(d.state(), State::FaultReactionActive, "no fault reset while reacting");
+        assert_eq!(d.state(), PowerState::FaultReactionActive, "no fault reset while reacting");
         d.on_controlword(0x0000);
         d.poll(t + Duration::from_millis(19));
-        assert_eq!(d.state(), State::FaultReactionActive);
+        assert_eq!(d.state(), PowerState::FaultReactionActive);
         d.poll(t + Duration::from_millis(20));
-        assert_eq!(d.state(), State::Fault);
+        assert_eq!(d.state(), PowerState::Fault);
         d.on_controlword(0x0080);
-        assert_eq!(d.state(), State::SwitchOnDisabled);
+        assert_eq!(d.state(), PowerState::SwitchOnDisabled);
         // Kept across a power cycle; zero is straight to FAULT.
         d.power_cycle();
         d.poll(t + Duration::from_millis(30));
         d.inject_fault(0x2310);
-        assert_eq!(d.state(), State::FaultReactionActive);
+        assert_eq!(d.state(), PowerState::FaultReactionActive);
         d.set_fault_reaction(Duration::ZERO);
         d.on_controlword(0);
         d.poll(t + Duration::from_millis(50));
         d.inject_fault(0x2310);
-        assert_eq!(d.state(), State::Fault);
+        assert_eq!(d.state(), PowerState::Fault);
     }
 
     #[test]

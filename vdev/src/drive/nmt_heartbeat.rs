@@ -5,7 +5,7 @@ use super::pdo_engine::factory_pdos;
 use super::sdo_server::SdoServer;
 use super::VirtualDrive;
 use std::time::{Duration, Instant};
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::emcy::{self, Emcy};
 use taut_proto::canopen::nmt::{NmtCommand, NmtState};
 
@@ -29,7 +29,7 @@ impl VirtualDrive {
     /// (heartbeat consumer timeout, NMT stop, reset communication, reset node), applied only
     /// from operation enabled (the power stage holding the load).
     pub(super) fn abort_connection(&mut self) {
-        if self.state != State::OperationEnabled || self.abort_option == 0 {
+        if self.state != PowerState::OperationEnabled || self.abort_option == 0 {
             return;
         }
         self.counters.abort_connection_actions += 1;
@@ -37,14 +37,14 @@ impl VirtualDrive {
             1 => {
                 // Fault signal: the fault reaction, then FAULT until the operator resets it.
                 self.error_code = 0x8130;
-                State::Fault
+                PowerState::Fault
             }
-            2 => State::SwitchOnDisabled,
-            _ => State::QuickStopActive,
+            2 => PowerState::SwitchOnDisabled,
+            _ => PowerState::QuickStopActive,
         };
         // Stop where the motor stands (quick stop holds there; the others drop torque).
         self.target_position = self.position();
-        if self.state != State::QuickStopActive {
+        if self.state != PowerState::QuickStopActive {
             self.torque = 0;
         }
     }

@@ -2,7 +2,7 @@
 //! model used when no plant is coupled.
 
 use super::VirtualDrive;
-use taut_proto::canopen::cia402::{self, Command, Mode, State};
+use taut_proto::canopen::cia402::{self, Command, Mode, PowerState};
 use taut_proto::canopen::emcy::{self, Emcy};
 
 impl VirtualDrive {
@@ -10,7 +10,7 @@ impl VirtualDrive {
         let rising_reset = cw & 0x80 != 0 && self.controlword & 0x80 == 0;
         self.controlword = cw;
         let cmd = Command::from_controlword(cw);
-        use State::*;
+        use PowerState::*;
         self.state = match (self.state, cmd) {
             (Fault, Command::FaultReset) if rising_reset => {
                 self.error_code = 0;
@@ -40,7 +40,7 @@ impl VirtualDrive {
     }
 
     pub(super) fn step_motion(&mut self, dt: f64) {
-        if self.state != State::OperationEnabled {
+        if self.state != PowerState::OperationEnabled {
             self.torque = 0;
             return;
         }
@@ -61,7 +61,7 @@ impl VirtualDrive {
     /// The statusword: state bits, remote, target reached (bit 10), following (bit 12).
     pub fn statusword(&self) -> u16 {
         let mut sw = self.state.statusword_bits() | cia402::SW_REMOTE;
-        if self.state == State::OperationEnabled {
+        if self.state == PowerState::OperationEnabled {
             sw |= cia402::SW_FOLLOWING;
             if (f64::from(self.target_position) - self.position).abs() < 2.0 {
                 sw |= 1 << 10;

@@ -2,10 +2,10 @@
 //! ([`Operational`]) that fill the RPDOs.
 
 use super::node::Axis;
-use super::{Event, Master, NodeConfig, Phase, Problem, FAULT_RESET_CYCLES};
+use super::{Master, NodeConfig, NodeEvent, Phase, Problem, FAULT_RESET_CYCLES};
 use std::fmt;
 use taut_proto::can::Frame;
-use taut_proto::canopen::cia402::{self, Mode, State, Want};
+use taut_proto::canopen::cia402::{self, Mode, PowerState, Want};
 use taut_proto::canopen::nmt::NmtState;
 use taut_proto::canopen::pdo;
 use taut_proto::canopen::sync;
@@ -37,18 +37,18 @@ impl Master {
         }
         let node = n.cfg.node_id;
         ax.tpdos += 1;
-        let new = State::from_statusword(ax.statusword);
+        let new = PowerState::from_statusword(ax.statusword);
         let changed = new != ax.state;
         ax.state = new;
-        if new != Some(State::OperationEnabled) {
+        if new != Some(PowerState::OperationEnabled) {
             // Hold: when the drive becomes enabled, its target is where it stands.
             ax.target_position = ax.position;
             ax.target_torque = 0;
         }
-        if ax.reset_fault > 0 && new != Some(State::Fault) {
+        if ax.reset_fault > 0 && new != Some(PowerState::Fault) {
             ax.reset_fault = 0;
         }
-        if matches!(new, Some(State::Fault | State::FaultReactionActive)) {
+        if matches!(new, Some(PowerState::Fault | PowerState::FaultReactionActive)) {
             // A fault drops the wish to be enabled: re-enabling is a decision for the caller.
             ax.want = Want::Disabled;
         }
@@ -59,11 +59,11 @@ impl Master {
             n.nmt = Some(NmtState::Operational);
         }
         if first_pdo {
-            self.event(Event::Operational { node });
+            self.event(NodeEvent::Operational { node });
         }
         if changed {
             if let Some(s) = new {
-                self.event(Event::DriveState { node, state: s });
+                self.event(NodeEvent::DriveState { node, state: s });
             }
         }
     }
@@ -83,7 +83,7 @@ impl Master {
             let node = self.nodes[k].cfg.node_id;
             let ax = &mut self.nodes[k].axis;
             let mode = ax.mode.code();
-            let state = ax.state.unwrap_or(State::SwitchOnDisabled);
+            let state = ax.state.unwrap_or(PowerState::SwitchOnDisabled);
             let reset = ax.reset_fault > 0;
             if reset {
                 ax.reset_fault += 1;
@@ -199,7 +199,7 @@ impl Operational<'_> {
     /// Asks drive `i` to reset its fault (a rising edge of controlword bit 7).
     pub fn fault_reset(&mut self, i: usize) -> Result<(), CommandError> {
         let ax = self.axis(i)?.0;
-        if ax.state == Some(State::Fault) && ax.reset_fault == 0 {
+        if ax.state == Some(PowerState::Fault) && ax.reset_fault == 0 {
             ax.reset_fault = 1;
         }
         Ok(())
@@ -207,7 +207,7 @@ impl Operational<'_> {
 
     fn enabled(&mut self, i: usize, mode: Mode) -> Result<(&mut Axis, &NodeConfig), CommandError> {
         let (ax, cfg) = self.axis(i)?;
-        if ax.state != Some(State::OperationEnabled) {
+        if ax.state != Some(PowerState::OperationEnabled) {
             return Err(CommandError::NotEnabled { node: cfg.node_id });
         }
         if ax.mode != mode {
@@ -249,8 +249,10 @@ impl Operational<'_> {
     /// a zero target there the drum would pay out under the load until the next cycle's target.
     pub fn set_torque_permille(&mut self, i: usize, permille: i16) -> Result<(), CommandError> {
         let (ax, cfg) = self.axis(i)?;
-        let enabling =
-            matches!(ax.state, Some(State::SwitchOnDisabled | State::ReadyToSwitchOn | State::SwitchedOn | State::OperationEnabled));
+        let enabling = matches!(
+            ax.state,
+            Some(PowerState::SwitchOnDisabled | PowerState::ReadyToSwitchOn | PowerState::SwitchedOn | PowerState::OperationEnabled)
+        );
         if !enabling {
             return Err(CommandError::NotEnabled { node: cfg.node_id });
         }

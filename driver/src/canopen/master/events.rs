@@ -1,14 +1,14 @@
-//! What the master reports: [`Event`]s, the kinds of bad input ([`Problem`]) and the [`Counters`].
+//! What the master reports: [`NodeEvent`]s, the kinds of bad input ([`Problem`]) and the [`Counters`].
 
 use super::{Identity, NodeFailure};
 use crate::transport::BusEvent;
 use std::fmt;
-use taut_proto::canopen::cia402::State;
+use taut_proto::canopen::cia402::PowerState;
 use taut_proto::canopen::emcy::Emcy;
 use taut_proto::canopen::sdo::SdoAbort;
 use taut_proto::canopen::NodeId;
 
-/// Kinds of bad or unexpected input, each reported once by [`Event::FirstOfKind`].
+/// Kinds of bad or unexpected input, each reported once by [`NodeEvent::FirstOfKind`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum Problem {
@@ -60,7 +60,7 @@ impl Problem {
 
 /// Something the application should know about.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Event {
+pub enum NodeEvent {
     /// A boot-up message.
     Booted {
         /// Node.
@@ -77,7 +77,7 @@ pub enum Event {
         /// Node.
         node: NodeId,
         /// The state it was found in.
-        state: State,
+        state: PowerState,
     },
     /// Identity read.
     Identified {
@@ -125,7 +125,7 @@ pub enum Event {
         /// Node.
         node: NodeId,
         /// New state.
-        state: State,
+        state: PowerState,
     },
     /// An SDO transfer was aborted (by either side).
     SdoAborted {
@@ -145,31 +145,31 @@ pub enum Event {
     },
 }
 
-impl fmt::Display for Event {
+impl fmt::Display for NodeEvent {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Event::Booted { node } => write!(f, "node {node}: boot-up"),
-            Event::Rebooted { node } => write!(f, "node {node}: rebooted, configuring it again"),
-            Event::Identified { node, identity: i } => write!(
+            NodeEvent::Booted { node } => write!(f, "node {node}: boot-up"),
+            NodeEvent::Rebooted { node } => write!(f, "node {node}: rebooted, configuring it again"),
+            NodeEvent::Identified { node, identity: i } => write!(
                 f,
                 "node {node}: device type 0x{:08X}, vendor 0x{:08X}, product 0x{:08X}",
                 i.device_type.unwrap_or(0),
                 i.vendor.unwrap_or(0),
                 i.product.unwrap_or(0)
             ),
-            Event::FoundPowered { node, state } => {
+            NodeEvent::FoundPowered { node, state } => {
                 write!(f, "node {node}: found {} (left by a previous run); switching the power stage off", state.name())
             }
-            Event::Configured { node } => write!(f, "node {node}: configured, starting"),
-            Event::Operational { node } => write!(f, "node {node}: operational"),
-            Event::Failed { node, failure } => write!(f, "node {node}: configuration failed: {failure}"),
-            Event::HeartbeatLost { node } => write!(f, "node {node}: heartbeat lost"),
-            Event::HeartbeatRecovered { node } => write!(f, "node {node}: heartbeat back"),
-            Event::Emergency { node, emcy } => write!(f, "node {node}: {emcy}"),
-            Event::DriveState { node, state } => write!(f, "node {node}: drive {}", state.name()),
-            Event::SdoAborted { node, abort } => write!(f, "node {node}: {abort}"),
-            Event::Bus(e) => write!(f, "{e}"),
-            Event::FirstOfKind { kind, cob_id } => {
+            NodeEvent::Configured { node } => write!(f, "node {node}: configured, starting"),
+            NodeEvent::Operational { node } => write!(f, "node {node}: operational"),
+            NodeEvent::Failed { node, failure } => write!(f, "node {node}: configuration failed: {failure}"),
+            NodeEvent::HeartbeatLost { node } => write!(f, "node {node}: heartbeat lost"),
+            NodeEvent::HeartbeatRecovered { node } => write!(f, "node {node}: heartbeat back"),
+            NodeEvent::Emergency { node, emcy } => write!(f, "node {node}: {emcy}"),
+            NodeEvent::DriveState { node, state } => write!(f, "node {node}: drive {}", state.name()),
+            NodeEvent::SdoAborted { node, abort } => write!(f, "node {node}: {abort}"),
+            NodeEvent::Bus(e) => write!(f, "{e}"),
+            NodeEvent::FirstOfKind { kind, cob_id } => {
                 write!(f, "{} (first one, id 0x{cob_id:03X}; further ones are only counted)", kind.describe())
             }
         }

@@ -19,7 +19,7 @@
 //!
 //! Bad input never panics: frames that are malformed, from unknown nodes or not meant for a
 //! master are counted in [`Counters`]; the first of each kind is reported once as
-//! [`Event::FirstOfKind`].
+//! [`NodeEvent::FirstOfKind`].
 
 mod config;
 mod cycle;
@@ -29,14 +29,14 @@ mod script;
 
 pub use config::{ConfigProblem, MasterConfig, NodeConfig, ObjectUse, Supervision, Use};
 pub use cycle::{CommandError, Operational};
-pub use events::{Counters, Event, Problem};
+pub use events::{Counters, NodeEvent, Problem};
 pub use node::{Axis, Identity, NodeFailure, NodeStatus, Phase};
 
 use crate::transport::BusEvent;
 use node::Node;
 use std::time::{Duration, Instant};
 use taut_proto::can::Frame;
-use taut_proto::canopen::cia402::{State, Want};
+use taut_proto::canopen::cia402::{PowerState, Want};
 use taut_proto::canopen::emcy;
 use taut_proto::canopen::heartbeat;
 use taut_proto::canopen::nmt::{self, NmtCommand, NmtState};
@@ -69,7 +69,7 @@ pub struct Master {
     /// When taut's next heartbeat is due.
     next_heartbeat: Option<Instant>,
     tx: heapless::Deque<Frame, TX_QUEUE>,
-    events: heapless::Deque<Event, EVENT_QUEUE>,
+    events: heapless::Deque<NodeEvent, EVENT_QUEUE>,
     counters: Counters,
     reported: u32,
 }
@@ -144,7 +144,7 @@ impl Master {
 
     /// True when every drive is operational and in "operation enabled".
     pub fn all_enabled(&self) -> bool {
-        self.all_operational() && self.nodes.iter().all(|n| n.axis.state == Some(State::OperationEnabled))
+        self.all_operational() && self.nodes.iter().all(|n| n.axis.state == Some(PowerState::OperationEnabled))
     }
 
     /// The next frame to send.
@@ -153,7 +153,7 @@ impl Master {
     }
 
     /// The next event.
-    pub fn poll_event(&mut self) -> Option<Event> {
+    pub fn poll_event(&mut self) -> Option<NodeEvent> {
         self.events.pop_front()
     }
 
@@ -186,14 +186,14 @@ impl Master {
         }
     }
 
-    fn event(&mut self, e: Event) {
+    fn event(&mut self, e: NodeEvent) {
         if self.events.push_back(e).is_err() {
             self.counters.events_dropped += 1;
             if self.reported & (1 << Problem::EventOverflow as u32) == 0 {
                 self.reported |= 1 << Problem::EventOverflow as u32;
                 // Make room for the notice itself: the oldest event goes.
                 let _ = self.events.pop_front();
-                let _ = self.events.push_back(Event::FirstOfKind { kind: Problem::EventOverflow, cob_id: 0 });
+                let _ = self.events.push_back(NodeEvent::FirstOfKind { kind: Problem::EventOverflow, cob_id: 0 });
             }
         }
     }
@@ -202,7 +202,7 @@ impl Master {
         let bit = 1u32 << kind as u32;
         if self.reported & bit == 0 {
             self.reported |= bit;
-            self.event(Event::FirstOfKind { kind, cob_id });
+            self.event(NodeEvent::FirstOfKind { kind, cob_id });
         }
     }
 
@@ -218,7 +218,7 @@ impl Master {
         // Repeated error-warning/passive reports on a flaky bus would flood the queue; bus-off
         // and overflows always go through.
         if e.is_severe() || self.counters.bus_errors <= 16 {
-            self.event(Event::Bus(e));
+            self.event(NodeEvent::Bus(e));
         }
     }
 
@@ -272,7 +272,7 @@ impl Master {
             self.nodes[k].last_emcy = Some(e);
             self.nodes[k].axis.error_code = e.code;
         }
-        self.event(Event::Emergency { node, emcy: e });
+        self.event(NodeEvent::Emergency { node, emcy: e });
     }
 
     fn on_sdo(&mut self, k: usize, f: &Frame, now: Instant) {
@@ -310,10 +310,10 @@ impl Master {
             n.boots += 1;
             let was = n.phase;
             n.nmt = Some(NmtState::PreOperational);
-            self.event(Event::Booted { node });
+            self.event(NodeEvent::Booted { node });
             if !matches!(was, Phase::Waiting) {
                 self.counters.reboots += 1;
-                self.event(Event::Rebooted { node });
+                self.event(NodeEvent::Rebooted { node });
             }
             self.begin_config(k, now);
             return;
@@ -331,14 +331,14 @@ impl Master {
             Phase::Configuring | Phase::Failed(_) => {}
             Phase::Lost => {
                 n.hb.on_heartbeat(now);
-                self.event(Event::HeartbeatRecovered { node });
+                self.event(NodeEvent::HeartbeatRecovered { node });
                 self.begin_config(k, now);
             }
             Phase::Starting => {
                 n.hb.on_heartbeat(now);
                 if state == NmtState::Operational {
                     n.phase = Phase::Operational;
-                    self.event(Event::Operational { node });
+                    self.event(NodeEvent::Operational { node });
                 } else {
                     self.send_nmt(NmtCommand::Start, node);
                 }
@@ -408,7 +408,7 @@ impl Master {
                 n.sdo.cancel();
                 let node = n.cfg.node_id;
                 self.counters.heartbeat_losses += 1;
-                self.event(Event::HeartbeatLost { node });
+                self.event(NodeEvent::HeartbeatLost { node });
             }
         }
     }

@@ -5,7 +5,7 @@ use super::script::{script, Step};
 use super::{NodeConfig, Supervision};
 use std::fmt;
 use std::time::{Duration, Instant};
-use taut_proto::canopen::cia402::{Mode, State, Want};
+use taut_proto::canopen::cia402::{Mode, PowerState, Want};
 use taut_proto::canopen::emcy::Emcy;
 use taut_proto::canopen::heartbeat::HeartbeatConsumer;
 use taut_proto::canopen::nmt::NmtState;
@@ -107,8 +107,8 @@ impl Phase {
 pub struct Axis {
     /// Last statusword.
     pub statusword: u16,
-    /// State decoded from it (`None` before the first TPDO).
-    pub state: Option<State>,
+    /// The power state decoded from it (`None` before the first TPDO).
+    pub state: Option<PowerState>,
     /// Position actual value, counts.
     pub position: i32,
     /// Torque actual value, ‰ of rated torque.

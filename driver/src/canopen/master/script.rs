@@ -2,9 +2,9 @@
 //! and the master's side of running them (one step at a time, retries, failures).
 
 use super::node::{Axis, Identity};
-use super::{Event, Master, NodeConfig, NodeFailure, Phase, Problem, Supervision};
+use super::{Master, NodeConfig, NodeEvent, NodeFailure, Phase, Problem, Supervision};
 use std::time::Instant;
-use taut_proto::canopen::cia402::{self, State};
+use taut_proto::canopen::cia402::{self, PowerState};
 use taut_proto::canopen::nmt::NmtCommand;
 use taut_proto::canopen::od;
 use taut_proto::canopen::pdo::{self, SdoWrite};
@@ -115,8 +115,8 @@ impl Master {
             }
             Some(Step::PowerOff) => {
                 let cw = match n.axis.state {
-                    Some(s @ (State::OperationEnabled | State::SwitchedOn)) => Some((s, cia402::CW_SHUTDOWN)),
-                    Some(s @ State::QuickStopActive) => Some((s, cia402::CW_DISABLE_VOLTAGE)),
+                    Some(s @ (PowerState::OperationEnabled | PowerState::SwitchedOn)) => Some((s, cia402::CW_SHUTDOWN)),
+                    Some(s @ PowerState::QuickStopActive) => Some((s, cia402::CW_DISABLE_VOLTAGE)),
                     _ => None,
                 };
                 let Some((state, cw)) = cw else {
@@ -124,7 +124,7 @@ impl Master {
                     return self.next_step(k, now);
                 };
                 let _ = n.sdo.download(od::CONTROLWORD, 0, &cw.to_le_bytes(), false, now);
-                self.event(Event::FoundPowered { node, state });
+                self.event(NodeEvent::FoundPowered { node, state });
             }
             Some(Step::Download(w) | Step::Optional(w)) => {
                 let (b, len) = w.bytes();
@@ -134,7 +134,7 @@ impl Master {
                 n.phase = Phase::Starting;
                 // Watch the heartbeat from now on: 0x1017 has been written.
                 n.hb.on_heartbeat(now);
-                self.event(Event::Configured { node });
+                self.event(NodeEvent::Configured { node });
                 self.send_nmt(NmtCommand::Start, node);
                 return;
             }
@@ -179,7 +179,7 @@ impl Master {
                         Field::Serial => n.identity.serial = Some(v),
                         Field::Statusword => {
                             n.axis.statusword = v as u16;
-                            n.axis.state = State::from_statusword(v as u16);
+                            n.axis.state = PowerState::from_statusword(v as u16);
                         }
                         Field::Position => {
                             // The first RPDO commands where the drive stands.
@@ -212,7 +212,7 @@ impl Master {
                     }
                     if field == Field::Name {
                         let identity = n.identity;
-                        self.event(Event::Identified { node, identity });
+                        self.event(NodeEvent::Identified { node, identity });
                     }
                 }
                 self.advance(k, now);
@@ -224,7 +224,7 @@ impl Master {
                     Step::Upload { required, field, .. } => {
                         if field == Field::Name {
                             let identity = self.nodes[k].identity;
-                            self.event(Event::Identified { node, identity });
+                            self.event(NodeEvent::Identified { node, identity });
                         }
                         required
                     }
@@ -238,7 +238,7 @@ impl Master {
                 } else {
                     self.problem(Problem::SdoAbort, u32::from(0x580 + u16::from(node)));
                 }
-                self.event(Event::SdoAborted { node, abort: a });
+                self.event(NodeEvent::SdoAborted { node, abort: a });
                 // The client gives up (timeout, garbled answer): try again. The server refuses:
                 // trying again would get the same answer.
                 if !a.by_server && self.nodes[k].tries < self.cfg_retries {
@@ -265,6 +265,6 @@ impl Master {
         n.phase = Phase::Failed(failure);
         n.sdo.cancel();
         let node = n.cfg.node_id;
-        self.event(Event::Failed { node, failure });
+        self.event(NodeEvent::Failed { node, failure });
     }
 }

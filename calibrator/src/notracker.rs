@@ -17,13 +17,12 @@
 //! close (the residual after fitting the platform position), which needs no tracker and no
 //! frame.
 
-use crate::calibrator::{CalibratorConfig, Estimate, Rejection};
-use crate::plugin::PluginError;
-use crate::{EffectsFromFile, FromRobot};
+use crate::vocab::{CalibratorConfig, Estimate, Rejection};
 use taut_calib::selfcal::plan::{plan, DwellPlan, PlanError, PlanInput};
 use taut_config::recording::Recording;
 use taut_config::runtime::Startup;
 use taut_config::RobotConfig;
+use taut_io::EffectsFromFile;
 use taut_rt::kin::{LoopEffects, LoopParams};
 use taut_rt::motion::{ControllerConfig, MAX_DWELL_POSES};
 use taut_rt::MAX_CABLES;
@@ -84,18 +83,6 @@ pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPla
         // prediction then carries the stiffness unknowns the calibration fits.
         stretch: taut_calib::selfcal::SelfCalOptions::from_config(cfg).stretch,
     })
-}
-
-/// The controller configuration of `cfg`, with the dwell plan when the start-up runs without a
-/// tracker.
-pub fn controller_config(cfg: &RobotConfig) -> Result<ControllerConfig, PluginError> {
-    let ccfg = ControllerConfig::from_robot(cfg)?;
-    if !is_dwell(cfg) {
-        return Ok(ccfg);
-    }
-    let p = dwell_plan(cfg, &ccfg).map_err(PluginError::DwellPlan)?;
-    let m = &cfg.motion;
-    Ok(ccfg.with_dwell_plan(&p.poses, m.dwell_s, m.dwell_settle_s, m.dwell_speed_m_s).with_dwell_tares(&p.tare))
 }
 
 /// Splits the dwell rows of a tracker-free data set into training and held-out dwells: every
@@ -210,7 +197,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// see), the RMS length closure residual of the new set against the running one, per degree of
 /// freedom. The new set is taken when it is lower, or not higher by more than
 /// `daemon.heldout_tolerance_m` at 99.9 % confidence (paired differences per dwell,
-/// as `calibrator::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
+/// as `acceptance::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
     let new = new.with_effects(LoopEffects::from_file(&est.effects));
@@ -230,7 +217,7 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
     }
     let (n_rms, o_rms) = ((sn / dof as f64).sqrt(), (so / dof as f64).sqrt());
     // The pairs sum to dof times the mean-square difference.
-    let worse = crate::calibrator::clearly_worse(&pairs, dof as f64, o_rms, c.heldout_tolerance_m, crate::calibrator::HELDOUT_ALPHA);
+    let worse = crate::acceptance::clearly_worse(&pairs, dof as f64, o_rms, c.heldout_tolerance_m, crate::acceptance::HELDOUT_ALPHA);
     if n_rms < o_rms || !worse {
         Ok((n_rms, o_rms))
     } else {
@@ -255,7 +242,7 @@ mod tests {
 /// 1.45 x the predicted sigma (the acceptance test's honesty bound and its recording check,
 /// tests/tests/e2e_notracker_3mm.rs; the example plan is 16 x 34 s with 8 tares;
 /// BENCHMARKS.md, "Start-up without a tracker"):
-/// `cargo test -p taut-rt-core --lib plan_predictions -- --ignored --nocapture`.
+/// `cargo test -p taut-calibrator --lib plan_predictions -- --ignored --nocapture`.
 #[cfg(test)]
 mod plan_predictions {
     #[test]
@@ -291,7 +278,7 @@ mod plan_predictions {
                     cfg.calibration.cable_ea_n = 0.9e6;
                     cfg.calibration.cable_ea_sigma_n = 0.15e6;
                 }
-                let ccfg = <taut_rt::motion::ControllerConfig as crate::FromRobot>::from_robot(&cfg).unwrap();
+                let ccfg = <taut_rt::motion::ControllerConfig as taut_io::FromRobot>::from_robot(&cfg).unwrap();
                 let p = super::dwell_plan(&cfg, &ccfg).unwrap();
                 let nominal = cfg.anchors().unwrap();
                 let m = &cfg.motion;

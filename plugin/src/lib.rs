@@ -22,7 +22,7 @@
 //!
 //! The start-up routine (three initialisation phases, initial estimate, excitation,
 //! calibration, bumpless hot-swap) runs inside `update` exactly as in `taut start`, which is
-//! itself a host of this plugin ([`crate::daemon`]).
+//! itself a host of this plugin ([`daemon`]).
 //!
 //! # What may run in the real-time thread
 //!
@@ -34,7 +34,7 @@
 //! atomic flags, status goes out through a triple buffer of a `Copy` struct, events through a
 //! bounded array queue written with `try_send` (full: dropped and counted). In plugin-owned
 //! mode the devices obey the same rule ([`Devices`]: drain queues, non-blocking sockets). The
-//! counting-allocator tests `tests/tests/plugin_alloc.rs` prove it for a whole simulated
+//! counting-allocator tests `tests/tests/memory/plugin_alloc.rs` prove it for a whole simulated
 //! start-up in both modes.
 //!
 //! Everything else is for non-real-time threads: `configure` (allocates, creates the recording,
@@ -44,7 +44,7 @@
 //! mutexes, which only other non-real-time threads hold: the loop writes status lock-free).
 //!
 //! ```no_run
-//! use taut_rt_core::plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginOptions};
+//! use taut_plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginOptions};
 //! let cfg = taut_config::RobotConfig::load("robot.toml").unwrap();
 //! let mut p = Plugin::configure(&cfg, DeviceMode::Host, PluginOptions::default()).unwrap();
 //! let operator = p.handle().clone(); // to a non-real-time thread
@@ -59,30 +59,33 @@
 //! p.deactivate().unwrap();
 //! p.cleanup().unwrap();
 //! ```
+#![deny(missing_docs)]
 
+pub mod daemon;
 mod error;
 mod handle;
 
 pub use error::{ErrorKind, Lifecycle, ModeKind, Op, PluginError, Refusal, UpdateError};
-pub use handle::{Event, PluginHandle, Status};
+pub use handle::{LoopEvent, PluginHandle, Status};
 pub use taut_rt::host::{BadInput, HostInputs, HostOutputs};
 pub use taut_rt::update::Tick;
 
-use crate::calib_backend::TautCalib;
-use crate::calibrator::{CalibStatus, Calibrate, Calibrator, CalibratorConfig, SharedCalibStatus};
-use crate::control::SharedLoopStatus;
-use crate::robot_io::BringUpError;
-use crate::rtsys::Periodic;
-use crate::runner::{LoopCore, LoopStatus, LoopTiming};
 use handle::EventTx;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use taut_calibrator::calib_backend::TautCalib;
+use taut_calibrator::calibrator::Calibrator;
+use taut_calibrator::vocab::{CalibStatus, Calibrate, CalibratorConfig, SharedCalibStatus};
 use taut_config::runtime::RtConfig;
 use taut_config::RobotConfig;
 use taut_driver::clock::{Clock, SimClock};
+use taut_io::robot_io::BringUpError;
+use taut_io::rtsys::Periodic;
+use taut_io::runner::{LoopCore, LoopStatus, LoopTiming};
+use taut_operator::control::SharedLoopStatus;
 use taut_rt::io::{DriveStatus, Inputs};
 use taut_rt::kin::LoopParams;
 use taut_rt::motion::{Controller, ControllerConfig, State};
@@ -182,7 +185,7 @@ pub struct PluginBuilder {
     backend: Box<dyn Calibrate>,
     recording: Option<PathBuf>,
     csv: bool,
-    outputs: Option<crate::channels::Outputs>,
+    outputs: Option<taut_operator::channels::FrameSinks>,
     sim_clock: Option<SimClock>,
 }
 
@@ -195,7 +198,7 @@ impl PluginBuilder {
 
     /// Also sends every sample, parameter set and stage to `o` (MCAP recording, telemetry), from
     /// the calibrator thread.
-    pub fn with_outputs(mut self, o: crate::channels::Outputs) -> PluginBuilder {
+    pub fn with_outputs(mut self, o: taut_operator::channels::FrameSinks) -> PluginBuilder {
         self.outputs = Some(o);
         self
     }
@@ -282,10 +285,10 @@ impl Plugin {
     /// The first half of [`Plugin::configure`]: validated and allocated, nothing created or
     /// started ([`PluginBuilder::build`] does that).
     pub fn builder(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<PluginBuilder, PluginError> {
-        let mut ccfg = crate::notracker::controller_config(cfg)?;
+        let mut ccfg = crate::controller_config(cfg)?;
         // Designed here, at configure time: the loop gets a fixed-size path. The tracker-free
         // start-up has no excitation (it dwells).
-        let excitation = ccfg.dwell.is_none().then(|| crate::excite::plan(cfg, &mut ccfg));
+        let excitation = ccfg.dwell.is_none().then(|| taut_calibrator::excite::plan(cfg, &mut ccfg));
         let n = ccfg.n;
         let rt = cfg.rt.clone();
         if !(rt.rate_hz.is_finite() && rt.rate_hz >= 1.0) {
@@ -317,14 +320,14 @@ impl Plugin {
             calib_status.clone(),
             opts.event_capacity,
             ccfg.workspace,
-            crate::operator::Expected::from_robot(cfg),
+            taut_operator::operator::Expected::from_robot(cfg),
         );
         handle.operator().set_cables((0..n).map(|j| cfg.cable_ids(j)).collect());
         let recording = match opts.recording {
             RecordingPath::Off => None,
             RecordingPath::At(p) => Some(p),
             RecordingPath::Default => {
-                let t = crate::localtime::iso8601_basic(std::time::SystemTime::now());
+                let t = taut_operator::localtime::iso8601_basic(std::time::SystemTime::now());
                 Some(PathBuf::from(&cfg.daemon.data_dir).join("recordings").join(format!("start-{t}.csv")))
             }
         };
@@ -578,4 +581,16 @@ impl Drop for Plugin {
         }
         self.stop_calibrator();
     }
+}
+
+/// The controller configuration of `cfg`, with the dwell plan when the start-up runs without a
+/// tracker.
+pub fn controller_config(cfg: &RobotConfig) -> Result<ControllerConfig, PluginError> {
+    let ccfg = <ControllerConfig as taut_io::FromRobot>::from_robot(cfg)?;
+    if !taut_calibrator::notracker::is_dwell(cfg) {
+        return Ok(ccfg);
+    }
+    let p = taut_calibrator::notracker::dwell_plan(cfg, &ccfg).map_err(PluginError::DwellPlan)?;
+    let m = &cfg.motion;
+    Ok(ccfg.with_dwell_plan(&p.poses, m.dwell_s, m.dwell_settle_s, m.dwell_speed_m_s).with_dwell_tares(&p.tare))
 }

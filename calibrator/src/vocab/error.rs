@@ -7,7 +7,7 @@
 //! the calibration notes and the telemetry; callers that react match on the variant instead.
 //! Outcomes are shared as clones, so the wrapped I/O errors are reference-counted.
 
-use crate::calibrator::OutcomeKind;
+use crate::vocab::OutcomeKind;
 use std::fmt;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -19,7 +19,7 @@ use taut_calib::trust::Untrusted;
 use taut_calib::{CalibError, Termination};
 use taut_rt::motion::State;
 
-/// Why a calibration backend ([`crate::calibrator::Calibrate`]) gave no estimate.
+/// Why a calibration backend ([`crate::vocab::Calibrate`]) gave no estimate.
 #[derive(Debug, Clone)]
 pub enum BackendError {
     /// The initial estimate from the three phases failed.
@@ -330,7 +330,8 @@ impl std::error::Error for RecorderError {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrator::{evaluate, Calibrate, CalibratorConfig, Estimate};
+    use crate::calibrator::evaluate;
+    use crate::vocab::{Calibrate, CalibratorConfig, Estimate};
     use std::error::Error as _;
     use taut_config::recording::Recording;
     use taut_rt::kin::LoopParams;
@@ -352,10 +353,10 @@ mod tests {
     /// The daemon's checks with a tracker, the running estimate at the truth, and an excitation
     /// of 600 tracked poses (1 mm tracker noise) with every cable taut.
     fn setup() -> (CalibratorConfig, Recording, Estimate, LoopParams) {
-        let cfg = crate::testkit::quick_config(4, &std::env::temp_dir());
+        let cfg = taut_io::testkit::quick_config(4, &std::env::temp_dir());
         let mut c = CalibratorConfig::from_robot(&cfg);
         c.tracker = true;
-        let anchors = crate::testkit::nominal_anchors(4);
+        let anchors = taut_io::testkit::nominal_anchors(4);
         let l0 = vec![0.01, -0.02, 0.03, 0.0];
         let truth = LoopParams::new(1, &anchors, &l0, &c.platform);
         let mut rec = Recording::with_capacity(4, 600, true, false, false);
@@ -378,7 +379,7 @@ mod tests {
         (c, rec, est, truth)
     }
 
-    fn outcome(answer: Answer) -> crate::calibrator::Outcome {
+    fn outcome(answer: Answer) -> crate::vocab::CalibrationOutcome {
         let (c, rec, est, truth) = setup();
         evaluate(&c, &mut Fixed(answer), &rec, &est, truth)
     }

@@ -5,7 +5,7 @@
 //! The control thread calls [`Operator::tick`] every round (at most every 50 ms); a host that
 //! steps the loop itself (`taut_simrig::Lockstep`) calls it between cycles. A tick:
 //!
-//! - drains the loop's event queue ([`Event`]: state changes, phases, faults, parameter swaps,
+//! - drains the loop's event queue ([`LoopEvent`]: state changes, phases, faults, parameter swaps,
 //!   resets) into a numbered journal of the last [`JOURNAL`] events, and logs each with what
 //!   comes next and how long it is expected to take;
 //! - adds the calibrator's new outcomes (with the worst 1-sigma, the largest anchor change and
@@ -16,15 +16,15 @@
 //! Every time here is the loop's time (`Snapshot::t`), so a run in simulated time gives the
 //! same journal for the same seed.
 
-use crate::calibrator::{CalibStatus, OutcomeKind};
-use crate::runner::LoopStatus;
 use crossbeam_channel::{Receiver, Sender};
 use serde_json::{json, Value};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
+use taut_calibrator::vocab::{CalibStatus, OutcomeKind};
+use taut_rt::cycle::LoopStatus;
 use taut_rt::motion::{Command, ResetOutcome, State};
 
-pub use taut_rt::update::Event;
+pub use taut_rt::update::LoopEvent;
 
 /// Where the operator's log lines go (stderr in the daemon, a buffer in tests).
 pub type LogFn = Arc<dyn Fn(&str) + Send + Sync>;
@@ -310,7 +310,7 @@ struct Return {
 }
 
 struct Inner {
-    events: Option<Receiver<Event>>,
+    events: Option<Receiver<LoopEvent>>,
     commands: Option<Sender<Command>>,
     log: LogFn,
     expected: Expected,
@@ -400,7 +400,7 @@ pub fn worst_sigma(anchor_sigma_m: &[[f64; 3]], l0_sigma_m: &[f64]) -> Option<(f
 impl Operator {
     /// An operator draining `events` (the plugin's event queue) and sending the return moves
     /// on `commands`; its log lines go nowhere until [`Operator::set_log`].
-    pub fn new(events: Option<Receiver<Event>>, commands: Option<Sender<Command>>, expected: Expected) -> Operator {
+    pub fn new(events: Option<Receiver<LoopEvent>>, commands: Option<Sender<Command>>, expected: Expected) -> Operator {
         Operator {
             inner: Arc::new(Mutex::new(Inner {
                 events,
@@ -592,10 +592,10 @@ impl Inner {
         }
     }
 
-    fn event(&mut self, e: Event) {
+    fn event(&mut self, e: LoopEvent) {
         let x = self.expected;
         match e {
-            Event::State { t_s, from, to } => {
+            LoopEvent::State { t_s, from, to } => {
                 let what = match to {
                     State::Enabling => "enabling the drives".to_string(),
                     State::InitPhase => format!("three-phase initialisation, about {:.0} s per phase", x.init_phase_s),
@@ -616,19 +616,19 @@ impl Inner {
                 let line = format!("state {} -> {}: {what}", from.name(), to.name());
                 self.record(t_s, "state", json!({"from": from.name(), "to": to.name()}), &line);
             }
-            Event::Phase { t_s, phase } => {
+            LoopEvent::Phase { t_s, phase } => {
                 let line = format!("initialisation phase {} of 3, about {:.0} s", phase + 1, x.init_phase_s);
                 self.record(t_s, "phase", json!({"phase": phase}), &line);
             }
-            Event::Fault { t_s, cause, reaction } => {
+            LoopEvent::Fault { t_s, cause, reaction } => {
                 let line = format!("safety reaction {}: {cause}", reaction.name());
                 self.record(t_s, "fault", json!({"cause": cause.name(), "reaction": reaction.name(), "message": cause.to_string()}), &line);
             }
-            Event::ParamsSwapped { t_s, version } => {
+            LoopEvent::ParamsSwapped { t_s, version } => {
                 let line = format!("parameters v{version} taken into use (bumpless ramp)");
                 self.record(t_s, "params", json!({"version": version}), &line);
             }
-            Event::Reset { t_s, outcome } => {
+            LoopEvent::Reset { t_s, outcome } => {
                 let (name, msg) = match outcome {
                     ResetOutcome::InProgress => ("in-progress", "reset under way".to_string()),
                     ResetOutcome::Done => ("done", "reset done: the drives are enabled, holding".to_string()),

@@ -1,5 +1,5 @@
-//! Tests of the motion state machine that run it in the loop core against the kinematic test
-//! robot (`runner`, `testkit`): they stay on this side of the split with those.
+//! Tests of the motion state machine run in the loop core against the kinematic test robot
+//! (`runner`, `testkit`), both of this crate.
 
 use crate::runner::LoopCore;
 use crate::testkit::{quick_config, truth_params, KinematicRobot};

@@ -7,21 +7,21 @@
 //! 4. (`RT_SOAK_S=600`) a soak at 1 kHz with a consumer thread draining the ring and a busy
 //!    thread competing for the CPUs: samples dropped.
 //!
-//! `cargo bench -p taut-rt-core --bench rt_loop`
+//! `cargo bench -p taut-io --bench rt_loop`
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use taut_config::runtime::RtConfig;
+use taut_io::rtsys::{monotonic_ns, setup_current_thread, Periodic};
+use taut_io::runner::LoopCore;
+use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
+use taut_io::FromRobot;
 use taut_rt::io::{CableCommand, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt::kin::LoopParams;
 use taut_rt::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt::sample::sample_ring;
 use taut_rt::triple::triple_buffer;
-use taut_rt_core::rtsys::{monotonic_ns, setup_current_thread, Periodic};
-use taut_rt_core::runner::LoopCore;
-use taut_rt_core::testkit::{quick_config, truth_params, KinematicRobot};
-use taut_rt_core::FromRobot;
 
 /// Devices that echo the commands back (no physics): the loop's own cost only.
 struct Echo {
@@ -178,7 +178,7 @@ fn soak(seconds: f64) {
     let (mut ptx, prx) = triple_buffer(LoopParams::invalid(n));
     let (_ctx, crx) = crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(cfg.rt.ring_capacity);
-    let (status_tx, _status_rx) = triple_buffer(taut_rt_core::runner::LoopStatus::initial(
+    let (status_tx, _status_rx) = triple_buffer(taut_io::runner::LoopStatus::initial(
         Controller::new(ccfg, || None, triple_buffer(LoopParams::invalid(n)).1).snapshot(0.0, &Inputs::new(n)),
     ));
     let core = LoopCore::new(n, KinematicRobot::new(truth, [0.2, 0.1, 2.0]), Controller::new(ccfg, move || crx.try_recv().ok(), prx), stx);
@@ -223,7 +223,7 @@ fn soak(seconds: f64) {
         std::thread::sleep(std::time::Duration::from_secs_f64(seconds + 20.0));
         q4.store(true, Ordering::Relaxed);
     });
-    let rep = taut_rt_core::runner::run_loop(&cfg.rt, core, status_tx, quit.clone(), &|w| eprintln!("warning: {w}"));
+    let rep = taut_io::runner::run_loop(&cfg.rt, core, status_tx, quit.clone(), &|w| eprintln!("warning: {w}"));
     quit.store(true, Ordering::Relaxed);
     let (k, dropped) = drained.join().unwrap();
     let _ = busy.join();
@@ -247,7 +247,7 @@ fn soak(seconds: f64) {
 /// following position targets, at 1 kHz.
 fn canopen_io_bench(n: usize, cycles: usize) {
     use taut_driver::transport::virtual_bus::VirtualBus;
-    use taut_rt_core::robot_io::{Peripherals, RobotDevices};
+    use taut_io::robot_io::{Peripherals, RobotDevices};
     use taut_vdev::{rack_filters, spawn_rack, DriveParams, VirtualDrive};
 
     let mut t = String::from("[robot]\nname = \"bench\"\nmass_kg = 3.0\n[can]\ninterface = \"vcan0\"\ncycle_s = 0.001\n");

@@ -1,9 +1,9 @@
 //! Cost of handing one sample over the sample ring (push on the loop's side, pop on the
-//! calibrator's), taut's own SPSC ring against `ringbuf`'s `HeapRb` that it replaced and `rtrb`'s
-//! `RingBuffer`, the other standard. One thread, so this is the instruction cost of the two
+//! calibrator's), taut's own SPSC ring against `ringbuf`'s `HeapRb` and `rtrb`'s `RingBuffer`, the two
+//! standard crates. One thread, so this is the instruction cost of the two
 //! calls, not cross-core cache traffic.
 //!
-//! `cargo bench -p taut-rt-core --bench sample_ring`
+//! `cargo bench -p taut-io --bench sample_ring`
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use ringbuf::traits::{Consumer, Producer, Split};

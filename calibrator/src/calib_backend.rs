@@ -5,7 +5,7 @@
 //! dropped in the running robot. A fit with effects that fails (diverges, or a value outside
 //! its physical range) fails the calibration, and the daemon keeps the running parameters.
 
-use crate::calibrator::{BackendError, Calibrate, Estimate};
+use crate::vocab::{BackendError, Calibrate, Estimate};
 use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
 use taut_calib::{init, CalibError, CalibOptions, Geometry, Sigmas};
 use taut_config::params::{Effects, ParamsFile};

@@ -2,11 +2,17 @@
 //! with a real-time thread calling `update`, the control socket and the files. The plugin
 //! builds the ring, the triple buffers and the command channel and runs the calibrator thread;
 //! the daemon adds the loop thread and the control thread, and stops them in order.
+//!
+//! ```no_run
+//! use taut_plugin::daemon::{Daemon, DaemonOptions};
+//! let cfg = taut_config::RobotConfig::load("robot.toml").unwrap();
+//! # fn devices() -> Box<dyn taut_rt::io::Devices> { unimplemented!() }
+//! # fn calibrator() -> Box<dyn taut_calibrator::vocab::Calibrate> { unimplemented!() }
+//! let d = Daemon::start(&cfg, devices(), calibrator(), DaemonOptions::default()).unwrap();
+//! d.wait();
+//! ```
 
-use crate::calibrator::{CalibStatus, Calibrate, CalibratorConfig, SharedCalibStatus};
-use crate::control::{ControlServer, ServerLimits, SharedLoopStatus};
-use crate::plugin::{DeviceMode, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath};
-use crate::runner::{run_periodic, LoopReport, LoopStatus};
+use crate::{DeviceMode, Plugin, PluginError, PluginHandle, PluginOptions, RecordingPath};
 use crossbeam_channel::Sender;
 use std::fmt;
 use std::path::PathBuf;
@@ -14,7 +20,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use taut_calibrator::vocab::{CalibStatus, Calibrate, CalibratorConfig, SharedCalibStatus};
 use taut_config::RobotConfig;
+use taut_io::runner::{run_periodic, LoopReport, LoopStatus};
+use taut_operator::control::{ControlServer, ServerLimits, SharedLoopStatus};
 use taut_rt::io::Devices;
 use taut_rt::motion::Command;
 
@@ -36,7 +45,7 @@ pub struct DaemonOptions {
     pub warn: WarnFn,
     /// The tracker receiver's counters, shown by `status` (foreign senders included).
     pub tracker: Option<taut_driver::tracker::TrackerStatsHandle>,
-    /// Where the log lines for people go ([`crate::operator`]: each state and phase with its
+    /// Where the log lines for people go ([`taut_operator::operator`]: each state and phase with its
     /// expected duration, each calibration outcome, goals, loop health).
     pub log: WarnFn,
 }
@@ -67,7 +76,7 @@ pub enum DaemonError {
     },
     /// The MCAP recording or the telemetry server could not be opened (`[recording]`,
     /// `[telemetry]`).
-    Outputs(crate::channels::OutputsError),
+    Outputs(taut_operator::channels::FrameSinksError),
     /// A thread could not be started.
     Thread {
         /// Its name.
@@ -125,7 +134,7 @@ pub struct Daemon {
     /// Where the telemetry server listens, when `[telemetry]` is enabled.
     pub telemetry: Option<std::net::SocketAddr>,
     /// The telemetry server's counters.
-    pub telemetry_stats: Option<Arc<crate::telemetry::TelemetryStats>>,
+    pub telemetry_stats: Option<Arc<taut_operator::telemetry::TelemetryStats>>,
     telemetry_thread: Option<JoinHandle<()>>,
     handle: PluginHandle,
 }
@@ -172,8 +181,8 @@ impl Daemon {
         let fmt = cfg.recording.format;
         let base = builder.recording().map(PathBuf::from).unwrap_or_default();
         let mcap = (fmt.mcap() && !base.as_os_str().is_empty()).then(|| base.with_extension("mcap"));
-        let (outputs, telemetry) =
-            crate::channels::open_outputs(&CalibratorConfig::from_robot(cfg), cfg, mcap.as_deref()).map_err(DaemonError::Outputs)?;
+        let (outputs, telemetry) = taut_operator::channels::open_frame_sinks(&CalibratorConfig::from_robot(cfg), cfg, mcap.as_deref())
+            .map_err(DaemonError::Outputs)?;
         let mut builder = builder.with_csv(fmt.csv());
         if let Some(o) = outputs {
             builder = builder.with_outputs(o);

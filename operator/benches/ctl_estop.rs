@@ -1,4 +1,4 @@
-//! Latency of `estop` over the control socket with hostile clients connected (issue 13):
+//! Latency of `estop` over the control socket with hostile clients connected:
 //! 200 idle clients, 20 slow ones (a byte per 100 ms each) and 20 garbage senders (1 KiB of
 //! random bytes every 10 ms each), every one reconnecting as soon as the server closes it. A
 //! second run replaces the garbage senders by 4 clients that flood random bytes flat out.
@@ -6,7 +6,7 @@
 //! Measured per estop, from a fresh client: connect, send `estop\n`, read the reply (the
 //! latency an operator sees), and the time until a loop-side thread polling the flag every
 //! 1 ms took it (what the loop sees, its 1 ms period included). Prints p50/p99/max.
-//! A custom harness (`harness = false`): `cargo bench -p taut-rt-core --bench ctl_estop`.
+//! A custom harness (`harness = false`): `cargo bench -p taut-operator --bench ctl_estop`.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
@@ -14,16 +14,16 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use taut_calibrator::vocab::CalibStatus;
+use taut_io::testkit::quick_config;
+use taut_io::FromRobot;
+use taut_operator::control::{ControlLinks, ControlServer, ServerLimits};
+use taut_rt::cycle::LoopStatus;
 use taut_rt::io::Inputs;
 use taut_rt::kin::LoopParams;
 use taut_rt::motion::{Controller, ControllerConfig};
 use taut_rt::triple::triple_buffer;
 use taut_rt::urgent::Urgent;
-use taut_rt_core::calibrator::CalibStatus;
-use taut_rt_core::control::{ControlLinks, ControlServer, ServerLimits};
-use taut_rt_core::runner::LoopStatus;
-use taut_rt_core::testkit::quick_config;
-use taut_rt_core::FromRobot;
 
 const ESTOPS: usize = 1000;
 

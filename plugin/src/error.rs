@@ -2,9 +2,9 @@
 //! deactivate, cleanup; not real-time), [`UpdateError`] (small, `Copy`) for `update`, and
 //! [`Refusal`] for operator requests. Each has a stable [`ErrorKind`] for C error codes.
 
-use crate::robot_io::BringUpError;
 use std::fmt;
 use std::path::PathBuf;
+use taut_io::robot_io::BringUpError;
 use taut_rt::motion::{ControllerConfigError, State};
 use taut_rt::safety::{Cause, Reaction};
 

@@ -29,9 +29,7 @@
 //! operator group may use it; the loop sees only [`Command`]s from a bounded channel and the
 //! [`Urgent`] flags.
 
-use crate::calibrator::{CalibStatus, OutcomeKind, SharedCalibStatus};
 use crate::operator::Operator;
-use crate::runner::LoopStatus;
 use crossbeam_channel::Sender;
 use serde_json::{json, Value};
 use std::fmt;
@@ -40,7 +38,9 @@ use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use taut_calibrator::vocab::{CalibStatus, OutcomeKind, SharedCalibStatus};
 use taut_driver::tracker::TrackerStatsHandle;
+use taut_rt::cycle::LoopStatus;
 use taut_rt::motion::{Command, ResetOutcome, State};
 use taut_rt::triple::Reader;
 use taut_rt::urgent::Urgent;
@@ -76,7 +76,7 @@ fn drive_name(d: taut_rt::io::DriveStatus) -> &'static str {
 }
 
 /// One outcome in full (`outcome N`): the estimate, its sigmas, every data problem.
-pub fn outcome_json(n: usize, o: &crate::calibrator::Outcome) -> Value {
+pub fn outcome_json(n: usize, o: &taut_calibrator::vocab::CalibrationOutcome) -> Value {
     let est = o.estimate.as_ref().map(|e| {
         json!({"anchors_m": e.geometry.anchors, "l0_m": e.geometry.l0, "anchor_sigma_m": e.sigma.anchors.iter().map(|s| s.map(finite)).collect::<Vec<_>>(),
                "l0_sigma_m": e.sigma.l0.iter().map(|&s| finite(s)).collect::<Vec<_>>(), "note": e.note,
@@ -100,7 +100,7 @@ pub fn outcome_json(n: usize, o: &crate::calibrator::Outcome) -> Value {
 }
 
 /// An outcome in short (`status`): the numbers, the reason cut, the data problems counted.
-fn outcome_summary(n: usize, o: &crate::calibrator::Outcome) -> Value {
+fn outcome_summary(n: usize, o: &taut_calibrator::vocab::CalibrationOutcome) -> Value {
     json!({
         "n": n,
         "run": o.run,
@@ -120,7 +120,7 @@ fn outcome_summary(n: usize, o: &crate::calibrator::Outcome) -> Value {
 
 /// The status as JSON. Its size is bounded: the newest [`STATUS_OUTCOMES`] outcomes in short
 /// (`outcomes_total` counts them all; `outcome N` gives one in full).
-pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibStatus) -> Value {
+pub fn status_json(loop_status: &LoopStatus, calib: &taut_calibrator::vocab::CalibStatus) -> Value {
     let s = &loop_status.snap;
     let n = s.inputs.n;
     let fault = s.fault.map(|(c, r)| json!({"cause": c.name(), "reaction": r.name(), "message": c.to_string()}));
@@ -177,7 +177,7 @@ pub fn status_json(loop_status: &LoopStatus, calib: &crate::calibrator::CalibSta
             "current": current,
             "outcomes_total": total,
             "outcomes": outcomes,
-            "excitation": crate::excite::status_json(calib),
+            "excitation": crate::control::excitation_json(calib),
         },
     })
 }
@@ -203,7 +203,7 @@ pub enum Request {
     /// [`crate::operator`])
     Events(Option<u64>),
     /// `outcome N`: the calibrator's N-th outcome in full (1 is the first)
-    Outcome(usize),
+    CalibrationOutcome(usize),
     /// `help`: the requests and what they do
     Help,
 }
@@ -358,7 +358,7 @@ pub fn parse_request(line: &[u8]) -> Result<Request, RequestError> {
         },
         "outcome" => match rest.as_slice() {
             [w] => match w.parse::<usize>() {
-                Ok(k) if k >= 1 => Ok(Request::Outcome(k)),
+                Ok(k) if k >= 1 => Ok(Request::CalibrationOutcome(k)),
                 _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(w, 40) }),
             },
             _ => Err(RequestError::BadCount { verb: "outcome", word: excerpt(&rest.join(" "), 40) }),
@@ -485,7 +485,7 @@ impl ControlLinks {
                 let (events, next, lost) = self.operator.events_since(from);
                 json!({"ok": true, "events": events, "next": next, "lost": lost})
             }
-            Request::Outcome(k) => {
+            Request::CalibrationOutcome(k) => {
                 let cs = lock(&self.calib);
                 match cs.outcomes.get(k - 1) {
                     Some(o) => json!({"ok": true, "outcome": outcome_json(k, o)}),
@@ -785,6 +785,27 @@ pub fn status_text(v: &Value) -> String {
     out
 }
 
+/// The excitation's part of `ctl status`: the path, the predicted worst anchor 1-sigma and the
+/// achieved one (of the last calibration that produced an estimate), m.
+pub fn excitation_json(calib: &CalibStatus) -> Value {
+    let Some(plan) = &calib.excitation else { return Value::Null };
+    let finite = |v: f64| if v.is_finite() { Some(v) } else { None };
+    let achieved = calib
+        .outcomes
+        .iter()
+        .rev()
+        .filter(|o| o.kind == OutcomeKind::Calibration)
+        .find_map(|o| o.estimate.as_ref())
+        .map(|e| taut_calibrator::excite::worst_anchor_sigma_m(&e.sigma.anchors));
+    json!({
+        "path": plan.path,
+        "waypoints": plan.waypoints,
+        "predicted_worst_anchor_sigma_m": finite(plan.predicted_worst_m()),
+        "achieved_worst_anchor_sigma_m": achieved.and_then(finite),
+        "note": plan.note,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -793,7 +814,7 @@ mod tests {
     fn the_journal_and_outcome_requests_parse_and_bad_numbers_are_refused_clearly() {
         assert_eq!(parse_request(b"events"), Ok(Request::Events(None)));
         assert_eq!(parse_request(b"events 12"), Ok(Request::Events(Some(12))));
-        assert_eq!(parse_request(b"outcome 3"), Ok(Request::Outcome(3)));
+        assert_eq!(parse_request(b"outcome 3"), Ok(Request::CalibrationOutcome(3)));
         assert_eq!(parse_request(b"help"), Ok(Request::Help));
         for (line, says) in [
             ("outcome 0", "\"0\" is not a whole number from 1"),

@@ -5,24 +5,24 @@
 //! without blocking (full: the event is dropped and counted).
 
 use super::error::Refusal;
-use crate::calibrator::{CalibStatus, SharedCalibStatus};
-use crate::control::{ControlLinks, SharedLoopStatus};
-use crate::operator::{Expected, Operator};
-use crate::runner::LoopStatus;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use taut_calibrator::vocab::{CalibStatus, SharedCalibStatus};
 use taut_config::params::ParamsFile;
+use taut_io::runner::LoopStatus;
+use taut_operator::control::{ControlLinks, SharedLoopStatus};
+use taut_operator::operator::{Expected, Operator};
 use taut_rt::motion::{Command, State};
 use taut_rt::safety::{Cause, Reaction};
 use taut_rt::update::EventSink;
 use taut_rt::urgent::Urgent;
 
-pub use taut_rt::update::Event;
+pub use taut_rt::update::LoopEvent;
 
 /// The loop's side of the event queue.
 pub(crate) struct EventTx {
-    tx: Sender<Event>,
+    tx: Sender<LoopEvent>,
     dropped: Arc<AtomicU64>,
 }
 
@@ -30,7 +30,7 @@ impl EventTx {}
 
 impl EventSink for EventTx {
     /// Never blocks, never allocates (a bounded array channel); a full queue drops the event.
-    fn push(&mut self, e: Event) {
+    fn push(&mut self, e: LoopEvent) {
         if let Err(TrySendError::Full(_)) = self.tx.try_send(e) {
             // Relaxed: a counter read for display only.
             self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -74,7 +74,7 @@ struct Shared {
     urgent: Arc<Urgent>,
     loop_status: SharedLoopStatus,
     calib: SharedCalibStatus,
-    events: Receiver<Event>,
+    events: Receiver<LoopEvent>,
     events_dropped: Arc<AtomicU64>,
     workspace: [[f64; 3]; 2],
     operator: Operator,
@@ -197,7 +197,7 @@ impl PluginHandle {
     }
 
     /// Clears a latched reaction (see `motion`): drives' faults reset, drives enabled again
-    /// holding where they stand. The outcome shows in status and as an [`Event::Reset`].
+    /// holding where they stand. The outcome shows in status and as an [`LoopEvent::Reset`].
     pub fn reset(&self) -> Result<(), Refusal> {
         self.send(Command::Reset)
     }
@@ -227,7 +227,7 @@ impl PluginHandle {
     }
 
     /// The next event, if any.
-    pub fn poll_event(&self) -> Option<Event> {
+    pub fn poll_event(&self) -> Option<LoopEvent> {
         self.s.events.try_recv().ok()
     }
 

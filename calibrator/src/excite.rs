@@ -1,12 +1,13 @@
 //! The start-up excitation of a configured robot: designed at configure time (never in the
 //! loop) from the nominal anchors by [`taut_calib::design`], with the calibration's predicted
-//! uncertainty, or today's Lissajous curve when the design is switched off or impossible.
+//! uncertainty, or the Lissajous curve when the design is switched off or impossible.
 //!
 //! The plan is handed to the loop as a fixed-size [`taut_calib::design::Tour`] inside the `Copy`
 //! [`ControllerConfig`]; the prediction goes to the calibrator (its report compares it with the
 //! achieved sigmas) and to `ctl status`.
 
-use taut_calib::design::{self, DesignInput, Prediction};
+use crate::vocab::ExcitationPlan;
+use taut_calib::design::{self, DesignInput};
 use taut_config::RobotConfig;
 use taut_rt::motion::ControllerConfig;
 
@@ -25,38 +26,6 @@ pub const TOUR_SPEED_FRACTION: f64 = 0.8;
 /// Distance the tour keeps inside the workspace box's faces, m (room for tracking error before
 /// the workspace check).
 pub const TOUR_MARGIN_M: f64 = 0.05;
-
-/// What the start-up excitation will be, and the uncertainty it should leave.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ExcitationPlan {
-    /// The path: `"designed tour"` (a closed tour of waypoints chosen by [`taut_calib::design`])
-    /// or `"lissajous"`.
-    pub path: &'static str,
-    /// Waypoints of the tour (0 for the Lissajous curve).
-    pub waypoints: usize,
-    /// The calibration's predicted uncertainty along the path (at the nominal geometry).
-    pub predicted: Option<Prediction>,
-    /// Why the designed path is not used (empty when it is).
-    pub note: String,
-}
-
-impl ExcitationPlan {
-    /// The predicted worst anchor 1-sigma, m (NaN without a prediction).
-    pub fn predicted_worst_m(&self) -> f64 {
-        self.predicted.as_ref().map_or(f64::NAN, Prediction::worst_anchor_sigma_m)
-    }
-
-    /// One line for people.
-    pub fn summary(&self) -> String {
-        let p = self.predicted_worst_m();
-        let pred = if p.is_finite() { format!("predicted worst anchor 1-sigma {:.2} mm", p * 1e3) } else { "no prediction".into() };
-        let mut s = format!("excitation: {} ({} waypoints), {pred}", self.path, self.waypoints);
-        if !self.note.is_empty() {
-            s.push_str(&format!(" ({})", self.note));
-        }
-        s
-    }
-}
 
 /// The length noise the calibration's all-cables refinement starts from (`crate::calib_backend`):
 /// conservative, for the convergence from the initial estimate, m.
@@ -87,7 +56,7 @@ pub fn design_input(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Option<Design
         duration_s: m.excitation_s,
         sample_hz: m.tracker_rate_hz / cfg.daemon.calib_decimation.max(1) as f64,
         used_fraction: 1.0 - cal.heldout_fraction,
-        heldout_blocks: crate::calibrator::HeldoutBlocks::BLOCKS,
+        heldout_blocks: crate::vocab::HeldoutBlocks::BLOCKS,
         tracker_sigma_m: cal.tracker_sigma_m,
         length_sigma_m: length_sigma_floor_m(cal.encoder_sigma_m),
         mass_kg: cfg.robot.mass_kg,
@@ -159,31 +128,10 @@ pub fn predicted_vs_achieved(plan: &ExcitationPlan, anchor_sigma: &[[f64; 3]]) -
     )
 }
 
-/// The excitation's part of `ctl status`: the path, the predicted worst anchor 1-sigma and the
-/// achieved one (of the last calibration that produced an estimate), m.
-pub fn status_json(calib: &crate::calibrator::CalibStatus) -> serde_json::Value {
-    let Some(plan) = &calib.excitation else { return serde_json::Value::Null };
-    let finite = |v: f64| if v.is_finite() { Some(v) } else { None };
-    let achieved = calib
-        .outcomes
-        .iter()
-        .rev()
-        .filter(|o| o.kind == crate::calibrator::OutcomeKind::Calibration)
-        .find_map(|o| o.estimate.as_ref())
-        .map(|e| worst_anchor_sigma_m(&e.sigma.anchors));
-    serde_json::json!({
-        "path": plan.path,
-        "waypoints": plan.waypoints,
-        "predicted_worst_anchor_sigma_m": finite(plan.predicted_worst_m()),
-        "achieved_worst_anchor_sigma_m": achieved.and_then(finite),
-        "note": plan.note,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::FromRobot;
+    use taut_io::FromRobot;
 
     fn sim_robot() -> RobotConfig {
         let mut cfg = RobotConfig::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim.toml")).unwrap();
@@ -215,7 +163,7 @@ mod tests {
 
     #[test]
     fn the_design_counts_the_rows_the_calibrator_trains_on() {
-        use crate::calibrator::HeldoutBlocks;
+        use crate::vocab::HeldoutBlocks;
         for rows in [0usize, 1, 7, 8, 9, 100, 2_500, 3_001] {
             for fraction in [0.0, 0.2, 0.5] {
                 let daemon: Vec<usize> = HeldoutBlocks::new(rows, fraction).training().into_iter().flatten().collect();
@@ -230,7 +178,12 @@ mod tests {
         let plan = ExcitationPlan {
             path: "designed tour",
             waypoints: 4,
-            predicted: Some(Prediction { anchor_sigma: vec![[1e-3, 0.0, 0.0]], l0_sigma: vec![1e-3], samples: 10, anchor_cov_m2: vec![] }),
+            predicted: Some(taut_calib::design::Prediction {
+                anchor_sigma: vec![[1e-3, 0.0, 0.0]],
+                l0_sigma: vec![1e-3],
+                samples: 10,
+                anchor_cov_m2: vec![],
+            }),
             note: String::new(),
         };
         let s = predicted_vs_achieved(&plan, &[[3e-4, 4e-4, 0.0], [0.0, 0.0, 1e-4]]);

@@ -28,9 +28,9 @@ use std::fmt;
 use std::time::Instant;
 use taut_config::RobotConfig;
 use taut_driver::clock::SharedClock;
-use taut_driver::{BusEvent, DriveSet, Event, LoadCellIo, Master, MasterConfig, Phase, PoseReader, TensionReader, TrackerThread};
+use taut_driver::{BusEvent, DriveSet, LoadCellIo, Master, MasterConfig, NodeEvent, Phase, PoseReader, TensionReader, TrackerThread};
 use taut_proto::can::{CanTransport, TransportError};
-use taut_proto::canopen::cia402::{Mode, State};
+use taut_proto::canopen::cia402::{Mode, PowerState};
 use taut_proto::devices::DriveConfig;
 use taut_rt::io::{
     bus_event_is_fault, BusState, BusStatus, CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs,
@@ -481,12 +481,12 @@ impl<T: CanTransport> RobotDevices<T> {
     }
 }
 
-fn status_of(state: Option<State>) -> DriveStatus {
+fn status_of(state: Option<PowerState>) -> DriveStatus {
     match state {
         None => DriveStatus::Unknown,
-        Some(State::OperationEnabled) => DriveStatus::Enabled,
-        Some(State::QuickStopActive) => DriveStatus::QuickStop,
-        Some(State::Fault | State::FaultReactionActive) => DriveStatus::Fault,
+        Some(PowerState::OperationEnabled) => DriveStatus::Enabled,
+        Some(PowerState::QuickStopActive) => DriveStatus::QuickStop,
+        Some(PowerState::Fault | PowerState::FaultReactionActive) => DriveStatus::Fault,
         Some(_) => DriveStatus::Disabled,
     }
 }
@@ -502,9 +502,9 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         while let Some(e) = self.master.poll_event() {
             let f = match e {
                 // "Error reset / no error" (0x0000) clears, it does not fault.
-                Event::Emergency { node, emcy } if emcy.code != 0 => Some(DeviceFault::Emcy { node, code: emcy.code }),
-                Event::HeartbeatLost { node } => Some(DeviceFault::HeartbeatLost { node }),
-                Event::Rebooted { node } => Some(DeviceFault::Rebooted { node }),
+                NodeEvent::Emergency { node, emcy } if emcy.code != 0 => Some(DeviceFault::Emcy { node, code: emcy.code }),
+                NodeEvent::HeartbeatLost { node } => Some(DeviceFault::HeartbeatLost { node }),
+                NodeEvent::Rebooted { node } => Some(DeviceFault::Rebooted { node }),
                 _ => None,
             };
             if inp.fault.is_none() {
@@ -616,7 +616,7 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         // "fault reaction active" (it takes a fault reset only once in FAULT).
         if self.fault_reset_pending
             && self.master.all_operational()
-            && self.master.statuses().all(|s| s.axis.state != Some(State::FaultReactionActive))
+            && self.master.statuses().all(|s| s.axis.state != Some(PowerState::FaultReactionActive))
         {
             self.fault_reset_pending = false;
         }

@@ -3,7 +3,7 @@
 //! running start-up live.
 //!
 //! One thread, sync `tungstenite` on non-blocking sockets. It is fed by the calibrator thread
-//! through a bounded queue ([`crate::channels::Outputs`]): neither the loop nor the calibrator ever
+//! through a bounded queue ([`crate::channels::FrameSinks`]): neither the loop nor the calibrator ever
 //! waits on a client. A client whose socket does not drain (more than [`MAX_CLIENT_BACKLOG`]
 //! bytes queued) is disconnected.
 //!

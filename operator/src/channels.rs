@@ -2,11 +2,11 @@
 //! samples, parameter sets and calibrator progress become JSON frames, encoded once and handed
 //! to the MCAP recording and to the live telemetry server.
 //!
-//! Runs on the calibrator thread (it allocates); the loop only pushes `Copy` samples into the
-//! ring, as before.
+//! Runs on the calibrator thread (it allocates), as the calibrator's [`RunOutputs`]; the loop
+//! only pushes `Copy` samples into the ring.
 
-use crate::calibrator::{Outcome, OutcomeKind};
 use std::sync::Arc;
+use taut_calibrator::vocab::{CalibrationOutcome, OutcomeKind, RunOutputs};
 use taut_config::mcap::{frame_transform, opt, pose_in_frame, scene_update, CablesMsg, McapWriter, Topic};
 use taut_config::params::ParamsFile;
 use taut_rt::io::{CableCommand, DriveStatus};
@@ -162,7 +162,7 @@ impl Encoder {
     }
 
     /// The calibrator's stage (sent when it changes) or a new outcome (always sent).
-    pub fn calibrator(&mut self, stage: &str, samples_recorded: u64, outcome: Option<&Outcome>, out: &mut impl FnMut(Frame)) {
+    pub fn calibrator(&mut self, stage: &str, samples_recorded: u64, outcome: Option<&CalibrationOutcome>, out: &mut impl FnMut(Frame)) {
         if outcome.is_none() && stage == self.last_stage {
             return;
         }
@@ -180,7 +180,7 @@ impl Encoder {
 }
 
 /// Where the frames go: the MCAP recording and the telemetry server, either optional.
-pub struct Outputs {
+pub struct FrameSinks {
     /// The encoder.
     pub enc: Encoder,
     /// The MCAP recording.
@@ -193,7 +193,7 @@ pub struct Outputs {
     pub live_dropped: u64,
 }
 
-impl Outputs {
+impl FrameSinks {
     fn emit(
         mcap: &mut Option<McapWriter>,
         live: &Option<crossbeam_channel::Sender<Frame>>,
@@ -226,7 +226,7 @@ impl Outputs {
     }
 
     /// Calibrator progress.
-    pub fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&Outcome>) {
+    pub fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&CalibrationOutcome>) {
         let (m, l, e, d) = (&mut self.mcap, &self.live, &mut self.error, &mut self.live_dropped);
         self.enc.calibrator(stage, samples, outcome, &mut |f| Self::emit(m, l, e, d, f));
     }
@@ -250,13 +250,34 @@ impl Outputs {
     }
 }
 
+impl RunOutputs for FrameSinks {
+    fn sample(&mut self, s: &Sample) {
+        FrameSinks::sample(self, s);
+    }
+    fn params(&mut self, p: &ParamsFile) {
+        FrameSinks::params(self, p);
+    }
+    fn calibrator(&mut self, stage: &str, samples: u64, outcome: Option<&CalibrationOutcome>) {
+        FrameSinks::calibrator(self, stage, samples, outcome);
+    }
+    fn tick(&mut self) {
+        FrameSinks::tick(self);
+    }
+    fn take_error(&mut self) -> Option<std::io::Error> {
+        self.error.take()
+    }
+    fn finish(&mut self) {
+        FrameSinks::finish(self);
+    }
+}
+
 /// The MCAP recording at `mcap` and the telemetry server of `cfg.telemetry`, each if asked for
 /// (None when neither is). Errors name the file or the configuration key.
-pub fn open_outputs(
-    c: &crate::calibrator::CalibratorConfig,
+pub fn open_frame_sinks(
+    c: &taut_calibrator::vocab::CalibratorConfig,
     cfg: &taut_config::RobotConfig,
     mcap: Option<&std::path::Path>,
-) -> Result<(Option<Outputs>, Option<crate::telemetry::TelemetryServer>), OutputsError> {
+) -> Result<(Option<FrameSinks>, Option<crate::telemetry::TelemetryServer>), FrameSinksError> {
     let writer = match mcap {
         Some(p) => {
             let meta = taut_config::mcap::RecordingMeta {
@@ -267,14 +288,14 @@ pub fn open_outputs(
                 source: "taut start".into(),
                 comments: vec![format!(" robot: {}; written by taut start", c.robot)],
             };
-            Some(McapWriter::create(p, &meta).map_err(|source| OutputsError::Mcap { path: p.to_path_buf(), source })?)
+            Some(McapWriter::create(p, &meta).map_err(|source| FrameSinksError::Mcap { path: p.to_path_buf(), source })?)
         }
         None => None,
     };
     let (server, live) = if cfg.telemetry.enabled {
-        let addr = cfg.telemetry.addr().ok_or_else(|| OutputsError::TelemetryBind { bind: cfg.telemetry.bind.clone() })?;
+        let addr = cfg.telemetry.addr().ok_or_else(|| FrameSinksError::TelemetryBind { bind: cfg.telemetry.bind.clone() })?;
         let (server, tx) =
-            crate::telemetry::bind(addr, cfg.telemetry.max_clients).map_err(|source| OutputsError::Telemetry { addr, source })?;
+            crate::telemetry::bind(addr, cfg.telemetry.max_clients).map_err(|source| FrameSinksError::Telemetry { addr, source })?;
         (Some(server), Some(tx))
     } else {
         (None, None)
@@ -283,13 +304,13 @@ pub fn open_outputs(
         return Ok((None, server));
     }
     let enc = Encoder::new(c.n, c.platform.clone(), c.nominal.clone());
-    Ok((Some(Outputs { enc, mcap: writer, live, error: None, live_dropped: 0 }), server))
+    Ok((Some(FrameSinks { enc, mcap: writer, live, error: None, live_dropped: 0 }), server))
 }
 
 /// Why the MCAP recording or the telemetry server could not be opened. Each names the file or
 /// the configuration key.
 #[derive(Debug)]
-pub enum OutputsError {
+pub enum FrameSinksError {
     /// The MCAP recording could not be created (`daemon.data_dir`).
     Mcap {
         /// The file.
@@ -311,27 +332,27 @@ pub enum OutputsError {
     },
 }
 
-impl std::fmt::Display for OutputsError {
+impl std::fmt::Display for FrameSinksError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            OutputsError::Mcap { path, source } => {
+            FrameSinksError::Mcap { path, source } => {
                 write!(f, "cannot create the MCAP recording {}: {source} (daemon.data_dir)", path.display())
             }
-            OutputsError::TelemetryBind { bind } => {
+            FrameSinksError::TelemetryBind { bind } => {
                 write!(f, "telemetry.bind {bind:?} is not an IP address; give e.g. \"127.0.0.1\" (this machine only)")
             }
-            OutputsError::Telemetry { addr, source } => {
+            FrameSinksError::Telemetry { addr, source } => {
                 write!(f, "cannot serve telemetry on {addr}: {source} (telemetry.bind, telemetry.port)")
             }
         }
     }
 }
 
-impl std::error::Error for OutputsError {
+impl std::error::Error for FrameSinksError {
     fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
         match self {
-            OutputsError::Mcap { source, .. } | OutputsError::Telemetry { source, .. } => Some(source),
-            OutputsError::TelemetryBind { .. } => None,
+            FrameSinksError::Mcap { source, .. } | FrameSinksError::Telemetry { source, .. } => Some(source),
+            FrameSinksError::TelemetryBind { .. } => None,
         }
     }
 }

@@ -1,0 +1,32 @@
+//! The robot's devices behind the real-time loop and the thread that runs it.
+//!
+//! - [`robot_io`]: the robot's devices as the loop's [`taut_rt::io::Devices`]: the CANopen drive
+//!   set, the load cells and the tracker, brought up from the configuration, with the drum and
+//!   load-cell unit conversions ([`robot_io::Scaling`]).
+//! - [`runner`]: the periodic loop thread ([`runner::run_periodic`]) around `taut_rt`'s
+//!   per-cycle core.
+//! - [`rtsys`]: the operating system's side of a real-time thread: `SCHED_FIFO`, CPU affinity,
+//!   locked memory, the absolute-time periodic sleep, the stop signals.
+//! - [`FromRobot`] and [`EffectsFromFile`]: the loop's plain configuration filled from the
+//!   robot's files.
+//!
+//! This is the part of the non-real-time side that the real-time thread calls into: the
+//! `read`/`write` of [`robot_io`] and the cycle of [`runner`] run in it every cycle, and allocate
+//! nothing and never block. The crate therefore links no calibration (`taut-calib`, nalgebra),
+//! no JSON, no MCAP and no WebSocket (`tests/tests/offline/crate_graph.rs` checks it); the
+//! calibrator (`taut-calibrator`), the operator's services (`taut-operator`) and the plugin that
+//! ties them together (`taut-plugin`) are crates of their own above this one.
+#![deny(missing_docs)]
+
+#[cfg(test)]
+mod dwell_tare_tests;
+#[cfg(test)]
+mod motion_tests;
+pub mod robot_io;
+mod rt_config;
+pub mod rtsys;
+pub mod runner;
+#[cfg(any(test, feature = "testkit"))]
+pub mod testkit;
+
+pub use rt_config::{EffectsFromFile, FromRobot};
