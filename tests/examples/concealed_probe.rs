@@ -66,6 +66,9 @@ fn main() {
             d.final_fit.heldout_rms_m * 1e3
         );
         if show_tests {
+            for f in &d.effects {
+                println!("    {}: {}", f.effect.name(), f.evidence);
+            }
             for t in &d.tests {
                 println!("    round {} {}: {:?} {}", t.round, t.effect.name(), t.decision, t.test.map_or("-".into(), |x| x.to_string()));
             }
