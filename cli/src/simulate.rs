@@ -55,7 +55,7 @@ pub const MAX_DURATION_S: f64 = 86_400.0;
 pub const MAX_SAMPLES: f64 = 2.0e6;
 
 /// The simulated effects, their unit and the physical range of their value.
-pub const EFFECTS: [(&str, &str, f64, f64, &str); 6] = [
+pub const EFFECTS: [(&str, &str, f64, f64, &str); 7] = [
     // EA of a real cable: 1 kN (an elastic cord) to 100 MN (a 35 mm steel rope); stiffer cables
     // are rigid for the plant's equilibrium search.
     ("elasticity", "N", 1e3, 1e8, "axial stiffness EA"),
@@ -67,6 +67,9 @@ pub const EFFECTS: [(&str, &str, f64, f64, &str); 6] = [
     ("scale", "", 0.9, 1.1, "encoder scale"),
     ("time-offset", "s", -1.0, 1.0, "encoder lag behind the tracker"),
     ("backlash", "m", 0.0, 0.05, "play in the drive train"),
+    // Radius change per turn paid out on the simulator's 25 mm drums: -0.2 mm (a 1 mm cable,
+    // five turns a layer, paid out of a full drum) keeps a radius at 10 m paid out.
+    ("drum-buildup", "m", -2e-4, 2e-4, "drum radius change per turn paid out"),
 ];
 
 /// A number for a message: plain when of an everyday size, else in e-notation (1e300 is not
@@ -155,6 +158,7 @@ pub fn apply_effects(effects: &[String], n: usize, physics: &mut taut_sim::Physi
             "scale" => physics.scale = Some(vec![v; n]),
             "time-offset" => physics.time_offset_s = v,
             "backlash" => physics.backlash_m = v,
+            "drum-buildup" => physics.drum_buildup_m_per_turn = Some(v),
             _ => unreachable!("every name in EFFECTS is matched"),
         }
     }
@@ -199,6 +203,7 @@ pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim:
             pulley_radius_m: s.physics.pulley.map(|r| vec![r; n]),
             backlash_m: (s.physics.backlash_m > 0.0).then(|| vec![s.physics.backlash_m; n]),
             time_offset_s: (s.physics.time_offset_s != 0.0).then_some(s.physics.time_offset_s),
+            drum_buildup_per_m: s.physics.drum().map(|d| vec![d.quadratic_per_m(); n]),
             ..Default::default()
         },
         ..taut_config::params::ParamsFile::from_geometry(&run.truth.geometry(), &taut_config::params::Sigmas::uniform(n, 0.0))

@@ -50,12 +50,13 @@ pub struct StartArgs {
     /// (e.g. `vcan0`) instead of an in-process virtual bus.
     #[arg(long, requires = "sim")]
     can: Option<String>,
-    /// A parameter file (taut-params v1 or v2, e.g. from `taut diagnose --out`): the effects it
+    /// A parameter file (taut-params v1, v2 or v3, e.g. from `taut diagnose --out`): the effects it
     /// carries are modelled and refitted by every calibration, starting from its values.
     #[arg(long)]
     params: Option<PathBuf>,
     /// With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate
-    /// --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash).
+    /// --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash,
+    /// drum-buildup).
     #[arg(long = "sim-effect", value_name = "NAME=VALUE", requires = "sim")]
     sim_effects: Vec<String>,
     /// With --sim: the simulated robot has no tracker; the start-up runs dwell poses and

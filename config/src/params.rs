@@ -1,9 +1,10 @@
-//! `taut-params v2`: a calibrated parameter set as written by `taut calibrate --out`, `taut
+//! `taut-params v3`: a calibrated parameter set as written by `taut calibrate --out`, `taut
 //! diagnose --out` and by the daemon on every accepted calibration (TOML, written atomically).
-//! Version 1 files (the same without `[effects]`) are still read; files are written as v2.
+//! Version 2 files (the same without `drum_buildup_per_m`) and version 1 files (without
+//! `[effects]`) are still read; files are written as v3.
 //!
 //! ```toml
-//! format = "taut-params v2"
+//! format = "taut-params v3"
 //! version = 3                      # increases with every accepted set
 //! created_unix_s = 1795000000.0
 //! robot = "aras-cam"
@@ -22,6 +23,7 @@
 //! pulley_radius_m = [0.05, ...]    # swivel pulley radius; the anchor is where the cable
 //!                                  # enters the pulley, the swivel axis is vertical through it
 //! backlash_m = [0.002, ...]        # play in the drive train (width)
+//! drum_buildup_per_m = [-0.01, ...] # drum build-up q: true length u + q u^2 of the encoder's u
 //! time_offset_s = 0.012            # the encoders lag the tracker by this
 //! ```
 //!
@@ -37,13 +39,15 @@ use taut_model::geometry::{Field, GeometryError};
 pub use taut_model::geometry::{Geometry, Sigmas};
 
 /// The format tag of a parameter file as written.
-pub const FORMAT: &str = "taut-params v2";
+pub const FORMAT: &str = "taut-params v3";
+/// The format tag of version 2 files (no `drum_buildup_per_m`), still read.
+pub const FORMAT_V2: &str = "taut-params v2";
 /// The format tag of version 1 files (no `[effects]`), still read.
 pub const FORMAT_V1: &str = "taut-params v1";
 
 /// Plausible ranges of the effect values: (key, low, high, unit). A value outside is not a
 /// physical cable (or a typo), and the file is refused naming the key.
-pub const EFFECT_RANGES: [(&str, f64, f64, &str); 5] = [
+pub const EFFECT_RANGES: [(&str, f64, f64, &str); 6] = [
     // An elastic cord (1 kN) to a thick steel rope (10 GN is far beyond any; stiffer is rigid).
     ("ea_n", 1e3, 1e10, "N"),
     // A drum radius error of +-10 %.
@@ -51,6 +55,8 @@ pub const EFFECT_RANGES: [(&str, f64, f64, &str); 5] = [
     ("pulley_radius_m", 0.0, 0.5, "m"),
     ("backlash_m", 0.0, 0.05, "m"),
     ("time_offset_s", -1.0, 1.0, "s"),
+    // Drum build-up q = b / (2 r^2): a 2 mm cable five turns a layer on a 25 mm drum is 0.05.
+    ("drum_buildup_per_m", -0.1, 0.1, "1/m"),
 ];
 
 /// Physical effects beyond the ideal model, fitted by `taut diagnose` or the daemon's
@@ -89,6 +95,13 @@ pub struct Effects {
     /// 1-sigma of `time_offset_s`, s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_offset_sigma_s: Option<f64>,
+    /// Drum build-up per cable, 1/m: the true paid-out length is `u + q u^2` of the encoder's
+    /// `u = reading - L0` (version 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drum_buildup_per_m: Option<Vec<f64>>,
+    /// 1-sigma of `drum_buildup_per_m`, 1/m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drum_buildup_sigma_per_m: Option<Vec<f64>>,
 }
 
 impl Effects {
@@ -104,6 +117,8 @@ impl Effects {
             && self.pulley_radius_sigma_m.is_none()
             && self.backlash_sigma_m.is_none()
             && self.time_offset_sigma_s.is_none()
+            && self.drum_buildup_per_m.is_none()
+            && self.drum_buildup_sigma_per_m.is_none()
     }
 
     /// The names of the modelled effects (`taut-diagnosis v1` names: elasticity, scale,
@@ -116,6 +131,7 @@ impl Effects {
             (self.pulley_radius_m.is_some(), "pulley"),
             (self.backlash_m.is_some(), "backlash"),
             (self.time_offset_s.is_some(), "time-offset"),
+            (self.drum_buildup_per_m.is_some(), "drum-buildup"),
         ] {
             if on {
                 v.push(name);
@@ -130,11 +146,12 @@ impl Effects {
         let range = |key: &str| EFFECT_RANGES.iter().find(|r| r.0 == key).copied().expect("every effect key has a range");
         // (value key, values, sigma key, sigmas)
         type Keyed<'a> = (&'a str, &'a Option<Vec<f64>>, &'a str, &'a Option<Vec<f64>>);
-        let vectors: [Keyed; 4] = [
+        let vectors: [Keyed; 5] = [
             ("ea_n", &self.ea_n, "ea_sigma_n", &self.ea_sigma_n),
             ("drum_scale", &self.drum_scale, "drum_scale_sigma", &self.drum_scale_sigma),
             ("pulley_radius_m", &self.pulley_radius_m, "pulley_radius_sigma_m", &self.pulley_radius_sigma_m),
             ("backlash_m", &self.backlash_m, "backlash_sigma_m", &self.backlash_sigma_m),
+            ("drum_buildup_per_m", &self.drum_buildup_per_m, "drum_buildup_sigma_per_m", &self.drum_buildup_sigma_per_m),
         ];
         let value = |key: &str, v: f64| -> Result<(), String> {
             let (_, lo, hi, unit) = range(key);
@@ -275,8 +292,17 @@ impl ParamsFile {
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let p: ParamsFile =
             toml::from_str(text).map_err(|e| err(e.span().map(|s| crate::line_of(text, s.start)), e.message().trim().to_string()))?;
-        if p.format != FORMAT && p.format != FORMAT_V1 {
-            return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V1}`)", p.format)));
+        if p.format != FORMAT && p.format != FORMAT_V2 && p.format != FORMAT_V1 {
+            return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V2}`, `{FORMAT_V1}`)", p.format)));
+        }
+        if p.format == FORMAT_V2 && (p.effects.drum_buildup_per_m.is_some() || p.effects.drum_buildup_sigma_per_m.is_some()) {
+            let key = if p.effects.drum_buildup_per_m.is_some() { "drum_buildup_per_m" } else { "drum_buildup_sigma_per_m" };
+            return Err(crate::ConfigError {
+                file: Some(path.to_path_buf()),
+                line: key_line(text, &format!("effects.{key}")),
+                key: Some(format!("effects.{key}")),
+                message: format!("`{FORMAT_V2}` has no {key}: write format = \"{FORMAT}\""),
+            });
         }
         if p.format == FORMAT_V1 && !p.effects.is_empty() {
             return Err(crate::ConfigError {
@@ -302,7 +328,8 @@ impl ParamsFile {
             message,
         })?;
         let mut p = p;
-        // A v1 file is a v2 file without effects: held (and written back) as v2.
+        // A v1 file is a v3 file without effects, a v2 one without the drum build-up: held (and
+        // written back) as v3.
         p.format = FORMAT.into();
         let n = p.anchors_m.len();
         if p.anchor_sigma_m.is_empty() {
@@ -480,6 +507,28 @@ mod tests {
         assert_eq!(e.key.as_deref(), Some("l0_m"), "{e}");
         assert!(e.to_string().contains("3 anchors but 4 offsets"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Version 3 carries the drum build-up; a version 2 file is still read (without it), and a
+    /// version 2 file that sets it is refused naming the key and its line.
+    #[test]
+    fn version_3_carries_drum_buildup_and_version_2_is_still_read() {
+        let v2 = "format = \"taut-params v2\"\nversion = 3\ncreated_unix_s = 1.5e9\nrobot = \"r\"\nsource = \"x.csv\"\n\
+                  anchors_m = [[1.0, 2.0, 3.0], [-1.0, 2.0, 3.0]]\nl0_m = [0.1, 0.2]\n\n[effects]\ndrum_scale = [1.003, 0.998]\n";
+        let p = ParamsFile::parse(Path::new("v2.toml"), v2).unwrap();
+        assert_eq!(p.format, FORMAT, "read as the current format (written back as v3)");
+        assert_eq!(p.effects.drum_scale, Some(vec![1.003, 0.998]));
+        assert_eq!(p.effects.drum_buildup_per_m, None);
+        let set = format!("{v2}drum_buildup_per_m = [-0.01, 0.02]\n");
+        let e = ParamsFile::parse(Path::new("v2.toml"), &set).unwrap_err();
+        assert_eq!((e.key.as_deref(), e.line), (Some("effects.drum_buildup_per_m"), Some(11)), "{e}");
+        let v3 = set.replace(FORMAT_V2, FORMAT);
+        let p = ParamsFile::parse(Path::new("v3.toml"), &v3).unwrap();
+        assert_eq!(p.effects.drum_buildup_per_m, Some(vec![-0.01, 0.02]));
+        assert_eq!(p.effects.names(), vec!["scale", "drum-buildup"]);
+        assert_eq!(ParamsFile::parse(Path::new("v3.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
+        let e = ParamsFile::parse(Path::new("v3.toml"), &v3.replace("-0.01,", "-0.5,")).unwrap_err();
+        assert!(e.to_string().contains("drum_buildup_per_m[0]"), "{e}");
     }
 
     /// The one conversion between the file and the shared geometry types, both ways, and the

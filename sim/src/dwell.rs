@@ -149,7 +149,8 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     // The offsets drawn exactly as `Scenario::truth` drew them, then the noise continues the stream.
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    let mut encoders: Vec<Encoder> = (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)).collect();
+    let mut encoders: Vec<Encoder> =
+        (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise).with_drum(s.physics.drum())).collect();
     run.recording.comments.push(format!(
         " simulated by taut-sim: robot {}, seed {}, {} Hz, {} dwell poses of {} s, no tracker",
         s.robot.robot.name,

@@ -30,6 +30,10 @@ use crate::dynamics::Dynamics;
 /// the equilibrium solver's finite differences.
 pub const EA_RIGID: f64 = 1e8;
 
+/// The drums' effective radius at the cable length zero (drum build-up, see
+/// [`Physics::drum_buildup_m_per_turn`]), m.
+pub const DRUM_RADIUS_M: f64 = 0.025;
+
 /// Standard gravity, m/s^2.
 pub const G: f64 = 9.81;
 
@@ -47,6 +51,12 @@ pub struct Physics {
     pub pulley: Option<f64>,
     /// Per-cable encoder scale (drum radius error): reading = scale x length + offset.
     pub scale: Option<Vec<f64>>,
+    /// Drum build-up: the change of every drum's effective radius per turn paid out, m (a
+    /// multi-layer winding: minus the cable diameter over the turns a layer holds; `None` or 0: a
+    /// single-layer drum). The drums have the radius [`DRUM_RADIUS_M`] at the cable length zero
+    /// the encoder offsets refer to, and the encoder converts its angle at that radius (see
+    /// [`crate::sensors::Drum`]).
+    pub drum_buildup_m_per_turn: Option<f64>,
     /// Encoder readings lag the tracker by this, s (the encoder value at `t` is the length at
     /// `t - time_offset_s`). Zero is off.
     pub time_offset_s: f64,
@@ -65,7 +75,17 @@ pub struct Physics {
 
 impl Default for Physics {
     fn default() -> Self {
-        Physics { elasticity: None, sag: None, pulley: None, scale: None, time_offset_s: 0.0, backlash_m: 0.0, slack: true, dynamics: None }
+        Physics {
+            elasticity: None,
+            sag: None,
+            pulley: None,
+            scale: None,
+            drum_buildup_m_per_turn: None,
+            time_offset_s: 0.0,
+            backlash_m: 0.0,
+            slack: true,
+            dynamics: None,
+        }
     }
 }
 
@@ -73,6 +93,11 @@ impl Physics {
     /// Ideal cables: every effect off, slack too.
     pub fn ideal() -> Self {
         Physics { slack: false, ..Physics::default() }
+    }
+
+    /// The drums' build-up (`None`: off).
+    pub fn drum(&self) -> Option<crate::sensors::Drum> {
+        self.drum_buildup_m_per_turn.filter(|g| *g != 0.0).map(|g| crate::sensors::Drum::new(DRUM_RADIUS_M, g))
     }
 
     /// The encoder scale of cable `j` (1 when the effect is off).

@@ -120,7 +120,9 @@ impl Plant {
             drum: vec![0.0; n],
             encoder_out: vec![0.0; n],
             tension_out: vec![0.0; n],
-            encoders: (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none)).collect(),
+            encoders: (0..n)
+                .map(|j| Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none).with_drum(physics.drum()))
+                .collect(),
             loadcells: (0..n).map(|_| LoadCell::with_offset(0.0, &none)).collect(),
             loadcell_offsets: truth.loadcell_offsets.clone(),
             noisy: false,

@@ -184,9 +184,51 @@ impl Backlash {
     }
 }
 
+/// A drum whose effective radius changes as the cable winds in layers: `r(phi) = r0 + g phi`
+/// at the angle `phi` turned from the cable length zero (`g` the radius change per radian paid
+/// out). Its encoder converts the angle at the radius `r0`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Drum {
+    /// Radius at the cable length zero, m.
+    pub r0: f64,
+    /// Radius change per radian paid out, m.
+    pub g: f64,
+}
+
+impl Drum {
+    /// A drum of radius `r0` (m) at the cable length zero changing by `per_turn` (m) each turn
+    /// paid out.
+    pub fn new(r0: f64, per_turn: f64) -> Drum {
+        Drum { r0, g: per_turn / std::f64::consts::TAU }
+    }
+
+    /// The length the encoder derives (`r0 phi`) for the paid-out length `length`: the angle
+    /// solves `length = r0 phi + g phi^2 / 2` (the arc of a radius growing linearly with the
+    /// angle), the root through zero. Where the radius would reach zero the angle is where it does.
+    pub fn encoder_length(&self, length: f64) -> f64 {
+        let disc = (self.r0 * self.r0 + 2.0 * self.g * length).max(0.0);
+        let phi = 2.0 * length / (self.r0 + disc.sqrt());
+        self.r0 * phi
+    }
+
+    /// The paid-out length as a polynomial in the encoder's `u = r0 phi`: `u + q u^2` with this
+    /// `q = g / (2 r0^2)`, 1/m (exact: the arc is quadratic in the angle).
+    pub fn quadratic_per_m(&self) -> f64 {
+        self.g / (2.0 * self.r0 * self.r0)
+    }
+
+    /// The paid-out length at which the encoder derives `enc` (the inverse of
+    /// [`Drum::encoder_length`]).
+    pub fn length(&self, enc: f64) -> f64 {
+        let phi = enc / self.r0;
+        self.r0 * phi + 0.5 * self.g * phi * phi
+    }
+}
+
 /// One drum encoder: scale and offset (truth), backlash, noise and quantisation.
 #[derive(Debug, Clone)]
 pub struct Encoder {
+    drum: Option<Drum>,
     scale: f64,
     offset: f64,
     backlash: Backlash,
@@ -248,6 +290,7 @@ impl Encoder {
     /// An encoder reading `scale x length + offset` through a play of `backlash_m`.
     pub fn new(scale: f64, offset: f64, backlash_m: f64, noise: &Noise) -> Self {
         Encoder {
+            drum: None,
             scale,
             offset,
             backlash: Backlash::new(backlash_m),
@@ -263,13 +306,25 @@ impl Encoder {
         self
     }
 
+    /// The same encoder on a drum with build-up (`None`: a drum of constant radius).
+    pub fn with_drum(mut self, drum: Option<Drum>) -> Self {
+        self.drum = drum;
+        self
+    }
+
+    /// The length the encoder derives from its angle for the paid-out length `y`.
+    fn angle_length(&self, y: f64) -> f64 {
+        self.drum.map_or(y, |d| d.encoder_length(y))
+    }
+
     /// The drum's paid-out length at which a noise-free reading is `reading` (m): what a drive
     /// whose position loop works on the drum's angle holds when commanded `reading` (backlash
     /// aside).
     pub fn drum_for(&self, reading: f64) -> f64 {
-        let mut d = (reading - self.offset) / self.scale;
+        let from_angle = |a: f64| self.drum.map_or(a, |d| d.length(a));
+        let mut d = from_angle((reading - self.offset) / self.scale);
         for _ in 0..4 {
-            d = (reading - self.offset - self.winding.at(d)) / self.scale;
+            d = from_angle((reading - self.offset - self.winding.at(d)) / self.scale);
         }
         d
     }
@@ -285,7 +340,7 @@ impl Encoder {
     pub fn read(&mut self, length: f64, rng: &mut ChaCha8Rng) -> f64 {
         let y = self.backlash.update(length);
         let e = gauss(rng, 1.0);
-        let r = self.scale * y + self.offset + self.winding.at(y) + self.sigma * e;
+        let r = self.scale * self.angle_length(y) + self.offset + self.winding.at(y) + self.sigma * e;
         if self.quantum > 0.0 {
             (r / self.quantum).round() * self.quantum
         } else {

@@ -305,6 +305,32 @@ fn scale_multiplies_the_length() {
     }
 }
 
+/// Drum build-up: the reading is the nominal radius times the angle whose arc on the growing
+/// radius (integrated numerically here) is the length paid out; shorter readings on a drum
+/// whose radius shrinks as it pays out, and the drive holds the length it is commanded.
+#[test]
+fn drum_buildup_reads_the_angle_of_a_shrinking_radius() {
+    let per_turn = -1e-4;
+    let (base, on) = effect(Physics { drum_buildup_m_per_turn: Some(per_turn), ..Physics::ideal() });
+    let (r0, g) = (crate::physics::DRUM_RADIUS_M, per_turn / std::f64::consts::TAU);
+    // Arc length of the angle phi: the integral of r0 + g phi, by the midpoint rule.
+    let arc = |phi: f64| (0..2000).map(|k| (r0 + g * (k as f64 + 0.5) * phi / 2000.0) * phi / 2000.0).sum::<f64>();
+    for i in (0..base.recording.len()).step_by(7) {
+        for j in 0..4 {
+            let len = base.recording.lengths(i)[j] - base.truth.l0[j];
+            let enc = on.recording.lengths(i)[j] - on.truth.l0[j];
+            assert!((arc(enc / r0) - len).abs() < 1e-9, "{} vs {len}", arc(enc / r0));
+            assert!(enc > len || len <= 0.0);
+        }
+    }
+    let drum = Physics { drum_buildup_m_per_turn: Some(per_turn), ..Physics::ideal() }.drum().unwrap();
+    assert!((drum.quadratic_per_m() - per_turn / (4.0 * std::f64::consts::PI * r0 * r0)).abs() < 1e-15);
+    let enc = crate::sensors::Encoder::new(1.001, 0.2, 0.0, &crate::sensors::Noise::none()).with_drum(Some(drum));
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+    let read = enc.clone().read(3.0, &mut rng);
+    assert!((enc.drum_for(read) - 3.0).abs() < 1e-12);
+}
+
 #[test]
 fn time_offset_delays_the_encoders() {
     // Two samples at 50 Hz.

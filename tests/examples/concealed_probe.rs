@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p taut-tests --example concealed_probe -- ROBOT FIRST_SEED COUNT [key=value ...]
 //! ROBOT: three | aras | outdoor; keys: ea (N), sag (N/m), pulley (m), scale (comma list),
-//! offset (s), play (m), dur (s), floor (N)
+//! offset (s), play (m), buildup (drum radius change per turn paid out, m), dur (s), floor (N)
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -28,6 +28,7 @@ fn main() {
             "scale" => physics.scale = Some(v.split(',').map(|x| x.parse().expect("scale")).collect()),
             "offset" => physics.time_offset_s = v.parse().expect("offset"),
             "play" => physics.backlash_m = v.parse().expect("play"),
+            "buildup" => physics.drum_buildup_m_per_turn = Some(v.parse().expect("buildup")),
             "dur" => dur = v.parse().expect("dur"),
             "floor" => floor = Some(v.parse::<f64>().expect("floor")),
             _ => panic!("unknown key {k}"),
@@ -65,6 +66,9 @@ fn main() {
             d.final_fit.heldout_rms_m * 1e3
         );
         if show_tests {
+            for f in &d.effects {
+                println!("    {}: {}", f.effect.name(), f.evidence);
+            }
             for t in &d.tests {
                 println!("    round {} {}: {:?} {}", t.round, t.effect.name(), t.decision, t.test.map_or("-".into(), |x| x.to_string()));
             }

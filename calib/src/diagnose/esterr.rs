@@ -38,7 +38,7 @@ use super::lm::LmReport;
 pub struct EstimationError {
     /// Held-out Jacobian of the current model, one sparse row per held-out residual (the order of
     /// the held-out residuals: time order, usable cables of each sample in turn).
-    rows: Vec<([(usize, f64); 10], u8)>,
+    rows: Vec<([(usize, f64); 12], u8)>,
     /// Per training sample, `H^-1 s_i` (`p` values each): `cov(x0_hat) = sum_i z_i z_i^T`.
     z: Vec<f64>,
     /// Parameters.
@@ -227,7 +227,7 @@ mod tests {
             }
             let ho_rows = (0..n - n_train)
                 .map(|k| {
-                    let mut r = [(0usize, 0.0f64); 10];
+                    let mut r = [(0usize, 0.0f64); 12];
                     for (c, e) in r.iter_mut().take(3).enumerate() {
                         *e = (c, x0h[(k, c)]);
                     }

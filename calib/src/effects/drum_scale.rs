@@ -43,7 +43,7 @@ impl EffectModel for DrumScale {
         0.0
     }
     fn mimics(&self) -> &'static [Option<Effect>] {
-        &[Some(Effect::Elasticity)]
+        &[Some(Effect::Elasticity), Some(Effect::DrumBuildup)]
     }
     fn separation(&self, other: Option<Effect>) -> Option<&'static str> {
         (other == Some(Effect::Elasticity)).then_some(

@@ -16,7 +16,8 @@
 //! G      = |X - A|          or  r*beta + sqrt(|X - C|^2 - r^2)      pulley (swivel, radius r)
 //! G     += s(a, h, w, T) - sqrt(a^2 + h^2)             sag: catenary arc minus chord
 //! U      = G / (1 + T c),   c = 1/EA                   elasticity: encoder sees unstretched length
-//! v      = (1 + k) U + L0                              scale k = scale - 1
+//! B      = 2 U / (1 + sqrt(1 + 4 q U))                 drum build-up: B + q B^2 = U
+//! v      = (1 + k) B + L0                              scale k = scale - 1
 //! l_hat  = play(v; w_b)                                backlash: play operator of width w_b
 //! ```
 //!
@@ -29,7 +30,7 @@
 //!
 //! Each module also holds its stage of the prediction with its derivatives on the library's
 //! [`Path`] and [`Unstretched`] ([`pulley::path`], [`sag::add_excess`], [`stretch::unstretch`],
-//! [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
+//! [`drum_buildup::encoder_length`], [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
 //! offset and the play, which act on the sample series rather than on one reading, live there.
 //!
 //! Adding an effect: a module here implementing [`EffectModel`] with its stage and its test; a
@@ -39,6 +40,7 @@
 //! physics in the simulator.
 
 pub mod backlash;
+pub mod drum_buildup;
 pub mod drum_scale;
 pub mod model;
 pub mod pulley;
@@ -67,6 +69,9 @@ pub enum Effect {
     TimeOffset,
     /// Play in the drive train: the reading depends on the direction of motion.
     Backlash,
+    /// Drum build-up: the drum's effective radius changes with the wound cable, so the length
+    /// is quadratic in the drum's angle.
+    DrumBuildup,
     /// Loose-cable samples (found and excluded, not modelled).
     Slack,
 }
@@ -225,11 +230,20 @@ pub trait EffectModel: Sync {
 
 impl Effect {
     /// The effects that are fitted (everything but `slack`), in a fixed order.
-    pub const FITTED: [Effect; 6] = [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash];
+    pub const FITTED: [Effect; 7] =
+        [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash, Effect::DrumBuildup];
 
     /// Every effect, [`Effect::FITTED`] then `slack`.
-    pub const ALL: [Effect; 7] =
-        [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash, Effect::Slack];
+    pub const ALL: [Effect; 8] = [
+        Effect::Elasticity,
+        Effect::Sag,
+        Effect::Pulley,
+        Effect::Scale,
+        Effect::TimeOffset,
+        Effect::Backlash,
+        Effect::DrumBuildup,
+        Effect::Slack,
+    ];
 
     /// The effect's module.
     pub fn model(self) -> &'static dyn EffectModel {
@@ -240,6 +254,7 @@ impl Effect {
             Effect::Scale => &drum_scale::DrumScale,
             Effect::TimeOffset => &time_offset::TimeOffset,
             Effect::Backlash => &backlash::Backlash,
+            Effect::DrumBuildup => &drum_buildup::DrumBuildup,
             Effect::Slack => &slack::Slack,
         }
     }

@@ -275,7 +275,7 @@ pub struct Prediction {
     /// Modelled encoder reading, m.
     pub value: f64,
     /// Partial derivatives `(parameter, d reading / d parameter)`.
-    pub row: [(usize, f64); 10],
+    pub row: [(usize, f64); 12],
     /// Number of valid entries in `row`.
     pub len: usize,
     /// Multiplier `k(s) = (1 - s)^2 + s^2` of the tracker variance of the pose the prediction
@@ -452,6 +452,27 @@ impl<'a> Joint<'a> {
                 du_dc = Some((k, 0.0));
             }
         }
+        // Drum build-up: the encoder counts B (B + q B^2 = U) at the nominal radius. Its second
+        // derivative is left out of the weight's derivatives (`dg_t`): it moves dU/dT by
+        // 2 |q| U_T per metre, a few hundredths at most.
+        let mut dq = None;
+        if let Some((k, q)) = get(Effect::DrumBuildup) {
+            let (b, db_du, db_dq) = super::drum_buildup::encoder_length(un.u, q);
+            dq = Some((k, db_dq));
+            un = Unstretched {
+                u: b,
+                du_dg: un.du_dg * db_du,
+                du_dc: un.du_dc * db_du,
+                u_t: un.u_t * db_du,
+                u_tc: un.u_tc * db_du,
+                u_tw: un.u_tw * db_du,
+                u_tg: un.u_tg * db_du,
+                u_tx: un.u_tx.map(|v| v * db_du),
+            };
+            if let Some((_, d)) = &mut du_dc {
+                *d *= db_du;
+            }
+        }
         let Unstretched { u, du_dg, u_t, u_tc, u_tw, u_tg, u_tx, .. } = un;
         let (scale, dk) = match get(Effect::Scale) {
             Some((k, s)) => (super::drum_scale::factor(s), Some((k, u))),
@@ -485,7 +506,7 @@ impl<'a> Joint<'a> {
         let value = taut_model::reading(scale, u, l0);
         let dwb = get(Effect::Backlash).map(|(k, _)| (k, 0.0));
         let f = scale * du_dg; // d value / d G
-        let mut row = [(0usize, 0.0f64); 10];
+        let mut row = [(0usize, 0.0f64); 12];
         row[0] = (base, -f * gx[0]);
         row[1] = (base + 1, -f * gx[1]);
         row[2] = (base + 2, -f * gx[2]);
@@ -501,6 +522,7 @@ impl<'a> Joint<'a> {
         push(dg_dw.map(|(k, d)| (k, f * d)));
         push(du_dc.map(|(k, d)| (k, scale * d)));
         push(dk);
+        push(dq.map(|(k, d)| (k, scale * d)));
         push(dwb);
         if let Some((k, _)) = delta {
             // d X / d delta = -v, d T / d delta = -dT/dt (both 0 at the sample's own pose).
@@ -1011,7 +1033,7 @@ pub fn noise_phi(prep: &Prepared, spec: &ModelSpec, samples: &[usize], x: &[f64]
 
 /// Adds `v` to column `k` of a Jacobian row (a new entry if the row has none; a full row drops it,
 /// which [`fit`]'s limit of 4 effects rules out).
-fn add_entry(row: &mut [(usize, f64); 10], len: &mut usize, k: usize, v: f64) {
+fn add_entry(row: &mut [(usize, f64); 12], len: &mut usize, k: usize, v: f64) {
     if let Some(e) = row[..*len].iter_mut().find(|e| e.0 == k) {
         e.1 += v;
     } else if *len < row.len() {
@@ -1304,7 +1326,7 @@ impl LeastSquares for Joint<'_> {
     }
     fn rows(&self, x: &[f64], jacobian: bool, visit: &mut lm::RowVisitor<'_>) {
         let inv = 1.0 / self.sigma;
-        let mut buf = [(0usize, 0.0f64); 10];
+        let mut buf = [(0usize, 0.0f64); 12];
         let mut dlog = [(0usize, 0.0f64); 8];
         let offs = self.offsets();
         for &i in self.samples {
@@ -2110,6 +2132,41 @@ mod tests {
             &ModelSpec { effects: vec![Effect::TimeOffset, Effect::Elasticity], tension_end: end },
             &[0.023, 5e-5, 4e-5, 6e-5, 5e-5],
         );
+        check_jacobian(&ModelSpec { effects: vec![Effect::DrumBuildup], tension_end: end }, &[-0.02, 0.01, 0.0, 0.03]);
+        check_jacobian(
+            &ModelSpec { effects: vec![Effect::Elasticity, Effect::Scale, Effect::DrumBuildup], tension_end: end },
+            &[5e-5, 4e-5, 6e-5, 5e-5, 1e-3, -2e-3, 0.0, 5e-4, -0.02, 0.01, 0.0, 0.03],
+        );
+    }
+
+    /// Drum build-up: exact readings of a drum whose true length is `u + q u^2` of the encoder's
+    /// `u`; the fit from `q = 0` and shifted anchors recovers every cable's `q`, alone and
+    /// beside a drum scale (the curvature separates them).
+    #[test]
+    fn joint_fit_recovers_drum_buildup_on_exact_data() {
+        let (mut prep, x_true) = synthetic(2000);
+        let q = [-0.02, 0.01, -0.005, 0.03];
+        let k = [2e-3, -1e-3, 0.0, 1e-3];
+        for j in 0..4 {
+            let l0 = x_true[4 * j + 3];
+            for i in 0..2000 {
+                let len = prep.l[j][i] - l0;
+                // The encoder's u with u + q u^2 = len (the other root is far off).
+                let u = (-1.0 + (1.0 + 4.0 * q[j] * len).sqrt()) / (2.0 * q[j]);
+                prep.l[j][i] = (1.0 + k[j]) * u + l0;
+            }
+        }
+        let samples: Vec<usize> = (0..2000).collect();
+        let spec = ModelSpec { effects: vec![Effect::Scale, Effect::DrumBuildup], tension_end: TensionEnd::Platform };
+        let mut x0 = x_true.clone();
+        x0[0] += 0.05;
+        x0[7] -= 0.03;
+        x0.extend([0.0; 8]);
+        let r = fit(&prep, &spec, &samples, &x0, 1e-3, 200);
+        for j in 0..4 {
+            assert!((r.x[16 + j] - k[j]).abs() < 1e-7, "scale {} vs {}", r.x[16 + j], k[j]);
+            assert!((r.x[20 + j] - q[j]).abs() < 1e-7, "q {} vs {}", r.x[20 + j], q[j]);
+        }
     }
 
     #[test]

@@ -63,7 +63,7 @@ impl EffectModel for Sag {
         0.05
     }
     fn mimics(&self) -> &'static [Option<Effect>] {
-        &[Some(Effect::Elasticity)]
+        &[Some(Effect::Elasticity), Some(Effect::DrumBuildup)]
     }
     fn separation(&self, other: Option<Effect>) -> Option<&'static str> {
         (other == Some(Effect::Elasticity)).then_some(

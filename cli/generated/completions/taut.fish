@@ -83,8 +83,8 @@ complete -c taut -n "__fish_taut_using_subcommand start" -l seed -d 'Seed of the
 complete -c taut -n "__fish_taut_using_subcommand start" -l data-dir -d 'Override `daemon.data_dir` (recordings, parameter history)' -r -F
 complete -c taut -n "__fish_taut_using_subcommand start" -l socket -d 'Override `daemon.socket`' -r -F
 complete -c taut -n "__fish_taut_using_subcommand start" -l can -d 'With --sim: put the virtual drives and the CANopen master on this SocketCAN interface (e.g. `vcan0`) instead of an in-process virtual bus' -r
-complete -c taut -n "__fish_taut_using_subcommand start" -l params -d 'A parameter file (taut-params v1 or v2, e.g. from `taut diagnose --out`): the effects it carries are modelled and refitted by every calibration, starting from its values' -r -F
-complete -c taut -n "__fish_taut_using_subcommand start" -l sim-effect -d 'With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash)' -r
+complete -c taut -n "__fish_taut_using_subcommand start" -l params -d 'A parameter file (taut-params v1, v2 or v3, e.g. from `taut diagnose --out`): the effects it carries are modelled and refitted by every calibration, starting from its values' -r -F
+complete -c taut -n "__fish_taut_using_subcommand start" -l sim-effect -d 'With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash, drum-buildup)' -r
 complete -c taut -n "__fish_taut_using_subcommand start" -l sim -d 'Run against the simulated robot instead of hardware'
 complete -c taut -n "__fish_taut_using_subcommand start" -l once -d 'Exit after the start-up calibration with a summary'
 complete -c taut -n "__fish_taut_using_subcommand start" -l no-tracker -d 'With --sim: the simulated robot has no tracker; the start-up runs dwell poses and calibrates from the encoders and load cells (`motion.startup = "dwell"`)'

@@ -175,21 +175,31 @@ fn sag_elasticity_and_scale_on_the_outdoor_robot() {
 /// it is dropped, the report says so, and the play alone remains. Forward-only selection (before
 /// the backward step) kept the offset (`offset_backlash_coverage -- 100 24 0 3 3 0`: 7 of 24).
 /// The seed is fixed, so the outcome is deterministic.
+///
+/// With drum build-up in the library (issue 26) round 2 names a build-up (p = 3.4e-6 at the level
+/// 4.8e-6, `q` 1e-5 .. 1e-4 /m: it too takes up part of the play's misfit) and round 3 the play,
+/// which drops both the offset (p = 0.94) and the build-up (p = 0.94): the play alone remains.
 #[test]
 fn a_time_offset_standing_in_for_a_play_is_dropped() {
     let s = taut_tests::sim::offset_backlash_scenario(102, 3, 0, 0.003, 0.0, false);
     let d = run(s, 40.0);
     let first = d.tests.iter().find(|t| t.round == 1 && t.decision == Decision::Named).map(|t| t.effect);
     assert_eq!(first, Some(Effect::TimeOffset), "{:#?}", summary(&d));
+    let play = d
+        .tests
+        .iter()
+        .find(|t| t.effect == Effect::Backlash && t.decision == Decision::Named)
+        .unwrap_or_else(|| panic!("play not named: {:#?}", summary(&d)));
     let drop = d
         .tests
         .iter()
         .find(|t| t.effect == Effect::TimeOffset && t.decision == Decision::Dropped)
         .unwrap_or_else(|| panic!("time offset not dropped: {:#?}", summary(&d)));
-    assert_eq!(drop.round, 2, "{:#?}", summary(&d));
+    assert_eq!(drop.round, play.round, "dropped once the play is named: {:#?}", summary(&d));
     assert!(drop.test.is_some_and(|t| t.p_value >= drop.alpha), "{:#?}", summary(&d));
     assert_eq!(named(&d), vec![Effect::Backlash], "{:#?}", summary(&d));
-    assert!(d.notes.iter().any(|n| n.starts_with("time-offset (named in round 1) was dropped in round 2")), "{:#?}", d.notes);
+    let note = format!("time-offset (named in round 1) was dropped in round {}", play.round);
+    assert!(d.notes.iter().any(|n| n.starts_with(&note)), "{:#?}", d.notes);
     assert!(finding(&d, Effect::Backlash).evidence.contains("dropped"), "{:#?}", summary(&d));
 }
 

@@ -13,6 +13,7 @@ mod null_cases;
 mod accuracy_sim;
 mod calibrate_notracker;
 mod crate_graph;
+mod diagnose_buildup;
 mod diagnose_concealed;
 mod diagnose_data_problems;
 mod diagnose_eiv;
