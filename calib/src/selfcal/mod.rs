@@ -110,7 +110,7 @@ pub const WINDOW_S: f64 = 0.2;
 const MIN_WINDOW_ROWS: usize = 4;
 
 /// Most travel of any cable within a moving window, m: the window's path is then straight
-/// enough that the curvature correction of its mean lengths ([`curvature`]) holds to a
+/// enough that the curvature correction of its mean lengths (`curvature`) holds to a
 /// fraction of a micrometre.
 pub const MAX_WINDOW_TRAVEL_M: f64 = 0.05;
 
