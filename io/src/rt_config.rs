@@ -26,6 +26,7 @@ impl EffectsFromFile for LoopEffects {
         LoopEffects::from_values(
             e.ea_n.as_deref(),
             e.drum_scale.as_deref(),
+            e.drum_buildup_per_m.as_deref(),
             e.pulley_radius_m.as_deref(),
             e.backlash_m.as_deref(),
             e.time_offset_s,

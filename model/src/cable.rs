@@ -16,6 +16,16 @@ pub fn unstretched(g: f64, compliance: f64, tension_n: f64) -> f64 {
     g / (1.0 + compliance * tension_n)
 }
 
+/// The length a drum with build-up `q` (1/m) counts for a paid-out length `u`: a drum wound in
+/// layers pays out `b + q b^2` while its encoder counts `b`, so the count is the root
+/// `2 u / (1 + sqrt(1 + 4 q u))`, `u` itself (bit for bit) at `q = 0`. Where `1 + 4 q u` is not
+/// positive (the drum's radius would have reached zero: far outside the physical range) the
+/// root is taken at the discriminant's floor, 1e-6, so that the value stays finite.
+#[inline]
+pub fn buildup_counted(u: f64, q: f64) -> f64 {
+    2.0 * u / (1.0 + (1.0 + 4.0 * q * u).max(1e-6).sqrt())
+}
+
 /// The encoder reading for an unstretched length `u`: `scale u + l0`.
 #[inline]
 pub fn reading(scale: f64, u: f64, l0: f64) -> f64 {

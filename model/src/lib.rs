@@ -34,5 +34,5 @@ pub mod dual;
 pub mod geometry;
 pub mod tour;
 
-pub use cable::{cable_length, pulley_length, reading, straight_length, unstretched};
+pub use cable::{buildup_counted, cable_length, pulley_length, reading, straight_length, unstretched};
 pub use geometry::{Geometry, GeometryError, Sigmas};

@@ -30,6 +30,9 @@ pub struct LoopEffects {
     pub compliance: [f64; MAX_CABLES],
     /// Encoder scale per cable (1: exact drum).
     pub scale: [f64; MAX_CABLES],
+    /// Drum build-up per cable, 1/m (0: none): the drum pays out `b + q b^2` for an encoder
+    /// count `b` (`taut_model::buildup_counted`).
+    pub buildup: [f64; MAX_CABLES],
     /// Swivel-pulley radius per cable, m (0: the cable leaves from the anchor point).
     pub pulley_r: [f64; MAX_CABLES],
     /// Backlash width per cable, m (calibration only, see the module documentation).
@@ -43,6 +46,7 @@ impl LoopEffects {
     pub const NONE: LoopEffects = LoopEffects {
         compliance: [0.0; MAX_CABLES],
         scale: [1.0; MAX_CABLES],
+        buildup: [0.0; MAX_CABLES],
         pulley_r: [0.0; MAX_CABLES],
         backlash: [0.0; MAX_CABLES],
         time_offset_s: 0.0,
@@ -50,11 +54,12 @@ impl LoopEffects {
 
     /// From per-cable values as a parameter file holds them (the non-real-time side reads and
     /// validates the file: `taut_io::EffectsFromFile`): stiffness `EA` in N (0 or
-    /// negative: rigid), drum scale, pulley radius and backlash width in m; absent effects are
-    /// off, values for cables beyond `MAX_CABLES` ignored.
+    /// negative: rigid), drum scale, drum build-up in 1/m, pulley radius and backlash width in
+    /// m; absent effects are off, values for cables beyond `MAX_CABLES` ignored.
     pub fn from_values(
         ea_n: Option<&[f64]>,
         drum_scale: Option<&[f64]>,
+        drum_buildup_per_m: Option<&[f64]>,
         pulley_radius_m: Option<&[f64]>,
         backlash_m: Option<&[f64]>,
         time_offset_s: Option<f64>,
@@ -69,6 +74,7 @@ impl LoopEffects {
         };
         copy(&mut out.compliance, ea_n, |ea| if ea > 0.0 { 1.0 / ea } else { 0.0 });
         copy(&mut out.scale, drum_scale, |s| s);
+        copy(&mut out.buildup, drum_buildup_per_m, |q| q);
         copy(&mut out.pulley_r, pulley_radius_m, |r| r);
         copy(&mut out.backlash, backlash_m, |w| w);
         out.time_offset_s = time_offset_s.unwrap_or(0.0);
@@ -174,7 +180,9 @@ impl LoopParams {
         let b = &self.platform[j];
         let x = [p[0] + b[0], p[1] + b[1], p[2] + b[2]];
         let e = &self.effects;
-        taut_model::cable_length(x, self.anchors[j], e.pulley_r[j], e.compliance[j], tension_n, e.scale[j], self.l0[j])
+        // The unstretched length (scale 1, no offset: `u` itself), counted on the drum, read.
+        let u = taut_model::cable_length(x, self.anchors[j], e.pulley_r[j], e.compliance[j], tension_n, 1.0, 0.0);
+        taut_model::reading(e.scale[j], taut_model::buildup_counted(u, e.buildup[j]), self.l0[j])
     }
 
     /// Encoder lengths of every cable for the platform at `p` (unloaded cables), into `out`.
@@ -238,7 +246,14 @@ mod tests {
     fn effects_stretch_scale_and_wrap_the_commanded_length() {
         let a = [[0.0, 0.0, 4.0], [3.0, 0.0, 4.0], [0.0, 4.0, 4.0]];
         let ideal = LoopParams::new(1, &a, &[0.1, 0.2, 0.0], &[[0.0; 3]; 3]);
-        let effects = LoopEffects::from_values(Some(&[20_000.0; 3]), Some(&[1.003, 1.0, 0.998]), Some(&[0.0, 0.05, 0.0]), None, None);
+        let effects = LoopEffects::from_values(
+            Some(&[20_000.0; 3]),
+            Some(&[1.003, 1.0, 0.998]),
+            Some(&[0.0, 0.0, -0.004]),
+            Some(&[0.0, 0.05, 0.0]),
+            None,
+            None,
+        );
         let p = ideal.with_effects(effects);
         let x = [0.5, 0.5, 1.0];
         // Cable 0: stretch at 100 N and the scale, written out.
@@ -251,7 +266,12 @@ mod tests {
         // less than the radius.
         let extra = p.length_at(1, &x, 0.0) - ideal.length(1, &x);
         assert!(extra > 0.0 && extra < 0.05, "{extra}");
-        assert!(LoopEffects::from_values(None, None, None, None, None).is_none());
+        // Cable 2 on a drum with build-up: the count b pays out b + q b^2 = the unstretched
+        // length, then the scale.
+        let u = (ideal.length(2, &x) - 0.0) / (1.0 + 50.0 / 20_000.0);
+        let b = p.length_at(2, &x, 50.0) / 0.998;
+        assert!((b + -0.004 * b * b - u).abs() < 1e-12, "{b} {u}");
+        assert!(LoopEffects::from_values(None, None, None, None, None, None).is_none());
     }
 
     #[test]

@@ -32,11 +32,10 @@ pub struct DrumBuildup;
 /// The encoder-derived length `B` whose true paid-out length `B + q B^2` is `u` (the root that
 /// is `u` at `q = 0`), with `dB/du` and `dB/dq`.
 ///
-/// Where `1 + 4 q u` is not positive (far outside the physical range: the drum's radius would
-/// have reached zero) the root is taken at the discriminant's floor.
+/// The value is the loop's (`taut_model::buildup_counted`, with its floor where `1 + 4 q u` is not
+/// positive).
 pub fn encoder_length(u: f64, q: f64) -> (f64, f64, f64) {
-    let disc = (1.0 + 4.0 * q * u).max(1e-6);
-    let b = 2.0 * u / (1.0 + disc.sqrt());
+    let b = taut_model::buildup_counted(u, q);
     // B + q B^2 = u: (1 + 2 q B) dB = du - B^2 dq.
     let den = 1.0 + 2.0 * q * b;
     (b, 1.0 / den, -b * b / den)
@@ -88,13 +87,17 @@ impl EffectModel for DrumBuildup {
     fn regressor(&self) -> Regressor {
         Regressor::Length
     }
-    /// The file has the key (`taut-params v3`), but the loop's kinematics do not apply it yet:
-    /// nothing writes it, and the running robot's effect fit does not take the effect.
+    fn parameter_key(&self) -> Option<&'static str> {
+        Some("drum_buildup_per_m")
+    }
+    /// The file's `drum_buildup_per_m` (`taut-params v3`); the loop's kinematics count each
+    /// cable's length on its drum with it (`taut_model::buildup_counted`).
     fn start_from(&self, running: &Effects, j: usize) -> Option<f64> {
         running.drum_buildup_per_m.as_ref().and_then(|v| v.get(j).copied())
     }
-    fn store(&self, _out: &mut Effects, _values: Vec<f64>, _sigmas: Option<Vec<f64>>) -> Result<(), &'static str> {
-        Err("drum-buildup not written: the running robot's loop does not model drum build-up yet")
+    fn store(&self, out: &mut Effects, values: Vec<f64>, sigmas: Option<Vec<f64>>) -> Result<(), &'static str> {
+        (out.drum_buildup_per_m, out.drum_buildup_sigma_per_m) = (Some(values), sigmas);
+        Ok(())
     }
 }
 
