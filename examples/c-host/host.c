@@ -20,39 +20,14 @@
  */
 /* clock_gettime and clock_nanosleep are POSIX, not C11. */
 #define _POSIX_C_SOURCE 200809L
-#include "taut.h"
+#define HOST_NAME "c-host"
+#include "host_util.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-
-static void fail_call(const char *what, TautError e) {
-    char msg[1024];
-    taut_last_error(msg, sizeof msg);
-    fprintf(stderr, "c-host: %s failed (error %d): %s\n", what, (int)e, msg);
-    exit(1);
-}
-
-#define CHECK(call)                                                                                \
-    do {                                                                                           \
-        TautError e_ = (call);                                                                     \
-        if (e_ != TAUT_ERROR_OK) fail_call(#call, e_);                                             \
-    } while (0)
-
-static double wall_s(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static void sleep_until(double t) {
-    struct timespec ts;
-    ts.tv_sec = (time_t)t;
-    ts.tv_nsec = (long)((t - (double)ts.tv_sec) * 1e9);
-    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
-}
 
 /* The boundary refuses what it must: NULL pointers and calls in the wrong state. */
 static int check_refusals(TautPlugin *p) {

@@ -123,6 +123,11 @@ pub struct Dwells {
 }
 
 impl Dwells {
+    /// Nothing found yet.
+    fn none() -> Dwells {
+        Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None }
+    }
+
     /// Pooled within-dwell standard deviation of one tension reading, N (`None` without tensions).
     pub fn loadcell_sigma(&self) -> Option<f64> {
         let (mut ss, mut dof) = (0.0, 0usize);
@@ -150,8 +155,7 @@ pub fn find(rec: &Recording, sigma_enc: f64, min_samples: usize) -> Dwells {
     let label = |i: usize| rec.phase.as_ref().map_or(-1, |p| p[i]);
     let labelled = rec.phase.as_ref().is_some_and(|p| p.iter().any(|&x| x >= 0));
     let finite = |i: usize| rec.lengths(i).iter().all(|v| v.is_finite());
-    let mut out =
-        Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None };
+    let mut out = Dwells::none();
     let still =
         |i: usize| finite(i) && label(i) == label(i - 1) && (0..n).all(|j| (rec.lengths(i)[j] - rec.lengths(i - 1)[j]).abs() <= step);
     let mut i = 0;
@@ -343,8 +347,7 @@ pub fn windows(rec: &Recording, sigma_enc: f64, window_s: f64, max_travel_m: f64
     let n = rec.n_cables;
     let min_samples = min_samples.max(4);
     let finite = |i: usize| rec.lengths(i).iter().all(|v| v.is_finite());
-    let mut out =
-        Dwells { dwells: Vec::new(), samples: 0, drifting: 0, length_inflation: 1.0, tension_inflation: 1.0, length_row_sigma: None };
+    let mut out = Dwells::none();
     // Detrended lengths (row-major like the recording's; NaN outside every window), for the
     // inflation estimate.
     let mut det_l = vec![f64::NAN; rec.len() * n];

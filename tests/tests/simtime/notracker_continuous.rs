@@ -3,42 +3,11 @@
 //! instant at each pose and goes on), written without phase labels, calibrated offline from
 //! moving windows with the platform's inertia (`taut_calib::selfcal::dwell::windows`).
 
-use crate::notracker::{robot, Plan};
-use taut_simrig::{self as simrig, SimOptions};
-
-/// The recording of `poses` moves at up to `speed_m_s` on the dynamic plant, its labels
-/// removed; the site's truth and the configuration.
+/// The recording of `poses` moves at up to `speed_m_s` on the dynamic plant, no dwell and no
+/// settling, its labels removed; the site's truth and the configuration.
 fn continuous(seed: u64, poses: usize, speed_m_s: f64) -> (taut_config::recording::Recording, taut_sim::Truth, taut_config::RobotConfig) {
-    let dir = tempfile::tempdir().unwrap();
-    let mut cfg = robot(dir.path(), Plan::Short);
-    cfg.motion.dwell_poses = poses;
-    cfg.motion.dwell_s = 0.0;
-    cfg.motion.dwell_settle_s = 0.0;
-    cfg.motion.dwell_speed_m_s = speed_m_s;
-    cfg.motion.dwell_tares = 0;
-    cfg.calibration.cable_ea_n = 0.9e6;
-    cfg.calibration.cable_ea_sigma_n = 0.15e6;
-    let mut so = SimOptions { seed, tracker: false, ..Default::default() };
-    so.physics.dynamics = Some(taut_sim::Dynamics::default());
-    let run = taut_tests::startup::in_sim_time(
-        &cfg,
-        &so,
-        simrig::RunOptions { recording: taut_plugin::RecordingPath::Default, budget_s: 900.0, ..Default::default() },
-        |_, _| false,
-    );
-    eprintln!(
-        "seed {seed}: {:.0} s simulated in {:.1} s, finished {}, state {:?}, fault {:?}, calibrator {} {:?}",
-        run.sim_s,
-        run.wall_s,
-        run.finished,
-        run.loop_status.snap.state,
-        run.loop_status.snap.fault,
-        run.calib_status.stage,
-        run.calib_status.outcomes.iter().map(|o| o.reason.clone()).collect::<Vec<_>>()
-    );
-    let (mut rec, _) = taut_config::recording::Recording::load(run.recording.as_ref().unwrap()).unwrap();
-    rec.phase = None;
-    (rec, run.truth, cfg)
+    let (rec, _, truth, cfg) = crate::notracker_short_rests::short_rests(seed, poses, 0.0, 0.0, Some(speed_m_s));
+    (rec, truth, cfg)
 }
 
 /// `(worst aligned anchor error, m; largest aligned coordinate error in its sigmas; aligned

@@ -7,18 +7,23 @@ use crate::notracker::{robot, Plan};
 use taut_simrig::{self as simrig, SimOptions};
 
 /// The recording of a tracker-free start-up on the dynamic plant with `poses` rests of `rest_s`
-/// (settle `settle_s`), its phase labels removed; the site's truth.
-fn short_rests(
+/// (settle `settle_s`; moves at up to `speed_m_s`, `None`: the short plan's), its phase labels
+/// removed; the labels, the site's truth and the configuration.
+pub(crate) fn short_rests(
     seed: u64,
     poses: usize,
     rest_s: f64,
     settle_s: f64,
+    speed_m_s: Option<f64>,
 ) -> (taut_config::recording::Recording, Vec<i32>, taut_sim::Truth, taut_config::RobotConfig) {
     let dir = tempfile::tempdir().unwrap();
     let mut cfg = robot(dir.path(), Plan::Short);
     cfg.motion.dwell_poses = poses;
     cfg.motion.dwell_s = rest_s;
     cfg.motion.dwell_settle_s = settle_s;
+    if let Some(v) = speed_m_s {
+        cfg.motion.dwell_speed_m_s = v;
+    }
     cfg.motion.dwell_tares = 0;
     cfg.calibration.cable_ea_n = 0.9e6;
     cfg.calibration.cable_ea_sigma_n = 0.15e6;
@@ -96,7 +101,7 @@ struct Figures {
 const CREEP_M_S: [f64; 3] = [1e-4, 3e-4, 1e-3];
 
 fn measure(seed: u64, rest_s: f64) -> Figures {
-    let (rec, labels, truth, cfg) = short_rests(seed, 60, rest_s, 0.0);
+    let (rec, labels, truth, cfg) = short_rests(seed, 60, rest_s, 0.0, None);
     if std::env::var_os("TAUT_E2E_KEEP").is_some() {
         // For `taut calibrate REC --config ...` by hand.
         let path = std::env::temp_dir().join(format!("taut-short-rests-{seed}-{rest_s}.csv"));
