@@ -10,9 +10,8 @@
 //!
 //! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`, `sim-ar1`; see
 //! `support/null_cases.rs`) changes what the recordings are made of, to split the causes of a
-//! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test as it was
-//! before session 15 (without the current model's estimation error,
-//! `DiagnoseOptions::estimation_error`). Each line ends with the six round-1 p-values.
+//! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test without the
+//! current model's estimation error (`DiagnoseOptions::estimation_error` off). Each line ends with the six round-1 p-values.
 
 #[path = "../tests/support/null_cases.rs"]
 mod null_cases;

@@ -73,8 +73,8 @@ pub fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
     }
     if plan != Plan::Short {
         // A test-machine allowance, not the robot's: the example's 0.5 s (the default is
-        // 0.1 s) stays in the configuration that `taut start` runs. In session 13 three of three
-        // 12-minute start-ups on the shared two-core machine (load 5-7) latched a hold on stale
+        // 0.1 s) stays in the configuration that `taut start` runs. On a shared two-core machine
+        // (load 5-7) 12-minute start-ups latched a hold on stale
         // tensions while the loop itself was on time: the simulated load cells answer over a
         // pseudo-terminal from a thread without real-time priority, and that thread (and the
         // robot's Modbus thread) went without CPU for over 0.5 s: the machine starving the

@@ -29,8 +29,7 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
     // The Lissajous excitation this acceptance was measured on. The designed tour
     // (`[motion] design_excitation = true`) optimises the anchors only: on seed 3 it
     // left the effect model at 1.84 mm held out (limit 1.73 mm) and the ideal model at 2.96 mm,
-    // while the reached RMS fell to 0.69 mm. Designing for the effect parameters too is open
-    // (issue 11/14 notes).
+    // while the reached RMS fell to 0.69 mm. Designing for the effect parameters too is open.
     cfg.motion.design_excitation = false;
     cfg.daemon.socket = dir.join("taut.sock").display().to_string();
     cfg.daemon.data_dir = dir.join("data").display().to_string();

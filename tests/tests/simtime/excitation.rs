@@ -80,8 +80,7 @@ fn sandwich_dof(inp: &taut_calib::design::DesignInput, path: impl Fn(f64) -> [f6
 }
 
 /// Achieved / predicted (at the measured length noise) worst-anchor sigma of every start-up on
-/// the local-search tour (BENCHMARKS.md, session 16 `design`: seeds 1-5 three times; the first
-/// five printed to three decimals).
+/// the local-search tour (seeds 1-5 three times; the first five printed to three decimals).
 const RATIOS: [f64; 15] =
     [1.008, 1.019, 1.071, 0.981, 0.994, 1.0077, 1.0212, 1.0207, 0.9847, 0.9931, 1.0072, 1.0587, 1.0260, 0.9802, 0.9920];
 
@@ -332,8 +331,8 @@ fn designed_excitation_reaches_its_predicted_uncertainty() {
         //   R = max_j sqrt(sum_i max(m_ji, s_ji)) / pred_w
         //     <= c * max_j rho_j * max(1, max_i sqrt(W_ji)),
         // c = the model's sigmas over the prediction's: deterministic given the path (the
-        // approach's extra rows, true vs nominal anchors, the actual join; 0.90-1.00 measured
-        // over sessions 13-14), allowed up to C_MAX; rho_j = pred_j / pred_w; under the model
+        // approach's extra rows, true vs nominal anchors, the actual join; 0.90-1.00 measured),
+        // allowed up to C_MAX; rho_j = pred_j / pred_w; under the model
         // s_ji = m_ji W_ji with W_ji ~ chi2_nu / nu (Satterthwaite, `sandwich_dof`: 13-31 here,
         // lowest where a coordinate is seen in few of the 32 blocks). So R exceeds
         //   r_max = C_MAX * max(1, max_j rho_j sqrt(q_ji))

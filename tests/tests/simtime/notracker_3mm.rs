@@ -30,10 +30,8 @@
 //! 1. The 3 mm: a correct calibration's anchor errors are Gaussian with the covariance the
 //!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma
 //!    (achieved: the CRB at the fit times sqrt(chi2/dof) when above 1). Every c measured
-//!    ([`RATIOS`]: ten start-ups when the plan was chosen, 0.843-1.043, mean 0.934, sd 0.055)
-//!    gives a 99.9 % upper prediction bound (Student's t, 9 dof) of 1.180; with this plan's two
-//!    runs (0.912, 0.910) 1.141, with session 16's three (0.876, 0.858, 1.051) 1.165 ([`honesty_bound`],
-//!    asserted <= [`HONESTY_UP`] = 1.181). The plan is checked first (deterministic): P(worst > 3 mm) at
+//!    ([`RATIOS`]: fifteen start-ups, 0.843-1.051) gives a 99.9 % upper prediction bound
+//!    (Student's t) of 1.165 ([`honesty_bound`], asserted <= [`HONESTY_UP`] = 1.181). The plan is checked first (deterministic): P(worst > 3 mm) at
 //!    [`HONESTY_UP`] x the predicted covariance below [`PLAN_P_MAX`] = 6e-5 (Monte Carlo, 99.9 %
 //!    upper bound; 16 poses x 34 s with 8 tares: 5.5e-5).
 //! 2. The recording's own P(worst > 3 mm), from its achieved sigma (the planner's covariance at
@@ -47,18 +45,13 @@
 //!    sigma (1.2e-5), chi2 below its 1e-5 quantile (1e-5).
 //!
 //! Sum: 6e-5 + 5e-6 + 1.2e-5 + 1e-5 = 8.7e-5 per run (the asserted bounds, [`BUDGET`]; 8.1e-5
-//! with the plan's own 5.5e-5 and the computed 4.2e-6). Until session 14 the plan was 16 x 30 s
-//! (0.662 mm) with an honesty bound of 1.10 over eight ratios; the ninth and tenth (0.988,
-//! 1.043) raised it to 1.18 and that plan to ~1.4e-4 per run. The longer dwells cost ~1.6
-//! minutes (~14.8 minutes in all). The k-sigma and chi2 terms assume the static model. Session
-//! 15 found the merged tree's three runs at chi2/dof 1.49, 1.20, 1.15 (pooled P = 0.004);
-//! session 16 (`dwell`, BENCHMARKS.md) measured it: the fit on this plan's static dwells without
-//! the wall clock (800 sites, `tests/examples/notracker_chi2_null.rs`) gives chi2/dof 0.983 with
-//! sd 0.165 (chi2 at 67 dof: 1, 0.173; 4 of 800 above 1.5), the site's truth stands still through
-//! every recorded dwell from its first row and the dwell-mean tensions match it (chi2 1.03 per
-//! dwell and cable over three start-ups, no trend by second), and three more start-ups gave 1.10,
-//! 1.02 and 1.08: eleven long-plan runs without the one that raised the question (1.49) pool to
-//! 1.042 (P = 0.12 against the null), so the chi2 term's 1e-5 stands on the measured null distribution.
+//! with the plan's own 5.5e-5 and the computed 4.2e-6). 16 x 30 s dwells (0.662 mm) would put
+//! the plan at ~1.4e-4 per run at that honesty bound; the 34 s dwells cost ~1.6 minutes (~14.8
+//! minutes in all). The k-sigma and chi2 terms assume the static model, and the chi2 term's 1e-5
+//! stands on its measured null distribution: the fit on this plan's static dwells without the
+//! wall clock (800 sites, `tests/examples/notracker_chi2_null.rs`) gives chi2/dof 0.983 with sd
+//! 0.165 (chi2 at 67 dof: 1, 0.173), and the site's truth stands still through every recorded
+//! dwell from its first row (BENCHMARKS.md, "Start-up without a tracker").
 //!
 //! The test raises `safety.tension_max_age_s` (see `notracker::robot`): a test-machine
 //! allowance, not the robot's.
@@ -68,12 +61,10 @@ use taut_io::FromRobot;
 use taut_rt::motion::ControllerConfig;
 
 /// Achieved / predicted (at the measured reading rate) worst-anchor sigma of every tracker-free
-/// start-up measured: session 13 (seeds 3, 5 of the 6-tare long plan: 0.884, 0.942; the short
-/// plan, seeds 3, 5 twice: 0.904, 0.922, 0.930, 0.938), session 14 `ntci` (16 x 30 s, seeds 1, 2,
-/// 4: 0.843, 0.946, 0.988), the merged tree's CI run (seed 1: 1.043, chi2/dof 1.49), session
-/// 15 `budget`'s two runs of the 16 x 34 s plan (seed 1: 0.912, 0.910) and session 16 `dwell`'s
-/// three (seed 1: 0.876, seed 2: 0.858, seed 4: 1.051, CRB part 1.012: seed 4's site is the
-/// farthest from the nominal one, as in session 14's 0.988).
+/// start-up on the quasi-static plant measured: the 6-tare long plan (seeds 3, 5: 0.884,
+/// 0.942), the short plan (seeds 3, 5 twice: 0.904, 0.922, 0.930, 0.938), 16 x 30 s (seeds 1, 2,
+/// 4: 0.843, 0.946, 0.988; seed 1 again: 1.043) and 16 x 34 s (seed 1: 0.912, 0.910, 0.876; seed
+/// 2: 0.858; seed 4: 1.051, whose site is the farthest from the nominal one).
 const RATIOS: [f64; 15] = [0.884, 0.942, 0.904, 0.922, 0.930, 0.938, 0.843, 0.946, 0.988, 1.043, 0.912, 0.910, 0.876, 0.858, 1.051];
 
 /// At least the 99.9 % upper prediction bound of the next ratio ([`honesty_bound`]: 1.180 over
