@@ -81,7 +81,8 @@ pub struct DataMasks {
     pub dt: f64,
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// The median of `v` (the upper middle of an even count; NaN for none), reordering `v`.
+pub(crate) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -53,6 +53,7 @@
 //! rows, so the batch means are nearly independent. With ~50 dwells x cables the pooled
 //! estimate has ~450 degrees of freedom (relative 1-sigma ~7 %).
 
+use crate::diagnose::dataq::median;
 use taut_config::recording::Recording;
 
 /// One static pose of the platform: the averaged readings of a still stretch.
@@ -325,9 +326,10 @@ fn average(rec: &Recording, lo: usize, hi: usize) -> Dwell {
 /// ```text
 /// window  = consecutive rows spanning less than window_s, every encoder present, and no
 ///           length more than max_travel_m from its first reading
-/// pose    = means of the window's lengths and tensions (their values at the mean time: along a
-///           path that is straight over the window, to travel^2 / (24 |l|): 2 µm for 10 mm of
-///           travel at 2 m; the curvature of |P - A| is what a longer window would add)
+/// pose    = means of the window's lengths and tensions; each cable's rate and second
+///           derivative at the mean time from its quadratic ([`Dwell::l_rate`]), from which the
+///           calibration takes the platform's velocity and acceleration and the mean length's
+///           excess over the length at the mean pose (the curvature of |P - A|)
 /// scatter = about each cable's quadratic trend over the window's time (the motion's own change
 ///           is not noise); the tensions' residual variance (c - 3 dof over the rows) times the
 ///           readings' count less one, so that [`Dwells::loadcell_sigma`]'s pooled dof weigh it
@@ -338,11 +340,10 @@ fn average(rec: &Recording, lo: usize, hi: usize) -> Dwell {
 /// ```
 ///
 /// A window whose lengths do not follow their quadratic within the encoder noise (`sigma_enc`,
-/// 1-sigma of one reading) holds a jerk and is left out, counted in [`Dwells::drifting`]. The
-/// long-run inflation of correlated or held readings is estimated as for rests, by batch means
-/// of the detrended readings (windows of 40 rows or more). Loose cables and the platform's
-/// acceleration are the solver's business: a window's [`Dwell::accel`] is zero until the
-/// calibration estimates it from the solved path. Rows with a missing length end a window.
+/// 1-sigma of one reading) holds a jerk and is left out, counted in [`Dwells::drifting`]. Loose
+/// cables and the platform's acceleration are the solver's business: a window's
+/// [`Dwell::accel`] is zero until the calibration estimates it from the solved path. Rows with a
+/// missing length end a window.
 pub fn windows(rec: &Recording, sigma_enc: f64, window_s: f64, max_travel_m: f64, min_samples: usize) -> Dwells {
     let n = rec.n_cables;
     let min_samples = min_samples.max(4);
@@ -392,13 +393,10 @@ pub fn windows(rec: &Recording, sigma_enc: f64, window_s: f64, max_travel_m: f64
     // false-alarm rate against the configured noise or, when the readings are noisier, the
     // median window's (robust to the jerky minority).
     let mut ratios: Vec<f64> = found.iter().filter(|w| w.2 > 0).map(|w| w.1 / w.2 as f64).collect();
-    let median = if ratios.is_empty() {
-        0.0
-    } else {
-        let mid = ratios.len() / 2;
-        *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
+    let var = match ratios.is_empty() {
+        true => sigma_enc * sigma_enc,
+        false => (sigma_enc * sigma_enc).max(median(&mut ratios)),
     };
-    let var = (sigma_enc * sigma_enc).max(median);
     for (d, ss, dof) in found {
         if dof > 0 && ss / var > super::chi2_quantile(dof, 3.09) {
             out.drifting += 1;
@@ -447,8 +445,7 @@ fn window_inflation(w: &[Dwell], row_var: f64) -> f64 {
     }
     // The median over chi-square(1)'s (0.4549): robust to the triples where the inertia steps
     // (a move starting or stopping between two windows).
-    let mid = ratios.len() / 2;
-    (*ratios.select_nth_unstable_by(mid, f64::total_cmp).1 / 0.4549).max(1.0)
+    (median(&mut ratios) / 0.4549).max(1.0)
 }
 
 /// The number of distinct readings among the finite `value(k)` over `rows`: runs of an

@@ -383,7 +383,7 @@ pub fn calibrate_without_tracker(
         return Err(SelfCalError::TooFewCables { n });
     }
     let rests = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
-    let needed = needed_poses(rec, &rests, opts);
+    let needed = PoseSetup::of(rec, &rests, opts).needed;
     if rests.dwells.len() >= needed {
         return solve_poses(rec, platform_points, nominal, opts, rests, false);
     }
@@ -395,33 +395,35 @@ pub fn calibrate_without_tracker(
     // Too few rests: a slow continuous motion, each window a pose with its inertia. When that
     // fails too, the refusal is the rests' (what to record), with the windows' reason beside it.
     let w = dwell::windows(rec, opts.encoder_sigma_m.max(1e-7), opts.window_s, MAX_WINDOW_TRAVEL_M, MIN_WINDOW_ROWS);
-    let needed_w = needed_poses(rec, &w, opts);
+    let needed_w = PoseSetup::of(rec, &w, opts).needed;
     if w.dwells.len() < needed_w {
         return Err(too_few(Some(format!("{} moving windows, {needed_w} needed", w.dwells.len()))));
     }
     solve_poses(rec, platform_points, nominal, opts, w, true).map_err(|e| too_few(Some(e.to_string())))
 }
 
-/// The poses `found` must hold for the unknowns they determine (module documentation).
-fn needed_poses(rec: &Recording, found: &dwell::Dwells, opts: &SelfCalOptions) -> usize {
-    setup(rec, found, opts).4
+/// What the poses can determine: with every tension at some pose, the load-cell offsets (and
+/// the mass, the stiffness) beside the anchors and offsets, in the frame that gravity fixes.
+struct PoseSetup {
+    tensions: bool,
+    stretch: Option<crate::bundle::Stretch>,
+    lay: Layout,
+    frame: Frame,
+    /// Poses needed: enough that the globals are over-determined twice (each adds rows - 3).
+    needed: usize,
 }
 
-/// What the poses can determine: with every tension at some pose, the load-cell offsets (and
-/// the mass, the stiffness) beside the anchors and offsets, in the frame that gravity fixes;
-/// `(tensions, stretch, layout, frame, poses needed)`.
-fn setup(rec: &Recording, found: &dwell::Dwells, opts: &SelfCalOptions) -> (bool, Option<crate::bundle::Stretch>, Layout, Frame, usize) {
-    let n = rec.n_cables;
-    {
+impl PoseSetup {
+    fn of(rec: &Recording, found: &dwell::Dwells, opts: &SelfCalOptions) -> PoseSetup {
+        let n = rec.n_cables;
         let tensions = opts.use_tensions && rec.f.is_some() && found.dwells.iter().any(|d| d.nf.iter().all(|&c| c > 0));
         let stretch = opts.stretch.filter(|st| tensions && st.ea_n > 0.0 && st.ea_n.is_finite());
         let lay = Layout { n, offsets: tensions, mass: tensions && opts.estimate_mass, ea: stretch.is_some_and(|st| st.rel_sigma > 0.0) };
         let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
-        // Enough poses that the globals are over-determined twice: each adds (rows - 3).
         let per_dwell = n + if tensions { 3 } else { 0 } - 3;
         let free = lay.count() - if tensions { 4 } else { 6 };
         let needed = (2 * free).div_ceil(per_dwell).max(10);
-        (tensions, stretch, lay, frame, needed)
+        PoseSetup { tensions, stretch, lay, frame, needed }
     }
 }
 
@@ -436,7 +438,7 @@ fn solve_poses(
     moving: bool,
 ) -> Result<SelfCalReport, SelfCalError> {
     let n = rec.n_cables;
-    let (tensions, stretch, lay, frame, _) = setup(rec, &found, opts);
+    let PoseSetup { tensions, stretch, lay, frame, .. } = PoseSetup::of(rec, &found, opts);
     let (c, d) = gauge(nominal, lay, frame);
     let free = lay.count() - c.nrows();
     let sigma_f = opts.loadcell_sigma_n.or_else(|| found.loadcell_sigma()).unwrap_or(0.3).max(1e-3);
