@@ -581,16 +581,8 @@ pub fn build_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, tracker_to
         false => None,
     };
     let io = SiteIo { rack_bus, vlc: Some(vlc), sender, clock: taut_driver::clock::wall(), now: Instant::now() };
-    let mut site = parts.into_site(io, opts);
-    let (faults, stop) = (site.faults.clone(), site.stop.clone());
-    let thread = std::thread::Builder::new()
-        .name("sim-site".into())
-        .spawn(move || site.run())
-        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
-    if let Err(e) = taut_driver::sched::set_fifo(&thread, sim_cells_priority(cfg)) {
-        eprintln!("taut-simrig: SCHED_FIFO for the simulated robot refused ({e})");
-    }
-    Ok(SiteOnly { truth, faults, loadcell_port, _site: SiteThread { stop, thread: Some(thread) } })
+    let running = parts.run(io, opts, cfg)?;
+    Ok(SiteOnly { truth, faults: running.faults, loadcell_port, _site: running.thread })
 }
 
 /// A running simulated site without the robot's side ([`build_site`]).
@@ -699,7 +691,35 @@ struct SiteIo<R: CanTransport> {
     now: Instant,
 }
 
+/// A simulated site running on its own thread ([`SiteParts::run`]).
+struct RunningSite {
+    thread: SiteThread,
+    faults: Arc<SimFaults>,
+    platform: PlatformTruth,
+    sync_stats: Arc<SyncStats>,
+}
+
 impl SiteParts {
+    /// The site on its own thread, `SCHED_FIFO` where allowed. The drives, the plant and the
+    /// tracker stand in for hardware with processors of its own, which a loaded robot computer
+    /// does not slow down: the site runs `SCHED_FIFO` like the simulated load cells. Under the
+    /// normal scheduler two busy loops beside a start-up starved it (heartbeats and TPDOs late,
+    /// the loop stopping on stale readings).
+    fn run<R: CanTransport + Send + 'static>(self, io: SiteIo<R>, opts: &SimOptions, cfg: &RobotConfig) -> Result<RunningSite, BuildError> {
+        let mut site = self.into_site(io, opts);
+        let (faults, stop, platform, sync_stats) = (site.faults.clone(), site.stop.clone(), site.platform.clone(), site.sync_stats.clone());
+        let thread = std::thread::Builder::new()
+            .name("sim-robot".into())
+            .spawn(move || site.run())
+            .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
+        if let Err(e) = taut_driver::sched::set_fifo(&thread, sim_cells_priority(cfg)) {
+            eprintln!(
+                "taut-simrig: SCHED_FIFO for the simulated robot refused ({e}): on a loaded machine the drives may answer late; run as root or grant CAP_SYS_NICE"
+            );
+        }
+        Ok(RunningSite { thread: SiteThread { stop, thread: Some(thread) }, faults, platform, sync_stats })
+    }
+
     fn into_site<R: CanTransport>(self, io: SiteIo<R>, opts: &SimOptions) -> Site<R> {
         let platform = PlatformTruth::default();
         platform.set(self.plant.position());
@@ -776,22 +796,7 @@ where
     let sender = TrackerSender::new(tracker.local_addr()).map_err(|e| BuildError::Device { what: "tracker sender", error: e })?;
 
     let io = SiteIo { rack_bus, vlc: Some(vlc), sender: Some(sender), clock: taut_driver::clock::wall(), now: Instant::now() };
-    let mut site = parts.into_site(io, opts);
-    let (faults, stop, platform, sync_stats) = (site.faults.clone(), site.stop.clone(), site.platform.clone(), site.sync_stats.clone());
-    let thread = std::thread::Builder::new()
-        .name("sim-robot".into())
-        .spawn(move || site.run())
-        .map_err(|e| BuildError::Device { what: "starting the simulated robot", error: e })?;
-    // The drives, the plant and the tracker stand in for hardware with processors of its own,
-    // which a loaded robot computer does not slow down: the site runs `SCHED_FIFO` like the
-    // simulated load cells. Under the normal scheduler two busy loops beside a start-up starved
-    // it (heartbeats and TPDOs late, the loop stopping on stale readings).
-    if let Err(e) = taut_driver::sched::set_fifo(&thread, sim_cells_priority(cfg)) {
-        eprintln!(
-            "taut-simrig: SCHED_FIFO for the simulated robot refused ({e}): on a loaded machine the drives may answer late; run as root or grant CAP_SYS_NICE"
-        );
-    }
-    let site = SiteThread { stop, thread: Some(thread) };
+    let RunningSite { thread: site, faults, platform, sync_stats } = parts.run(io, opts, cfg)?;
     let tracker_stats = pose.stats_handle();
     let peripherals = if opts.tracker {
         Peripherals { loadcells: Some(loadcells), tracker: Some(tracker), pose: Some(pose) }
