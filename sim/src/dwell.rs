@@ -149,8 +149,13 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     // The offsets drawn exactly as `Scenario::truth` drew them, then the noise continues the stream.
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    let mut encoders: Vec<Encoder> =
-        (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise).with_drum(s.physics.drum())).collect();
+    let mut encoders: Vec<Encoder> = (0..n)
+        .map(|j| {
+            Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
+                .with_drum(s.physics.drum())
+                .with_eccentricity(s.physics.eccentricity(j))
+        })
+        .collect();
     run.recording.comments.push(format!(
         " simulated by taut-sim: robot {}, seed {}, {} Hz, {} dwell poses of {} s, no tracker",
         s.robot.robot.name,
@@ -162,7 +167,7 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
     let (mut l, mut f) = (vec![0.0; n], vec![0.0; n]);
     for i in 0..run.positions.len() {
         for j in 0..n {
-            l[j] = encoders[j].read(run.drum_lengths[i * n + j], &mut enc_rng);
+            l[j] = encoders[j].read(run.drum_lengths[i * n + j], &mut enc_rng) + s.physics.height_error(run.positions[i][2]);
             f[j] = cells[j].read(run.tensions[i * n + j], &mut cell_rng);
         }
         run.recording.push(i as f64 * dt, [f64::NAN; 3], None, &l, s.with_tensions.then_some(&f[..]), None);

@@ -57,6 +57,18 @@ pub struct Physics {
     /// the encoder offsets refer to, and the encoder converts its angle at that radius (see
     /// [`crate::sensors::Drum`]).
     pub drum_buildup_m_per_turn: Option<f64>,
+    /// Drum eccentricity, m: each drum turns about an axis this far off its centre, so the cable
+    /// it pays out runs ahead of and behind the encoder's count by up to this much, periodic in
+    /// the paid-out length with the drum's circumference (`2 pi DRUM_RADIUS_M`), each cable's
+    /// drum at its own phase ([`Physics::eccentricity`]). calib's effect library has no such
+    /// effect. `None` or 0: off.
+    pub drum_eccentricity_m: Option<f64>,
+    /// A length error that follows the platform's height, 1/m: every encoder reads `k z^2` more,
+    /// `z` the platform's height in the robot frame (m). calib's effect library has no such effect.
+    /// Applied wherever readings are made along the platform's path (excitation, dwell and plant
+    /// recordings); a position-mode drive's hold ([`crate::sensors::Encoder::drum_for`]) does not
+    /// see it. `None` or 0: off.
+    pub height_error_per_m: Option<f64>,
     /// Encoder readings lag the tracker by this, s (the encoder value at `t` is the length at
     /// `t - time_offset_s`). Zero is off.
     pub time_offset_s: f64,
@@ -81,6 +93,8 @@ impl Default for Physics {
             pulley: None,
             scale: None,
             drum_buildup_m_per_turn: None,
+            drum_eccentricity_m: None,
+            height_error_per_m: None,
             time_offset_s: 0.0,
             backlash_m: 0.0,
             slack: true,
@@ -98,6 +112,21 @@ impl Physics {
     /// The drums' build-up (`None`: off).
     pub fn drum(&self) -> Option<crate::sensors::Drum> {
         self.drum_buildup_m_per_turn.filter(|g| *g != 0.0).map(|g| crate::sensors::Drum::new(DRUM_RADIUS_M, g))
+    }
+
+    /// Cable `j`'s drum eccentricity: (amplitude m, phase rad); `None`: off. The phases are
+    /// spread over the cables (`0.7 + 2.4 j` rad) so that no two drums run in step.
+    pub fn eccentricity(&self, j: usize) -> Option<crate::sensors::Eccentric> {
+        self.drum_eccentricity_m.filter(|e| *e != 0.0).map(|e| crate::sensors::Eccentric {
+            amplitude_m: e,
+            radius_m: DRUM_RADIUS_M,
+            phase: 0.7 + 2.4 * j as f64,
+        })
+    }
+
+    /// The height-dependent reading error at platform height `z` (m), m (0 when off).
+    pub fn height_error(&self, z: f64) -> f64 {
+        self.height_error_per_m.map_or(0.0, |k| k * z * z)
     }
 
     /// The encoder scale of cable `j` (1 when the effect is off).

@@ -65,6 +65,8 @@ pub struct Plant {
     p: [f64; 3],
     t: f64,
     time_offset: f64,
+    /// [`crate::Physics::height_error_per_m`].
+    height_error: Option<f64>,
     loads: Vec<CableLoad>,
     drum: Vec<f64>,
     encoder_out: Vec<f64>,
@@ -116,12 +118,17 @@ impl Plant {
             p: p0,
             t: 0.0,
             time_offset: physics.time_offset_s.max(0.0),
+            height_error: physics.height_error_per_m,
             loads: vec![CableLoad { force: [0.0; 3], energy: 0.0, tension: 0.0, drum_length: 0.0, slack: false }; n],
             drum: vec![0.0; n],
             encoder_out: vec![0.0; n],
             tension_out: vec![0.0; n],
             encoders: (0..n)
-                .map(|j| Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none).with_drum(physics.drum()))
+                .map(|j| {
+                    Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, &none)
+                        .with_drum(physics.drum())
+                        .with_eccentricity(physics.eccentricity(j))
+                })
                 .collect(),
             loadcells: (0..n).map(|_| LoadCell::with_offset(0.0, &none)).collect(),
             loadcell_offsets: truth.loadcell_offsets.clone(),
@@ -277,7 +284,7 @@ impl Plant {
         self.lag_into_scratch();
         for j in 0..self.models.len() {
             let (rng, noisy) = (&mut self.rng, self.noisy);
-            self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng);
+            self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng) + self.height_error.map_or(0.0, |k| k * self.p[2] * self.p[2]);
             let t = self.loads[j].tension;
             self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
         }

@@ -386,8 +386,13 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     let mut tracker = Tracker::new(&s.noise);
     let mut tr_rng = rng(s.seed, STREAM_TRACKER);
     let mut enc_rng = rng(s.seed, STREAM_ENCODER);
-    let mut encoders: Vec<Encoder> =
-        (0..n).map(|j| Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise).with_drum(s.physics.drum())).collect();
+    let mut encoders: Vec<Encoder> = (0..n)
+        .map(|j| {
+            Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
+                .with_drum(s.physics.drum())
+                .with_eccentricity(s.physics.eccentricity(j))
+        })
+        .collect();
     let mut l = vec![0.0; n];
     let mut f = vec![0.0; n];
     run.recording.comments.push(format!(
@@ -400,7 +405,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     for i in 0..total {
         let p = tracker.measure(run.positions[i], &mut tr_rng);
         for j in 0..n {
-            l[j] = encoders[j].read(run.drum_lengths[i * n + j], &mut enc_rng);
+            l[j] = encoders[j].read(run.drum_lengths[i * n + j], &mut enc_rng) + s.physics.height_error(run.positions[i][2]);
             f[j] = cells[j].read(run.tensions[i * n + j], &mut cell_rng);
         }
         let q = if p[0].is_nan() { [f64::NAN; 4] } else { run.orientations[i] };

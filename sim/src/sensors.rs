@@ -225,10 +225,31 @@ impl Drum {
     }
 }
 
+/// An eccentric drum: its axis sits `amplitude_m` off the centre of a drum of radius `radius_m`,
+/// so the length it pays out leads the encoder's `radius x angle` by
+/// `amplitude (sin(angle + phase) - sin(phase))`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Eccentric {
+    /// Offset of the axis from the drum's centre, m.
+    pub amplitude_m: f64,
+    /// The drum's radius, m.
+    pub radius_m: f64,
+    /// The drum's angle at the paid-out length zero, rad.
+    pub phase: f64,
+}
+
+impl Eccentric {
+    /// How far the paid-out length `d` (m) leads the encoder's count, m.
+    pub fn lead(&self, d: f64) -> f64 {
+        self.amplitude_m * ((d / self.radius_m + self.phase).sin() - self.phase.sin())
+    }
+}
+
 /// One drum encoder: scale and offset (truth), backlash, noise and quantisation.
 #[derive(Debug, Clone)]
 pub struct Encoder {
     drum: Option<Drum>,
+    eccentric: Option<Eccentric>,
     scale: f64,
     offset: f64,
     backlash: Backlash,
@@ -291,6 +312,7 @@ impl Encoder {
     pub fn new(scale: f64, offset: f64, backlash_m: f64, noise: &Noise) -> Self {
         Encoder {
             drum: None,
+            eccentric: None,
             scale,
             offset,
             backlash: Backlash::new(backlash_m),
@@ -312,16 +334,27 @@ impl Encoder {
         self
     }
 
+    /// The same encoder on an eccentric drum (`None`: a round drum).
+    pub fn with_eccentricity(mut self, eccentric: Option<Eccentric>) -> Self {
+        self.eccentric = eccentric;
+        self
+    }
+
     /// The length the encoder derives from its angle for the paid-out length `y`.
     fn angle_length(&self, y: f64) -> f64 {
-        self.drum.map_or(y, |d| d.encoder_length(y))
+        let base = |p: f64| self.drum.map_or(p, |d| d.encoder_length(p));
+        match self.eccentric {
+            None => base(y),
+            // A contraction by amplitude/radius (a few %) per fixed-point step.
+            Some(e) => (0..6).fold(base(y), |a, _| base(y - e.lead(a))),
+        }
     }
 
     /// The drum's paid-out length at which a noise-free reading is `reading` (m): what a drive
     /// whose position loop works on the drum's angle holds when commanded `reading` (backlash
     /// aside).
     pub fn drum_for(&self, reading: f64) -> f64 {
-        let from_angle = |a: f64| self.drum.map_or(a, |d| d.length(a));
+        let from_angle = |a: f64| self.drum.map_or(a, |d| d.length(a)) + self.eccentric.map_or(0.0, |e| e.lead(a));
         let mut d = from_angle((reading - self.offset) / self.scale);
         for _ in 0..4 {
             d = from_angle((reading - self.offset - self.winding.at(d)) / self.scale);

@@ -576,3 +576,34 @@ mod plant {
         plant.lengths_holding(p, &t).unwrap()
     }
 }
+
+#[test]
+fn an_eccentric_drum_reads_a_lead_periodic_in_the_drums_circumference() {
+    let e = 0.5e-3;
+    let physics = Physics { drum_eccentricity_m: Some(e), ..Physics::ideal() };
+    let ecc = physics.eccentricity(1).expect("on");
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut enc = crate::sensors::Encoder::new(1.0, 0.0, 0.0, &crate::Noise::none()).with_eccentricity(Some(ecc));
+    let circumference = std::f64::consts::TAU * crate::physics::DRUM_RADIUS_M;
+    let mut worst: f64 = 0.0;
+    for k in 0..200 {
+        let d = 1.0 + k as f64 * 1e-3;
+        let reading = enc.read(d, &mut rng);
+        // The reading lags the paid-out length by the lead, which repeats every circumference.
+        assert!((d - reading - ecc.lead(reading)).abs() < 1e-9, "{d}: {reading}");
+        assert!((ecc.lead(d) - ecc.lead(d + circumference)).abs() < 1e-12);
+        worst = worst.max((d - reading).abs());
+        // A position-mode drive holding this reading pays out `d` again.
+        assert!((enc.drum_for(reading) - d).abs() < 1e-9);
+    }
+    assert!(worst > 0.9 * e && worst <= 2.0 * e, "largest lead {worst}");
+    assert!(Physics::ideal().eccentricity(0).is_none());
+}
+
+#[test]
+fn the_height_error_grows_with_the_square_of_the_height() {
+    let physics = Physics { height_error_per_m: Some(2e-3), ..Physics::ideal() };
+    assert_eq!(physics.height_error(0.0), 0.0);
+    assert!((physics.height_error(1.5) - 4.5e-3).abs() < 1e-15);
+    assert_eq!(Physics::ideal().height_error(1.5), 0.0);
+}

@@ -53,6 +53,7 @@ pub mod analysis;
 pub mod dataq;
 pub mod effects;
 pub mod esterr;
+pub mod leftover;
 /// The joint model the diagnosis fits: [`crate::effects::model`].
 pub use crate::effects::model as fit;
 /// The dense least-squares problems the diagnosis solves: [`crate::lm::dense`].
@@ -284,6 +285,10 @@ pub enum Decision {
     Dropped,
     /// Named earlier; tested for removal once a later effect was named, and still needed.
     Kept,
+    /// Named, then withdrawn: structure that no effect in the library explains remains, and it
+    /// is larger than what the named effects explain (the effect was the nearest the library
+    /// knows, not the cause).
+    Withdrawn,
 }
 
 impl Decision {
@@ -300,6 +305,9 @@ impl Decision {
                 "named earlier, not needed once a later effect was named (removal test not significant at alpha {alpha:.1e}): dropped"
             ),
             Decision::Kept => "named earlier, still needed once a later effect was named (removal test significant)".into(),
+            Decision::Withdrawn => {
+                "named, then withdrawn: more structure outside the library remains than the named effects explain".into()
+            }
         }
     }
 }
@@ -1185,8 +1193,28 @@ pub fn diagnose(
     let named = name_effects(&ctx, &base, opts, &mut effects, &mut notes);
     let (final_train, final_all) = final_estimates(&ctx, &base, &named, opts, &mut effects);
     let final_fit = ctx.summary(&named.spec, &final_train, &final_all);
-    let (final_res, unexplained) =
+    let (mut final_res, unexplained, structure) =
         leftover_structure(&ctx, &base, &named.spec, &final_train, &final_fit, &located.an_sub, screened.masks.dt);
+    let mut named = named;
+    let mut final_fit = final_fit;
+    if let Some(st) = structure.filter(|st| st.outweighs(&located.baseline, &final_fit)) {
+        for f in effects.iter().filter(|f| f.effect != Effect::Slack) {
+            named.rejected.push(format!(
+                "{} fitted part of the mismatch (held-out RMS {:.2} -> {:.2} mm), but more structure outside the library \
+                 remains ({}): withdrawn, not named",
+                f.effect.name(),
+                located.baseline.heldout_rms_m * 1e3,
+                final_fit.heldout_rms_m * 1e3,
+                st.test
+            ));
+            for t in named.tests.iter_mut().filter(|t| t.effect == f.effect && t.decision == Decision::Named) {
+                t.decision = Decision::Withdrawn;
+            }
+        }
+        effects.retain(|f| f.effect == Effect::Slack);
+        final_fit = located.baseline.clone();
+        final_res = located.base_res.clone();
+    }
     if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
         notes.push("no effect beyond loose cables was found: the residual is noise".into());
     }
@@ -1948,8 +1976,76 @@ fn final_estimates(
     (final_train, final_all)
 }
 
+/// False-alarm rate of "structure remains" on a recording the final model explains (the
+/// families of [`leftover`] together, Bonferroni).
+pub const LEFTOVER_ALPHA: f64 = 1e-3;
+
+/// Structure the final model leaves that a family of [`leftover`] predicts on the held-out
+/// blocks.
+struct Structure {
+    follows: leftover::Follows,
+    test: HeldoutTest,
+    nuisance: leftover::Nuisance,
+}
+
+impl Structure {
+    /// The held-out sum of squares this structure holds is larger than what the named effects
+    /// removed from the baseline's: they fitted the nearest thing the library knows.
+    fn outweighs(&self, baseline: &FitSummary, final_fit: &FitSummary) -> bool {
+        let (sb, sf) = (baseline.heldout_rms_m.powi(2), final_fit.heldout_rms_m.powi(2));
+        self.test.gain * sf > sb - sf
+    }
+
+    /// Words for people: what it follows, where, and the test.
+    fn words(&self, n: usize) -> String {
+        let cables: Vec<usize> = (0..n).filter(|&j| self.nuisance.removed_m[j].is_finite()).collect();
+        let mut s = format!("it {}", self.follows.words());
+        if self.follows == leftover::Follows::PeriodicInLength {
+            let w: Vec<String> = cables.iter().map(|&j| format!("{:.0}", self.nuisance.wavelengths_m[j] * 1e3)).collect();
+            s.push_str(&format!(
+                " (wavelength {} mm on {}; a drum's circumference or a guide's pitch repeats like this)",
+                w.join(", "),
+                taut_config::cable_list(&cables)
+            ));
+        }
+        let r: Vec<String> = cables.iter().map(|&j| format!("{:.2}", self.nuisance.removed_m[j] * 1e3)).collect();
+        s.push_str(&format!("; {} mm RMS of it on {}; {}", r.join(", "), taut_config::cable_list(&cables), self.test));
+        s
+    }
+}
+
+/// The most significant family of [`leftover`] on the final model's held-out residuals, if any
+/// passes at [`LEFTOVER_ALPHA`]. The height family is reported instead of the position family
+/// when it carries at least 70 % of the position family's gain.
+fn leftover_test(ctx: &Ctx<'_>, spec: &ModelSpec, x: &[f64], res: &[Vec<f64>]) -> Option<Structure> {
+    let prep = ctx.prep;
+    let mut r0 = Vec::with_capacity(ctx.heldout_rows.last().copied().unwrap_or(0));
+    for &i in &ctx.heldout {
+        for j in (0..prep.n).filter(|&j| prep.usable[j][i]) {
+            r0.push(res[j][i]);
+        }
+    }
+    let terms = ctx.heldout_terms(spec, x);
+    let w = ctx.heldout_factors(spec, x);
+    let families = leftover::Follows::ALL.len() as f64;
+    let passed: Vec<Structure> = leftover::Follows::ALL
+        .iter()
+        .filter_map(|&follows| {
+            let nuisance = leftover::fit(prep, res, &ctx.train, &ctx.heldout, follows);
+            let test = weighted_test(&r0, &w, &nuisance.heldout, &w, &terms, None, None)?;
+            (test.p_value * families < LEFTOVER_ALPHA && test.gain > 0.0).then_some(Structure { follows, test, nuisance })
+        })
+        .collect();
+    let height_gain = passed.iter().find(|s| s.follows == leftover::Follows::Height).map(|s| s.test.gain);
+    passed
+        .into_iter()
+        .filter(|s| !(s.follows == leftover::Follows::Position && height_gain.is_some_and(|g| g >= 0.7 * s.test.gain)))
+        .max_by(|a, b| a.test.gain.total_cmp(&b.test.gain))
+}
+
 /// Step 5, **show** the fit improve: the final model's residuals on every sample, and the
-/// structure no effect in the library explains (per cable, above twice the noise floor).
+/// structure no effect in the library explains: what a family of [`leftover`] predicts on the
+/// held-out blocks ([`leftover_test`]), or per cable above twice the noise floor.
 fn leftover_structure(
     ctx: &Ctx<'_>,
     b: &Baseline,
@@ -1958,12 +2054,13 @@ fn leftover_structure(
     final_fit: &FitSummary,
     an_sub: &[usize],
     dt: f64,
-) -> (Vec<Vec<f64>>, Option<String>) {
+) -> (Vec<Vec<f64>>, Option<String>, Option<Structure>) {
     let prep = ctx.prep;
     let n = prep.n;
     let all_rows: Vec<usize> = (0..prep.t.len()).collect();
     let (has_t, sigma) = (&b.has_t, b.sigma);
     let final_res = fit::residuals(prep, spec, &all_rows, &final_train.x);
+    let structure = leftover_test(ctx, spec, &final_train.x, &final_res);
 
     // Structure left over.
     let fsub: Vec<Vec<f64>> = final_res.iter().map(|r| an_sub.iter().map(|&i| r[i]).collect()).collect();
@@ -1976,7 +2073,9 @@ fn leftover_structure(
             unexplained_cables.push(j);
         }
     }
-    let unexplained = if unexplained_cables.is_empty() {
+    let unexplained = if let Some(st) = &structure {
+        Some(format!("structure remains that no effect in the library explains: {}", st.words(n)))
+    } else if unexplained_cables.is_empty() {
         None
     } else {
         let mut s = format!(
@@ -1991,7 +2090,7 @@ fn leftover_structure(
         }
         Some(s)
     };
-    (final_res, unexplained)
+    (final_res, unexplained, structure)
 }
 
 #[cfg(test)]

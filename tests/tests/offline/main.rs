@@ -19,6 +19,7 @@ mod diagnose_data_problems;
 mod diagnose_eiv;
 mod diagnose_loadcell_key;
 mod diagnose_null;
+mod diagnose_outside;
 mod diagnose_pairs;
 mod diagnose_ptail;
 mod diagnose_short;
