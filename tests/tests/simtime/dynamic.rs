@@ -22,23 +22,13 @@
 //! around it (a reading is up to a polling round, ~15 ms, old while the swing changes the
 //! tension).
 //!
-//! Measured (2026-11-29), worst anchor on seeds 1-5: 0.57 / 0.73 / 0.84 / 0.55 / 0.46 mm,
+//! Measured, worst anchor on seeds 1-5: 0.57 / 0.73 / 0.84 / 0.55 / 0.46 mm,
 //! sigmas 0.40-0.45 mm, worst coordinate 2.3-3.2 of its sigmas; fitted EA of cable 0
 //! 0.74-0.84 MN, cable 1 0.68-0.83 MN, cable 2 1.04-1.13 MN, cable 3 0.78-0.89 MN. The simulated
 //! load cells answer as on the wire: the polling round runs one transaction at a time, each
 //! cell answers with the plant's tension at the instant its request reached it (the plant's
 //! nearest step), and its reading is stamped when its answer is complete, 1.78 ms later (1 ms
-//! latency, 9 characters at 115200 baud). Before, a round ran at one simulated instant, every
-//! cell answering with the round's first tension (cell `j`'s reading 2.5 + 4.2 j ms older than
-//! its stamp): 0.78 / 0.40 / 0.57 / 0.80 / 0.55 mm, sigmas 0.33-0.36 mm, worst coordinate
-//! 1.6-4.4 sigma, cable 0 0.72-0.88 MN, cable 2 1.2-1.6 MN, cables 1 and 3 0.90-1.25 MN (a
-//! datasheet of 1.1 MN: 0.56 / 0.36 / 0.49 / 0.88 / 0.69 mm; the exact 1 MN taken as known:
-//! 0.43 / 0.49 / 0.47 / 0.70 / 0.38 mm). Cable 2 is where an experiment on that timing (the
-//! tensions read `3.5 (j + 1)` ms later: 1.03-1.13 MN, 0.45-0.66 mm) put it; cables 1 and 3 now
-//! lean soft with cable 0, unexplained, and the sigmas are still a little small. A cubic
-//! through four readings instead of the straight line between two changed nothing (0.54-0.84
-//! mm, with the old timing): the rounds are fast enough for the swing. The bound is the
-//! acceptance itself, 1 mm.
+//! latency, 9 characters at 115200 baud). The bound is the acceptance itself, 1 mm.
 
 use taut_simrig::SimOptions;
 
