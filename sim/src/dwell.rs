@@ -154,6 +154,7 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
             Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
                 .with_drum(s.physics.drum())
                 .with_eccentricity(s.physics.eccentricity(j))
+                .with_winding(crate::sensors::Winding::new(&s.noise, s.seed ^ (0x5749_4E44 + j as u64)))
         })
         .collect();
     run.recording.comments.push(format!(

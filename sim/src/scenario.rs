@@ -391,6 +391,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
             Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
                 .with_drum(s.physics.drum())
                 .with_eccentricity(s.physics.eccentricity(j))
+                .with_winding(crate::sensors::Winding::new(&s.noise, s.seed ^ (0x5749_4E44 + j as u64)))
         })
         .collect();
     let mut l = vec![0.0; n];

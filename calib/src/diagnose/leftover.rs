@@ -23,11 +23,14 @@ pub enum Follows {
     Height,
     /// A quadratic in the platform's position (x, y, z and their products).
     Position,
+    /// A smooth function of each cable's encoder reading (piecewise linear, knots every
+    /// [`KNOT_SPACING_M`] or closer over the training range).
+    Length,
 }
 
 impl Follows {
     /// The families tested, in the order reported.
-    pub const ALL: [Follows; 3] = [Follows::PeriodicInLength, Follows::Height, Follows::Position];
+    pub const ALL: [Follows; 4] = [Follows::PeriodicInLength, Follows::Height, Follows::Position, Follows::Length];
 
     /// Words for people.
     pub fn words(self) -> &'static str {
@@ -35,12 +38,18 @@ impl Follows {
             Follows::PeriodicInLength => "is periodic in the cable's length",
             Follows::Height => "follows the platform's height",
             Follows::Position => "follows the platform's position",
+            Follows::Length => "follows the cable's paid-out length (as a drum's or a winding's irregularity would)",
         }
     }
 }
 
 /// Shortest and longest wavelength of the periodic family, m, and the grid's size.
 const WAVELENGTHS: (f64, f64, usize) = (0.03, 1.0, 60);
+
+/// Widest knot spacing of the length family, m; at most `MAX_KNOTS` knots span a cable's
+/// training range.
+pub const KNOT_SPACING_M: f64 = 0.02;
+const MAX_KNOTS: usize = 40;
 
 /// One family fitted to every cable's training residuals.
 #[derive(Debug, Clone, PartialEq)]
@@ -64,13 +73,21 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
     let n = prep.n;
     let centre = centroid(prep, train);
     let mut coef: Vec<Option<(Vec<f64>, f64)>> = vec![None; n];
+    let mut knots = vec![(0.0, 1.0, 0usize); n];
     for (j, c) in coef.iter_mut().enumerate() {
         let rows: Vec<usize> = train.iter().copied().filter(|&i| prep.usable[j][i] && res[j][i].is_finite()).collect();
         if rows.len() < 30 {
             continue;
         }
+        if follows == Follows::Length {
+            let (lo, hi) = rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &i| (a.min(prep.l[j][i]), b.max(prep.l[j][i])));
+            let k = (((hi - lo) / KNOT_SPACING_M).ceil() as usize).clamp(1, MAX_KNOTS - 1);
+            knots[j] = (lo, (hi - lo).max(1e-6) / k as f64, k + 1);
+        }
+        let kn = knots[j];
         *c = match follows {
             Follows::PeriodicInLength => best_wavelength(prep, res, &rows, j),
+            Follows::Length => solve(&rows, |i| hats(prep.l[j][i], kn), |i| res[j][i]).map(|c| (c, f64::NAN)),
             _ => solve(&rows, |i| features(prep, follows, centre, f64::NAN, i, j), |i| res[j][i]).map(|c| (c, f64::NAN)),
         };
     }
@@ -78,9 +95,11 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
     let (mut sq, mut cnt) = (vec![0.0; n], vec![0usize; n]);
     for &i in heldout {
         for j in (0..n).filter(|&j| prep.usable[j][i]) {
-            let f = coef[j]
-                .as_ref()
-                .map_or(0.0, |(c, lambda)| features(prep, follows, centre, *lambda, i, j).iter().zip(c).map(|(a, b)| a * b).sum::<f64>());
+            let f = coef[j].as_ref().map_or(0.0, |(c, lambda)| {
+                let phi =
+                    if follows == Follows::Length { hats(prep.l[j][i], knots[j]) } else { features(prep, follows, centre, *lambda, i, j) };
+                phi.iter().zip(c).map(|(a, b)| a * b).sum::<f64>()
+            });
             out.push(res[j][i] - f);
             sq[j] += f * f;
             cnt[j] += 1;
@@ -110,6 +129,20 @@ fn centroid(prep: &Prepared, samples: &[usize]) -> [f64; 3] {
     c.map(|v| if k > 0.0 { v / k } else { 0.0 })
 }
 
+/// The length family's regressors at the reading `l`: hat functions on the knots
+/// `(first, spacing, count)`, the reading clamped to their span.
+fn hats(l: f64, (first, spacing, count): (f64, f64, usize)) -> Vec<f64> {
+    let mut v = vec![0.0; count];
+    let x = ((l - first) / spacing).clamp(0.0, (count - 1) as f64);
+    let k = (x.floor() as usize).min(count.saturating_sub(2));
+    let f = x - k as f64;
+    v[k] = 1.0 - f;
+    if count > 1 {
+        v[k + 1] = f;
+    }
+    v
+}
+
 /// The family's regressors at sample `i` of cable `j` (`lambda`: the periodic family's
 /// wavelength, m).
 fn features(prep: &Prepared, follows: Follows, centre: [f64; 3], lambda: f64, i: usize, j: usize) -> Vec<f64> {
@@ -124,6 +157,7 @@ fn features(prep: &Prepared, follows: Follows, centre: [f64; 3], lambda: f64, i:
         Follows::Position => {
             vec![1.0, d[0], d[1], d[2], d[0] * d[0], d[1] * d[1], d[2] * d[2], d[0] * d[1], d[0] * d[2], d[1] * d[2]]
         }
+        Follows::Length => unreachable!("the length family's regressors are `hats`"),
     }
 }
 
