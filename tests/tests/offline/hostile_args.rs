@@ -1,4 +1,4 @@
-//! Hostile command-line arguments (issue 13): rates, durations, sample counts, effect
+//! Hostile command-line arguments: rates, durations, sample counts, effect
 //! parameters, unknown names. Each is refused before anything is simulated or allocated, with the
 //! argument named and the allowed range said; nothing panics or aborts.
 
