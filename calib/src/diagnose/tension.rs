@@ -40,10 +40,17 @@
 //! platform's residual on its acceleration; each lead's t statistic (AR(1)-prewhitened batch
 //! means, [`super::select::long_run_variance`]) says where the balance departs.
 //!
-//! **Naming.** The same forward selection and the same held-out test as the length side
+//! **Naming.** The same held-out test as the length side
 //! ([`super::select::encompassing_test_with`], with the current model's estimation error by a
-//! sandwich over contiguous clusters of training rows), over the same time blocks, at the same
-//! per-test level (the family counts the tension effects: [`super::DiagnoseOptions::test_alpha`]).
+//! sandwich over contiguous clusters of training windows), at the same per-test level (the
+//! family counts the tension effects: [`super::DiagnoseOptions::test_alpha`]), cross-fitted: each
+//! fold of the length side's time blocks is held out once and the folds' held-out residuals are
+//! tested together (one split held out too few filtered rows). The selection is backward
+//! elimination from the whole tension library: every effect's removal test (the model without
+//! it as the current model, it as the candidate); the least significant effect that fails its
+//! test is dropped and the rest tested again. Forward selection stalled where two true effects
+//! each hid the other (friction under the inertia every moving platform has: 12 of 20 named),
+//! as a test on a model missing a true effect sees its structure as correlated noise.
 //! A gain's or friction's held-out change is proportional to the readings, which carry the same
 //! cell noise as the current model's residual; through the filter that shared part is
 //! `sum kappa^2 s_T^2` per row against a tension level of tens of newtons, a bias of the
@@ -354,12 +361,6 @@ impl Spec {
     /// Offset of effect `k`'s parameters.
     fn offset(&self, k: usize) -> usize {
         self.n + self.effects[..k].iter().map(|e| e.width(self.n)).sum::<usize>()
-    }
-
-    fn with(&self, e: TensionEffect) -> Spec {
-        let mut s = self.clone();
-        s.effects.push(e);
-        s
     }
 
     fn start(&self, prev: Option<(&Spec, &[f64])>) -> Vec<f64> {
@@ -821,62 +822,75 @@ pub(crate) fn diagnose_tensions(
     let alpha = opts.test_alpha();
     let base_all = fit(&base, &data, &all, sigma_t, &x_start);
     let leads = locate(&base, &base_all.x, &data, &all, sigma_t);
-    let mut cur: Vec<lm::LmReport> = folds.iter().map(|(tr, _)| fit(&base, &data, tr, sigma_t, &base_all.x)).collect();
+    let cur: Vec<lm::LmReport> = folds.iter().map(|(tr, _)| fit(&base, &data, tr, sigma_t, &base_all.x)).collect();
     // RMS on the training windows of the first fold's split and on its held-out ones (the
     // length side's split when 20 % are held out).
     let (train0, held0) = (&folds[folds.len() - 1].0, &folds[folds.len() - 1].1);
     let (rms_before, held_before) =
         (rms_n(&base, &cur[folds.len() - 1].x, &data, train0), rms_n(&base, &cur[folds.len() - 1].x, &data, held0));
 
-    let mut spec = base.clone();
-    let mut tests = vec![];
-    let mut named: Vec<(TensionEffect, HeldoutTest)> = vec![];
+    // Backward elimination from the whole library: each effect's removal test (the model
+    // without it as the current model, it as the candidate); the least needed effect whose test
+    // is not significant at `alpha` (or whose value is not physical) is dropped, and the rest
+    // are tested again.
     let library: Vec<TensionEffect> = opts.tension_library.clone();
-    for round in 1..=opts.max_effects.max(1) {
+    let mut spec = Spec { n, mass, effects: library.clone() };
+    let mut full: Vec<lm::LmReport> =
+        folds.iter().zip(&cur).map(|((tr, _), c)| fit(&spec, &data, tr, sigma_t, &spec.start(Some((&base, &c.x))))).collect();
+    let mut tests = vec![];
+    let mut last: Vec<(TensionEffect, Option<HeldoutTest>)> = vec![];
+    for round in 1..=library.len() {
         let mut results = vec![];
-        for &e in library.iter().filter(|e| !spec.effects.contains(e)) {
-            let cand = spec.with(e);
-            let fits: Vec<lm::LmReport> =
-                folds.iter().zip(&cur).map(|((tr, _), c)| fit(&cand, &data, tr, sigma_t, &cand.start(Some((&spec, &c.x))))).collect();
+        for (k, &e) in spec.effects.iter().enumerate() {
+            let reduced = Spec { n, mass, effects: spec.effects.iter().copied().filter(|x| *x != e).collect() };
+            let fits: Vec<lm::LmReport> = folds
+                .iter()
+                .zip(&full)
+                .map(|((tr, _), c)| fit(&reduced, &data, tr, sigma_t, &reduced.start(Some((&spec, &c.x)))))
+                .collect();
             let pieces: Vec<FoldPiece> = folds
                 .iter()
-                .zip(cur.iter().zip(&fits))
-                .map(|((tr, he), (c, r1))| fold_piece(&spec, c, &cand, &r1.x, &data, tr, he, sigma_t))
+                .zip(fits.iter().zip(&full))
+                .map(|((tr, he), (c, r1))| fold_piece(&reduced, c, &spec, &r1.x, &data, tr, he, sigma_t))
                 .collect();
             let test = crossfit_test(&pieces);
-            let k = cand.effects.len() - 1;
-            let o = cand.offset(k);
+            let o = spec.offset(k);
             let (plo, phi) = e.model().internal_range();
-            let physical_ok = fits.iter().all(|r1| r1.x[o..o + e.width(n)].iter().all(|v| (plo..=phi).contains(v)));
+            let physical_ok = full.iter().all(|r1| r1.x[o..o + e.width(n)].iter().all(|v| (plo..=phi).contains(v)));
             let passed = test.is_some_and(|t| t.p_value < alpha);
-            let decision = match (passed, physical_ok) {
-                (false, _) => Decision::NotBetter,
-                (true, false) => Decision::NotPhysical,
-                (true, true) => Decision::Passed,
-            };
-            let values = physical(&cand, k, &fits[fits.len() - 1].x, &[]).0;
-            results.push((e, cand, fits, test, decision, values));
+            let values = physical(&spec, k, &full[full.len() - 1].x, &[]).0;
+            results.push((e, reduced, fits, test, passed && physical_ok, values));
         }
-        let best = results
+        // The effect to drop: the least significant of those not kept.
+        let drop = results
             .iter()
             .enumerate()
-            .filter(|(_, r)| r.4 == Decision::Passed)
-            .max_by(|a, b| a.1 .3.map_or(0.0, |t| t.gain).total_cmp(&b.1 .3.map_or(0.0, |t| t.gain)))
+            .filter(|(_, r)| !r.4)
+            .max_by(|a, b| a.1 .3.map_or(1.0, |t| t.p_value).total_cmp(&b.1 .3.map_or(1.0, |t| t.p_value)))
             .map(|(q, _)| q);
         for (q, r) in results.iter().enumerate() {
-            let decision = match (Some(q) == best, r.4) {
-                (true, _) => Decision::Named,
-                (false, Decision::Passed) => Decision::Outranked,
-                (false, d) => d,
+            let decision = if Some(q) == drop {
+                Decision::Dropped
+            } else if r.4 {
+                Decision::Kept
+            } else {
+                Decision::NotBetter
             };
             tests.push(TensionTest { round, effect: r.0, test: r.3, alpha, decision, values: r.5.clone() });
         }
-        let Some(q) = best else { break };
-        let (e, cand, fits, test, _, _) = results.swap_remove(q);
-        named.push((e, test.expect("a named candidate was tested")));
-        spec = cand;
-        cur = fits;
+        last = results.iter().map(|r| (r.0, r.3)).collect();
+        let Some(q) = drop else { break };
+        let (_, reduced, fits, _, _, _) = results.swap_remove(q);
+        last.remove(q);
+        spec = reduced;
+        full = fits;
+        if spec.effects.is_empty() {
+            break;
+        }
     }
+    let named: Vec<(TensionEffect, HeldoutTest)> =
+        spec.effects.iter().map(|e| (*e, last.iter().find(|x| x.0 == *e).and_then(|x| x.1).expect("a kept effect was tested"))).collect();
+    let cur = full;
     let (train, held) = (train0.clone(), held0.clone());
 
     // Final estimates on every row, the noise re-estimated when none was given.
