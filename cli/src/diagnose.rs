@@ -403,4 +403,16 @@ mod tests {
             assert!(e.starts_with(flag) && e.contains("0 (exact) to 1000"), "{e}");
         }
     }
+
+    /// `--tension-side` takes the platform's mass from --config (and needs one); without it the
+    /// tension side does not run.
+    #[test]
+    fn tension_side_takes_the_mass_from_the_config() {
+        let mut cfg = taut_config::RobotConfig::point_mass(4);
+        cfg.robot.mass_kg = 3.5;
+        assert_eq!(options(&args(&[]), &cfg).unwrap().platform_mass_kg, None);
+        let o = options(&args(&["--config", "robot.toml", "--tension-side"]), &cfg).unwrap();
+        assert_eq!(o.platform_mass_kg, Some(3.5));
+        assert!(Cli::try_parse_from(["taut", "rec.csv", "--tension-side"]).is_err(), "--tension-side without --config");
+    }
 }

@@ -4,10 +4,12 @@
 //! the parameters.
 //!
 //! `cargo run --release -p taut-tests --example tension_coverage -- CASE FIRST_SEED COUNT`
-//! (CASE: free, gain, friction, friction-offset, fast; `-v` after them prints every recording).
+//! (CASE: free, gain, friction, friction-offset, fast; `-v` after them prints every recording;
+//! `TENSION_ROBOT=three-cable` or `outdoor` for those robots instead of the 4-cable one).
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect, TensionEffect};
-use taut_tests::sim::{simulate_next_seed, tension_scenario, TensionCase, TENSION_FRICTION, TENSION_GAINS};
+use taut_sim::Scenario;
+use taut_tests::sim::{simulate_next_seed, tension_scenario_for, TensionCase, TENSION_FRICTION, TENSION_GAINS};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -22,10 +24,16 @@ fn main() {
     let first: u64 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(1);
     let count: u64 = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
     let verbose = args.iter().any(|a| a == "-v");
-    let truth_of = |e: TensionEffect, mass: f64| -> Vec<f64> {
+    let robot = std::env::var("TENSION_ROBOT").unwrap_or_else(|_| "aras-cam".into());
+    let base = |seed: u64| match robot.as_str() {
+        "three-cable" => Scenario::three_cable(seed),
+        "outdoor" => Scenario::outdoor(seed),
+        _ => Scenario::aras_cam(seed),
+    };
+    let truth_of = |e: TensionEffect, mass: f64, n: usize| -> Vec<f64> {
         match e {
-            TensionEffect::LoadcellGain => TENSION_GAINS.to_vec(),
-            TensionEffect::Friction => vec![TENSION_FRICTION; 4],
+            TensionEffect::LoadcellGain => (0..n).map(|j| TENSION_GAINS[j % 4]).collect(),
+            TensionEffect::Friction => vec![TENSION_FRICTION; n],
             TensionEffect::Inertia => vec![mass],
         }
     };
@@ -41,7 +49,7 @@ fn main() {
     let mut min_p_free: Vec<f64> = vec![];
     let mut level = f64::NAN;
     for seed in first..first + count {
-        let mut s = tension_scenario(seed, case);
+        let mut s = tension_scenario_for(base(seed), case);
         if let Ok(v) = std::env::var("TENSION_LOADCELL_SIGMA") {
             s.noise.loadcell_sigma_n = v.parse().expect("TENSION_LOADCELL_SIGMA: a number");
         }
@@ -84,7 +92,7 @@ fn main() {
         }
         let mut line = vec![];
         for f in &td.effects {
-            let truth = truth_of(f.effect, mass);
+            let truth = truth_of(f.effect, mass, s.robot.cables.len());
             let z: Vec<f64> = f.values.iter().zip(&f.sigmas).zip(&truth).map(|((v, s), t)| (v - t) / s).collect();
             if expected.contains(&f.effect) || f.effect == TensionEffect::Inertia {
                 for zz in &z {

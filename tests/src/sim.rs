@@ -61,16 +61,23 @@ pub const TENSION_GAINS: [f64; 4] = [1.03, 0.97, 1.02, 0.985];
 pub const TENSION_FRICTION: f64 = 0.05;
 
 /// The 4-cable camera robot, 60 s of excitation at 100 Hz, with the tension-side effect of `case`
-/// concealed. Without the three-phase start: its plant is quasi-static, so its tensions balance
-/// the weight alone while the platform moves (no inertia), which no real recording does.
+/// concealed (see [`tension_scenario_for`]).
 pub fn tension_scenario(seed: u64, case: TensionCase) -> Scenario {
-    let mut s = Scenario::aras_cam(seed);
+    tension_scenario_for(Scenario::aras_cam(seed), case)
+}
+
+/// The robot of `s`, 60 s of excitation at 100 Hz, with the tension-side effect of `case`
+/// concealed (cable `j` gets the gain `TENSION_GAINS[j % 4]`). Without the three-phase start:
+/// its plant is quasi-static, so its tensions balance the weight alone while the platform moves
+/// (no inertia), which no real recording does.
+pub fn tension_scenario_for(mut s: Scenario, case: TensionCase) -> Scenario {
+    let n = s.robot.cables.len();
     s.three_phase = None;
     s.duration_s = 60.0;
     s.loose_fraction = if case == TensionCase::Fast { 0.2 } else { 0.0 };
     s.physics = match case {
         TensionCase::Free | TensionCase::Fast => Physics::default(),
-        TensionCase::Gain => Physics { loadcell_gain: Some(TENSION_GAINS.to_vec()), ..Physics::default() },
+        TensionCase::Gain => Physics { loadcell_gain: Some((0..n).map(|j| TENSION_GAINS[j % 4]).collect()), ..Physics::default() },
         TensionCase::Friction => Physics { friction_mu_theta: Some(TENSION_FRICTION), ..Physics::default() },
         TensionCase::FrictionOffset => Physics { friction_mu_theta: Some(TENSION_FRICTION), time_offset_s: 0.02, ..Physics::default() },
     };
