@@ -24,7 +24,7 @@
 //! excursion left the acceleration so noisy (0.2-0.6 m/s^2) that slow recordings' inertia went
 //! unseen and was absorbed by load-cell gains (slow harmonic motion's `m a = -m omega^2 x` is a
 //! force that follows the position, as gains' tension pattern does). The filtered rows are taken
-//! every quarter window (they overlap; the test's batch means take the correlation).
+//! every half window (they overlap by half; the test's batch means take the correlation).
 //!
 //! **Weights.** Each row's residual is whitened by its covariance
 //! `s_T^2 sum_k kappa_k^2 sum_j u_j u_j^T + m_i^2 var_a I` (the load cells' noise `s_T` through
@@ -83,7 +83,7 @@ const MIN_ROWS: usize = 100;
 #[derive(Debug, Clone, PartialEq)]
 pub struct TensionDiagnosis {
     /// Filtered balance rows (windows where every cable was taut and the path's derivatives
-    /// were known; taken every quarter window).
+    /// were known; taken every half window).
     pub rows: usize,
     /// The platform's mass the balance used, kg.
     pub mass_kg: f64,
