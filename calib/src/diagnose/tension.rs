@@ -97,13 +97,14 @@ pub struct TensionDiagnosis {
     pub offsets_n: Vec<f64>,
     /// 1-sigma of the offsets, N.
     pub offset_sigmas_n: Vec<f64>,
-    /// RMS of the balance residual per axis, baseline on the training rows, N.
+    /// RMS of the filtered balance residual per axis, baseline fitted and taken on the training
+    /// rows of the split that holds out the last fold (the length side's split at 20 %), N.
     pub rms_before_n: f64,
     /// Baseline, held out, N.
     pub heldout_rms_before_n: f64,
-    /// Final model, training rows, N.
+    /// Final model fitted on the training rows of the same split, there, N.
     pub rms_after_n: f64,
-    /// Final model, held out, N.
+    /// Final model fitted on the training rows, on the held-out ones, N.
     pub heldout_rms_after_n: f64,
     /// Where the baseline balance departs, strongest first.
     pub leads: Vec<TensionLead>,
@@ -936,8 +937,8 @@ pub(crate) fn diagnose_tensions(
         offset_sigmas_n: s[..n].to_vec(),
         rms_before_n: rms_before,
         heldout_rms_before_n: held_before,
-        rms_after_n: rms_n(&spec, xr, &data, &train),
-        heldout_rms_after_n: rms_n(&spec, xr, &data, &held),
+        rms_after_n: rms_n(&spec, &cur[cur.len() - 1].x, &data, &train),
+        heldout_rms_after_n: rms_n(&spec, &cur[cur.len() - 1].x, &data, &held),
         leads,
         effects,
         tests,
