@@ -58,7 +58,9 @@ pub use crate::effects::model as fit;
 /// The dense least-squares problems the diagnosis solves: [`crate::lm::dense`].
 pub use crate::lm::dense as lm;
 pub mod select;
+pub mod tension;
 
+pub use crate::effects::tension::TensionEffect;
 use crate::{Geometry, Params, Sigmas};
 use analysis::{rms, Mismatch, Regressor};
 pub use dataq::{DataProblem, ProblemKind};
@@ -117,6 +119,12 @@ pub struct DiagnoseOptions {
     /// platform moves) and leave them out (true). False keeps them, as before (for comparisons
     /// only: `tests/examples/short_recordings.rs`).
     pub stale_rows: bool,
+    /// The platform's mass, kg: with it (and tensions in the recording) the tension side runs
+    /// ([`tension`]: the load cells against the platform's weight and inertia). `None` (the
+    /// default): lengths only.
+    pub platform_mass_kg: Option<f64>,
+    /// The tension effects to try when the tension side runs.
+    pub tension_library: Vec<TensionEffect>,
 }
 
 impl DiagnoseOptions {
@@ -138,13 +146,18 @@ impl DiagnoseOptions {
             estimation_error: true,
             backward: true,
             stale_rows: true,
+            platform_mass_kg: None,
+            tension_library: TensionEffect::ALL.to_vec(),
         }
     }
 
-    /// The level of each held-out test: `family_alpha / (library size x rounds)`.
+    /// The level of each held-out test: `family_alpha / (library size x rounds)`. The library
+    /// counts the tension effects when the tension side runs (a platform mass is given): both
+    /// sides' tests are one family.
     pub fn test_alpha(&self) -> f64 {
-        let fitted = self.library.iter().filter(|e| **e != Effect::Slack).count().max(1);
-        self.family_alpha / (fitted * self.max_effects.max(1)) as f64
+        let fitted = self.library.iter().filter(|e| **e != Effect::Slack).count();
+        let tension = if self.platform_mass_kg.is_some() { self.tension_library.len() } else { 0 };
+        self.family_alpha / ((fitted + tension).max(1) * self.max_effects.max(1)) as f64
     }
 }
 
@@ -366,6 +379,8 @@ pub struct Diagnosis {
     pub baseline_residuals: Vec<(Vec<f64>, Vec<f64>)>,
     /// Final residual against time per cable (subsampled).
     pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The tension side (`None` without tensions or without [`DiagnoseOptions::platform_mass_kg`]).
+    pub tension: Option<tension::TensionDiagnosis>,
 }
 
 /// The effect models' columns of the rows without data problems ([`fit::prepare`]), with the
@@ -1190,6 +1205,7 @@ pub fn diagnose(
     if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
         notes.push("no effect beyond loose cables was found: the residual is noise".into());
     }
+    let tension = tension_side(rec, platform_points, &screened.masks, &final_fit.params, opts, &mut notes);
     let all_rows: Vec<usize> = (0..prep.t.len()).collect();
     Ok(Diagnosis {
         cables: n,
@@ -1207,7 +1223,21 @@ pub fn diagnose(
         notes,
         baseline_residuals: subsample_series(&prep, &all_rows, &located.base_res, 2000),
         final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
+        tension,
     })
+}
+
+/// Step 8, **the tension side** ([`tension`]): the load cells against the platform's weight and
+/// inertia along the final geometry, and the tension effects named with the same test.
+fn tension_side(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    masks: &dataq::DataMasks,
+    geometry: &Geometry,
+    opts: &DiagnoseOptions,
+    notes: &mut Vec<String>,
+) -> Option<tension::TensionDiagnosis> {
+    tension::diagnose_tensions(rec, masks, geometry, platform_points, opts, notes)
 }
 
 /// The recording after step 1, its data problems and the masks of what is left.
