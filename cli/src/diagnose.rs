@@ -40,6 +40,11 @@ pub struct DiagnoseArgs {
     /// Default: `[calibration] loadcell_offset_n` of --config, else 0 (cells zeroed exactly).
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub loadcell_offset: Option<f64>,
+    /// Also test the load cells against the platform's weight and inertia (the tension side:
+    /// load-cell gain, friction, inertia), with the platform's mass `[robot] mass_kg` of --config.
+    /// Its tests join the length side's family (each test's level becomes family_alpha / (10 x 3)).
+    #[arg(long, requires = "config")]
+    pub tension_side: bool,
 }
 
 /// The diagnosis options: the `[calibration]` table of `cfg`, then the arguments (which win).
@@ -58,6 +63,9 @@ fn options(a: &DiagnoseArgs, cfg: &taut_config::RobotConfig) -> Result<DiagnoseO
             taut_config::check_loadcell_sigma(v).map_err(|m| anyhow::anyhow!("{flag} {v}: {m}"))?;
             *opt = v;
         }
+    }
+    if a.tension_side {
+        opts.platform_mass_kg = Some(cfg.robot.mass_kg);
     }
     Ok(opts)
 }
@@ -114,7 +122,7 @@ pub fn to_json(d: &Diagnosis) -> Value {
             })
         })
         .collect();
-    json!({
+    let mut doc = json!({
         "format": "taut-diagnosis v1",
         "cables": d.cables,
         "samples": d.samples,
@@ -157,6 +165,43 @@ pub fn to_json(d: &Diagnosis) -> Value {
             "test": t.test.map(test_json),
         })).collect::<Vec<_>>(),
         "notes": d.notes,
+    });
+    // Only with the tension side: the document is as before without it.
+    if let (Some(t), Some(o)) = (&d.tension, doc.as_object_mut()) {
+        o.insert("tension".into(), tension_json(t));
+    }
+    doc
+}
+
+/// The tension side (`taut diagnose --tension-side`), parameters in SI units.
+fn tension_json(t: &taut_calib::diagnose::tension::TensionDiagnosis) -> Value {
+    json!({
+        "windows": t.rows,
+        "mass_kg": num(t.mass_kg),
+        "loadcell_sigma_N": num(t.loadcell_sigma_n),
+        "loadcell_sigma_estimated": t.sigma_estimated,
+        "accel_half_window_s": num(t.accel_window_s),
+        "offsets_N": t.offsets_n.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+        "offsets_sigma_N": t.offset_sigmas_n.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+        "rms_before_N": num(t.rms_before_n),
+        "heldout_rms_before_N": num(t.heldout_rms_before_n),
+        "rms_after_N": num(t.rms_after_n),
+        "heldout_rms_after_N": num(t.heldout_rms_after_n),
+        "leads": t.leads.iter().take(8).map(|l| json!({
+            "cable": l.cable, "follows": format!("{:?}", l.follows), "coefficient": num(l.coefficient), "t": num(l.t),
+        })).collect::<Vec<_>>(),
+        "effects": t.effects.iter().map(|f| json!({
+            "effect": f.effect.name(),
+            "parameters": { f.effect.model().parameter(): f.values.iter().map(|v| num(*v)).collect::<Vec<_>>() },
+            "parameters_sigma": { f.effect.model().parameter(): f.sigmas.iter().map(|v| num(*v)).collect::<Vec<_>>() },
+            "evidence": f.evidence,
+            "test": test_json(f.test),
+        })).collect::<Vec<_>>(),
+        "tests": t.tests.iter().map(|x| json!({
+            "round": x.round, "effect": x.effect.name(), "alpha": x.alpha, "decision": format!("{:?}", x.decision),
+            "test": x.test.map(test_json),
+        })).collect::<Vec<_>>(),
+        "notes": t.notes,
     })
 }
 
@@ -215,6 +260,22 @@ pub fn print(d: &Diagnosis) {
     }
     for n in &d.notes {
         println!("note: {n}");
+    }
+    if let Some(t) = &d.tension {
+        println!(
+            "tension side ({} windows, mass {} kg, cells {:.2} N): balance RMS {:.3} N, held out {:.3} -> {:.3} N",
+            t.rows, t.mass_kg, t.loadcell_sigma_n, t.rms_before_n, t.heldout_rms_before_n, t.heldout_rms_after_n
+        );
+        for l in t.leads.iter().take(3) {
+            let who = l.cable.map_or("the platform".to_string(), |j| format!("cable {}", j + 1));
+            println!("  departs at {who}, following {} (t = {:.1})", l.follows.words(), l.t);
+        }
+        for f in &t.effects {
+            println!("{}: {}", f.effect.name(), f.evidence);
+        }
+        if t.effects.is_empty() {
+            println!("  no tension effect found");
+        }
     }
 }
 
@@ -341,5 +402,17 @@ mod tests {
             let e = options(&args(&[flag, v]), &cfg).unwrap_err().to_string();
             assert!(e.starts_with(flag) && e.contains("0 (exact) to 1000"), "{e}");
         }
+    }
+
+    /// `--tension-side` takes the platform's mass from --config (and needs one); without it the
+    /// tension side does not run.
+    #[test]
+    fn tension_side_takes_the_mass_from_the_config() {
+        let mut cfg = taut_config::RobotConfig::point_mass(4);
+        cfg.robot.mass_kg = 3.5;
+        assert_eq!(options(&args(&[]), &cfg).unwrap().platform_mass_kg, None);
+        let o = options(&args(&["--config", "robot.toml", "--tension-side"]), &cfg).unwrap();
+        assert_eq!(o.platform_mass_kg, Some(3.5));
+        assert!(Cli::try_parse_from(["taut", "rec.csv", "--tension-side"]).is_err(), "--tension-side without --config");
     }
 }

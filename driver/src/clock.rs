@@ -1,10 +1,9 @@
 //! Where the device code reads the time: the wall clock on the robot, or a simulated clock that
 //! a lockstep simulation advances (`taut start --sim --sim-time`).
 //!
-//! Every protocol timer in this crate already takes `now: Instant` (sans-IO). The few places
-//! that ask for the time themselves (the drive set's bring-up loop, the Modbus master's
-//! inter-frame silence and response timeout, the robot I/O layer's reading ages) ask a
-//! [`Clock`] instead of `Instant::now()`, so that one code path runs on both clocks.
+//! Protocol timers take `now: Instant` (sans-IO); the few places that read the time themselves
+//! (the drive set's bring-up, the Modbus master's silence and timeout, the reading ages) ask a
+//! [`Clock`], so that one code path runs on both clocks.
 //!
 //! A [`SimClock`] is an `Instant` fixed at its creation plus a count of simulated nanoseconds:
 //! `Instant` arithmetic, deadlines and ages then work unchanged, and two runs that advance the
@@ -67,9 +66,8 @@ impl SimClock {
         t.saturating_duration_since(self.base)
     }
 
-    /// A clock of its own that starts at this clock's now, on the same time axis (instants of
-    /// the two compare), and then advances independently: the timeline of one transaction on a
-    /// simulated line, run ahead of the rest of the simulation.
+    /// A clock of its own that starts at this clock's now, on the same time axis, and then
+    /// advances independently (one transaction on a simulated line, run ahead of the rest).
     pub fn fork(&self) -> SimClock {
         SimClock { base: self.base, ns: Arc::new(AtomicU64::new(self.ns.load(Ordering::Relaxed))) }
     }

@@ -2,15 +2,14 @@
 //! master for CiA 402 drives, the Modbus RTU load-cell master and the tracker input.
 //!
 //! The codecs and the device configuration are `taut-proto`'s, shared with the device side
-//! (`taut-vdev`). The master is sans-IO (frames and time in, frames and events out); only
-//! `transport`, the load-cell I/O thread and the tracker receiver open sockets, ttys and threads. The driver deals
-//! in drive units (encoder counts, torque in ‰ of rated torque): metres and newtons belong to the
-//! robot I/O layer (`taut_io::robot_io`).
+//! (`taut-vdev`). The master is sans-IO; only `transport`, the load-cell I/O thread and the
+//! tracker receiver open sockets, ttys and threads. The driver deals in drive units (encoder
+//! counts, ‰ of rated torque): metres and newtons belong to `taut_io::robot_io`.
 //!
 //! # Public surface
 //!
 //! What an application uses is re-exported here; the modules stay public for the tests and the
-//! fuzz targets, which need parts by path.
+//! fuzz targets.
 //!
 //! | re-export                                                               | from                    |
 //! |-------------------------------------------------------------------------|-------------------------|

@@ -81,9 +81,7 @@ impl LoadCellIo {
         self.counters.snapshot()
     }
 
-    /// Runs the I/O thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]): on the
-    /// robot, just below the loop's, so that a busy machine does not starve the readings the
-    /// loop's staleness check waits for.
+    /// Runs the I/O thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]).
     pub fn set_realtime(&self, priority: i32) -> std::io::Result<()> {
         match &self.thread {
             Some(t) => crate::sched::set_fifo(t, priority),
@@ -267,11 +265,9 @@ fn prepare(
 }
 
 /// The load-cell bus without its thread, for a lockstep simulation: the caller runs each
-/// transaction of a polling round ([`SteppedLoadCells::transaction`]) on a link and a clock of
-/// its own, when its simulated time has come, with the same Modbus RTU master and the same
-/// reading code as the I/O thread. Readings reach the
-/// [`TensionReader`] when [`SteppedLoadCells::release`] is called at or after the instant
-/// their response was complete, never earlier.
+/// transaction ([`SteppedLoadCells::transaction`]) on its own link and clock, with the I/O
+/// thread's master and reading code. Readings reach the [`TensionReader`] at
+/// [`SteppedLoadCells::release`] at or after the instant their response was complete.
 pub struct SteppedLoadCells {
     port: String,
     mcfg: MasterConfig,
@@ -316,10 +312,8 @@ impl SteppedLoadCells {
         self.period
     }
 
-    /// When the request of the next transaction ([`transaction`](Self::transaction)), started
-    /// on the line at `now`, has reached the addressed cell whole: after the master's t3.5 of
-    /// silence since the round's previous transaction and the request's character times. A
-    /// simulator lets the cell answer at this instant.
+    /// When the request of the next transaction, started on the line at `now`, has reached its
+    /// cell whole (after t3.5 and its character times): when a simulator lets the cell answer.
     pub fn request_complete_at(&self, now: Instant) -> Instant {
         let Some(cell) = self.cells.get(self.next) else { return now };
         let start = self.last.filter(|_| self.next > 0).map_or(now, |t| now.max(t + self.mcfg.timing.t35));
@@ -327,13 +321,9 @@ impl SteppedLoadCells {
         start + self.mcfg.timing.frame_time(taut_proto::modbus::rtu::encode(&cell.req, &mut tx))
     }
 
-    /// One transaction of the polling round: the next cell in the round's order, read by the
-    /// same Modbus RTU master and reading code as the I/O thread, on `link`, timed by `clock`
-    /// from where it stands (the line advances it as the bytes take their time; the master
-    /// keeps t3.5 of silence after the round's previous transaction; a round's first request
-    /// goes out at once, as with a master made for the round). True when the round is over
-    /// (its last cell was read, or the link failed: counted), so that the next transaction
-    /// starts a new round.
+    /// One transaction of the polling round: the next cell, on `link`, timed by `clock` (which
+    /// the line advances as the bytes take their time). True when the round is over (last cell
+    /// read, or the link failed), so that the next transaction starts a new round.
     pub fn transaction<L: SerialLink>(&mut self, link: &mut L, clock: &dyn Clock) -> bool {
         let Some(cell) = self.cells.get(self.next) else { return true };
         if let Some(t) = self.last.filter(|_| self.next > 0) {
@@ -374,10 +364,8 @@ impl SteppedLoadCells {
     }
 }
 
-/// Pushes one reading into the ring (full: counted). Before the loop has taken its first
-/// reading (the drives are still being brought up, the loop has not started) a full ring is
-/// expected: the readings are counted, not reported. After that a full ring means the loop has
-/// stopped taking them (stalled or ended), and the first time is reported.
+/// Pushes one reading into the ring (full: counted). A full ring is reported once, and only
+/// after the loop has taken its first reading: before that (bring-up) it is expected.
 fn push(ring: &mut Ring, counters: &Counters, s: TensionSample) {
     if ring.prod.try_push(s).is_err() {
         // Relaxed: see `TensionReader::update`.

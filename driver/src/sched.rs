@@ -1,12 +1,9 @@
 //! Real-time priority for the device I/O threads.
 //!
-//! A device thread that feeds the real-time loop's safety checks (the load cells: a tension older
-//! than `safety.tension_max_age_s` latches a hold) has a deadline too. With the normal scheduler
-//! it competes with everything else on the machine: on a loaded two-core machine a Modbus
-//! transaction (three wake-ups: the t3.5 pause, the device, the answer) then took ~16 ms instead
-//! of ~2 ms, and readings went 100-300 ms stale with every device healthy. Under `SCHED_FIFO`
-//! just below the loop the same thread kept every reading under 100 ms (measured with
-//! `cargo run -p taut-simrig --example loadcell_ages` under load 10-12).
+//! A device thread that feeds the loop's safety checks (the load cells: a tension older than
+//! `safety.tension_max_age_s` latches a hold) has a deadline too. Under the normal scheduler a
+//! loaded machine stretches its transactions until healthy readings go stale; `SCHED_FIFO` just
+//! below the loop keeps them fresh (`cargo run -p taut-simrig --example loadcell_ages`).
 
 use std::os::unix::thread::JoinHandleExt;
 use std::thread::JoinHandle;

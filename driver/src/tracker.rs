@@ -495,9 +495,7 @@ impl TrackerThread {
         self.addr
     }
 
-    /// Runs the receiver thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]): on the
-    /// robot, just below the loop's, so that a busy machine does not delay the poses the loop's
-    /// staleness check waits for.
+    /// Runs the receiver thread under `SCHED_FIFO` at `priority` (see [`crate::sched`]).
     pub fn set_realtime(&self, priority: i32) -> io::Result<()> {
         match &self.thread {
             Some(t) => crate::sched::set_fifo(t, priority),

@@ -10,12 +10,10 @@
 //! - [`FromRobot`] and [`EffectsFromFile`]: the loop's plain configuration filled from the
 //!   robot's files.
 //!
-//! This is the part of the non-real-time side that the real-time thread calls into: the
-//! `read`/`write` of [`robot_io`] and the cycle of [`runner`] run in it every cycle, and allocate
-//! nothing and never block. The crate therefore links no calibration (`taut-calib`, nalgebra),
-//! no JSON, no MCAP and no WebSocket (`tests/tests/offline/crate_graph.rs` checks it); the
-//! calibrator (`taut-calibrator`), the operator's services (`taut-operator`) and the plugin that
-//! ties them together (`taut-plugin`) are crates of their own above this one.
+//! The real-time thread calls into this crate every cycle (the `read`/`write` of [`robot_io`],
+//! the cycle of [`runner`]), which allocate nothing and never block. So it links no calibration
+//! (`taut-calib`, nalgebra), JSON, MCAP or WebSocket (`tests/tests/offline/crate_graph.rs`
+//! checks it); the calibrator, the operator's services and the plugin are crates above it.
 #![deny(missing_docs)]
 
 #[cfg(test)]

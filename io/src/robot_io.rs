@@ -1,9 +1,7 @@
 //! The robot's devices as the loop sees them ([`Devices`]): CiA 402 drives through
-//! `taut-driver`'s CANopen [`Master`] on any [`CanTransport`] (SocketCAN on the robot, the
-//! virtual bus or vcan in simulation), load cells through the driver's Modbus RTU I/O thread,
-//! and the tracker through the driver's UDP receiver. The same code runs on hardware and
-//! against the simulated robot (`taut start --sim`); only the transport and the device paths
-//! differ.
+//! `taut-driver`'s CANopen [`Master`] on any [`CanTransport`], load cells through the driver's
+//! Modbus RTU I/O thread, and the tracker through its UDP receiver. The same code runs on
+//! hardware and against the simulated robot; only the transport and the device paths differ.
 //!
 //! The loop is the SYNC clock: every cycle ends with the RPDOs of every drive and one SYNC
 //! ([`Master::sync_cycle`]), and the TPDOs the drives answer with are read at the start of the
@@ -17,9 +15,8 @@
 //!        master timers; RPDOs + SYNC -> CAN
 //! ```
 //!
-//! The CANopen master deals in drive units (encoder counts, torque in ‰ of rated torque); the
-//! conversion to metres of cable and newtons of tension ([`Scaling`], per cable from its
-//! `[cable.drive]` table) and the tension limit are here, in the robot I/O layer.
+//! The master deals in drive units (counts, ‰ of rated torque); the conversion to metres and
+//! newtons ([`Scaling`], per `[cable.drive]` table) and the tension limit are here.
 //!
 //! Nothing here allocates after [`RobotDevices::bring_up`]: the master's queues are fixed-size
 //! (`heapless`), frames are `Copy`, readers are lock-free.
@@ -338,8 +335,7 @@ pub struct RobotDevices<T: CanTransport> {
     bus_fault: Option<DeviceFault>,
     /// The request of the last write (a fault reset is sent once per reset request).
     last_request: DriveRequest,
-    /// A fault reset asked for and not yet handed to the drives (they were not all
-    /// operational).
+    /// A fault reset asked for and not yet handed to the drives (not all operational).
     fault_reset_pending: bool,
     /// When the last SYNC went out: the drives latch their actual values at SYNC, so the
     /// TPDOs that answer it carry values of that instant.
@@ -493,9 +489,8 @@ fn status_of(state: Option<PowerState>) -> DriveStatus {
 
 impl<T: CanTransport + Send> Devices for RobotDevices<T> {
     fn read(&mut self, _now_s: f64, inp: &mut Inputs) {
-        // Every age below is a difference of two wall-clock instants, taken against this one
-        // `wall`: the loop's `now_s` is the host's (plugin) time, which need not run with the
-        // wall clock (see the pose age).
+        // Every age below is against this one `wall`: the loop's `now_s` is the host's time,
+        // which need not run with the wall clock.
         let wall = self.clock.now();
         self.drain(wall);
         inp.fault = self.bus_fault.take();
@@ -552,15 +547,9 @@ impl<T: CanTransport + Send> Devices for RobotDevices<T> {
         }
         if let Some(p) = self.pose.as_ref().and_then(PoseReader::newest) {
             inp.pose_m = p.position;
-            // Age from when the tracker measured it, not from when the datagram arrived, on the
-            // wall clock like the lengths' and the tensions' ages, so that `t - age` puts every
-            // reading of a sample on one time axis. (It was `now_s - (measured - epoch)` with the
-            // epoch fixed at the first read: plugin time runs on by one period across each
-            // activation, so from the daemon's first loop cycle on it was behind the wall clock
-            // by the hand-over's extra time, and the poses looked older than the lengths by that
-            // much: measured 1.58 ms on e2e_excitation seed 1, 0.6 mm along the tour.) A pose
-            // that arrived after `wall` (drained after it was taken) is 0 s old, never negative
-            // (a host-owned plugin refuses a negative age as malformed input).
+            // Age from when the tracker measured it, on the wall clock like the other ages, so that
+            // `t - age` puts every reading of a sample on one time axis. A pose that arrived after
+            // `wall` is 0 s old, never negative (a host-owned plugin refuses a negative age).
             inp.pose_age_s = wall.saturating_duration_since(p.measured).as_secs_f64();
         } else {
             inp.pose_age_s = f64::INFINITY;
@@ -633,7 +622,6 @@ mod tests {
     use proptest::prelude::*;
     use taut_driver::transport::virtual_bus::VirtualBus;
 
-    // Units: the drum conversions (moved here from taut-driver, which deals in counts and ‰).
     fn scaling() -> impl Strategy<Value = Scaling> {
         (
             0.005f64..0.5,

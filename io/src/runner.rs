@@ -1,8 +1,6 @@
 //! The periodic loop thread: real-time set-up of the calling thread, then one
-//! [`LoopCore::cycle`] per period. The cycle itself (and [`LoopStatus`], [`LoopTiming`]) is in
-//! the real-time crate (`taut_rt::cycle`); these three types are re-exported here because
-//! [`run_loop`] and [`run_periodic`] take and give them. The clock, the
-//! thread and the stop flag are this side's.
+//! [`LoopCore::cycle`] per period. The cycle and its types are `taut_rt::cycle`'s, re-exported
+//! for [`run_loop`] and [`run_periodic`]; the clock, the thread and the stop flag are this side's.
 
 pub use taut_rt::cycle::{LoopCore, LoopStatus, LoopTiming};
 

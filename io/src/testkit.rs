@@ -1,9 +1,7 @@
 //! A kinematic stand-in robot for unit tests, the allocation test and the loop benchmarks: the
 //! platform sits where the position-controlled cables put it (Gauss-Newton on the true
-//! geometry), drives follow commands perfectly, tensions are whatever the test sets.
-//!
-//! It is not the simulator (`taut-sim` has the physics and the virtual devices on the real
-//! driver code paths); it exists so that the loop can be exercised without any I/O.
+//! geometry), drives follow commands perfectly, tensions are whatever the test sets. No physics
+//! and no I/O: the simulator is `taut-sim`.
 
 use taut_rt::io::{CableCommand, DeviceFault, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
 use taut_rt::kin::LoopParams;

@@ -19,15 +19,13 @@
 //! a state other than operate/holding, no calibrated parameters yet). "Accepted" means handed to
 //! the loop, which may still decline a move if its state changed in between.
 //!
-//! `status` lists the newest [`STATUS_OUTCOMES`] calibration outcomes in short (their data
-//! problems counted); `outcome N` gives one in full. A move's goal, its progress and how it
-//! ended, the return after a recalibration and the event journal are the
+//! `status` lists the newest [`STATUS_OUTCOMES`] calibration outcomes in short; `outcome N`
+//! gives one in full. Goals, the return after a recalibration and the event journal are the
 //! [`Operator`]'s ([`crate::operator`]).
 //!
-//! The server ([`ControlServer`], `ctl_server.rs`) serves many clients at once with a line
-//! length limit and a deadline per request. The socket is created with mode 0660, so the
-//! operator group may use it; the loop sees only [`Command`]s from a bounded channel and the
-//! [`Urgent`] flags.
+//! The server ([`ControlServer`]) serves many clients with a line length limit and a deadline
+//! per request, on a socket of mode 0660 (the operator group); the loop sees only [`Command`]s
+//! from a bounded channel and the [`Urgent`] flags.
 
 use crate::operator::Operator;
 use crossbeam_channel::Sender;

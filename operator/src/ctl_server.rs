@@ -2,27 +2,24 @@
 //!
 //! # Why one polling thread
 //!
-//! A request costs microseconds (a status snapshot, a flag, a `try_send`), so one thread never
-//! falls behind on honest work; what it must never do is wait on a client. Every socket is
-//! non-blocking and the thread sleeps only in `poll`, so a silent, slow or flooding client costs
-//! one poll entry and one fixed buffer, never the thread. A pool of N blocking workers would be
-//! starved by N slow clients; a thread per client lets anyone who can connect create threads.
+//! A request costs microseconds, so one thread never falls behind on honest work; what it must
+//! never do is wait on a client. With non-blocking sockets and the only sleep in `poll`, a slow
+//! or flooding client costs one poll entry and one fixed buffer. A pool of N blocking workers
+//! would be starved by N slow clients; a thread per client lets anyone create threads.
 //!
 //! # Rules, each with the bound it gives
 //!
 //! - At most [`ServerLimits::max_connections`] connections; accepting one more closes the one
 //!   idle longest (oldest last activity), so a flood of idle clients cannot lock the operator
 //!   out. Memory: the cap times one line buffer and one reply.
-//! - A request line is at most [`ServerLimits::max_line`] bytes. It is read into a buffer of that
-//!   size allocated when the connection is accepted; a longer line gets an error and the
-//!   connection is closed. Whatever a client sends, no more is held.
+//! - A request line is at most [`ServerLimits::max_line`] bytes, read into a buffer allocated at
+//!   accept; a longer line gets an error and the connection is closed.
 //! - A request must arrive complete within [`ServerLimits::deadline`] of the connection's start
 //!   or of the previous reply (several requests per connection are fine); otherwise an error
 //!   and the connection is closed. A byte-per-second client is dropped at its deadline.
-//! - Each round reads at most one buffer from each connection and answers at most one request
-//!   per connection; `estop` and `stop` lines from every connection are answered before any
-//!   other request of the round. Setting the estop flag is one atomic store ([`Urgent`]): it
-//!   does not wait for the command queue, a lock or the loop.
+//! - Each round reads at most one buffer from and answers at most one request of each
+//!   connection; `estop` and `stop` lines of every connection go first. The estop flag is one
+//!   atomic store ([`Urgent`]), waiting on no queue, lock or loop.
 //! - Replies are written without blocking. A connection does not get its next request answered
 //!   until its last reply has gone out; a client that does not read is closed at its deadline.
 //! - After EOF from the client (a half-closed socket) a pending partial line is answered as a

@@ -5,12 +5,10 @@
 //! The control thread calls [`Operator::tick`] every round (at most every 50 ms); a host that
 //! steps the loop itself (`taut_simrig::Lockstep`) calls it between cycles. A tick:
 //!
-//! - drains the loop's event queue ([`LoopEvent`]: state changes, phases, faults, parameter swaps,
-//!   resets) into a numbered journal of the last [`JOURNAL`] events, and logs each with what
-//!   comes next and how long it is expected to take;
-//! - adds the calibrator's new outcomes (with the worst 1-sigma, the largest anchor change and
-//!   the held-out RMS of an accepted one), the goal's arrival, the return after a
-//!   recalibration and the loop's health (every minute of loop time when it is not clean);
+//! - drains the loop's event queue ([`LoopEvent`]) into a numbered journal of the last
+//!   [`JOURNAL`] events, logging each with what comes next and how long it should take;
+//! - adds the calibrator's new outcomes, the goal's arrival, the return after a recalibration
+//!   and the loop's health (every minute of loop time when it is not clean);
 //! - after a recalibration's motion, sends the platform back to where the operator left it.
 //!
 //! Every time here is the loop's time (`Snapshot::t`), so a run in simulated time gives the

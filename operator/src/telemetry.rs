@@ -2,10 +2,9 @@
 //! Foxglove WebSocket protocol (`foxglove.websocket.v1`), so Foxglove's "Open connection" shows a
 //! running start-up live.
 //!
-//! One thread, sync `tungstenite` on non-blocking sockets. It is fed by the calibrator thread
-//! through a bounded queue ([`crate::channels::FrameSinks`]): neither the loop nor the calibrator ever
-//! waits on a client. A client whose socket does not drain (more than [`MAX_CLIENT_BACKLOG`]
-//! bytes queued) is disconnected.
+//! One thread, sync `tungstenite` on non-blocking sockets, fed by the calibrator thread through
+//! a bounded queue ([`crate::channels::FrameSinks`]): neither the loop nor the calibrator waits
+//! on a client. A client with more than [`MAX_CLIENT_BACKLOG`] bytes queued is disconnected.
 //!
 //! Protocol (server side, <https://github.com/foxglove/ws-protocol>):
 //! ```text

@@ -15,33 +15,27 @@
 //!   tracker input (or the simulated robot) behind [`Devices`]; `activate` brings them up and
 //!   enables the drives, each [`Plugin::update`] reads, computes and writes.
 //! - **host-owned** ([`DeviceMode::Host`]): the host reads its devices, passes the readings
-//!   in and applies the commands: [`Plugin::update_with`] with the plain C-shaped structs of
-//!   [`taut_rt::host`]. `activate` only arms the loop: the first cycles ask for the drives to be enabled
-//!   (`request = REQUEST_ENABLE`, each cable commanded where it stands) and the start-up begins
-//!   once the host reports them enabled.
+//!   in and applies the commands ([`Plugin::update_with`], the C-shaped structs of
+//!   [`taut_rt::host`]). `activate` only arms the loop: the first cycles ask for the drives to be
+//!   enabled, and the start-up begins once the host reports them enabled.
 //!
 //! The start-up routine (three initialisation phases, initial estimate, excitation,
-//! calibration, bumpless hot-swap) runs inside `update` exactly as in `taut start`, which is
-//! itself a host of this plugin ([`daemon`]).
+//! calibration, bumpless hot-swap) runs inside `update` as in `taut start`, itself a host of this
+//! plugin ([`daemon`]).
 //!
 //! # What may run in the real-time thread
 //!
 //! Only [`Plugin::update`] / [`Plugin::update_with`] (and [`Plugin::set_timing`],
 //! [`Plugin::finished`]). They allocate nothing, free nothing, take no lock and make no
-//! blocking call: parameters arrive through a triple buffer that hands old values back to the
-//! writer, samples leave through a fixed-capacity single-producer ring (full: dropped and
-//! counted), commands come from a bounded queue read with `try_recv`, estop and stop are
-//! atomic flags, status goes out through a triple buffer of a `Copy` struct, events through a
-//! bounded array queue written with `try_send` (full: dropped and counted). In plugin-owned
-//! mode the devices obey the same rule ([`Devices`]: drain queues, non-blocking sockets). The
-//! counting-allocator tests `tests/tests/memory/plugin_alloc.rs` prove it for a whole simulated
-//! start-up in both modes.
+//! blocking call: parameters and status go through triple buffers, samples through a
+//! fixed-capacity ring, commands and events through bounded queues (full: dropped and
+//! counted), estop and stop are atomic flags. Plugin-owned devices obey the same rule
+//! ([`Devices`]). `tests/tests/memory/plugin_alloc.rs` proves it with a counting allocator.
 //!
-//! Everything else is for non-real-time threads: `configure` (allocates, creates the recording,
-//! starts the calibrator thread), `activate` (may block: bus configuration by SDO, waiting for
-//! the drives to enable), `deactivate` (runs the stop cycles in plugin-owned mode), `cleanup`
-//! (joins the calibrator thread), and every [`PluginHandle`] method (they take the status
-//! mutexes, which only other non-real-time threads hold: the loop writes status lock-free).
+//! Everything else is for non-real-time threads: `configure` (allocates, starts the calibrator
+//! thread), `activate` (may block on SDO configuration and drive enabling), `deactivate`,
+//! `cleanup` (joins the calibrator thread), and every [`PluginHandle`] method (they take status
+//! mutexes the loop never takes).
 //!
 //! ```no_run
 //! use taut_plugin::{DeviceMode, HostInputs, HostOutputs, Plugin, PluginOptions};
@@ -96,9 +90,8 @@ use taut_rt::urgent::Urgent;
 
 pub use taut_rt::io::Devices;
 
-/// Brings plugin-owned devices up. Called by [`Plugin::activate`] on the host's non-real-time
-/// thread (it may block: CANopen configuration by SDO, opening ports), and again on a retry
-/// after it failed. Once it has succeeded the plugin keeps the devices until `cleanup`.
+/// Brings plugin-owned devices up, from [`Plugin::activate`] on a non-real-time thread (it may
+/// block), again on a retry. Once it has succeeded the plugin keeps the devices until `cleanup`.
 pub trait DeviceSource: Send {
     /// The devices, up (configured, operational, drives not enabled).
     fn bring_up(&mut self) -> Result<Box<dyn Devices>, BringUpError>;
@@ -157,9 +150,8 @@ pub struct PluginOptions {
     pub backend: Option<Box<dyn Calibrate>>,
     /// Capacity of the event queue (full: events are dropped and counted).
     pub event_capacity: usize,
-    /// Simulated time (a lockstep simulation): the plugin's own cycles (activation, stop) advance
-    /// this clock by one period instead of waiting for the wall clock, and the calibrator runs
-    /// without threads, in [`Plugin::pump_calibrator`], which the host calls after every cycle.
+    /// Simulated time (lockstep): the plugin's own cycles advance this clock by one period, and
+    /// the calibrator runs without threads, in [`Plugin::pump_calibrator`] after every cycle.
     pub sim_clock: Option<SimClock>,
 }
 
@@ -169,9 +161,8 @@ impl Default for PluginOptions {
     }
 }
 
-/// A configured plugin whose handle exists but which has created no file and started no thread
-/// yet: a host can claim its own resources first (the daemon binds the control socket here, so
-/// that a refused second daemon leaves no file behind).
+/// A configured plugin that has created no file and started no thread yet, so a host can claim
+/// its own resources first (the daemon binds the control socket here).
 pub struct PluginBuilder {
     ccfg: ControllerConfig,
     rt: RtConfig,
@@ -286,8 +277,8 @@ impl Plugin {
     /// started ([`PluginBuilder::build`] does that).
     pub fn builder(cfg: &RobotConfig, devices: DeviceMode, opts: PluginOptions) -> Result<PluginBuilder, PluginError> {
         let mut ccfg = crate::controller_config(cfg)?;
-        // Designed here, at configure time: the loop gets a fixed-size path. The tracker-free
-        // start-up has no excitation (it dwells).
+        // Planned at configure time so the loop gets a fixed-size path; a tracker-free start-up
+        // dwells instead.
         let excitation = ccfg.dwell.is_none().then(|| taut_calibrator::excite::plan(cfg, &mut ccfg));
         let n = ccfg.n;
         let rt = cfg.rt.clone();
@@ -528,10 +519,9 @@ impl Plugin {
         self.sim_clock.as_ref().map_or_else(Instant::now, |c| c.now())
     }
 
-    /// In simulated time ([`PluginOptions::sim_clock`]): the calibrator's work for the cycles
-    /// run so far (samples recorded, a calibration started and finished, parameters published
-    /// for the next cycle). Not real-time: call it from the host between cycles. Does nothing
-    /// when the calibrator has its own thread.
+    /// In simulated time ([`PluginOptions::sim_clock`]): the calibrator's work for the cycles run
+    /// so far. Not real-time: call it between cycles. Does nothing when the calibrator has its own
+    /// thread.
     pub fn pump_calibrator(&mut self) {
         if let Some(c) = &mut self.inline_calibrator {
             c.step();

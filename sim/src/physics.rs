@@ -78,6 +78,13 @@ pub struct Physics {
     /// Loose cables: where the trajectory demands a negative tension the cable goes slack and its
     /// drum pays out extra cable.
     pub slack: bool,
+    /// Load-cell gain per cable: the cell reads `gain x tension + offset` (`None`: 1).
+    pub loadcell_gain: Option<Vec<f64>>,
+    /// Friction between the platform and the load cell at the winch, `mu theta` of every cable
+    /// (capstan: the cell reads the platform-end tension times `exp(mu theta)` while the cable
+    /// reels in, `exp(-mu theta)` while it pays out; see [`crate::sensors::capstan_factor`]).
+    /// `None` or 0: off.
+    pub friction_mu_theta: Option<f64>,
     /// A dynamic plant: the platform's mass swings on elastic, damped cables (see
     /// [`crate::dynamics`]). `None` (the default): the quasi-static plant. Read by
     /// [`crate::Plant`] (and so by the three-phase motion, which steps a plant); the excitation
@@ -95,6 +102,8 @@ impl Default for Physics {
             drum_buildup_m_per_turn: None,
             drum_eccentricity_m: None,
             height_error_per_m: None,
+            loadcell_gain: None,
+            friction_mu_theta: None,
             time_offset_s: 0.0,
             backlash_m: 0.0,
             slack: true,
@@ -127,6 +136,11 @@ impl Physics {
     /// The height-dependent reading error at platform height `z` (m), m (0 when off).
     pub fn height_error(&self, z: f64) -> f64 {
         self.height_error_per_m.map_or(0.0, |k| k * z * z)
+    }
+
+    /// The load-cell gain of cable `j` (1 when the effect is off).
+    pub fn gain_of(&self, j: usize) -> f64 {
+        self.loadcell_gain.as_ref().and_then(|g| g.get(j).copied()).unwrap_or(1.0)
     }
 
     /// The encoder scale of cable `j` (1 when the effect is off).

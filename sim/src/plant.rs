@@ -45,7 +45,8 @@ pub struct StepOutput<'a> {
     pub position: [f64; 3],
     /// Encoder readings, m.
     pub encoder_m: &'a [f64],
-    /// Load-cell readings (platform-end tensions), N.
+    /// Load-cell readings, N: the platform-end tensions through the guides' friction and the
+    /// cells' gains ([`Physics::friction_mu_theta`], [`Physics::loadcell_gain`]).
     pub tension_n: &'a [f64],
     /// Unstretched lengths paid out by the drums (no sensor effects), m.
     pub drum_m: &'a [f64],
@@ -74,6 +75,9 @@ pub struct Plant {
     encoders: Vec<Encoder>,
     loadcells: Vec<LoadCell>,
     loadcell_offsets: Vec<f64>,
+    // Per cable: the cell's gain; the guides' friction `mu theta` (see `Physics`).
+    gains: Vec<f64>,
+    mu_theta: f64,
     noisy: bool,
     rng: ChaCha8Rng,
     // Ring buffer of (time, drum lengths) for the time offset.
@@ -132,6 +136,8 @@ impl Plant {
                 .collect(),
             loadcells: (0..n).map(|_| LoadCell::with_offset(0.0, &none)).collect(),
             loadcell_offsets: truth.loadcell_offsets.clone(),
+            gains: (0..n).map(|j| physics.gain_of(j)).collect(),
+            mu_theta: physics.friction_mu_theta.unwrap_or(0.0),
             noisy: false,
             rng,
             hist_t: vec![f64::NEG_INFINITY; HISTORY],
@@ -278,6 +284,11 @@ impl Plant {
         let rep = if self.dynamic.is_some() { self.step_dynamic(dt, commands) } else { self.step_static(commands) };
         self.last_report = rep;
         for (j, l) in self.loads.iter().enumerate() {
+            // The cell at the winch: the platform-end tension through the guides' friction at
+            // the drum's speed, and the cell's gain.
+            // (The first step has no drum length before it: at rest.)
+            let speed = if dt > 0.0 && self.drum[j] != 0.0 { (l.drum_length - self.drum[j]) / dt } else { 0.0 };
+            self.tension_out[j] = self.gains[j] * l.tension * crate::sensors::capstan_factor(speed, self.mu_theta);
             self.drum[j] = l.drum_length;
         }
         self.push_history();
@@ -285,8 +296,10 @@ impl Plant {
         for j in 0..self.models.len() {
             let (rng, noisy) = (&mut self.rng, self.noisy);
             self.encoder_out[j] = self.encoders[j].read(self.lagged[j], rng) + self.height_error.map_or(0.0, |k| k * self.p[2] * self.p[2]);
-            let t = self.loads[j].tension;
-            self.tension_out[j] = if noisy { self.loadcells[j].read(t, rng) } else { t };
+            let t = self.tension_out[j];
+            if noisy {
+                self.tension_out[j] = self.loadcells[j].read(t, rng);
+            }
         }
         StepOutput { position: self.p, encoder_m: &self.encoder_out, tension_n: &self.tension_out, drum_m: &self.drum, report: rep }
     }

@@ -18,7 +18,7 @@ use taut_config::RobotConfig;
 
 use crate::physics::{CableCommand, CableModel, Physics, G};
 use crate::plant::Plant;
-use crate::sensors::{Encoder, LoadCell, Noise, Tracker};
+use crate::sensors::{capstan_factor, Encoder, LoadCell, Noise, Tracker};
 use crate::tension::{distribute, Distribution, MAX_SIM_CABLES};
 use crate::three_phase::{self, ThreePhaseMotion, ThreePhasePlan};
 use crate::trajectory::{rotate, rotation, Excitation, Workspace};
@@ -403,11 +403,39 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     if s.noise.tracker_phi > 0.0 {
         run.recording.comments.push(format!(" tracker noise AR(1), lag-1 correlation {} per sample", s.noise.tracker_phi));
     }
+    // What the cells at the winches see: the platform-end tension through the cell's gain and
+    // the guides' friction at the cable's speed (central difference of the true path length).
+    let mu_theta = s.physics.friction_mu_theta.unwrap_or(0.0);
+    let path_len: Vec<f64> = if mu_theta != 0.0 {
+        (0..total)
+            .flat_map(|i| {
+                let r = rotation(run.orientations[i]);
+                let p = run.positions[i];
+                (0..n)
+                    .map(|j| {
+                        let o = rotate(&r, truth.platform_points[j]);
+                        models[j].path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]).length()
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    } else {
+        vec![]
+    };
+    let cell_input = |i: usize, j: usize| {
+        let mut t = s.physics.gain_of(j) * run.tensions[i * n + j];
+        if mu_theta != 0.0 {
+            let (a, b) = (i.saturating_sub(1), (i + 1).min(total - 1));
+            let speed = if b > a { (path_len[b * n + j] - path_len[a * n + j]) / ((b - a) as f64 * dt) } else { 0.0 };
+            t *= capstan_factor(speed, mu_theta);
+        }
+        t
+    };
     for i in 0..total {
         let p = tracker.measure(run.positions[i], &mut tr_rng);
         for j in 0..n {
             l[j] = encoders[j].read(run.drum_lengths[i * n + j], &mut enc_rng) + s.physics.height_error(run.positions[i][2]);
-            f[j] = cells[j].read(run.tensions[i * n + j], &mut cell_rng);
+            f[j] = cells[j].read(cell_input(i, j), &mut cell_rng);
         }
         let q = if p[0].is_nan() { [f64::NAN; 4] } else { run.orientations[i] };
         run.recording.push(i as f64 * dt, p, Some(q), &l, Some(&f), Some(phases[i]));

@@ -382,6 +382,20 @@ impl Encoder {
     }
 }
 
+/// Speed below which a cable's guides hold it by static friction, m/s: the friction force
+/// grows linearly with the speed up to its sliding value at this speed.
+pub const FRICTION_STICK_SPEED: f64 = 0.002;
+
+/// The capstan factor between the platform-end tension and the tension at the winch for a cable
+/// moving at `speed` (m/s, > 0 paying out) over guides with friction `mu_theta`: `exp(mu theta)`
+/// reeling in (the winch pulls the cable through the guides), `exp(-mu theta)` paying out (the
+/// guides hold back part of the platform's pull), ramped linearly through zero speed over
+/// [`FRICTION_STICK_SPEED`].
+pub fn capstan_factor(speed: f64, mu_theta: f64) -> f64 {
+    let s = (speed / FRICTION_STICK_SPEED).clamp(-1.0, 1.0);
+    (-mu_theta * s).exp()
+}
+
 /// One load cell: offset and noise.
 #[derive(Debug, Clone)]
 pub struct LoadCell {
@@ -412,6 +426,18 @@ impl LoadCell {
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    /// The cell at the winch reads more reeling in than paying out, by `exp(+-mu theta)` once the
+    /// cable slides, and the plain tension at rest.
+    #[test]
+    fn capstan_factor_follows_the_direction_of_motion() {
+        let c = 0.2f64;
+        assert!((capstan_factor(-0.1, c) - c.exp()).abs() < 1e-12);
+        assert!((capstan_factor(0.1, c) - (-c).exp()).abs() < 1e-12);
+        assert_eq!(capstan_factor(0.0, c), 1.0);
+        assert!((capstan_factor(0.5 * FRICTION_STICK_SPEED, c) - (-0.5 * c).exp()).abs() < 1e-12);
+        assert_eq!(capstan_factor(0.3, 0.0), 1.0);
+    }
 
     #[test]
     fn backlash_is_a_hysteresis_of_the_play_width() {

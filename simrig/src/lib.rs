@@ -14,11 +14,9 @@
 //!   └── tracker receiver thread (taut-driver) <── UDP
 //! ```
 //!
-//! The drives run in cyclic synchronous position (target counts -> encoder length -> drum
-//! length through the site's true offset and scale) or torque (target torque -> cable
-//! tension) as the master switches them; before they are enabled, in quick stop and in fault,
-//! their brakes hold the drums. The unit conversions here are the simulator's own (from the
-//! `[cable.drive]` tables), not the driver's.
+//! The drives run in cyclic synchronous position or torque as the master switches them; before
+//! they are enabled, in quick stop and in fault, their brakes hold the drums. Unit conversions
+//! are the simulator's own (from the `[cable.drive]` tables), not the driver's.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -54,8 +52,7 @@ pub struct SimFaults {
     /// Drive of cable 1 has a fault whose cause stays while this is set: it faults (EMCY
     /// 0x2310), and after each fault reset it faults again at once.
     pub drive_fault_persists: AtomicBool,
-    /// Plant steps that found no equilibrium (the plant kept the last one): the plant's own
-    /// count, mirrored by the site thread for tests to print when a start-up fails.
+    /// Plant steps that found no equilibrium (the plant kept the last one), for tests to print.
     pub plant_failed_steps: AtomicU64,
 }
 
@@ -69,11 +66,10 @@ pub struct SimRobot {
     pub devices: Box<dyn Devices>,
     /// The tracker receiver's counters.
     pub tracker_stats: taut_driver::tracker::TrackerStatsHandle,
-    /// The CAN controller of the master's endpoint on the in-process bus, to inject error
-    /// frames, bus-off and restart (`None` on SocketCAN: there the kernel reports them).
+    /// The master's endpoint on the in-process bus, to inject error frames and bus-off (`None`
+    /// on SocketCAN, where the kernel reports them).
     pub can: Option<CanController>,
-    /// Where the platform really is (the plant's position, for tests and summaries; the
-    /// daemon never sees it).
+    /// Where the platform really is (the daemon never sees it).
     pub platform: PlatformTruth,
     /// How late the site thread handled the SYNCs (for tests and measurements).
     pub sync_stats: Arc<SyncStats>,
@@ -116,24 +112,20 @@ impl PlatformTruth {
     }
 }
 
-/// How long after a SYNC was on the bus the site thread handled it: the wake-up latency of a
-/// thread on the robot's computer, which a real drive (its own processor, sampling at the SYNC
-/// on the wire) does not have. The drives latch at the SYNC's bus instant whatever it is;
-/// these counters show what that instant saves. Upper bucket bounds in
-/// [`SyncStats::BOUNDS_US`]; the last bucket counts the rest.
+/// How long after a SYNC was on the bus the site thread handled it: the wake-up latency a real
+/// drive (its own processor) does not have. Upper bucket bounds in [`SyncStats::BOUNDS_US`]; the
+/// last bucket counts the rest.
 #[derive(Debug, Default)]
 pub struct SyncStats {
     buckets: [AtomicU64; 8],
     max_ns: AtomicU64,
     sum_ns: AtomicU64,
-    /// Tracker poses sent, and the time from the instant they describe to their sending (the
-    /// physics step and the formatting): the smallest of these is a fixed transit the receiver
-    /// cannot see, which shifts its `measured` instants later by that much.
+    /// Tracker poses sent, and the delay from the instant they describe to their sending: a
+    /// transit the receiver cannot see, which shifts its `measured` instants later.
     poses: AtomicU64,
     pose_delay_sum_ns: AtomicU64,
     pose_delay_min_ns: AtomicU64,
-    /// SYNCs handled later than one SYNC period after they were on the bus (their TPDOs may
-    /// reach the master after the next SYNC, which then stamps them with that SYNC's time).
+    /// SYNCs handled more than one SYNC period after they were on the bus.
     overrun: AtomicU64,
 }
 
@@ -247,8 +239,8 @@ pub struct SimOptions {
 /// in wall-clock time (the same bytes, master and thread either way).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum LoadCellLine {
-    /// A Unix stream socket pair: no kernel terminal layer, whose work at the normal scheduler's
-    /// priority held a loaded machine's answers for up to 845 ms (`taut_vdev::loadcell`).
+    /// A Unix stream socket pair: no kernel terminal layer to delay the answers on a loaded
+    /// machine.
     #[default]
     Socket,
     /// A pseudo-terminal, opened by path as the robot opens its serial port.
@@ -258,17 +250,13 @@ pub enum LoadCellLine {
 /// How the simulated site's drives and load cells are really wired to its cables: a wiring
 /// mistake the robot is not told of. Empty vectors: as configured.
 ///
-/// - `drive_of_cable[j] = c`: the drive configured for cable `j` (its node id, units and
-///   encoder map) really winds cable `c`'s drum: its position target moves that drum, its
-///   torque pulls that cable, its encoder reads that drum.
-/// - `load_cell_of_cable[j] = c`: the load cell configured for cable `j` (its Modbus unit)
-///   really measures cable `c`'s tension.
-/// - `encoder_inverted[j]`: the position counts of cable `j`'s drive run opposite to the cable
-///   length the configuration's encoder map assumes (an encoder or its direction parameter
-///   mounted the other way round; the motor's torque keeps its sign). The drive closes its
-///   position loop on those counts: commanded a length, it turns the drum the other way, by as
-///   much, and reports counts that map back to what was commanded. The counts are mirrored
-///   about the reading at build time, so the first reading is the configured one.
+/// - `drive_of_cable[j] = c`: the drive configured for cable `j` really winds cable `c`'s drum
+///   (targets, torque and encoder).
+/// - `load_cell_of_cable[j] = c`: the load cell configured for cable `j` really measures cable
+///   `c`'s tension.
+/// - `encoder_inverted[j]`: cable `j`'s drive counts opposite to the configured encoder map; it
+///   closes its position loop on those counts, so it turns the drum the other way and reports
+///   what was commanded. Counts are mirrored about the reading at build time.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Wiring {
     /// The cable each configured cable's drive really winds (a permutation; empty: identity).
@@ -395,9 +383,8 @@ impl Default for SimOptions {
     }
 }
 
-/// The simulated site's true parameters for `cfg` and `opts` (its seed, site error, offsets and
-/// physics): what [`build`] and [`Lockstep::start`] build the robot on, for a test that needs
-/// them first (a backend that knows the truth).
+/// The simulated site's true parameters for `cfg` and `opts`: what [`build`] and
+/// [`Lockstep::start`] build the robot on.
 pub fn site_truth(cfg: &RobotConfig, opts: &SimOptions) -> Result<Truth, taut_sim::SimError> {
     Truth::sample(cfg, &opts.physics, opts.site_error_m, opts.l0_range_m, &mut taut_sim::rng(opts.seed, 0))
 }
@@ -523,9 +510,9 @@ impl std::error::Error for BuildError {
     }
 }
 
-/// Builds the simulated robot of `cfg` (nominal anchors and a `[cable.drive]` per cable
-/// needed) with the platform at `p0`, starts it, and brings its drives up through the CANopen
-/// master: on an in-process virtual CAN bus, or on the SocketCAN interface `opts.can`.
+/// Builds the simulated robot of `cfg` (a `[cable.drive]` per cable) with the platform at `p0`,
+/// starts it, and brings its drives up through the CANopen master, on an in-process bus or on
+/// the SocketCAN interface `opts.can`.
 pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRobot, BuildError> {
     match &opts.can {
         None => {
@@ -555,12 +542,10 @@ pub fn build(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SimRo
     }
 }
 
-/// The simulated site alone, for a robot side that opens its devices itself (a C host's plugin
-/// in plugin-owned mode, `taut start` on the configuration): the virtual drives on the
-/// SocketCAN interface `opts.can`, the load cells on a pseudo-terminal, the tracker's datagrams
-/// sent to `tracker_to` (when `opts.tracker`). The robot's configuration then names
-/// [`SiteOnly::loadcell_port`] as its `[loadcells] port`, the interface, and `tracker_to` as its
-/// `[tracker] listen`. The site stops when the value is dropped.
+/// The simulated site alone, for a robot side that opens its devices itself (plugin-owned mode,
+/// `taut start` on the configuration): drives on the SocketCAN interface `opts.can`, load cells
+/// on [`SiteOnly::loadcell_port`], tracker datagrams to `tracker_to` (when `opts.tracker`).
+/// The site stops when the value is dropped.
 #[cfg(target_os = "linux")]
 pub fn build_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions, tracker_to: std::net::SocketAddr) -> Result<SiteOnly, BuildError> {
     use taut_driver::transport::socketcan::SocketCanTransport;
@@ -649,7 +634,6 @@ fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteP
     let tensions = rest_tensions(&truth.anchors, p0, truth.mass_kg, cfg.motion.init_follower_tension_n).ok_or(BuildError::NoRest { p0 })?;
     let brake =
         plant.lengths_holding(p0, &tensions).map_err(|error| BuildError::Site { what: format!("no rest position at {p0:?}"), error })?;
-    // Settle on the brakes before anything is read.
     let cmds: Vec<SimCommand> = brake.iter().map(|&d| SimCommand::Length(d)).collect();
     let mut enc = vec![0.0; n];
     let mut ten = vec![0.0; n];
@@ -658,7 +642,7 @@ fn draw_site(cfg: &RobotConfig, p0: [f64; 3], opts: &SimOptions) -> Result<SiteP
         enc.copy_from_slice(out.encoder_m);
         ten.copy_from_slice(out.tension_n);
     }
-    // Drives: the plant owns their position and torque, each on the drum it is wired to.
+    // The plant owns each drive's position and torque, on the drum it is wired to.
     for d in 0..n {
         wires.mirror_m[d] = enc[wires.drive_on[d]];
     }
@@ -700,11 +684,8 @@ struct RunningSite {
 }
 
 impl SiteParts {
-    /// The site on its own thread, `SCHED_FIFO` where allowed. The drives, the plant and the
-    /// tracker stand in for hardware with processors of its own, which a loaded robot computer
-    /// does not slow down: the site runs `SCHED_FIFO` like the simulated load cells. Under the
-    /// normal scheduler two busy loops beside a start-up starved it (heartbeats and TPDOs late,
-    /// the loop stopping on stale readings).
+    /// The site on its own thread, `SCHED_FIFO` where allowed: the drives, plant and tracker stand
+    /// in for hardware with its own processors, which a loaded robot computer does not slow down.
     fn run<R: CanTransport + Send + 'static>(self, io: SiteIo<R>, opts: &SimOptions, cfg: &RobotConfig) -> Result<RunningSite, BuildError> {
         let mut site = self.into_site(io, opts);
         let (faults, stop, platform, sync_stats) = (site.faults.clone(), site.stop.clone(), site.platform.clone(), site.sync_stats.clone());
@@ -766,7 +747,6 @@ where
     let parts = draw_site(cfg, p0, opts)?;
     let truth = parts.truth.clone();
     let cells = parts.cells.clone();
-    // Load cells: virtual Modbus RTU server on a socket pair or a pty.
     let cell_cfgs = cells.iter().map(|c| c.1.clone()).collect();
     let vlc = match opts.load_cell_line {
         LoadCellLine::Socket => VirtualLoadCells::spawn_socket(cell_cfgs, parts.handle.clone()),
@@ -776,8 +756,6 @@ where
     let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new(""));
     lc_bus.port = vlc.path().display().to_string();
     lc_bus.max_age_s = cfg.safety.tension_max_age_s;
-    // The robot side of the load cells and the tracker, as on hardware but on the socket pair
-    // or the pty and on a loopback port.
     let loadcells = match vlc.socket_port() {
         Some(port) => taut_driver::loadcell::spawn_with(&lc_bus, &cells, n, move || port.open()),
         None => taut_driver::loadcell::spawn(&lc_bus, &cells, n),
@@ -816,14 +794,9 @@ fn sim_cells_priority(cfg: &RobotConfig) -> i32 {
 }
 
 /// Scheduling of the two ends of the simulated load-cell bus. The cells stand in for hardware
-/// with its own processor, which answers whatever the robot's computer is doing: their server
-/// runs `SCHED_FIFO` always. Under the normal scheduler a loaded two-core machine starved it:
-/// `loadcell_ages` (4 cells, load ~9 plus 4 busy loops, 15 s) counted 3 timeouts and 10 late
-/// answers landing in the next unit's exchange, 0 and 0 with the server under `SCHED_FIFO`. A
-/// late answer is the device's fault here, and the master rightly counts it. The robot's end follows the robot's
-/// rule (`taut_io::robot_io::Peripherals`): real-time just below a real-time loop,
-/// otherwise the normal scheduler, as on hardware with that configuration. A refused priority
-/// is a warning, as there.
+/// with its own processor, so their server always runs `SCHED_FIFO` (under the normal scheduler
+/// a loaded machine delayed answers into the next exchange). The robot's end follows the
+/// robot's rule (`taut_io::robot_io::Peripherals`); a refused priority is a warning.
 fn loadcells_realtime(cfg: &RobotConfig, vlc: &VirtualLoadCells, io: &taut_driver::loadcell::LoadCellIo) {
     if let Err(e) = vlc.set_realtime(sim_cells_priority(cfg)) {
         eprintln!(
@@ -882,8 +855,7 @@ struct Site<R: CanTransport> {
     units: Vec<DriveUnits>,
     drum: Vec<f64>,
     cmds: Vec<SimCommand>,
-    /// The simulated load cells on a pseudo-terminal (`None` in lockstep, where the world
-    /// answers the master's requests itself).
+    /// The simulated load cells (`None` in lockstep, where the world answers the master itself).
     vlc: Option<VirtualLoadCells>,
     handle: TensionHandle,
     /// How the drives and load cells are really wired (see [`Wiring`]).
@@ -896,8 +868,7 @@ struct Site<R: CanTransport> {
     rng: rand_chacha::ChaCha8Rng,
     faults: Arc<SimFaults>,
     platform: PlatformTruth,
-    /// Per cable: the drum's motion from its last target to the new one (cyclic synchronous
-    /// position).
+    /// Per cable: the drum's motion from its last target to the new one (CSP).
     ramps: Vec<Ramp>,
     /// When the plant was last stepped to, and the encoder counts and torques there.
     last_step: Instant,
@@ -909,9 +880,8 @@ struct Site<R: CanTransport> {
     /// Bus instant of the last SYNC, and the interval before it, s.
     last_sync: Option<Instant>,
     sync_period_s: Option<f64>,
-    /// The drives' SYNC clock: the last SYNC instant on their own time base and the period (s),
-    /// locked to the frames' arrival like the PLL a CSP drive interpolates on, so that a SYNC
-    /// delayed on a busy bus does not bend the drums' paths.
+    /// The drives' SYNC clock: last SYNC instant and period (s), locked to the frames' arrival
+    /// like a CSP drive's PLL, so a SYNC delayed on a busy bus does not bend the drums' paths.
     sync_clock: Option<(Instant, f64)>,
     sync_stats: Arc<SyncStats>,
     stop: Arc<AtomicBool>,
@@ -938,11 +908,8 @@ impl<R: CanTransport> Site<R> {
         let mut next_pose = 0.0;
         // Relaxed: the flag carries no data.
         while !self.stop.load(Ordering::Relaxed) {
-            // Frames as they come (SDO answers and TPDOs without waiting for the tick), every
-            // one of them here: `DriveRack::step` would drain the rest of a burst (the master's
-            // RPDOs and SYNC come together) without the SYNC's latch. Measured before: 74 of
-            // ~25,000 SYNCs in a start-up reached the latch, the others latched the plant as of
-            // the last tick.
+            // Every frame is handled here as it comes: `DriveRack::step` would drain the rest
+            // of a burst (RPDOs and SYNC together) without the SYNC's latch.
             let mut sync = false;
             let mut first = self.rack.transport().recv_deadline(next);
             while let Ok(Some(f)) = first {
@@ -954,7 +921,6 @@ impl<R: CanTransport> Site<R> {
             if now < next || sync {
                 continue;
             }
-            // ...and the physics on the tick, with the wall time that passed.
             next += self.period;
             if next < now {
                 // Starved (loaded machine): skip ahead rather than run a burst of steps.
@@ -989,17 +955,13 @@ impl<R: CanTransport> Site<R> {
         for d in self.rack.drives() {
             d.on_frame(f, at);
         }
-        // Targets applied (a SYNC applies the RPDOs it latched) start the drums moving.
         self.follow_targets(at);
         sync
     }
 
     /// A SYNC that was on the bus at `at`, handled at `now`: the drives' actual values become
-    /// the plant's state at `at`. CiA 301 7.2.5: synchronous TPDOs carry what the drive sampled
-    /// at the SYNC, which a real drive does within microseconds of the frame on the wire. This
-    /// thread reads it later (its wake-up latency, see [`SyncStats`]), and the master stamps the
-    /// readings with the SYNC's send time: latched at the read, that latency became an
-    /// encoder-vs-tracker time offset.
+    /// the plant's state at `at` (CiA 301 7.2.5: synchronous TPDOs carry what the drive sampled
+    /// at the SYNC; the master stamps them with the SYNC's send time).
     fn latch_at(&mut self, at: Instant, now: Instant) {
         let latency = now.saturating_duration_since(at);
         let overrun = self.sync_period_s.is_some_and(|p| latency.as_secs_f64() > p);
@@ -1058,8 +1020,7 @@ impl<R: CanTransport> Site<R> {
                 continue;
             }
             let u = self.units[j];
-            // The drive's position loop works on the drum's angle: the target is the drum length
-            // whose noise-free reading it is (of the drum the drive is wired to, in its counts).
+            // The target is the drum length whose noise-free reading it is, on the wired drum.
             let c = self.wires.drive_on[j];
             let to = self.plant.drum_for_reading(c, self.wires.true_reading(j, f64::from(t.position) / u.counts_per_m));
             // The ramp runs on the drives' SYNC clock, not the frame's arrival.
@@ -1081,7 +1042,6 @@ impl<R: CanTransport> Site<R> {
         }
         let second = 1.min(self.units.len() - 1);
         if self.faults.drive_emcy.load(Ordering::Relaxed) && !self.emcy_sent {
-            // Continuous over-current on the second cable's drive.
             self.rack.drives()[second].inject_fault(0x2310);
             self.emcy_sent = true;
         }
@@ -1097,8 +1057,7 @@ impl<R: CanTransport> Site<R> {
         let d = &mut self.rack.drives()[second];
         use taut_proto::canopen::cia402::PowerState;
         if persists && !matches!(d.state(), PowerState::Fault | PowerState::FaultReactionActive) {
-            // The cause is still there: a fault reset is followed by the same fault at once,
-            // as on a drive whose over-current condition persists.
+            // The cause persists: a fault reset is followed by the same fault.
             d.inject_fault(0x2310);
         }
     }
@@ -1108,7 +1067,6 @@ impl<R: CanTransport> Site<R> {
     fn step_plant(&mut self, at: Instant) {
         let n = self.units.len();
         let dt = at.saturating_duration_since(self.last_step).as_secs_f64().min(0.02);
-        // Drive `j` commands the drum it is wired to, `c`.
         for j in 0..n {
             let t = self.rack.drives()[j].target();
             let u = self.units[j];
@@ -1154,16 +1112,9 @@ impl<R: CanTransport> Site<R> {
 }
 
 /// Over how many SYNC periods a drive in cyclic synchronous position moves its drum from one
-/// set-point to the next: 1, a linear interpolation over the cycle from the SYNC that applies
-/// the set-point (CiA 402 CSP: the drive's own position loop interpolates between the
-/// set-points it gets once per cycle), so that the encoders and the tracker sample one continuous
-/// motion. 0 would take each set-point at the SYNC that applies it (a staircase).
-///
-/// Measured on the calibrator's own rows (e2e_excitation's start-up, seed 1, tracker at 1 mm
-/// noise; one time offset fitted against the true geometry): with 1 the lengths of a row are
-/// from 0.05 ms later than its pose (the tracker's fixed transit, which its receiver counts as
-/// zero); with 0 from 0.97 ms earlier (half the 2 ms SYNC period: the row interpolates linearly
-/// between readings of a staircase).
+/// set-point to the next (CiA 402 CSP: the drive interpolates between set-points), so that
+/// encoders and tracker sample one continuous motion. 0 would be a staircase, which shifts the
+/// lengths half a SYNC period against the poses.
 const CSP_INTERPOLATION_PERIODS: f64 = 1.0;
 
 /// A drum in cyclic synchronous position: from its last target to the new one, linearly, over

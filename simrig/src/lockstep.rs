@@ -6,39 +6,28 @@
 //!          │
 //!          └─ Devices::read ── world.advance_to(now) ── every event up to now, in time order:
 //!               · CAN frames on the in-memory bus reach the virtual CiA 402 drives at the end
-//!                 of their bits (bitrate, worst-case stuffing, one frame at a time); the
-//!                 drives' answers go back the same way
-//!               · the plant steps at `site_period` (the site's own physics)
-//!               · a Modbus RTU polling round, one transaction at a time among the other
-//!                 events: the driver's master and reading code on an in-memory line
-//!                 (character times at the configured baud rate, t3.5 between frames, the
-//!                 cell's answer latency) against the virtual cells' answering code; a cell
-//!                 answers with the plant's tension of the instant its request reached it
-//!                 (the plant's nearest step), and each reading reaches the loop when its
-//!                 response is complete
-//!               · a tracker pose (100 Hz): the driver's line format, parsed by the driver's
-//!                 receiver, stamped with its arrival
+//!                 of their bits (bitrate, worst-case stuffing, one frame at a time), and back
+//!               · the plant steps at `site_period`
+//!               · a Modbus RTU polling round, one transaction at a time: the driver's master
+//!                 against the virtual cells on an in-memory line (character times, t3.5, the
+//!                 cell's latency); a cell answers with the plant's tension when its request
+//!                 reached it, and the reading reaches the loop when the response is complete
+//!               · a tracker pose (100 Hz), parsed by the driver's receiver
 //!             then the robot's own device layer (`RobotDevices`) reads, as on hardware
 //! ```
 //!
-//! Nothing of the robot's logic is re-implemented here: the plugin (plugin-owned mode), the
-//! CANopen master with its bring-up, the Modbus RTU master, the tracker receiver, the loop and
-//! the calibrator are the robot's code. What is simulated is only what is outside the robot's
-//! computer: the wires, the devices and the physics. The calibrator runs without threads in
-//! the host's step after each cycle ([`taut_plugin::Plugin::pump_calibrator`]): a
-//! calibration takes no simulated time (on the robot it takes a few seconds of holding).
+//! Nothing of the robot's logic is re-implemented here: only the wires, the devices and the
+//! physics are simulated. The calibrator runs without threads in the host's step after each
+//! cycle ([`taut_plugin::Plugin::pump_calibrator`]), so a calibration takes no simulated time.
 //!
-//! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a load-cell
-//! bus that stops answering for a while, tracker dropouts. Faults a test chooses ([`SimFault`]:
-//! a drive fault with its EMCY, a drive power cycle, a drive's heartbeat lost, the master's CAN
-//! controller driven bus-off by transmit errors, its restart) land at a simulated instant, from
-//! [`LockstepFaults::scheduled`] or [`Lockstep::inject_at`], as events of the world.
+//! Faults are drawn from the seed ([`LockstepFaults`]): lost and late CAN frames, a pause of the
+//! load-cell bus, tracker dropouts. Faults a test chooses ([`SimFault`]) land at a simulated
+//! instant, from [`LockstepFaults::scheduled`] or [`Lockstep::inject_at`].
 //!
 //! The master's CAN controller keeps ISO 11898-1 fault confinement and reports it as SocketCAN
-//! does: every frame reaches the master as the kernel's `struct can_frame` bytes through the
-//! driver's parser (`taut_driver::transport::kernel::decode`), and the controller's state
-//! changes arrive among them as error frames (`linux/can/error.h`), as the kernel's
-//! `can_change_state`, `can_bus_off` and `can_restart` send them:
+//! does: frames reach the master as the kernel's `struct can_frame` bytes through
+//! `taut_driver::transport::kernel::decode`, state changes as error frames (`linux/can/error.h`,
+//! as the kernel's `can_change_state`, `can_bus_off` and `can_restart` send them):
 //!
 //! ```text
 //!  a failed transmission (bit error): TEC += 8, the controller retries at once (an error-passive
@@ -92,12 +81,10 @@ pub struct LockstepFaults {
     pub tracker_gap_s: f64,
     /// The load cells stop answering from `.0` s for `.1` s.
     pub loadcell_silence: Option<(f64, f64)>,
-    /// Faults at simulated instants (s since the start), each applied as an event of the world
-    /// at its instant (the same as [`Lockstep::inject_at`]).
+    /// Faults at simulated instants (s since the start), as [`Lockstep::inject_at`].
     pub scheduled: Vec<(f64, SimFault)>,
-    /// The master's CAN interface restarts its controller this long after a bus-off (SocketCAN
-    /// `restart-ms`; the robot's udev rule sets 100 ms), ms; `None`: only by hand
-    /// ([`SimFault::CanRestart`]).
+    /// SocketCAN `restart-ms` of the master's interface (the udev rule's 100 ms); `None`: only by
+    /// hand ([`SimFault::CanRestart`]).
     pub can_restart_ms: Option<u32>,
 }
 
@@ -141,12 +128,9 @@ impl LockstepFaults {
 /// ([`LockstepFaults::scheduled`], [`Lockstep::inject`], [`Lockstep::inject_at`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SimFault {
-    /// For `for_s` every frame the master's CAN controller transmits fails with a bit error (a
-    /// failing transceiver, a ground offset at the adapter): nobody receives it, the
-    /// controller's transmit error counter climbs by 8 per attempt through error warning and
-    /// error-passive to bus-off (about 32 attempts, 5 ms at 1 Mbit/s). The drives' frames
-    /// still reach the master while its controller is not bus-off. After a restart within the
-    /// span the controller goes bus-off again at its next frame.
+    /// For `for_s` every frame the master's controller transmits fails with a bit error: its
+    /// transmit error counter climbs by 8 per attempt to bus-off (about 32 attempts, 5 ms at
+    /// 1 Mbit/s). The drives' frames still arrive while it is not bus-off.
     MasterTxErrors {
         /// How long, s.
         for_s: f64,
@@ -161,9 +145,8 @@ pub enum SimFault {
         /// CiA 402 error code (e.g. 0x2310 continuous over-current).
         code: u16,
     },
-    /// The drive of `cable` is power cycled: it boots with its power-on settings (boot-up
-    /// message, NMT pre-operational, the master's configuration gone), keeping its absolute
-    /// encoder position.
+    /// The drive of `cable` is power cycled: boot-up, NMT pre-operational, configuration gone,
+    /// absolute encoder position kept.
     DrivePowerCycle {
         /// Cable index.
         cable: usize,
@@ -212,8 +195,7 @@ impl CanState {
 pub struct CanStatus {
     /// Its error state.
     pub state: CanState,
-    /// Its transmit error counter (the receive counter stays 0: no fault here disturbs
-    /// reception).
+    /// Its transmit error counter (the receive counter stays 0).
     pub tec: u16,
 }
 
@@ -300,9 +282,8 @@ fn insert(q: &mut VecDeque<Wire>, at: Instant, bytes: [u8; CAN_MTU]) {
 }
 
 impl Bus {
-    /// Bits of a frame on the wire: a base frame (11-bit id) has 47 bits of overhead (with the
-    /// 3 bits of intermission), an extended one 67, plus the data, plus worst-case bit stuffing
-    /// over the stuffed part (ISO 11898-1).
+    /// Bits of a frame on the wire (ISO 11898-1): 47 bits of overhead for a base frame, 67 for an
+    /// extended one (3 bits of intermission included), the data, and worst-case bit stuffing.
     fn bits(f: &Frame) -> u32 {
         let data = if f.rtr { 0 } else { 8 * u32::from(f.dlc.min(8)) };
         let (overhead, stuffed) = if f.extended { (67, 54 + data) } else { (47, 34 + data) };
@@ -341,7 +322,6 @@ impl Bus {
         match from {
             Side::Master => {
                 insert(&mut self.to_rack, end, kernel::encode(f));
-                // A frame sent: the transmit error counter goes down by one.
                 if self.ctrl.tec > 0 {
                     self.ctrl.tec -= 1;
                     self.report_state(end);
@@ -354,8 +334,7 @@ impl Bus {
     }
 
     /// The master's frame `f` while its transmissions fail: each attempt costs its bits and an
-    /// error frame and counts 8; the controller retries until the span is over (true: the
-    /// frame goes out now) or it goes bus-off (false: the frame is lost).
+    /// error frame and counts 8. True: the fault span ended and the frame goes out; false: bus-off.
     fn transmit_errors(&mut self, f: &Frame, now: Instant) -> bool {
         let Some((from, to)) = self.ctrl.tx_fault else { return true };
         loop {
@@ -504,8 +483,7 @@ impl CanTransport for LockstepCan {
                 None => clock.advance_to(to),
             }
             if clock.now() == now && to == now {
-                // Nothing due and no time to pass: a frame is due now but not taken (cannot
-                // happen with one reader); step on rather than spin.
+                // A frame is due but not taken (cannot happen with one reader): step, not spin.
                 clock.advance(Duration::from_micros(1));
             }
         }
@@ -521,8 +499,7 @@ impl CanTransport for LockstepCan {
 }
 
 /// The load-cell line's clock during one transaction: it starts where the transaction starts on
-/// the line (the world is then at the instant its request reaches the cell, a little later)
-/// and runs ahead as the bytes take their time.
+/// the line and runs ahead as the bytes take their time.
 struct LineClock(Mutex<Instant>);
 
 impl LineClock {
@@ -550,12 +527,9 @@ impl Clock for LineClock {
     }
 }
 
-/// The tensions at the load cells at the plant's last steps. The world handles its events when
-/// the loop's clock has passed them (at the loop's cycle), the plant's steps first: a cell
-/// answers with the tension of the plant's step nearest the instant its request reached it.
-/// Not interpolated: the plant's tensions carry the cells' noise, drawn at each step, which an
-/// interpolation would average away (the tracker-free start-ups' achieved sigmas fell to
-/// 0.63-0.73 of their prediction).
+/// The tensions at the load cells at the plant's last steps: a cell answers with the tension of
+/// the step nearest the instant its request reached it. Not interpolated: that would average
+/// away the cells' noise, drawn at each step.
 struct PlantTensions {
     n: usize,
     steps: VecDeque<(Instant, [f64; MAX_CABLES])>,
@@ -596,10 +570,8 @@ impl PlantTensions {
     }
 }
 
-/// The load-cell line in memory: the master's request takes its character times, the
-/// addressed cell answers after its latency with the tension at the instant the request
-/// reached it, and the answer takes its character times; the line's own clock carries them
-/// through one transaction.
+/// The load-cell line in memory: request and answer take their character times, and the
+/// addressed cell answers after its latency with the tension when the request reached it.
 struct Line<'a> {
     cells: &'a mut LoadCellResponder,
     /// What the cells read (the responder's tensions) and where it comes from.
@@ -660,8 +632,7 @@ struct Cells {
     next_round: Instant,
     /// When the round under way started.
     round_start: Instant,
-    /// The transaction under way: where it starts on the line, and the instant its request
-    /// reaches the cell (when it is run).
+    /// The transaction under way: its start on the line, and when its request reaches the cell.
     tx: Option<(Instant, Instant)>,
     silenced: bool,
 }
@@ -673,11 +644,9 @@ impl Cells {
         self.tx.map_or(self.next_round, |(_, at)| at)
     }
 
-    /// The line's work due at `now`, as a polling round runs on the wire, one transaction after
-    /// the other: a round starts; a transaction whose request has reached its cell by `now` is
-    /// run, so that the cell answers with the tension of that instant (the plant has been
-    /// stepped up to it), its answer taking its time on the line after; the next transaction
-    /// starts where it ended. Readings reach the loop when their answer is complete.
+    /// The line's work due at `now`, one transaction after the other: a transaction whose request
+    /// has reached its cell by `now` is run (the plant has been stepped up to it), its answer takes
+    /// its time on the line, and the next starts where it ended.
     fn advance(&mut self, now: Instant, silence: Option<(Instant, Instant)>) {
         if self.tx.is_none() && now >= self.next_round {
             self.round_start = now;
@@ -765,7 +734,6 @@ impl World {
             let (at, f) = self.schedule.pop_front().expect("checked");
             self.apply(at, f);
         }
-        // Frames that reached the drives, each at its own bus instant.
         while let Ok(Some(f)) = self.site.rack.transport().try_recv() {
             self.site.on_frame(&f);
         }
@@ -907,7 +875,6 @@ impl LockstepRobot {
             },
         }));
         let rack_end = LockstepCan { bus: bus.clone(), side: Side::Rack, world: None, last_rx: None };
-        // The robot's load-cell bus as configured, on the in-memory line.
         let mut lc_bus = cfg.loadcells.clone().unwrap_or_else(|| LoadCellBusConfig::new("simulated line"));
         lc_bus.max_age_s = cfg.safety.tension_max_age_s;
         let (stepped, loadcells, reader) = SteppedLoadCells::new(&lc_bus, &parts.cells, n).map_err(BuildError::LoadCells)?;
@@ -1117,8 +1084,7 @@ impl Lockstep {
         self.run_until(s, |_, _| false);
     }
 
-    /// Injects `fault` at this simulated instant. Like every event of the world that falls due
-    /// between two cycles, it is applied when the world catches up, at the next cycle's read.
+    /// Injects `fault` now; the world applies it at the next cycle's read.
     pub fn inject(&mut self, fault: SimFault) {
         let now = self.clock.now();
         lock(&self.world).schedule(now, fault);
@@ -1361,12 +1327,9 @@ mod tests {
         assert_eq!((b.to_rack.len(), b.stats.restarts), (1, 1));
     }
 
-    /// A polling round on a ramped tension, the world handled as the loop does it: at every
-    /// 2 ms cycle the plant steps, then the line does the work that has fallen due. Each cell
-    /// answers with the tension of the plant's step nearest the instant its request reached it
-    /// (not the round's start nor the cycle's), and its reading reaches the loop at the first cycle after its answer
-    /// is complete: one request (8 characters), the cell's latency and the answer (9
-    /// characters), t3.5 of silence after the previous answer within a round.
+    /// A polling round on a ramped tension, at 2 ms cycles: each cell answers with the plant's
+    /// tension nearest the instant its request reached it, and its reading reaches the loop at the
+    /// first cycle after its answer (8 characters, latency, 9 characters, t3.5 between).
     #[test]
     fn each_cell_answers_with_the_tension_of_its_request_and_arrives_at_its_answer() {
         use taut_proto::devices::LoadCellConfig;

@@ -11,7 +11,10 @@
 //! `NULL_VARIANT` (`sim`, `no-outliers`, `no-loose`, `clean`, `ideal`, `ideal-ar1`, `sim-ar1`; see
 //! `support/null_cases.rs`) changes what the recordings are made of, to split the causes of a
 //! tail; `NULL_FIRST` starts at another case; `NULL_BEFORE=1` runs the held-out test without the
-//! current model's estimation error (`DiagnoseOptions::estimation_error` off). Each line ends with the six round-1 p-values.
+//! current model's estimation error (`DiagnoseOptions::estimation_error` off); `NULL_TENSION=1` runs
+//! the tension side too (the platform's mass given: one family with the tension effects), and
+//! each line then also lists the tension effects named (inertia is in every simulated recording,
+//! so only a gain or a friction is a false claim). Each line ends with the six round-1 p-values.
 
 #[path = "../tests/support/null_cases.rs"]
 mod null_cases;
@@ -47,6 +50,7 @@ fn main() {
     let mut tests_of = vec![0usize; lib.len()];
     let mut tail_of = vec![[0usize; 4]; lib.len()];
     let mut alpha = 0.0;
+    let (mut tension_false, mut tension_min_p) = (0usize, 1.0f64);
     for k in first..first + count {
         let t = std::time::Instant::now();
         let d = null_cases::diagnose_with(k, variant, estimation_error);
@@ -67,6 +71,20 @@ fn main() {
             if let Some(q) = lib.iter().position(|x| x == e) {
                 claims_of[q] += 1;
             }
+        }
+        if let Some(td) = &d.tension {
+            let named: Vec<&str> = td.effects.iter().map(|f| f.effect.name()).collect();
+            let false_claims = td.effects.iter().filter(|f| f.effect != taut_calib::diagnose::TensionEffect::Inertia).count();
+            tension_false += usize::from(false_claims > 0);
+            let min_p = td
+                .tests
+                .iter()
+                .filter(|t| t.effect != taut_calib::diagnose::TensionEffect::Inertia)
+                .filter_map(|t| t.test)
+                .map(|t| t.p_value)
+                .fold(1.0, f64::min);
+            tension_min_p = tension_min_p.min(min_p);
+            println!("    tension side: named {named:?}, smallest gain/friction p {min_p:.1e}");
         }
         let p = round1.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
         let arg = round1.iter().find(|x| x.1 == p).map_or("-", |x| x.0.name());
@@ -124,4 +142,9 @@ fn main() {
         alpha * lib.len() as f64,
         t0.elapsed().as_secs_f64()
     );
+    if std::env::var("NULL_TENSION").is_ok_and(|v| v == "1") {
+        println!(
+            "tension side: {tension_false} of {count} recordings named a gain or a friction; smallest gain/friction p {tension_min_p:.1e} (level {alpha:.1e})"
+        );
+    }
 }

@@ -38,3 +38,48 @@ pub fn offset_backlash_scenario(seed: u64, cables: u64, ea_kn: u64, play_m: f64,
     }
     s
 }
+
+/// What the tension-side recordings conceal (`tension_scenario`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TensionCase {
+    /// Nothing: slow motion, no excursions (every sample taut).
+    Free,
+    /// Per-cell gains [`TENSION_GAINS`], slow motion.
+    Gain,
+    /// Guide friction `mu theta` [`TENSION_FRICTION`] on every cable, slow motion.
+    Friction,
+    /// Friction and a 20 ms encoder time offset, slow motion.
+    FrictionOffset,
+    /// Nothing but the platform's inertia: fast excursions (peak 2.5-4.5 m/s^2, 20 % loose).
+    Fast,
+}
+
+/// The cells' gains of [`TensionCase::Gain`].
+pub const TENSION_GAINS: [f64; 4] = [1.03, 0.97, 1.02, 0.985];
+
+/// `mu theta` of [`TensionCase::Friction`].
+pub const TENSION_FRICTION: f64 = 0.05;
+
+/// The 4-cable camera robot, 60 s of excitation at 100 Hz, with the tension-side effect of `case`
+/// concealed (see [`tension_scenario_for`]).
+pub fn tension_scenario(seed: u64, case: TensionCase) -> Scenario {
+    tension_scenario_for(Scenario::aras_cam(seed), case)
+}
+
+/// The robot of `s`, 60 s of excitation at 100 Hz, with the tension-side effect of `case`
+/// concealed (cable `j` gets the gain `TENSION_GAINS[j % 4]`). Without the three-phase start:
+/// its plant is quasi-static, so its tensions balance the weight alone while the platform moves
+/// (no inertia), which no real recording does.
+pub fn tension_scenario_for(mut s: Scenario, case: TensionCase) -> Scenario {
+    let n = s.robot.cables.len();
+    s.three_phase = None;
+    s.duration_s = 60.0;
+    s.loose_fraction = if case == TensionCase::Fast { 0.2 } else { 0.0 };
+    s.physics = match case {
+        TensionCase::Free | TensionCase::Fast => Physics::default(),
+        TensionCase::Gain => Physics { loadcell_gain: Some((0..n).map(|j| TENSION_GAINS[j % 4]).collect()), ..Physics::default() },
+        TensionCase::Friction => Physics { friction_mu_theta: Some(TENSION_FRICTION), ..Physics::default() },
+        TensionCase::FrictionOffset => Physics { friction_mu_theta: Some(TENSION_FRICTION), time_offset_s: 0.02, ..Physics::default() },
+    };
+    s
+}

@@ -10,11 +10,9 @@
 //! | [`VirtualLoadCells`], [`TensionHandle`]| Modbus RTU load cells behind a pseudo-terminal, with [`LoadCellFault`]s to inject |
 //! | [`TrackerSender`], [`TrackerStream`]   | pose datagrams in the tracker line format over UDP          |
 //!
-//! The crate graph: `taut-vdev` depends on `taut-proto` (frames, codecs, the transport trait,
-//! the device configuration), never on the master (`taut-driver`) nor on the physics
-//! (`taut-sim`). `taut-simrig` couples them: the plant reads [`VirtualDrive::target`] and writes
-//! [`VirtualDrive::set_actual`], and sets the load cells' [`TensionHandle`]; the master's
-//! round-trip bench against these drives is `simrig/benches/master.rs`.
+//! `taut-vdev` depends on `taut-proto`, never on the master (`taut-driver`) nor on the physics
+//! (`taut-sim`). `taut-simrig` couples them: the plant reads [`VirtualDrive::target`], writes
+//! [`VirtualDrive::set_actual`] and sets the load cells' [`TensionHandle`].
 //!
 //! ```no_run
 //! use taut_proto::can::CanTransport;

@@ -2,19 +2,15 @@
 //! the tensions the simulator sets, with faults to inject.
 //!
 //! The line can also be one end of a Unix stream socket pair ([`VirtualLoadCells::spawn_socket`]):
-//! the same RTU bytes, the same master and I/O thread on the robot's side ([`SocketLink`]), but
-//! not the kernel's terminal layer. That layer passes a pseudo-terminal's bytes on in kernel
-//! work at the normal scheduler's priority, whatever the threads at either end run at: a round
-//! trip with both ends under `SCHED_FIFO` took up to 845 ms on a two-core machine at load 10-12
-//! (p99.9 332 ms; a socket pair beside it: 1.8 ms at most). The simulated robot's wall-clock
-//! start-ups use the socket, so that a busy machine does not stop them on stale tensions; the
-//! pseudo-terminal is what the serial-port tests open.
+//! the same RTU bytes, master and I/O thread ([`SocketLink`]), without the kernel's terminal
+//! layer, which passes a pseudo-terminal's bytes on at the normal scheduler's priority whatever
+//! the threads at either end run at (BENCHMARKS.md). The simulated robot's wall-clock start-ups
+//! use the socket; the serial-port tests open the pseudo-terminal.
 //!
-//! The master under test opens [`VirtualLoadCells::path`], a symlink to the pseudo-terminal's
-//! slave end, exactly as it opens `/dev/taut-loadcells` (a udev symlink) on the robot.
-//! [`unplug`](VirtualLoadCells::unplug) closes the pseudo-terminal, so the master's open port
-//! fails as on a USB unplug and the path dangles; [`replug`](VirtualLoadCells::replug) makes a
-//! new pair behind the same path.
+//! The master opens [`VirtualLoadCells::path`], a symlink to the pseudo-terminal's slave end, as
+//! it opens `/dev/taut-loadcells` on the robot. [`unplug`](VirtualLoadCells::unplug) closes the
+//! pseudo-terminal as a USB unplug does; [`replug`](VirtualLoadCells::replug) makes a new pair
+//! behind the same path.
 //!
 //! Register map of each cell: its two registers at `register` in its table (`registers =
 //! "input"` or `"holding"`), encoded as its config says (int32/float32, word order, scale,
@@ -173,8 +169,7 @@ fn open_socket(slot: &Mutex<Option<UnixStream>>) -> io::Result<Line> {
 }
 
 /// The robot's side of a socket-mode line ([`VirtualLoadCells::spawn_socket`]): what the
-/// load-cell I/O thread opens in place of the serial port. Cloneable and `Send`, for the I/O
-/// thread's reopen closure.
+/// load-cell I/O thread opens in place of the serial port.
 #[derive(Clone)]
 pub struct SocketPort {
     shared: Arc<Shared>,
@@ -299,10 +294,9 @@ impl VirtualLoadCells {
         Ok(VirtualLoadCells { shared, path, dir: Some(dir), thread: Some(thread) })
     }
 
-    /// Starts a server for `cells` on one end of a Unix stream socket pair instead of a
-    /// pseudo-terminal (module doc); the robot opens the other end with [`Self::socket_port`].
-    /// [`path`](Self::path) is then only a name for messages. Unplug and replug work as with
-    /// the pseudo-terminal: the open line fails, and a new one is made to open.
+    /// Starts a server for `cells` on a Unix stream socket pair (module doc); the robot opens the
+    /// other end with [`Self::socket_port`], and [`path`](Self::path) is only a name for messages.
+    /// Unplug and replug work as with the pseudo-terminal.
     pub fn spawn_socket(cells: Vec<LoadCellConfig>, tensions: TensionHandle) -> io::Result<VirtualLoadCells> {
         let shared = Arc::new(Shared::default());
         let line = open_socket(&shared.socket_port)?;
@@ -317,10 +311,8 @@ impl VirtualLoadCells {
         self.dir.is_none().then(|| SocketPort { shared: self.shared.clone() })
     }
 
-    /// Runs the server thread under `SCHED_FIFO` at `priority`. The cells stand in for
-    /// hardware with its own processor, which answers whatever the robot's computer is doing;
-    /// a server thread starved by a loaded test machine would make readings stale that a real
-    /// cell would have delivered.
+    /// Runs the server thread under `SCHED_FIFO` at `priority`: the cells stand in for hardware
+    /// with its own processor, which a loaded robot computer does not slow down.
     pub fn set_realtime(&self, priority: i32) -> io::Result<()> {
         match &self.thread {
             Some(t) => set_fifo(t, priority),
@@ -386,9 +378,8 @@ impl Drop for VirtualLoadCells {
     }
 }
 
-/// The load cells' answers without a line or a thread: frames in, frames out (sans-IO), for a
-/// lockstep simulation that carries the bytes itself. The same code answers on the
-/// pseudo-terminal of [`VirtualLoadCells`].
+/// The load cells' answers without a line or a thread (sans-IO), for a lockstep simulation; the
+/// same code answers behind [`VirtualLoadCells`].
 pub struct LoadCellResponder {
     server: Server,
 }

@@ -59,7 +59,9 @@ pub use crate::effects::model as fit;
 /// The dense least-squares problems the diagnosis solves: [`crate::lm::dense`].
 pub use crate::lm::dense as lm;
 pub mod select;
+pub mod tension;
 
+pub use crate::effects::tension::TensionEffect;
 use crate::{Geometry, Params, Sigmas};
 use analysis::{rms, Mismatch, Regressor};
 pub use dataq::{DataProblem, ProblemKind};
@@ -118,6 +120,12 @@ pub struct DiagnoseOptions {
     /// platform moves) and leave them out (true). False keeps them, as before (for comparisons
     /// only: `tests/examples/short_recordings.rs`).
     pub stale_rows: bool,
+    /// The platform's mass, kg: with it (and tensions in the recording) the tension side runs
+    /// ([`tension`]: the load cells against the platform's weight and inertia). `None` (the
+    /// default): lengths only.
+    pub platform_mass_kg: Option<f64>,
+    /// The tension effects to try when the tension side runs.
+    pub tension_library: Vec<TensionEffect>,
 }
 
 impl DiagnoseOptions {
@@ -139,13 +147,18 @@ impl DiagnoseOptions {
             estimation_error: true,
             backward: true,
             stale_rows: true,
+            platform_mass_kg: None,
+            tension_library: TensionEffect::ALL.to_vec(),
         }
     }
 
-    /// The level of each held-out test: `family_alpha / (library size x rounds)`.
+    /// The level of each held-out test: `family_alpha / (library size x rounds)`. The library
+    /// counts the tension effects when the tension side runs (a platform mass is given): both
+    /// sides' tests are one family.
     pub fn test_alpha(&self) -> f64 {
-        let fitted = self.library.iter().filter(|e| **e != Effect::Slack).count().max(1);
-        self.family_alpha / (fitted * self.max_effects.max(1)) as f64
+        let fitted = self.library.iter().filter(|e| **e != Effect::Slack).count();
+        let tension = if self.platform_mass_kg.is_some() { self.tension_library.len() } else { 0 };
+        self.family_alpha / ((fitted + tension).max(1) * self.max_effects.max(1)) as f64
     }
 }
 
@@ -374,6 +387,8 @@ pub struct Diagnosis {
     pub baseline_residuals: Vec<(Vec<f64>, Vec<f64>)>,
     /// Final residual against time per cable (subsampled).
     pub final_residuals: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The tension side (`None` without tensions or without [`DiagnoseOptions::platform_mass_kg`]).
+    pub tension: Option<tension::TensionDiagnosis>,
 }
 
 /// The effect models' columns of the rows without data problems ([`fit::prepare`]), with the
@@ -1190,12 +1205,10 @@ pub fn diagnose(
     let ctx = Ctx::new(&prep, &base, opts);
     let located = locate(&ctx, &base, opts);
     let mut effects: Vec<Finding> = loose_cables(&ctx, &base, &located.baseline, opts).into_iter().collect();
-    let named = name_effects(&ctx, &base, opts, &mut effects, &mut notes);
+    let mut named = name_effects(&ctx, &base, opts, &mut effects, &mut notes);
     let (final_train, final_all) = final_estimates(&ctx, &base, &named, opts, &mut effects);
-    let final_fit = ctx.summary(&named.spec, &final_train, &final_all);
+    let mut final_fit = ctx.summary(&named.spec, &final_train, &final_all);
     let (mut final_res, unexplained, structure) = leftover_structure(&ctx, &base, &named.spec, &final_train, &final_fit, &located.an_sub);
-    let mut named = named;
-    let mut final_fit = final_fit;
     if let Some(st) = structure.filter(|st| st.outweighs(&located.baseline, &final_fit)) {
         for f in effects.iter().filter(|f| f.effect != Effect::Slack) {
             named.rejected.push(format!(
@@ -1217,6 +1230,7 @@ pub fn diagnose(
     if effects.iter().all(|f| f.effect == Effect::Slack) && unexplained.is_none() {
         notes.push("no effect beyond loose cables was found: the residual is noise".into());
     }
+    let tension = tension_side(rec, platform_points, &screened.masks, &final_fit.params, opts, &mut notes);
     let all_rows: Vec<usize> = (0..prep.t.len()).collect();
     Ok(Diagnosis {
         cables: n,
@@ -1234,7 +1248,21 @@ pub fn diagnose(
         notes,
         baseline_residuals: subsample_series(&prep, &all_rows, &located.base_res, 2000),
         final_residuals: subsample_series(&prep, &all_rows, &final_res, 2000),
+        tension,
     })
+}
+
+/// Step 8, **the tension side** ([`tension`]): the load cells against the platform's weight and
+/// inertia along the final geometry, and the tension effects named with the same test.
+fn tension_side(
+    rec: &Recording,
+    platform_points: &[[f64; 3]],
+    masks: &dataq::DataMasks,
+    geometry: &Geometry,
+    opts: &DiagnoseOptions,
+    notes: &mut Vec<String>,
+) -> Option<tension::TensionDiagnosis> {
+    tension::diagnose_tensions(rec, masks, geometry, platform_points, opts, notes)
 }
 
 /// The recording after step 1, its data problems and the masks of what is left.

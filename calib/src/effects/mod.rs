@@ -28,6 +28,9 @@
 //!
 //! Loose cables (`slack`) are not modelled: their samples are found and excluded.
 //!
+//! Effects that change the load cells' readings or the platform's force balance, not a length
+//! (load-cell gain, friction, inertia), are the library's [`tension`] side.
+//!
 //! Each module also holds its stage of the prediction with its derivatives on the library's
 //! [`Path`] and [`Unstretched`] ([`pulley::path`], [`sag::add_excess`], [`stretch::unstretch`],
 //! [`drum_buildup::encoder_length`], [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
@@ -47,6 +50,7 @@ pub mod pulley;
 pub mod sag;
 pub mod slack;
 pub mod stretch;
+pub mod tension;
 pub mod time_offset;
 
 use crate::diagnose::analysis::Regressor;

@@ -5,10 +5,9 @@
 //!                                               ^   fault_reset()                     │ set_positions_counts()
 //!                                               └───────────── disable() ─────────────┘ set_torques_permille()
 //! ```
-//! Only `DriveSet<_, Enabled>` has methods that move cables. This layer reads the clock (the
-//! wall clock, or a simulated one: [`DriveSet::with_clock`]) and pumps the transport; the protocol is in [`Master`]. It deals in drive
-//! units (counts, ‰ of rated torque), like the master: metres and newtons belong to the robot I/O
-//! layer (`taut_io::robot_io::Scaling`).
+//! Only `DriveSet<_, Enabled>` has methods that move cables. This layer reads the clock (wall or
+//! simulated: [`DriveSet::with_clock`]) and pumps the transport; the protocol is in [`Master`].
+//! Drive units (counts, ‰ of rated torque), as in the master.
 //!
 //! ```no_run
 //! use taut_driver::canopen::drive_set::DriveSet;
@@ -291,8 +290,7 @@ impl<T: CanTransport> DriveSet<T, Configuring> {
         DriveSet { bus, master: Master::new(cfg), bringup_timeout, last_transport_error: None, clock: clock::wall(), _state: PhantomData }
     }
 
-    /// Reads `clock` instead of the wall clock (a lockstep simulation, whose transport advances
-    /// the simulated clock while it waits for frames).
+    /// Reads `clock` instead of the wall clock (a lockstep simulation).
     pub fn with_clock(mut self, clock: SharedClock) -> Self {
         self.clock = clock;
         self

@@ -313,10 +313,9 @@ impl<'c, L: SerialLink> Master<'c, L> {
             if len == self.rx.len() {
                 break None;
             }
-            // Past the deadline, still take what has already arrived: when this thread was
-            // preempted (a loaded machine), the device's answer may be waiting in the buffer,
-            // and our own lateness is not the device's silence. Calling it a timeout would
-            // also retry, discard the answer, and leave a late copy to spoil the next exchange.
+            // Past the deadline, still take what has already arrived: a preempted thread's
+            // lateness is not the device's silence, and a retry would leave a late copy to
+            // spoil the next exchange.
             let now = self.clock.now();
             let header_ok = len >= 2 && self.rx[0] == unit && (self.rx[1] & 0x7F) == fc;
             let wait = if len == 0 || header_ok {

@@ -1,11 +1,9 @@
 //! The Linux kernel's classic CAN frame (`struct can_frame`, `linux/can.h`) as bytes, and the
 //! name of a CAN interface.
 //!
-//! Every frame a `CAN_RAW` socket hands out is these 16 bytes; error frames (`CAN_ERR_FLAG`
-//! in the id, `linux/can/error.h`) are the same struct. [`decode`] is the one parser of them:
-//! [`super::socketcan::SocketCanTransport`] reads the socket into 16 bytes and decodes them, and
-//! [`super::virtual_bus`] carries every frame, and the error frames a test injects, as the same
-//! bytes through the same function, so an injected bus-off takes the path a real one takes.
+//! Every frame a `CAN_RAW` socket hands out is these 16 bytes, error frames included.
+//! [`decode`] is their one parser: SocketCAN reads and the virtual bus (with the error frames a
+//! test injects) go through it, so an injected bus-off takes the path a real one takes.
 //!
 //! ```text
 //! offset  size  field (struct can_frame)

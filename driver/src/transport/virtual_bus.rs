@@ -6,16 +6,13 @@
 //! Queues are allocated when an endpoint is made; a full receive queue drops the new frame and
 //! counts it, like a SocketCAN socket whose buffer is full.
 //!
-//! Every frame carries the instant it was sent, which is the instant it was on the wire (the bus
-//! has no arbitration delay): [`CanTransport::rx_timestamp`] hands it out with the frame, as the
-//! kernel's `SO_TIMESTAMP` does. A simulated drive latches its encoder at the SYNC's instant on
-//! the wire, not when its thread got round to reading it.
+//! Every frame carries the instant it was sent, which is when it was on the wire (no
+//! arbitration delay): [`CanTransport::rx_timestamp`] hands it out, as the kernel's
+//! `SO_TIMESTAMP` does.
 //!
-//! Frames travel as the kernel's `struct can_frame` bytes and are decoded on receipt by
-//! [`kernel::decode`], the parser SocketCAN reads go through. Each endpoint has a
-//! [`CanController`] handle through which a test injects error frames (bytes of
-//! `linux/can/error.h`) and puts the endpoint's controller bus-off and restarts it, as the
-//! kernel's CAN drivers report them.
+//! Frames travel as the kernel's `struct can_frame` bytes through [`kernel::decode`], the parser
+//! of SocketCAN reads. Each endpoint's [`CanController`] injects error frames
+//! (`linux/can/error.h`), bus-off and restarts as the kernel's CAN drivers report them.
 //!
 //! ```
 //! use taut_driver::transport::virtual_bus::VirtualBus;
@@ -164,10 +161,8 @@ pub struct CanController {
 
 impl CanController {
     /// Delivers an error frame (`struct can_frame` bytes with `CAN_ERR_FLAG`, see
-    /// [`kernel::error_frame`]) to the endpoint, as its driver would. Error frames pass the
-    /// acceptance filters (SocketCAN filters them by `CAN_RAW_ERR_FILTER`, which taut's
-    /// transports open to all classes) and reach a bus-off endpoint. Any 16 bytes are taken:
-    /// the endpoint's reader decodes them, as it would decode what a socket hands out.
+    /// [`kernel::error_frame`]) to the endpoint. Error frames pass the acceptance filters and
+    /// reach a bus-off endpoint; any 16 bytes are taken and decoded by the endpoint's reader.
     pub fn inject(&self, frame: [u8; CAN_MTU]) {
         let mut st = lock(&self.shared);
         let slot = &mut st.slots[self.idx];
@@ -181,10 +176,8 @@ impl CanController {
         }
     }
 
-    /// The controller goes bus-off (TX error counter above 255): from now on the endpoint
-    /// sends nothing (its sends fail with [`TransportError::Full`], as a socket's queue fills
-    /// when the controller is off) and receives nothing but error frames; the driver reports
-    /// `CAN_ERR_BUSOFF` with the counters.
+    /// The controller goes bus-off: the endpoint sends nothing (sends fail with
+    /// [`TransportError::Full`]) and receives only error frames, the first `CAN_ERR_BUSOFF`.
     pub fn bus_off(&self) {
         lock(&self.shared).slots[self.idx].bus_off = true;
         self.inject(kernel::error_frame(err::BUSOFF | err::CNT, [0, 0, 0, 0, 0, 0, 255, 0]));

@@ -1,5 +1,5 @@
-//! CiA 402 drive profile: the power state machine (statusword in, controlword out), modes of
-//! operation, and the conversion between encoder counts and metres of cable.
+//! CiA 402 drive profile: the power state machine (statusword in, controlword out) and the modes
+//! of operation.
 //!
 //! ```text
 //! statusword 0x6041 (CiA 402 6.3.2, table 30)        controlword 0x6040 commands

@@ -386,8 +386,7 @@ mod tests {
                 assert!(total_bits(p.entries()) <= 64);
             }
         }
-        // Exactly the maps of the two fixed layouts taut had before maps came from the
-        // configuration.
+        // The presets' maps, object by object, as the module doc's table gives them.
         let e = |p: &PdoDef| p.entries().iter().map(|e| e.encode()).collect::<Vec<_>>();
         let w = PdoLayout::WithMode.pdos();
         assert_eq!(w.len(), 4);

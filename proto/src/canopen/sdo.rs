@@ -226,7 +226,7 @@ pub enum SdoParseError {
     Length(u8),
     /// Command specifier not known (block transfer, or garbage).
     Command(u8),
-    /// Expedited initiate that indicates a size of 0 bytes... is impossible; other bad bits.
+    /// A command byte whose other bits are not valid for its specifier.
     Invalid(u8),
 }
 

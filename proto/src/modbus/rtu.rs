@@ -331,8 +331,8 @@ pub fn encode(req: &Request, buf: &mut [u8; MAX_FRAME]) -> usize {
 pub fn decode(frame: &[u8]) -> Result<Response, RtuError> {
     let body = check_crc(frame)?;
     // Every response has address, function and at least one byte (an exception's code, a
-    // register response's byte count) before its CRC. A 4-byte frame whose last two bytes happen
-    // to be the CRC of the first two passes `check_crc` (found by `fuzz/run modbus_rtu_decode`).
+    // register response's byte count) before its CRC: a 4-byte frame whose last two bytes are
+    // the CRC of the first two would pass `check_crc`.
     if body.len() < 3 {
         return Err(RtuError::TooShort { len: frame.len() });
     }

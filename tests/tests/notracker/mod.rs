@@ -1,5 +1,5 @@
 //! Shared by the tracker-free end-to-end tests (`e2e_notracker`: the short plan, in the
-//! workspace tests; `e2e_notracker_3mm`: the 3 mm acceptance, a serial step of
+//! workspace tests; `e2e_notracker_3mm`: worst anchor at most 3 mm, a serial step of
 //! `scripts/test`): the simulated robot without its tracker sender (`taut start --sim
 //! --no-tracker`, config/examples/aras-cam-sim-notracker.toml) holds at rest (the rest
 //! estimate), visits the dwell poses planned from the nominal geometry, calibrates from the

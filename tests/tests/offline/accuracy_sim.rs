@@ -1,4 +1,4 @@
-//! Acceptance of the foundation issue on the simulator's ARAS-CAM-like robot (tracker 1.5 mm,
+//! Calibration accuracy on the simulator's ARAS-CAM-like robot (tracker 1.5 mm,
 //! encoder 0.05 mm, load cell 0.3 N, 100 Hz, loose-cable excursions): the simulator's physics is
 //! written independently of the calibrator's model, so these numbers are not the model agreeing
 //! with itself.

@@ -1,4 +1,4 @@
-//! `taut calibrate REC.csv` on recordings without a tracker (issue 11 item 2), run as the real
+//! `taut calibrate REC.csv` on recordings without a tracker, run as the real
 //! binary: empty tracker columns in every row -> tracker-free calibration, said in the output and
 //! in the parameters file; no tensions; missing lengths; tracker in some rows only (calibrated
 //! with the tracker on those rows, said in a note); 3 cables and no nominal anchors refused.

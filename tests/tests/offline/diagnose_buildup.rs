@@ -1,4 +1,4 @@
-//! Issue 26: drum build-up concealed in the simulator's recording (its drums' radius shrinks as
+//! Drum build-up concealed in the simulator's recording (its drums' radius shrinks as
 //! they pay out; the simulator's physics is its own, `taut_sim::sensors::Drum`) is named as drum
 //! build-up, not as the sag or the drum scale it can resemble, with each cable's coefficient
 //! within three of its reported sigmas of the truth.

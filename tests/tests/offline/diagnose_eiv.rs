@@ -1,4 +1,4 @@
-//! Errors-in-variables in the diagnosis (issue 14): stretch and sag predicted from noisy
+//! Errors-in-variables in the diagnosis: stretch and sag predicted from noisy
 //! tensions, near slack. The seeds are fixed, so each outcome is deterministic (the coverage
 //! over many seeds is in BENCHMARKS.md: `examples/outdoor_sag_ea.rs`).
 

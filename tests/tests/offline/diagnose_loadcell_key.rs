@@ -1,4 +1,4 @@
-//! The load cells' noise in the configuration reaches `taut diagnose` (issue 14): with
+//! The load cells' noise in the configuration reaches `taut diagnose`: with
 //! `[calibration] loadcell_sigma_n` and `loadcell_offset_n` the diagnosis weights stretch and sag
 //! by the tension noise (errors in variables) and widens their sigmas by the cells' offsets;
 //! without them the tensions are taken as exact. One fixed seed, so every outcome below is

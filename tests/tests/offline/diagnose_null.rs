@@ -1,4 +1,4 @@
-//! False claims on effect-free recordings (issue 14): a subset of the sweep of
+//! False claims on effect-free recordings: a subset of the sweep of
 //! `examples/null_rate.rs` (which records the rate over 52 recordings in docs/diagnosis.md).
 //!
 //! On an effect-free recording a claim needs a candidate to pass its round-1 held-out test:

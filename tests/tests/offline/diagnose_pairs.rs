@@ -1,4 +1,4 @@
-//! Effects under effects (issue 14): concealed pairs and triples on the 3-cable, 4-cable and 20 m
+//! Effects under effects: concealed pairs and triples on the 3-cable, 4-cable and 20 m
 //! outdoor robots, diagnosed from simulated recordings (the simulator's physics is independent of
 //! the diagnosis models). Each effect must be named by the held-out test, small effects under
 //! large ones included, and where two effects trade off the reported uncertainty must cover the

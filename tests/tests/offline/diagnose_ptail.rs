@@ -1,4 +1,4 @@
-//! Regression (issue 14 item 1): on data that ARE the ideal model plus white Gaussian noise the
+//! Regression: on data that ARE the ideal model plus white Gaussian noise the
 //! held-out test's p-values were too small in the tail, because the test ignored the current
 //! model's own estimation error on the training blocks (docs/diagnosis.md, "Error rates").
 //!

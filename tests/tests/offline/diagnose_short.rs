@@ -1,4 +1,4 @@
-//! `taut diagnose` on recordings shaped like a real robot's logger makes them (issue 28):
+//! `taut diagnose` on recordings shaped like a real robot's logger makes them:
 //! 1,000 rows at about 4 Hz, intervals 0.5-1.5x the mean, 9 % stale rows (every encoder repeats
 //! the previous row while the platform moves), a 6-DoF platform, no tensions
 //! ([`taut_sim::field`]: the simulator's physics, only the sampling is the logger's).

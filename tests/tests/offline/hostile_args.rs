@@ -1,4 +1,4 @@
-//! Hostile command-line arguments (issue 13): rates, durations, sample counts, effect
+//! Hostile command-line arguments: rates, durations, sample counts, effect
 //! parameters, unknown names. Each is refused before anything is simulated or allocated, with the
 //! argument named and the allowed range said; nothing panics or aborts.
 
@@ -63,6 +63,8 @@ fn cases() -> Vec<Case> {
         effect("time-offset=nan", &["--effect time-offset=NaN"]),
         effect("backlash=-1", &["--effect backlash=-1", "play in the drive train"]),
         effect("backlash=1", &["--effect backlash=1"]),
+        effect("load-cell-gain=2", &["--effect load-cell-gain=2", "load-cell gain must be 0.8 to 1.25"]),
+        effect("friction=-0.1", &["--effect friction=-0.1", "guide friction mu*theta must be 0 to 1"]),
         effect("gravity=2", &["--effect `gravity` is not a simulated effect", "elasticity, sag, pulley"]),
         effect(&long_name, &["is not a simulated effect", "…", "50000 bytes"]),
         effect(&long_value, &["--effect sag=inf", "0 to 20 N/m"]),

@@ -1,4 +1,4 @@
-//! Hostile robot configurations (issue 13): every value with physical bounds, arrays of exactly
+//! Hostile robot configurations: every value with physical bounds, arrays of exactly
 //! three numbers, degenerate geometry; each refused with the file, line and key, never a panic.
 
 use crate::hostile;

@@ -1,4 +1,4 @@
-//! Hostile output paths (issue 13): outputs are never destructive. A device node, symlink,
+//! Hostile output paths: outputs are never destructive. A device node, symlink,
 //! directory or fifo at an output path is refused, never replaced; an output that is an input
 //! (by any name) is refused; a write that fails midway leaves the old file; figures go into place
 //! all or nothing.

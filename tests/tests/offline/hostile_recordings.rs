@@ -1,4 +1,4 @@
-//! Hostile recordings (issue 13): generated bad `cdpr-recording` files given to `taut calibrate`
+//! Hostile recordings: generated bad `cdpr-recording` files given to `taut calibrate`
 //! and `taut diagnose`. Each must end in a clear error naming the file, line and column (or be
 //! accepted where the format allows it), without a panic, a hang, or a changed file.
 

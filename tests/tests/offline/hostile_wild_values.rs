@@ -1,4 +1,4 @@
-//! One wild value in a clean recording (issues 13 item 2, 14 item 4): an encoder reading of
+//! One wild value in a clean recording: an encoder reading of
 //! 1e308, 1e160, -1e308, inf, a 5 cm spike, a 2 cm jump; an impossible tension; a wild tracker
 //! position. Each goes through `taut calibrate --out --json`, `taut diagnose --json` (the
 //! binary) and the daemon's calibration path (`calibrator::evaluate`: the same screening,

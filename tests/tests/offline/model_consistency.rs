@@ -1,4 +1,4 @@
-//! A wrong model is never silent (issue 28): `taut_calib::calibrate` compares the held-out
+//! A wrong model is never silent: `taut_calib::calibrate` compares the held-out
 //! residual with the noise model ([`taut_calib::consistency`], false-alarm rate 1e-3).
 //!
 //! Acceptance: of 50 simulated recordings each with a concealed cable stretch, drum scale or time

@@ -1,11 +1,11 @@
-//! Priors from the design (issue 28): a robot recorded with its winches locked while the
+//! Priors from the design: a robot recorded with its winches locked while the
 //! platform swings freely (pushed every 4 s), calibrated with the design's anchors as priors.
 //!
 //! The recording comes from the simulator's dynamic plant (`taut_sim::Dynamics`, independent of
 //! the calibration's model): the four drums held at lengths 1-3 cm longer than the platform's
 //! rest needs, so that it hangs on two or three cables and swings after a push, its cables going
 //! slack and taut again; tracker at 100 Hz (1.5 mm), encoders and load cells with the default
-//! noise. A point-mass platform: the 6-DoF case of the issue (platform points, orientation) is
+//! noise. A point-mass platform: the 6-DoF case (platform points, orientation) is
 //! not covered here. The encoders read constant lengths: the offsets are not excited and the anchors only
 //! along the swing, which the initialisation refuses ("not excited"). The design: every anchor
 //! off the truth by a draw of 2 cm per axis, `anchor_sigma_m = 0.02`.

@@ -1,4 +1,4 @@
-//! `--report FILE.html` looked at the way a person would (issue 12 item 4): the calibration and
+//! `--report FILE.html` looked at the way a person would: the calibration and
 //! diagnosis reports of a simulated robot with loose-cable episodes are opened in headless
 //! Chromium and rendered to PNG.
 //!

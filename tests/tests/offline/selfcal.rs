@@ -1,4 +1,4 @@
-//! Self-calibration without a tracker (issue 11 item 1) on recordings of the simulator's own
+//! Self-calibration without a tracker on recordings of the simulator's own
 //! physics (`taut_sim::dwell`: static equilibria with the controller's tension distribution,
 //! encoders, load cells with offsets; no tracker columns).
 //!

@@ -1,4 +1,4 @@
-//! Swapped length columns (issue 28, wiring checks): with the configuration's nominal anchors,
+//! Swapped length columns: with the configuration's nominal anchors,
 //! a calibration whose anchors land at other cables' nominal anchors is called out by name
 //! ("cables 1 and 2 look swapped") and `taut calibrate` exits non-zero unless `--allow-swapped`;
 //! the same recording unswapped calibrates without a word about it. 4 and 8 cables.

@@ -5,7 +5,7 @@
 //!
 //! Asserted, seeds 1-5 (`TAUT_DYNAMIC_SEEDS`): the three phases complete, the calibration is
 //! accepted and hot-swapped, no fault latches, and the worst anchor is within 1 mm of the truth
-//! ([`ACCEPTANCE_M`]: the quasi-static plant's accuracy, issue 27). The anchors' errors, their
+//! ([`ACCEPTANCE_M`]: the quasi-static plant's accuracy). The anchors' errors, their
 //! sigmas and the fitted stiffnesses are printed (`RESULT`).
 //!
 //! # The stretch, modelled

@@ -4,7 +4,7 @@
 //! accepted, its note states the predicted and the achieved uncertainty, the achieved worst-anchor
 //! sigma is within a bound of the predicted one derived from the time-block sandwich's scatter
 //! (1e-5 per run), every anchor coordinate is within 4.53-4.86 of its sigmas (7e-5 per run), and
-//! the acceptance: **the worst anchor error is at most 1 mm**.
+//! **the worst anchor error is at most 1 mm**.
 //!
 //! # The 1 mm: failure probability per seed for correct code, computed
 //!

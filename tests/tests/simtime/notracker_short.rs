@@ -1,7 +1,7 @@
 //! End to end without a tracker, the short plan (16 poses of 2.5 s, settle 0.3 s, 0.5 m/s mean
 //! speed, 8 tares rotating through the cables: under two minutes): the start-up rests, dwells,
 //! calibrates and hot-swaps (checks in `notracker::start_on`), in simulated time. Its worst-anchor
-//! 1-sigma is ~2.3 mm, too wide for the 3 mm: that acceptance runs the example's plan in
+//! 1-sigma is ~2.3 mm, too wide for a 3 mm bound: that acceptance runs the example's plan in
 //! `notracker_3mm`. The recalibration over the control socket (real time): the ignored
 //! `recalibrates_without_a_tracker`.
 

@@ -1,4 +1,4 @@
-//! Tracker-free recordings with short rests (issue 28 item 3): the dynamic plant, 60 poses with
+//! Tracker-free recordings with short rests: the dynamic plant, 60 poses with
 //! rests of 0.5 or 1 s that begin while the platform still swings, written as another robot would
 //! (no phase labels), then found and calibrated offline (`taut_calib::selfcal`); the same rests
 //! with a creep added, which the rest detection must refuse.

@@ -1,4 +1,4 @@
-//! The operator's workflow on the simulated robot in simulated time (issue 24's acceptance):
+//! The operator's workflow on the simulated robot in simulated time:
 //! the control socket's request handling (`ControlLinks`, what the control thread answers) and
 //! its periodic work (`ControlLinks::tick`, what the control thread runs every round) driven
 //! between the cycles of the whole robot stack in lockstep.

@@ -1,4 +1,4 @@
-//! The start-up's wiring check (issue 28, item 5; `taut_rt::wiring`): a simulated robot whose
+//! The start-up's wiring check (`taut_rt::wiring`): a simulated robot whose
 //! drives or load cells are wired to other cables than the configuration says, or whose encoder
 //! counts the other way (`taut_simrig::Wiring`: the plant's physics with the miswiring, not a
 //! flag the check reads), stops in the first initialisation phase with the cause named; the

@@ -155,7 +155,12 @@ pub fn diagnose_with(k: usize, variant: Variant, estimation_error: bool) -> Diag
             Err(e) => panic!("{}: {e}", describe(k)),
         }
     };
-    let opts = DiagnoseOptions { estimation_error, ..DiagnoseOptions::from_config(&s.robot.calibration) };
+    let mut opts = DiagnoseOptions { estimation_error, ..DiagnoseOptions::from_config(&s.robot.calibration) };
+    // `NULL_TENSION=1`: the tension side too (the platform's mass and the cells' noise given).
+    if std::env::var("NULL_TENSION").is_ok_and(|v| v == "1") {
+        opts.platform_mass_kg = Some(s.robot.robot.mass_kg);
+        opts.loadcell_sigma_n = s.noise.loadcell_sigma_n;
+    }
     let rec = match variant {
         Variant::Ideal => ideal_recording(&sim, &s, 0.0),
         Variant::IdealAr1 => ideal_recording(&sim, &s, ar1_phi()),

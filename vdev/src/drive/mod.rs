@@ -1,10 +1,7 @@
-//! Virtual CiA 402 servo drives: CANopen slaves on the same transport trait as the master, so
-//! the master, `taut probe --sim` and the tests run the same code against them as against real
-//! drives.
-//!
-//! Each [`VirtualDrive`] is sans-IO (frames and time in, frames out); a [`DriveRack`] puts
-//! several on one transport endpoint, and [`spawn_rack`] runs a rack on its own thread for
-//! wall-clock use (probe, vcan tests).
+//! Virtual CiA 402 servo drives: CANopen slaves on the master's transport trait, so the master,
+//! `taut probe --sim` and the tests run the code they run against real drives. Each
+//! [`VirtualDrive`] is sans-IO; a [`DriveRack`] puts several on one endpoint, and [`spawn_rack`]
+//! runs a rack on its own thread.
 //!
 //! Object dictionary (see `taut_proto::canopen::od` for types and units):
 //!
@@ -36,12 +33,9 @@
 //! and CST reports the target torque. With the plant coupled ([`VirtualDrive::set_external`]),
 //! the plant reads [`VirtualDrive::target`] and writes [`VirtualDrive::set_actual`].
 //!
-//! The drive's jobs, one file each: `dictionary` (object dictionary reads and writes),
-//! `sdo_server` (CiA 301 7.2.4), `pdo_engine` (mapping rules, RPDO reception, the SYNC-driven
-//! PDOs), `nmt_heartbeat` (NMT commands, the heartbeat consumer and the loss of the master),
-//! `state_machine` (CiA 402 power states, statusword and the motion model) and `rack` (several
-//! drives on one bus, on a thread). This file holds the drive's state and its sans-IO entry
-//! points (`on_frame`, `poll`, `next_deadline`).
+//! One file per job: `dictionary`, `sdo_server` (CiA 301 7.2.4), `pdo_engine` (mapping rules,
+//! RPDOs, SYNC-driven TPDOs), `nmt_heartbeat` (NMT, heartbeat consumer, loss of the master),
+//! `state_machine` (CiA 402 power states and the motion model) and `rack`.
 
 mod dictionary;
 mod nmt_heartbeat;
@@ -87,29 +81,21 @@ pub struct DriveParams {
     pub time_constant_s: f64,
     /// Torque (‰) per count of following error in the internal model.
     pub torque_per_count: f64,
-    /// Producer heartbeat time stored in the drive's non-volatile memory, ms: the value 0x1017
-    /// takes at power-on and at every NMT reset communication (CiA 301 7.2.8.3.2.2). Real drives
-    /// usually ship with one (100 ms is common), so they heartbeat before any master speaks.
+    /// Producer heartbeat time in non-volatile memory, ms: 0x1017 at power-on and at every NMT
+    /// reset communication (CiA 301 7.2.8.3.2.2), so the drive heartbeats before a master speaks.
     pub stored_heartbeat_ms: u16,
-    /// How long the drive takes to answer an SDO request (slow firmware: tens of ms are common).
-    /// Answers leave in request order; one computed before a reset is still sent after it, as
-    /// a frame already in the controller's transmit buffer would be.
+    /// How long the drive takes to answer an SDO request. Answers leave in request order; one
+    /// computed before a reset is still sent after it (already in the transmit buffer).
     pub sdo_delay: Duration,
-    /// Every n-th SDO answer is sent twice (0: never), as a drive whose CAN controller retries
-    /// a frame it wrongly believes lost does.
+    /// Every n-th SDO answer is sent twice (0: never), as a CAN controller that wrongly retries.
     pub sdo_duplicate_every: u32,
     /// Power-on value of 0x6007 abort connection option code (CiA 402): 0 no action, 1 fault,
-    /// 2 disable voltage, 3 quick stop. 0 is what the field drives this models did: nothing on
-    /// the drive side noticed that the master had gone.
+    /// 2 disable voltage, 3 quick stop.
     pub abort_connection_default: i16,
-    /// How long an NMT reset (communication or node) takes to take effect: until then the drive
-    /// goes on as before (its heartbeat timer may fire, SDO requests are answered), as firmware
-    /// that handles NMT in its main loop does.
+    /// How long an NMT reset takes to take effect; until then the drive goes on as before.
     pub reset_latency: Duration,
-    /// How long the drive stays in FAULT REACTION ACTIVE after a fault (its fault reaction,
-    /// 0x605E: the motor stopped, the brake applied) before FAULT (CiA 402 transition 14), as
-    /// real drives do for tens of milliseconds; zero: straight to FAULT. A fault reset is taken
-    /// only in FAULT.
+    /// Time in FAULT REACTION ACTIVE (0x605E reaction) before FAULT (CiA 402 transition 14); zero:
+    /// straight to FAULT. A fault reset is taken only in FAULT.
     pub fault_reaction: Duration,
 }
 
@@ -346,10 +332,9 @@ impl VirtualDrive {
         self.send(emcy::encode(self.p.node_id, &Emcy { code, register: error_register(code), vendor: [0; 5] }));
     }
 
-    /// The drive as a previous run left it: its CiA 402 `state` (e.g. operation enabled in CSP,
-    /// or fault with `error_code`) and NMT operational, with the power-on PDOs. A restarted
-    /// master finds drives like this; power cycles and NMT commands do not change the CiA 402
-    /// state (that is the application's, CiA 402 6.3), except through 0x6007.
+    /// The drive as a previous run left it: CiA 402 `state` (with `error_code` for a fault), NMT
+    /// operational, power-on PDOs. NMT commands and power cycles do not change the CiA 402 state
+    /// (CiA 402 6.3), except through 0x6007.
     pub fn left_by_previous_run(&mut self, state: PowerState, error_code: u16) {
         self.state = state;
         self.error_code = error_code;

@@ -25,9 +25,8 @@ impl VirtualDrive {
         self.consumer_lost = false;
     }
 
-    /// CiA 402 0x6007: what the drive does when its connection to the master is lost
-    /// (heartbeat consumer timeout, NMT stop, reset communication, reset node), applied only
-    /// from operation enabled (the power stage holding the load).
+    /// CiA 402 0x6007: what the drive does when it loses the master (heartbeat consumer timeout,
+    /// NMT stop, reset communication or node), only from operation enabled.
     pub(super) fn abort_connection(&mut self) {
         if self.state != PowerState::OperationEnabled || self.abort_option == 0 {
             return;

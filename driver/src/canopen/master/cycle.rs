@@ -240,13 +240,9 @@ impl Operational<'_> {
         Ok(())
     }
 
-    /// Target torque of drive `i`, ‰ of its rated torque (CST). The robot I/O layer converts
-    /// tensions to torque and limits them; the master sends what it is given.
-    ///
-    /// Also taken while the drive is on its way to "operation enabled" (switch on disabled,
-    /// ready to switch on, switched on): the drive applies 0x6071 only once enabled, and a
-    /// cable that a drive enables into torque mode needs its tension from the first cycle. With
-    /// a zero target there the drum would pay out under the load until the next cycle's target.
+    /// Target torque of drive `i`, ‰ of its rated torque (CST), sent as given (the robot I/O layer
+    /// limits it). Also taken on the way to "operation enabled": the drive applies 0x6071 once
+    /// enabled, and a cable enabled into torque mode needs its tension from the first cycle.
     pub fn set_torque_permille(&mut self, i: usize, permille: i16) -> Result<(), CommandError> {
         let (ax, cfg) = self.axis(i)?;
         let enabling = matches!(

@@ -8,14 +8,13 @@
 //!    │                              v                                                     v
 //!    └──────────────────────── Failed (abort/mismatch)        Lost (heartbeat timeout) <──┘
 //! ```
-//! A boot-up message in any phase restarts configuration (the node lost its PDO mapping), and a
-//! lost node that comes back is configured again too. After the master's own NMT reset
-//! communication a heartbeat does not start configuration, the boot-up does (a heartbeat can
-//! predate the reset); a node that heartbeats but never boots is configured after
-//! [`MasterConfig::boot_wait`]. Configuration first reads the statusword and position and switches
-//! off a drive found powered, and it sets each drive's heartbeat consumer (0x1016) for the
-//! master's own heartbeat and the abort connection option (0x6007), see [`Supervision`]. Per SYNC cycle the master sends SYNC, then
-//! one RPDO set per operational drive; drives answer with their TPDOs.
+//! A boot-up in any phase restarts configuration (the node lost its PDO mapping), and a lost node
+//! that comes back is configured again. After the master's own NMT reset communication only the
+//! boot-up starts configuration (a heartbeat can predate the reset); a node that never boots is
+//! configured after [`MasterConfig::boot_wait`]. Configuration switches off a drive found
+//! powered and sets the drive's supervision of the master ([`Supervision`]: 0x1016, 0x6007).
+//! Per SYNC cycle the master sends SYNC and one RPDO set per operational drive; drives answer
+//! with their TPDOs.
 //!
 //! Bad input never panics: frames that are malformed, from unknown nodes or not meant for a
 //! master are counted in [`Counters`]; the first of each kind is reported once as
@@ -320,10 +319,8 @@ impl Master {
         }
         n.nmt = Some(state);
         match n.phase {
-            // After taut's own reset communication the node is configured at its boot-up: a
-            // heartbeat may have been sent before the reset took effect, and configuring on it
-            // would start a second configuration (and a second answer to every request) when the
-            // boot-up follows. A node whose boot-up never comes is configured after boot_wait.
+            // After taut's own reset communication only the boot-up starts configuration: a
+            // heartbeat may predate the reset, and a second configuration would follow the boot-up.
             Phase::Waiting if self.reset_on_start => {
                 n.heard_since_reset.get_or_insert(now);
             }
@@ -346,10 +343,8 @@ impl Master {
             Phase::Operational => {
                 n.hb.on_heartbeat(now);
                 if state != NmtState::Operational {
-                    // Someone stopped it or it fell back to pre-operational (e.g. its heartbeat
-                    // consumer lost taut and it applied 0x6007): start it again, but never
-                    // enabled again by itself; that is the application's decision, as after a
-                    // fault or a reboot.
+                    // Stopped, or back in pre-operational (e.g. its consumer lost taut and applied
+                    // 0x6007): start it again, never enabled by itself (the application decides).
                     n.axis.want = Want::Disabled;
                     n.phase = Phase::Starting;
                     self.send_nmt(NmtCommand::Start, node);

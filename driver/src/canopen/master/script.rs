@@ -33,11 +33,9 @@ pub(super) enum Step {
         required: bool,
     },
     Download(SdoWrite),
-    /// Brings a drive found powered (left enabled by a previous run, or stopped by its own
-    /// master-loss reaction) to a power stage off, by SDO before anything else is written:
-    /// CiA 402 transition 8 (shutdown) from switched on / operation enabled, 12 (disable
-    /// voltage) from quick stop active. Skipped for drives already off or in fault (a fault
-    /// stays until the operator resets it).
+    /// Brings a drive found powered to power stage off by SDO before anything else is written:
+    /// CiA 402 transition 8 (shutdown) from switched on / operation enabled, 12 (disable voltage)
+    /// from quick stop active. Skipped for drives off or in fault (the operator resets a fault).
     PowerOff,
     /// A download a drive may refuse because the object does not exist (an unused PDO).
     Optional(SdoWrite),
@@ -156,10 +154,9 @@ impl Master {
                 b[..len.min(4)].copy_from_slice(&d[..len.min(4)]);
                 let v = u32::from_le_bytes(b);
                 if let Step::Verify(w) = step {
-                    // Compare what the drive holds with what was written, over the written width
-                    // (a drive may answer an expedited upload without the size, as 4 bytes). Of a
-                    // COB-ID only the valid bit and the 11-bit id count: CiA 301 lets a drive
-                    // report bit 30 (no RTR) and bit 29 as it implements them.
+                    // Compared over the written width (a drive may answer an expedited upload as 4
+                    // bytes). Of a COB-ID only the valid bit and the 11-bit id count: CiA 301 lets a
+                    // drive report bits 30 and 29 as it implements them.
                     let cob = w.sub == 1 && matches!(w.index, 0x1400..=0x15FF | 0x1800..=0x19FF);
                     let mask = match (cob, w.len) {
                         (true, _) => pdo::COB_ID_INVALID | 0x7FF,
