@@ -301,8 +301,13 @@ pub fn tension_column_swap(rec: &Recording, platform_points: &[[f64; 3]], anchor
     let posed = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
     let dt = {
         let mut d: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
-        d.sort_by(f64::total_cmp);
-        d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+        let k = d.len() / 2;
+        // The element a sort would put at `k`, without sorting the rest.
+        if d.is_empty() {
+            f64::NAN
+        } else {
+            *d.select_nth_unstable_by(k, f64::total_cmp).1
+        }
     };
     if !(dt > 0.0) {
         return None;
