@@ -453,13 +453,7 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
         lm += d.l[k] / mf;
     }
     // Excitation: principal spreads of the path, and the spread of the lengths.
-    let mut cov = Matrix3::zeros();
-    let mut lvar = 0.0;
-    for &k in &slots {
-        let v = Vector3::from(model::sub(d.point(k), xm));
-        cov += v * v.transpose() / mf;
-        lvar += (d.l[k] - lm).powi(2) / mf;
-    }
+    let (cov, lvar) = spreads(d, &slots, xm, lm);
     let eig = SymmetricEigen::new(cov);
     let (imin, imax) = {
         let e = &eig.eigenvalues;
@@ -543,6 +537,26 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
     }
     let _ = l0_est;
     Ok((a_est, median_offset(d, a_est)))
+}
+
+/// The covariance of the used readings' points about `xm` and the variance of their lengths
+/// about `lm`: `sum (v v^T) / m` and `sum (l - lm)^2 / m` in slot order, `v = X - xm`. The
+/// matrix is symmetric bit for bit (`v_a v_b = v_b v_a`), so its six distinct entries are summed
+/// (with the length's, seven divisions a reading in two vectors instead of ten one by one).
+fn spreads(d: &CableData, slots: &[usize], xm: [f64; 3], lm: f64) -> (Matrix3<f64>, f64) {
+    let mf = slots.len() as f64;
+    // 00 01 02 11 12 22, the length's, and a lane to fill the vector.
+    let mut c = [0.0f64; 8];
+    for &k in slots {
+        let v = model::sub(d.point(k), xm);
+        let dl = d.l[k] - lm;
+        let prod = [v[0] * v[0], v[0] * v[1], v[0] * v[2], v[1] * v[1], v[1] * v[2], v[2] * v[2], dl * dl, 0.0];
+        for (s, p) in c.iter_mut().zip(prod) {
+            *s += p / mf;
+        }
+    }
+    let cov = Matrix3::new(c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5]);
+    (cov, c[6])
 }
 
 /// The sums of one round's normal equations over the rows `(row, y)` weighted by `w`, each in
@@ -836,6 +850,31 @@ fn closest_point_to_axes(phases: &[&PhaseDetail]) -> Option<[f64; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spreads_are_the_outer_products_summed() {
+        let m = 500;
+        let f = |i: usize, s: f64| ((i as f64 * s).sin() * 1.7 + (i as f64 * 0.37 * s).cos()) * (1.0 + s);
+        let pts: Vec<[f64; 3]> = (0..m).map(|i| [f(i, 0.11), f(i, 0.23), f(i, 0.05)]).collect();
+        let l: Vec<f64> = (0..m).map(|i| 3.0 + f(i, 0.07)).collect();
+        let t: Vec<f64> = (0..m).map(|i| i as f64).collect();
+        let d = CableData::from_points(&pts, &l, &t);
+        let slots: Vec<usize> = d.used_slots().collect();
+        let (xm, lm) = ([0.1, -0.2, 0.3], 2.9);
+        let mf = slots.len() as f64;
+        let (mut cov, mut lvar) = (Matrix3::zeros(), 0.0);
+        for &k in &slots {
+            let v = Vector3::from(model::sub(d.point(k), xm));
+            cov += v * v.transpose() / mf;
+            lvar += (d.l[k] - lm).powi(2) / mf;
+        }
+        let (c, lv) = spreads(&d, &slots, xm, lm);
+        assert_eq!(lv.to_bits(), lvar.to_bits());
+        for (a, b) in c.iter().zip(cov.iter()) {
+            assert_eq!(a.to_bits(), b.to_bits());
+        }
+        assert!(slots.len() == m && c[(0, 1)] != 0.0);
+    }
 
     #[test]
     fn normal_sums_are_the_same_bits_on_every_path() {
