@@ -543,6 +543,8 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
 /// about `lm`: `sum (v v^T) / m` and `sum (l - lm)^2 / m` in slot order, `v = X - xm`. The
 /// matrix is symmetric bit for bit (`v_a v_b = v_b v_a`), so its six distinct entries are summed
 /// (with the length's, seven divisions a reading in two vectors instead of ten one by one).
+/// Inlined, so that it is compiled with the multilateration's AVX2.
+#[inline(always)]
 fn spreads(d: &CableData, slots: &[usize], xm: [f64; 3], lm: f64) -> (Matrix3<f64>, f64) {
     let mf = slots.len() as f64;
     // 00 01 02 11 12 22, the length's, and a lane to fill the vector.
