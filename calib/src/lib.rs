@@ -737,10 +737,17 @@ const CROSSFIT_BLOCKS: usize = 5;
 /// training optimum to a small fraction of a sigma); the other blocks' normal equations are the
 /// whole recording's less the block's. Every reading is then held out once, five times the
 /// readings of the last-block split, for two passes over the data. `None` when a block's
-/// training normal matrix is singular.
-fn crossfit_terms(d: &noise::CableData, slots: usize, x: &[f64; 4], opts: &CalibOptions) -> Option<consistency::HeldoutTerms> {
+/// training normal matrix is singular. `all` is `solver::pass(d, 0, slots, x, opts.loss)` when
+/// the caller has it already.
+fn crossfit_terms(
+    d: &noise::CableData,
+    slots: usize,
+    x: &[f64; 4],
+    opts: &CalibOptions,
+    all: Option<solver::Pass>,
+) -> Option<consistency::HeldoutTerms> {
     let mut out = consistency::HeldoutTerms::with_rows(slots);
-    let all = solver::pass(d, 0, slots, x, opts.loss);
+    let all = all.unwrap_or_else(|| solver::pass(d, 0, slots, x, opts.loss));
     for b in 0..CROSSFIT_BLOCKS {
         let (lo, hi) = (b * slots / CROSSFIT_BLOCKS, (b + 1) * slots / CROSSFIT_BLOCKS);
         let blk = solver::pass(d, lo, hi, x, opts.loss);
@@ -911,7 +918,9 @@ fn calibrate_cable(
         }
     }
     if opts.model_check {
-        heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts);
+        // The final pass's sums are the full pass's at `sol.x` (the same loop, with statistics).
+        let all = (slots <= rows).then_some(fin.pass);
+        heldout_terms = crossfit_terms(d, slots.min(rows), &sol.x, opts, all);
     }
     if d.loose > 0 {
         notes.push(format!("cable {}: {} loose readings excluded (tension < {} N)", j + 1, d.loose, opts.min_tension_n));

@@ -822,9 +822,8 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     // Cloned when the first reading is excluded or shifted: a clean recording is not copied.
     let mut cleaned: Option<Recording> = None;
     let mut changed = false;
-    // The channels are screened independently (on `opts.threads` threads: first the three
-    // tracker axes and the load cells' `z`, then the encoders, which need the load cells');
-    // what they found is applied below in the order of one thread: encoders, load cells, tracker.
+    // The channels are screened independently (on `opts.threads` threads); what they found is
+    // applied below in the order of one thread: encoders, load cells, tracker.
     //
     // Rows where a load cell's tension changes faster than its noise allows (its own local
     // test, two rows either side): the encoder's unstretched length follows the tension
@@ -847,29 +846,68 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
         let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
         screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None).0
     };
-    let mut tracker_events = Vec::with_capacity(3);
-    let mut tension_quiet: Vec<Vec<bool>> = Vec::with_capacity(n);
-    let mut tension_cols: Vec<(Vec<f64>, f64)> = vec![];
-    let mut tension_mad: Vec<(f64, usize)> = vec![];
-    // The tracker axes first: the longer pieces, started early.
-    for piece in crate::par::map(opts.threads, 3 + n, |k| if k < 3 { Err(tracker(k)) } else { Ok(tension(k - 3)) }) {
-        match piece {
-            Err(ev) => tracker_events.push(ev),
-            Ok(Some((quiet, col, mad))) => {
-                tension_quiet.push(quiet);
-                tension_cols.push(col);
-                tension_mad.push(mad);
+    // A load cell's impossible tensions: (row, value, limit, sigmas), from its own column and
+    // the MAD of its `z` only.
+    let impossible = |j: usize, f: &[f64], (mad, nc): (f64, usize)| {
+        let col: Vec<f64> = (0..m).map(|i| f[i * n + j]).collect();
+        let s = floored(mad, &col, 1e-3);
+        let mut loose: Vec<f64> = col.iter().copied().filter(|v| v.is_finite() && v.abs() <= ABSURD_N && *v < opts.min_tension_n).collect();
+        let z0 = if loose.len() >= 20 {
+            let k = loose.len() / 2;
+            *loose.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+        } else {
+            0.0
+        };
+        let low = if s.is_finite() { z0.min(0.0) - thr_of(nc) * s } else { f64::NEG_INFINITY };
+        let high = opts.max_tension_n.filter(|h| *h > 0.0).unwrap_or(ABSURD_N).min(ABSURD_N);
+        let mut bad_rows = vec![];
+        for (i, &v) in col.iter().enumerate() {
+            if v.is_nan() {
+                continue;
             }
-            Ok(None) => tension_quiet.push(vec![]),
+            let (bad, limit) = if !(v.abs() <= ABSURD_N) || v > high {
+                (true, high)
+            } else if v < low {
+                (true, low)
+            } else {
+                (false, 0.0)
+            };
+            if bad {
+                let sigmas = if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY };
+                bad_rows.push((i, v, limit, sigmas));
+            }
         }
-    }
-    let encoders = crate::par::map(opts.threads, n, |j| {
+        bad_rows
+    };
+    // Cable `j`: its load cell's `z` (which its encoder's test needs), its encoder, its
+    // impossible tensions. One piece per cable and one per tracker axis, the cables (the longer
+    // pieces) first, so that the threads end together.
+    let cable = |j: usize| {
+        let (quiet, col, mad) = match tension(j) {
+            Some((quiet, col, mad)) => (quiet, Some(col), Some(mad)),
+            None => (vec![], None, None),
+        };
         let eseg = encoder_segments(rec, j, seg, opts.min_tension_n);
         let mut ch = Channel::new(&grid, (0..m).map(|i| rec.l[i * n + j]).collect(), &eseg);
-        let tension = tension_cols.get(j).map(|(c, s)| (&c[..], *s));
-        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &tension_quiet[j], tension);
-        (ev, ch.y, ch.out)
-    });
+        let (ev, _) = screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &quiet, col.as_ref().map(|(c, s)| (&c[..], *s)));
+        let bad_rows = match (&rec.f, mad) {
+            (Some(f), Some(mad)) => impossible(j, f, mad),
+            _ => vec![],
+        };
+        ((ev, ch.y, ch.out), bad_rows)
+    };
+    let mut tracker_events = Vec::with_capacity(3);
+    let mut encoders = Vec::with_capacity(n);
+    let mut impossible_rows = Vec::with_capacity(n);
+    for piece in crate::par::map(opts.threads, n + 3, |k| if k < n { Ok(cable(k)) } else { Err(tracker(k - n)) }) {
+        match piece {
+            Ok((enc, bad)) => {
+                encoders.push(enc);
+                impossible_rows.push(bad);
+            }
+            Err(ev) => tracker_events.push(ev),
+        }
+    }
     // Encoders.
     for (j, (ev, y, out)) in encoders.into_iter().enumerate() {
         for e in ev {
@@ -906,43 +944,9 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
             }
         }
     }
-    // Load cells: each cable's impossible tensions found on the threads (each from its own
-    // column only), then applied in the order of one thread.
-    if let Some(f) = &rec.f {
-        let impossible = crate::par::map(opts.threads, n, |j| {
-            let col: Vec<f64> = (0..m).map(|i| f[i * n + j]).collect();
-            let (mad, nc) = tension_mad[j];
-            let s = floored(mad, &col, 1e-3);
-            let mut loose: Vec<f64> =
-                col.iter().copied().filter(|v| v.is_finite() && v.abs() <= ABSURD_N && *v < opts.min_tension_n).collect();
-            let z0 = if loose.len() >= 20 {
-                let k = loose.len() / 2;
-                *loose.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
-            } else {
-                0.0
-            };
-            let low = if s.is_finite() { z0.min(0.0) - thr_of(nc) * s } else { f64::NEG_INFINITY };
-            let high = opts.max_tension_n.filter(|h| *h > 0.0).unwrap_or(ABSURD_N).min(ABSURD_N);
-            let mut bad_rows = vec![];
-            for (i, &v) in col.iter().enumerate() {
-                if v.is_nan() {
-                    continue;
-                }
-                let (bad, limit) = if !(v.abs() <= ABSURD_N) || v > high {
-                    (true, high)
-                } else if v < low {
-                    (true, low)
-                } else {
-                    (false, 0.0)
-                };
-                if bad {
-                    let sigmas = if v.is_finite() && v.abs() <= ABSURD_N && s > 0.0 { (v - z0.min(0.0)).abs() / s } else { f64::INFINITY };
-                    bad_rows.push((i, v, limit, sigmas));
-                }
-            }
-            bad_rows
-        });
-        for (j, bad_rows) in impossible.into_iter().enumerate() {
+    // Load cells.
+    if rec.f.is_some() {
+        for (j, bad_rows) in impossible_rows.into_iter().enumerate() {
             for (i, v, limit, sigmas) in bad_rows {
                 changed = true;
                 findings.push(WildValue {

@@ -301,8 +301,13 @@ pub fn tension_column_swap(rec: &Recording, platform_points: &[[f64; 3]], anchor
     let posed = |i: usize| rec.p[i].iter().all(|v| v.is_finite()) && rec.t[i].is_finite();
     let dt = {
         let mut d: Vec<f64> = rec.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
-        d.sort_by(f64::total_cmp);
-        d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+        let k = d.len() / 2;
+        // The element a sort would put at `k`, without sorting the rest.
+        if d.is_empty() {
+            f64::NAN
+        } else {
+            *d.select_nth_unstable_by(k, f64::total_cmp).1
+        }
     };
     if !(dt > 0.0) {
         return None;
@@ -321,24 +326,17 @@ pub fn tension_column_swap(rec: &Recording, platform_points: &[[f64; 3]], anchor
             std::array::from_fn(|c| 2.0 * ((rec.p[i + k][c] - rec.p[i][c]) / h1 - (rec.p[i][c] - rec.p[i - k][c]) / h0) / (h0 + h1));
         a.iter().all(|v| v.is_finite()).then_some(a)
     };
-    let mut rows = vec![];
-    let mut acc = vec![];
-    for i in 0..rec.len() {
-        if !posed(i) || !f[i * n..(i + 1) * n].iter().all(|t| t.is_finite() && *t >= min_tension_n) {
-            continue;
-        }
-        if let Some(a) = accel(i) {
-            rows.push(i);
-            // What the cables hold: m (a - g), g = -9.81 e_z.
-            acc.push([a[0], a[1], a[2] + 9.81]);
-        }
-    }
-    if rows.len() < 50 {
+    // The usable rows, then every so many of them (at most 5000), with their accelerations
+    // computed again (the same function of the same values) rather than kept for every row.
+    let usable: Vec<usize> = (0..rec.len())
+        .filter(|&i| posed(i) && f[i * n..(i + 1) * n].iter().all(|t| t.is_finite() && *t >= min_tension_n) && accel(i).is_some())
+        .collect();
+    if usable.len() < 50 {
         return None;
     }
-    let keep: Vec<usize> = (0..rows.len()).step_by(rows.len().div_ceil(5000)).collect();
-    let rows: Vec<usize> = keep.iter().map(|&q| rows[q]).collect();
-    let acc: Vec<[f64; 3]> = keep.iter().map(|&q| acc[q]).collect();
+    let rows: Vec<usize> = usable.iter().step_by(usable.len().div_ceil(5000)).copied().collect();
+    // What the cables hold: m (a - g), g = -9.81 e_z.
+    let acc: Vec<[f64; 3]> = rows.iter().filter_map(|&i| accel(i)).map(|a| [a[0], a[1], a[2] + 9.81]).collect();
     // Unit vectors from each attachment point to its anchor, per row.
     let mut u = Vec::with_capacity(rows.len() * n);
     for &i in &rows {

@@ -64,6 +64,9 @@ pub struct Outcome {
     /// Rows found stale before the screen and left out (`taut_calib::diagnose::dataq::stale_rows`:
     /// every encoder repeats the previous row while the platform moves).
     pub stale_rows: usize,
+    /// Without nominal anchors in the configuration: length columns that disagree with the
+    /// tension columns at the force-aware anchors (`taut_calib::trust::tension_column_swap`).
+    pub column_swap: Option<taut_calib::trust::ColumnSwap>,
 }
 
 /// Loads a recording (on every core: the same recording) and says what was skipped.
@@ -227,14 +230,24 @@ pub fn pipeline(rec: &Recording, cfg: &RobotConfig, compare: bool, progress: &in
         None
     };
     progress.inc(1);
-    let ((res, mask), crb) = taut_calib::par::join(
+    // Without nominal anchors, length columns that disagree with the tension columns: beside
+    // the metrics, not after them.
+    let nominal = cfg.anchors().is_some();
+    let column_swap = || {
+        if nominal {
+            None
+        } else {
+            taut_calib::trust::tension_column_swap(rec, &b, &force.params.anchors, cfg.calibration.min_tension_n)
+        }
+    };
+    let ((res, mask), (crb, column_swap)) = taut_calib::par::join(
         threads,
         || taut_calib::par::join(threads, || metrics::co_registration(rec, &b, &init.params), || metrics::taut_mask(rec, &opts)),
-        || metrics::cramer_rao_gathered(rec, &force.params, &opts, &mut data),
+        || taut_calib::par::join(threads, || metrics::cramer_rao_gathered(rec, &force.params, &opts, &mut data), column_swap),
     );
     let before = metrics::rms_peak(&res, &mask);
     progress.inc(1);
-    Ok(Outcome { init, force, plain, before, crb, screen, stale_rows })
+    Ok(Outcome { init, force, plain, before, crb, screen, stale_rows, column_swap })
 }
 
 /// A progress bar on a terminal; hidden when stderr is piped.
@@ -288,11 +301,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let mut nominal = cfg.anchors();
     let swaps = nominal.as_deref().map(|n| taut_calib::trust::swaps(&out.force.params.anchors, n)).unwrap_or_default();
     // Without nominal anchors: length columns that disagree with the tension columns.
-    let column_swap = if nominal.is_none() {
-        taut_calib::trust::tension_column_swap(rec, &cfg.platform_points(), &out.force.params.anchors, cfg.calibration.min_tension_n)
-    } else {
-        None
-    };
+    let column_swap = out.column_swap;
     if !swaps.is_empty() || column_swap.is_some() {
         let words: Vec<String> = swaps.iter().map(|s| s.to_string()).chain(column_swap.map(|c| c.to_string())).collect();
         if !a.allow_swapped {

@@ -453,13 +453,7 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
         lm += d.l[k] / mf;
     }
     // Excitation: principal spreads of the path, and the spread of the lengths.
-    let mut cov = Matrix3::zeros();
-    let mut lvar = 0.0;
-    for &k in &slots {
-        let v = Vector3::from(model::sub(d.point(k), xm));
-        cov += v * v.transpose() / mf;
-        lvar += (d.l[k] - lm).powi(2) / mf;
-    }
+    let (cov, lvar) = spreads(d, &slots, xm, lm);
     let eig = SymmetricEigen::new(cov);
     let (imin, imax) = {
         let e = &eig.eigenvalues;
@@ -507,22 +501,7 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
         // entries below the diagonal are dropped), the last column is `row * w` (times 1) and
         // the corner `w`: each kept entry gets the same products in the same order as
         // `upper[a][b] += (row[a] w) row[b]` over the 5x5 upper triangle.
-        let (mut block, mut last, mut r4) = ([[0.0f64; 4]; 4], [0.0f64; 4], [0.0f64; 4]);
-        let (mut corner, mut r_last) = (0.0f64, 0.0f64);
-        for (&(row, y), &wi) in rows.iter().zip(&w) {
-            let ra = [row[0] * wi, row[1] * wi, row[2] * wi, row[3] * wi];
-            for a in 0..4 {
-                for b in 0..4 {
-                    block[a][b] += ra[a] * row[b];
-                }
-            }
-            for a in 0..4 {
-                last[a] += ra[a];
-                r4[a] += ra[a] * y;
-            }
-            corner += wi;
-            r_last += wi * y;
-        }
+        let NormalSums { block, last, r4, corner, r_last } = normal_sums(&rows, &w);
         let mut upper = [[0.0f64; 5]; 5];
         for a in 0..4 {
             upper[a][..4].copy_from_slice(&block[a]);
@@ -558,6 +537,105 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
     }
     let _ = l0_est;
     Ok((a_est, median_offset(d, a_est)))
+}
+
+/// The covariance of the used readings' points about `xm` and the variance of their lengths
+/// about `lm`: `sum (v v^T) / m` and `sum (l - lm)^2 / m` in slot order, `v = X - xm`. The
+/// matrix is symmetric bit for bit (`v_a v_b = v_b v_a`), so its six distinct entries are summed
+/// (with the length's, seven divisions a reading in two vectors instead of ten one by one).
+/// Inlined, so that it is compiled with the multilateration's AVX2.
+#[inline(always)]
+fn spreads(d: &CableData, slots: &[usize], xm: [f64; 3], lm: f64) -> (Matrix3<f64>, f64) {
+    let mf = slots.len() as f64;
+    // 00 01 02 11 12 22, the length's, and a lane to fill the vector.
+    let mut c = [0.0f64; 8];
+    for &k in slots {
+        let v = model::sub(d.point(k), xm);
+        let dl = d.l[k] - lm;
+        let prod = [v[0] * v[0], v[0] * v[1], v[0] * v[2], v[1] * v[1], v[1] * v[2], v[2] * v[2], dl * dl, 0.0];
+        for (s, p) in c.iter_mut().zip(prod) {
+            *s += p / mf;
+        }
+    }
+    let cov = Matrix3::new(c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5]);
+    (cov, c[6])
+}
+
+/// The sums of one round's normal equations over the rows `(row, y)` weighted by `w`, each in
+/// row order: `block[a][b] = sum (row[a] w) row[b]`, `last[a] = sum row[a] w`,
+/// `r4[a] = sum (row[a] w) y`, `corner = sum w`, `r_last = sum w y`.
+struct NormalSums {
+    block: [[f64; 4]; 4],
+    last: [f64; 4],
+    r4: [f64; 4],
+    corner: f64,
+    r_last: f64,
+}
+
+fn normal_sums(rows: &[([f64; 4], f64)], w: &[f64]) -> NormalSums {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports the feature `normal_sums_avx2` is compiled for.
+            return unsafe { normal_sums_avx2(rows, w) };
+        }
+    }
+    normal_sums_scalar(rows, w)
+}
+
+/// [`normal_sums`] one row at a time.
+#[allow(clippy::needless_range_loop)]
+fn normal_sums_scalar(rows: &[([f64; 4], f64)], w: &[f64]) -> NormalSums {
+    let (mut block, mut last, mut r4) = ([[0.0f64; 4]; 4], [0.0f64; 4], [0.0f64; 4]);
+    let (mut corner, mut r_last) = (0.0f64, 0.0f64);
+    for (&(row, y), &wi) in rows.iter().zip(w) {
+        let ra = [row[0] * wi, row[1] * wi, row[2] * wi, row[3] * wi];
+        for a in 0..4 {
+            for b in 0..4 {
+                block[a][b] += ra[a] * row[b];
+            }
+        }
+        for a in 0..4 {
+            last[a] += ra[a];
+            r4[a] += ra[a] * y;
+        }
+        corner += wi;
+        r_last += wi * y;
+    }
+    NormalSums { block, last, r4, corner, r_last }
+}
+
+/// [`normal_sums_scalar`] with the 26 sums held in registers, four lanes a vector: each lane
+/// gets the same products (a multiply, then an add: never fused) in the same order, so the same
+/// bits. Left to the compiler the loop kept some sums on the stack, a store and a load in every
+/// sum's chain.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn normal_sums_avx2(rows: &[([f64; 4], f64)], w: &[f64]) -> NormalSums {
+    use std::arch::x86_64::*;
+    let z = _mm256_setzero_pd();
+    let (mut b0, mut b1, mut b2, mut b3, mut last, mut r4) = (z, z, z, z, z, z);
+    let (mut corner, mut r_last) = (0.0f64, 0.0f64);
+    for (&(row, y), &wi) in rows.iter().zip(w) {
+        // SAFETY: `row` is four f64 (an unaligned load reads exactly those).
+        let rv = _mm256_loadu_pd(row.as_ptr());
+        let ra = _mm256_mul_pd(rv, _mm256_set1_pd(wi));
+        b0 = _mm256_add_pd(b0, _mm256_mul_pd(_mm256_permute4x64_pd::<0x00>(ra), rv));
+        b1 = _mm256_add_pd(b1, _mm256_mul_pd(_mm256_permute4x64_pd::<0x55>(ra), rv));
+        b2 = _mm256_add_pd(b2, _mm256_mul_pd(_mm256_permute4x64_pd::<0xAA>(ra), rv));
+        b3 = _mm256_add_pd(b3, _mm256_mul_pd(_mm256_permute4x64_pd::<0xFF>(ra), rv));
+        last = _mm256_add_pd(last, ra);
+        r4 = _mm256_add_pd(r4, _mm256_mul_pd(ra, _mm256_set1_pd(y)));
+        corner += wi;
+        r_last += wi * y;
+    }
+    let lanes = |v: __m256d| {
+        let mut out = [0.0f64; 4];
+        // SAFETY: `out` holds four f64.
+        _mm256_storeu_pd(out.as_mut_ptr(), v);
+        out
+    };
+    NormalSums { block: [lanes(b0), lanes(b1), lanes(b2), lanes(b3)], last: lanes(last), r4: lanes(r4), corner, r_last }
 }
 
 /// `median |v|` (0 for an empty slice).
@@ -769,4 +847,56 @@ fn closest_point_to_axes(phases: &[&PhaseDetail]) -> Option<[f64; 3]> {
     }
     let a = m.cholesky()?.solve(&b);
     Some([a[0], a[1], a[2]])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spreads_are_the_outer_products_summed() {
+        let m = 500;
+        let f = |i: usize, s: f64| ((i as f64 * s).sin() * 1.7 + (i as f64 * 0.37 * s).cos()) * (1.0 + s);
+        let pts: Vec<[f64; 3]> = (0..m).map(|i| [f(i, 0.11), f(i, 0.23), f(i, 0.05)]).collect();
+        let l: Vec<f64> = (0..m).map(|i| 3.0 + f(i, 0.07)).collect();
+        let t: Vec<f64> = (0..m).map(|i| i as f64).collect();
+        let d = CableData::from_points(&pts, &l, &t);
+        let slots: Vec<usize> = d.used_slots().collect();
+        let (xm, lm) = ([0.1, -0.2, 0.3], 2.9);
+        let mf = slots.len() as f64;
+        let (mut cov, mut lvar) = (Matrix3::zeros(), 0.0);
+        for &k in &slots {
+            let v = Vector3::from(model::sub(d.point(k), xm));
+            cov += v * v.transpose() / mf;
+            lvar += (d.l[k] - lm).powi(2) / mf;
+        }
+        let (c, lv) = spreads(&d, &slots, xm, lm);
+        assert_eq!(lv.to_bits(), lvar.to_bits());
+        for (a, b) in c.iter().zip(cov.iter()) {
+            assert_eq!(a.to_bits(), b.to_bits());
+        }
+        assert!(slots.len() == m && c[(0, 1)] != 0.0);
+    }
+
+    #[test]
+    fn normal_sums_are_the_same_bits_on_every_path() {
+        // Values of mixed sign and magnitude, so that a changed order of the adds would show.
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let rows: Vec<([f64; 4], f64)> = (0..1001).map(|i| ([next(), next() * 1e3, next() * 1e-3, next()], next() * (i as f64))).collect();
+        let w: Vec<f64> = (0..rows.len()).map(|_| next().abs() * 7.0).collect();
+        let (a, b) = (normal_sums(&rows, &w), normal_sums_scalar(&rows, &w));
+        let bits = |n: &NormalSums| {
+            let mut v: Vec<u64> = n.block.iter().flatten().chain(&n.last).chain(&n.r4).map(|x| x.to_bits()).collect();
+            v.extend([n.corner.to_bits(), n.r_last.to_bits()]);
+            v
+        };
+        assert_eq!(bits(&a), bits(&b));
+        assert!(a.block[1][2] != 0.0 && a.corner > 0.0);
+    }
 }

@@ -91,6 +91,7 @@ fn perturbed() -> Outcome {
         crb: out.crb.clone(),
         screen: out.screen.clone(),
         stale_rows: out.stale_rows,
+        column_swap: out.column_swap,
     };
     o.init.params.anchors[0][0] += 0.008;
     o
