@@ -1,5 +1,5 @@
-//! `taut-params v2`-`v4`: the effects a diagnosis names travel in the parameter file to the running
-//! robot. v1 files still read; hostile values are refused naming the file, line and key; the
+//! `taut-params v2` to `v4`: the effects a diagnosis names travel in the parameter file to the
+//! running robot. v1 files still read; hostile values are refused naming the file, line and key; the
 //! `[calibration] effects` key is validated; a diagnosis of a recording with concealed
 //! elasticity writes a file whose EA the loop's kinematics then uses.
 
