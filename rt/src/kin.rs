@@ -2,7 +2,7 @@
 //!
 //! Model (as in `calib`): encoder length `l_j = |P + b_j - A_j| + L0_j` for a platform at `P`
 //! without rotation, `b_j` the attachment point in the platform frame, `A_j` the anchor; with
-//! the effects of a `taut-params v2` file ([`LoopEffects`]; the formulas are `taut_model`'s, the
+//! the effects of a `taut-params` file ([`LoopEffects`]; the formulas are `taut_model`'s, the
 //! ones the calibration fits, `taut_calib::diagnose::effects`):
 //!
 //! ```text
