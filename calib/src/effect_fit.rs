@@ -26,7 +26,7 @@
 //! println!("EA {:?}", f.effects.ea_n);
 //! ```
 
-use crate::diagnose::Diagnosis;
+use crate::diagnose::{Diagnosis, TensionEffect};
 use crate::effects::model::{self as fit, encoder_time_prep, ModelSpec, Prepared};
 use crate::effects::{Effect, Sharing, TensionEnd};
 use crate::lm::dense::LmReport;
@@ -420,7 +420,9 @@ pub fn fit_effects(
 
 /// The effects a diagnosis named, as a parameter file carries them (sag and slack are not part
 /// of the robot's model and are left out, with a note each; so is a per-cable effect with a
-/// cable the data could not fit). Returns the effects and the notes.
+/// cable the data could not fit). The tension side's load-cell gain and friction go in as
+/// `loadcell_gain` and `friction_mu_theta` (the loop corrects its tensions with them); its
+/// inertia is left out with a note. Returns the effects and the notes.
 pub fn effects_of(d: &Diagnosis) -> (Effects, Vec<String>) {
     let mut out = Effects::default();
     let mut notes = vec![];
@@ -442,6 +444,23 @@ pub fn effects_of(d: &Diagnosis) -> (Effects, Vec<String>) {
         if let Err(note) = f.effect.model().store(&mut out, vals, sig) {
             notes.push(note.into());
         }
+    }
+    for f in d.tension.iter().flat_map(|t| &t.effects) {
+        let (key, value, sigma) = match f.effect {
+            TensionEffect::LoadcellGain => ("loadcell_gain", &mut out.loadcell_gain, &mut out.loadcell_gain_sigma),
+            TensionEffect::Friction => ("friction_mu_theta", &mut out.friction_mu_theta, &mut out.friction_mu_theta_sigma),
+            TensionEffect::Inertia => {
+                notes.push("inertia not written: the platform's inertia is physics the loop's statics leave out, not a parameter".into());
+                continue;
+            }
+        };
+        let (_, lo, hi, _) = *taut_config::params::EFFECT_RANGES.iter().find(|r| r.0 == key).expect("a range per key");
+        if f.values.len() != n || f.values.iter().any(|v| !(v.is_finite() && *v >= lo && *v <= hi)) {
+            notes.push(format!("{} not written: {key} {:?} is not one value per cable in {lo} to {hi}", f.effect.name(), f.values));
+            continue;
+        }
+        *value = Some(f.values.clone());
+        *sigma = (f.sigmas.len() == n && f.sigmas.iter().all(|s| s.is_finite() && *s >= 0.0)).then(|| f.sigmas.clone());
     }
     (out, notes)
 }

@@ -4,6 +4,12 @@
 //! fitted together ([`taut_calib::effect_fit`]). The model is fixed: no effect is added or
 //! dropped in the running robot. A fit with effects that fails (diverges, or a value outside
 //! its physical range) fails the calibration, and the daemon keeps the running parameters.
+//!
+//! The file's tension side (`loadcell_gain`, `friction_mu_theta`) is not fitted here: the
+//! daemon's recordings are lengths against the tracker, and the gains and friction are
+//! measured on the platform's force balance (`taut diagnose --tension-side`). Every estimate
+//! carries the file's values unchanged, so the loop keeps correcting its tensions and the
+//! rewritten parameter file keeps the keys.
 
 use crate::vocab::{BackendError, Calibrate, Estimate};
 use taut_calib::effect_fit::{fit_effects, EffectFitOptions};
@@ -107,6 +113,10 @@ impl TautCalib {
     /// aligns the data from the start).
     pub fn with_params(mut self, file: &ParamsFile) -> TautCalib {
         for name in file.effects.names() {
+            // Carried, not fitted (see the module documentation).
+            if taut_calib::diagnose::TensionEffect::from_name(name).is_some() {
+                continue;
+            }
             // A known stiffness (`cable_ea_sigma_n`): the refinement models the stretch, and a
             // file written by it carries the fitted EA.
             let refined = name == "elasticity" && self.stretch.is_some();
@@ -195,8 +205,31 @@ impl TautCalib {
     }
 }
 
+impl TautCalib {
+    /// The estimate with the file's tension side (see the module documentation).
+    fn with_tension_side(&self, mut est: Estimate) -> Estimate {
+        let s = &self.start_effects;
+        est.effects.loadcell_gain = s.loadcell_gain.clone();
+        est.effects.loadcell_gain_sigma = s.loadcell_gain_sigma.clone();
+        est.effects.friction_mu_theta = s.friction_mu_theta.clone();
+        est.effects.friction_mu_theta_sigma = s.friction_mu_theta_sigma.clone();
+        est
+    }
+}
+
 impl Calibrate for TautCalib {
     fn initialise(&mut self, rec: &Recording) -> Result<Estimate, BackendError> {
+        self.initialise_lengths(rec).map(|e| self.with_tension_side(e))
+    }
+
+    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, BackendError> {
+        self.calibrate_lengths(rec, init).map(|e| self.with_tension_side(e))
+    }
+}
+
+impl TautCalib {
+    /// The initial estimate of the length side.
+    fn initialise_lengths(&mut self, rec: &Recording) -> Result<Estimate, BackendError> {
         if let Some(o) = &self.selfcal {
             return self.initialise_without_tracker(rec, o);
         }
@@ -241,7 +274,8 @@ impl Calibrate for TautCalib {
         })
     }
 
-    fn calibrate(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, BackendError> {
+    /// The calibration of the length side.
+    fn calibrate_lengths(&mut self, rec: &Recording, init: &Estimate) -> Result<Estimate, BackendError> {
         if let Some(o) = &self.selfcal {
             return self.calibrate_without_tracker(rec, o);
         }

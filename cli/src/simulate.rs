@@ -211,6 +211,8 @@ pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim:
             backlash_m: (s.physics.backlash_m > 0.0).then(|| vec![s.physics.backlash_m; n]),
             time_offset_s: (s.physics.time_offset_s != 0.0).then_some(s.physics.time_offset_s),
             drum_buildup_per_m: s.physics.drum().map(|d| vec![d.quadratic_per_m(); n]),
+            loadcell_gain: s.physics.loadcell_gain.clone(),
+            friction_mu_theta: s.physics.friction_mu_theta.filter(|c| *c != 0.0).map(|c| vec![c; n]),
             ..Default::default()
         },
         ..taut_config::params::ParamsFile::from_geometry(&run.truth.geometry(), &taut_config::params::Sigmas::uniform(n, 0.0))

@@ -50,8 +50,9 @@ pub struct StartArgs {
     /// (e.g. `vcan0`) instead of an in-process virtual bus.
     #[arg(long, requires = "sim")]
     can: Option<String>,
-    /// A parameter file (taut-params v1, v2 or v3, e.g. from `taut diagnose --out`): the effects it
-    /// carries are modelled and refitted by every calibration, starting from its values.
+    /// A parameter file (taut-params v1 to v4, e.g. from `taut diagnose --out`): the length
+    /// effects it carries are modelled and refitted by every calibration, starting from its
+    /// values; its load-cell gains and friction correct the loop's tensions, carried unchanged.
     #[arg(long)]
     params: Option<PathBuf>,
     /// With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate

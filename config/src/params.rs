@@ -1,10 +1,11 @@
-//! `taut-params v3`: a calibrated parameter set as written by `taut calibrate --out`, `taut
+//! `taut-params v4`: a calibrated parameter set as written by `taut calibrate --out`, `taut
 //! diagnose --out` and by the daemon on every accepted calibration (TOML, written atomically).
-//! Version 2 files (the same without `drum_buildup_per_m`) and version 1 files (without
-//! `[effects]`) are still read; files are written as v3.
+//! Version 3 files (the same without the tension side's `loadcell_gain` and
+//! `friction_mu_theta`), version 2 files (also without `drum_buildup_per_m`) and version 1 files
+//! (without `[effects]`) are still read; files are written as v4.
 //!
 //! ```toml
-//! format = "taut-params v3"
+//! format = "taut-params v4"
 //! version = 3                      # increases with every accepted set
 //! created_unix_s = 1795000000.0
 //! robot = "aras-cam"
@@ -25,11 +26,16 @@
 //! backlash_m = [0.002, ...]        # play in the drive train (width)
 //! drum_buildup_per_m = [-0.01, ...] # drum build-up q: true length u + q u^2 of the encoder's u
 //! time_offset_s = 0.012            # the encoders lag the tracker by this
+//! loadcell_gain = [1.02, ...]      # load-cell gain: the cell reads gain x tension (+ its offset)
+//! friction_mu_theta = [0.1, ...]   # capstan friction mu theta of the guides before the cell
 //! ```
 //!
 //! The model of an encoder reading (as in `taut_calib::diagnose::effects`): the path `G` from
 //! the anchor over the pulley to the platform, unstretched `U = G / (1 + T / EA)`, reading
-//! `drum_scale * U + L0`, through a play of width `backlash_m`.
+//! `drum_scale * U + L0`, through a play of width `backlash_m`. A load cell reads
+//! `loadcell_gain * T * exp(-friction_mu_theta * tanh(v / 5 mm/s))` of the cable's tension `T`
+//! at length rate `v` (> 0 paying out): `taut_model::cell_tension` inverts it, in the loop and in
+//! the diagnosis.
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -39,7 +45,9 @@ use taut_model::geometry::{Field, GeometryError};
 pub use taut_model::geometry::{Geometry, Sigmas};
 
 /// The format tag of a parameter file as written.
-pub const FORMAT: &str = "taut-params v3";
+pub const FORMAT: &str = "taut-params v4";
+/// The format tag of version 3 files (no `loadcell_gain`, `friction_mu_theta`), still read.
+pub const FORMAT_V3: &str = "taut-params v3";
 /// The format tag of version 2 files (no `drum_buildup_per_m`), still read.
 pub const FORMAT_V2: &str = "taut-params v2";
 /// The format tag of version 1 files (no `[effects]`), still read.
@@ -47,7 +55,7 @@ pub const FORMAT_V1: &str = "taut-params v1";
 
 /// Plausible ranges of the effect values: (key, low, high, unit). A value outside is not a
 /// physical cable (or a typo), and the file is refused naming the key.
-pub const EFFECT_RANGES: [(&str, f64, f64, &str); 6] = [
+pub const EFFECT_RANGES: [(&str, f64, f64, &str); 8] = [
     // An elastic cord (1 kN) to a thick steel rope (10 GN is far beyond any; stiffer is rigid).
     ("ea_n", 1e3, 1e10, "N"),
     // A drum radius error of +-10 %.
@@ -57,6 +65,10 @@ pub const EFFECT_RANGES: [(&str, f64, f64, &str); 6] = [
     ("time_offset_s", -1.0, 1.0, "s"),
     // Drum build-up q = b / (2 r^2): a 2 mm cable five turns a layer on a 25 mm drum is 0.05.
     ("drum_buildup_per_m", -0.1, 0.1, "1/m"),
+    // A cell more than a factor 2 off its data sheet is a wiring or scaling fault, not a gain.
+    ("loadcell_gain", 0.5, 2.0, ""),
+    // mu theta of 2 is a coefficient of 0.3 over more than a full turn of guides.
+    ("friction_mu_theta", 0.0, 2.0, ""),
 ];
 
 /// Physical effects beyond the ideal model, fitted by `taut diagnose` or the daemon's
@@ -102,6 +114,20 @@ pub struct Effects {
     /// 1-sigma of `drum_buildup_per_m`, 1/m.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drum_buildup_sigma_per_m: Option<Vec<f64>>,
+    /// Load-cell gain per cable: the cell reads `gain` times the tension (plus its offset)
+    /// (version 4).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loadcell_gain: Option<Vec<f64>>,
+    /// 1-sigma of `loadcell_gain`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loadcell_gain_sigma: Option<Vec<f64>>,
+    /// Capstan friction `mu theta` per cable of the guides between the platform and the load
+    /// cell (version 4; `taut_model::cell_tension`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_mu_theta: Option<Vec<f64>>,
+    /// 1-sigma of `friction_mu_theta`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_mu_theta_sigma: Option<Vec<f64>>,
 }
 
 impl Effects {
@@ -119,10 +145,19 @@ impl Effects {
             && self.time_offset_sigma_s.is_none()
             && self.drum_buildup_per_m.is_none()
             && self.drum_buildup_sigma_per_m.is_none()
+            && self.tension_side_is_empty()
+    }
+
+    /// No tension-side effect (load-cell gain, friction) modelled.
+    pub fn tension_side_is_empty(&self) -> bool {
+        self.loadcell_gain.is_none()
+            && self.loadcell_gain_sigma.is_none()
+            && self.friction_mu_theta.is_none()
+            && self.friction_mu_theta_sigma.is_none()
     }
 
     /// The names of the modelled effects (`taut-diagnosis v1` names: elasticity, scale,
-    /// pulley, backlash, time-offset).
+    /// pulley, backlash, time-offset, drum-buildup, loadcell-gain, friction).
     pub fn names(&self) -> Vec<&'static str> {
         let mut v = vec![];
         for (on, name) in [
@@ -132,6 +167,8 @@ impl Effects {
             (self.backlash_m.is_some(), "backlash"),
             (self.time_offset_s.is_some(), "time-offset"),
             (self.drum_buildup_per_m.is_some(), "drum-buildup"),
+            (self.loadcell_gain.is_some(), "loadcell-gain"),
+            (self.friction_mu_theta.is_some(), "friction"),
         ] {
             if on {
                 v.push(name);
@@ -146,12 +183,14 @@ impl Effects {
         let range = |key: &str| EFFECT_RANGES.iter().find(|r| r.0 == key).copied().expect("every effect key has a range");
         // (value key, values, sigma key, sigmas)
         type Keyed<'a> = (&'a str, &'a Option<Vec<f64>>, &'a str, &'a Option<Vec<f64>>);
-        let vectors: [Keyed; 5] = [
+        let vectors: [Keyed; 7] = [
             ("ea_n", &self.ea_n, "ea_sigma_n", &self.ea_sigma_n),
             ("drum_scale", &self.drum_scale, "drum_scale_sigma", &self.drum_scale_sigma),
             ("pulley_radius_m", &self.pulley_radius_m, "pulley_radius_sigma_m", &self.pulley_radius_sigma_m),
             ("backlash_m", &self.backlash_m, "backlash_sigma_m", &self.backlash_sigma_m),
             ("drum_buildup_per_m", &self.drum_buildup_per_m, "drum_buildup_sigma_per_m", &self.drum_buildup_sigma_per_m),
+            ("loadcell_gain", &self.loadcell_gain, "loadcell_gain_sigma", &self.loadcell_gain_sigma),
+            ("friction_mu_theta", &self.friction_mu_theta, "friction_mu_theta_sigma", &self.friction_mu_theta_sigma),
         ];
         let value = |key: &str, v: f64| -> Result<(), String> {
             let (_, lo, hi, unit) = range(key);
@@ -292,8 +331,29 @@ impl ParamsFile {
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let p: ParamsFile =
             toml::from_str(text).map_err(|e| err(e.span().map(|s| crate::line_of(text, s.start)), e.message().trim().to_string()))?;
-        if p.format != FORMAT && p.format != FORMAT_V2 && p.format != FORMAT_V1 {
-            return Err(err(Some(1), format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V2}`, `{FORMAT_V1}`)", p.format)));
+        if ![FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1].contains(&p.format.as_str()) {
+            return Err(err(
+                Some(1),
+                format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V3}`, `{FORMAT_V2}`, `{FORMAT_V1}`)", p.format),
+            ));
+        }
+        if (p.format == FORMAT_V3 || p.format == FORMAT_V2) && !p.effects.tension_side_is_empty() {
+            let e = &p.effects;
+            let key = [
+                ("loadcell_gain", e.loadcell_gain.is_some()),
+                ("loadcell_gain_sigma", e.loadcell_gain_sigma.is_some()),
+                ("friction_mu_theta", e.friction_mu_theta.is_some()),
+                ("friction_mu_theta_sigma", e.friction_mu_theta_sigma.is_some()),
+            ]
+            .into_iter()
+            .find(|k| k.1)
+            .map_or("loadcell_gain", |k| k.0);
+            return Err(crate::ConfigError {
+                file: Some(path.to_path_buf()),
+                line: key_line(text, &format!("effects.{key}")),
+                key: Some(format!("effects.{key}")),
+                message: format!("`{}` has no {key}: write format = \"{FORMAT}\"", p.format),
+            });
         }
         if p.format == FORMAT_V2 && (p.effects.drum_buildup_per_m.is_some() || p.effects.drum_buildup_sigma_per_m.is_some()) {
             let key = if p.effects.drum_buildup_per_m.is_some() { "drum_buildup_per_m" } else { "drum_buildup_sigma_per_m" };
@@ -328,8 +388,8 @@ impl ParamsFile {
             message,
         })?;
         let mut p = p;
-        // A v1 file is a v3 file without effects, a v2 one without the drum build-up: held (and
-        // written back) as v3.
+        // A v1 file is a v4 file without effects, a v2 one without the drum build-up and the
+        // tension side, a v3 one without the tension side: held (and written back) as v4.
         p.format = FORMAT.into();
         let n = p.anchors_m.len();
         if p.anchor_sigma_m.is_empty() {
@@ -516,19 +576,59 @@ mod tests {
         let v2 = "format = \"taut-params v2\"\nversion = 3\ncreated_unix_s = 1.5e9\nrobot = \"r\"\nsource = \"x.csv\"\n\
                   anchors_m = [[1.0, 2.0, 3.0], [-1.0, 2.0, 3.0]]\nl0_m = [0.1, 0.2]\n\n[effects]\ndrum_scale = [1.003, 0.998]\n";
         let p = ParamsFile::parse(Path::new("v2.toml"), v2).unwrap();
-        assert_eq!(p.format, FORMAT, "read as the current format (written back as v3)");
+        assert_eq!(p.format, FORMAT, "read as the current format (written back as v4)");
         assert_eq!(p.effects.drum_scale, Some(vec![1.003, 0.998]));
         assert_eq!(p.effects.drum_buildup_per_m, None);
         let set = format!("{v2}drum_buildup_per_m = [-0.01, 0.02]\n");
         let e = ParamsFile::parse(Path::new("v2.toml"), &set).unwrap_err();
         assert_eq!((e.key.as_deref(), e.line), (Some("effects.drum_buildup_per_m"), Some(11)), "{e}");
-        let v3 = set.replace(FORMAT_V2, FORMAT);
+        let v3 = set.replace(FORMAT_V2, FORMAT_V3);
         let p = ParamsFile::parse(Path::new("v3.toml"), &v3).unwrap();
         assert_eq!(p.effects.drum_buildup_per_m, Some(vec![-0.01, 0.02]));
         assert_eq!(p.effects.names(), vec!["scale", "drum-buildup"]);
         assert_eq!(ParamsFile::parse(Path::new("v3.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
         let e = ParamsFile::parse(Path::new("v3.toml"), &v3.replace("-0.01,", "-0.5,")).unwrap_err();
         assert!(e.to_string().contains("drum_buildup_per_m[0]"), "{e}");
+    }
+
+    /// Version 4 carries the tension side (load-cell gain, friction) with their sigmas; a
+    /// version 3 file that sets them is refused naming the key and its line; hostile values
+    /// name the key and the cable.
+    #[test]
+    fn version_4_carries_the_tension_side_and_version_3_is_still_read() {
+        let v3 = "format = \"taut-params v3\"\nversion = 3\ncreated_unix_s = 1.5e9\nrobot = \"r\"\nsource = \"x.csv\"\n\
+                  anchors_m = [[1.0, 2.0, 3.0], [-1.0, 2.0, 3.0]]\nl0_m = [0.1, 0.2]\n\n[effects]\ndrum_buildup_per_m = [-0.01, 0.02]\n";
+        let p = ParamsFile::parse(Path::new("v3.toml"), v3).unwrap();
+        assert_eq!((p.format.as_str(), p.effects.loadcell_gain.as_ref()), (FORMAT, None));
+        let tension = "loadcell_gain = [1.04, 0.97]\nloadcell_gain_sigma = [0.002, 0.003]\nfriction_mu_theta = [0.2, 0.15]\n\
+                       friction_mu_theta_sigma = [0.01, 0.01]\n";
+        let set = format!("{v3}{tension}");
+        let e = ParamsFile::parse(Path::new("v3.toml"), &set).unwrap_err();
+        assert_eq!((e.key.as_deref(), e.line), (Some("effects.loadcell_gain"), Some(11)), "{e}");
+        let v4 = set.replace(FORMAT_V3, FORMAT);
+        let p = ParamsFile::parse(Path::new("v4.toml"), &v4).unwrap();
+        assert_eq!(p.effects.loadcell_gain, Some(vec![1.04, 0.97]));
+        assert_eq!(p.effects.friction_mu_theta_sigma, Some(vec![0.01, 0.01]));
+        assert_eq!(p.effects.names(), vec!["drum-buildup", "loadcell-gain", "friction"]);
+        assert_eq!(ParamsFile::parse(Path::new("v4.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
+        // (replace, by, the key named, its line)
+        for (a, b, key, line) in [
+            ("[1.04,", "[0.0,", "effects.loadcell_gain[0]", 11),
+            ("[1.04,", "[-1.04,", "effects.loadcell_gain[0]", 11),
+            ("0.97]", "30.0]", "effects.loadcell_gain[1]", 11),
+            ("[1.04, 0.97]", "[1.04]", "effects.loadcell_gain", 11),
+            ("[0.2,", "[-0.2,", "effects.friction_mu_theta[0]", 13),
+            ("0.15]", "5.0]", "effects.friction_mu_theta[1]", 13),
+            ("0.15]", "nan]", "effects.friction_mu_theta[1]", 13),
+            ("[0.2, 0.15]", "[0.2, 0.15, 0.1]", "effects.friction_mu_theta", 13),
+            ("[0.01, 0.01]", "[-0.01, 0.01]", "effects.friction_mu_theta_sigma[0]", 14),
+        ] {
+            let e = ParamsFile::parse(Path::new("v4.toml"), &v4.replace(a, b)).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(line)), "{a} -> {b}: {e}");
+            assert!(e.to_string().contains("v4.toml"), "{e}");
+        }
+        let e = ParamsFile::parse(Path::new("v4.toml"), &v4.replace("friction_mu_theta = [0.2, 0.15]\n", "")).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("effects.friction_mu_theta_sigma"), "a sigma without its value: {e}");
     }
 
     /// The one conversion between the file and the shared geometry types, both ways, and the

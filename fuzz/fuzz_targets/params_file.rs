@@ -1,4 +1,4 @@
-//! The parameter-file reader (`taut-params v2`, and v1) on arbitrary text: a parameter set or
+//! The parameter-file reader (`taut-params` v1 to v4) on arbitrary text: a parameter set or
 //! an error naming the file and a line of it, never a panic; an accepted set has one offset
 //! per anchor, finite values, and writes out and reads back to itself.
 #![no_main]

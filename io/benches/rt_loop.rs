@@ -7,6 +7,9 @@
 //! 4. (`RT_SOAK_S=600`) a soak at 1 kHz with a consumer thread draining the ring and a busy
 //!    thread competing for the CPUs: samples dropped.
 //!
+//! `RT_TENSION_SIDE=1`: the parameters carry load-cell gains and friction (every cell reading
+//! corrected each cycle) in the compute benchmarks.
+//!
 //! `cargo bench -p taut-io --bench rt_loop`
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -18,7 +21,7 @@ use taut_io::runner::LoopCore;
 use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_io::FromRobot;
 use taut_rt::io::{CableCommand, Devices, DriveRequest, DriveStatus, Inputs, Outputs};
-use taut_rt::kin::LoopParams;
+use taut_rt::kin::{LoopEffects, LoopParams};
 use taut_rt::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt::sample::sample_ring;
 use taut_rt::triple::triple_buffer;
@@ -62,7 +65,11 @@ fn compute_bench(n: usize, kinematic: bool) {
     let dir = std::env::temp_dir().join(format!("taut-bench-{}", std::process::id()));
     let cfg = quick_config(n, &dir);
     let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-    let truth = truth_params(n, 0.1);
+    let mut truth = truth_params(n, 0.1);
+    let tension_side = std::env::var_os("RT_TENSION_SIDE").is_some();
+    if tension_side {
+        truth = truth.with_effects(LoopEffects::NONE.with_tension_side(Some(&[1.02; 8]), Some(&[0.1; 8])));
+    }
     let (mut ptx, prx) = triple_buffer(LoopParams::invalid(n));
     let (ctx, crx) = crossbeam_channel::bounded(16);
     let (stx, mut srx) = sample_ring(1 << 14);
@@ -121,7 +128,12 @@ fn compute_bench(n: usize, kinematic: bool) {
         }
         while srx.pop().is_some() {}
     }
-    let name = if kinematic { "with kinematic stand-in robot" } else { "loop only (echo devices)" };
+    let name = match (kinematic, tension_side) {
+        (true, false) => "with kinematic stand-in robot",
+        (false, false) => "loop only (echo devices)",
+        (true, true) => "with kinematic stand-in robot, tension side on",
+        (false, true) => "loop only (echo devices), tension side on",
+    };
     let max_swap = *swap.iter().max().unwrap() as f64 * 1e-3;
     println!(
         "cycle compute, {n} cables, {name}: p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.1} us; longest swap-start cycle {:.1} us; max swap step {:.4} mm",

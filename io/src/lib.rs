@@ -24,6 +24,8 @@ pub mod robot_io;
 mod rt_config;
 pub mod rtsys;
 pub mod runner;
+#[cfg(test)]
+mod tension_tests;
 #[cfg(any(test, feature = "testkit"))]
 pub mod testkit;
 

@@ -91,6 +91,36 @@ pub fn pulley_length(x: [f64; 3], anchor: [f64; 3], r: f64) -> Option<(f64, [f64
     Some((g.v, [g.d[0] * ex, g.d[0] * ey, g.d[1], g.d[2]]))
 }
 
+/// Speed over which the guides' friction turns over with the cable's direction, m/s (see
+/// [`cell_tension`]).
+pub const FRICTION_V_BAND_M_S: f64 = 0.005;
+
+/// The smooth direction of a cable's motion, `tanh(v / FRICTION_V_BAND_M_S)`: +1 paying out
+/// (`v > 0`, the length grows), -1 reeling in, 0 at rest or when the speed is unknown (not
+/// finite), where the plain reading is the middle of the static-friction cone.
+#[inline]
+pub fn friction_direction(v: f64) -> f64 {
+    if v.is_finite() {
+        (v / FRICTION_V_BAND_M_S).tanh()
+    } else {
+        0.0
+    }
+}
+
+/// The cable's tension from its load cell's reading `f` (offset already removed), N: the cell
+/// reads `f = gain t exp(-mu_theta s(v))` (capstan friction `mu theta` in the guides between
+/// the platform and the cell, `s` = [`friction_direction`] of the length rate `v`, m/s), so
+/// `t = f / gain * exp(mu_theta s(v))`. `f` itself (bit for bit) at gain 1 and `mu_theta` 0.
+#[inline]
+pub fn cell_tension(f: f64, gain: f64, mu_theta: f64, v: f64) -> f64 {
+    let t = f / gain;
+    if mu_theta == 0.0 {
+        t
+    } else {
+        t * (mu_theta * friction_direction(v)).exp()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -118,5 +148,22 @@ mod tests {
         assert!(extra > 0.0 && extra < 0.05, "{extra}");
         // On the swivel axis the pulley has no plane: straight.
         assert_eq!(cable_length([0.0, 0.0, 0.0], a, 0.05, 0.0, 0.0, 1.0, 0.0), 3.0);
+    }
+
+    #[test]
+    fn cell_tension_undoes_gain_and_friction_and_is_the_reading_when_off() {
+        for f in [0.0, 37.25, -1.5, f64::NAN] {
+            for v in [0.0, -0.2, 0.3, f64::NAN] {
+                assert_eq!(cell_tension(f, 1.0, 0.0, v).to_bits(), f.to_bits());
+            }
+        }
+        let (t, g, c) = (40.0f64, 1.04f64, 0.2f64);
+        // Paying out fast the cell reads the platform's tension held back by the guides.
+        let paying_out = g * t * (-c).exp();
+        assert!((cell_tension(paying_out, g, c, 0.1) - t).abs() < 1e-9);
+        let reeling_in = g * t * c.exp();
+        assert!((cell_tension(reeling_in, g, c, -0.1) - t).abs() < 1e-9);
+        assert!((cell_tension(g * t, g, c, 0.0) - t).abs() < 1e-12);
+        assert_eq!(friction_direction(f64::NAN), 0.0);
     }
 }

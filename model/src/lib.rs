@@ -12,7 +12,9 @@
 //! l = s U + L0                                  drum scale s, encoder offset L0   reading
 //! ```
 //!
-//! [`cable_length`] chains them the way the loop does. Sag and backlash are calibration-only
+//! [`cable_length`] chains them the way the loop does. On the tension side, [`cell_tension`]
+//! is the cable's tension from its load cell's reading through the cell's gain and the guides'
+//! capstan friction (the loop corrects its measured tensions with it). Sag and backlash are calibration-only
 //! effects and stay in `taut-calib`; the derivatives they need are carried by [`dual::Dual`].
 //!
 //! Beside the formulas, the crate holds the little vocabulary the layers share without
@@ -34,5 +36,8 @@ pub mod dual;
 pub mod geometry;
 pub mod tour;
 
-pub use cable::{buildup_counted, cable_length, pulley_length, reading, straight_length, unstretched};
+pub use cable::{
+    buildup_counted, cable_length, cell_tension, friction_direction, pulley_length, reading, straight_length, unstretched,
+    FRICTION_V_BAND_M_S,
+};
 pub use geometry::{Geometry, GeometryError, Sigmas};

@@ -2,7 +2,7 @@
 //!
 //! Model (as in `calib`): encoder length `l_j = |P + b_j - A_j| + L0_j` for a platform at `P`
 //! without rotation, `b_j` the attachment point in the platform frame, `A_j` the anchor; with
-//! the effects of a `taut-params v2` file ([`LoopEffects`]; the formulas are `taut_model`'s, the
+//! the effects of a `taut-params` file ([`LoopEffects`]; the formulas are `taut_model`'s, the
 //! ones the calibration fits, `taut_calib::diagnose::effects`):
 //!
 //! ```text
@@ -19,6 +19,13 @@
 //! position-mode drive closes its loop on the motor side of the play, and the direction of
 //! approach is not known when a pose is commanded, so a half-width correction could be wrong
 //! by the full width).
+//!
+//! The tension side (`taut-params v4`): a load cell reads `gain T exp(-mu_theta s(v))` of the
+//! cable's tension `T` (its gain, and the capstan friction of the guides between the platform
+//! and the cell, whose sign follows the cable's length rate `v`). The loop turns every reading
+//! into the cable's tension with [`LoopEffects::cable_tension`] (`taut_model::cell_tension`, the
+//! formula the diagnosis fits) before the follower's statics, the inverse kinematics' stretch
+//! and the safety limits read it.
 
 use crate::MAX_CABLES;
 use taut_model::geometry::{Field, Geometry, GeometryError};
@@ -39,6 +46,10 @@ pub struct LoopEffects {
     pub backlash: [f64; MAX_CABLES],
     /// The encoders lag the tracker by this, s (aligns the calibration data).
     pub time_offset_s: f64,
+    /// Load-cell gain per cable (1: the cell reads the tension).
+    pub cell_gain: [f64; MAX_CABLES],
+    /// Capstan friction `mu theta` per cable between the platform and its load cell (0: none).
+    pub friction_mu_theta: [f64; MAX_CABLES],
 }
 
 impl LoopEffects {
@@ -50,6 +61,8 @@ impl LoopEffects {
         pulley_r: [0.0; MAX_CABLES],
         backlash: [0.0; MAX_CABLES],
         time_offset_s: 0.0,
+        cell_gain: [1.0; MAX_CABLES],
+        friction_mu_theta: [0.0; MAX_CABLES],
     };
 
     /// From per-cable values as a parameter file holds them (the non-real-time side reads and
@@ -79,6 +92,36 @@ impl LoopEffects {
         copy(&mut out.backlash, backlash_m, |w| w);
         out.time_offset_s = time_offset_s.unwrap_or(0.0);
         out
+    }
+
+    /// The same effects with the tension side from per-cable values as a parameter file holds
+    /// them: load-cell gain (absent: 1) and friction `mu theta` (absent: 0); values for cables
+    /// beyond `MAX_CABLES` ignored.
+    pub fn with_tension_side(mut self, loadcell_gain: Option<&[f64]>, friction_mu_theta: Option<&[f64]>) -> LoopEffects {
+        self.cell_gain = [1.0; MAX_CABLES];
+        self.friction_mu_theta = [0.0; MAX_CABLES];
+        for (d, s) in self.cell_gain.iter_mut().zip(loadcell_gain.unwrap_or(&[])) {
+            *d = *s;
+        }
+        for (d, s) in self.friction_mu_theta.iter_mut().zip(friction_mu_theta.unwrap_or(&[])) {
+            *d = *s;
+        }
+        self
+    }
+
+    /// True if a load cell's reading is not its cable's tension (a gain other than 1, or
+    /// friction).
+    pub fn corrects_tensions(&self) -> bool {
+        self.cell_gain.iter().any(|&g| g != 1.0) || self.friction_mu_theta.iter().any(|&c| c != 0.0)
+    }
+
+    /// Cable `j`'s tension from its load cell's reading `reading_n` (N) while the cable's length
+    /// changes at `v_m_s` (m/s, > 0 paying out; not finite: unknown, taken as at rest): the
+    /// reading without the cell's gain and the guides' friction (`taut_model::cell_tension`).
+    /// The reading itself, bit for bit, at gain 1 without friction. Allocates nothing.
+    #[inline]
+    pub fn cable_tension(&self, j: usize, reading_n: f64, v_m_s: f64) -> f64 {
+        taut_model::cell_tension(reading_n, self.cell_gain[j], self.friction_mu_theta[j], v_m_s)
     }
 
     /// True if nothing is modelled beyond the ideal model.

@@ -496,6 +496,11 @@ pub struct Controller {
     tare_from_n: [f64; MAX_CABLES],
     /// The start-up's wiring check ([`crate::wiring`]).
     wiring: WiringCheck,
+    /// Each cable's length rate from its encoder, low-passed over [`CABLE_SPEED_TAU_S`], m/s
+    /// (> 0 paying out; NaN: unknown). The friction correction's direction.
+    cable_v: [f64; MAX_CABLES],
+    /// Each encoder's previous reading, m (NaN: none).
+    prev_len: [f64; MAX_CABLES],
 }
 
 /// Where the dwell plan is (see [`DwellLoopPlan`]).
@@ -640,6 +645,8 @@ impl Controller {
             rec_n: [0; MAX_CABLES],
             tare_from_n: [0.0; MAX_CABLES],
             wiring: WiringCheck::new(),
+            cable_v: [f64::NAN; MAX_CABLES],
+            prev_len: [f64::NAN; MAX_CABLES],
         }
     }
 
@@ -917,6 +924,16 @@ impl Controller {
             }
         }
 
+        // From here on a tension is the cable's, not its cell's reading: the statics, the
+        // stretch and the safety limits all judge the cable.
+        self.track_cable_speed(inp, dt);
+        let corrected;
+        let inp = if self.params.effects.corrects_tensions() {
+            corrected = self.cable_tensions(inp);
+            &corrected
+        } else {
+            inp
+        };
         self.track_tension(inp, dt);
         self.track_dwell_slack(inp, now, dt);
         self.check_devices(inp, now);
@@ -1361,6 +1378,39 @@ impl Controller {
             }
             self.reset.prev[j] = next[j];
         }
+    }
+
+    /// Each cable's length rate from its encoder readings ([`Controller::cable_speed`]).
+    fn track_cable_speed(&mut self, inp: &Inputs, dt: f64) {
+        let k = if dt.is_finite() && dt > 0.0 { (dt / CABLE_SPEED_TAU_S).clamp(0.0, 1.0) } else { 0.0 };
+        for j in 0..self.cfg.n {
+            let l = inp.length_m[j];
+            if !l.is_finite() {
+                self.cable_v[j] = f64::NAN;
+            } else if self.prev_len[j].is_finite() && k > 0.0 {
+                let raw = (l - self.prev_len[j]) / dt;
+                let v = &mut self.cable_v[j];
+                *v = if v.is_finite() { *v + k * (raw - *v) } else { raw };
+            }
+            self.prev_len[j] = l;
+        }
+    }
+
+    /// Cable `j`'s length rate from its encoder, low-passed over [`CABLE_SPEED_TAU_S`], m/s
+    /// (> 0 paying out; NaN before two readings or without one).
+    pub fn cable_speed(&self, j: usize) -> f64 {
+        self.cable_v[j]
+    }
+
+    /// `inp` with every load cell's reading turned into its cable's tension (the parameters'
+    /// gain and friction at the cable's length rate). A copy on the stack: allocates nothing.
+    fn cable_tensions(&self, inp: &Inputs) -> Inputs {
+        let mut out = *inp;
+        let e = &self.params.effects;
+        for j in 0..self.cfg.n {
+            out.tension_n[j] = e.cable_tension(j, inp.tension_n[j], self.cable_v[j]);
+        }
+        out
     }
 
     /// The tension inverse kinematics stretches each cable by (with an elasticity model): the
@@ -1867,6 +1917,11 @@ pub fn solve3(h: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
 /// Time constant of the tension inverse kinematics stretches the cables by, s: long against
 /// the load cells' noise, short against the platform's motion.
 pub const IK_TENSION_TAU_S: f64 = 0.05;
+
+/// Time constant of the cables' length rate from their encoders (the friction correction's
+/// direction), s: long against an encoder's count steps at the loop's rate, short against a
+/// reversal (the direction turns over within a few mm/s, `taut_model::FRICTION_V_BAND_M_S`).
+pub const CABLE_SPEED_TAU_S: f64 = 0.02;
 
 /// Time after the start of a reel before the reeled and the held cables' tensions are judged, s.
 const REEL_GRACE_S: f64 = 0.2;

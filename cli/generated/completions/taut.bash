@@ -686,7 +686,7 @@ _taut() {
             return 0
             ;;
         taut__subcmd__diagnose)
-            opts="-v -q -h --config --json --plot --report --tension-at --out --loadcell-sigma --loadcell-offset --verbose --quiet --help"
+            opts="-v -q -h --config --json --plot --report --tension-at --out --loadcell-sigma --loadcell-offset --tension-side --verbose --quiet --help"
             if [[ ${cur} == -* || ${COMP_CWORD} -eq 2 ]] ; then
                 COMPREPLY=( $(compgen -W "${opts}" -- "${cur}") )
                 return 0

@@ -7,7 +7,7 @@ use taut_io::runner::LoopCore;
 use taut_io::testkit::{quick_config, truth_params, KinematicRobot};
 use taut_io::FromRobot;
 use taut_rt::io::{BusEvent, DeviceFault, IfName};
-use taut_rt::kin::LoopParams;
+use taut_rt::kin::{LoopEffects, LoopParams};
 use taut_rt::motion::{Command, Controller, ControllerConfig, State};
 use taut_rt::sample::sample_ring;
 use taut_rt::triple::triple_buffer;
@@ -42,8 +42,11 @@ fn loop_allocates_nothing_in_any_state() {
             cycles.set(cycles.get() + 1);
         }
     };
+    // The calibrated parameters carry every effect the loop models, the tension side's too.
+    let effects = LoopEffects::from_values(Some(&[20_000.0; 4]), Some(&[1.001; 4]), Some(&[-0.002; 4]), Some(&[0.03; 4]), None, None)
+        .with_tension_side(Some(&[1.03, 0.98, 1.0, 1.01]), Some(&[0.1; 4]));
     let initial = |v: u64, off: f64| {
-        let mut p = truth;
+        let mut p = truth.with_effects(effects);
         p.version = v;
         for a in p.anchors.iter_mut().take(4) {
             a[0] += off;

@@ -129,3 +129,38 @@ fn without_a_mass_the_tension_side_does_not_run() {
     let with = DiagnoseOptions { platform_mass_kg: Some(3.0), ..opts.clone() };
     assert_eq!(with.test_alpha(), opts.family_alpha / ((Effect::FITTED.len() + TensionEffect::ALL.len()) * opts.max_effects) as f64);
 }
+
+/// `taut diagnose --out`: the named gains and friction go into the parameter file as
+/// `loadcell_gain` and `friction_mu_theta` with their sigmas (inertia stays out, with a
+/// note), read back and into the loop's tension correction.
+#[test]
+fn named_gains_and_friction_travel_in_the_parameter_file_to_the_loop() {
+    use taut_config::params::ParamsFile;
+    use taut_io::EffectsFromFile;
+    use taut_rt::kin::LoopEffects;
+    for (case, e) in [(TensionCase::Gain, TensionEffect::LoadcellGain), (TensionCase::Friction, TensionEffect::Friction)] {
+        let (d, _) = run(1, case);
+        let f = d.tension.as_ref().unwrap().effects.iter().find(|f| f.effect == e).expect("named").clone();
+        let (effects, notes) = taut_calib::effect_fit::effects_of(&d);
+        let (values, sigmas) = match e {
+            TensionEffect::LoadcellGain => (&effects.loadcell_gain, &effects.loadcell_gain_sigma),
+            _ => (&effects.friction_mu_theta, &effects.friction_mu_theta_sigma),
+        };
+        assert_eq!((values.as_ref(), sigmas.as_ref()), (Some(&f.values), Some(&f.sigmas)), "{e:?}");
+        let named_inertia = d.tension.as_ref().unwrap().effects.iter().any(|f| f.effect == TensionEffect::Inertia);
+        assert_eq!(notes.iter().any(|n| n.starts_with("inertia not written")), named_inertia, "{notes:?}");
+        let fin = &d.final_fit;
+        let file = ParamsFile { version: 1, effects, ..ParamsFile::from_geometry(&fin.params, &fin.sigma) };
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("p.toml");
+        file.save_atomic(&p).unwrap();
+        let back = ParamsFile::load(&p).unwrap();
+        assert_eq!(back.effects, file.effects);
+        let l = LoopEffects::from_file(&back.effects);
+        for (j, v) in f.values.iter().enumerate() {
+            let got = if e == TensionEffect::LoadcellGain { l.cell_gain[j] } else { l.friction_mu_theta[j] };
+            assert_eq!(got, *v, "{e:?} cable {j}");
+        }
+        assert!(l.corrects_tensions());
+    }
+}

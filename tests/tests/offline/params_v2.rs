@@ -1,5 +1,5 @@
-//! `taut-params v2`: the effects a diagnosis names travel in the parameter file to the running
-//! robot. v1 files still read; hostile values are refused naming the file, line and key; the
+//! `taut-params v2` to `v4`: the effects a diagnosis names travel in the parameter file to the
+//! running robot. v1 files still read; hostile values are refused naming the file, line and key; the
 //! `[calibration] effects` key is validated; a diagnosis of a recording with concealed
 //! elasticity writes a file whose EA the loop's kinematics then uses.
 
@@ -115,6 +115,41 @@ fn hostile_effect_values_are_refused_naming_file_line_and_key() {
     let e = good.save_atomic(dir.path().join("w.toml")).unwrap_err();
     assert!(e.to_string().contains("effects.ea_n[0]"), "{e}");
     assert!(!dir.path().join("w.toml").exists());
+}
+
+/// `taut-params v4`: the tension side's keys read (v4 only), into the loop's tension
+/// correction; hostile values refused naming the file, the line and the key.
+#[test]
+fn v4_tension_side_reads_into_the_loop_and_hostile_values_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let v4 = V2.replace("taut-params v2", "taut-params v4")
+        + "loadcell_gain = [1.03, 0.97, 1.0]\nloadcell_gain_sigma = [0.002, 0.002, 0.002]\nfriction_mu_theta = [0.2, 0.1, 0.0]\n";
+    let p = ParamsFile::load(write(dir.path(), "v4.toml", &v4)).unwrap();
+    let e = LoopEffects::from_file(&p.effects);
+    assert_eq!((e.cell_gain[0], e.cell_gain[1], e.cell_gain[5]), (1.03, 0.97, 1.0));
+    assert_eq!((e.friction_mu_theta[0], e.friction_mu_theta[2]), (0.2, 0.0));
+    // Paying out fast on cable 0: the cell reads 1.03 x 50 N held back by exp(-0.2).
+    assert!((e.cable_tension(0, 1.03 * 50.0 * (-0.2f64).exp(), 0.1) - 50.0).abs() < 1e-9);
+    let cases: &[(&str, &str, &str)] = &[
+        ("loadcell_gain = [1.03,", "loadcell_gain = [0.0,", "effects.loadcell_gain[0]"),
+        ("loadcell_gain = [1.03,", "loadcell_gain = [-1.0,", "effects.loadcell_gain[0]"),
+        ("0.97, 1.0]", "0.97, 1e9]", "effects.loadcell_gain[2]"),
+        ("loadcell_gain = [1.03, 0.97, 1.0]", "loadcell_gain = [1.03, 0.97]", "effects.loadcell_gain"),
+        ("friction_mu_theta = [0.2,", "friction_mu_theta = [-0.2,", "effects.friction_mu_theta[0]"),
+        ("friction_mu_theta = [0.2,", "friction_mu_theta = [50.0,", "effects.friction_mu_theta[0]"),
+        ("friction_mu_theta = [0.2,", "friction_mu_theta = [nan,", "effects.friction_mu_theta[0]"),
+        ("friction_mu_theta = [0.2, 0.1, 0.0]", "friction_mu_theta = [0.2, 0.1, 0.0, 0.1]", "effects.friction_mu_theta"),
+        ("loadcell_gain_sigma = [0.002,", "loadcell_gain_sigma = [inf,", "effects.loadcell_gain_sigma[0]"),
+        // v3 has no tension side.
+        ("format = \"taut-params v4\"", "format = \"taut-params v3\"", "effects.loadcell_gain"),
+    ];
+    for (k, (from, to, key)) in cases.iter().enumerate() {
+        assert!(v4.contains(from), "case {k}: `{from}` not in the template");
+        let name = format!("bad-{k}.toml");
+        let e = ParamsFile::load(write(dir.path(), &name, &v4.replacen(from, to, 1))).expect_err(&format!("case {k} ({to}) was accepted"));
+        let msg = e.to_string();
+        assert!(msg.contains(&name) && msg.contains(key) && e.line.is_some(), "case {k}: file, key {key} and line: {msg}");
+    }
 }
 
 #[test]

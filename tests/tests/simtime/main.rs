@@ -27,4 +27,5 @@ mod notracker_short;
 mod notracker_short_rests;
 mod operator;
 mod reset;
+mod tension_side;
 mod wiring;

@@ -16,15 +16,16 @@ use super::{BalanceRow, TensionEffect, TensionEffectModel, Term};
 use crate::effects::Sharing;
 
 /// Speed over which the friction's sign turns over, m/s: at `V_BAND` the factor is 76 % of its
-/// sliding value, at 3x 99.5 %. The tracker's smoothed speed is good to about 1 mm/s.
-pub const V_BAND: f64 = 0.005;
+/// sliding value, at 3x 99.5 %. The tracker's smoothed speed is good to about 1 mm/s. The
+/// running loop's correction uses the same band (`taut_model::cell_tension`).
+pub const V_BAND: f64 = taut_model::FRICTION_V_BAND_M_S;
 
 /// The friction effect (`friction` in the reports).
 pub struct Friction;
 
 /// The smooth direction of motion `s(v)` (+1 paying out, -1 reeling in).
 pub fn direction(v: f64) -> f64 {
-    (v / V_BAND).tanh()
+    taut_model::friction_direction(v)
 }
 
 impl TensionEffectModel for Friction {
@@ -68,5 +69,30 @@ impl TensionEffectModel for Friction {
     }
     fn signature(&self) -> &'static str {
         "the cell's tension times the cable's direction of motion (reel in / pay out)"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::loadcell_gain::LoadcellGain;
+    use super::*;
+
+    /// The balance's corrected tension `f exp(-lambda)` with the gain's and the friction's log
+    /// factors is the loop's `taut_model::cell_tension`: one formula on both sides.
+    #[test]
+    fn the_balance_corrects_a_reading_as_the_loop_does() {
+        let (gain, mu_theta, f) = (1.07f64, 0.3, 52.0);
+        for v in [-0.05, -0.004, 0.0, 0.002, 0.05] {
+            let row = BalanceRow { t: 0.0, a: [0.0; 3], var_a: 0.0, u: vec![[0.0, 0.0, 1.0]], f: vec![f], v: vec![v] };
+            let lambda: f64 = [LoadcellGain.term(gain.ln(), &row, 0), Friction.term(mu_theta, &row, 0)]
+                .iter()
+                .map(|t| match t {
+                    Term::CellLogFactor { value, .. } => *value,
+                    Term::PlatformForce { .. } => panic!("a cell effect"),
+                })
+                .sum();
+            let loop_t = taut_model::cell_tension(f, gain, mu_theta, v);
+            assert!((f * (-lambda).exp() - loop_t).abs() < 1e-9 * f, "v {v}");
+        }
     }
 }
