@@ -239,8 +239,10 @@ fn watch(socket: &Path, from: Option<u64>, json: bool) -> Result<()> {
         let v = match request(socket, &format!("events {next}"), Duration::from_secs(5)) {
             Ok(v) => v,
             Err(e) => {
-                use std::io::ErrorKind::{ConnectionRefused, NotFound, UnexpectedEof};
-                if matches!(e.kind(), NotFound | ConnectionRefused | UnexpectedEof) {
+                // A daemon that shuts down while it answers resets the connection or breaks the
+                // pipe: that is its stop too, not the watcher's error.
+                use std::io::ErrorKind::{BrokenPipe, ConnectionRefused, ConnectionReset, NotFound, UnexpectedEof};
+                if matches!(e.kind(), NotFound | ConnectionRefused | UnexpectedEof | ConnectionReset | BrokenPipe) {
                     println!("-- the daemon has stopped ({e})");
                     return Ok(());
                 }

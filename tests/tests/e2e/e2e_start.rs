@@ -174,7 +174,9 @@ fn start_sim_once_calibrates_and_hot_swaps_then_ctl_recalibrates() {
         "-> stopped",
         "-- the daemon has stopped",
     ] {
-        let k = text[at..].find(want).unwrap_or_else(|| panic!("watch: no {want:?} after byte {at} in\n{text}"));
+        let k = text[at..].find(want).unwrap_or_else(|| {
+            panic!("watch: no {want:?} after byte {at} in\n{text}\nits stderr:\n{}", String::from_utf8_lossy(&out.stderr))
+        });
         at += k + want.len();
     }
 }
