@@ -149,14 +149,7 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     // The offsets drawn exactly as `Scenario::truth` drew them, then the noise continues the stream.
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    let mut encoders: Vec<Encoder> = (0..n)
-        .map(|j| {
-            Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
-                .with_drum(s.physics.drum())
-                .with_eccentricity(s.physics.eccentricity(j))
-                .with_winding(crate::sensors::Winding::new(&s.noise, s.seed ^ (0x5749_4E44 + j as u64)))
-        })
-        .collect();
+    let mut encoders: Vec<Encoder> = (0..n).map(|j| Encoder::of_cable(&truth, &s.physics, &s.noise, s.seed, j)).collect();
     run.recording.comments.push(format!(
         " simulated by taut-sim: robot {}, seed {}, {} Hz, {} dwell poses of {} s, no tracker",
         s.robot.robot.name,

@@ -160,8 +160,7 @@ impl Plant {
     /// (the tracker is not part of the plant), seeded.
     pub fn with_noise(mut self, noise: &Noise, seed: u64) -> Self {
         for (j, e) in self.encoders.iter_mut().enumerate() {
-            let winding = crate::sensors::Winding::new(noise, seed ^ (0x5749_4E44 + j as u64));
-            *e = e.clone().with_noise(noise).with_winding(winding);
+            *e = e.clone().with_noise(noise).with_winding(crate::sensors::Winding::of_cable(noise, seed, j));
         }
         self.loadcells = self.loadcell_offsets.iter().map(|&o| LoadCell::with_offset(o, noise)).collect();
         self.rng = crate::rng(seed, crate::STREAM_PLANT);

@@ -386,14 +386,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     let mut tracker = Tracker::new(&s.noise);
     let mut tr_rng = rng(s.seed, STREAM_TRACKER);
     let mut enc_rng = rng(s.seed, STREAM_ENCODER);
-    let mut encoders: Vec<Encoder> = (0..n)
-        .map(|j| {
-            Encoder::new(truth.scale[j], truth.l0[j], s.physics.backlash_m, &s.noise)
-                .with_drum(s.physics.drum())
-                .with_eccentricity(s.physics.eccentricity(j))
-                .with_winding(crate::sensors::Winding::new(&s.noise, s.seed ^ (0x5749_4E44 + j as u64)))
-        })
-        .collect();
+    let mut encoders: Vec<Encoder> = (0..n).map(|j| Encoder::of_cable(&truth, &s.physics, &s.noise, s.seed, j)).collect();
     let mut l = vec![0.0; n];
     let mut f = vec![0.0; n];
     run.recording.comments.push(format!(

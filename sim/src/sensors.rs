@@ -277,6 +277,11 @@ impl Winding {
         Winding { sigma: noise.encoder_winding_m, wavelength: noise.encoder_winding_wavelength_m.max(1e-9), seed }
     }
 
+    /// The irregularity of cable `j`'s drum in a simulation seeded `seed`.
+    pub fn of_cable(noise: &Noise, seed: u64, j: usize) -> Self {
+        Winding::new(noise, seed ^ (0x5749_4E44 + j as u64))
+    }
+
     /// The departure at paid-out length `d`, m.
     pub fn at(&self, d: f64) -> f64 {
         if self.sigma == 0.0 || !d.is_finite() {
@@ -360,6 +365,16 @@ impl Encoder {
             d = from_angle((reading - self.offset - self.winding.at(d)) / self.scale);
         }
         d
+    }
+
+    /// Cable `j`'s encoder as the truth and the physics make it: scale, offset, play, drum
+    /// build-up and eccentricity, with the noise and winding irregularity of `noise` (the
+    /// simulation seeded `seed`).
+    pub fn of_cable(truth: &crate::Truth, physics: &crate::Physics, noise: &Noise, seed: u64, j: usize) -> Self {
+        Encoder::new(truth.scale[j], truth.l0[j], physics.backlash_m, noise)
+            .with_drum(physics.drum())
+            .with_eccentricity(physics.eccentricity(j))
+            .with_winding(Winding::of_cable(noise, seed, j))
     }
 
     /// The same encoder with the noise and quantisation of `noise`.
