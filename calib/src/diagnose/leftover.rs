@@ -72,34 +72,33 @@ pub struct Nuisance {
 pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize], follows: Follows) -> Nuisance {
     let n = prep.n;
     let centre = centroid(prep, train);
-    let mut coef: Vec<Option<(Vec<f64>, f64)>> = vec![None; n];
-    let mut knots = vec![(0.0, 1.0, 0usize); n];
-    for (j, c) in coef.iter_mut().enumerate() {
+    let mut fitted: Vec<Option<(Basis, Vec<f64>)>> = vec![None; n];
+    for (j, f) in fitted.iter_mut().enumerate() {
         let rows: Vec<usize> = train.iter().copied().filter(|&i| prep.usable[j][i] && res[j][i].is_finite()).collect();
         if rows.len() < 30 {
             continue;
         }
-        if follows == Follows::Length {
-            let (lo, hi) = rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &i| (a.min(prep.l[j][i]), b.max(prep.l[j][i])));
-            let k = (((hi - lo) / KNOT_SPACING_M).ceil() as usize).clamp(1, MAX_KNOTS - 1);
-            knots[j] = (lo, (hi - lo).max(1e-6) / k as f64, k + 1);
-        }
-        let kn = knots[j];
-        *c = match follows {
-            Follows::PeriodicInLength => best_wavelength(prep, res, &rows, j),
-            Follows::Length => solve(&rows, |i| hats(prep.l[j][i], kn), |i| res[j][i]).map(|c| (c, f64::NAN)),
-            _ => solve(&rows, |i| features(prep, follows, centre, f64::NAN, i, j), |i| res[j][i]).map(|c| (c, f64::NAN)),
+        let basis = match follows {
+            Follows::PeriodicInLength => {
+                *f = best_wavelength(prep, res, &rows, j).map(|(c, lambda)| (Basis::Sinusoid { lambda }, c));
+                continue;
+            }
+            Follows::Height => Basis::Height(centre),
+            Follows::Position => Basis::Position(centre),
+            Follows::Length => {
+                let (lo, hi) =
+                    rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &i| (a.min(prep.l[j][i]), b.max(prep.l[j][i])));
+                let k = (((hi - lo) / KNOT_SPACING_M).ceil() as usize).clamp(1, MAX_KNOTS - 1);
+                Basis::Hats { first: lo, spacing: (hi - lo).max(1e-6) / k as f64, count: k + 1 }
+            }
         };
+        *f = solve(&rows, |i| basis.at(prep, i, j), |i| res[j][i]).map(|c| (basis, c));
     }
     let mut out = Vec::new();
     let (mut sq, mut cnt) = (vec![0.0; n], vec![0usize; n]);
     for &i in heldout {
         for j in (0..n).filter(|&j| prep.usable[j][i]) {
-            let f = coef[j].as_ref().map_or(0.0, |(c, lambda)| {
-                let phi =
-                    if follows == Follows::Length { hats(prep.l[j][i], knots[j]) } else { features(prep, follows, centre, *lambda, i, j) };
-                phi.iter().zip(c).map(|(a, b)| a * b).sum::<f64>()
-            });
+            let f = fitted[j].as_ref().map_or(0.0, |(basis, c)| basis.at(prep, i, j).iter().zip(c).map(|(a, b)| a * b).sum::<f64>());
             out.push(res[j][i] - f);
             sq[j] += f * f;
             cnt[j] += 1;
@@ -107,7 +106,13 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
     }
     Nuisance {
         follows,
-        wavelengths_m: coef.iter().map(|c| c.as_ref().map_or(f64::NAN, |c| c.1)).collect(),
+        wavelengths_m: fitted
+            .iter()
+            .map(|f| match f {
+                Some((Basis::Sinusoid { lambda }, _)) => *lambda,
+                _ => f64::NAN,
+            })
+            .collect(),
         heldout: out,
         removed_m: sq.iter().zip(&cnt).map(|(s, &k)| if k > 0 { (s / k as f64).sqrt() } else { f64::NAN }).collect(),
     }
@@ -129,35 +134,50 @@ fn centroid(prep: &Prepared, samples: &[usize]) -> [f64; 3] {
     c.map(|v| if k > 0.0 { v / k } else { 0.0 })
 }
 
-/// The length family's regressors at the reading `l`: hat functions on the knots
-/// `(first, spacing, count)`, the reading clamped to their span.
-fn hats(l: f64, (first, spacing, count): (f64, f64, usize)) -> Vec<f64> {
-    let mut v = vec![0.0; count];
-    let x = ((l - first) / spacing).clamp(0.0, (count - 1) as f64);
-    let k = (x.floor() as usize).min(count.saturating_sub(2));
-    let f = x - k as f64;
-    v[k] = 1.0 - f;
-    if count > 1 {
-        v[k + 1] = f;
-    }
-    v
+/// One cable's regressors in a family, with what fixes them on the training blocks.
+#[derive(Debug, Clone, Copy)]
+enum Basis {
+    /// `1, sin, cos` of `2 pi l / lambda`, `lambda` in m.
+    Sinusoid { lambda: f64 },
+    /// `1, dz, dz^2` about the centre.
+    Height([f64; 3]),
+    /// The quadratic in `dx, dy, dz` about the centre.
+    Position([f64; 3]),
+    /// Hat functions in the reading on `count` knots from `first` every `spacing` m, the
+    /// reading clamped to their span.
+    Hats { first: f64, spacing: f64, count: usize },
 }
 
-/// The family's regressors at sample `i` of cable `j` (`lambda`: the periodic family's
-/// wavelength, m).
-fn features(prep: &Prepared, follows: Follows, centre: [f64; 3], lambda: f64, i: usize, j: usize) -> Vec<f64> {
-    let x = prep.x[j][i];
-    let d = [x[0] - centre[0], x[1] - centre[1], x[2] - centre[2]];
-    match follows {
-        Follows::PeriodicInLength => {
-            let phase = std::f64::consts::TAU * prep.l[j][i] / lambda;
-            vec![1.0, phase.sin(), phase.cos()]
+impl Basis {
+    /// The regressors at sample `i` of cable `j`.
+    fn at(self, prep: &Prepared, i: usize, j: usize) -> Vec<f64> {
+        let x = prep.x[j][i];
+        let from = |c: [f64; 3]| [x[0] - c[0], x[1] - c[1], x[2] - c[2]];
+        match self {
+            Basis::Sinusoid { lambda } => {
+                let (sn, cs) = (std::f64::consts::TAU * prep.l[j][i] / lambda).sin_cos();
+                vec![1.0, sn, cs]
+            }
+            Basis::Height(c) => {
+                let d = from(c);
+                vec![1.0, d[2], d[2] * d[2]]
+            }
+            Basis::Position(c) => {
+                let d = from(c);
+                vec![1.0, d[0], d[1], d[2], d[0] * d[0], d[1] * d[1], d[2] * d[2], d[0] * d[1], d[0] * d[2], d[1] * d[2]]
+            }
+            Basis::Hats { first, spacing, count } => {
+                let mut v = vec![0.0; count];
+                let u = ((prep.l[j][i] - first) / spacing).clamp(0.0, (count - 1) as f64);
+                let k = (u.floor() as usize).min(count.saturating_sub(2));
+                let f = u - k as f64;
+                v[k] = 1.0 - f;
+                if count > 1 {
+                    v[k + 1] = f;
+                }
+                v
+            }
         }
-        Follows::Height => vec![1.0, d[2], d[2] * d[2]],
-        Follows::Position => {
-            vec![1.0, d[0], d[1], d[2], d[0] * d[0], d[1] * d[1], d[2] * d[2], d[0] * d[1], d[0] * d[2], d[1] * d[2]]
-        }
-        Follows::Length => unreachable!("the length family's regressors are `hats`"),
     }
 }
 
