@@ -104,10 +104,13 @@ pub struct ScreenOptions {
     pub min_tension_n: f64,
     /// The largest tension a load cell can physically read, N (e.g. its range), if known.
     pub max_tension_n: Option<f64>,
-    /// Classify encoder steps as jumps and re-reference them. Off, a step's readings are
-    /// taken for spikes (a few excluded) and nothing is shifted: the daemon's data sets
-    /// (lengths interpolated at the pose time of a tracker slower than the loop) show steps of
-    /// a few mm that are no lost counts, and re-referencing them would cost more than it saves.
+    /// Classify encoder steps as jumps and re-reference them, and tracker steps as a
+    /// re-registration whose shorter side is excluded. Off, a step's readings are taken for
+    /// spikes (a few excluded) and nothing is shifted or dropped: the daemon's data sets
+    /// (lengths interpolated at the pose time of a tracker slower than the loop, poses dated
+    /// by their age on a loop that may be late) show steps of a few mm that are neither lost
+    /// counts nor a re-registration, and dropping the shorter side of one would drop whole
+    /// phases of the start-up's initial data set.
     pub jumps: bool,
     /// Threads the channels may be screened on ([`crate::par`]; the findings are the same).
     pub threads: usize,
@@ -844,7 +847,7 @@ pub fn screen(rec: &Recording, opts: &ScreenOptions) -> Screen {
     };
     let tracker = |a: usize| {
         let mut ch = Channel::new(&grid, rec.p.iter().map(|p| p[a]).collect(), seg);
-        screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, true, &[], None).0
+        screen_channel(&mut ch, ABSURD_M, 1e-7, thr_of, opts.jumps, &[], None).0
     };
     // A load cell's impossible tensions: (row, value, limit, sigmas), from its own column and
     // the MAD of its `z` only.
@@ -1191,6 +1194,26 @@ mod tests {
         let c = sc.cleaned.unwrap();
         assert!(c.p[700][0].is_nan() && c.p[1500][0].is_nan() && c.l[900 * n + 1].is_nan());
         assert!(sc.removed_rows[700] && !sc.removed_rows[701]);
+    }
+
+    /// A tracker step that stays: with `jumps` the shorter side is excluded (a re-registered
+    /// tracker); without (the daemon's data sets) at most the readings at the step are, so a
+    /// start-up's earlier phases keep their poses.
+    #[test]
+    fn a_tracker_step_drops_its_shorter_side_only_with_jumps() {
+        let truth = synth::tri3();
+        let clean = smooth(&truth, 3000, 100.0, 1.5e-3, 5e-5, 83);
+        let mut rec = clean.clone();
+        for p in &mut rec.p[1200..] {
+            p[0] += 0.03;
+        }
+        let sc = screen(&rec, &ScreenOptions::new(3.0));
+        let steps: Vec<Action> = sc.findings.iter().filter(|w| w.kind == WildKind::TrackerJump).map(|w| w.action).collect();
+        assert_eq!(steps, vec![Action::RowsExcluded { first: 0, rows: 1200 }], "{:#?}", sc.findings);
+        let daemon = screen(&rec, &ScreenOptions { jumps: false, ..ScreenOptions::new(3.0) });
+        let dropped = daemon.removed_rows.iter().filter(|r| **r).count();
+        assert!(dropped <= 4, "{dropped} rows dropped: {:#?}", daemon.findings);
+        assert!(daemon.findings.iter().all(|w| w.action == Action::Excluded && w.row.abs_diff(1200) <= 2), "{:#?}", daemon.findings);
     }
 
     /// The channels on several threads find the same, in the same order, and clean the same

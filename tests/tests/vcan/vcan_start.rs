@@ -80,7 +80,7 @@ fn start_up_over_socketcan_runs_every_stage() {
         l.snap.phases_completed,
         c.stage,
         c.samples_recorded,
-        c.outcomes.iter().map(|o| (o.kind, o.accepted, o.reason.clone())).collect::<Vec<_>>()
+        c.outcomes.iter().map(|o| (o.kind, o.accepted, o.reason.clone(), o.data_problems.clone())).collect::<Vec<_>>()
     );
     if !finished || l.snap.fault.is_some() {
         // What the loop saw before it stopped: overruns and the recording's last samples.
