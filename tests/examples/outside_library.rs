@@ -7,7 +7,8 @@
 //! cargo run --release -p taut-tests --example outside_library -- ROBOT FIRST_SEED COUNT [key=value ...]
 //! ROBOT: three | aras | outdoor; keys: ecc (drum eccentricity, m), height (k in k z^2, 1/m),
 //! winding (RMS, m), wavelength (winding's, m), ar (the tracker noise's AR(1) lag-1 correlation),
-//! dur (s); VERBOSE=1 prints every recording
+//! dur (s), and library effects beside: ea (a stretch's EA, N), scale (drum scales off 1 by up to
+//! this); VERBOSE=1 prints every recording
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -31,6 +32,10 @@ fn main() {
             "wavelength" => wavelength = v,
             "dur" => dur = v,
             "ar" => ar = v,
+            // Library effects beside the outside one: a stretch of this EA (N), every drum's
+            // scale this far from 1.
+            "ea" => physics.elasticity = Some(v),
+            "scale" => physics.scale = Some((0..8).map(|j| 1.0 + v * [1.0, -0.7, 0.4, -1.2, 0.9, -0.3, 0.6, -0.8][j]).collect()),
             _ => panic!("unknown key {k}"),
         }
     }
@@ -87,6 +92,9 @@ fn main() {
             }
             for f in &d.effects {
                 println!("    {}: {}", f.effect.name(), f.evidence);
+            }
+            for w in d.notes.iter().chain(&d.rejected).filter(|w| w.contains("outside the library")) {
+                println!("    {w}");
             }
         }
     }

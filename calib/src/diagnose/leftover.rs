@@ -64,6 +64,22 @@ pub struct Nuisance {
     pub heldout: Vec<f64>,
     /// Per cable, the RMS of the fitted function on its held-out readings, m.
     pub removed_m: Vec<f64>,
+    /// Per cable, the fitted basis and its coefficients (`None`: too few training readings).
+    fitted: Vec<Option<(Basis, Vec<f64>)>>,
+}
+
+impl Nuisance {
+    /// Cable `j`'s regressors at sample `i` in the basis fitted for it (`None`: no fit), so that
+    /// the family can be refitted with the model ([`crate::diagnose`]'s joint fit).
+    pub fn regressors(&self, prep: &Prepared, i: usize, j: usize) -> Option<Vec<f64>> {
+        self.fitted[j].as_ref().map(|(basis, _)| basis.at(prep, i, j))
+    }
+
+    /// The fitted function of cable `j` at sample `i` of `prep` (the one it was fitted on), m;
+    /// 0 where the cable had none.
+    pub fn value(&self, prep: &Prepared, i: usize, j: usize) -> f64 {
+        self.fitted[j].as_ref().map_or(0.0, |(basis, c)| basis.at(prep, i, j).iter().zip(c).map(|(a, b)| a * b).sum())
+    }
 }
 
 /// Fits `follows` per cable to the residuals `res[j][i]` on the `train` samples and returns the
@@ -94,28 +110,26 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
         };
         *f = solve(&rows, |i| basis.at(prep, i, j), |i| res[j][i]).map(|c| (basis, c));
     }
-    let mut out = Vec::new();
+    let mut nuisance = Nuisance { follows, wavelengths_m: vec![], heldout: vec![], removed_m: vec![], fitted };
     let (mut sq, mut cnt) = (vec![0.0; n], vec![0usize; n]);
     for &i in heldout {
         for j in (0..n).filter(|&j| prep.usable[j][i]) {
-            let f = fitted[j].as_ref().map_or(0.0, |(basis, c)| basis.at(prep, i, j).iter().zip(c).map(|(a, b)| a * b).sum::<f64>());
-            out.push(res[j][i] - f);
+            let f = nuisance.value(prep, i, j);
+            nuisance.heldout.push(res[j][i] - f);
             sq[j] += f * f;
             cnt[j] += 1;
         }
     }
-    Nuisance {
-        follows,
-        wavelengths_m: fitted
-            .iter()
-            .map(|f| match f {
-                Some((Basis::Sinusoid { lambda }, _)) => *lambda,
-                _ => f64::NAN,
-            })
-            .collect(),
-        heldout: out,
-        removed_m: sq.iter().zip(&cnt).map(|(s, &k)| if k > 0 { (s / k as f64).sqrt() } else { f64::NAN }).collect(),
-    }
+    nuisance.wavelengths_m = nuisance
+        .fitted
+        .iter()
+        .map(|f| match f {
+            Some((Basis::Sinusoid { lambda }, _)) => *lambda,
+            _ => f64::NAN,
+        })
+        .collect();
+    nuisance.removed_m = sq.iter().zip(&cnt).map(|(s, &k)| if k > 0 { (s / k as f64).sqrt() } else { f64::NAN }).collect();
+    nuisance
 }
 
 /// The mean platform attachment point of cable 0 on `samples` (the families' origin).
@@ -135,7 +149,7 @@ fn centroid(prep: &Prepared, samples: &[usize]) -> [f64; 3] {
 }
 
 /// One cable's regressors in a family, with what fixes them on the training blocks.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Basis {
     /// `1, sin, cos` of `2 pi l / lambda`, `lambda` in m.
     Sinusoid { lambda: f64 },
