@@ -29,7 +29,7 @@ pub struct DiagnoseArgs {
     #[arg(long, default_value = "platform")]
     pub tension_at: String,
     /// Write the final model's anchors and offsets with the named effects' parameters
-    /// (taut-params v4 TOML, for `taut start --params`) to this file, atomically.
+    /// (taut-params v5 TOML, for `taut start --params`) to this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Load-cell noise, 1-sigma of one reading, N (errors-in-variables weights for stretch and
