@@ -190,7 +190,7 @@ pub fn check_loadcell_sigma(v: f64) -> Result<(), String> {
 /// The effects the running robot can model (`[calibration] effects`): sag is left out (the
 /// catenary at the measured tension is too costly for the loop and matters on large robots
 /// only), slack is a data problem, not a model.
-pub const MODELLED_EFFECTS: [&str; 6] = ["elasticity", "scale", "drum-buildup", "pulley", "backlash", "time-offset"];
+pub const MODELLED_EFFECTS: [&str; 7] = ["elasticity", "scale", "drum-buildup", "compliance", "pulley", "backlash", "time-offset"];
 
 impl Default for CalibrationConfig {
     fn default() -> Self {
