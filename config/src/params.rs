@@ -173,7 +173,7 @@ impl Effects {
     }
 
     /// The names of the modelled effects (`taut-diagnosis v1` names: elasticity, scale,
-    /// pulley, backlash, time-offset, drum-buildup, compliance, loadcell-gain, friction).
+    /// pulley, backlash, time-offset, spool-buildup, compliance, loadcell-gain, friction).
     pub fn names(&self) -> Vec<&'static str> {
         let mut v = vec![];
         for (on, name) in [
@@ -182,7 +182,7 @@ impl Effects {
             (self.pulley_radius_m.is_some(), "pulley"),
             (self.backlash_m.is_some(), "backlash"),
             (self.time_offset_s.is_some(), "time-offset"),
-            (self.drum_buildup_per_m.is_some(), "drum-buildup"),
+            (self.drum_buildup_per_m.is_some(), "spool-buildup"),
             (self.compliance_m_per_n.is_some(), "compliance"),
             (self.loadcell_gain.is_some(), "loadcell-gain"),
             (self.friction_mu_theta.is_some(), "friction"),
@@ -613,7 +613,7 @@ mod tests {
         let v3 = set.replace(FORMAT_V2, FORMAT_V3);
         let p = ParamsFile::parse(Path::new("v3.toml"), &v3).unwrap();
         assert_eq!(p.effects.drum_buildup_per_m, Some(vec![-0.01, 0.02]));
-        assert_eq!(p.effects.names(), vec!["scale", "drum-buildup"]);
+        assert_eq!(p.effects.names(), vec!["scale", "spool-buildup"]);
         assert_eq!(ParamsFile::parse(Path::new("v3.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
         let e = ParamsFile::parse(Path::new("v3.toml"), &v3.replace("-0.01,", "-0.5,")).unwrap_err();
         assert!(e.to_string().contains("drum_buildup_per_m[0]"), "{e}");
@@ -637,7 +637,7 @@ mod tests {
         let p = ParamsFile::parse(Path::new("v4.toml"), &v4).unwrap();
         assert_eq!(p.effects.loadcell_gain, Some(vec![1.04, 0.97]));
         assert_eq!(p.effects.friction_mu_theta_sigma, Some(vec![0.01, 0.01]));
-        assert_eq!(p.effects.names(), vec!["drum-buildup", "loadcell-gain", "friction"]);
+        assert_eq!(p.effects.names(), vec!["spool-buildup", "loadcell-gain", "friction"]);
         assert_eq!(ParamsFile::parse(Path::new("v4.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
         // (replace, by, the key named, its line)
         for (a, b, key, line) in [

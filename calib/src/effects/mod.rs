@@ -333,8 +333,10 @@ impl Effect {
         self.model().signature()
     }
 
-    /// Parses a `taut-diagnosis v1` name.
+    /// Parses a `taut-diagnosis v1` name, or an older name the configuration and the command
+    /// line still accept (`drum-buildup`: `taut_config::EFFECT_ALIASES`).
     pub fn from_name(s: &str) -> Option<Effect> {
+        let s = taut_config::canonical_effect_name(s);
         Effect::ALL.into_iter().find(|e| e.name() == s)
     }
 
@@ -356,6 +358,9 @@ mod tests {
             assert_eq!(Effect::ALL[e.index()], e);
         }
         assert_eq!(Effect::TimeOffset.name(), "time-offset");
+        assert_eq!(Effect::DrumBuildup.name(), "spool-buildup");
+        assert_eq!(Effect::from_name("drum-buildup"), Some(Effect::DrumBuildup), "the old name is still read");
+        assert_eq!(Effect::from_name("compliance"), Some(Effect::Compliance));
     }
 
     /// Every fitted effect starts inside its bounds and its plausible range inside them too,
