@@ -39,7 +39,7 @@ pub mod geometry;
 pub mod tour;
 
 pub use cable::{
-    buildup_counted, cable_length, cell_tension, deflection_counted, friction_direction, pulley_length, reading, straight_length, unstretched,
-    FRICTION_V_BAND_M_S,
+    buildup_counted, cable_length, cell_tension, deflection_counted, friction_direction, pulley_length, reading, straight_length,
+    unstretched, FRICTION_V_BAND_M_S,
 };
 pub use geometry::{Geometry, GeometryError, Sigmas};

@@ -357,7 +357,13 @@ impl CableModel {
             }
             CableCommand::Tension(t) => {
                 let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
-                CableLoad { force: scale3(path.dir, t), energy: t * ell, tension: t, drum_length: ell / (1.0 + k) - self.k * t, slack: false }
+                CableLoad {
+                    force: scale3(path.dir, t),
+                    energy: t * ell,
+                    tension: t,
+                    drum_length: ell / (1.0 + k) - self.k * t,
+                    slack: false,
+                }
             }
         }
     }
@@ -448,7 +454,9 @@ mod tests {
     fn a_compliant_winch_holds_k_t_less_cable_at_every_length() {
         let a = [3.5, -1.75, 4.0];
         let k = 2e-6;
-        for base in [Physics { elasticity: Some(2e5), ..Physics::ideal() }, Physics { sag: Some(0.3), elasticity: Some(5e5), ..Physics::ideal() }] {
+        for base in
+            [Physics { elasticity: Some(2e5), ..Physics::ideal() }, Physics { sag: Some(0.3), elasticity: Some(5e5), ..Physics::ideal() }]
+        {
             let rigid = CableModel::new(a, &base);
             let soft = CableModel::new(a, &Physics { compliance_m_per_n: Some(k), ..base.clone() });
             for (b, t) in [([0.3, 0.2, 1.5], 150.0), ([-2.0, 1.5, 0.5], 400.0), ([3.0, -1.5, 3.5], 60.0)] {

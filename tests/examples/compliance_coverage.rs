@@ -67,7 +67,9 @@ fn main() {
         weak += usize::from(d.effects.iter().any(|f| {
             let other = if f.effect == Effect::Compliance { "elasticity" } else { "compliance" };
             matches!(f.effect, Effect::Compliance | Effect::Elasticity)
-                && f.evidence.split(';').any(|part| part.contains(other) && (part.contains("trade off") || part.contains("estimates correlate")))
+                && f.evidence
+                    .split(';')
+                    .any(|part| part.contains(other) && (part.contains("trade off") || part.contains("estimates correlate")))
         }));
         if let Some(f) = d.effects.iter().find(|f| f.effect == Effect::Elasticity) {
             ea_named += 1;

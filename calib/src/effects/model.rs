@@ -2042,7 +2042,10 @@ mod tests {
         let samples: Vec<usize> = (5..395).step_by(13).collect();
         let cases: [(Vec<Effect>, Vec<f64>); 4] = [
             (vec![Effect::TimeOffset, Effect::Elasticity], vec![0.0137, 5e-5, 4e-5, 6e-5, 5e-5]),
-            (vec![Effect::TimeOffset, Effect::Elasticity, Effect::Compliance], vec![0.0137, 5e-5, 4e-5, 6e-5, 5e-5, 2e-5, 1e-5, 3e-5, 1.5e-5]),
+            (
+                vec![Effect::TimeOffset, Effect::Elasticity, Effect::Compliance],
+                vec![0.0137, 5e-5, 4e-5, 6e-5, 5e-5, 2e-5, 1e-5, 3e-5, 1.5e-5],
+            ),
             (vec![Effect::Sag, Effect::Elasticity, Effect::Scale], vec![0.8, 2e-5, 3e-5, 2e-5, 4e-5, 1e-3, -2e-3, 0.0, 5e-4]),
             (vec![Effect::TimeOffset, Effect::Sag], vec![0.0251, 0.8]),
         ];
