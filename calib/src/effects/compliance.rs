@@ -62,13 +62,13 @@ impl EffectModel for Compliance {
     fn needs(&self) -> Needs {
         Needs { tensions: true, time_series: false }
     }
-    /// 1 um/kN (a steel frame's give, far below a reading's noise) to 100 mm/kN (a sprung
-    /// mount).
+    /// 1 um/kN (a steel frame's give, far below a reading's noise) to 1 mm/N (a light robot's
+    /// sprung or plastic mount: a few millimetres at its 5-30 N).
     fn internal_range(&self) -> (f64, f64) {
-        (1e-9, 1e-4)
+        (1e-9, 1e-3)
     }
     fn bounds(&self) -> (f64, f64) {
-        (0.0, 1e-3)
+        (0.0, 1e-2)
     }
     /// 1 mm/kN.
     fn start(&self) -> f64 {
