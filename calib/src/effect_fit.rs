@@ -288,10 +288,10 @@ pub fn fit_effects(
     // against 3.5 mm). So both orders are run, pulley first and pulley last, and the lower sum
     // of squares of the same model on the same readings is kept: a two-start search of one
     // objective, not a choice between models.
-    const ORDER: [Effect; 6] =
-        [Effect::Pulley, Effect::TimeOffset, Effect::Elasticity, Effect::Scale, Effect::DrumBuildup, Effect::Backlash];
-    const ORDER_PULLEY_LAST: [Effect; 6] =
-        [Effect::TimeOffset, Effect::Elasticity, Effect::Scale, Effect::DrumBuildup, Effect::Pulley, Effect::Backlash];
+    const ORDER: [Effect; 7] =
+        [Effect::Pulley, Effect::TimeOffset, Effect::Elasticity, Effect::Compliance, Effect::Scale, Effect::DrumBuildup, Effect::Backlash];
+    const ORDER_PULLEY_LAST: [Effect; 7] =
+        [Effect::TimeOffset, Effect::Elasticity, Effect::Compliance, Effect::Scale, Effect::DrumBuildup, Effect::Pulley, Effect::Backlash];
     let effects: Vec<Effect> = ORDER.into_iter().filter(|e| effects.contains(e)).collect();
     let all: Vec<usize> = (0..prep.t.len()).collect();
     let step = all.len().div_ceil(o.max_samples.max(1)).max(1);
@@ -370,9 +370,9 @@ pub fn fit_effects(
         let w = fit::width(e, n);
         let (lo, hi) = e.internal_range();
         // Scale and time offset may be zero; the others have a lower bound above zero in the
-        // diagnosis because zero means "no effect". Here the model is fixed: zero play or an
-        // unmeasurably small pulley is a value, not a failure.
-        let lo = if matches!(e, Effect::Backlash | Effect::Pulley) { 0.0 } else { lo };
+        // diagnosis because zero means "no effect". Here the model is fixed: zero play, an
+        // unmeasurably small pulley or a rigid winch is a value, not a failure.
+        let lo = if matches!(e, Effect::Backlash | Effect::Pulley | Effect::Compliance) { 0.0 } else { lo };
         let mut vals = Vec::with_capacity(w);
         let mut sigmas = Vec::with_capacity(w);
         for k in 0..w {
@@ -514,6 +514,41 @@ mod tests {
         }
         let rr = fit.effects.pulley_radius_m.as_ref().unwrap()[0];
         assert!((rr - r).abs() < 2e-3, "radius {rr}");
+        assert!(fit.rms_m < 2e-4, "rms {}", fit.rms_m);
+        assert!(fit.effects.check(4).is_ok());
+    }
+
+    /// Compliance independent of length is fitted beside elasticity and written for the loop:
+    /// readings `G / (1 + T / EA) - k T + L0` written out here, `k` 0 .. 2e-5 m/N (0 .. 2 mm at
+    /// 100 N); the fit takes each `k` to within 1e-6 m/N and EA to 2 %, and stores `k` where the
+    /// loop reads it (`compliance_m_per_n`); a rigid winch (0) is a value, not a failure.
+    #[test]
+    fn effect_fit_recovers_compliance_beside_elasticity_for_the_loop() {
+        let anchors = [[-3.0, -2.0, 3.0], [3.0, -2.0, 3.1], [3.0, 2.0, 2.9], [-3.0, 2.0, 3.0]];
+        let l0 = [0.3, -0.2, 0.1, 0.5];
+        let (ea, k) = (20_000.0, [2e-5, 1e-5, 0.0, 5e-6]);
+        let mut rec = Recording::with_capacity(4, 3000, true, false, false);
+        let mut rng = crate::synth::Rng::new(11);
+        for i in 0..3000 {
+            let t = i as f64 * 0.01;
+            let p = [1.5 * (0.7 * t).sin(), 1.0 * (1.1 * t).sin(), 1.0 + 0.5 * (0.5 * t).cos()];
+            let (mut l, mut f) = ([0.0; 4], [0.0; 4]);
+            for j in 0..4 {
+                let g = taut_model::straight_length(p, anchors[j]);
+                f[j] = 60.0 + 40.0 * ((0.3 + j as f64) * t).sin();
+                l[j] = g / (1.0 + f[j] / ea) - k[j] * f[j] + l0[j] + 5e-5 * rng.normal();
+            }
+            let m = [p[0] + 1e-4 * rng.normal(), p[1] + 1e-4 * rng.normal(), p[2] + 1e-4 * rng.normal()];
+            rec.push(t, m, None, &l, Some(&f), None);
+        }
+        let o = EffectFitOptions::new(&["elasticity", "compliance"], 3.0, 1e-4, 5e-5);
+        let fit = fit_effects(&rec, &[[0.0; 3]; 4], &anchors, &l0, &Effects::default(), &o).unwrap();
+        let got = fit.effects.compliance_m_per_n.as_ref().expect("written for the loop");
+        for j in 0..4 {
+            assert!((got[j] - k[j]).abs() < 1e-6, "cable {j}: k {} against {}", got[j], k[j]);
+            let ea_j = fit.effects.ea_n.as_ref().unwrap()[j];
+            assert!((ea_j - ea).abs() < 0.02 * ea, "cable {j}: EA {ea_j}");
+        }
         assert!(fit.rms_m < 2e-4, "rms {}", fit.rms_m);
         assert!(fit.effects.check(4).is_ok());
     }

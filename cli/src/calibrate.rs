@@ -23,7 +23,7 @@ pub struct CalibrateArgs {
     /// Write figures (SVG and PNG) into this directory.
     #[arg(long)]
     pub plot: Option<PathBuf>,
-    /// Write the calibrated parameters (taut-params v4 TOML: anchors, offsets, their 1-sigma) to
+    /// Write the calibrated parameters (taut-params v5 TOML: anchors, offsets, their 1-sigma) to
     /// this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,

@@ -29,7 +29,7 @@ pub struct DiagnoseArgs {
     #[arg(long, default_value = "platform")]
     pub tension_at: String,
     /// Write the final model's anchors and offsets with the named effects' parameters
-    /// (taut-params v4 TOML, for `taut start --params`) to this file, atomically.
+    /// (taut-params v5 TOML, for `taut start --params`) to this file, atomically.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Load-cell noise, 1-sigma of one reading, N (errors-in-variables weights for stretch and
@@ -42,7 +42,7 @@ pub struct DiagnoseArgs {
     pub loadcell_offset: Option<f64>,
     /// Also test the load cells against the platform's weight and inertia (the tension side:
     /// load-cell gain, friction, inertia), with the platform's mass `[robot] mass_kg` of --config.
-    /// Its tests join the length side's family (each test's level becomes family_alpha / (10 x 3)).
+    /// Its tests join the length side's family (each test's level becomes family_alpha / (11 x 3)).
     #[arg(long, requires = "config")]
     pub tension_side: bool,
 }

@@ -39,8 +39,8 @@ pub struct SimulateArgs {
     pub no_tensions: bool,
     /// Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000`
     /// (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s),
-    /// `backlash=0.002` (m), `drum-buildup=-5e-6` (m per turn), `load-cell-gain=1.03`,
-    /// `friction=0.2` (mu theta). Repeatable.
+    /// `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `load-cell-gain=1.03`,
+    /// `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable.
     #[arg(long = "effect", value_name = "NAME=VALUE")]
     pub effects: Vec<String>,
 }
@@ -56,7 +56,7 @@ pub const MAX_DURATION_S: f64 = 86_400.0;
 pub const MAX_SAMPLES: f64 = 2.0e6;
 
 /// The simulated effects, their unit and the physical range of their value.
-pub const EFFECTS: [(&str, &str, f64, f64, &str); 9] = [
+pub const EFFECTS: [(&str, &str, f64, f64, &str); 10] = [
     // EA of a real cable: 1 kN (an elastic cord) to 100 MN (a 35 mm steel rope); stiffer cables
     // are rigid for the plant's equilibrium search.
     ("elasticity", "N", 1e3, 1e8, "axial stiffness EA"),
@@ -70,11 +70,13 @@ pub const EFFECTS: [(&str, &str, f64, f64, &str); 9] = [
     ("backlash", "m", 0.0, 0.05, "play in the drive train"),
     // Radius change per turn paid out on the simulator's 25 mm drums: -0.2 mm (a 1 mm cable,
     // five turns a layer, paid out of a full drum) keeps a radius at 10 m paid out.
-    ("drum-buildup", "m", -2e-4, 2e-4, "drum radius change per turn paid out"),
+    ("spool-buildup", "m", -2e-4, 2e-4, "drum radius change per turn paid out"),
     // A cell 20 % off is a wiring or scaling fault, not a gain error.
     ("load-cell-gain", "", 0.8, 1.25, "load-cell gain"),
     // mu theta: a coefficient of 0.3 over a wrap of 190 degrees is about 1.
     ("friction", "", 0.0, 1.0, "guide friction mu*theta"),
+    // A winch, frame or anchor that gives 1 mm per newton is a spring, not a frame.
+    ("compliance", "m/N", 0.0, 1e-3, "winch/frame/anchor compliance"),
 ];
 
 /// A number for a message: plain when of an everyday size, else in e-notation (1e300 is not
@@ -134,7 +136,7 @@ pub fn apply_effects(effects: &[String], n: usize, physics: &mut taut_sim::Physi
     for e in effects {
         let shown = taut_config::recording::excerpt(e);
         let (name, value) = e.split_once('=').with_context(|| format!("{flag} `{shown}`: expected NAME=VALUE, e.g. elasticity=20000"))?;
-        let name = name.trim();
+        let name = taut_config::canonical_effect_name(name.trim());
         let Some(&(_, unit, lo, hi, what)) = EFFECTS.iter().find(|x| x.0 == name) else {
             bail!(
                 "{flag} `{}` is not a simulated effect; use one of {}",
@@ -163,9 +165,10 @@ pub fn apply_effects(effects: &[String], n: usize, physics: &mut taut_sim::Physi
             "scale" => physics.scale = Some(vec![v; n]),
             "time-offset" => physics.time_offset_s = v,
             "backlash" => physics.backlash_m = v,
-            "drum-buildup" => physics.drum_buildup_m_per_turn = Some(v),
+            "spool-buildup" => physics.drum_buildup_m_per_turn = Some(v),
             "load-cell-gain" => physics.loadcell_gain = Some(vec![v; n]),
             "friction" => physics.friction_mu_theta = Some(v),
+            "compliance" => physics.compliance_m_per_n = Some(v),
             _ => unreachable!("every name in EFFECTS is matched"),
         }
     }
@@ -213,6 +216,7 @@ pub fn write_truth(t: &std::path::Path, s: &Scenario, seed: u64, run: &taut_sim:
             drum_buildup_per_m: s.physics.drum().map(|d| vec![d.quadratic_per_m(); n]),
             loadcell_gain: s.physics.loadcell_gain.clone(),
             friction_mu_theta: s.physics.friction_mu_theta.filter(|c| *c != 0.0).map(|c| vec![c; n]),
+            compliance_m_per_n: s.physics.compliance_m_per_n.filter(|c| *c != 0.0).map(|c| vec![c; n]),
             ..Default::default()
         },
         ..taut_config::params::ParamsFile::from_geometry(&run.truth.geometry(), &taut_config::params::Sigmas::uniform(n, 0.0))

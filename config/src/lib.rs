@@ -190,7 +190,18 @@ pub fn check_loadcell_sigma(v: f64) -> Result<(), String> {
 /// The effects the running robot can model (`[calibration] effects`): sag is left out (the
 /// catenary at the measured tension is too costly for the loop and matters on large robots
 /// only), slack is a data problem, not a model.
-pub const MODELLED_EFFECTS: [&str; 6] = ["elasticity", "scale", "drum-buildup", "pulley", "backlash", "time-offset"];
+pub const MODELLED_EFFECTS: [&str; 7] = ["elasticity", "scale", "spool-buildup", "compliance", "pulley", "backlash", "time-offset"];
+
+/// Names the configuration and the command line still accept for an effect, with the name the
+/// reports use: `drum-buildup` was the spool build-up's name before the JSON took the name
+/// `spool-buildup`.
+pub const EFFECT_ALIASES: [(&str, &str); 1] = [("drum-buildup", "spool-buildup")];
+
+/// The reports' name of an effect named `name` (itself unless it is an alias in
+/// [`EFFECT_ALIASES`]).
+pub fn canonical_effect_name(name: &str) -> &str {
+    EFFECT_ALIASES.iter().find(|a| a.0 == name).map_or(name, |a| a.1)
+}
 
 impl Default for CalibrationConfig {
     fn default() -> Self {
@@ -564,7 +575,7 @@ impl RobotConfig {
         }
         for (k, e) in cal.effects.iter().enumerate() {
             let key = format!("calibration.effects[{k}]");
-            if !MODELLED_EFFECTS.contains(&e.as_str()) {
+            if !MODELLED_EFFECTS.contains(&canonical_effect_name(e)) {
                 let shown: String = e.chars().take(40).collect();
                 return Err(err(
                     cal_line,
@@ -572,7 +583,7 @@ impl RobotConfig {
                     format!("`{shown}` is not an effect the robot models; use some of {}", MODELLED_EFFECTS.join(", ")),
                 ));
             }
-            if cal.effects[..k].contains(e) {
+            if cal.effects[..k].iter().any(|p| canonical_effect_name(p) == canonical_effect_name(e)) {
                 return Err(err(cal_line, key, format!("`{e}` is named twice; name each effect once")));
             }
         }

@@ -1,11 +1,12 @@
-//! `taut-params v4`: a calibrated parameter set as written by `taut calibrate --out`, `taut
+//! `taut-params v5`: a calibrated parameter set as written by `taut calibrate --out`, `taut
 //! diagnose --out` and by the daemon on every accepted calibration (TOML, written atomically).
-//! Version 3 files (the same without the tension side's `loadcell_gain` and
-//! `friction_mu_theta`), version 2 files (also without `drum_buildup_per_m`) and version 1 files
-//! (without `[effects]`) are still read; files are written as v4.
+//! Version 4 files (the same without `compliance_m_per_n`), version 3 files (also without the
+//! tension side's `loadcell_gain` and `friction_mu_theta`), version 2 files (also without
+//! `drum_buildup_per_m`) and version 1 files (without `[effects]`) are still read; files are
+//! written as v5.
 //!
 //! ```toml
-//! format = "taut-params v4"
+//! format = "taut-params v5"
 //! version = 3                      # increases with every accepted set
 //! created_unix_s = 1795000000.0
 //! robot = "aras-cam"
@@ -25,14 +26,16 @@
 //!                                  # enters the pulley, the swivel axis is vertical through it
 //! backlash_m = [0.002, ...]        # play in the drive train (width)
 //! drum_buildup_per_m = [-0.01, ...] # drum build-up q: true length u + q u^2 of the encoder's u
+//! compliance_m_per_n = [1.5e-6, ...] # length-independent compliance (winch, frame, anchor):
+//!                                  # the encoder reads c T less than the cable's path
 //! time_offset_s = 0.012            # the encoders lag the tracker by this
 //! loadcell_gain = [1.02, ...]      # load-cell gain: the cell reads gain x tension (+ its offset)
 //! friction_mu_theta = [0.1, ...]   # capstan friction mu theta of the guides before the cell
 //! ```
 //!
 //! The model of an encoder reading (as in `taut_calib::diagnose::effects`): the path `G` from
-//! the anchor over the pulley to the platform, unstretched `U = G / (1 + T / EA)`, reading
-//! `drum_scale * U + L0`, through a play of width `backlash_m`. A load cell reads
+//! the anchor over the pulley to the platform, unstretched `U = G / (1 + T / EA)`, less the
+//! deflection `compliance_m_per_n * T`, reading `drum_scale * U + L0`, through a play of width `backlash_m`. A load cell reads
 //! `loadcell_gain * T * exp(-friction_mu_theta * tanh(v / 5 mm/s))` of the cable's tension `T`
 //! at length rate `v` (> 0 paying out): `taut_model::cell_tension` inverts it, in the loop and in
 //! the diagnosis.
@@ -45,7 +48,9 @@ use taut_model::geometry::{Field, GeometryError};
 pub use taut_model::geometry::{Geometry, Sigmas};
 
 /// The format tag of a parameter file as written.
-pub const FORMAT: &str = "taut-params v4";
+pub const FORMAT: &str = "taut-params v5";
+/// The format tag of version 4 files (no `compliance_m_per_n`), still read.
+pub const FORMAT_V4: &str = "taut-params v4";
 /// The format tag of version 3 files (no `loadcell_gain`, `friction_mu_theta`), still read.
 pub const FORMAT_V3: &str = "taut-params v3";
 /// The format tag of version 2 files (no `drum_buildup_per_m`), still read.
@@ -55,7 +60,7 @@ pub const FORMAT_V1: &str = "taut-params v1";
 
 /// Plausible ranges of the effect values: (key, low, high, unit). A value outside is not a
 /// physical cable (or a typo), and the file is refused naming the key.
-pub const EFFECT_RANGES: [(&str, f64, f64, &str); 8] = [
+pub const EFFECT_RANGES: [(&str, f64, f64, &str); 9] = [
     // An elastic cord (1 kN) to a thick steel rope (10 GN is far beyond any; stiffer is rigid).
     ("ea_n", 1e3, 1e10, "N"),
     // A drum radius error of +-10 %.
@@ -69,6 +74,8 @@ pub const EFFECT_RANGES: [(&str, f64, f64, &str); 8] = [
     ("loadcell_gain", 0.5, 2.0, ""),
     // mu theta of 2 is a coefficient of 0.3 over more than a full turn of guides.
     ("friction_mu_theta", 0.0, 2.0, ""),
+    // Deflection per newton of a winch, frame or anchor: 1 mm/N would be a spring, not a frame.
+    ("compliance_m_per_n", 0.0, 1e-3, "m/N"),
 ];
 
 /// Physical effects beyond the ideal model, fitted by `taut diagnose` or the daemon's
@@ -128,6 +135,13 @@ pub struct Effects {
     /// 1-sigma of `friction_mu_theta`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction_mu_theta_sigma: Option<Vec<f64>>,
+    /// Compliance per cable that does not scale with its length (winch, frame or anchor
+    /// deflection), m/N: the encoder reads `c T` less than the cable's path (version 5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compliance_m_per_n: Option<Vec<f64>>,
+    /// 1-sigma of `compliance_m_per_n`, m/N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compliance_sigma_m_per_n: Option<Vec<f64>>,
 }
 
 impl Effects {
@@ -145,6 +159,8 @@ impl Effects {
             && self.time_offset_sigma_s.is_none()
             && self.drum_buildup_per_m.is_none()
             && self.drum_buildup_sigma_per_m.is_none()
+            && self.compliance_m_per_n.is_none()
+            && self.compliance_sigma_m_per_n.is_none()
             && self.tension_side_is_empty()
     }
 
@@ -157,7 +173,7 @@ impl Effects {
     }
 
     /// The names of the modelled effects (`taut-diagnosis v1` names: elasticity, scale,
-    /// pulley, backlash, time-offset, drum-buildup, loadcell-gain, friction).
+    /// pulley, backlash, time-offset, spool-buildup, compliance, loadcell-gain, friction).
     pub fn names(&self) -> Vec<&'static str> {
         let mut v = vec![];
         for (on, name) in [
@@ -166,7 +182,8 @@ impl Effects {
             (self.pulley_radius_m.is_some(), "pulley"),
             (self.backlash_m.is_some(), "backlash"),
             (self.time_offset_s.is_some(), "time-offset"),
-            (self.drum_buildup_per_m.is_some(), "drum-buildup"),
+            (self.drum_buildup_per_m.is_some(), "spool-buildup"),
+            (self.compliance_m_per_n.is_some(), "compliance"),
             (self.loadcell_gain.is_some(), "loadcell-gain"),
             (self.friction_mu_theta.is_some(), "friction"),
         ] {
@@ -183,7 +200,7 @@ impl Effects {
         let range = |key: &str| EFFECT_RANGES.iter().find(|r| r.0 == key).copied().expect("every effect key has a range");
         // (value key, values, sigma key, sigmas)
         type Keyed<'a> = (&'a str, &'a Option<Vec<f64>>, &'a str, &'a Option<Vec<f64>>);
-        let vectors: [Keyed; 7] = [
+        let vectors: [Keyed; 8] = [
             ("ea_n", &self.ea_n, "ea_sigma_n", &self.ea_sigma_n),
             ("drum_scale", &self.drum_scale, "drum_scale_sigma", &self.drum_scale_sigma),
             ("pulley_radius_m", &self.pulley_radius_m, "pulley_radius_sigma_m", &self.pulley_radius_sigma_m),
@@ -191,6 +208,7 @@ impl Effects {
             ("drum_buildup_per_m", &self.drum_buildup_per_m, "drum_buildup_sigma_per_m", &self.drum_buildup_sigma_per_m),
             ("loadcell_gain", &self.loadcell_gain, "loadcell_gain_sigma", &self.loadcell_gain_sigma),
             ("friction_mu_theta", &self.friction_mu_theta, "friction_mu_theta_sigma", &self.friction_mu_theta_sigma),
+            ("compliance_m_per_n", &self.compliance_m_per_n, "compliance_sigma_m_per_n", &self.compliance_sigma_m_per_n),
         ];
         let value = |key: &str, v: f64| -> Result<(), String> {
             let (_, lo, hi, unit) = range(key);
@@ -331,11 +349,20 @@ impl ParamsFile {
         let err = |line, message| crate::ConfigError { file: Some(path.to_path_buf()), line, key: None, message };
         let p: ParamsFile =
             toml::from_str(text).map_err(|e| err(e.span().map(|s| crate::line_of(text, s.start)), e.message().trim().to_string()))?;
-        if ![FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1].contains(&p.format.as_str()) {
+        if ![FORMAT, FORMAT_V4, FORMAT_V3, FORMAT_V2, FORMAT_V1].contains(&p.format.as_str()) {
             return Err(err(
                 Some(1),
-                format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V3}`, `{FORMAT_V2}`, `{FORMAT_V1}`)", p.format),
+                format!("format is `{}`, expected `{FORMAT}` (or `{FORMAT_V4}`, `{FORMAT_V3}`, `{FORMAT_V2}`, `{FORMAT_V1}`)", p.format),
             ));
+        }
+        if p.format != FORMAT && (p.effects.compliance_m_per_n.is_some() || p.effects.compliance_sigma_m_per_n.is_some()) {
+            let key = if p.effects.compliance_m_per_n.is_some() { "compliance_m_per_n" } else { "compliance_sigma_m_per_n" };
+            return Err(crate::ConfigError {
+                file: Some(path.to_path_buf()),
+                line: key_line(text, &format!("effects.{key}")),
+                key: Some(format!("effects.{key}")),
+                message: format!("`{}` has no {key}: write format = \"{FORMAT}\"", p.format),
+            });
         }
         if (p.format == FORMAT_V3 || p.format == FORMAT_V2) && !p.effects.tension_side_is_empty() {
             let e = &p.effects;
@@ -388,8 +415,9 @@ impl ParamsFile {
             message,
         })?;
         let mut p = p;
-        // A v1 file is a v4 file without effects, a v2 one without the drum build-up and the
-        // tension side, a v3 one without the tension side: held (and written back) as v4.
+        // A v1 file is a v5 file without effects, a v2 one without the drum build-up, the
+        // tension side and the compliance, a v3 one without the last two, a v4 one without the
+        // compliance: held (and written back) as v5.
         p.format = FORMAT.into();
         let n = p.anchors_m.len();
         if p.anchor_sigma_m.is_empty() {
@@ -576,7 +604,7 @@ mod tests {
         let v2 = "format = \"taut-params v2\"\nversion = 3\ncreated_unix_s = 1.5e9\nrobot = \"r\"\nsource = \"x.csv\"\n\
                   anchors_m = [[1.0, 2.0, 3.0], [-1.0, 2.0, 3.0]]\nl0_m = [0.1, 0.2]\n\n[effects]\ndrum_scale = [1.003, 0.998]\n";
         let p = ParamsFile::parse(Path::new("v2.toml"), v2).unwrap();
-        assert_eq!(p.format, FORMAT, "read as the current format (written back as v4)");
+        assert_eq!(p.format, FORMAT, "read as the current format (written back as v5)");
         assert_eq!(p.effects.drum_scale, Some(vec![1.003, 0.998]));
         assert_eq!(p.effects.drum_buildup_per_m, None);
         let set = format!("{v2}drum_buildup_per_m = [-0.01, 0.02]\n");
@@ -585,7 +613,7 @@ mod tests {
         let v3 = set.replace(FORMAT_V2, FORMAT_V3);
         let p = ParamsFile::parse(Path::new("v3.toml"), &v3).unwrap();
         assert_eq!(p.effects.drum_buildup_per_m, Some(vec![-0.01, 0.02]));
-        assert_eq!(p.effects.names(), vec!["scale", "drum-buildup"]);
+        assert_eq!(p.effects.names(), vec!["scale", "spool-buildup"]);
         assert_eq!(ParamsFile::parse(Path::new("v3.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
         let e = ParamsFile::parse(Path::new("v3.toml"), &v3.replace("-0.01,", "-0.5,")).unwrap_err();
         assert!(e.to_string().contains("drum_buildup_per_m[0]"), "{e}");
@@ -605,11 +633,11 @@ mod tests {
         let set = format!("{v3}{tension}");
         let e = ParamsFile::parse(Path::new("v3.toml"), &set).unwrap_err();
         assert_eq!((e.key.as_deref(), e.line), (Some("effects.loadcell_gain"), Some(11)), "{e}");
-        let v4 = set.replace(FORMAT_V3, FORMAT);
+        let v4 = set.replace(FORMAT_V3, FORMAT_V4);
         let p = ParamsFile::parse(Path::new("v4.toml"), &v4).unwrap();
         assert_eq!(p.effects.loadcell_gain, Some(vec![1.04, 0.97]));
         assert_eq!(p.effects.friction_mu_theta_sigma, Some(vec![0.01, 0.01]));
-        assert_eq!(p.effects.names(), vec!["drum-buildup", "loadcell-gain", "friction"]);
+        assert_eq!(p.effects.names(), vec!["spool-buildup", "loadcell-gain", "friction"]);
         assert_eq!(ParamsFile::parse(Path::new("v4.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
         // (replace, by, the key named, its line)
         for (a, b, key, line) in [
@@ -629,6 +657,44 @@ mod tests {
         }
         let e = ParamsFile::parse(Path::new("v4.toml"), &v4.replace("friction_mu_theta = [0.2, 0.15]\n", "")).unwrap_err();
         assert_eq!(e.key.as_deref(), Some("effects.friction_mu_theta_sigma"), "a sigma without its value: {e}");
+    }
+
+    /// Version 5 carries the length-independent compliance with its sigma; a version 4 (or older)
+    /// file that sets it is refused naming the key and its line; hostile values name the key and
+    /// the cable.
+    #[test]
+    fn version_5_carries_the_compliance_and_version_4_is_still_read() {
+        let v4 = "format = \"taut-params v4\"\nversion = 3\ncreated_unix_s = 1.5e9\nrobot = \"r\"\nsource = \"x.csv\"\n\
+                  anchors_m = [[1.0, 2.0, 3.0], [-1.0, 2.0, 3.0]]\nl0_m = [0.1, 0.2]\n\n[effects]\nloadcell_gain = [1.04, 0.97]\n";
+        let p = ParamsFile::parse(Path::new("v4.toml"), v4).unwrap();
+        assert_eq!((p.format.as_str(), p.effects.compliance_m_per_n.as_ref()), (FORMAT, None));
+        let set = format!("{v4}compliance_m_per_n = [1.5e-6, 0.0]\ncompliance_sigma_m_per_n = [1e-7, 1e-7]\n");
+        for old in [FORMAT_V4, FORMAT_V3, FORMAT_V2] {
+            let text = set.replace(FORMAT_V4, old).replace("loadcell_gain = [1.04, 0.97]\n", "");
+            let e = ParamsFile::parse(Path::new("old.toml"), &text).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some("effects.compliance_m_per_n"), Some(10)), "{old}: {e}");
+            assert!(e.to_string().contains("old.toml"), "{e}");
+        }
+        let v5 = set.replace(FORMAT_V4, FORMAT);
+        let p = ParamsFile::parse(Path::new("v5.toml"), &v5).unwrap();
+        assert_eq!(p.effects.compliance_m_per_n, Some(vec![1.5e-6, 0.0]));
+        assert_eq!(p.effects.names(), vec!["compliance", "loadcell-gain"]);
+        assert_eq!(ParamsFile::parse(Path::new("v5.toml"), &p.to_text().unwrap()).unwrap().effects, p.effects);
+        // (replace, by, the key named, its line)
+        for (a, b, key, line) in [
+            ("[1.5e-6,", "[-1.5e-6,", "effects.compliance_m_per_n[0]", 11),
+            ("0.0]\n", "0.5]\n", "effects.compliance_m_per_n[1]", 11),
+            ("0.0]\n", "nan]\n", "effects.compliance_m_per_n[1]", 11),
+            ("0.0]\n", "inf]\n", "effects.compliance_m_per_n[1]", 11),
+            ("[1.5e-6, 0.0]", "[1.5e-6]", "effects.compliance_m_per_n", 11),
+            ("[1e-7, 1e-7]", "[-1e-7, 1e-7]", "effects.compliance_sigma_m_per_n[0]", 12),
+        ] {
+            let e = ParamsFile::parse(Path::new("v5.toml"), &v5.replacen(a, b, 1)).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some(key), Some(line)), "{a} -> {b}: {e}");
+            assert!(e.to_string().contains("v5.toml"), "{e}");
+        }
+        let e = ParamsFile::parse(Path::new("v5.toml"), &v5.replace("compliance_m_per_n = [1.5e-6, 0.0]\n", "")).unwrap_err();
+        assert_eq!(e.key.as_deref(), Some("effects.compliance_sigma_m_per_n"), "a sigma without its value: {e}");
     }
 
     /// The one conversion between the file and the shared geometry types, both ways, and the

@@ -31,6 +31,7 @@ impl EffectsFromFile for LoopEffects {
             e.backlash_m.as_deref(),
             e.time_offset_s,
         )
+        .with_deflection(e.compliance_m_per_n.as_deref())
         .with_tension_side(e.loadcell_gain.as_deref(), e.friction_mu_theta.as_deref())
     }
 }

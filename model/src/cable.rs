@@ -16,6 +16,19 @@ pub fn unstretched(g: f64, compliance: f64, tension_n: f64) -> f64 {
     g / (1.0 + compliance * tension_n)
 }
 
+/// The length the encoder counts when the winch, the frame or the anchor gives way by
+/// `compliance t` under the cable's tension `t` (compliance in m/N, independent of the cable's
+/// length): the path `u` less that deflection. `u` itself (bit for bit) at compliance 0; a
+/// tension that is not finite or not positive deflects nothing (as in [`cable_length`]).
+#[inline]
+pub fn deflection_counted(u: f64, compliance_m_per_n: f64, tension_n: f64) -> f64 {
+    if compliance_m_per_n == 0.0 || !(tension_n.is_finite() && tension_n > 0.0) {
+        u
+    } else {
+        u - compliance_m_per_n * tension_n
+    }
+}
+
 /// The length a drum with build-up `q` (1/m) counts for a paid-out length `u`: a drum wound in
 /// layers pays out `b + q b^2` while its encoder counts `b`, so the count is the root
 /// `2 u / (1 + sqrt(1 + 4 q u))`, `u` itself (bit for bit) at `q = 0`. Where `1 + 4 q u` is not

@@ -9,7 +9,9 @@
 //! G = |X - A|                                   ideal straight cable         straight_length
 //!   = r beta + sqrt(|X - C|^2 - r^2)            over a swivel pulley, radius r   pulley_length
 //! U = G / (1 + c T),   c = 1 / EA               the encoder counts unstretched cable   unstretched
-//! l = s U + L0                                  drum scale s, encoder offset L0   reading
+//! U -= k T                                      winch, frame or anchor deflection k, m/N   deflection_counted
+//! B + q B^2 = U                                 drum build-up q: the drum counts B     buildup_counted
+//! l = s B + L0                                  drum scale s, encoder offset L0   reading
 //! ```
 //!
 //! [`cable_length`] chains them the way the loop does. On the tension side, [`cell_tension`]
@@ -37,7 +39,7 @@ pub mod geometry;
 pub mod tour;
 
 pub use cable::{
-    buildup_counted, cable_length, cell_tension, friction_direction, pulley_length, reading, straight_length, unstretched,
-    FRICTION_V_BAND_M_S,
+    buildup_counted, cable_length, cell_tension, deflection_counted, friction_direction, pulley_length, reading, straight_length,
+    unstretched, FRICTION_V_BAND_M_S,
 };
 pub use geometry::{Geometry, GeometryError, Sigmas};

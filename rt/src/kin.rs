@@ -8,7 +8,9 @@
 //! ```text
 //! G_j = |X - A_j|, or over a swivel pulley of radius r_j (axis vertical through A_j):
 //!       r_j beta + sqrt(|X - C_j|^2 - r_j^2)
-//! l_j = s_j G_j / (1 + T_j / EA_j) + L0_j        s_j: drum scale, T_j: cable tension
+//! U_j = G_j / (1 + T_j / EA_j) - k_j T_j         k_j: winch, frame and anchor compliance
+//! l_j = s_j B_j + L0_j,  B_j + q_j B_j^2 = U_j    s_j: drum scale, q_j: drum build-up,
+//!                                                 T_j: cable tension
 //! ```
 //!
 //! The encoder counts unstretched cable: to put the platform at `P` under tension `T_j` the
@@ -40,6 +42,9 @@ pub struct LoopEffects {
     /// Drum build-up per cable, 1/m (0: none): the drum pays out `b + q b^2` for an encoder
     /// count `b` (`taut_model::buildup_counted`).
     pub buildup: [f64; MAX_CABLES],
+    /// Compliance per cable that does not scale with its length (winch, frame or anchor), m/N
+    /// (0: rigid): the drum holds `k T` less (`taut_model::deflection_counted`).
+    pub deflection: [f64; MAX_CABLES],
     /// Swivel-pulley radius per cable, m (0: the cable leaves from the anchor point).
     pub pulley_r: [f64; MAX_CABLES],
     /// Backlash width per cable, m (calibration only, see the module documentation).
@@ -58,6 +63,7 @@ impl LoopEffects {
         compliance: [0.0; MAX_CABLES],
         scale: [1.0; MAX_CABLES],
         buildup: [0.0; MAX_CABLES],
+        deflection: [0.0; MAX_CABLES],
         pulley_r: [0.0; MAX_CABLES],
         backlash: [0.0; MAX_CABLES],
         time_offset_s: 0.0,
@@ -92,6 +98,16 @@ impl LoopEffects {
         copy(&mut out.backlash, backlash_m, |w| w);
         out.time_offset_s = time_offset_s.unwrap_or(0.0);
         out
+    }
+
+    /// The same effects with each cable's length-independent compliance in m/N as a parameter
+    /// file holds it (absent: 0); values for cables beyond `MAX_CABLES` ignored.
+    pub fn with_deflection(mut self, compliance_m_per_n: Option<&[f64]>) -> LoopEffects {
+        self.deflection = [0.0; MAX_CABLES];
+        for (d, s) in self.deflection.iter_mut().zip(compliance_m_per_n.unwrap_or(&[])) {
+            *d = *s;
+        }
+        self
     }
 
     /// The same effects with the tension side from per-cable values as a parameter file holds
@@ -223,8 +239,10 @@ impl LoopParams {
         let b = &self.platform[j];
         let x = [p[0] + b[0], p[1] + b[1], p[2] + b[2]];
         let e = &self.effects;
-        // The unstretched length (scale 1, no offset: `u` itself), counted on the drum, read.
+        // The unstretched length (scale 1, no offset: `u` itself), less the winch's give,
+        // counted on the drum, read.
         let u = taut_model::cable_length(x, self.anchors[j], e.pulley_r[j], e.compliance[j], tension_n, 1.0, 0.0);
+        let u = taut_model::deflection_counted(u, e.deflection[j], tension_n);
         taut_model::reading(e.scale[j], taut_model::buildup_counted(u, e.buildup[j]), self.l0[j])
     }
 
@@ -315,6 +333,16 @@ mod tests {
         let b = p.length_at(2, &x, 50.0) / 0.998;
         assert!((b + -0.004 * b * b - u).abs() < 1e-12, "{b} {u}");
         assert!(LoopEffects::from_values(None, None, None, None, None, None).is_none());
+        // Cable 0 with a compliant winch as well: 1.5 mm/kN less at 300 N, whatever the length;
+        // nothing without a tension; bit for bit the same with a compliance of 0.
+        let soft = ideal.with_effects(effects.with_deflection(Some(&[1.5e-6, 0.0])));
+        for x in [x, [-0.5, 1.0, 0.2]] {
+            let d = (p.length_at(0, &x, 300.0) - soft.length_at(0, &x, 300.0)) / 1.003;
+            assert!((d - 4.5e-4).abs() < 1e-12, "{d}");
+            assert_eq!(soft.length_at(0, &x, f64::NAN), p.length_at(0, &x, f64::NAN));
+            assert_eq!(soft.length_at(1, &x, 300.0).to_bits(), p.length_at(1, &x, 300.0).to_bits());
+        }
+        assert!(!LoopEffects::NONE.with_deflection(Some(&[1e-6])).is_none());
     }
 
     #[test]

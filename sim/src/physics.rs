@@ -19,6 +19,10 @@
 //!
 //! Without a pulley `E = A`. The cable reaches the pulley along the swivel axis from above; the
 //! part above `A` has a constant length and is absorbed in the encoder offset.
+//!
+//! A compliant winch, frame or anchor ([`Physics::compliance_m_per_n`]) is a spring in series
+//! with the cable at the drum's end: under the tension `T` there it gives `k T`, so the drum
+//! holds that much less cable than the path needs, whatever the cable's length.
 
 use std::cell::Cell;
 
@@ -57,6 +61,10 @@ pub struct Physics {
     /// the encoder offsets refer to, and the encoder converts its angle at that radius (see
     /// [`crate::sensors::Drum`]).
     pub drum_buildup_m_per_turn: Option<f64>,
+    /// Compliance of every winch, its frame and anchor, m/N: a spring in series with the cable
+    /// at the drum's end that gives `k T` under the tension `T` there, independent of the cable's
+    /// length. `None` or 0: rigid.
+    pub compliance_m_per_n: Option<f64>,
     /// Drum eccentricity, m: each drum turns about an axis this far off its centre, so the cable
     /// it pays out runs ahead of and behind the encoder's count by up to this much, periodic in
     /// the paid-out length with the drum's circumference (`2 pi DRUM_RADIUS_M`), each cable's
@@ -100,6 +108,7 @@ impl Default for Physics {
             pulley: None,
             scale: None,
             drum_buildup_m_per_turn: None,
+            compliance_m_per_n: None,
             drum_eccentricity_m: None,
             height_error_per_m: None,
             loadcell_gain: None,
@@ -214,6 +223,8 @@ pub struct CableModel {
     pub ea: f64,
     /// Weight per length, N/m (0: no sag).
     pub w: f64,
+    /// Compliance of the winch, frame and anchor in series with the cable, m/N (0: rigid).
+    pub k: f64,
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -236,6 +247,7 @@ impl CableModel {
             pulley_r: physics.pulley.unwrap_or(0.0),
             ea: physics.elasticity.unwrap_or(f64::INFINITY),
             w: physics.sag.unwrap_or(0.0),
+            k: physics.compliance_m_per_n.unwrap_or(0.0),
         }
     }
 
@@ -297,12 +309,14 @@ impl CableModel {
         let path = self.path(b);
         if self.w > 0.0 {
             let (h, v, eh) = Self::span(b, path.exit);
-            let s = catenary::solve_given_tension(h, v, t, End::Lower, &self.spec())?;
+            let spec = self.spec();
+            let s = catenary::solve_given_tension(h, v, t, End::Lower, &spec)?;
             let f = [s.h_force * eh[0], s.h_force * eh[1], s.v0];
-            return Ok(Taut { unstretched: s.l0 + path.wrap, dir: scale3(f, 1.0 / s.t0()) });
+            // The winch gives way under the tension at the cable's upper end.
+            return Ok(Taut { unstretched: s.l0 + path.wrap - self.k * s.t1(&spec), dir: scale3(f, 1.0 / s.t0()) });
         }
         let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
-        Ok(Taut { unstretched: path.length() / (1.0 + k), dir: path.dir })
+        Ok(Taut { unstretched: path.length() / (1.0 + k) - self.k * t, dir: path.dir })
     }
 
     /// The cable's action on the platform point `b` under `cmd`.
@@ -326,12 +340,13 @@ impl CableModel {
         }
         match cmd {
             CableCommand::Length(lu) => {
-                let ea = self.ea;
+                // The cable (lu / EA per newton) and the winch's spring (k) in series.
+                let give = lu / self.ea + self.k;
                 if ell > lu {
-                    let t = ea * (ell / lu - 1.0);
+                    let t = (ell - lu) / give;
                     CableLoad {
                         force: scale3(path.dir, t),
-                        energy: 0.5 * ea / lu * (ell - lu) * (ell - lu),
+                        energy: 0.5 * (ell - lu) * (ell - lu) / give,
                         tension: t,
                         drum_length: lu,
                         slack: false,
@@ -342,7 +357,13 @@ impl CableModel {
             }
             CableCommand::Tension(t) => {
                 let k = if self.ea.is_finite() { t / self.ea } else { 0.0 };
-                CableLoad { force: scale3(path.dir, t), energy: t * ell, tension: t, drum_length: ell / (1.0 + k), slack: false }
+                CableLoad {
+                    force: scale3(path.dir, t),
+                    energy: t * ell,
+                    tension: t,
+                    drum_length: ell / (1.0 + k) - self.k * t,
+                    slack: false,
+                }
             }
         }
     }
@@ -360,13 +381,47 @@ impl CableModel {
         let force = |s: &Catenary| [s.h_force * eh[0], s.h_force * eh[1], s.v0];
         match cmd {
             CableCommand::Length(lu) => {
-                let free = lu - path.wrap;
-                let s = keep(catenary::solve_given_length_from(h, v, free, &spec, guess).ok()?);
+                let lo = lu - path.wrap;
+                let mut s = catenary::solve_given_length_from(h, v, lo, &spec, guess).ok()?;
+                let (mut free, mut spring) = (lo, 0.0);
+                if self.k > 0.0 {
+                    // A compliant winch lets out k T_upper more than the drum holds: the root of
+                    // g(L) = L - lo - k T_upper(L), increasing in L (the tension falls as the
+                    // span lengthens), bracketed by [lo, lo + k T_upper(lo)]; a stiff short span
+                    // makes k dT/dL exceed 1, so no fixed-point iteration. Illinois regula falsi.
+                    let g = |l: f64, s: &Catenary| l - lo - self.k * s.t1(&spec);
+                    let (mut a, mut ga) = (lo, g(lo, &s));
+                    let mut b = lo + self.k * s.t1(&spec);
+                    let mut sb = catenary::solve_given_length_from(h, v, b, &spec, Some(s)).ok()?;
+                    let mut gb = g(b, &sb);
+                    let mut side = 0;
+                    for _ in 0..100 {
+                        if gb.abs() < 1e-13 || (b - a).abs() < 1e-15 {
+                            break;
+                        }
+                        let c = (a * gb - b * ga) / (gb - ga);
+                        let sc = catenary::solve_given_length_from(h, v, c, &spec, Some(sb)).ok()?;
+                        let gc = g(c, &sc);
+                        if gc * gb < 0.0 {
+                            (a, ga) = (b, gb);
+                            side = 0;
+                        } else if side == 1 {
+                            ga *= 0.5;
+                        } else {
+                            side = 1;
+                        }
+                        (b, gb, sb) = (c, gc, sc);
+                    }
+                    (free, s) = (b, sb);
+                    spring = 0.5 * self.k * s.t1(&spec).powi(2);
+                }
+                let s = keep(s);
                 Some(CableLoad {
                     force: force(&s),
                     // Gravity of the whole cable at the platform's height plus the catenary's
-                    // own energy: its gradient in b is minus the force (checked in catenary).
-                    energy: s.energy_rel(&spec) + self.w * free * b[2],
+                    // own energy: its gradient in b is minus the force (checked in catenary);
+                    // the winch's spring adds its own (to first order in k).
+                    energy: s.energy_rel(&spec) + self.w * free * b[2] + spring,
                     tension: s.t0(),
                     drum_length: lu,
                     slack: false,
@@ -380,7 +435,7 @@ impl CableModel {
                     force: force(&s),
                     energy: t * (s.l0 + path.wrap) + s.energy_rel(&spec) - self.w * s.l0 * v,
                     tension: s.t0(),
-                    drum_length: s.l0 + path.wrap,
+                    drum_length: s.l0 + path.wrap - self.k * t,
                     slack: false,
                 })
             }
@@ -391,6 +446,29 @@ impl CableModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A compliant winch: the drum holds `k T` less than the rigid winch's cable at the same
+    /// tension, straight or sagging, whatever the length; a position-mode drum that holds that
+    /// length sees the same tension.
+    #[test]
+    fn a_compliant_winch_holds_k_t_less_cable_at_every_length() {
+        let a = [3.5, -1.75, 4.0];
+        let k = 2e-6;
+        for base in
+            [Physics { elasticity: Some(2e5), ..Physics::ideal() }, Physics { sag: Some(0.3), elasticity: Some(5e5), ..Physics::ideal() }]
+        {
+            let rigid = CableModel::new(a, &base);
+            let soft = CableModel::new(a, &Physics { compliance_m_per_n: Some(k), ..base.clone() });
+            for (b, t) in [([0.3, 0.2, 1.5], 150.0), ([-2.0, 1.5, 0.5], 400.0), ([3.0, -1.5, 3.5], 60.0)] {
+                let (lr, ls) = (rigid.taut(b, t).unwrap().unstretched, soft.taut(b, t).unwrap().unstretched);
+                // With sag the winch feels the upper end's tension, a little more than `t`.
+                let t_upper = if base.sag.is_some() { t + 0.3 * (a[2] - b[2]) } else { t };
+                assert!((lr - ls - k * t_upper).abs() < 0.02 * k * t, "{base:?} {b:?}: {}", (lr - ls) / k);
+                let held = soft.load(b, CableCommand::Length(ls));
+                assert!((held.tension - t).abs() < 1e-3 * t, "{base:?} {b:?}: {} N", held.tension);
+            }
+        }
+    }
 
     #[test]
     fn pulley_path_limits_and_tangency() {
@@ -437,6 +515,7 @@ mod tests {
             Physics { pulley: Some(0.05), ..Physics::ideal() },
             Physics { sag: Some(0.8), ..Physics::ideal() },
             Physics { sag: Some(0.8), elasticity: Some(5e4), pulley: Some(0.05), ..Physics::ideal() },
+            Physics { compliance_m_per_n: Some(2e-6), elasticity: Some(2e5), ..Physics::ideal() },
         ];
         for ph in &physics {
             let m = CableModel::new(a, ph).rigidified();

@@ -5,7 +5,8 @@
 //! ```text
 //! cargo run --release -p taut-tests --example concealed_probe -- ROBOT FIRST_SEED COUNT [key=value ...]
 //! ROBOT: three | aras | outdoor; keys: ea (N), sag (N/m), pulley (m), scale (comma list),
-//! offset (s), play (m), buildup (drum radius change per turn paid out, m), dur (s), floor (N)
+//! offset (s), play (m), buildup (drum radius change per turn paid out, m), compliance (winch,
+//! frame and anchor, m/N), dur (s), floor (N)
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
@@ -29,6 +30,7 @@ fn main() {
             "offset" => physics.time_offset_s = v.parse().expect("offset"),
             "play" => physics.backlash_m = v.parse().expect("play"),
             "buildup" => physics.drum_buildup_m_per_turn = Some(v.parse().expect("buildup")),
+            "compliance" => physics.compliance_m_per_n = Some(v.parse().expect("compliance")),
             "dur" => dur = v.parse().expect("dur"),
             "floor" => floor = Some(v.parse::<f64>().expect("floor")),
             _ => panic!("unknown key {k}"),

@@ -107,14 +107,14 @@ fn main() {
     }
     println!("per candidate (round 1; a uniform p gives n x level below each level):");
     println!(
-        "{:12} {:>7} {:>6} {:>16} {:>14} {:>14} {:>14}",
+        "{:13} {:>7} {:>6} {:>16} {:>14} {:>14} {:>14}",
         "candidate", "claims", "tests", "p < level", "p < 1e-3", "p < 0.01", "p < 0.05"
     );
     for (q, e) in lib.iter().enumerate() {
         let n = tests_of[q] as f64;
         let (lo, hi) = interval(claims_of[q], count);
         println!(
-            "{:12} {:>7} {:>6} {:>8} ({:.1e}) {:>7} ({:>4.2}) {:>7} ({:>4.1}) {:>7} ({:>4.1})   claim rate 95 % CI [{lo:.3}, {hi:.3}]",
+            "{:13} {:>7} {:>6} {:>8} ({:.1e}) {:>7} ({:>4.2}) {:>7} ({:>4.1}) {:>7} ({:>4.1})   claim rate 95 % CI [{lo:.3}, {hi:.3}]",
             e.name(),
             claims_of[q],
             tests_of[q],

@@ -26,7 +26,8 @@ use super::{Effect, EffectModel, Sharing};
 use crate::diagnose::analysis::Regressor;
 use taut_config::params::Effects;
 
-/// The drum build-up effect (`drum-buildup` in the reports).
+/// The drum build-up effect (`spool-buildup` in the reports; `drum-buildup` is still read, see
+/// [`super::Effect::from_name`]).
 pub struct DrumBuildup;
 
 /// The encoder-derived length `B` whose true paid-out length `B + q B^2` is `u` (the root that
@@ -46,7 +47,7 @@ impl EffectModel for DrumBuildup {
         Effect::DrumBuildup
     }
     fn name(&self) -> &'static str {
-        "drum-buildup"
+        "spool-buildup"
     }
     fn parameter(&self) -> &'static str {
         "buildup_per_m"

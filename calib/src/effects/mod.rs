@@ -16,6 +16,7 @@
 //! G      = |X - A|          or  r*beta + sqrt(|X - C|^2 - r^2)      pulley (swivel, radius r)
 //! G     += s(a, h, w, T) - sqrt(a^2 + h^2)             sag: catenary arc minus chord
 //! U      = G / (1 + T c),   c = 1/EA                   elasticity: encoder sees unstretched length
+//! U     -= k T                                         compliance: winch, frame or anchor deflection
 //! B      = 2 U / (1 + sqrt(1 + 4 q U))                 drum build-up: B + q B^2 = U
 //! v      = (1 + k) B + L0                              scale k = scale - 1
 //! l_hat  = play(v; w_b)                                backlash: play operator of width w_b
@@ -33,7 +34,7 @@
 //!
 //! Each module also holds its stage of the prediction with its derivatives on the library's
 //! [`Path`] and [`Unstretched`] ([`pulley::path`], [`sag::add_excess`], [`stretch::unstretch`],
-//! [`drum_buildup::encoder_length`], [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
+//! [`compliance::deflect`], [`drum_buildup::encoder_length`], [`drum_scale::factor`]); [`model::Joint`] composes them in the order above, and the time
 //! offset and the play, which act on the sample series rather than on one reading, live there.
 //!
 //! Adding an effect: a module here implementing [`EffectModel`] with its stage and its test; a
@@ -43,6 +44,7 @@
 //! physics in the simulator.
 
 pub mod backlash;
+pub mod compliance;
 pub mod drum_buildup;
 pub mod drum_scale;
 pub mod model;
@@ -76,6 +78,9 @@ pub enum Effect {
     /// Drum build-up: the drum's effective radius changes with the wound cable, so the length
     /// is quadratic in the drum's angle.
     DrumBuildup,
+    /// Compliance independent of the cable's length: the winch, frame or anchor gives way by
+    /// `k T`.
+    Compliance,
     /// Loose-cable samples (found and excluded, not modelled).
     Slack,
 }
@@ -234,11 +239,7 @@ pub trait EffectModel: Sync {
 
 impl Effect {
     /// The effects that are fitted (everything but `slack`), in a fixed order.
-    pub const FITTED: [Effect; 7] =
-        [Effect::Elasticity, Effect::Sag, Effect::Pulley, Effect::Scale, Effect::TimeOffset, Effect::Backlash, Effect::DrumBuildup];
-
-    /// Every effect, [`Effect::FITTED`] then `slack`.
-    pub const ALL: [Effect; 8] = [
+    pub const FITTED: [Effect; 8] = [
         Effect::Elasticity,
         Effect::Sag,
         Effect::Pulley,
@@ -246,6 +247,19 @@ impl Effect {
         Effect::TimeOffset,
         Effect::Backlash,
         Effect::DrumBuildup,
+        Effect::Compliance,
+    ];
+
+    /// Every effect, [`Effect::FITTED`] then `slack`.
+    pub const ALL: [Effect; 9] = [
+        Effect::Elasticity,
+        Effect::Sag,
+        Effect::Pulley,
+        Effect::Scale,
+        Effect::TimeOffset,
+        Effect::Backlash,
+        Effect::DrumBuildup,
+        Effect::Compliance,
         Effect::Slack,
     ];
 
@@ -259,6 +273,7 @@ impl Effect {
             Effect::TimeOffset => &time_offset::TimeOffset,
             Effect::Backlash => &backlash::Backlash,
             Effect::DrumBuildup => &drum_buildup::DrumBuildup,
+            Effect::Compliance => &compliance::Compliance,
             Effect::Slack => &slack::Slack,
         }
     }
@@ -318,8 +333,10 @@ impl Effect {
         self.model().signature()
     }
 
-    /// Parses a `taut-diagnosis v1` name.
+    /// Parses a `taut-diagnosis v1` name, or an older name the configuration and the command
+    /// line still accept (`drum-buildup`: `taut_config::EFFECT_ALIASES`).
     pub fn from_name(s: &str) -> Option<Effect> {
+        let s = taut_config::canonical_effect_name(s);
         Effect::ALL.into_iter().find(|e| e.name() == s)
     }
 
@@ -341,6 +358,9 @@ mod tests {
             assert_eq!(Effect::ALL[e.index()], e);
         }
         assert_eq!(Effect::TimeOffset.name(), "time-offset");
+        assert_eq!(Effect::DrumBuildup.name(), "spool-buildup");
+        assert_eq!(Effect::from_name("drum-buildup"), Some(Effect::DrumBuildup), "the old name is still read");
+        assert_eq!(Effect::from_name("compliance"), Some(Effect::Compliance));
     }
 
     /// Every fitted effect starts inside its bounds and its plausible range inside them too,

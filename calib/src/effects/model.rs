@@ -287,7 +287,7 @@ pub struct Prediction {
     /// `g_T = d value / d T` (stretch and sag).
     pub g_t: f64,
     /// `d g_T / d parameter` for the compliance, sag weight, scale, time offset and the anchor.
-    pub dg_t: [(usize, f64); 7],
+    pub dg_t: [(usize, f64); 8],
     /// Valid entries of `dg_t`.
     pub dg_len: usize,
 }
@@ -452,6 +452,15 @@ impl<'a> Joint<'a> {
                 du_dc = Some((k, 0.0));
             }
         }
+        // Compliance: the winch, frame or anchor gives way by k T (dU'/dk = -T, d(dU'/dT)/dk = -1).
+        let mut dkc = None;
+        let mut u_tk = None;
+        if let Some((k, kc)) = get(Effect::Compliance) {
+            let (d, du_dk) = super::compliance::deflect(un, kc, tension);
+            un = d;
+            dkc = Some((k, du_dk));
+            u_tk = has_t.then_some((k, -1.0));
+        }
         // Drum build-up: the encoder counts B (B + q B^2 = U) at the nominal radius. Its second
         // derivative is left out of the weight's derivatives (`dg_t`): it moves dU/dT by
         // 2 |q| U_T per metre, a few hundredths at most.
@@ -459,6 +468,9 @@ impl<'a> Joint<'a> {
         if let Some((k, q)) = get(Effect::DrumBuildup) {
             let (b, db_du, db_dq) = super::drum_buildup::encoder_length(un.u, q);
             dq = Some((k, db_dq));
+            for (_, d) in dkc.iter_mut().chain(u_tk.iter_mut()) {
+                *d *= db_du;
+            }
             un = Unstretched {
                 u: b,
                 du_dg: un.du_dg * db_du,
@@ -478,16 +490,17 @@ impl<'a> Joint<'a> {
             Some((k, s)) => (super::drum_scale::factor(s), Some((k, u))),
             None => (1.0, None),
         };
-        let mut dg_t = [(0usize, 0.0f64); 7];
+        let mut dg_t = [(0usize, 0.0f64); 8];
         let mut dg_len = 0;
         // The weight's derivatives only where the tension's noise weighs (`Eiv`).
         let weighs = self.prep.eiv.is_some_and(|e| e.tension_var > 0.0);
-        if weighs && has_t && (g_t != 0.0 || c_index.is_some()) {
+        if weighs && has_t && (g_t != 0.0 || c_index.is_some() || u_tk.is_some()) {
             // d u_T / dX = u_tg gx + u_tx; the anchor moves X's opposite, the offset by -v.
             let ux = [u_tg * gx[0] + u_tx[0], u_tg * gx[1] + u_tx[1], u_tg * gx[2] + u_tx[2]];
             let by_delta = delta.map(|(k, _)| (k, -scale * (ux[0] * vel[0] + ux[1] * vel[1] + ux[2] * vel[2])));
             for e in [
                 c_index.map(|k| (k, scale * u_tc)),
+                u_tk.map(|(k, d)| (k, scale * d)),
                 dg_dw.map(|(k, _)| (k, scale * u_tw)),
                 dk.map(|(k, _)| (k, u_t)),
                 by_delta,
@@ -523,6 +536,7 @@ impl<'a> Joint<'a> {
         push(du_dc.map(|(k, d)| (k, scale * d)));
         push(dk);
         push(dq.map(|(k, d)| (k, scale * d)));
+        push(dkc.map(|(k, d)| (k, scale * d)));
         push(dwb);
         if let Some((k, _)) = delta {
             // d X / d delta = -v, d T / d delta = -dT/dt (both 0 at the sample's own pose).
@@ -2026,8 +2040,12 @@ mod tests {
         prep.eiv = Some(Eiv::new(1.5e-3, 5e-5, 3.0));
         let end = TensionEnd::Platform;
         let samples: Vec<usize> = (5..395).step_by(13).collect();
-        let cases: [(Vec<Effect>, Vec<f64>); 3] = [
+        let cases: [(Vec<Effect>, Vec<f64>); 4] = [
             (vec![Effect::TimeOffset, Effect::Elasticity], vec![0.0137, 5e-5, 4e-5, 6e-5, 5e-5]),
+            (
+                vec![Effect::TimeOffset, Effect::Elasticity, Effect::Compliance],
+                vec![0.0137, 5e-5, 4e-5, 6e-5, 5e-5, 2e-5, 1e-5, 3e-5, 1.5e-5],
+            ),
             (vec![Effect::Sag, Effect::Elasticity, Effect::Scale], vec![0.8, 2e-5, 3e-5, 2e-5, 4e-5, 1e-3, -2e-3, 0.0, 5e-4]),
             (vec![Effect::TimeOffset, Effect::Sag], vec![0.0251, 0.8]),
         ];
@@ -2133,6 +2151,11 @@ mod tests {
             &[0.023, 5e-5, 4e-5, 6e-5, 5e-5],
         );
         check_jacobian(&ModelSpec { effects: vec![Effect::DrumBuildup], tension_end: end }, &[-0.02, 0.01, 0.0, 0.03]);
+        check_jacobian(&ModelSpec { effects: vec![Effect::Compliance], tension_end: end }, &[1.5e-6, 4e-6, 0.0, 2e-5]);
+        check_jacobian(
+            &ModelSpec { effects: vec![Effect::TimeOffset, Effect::Elasticity, Effect::Compliance, Effect::DrumBuildup], tension_end: end },
+            &[0.0171, 5e-5, 4e-5, 6e-5, 5e-5, 2e-5, 1e-5, 3e-5, 1.5e-5, -0.02, 0.01, 0.0, 0.03],
+        );
         check_jacobian(
             &ModelSpec { effects: vec![Effect::Elasticity, Effect::Scale, Effect::DrumBuildup], tension_end: end },
             &[5e-5, 4e-5, 6e-5, 5e-5, 1e-3, -2e-3, 0.0, 5e-4, -0.02, 0.01, 0.0, 0.03],
@@ -2166,6 +2189,35 @@ mod tests {
         for j in 0..4 {
             assert!((r.x[16 + j] - k[j]).abs() < 1e-7, "scale {} vs {}", r.x[16 + j], k[j]);
             assert!((r.x[20 + j] - q[j]).abs() < 1e-7, "q {} vs {}", r.x[20 + j], q[j]);
+        }
+    }
+
+    /// Compliance beside elasticity: exact readings `G / (1 + c T) - k T + L0`; the fit from
+    /// shifted anchors recovers every cable's `k` and `EA` (the synthetic platform moves the
+    /// cables over metres, so `G T` and `T` are not one regressor).
+    #[test]
+    fn joint_fit_recovers_compliance_beside_elasticity_on_exact_data() {
+        let (mut prep, x_true) = synthetic(2000);
+        let c = 1.0 / 20_000.0;
+        let k = [2e-5, 5e-6, 0.0, 1e-5];
+        for j in 0..4 {
+            for i in 0..2000 {
+                let d = prep.l[j][i] - x_true[4 * j + 3];
+                let t = prep.f[j][i];
+                prep.l[j][i] = d / (1.0 + c * t) - k[j] * t + x_true[4 * j + 3];
+            }
+        }
+        let spec = ModelSpec { effects: vec![Effect::Elasticity, Effect::Compliance], tension_end: TensionEnd::Platform };
+        let samples: Vec<usize> = (0..2000).collect();
+        let mut x0 = x_true.clone();
+        x0[0] += 0.05;
+        x0[7] -= 0.03;
+        x0.extend([1e-6; 4]);
+        x0.extend([Effect::Compliance.start(); 4]);
+        let r = fit(&prep, &spec, &samples, &x0, 1e-3, 200);
+        for j in 0..4 {
+            assert!((1.0 / r.x[16 + j] - 20_000.0).abs() < 1.0, "EA {}", 1.0 / r.x[16 + j]);
+            assert!((r.x[20 + j] - k[j]).abs() < 1e-9, "k {} vs {}", r.x[20 + j], k[j]);
         }
     }
 

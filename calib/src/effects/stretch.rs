@@ -63,7 +63,7 @@ impl EffectModel for Stretch {
         1e-6
     }
     fn mimics(&self) -> &'static [Option<Effect>] {
-        &[Some(Effect::Sag), Some(Effect::Scale)]
+        &[Some(Effect::Sag), Some(Effect::Scale), Some(Effect::Compliance)]
     }
     /// EA = 1/c, sigma_EA = sigma_c / c^2 (first order).
     fn to_physical(&self, x: f64, sigma: f64) -> (f64, f64) {

@@ -44,6 +44,7 @@ fn loop_allocates_nothing_in_any_state() {
     };
     // The calibrated parameters carry every effect the loop models, the tension side's too.
     let effects = LoopEffects::from_values(Some(&[20_000.0; 4]), Some(&[1.001; 4]), Some(&[-0.002; 4]), Some(&[0.03; 4]), None, None)
+        .with_deflection(Some(&[1.5e-6; 4]))
         .with_tension_side(Some(&[1.03, 0.98, 1.0, 1.01]), Some(&[0.1; 4]));
     let initial = |v: u64, off: f64| {
         let mut p = truth.with_effects(effects);

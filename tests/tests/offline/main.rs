@@ -14,6 +14,7 @@ mod accuracy_sim;
 mod calibrate_notracker;
 mod crate_graph;
 mod diagnose_buildup;
+mod diagnose_compliance;
 mod diagnose_concealed;
 mod diagnose_data_problems;
 mod diagnose_eiv;

@@ -152,6 +152,35 @@ fn v4_tension_side_reads_into_the_loop_and_hostile_values_are_refused() {
     }
 }
 
+/// `taut-params v5`: the length-independent compliance reads (v5 only) into the loop's inverse
+/// kinematics; hostile values refused naming the file, the line and the key.
+#[test]
+fn v5_compliance_reads_into_the_loop_and_hostile_values_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let v5 = V2.replace("taut-params v2", "taut-params v5")
+        + "compliance_m_per_n = [1.5e-6, 0.0, 4e-6]\ncompliance_sigma_m_per_n = [1e-7, 1e-7, 2e-7]\n";
+    let p = ParamsFile::load(write(dir.path(), "v5.toml", &v5)).unwrap();
+    let e = LoopEffects::from_file(&p.effects);
+    assert_eq!((e.deflection[0], e.deflection[1], e.deflection[2], e.deflection[5]), (1.5e-6, 0.0, 4e-6, 0.0));
+    let cases: &[(&str, &str, &str)] = &[
+        ("compliance_m_per_n = [1.5e-6,", "compliance_m_per_n = [-1.5e-6,", "effects.compliance_m_per_n[0]"),
+        ("compliance_m_per_n = [1.5e-6,", "compliance_m_per_n = [0.01,", "effects.compliance_m_per_n[0]"),
+        ("compliance_m_per_n = [1.5e-6,", "compliance_m_per_n = [nan,", "effects.compliance_m_per_n[0]"),
+        ("0.0, 4e-6]", "0.0, inf]", "effects.compliance_m_per_n[2]"),
+        ("compliance_m_per_n = [1.5e-6, 0.0, 4e-6]", "compliance_m_per_n = [1.5e-6, 0.0]", "effects.compliance_m_per_n"),
+        ("compliance_sigma_m_per_n = [1e-7,", "compliance_sigma_m_per_n = [-1e-7,", "effects.compliance_sigma_m_per_n[0]"),
+        // v4 has no compliance.
+        ("format = \"taut-params v5\"", "format = \"taut-params v4\"", "effects.compliance_m_per_n"),
+    ];
+    for (k, (from, to, key)) in cases.iter().enumerate() {
+        assert!(v5.contains(from), "case {k}: `{from}` not in the template");
+        let name = format!("bad-{k}.toml");
+        let e = ParamsFile::load(write(dir.path(), &name, &v5.replacen(from, to, 1))).expect_err(&format!("case {k} ({to}) was accepted"));
+        let msg = e.to_string();
+        assert!(msg.contains(&name) && msg.contains(key) && e.line.is_some(), "case {k}: file, key {key} and line: {msg}");
+    }
+}
+
 #[test]
 fn calibration_effects_key_is_validated() {
     let base = include_str!("../../../config/examples/aras-cam-sim.toml");
@@ -164,10 +193,15 @@ fn calibration_effects_key_is_validated() {
     };
     let ok = taut_config::RobotConfig::from_toml_str(&with(r#"["elasticity", "scale", "pulley"]"#)).unwrap();
     assert_eq!(ok.calibration.effects, ["elasticity", "scale", "pulley"]);
+    for list in [r#"["compliance", "spool-buildup"]"#, r#"["compliance", "drum-buildup"]"#] {
+        taut_config::RobotConfig::from_toml_str(&with(list)).unwrap_or_else(|e| panic!("{list}: {e}"));
+    }
     for (list, want) in [
         (r#"["elasticity", "warp"]"#, "calibration.effects[1]"),
         (r#"["sag"]"#, "calibration.effects[0]"),
         (r#"["scale", "scale"]"#, "calibration.effects[1]"),
+        // The build-up's old name is an alias of its new one: naming both is naming it twice.
+        (r#"["spool-buildup", "drum-buildup"]"#, "calibration.effects[1]"),
     ] {
         let e = taut_config::RobotConfig::from_toml_str(&with(list)).unwrap_err();
         assert_eq!(e.key.as_deref(), Some(want), "{list}: {e}");

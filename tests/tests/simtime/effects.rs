@@ -56,13 +56,15 @@ fn robot(dir: &std::path::Path, effects: &[&str]) -> taut_config::RobotConfig {
 fn concealed(n: usize) -> Physics {
     let scale = [1.003, 0.998, 1.002, 0.9985];
     let list = std::env::var("TAUT_E2E_EFFECTS_CONCEAL").unwrap_or_else(|_| "elasticity,scale,pulley".into());
-    let on = |e: &str| list.split(',').any(|x| x.trim() == e);
+    let on = |e: &str| list.split(',').any(|x| taut_config::canonical_effect_name(x.trim()) == e);
     Physics {
         elasticity: on("elasticity").then_some(20_000.0),
         pulley: on("pulley").then_some(0.05),
         scale: on("scale").then(|| (0..n).map(|j| scale[j % 4]).collect()),
         // Drums whose radius shrinks 5 µm per turn paid out (q ~ -6.4e-4 /m).
-        drum_buildup_m_per_turn: on("drum-buildup").then_some(-5e-6),
+        drum_buildup_m_per_turn: on("spool-buildup").then_some(-5e-6),
+        // Winches, frame and anchors giving 20 mm/kN: about 1 mm at the start-up's tensions.
+        compliance_m_per_n: on("compliance").then_some(2e-5),
         ..Physics::default()
     }
 }
@@ -284,7 +286,7 @@ fn reached_pose_error_with_the_truth_in_the_loop() {
 
 fn modelled() -> Vec<String> {
     let list = std::env::var("TAUT_E2E_EFFECTS_MODEL").unwrap_or_else(|_| "elasticity,scale,pulley".into());
-    list.split(',').map(|s| s.trim().to_string()).collect()
+    list.split(',').map(|s| taut_config::canonical_effect_name(s.trim()).to_string()).collect()
 }
 
 /// Upper bound of the held-out RMS of a model at the noise floor, m, and the floor itself.
@@ -326,7 +328,7 @@ fn start_up_with_the_effect_model_reaches_the_noise_floor_and_the_commanded_pose
     let m: Vec<&str> = m.iter().map(String::as_str).collect();
     // Anchors and offsets (16), EA and drum scale per cable, one pulley radius.
     let count = |e: &[&str]| {
-        16 + 4 * e.iter().filter(|x| **x == "elasticity" || **x == "scale" || **x == "drum-buildup").count()
+        16 + 4 * e.iter().filter(|x| **x == "elasticity" || **x == "scale" || **x == "spool-buildup" || **x == "compliance").count()
             + usize::from(e.contains(&"pulley"))
     };
     const Z: f64 = 3.72;
@@ -335,7 +337,7 @@ fn start_up_with_the_effect_model_reaches_the_noise_floor_and_the_commanded_pose
         let ideal = run(seed, &[]);
         assert_eq!(
             model.file_effects,
-            ["elasticity", "scale", "pulley", "drum-buildup"].iter().filter(|e| m.contains(e)).copied().collect::<Vec<_>>()
+            ["elasticity", "scale", "pulley", "spool-buildup", "compliance"].iter().filter(|e| m.contains(e)).copied().collect::<Vec<_>>()
         );
         assert!(ideal.file_effects.is_empty());
         let (bound, floor) = floor_bound(model.heldout_rows, model.training_rows, count(&m), Z);
