@@ -50,6 +50,9 @@ pub struct EffectFitOptions {
     pub max_samples: usize,
     /// Levenberg-Marquardt iteration limit.
     pub max_iterations: usize,
+    /// Unit vector of each cable's swivel-pulley axis, from the anchor towards the winch (the
+    /// configuration's `[[cable]] pulley_axis`); empty: every axis vertical.
+    pub pulley_axis: Vec<[f64; 3]>,
 }
 
 impl EffectFitOptions {
@@ -62,6 +65,7 @@ impl EffectFitOptions {
             encoder_sigma_m,
             max_samples: 12_000,
             max_iterations: 80,
+            pulley_axis: Vec::new(),
         }
     }
 }
@@ -207,6 +211,7 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
         dead_loadcell: None,
     };
     let mut p = fit::prepare(rec, platform, &sel, o.min_tension_n, needs_tension, o.encoder_sigma_m);
+    p.pulley_axis = o.pulley_axis.clone();
     // The diagnosis's pattern; readings held since a push while loose go out of the fit (the
     // play's level after a loose episode is unknown: see `PlayState::exclude_unseen_pushes`)
     // and stay readings for the encoder's interpolation under a time offset, as the diagnosis's.

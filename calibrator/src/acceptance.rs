@@ -143,7 +143,7 @@ pub(crate) fn validate(
         return crate::notracker::heldout_dwells(c, est, heldout, current).map(|(n, o)| HeldoutRms::plain(n, o, 0));
     }
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
-    let new = new.with_effects(LoopEffects::from_file(&est.effects));
+    let new = new.with_pulley_axes(&c.pulley_axis).with_effects(LoopEffects::from_file(&est.effects));
     // Tracker outliers leave both RMS values and the paired test (the same rows).
     let cmp = HeldoutComparison::new(&new, current, heldout, c.min_tension_n);
     match cmp.rms() {

@@ -52,6 +52,7 @@ impl CalibratorConfig {
             robot: cfg.robot.name.clone(),
             n: cfg.cables.len(),
             platform: cfg.platform_points(),
+            pulley_axis: cfg.pulley_axes(),
             nominal: cfg.anchors(),
             data_dir: PathBuf::from(&cfg.daemon.data_dir),
             decimation: cfg.daemon.calib_decimation,
@@ -529,7 +530,7 @@ impl Calibrator {
         // The loop's form first: a set the loop cannot hold is refused before anything is written
         // (`validate` has checked the geometry; this is the platform points or the cable count).
         let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
-            Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
+            Ok(lp) => lp.with_pulley_axes(&self.cfg.pulley_axis).with_effects(LoopEffects::from_file(&est.effects)),
             Err(e) => {
                 self.reject(kind, run, samples, Some(est), Rejection::LoopCannotHold(e));
                 return;

@@ -200,7 +200,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// as `acceptance::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
     let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
-    let new = new.with_effects(LoopEffects::from_file(&est.effects));
+    let new = new.with_pulley_axes(&c.pulley_axis).with_effects(LoopEffects::from_file(&est.effects));
     let dwells = held_dwells(heldout);
     let mut pairs = Vec::new();
     let (mut sn, mut so, mut dof) = (0.0, 0.0, 0usize);
