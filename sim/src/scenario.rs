@@ -271,7 +271,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     // Load-cell noise continues the stream that drew the offsets.
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    let models: Vec<CableModel> = truth.anchors.iter().map(|a| CableModel::new(*a, &s.physics)).collect();
+    let models: Vec<CableModel> = truth.cable_models(&s.physics);
     // The trajectory is planned on the nominal geometry, as a controller would.
     let ws = Workspace::from_anchors(&nominal);
     let dt = 1.0 / s.rate_hz;

@@ -133,7 +133,13 @@ pub struct DiagnoseOptions {
 }
 
 impl DiagnoseOptions {
-    /// Options from the `[calibration]` table.
+    /// Options for the robot `cfg`: its `[calibration]` table ([`DiagnoseOptions::from_config`])
+    /// and its cables' swivel-pulley axes.
+    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Self {
+        DiagnoseOptions { pulley_axis: cfg.pulley_axes(), ..Self::from_config(&cfg.calibration) }
+    }
+
+    /// Options from the `[calibration]` table (every swivel-pulley axis vertical).
     pub fn from_config(c: &CalibrationConfig) -> Self {
         DiagnoseOptions {
             min_tension_n: c.min_tension_n,
