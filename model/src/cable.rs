@@ -80,8 +80,9 @@ pub fn cable_length(x: [f64; 3], anchor: [f64; 3], pulley: SwivelPulley, complia
 /// ```
 ///
 /// `axis` must be a unit vector (the configuration normalises it). With [`VERTICAL_AXIS`] the
-/// in-plane coordinates are taken as `rho = |(X - A)_xy|`, `z = (X - A)_z`, the same arithmetic
-/// as the vertical-only formula had, so that the loop's commands do not change by a bit.
+/// in-plane coordinates are taken directly as `rho = |(X - A)_xy|`, `z = (X - A)_z`: the
+/// projection onto `[0, 0, 1]` gives the same numbers up to signed zeros and rounding order, and
+/// the direct form keeps the vertical case exact to the bit, which the loop's commands rely on.
 ///
 /// Returns `G` and `[dG/dX (3), dG/dr]`; `dG/dA = -dG/dX` (the axis direction is fixed);
 /// `None` on the axis (no plane) or inside the pulley.

@@ -282,7 +282,8 @@ impl CableModel {
         // are w and uh, the unit vector from the axis towards b (a Gram-Schmidt step).
         let along = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
         let perp = [d[0] - along * w[0], d[1] - along * w[1], d[2] - along * w[2]];
-        // hypot and division, so that a vertical axis computes what the vertical-only physics did.
+        // hypot and division: with a vertical axis these are exactly the horizontal distance
+        // d_x.hypot(d_y) and direction, the same bits as the plane of a vertical swivel.
         let rho = perp[0].hypot(perp[1]).hypot(perp[2]);
         let uh = if rho > 1e-12 { [perp[0] / rho, perp[1] / rho, perp[2] / rho] } else { any_normal(w) };
         // b relative to the pulley centre, in (along uh, along w).
