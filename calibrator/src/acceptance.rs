@@ -6,8 +6,7 @@
 use crate::heldout::{HeldoutComparison, HeldoutRms};
 use crate::vocab::{CalibratorConfig, Estimate, OutcomeKind, Rejection};
 use taut_config::recording::Recording;
-use taut_io::EffectsFromFile;
-use taut_rt::kin::{LoopEffects, LoopParams};
+use taut_rt::kin::LoopParams;
 
 /// One-sided error rate of the held-out comparison: the chance that a new set no more than
 /// `daemon.heldout_tolerance_m` worse than the running one is refused (0.1 %).
@@ -142,8 +141,7 @@ pub(crate) fn validate(
     if !c.tracker {
         return crate::notracker::heldout_dwells(c, est, heldout, current).map(|(n, o)| HeldoutRms::plain(n, o, 0));
     }
-    let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
-    let new = new.with_effects(LoopEffects::from_file(&est.effects));
+    let new = c.loop_params(0, est).map_err(Rejection::LoopCannotHold)?;
     // Tracker outliers leave both RMS values and the paired test (the same rows).
     let cmp = HeldoutComparison::new(&new, current, heldout, c.min_tension_n);
     match cmp.rms() {

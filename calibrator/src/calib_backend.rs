@@ -21,6 +21,8 @@ use taut_config::RobotConfig;
 /// `taut-calib` with the robot's `[calibration]` options.
 pub struct TautCalib {
     platform: Vec<[f64; 3]>,
+    /// The swivel-pulley axes (`[[cable]] pulley_axis`, unit vectors).
+    pulley_axis: Vec<[f64; 3]>,
     nominal: Option<Vec<[f64; 3]>>,
     opts: CalibOptions,
     /// The effects fitted with the anchors and offsets (`taut diagnose` names).
@@ -45,6 +47,7 @@ impl TautCalib {
         opts.priors = cfg.priors();
         TautCalib {
             platform: cfg.platform_points(),
+            pulley_axis: cfg.pulley_axes(),
             nominal: cfg.anchors(),
             opts,
             effects: cfg.calibration.effects.clone(),
@@ -151,6 +154,7 @@ impl TautCalib {
     fn fit_with_effects(&self, rec: &Recording, anchors: &[[f64; 3]], l0: &[f64], running: &Effects) -> Result<Estimate, BackendError> {
         let o = EffectFitOptions {
             effects: self.effects.clone(),
+            pulley_axis: self.pulley_axis.clone(),
             ..EffectFitOptions::new(&[], self.opts.min_tension_n, self.opts.tracker_sigma_m, self.opts.encoder_sigma_m)
         };
         let start = self.start_of(running);

@@ -52,6 +52,7 @@ impl CalibratorConfig {
             robot: cfg.robot.name.clone(),
             n: cfg.cables.len(),
             platform: cfg.platform_points(),
+            pulley_axis: cfg.pulley_axes(),
             nominal: cfg.anchors(),
             data_dir: PathBuf::from(&cfg.daemon.data_dir),
             decimation: cfg.daemon.calib_decimation,
@@ -66,6 +67,16 @@ impl CalibratorConfig {
             tracker: !crate::notracker::is_dwell(cfg),
             excitation: None,
         }
+    }
+
+    /// The loop's form of an estimate: its geometry with this robot's platform points and
+    /// swivel-pulley axes, and its effects. Refuses (naming the cable and field) what
+    /// `LoopParams::from_geometry` refuses. The one place the calibrator makes that form, for
+    /// publishing and for the held-out checks.
+    pub fn loop_params(&self, version: u64, est: &Estimate) -> Result<LoopParams, taut_calib::GeometryError> {
+        Ok(LoopParams::from_geometry(version, &est.geometry, &self.platform)?
+            .with_pulley_axes(&self.pulley_axis)
+            .with_effects(LoopEffects::from_file(&est.effects)))
     }
 }
 
@@ -528,8 +539,8 @@ impl Calibrator {
         let version = self.version + 1;
         // The loop's form first: a set the loop cannot hold is refused before anything is written
         // (`validate` has checked the geometry; this is the platform points or the cable count).
-        let lp = match LoopParams::from_geometry(version, &est.geometry, &self.cfg.platform) {
-            Ok(lp) => lp.with_effects(LoopEffects::from_file(&est.effects)),
+        let lp = match self.cfg.loop_params(version, &est) {
+            Ok(lp) => lp,
             Err(e) => {
                 self.reject(kind, run, samples, Some(est), Rejection::LoopCannotHold(e));
                 return;
@@ -756,6 +767,35 @@ mod tests {
         let (params_tx, params_rx) = taut_rt::triple::triple_buffer(LoopParams::invalid(n));
         let backend = Box::new(crate::calib_backend::TautCalib::from_config(&cfg));
         (Calibrator::new(ccfg, rx, params_tx, backend, None, SharedCalibStatus::default()).unwrap(), (tx, params_rx))
+    }
+
+    /// The loop's form of an estimate carries the configuration's pulley axes, normalised
+    /// (vertical where a cable gives none), with the estimate's effects.
+    #[test]
+    fn the_loops_parameters_carry_the_configured_pulley_axes() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/");
+        let est = |n: usize| Estimate {
+            geometry: taut_calib::Geometry {
+                anchors: vec![[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]][..n].to_vec(),
+                l0: vec![0.1; n],
+            },
+            sigma: taut_calib::Sigmas { anchors: vec![[1e-4; 3]; n], l0: vec![1e-4; n] },
+            rms_m: 1e-4,
+            observable: true,
+            note: String::new(),
+            effects: taut_config::params::Effects { pulley_radius_m: Some(vec![0.03; n]), ..Default::default() },
+            model_consistent: None,
+        };
+        let horizontal = CalibratorConfig::from_robot(&RobotConfig::load(format!("{dir}aras-cam-horizontal-pulleys.toml")).unwrap());
+        let lp = horizontal.loop_params(3, &est(4)).unwrap();
+        let n = 3.5f64.hypot(1.75);
+        assert_eq!(lp.pulley_axis[0], [3.5 / n, -1.75 / n, 0.0]);
+        assert_eq!(lp.pulley_axis[2], [-3.5 / n, 1.75 / n, 0.0]);
+        assert_eq!((lp.version, lp.effects.pulley_r[1]), (3, 0.03));
+        let vertical = CalibratorConfig::from_robot(&RobotConfig::load(format!("{dir}aras-cam.toml")).unwrap());
+        let lp = vertical.loop_params(3, &est(4)).unwrap();
+        assert!(lp.pulley_axis.iter().all(|a| *a == [0.0, 0.0, 1.0]));
+        assert!(vertical.loop_params(3, &est(3)).is_err());
     }
 
     /// Regression (the 0.11 mm length noise of the start-up refinement on 0.05 mm encoders): a

@@ -22,8 +22,7 @@ use taut_calib::selfcal::plan::{plan, DwellPlan, PlanError, PlanInput};
 use taut_config::recording::Recording;
 use taut_config::runtime::Startup;
 use taut_config::RobotConfig;
-use taut_io::EffectsFromFile;
-use taut_rt::kin::{LoopEffects, LoopParams};
+use taut_rt::kin::LoopParams;
 use taut_rt::motion::{ControllerConfig, MAX_DWELL_POSES};
 use taut_rt::MAX_CABLES;
 
@@ -199,8 +198,7 @@ fn closure(p: &LoopParams, d: &HeldDwell, min_tension_n: f64) -> Option<(f64, us
 /// `daemon.heldout_tolerance_m` at 99.9 % confidence (paired differences per dwell,
 /// as `acceptance::clearly_worse` tests them), as with a tracker. Returns `(new, old)` RMS, m.
 pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording, current: &LoopParams) -> Result<(f64, f64), Rejection> {
-    let new = LoopParams::from_geometry(0, &est.geometry, &c.platform).map_err(Rejection::LoopCannotHold)?;
-    let new = new.with_effects(LoopEffects::from_file(&est.effects));
+    let new = c.loop_params(0, est).map_err(Rejection::LoopCannotHold)?;
     let dwells = held_dwells(heldout);
     let mut pairs = Vec::new();
     let (mut sn, mut so, mut dof) = (0.0, 0.0, 0usize);

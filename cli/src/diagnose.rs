@@ -47,9 +47,10 @@ pub struct DiagnoseArgs {
     pub tension_side: bool,
 }
 
-/// The diagnosis options: the `[calibration]` table of `cfg`, then the arguments (which win).
+/// The diagnosis options: the `[calibration]` table of `cfg` and its cables' swivel-pulley
+/// axes (vertical without a configuration), then the arguments (which win).
 fn options(a: &DiagnoseArgs, cfg: &taut_config::RobotConfig) -> Result<DiagnoseOptions> {
-    let mut opts = DiagnoseOptions::from_config(&cfg.calibration);
+    let mut opts = DiagnoseOptions::from_robot(cfg);
     opts.tension_end = match a.tension_at.as_str() {
         "anchor" => TensionEnd::Anchor,
         "platform" => TensionEnd::Platform,

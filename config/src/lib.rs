@@ -106,12 +106,38 @@ pub struct Cable {
     /// Attachment point `b_j` on the platform, m, platform frame.
     #[serde(default, deserialize_with = "exact::three")]
     pub platform_point: [f64; 3],
+    /// Direction of the swivel axis of the pulley at `anchor`, tracker frame: `[x, y, z]`,
+    /// pointing from the anchor towards where the cable comes from (its winch). Any finite
+    /// non-zero vector, normalised when read ([`Cable::unit_pulley_axis`]), as URDF normalises a
+    /// joint's `<axis xyz>`. Optional: vertical, `[0, 0, 1]` (the cable comes down from above).
+    /// Used where a pulley radius is modelled (`taut diagnose`, the `pulley` effect).
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::opt_three")]
+    pub pulley_axis: Option<[f64; 3]>,
     /// The `[cable.drive]` sub-table: the servo drive that winds this cable (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive: Option<devices::DriveConfig>,
     /// The `[cable.loadcell]` sub-table: the load cell that measures this cable (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loadcell: Option<devices::LoadCellConfig>,
+}
+
+/// The shortest `pulley_axis` taken for a direction: anything shorter is a zero vector (or a
+/// value written in the wrong unit), not an axis.
+pub const PULLEY_AXIS_MIN_NORM: f64 = 1e-6;
+
+impl Cable {
+    /// The swivel-pulley axis as a unit vector: `pulley_axis` normalised, or vertical
+    /// (`[0, 0, 1]`, [`taut_model::VERTICAL_AXIS`]) when not given. A validated configuration's
+    /// axis is finite and at least [`PULLEY_AXIS_MIN_NORM`] long.
+    pub fn unit_pulley_axis(&self) -> [f64; 3] {
+        match self.pulley_axis {
+            None => taut_model::VERTICAL_AXIS,
+            Some(v) => {
+                let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                [v[0] / n, v[1] / n, v[2] / n]
+            }
+        }
+    }
 }
 
 /// The `[calibration]` table.
@@ -356,6 +382,7 @@ impl RobotConfig {
                     l0_m: None,
                     l0_sigma_m: None,
                     platform_point: [0.0; 3],
+                    pulley_axis: None,
                     drive: None,
                     loadcell: None,
                 })
@@ -399,6 +426,11 @@ impl RobotConfig {
     /// Platform attachment points `b_j`.
     pub fn platform_points(&self) -> Vec<[f64; 3]> {
         self.cables.iter().map(|c| c.platform_point).collect()
+    }
+
+    /// Every cable's swivel-pulley axis, a unit vector ([`Cable::unit_pulley_axis`]).
+    pub fn pulley_axes(&self) -> Vec<[f64; 3]> {
+        self.cables.iter().map(Cable::unit_pulley_axis).collect()
     }
 
     /// Writes the configuration as TOML, atomically (temporary file + rename).
@@ -476,6 +508,26 @@ impl RobotConfig {
             }
             if !finite(&c.platform_point) {
                 return Err(err(line, format!("cable[{i}].platform_point"), "must be three finite numbers (m)".into()));
+            }
+            if let Some(u) = &c.pulley_axis {
+                let at = cable_key_line(text, i, "pulley_axis").or(line);
+                let norm = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+                if !finite(u) || !norm.is_finite() {
+                    return Err(err(
+                        at,
+                        format!("cable[{i}].pulley_axis"),
+                        format!("must be three finite numbers (a direction, e.g. [1, 0, 0]), got {u:?}"),
+                    ));
+                }
+                if norm < PULLEY_AXIS_MIN_NORM {
+                    return Err(err(
+                        at,
+                        format!("cable[{i}].pulley_axis"),
+                        format!(
+                            "is a zero vector ({u:?}, length {norm:e}); give the swivel axis's direction from the anchor towards the winch, e.g. [0, 0, 1] (vertical, the default) or [1, 0, 0]"
+                        ),
+                    ));
+                }
             }
             if let Some(d) = &c.drive {
                 // The PDO tables first: their errors point at the bad object's own line.
@@ -626,6 +678,22 @@ fn key_line(text: &str, header: &str, key: &str) -> Option<usize> {
         }
     }
     Some(start)
+}
+
+/// 1-based line of `key = ...` in the `index`-th (0-based) `[[cable]]` table, before any of its
+/// sub-tables; `None` if the key is not written there.
+fn cable_key_line(text: &str, index: usize, key: &str) -> Option<usize> {
+    let start = *table_header_lines(text, "[[cable]]").get(index)?;
+    for (i, l) in text.lines().enumerate().skip(start) {
+        let l = l.trim_start();
+        if l.starts_with('[') {
+            break;
+        }
+        if l.split('=').next().is_some_and(|k| k.trim() == key) {
+            return Some(i + 1);
+        }
+    }
+    None
 }
 
 /// The key path (`cable[2].anchor`, `robot.mass_kg`) of a `key = value` line, from the table
@@ -845,6 +913,36 @@ mod tests {
             let e = RobotConfig::from_toml_str(&text).unwrap_err();
             assert!(e.to_string().contains(words), "{e}");
         }
+    }
+
+    /// `pulley_axis`: any finite non-zero direction, normalised; vertical without it; a zero,
+    /// NaN, infinite or wrongly sized vector refused on its own line with its key.
+    #[test]
+    fn pulley_axes_are_normalised_and_validated_on_their_line() {
+        let head = "[robot]\nname = \"x\"\nmass_kg = 3.0\n";
+        let cable = |a: &str, extra: &str| format!("[[cable]]\nanchor = {a}\n{extra}");
+        let text = |extra: &str| {
+            format!("{head}{}{}{}", cable("[1, 2, 3]", ""), cable("[-1, 2, 3]", extra), cable("[1, -2, 3]", "pulley_axis = [0, 0, 2]\n"))
+        };
+        let c = RobotConfig::from_toml_str(&text("pulley_axis = [3, 0, 4]\n")).unwrap();
+        assert_eq!(c.pulley_axes(), vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.0, 1.0]]);
+        assert_eq!(c.cables[0].unit_pulley_axis(), taut_model::VERTICAL_AXIS);
+        assert_eq!(RobotConfig::point_mass(3).pulley_axes(), vec![taut_model::VERTICAL_AXIS; 3]);
+        for (extra, words) in [
+            ("pulley_axis = [0, 0, 0]\n", "zero vector"),
+            ("pulley_axis = [1e-9, 0, 0]\n", "zero vector"),
+            ("pulley_axis = [nan, 0, 1]\n", "finite"),
+            ("pulley_axis = [inf, 0, 1]\n", "finite"),
+            ("pulley_axis = [1e200, 1e200, 0]\n", "finite"),
+            ("pulley_axis = [1, 0]\n", "found 2"),
+        ] {
+            let e = RobotConfig::from_toml_str(&text(&format!("l0_m = 0.1\n{extra}"))).unwrap_err();
+            assert_eq!((e.key.as_deref(), e.line), (Some("cable[1].pulley_axis"), Some(9)), "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        }
+        // Written back, the configuration keeps the axis as given.
+        let back = RobotConfig::from_toml_str(&toml::to_string_pretty(&c).unwrap()).unwrap();
+        assert_eq!(back, c);
     }
 
     #[test]

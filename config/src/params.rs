@@ -23,7 +23,8 @@
 //! ea_sigma_n = [300.0, ...]        # every value may have its 1-sigma beside it (`*_sigma*`)
 //! drum_scale = [1.003, ...]        # encoder reading per metre of cable (drum radius error)
 //! pulley_radius_m = [0.05, ...]    # swivel pulley radius; the anchor is where the cable
-//!                                  # enters the pulley, the swivel axis is vertical through it
+//!                                  # enters the pulley, the swivel axis (the configuration's
+//!                                  # `[[cable]] pulley_axis`, vertical by default) through it
 //! backlash_m = [0.002, ...]        # play in the drive train (width)
 //! drum_buildup_per_m = [-0.01, ...] # drum build-up q: true length u + q u^2 of the encoder's u
 //! compliance_m_per_n = [1.5e-6, ...] # length-independent compliance (winch, frame, anchor):
@@ -96,7 +97,8 @@ pub struct Effects {
     /// 1-sigma of `drum_scale`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drum_scale_sigma: Option<Vec<f64>>,
-    /// Swivel-pulley radius per cable, m (axis vertical through the anchor).
+    /// Swivel-pulley radius per cable, m (its axis through the anchor is the configuration's
+    /// `[[cable]] pulley_axis`, vertical by default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pulley_radius_m: Option<Vec<f64>>,
     /// 1-sigma of `pulley_radius_m`, m.

@@ -112,7 +112,8 @@ impl FromRobot for ControllerConfig {
             dwell: None,
             tour: None,
             nominal_statics: cfg.anchors().map(|a| {
-                let mut p = taut_rt::kin::LoopParams::new(0, &a, &vec![0.0; n], &cfg.platform_points());
+                let mut p =
+                    taut_rt::kin::LoopParams::new(0, &a, &vec![0.0; n], &cfg.platform_points()).with_pulley_axes(&cfg.pulley_axes());
                 // Directions only: the offsets are unknown until the initialisation.
                 p.valid = true;
                 p

@@ -7,7 +7,8 @@
 //!
 //! ```text
 //! G = |X - A|                                   ideal straight cable         straight_length
-//!   = r beta + sqrt(|X - C|^2 - r^2)            over a swivel pulley, radius r   pulley_length
+//!   = r beta + sqrt(|X - C|^2 - r^2)            over a swivel pulley, radius r,  pulley_length
+//!                                               swivel axis per cable (default vertical)
 //! U = G / (1 + c T),   c = 1 / EA               the encoder counts unstretched cable   unstretched
 //! U -= k T                                      winch, frame or anchor deflection k, m/N   deflection_counted
 //! B + q B^2 = U                                 drum build-up q: the drum counts B     buildup_counted
@@ -40,6 +41,6 @@ pub mod tour;
 
 pub use cable::{
     buildup_counted, cable_length, cell_tension, deflection_counted, friction_direction, pulley_length, reading, straight_length,
-    unstretched, FRICTION_V_BAND_M_S,
+    unstretched, SwivelPulley, FRICTION_V_BAND_M_S, VERTICAL_AXIS,
 };
 pub use geometry::{Geometry, GeometryError, Sigmas};

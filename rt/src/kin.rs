@@ -6,8 +6,8 @@
 //! ones the calibration fits, `taut_calib::diagnose::effects`):
 //!
 //! ```text
-//! G_j = |X - A_j|, or over a swivel pulley of radius r_j (axis vertical through A_j):
-//!       r_j beta + sqrt(|X - C_j|^2 - r_j^2)
+//! G_j = |X - A_j|, or over a swivel pulley of radius r_j (swivel axis u_j through A_j, from
+//!       the configuration, vertical by default): r_j beta + sqrt(|X - C_j|^2 - r_j^2)
 //! U_j = G_j / (1 + T_j / EA_j) - k_j T_j         k_j: winch, frame and anchor compliance
 //! l_j = s_j B_j + L0_j,  B_j + q_j B_j^2 = U_j    s_j: drum scale, q_j: drum build-up,
 //!                                                 T_j: cable tension
@@ -160,6 +160,10 @@ pub struct LoopParams {
     pub l0: [f64; MAX_CABLES],
     /// Platform attachment points `b_j`, m.
     pub platform: [[f64; 3]; MAX_CABLES],
+    /// Unit vector of each cable's swivel-pulley axis, pointing from the anchor towards the
+    /// winch (configuration, `[[cable]] pulley_axis`; [`taut_model::VERTICAL_AXIS`] by default).
+    /// Used where a pulley radius is modelled ([`LoopEffects::pulley_r`]).
+    pub pulley_axis: [[f64; 3]; MAX_CABLES],
     /// False until the loop may use these for inverse kinematics (no estimate yet).
     pub valid: bool,
     /// The modelled effects ([`LoopEffects::NONE`]: the ideal model).
@@ -175,6 +179,7 @@ impl LoopParams {
             anchors: [[0.0; 3]; MAX_CABLES],
             l0: [0.0; MAX_CABLES],
             platform: [[0.0; 3]; MAX_CABLES],
+            pulley_axis: [taut_model::VERTICAL_AXIS; MAX_CABLES],
             valid: false,
             effects: LoopEffects::NONE,
         }
@@ -219,6 +224,16 @@ impl LoopParams {
         Geometry { anchors: self.anchors[..self.n].to_vec(), l0: self.l0[..self.n].to_vec() }
     }
 
+    /// The same parameters with the swivel-pulley axes `axes` (unit vectors, one per cable, from
+    /// the configuration: `taut_config::RobotConfig::pulley_axes`); cables beyond `axes` keep
+    /// theirs. Allocates nothing.
+    pub fn with_pulley_axes(mut self, axes: &[[f64; 3]]) -> LoopParams {
+        for (d, a) in self.pulley_axis.iter_mut().zip(axes) {
+            *d = *a;
+        }
+        self
+    }
+
     /// The same parameters with `effects`.
     pub fn with_effects(mut self, effects: LoopEffects) -> LoopParams {
         self.effects = effects;
@@ -241,7 +256,8 @@ impl LoopParams {
         let e = &self.effects;
         // The unstretched length (scale 1, no offset: `u` itself), less the winch's give,
         // counted on the drum, read.
-        let u = taut_model::cable_length(x, self.anchors[j], e.pulley_r[j], e.compliance[j], tension_n, 1.0, 0.0);
+        let pulley = taut_model::SwivelPulley { r: e.pulley_r[j], axis: self.pulley_axis[j] };
+        let u = taut_model::cable_length(x, self.anchors[j], pulley, e.compliance[j], tension_n, 1.0, 0.0);
         let u = taut_model::deflection_counted(u, e.deflection[j], tension_n);
         taut_model::reading(e.scale[j], taut_model::buildup_counted(u, e.buildup[j]), self.l0[j])
     }
@@ -362,5 +378,33 @@ mod tests {
         let many = Geometry { anchors: vec![[0.0; 3]; MAX_CABLES + 1], l0: vec![0.0; MAX_CABLES + 1] };
         let e = LoopParams::from_geometry(1, &many, &vec![[0.0; 3]; MAX_CABLES + 1]);
         assert_eq!(e, Err(GeometryError::TooManyCables { n: MAX_CABLES + 1, max: MAX_CABLES }));
+    }
+
+    /// The configured swivel axis turns the pulley: with the default (vertical) the commanded
+    /// length is bit for bit the vertical model's; with a horizontal axis it is the model's path
+    /// about that axis, and the axis does nothing without a radius.
+    #[test]
+    fn the_pulley_turns_about_the_configured_axis() {
+        let a = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.0], [-3.5, 1.75, 4.0], [-3.5, -1.75, 4.0]];
+        let effects = LoopEffects::from_values(None, None, None, Some(&[0.03; 4]), None, None);
+        let vertical = LoopParams::new(1, &a, &[0.1; 4], &[[0.0; 3]; 4]).with_effects(effects);
+        assert_eq!(vertical.pulley_axis, [taut_model::VERTICAL_AXIS; MAX_CABLES]);
+        let out = |j: usize| -> [f64; 3] {
+            let n = a[j][0].hypot(a[j][1]);
+            [a[j][0] / n, a[j][1] / n, 0.0]
+        };
+        let axes: Vec<[f64; 3]> = (0..4).map(out).collect();
+        let horizontal = vertical.with_pulley_axes(&axes);
+        let x = [0.4, -0.3, 1.2];
+        for j in 0..4 {
+            let want = taut_model::pulley_length(x, a[j], taut_model::VERTICAL_AXIS, 0.03).unwrap().0 + 0.1;
+            assert_eq!(vertical.length(j, &x).to_bits(), want.to_bits());
+            let want = taut_model::pulley_length(x, a[j], axes[j], 0.03).unwrap().0 + 0.1;
+            assert_eq!(horizontal.length(j, &x).to_bits(), want.to_bits());
+            // The two mountings differ by millimetres at this pose.
+            assert!((horizontal.length(j, &x) - vertical.length(j, &x)).abs() > 1e-3, "cable {j}");
+        }
+        let ideal = LoopParams::new(1, &a, &[0.1; 4], &[[0.0; 3]; 4]);
+        assert_eq!(ideal.with_pulley_axes(&axes).length(0, &x), ideal.length(0, &x));
     }
 }

@@ -36,7 +36,7 @@ impl DwellPlan {
     pub fn spread(s: &Scenario, count: usize, width: f64, z_lo: f64, z_hi: f64, dwell_s: f64, move_s: f64) -> Result<Self, SimError> {
         let truth = s.truth()?;
         let ws = s.workspace()?;
-        let models: Vec<CableModel> = truth.anchors.iter().map(|a| CableModel::new(*a, &s.physics)).collect();
+        let models: Vec<CableModel> = truth.cable_models(&s.physics);
         let mut r = rng(s.seed, STREAM_TRAJECTORY);
         let mut poses = Vec::with_capacity(count);
         let mut tries = 0usize;
@@ -87,7 +87,7 @@ pub fn simulate(s: &Scenario, plan: &DwellPlan) -> Result<SimRun, SimError> {
     }
     let truth = s.truth()?;
     let n = truth.n_cables();
-    let models: Vec<CableModel> = truth.anchors.iter().map(|a| CableModel::new(*a, &s.physics)).collect();
+    let models: Vec<CableModel> = truth.cable_models(&s.physics);
     let dt = 1.0 / s.rate_hz;
     let n_dwell = (plan.dwell_s * s.rate_hz).round().max(1.0) as usize;
     let n_move = (plan.move_s * s.rate_hz).round() as usize;

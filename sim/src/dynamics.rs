@@ -166,11 +166,11 @@ pub struct Mode {
 
 /// The cable models of the dynamic plant: the physics' anchors and pulleys, no sag, the
 /// dynamics' EA when elasticity is off.
-pub(crate) fn models(anchors: &[[f64; 3]], physics: &Physics, dynamics: &Dynamics) -> Vec<CableModel> {
-    anchors
-        .iter()
-        .map(|a| {
-            let mut m = CableModel::new(*a, physics);
+pub(crate) fn models(truth: &Truth, physics: &Physics, dynamics: &Dynamics) -> Vec<CableModel> {
+    truth
+        .cable_models(physics)
+        .into_iter()
+        .map(|mut m| {
             m.w = 0.0;
             if !m.ea.is_finite() {
                 m.ea = dynamics.ea_n;
@@ -185,7 +185,7 @@ pub(crate) fn models(anchors: &[[f64; 3]], physics: &Physics, dynamics: &Dynamic
 /// `tensions` (N), drums held, platform unrotated. Sorted by natural frequency.
 pub fn predicted_modes(truth: &Truth, physics: &Physics, p: [f64; 3], tensions: &[f64]) -> [Mode; 3] {
     let dynamics = physics.dynamics.clone().unwrap_or_default();
-    let models = models(&truth.anchors, physics, &dynamics);
+    let models = models(truth, physics, &dynamics);
     let (k, c) = linearise(&models, &truth.platform_points, truth.mass_kg, &dynamics, p, tensions);
     modes(&k, &c, truth.mass_kg)
 }

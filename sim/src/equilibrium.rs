@@ -168,7 +168,7 @@ mod tests {
     fn three_held_cables_hang_the_platform_at_their_lengths() {
         let anchors = [[2.0, 0.0, 3.0], [-1.0, 1.732, 3.0], [-1.0, -1.732, 3.0]];
         let target = [0.2, -0.1, 1.2];
-        let models: Vec<_> = anchors.iter().map(|a| CableModel::new(*a, &Physics::ideal()).rigidified()).collect();
+        let models: Vec<_> = anchors.iter().map(|a| CableModel::new(*a, [0.0, 0.0, 1.0], &Physics::ideal()).rigidified()).collect();
         let cmds: Vec<_> = anchors
             .iter()
             .map(|a| {

@@ -219,6 +219,9 @@ pub struct CableModel {
     pub anchor: [f64; 3],
     /// Pulley radius, m (0: no pulley).
     pub pulley_r: f64,
+    /// Unit vector of the pulley's swivel axis through the anchor, pointing towards where the
+    /// cable comes from (`[0, 0, 1]`: down from above).
+    pub axis: [f64; 3],
     /// Axial stiffness, N (`f64::INFINITY`: inextensible).
     pub ea: f64,
     /// Weight per length, N/m (0: no sag).
@@ -239,12 +242,29 @@ fn scale3(a: [f64; 3], s: f64) -> [f64; 3] {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
+/// Some unit vector normal to the unit vector `w`: the pulley's plane when the platform point is
+/// on the swivel axis (any plane then; the wrap is the same).
+fn any_normal(w: [f64; 3]) -> [f64; 3] {
+    // Cross with the coordinate axis least aligned with w.
+    let e = if w[0].abs() <= w[1].abs() && w[0].abs() <= w[2].abs() {
+        [1.0, 0.0, 0.0]
+    } else if w[1].abs() <= w[2].abs() {
+        [0.0, 1.0, 0.0]
+    } else {
+        [0.0, 0.0, 1.0]
+    };
+    let c = [w[1] * e[2] - w[2] * e[1], w[2] * e[0] - w[0] * e[2], w[0] * e[1] - w[1] * e[0]];
+    scale3(c, 1.0 / norm(c))
+}
+
 impl CableModel {
-    /// The model of a cable anchored at `anchor` with the effects of `physics`.
-    pub fn new(anchor: [f64; 3], physics: &Physics) -> Self {
+    /// The model of a cable anchored at `anchor`, its pulley (if `physics` has one) swivelling
+    /// about the unit vector `axis`, with the effects of `physics`.
+    pub fn new(anchor: [f64; 3], axis: [f64; 3], physics: &Physics) -> Self {
         CableModel {
             anchor,
             pulley_r: physics.pulley.unwrap_or(0.0),
+            axis,
             ea: physics.elasticity.unwrap_or(f64::INFINITY),
             w: physics.sag.unwrap_or(0.0),
             k: physics.compliance_m_per_n.unwrap_or(0.0),
@@ -269,20 +289,27 @@ impl CableModel {
             return PathGeom { exit: a, wrap: 0.0, straight: l, dir: scale3(d, -1.0 / l) };
         }
         let r = self.pulley_r;
-        // The pulley plane: vertical, through the swivel axis, containing b.
-        let rho = d[0].hypot(d[1]);
-        let uh = if rho > 1e-12 { [d[0] / rho, d[1] / rho, 0.0] } else { [1.0, 0.0, 0.0] };
-        // b relative to the pulley centre, in (horizontal along uh, vertical).
-        let (x, z) = (rho - r, d[2]);
+        let w = self.axis;
+        // The pulley plane: through the swivel axis w, containing b. Its in-plane directions
+        // are w and uh, the unit vector from the axis towards b (a Gram-Schmidt step).
+        let along = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+        let perp = [d[0] - along * w[0], d[1] - along * w[1], d[2] - along * w[2]];
+        // hypot and division: with a vertical axis these are exactly the horizontal distance
+        // d_x.hypot(d_y) and direction, the same bits as the plane of a vertical swivel.
+        let rho = perp[0].hypot(perp[1]).hypot(perp[2]);
+        let uh = if rho > 1e-12 { [perp[0] / rho, perp[1] / rho, perp[2] / rho] } else { any_normal(w) };
+        // b relative to the pulley centre, in (along uh, along w).
+        let (x, z) = (rho - r, along);
         let dc = x.hypot(z);
         let psi = z.atan2(x);
         let alpha = (r / dc).min(1.0).acos();
-        // The cable comes down the axis at angle pi and wraps counter-clockwise (in the
-        // (uh, z) plane) to the tangent point at psi - alpha.
+        // The cable comes in along the axis at angle pi and wraps counter-clockwise (in the
+        // (uh, w) plane) to the tangent point at psi - alpha.
         let phi = psi - alpha;
         let beta = (phi - std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI);
-        let c = [a[0] + r * uh[0], a[1] + r * uh[1], a[2]];
-        let exit = [c[0] + r * phi.cos() * uh[0], c[1] + r * phi.cos() * uh[1], c[2] + r * phi.sin()];
+        let c = [a[0] + r * uh[0], a[1] + r * uh[1], a[2] + r * uh[2]];
+        let (cp, sp) = (r * phi.cos(), r * phi.sin());
+        let exit = [c[0] + cp * uh[0] + sp * w[0], c[1] + cp * uh[1] + sp * w[1], c[2] + cp * uh[2] + sp * w[2]];
         let e = sub(exit, b);
         let straight = norm(e);
         PathGeom { exit, wrap: r * beta, straight, dir: scale3(e, 1.0 / straight) }
@@ -447,6 +474,8 @@ impl CableModel {
 mod tests {
     use super::*;
 
+    const UP: [f64; 3] = [0.0, 0.0, 1.0];
+
     /// A compliant winch: the drum holds `k T` less than the rigid winch's cable at the same
     /// tension, straight or sagging, whatever the length; a position-mode drum that holds that
     /// length sees the same tension.
@@ -457,8 +486,8 @@ mod tests {
         for base in
             [Physics { elasticity: Some(2e5), ..Physics::ideal() }, Physics { sag: Some(0.3), elasticity: Some(5e5), ..Physics::ideal() }]
         {
-            let rigid = CableModel::new(a, &base);
-            let soft = CableModel::new(a, &Physics { compliance_m_per_n: Some(k), ..base.clone() });
+            let rigid = CableModel::new(a, UP, &base);
+            let soft = CableModel::new(a, UP, &Physics { compliance_m_per_n: Some(k), ..base.clone() });
             for (b, t) in [([0.3, 0.2, 1.5], 150.0), ([-2.0, 1.5, 0.5], 400.0), ([3.0, -1.5, 3.5], 60.0)] {
                 let (lr, ls) = (rigid.taut(b, t).unwrap().unstretched, soft.taut(b, t).unwrap().unstretched);
                 // With sag the winch feels the upper end's tension, a little more than `t`.
@@ -474,12 +503,12 @@ mod tests {
     fn pulley_path_limits_and_tangency() {
         let a = [1.0, 2.0, 4.0];
         let b = [3.0, -1.0, 1.0];
-        let straight = CableModel::new(a, &Physics::ideal()).path(b);
+        let straight = CableModel::new(a, UP, &Physics::ideal()).path(b);
         assert!((straight.length() - norm(sub(b, a))).abs() < 1e-12);
-        let tiny = CableModel::new(a, &Physics { pulley: Some(1e-9), ..Physics::ideal() }).path(b);
+        let tiny = CableModel::new(a, UP, &Physics { pulley: Some(1e-9), ..Physics::ideal() }).path(b);
         assert!((tiny.length() - straight.length()).abs() < 1e-8);
         let r = 0.1;
-        let p = CableModel::new(a, &Physics { pulley: Some(r), ..Physics::ideal() }).path(b);
+        let p = CableModel::new(a, UP, &Physics { pulley: Some(r), ..Physics::ideal() }).path(b);
         // The exit point is on the pulley circle, the straight segment is tangent there.
         let rho = sub(b, a)[0].hypot(sub(b, a)[1]);
         let uh = [sub(b, a)[0] / rho, sub(b, a)[1] / rho, 0.0];
@@ -498,9 +527,50 @@ mod tests {
             let mut bm = b;
             bp[k] += e;
             bm[k] -= e;
-            let m = CableModel::new(a, &Physics { pulley: Some(r), ..Physics::ideal() });
+            let m = CableModel::new(a, UP, &Physics { pulley: Some(r), ..Physics::ideal() });
             let g = (m.path(bp).length() - m.path(bm).length()) / (2.0 * e);
             assert!((g + p.dir[k]).abs() < 1e-7, "axis {k}: {g} vs {}", -p.dir[k]);
+        }
+    }
+
+    /// A horizontal swivel axis: the cable comes in along it, wraps in the plane that holds the
+    /// axis and the platform point, and leaves tangent to the pulley; by hand for a quarter turn.
+    #[test]
+    fn a_horizontal_axis_turns_the_pulley_plane() {
+        let w = [1.0, 0.0, 0.0];
+        let m = CableModel::new([0.0; 3], w, &Physics { pulley: Some(1.0), ..Physics::ideal() });
+        // In the plane (w, down): centre 1 m below the anchor, b 1 m beyond it and 2 m down.
+        let p = m.path([-1.0, 0.0, -2.0]);
+        assert!((p.wrap - std::f64::consts::FRAC_PI_2).abs() < 1e-12, "{p:?}");
+        assert!((p.straight - 1.0).abs() < 1e-12 && norm(sub(p.exit, [-1.0, 0.0, -1.0])) < 1e-12, "{p:?}");
+        // Any axis: the exit point is on the circle about the centre in the plane of w and b,
+        // and the free segment is tangent there.
+        let a = [3.5, -1.75, 4.0];
+        let n = 3.5f64.hypot(1.75);
+        for w in [[3.5 / n, -1.75 / n, 0.0], [0.6, 0.0, 0.8], [0.0, -1.0, 0.0]] {
+            let r = 0.04;
+            let m = CableModel::new(a, w, &Physics { pulley: Some(r), ..Physics::ideal() });
+            for b in [[0.3, 0.2, 1.5], [-1.0, 1.0, 0.5], [2.0, -1.0, 3.0]] {
+                let p = m.path(b);
+                let d = sub(b, a);
+                let along = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+                let perp = [d[0] - along * w[0], d[1] - along * w[1], d[2] - along * w[2]];
+                let uh = scale3(perp, 1.0 / norm(perp));
+                let c = [a[0] + r * uh[0], a[1] + r * uh[1], a[2] + r * uh[2]];
+                let ce = sub(p.exit, c);
+                assert!((norm(ce) - r).abs() < 1e-12);
+                assert!(
+                    (ce[0] * w[1] * uh[2] - ce[0] * w[2] * uh[1]
+                        + ce[1] * (w[2] * uh[0] - w[0] * uh[2])
+                        + ce[2] * (w[0] * uh[1] - w[1] * uh[0]))
+                        .abs()
+                        < 1e-12,
+                    "exit out of the plane"
+                );
+                let dot = ce[0] * p.dir[0] + ce[1] * p.dir[1] + ce[2] * p.dir[2];
+                assert!(dot.abs() < 1e-12, "segment not tangent: {dot}");
+                assert!(p.wrap > 0.0 && p.length() > norm(d) - 1e-12);
+            }
         }
     }
 
@@ -517,8 +587,9 @@ mod tests {
             Physics { sag: Some(0.8), elasticity: Some(5e4), pulley: Some(0.05), ..Physics::ideal() },
             Physics { compliance_m_per_n: Some(2e-6), elasticity: Some(2e5), ..Physics::ideal() },
         ];
-        for ph in &physics {
-            let m = CableModel::new(a, ph).rigidified();
+        let out = [3.5 / 3.5f64.hypot(1.75), -1.75 / 3.5f64.hypot(1.75), 0.0];
+        for (ph, w) in physics.iter().map(|p| (p, UP)).chain(physics[2..].iter().map(|p| (p, out))) {
+            let m = CableModel::new(a, w, ph).rigidified();
             let lu = m.taut(b, 40.0).unwrap().unstretched;
             for (cmd, weight_at_platform) in [(CableCommand::Length(lu), false), (CableCommand::Tension(40.0), true)] {
                 let l0 = m.load(b, cmd);

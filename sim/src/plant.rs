@@ -111,8 +111,8 @@ impl Plant {
         let none = Noise::none();
         let rng = ChaCha8Rng::seed_from_u64(0);
         let models = match &physics.dynamics {
-            Some(d) => crate::dynamics::models(&truth.anchors, physics, d),
-            None => truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect(),
+            Some(d) => crate::dynamics::models(truth, physics, d),
+            None => truth.cable_models(physics).into_iter().map(CableModel::rigidified).collect(),
         };
         Plant {
             models,

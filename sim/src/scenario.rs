@@ -120,6 +120,23 @@ impl Scenario {
 }
 
 impl Scenario {
+    /// The same scenario with every cable's swivel pulley on a horizontal axis pointing from its
+    /// anchor away from the frame's centre (the anchors' mean), as on a frame whose winches sit
+    /// outside it and feed the cables in horizontally (`[[cable]] pulley_axis`). The axes are
+    /// the configuration's: the simulated robot turns its pulleys about them, and a diagnosis
+    /// given the configuration assumes them.
+    pub fn with_outward_pulley_axes(mut self) -> Self {
+        let anchors: Vec<[f64; 3]> = self.robot.cables.iter().filter_map(|c| c.anchor).collect();
+        let n = anchors.len().max(1) as f64;
+        let centre = [anchors.iter().map(|a| a[0]).sum::<f64>() / n, anchors.iter().map(|a| a[1]).sum::<f64>() / n];
+        for c in &mut self.robot.cables {
+            if let Some(a) = c.anchor {
+                c.pulley_axis = Some([a[0] - centre[0], a[1] - centre[1], 0.0]);
+            }
+        }
+        self
+    }
+
     /// The true robot of this scenario (the same as [`simulate`] uses): anchors with the site
     /// error, encoder offsets, scales, load-cell offsets.
     pub fn truth(&self) -> Result<Truth, SimError> {
@@ -271,7 +288,7 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     // Load-cell noise continues the stream that drew the offsets.
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
     let cells: Vec<LoadCell> = (0..n).map(|_| LoadCell::new(&s.noise, &mut cell_rng)).collect();
-    let models: Vec<CableModel> = truth.anchors.iter().map(|a| CableModel::new(*a, &s.physics)).collect();
+    let models: Vec<CableModel> = truth.cable_models(&s.physics);
     // The trajectory is planned on the nominal geometry, as a controller would.
     let ws = Workspace::from_anchors(&nominal);
     let dt = 1.0 / s.rate_hz;

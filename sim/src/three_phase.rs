@@ -66,7 +66,7 @@ pub struct ThreePhaseMotion {
 /// the position-mode cables, with their force directions refined for sag.
 fn rest_tensions(truth: &Truth, physics: &Physics, plan: &ThreePhasePlan, c: [f64; 3]) -> Result<Vec<f64>, SimError> {
     let n = truth.n_cables();
-    let models: Vec<_> = truth.anchors.iter().map(|a| CableModel::new(*a, physics).rigidified()).collect();
+    let models: Vec<_> = truth.cable_models(physics).into_iter().map(CableModel::rigidified).collect();
     let b: Vec<[f64; 3]> = truth.platform_points.iter().map(|o| [c[0] + o[0], c[1] + o[1], c[2] + o[2]]).collect();
     let mut t: Vec<f64> = (0..n).map(|_| plan.follower_tension_n).collect();
     let mut dirs: Vec<[f64; 3]> = (0..n).map(|j| models[j].path(b[j]).dir).collect();

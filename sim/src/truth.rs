@@ -6,7 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use taut_config::params::Geometry;
 use taut_config::RobotConfig;
 
-use crate::physics::Physics;
+use crate::physics::{CableModel, Physics};
 use crate::SimError;
 
 /// The true parameters a calibration should recover.
@@ -18,6 +18,10 @@ pub struct Truth {
     pub l0: Vec<f64>,
     /// Platform attachment points `b_j`, platform frame, m.
     pub platform_points: Vec<[f64; 3]>,
+    /// Unit vector of each cable's swivel-pulley axis, from the anchor towards the winch (the
+    /// configuration's `[[cable]] pulley_axis`, vertical by default). The physics' pulley turns
+    /// about it.
+    pub pulley_axis: Vec<[f64; 3]>,
     /// Platform mass, kg.
     pub mass_kg: f64,
     /// Encoder scale per cable (1 without a drum radius error).
@@ -66,10 +70,22 @@ impl Truth {
             anchors,
             l0,
             platform_points: cfg.platform_points(),
+            pulley_axis: cfg.pulley_axes(),
             mass_kg: cfg.robot.mass_kg,
             scale: (0..n).map(|j| physics.scale_of(j)).collect(),
             loadcell_offsets: vec![0.0; n],
         })
+    }
+
+    /// The cables of this robot with the effects of `physics`: each anchor with its pulley's
+    /// axis.
+    pub fn cable_models(&self, physics: &Physics) -> Vec<CableModel> {
+        self.anchors.iter().enumerate().map(|(j, a)| CableModel::new(*a, self.axis(j), physics)).collect()
+    }
+
+    /// Cable `j`'s swivel-pulley axis (vertical when the truth has none for it).
+    pub fn axis(&self, j: usize) -> [f64; 3] {
+        self.pulley_axis.get(j).copied().unwrap_or([0.0, 0.0, 1.0])
     }
 
     /// Number of cables.

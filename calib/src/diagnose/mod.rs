@@ -127,10 +127,20 @@ pub struct DiagnoseOptions {
     pub platform_mass_kg: Option<f64>,
     /// The tension effects to try when the tension side runs.
     pub tension_library: Vec<TensionEffect>,
+    /// Unit vector of each cable's swivel-pulley axis, from the anchor towards the winch (the
+    /// configuration's `[[cable]] pulley_axis`: `taut_config::RobotConfig::pulley_axes`); empty
+    /// (the default): every axis vertical. The pulley effect's path turns about it.
+    pub pulley_axis: Vec<[f64; 3]>,
 }
 
 impl DiagnoseOptions {
-    /// Options from the `[calibration]` table.
+    /// Options for the robot `cfg`: its `[calibration]` table ([`DiagnoseOptions::from_config`])
+    /// and its cables' swivel-pulley axes.
+    pub fn from_robot(cfg: &taut_config::RobotConfig) -> Self {
+        DiagnoseOptions { pulley_axis: cfg.pulley_axes(), ..Self::from_config(&cfg.calibration) }
+    }
+
+    /// Options from the `[calibration]` table (every swivel-pulley axis vertical).
     pub fn from_config(c: &CalibrationConfig) -> Self {
         DiagnoseOptions {
             min_tension_n: c.min_tension_n,
@@ -150,6 +160,7 @@ impl DiagnoseOptions {
             stale_rows: true,
             platform_mass_kg: None,
             tension_library: TensionEffect::ALL.to_vec(),
+            pulley_axis: Vec::new(),
         }
     }
 
@@ -403,6 +414,7 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
         dead_loadcell: Some(&masks.dead_loadcell),
     };
     let mut prep = fit::prepare(rec, b, &sel, opts.min_tension_n, false, opts.encoder_sigma_m);
+    prep.pulley_axis = opts.pulley_axis.clone();
     let m = prep.t.len();
     // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
     // sag: the tension's noise): see `fit::Eiv`.

@@ -45,6 +45,17 @@ pub struct Prepared {
     /// The sensors' noise for errors-in-variables weights ([`Eiv`]); `None`: every reading
     /// weighs the same (times its hold weight).
     pub eiv: Option<Eiv>,
+    /// Unit vector of each cable's swivel-pulley axis, from the anchor towards the winch (the
+    /// configuration's `pulley_axis`); empty: every axis vertical ([`Prepared::axis`]).
+    pub pulley_axis: Vec<[f64; 3]>,
+}
+
+impl Prepared {
+    /// Cable `j`'s swivel-pulley axis ([`taut_model::VERTICAL_AXIS`] when none is given).
+    #[inline]
+    pub fn axis(&self, j: usize) -> [f64; 3] {
+        self.pulley_axis.get(j).copied().unwrap_or(taut_model::VERTICAL_AXIS)
+    }
 }
 
 /// Which rows and readings of a recording a fit may use ([`prepare`]).
@@ -94,6 +105,7 @@ pub fn prepare(
         heldout: vec![false; m],
         hold_weight: vec![],
         eiv: None,
+        pulley_axis: vec![],
     };
     for &i in rows {
         let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
@@ -422,7 +434,7 @@ impl<'a> Joint<'a> {
         // Path: straight or over the pulley, plus the sag's excess.
         let mut dg_dr = None;
         let mut path = match get(Effect::Pulley) {
-            Some((k, r)) => match super::pulley::path(xp, anchor, r) {
+            Some((k, r)) => match super::pulley::path(xp, anchor, self.prep.axis(j), r) {
                 Some((path, dr)) => {
                     dg_dr = Some((k, dr));
                     path
@@ -1537,6 +1549,7 @@ mod tests {
             heldout: vec![],
             hold_weight: vec![],
             eiv: None,
+            pulley_axis: vec![],
         };
         for i in 0..n_samples {
             let t = i as f64 * 0.01;

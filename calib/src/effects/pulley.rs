@@ -1,5 +1,7 @@
-//! Swivel pulley: the cable leaves the frame over a pulley of radius `r` that turns about a
-//! vertical axis through the anchor, so the exit point moves and the cable wraps.
+//! Swivel pulley: the cable leaves the frame over a pulley of radius `r` that turns about an
+//! axis through the anchor, so the exit point moves and the cable wraps. The axis is the
+//! robot's, per cable (`[[cable]] pulley_axis` of the configuration, [`Prepared::pulley_axis`];
+//! vertical where none is given), not a fitted parameter.
 //!
 //! ```text
 //! G = r beta + sqrt(|X - C|^2 - r^2)       wrap angle beta, pulley centre C (taut_model::pulley_length)
@@ -9,16 +11,19 @@
 
 use super::{Effect, EffectModel, Path, Sharing, ANCHOR_SEPARATION};
 use crate::diagnose::analysis::Regressor;
+#[cfg(doc)]
+use crate::effects::model::Prepared;
 use taut_config::params::Effects;
 use taut_model::pulley_length;
 
 /// The pulley effect.
 pub struct Pulley;
 
-/// The path from the anchor over a swivel pulley of radius `r` to `x`, and `dG/dr`; `None`
-/// where the pulley has no path there (the prediction then takes the straight cable).
-pub fn path(x: [f64; 3], anchor: [f64; 3], r: f64) -> Option<(Path, f64)> {
-    pulley_length(x, anchor, r).map(|(len, d)| (Path { g: len, gx: [d[0], d[1], d[2]], g_t: 0.0, g_tw: 0.0 }, d[3]))
+/// The path from the anchor over a swivel pulley of radius `r` about the unit vector `axis` to
+/// `x`, and `dG/dr`; `None` where the pulley has no path there (the prediction then takes the
+/// straight cable).
+pub fn path(x: [f64; 3], anchor: [f64; 3], axis: [f64; 3], r: f64) -> Option<(Path, f64)> {
+    pulley_length(x, anchor, axis, r).map(|(len, d)| (Path { g: len, gx: [d[0], d[1], d[2]], g_t: 0.0, g_tw: 0.0 }, d[3]))
 }
 
 impl EffectModel for Pulley {
@@ -73,6 +78,7 @@ impl EffectModel for Pulley {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use taut_model::VERTICAL_AXIS;
 
     fn fd(f: impl Fn(f64) -> f64, x: f64, h: f64) -> f64 {
         (f(x + h) - f(x - h)) / (2.0 * h)
@@ -82,24 +88,24 @@ mod tests {
     fn pulley_reduces_to_straight_cable_for_small_radius_and_jacobian_is_right() {
         let x = [1.5, 0.7, -3.0];
         let an = [0.0, 0.0, 0.0];
-        let (g, _) = pulley_length(x, an, 1e-9).unwrap();
+        let (g, _) = pulley_length(x, an, VERTICAL_AXIS, 1e-9).unwrap();
         let straight = (1.5f64 * 1.5 + 0.49 + 9.0).sqrt();
         assert!((g - straight).abs() < 1e-8);
         let r = 0.06;
-        let (_, d) = pulley_length(x, an, r).unwrap();
+        let (_, d) = pulley_length(x, an, VERTICAL_AXIS, r).unwrap();
         for k in 0..3 {
             let num = fd(
                 |v| {
                     let mut xx = x;
                     xx[k] = v;
-                    pulley_length(xx, an, r).unwrap().0
+                    pulley_length(xx, an, VERTICAL_AXIS, r).unwrap().0
                 },
                 x[k],
                 1e-6,
             );
             assert!((d[k] - num).abs() < 1e-7, "dX{k}: {} vs {num}", d[k]);
         }
-        let num = fd(|v| pulley_length(x, an, v).unwrap().0, r, 1e-7);
+        let num = fd(|v| pulley_length(x, an, VERTICAL_AXIS, v).unwrap().0, r, 1e-7);
         assert!((d[3] - num).abs() < 1e-6, "dr: {} vs {num}", d[3]);
         // The gradient wrt X is the unit direction of the free segment.
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
@@ -114,7 +120,7 @@ mod tests {
         // case computed by hand: X = (r + 1, -1) relative to the anchor, r = 1:
         // C = (1, 0), d_c = sqrt(2), psi = -45 deg, acos(1/sqrt 2) = 45 deg -> phi_e = -90 deg = 270 deg,
         // beta = 90 deg, free segment = 1, G = pi/2 + 1.
-        let (g, _) = pulley_length([2.0, 0.0, -1.0], [0.0; 3], 1.0).unwrap();
+        let (g, _) = pulley_length([2.0, 0.0, -1.0], [0.0; 3], VERTICAL_AXIS, 1.0).unwrap();
         assert!((g - (std::f64::consts::FRAC_PI_2 + 1.0)).abs() < 1e-12, "{g}");
     }
 
@@ -122,7 +128,7 @@ mod tests {
     #[test]
     fn a_vanishing_pulley_is_the_straight_path() {
         let (x, a) = ([1.5, 0.7, -3.0], [0.2, -0.1, 0.3]);
-        let (p, _) = path(x, a, 1e-12).unwrap();
+        let (p, _) = path(x, a, VERTICAL_AXIS, 1e-12).unwrap();
         let s = Path::straight(x, a);
         assert!((p.g - s.g).abs() < 1e-9 && (0..3).all(|k| (p.gx[k] - s.gx[k]).abs() < 1e-9), "{p:?} {s:?}");
     }

@@ -128,6 +128,9 @@ pub struct CalibratorConfig {
     pub n: usize,
     /// Platform points.
     pub platform: Vec<[f64; 3]>,
+    /// The swivel-pulley axes, unit vectors (`[[cable]] pulley_axis`): the loop's inverse
+    /// kinematics turns a modelled pulley about them.
+    pub pulley_axis: Vec<[f64; 3]>,
     /// Nominal anchors, if configured (bounds for the initial estimate).
     pub nominal: Option<Vec<[f64; 3]>>,
     /// Data directory.

@@ -258,7 +258,7 @@ fn diagnosis() -> &'static taut_calib::diagnose::Diagnosis {
         s.rate_hz = 50.0;
         s.physics = taut_sim::Physics { elasticity: Some(20_000.0), ..taut_sim::Physics::default() };
         let run = taut_sim::simulate(&s);
-        let opts = taut_calib::diagnose::DiagnoseOptions::from_config(&s.robot.calibration);
+        let opts = taut_calib::diagnose::DiagnoseOptions::from_robot(&s.robot);
         taut_calib::diagnose::diagnose(&run.recording, &s.robot.platform_points(), None, &opts).expect("diagnosis")
     })
 }

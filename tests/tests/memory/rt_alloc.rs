@@ -42,12 +42,14 @@ fn loop_allocates_nothing_in_any_state() {
             cycles.set(cycles.get() + 1);
         }
     };
-    // The calibrated parameters carry every effect the loop models, the tension side's too.
+    // The calibrated parameters carry every effect the loop models, the tension side's too, and
+    // pulleys on horizontal and inclined axes.
     let effects = LoopEffects::from_values(Some(&[20_000.0; 4]), Some(&[1.001; 4]), Some(&[-0.002; 4]), Some(&[0.03; 4]), None, None)
         .with_deflection(Some(&[1.5e-6; 4]))
         .with_tension_side(Some(&[1.03, 0.98, 1.0, 1.01]), Some(&[0.1; 4]));
+    let axes = [[1.0, 0.0, 0.0], [0.6, 0.0, 0.8], [0.0, -1.0, 0.0], [-0.6, 0.0, 0.8]];
     let initial = |v: u64, off: f64| {
-        let mut p = truth.with_effects(effects);
+        let mut p = truth.with_effects(effects).with_pulley_axes(&axes);
         p.version = v;
         for a in p.anchors.iter_mut().take(4) {
             a[0] += off;

@@ -73,6 +73,31 @@ fn cases() -> Vec<Case> {
         sim("9 cables", &cables(&nine), &["cfg.toml:20", "at most 8 cables"]),
         sim("2 cables", &cables(&["[1, 0, 3]", "[-1, 0, 3]"]), &["cfg.toml", "at least 3"]),
         sim("no anchors to simulate", "[robot]\nname = \"x\"\nmass_kg = 3.0\n[[cable]]\n[[cable]]\n[[cable]]\n", &["cfg.toml", "anchor"]),
+        // Swivel-pulley axes: a direction, any finite non-zero length.
+        sim(
+            "pulley axis zero",
+            &format!("{GOOD_CONFIG}pulley_axis = [0, 0, 0]\n"),
+            &["cfg.toml:12", "cable[3].pulley_axis", "zero vector"],
+        ),
+        sim(
+            "pulley axis 1e-9",
+            &format!("{GOOD_CONFIG}pulley_axis = [1e-9, 0, 0]\n"),
+            &["cfg.toml:12", "cable[3].pulley_axis", "zero vector"],
+        ),
+        sim("pulley axis nan", &format!("{GOOD_CONFIG}pulley_axis = [nan, 0, 1]\n"), &["cfg.toml:12", "cable[3].pulley_axis", "finite"]),
+        sim("pulley axis inf", &format!("{GOOD_CONFIG}pulley_axis = [0, -inf, 1]\n"), &["cfg.toml:12", "cable[3].pulley_axis", "finite"]),
+        sim(
+            "pulley axis whose length overflows",
+            &format!("{GOOD_CONFIG}pulley_axis = [1e300, 1e300, 0]\n"),
+            &["cfg.toml:12", "cable[3].pulley_axis", "finite"],
+        ),
+        sim("pulley axis of 4", &format!("{GOOD_CONFIG}pulley_axis = [1, 0, 0, 0]\n"), &["cfg.toml:12", "cable[3].pulley_axis", "found 4"]),
+        sim("pulley axis a string", &format!("{GOOD_CONFIG}pulley_axis = \"horizontal\"\n"), &["cfg.toml:12", "cable[3].pulley_axis"]),
+        sim(
+            "pulley axis of cable 0",
+            &line(5, "anchor = [3.5, -1.75, 4.0]\npulley_axis = [0.0, 0.0, 0.0]"),
+            &["cfg.toml:6", "cable[0].pulley_axis"],
+        ),
         // Mass.
         sim("mass 1e-9 kg", &line(3, "mass_kg = 1e-9"), &["cfg.toml:3", "robot.mass_kg", "0.01 to 5000"]),
         sim("mass 1e308 kg", &line(3, "mass_kg = 1e308"), &["cfg.toml:3", "robot.mass_kg", "got 1e308"]),
@@ -141,6 +166,20 @@ fn cases() -> Vec<Case> {
         .file("rec.csv", good_recording())
         .file("cfg.toml", format!("{GOOD_CONFIG}[calibration]\nloadcell_sigma_n = -0.3\n")),
         Case::err(
+            "calibrate: pulley axis zero",
+            &["calibrate", "rec.csv", "--config", "cfg.toml"],
+            &["cfg.toml:12", "cable[3].pulley_axis", "zero vector"],
+        )
+        .file("rec.csv", good_recording())
+        .file("cfg.toml", format!("{GOOD_CONFIG}pulley_axis = [0, 0, 0]\n")),
+        Case::err(
+            "diagnose: pulley axis nan",
+            &["diagnose", "rec.csv", "--config", "cfg.toml"],
+            &["cfg.toml:12", "cable[3].pulley_axis", "finite"],
+        )
+        .file("rec.csv", good_recording())
+        .file("cfg.toml", format!("{GOOD_CONFIG}pulley_axis = [nan, 0, 1]\n")),
+        Case::err(
             "diagnose: --loadcell-offset nan",
             &["diagnose", "rec.csv", "--loadcell-offset", "nan"],
             &["--loadcell-offset NaN", "0 (exact) to 1000"],
@@ -173,6 +212,21 @@ fn cases() -> Vec<Case> {
         Case::ok("a 1 km frame", &["simulate", "--config", "cfg.toml", "--duration", "1", "-o", "out.csv"], &["wrote out.csv"])
             .file("cfg.toml", cables(&["[500, 0, 900]", "[-250, 433, 900]", "[-250, -433, 900]"]))
             .writes("out.csv"),
+        // Horizontal pulley axes of any length are directions: simulated with a pulley.
+        Case::ok(
+            "horizontal pulley axes",
+            &["simulate", "--config", "cfg.toml", "--duration", "1", "--no-three-phase", "--effect", "pulley=0.03", "-o", "out.csv"],
+            &["wrote out.csv"],
+        )
+        .file(
+            "cfg.toml",
+            GOOD_CONFIG
+                .replace("[3.5, -1.75, 4.0]\n", "[3.5, -1.75, 4.0]\npulley_axis = [2, 0, 0]\n")
+                .replace("[3.5, 1.75, 4.0]\n", "[3.5, 1.75, 4.0]\npulley_axis = [1, 0, 0]\n")
+                .replace("[-3.5, 1.75, 4.0]\n", "[-3.5, 1.75, 4.0]\npulley_axis = [-1, 0, 0]\n")
+                .replace("[-3.5, -1.75, 4.0]\n", "[-3.5, -1.75, 4.0]\npulley_axis = [-0.5, 0, 0]\n"),
+        )
+        .writes("out.csv"),
         // The good configuration is accepted (the suite's control).
         Case::ok(
             "good configuration",

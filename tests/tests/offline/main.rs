@@ -23,6 +23,7 @@ mod diagnose_null;
 mod diagnose_outside;
 mod diagnose_pairs;
 mod diagnose_ptail;
+mod diagnose_pulley_axis;
 mod diagnose_short;
 mod diagnose_tension;
 mod hostile_args;
