@@ -2141,6 +2141,9 @@ fn beyond_structure(ctx: &Ctx<'_>, b: &Baseline, st: &Structure, spec: &ModelSpe
     weighted_test(&base.0, &w0, &full.0, &w1, &terms, None, None)
 }
 
+/// A cable's regressor matrix, decomposed.
+type Svd = nalgebra::SVD<f64, nalgebra::Dyn, nalgebra::Dyn>;
+
 /// Most Levenberg–Marquardt iterations of [`with_family`], and the relative fall of its cost
 /// below which it has converged.
 const WITH_FAMILY: (usize, f64) = (40, 1e-10);
@@ -2160,7 +2163,7 @@ fn with_family(ctx: &Ctx<'_>, spec: &ModelSpec, x0: &[f64], nu: &leftover::Nuisa
     let train = &ctx.train;
     let r0 = fit::residuals(prep, spec, train, x0);
     // Per cable: the training positions it is fitted on, and its basis's SVD there.
-    let cables: Vec<(Vec<usize>, Option<nalgebra::SVD<f64, nalgebra::Dyn, nalgebra::Dyn>>)> = (0..n)
+    let cables: Vec<(Vec<usize>, Option<Svd>)> = (0..n)
         .map(|j| {
             let rows: Vec<usize> = (0..train.len()).filter(|&k| r0[j][k].is_finite()).collect();
             let b: Vec<Vec<f64>> = rows.iter().filter_map(|&k| nu.regressors(prep, train[k], j)).collect();
@@ -2173,7 +2176,7 @@ fn with_family(ctx: &Ctx<'_>, spec: &ModelSpec, x0: &[f64], nu: &leftover::Nuisa
         })
         .collect();
     // What the family's span leaves of cable `j`'s training residuals `r` (on its rows).
-    let tol = |svd: &nalgebra::SVD<f64, nalgebra::Dyn, nalgebra::Dyn>| svd.singular_values.max() * 1e-10;
+    let tol = |svd: &Svd| svd.singular_values.max() * 1e-10;
     let project = |j: usize, r: &DVector<f64>| -> DVector<f64> {
         match &cables[j].1 {
             Some(svd) => {
