@@ -180,15 +180,14 @@ pub fn parse_effects(names: &[String]) -> Result<Vec<Effect>, EffectFitError> {
 }
 
 /// The recording as the joint model's data set: every row with a pose (a row without one, a
-/// tracker dropout, is left out as in the diagnosis: a held reading's contact pose there made
-/// the prediction NaN and the fit with a play and a time offset refused as diverged) that is not
-/// a tracker outlier (the diagnosis's rule and its false-exclusion rate: `dataq::tracker_outliers`;
-/// kept, the simulator's 5 cm outliers at 0.2 % raised the RMS of a fit of the right model from
-/// the 1.50 mm floor to 1.99 mm and spread its estimates: BENCHMARKS.md, branch efoutlier), time
-/// segments split at gaps of the recording's clock, the play pattern read off the readings. Also returns the usable mask before the readings held
-/// since a push while loose were left out (a fit with a time offset and a play redoes that in
-/// encoder time: [`encoder_time_prep`]), and the number of tracker outliers
-/// left out.
+/// tracker dropout, is left out as in the diagnosis: a held reading's contact pose there would
+/// make the prediction NaN) that is not a tracker outlier (the diagnosis's rule and its
+/// false-exclusion rate: `dataq::tracker_outliers`; kept, the simulator's 5 cm outliers at
+/// 0.2 % raise the RMS of a fit of the right model above the tracker's floor and spread its
+/// estimates), time segments split at gaps of the recording's clock, the play pattern read off
+/// the readings. Also returns the usable mask before the readings held since a push while
+/// loose were left out (a fit with a time offset and a play redoes that in encoder time:
+/// [`encoder_time_prep`]), and the number of tracker outliers left out.
 fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &EffectFitOptions) -> (Prepared, Vec<Vec<bool>>, usize) {
     let outlier = crate::diagnose::dataq::tracker_outliers(rec, o.tracker_sigma_m).map_or_else(|| vec![false; rec.len()], |(f, _)| f);
     let outliers = outlier.iter().filter(|o| **o).count();
@@ -227,8 +226,8 @@ fn prepare(rec: &Recording, platform: &[[f64; 3]], needs_tension: bool, o: &Effe
 /// the input's extreme over its push, one tracker error for the hold), and above all the
 /// readings before a cable's first push, whose level the model takes to be the first input (the
 /// play's output is anywhere within it at power-on): on clean simulated recordings their
-/// residual is 2-10 mm RMS (the three-phase start, up to 14 mm per cable), which took the RMS
-/// of the right model from the 1.50 mm floor to 1.4-4.4 mm (BENCHMARKS.md, branch efrms).
+/// residual is 2-10 mm RMS (the three-phase start, up to 14 mm per cable), which would take the
+/// RMS of the right model from the 1.50 mm floor to 1.4-4.4 mm.
 /// Other models: every usable row.
 fn fitted_rows<'a>(
     prep: &'a Prepared,
@@ -319,7 +318,7 @@ pub fn fit_effects(
             let rep = match (spec.offset(Effect::TimeOffset, n), spec.offset(Effect::Backlash, n)) {
                 // A play with a time offset is fitted in encoder time on the rows reading clear
                 // pushes, as the diagnosis's final estimates are ([`encoder_time_prep`]: in
-                // tracker time with the holds the offset came out 0.36 ms long and the play
+                // tracker time with the holds the offset comes out 0.36 ms long and the play
                 // 0.13 mm short on average, 3.8 and 1.9 sigma). The rows are those of the
                 // offset the fit starts from, give or take a sample; when the fit moves the
                 // offset beyond that the rows change, and the fit runs again from there.
@@ -652,10 +651,8 @@ mod tests {
     /// the slack pushes the play's output out, and once the cable is taut again the reading stays
     /// there until the drum has reeled in by the play. The effect fit shares the diagnosis's play
     /// pattern (`PlayState::of_readings` + `exclude_unseen_pushes`), so those held readings are left
-    /// out; taking the push as made at the first taut sample (the old `PlayState::settle`) left
-    /// errors of up to the slack there, at low tension, which the fit paid for with a wrong
-    /// compliance (measured on this data: cable 0 EA 17,069 N against 20,000 N, RMS 0.52 mm; now
-    /// 20,080 N, play 19.99 mm of 20, RMS 0.13 mm).
+    /// out; taking the push as made at the first taut sample would leave errors of up to the
+    /// slack there, at low tension, which the fit would pay for with a wrong compliance.
     #[test]
     fn effect_fit_leaves_out_readings_held_since_a_push_while_loose() {
         let (ea, w, min_t) = (20_000.0, 0.02, 6.0);
@@ -730,12 +727,10 @@ mod tests {
     /// A play with a time offset, as the diagnosis fits them (`effects::model::encoder_time_prep`): the
     /// rows held since a push while loose are out of the fit but stay readings for the encoder's
     /// interpolation, and the fit on the clear-push rows in encoder time has no bias in the
-    /// offset or the play (measured: 20.0024 ± 0.0021 ms, plays within 0.6 sigma of 8 mm). Before,
-    /// the excluded rows were no readings (this test's first assertion failed on row 199 of cable
-    /// 0), and the fit in tracker time with the holds gave 20.0063 ± 0.0022 ms (+2.9 sigma) and
-    /// plays 0.005-0.008 mm short (1.2-2 sigma): at this noise the bias is small against the
-    /// sigmas, so the estimates' bounds guard the fit rather than tell the two apart (on the
-    /// simulated robot it is 3.8 sigma on average: BENCHMARKS.md, branch effectfit).
+    /// offset or the play (measured: 20.0024 ± 0.0021 ms, plays within 0.6 sigma of 8 mm). A fit
+    /// in tracker time with the holds is biased (here +2.9 sigma in the offset, plays 1.2-2 sigma
+    /// short): at this noise the bias is small against the sigmas, so the estimates' bounds guard
+    /// the fit rather than tell the two apart.
     /// Fixed seed: deterministic. For correct code with honest sigmas the chance that one of the 5
     /// estimates lies beyond 4.5 reported sigmas is 3.4e-5 (5 x 6.8e-6).
     #[test]
@@ -772,9 +767,9 @@ mod tests {
     }
 
     /// Tracker dropouts (rows without a pose, as the daemon records a stale pose) under a play
-    /// and a time offset: the rows are left out, as in the diagnosis. Kept, a held reading whose
-    /// contact was such a row had a NaN prediction and the fit refused as diverged (this data:
-    /// every 97th row without a pose). Fixed seed: deterministic; the bounds as in the test above
+    /// and a time offset: the rows are left out, as in the diagnosis (kept, a held reading whose
+    /// contact is such a row would have a NaN prediction). Here every 97th row has no pose.
+    /// Fixed seed: deterministic; the bounds as in the test above
     /// (3.4e-5 for correct code with honest sigmas).
     #[test]
     fn effect_fit_leaves_out_rows_without_a_pose() {
@@ -795,9 +790,8 @@ mod tests {
 
     /// Tracker outliers of 5 cm (the simulator's) in 0.33 % of the rows, in random directions,
     /// under elasticity and a play: they are left out by the diagnosis's rule
-    /// (`dataq::tracker_outliers`) and the fit reads as on the clean rows. Kept (the code before),
-    /// the RMS was 1.62 mm against 0.11 mm and the sigmas 15 times larger (EA 69-165 N against
-    /// 5-11 N, play 0.044 mm against 0.003 mm; the errors in them -1.9 to +1.1 sigma). Fixed seed:
+    /// (`dataq::tracker_outliers`) and the fit reads as on the clean rows (kept, they would
+    /// raise the RMS and the sigmas many times over). Fixed seed:
     /// deterministic; for correct code with honest sigmas the chance that one of the 8 estimates
     /// lies beyond 4.5 reported sigmas is 5.4e-5 (8 x 6.8e-6).
     #[test]

@@ -39,9 +39,8 @@ pub(crate) fn clearly_worse(d: &[f64], scale: f64, old_rms: f64, tolerance_m: f6
 ///
 /// The held-out rows are stretches of path: a parameter error projects smoothly along them, so
 /// consecutive differences are correlated and their i.i.d. standard error understates the
-/// spread. The rows are cut
-/// into 20 consecutive batches (fewer with under 40 rows) and each batch's mean difference is
-/// one observation.
+/// spread. The rows are cut into 20 consecutive batches (fewer with under 40 rows) and each
+/// batch's mean difference is one observation.
 ///
 /// A set a few hundredths of a mm worse on the held-out rows differs by an effect of no
 /// consequence that the held-out noise and the choice of held-out rows decide; the tolerance

@@ -8,15 +8,11 @@
 //!
 //! A calibrated set is published only when
 //! 1. its held-out co-registration RMS (on `calibration.heldout_fraction` of the excitation,
-//!    the ends of eight time blocks ([`HeldoutBlocks`]), which the backend does not see) is
-//!    not clearly higher than that of the running parameters: refused only when it exceeds it
-//!    by more than `daemon.heldout_tolerance_m` (0.1 mm) with 99.9 % one-sided confidence
-//!    ([`HELDOUT_ALPHA`](crate::acceptance::HELDOUT_ALPHA); [`crate::acceptance`]), both RMS values and the test over the same rows: held-out rows with
-//!    a tracker outlier are left out by a chi-square rule on the robust scale of the rows'
-//!    implied tracker displacement, at most a 1e-3 chance of losing any good row
-//!    ([`crate::heldout`]; the outcome counts them). The tolerance keeps a set that is worse
-//!    only by noise from being refused; the test's error rates on synthetic held-out tours are
-//!    this module's tests and docs/test-robustness.md;
+//!    the ends of eight time blocks ([`HeldoutBlocks`]), which the backend does not see) does
+//!    not exceed the running parameters' by more than `daemon.heldout_tolerance_m` with 99.9 %
+//!    one-sided confidence ([`crate::acceptance`]), both over the same rows, tracker outliers
+//!    left out ([`crate::heldout`]). The tolerance keeps a set that is worse only by noise
+//!    from being refused;
 //! 2. every anchor moved less than `daemon.max_anchor_change_m` and every offset less than
 //!    `daemon.max_l0_change_m` from the running set;
 //! 3. its 1-sigma values are below `daemon.max_sigma_m` and the backend reports the problem
@@ -355,9 +351,9 @@ impl Calibrator {
         // The pose is usually newer than the newest encoder reading (a TPDO answers the SYNC
         // of the cycle before; the tracker's datagram comes within a millisecond): read at
         // once, the lengths would be extrapolated from the last two readings, which multiplies
-        // their noise ((1 + f) l_k - f l_(k-1), f up to ~1.5: the refinement measured 0.11 mm
-        // on 0.05 mm encoders). The row waits for the next readings and is interpolated; and
-        // for the load cells' next readings, up to a polling round later.
+        // their noise ((1 + f) l_k - f l_(k-1), f up to ~1.5). The row waits for the next
+        // readings and is interpolated; and for the load cells' next readings, up to a polling
+        // round later.
         self.pending.push_back((*s, set));
         self.flush_pending(s.t, false);
     }
@@ -417,12 +413,10 @@ impl Calibrator {
             if s.length_m[j].is_finite() {
                 l[j] = s.length_m[j];
             }
-            // A reading the loop saw again has the same value bit for bit. (Comparing the
-            // reading's instant `t - age` does not work: `t` is the loop's clock, the age the
-            // load-cell thread's wall clock, so the difference moves every cycle and every row
-            // looked new: each ~120 Hz reading counted ~4 times at 500 Hz, the force rows'
-            // chi2 per row was ~3.6.) A new reading with an identical value is dropped: rare
-            // at 1 mN resolution and 0.3 N noise, and it only costs that reading.
+            // A reading the loop saw again has the same value bit for bit. (Not the reading's
+            // instant `t - age`: `t` is the loop's clock, the age the load-cell thread's wall
+            // clock, so the difference moves every cycle.) A new reading with an identical value
+            // is dropped: rare at 1 mN resolution and 0.3 N noise, and it only costs that reading.
             let new = prev.is_none_or(|q| q.tension_n[j].to_bits() != s.tension_n[j].to_bits());
             if new && s.tension_age_s[j] <= self.cfg.tension_max_age_s && s.tension_n[j].is_finite() {
                 f[j] = s.tension_n[j];
@@ -798,11 +792,10 @@ mod tests {
         assert!(vertical.loop_params(3, &est(3)).is_err());
     }
 
-    /// Regression (the 0.11 mm length noise of the start-up refinement on 0.05 mm encoders): a
-    /// tracker pose is newer than the newest encoder reading (TPDOs answer the SYNC of the cycle
-    /// before, the pose datagram comes within a millisecond), and its row's lengths were
-    /// extrapolated from the last two readings, `(1 + f) l_k - f l_(k-1)`, which multiplies
-    /// their noise. The row now waits for the next readings and interpolates between two.
+    /// A tracker pose is newer than the newest encoder reading (TPDOs answer the SYNC of the
+    /// cycle before, the pose datagram comes within a millisecond): its row waits for the next
+    /// readings and interpolates between two, rather than extrapolating from the last two,
+    /// `(1 + f) l_k - f l_(k-1)`, which multiplies their noise.
     #[test]
     fn tracker_rows_interpolate_the_encoder_readings_not_extrapolate() {
         let (mut c, _ends) = example_calibrator();
@@ -837,7 +830,7 @@ mod tests {
             for j in 0..n {
                 let err = c.exc_set.lengths(i)[j] - truth(c.exc_set.t[i]);
                 // Between two readings the error is at most the readings' (e); extrapolated
-                // 0.75 of a period past the newest it was up to 2.5 e.
+                // 0.75 of a period past the newest it would be up to 2.5 e.
                 assert!(err.abs() <= e * (1.0 + 1e-9), "row {i} cable {j}: {err:e}");
             }
         }
@@ -892,13 +885,13 @@ mod tests {
                 // Before a cell's second reading there is nothing to interpolate between.
                 if t > 0.004 * j as f64 + 0.016 {
                     assert!(err.abs() < 1e-9, "row {i} cable {j}: {err:e} N");
-                    // The newest reading at the row's instant, which the row held before.
+                    // The newest reading at the row's instant, what holding would give.
                     let newest = ((t - 0.004 * j as f64) / 0.016).floor() * 0.016 + 0.004 * j as f64;
                     held = held.max(200.0 * (t - newest));
                 }
             }
         }
-        // That was up to a round (3.2 N) off.
+        // Holding would be up to a round (3.2 N) off.
         assert!(held > 2.0, "{held}");
     }
 
@@ -1082,13 +1075,13 @@ mod tests {
     fn the_heldout_rule_does_not_refuse_an_equal_set_by_chance() {
         // New and running sets of the same expected quality (each anchor coordinate and offset
         // 0.5 mm off, independent draws), so in about half the trials the new one is truly no
-        // worse on the held-out path. The former rule (zero tolerance, 2.5 %) refused some of
-        // those by design. The rule now must refuse none of them: its lower confidence bound
-        // would have to clear 0.31 mm^2 of mean-square difference while the true difference is
-        // <= 0, many standard errors (a chance far below 1e-6 per trial, so 0 is what a
-        // correct rule gives; the seed is fixed, so this test is deterministic). Between 0 and
-        // the tolerance its refusal rate is at most alpha = 1e-3 (asserted <= 1 %: for a
-        // correct rule Binomial(<= 2000, 1e-3) exceeds 1 % with probability below 1e-6).
+        // worse on the held-out path. A rule with zero tolerance at 2.5 % (`former`, printed for
+        // comparison) refuses some of those by design. This rule must refuse none of them: its
+        // lower confidence bound would have to clear 0.31 mm^2 of mean-square difference while
+        // the true difference is <= 0, many standard errors (a chance far below 1e-6 per trial,
+        // so 0 is what a correct rule gives; the seed is fixed, so this test is deterministic).
+        // Between 0 and the tolerance its refusal rate is at most alpha = 1e-3 (asserted <= 1 %:
+        // for a correct rule Binomial(<= 2000, 1e-3) exceeds 1 % with probability below 1e-6).
         let trials = 2000;
         let equal = |rng: &mut taut_calib::synth::Rng| (Tour::estimate(rng, 0.5e-3), Tour::estimate(rng, 0.5e-3));
         let former = refusals(11, trials, 0.0, 0.025, equal);

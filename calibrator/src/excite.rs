@@ -67,7 +67,7 @@ pub fn design_input(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Option<Design
     })
 }
 
-/// Today's Lissajous path as the loop runs it (for its prediction).
+/// The Lissajous path as the loop runs it (for its prediction).
 fn lissajous(ccfg: &ControllerConfig) -> impl Fn(f64) -> [f64; 3] + '_ {
     let w = ccfg.workspace;
     let v = ccfg.excitation_speed_m_s;

@@ -374,7 +374,7 @@ mod tests {
     /// OUTLIER_FAMILY_RATE = 1e-3 per set (Bonferroni, Gaussian noise): over 2000 sets the
     /// count of sets losing a row is Poisson with mean <= 2, asserted <= 10 (exceeded with
     /// probability 8e-6 for a correct rule; the seed is fixed, so the test is deterministic).
-    /// Measured: see the eprintln (0 of 2000 at the time of writing).
+    /// The count is printed.
     #[test]
     fn a_clean_heldout_set_loses_no_row() {
         let truth = set(&ANCHORS);

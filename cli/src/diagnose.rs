@@ -167,7 +167,7 @@ pub fn to_json(d: &Diagnosis) -> Value {
         })).collect::<Vec<_>>(),
         "notes": d.notes,
     });
-    // Only with the tension side: the document is as before without it.
+    // Only with the tension side: without it the document has no `tension` key at all.
     if let (Some(t), Some(o)) = (&d.tension, doc.as_object_mut()) {
         o.insert("tension".into(), tension_json(t));
     }

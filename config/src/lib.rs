@@ -218,9 +218,8 @@ pub fn check_loadcell_sigma(v: f64) -> Result<(), String> {
 /// only), slack is a data problem, not a model.
 pub const MODELLED_EFFECTS: [&str; 7] = ["elasticity", "scale", "spool-buildup", "compliance", "pulley", "backlash", "time-offset"];
 
-/// Names the configuration and the command line still accept for an effect, with the name the
-/// reports use: `drum-buildup` was the spool build-up's name before the JSON took the name
-/// `spool-buildup`.
+/// Other names the configuration and the command line accept for an effect, with the name the
+/// reports use: `drum-buildup` for the spool build-up, `spool-buildup` in the JSON.
 pub const EFFECT_ALIASES: [(&str, &str); 1] = [("drum-buildup", "spool-buildup")];
 
 /// The reports' name of an effect named `name` (itself unless it is an alias in

@@ -36,7 +36,8 @@
 //!
 //! The model of an encoder reading (as in `taut_calib::diagnose::effects`): the path `G` from
 //! the anchor over the pulley to the platform, unstretched `U = G / (1 + T / EA)`, less the
-//! deflection `compliance_m_per_n * T`, reading `drum_scale * U + L0`, through a play of width `backlash_m`. A load cell reads
+//! deflection `compliance_m_per_n * T`, reading `drum_scale * U + L0`, through a play of width
+//! `backlash_m`. A load cell reads
 //! `loadcell_gain * T * exp(-friction_mu_theta * tanh(v / 5 mm/s))` of the cable's tension `T`
 //! at length rate `v` (> 0 paying out): `taut_model::cell_tension` inverts it, in the loop and in
 //! the diagnosis.

@@ -989,7 +989,7 @@ impl Parser {
             }
             Some(c) => c,
         };
-        // Field bounds into a buffer kept across rows (no allocation per row); trimmed as before.
+        // Field bounds into a buffer kept across rows (no allocation per row).
         if !fast {
             spans.clear();
             let mut start = 0;
@@ -1433,8 +1433,8 @@ mod fast_field_tests {
         assert!(taken > 1000, "only {taken} rows took the fast path: the test does not exercise it");
     }
 
-    /// The row reader as it was before it read eight digits at a time (one byte at a time, the
-    /// line given without its newline): the reference the faster one must equal.
+    /// A row reader that reads one byte at a time (the line given without its newline): the
+    /// reference the eight-at-a-time one must equal.
     fn fast_row_bytewise(line: &[u8], width: usize, vals: &mut Vec<f64>, spans: &mut Vec<(usize, usize)>) -> bool {
         vals.clear();
         spans.clear();

@@ -242,9 +242,9 @@ mod tests {
         std::array::from_fn(|i| m[i][3] / m[i][i])
     }
 
-    /// Regression (e2e_effects): at a pose near the follower's anchor a 10 N
-    /// follower let the opposite position cable go slack and the platform missed the pose by
-    /// 35 mm even with the true parameters in the loop. The range's lower end keeps it taut.
+    /// At a pose near the follower's anchor a fixed 10 N follower lets the opposite position
+    /// cable go slack (the platform then misses the pose by centimetres, whatever the
+    /// parameters). The range's lower end keeps it taut.
     #[test]
     fn near_the_followers_anchor_the_follower_must_pull_harder() {
         let p = [-0.875, -0.4375, 1.5];

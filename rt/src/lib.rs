@@ -17,9 +17,9 @@
 //! `docs/architecture.md`, "The real-time rule".
 //!
 //! The non-real-time side (`taut-io`: devices and the loop thread; `taut-calibrator`;
-//! `taut-operator`: the control socket and telemetry; `taut-plugin`: the lifecycle) fills [`motion::ControllerConfig`] and [`kin::LoopParams`]
-//! from the robot's files and names these modules by this crate's paths (`taut_rt::motion`); it
-//! does not re-export them, so every import shows which code is the real-time side.
+//! `taut-operator`: the control socket and telemetry; `taut-plugin`: the lifecycle) fills
+//! [`motion::ControllerConfig`] and [`kin::LoopParams`] from the robot's files and imports these
+//! modules by this crate's paths (`taut_rt::motion`), so every import shows the real-time side.
 #![deny(missing_docs)]
 
 pub mod cycle;

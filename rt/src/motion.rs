@@ -25,10 +25,9 @@
 //! exceeds `safety.max_tension_n` or the reeled one goes loose, or when the wiring check
 //! ([`crate::wiring`]: encoders against the tracked motion, load cells against the statics, with
 //! the nominal geometry) finds a swapped drive or load cell or an inverted encoder
-//! ([`Cause::Miswired`]). The calibrator watches the states
-//! in the sample stream: the end of the phases asks it for the initial estimate, the end of an
-//! excitation for a calibration; whatever it publishes is picked up at a cycle boundary and faded
-//! in by the swap ramp.
+//! ([`Cause::Miswired`]). The calibrator watches the states in the sample stream: the end of the
+//! phases asks it for the initial estimate, the end of an excitation for a calibration; whatever
+//! it publishes is picked up at a cycle boundary and faded in by the swap ramp.
 //!
 //! Everything here is fixed size; `update` never allocates.
 
@@ -1825,7 +1824,7 @@ impl Controller {
 
     /// The first limit `inp` breaks, if any. Takes `&self` so that the configuration is read in
     /// place: `ControllerConfig` is kilobytes (dwell table, tour), and copying it out to call
-    /// `latch` cost a memcpy every cycle.
+    /// `latch` would cost a memcpy every cycle.
     fn limit_breach(&self, inp: &Inputs, now: f64) -> Option<Cause> {
         let c = &self.cfg;
         for j in 0..c.n {
@@ -1887,8 +1886,8 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// Duration of a dwell plan's move from `a` to `b`: the trapezoid of [`trapezoid_s`] at up to
 /// `v` with acceleration `accel` (the start-up's, `motion.init_reel_accel_m_s2`), s. A swinging
-/// platform needs the bounded acceleration: the smoothstep this replaced peaked at 6 d / T^2,
-/// 5 m/s^2 for 0.3 m at 0.5 m/s, and loosened a position cable of the dynamic plant.
+/// platform needs the bounded acceleration: a smoothstep peaks at 6 d / T^2, 5 m/s^2 for 0.3 m
+/// at 0.5 m/s, enough to loosen a position cable of the dynamic plant.
 fn move_time(a: [f64; 3], b: [f64; 3], v: f64, accel: f64) -> f64 {
     trapezoid_s(distance(a, b), v.max(1e-3), accel)
 }

@@ -17,10 +17,10 @@
 //!   `TENSION_TOL_N + TENSION_TOL_REL T` (the swing's `m a` that the low-pass leaves, a
 //!   torque-mode drum's friction) plus, for the position cables, what anchors
 //!   [`ANCHOR_TOL_M`] off do to the statics there (large where the three cables' directions are
-//!   nearly coplanar; the followers' tension does not depend on the geometry). Tensions, not their changes over the reel: on the
-//!   dynamic plant the swing a reel starts changes the held cables' tensions by as much as the
-//!   reel does (5 N of 0.4 N predicted, measured), while the levels of held and following cables
-//!   differ by 10-15 N.
+//!   nearly coplanar; the followers' tension does not depend on the geometry). Tensions, not
+//!   their changes over the reel: on the dynamic plant the swing a reel starts changes the held
+//!   cables' tensions by as much as the reel does (5 N of 0.4 N predicted, measured), while the
+//!   levels of held and following cables differ by 10-15 N.
 //!
 //! When a comparison fails, the check tries the single miswirings that could explain it: one
 //! encoder's sign inverted (its change matches with the sign flipped), two drives swapped (each

@@ -70,11 +70,11 @@
 //! frequency `w` and damping ratio `z` the method is stable for `h < 2 (sqrt(1 + z²) - z) / w`;
 //! the plant bounds the highest frequency by `w_max² <= trace(K) / m` (stiffness `K` below, with
 //! every cable counted as taut) and takes half that limit; likewise for each torque-mode drum on
-//! its cable (`w² = k_j / m_d`). With 40 kN cables of a few metres on a few kg, `w_max` is ~100-300 rad/s and the 1 ms
-//! cap decides. The outputs are the state at the end of the step; the tensions reported are the
-//! ones the next sub-step accelerates with (up to the change of a position-mode drum's speed at the
-//! next command), so `sum_j T_j u_j + m g` is `m a` of the positions'
-//! second difference.
+//! its cable (`w² = k_j / m_d`). With 40 kN cables of a few metres on a few kg, `w_max` is
+//! ~100-300 rad/s and the 1 ms cap decides. The outputs are the state at the end of the step; the
+//! tensions reported are the ones the next sub-step accelerates with (up to the change of a
+//! position-mode drum's speed at the next command), so `sum_j T_j u_j + m g` is `m a` of the
+//! positions' second difference.
 //!
 //! The very first step of a dynamic plant places the platform at rest in the static equilibrium
 //! of its commands (the quasi-static plant's solver, [`crate::equilibrium`]); later steps

@@ -41,7 +41,7 @@ pub struct Logger {
 }
 
 impl Default for Logger {
-    /// The shape of the real 4-cable recording of issue 28: 1,000 rows at about 4 Hz, intervals
+    /// The shape of a real 4-cable field recording: 1,000 rows at about 4 Hz, intervals
     /// 0.5-1.5 x the mean, 9 % stale rows, times on a 50 Hz grid.
     fn default() -> Self {
         Logger { rows: 1000, rate_hz: 4.0, jitter: 0.5, stale_fraction: 0.09, grid_hz: 50.0 }

@@ -212,8 +212,8 @@ impl Plant {
     }
 
     /// Platform-end tension of each cable at the last equilibrium (dynamic: at the end of the
-    /// last step), N: the physics, before the
-    /// load cells' offset and noise (for measurements of what the sensors report).
+    /// last step), N: the physics, before the load cells' offset and noise (for measurements of
+    /// what the sensors report).
     pub fn true_tension(&self, j: usize) -> f64 {
         self.loads[j].tension
     }

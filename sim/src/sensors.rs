@@ -18,7 +18,7 @@ pub struct Noise {
     /// Lag-1 correlation of the tracker noise from one sample to the next, per axis, in
     /// `[0, 1)`: AR(1) noise `e_i = phi e_(i-1) + sqrt(1 - phi^2) sigma g_i` with the stationary
     /// marginal `sigma` ([`Noise::tracker_sigma_m`]), started stationary. 0 (the default) is white
-    /// noise, sample for sample the same as without this field.
+    /// noise.
     pub tracker_phi: f64,
     /// Probability that a tracker sample is an outlier.
     pub tracker_outlier_prob: f64,

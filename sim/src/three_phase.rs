@@ -2,11 +2,12 @@
 //!
 //! Three cables are in position mode, the others follow at a low constant tension. From a rest
 //! position near the centre, phase `k` reels `cables[k]` in by `reel_m` at `speed_m_s` while the
-//! other two hold their lengths, then reels it back out (labelled -1) to the rest position. The platform is the
-//! static equilibrium of the [`Plant`] at every sample: it moves on the circle where the spheres
-//! of the two held cables meet, its height set by the reeled cable. Reeling *in* keeps the held
-//! cables taut: the platform rises towards the reeled anchor and the two others keep carrying
-//! their share; a sample where a position-mode cable loses its tension is an error.
+//! other two hold their lengths, then reels it back out (labelled -1) to the rest position. The
+//! platform is the static equilibrium of the [`Plant`] at every sample: it moves on the circle
+//! where the spheres of the two held cables meet, its height set by the reeled cable. Reeling
+//! *in* keeps the held cables taut: the platform rises towards the reeled anchor and the two
+//! others keep carrying their share; a sample where a position-mode cable loses its tension is an
+//! error.
 //!
 //! The default pairing (`cables = [0, 1, 2]`) works for three and four cables: with four, cable 3
 //! follows.

@@ -26,9 +26,9 @@
 //! and the samples' scores correlated in time as the tracker noise is: `c^T cov(x0_hat) c` is
 //! the long-run variance of the series `c^T H^-1 s_i` in time order, the sum of its squares
 //! times the AR(1) factor `(1 + phi) / (1 - phi)` of the tracker noise's lag-1 autocorrelation
-//! `phi` ([`EstimationError::variance`], [`fit::noise_phi`]). Summing only `(c^T H^-1 s_i)^2` (each sample independent)
-//! is right for white tracker noise and was ~19x low with AR(1) noise of lag-1 0.9 (branch ar1,
-//! BENCHMARKS.md).
+//! `phi` ([`EstimationError::variance`], [`fit::noise_phi`]). Summing only `(c^T H^-1 s_i)^2`
+//! (each sample independent) is right for white tracker noise and ~19x low with AR(1) noise of
+//! lag-1 0.9 (BENCHMARKS.md).
 
 use super::fit::{self, ModelSpec, Prepared};
 use super::lm::LmReport;
@@ -145,19 +145,19 @@ impl EstimationError {
         }
         // `c^T z_i` per training sample, in time order: `c^T cov(x0_hat) c` is the variance of
         // their sum. The scores of neighbouring samples share the tracker noise when it is
-        // correlated in time; the sum of their squares alone (each sample independent) was ~19x
+        // correlated in time; the sum of their squares alone (each sample independent) is ~19x
         // low with AR(1) noise of lag-1 0.9. The AR(1) long-run factor `tau = (1 + phi) / (1 -
         // phi)` of the noise (Andrews 1991's AR(1) plug-in) scales it, and the degrees of freedom
         // are the effective samples less the parameters. Under the null the scores' own lag-1
         // autocorrelation and the tracker noise's `phi` ([`fit::noise_phi`], from the residuals'
         // first differences) estimate the same thing; under a real effect the current model's
         // residuals carry its misfit, which inflates one or the other: the scores' (~0.99 under a
-        // 30 ms time offset: the term was then 100 % of the test's variance and the offset
-        // unnamed), the first differences' (sag near slack on the 20 m robot, where the misfit
-        // moves from sample to sample with the tension: sag unnamed). So the smaller of the two.
-        // With white noise both are ~0 and this is the sandwich by sample. (A batch-means estimate instead moved the
-        // white-noise tests: its batch sums lose to the fit an uncertain share of their
-        // dimensions.)
+        // 30 ms time offset, which would make the term all of the test's variance and leave the
+        // offset unnamed), the first differences' (sag near slack on the 20 m robot, where the
+        // misfit moves from sample to sample with the tension: sag unnamed). So the smaller of
+        // the two. With white noise both are ~0 and this is the sandwich by sample. (A
+        // batch-means estimate would move the white-noise tests: its batch sums lose to the fit
+        // an uncertain share of their dimensions.)
         let y: Vec<f64> = self.z.chunks_exact(self.p).map(|zi| zi.iter().zip(&c).map(|(a, b)| a * b).sum::<f64>()).collect();
         let ss: f64 = y.iter().map(|v| v * v).sum();
         if ss <= 0.0 {
@@ -191,8 +191,8 @@ mod tests {
 
     /// Rejections at 5 % and 1 % over `trials` seeded linear recordings (see the test below)
     /// with noise AR(1) of lag-1 `phi`: with the estimation error (this module), without it, and
-    /// with it taken as the sandwich by sample (`sum_i (c^T z_i)^2`, the estimator before, right
-    /// only for white noise); and the mean estimation share.
+    /// with it taken as the sandwich by sample (`sum_i (c^T z_i)^2`, right only for white
+    /// noise); and the mean estimation share.
     fn rejections(phi: f64, trials: usize, seed: u64) -> ([usize; 2], [usize; 2], [usize; 2], f64) {
         let mut rng = Rng::new(seed);
         let (n, n_train) = (1000, 800);
@@ -298,7 +298,7 @@ mod tests {
     /// As above with AR(1) noise of lag-1 0.9 (integrated correlation time 19 samples): with the
     /// estimation error's variance as the AR(1) long-run variance of the training scores the
     /// test is near its level; with the sandwich by sample (each sample's score independent,
-    /// the estimator before, ~19x low here) it rejects 4-8x too often. Not exactly nominal:
+    /// ~19x low here) it rejects 4-8x too often. Not exactly nominal:
     /// measured over `MC_SEED` 7-10 (2,000 recordings each) 137-164 rejections at 5 % and 41-65
     /// at 1 % (nominal 100 and 20; by sample 416-432 and 228-259): the smaller of the two
     /// correlation estimates ([`EstimationError::variance`]) is low here, where the fit removes

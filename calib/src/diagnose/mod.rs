@@ -108,14 +108,13 @@ pub struct DiagnoseOptions {
     /// rounds: each held-out test runs at [`DiagnoseOptions::test_alpha`]).
     pub family_alpha: f64,
     /// Count the current model's estimation error on the training blocks in each held-out
-    /// test's variance ([`esterr`]; true). False gives the test as it was before (the
-    /// held-out scores' variance only), whose p-values are too small in the tail: for
-    /// comparisons only (`tests/examples/null_rate.rs`).
+    /// test's variance ([`esterr`]; true). False: the held-out scores' variance only, whose
+    /// p-values are too small in the tail; for comparisons only (`tests/examples/null_rate.rs`).
     pub estimation_error: bool,
     /// Backward step (true): after each effect is named, every earlier-named effect is tested
     /// for removal with the same held-out test (the model without it as the current model, it
     /// as the candidate); one the test cannot tell from nothing is dropped and not tried again.
-    /// False gives the forward-only selection as it was before (for comparisons only).
+    /// False: forward-only selection (for comparisons only).
     pub backward: bool,
     /// Find stale rows ([`dataq::stale_rows`]: every encoder repeats the previous row while the
     /// platform moves) and leave them out (true). False keeps them, as before (for comparisons
@@ -507,14 +506,11 @@ struct Ctx<'a> {
 /// 0.5 s at 100 Hz on the 3-cable robot) carries the same tracker noise: a hold's residuals are
 /// one draw (measured on `offset_backlash_coverage`, 30 recordings with a 20 ms offset and a 6
 /// mm play: the holds' mean residual 1.3 mm RMS, the readings about it 0.35 mm, the encoder's
-/// noise). Counted as ~50 samples in batches of ~30 the scores' variance was far too small:
-/// the t statistics of candidates outside the truth restricted to the held readings had variance
-/// 18.5 (1.16 on the pushed readings), and 18 of 120 p-values fell below 1e-3. A hold is now one
-/// term (placed at its contact), and its readings are weighted as the hold's generalised least
-/// squares weighs them (`scale`: otherwise the few hold terms carry most of the variance and the
-/// test keeps few degrees of freedom; EA 20 kN under a 20 ms offset and a 6 mm play was then not
-/// named, t = 5.2 with 12 dof). Together 0 of those 120 below 1e-3 and 1 below 0.01 (BENCHMARKS.md,
-/// branch third2).
+/// noise). Counted as ~50 samples the scores' variance would be far too small. So a hold is
+/// one term (placed at its contact), and its readings are weighted as the hold's generalised
+/// least squares weighs them (`scale`: otherwise the few hold terms carry most of the variance
+/// and the test keeps few degrees of freedom). On those recordings 0 of 120 p-values of
+/// candidates outside the truth fall below 1e-3 and 1 below 0.01 (BENCHMARKS.md).
 #[derive(Debug, Clone)]
 struct Terms {
     order: Vec<usize>,
@@ -1179,15 +1175,11 @@ fn subsample_series(prep: &Prepared, samples: &[usize], res: &[Vec<f64>], max: u
 /// reading. A hold's level is the input's extreme over the push that left it, and the play
 /// pattern read off noisy readings misplaces some push ends (at sharp reversals a rise of noise
 /// is taken as the push's slow end, a reading then predicted millimetres off): fitted on those
-/// rows, unweighted, a long hold pinned the play to one tracker error and the misread ends left a
-/// misfit that a third candidate took up. Measured on the holds-in fit (BENCHMARKS.md,
-/// "playclear"): a play alone named a spurious pulley, scale, sag or time offset on 6 of 24
-/// recordings (3 and 6 mm, 3 cables) and 11 of 50 (10 mm, 4 cables), with the tests of candidates
-/// outside the truth far from uniform (6 mm: 32 of 144 below 1e-3); on the clear-push rows 0, 0
-/// and 0 (4 of 120 below 0.05, none below 0.01). With a time offset it had been so since session
-/// 16 (the offset came out 0.2-3 ms long on the holds). The final estimates of a play without a
-/// time offset keep the hold-weighted holds (`PlayState::hold_weights`): they pin its width at
-/// the push's start, where only the offset trades off with it.
+/// rows, unweighted, a long hold pins the play to one tracker error and the misread ends leave a
+/// misfit that a third candidate takes up: a play alone then has a spurious pulley, scale, sag or
+/// time offset named beside it (BENCHMARKS.md). The final estimates of a play without a time
+/// offset keep the hold-weighted holds (`PlayState::hold_weights`): they pin its width at the
+/// push's start, where only the offset trades off with it.
 fn play_prep(prep: &Prepared, spec: &ModelSpec, x: &[f64], encoder_sigma_m: f64) -> Option<Prepared> {
     let n = prep.n;
     spec.offset(Effect::Backlash, n)?;
@@ -1861,7 +1853,7 @@ fn round_candidates(
         // model that leaves out a slow effect reads it as correlated noise (the holds of a
         // play ramp the ideal model's residuals: `phi` 0.995 and a span of 100 samples under
         // AR(1) 0.9, where a pose interpolated over 2 s predicts nothing and a real 6 mm play
-        // was named on 1 of 24 recordings), the candidate that has the effect does not; under
+        // is seldom named), the candidate that has the effect does not; under
         // the null both carry the same noise. Only where the span is more than one sample.
         let cand_phi = fit::noise_phi(prep, &s2, &ctx.train, &r.x);
         let lag = if noise_lag > 1 { fit::correlation_lag(cur_phi.min(cand_phi), fit::MAX_NOISE_LAG) } else { noise_lag };

@@ -132,9 +132,8 @@ pub fn encompassing_test_with(
     // A change below 1e-9 of the residuals' RMS is the predictions' rounding, not a model: a
     // candidate whose effect fitted to its null value (a time offset of 3e-15 s) changes the
     // residuals by ~1e-16 m, and rounding errors correlate with the values rounded, so `beta`
-    // came out ~1e12 and t 9-27 (p down to 1e-130, a spurious time offset named on 2 of 48
-    // AR(1) recordings with a play). No real change that small can be found: its t is at most
-    // ~1e-9 sqrt(n) in units of the residuals' RMS.
+    // would come out ~1e12 and t 9-27 (a spurious time offset named). No real change that small
+    // can be found: its t is at most ~1e-9 sqrt(n) in units of the residuals' RMS.
     if dd <= NEGLIGIBLE_CHANGE * NEGLIGIBLE_CHANGE * ss0 {
         return Some(HeldoutTest {
             gain,
@@ -218,8 +217,8 @@ pub fn long_run_variance(u: &[f64], w: &[f64], b: usize) -> (f64, f64) {
     // Bias-corrected, and kept away from a unit root (where the recolouring explodes).
     let phi = (phi + (1.0 + 3.0 * phi) / n as f64).clamp(-0.9, 0.995);
     // The first term has no predecessor to whiten it: scaled to the innovations' variance
-    // (Prais-Winsten, `sqrt(1 - phi^2) u_0`). Left out, as before, a term that carries much of
-    // the sum (a play's hold, [`super::Terms`]) was in the numerator and not in its variance.
+    // (Prais-Winsten, `sqrt(1 - phi^2) u_0`). Left out, a term that carries much of the sum (a
+    // play's hold, [`super::Terms`]) would be in the numerator and not in its variance.
     let (mut sums, mut weights) = (vec![0.0; b], vec![0.0; b]);
     sums[0] = (1.0 - phi * phi).sqrt() * u[0];
     weights[0] = w.first().copied().unwrap_or(1.0);
@@ -364,8 +363,7 @@ mod tests {
     /// A term that carries most of the sum (a play's hold whose readings share one tracker
     /// error, placed at its contact: the first term when the hold began before the held-out
     /// block) is in the variance as it is in the sum. Deterministic: small alternating terms
-    /// and one large first term; before, the first term was left out of the variance and
-    /// `var / u_0^2` was ~1e-4.
+    /// and one large first term (left out of the variance, `var / u_0^2` would be ~1e-4).
     #[test]
     fn long_run_variance_counts_the_first_term() {
         let mut u: Vec<f64> = (0..400).map(|i| if i % 2 == 0 { 0.01 } else { -0.01 }).collect();
@@ -487,7 +485,7 @@ mod tests {
 
     /// A candidate that changes the residuals only by rounding (here `1e-14` of each, exactly
     /// proportional to it, as rounding errors are to the values rounded) is no change: weight 0,
-    /// p 1/2 (before, `beta` was ~1e14 and the regression residual rounding). Deterministic.
+    /// p 1/2 (not a `beta` of ~1e14 fitted to a regression residual of rounding). Deterministic.
     #[test]
     fn a_change_at_rounding_level_is_no_change() {
         let mut rng = Rng::new(5);

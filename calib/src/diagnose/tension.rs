@@ -21,8 +21,8 @@
 //! to make the acceleration's noise small (0.02-0.03 m/s^2 at 100 Hz, 1.5 mm) without blurring
 //! fast moves out of the test. A quadratic over a short window, unfiltered, has a bias of
 //! `(omega h)^2 / 14` at angular frequency `omega`, and a window short enough for a 1 Hz
-//! excursion left the acceleration so noisy (0.2-0.6 m/s^2) that slow recordings' inertia went
-//! unseen and was absorbed by load-cell gains (slow harmonic motion's `m a = -m omega^2 x` is a
+//! excursion leaves the acceleration so noisy (0.2-0.6 m/s^2) that slow recordings' inertia goes
+//! unseen and is absorbed by load-cell gains (slow harmonic motion's `m a = -m omega^2 x` is a
 //! force that follows the position, as gains' tension pattern does). The filtered rows are taken
 //! every half window (they overlap by half; the test's batch means take the correlation).
 //!

@@ -191,11 +191,10 @@ pub fn encoder_time_prep(prep: &Prepared, usable_before_play: &[Vec<bool>], delt
 /// ```
 ///
 /// A time offset shifts the encoder series, not the tracker's ([`Joint::predict`];
-/// interpolating every noisy tracker pose between two samples, as before, halved its noise at
-/// half-sample offsets and the fit preferred those: a 20 ms offset at 100 Hz came out 16-17 ms,
-/// 9-12 sigma low, and a play fitted with it 1-1.5 mm high). Only a held reading's contact is
-/// still an interpolated pose (the play's input at `t_c - delta`), hence `k(s)` there (without
-/// it the cost had a cusp at whole-sample offsets, the estimates 0.3-0.5 ms to either side).
+/// interpolating every noisy tracker pose between two samples would halve its noise at
+/// half-sample offsets, and the fit would prefer those offsets). Only a held reading's contact
+/// is an interpolated pose (the play's input at `t_c - delta`), hence `k(s)` there (without it
+/// the cost has a cusp at whole-sample offsets).
 ///
 /// Why: near slack the sag's
 /// excess grows as `1/T^2` and the stretch with `T`: a reading at a few newtons has a prediction
@@ -330,14 +329,11 @@ impl<'a> Joint<'a> {
 
     /// The encoder reading of cable `j` nearest in time to `tau` in the segment of samples `k <=
     /// k1`, neither a reading, searching down from `k` and up from `k1` ([`Joint::flank`];
-    /// `None`: the segment has none). The
-    /// time-offset prediction's fallback when neither sample around `tau` is a reading: at a
-    /// run of data problems' edge it is the sample the interpolation reaches there (the
-    /// prediction stays continuous in the offset as it moves into the run); a held-out row
-    /// whose prediction was NaN left the whole held-out test of a time offset out ("too few
-    /// held-out samples to test": EA 25 kN, drum scales and a 40 ms offset on the 4-cable robot,
-    /// seed 1, where the encoder readings of cable 0 were data problems 30 ms after a usable
-    /// row, and nothing was named at 16 mm held out).
+    /// `None`: the segment has none). The time-offset prediction's fallback when neither sample
+    /// around `tau` is a reading: at a run of data problems' edge it is the sample the
+    /// interpolation reaches there (the prediction stays continuous in the offset as it moves
+    /// into the run). A NaN prediction would leave the held-out row out, and with enough such
+    /// rows the whole held-out test of a time offset ("too few held-out samples to test").
     fn nearest_reading(&self, k: usize, k1: usize, j: usize, tau: f64) -> Option<usize> {
         let t = &self.prep.t;
         match (self.flank(k, -1, j, &[], false), self.flank(k1, 1, j, &[], false)) {
@@ -921,11 +917,10 @@ impl<'a> Joint<'a> {
     /// `cov(eta_i, (eta_{i-D} + eta_{i+D}) / 2) = rho(D)`, and `rho(D) = rho(d) = cov(eta_i,
     /// eta_c)` for `d <= noise_lag` (stationary noise), both about 0 beyond it. The candidate's
     /// change is then uncorrelated with `r0` under the null. The nearest flanks do that only for
-    /// white noise: with AR(1) tracker noise (lag-1 0.9) the replaced pose shared `rho(1)` of
-    /// `eta_i`, the contact `rho(d) < rho(1)`, and backlash was claimed on 19 of 52 effect-free
-    /// recordings (BENCHMARKS.md, branch ar1). The lag is capped because a long span is a poor
-    /// pose: unbounded mirrored flanks (holds of seconds on the 20 m robot) named backlash on 3 of
-    /// 52 effect-free recordings with white noise.
+    /// white noise: with AR(1) tracker noise (lag-1 0.9) the replaced pose would share `rho(1)`
+    /// of `eta_i`, the contact only `rho(d) < rho(1)`, and backlash would be named on effect-free
+    /// recordings. The lag is capped because a long span is a poor pose: unbounded mirrored
+    /// flanks (holds of seconds on the 20 m robot) name backlash on effect-free recordings too.
     fn replacement(&self, x: &[f64], i: usize, j: usize, cand_poses: &[usize], noise_lag: usize) -> Rep {
         let (poses, encs) = self.sources(x, i, j);
         let p = self.prep;
@@ -1324,10 +1319,9 @@ impl PlayState {
     /// drum: a slack peak smaller than the play pushes the output out and leaves it there when the
     /// slack is reeled back in, anywhere inside `[v - w/2, v + w/2]` of the modelled input `v`.
     /// The held level after the cable is taut again is then not `v_c - side w/2` for any modelled
-    /// `c`: taking it as the first taut sample's (as this once did) left errors of up to the play
-    /// width after each loose episode, at low tension, which the fit paid for with a low play and
-    /// a high compliance (EA 15 kN under 10 mm play came out at 9-11 kN, 4-7 sigma low, on some
-    /// seeds; a spurious scale or time offset was named on others). Without a play only the few
+    /// `c`: taking it as the first taut sample's would leave errors of up to the play width
+    /// after each loose episode, at low tension, which the fit would pay for with a low play and
+    /// a high compliance, or a spurious scale or time offset. Without a play only the few
     /// readings before the cable moves past the push threshold go.
     pub fn exclude_unseen_pushes(&self, usable: &mut [Vec<bool>]) -> usize {
         let mut count = 0;
@@ -1451,13 +1445,14 @@ pub fn encoder_time_exclusion(prep: &Prepared, usable: &[Vec<bool>], delta: f64)
 /// the input turns, the last steps are within the encoder noise, and any other sample's input is
 /// less extreme, so a mistaken push end (a held reading that rose by noise taken as pushed, with
 /// probability 1/2 at each end, or a last small step read as held) always predicts the held level
-/// short of the play's side, never beyond: one-sided. The play width came out short and a time
-/// offset, which trades off with it at each push's start, long (6 mm, 20 ms: 5.95 mm and
-/// +0.15 ms on average over 30 recordings, and the same with the tracker noise at 0.1 mm:
-/// deterministic). The readings held since a push share the pushing sample's pose, so in the
-/// generalised least-squares fit a hold with its push is one observation of `v_c - side w/2`,
-/// about as informative as the push's own reading ([`PlayState::hold_weights`]): leaving the holds
-/// and the ambiguous push ends out costs little information and removes the bias.
+/// short of the play's side, never beyond: one-sided. Fitted with those readings the play width
+/// comes out short and a time offset, which trades off with it at each push's start, long (6 mm,
+/// 20 ms: 5.95 mm and +0.15 ms on average over 30 recordings, and the same with the tracker
+/// noise at 0.1 mm: deterministic). The readings held since a push share the pushing sample's
+/// pose, so in the generalised least-squares fit a hold with its push is one observation of
+/// `v_c - side w/2`, about as informative as the push's own reading
+/// ([`PlayState::hold_weights`]): leaving the holds and the ambiguous push ends out costs little
+/// information and removes the bias.
 pub fn clear_push_rows(prep: &Prepared, usable: &[Vec<bool>], delta: Option<f64>, min_step: f64) -> Vec<Vec<bool>> {
     let spec = ModelSpec { effects: vec![], tension_end: TensionEnd::Platform };
     let jt = Joint { prep, spec: &spec, samples: &[], sigma: 1.0 };
@@ -1837,8 +1832,8 @@ mod tests {
 
     /// A time offset that reaches into a run of encoder data problems (readings NaN, not usable)
     /// predicts from the segment's nearest reading: finite, continuous in the offset as it moves
-    /// into the run, and exact where the run's edge is the sample the offset reads. (It was NaN
-    /// there, which left a whole held-out test of a time offset out.)
+    /// into the run, and exact where the run's edge is the sample the offset reads. (A NaN there
+    /// would leave a whole held-out test of a time offset out.)
     #[test]
     fn time_offset_into_a_run_of_data_problems_reads_the_nearest_reading() {
         let (mut prep, x_true) = synthetic(600);

@@ -496,7 +496,7 @@ fn multilaterate_body(d: &CableData, sigma: f64, cable: usize) -> Result<([f64; 
     let (px, py, pz, pl) = (column(&d.x), column(&d.y), column(&d.z), column(&d.l));
     for round in 0..4 {
         // The normal equations' upper triangle, accumulated by hand (a 5x5 outer product per
-        // reading through nalgebra was most of the initialisation's time), then mirrored.
+        // reading through nalgebra would be most of the initialisation's time), then mirrored.
         // The row is `[row (4), 1]`: the 4x4 block is accumulated whole (four lanes a row; the
         // entries below the diagonal are dropped), the last column is `row * w` (times 1) and
         // the corner `w`: each kept entry gets the same products in the same order as

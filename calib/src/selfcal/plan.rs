@@ -544,7 +544,7 @@ mod tests {
             assert!(f.norm() < 1e-9, "{f}");
         }
         // The designed set predicts a smaller bound than the same number of poses on one
-        // horizontal plane (the poorly conditioned case of the issue).
+        // horizontal plane (the poorly conditioned case).
         let flat = PlanInput { workspace: [[-1.75, -0.875, 2.0], [1.75, 0.875, 2.0001]], grid: [6, 5, 2], ..inp.clone() };
         let pf = plan(&flat).unwrap();
         assert!(p.worst_anchor_sigma_m < 0.5 * pf.worst_anchor_sigma_m, "{} vs flat {}", p.worst_anchor_sigma_m, pf.worst_anchor_sigma_m);

@@ -85,8 +85,8 @@ pub struct CalibrationOutcome {
     /// Held-out rows with a pose and a taut cable, outliers included (0 without a check, and
     /// for the held-out dwells without a tracker).
     pub heldout_rows: usize,
-    /// Held-out RMS of the new and the running set with the outliers kept, m (what the check
-    /// reported before it left them out; NaN without a held-out check).
+    /// Held-out RMS of the new and the running set with the outliers kept, m (NaN without a
+    /// held-out check).
     pub heldout_rms_with_outliers_m: [f64; 2],
     /// Samples in the data set.
     pub samples: usize,

@@ -252,8 +252,8 @@ impl Parser {
     }
 
     /// Takes `cols` (the rows of every piece, each taken whole, in order; left empty) as the
-    /// recording's rows when the one-thread reader would take them as they are: each piece's first time is
-    /// not before the last row before it and the lines stay within [`MAX_LINES`].
+    /// recording's rows when the one-thread reader would take them as they are: each piece's
+    /// first time is not before the last row before it and the lines stay within [`MAX_LINES`].
     fn whole(&mut self, cols: &mut Columnar, rows: &[usize], c: &Columns) -> bool {
         let total: usize = rows.iter().sum();
         let mut last_t = self.last_t;
