@@ -50,7 +50,7 @@ pub struct StartArgs {
     /// (e.g. `vcan0`) instead of an in-process virtual bus.
     #[arg(long, requires = "sim")]
     can: Option<String>,
-    /// A parameter file (taut-params v1 to v4, e.g. from `taut diagnose --out`): the length
+    /// A parameter file (taut-params v1 to v5, e.g. from `taut diagnose --out`): the length
     /// effects it carries are modelled and refitted by every calibration, starting from its
     /// values; its load-cell gains and friction correct the loop's tensions, carried unchanged.
     #[arg(long)]

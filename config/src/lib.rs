@@ -1,8 +1,9 @@
-//! The project's data formats: the TOML robot description ([`RobotConfig`]) and the
-//! `cdpr-recording v1` CSV interchange format ([`recording`]).
+//! The project's data formats and files: the TOML robot description ([`RobotConfig`]), the
+//! `cdpr-recording v1` CSV interchange format ([`recording`]), MCAP recordings (`mcap`, feature),
+//! parameter files ([`params`]), atomic output ([`atomic`]) and input opening ([`input`]).
 //!
-//! Both formats are read by people as much as by programs, so every error names the file, the line
-//! and the key or column that is wrong, and says what to do.
+//! They are read by people as much as by programs, so every error names the file, the line and
+//! the key or column that is wrong, and says what to do.
 //!
 //! ```no_run
 //! let cfg = taut_config::RobotConfig::load("config/examples/aras-cam.toml").unwrap();
@@ -667,22 +668,12 @@ pub fn line_of(text: &str, pos: usize) -> usize {
 /// written there.
 fn key_line(text: &str, header: &str, key: &str) -> Option<usize> {
     let start = *table_header_lines(text, header).first()?;
-    for (i, l) in text.lines().enumerate().skip(start) {
-        let l = l.trim_start();
-        if l.starts_with('[') {
-            break;
-        }
-        if l.split('=').next().is_some_and(|k| k.trim() == key) {
-            return Some(i + 1);
-        }
-    }
-    Some(start)
+    Some(key_line_from(text, start, key).unwrap_or(start))
 }
 
-/// 1-based line of `key = ...` in the `index`-th (0-based) `[[cable]]` table, before any of its
-/// sub-tables; `None` if the key is not written there.
-fn cable_key_line(text: &str, index: usize, key: &str) -> Option<usize> {
-    let start = *table_header_lines(text, "[[cable]]").get(index)?;
+/// 1-based line of `key = ...` in the table whose header is on the 1-based line `start`, before
+/// the next header; `None` if the key is not written there.
+fn key_line_from(text: &str, start: usize, key: &str) -> Option<usize> {
     for (i, l) in text.lines().enumerate().skip(start) {
         let l = l.trim_start();
         if l.starts_with('[') {
@@ -693,6 +684,12 @@ fn cable_key_line(text: &str, index: usize, key: &str) -> Option<usize> {
         }
     }
     None
+}
+
+/// 1-based line of `key = ...` in the `index`-th (0-based) `[[cable]]` table, before any of its
+/// sub-tables; `None` if the key is not written there.
+fn cable_key_line(text: &str, index: usize, key: &str) -> Option<usize> {
+    key_line_from(text, *table_header_lines(text, "[[cable]]").get(index)?, key)
 }
 
 /// The key path (`cable[2].anchor`, `robot.mass_kg`) of a `key = value` line, from the table

@@ -96,9 +96,10 @@
 //! # Neglected
 //!
 //! Cable mass and sag (the dynamic plant ignores [`Physics::sag`]: straight cables), the cables'
-//! own vibration (transverse and axial waves), platform rotation and rotational inertia, drum and
-//! motor inertia, torque and speed limits of the drives, friction on the pulleys, the pulley's
-//! wrap changing the transverse stiffness (the span `l_j` is used), aerodynamic drag.
+//! own vibration (transverse and axial waves), platform rotation and rotational inertia, the
+//! cable's pull on a drum in position mode (its servo is stiff against load) and that drum's
+//! speed limit, the drives' torque limits, friction on the pulleys, the pulley's wrap changing
+//! the transverse stiffness (the span `l_j` is used), aerodynamic drag.
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3};
 
