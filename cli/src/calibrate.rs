@@ -43,7 +43,7 @@ pub struct CalibrateArgs {
 
 /// Most threads `taut calibrate` uses: the work comes in pieces of one cable or one channel
 /// (4-11 on a four-cable robot), so more threads than that only wait.
-const MAX_THREADS: usize = 8;
+pub(crate) const MAX_THREADS: usize = 8;
 
 /// Everything one calibration run produced: the initial estimate, the calibration with and
 /// without force weighting, and the metrics that compare them.

@@ -51,6 +51,8 @@ pub struct DiagnoseArgs {
 /// axes (vertical without a configuration), then the arguments (which win).
 fn options(a: &DiagnoseArgs, cfg: &taut_config::RobotConfig) -> Result<DiagnoseOptions> {
     let mut opts = DiagnoseOptions::from_robot(cfg);
+    // A round's candidates are independent fits: on the cores the machine gives.
+    opts.threads = taut_calib::par::available(crate::calibrate::MAX_THREADS);
     opts.tension_end = match a.tension_at.as_str() {
         "anchor" => TensionEnd::Anchor,
         "platform" => TensionEnd::Platform,

@@ -130,6 +130,9 @@ pub struct DiagnoseOptions {
     /// configuration's `[[cable]] pulley_axis`: `taut_config::RobotConfig::pulley_axes`); empty
     /// (the default): every axis vertical. The pulley effect's path turns about it.
     pub pulley_axis: Vec<[f64; 3]>,
+    /// Threads the candidates of a round are fitted on ([`crate::par`]; the diagnosis is the
+    /// same whatever the number). 1 by default.
+    pub threads: usize,
 }
 
 impl DiagnoseOptions {
@@ -160,6 +163,7 @@ impl DiagnoseOptions {
             platform_mass_kg: None,
             tension_library: TensionEffect::ALL.to_vec(),
             pulley_axis: Vec::new(),
+            threads: 1,
         }
     }
 
@@ -1821,19 +1825,16 @@ fn round_candidates(
         .estimation_error
         .then(|| esterr::EstimationError::new(cur_pp.as_ref().unwrap_or(prep), spec, &ctx.train, &ctx.heldout, cur_train, sigma, cur_phi))
         .flatten();
-    let mut cands: Vec<(Effect, Candidate)> = vec![];
-    rejected.clear();
-    for &e in &opts.library {
-        if spec.effects.contains(&e) || e == Effect::Slack {
-            continue;
-        }
+    // Each candidate is its own fit and test (on `opts.threads` threads); the results are
+    // taken in the library's order, so the output does not depend on the threads.
+    let todo: Vec<Effect> = opts.library.iter().copied().filter(|e| !spec.effects.contains(e) && *e != Effect::Slack).collect();
+    let tried = crate::par::map(opts.threads, todo.len(), |k| -> Result<(Effect, Candidate), String> {
+        let e = todo[k];
         if dropped.contains(&e) {
-            rejected.push(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
-            continue;
+            return Err(format!("{}: dropped by the backward step (see the tests), not tried again", e.name()));
         }
         if e.needs_tension() && !used_tensions {
-            rejected.push(format!("{}: needs tensions, the recording has none", e.name()));
-            continue;
+            return Err(format!("{}: needs tensions, the recording has none", e.name()));
         }
         let mut s2 = spec.clone();
         s2.effects.push(e);
@@ -1846,8 +1847,7 @@ fn round_candidates(
         let cctx = Ctx { prep: pp.as_ref().unwrap_or(prep), ..ctx.clone() };
         let r = cctx.fit_candidate(e, &s2, &x0, 30);
         if !r.x.iter().all(|v| v.is_finite()) {
-            rejected.push(format!("{}: the fit diverged", e.name()));
-            continue;
+            return Err(format!("{}: the fit diverged", e.name()));
         }
         // The replacement's span from the smaller of the two models' noise correlation: a
         // model that leaves out a slow effect reads it as correlated noise (the holds of a
@@ -1876,10 +1876,15 @@ fn round_candidates(
         } else {
             Decision::Passed
         };
-        cands.push((
-            e,
-            Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision },
-        ));
+        Ok((e, Candidate { spec: s2, report: r, res, res_w, values: v.vals, sigmas: v.sigs, significant: v.significant, test, decision }))
+    });
+    let mut cands: Vec<(Effect, Candidate)> = vec![];
+    rejected.clear();
+    for t in tried {
+        match t {
+            Ok(c) => cands.push(c),
+            Err(why) => rejected.push(why),
+        }
     }
     (cands, cur_pp)
 }
