@@ -13,8 +13,8 @@
 //! with the controller's 50 N floor).
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{Physics, Scenario};
-use taut_tests::sim::simulate_next_seed;
+use taut_sim::Physics;
+use taut_tests::sim::{scenario_named, simulate_next_seed};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -37,12 +37,7 @@ fn main() {
     // The taut readings' tensions, for the deflection `k T` they make.
     let mut tensions: Vec<f64> = vec![];
     for seed in first..first + count {
-        let mut s = match robot.as_str() {
-            "three" => Scenario::three_cable(seed),
-            "aras" => Scenario::aras_cam(seed),
-            "outdoor" => Scenario::outdoor(seed),
-            _ => panic!("robot: three | aras | outdoor"),
-        };
+        let mut s = scenario_named(&robot, seed);
         s.physics = Physics { compliance_m_per_n: Some(k), elasticity: with_ea.then_some(ea), ..Physics::default() };
         s.duration_s = 40.0;
         if robot == "outdoor" {

@@ -10,8 +10,8 @@
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{Physics, Scenario};
-use taut_tests::sim::simulate_next_seed;
+use taut_sim::Physics;
+use taut_tests::sim::{scenario_named, simulate_next_seed};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -38,12 +38,7 @@ fn main() {
     }
     let show_tests = std::env::var("PROBE_TESTS").is_ok_and(|v| v == "1");
     for seed in first..first + count {
-        let mut s = match robot.as_str() {
-            "three" => Scenario::three_cable(seed),
-            "aras" => Scenario::aras_cam(seed),
-            "outdoor" => Scenario::outdoor(seed),
-            _ => panic!("robot: three | aras | outdoor"),
-        };
+        let mut s = scenario_named(&robot, seed);
         s.physics = physics.clone();
         s.duration_s = dur;
         if let Some(f) = floor {

@@ -12,8 +12,8 @@
 //! ```
 
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Effect};
-use taut_sim::{Physics, Scenario};
-use taut_tests::sim::simulate_next_seed;
+use taut_sim::Physics;
+use taut_tests::sim::{scenario_named, simulate_next_seed};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -42,12 +42,7 @@ fn main() {
     let verbose = std::env::var("VERBOSE").is_ok_and(|v| v == "1");
     let (mut forced, mut flagged, mut named_clean, mut silent) = (0, 0, 0, 0);
     for seed in first..first + count {
-        let mut s = match robot.as_str() {
-            "three" => Scenario::three_cable(seed),
-            "aras" => Scenario::aras_cam(seed),
-            "outdoor" => Scenario::outdoor(seed),
-            _ => panic!("robot: three | aras | outdoor"),
-        };
+        let mut s = scenario_named(&robot, seed);
         s.physics = physics.clone();
         s.duration_s = dur;
         s.noise.encoder_winding_m = winding;

@@ -19,6 +19,17 @@ pub fn simulate_next_seed(s: &mut Scenario) -> SimRun {
     }
 }
 
+/// The simulated robot an example names on its command line: `three` (the 3-cable robot),
+/// `aras` (the 4-cable camera robot) or `outdoor`, at `seed`.
+pub fn scenario_named(robot: &str, seed: u64) -> Scenario {
+    match robot {
+        "three" => Scenario::three_cable(seed),
+        "aras" => Scenario::aras_cam(seed),
+        "outdoor" => Scenario::outdoor(seed),
+        _ => panic!("robot: three | aras | outdoor"),
+    }
+}
+
 /// The recordings of the time offset + play coverage examples (`offset_backlash_coverage`,
 /// `effect_fit_coverage`): the 3-cable robot (`cables` 3) or the 4-cable camera robot (4), 40 s,
 /// a time offset and a play, elasticity when `ea_kn` > 0; `clean` turns off the tracker's

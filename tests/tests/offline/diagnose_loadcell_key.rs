@@ -4,33 +4,13 @@
 //! without them the tensions are taken as exact. One fixed seed, so every outcome below is
 //! deterministic (no failure probability to state).
 
-use crate::hostile;
+use crate::taut_diagnose;
 
 use serde_json::Value;
-use std::path::Path;
-use std::process::Command;
 use taut_calib::diagnose::{diagnose, DiagnoseOptions, Diagnosis, Effect};
 use taut_config::recording::Recording;
-use taut_config::RobotConfig;
 use taut_sim::{Physics, Scenario};
 use taut_tests::sim::simulate_next_seed;
-
-/// `taut diagnose rec.csv --config <cfg> --json <out>` in `dir`, its JSON.
-fn taut_diagnose(dir: &Path, cfg: &RobotConfig, name: &str) -> Value {
-    let toml = dir.join(format!("{name}.toml"));
-    cfg.save_atomic(&toml).unwrap();
-    let json = dir.join(format!("{name}.json"));
-    let out = Command::new(hostile::taut_bin())
-        .current_dir(dir)
-        .args(["diagnose", "rec.csv", "--config"])
-        .arg(&toml)
-        .arg("--json")
-        .arg(&json)
-        .output()
-        .expect("running taut diagnose");
-    assert!(out.status.success(), "{name}: {}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap()
-}
 
 /// The JSON's named effects with their parameters and sigmas, as numbers.
 fn effects_of_json(j: &Value) -> Vec<(String, Vec<f64>, Vec<f64>)> {

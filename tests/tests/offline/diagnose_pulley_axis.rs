@@ -5,31 +5,11 @@
 //! configured axes in the simulator's own physics. One fixed seed, so every outcome below is
 //! deterministic; the seed sweep is `tests/examples/pulley_axis.rs` (BENCHMARKS.md).
 
-use crate::hostile;
+use crate::taut_diagnose;
 
 use serde_json::Value;
-use std::path::Path;
-use std::process::Command;
-use taut_config::RobotConfig;
 use taut_sim::{Physics, Scenario};
 use taut_tests::sim::simulate_next_seed;
-
-/// `taut diagnose rec.csv --config <cfg> --json <out>` in `dir`, its JSON.
-fn taut_diagnose(dir: &Path, cfg: &RobotConfig, name: &str) -> Value {
-    let toml = dir.join(format!("{name}.toml"));
-    cfg.save_atomic(&toml).unwrap();
-    let json = dir.join(format!("{name}.json"));
-    let out = Command::new(hostile::taut_bin())
-        .current_dir(dir)
-        .args(["diagnose", "rec.csv", "--config"])
-        .arg(&toml)
-        .arg("--json")
-        .arg(&json)
-        .output()
-        .expect("running taut diagnose");
-    assert!(out.status.success(), "{name}: {}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap()
-}
 
 /// The named effects (slack aside) and the pulley's radius with its sigma, if named.
 fn named(j: &Value) -> (Vec<String>, Option<(f64, f64)>) {

@@ -10,6 +10,23 @@ mod hostile;
 #[path = "../support/null_cases.rs"]
 mod null_cases;
 
+/// `taut diagnose rec.csv --config <cfg> --json <out>` in `dir`, its JSON.
+fn taut_diagnose(dir: &std::path::Path, cfg: &taut_config::RobotConfig, name: &str) -> serde_json::Value {
+    let toml = dir.join(format!("{name}.toml"));
+    cfg.save_atomic(&toml).unwrap();
+    let json = dir.join(format!("{name}.json"));
+    let out = std::process::Command::new(hostile::taut_bin())
+        .current_dir(dir)
+        .args(["diagnose", "rec.csv", "--config"])
+        .arg(&toml)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .expect("running taut diagnose");
+    assert!(out.status.success(), "{name}: {}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap()
+}
+
 mod accuracy_sim;
 mod calibrate_notracker;
 mod crate_graph;
