@@ -56,9 +56,6 @@ const MAX_KNOTS: usize = 40;
 pub struct Nuisance {
     /// The family.
     pub follows: Follows,
-    /// Per cable, the periodic family's wavelength, m (NaN for the other families or a cable
-    /// without training data).
-    pub wavelengths_m: Vec<f64>,
     /// The held-out residuals with the fitted function removed, in the layout of `r0` in
     /// [`fit`].
     pub heldout: Vec<f64>,
@@ -69,6 +66,18 @@ pub struct Nuisance {
 }
 
 impl Nuisance {
+    /// Per cable, the periodic family's wavelength, m (NaN for the other families or a cable
+    /// without training data).
+    pub fn wavelengths_m(&self) -> Vec<f64> {
+        self.fitted
+            .iter()
+            .map(|f| match f {
+                Some((Basis::Sinusoid { lambda }, _)) => *lambda,
+                _ => f64::NAN,
+            })
+            .collect()
+    }
+
     /// Cable `j`'s regressors at sample `i` in the basis fitted for it (`None`: no fit), so that
     /// the family can be refitted with the model ([`crate::diagnose`]'s joint fit).
     pub fn regressors(&self, prep: &Prepared, i: usize, j: usize) -> Option<Vec<f64>> {
@@ -110,7 +119,7 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
         };
         *f = solve(&rows, |i| basis.at(prep, i, j), |i| res[j][i]).map(|c| (basis, c));
     }
-    let mut nuisance = Nuisance { follows, wavelengths_m: vec![], heldout: vec![], removed_m: vec![], fitted };
+    let mut nuisance = Nuisance { follows, heldout: vec![], removed_m: vec![], fitted };
     let (mut sq, mut cnt) = (vec![0.0; n], vec![0usize; n]);
     for &i in heldout {
         for j in (0..n).filter(|&j| prep.usable[j][i]) {
@@ -120,14 +129,6 @@ pub fn fit(prep: &Prepared, res: &[Vec<f64>], train: &[usize], heldout: &[usize]
             cnt[j] += 1;
         }
     }
-    nuisance.wavelengths_m = nuisance
-        .fitted
-        .iter()
-        .map(|f| match f {
-            Some((Basis::Sinusoid { lambda }, _)) => *lambda,
-            _ => f64::NAN,
-        })
-        .collect();
     nuisance.removed_m = sq.iter().zip(&cnt).map(|(s, &k)| if k > 0 { (s / k as f64).sqrt() } else { f64::NAN }).collect();
     nuisance
 }
@@ -293,7 +294,7 @@ mod tests {
         let train: Vec<usize> = (0..m).filter(|i| i % 5 != 0).collect();
         let held: Vec<usize> = (0..m).filter(|i| i % 5 == 0).collect();
         let fitted = fit(&prep, &res, &train, &held, Follows::PeriodicInLength);
-        let w = fitted.wavelengths_m[0];
+        let w = fitted.wavelengths_m()[0];
         assert!((w - lambda).abs() < 0.01 * lambda, "wavelength {w}");
         assert!(fitted.heldout.iter().all(|r| r.abs() < 1e-4), "left {:?}", fitted.heldout.iter().fold(0.0f64, |a, b| a.max(b.abs())));
         assert!((fitted.removed_m[0] - 1e-3 / 2f64.sqrt()).abs() < 1e-4);

@@ -2079,7 +2079,8 @@ impl Structure {
         let cables: Vec<usize> = (0..n).filter(|&j| self.nuisance.removed_m[j].is_finite()).collect();
         let mut s = format!("it {}", self.follows.words());
         if self.follows == leftover::Follows::PeriodicInLength {
-            let w: Vec<String> = cables.iter().map(|&j| format!("{:.0}", self.nuisance.wavelengths_m[j] * 1e3)).collect();
+            let wavelengths = self.nuisance.wavelengths_m();
+            let w: Vec<String> = cables.iter().map(|&j| format!("{:.0}", wavelengths[j] * 1e3)).collect();
             s.push_str(&format!(
                 " (wavelength {} mm on {}; a drum's circumference or a guide's pitch repeats like this)",
                 w.join(", "),
@@ -2123,7 +2124,7 @@ fn leftover_test(ctx: &Ctx<'_>, spec: &ModelSpec, x: &[f64], res: &[Vec<f64>]) -
         .iter()
         .find(|s| s.follows == leftover::Follows::PeriodicInLength)
         .filter(|s| {
-            let w: Vec<f64> = s.nuisance.wavelengths_m.iter().copied().filter(|w| w.is_finite()).collect();
+            let w: Vec<f64> = s.nuisance.wavelengths_m().into_iter().filter(|w| w.is_finite()).collect();
             let (lo, hi) = w.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
             hi <= 1.1 * lo
         })
