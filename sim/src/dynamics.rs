@@ -5,10 +5,12 @@
 //!
 //! # Model
 //!
-//! The platform is a point mass `m` (kg) at its reference point `p` (m). Its orientation is
-//! imposed, as in the quasi-static plant ([`crate::Plant::set_orientation`]): the cables pull at
-//! the attachment points `p + R b_j`, but their moments are not integrated, so the platform has
-//! no rotational inertia here. The point mass obeys
+//! By default the platform is a point mass `m` (kg) at its reference point `p` (m). Its
+//! orientation is imposed, as in the quasi-static plant ([`crate::Plant::set_orientation`]): the
+//! cables pull at the attachment points `p + R b_j`, but their moments are not integrated, so the
+//! platform has no rotational inertia. With [`Dynamics::rigid_body`] it is a rigid body that
+//! also turns under the cables' moments (see [`rigid`]: the same cables, forces and drums). The
+//! point mass obeys
 //!
 //! ```text
 //! m dv/dt = sum_j T_j u_j + m g,     dp/dt = v
@@ -96,12 +98,15 @@
 //! # Neglected
 //!
 //! Cable mass and sag (the dynamic plant ignores [`Physics::sag`]: straight cables), the cables'
-//! own vibration (transverse and axial waves), platform rotation and rotational inertia, the
+//! own vibration (transverse and axial waves), platform rotation and rotational inertia (unless
+//! [`Dynamics::rigid_body`]; the linearised modes are the translational ones either way), the
 //! cable's pull on a drum in position mode (its servo is stiff against load) and that drum's
 //! speed limit, the drives' torque limits, friction on the pulleys, the pulley's wrap changing
 //! the transverse stiffness (the span `l_j` is used), aerodynamic drag.
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3};
+
+pub use rigid::RigidBody;
 
 use crate::equilibrium::EquilibriumReport;
 use crate::physics::{CableCommand, CableLoad, CableModel, Physics, G};
@@ -128,6 +133,9 @@ pub struct Dynamics {
     pub position_bandwidth_hz: f64,
     /// Longest integration sub-step, s (shorter when the stability limit requires). Default 1 ms.
     pub max_substep_s: f64,
+    /// The platform as a rigid body that rotates under the cables' moments (see [`rigid`]).
+    /// `None` (the default): a point mass whose orientation is imposed.
+    pub rigid_body: Option<RigidBody>,
 }
 
 impl Default for Dynamics {
@@ -140,6 +148,7 @@ impl Default for Dynamics {
             drum_max_speed_m_s: 2.0,
             position_bandwidth_hz: 40.0,
             max_substep_s: 1e-3,
+            rigid_body: None,
         }
     }
 }
@@ -284,18 +293,27 @@ pub(crate) struct DynState {
     rate: Vec<f64>,
     /// Whether the first step placed the platform.
     pub started: bool,
+    /// The rigid platform's rotation (`None`: a point mass).
+    pub rigid: Option<rigid::RigidState>,
+    /// Attachment points from the centre of mass, world frame, m (scratch of the rigid platform).
+    arm: Vec<[f64; 3]>,
 }
 
 /// The platform and its cables, borrowed for one step.
 pub(crate) struct Body<'a> {
     pub models: &'a [CableModel],
     pub offsets: &'a [[f64; 3]],
+    /// Attachment points, platform frame (used by the rigid platform), m.
+    pub points: &'a [[f64; 3]],
     pub mass: f64,
 }
 
 impl DynState {
-    pub fn new(params: Dynamics, n: usize) -> Self {
+    /// At rest; a rigid platform with orientation `q`.
+    pub fn new(params: Dynamics, n: usize, q: [f64; 4]) -> Self {
         DynState {
+            rigid: params.rigid_body.as_ref().map(|b| rigid::RigidState::new(b, q)),
+            arm: vec![[0.0; 3]; n],
             params,
             v: [0.0; 3],
             drum: vec![0.0; n],
@@ -313,6 +331,9 @@ impl DynState {
         }
         self.target.copy_from_slice(&self.drum);
         self.v = [0.0; 3];
+        if let Some(r) = &mut self.rigid {
+            r.l = Vector3::zeros();
+        }
         self.rate.fill(0.0);
         self.started = true;
     }
@@ -370,6 +391,29 @@ impl DynState {
         limit.min(half(w, csum / (2.0 * body.mass * w)))
     }
 
+    /// One sub-step `i` (of length `h`, in a step of `dt`) of the drums under `cmds`.
+    fn drum_substep(&mut self, i: usize, h: f64, dt: f64, cmds: &[CableCommand], loads: &[CableLoad]) {
+        let ws = 2.0 * std::f64::consts::PI * self.params.position_bandwidth_hz;
+        let (md, b, w_max) = (self.params.drum_mass_kg.max(1e-9), self.params.drum_friction_n_s_m, self.params.drum_max_speed_m_s);
+        for j in 0..cmds.len() {
+            let w = match cmds[j] {
+                CableCommand::Length(l) => {
+                    // The drive's interpolated target and its speed over this step.
+                    let from = if self.target[j].is_finite() { self.target[j] } else { self.start[j] };
+                    let vt = (l - from) / dt;
+                    let xt = from + vt * (i as f64 + 1.0) * h;
+                    self.rate[j] + h * (ws * ws * (xt - self.drum[j]) - 2.0 * ws * self.rate[j])
+                }
+                CableCommand::Tension(tc) => {
+                    let w = self.rate[j] + h * (loads[j].tension - tc - b * self.rate[j]) / md;
+                    w.clamp(-w_max, w_max)
+                }
+            };
+            self.rate[j] = w;
+            self.drum[j] += h * w;
+        }
+    }
+
     /// Integrates `dt` under `cmds`; `p` and `loads` in and out. A non-finite result restores
     /// the state of the step's start and reports no convergence.
     pub fn advance(
@@ -380,7 +424,9 @@ impl DynState {
         cmds: &[CableCommand],
         loads: &mut [CableLoad],
     ) -> EquilibriumReport {
-        let n = body.models.len();
+        if self.rigid.is_some() {
+            return self.advance_rigid(body, p, dt, cmds, loads);
+        }
         let (p0, v0) = (*p, self.v);
         self.start.copy_from_slice(&self.drum);
         let mut steps = 0usize;
@@ -389,31 +435,13 @@ impl DynState {
             let h_max = self.substep_limit(body, *p, cmds, loads);
             steps = ((dt / h_max).ceil() as usize).clamp(1, 1_000_000);
             let h = dt / steps as f64;
-            let ws = 2.0 * std::f64::consts::PI * self.params.position_bandwidth_hz;
-            let (md, b, w_max) = (self.params.drum_mass_kg.max(1e-9), self.params.drum_friction_n_s_m, self.params.drum_max_speed_m_s);
             for i in 0..steps {
                 let f = self.forces(body, *p, loads);
                 for a in 0..3 {
                     self.v[a] += h * f[a] / body.mass;
                     p[a] += h * self.v[a];
                 }
-                for j in 0..n {
-                    let w = match cmds[j] {
-                        CableCommand::Length(l) => {
-                            // The drive's interpolated target and its speed over this step.
-                            let from = if self.target[j].is_finite() { self.target[j] } else { self.start[j] };
-                            let vt = (l - from) / dt;
-                            let xt = from + vt * (i as f64 + 1.0) * h;
-                            self.rate[j] + h * (ws * ws * (xt - self.drum[j]) - 2.0 * ws * self.rate[j])
-                        }
-                        CableCommand::Tension(tc) => {
-                            let w = self.rate[j] + h * (loads[j].tension - tc - b * self.rate[j]) / md;
-                            w.clamp(-w_max, w_max)
-                        }
-                    };
-                    self.rate[j] = w;
-                    self.drum[j] += h * w;
-                }
+                self.drum_substep(i, h, dt, cmds, loads);
             }
         }
         // The loads at the step's end: what the next sub-step accelerates with.
@@ -426,17 +454,71 @@ impl DynState {
             self.rate.fill(0.0);
             self.forces(body, *p, loads);
         } else if dt > 0.0 {
-            // A step of no time changes nothing; the next one interpolates from the last target.
-            for j in 0..n {
-                self.target[j] = match cmds[j] {
-                    CableCommand::Length(l) => l,
-                    CableCommand::Tension(_) => f64::NAN,
-                };
-            }
+            self.keep_targets(cmds);
         }
         EquilibriumReport { iterations: steps, residual_n: Vector3::from(f).norm(), converged: ok, stable: ok }
     }
+
+    /// A step of no time changes nothing; the next one interpolates from the last target.
+    fn keep_targets(&mut self, cmds: &[CableCommand]) {
+        for (t, c) in self.target.iter_mut().zip(cmds) {
+            *t = match *c {
+                CableCommand::Length(l) => l,
+                CableCommand::Tension(_) => f64::NAN,
+            };
+        }
+    }
+
+    /// [`DynState::advance`] of the rigid platform (see [`rigid`]); `p` is the reference point.
+    fn advance_rigid(
+        &mut self,
+        body: &Body<'_>,
+        p: &mut [f64; 3],
+        dt: f64,
+        cmds: &[CableCommand],
+        loads: &mut [CableLoad],
+    ) -> EquilibriumReport {
+        let (p0, v0, r0) = (*p, self.v, self.rigid.clone());
+        self.start.copy_from_slice(&self.drum);
+        let mut arm = std::mem::take(&mut self.arm);
+        let mut x = rigid::centre_of_mass(self.rigid.as_ref().expect("rigid"), *p);
+        let mut steps = 0usize;
+        if dt > 0.0 {
+            // The limit at the step's start, with the tensions of the last step's end.
+            let rs = self.rigid.as_ref().expect("rigid");
+            rigid::arms(rs, body, &rigid::matrix(rs.q), &mut arm);
+            let h_max = self.rigid_substep_limit(rs, body, x, &arm, cmds, loads);
+            steps = ((dt / h_max).ceil() as usize).clamp(1, 1_000_000);
+            let h = dt / steps as f64;
+            for i in 0..steps {
+                self.rigid_substep(body, &mut x, h, &mut arm, loads);
+                self.drum_substep(i, h, dt, cmds, loads);
+            }
+        }
+        let rs = self.rigid.take().expect("rigid");
+        // The loads at the step's end: what the next sub-step accelerates with.
+        let (mut f, _) = self.rigid_forces(&rs, body, x, &mut arm, loads);
+        *p = rigid::reference_point(&rs, x);
+        let ok = p.iter().chain(&self.v).chain(&self.drum).chain(&rs.q).chain(rs.l.iter()).all(|x| x.is_finite());
+        self.rigid = Some(rs);
+        if !ok {
+            *p = p0;
+            self.v = v0;
+            self.rigid = r0;
+            self.drum.copy_from_slice(&self.start);
+            self.rate.fill(0.0);
+            let rs = self.rigid.take().expect("rigid");
+            (f, _) = self.rigid_forces(&rs, body, rigid::centre_of_mass(&rs, *p), &mut arm, loads);
+            self.rigid = Some(rs);
+        } else if dt > 0.0 {
+            self.keep_targets(cmds);
+        }
+        self.arm = arm;
+        EquilibriumReport { iterations: steps, residual_n: f.norm(), converged: ok, stable: ok }
+    }
 }
+
+pub mod rigid;
 
 #[cfg(test)]
 mod tests;

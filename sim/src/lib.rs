@@ -52,7 +52,7 @@ pub mod truth;
 #[cfg(test)]
 mod tests;
 
-pub use dynamics::{Dynamics, Mode};
+pub use dynamics::{Dynamics, Mode, RigidBody};
 pub use physics::{CableCommand, Physics};
 pub use plant::Plant;
 pub use scenario::{simulate, try_simulate, Scenario, SimRun};

@@ -8,9 +8,10 @@
 //!
 //! - Quasi-static (`Physics::dynamics` is `None`): each step finds the static equilibrium
 //!   (warm-started from the last one, see [`crate::equilibrium`]).
-//! - Dynamic (`Physics::dynamics` is `Some(..)`): each step integrates the platform's mass on
-//!   elastic, damped cables and the torque-mode drums (see [`crate::dynamics`]); the first step
-//!   starts at rest in the static equilibrium. The sensors are the same.
+//! - Dynamic (`Physics::dynamics` is `Some(..)`): each step integrates the platform's mass (a
+//!   point mass, or a rigid body that also rotates) on elastic, damped cables and the
+//!   torque-mode drums (see [`crate::dynamics`]); the first step starts at rest in the static
+//!   equilibrium with the orientation imposed. The sensors are the same.
 //!
 //! ```no_run
 //! use taut_sim::{CableCommand, Scenario};
@@ -64,6 +65,8 @@ pub struct Plant {
     platform_points: Vec<[f64; 3]>,
     mass: f64,
     p: [f64; 3],
+    /// Orientation (w, x, y, z): imposed, or the rigid platform's.
+    q: [f64; 4],
     t: f64,
     time_offset: f64,
     /// [`crate::Physics::height_error_per_m`].
@@ -120,6 +123,7 @@ impl Plant {
             platform_points: truth.platform_points.clone(),
             mass: truth.mass_kg,
             p: p0,
+            q: [1.0, 0.0, 0.0, 0.0],
             t: 0.0,
             time_offset: physics.time_offset_s.max(0.0),
             height_error: physics.height_error_per_m,
@@ -152,7 +156,7 @@ impl Plant {
             have_good: false,
             sub_cmds: vec![CableCommand::Tension(0.0); n],
             failed_steps: 0,
-            dynamic: physics.dynamics.clone().map(|d| DynState::new(d, n)),
+            dynamic: physics.dynamics.clone().map(|d| DynState::new(d, n, [1.0, 0.0, 0.0, 0.0])),
         }
     }
 
@@ -178,9 +182,61 @@ impl Plant {
         self.p
     }
 
-    /// Current platform velocity, m/s (zero in the quasi-static mode).
+    /// Current velocity of the platform's reference point, m/s (zero in the quasi-static mode).
     pub fn velocity(&self) -> [f64; 3] {
-        self.dynamic.as_ref().map_or([0.0; 3], |d| d.v)
+        match self.dynamic.as_ref() {
+            None => [0.0; 3],
+            Some(d) => match &d.rigid {
+                None => d.v,
+                Some(r) => {
+                    // v_ref = v_com + w x (p - x_com).
+                    let u = r.omega().cross(&(-r.com_offset()));
+                    std::array::from_fn(|k| d.v[k] + u[k])
+                }
+            },
+        }
+    }
+
+    /// Current platform orientation (unit quaternion w, x, y, z): the imposed one
+    /// ([`Plant::set_orientation`]), or the rigid platform's ([`crate::dynamics::RigidBody`]).
+    pub fn orientation(&self) -> [f64; 4] {
+        self.q
+    }
+
+    /// Angular velocity of a rigid platform, world frame, rad/s (`None` unless
+    /// [`crate::Dynamics::rigid_body`] is set).
+    pub fn angular_velocity(&self) -> Option<[f64; 3]> {
+        let w = self.dynamic.as_ref()?.rigid.as_ref()?.omega();
+        Some([w[0], w[1], w[2]])
+    }
+
+    /// Angular momentum of a rigid platform about its centre of mass, world frame, N m s (`None`
+    /// unless [`crate::Dynamics::rigid_body`] is set).
+    pub fn angular_momentum(&self) -> Option<[f64; 3]> {
+        let l = self.dynamic.as_ref()?.rigid.as_ref()?.l;
+        Some([l[0], l[1], l[2]])
+    }
+
+    /// Mechanical energy of a dynamic plant, J: kinetic (translation of the centre of mass and,
+    /// for a rigid platform, rotation about it), gravitational (of the centre of mass) and
+    /// elastic (the cables' stretch, with the loads of the last step). `None` when quasi-static.
+    pub fn mechanical_energy(&self) -> Option<f64> {
+        let d = self.dynamic.as_ref()?;
+        let v2: f64 = d.v.iter().map(|x| x * x).sum();
+        let (rot, z) = match &d.rigid {
+            None => (0.0, self.p[2]),
+            Some(r) => (r.kinetic(), self.p[2] + r.com_offset()[2]),
+        };
+        let elastic: f64 = self.loads.iter().map(|l| l.energy).sum();
+        Some(0.5 * self.mass * v2 + rot + self.mass * crate::physics::G * z + elastic)
+    }
+
+    /// Adds `dw` (world frame, rad/s) to a rigid platform's angular velocity: a twist. Nothing
+    /// for a point-mass or quasi-static platform.
+    pub fn nudge_rotation(&mut self, dw: [f64; 3]) {
+        if let Some(r) = self.dynamic.as_mut().and_then(|d| d.rigid.as_mut()) {
+            r.add_omega(dw);
+        }
     }
 
     /// Whether the plant integrates the dynamics ([`Physics::dynamics`]).
@@ -235,7 +291,13 @@ impl Plant {
     }
 
     /// Imposes the platform orientation (unit quaternion w, x, y, z; the plant keeps it fixed).
+    /// A rigid platform ([`crate::Dynamics::rigid_body`]) is turned there, keeping its angular
+    /// momentum, and rotates on from there.
     pub fn set_orientation(&mut self, q: [f64; 4]) {
+        self.q = q;
+        if let Some(r) = self.dynamic.as_mut().and_then(|d| d.rigid.as_mut()) {
+            r.q = q;
+        }
         let r = crate::trajectory::rotation(q);
         for (o, b) in self.offsets.iter_mut().zip(&self.platform_points) {
             *o = crate::trajectory::rotate(&r, *b);
@@ -312,9 +374,16 @@ impl Plant {
             let loads = &self.loads;
             self.dynamic.as_mut().expect("dynamic").start_at_rest(loads);
         }
-        let body = Body { models: &self.models, offsets: &self.offsets, mass: self.mass };
+        let body = Body { models: &self.models, offsets: &self.offsets, points: &self.platform_points, mass: self.mass };
         let d = self.dynamic.as_mut().expect("dynamic");
         let rep = d.advance(&body, &mut self.p, dt, commands, &mut self.loads);
+        if let Some(r) = &d.rigid {
+            self.q = r.q;
+            let rot = crate::trajectory::rotation(r.q);
+            for (o, b) in self.offsets.iter_mut().zip(&self.platform_points) {
+                *o = crate::trajectory::rotate(&rot, *b);
+            }
+        }
         if !rep.converged {
             self.failed_steps += 1;
         }

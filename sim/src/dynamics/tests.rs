@@ -1,4 +1,5 @@
 use super::*;
+use crate::physics::G;
 use crate::{Noise, Plant, Scenario};
 
 const EA: f64 = 40_000.0;
@@ -327,4 +328,160 @@ fn a_torque_mode_follower_keeps_the_swing_stable() {
     assert!(env[5] < 0.5 * env[0], "the swing grows or hardly decays: {env:?}");
     assert!(min_follower > 1.0, "the follower went slack: {min_follower} N");
     assert!((plant.true_tension(3) - 10.0).abs() < 0.1, "follower at {} N", plant.true_tension(3));
+}
+
+/// Platform points of the rigid platform's tests: a 0.3 m x 0.2 m frame 5 cm above the
+/// reference point.
+const RIGID_POINTS: [[f64; 3]; 4] = [[0.15, -0.1, 0.05], [0.15, 0.1, 0.05], [-0.15, 0.1, 0.05], [-0.15, -0.1, 0.05]];
+
+/// The test scenario with the platform points, 13 kg, a rigid platform of a 0.4 m x 0.3 m x
+/// 0.2 m box with its centre of mass at `com`, damping ratio `zeta`, sub-steps of `h` at most.
+fn rigid_scenario(com: [f64; 3], zeta: f64, h: f64) -> Scenario {
+    let mass = 13.0;
+    let body = RigidBody::uniform_box(mass, [0.4, 0.3, 0.2], com);
+    let mut s = scenario(Some(Dynamics { damping_ratio: zeta, max_substep_s: h, rigid_body: Some(body), ..Dynamics::default() }));
+    s.robot.robot.mass_kg = mass;
+    for (c, b) in s.robot.cables.iter_mut().zip(RIGID_POINTS) {
+        c.platform_point = b;
+    }
+    s
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// Largest change of the mechanical energy over 10 s of an undamped swing and twist, relative
+/// to the kinetic energy the push gave, sub-steps of at most `h`; and the smallest tension.
+fn free_swing_energy_drift(h: f64) -> (f64, f64) {
+    let s = rigid_scenario([0.0, 0.0, -0.1], 0.0, h);
+    let (mut plant, hold) = s.plant().unwrap();
+    let cmds = lengths(&hold);
+    let e_rest = plant.mechanical_energy().unwrap();
+    plant.nudge([0.0; 3], [0.05, -0.03, 0.02]);
+    plant.nudge_rotation([0.1, -0.15, 0.2]);
+    let e0 = plant.mechanical_energy().unwrap();
+    let (mut worst, mut t_min) = (0.0f64, f64::INFINITY);
+    for _ in 0..10_000 {
+        plant.step(DT, &cmds);
+        worst = worst.max((plant.mechanical_energy().unwrap() - e0).abs());
+        t_min = (0..4).map(|j| plant.true_tension(j)).fold(t_min, f64::min);
+    }
+    (worst / (e0 - e_rest), t_min)
+}
+
+/// A rigid platform swinging and twisting without damping keeps its mechanical energy: the
+/// semi-implicit Euler's energy error is bounded and of first order in the sub-step, so the
+/// drift (relative to the energy of the push) is small at 1 ms and halves with the sub-step.
+#[test]
+fn rigid_free_swing_conserves_energy() {
+    let (d1, t_min) = free_swing_energy_drift(1e-3);
+    let (d2, _) = free_swing_energy_drift(5e-4);
+    println!("energy drift: {d1:.2e} at 1 ms, {d2:.2e} at 0.5 ms; smallest tension {t_min:.1} N");
+    // All cables stay taut: the motion is smooth (no slack events, whose kinks cost energy
+    // errors of their own).
+    assert!(t_min > 1.0, "a cable went slack: {t_min} N");
+    assert!(d1 < 0.02, "energy drift {d1} of the push's energy");
+    // First order: halving the sub-step halves the error (within 30 %).
+    assert!((d1 / d2 - 2.0).abs() < 0.6, "drift {d1} at 1 ms, {d2} at 0.5 ms");
+}
+
+/// With its centre of mass off-centre the rigid platform tilts as it settles; at rest the
+/// cables' moments about the centre of mass cancel, and the quasi-static solver at the settled
+/// orientation finds the settled position: the static equilibrium with the orientation free.
+#[test]
+fn rigid_static_hang_settles_at_the_free_orientation_equilibrium() {
+    let com = [0.04, -0.03, -0.1];
+    let mut s = rigid_scenario(com, 0.05, 1e-3);
+    // Four cables leave two modes that stretch none: drag settles them.
+    let body = s.physics.dynamics.as_mut().unwrap().rigid_body.as_mut().unwrap();
+    (body.drag_n_s_m, body.angular_drag_n_m_s) = (20.0, 2.0);
+    let truth = s.truth().unwrap();
+    let (mut plant, hold) = s.plant().unwrap();
+    let cmds = lengths(&hold);
+    for _ in 0..15_000 {
+        plant.step(DT, &cmds);
+    }
+    let p = plant.position();
+    let q = plant.orientation();
+    let tilt = 2.0 * q[0].abs().min(1.0).acos();
+    let (v, w) = (norm(plant.velocity()), norm(plant.angular_velocity().unwrap()));
+    // Moments about the centre of mass from the reported tensions.
+    let dynamics = s.physics.dynamics.clone().unwrap();
+    let models = models(&truth, &s.physics, &dynamics);
+    let r = crate::trajectory::rotation(q);
+    let c = crate::trajectory::rotate(&r, com);
+    let offsets: Vec<[f64; 3]> = RIGID_POINTS.iter().map(|b| crate::trajectory::rotate(&r, *b)).collect();
+    let mut tau = [0.0; 3];
+    for j in 0..4 {
+        let a = [p[0] + offsets[j][0], p[1] + offsets[j][1], p[2] + offsets[j][2]];
+        let u = models[j].path(a).dir;
+        let t = plant.true_tension(j);
+        let m = cross(sub(offsets[j], c), u.map(|x| t * x));
+        tau = std::array::from_fn(|k| tau[k] + m[k]);
+    }
+    // The quasi-static solver with that orientation imposed, from 1 cm away.
+    let sys = crate::equilibrium::System { models: &models, offsets: &offsets, commands: &cmds, mass: truth.mass_kg, warm: &[] };
+    let mut loads = vec![CableLoad { force: [0.0; 3], energy: 0.0, tension: 0.0, drum_length: 0.0, slack: false }; 4];
+    let (p_qs, rep) = sys.solve([p[0] + 0.01, p[1] - 0.01, p[2] + 0.01], &mut loads);
+    let dp = norm(sub(p, p_qs));
+    // The moment a 1 mm lever of the weight makes, N m.
+    let scale = truth.mass_kg * G * 1e-3;
+    println!(
+        "tilt {:.2} deg; |v| {v:.1e} m/s, |w| {w:.1e} rad/s; |tau| {:.2e} N m; {dp:.1e} m from the quasi-static solver",
+        tilt.to_degrees(),
+        norm(tau)
+    );
+    assert!(rep.was_successful(), "{rep:?}");
+    assert!(tilt.to_degrees() > 1.0, "the off-centre mass tilts the platform: {} deg", tilt.to_degrees());
+    assert!(v < 1e-5 && w < 1e-4, "at rest: {v} m/s, {w} rad/s");
+    assert!(norm(tau) < 1e-3 * scale, "moment {tau:?} N m");
+    assert!(dp < 1e-6, "{p:?} vs {p_qs:?}");
+}
+
+/// A platform on no cables spins about its intermediate axis (unstable: it tumbles) while it
+/// falls. Its angular momentum is kept to round-off, its energy to the first-order error, and
+/// its body-frame angular velocity follows an independent integration of Euler's equations
+/// (RK4 at 0.1 ms).
+#[test]
+fn torque_free_spin_keeps_its_angular_momentum() {
+    let body = RigidBody::uniform_box(13.0, [0.4, 0.3, 0.2], [0.0; 3]);
+    let i = [body.inertia_kg_m2[0][0], body.inertia_kg_m2[1][1], body.inertia_kg_m2[2][2]];
+    let mut st = DynState::new(Dynamics { rigid_body: Some(body), ..Dynamics::default() }, 0, [1.0, 0.0, 0.0, 0.0]);
+    let w0 = [0.1, 3.0, 0.1];
+    st.rigid.as_mut().unwrap().add_omega(w0);
+    let b = Body { models: &[], offsets: &[], points: &[], mass: 13.0 };
+    let l0 = st.rigid.as_ref().unwrap().l;
+    let e0 = st.rigid.as_ref().unwrap().kinetic();
+    let mut p = [0.0; 3];
+    let mut worst_e = 0.0f64;
+    let mut min_wy = f64::INFINITY;
+    for _ in 0..8000 {
+        st.advance(&b, &mut p, DT, &[], &mut []);
+        let r = st.rigid.as_ref().unwrap();
+        worst_e = worst_e.max((r.kinetic() / e0 - 1.0).abs());
+        let wb = rigid::matrix(r.q).transpose() * r.omega();
+        min_wy = min_wy.min(wb[1]);
+    }
+    let r = st.rigid.as_ref().unwrap();
+    let dl = (r.l - l0).norm() / l0.norm();
+    let wb = rigid::matrix(r.q).transpose() * r.omega();
+    // Euler's equations in the body frame, RK4.
+    let f = |w: [f64; 3]| [(i[1] - i[2]) * w[1] * w[2] / i[0], (i[2] - i[0]) * w[2] * w[0] / i[1], (i[0] - i[1]) * w[0] * w[1] / i[2]];
+    let mut w = w0;
+    let hr = 1e-4;
+    for _ in 0..80_000 {
+        let k1 = f(w);
+        let k2 = f(std::array::from_fn(|k| w[k] + 0.5 * hr * k1[k]));
+        let k3 = f(std::array::from_fn(|k| w[k] + 0.5 * hr * k2[k]));
+        let k4 = f(std::array::from_fn(|k| w[k] + hr * k3[k]));
+        w = std::array::from_fn(|k| w[k] + hr / 6.0 * (k1[k] + 2.0 * k2[k] + 2.0 * k3[k] + k4[k]));
+    }
+    let dw = norm(sub([wb[0], wb[1], wb[2]], w)) / norm(w0);
+    println!("|dL|/|L| {dl:.1e}; energy within {worst_e:.1e}; body rate {wb:?} vs Euler {w:?} ({dw:.1e}); smallest w_y {min_wy:.2}");
+    assert!(min_wy < 0.0, "the intermediate axis tumbles: smallest w_y {min_wy}");
+    assert!(dl < 1e-12, "angular momentum changed by {dl}");
+    assert!(worst_e < 1e-2, "energy drift {worst_e}");
+    assert!(dw < 0.05, "body rate {wb:?} vs {w:?}");
+    assert!(p[2] < -300.0, "falls freely: {p:?}");
 }
