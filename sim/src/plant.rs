@@ -109,6 +109,10 @@ impl Plant {
     /// the first step finds the equilibrium from there). Exact sensors; see [`Plant::with_noise`].
     /// Dynamic when [`Physics::dynamics`] is set (its cables then have no sag and the dynamics'
     /// EA when elasticity is off).
+    ///
+    /// # Panics
+    /// If the dynamics' [`crate::dynamics::RigidBody`] has an inertia tensor that is not
+    /// symmetric positive definite.
     pub fn new(truth: &Truth, physics: &Physics, p0: [f64; 3]) -> Self {
         let n = truth.n_cables();
         let none = Noise::none();
@@ -260,6 +264,7 @@ impl Plant {
 
     /// The linearised modes at the current position with the current tensions and drums held
     /// (see [`crate::dynamics`]), sorted by natural frequency; `None` for a quasi-static plant.
+    /// The translational modes at the current orientation, held (also for a rigid platform).
     pub fn predicted_modes(&self) -> Option<[Mode; 3]> {
         let d = self.dynamic.as_ref()?;
         let t: Vec<f64> = self.loads.iter().map(|l| l.tension).collect();
