@@ -39,8 +39,9 @@ pub struct SimulateArgs {
     pub no_tensions: bool,
     /// Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000`
     /// (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s),
-    /// `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `load-cell-gain=1.03`,
-    /// `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable.
+    /// `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too),
+    /// `loadcell-gain=1.03` (`load-cell-gain` too), `friction=0.2` (mu theta), `compliance=1.5e-6`
+    /// (m/N). Repeatable.
     #[arg(long = "effect", value_name = "NAME=VALUE")]
     pub effects: Vec<String>,
 }
@@ -72,7 +73,7 @@ pub const EFFECTS: [(&str, &str, f64, f64, &str); 10] = [
     // five turns a layer, paid out of a full drum) keeps a radius at 10 m paid out.
     ("spool-buildup", "m", -2e-4, 2e-4, "drum radius change per turn paid out"),
     // A cell 20 % off is a wiring or scaling fault, not a gain error.
-    ("load-cell-gain", "", 0.8, 1.25, "load-cell gain"),
+    ("loadcell-gain", "", 0.8, 1.25, "load-cell gain"),
     // mu theta: a coefficient of 0.3 over a wrap of 190 degrees is about 1.
     ("friction", "", 0.0, 1.0, "guide friction mu*theta"),
     // A winch, frame or anchor that gives 1 mm per newton is a spring, not a frame.
@@ -166,7 +167,7 @@ pub fn apply_effects(effects: &[String], n: usize, physics: &mut taut_sim::Physi
             "time-offset" => physics.time_offset_s = v,
             "backlash" => physics.backlash_m = v,
             "spool-buildup" => physics.drum_buildup_m_per_turn = Some(v),
-            "load-cell-gain" => physics.loadcell_gain = Some(vec![v; n]),
+            "loadcell-gain" => physics.loadcell_gain = Some(vec![v; n]),
             "friction" => physics.friction_mu_theta = Some(v),
             "compliance" => physics.compliance_m_per_n = Some(v),
             _ => unreachable!("every name in EFFECTS is matched"),

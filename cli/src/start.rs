@@ -57,7 +57,7 @@ pub struct StartArgs {
     params: Option<PathBuf>,
     /// With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate
     /// --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash,
-    /// spool-buildup, compliance, load-cell-gain, friction; the last two change the cells' readings
+    /// spool-buildup, compliance, loadcell-gain, friction; the last two change the cells' readings
     /// only).
     #[arg(long = "sim-effect", value_name = "NAME=VALUE", requires = "sim")]
     sim_effects: Vec<String>,

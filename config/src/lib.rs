@@ -220,8 +220,9 @@ pub fn check_loadcell_sigma(v: f64) -> Result<(), String> {
 pub const MODELLED_EFFECTS: [&str; 7] = ["elasticity", "scale", "spool-buildup", "compliance", "pulley", "backlash", "time-offset"];
 
 /// Other names the configuration and the command line accept for an effect, with the name the
-/// reports use: `drum-buildup` for the spool build-up, `spool-buildup` in the JSON.
-pub const EFFECT_ALIASES: [(&str, &str); 1] = [("drum-buildup", "spool-buildup")];
+/// reports use: `drum-buildup` for the spool build-up, `spool-buildup` in the JSON;
+/// `load-cell-gain` for `loadcell-gain`.
+pub const EFFECT_ALIASES: [(&str, &str); 2] = [("drum-buildup", "spool-buildup"), ("load-cell-gain", "loadcell-gain")];
 
 /// The reports' name of an effect named `name` (itself unless it is an alias in
 /// [`EFFECT_ALIASES`]).

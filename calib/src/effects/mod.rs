@@ -251,17 +251,15 @@ impl Effect {
     ];
 
     /// Every effect, [`Effect::FITTED`] then `slack`.
-    pub const ALL: [Effect; 9] = [
-        Effect::Elasticity,
-        Effect::Sag,
-        Effect::Pulley,
-        Effect::Scale,
-        Effect::TimeOffset,
-        Effect::Backlash,
-        Effect::DrumBuildup,
-        Effect::Compliance,
-        Effect::Slack,
-    ];
+    pub const ALL: [Effect; Effect::FITTED.len() + 1] = {
+        let mut all = [Effect::Slack; Effect::FITTED.len() + 1];
+        let mut i = 0;
+        while i < Effect::FITTED.len() {
+            all[i] = Effect::FITTED[i];
+            i += 1;
+        }
+        all
+    };
 
     /// The effect's module.
     pub fn model(self) -> &'static dyn EffectModel {

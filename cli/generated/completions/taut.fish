@@ -46,7 +46,7 @@ complete -c taut -n "__fish_taut_using_subcommand demo" -l seed -d 'Random seed;
 complete -c taut -n "__fish_taut_using_subcommand demo" -l duration -d 'Duration of the excitation run, s' -r
 complete -c taut -n "__fish_taut_using_subcommand demo" -l rate -d 'Sample rate, Hz' -r
 complete -c taut -n "__fish_taut_using_subcommand demo" -l loose-fraction -d 'Fraction of samples that should have a loose cable (excursions to the workspace edge)' -r
-complete -c taut -n "__fish_taut_using_subcommand demo" -l effect -d 'Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000` (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s), `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `load-cell-gain=1.03`, `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable' -r
+complete -c taut -n "__fish_taut_using_subcommand demo" -l effect -d 'Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000` (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s), `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `loadcell-gain=1.03` (`load-cell-gain` too), `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable' -r
 complete -c taut -n "__fish_taut_using_subcommand demo" -l json -d 'Write the results as JSON to this file' -r -F
 complete -c taut -n "__fish_taut_using_subcommand demo" -l plot -d 'Write figures (SVG and PNG) into this directory' -r -F
 complete -c taut -n "__fish_taut_using_subcommand demo" -l no-three-phase -d 'Leave out the guided three-phase initialisation motion'
@@ -61,7 +61,7 @@ complete -c taut -n "__fish_taut_using_subcommand simulate" -l seed -d 'Random s
 complete -c taut -n "__fish_taut_using_subcommand simulate" -l duration -d 'Duration of the excitation run, s' -r
 complete -c taut -n "__fish_taut_using_subcommand simulate" -l rate -d 'Sample rate, Hz' -r
 complete -c taut -n "__fish_taut_using_subcommand simulate" -l loose-fraction -d 'Fraction of samples that should have a loose cable (excursions to the workspace edge)' -r
-complete -c taut -n "__fish_taut_using_subcommand simulate" -l effect -d 'Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000` (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s), `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `load-cell-gain=1.03`, `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable' -r
+complete -c taut -n "__fish_taut_using_subcommand simulate" -l effect -d 'Switch on cable physics that the ideal model leaves out, e.g. `elasticity=20000` (EA, N), `sag=0.5` (N/m), `pulley=0.05` (m), `scale=1.002`, `time-offset=0.02` (s), `backlash=0.002` (m), `spool-buildup=-5e-6` (m per turn; `drum-buildup` too), `loadcell-gain=1.03` (`load-cell-gain` too), `friction=0.2` (mu theta), `compliance=1.5e-6` (m/N). Repeatable' -r
 complete -c taut -n "__fish_taut_using_subcommand simulate" -l no-three-phase -d 'Leave out the guided three-phase initialisation motion'
 complete -c taut -n "__fish_taut_using_subcommand simulate" -l no-tensions -d 'Leave out the tensions (a robot without load cells)'
 complete -c taut -n "__fish_taut_using_subcommand simulate" -s v -l verbose -d 'Say more (`taut start`: also every change of the calibrator\'s stage)'
@@ -84,7 +84,7 @@ complete -c taut -n "__fish_taut_using_subcommand start" -l data-dir -d 'Overrid
 complete -c taut -n "__fish_taut_using_subcommand start" -l socket -d 'Override `daemon.socket`' -r -F
 complete -c taut -n "__fish_taut_using_subcommand start" -l can -d 'With --sim: put the virtual drives and the CANopen master on this SocketCAN interface (e.g. `vcan0`) instead of an in-process virtual bus' -r
 complete -c taut -n "__fish_taut_using_subcommand start" -l params -d 'A parameter file (taut-params v1 to v5, e.g. from `taut diagnose --out`): the length effects it carries are modelled and refitted by every calibration, starting from its values; its load-cell gains and friction correct the loop\'s tensions, carried unchanged' -r -F
-complete -c taut -n "__fish_taut_using_subcommand start" -l sim-effect -d 'With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash, spool-buildup, compliance, load-cell-gain, friction; the last two change the cells\' readings only)' -r
+complete -c taut -n "__fish_taut_using_subcommand start" -l sim-effect -d 'With --sim: conceal an effect in the simulated site, NAME=VALUE (as `taut simulate --effect`: elasticity=20000, scale=1.003, pulley=0.05, sag, time-offset, backlash, spool-buildup, compliance, loadcell-gain, friction; the last two change the cells\' readings only)' -r
 complete -c taut -n "__fish_taut_using_subcommand start" -l sim -d 'Run against the simulated robot instead of hardware'
 complete -c taut -n "__fish_taut_using_subcommand start" -l once -d 'Exit after the start-up calibration with a summary'
 complete -c taut -n "__fish_taut_using_subcommand start" -l no-tracker -d 'With --sim: the simulated robot has no tracker; the start-up runs dwell poses and calibrates from the encoders and load cells (`motion.startup = "dwell"`)'

@@ -63,7 +63,7 @@ fn cases() -> Vec<Case> {
         effect("time-offset=nan", &["--effect time-offset=NaN"]),
         effect("backlash=-1", &["--effect backlash=-1", "play in the drive train"]),
         effect("backlash=1", &["--effect backlash=1"]),
-        effect("load-cell-gain=2", &["--effect load-cell-gain=2", "load-cell gain must be 0.8 to 1.25"]),
+        effect("load-cell-gain=2", &["--effect loadcell-gain=2", "load-cell gain must be 0.8 to 1.25"]),
         effect("friction=-0.1", &["--effect friction=-0.1", "guide friction mu*theta must be 0 to 1"]),
         effect("gravity=2", &["--effect `gravity` is not a simulated effect", "elasticity, sag, pulley"]),
         effect(&long_name, &["is not a simulated effect", "…", "50000 bytes"]),
