@@ -43,21 +43,40 @@ pub fn is_dwell(cfg: &RobotConfig) -> bool {
 }
 
 /// The dwell plan of `cfg` for the controller configuration `ccfg` (its workspace box, its
-/// followers and their tension). Deterministic.
+/// followers and their tension): the plan the loop runs. Deterministic.
 pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPlan, PlanError> {
+    dwell_plan_with(cfg, ccfg, &PlanKnobs::default())
+}
+
+/// Planner settings beyond the configuration's, for weighing plans the loop does not run:
+/// more poses than its table holds, a finer candidate grid, tares of their own length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlanKnobs {
+    /// Most poses planned (the loop holds [`MAX_DWELL_POSES`]).
+    pub max_poses: usize,
+    /// Candidate grid points per axis `[x, y, z]` in the workspace box.
+    pub grid: [usize; 3],
+    /// Recorded time of a tare, s; `None`: `motion.dwell_s`, as the loop records it.
+    pub tare_s: Option<f64>,
+}
+
+impl Default for PlanKnobs {
+    /// The loop's plan: at most [`MAX_DWELL_POSES`] poses from a 7 x 5 x 4 grid, tares as long
+    /// as a dwell.
+    fn default() -> Self {
+        PlanKnobs { max_poses: MAX_DWELL_POSES, grid: [7, 5, 4], tare_s: None }
+    }
+}
+
+/// [`dwell_plan`] with `knobs` in place of the loop's limits. Deterministic.
+pub fn dwell_plan_with(cfg: &RobotConfig, ccfg: &ControllerConfig, knobs: &PlanKnobs) -> Result<DwellPlan, PlanError> {
     let n = ccfg.n;
     let nominal = cfg.anchors().ok_or(PlanError::BadInput("every [[cable]] needs a nominal `anchor` (the start and the frame)"))?;
     let platform = cfg.platform_points();
     let loadcells = cfg.loadcells.is_some() || cfg.cables.iter().any(|c| c.loadcell.is_some());
     let m = &cfg.motion;
     let rate = cfg.rt.rate_hz / cfg.daemon.calib_decimation.max(1) as f64;
-    let tension_rate = cfg.loadcells.as_ref().map_or(PLAN_TENSION_RATE_HZ, |l| {
-        if l.poll_period_s > 0.0 {
-            1.0 / l.poll_period_s
-        } else {
-            PLAN_TENSION_RATE_HZ
-        }
-    });
+    let tension_rate = plan_tension_rate_hz(cfg);
     let w = ccfg.workspace;
     plan(&PlanInput {
         nominal: &nominal,
@@ -74,14 +93,54 @@ pub fn dwell_plan(cfg: &RobotConfig, ccfg: &ControllerConfig) -> Result<DwellPla
         length_samples: (m.dwell_s * rate).floor().max(1.0) as usize,
         tension_samples: (m.dwell_s * tension_rate).floor().max(1.0) as usize,
         tares: m.dwell_tares,
+        tare_samples: (knobs.tare_s.unwrap_or(m.dwell_s) * tension_rate).floor().max(1.0) as usize,
         tare_each_cable: m.dwell_tare_each_cable,
-        poses: m.dwell_poses.min(MAX_DWELL_POSES),
-        start: Some([(w[0][0] + w[1][0]) / 2.0, (w[0][1] + w[1][1]) / 2.0, (w[0][2] + w[1][2]) / 2.0]),
-        grid: [7, 5, 4],
+        poses: m.dwell_poses.min(knobs.max_poses),
+        start: Some(plan_start(ccfg)),
+        grid: knobs.grid,
         // The stretch the calibration models (`[calibration] cable_ea_n` with its sigma): the
         // prediction then carries the stiffness unknowns the calibration fits.
         stretch: taut_calib::selfcal::SelfCalOptions::from_config(cfg).stretch,
     })
+}
+
+/// Tension readings a second per cable the planner assumes: `1 / loadcells.poll_period_s`, or
+/// [`PLAN_TENSION_RATE_HZ`] when the cells are polled back to back.
+fn plan_tension_rate_hz(cfg: &RobotConfig) -> f64 {
+    cfg.loadcells
+        .as_ref()
+        .map_or(PLAN_TENSION_RATE_HZ, |l| if l.poll_period_s > 0.0 { 1.0 / l.poll_period_s } else { PLAN_TENSION_RATE_HZ })
+}
+
+/// Where the planned path starts: the workspace box's centre (the rest pose is not known
+/// before the robot holds it).
+fn plan_start(ccfg: &ControllerConfig) -> [f64; 3] {
+    let w = ccfg.workspace;
+    std::array::from_fn(|a| (w[0][a] + w[1][a]) / 2.0)
+}
+
+/// The robot's time through `plan` as the loop runs it ([`taut_rt::motion::DwellLoopPlan`]),
+/// s: the first rest (`settle_s`, then `dwell_s` but at least
+/// [`taut_rt::motion::MIN_REST_S`]), then per pose the move (the loop's trapezoid at
+/// `motion.dwell_speed_m_s` and the start-up's acceleration; the first from the workspace
+/// box's centre), `settle_s` and `dwell_s`, and per tare `settle_s`, `tare_s` (default
+/// `dwell_s`, as the loop records it) and `settle_s`. The wait for the rest estimate between
+/// the first rest and the first move (the calibrator's computation) is not counted.
+pub fn plan_robot_time_s(plan: &DwellPlan, cfg: &RobotConfig, ccfg: &ControllerConfig, tare_s: Option<f64>) -> f64 {
+    let m = &cfg.motion;
+    let tare_s = tare_s.unwrap_or(m.dwell_s);
+    let rest = m.dwell_settle_s + m.dwell_s.max(taut_rt::motion::MIN_REST_S);
+    let mut from = plan_start(ccfg);
+    let mut t = rest;
+    for (p, &mask) in plan.poses.iter().zip(&plan.tare) {
+        let d = ((p[0] - from[0]).powi(2) + (p[1] - from[1]).powi(2) + (p[2] - from[2]).powi(2)).sqrt();
+        t += taut_rt::motion::trapezoid_s(d, m.dwell_speed_m_s.max(1e-3), ccfg.reel_accel_m_s2) + m.dwell_settle_s + m.dwell_s;
+        if mask != 0 {
+            t += 2.0 * m.dwell_settle_s + tare_s;
+        }
+        from = *p;
+    }
+    t
 }
 
 /// Splits the dwell rows of a tracker-free data set into training and held-out dwells: every
@@ -226,6 +285,54 @@ pub fn heldout_dwells(c: &CalibratorConfig, est: &Estimate, heldout: &Recording,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn example() -> (RobotConfig, ControllerConfig) {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples/aras-cam-sim-notracker.toml");
+        let cfg = RobotConfig::load(path).unwrap();
+        let ccfg = <ControllerConfig as taut_io::FromRobot>::from_robot(&cfg).unwrap();
+        (cfg, ccfg)
+    }
+
+    #[test]
+    fn the_robot_time_counts_the_rest_the_moves_the_dwells_and_the_tares() {
+        let (mut cfg, ccfg) = example();
+        let plan = dwell_plan(&cfg, &ccfg).unwrap();
+        let (poses, tares) = (plan.poses.len() as f64, plan.tare.iter().filter(|&&m| m != 0).count() as f64);
+        assert!(tares > 0.0);
+        // Each second of dwell: the first rest, every pose, every tare (as long as a dwell).
+        let t = plan_robot_time_s(&plan, &cfg, &ccfg, None);
+        cfg.motion.dwell_s += 2.0;
+        let t2 = plan_robot_time_s(&plan, &cfg, &ccfg, None);
+        assert!((t2 - t - 2.0 * (1.0 + poses + tares)).abs() < 1e-9, "{t} -> {t2}");
+        // Tares of their own length.
+        let t5 = plan_robot_time_s(&plan, &cfg, &ccfg, Some(5.0));
+        assert!((t2 - t5 - tares * (cfg.motion.dwell_s - 5.0)).abs() < 1e-9);
+        // One pose 2 m from the start, no tare: the rest, a trapezoid (2 m at 0.5 m/s with 0.5
+        // m/s^2: 4 s at speed plus 1 s for the ramps), the settle and the dwell.
+        let mut one = plan.clone();
+        let s = plan_start(&ccfg);
+        one.poses = vec![[s[0] + 2.0, s[1], s[2]]];
+        one.tare = vec![0];
+        let m = &cfg.motion;
+        assert_eq!((m.dwell_speed_m_s, ccfg.reel_accel_m_s2), (0.5, 0.5));
+        let want = (m.dwell_settle_s + m.dwell_s) + 5.0 + (m.dwell_settle_s + m.dwell_s);
+        assert!((plan_robot_time_s(&one, &cfg, &ccfg, None) - want).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_default_knobs_are_the_loops_plan() {
+        let (cfg, ccfg) = example();
+        let plan = dwell_plan(&cfg, &ccfg).unwrap();
+        assert_eq!(plan, dwell_plan_with(&cfg, &ccfg, &PlanKnobs { tare_s: Some(cfg.motion.dwell_s), ..PlanKnobs::default() }).unwrap());
+        // Longer tares: a smaller bound.
+        let long = dwell_plan_with(&cfg, &ccfg, &PlanKnobs { tare_s: Some(3.0 * cfg.motion.dwell_s), ..PlanKnobs::default() }).unwrap();
+        assert!(long.worst_anchor_sigma_m < plan.worst_anchor_sigma_m);
+        // More poses than the loop holds, from a finer grid.
+        let mut many = cfg.clone();
+        let knobs = PlanKnobs { max_poses: 100, grid: [11, 7, 6], tare_s: None };
+        many.motion.dwell_poses = 80;
+        assert_eq!(dwell_plan_with(&many, &ccfg, &knobs).unwrap().poses.len(), 80);
+    }
 
     #[test]
     fn tare_labels_agree_with_calib() {

@@ -68,9 +68,12 @@ pub struct PlanInput<'a> {
     pub tension_samples: usize,
     /// Tare dwells wanted: after its dwell, the platform stays at the pose with the followers
     /// commanded to zero tension (the three position-controlled cables hold it), and their load
-    /// cells read their offsets (`tension_samples` readings each). Only poses where the three
+    /// cells read their offsets (`tare_samples` readings each). Only poses where the three
     /// hold the platform within the tension bounds alone qualify.
     pub tares: usize,
+    /// Tension readings of each slack cable's offset per tare (the loop records a tare as long
+    /// as a dwell: `tension_samples`).
+    pub tare_samples: usize,
     /// The tares rotate through every cable (4-cable robots): a position-controlled cable's
     /// tare slackens it while the three others (the follower now in position mode) hold the
     /// platform, so every load cell reads its offset; only poses where those three hold it
@@ -321,7 +324,7 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
         info.push(solve::information(&pr, &s, &wh).ok_or(PlanError::Singular)?);
     }
     // The tares: the groups in turn, each at the feasible candidate with the largest margin (the
-    // lowest holding tension with the group at zero) not tared yet, `tension_samples` readings
+    // lowest holding tension with the group at zero) not tared yet, `tare_samples` readings
     // of each slack cable's offset each; their information on the offsets is part of the sum
     // from the start.
     let mut tare_at: Vec<(usize, u8)> = Vec::new();
@@ -349,7 +352,7 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
     }
     for &(_, g) in &tare_at {
         for j in (0..n).filter(|&j| g & (1 << j) != 0) {
-            sum[(lay.c(j), lay.c(j))] += inp.tension_samples.max(1) as f64 / var_f;
+            sum[(lay.c(j), lay.c(j))] += inp.tare_samples.max(1) as f64 / var_f;
         }
     }
     let mut chosen: Vec<usize> = Vec::with_capacity(inp.poses);
@@ -512,6 +515,7 @@ mod tests {
             length_samples: 300,
             tension_samples: 100,
             tares: 0,
+            tare_samples: 100,
             tare_each_cable: false,
             poses,
             start: Some([0.0, 0.0, 2.0]),
@@ -564,8 +568,14 @@ mod tests {
         // cells' noise against the weight, not by the offsets alone.
         let b = [[0.0; 3]; 4];
         let fol = [false, false, false, true];
-        let inp =
-            PlanInput { length_samples: 1250, tension_samples: 290, min_tension_n: 5.0, grid: [9, 7, 6], ..input(&NOM, &b, &fol, 16) };
+        let inp = PlanInput {
+            length_samples: 1250,
+            tension_samples: 290,
+            tare_samples: 290,
+            min_tension_n: 5.0,
+            grid: [9, 7, 6],
+            ..input(&NOM, &b, &fol, 16)
+        };
         let none = plan(&inp).unwrap();
         assert!(none.tare.iter().all(|&t| t == 0));
         let tared = plan(&PlanInput { tares: 4, ..inp.clone() }).unwrap();
@@ -585,12 +595,41 @@ mod tests {
     }
 
     #[test]
+    fn longer_tares_lower_the_bound_and_without_tares_their_length_is_moot() {
+        // A tare reads the slack cable's offset, which leaks into the frame's tilt through the
+        // cable's horizontal direction: four times the tare readings, a smaller bound.
+        let b = [[0.0; 3]; 4];
+        let fol = [false, false, false, true];
+        let inp = PlanInput {
+            length_samples: 1250,
+            tension_samples: 320,
+            tare_samples: 320,
+            min_tension_n: 5.0,
+            grid: [9, 7, 6],
+            tares: 4,
+            tare_each_cable: true,
+            ..input(&NOM, &b, &fol, 16)
+        };
+        let short = plan(&inp).unwrap();
+        let long = plan(&PlanInput { tare_samples: 1280, ..inp.clone() }).unwrap();
+        assert!(
+            long.worst_anchor_sigma_m < 0.95 * short.worst_anchor_sigma_m,
+            "{} vs {}",
+            long.worst_anchor_sigma_m,
+            short.worst_anchor_sigma_m
+        );
+        let none = PlanInput { tares: 0, ..inp.clone() };
+        assert_eq!(plan(&none).unwrap(), plan(&PlanInput { tare_samples: 1280, ..none.clone() }).unwrap());
+    }
+
+    #[test]
     fn tares_through_every_cable_hold_the_platform_with_three_others_and_lower_the_bound() {
         let b = [[0.0; 3]; 4];
         let fol = [false, false, false, true];
         let inp = PlanInput {
             length_samples: 1250,
             tension_samples: 320,
+            tare_samples: 320,
             min_tension_n: 5.0,
             grid: [9, 7, 6],
             tares: 6,
@@ -630,7 +669,14 @@ mod tests {
         // small change of the Jacobian.
         let b = [[0.0; 3]; 4];
         let fol = [false, false, false, true];
-        let base = PlanInput { length_samples: 1250, tension_samples: 320, min_tension_n: 5.0, tares: 6, ..input(&NOM, &b, &fol, 16) };
+        let base = PlanInput {
+            length_samples: 1250,
+            tension_samples: 320,
+            tare_samples: 320,
+            min_tension_n: 5.0,
+            tares: 6,
+            ..input(&NOM, &b, &fol, 16)
+        };
         let ideal = plan(&base).unwrap();
         let st = |rel_sigma| Some(crate::bundle::Stretch { ea_n: 1e5, rel_sigma });
         let fitted = plan(&PlanInput { stretch: st(0.15), ..base.clone() }).unwrap();

@@ -49,7 +49,14 @@ pub enum Plan {
     /// cable that the simulated-time bus delivers (the example's 34 s were chosen at the ~128
     /// a second of load cells on a pseudo-terminal).
     Bus,
+    /// The best plan of three minutes of robot time that the loop runs (tares as long as a
+    /// dwell): 12 poses of [`THREE_MINUTE_DWELL_S`], 4 tares (simtime `notracker_2mm`).
+    ThreeMinutes,
 }
+
+/// The dwell of [`Plan::ThreeMinutes`], s: 12 poses and 4 tares at the example's settle,
+/// speed and acceleration fill 3 minutes of robot time (`plan_robot_time_s`).
+pub const THREE_MINUTE_DWELL_S: f64 = 7.5;
 
 /// The dwell of [`Plan::Bus`], s: the plan that meets the 3 mm budget on the dynamic plant at
 /// 62 readings a second with its measured honesty (simtime `notracker_3mm_dynamic`).
@@ -70,6 +77,11 @@ pub fn robot(dir: &std::path::Path, plan: Plan) -> taut_config::RobotConfig {
     }
     if plan == Plan::Bus {
         cfg.motion.dwell_s = BUS_DWELL_S;
+    }
+    if plan == Plan::ThreeMinutes {
+        cfg.motion.dwell_poses = 12;
+        cfg.motion.dwell_s = THREE_MINUTE_DWELL_S;
+        cfg.motion.dwell_tares = 4;
     }
     if plan != Plan::Short {
         // A test-machine allowance, not the robot's: the example's 0.5 s (the default is
@@ -164,6 +176,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
         Plan::Short => 300,
         Plan::Example => 1500,
         Plan::Bus => 4000,
+        Plan::ThreeMinutes => 600,
     };
     let mut sampler = None;
     let (d, truth, ok, l, c, recording, failed_steps) = if sim_time {

@@ -20,6 +20,7 @@ mod effects;
 mod excitation;
 mod faults;
 mod lockstep;
+mod notracker_2mm;
 mod notracker_3mm;
 mod notracker_3mm_dynamic;
 mod notracker_continuous;

@@ -24,8 +24,10 @@
 //!
 //! The information is the load cells' (0.3 N per reading at the ~128 readings a second per cable
 //! that four Modbus cells polled back to back at 115200 baud give, against a 29 N weight: the
-//! anchor heights carry the frame's tilt, which only gravity fixes); it grows with the dwell
-//! time and nothing else the plan can choose (BENCHMARKS.md, "Start-up without a tracker").
+//! anchor heights carry the frame's tilt, which only gravity fixes); it grows with the tension
+//! readings recorded at rest, in the dwells (the tilt) and in the tares (each cable's offset,
+//! which leaks into the tilt), and with little else the plan can choose: many poses with short
+//! rests do worse, not better (`notracker_2mm`; BENCHMARKS.md, "Start-up without a tracker").
 //!
 //! 1. The 3 mm: a correct calibration's anchor errors are Gaussian with the covariance the
 //!    planner predicts, times the model's honesty c = achieved / predicted worst-anchor sigma
@@ -231,55 +233,87 @@ fn chi2_tail_matches_tables() {
     assert!((chi2_tail(60, 1.972) / 1.07e-5 - 1.0).abs() < 0.2, "{}", chi2_tail(60, 1.972));
 }
 
-/// Candidate plans for the budget: per plan the predicted worst-anchor sigma at [`RATE_HZ`], the
-/// wall time (dwells, tares, moves), P(worst > 3 mm) at the scales given and the largest scale
-/// at which P stays below [`RECORDING_P_MAX`]:
-/// `TAUT_PLANS="16x30x8,16x36x8" TAUT_SCALES="1.0,1.2" cargo test -p taut-tests --test e2e_notracker_3mm plan_candidates -- --ignored --nocapture`.
+/// Candidate plans for the budget: per plan the predicted worst-anchor sigma, the robot's time
+/// through it (`taut_calibrator::notracker::plan_robot_time_s`: the first rest, the moves at
+/// the start-up's acceleration, settling, dwells and tares), P(worst > the limit) at the scales
+/// given and the largest scale at which P stays below [`RECORDING_P_MAX`]:
+/// `TAUT_PLANS="16x30x8,16x36x8" TAUT_SCALES="1.0,1.2" cargo test -p taut-tests --test simtime plan_candidates -- --ignored --nocapture`.
+///
+/// A plan is `POSESxDWELLxTARES` or `POSESxDWELLxTARESxTARE_S` (a tare's own recorded time, s;
+/// the loop records a tare as long as a dwell). `TAUT_RATE`: tension readings a second per
+/// cable (default [`RATE_HZ`]); `TAUT_EA=1`: the dynamic plant's datasheet stiffness (the
+/// planner with its unknowns); `TAUT_SETTLE` (s), `TAUT_SPEED` (m/s), `TAUT_ACCEL` (m/s^2):
+/// `motion.dwell_settle_s`, `dwell_speed_m_s`, `init_reel_accel_m_s2`; `TAUT_GRID="9x7x6"`:
+/// the candidate grid (more poses than the loop's 64 need more candidates); `TAUT_LIMIT_MM`:
+/// the worst-anchor limit (default 3); `TAUT_ENCODERS_ONLY=1`: no load cells; `TAUT_MASS`: the
+/// platform's mass, kg.
 #[test]
 #[ignore]
 fn plan_candidates() {
+    use taut_calibrator::notracker::{dwell_plan_with, plan_robot_time_s, PlanKnobs};
     let dir = tempfile::tempdir().unwrap();
     let base = robot(dir.path(), Plan::Example);
     let list = |key: &str, default: &str| std::env::var(key).unwrap_or_else(|_| default.to_string());
     let scales: Vec<f64> = list("TAUT_SCALES", "1.0,1.1,1.2").split(',').map(|s| s.trim().parse().unwrap()).collect();
     let nominal = base.anchors().unwrap();
-    // TAUT_RATE: tension readings a second per cable (default RATE_HZ); TAUT_EA=1: the
-    // dynamic plant's datasheet stiffness (the planner with its unknowns).
     let rate: f64 = list("TAUT_RATE", &RATE_HZ.to_string()).parse().unwrap();
     let ea = std::env::var_os("TAUT_EA").is_some();
+    let limit = list("TAUT_LIMIT_MM", "3").parse::<f64>().unwrap() * 1e-3;
+    let grid: Vec<usize> = list("TAUT_GRID", "7x5x4").split('x').map(|s| s.trim().parse().unwrap()).collect();
+    // TAUT_ENCODERS_ONLY=1: without load cells (the anchors then in the frame of the nominal
+    // anchors' best rigid motion: what the encoders alone leave of the shape).
+    let encoders_only = std::env::var_os("TAUT_ENCODERS_ONLY").is_some();
+    let knob = |key: &str| std::env::var(key).ok().map(|v| v.parse::<f64>().unwrap());
     for spec in list("TAUT_PLANS", "16x30x8,16x32x8,16x34x8,16x36x8").split(',') {
         let v: Vec<f64> = spec.trim().split('x').map(|s| s.parse().unwrap()).collect();
         let mut cfg = base.clone();
         cfg.motion.dwell_poses = v[0] as usize;
         cfg.motion.dwell_s = v[1];
         cfg.motion.dwell_tares = v[2] as usize;
+        cfg.motion.dwell_settle_s = knob("TAUT_SETTLE").unwrap_or(cfg.motion.dwell_settle_s);
+        cfg.motion.dwell_speed_m_s = knob("TAUT_SPEED").unwrap_or(cfg.motion.dwell_speed_m_s);
+        cfg.motion.init_reel_accel_m_s2 = knob("TAUT_ACCEL").unwrap_or(cfg.motion.init_reel_accel_m_s2);
+        cfg.robot.mass_kg = knob("TAUT_MASS").unwrap_or(cfg.robot.mass_kg);
         cfg.loadcells.as_mut().unwrap().poll_period_s = 1.0 / rate;
         if ea {
             cfg.calibration.cable_ea_n = 0.9e6;
             cfg.calibration.cable_ea_sigma_n = 0.15e6;
         }
+        if encoders_only {
+            cfg.loadcells = None;
+            cfg.cables.iter_mut().for_each(|c| c.loadcell = None);
+        }
+        let knobs = PlanKnobs { max_poses: usize::MAX, grid: [grid[0], grid[1], grid[2]], tare_s: v.get(3).copied() };
         let ccfg = ControllerConfig::from_robot(&cfg).unwrap();
-        let p = taut_calibrator::notracker::dwell_plan(&cfg, &ccfg).unwrap();
-        let m = &cfg.motion;
+        let p = match dwell_plan_with(&cfg, &ccfg, &knobs) {
+            Ok(p) => p,
+            Err(e) => {
+                eprintln!("{spec}: no plan: {e}");
+                continue;
+            }
+        };
         let tares = p.tare.iter().filter(|&&t| t != 0).count();
-        let wall = p.poses.len() as f64 * (m.dwell_s + m.dwell_settle_s)
-            + tares as f64 * (m.dwell_s + 2.0 * m.dwell_settle_s)
-            + p.path_m / m.dwell_speed_m_s;
+        let robot_s = plan_robot_time_s(&p, &cfg, &ccfg, knobs.tare_s);
         let ps: Vec<String> =
-            scales.iter().map(|&s| format!("{s}: {:.1e}", p.worst_exceeds_probability(&nominal, 3e-3, s, 4_000_000).1)).collect();
+            scales.iter().map(|&s| format!("{s}: {:.1e}", p.worst_exceeds_probability(&nominal, limit, s, 4_000_000).1)).collect();
         // The largest scale with P <= RECORDING_P_MAX (bisection, 1e6 draws, 99.9 % bound).
-        let (mut lo, mut hi) = (1.0, 2.0);
+        let (mut lo, mut hi) = (0.0, 2.0);
         for _ in 0..12 {
             let mid = 0.5 * (lo + hi);
-            if p.worst_exceeds_probability(&nominal, 3e-3, mid, 1_000_000).1 < RECORDING_P_MAX {
+            if p.worst_exceeds_probability(&nominal, limit, mid, 1_000_000).1 < RECORDING_P_MAX {
                 lo = mid;
             } else {
                 hi = mid;
             }
         }
+        let per: Vec<String> =
+            p.anchor_sigma_m.iter().map(|s| format!("[{:.2} {:.2} {:.2}]", s[0] * 1e3, s[1] * 1e3, s[2] * 1e3)).collect();
         eprintln!(
-            "{spec}: sigma {:.3} mm, {tares} tares, wall ~{wall:.0} s; P(worst > 3 mm) upper at scale {}; P < {RECORDING_P_MAX:.0e} up to scale {lo:.3}",
+            "{spec}: sigma {:.3} mm (x y z per anchor {}), {tares} tares, robot time {robot_s:.0} s (path {:.1} m); P(worst > {} mm) upper at scale {}; P < {RECORDING_P_MAX:.0e} up to scale {lo:.3}",
             p.worst_anchor_sigma_m * 1e3,
+            per.join(" "),
+            p.path_m,
+            limit * 1e3,
             ps.join(", ")
         );
     }

@@ -57,7 +57,7 @@ const RATIOS: [f64; 36] = [
 
 /// At least the 99.9 % upper prediction bound of the next ratio on the dynamic plant
 /// ([`RATIOS`]: 1.530 over all 36; 1.537 over the first 31, when this plan was chosen).
-const HONESTY_UP: f64 = 1.54;
+pub(crate) const HONESTY_UP: f64 = 1.54;
 
 /// The plan keeps P(worst > 3 mm) below [`RECORDING_P_MAX`] up to this many times its sigma
 /// (checked); a correct run's ratio exceeds it with a chance of 1.7e-6 over [`RATIOS`].
