@@ -345,7 +345,7 @@ mod tests {
 /// The planner's predictions for candidate plans of the example robot at the simulated bus's
 /// measured ~128 tension readings a second, with P(worst aligned anchor > 3 mm) at 1, 1.181 and
 /// 1.45 x the predicted sigma (the acceptance test's honesty bound and its recording check,
-/// tests/tests/e2e_notracker_3mm.rs; the example plan is 16 x 34 s with 8 tares;
+/// tests/tests/simtime/notracker_3mm.rs; the example plan is 16 x 34 s with 8 tares;
 /// BENCHMARKS.md, "Start-up without a tracker"):
 /// `cargo test -p taut-calibrator --lib plan_predictions -- --ignored --nocapture`.
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! What in a tracker-free start-up's rows disagrees with the static model: the calibration of a
-//! kept recording (`TAUT_E2E_KEEP=1` on `e2e_notracker` / `e2e_notracker_3mm`) redone on the
+//! kept recording (`TAUT_E2E_KEEP=1` on simtime's `notracker_short` / `notracker_3mm`) redone on the
 //! calibrator's own data set, its chi-square split by dwell kind, cable and time in the dwell,
 //! and its errors against the simulated site's truth.
 //!

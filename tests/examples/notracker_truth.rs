@@ -2,7 +2,7 @@
 //! devices and the loop deliver in a dwell is the static truth plus white noise, from its first
 //! second on.
 //!
-//! `TAUT_E2E_KEEP=1 TAUT_E2E_TRUTH=1 cargo test -p taut-tests --test e2e_notracker_3mm -- --nocapture`
+//! `TAUT_E2E_KEEP=1 TAUT_E2E_TRUTH=1 cargo test -p taut-tests --test simtime notracker_3mm -- --ignored --nocapture`
 //! keeps the recording and `truth.csv` (the site's platform position, true tensions and drum
 //! lengths every 5 ms of wall clock); then
 //! `cargo run -p taut-tests --example notracker_truth -- CONFIG.toml RECORDING.csv TRUTH.csv SEED`.

@@ -1,6 +1,6 @@
 //! The honesty of a predicted uncertainty from measured ratios (achieved / predicted sigma over
 //! earlier runs): the upper prediction bound of the next ratio (Student's t), for the tests that
-//! assert an error limit at a stated failure probability (e2e_excitation, e2e_notracker_3mm), and
+//! assert an error limit at a stated failure probability (simtime's `excitation` and `notracker_3mm`), and
 //! a chi-square tail.
 
 /// Mean, standard deviation and the upper prediction bound of the next value of `x` at tail

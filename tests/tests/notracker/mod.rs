@@ -1,6 +1,6 @@
-//! Shared by the tracker-free end-to-end tests (`e2e_notracker`: the short plan, in the
-//! workspace tests; `e2e_notracker_3mm`: worst anchor at most 3 mm, a serial step of
-//! `scripts/test`): the simulated robot without its tracker sender (`taut start --sim
+//! Shared by the tracker-free start-up tests in simulated time (`simtime`: `notracker_short`,
+//! the short plan; `notracker_3mm` and `notracker_3mm_dynamic`, worst anchor at most 3 mm;
+//! `notracker_2mm`, the 3-minute plans): the simulated robot without its tracker sender (`taut start --sim
 //! --no-tracker`, config/examples/aras-cam-sim-notracker.toml) holds at rest (the rest
 //! estimate), visits the dwell poses planned from the nominal geometry, calibrates from the
 //! encoders and load cells (`taut_calib::selfcal`) and hot-swaps; `ctl recalibrate` visits the
@@ -250,7 +250,7 @@ pub fn start_on_plant(seed: u64, plan_kind: Plan, recalibrate: bool, sim_time: b
     // e2e_start (there 4.46 for a 1e-4 family rate; here 4.89, 1.2e-5 for 12 coordinates, so
     // that the 3 mm acceptance's budget is left to the 3 mm). With the short plan the heights'
     // 1-sigma is ~2.3 mm, so its worst anchor exceeds 3 mm in about a quarter of the runs
-    // (P printed below): the 3 mm itself is asserted by e2e_notracker_3mm with the example's plan.
+    // (P printed below): the 3 mm itself is asserted by notracker_3mm with the example's plan.
     let aligned = taut_calib::selfcal::align::align_translation_yaw(&ce.geometry.anchors, &truth.anchors);
     for (j, ((a, t), s)) in aligned.iter().zip(&truth.anchors).zip(&ce.sigma.anchors).enumerate() {
         for i in 0..3 {
