@@ -239,11 +239,6 @@ fn cases() -> Vec<Case> {
 }
 
 #[test]
-fn config_cable_limit_is_the_loops() {
-    assert_eq!(taut_config::geometry::MAX_CABLES, taut_rt::MAX_CABLES);
-}
-
-#[test]
 fn hostile_configs() {
     let t = run_suite("config", cases());
     t.finish("config");
