@@ -224,17 +224,16 @@ pub enum SdoResponse {
 pub enum SdoParseError {
     /// Not exactly 8 data bytes.
     Length(u8),
-    /// Command specifier not known (block transfer, or garbage).
+    /// Command specifier not known (block transfer, or garbage). The command byte's other bits
+    /// are read leniently, as drives in the field set reserved bits.
     Command(u8),
-    /// A command byte whose other bits are not valid for its specifier.
-    Invalid(u8),
 }
 
 impl SdoParseError {
     /// The abort code a server answers with.
     pub fn abort_code(&self) -> AbortCode {
         match self {
-            SdoParseError::Length(_) | SdoParseError::Invalid(_) => AbortCode::GENERAL,
+            SdoParseError::Length(_) => AbortCode::GENERAL,
             SdoParseError::Command(_) => AbortCode::COMMAND,
         }
     }
