@@ -100,70 +100,96 @@ fn options(design: &[[f64; 3]], with_priors: bool) -> CalibOptions {
     CalibOptions { priors, ..CalibOptions::default() }
 }
 
+/// The tally over the seeds of one robot.
+#[derive(Default)]
+struct Tally {
+    /// Anchor coordinates within 2 sigma of the truth, and all of them.
+    within: usize,
+    total: usize,
+    /// Recordings refused without the priors.
+    refused_without: usize,
+    /// Recordings with some anchor coordinate's data share at 0.1 or more.
+    informed_seeds: usize,
+}
+
+/// Calibrates one seed's recording `rec` (platform points `b`, true anchors `truth`) without
+/// priors (the initialisation or the calibration should refuse) and with the design's priors
+/// (the design drawn for `seed`; maximum a posteriori from the design), asserts every anchor
+/// sigma within its prior, and adds the seed to `t`.
+fn calibrate_seed(label: &str, seed: u64, rec: &Recording, b: &[[f64; 3]], truth: &[[f64; 3]], t: &mut Tally) {
+    use rand::SeedableRng;
+    let n = rec.n_cables;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3000 + seed);
+    let design: Vec<[f64; 3]> = truth.iter().map(|a| std::array::from_fn(|i| a[i] + PRIOR_SIGMA_M * gauss(&mut rng))).collect();
+    let plain = options(&design, false);
+    let refused = match init::initialise(rec, b, &plain) {
+        Err(_) => true,
+        Ok(i) => taut_calib::calibrate(rec, b, &i.params, &plain).is_err(),
+    };
+    t.refused_without += usize::from(refused);
+    let opts = options(&design, true);
+    let means: Vec<[f64; 4]> = opts.priors.as_ref().unwrap().iter().map(|(m, _)| *m).collect();
+    let mut data = noise::gather(rec, b, &opts, taut_calib::Weighting::of(rec, &opts));
+    let start = init::from_design(rec, b, &means, &data).unwrap_or_else(|e| panic!("{label} seed {seed}: {e}"));
+    let r = taut_calib::calibrate_gathered(rec, b, &start.params, &opts, &mut data).unwrap_or_else(|e| panic!("{label} seed {seed}: {e}"));
+    if std::env::var_os("TAUT_PRIORS_DEBUG").is_some() {
+        for j in 0..n {
+            eprintln!(
+                "cable {j}: cov diag {:?} vf {} share {:?} sigma {:?}",
+                (0..4).map(|k| r.covariance[j][k][k].sqrt()).collect::<Vec<_>>(),
+                r.per_cable[j].variance_factor,
+                r.per_cable[j].data_share,
+                r.sigma.anchors[j]
+            );
+        }
+    }
+    let mut informed = 0;
+    for (j, tr) in truth.iter().enumerate() {
+        for (i, &ti) in tr.iter().enumerate() {
+            let (e, s) = (r.params.anchors[j][i] - ti, r.sigma.anchors[j][i]);
+            assert!(s <= PRIOR_SIGMA_M * (1.0 + 1e-9), "{label} seed {seed}: anchor {j}[{i}] sigma {s} above its prior");
+            t.total += 1;
+            t.within += usize::from(e.abs() <= 2.0 * s);
+            informed += usize::from(r.per_cable[j].data_share[i] >= 0.1);
+        }
+    }
+    eprintln!(
+        "RESULT {label} seed {seed}: worst anchor error {:.1} mm (design {:.1} mm), sigmas {:?} mm, data shares {:?}, variance factors {:?}, refused without priors: {refused}",
+        (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(r.params.anchors[j], truth[j]))).fold(0.0, f64::max) * 1e3,
+        (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(design[j], truth[j]))).fold(0.0, f64::max) * 1e3,
+        r.sigma.anchors.iter().map(|s| s.map(|v| (v * 1e4).round() / 10.0)).collect::<Vec<_>>(),
+        r.per_cable.iter().map(|c| c.data_share.map(|v| (v * 100.0).round() / 100.0)).collect::<Vec<_>>(),
+        r.per_cable.iter().map(|c| (c.variance_factor * 100.0).round() / 100.0).collect::<Vec<_>>(),
+    );
+    t.informed_seeds += usize::from(informed > 0);
+}
+
+/// The assertions over all seeds: 90 % of the coordinates within 2 sigma, every recording
+/// refused without priors, at least 15 recordings informing some coordinate.
+fn finish(label: &str, t: &Tally) {
+    let frac = t.within as f64 / t.total as f64;
+    eprintln!(
+        "{label}: {} of {} anchor coordinates within 2 sigma ({:.1} %); {} of {SEEDS} refused without priors; {} recordings inform some coordinate (data share >= 0.1)",
+        t.within,
+        t.total,
+        100.0 * frac,
+        t.refused_without,
+        t.informed_seeds
+    );
+    assert!(frac >= 0.90, "{label}: {} of {} anchor coordinates within 2 sigma", t.within, t.total);
+    assert_eq!(t.refused_without, SEEDS as usize, "{label}: without priors these recordings should be refused");
+    assert!(t.informed_seeds >= 15, "{label}: only {} of {SEEDS} recordings inform any anchor coordinate", t.informed_seeds);
+}
+
 #[test]
 fn locked_winches_calibrate_with_the_designs_priors() {
-    let (mut within, mut total) = (0usize, 0usize);
-    let mut refused_without = 0;
-    let mut informed_seeds = 0;
+    // The swing informs the cables it keeps taut (18 of 20 recordings when measured).
+    let mut t = Tally::default();
     for seed in 1..=SEEDS {
         let (rec, truth) = locked_swing(seed);
-        let n = rec.n_cables;
-        let b = vec![[0.0; 3]; n];
-        use rand::SeedableRng;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3000 + seed);
-        let design: Vec<[f64; 3]> = truth.iter().map(|a| std::array::from_fn(|i| a[i] + PRIOR_SIGMA_M * gauss(&mut rng))).collect();
-        // Without priors: the initialisation refuses (or the calibration does).
-        let plain = options(&design, false);
-        let refused = match init::initialise(&rec, &b, &plain) {
-            Err(_) => true,
-            Ok(i) => taut_calib::calibrate(&rec, &b, &i.params, &plain).is_err(),
-        };
-        refused_without += usize::from(refused);
-        // With them: from the design, maximum a posteriori.
-        let opts = options(&design, true);
-        let means: Vec<[f64; 4]> = opts.priors.as_ref().unwrap().iter().map(|(m, _)| *m).collect();
-        let mut data = noise::gather(&rec, &b, &opts, taut_calib::Weighting::of(&rec, &opts));
-        let start = init::from_design(&rec, &b, &means, &data).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-        let r = taut_calib::calibrate_gathered(&rec, &b, &start.params, &opts, &mut data).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-        if std::env::var_os("TAUT_PRIORS_DEBUG").is_some() {
-            for j in 0..n {
-                eprintln!(
-                    "cable {j}: cov diag {:?} vf {} share {:?} sigma {:?}",
-                    (0..4).map(|k| r.covariance[j][k][k].sqrt()).collect::<Vec<_>>(),
-                    r.per_cable[j].variance_factor,
-                    r.per_cable[j].data_share,
-                    r.sigma.anchors[j]
-                );
-            }
-        }
-        let mut informed = 0;
-        for (j, t) in truth.iter().enumerate() {
-            for (i, &ti) in t.iter().enumerate() {
-                let (e, s) = (r.params.anchors[j][i] - ti, r.sigma.anchors[j][i]);
-                assert!(s <= PRIOR_SIGMA_M * (1.0 + 1e-9), "seed {seed}: anchor {j}[{i}] sigma {s} above its prior");
-                total += 1;
-                within += usize::from(e.abs() <= 2.0 * s);
-                informed += usize::from(r.per_cable[j].data_share[i] >= 0.1);
-            }
-        }
-        eprintln!(
-            "RESULT seed {seed}: worst anchor error {:.1} mm (design {:.1} mm), sigmas {:?} mm, data shares {:?}, refused without priors: {refused}",
-            (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(r.params.anchors[j], truth[j]))).fold(0.0, f64::max) * 1e3,
-            (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(design[j], truth[j]))).fold(0.0, f64::max) * 1e3,
-            r.sigma.anchors.iter().map(|s| s.map(|v| (v * 1e4).round() / 10.0)).collect::<Vec<_>>(),
-            r.per_cable.iter().map(|c| c.data_share.map(|v| (v * 100.0).round() / 100.0)).collect::<Vec<_>>(),
-        );
-        informed_seeds += usize::from(informed > 0);
+        calibrate_seed("point mass", seed, &rec, &vec![[0.0; 3]; rec.n_cables], &truth, &mut t);
     }
-    let frac = within as f64 / total as f64;
-    eprintln!(
-        "{within} of {total} anchor coordinates within 2 sigma ({:.1} %); {refused_without} of {SEEDS} refused without priors; {informed_seeds} recordings inform some coordinate (data share >= 0.1)",
-        100.0 * frac
-    );
-    assert!(frac >= 0.90, "{within} of {total} anchor coordinates within 2 sigma");
-    assert_eq!(refused_without, SEEDS as usize, "without priors these recordings should be refused");
-    // The swing informs the cables it keeps taut (18 of 20 recordings when measured).
-    assert!(informed_seeds >= 15, "only {informed_seeds} of {SEEDS} recordings inform any anchor coordinate");
+    finish("point mass", &t);
 }
 
 /// The 6-DoF robot: 2 m frame (anchors on the corners of its 2 m x 2 m top, 2 m up), a 13 kg
@@ -258,53 +284,10 @@ fn locked_swing_6dof(seed: u64) -> (Recording, Vec<[f64; 3]>) {
 /// design anchors off the truth by a 2 cm draw per axis with `anchor_sigma_m = 0.02`.
 #[test]
 fn locked_winches_6dof_calibrate_with_the_designs_priors() {
-    let (mut within, mut total) = (0usize, 0usize);
-    let mut refused_without = 0;
-    let mut informed_seeds = 0;
+    let mut t = Tally::default();
     for seed in 1..=SEEDS {
         let (rec, truth) = locked_swing_6dof(seed);
-        let n = rec.n_cables;
-        let b = PLATFORM_POINTS.to_vec();
-        use rand::SeedableRng;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3000 + seed);
-        let design: Vec<[f64; 3]> = truth.iter().map(|a| std::array::from_fn(|i| a[i] + PRIOR_SIGMA_M * gauss(&mut rng))).collect();
-        let plain = options(&design, false);
-        let refused = match init::initialise(&rec, &b, &plain) {
-            Err(_) => true,
-            Ok(i) => taut_calib::calibrate(&rec, &b, &i.params, &plain).is_err(),
-        };
-        refused_without += usize::from(refused);
-        let opts = options(&design, true);
-        let means: Vec<[f64; 4]> = opts.priors.as_ref().unwrap().iter().map(|(m, _)| *m).collect();
-        let mut data = noise::gather(&rec, &b, &opts, taut_calib::Weighting::of(&rec, &opts));
-        let start = init::from_design(&rec, &b, &means, &data).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-        let r = taut_calib::calibrate_gathered(&rec, &b, &start.params, &opts, &mut data).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-        let mut informed = 0;
-        for (j, t) in truth.iter().enumerate() {
-            for (i, &ti) in t.iter().enumerate() {
-                let (e, s) = (r.params.anchors[j][i] - ti, r.sigma.anchors[j][i]);
-                assert!(s <= PRIOR_SIGMA_M * (1.0 + 1e-9), "seed {seed}: anchor {j}[{i}] sigma {s} above its prior");
-                total += 1;
-                within += usize::from(e.abs() <= 2.0 * s);
-                informed += usize::from(r.per_cable[j].data_share[i] >= 0.1);
-            }
-        }
-        eprintln!(
-            "RESULT 6-DoF seed {seed}: worst anchor error {:.1} mm (design {:.1} mm), sigmas {:?} mm, data shares {:?}, variance factors {:?}, refused without priors: {refused}",
-            (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(r.params.anchors[j], truth[j]))).fold(0.0, f64::max) * 1e3,
-            (0..n).map(|j| taut_calib::model::norm(taut_calib::model::sub(design[j], truth[j]))).fold(0.0, f64::max) * 1e3,
-            r.sigma.anchors.iter().map(|s| s.map(|v| (v * 1e4).round() / 10.0)).collect::<Vec<_>>(),
-            r.per_cable.iter().map(|c| c.data_share.map(|v| (v * 100.0).round() / 100.0)).collect::<Vec<_>>(),
-            r.per_cable.iter().map(|c| (c.variance_factor * 100.0).round() / 100.0).collect::<Vec<_>>(),
-        );
-        informed_seeds += usize::from(informed > 0);
+        calibrate_seed("6-DoF", seed, &rec, &PLATFORM_POINTS, &truth, &mut t);
     }
-    let frac = within as f64 / total as f64;
-    eprintln!(
-        "6-DoF: {within} of {total} anchor coordinates within 2 sigma ({:.1} %); {refused_without} of {SEEDS} refused without priors; {informed_seeds} recordings inform some coordinate (data share >= 0.1)",
-        100.0 * frac
-    );
-    assert!(frac >= 0.90, "{within} of {total} anchor coordinates within 2 sigma");
-    assert_eq!(refused_without, SEEDS as usize, "without priors these recordings should be refused");
-    assert!(informed_seeds >= 15, "only {informed_seeds} of {SEEDS} recordings inform any anchor coordinate");
+    finish("6-DoF", &t);
 }
