@@ -57,6 +57,7 @@ pub use physics::{CableCommand, Physics};
 pub use plant::Plant;
 pub use scenario::{simulate, try_simulate, Scenario, SimRun};
 pub use sensors::Noise;
+pub use tension::Pretension;
 pub use three_phase::ThreePhasePlan;
 pub use truth::Truth;
 
