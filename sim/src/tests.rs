@@ -106,12 +106,14 @@ fn tensions_balance_the_platform() {
 }
 
 /// The pretension schedule moves the tensions at the very poses of the run without it: still
-/// balancing the platform, within the floor and the ceiling, unchanged where the level is 0;
-/// a 3-cable robot has no internal force to move and is refused.
+/// balancing the platform, within the floor and the ceiling, unchanged where the level is 0,
+/// and the drums hold the unstretched length of each tension, `L / (1 + T / EA) - k T`; a
+/// 3-cable robot has no internal force to move and is refused.
 #[test]
 fn pretension_moves_the_tensions_at_the_same_poses() {
+    let (ea, k) = (2e4, 5e-5);
     let mut s = quiet(5);
-    s.physics = Physics::default();
+    s.physics = Physics { elasticity: Some(ea), compliance_m_per_n: Some(k), ..Physics::default() };
     let off = simulate(&s);
     s.pretension = Some(tension::Pretension { levels_n: vec![0.0, 15.0, -15.0], hold_s: 4.0, ramp_s: 1.0 });
     let on = simulate(&s);
@@ -126,6 +128,8 @@ fn pretension_moves_the_tensions_at_the_same_poses() {
         let (t_on, t_off) = (&on.tensions[i * n..(i + 1) * n], &off.tensions[i * n..(i + 1) * n]);
         for j in 0..n {
             let d = sub(on.truth.anchors[j], p);
+            let drum = norm(d) / (1.0 + t_on[j] / ea) - k * t_on[j];
+            assert!((on.drum_lengths[i * n + j] - drum).abs() < 1e-9, "sample {i} cable {j}: {} vs {drum}", on.drum_lengths[i * n + j]);
             for k in 0..3 {
                 r[k] -= t_on[j] * d[k] / norm(d);
             }
