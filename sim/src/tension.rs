@@ -14,6 +14,11 @@
 //! candidate of least norm: the QP is convex, so its optimum is one of these candidates. Step 3
 //! enumerates the supports of at most three cables. Exact and simple for the few cables of a
 //! suspended robot (at most [`MAX_SIM_CABLES`]).
+//!
+//! On a robot with four or more cables a controller may add an internal force, tensions that
+//! cancel at the platform ([`Pretension`], [`shift_internal`]); on a suspended robot it trades
+//! tension between cables (all anchors above: no internal force raises every cable), and where
+//! the distribution already holds cables at the floor it can move only one way, or not at all.
 
 use nalgebra::{Matrix3, Vector3};
 
