@@ -13,7 +13,7 @@
 //! | [`truth`]         | true anchors (site error), encoder offsets                            |
 //! | [`physics`]       | one cable: elasticity, sag, swivel pulley, drum commands              |
 //! | [`catenary`]      | the exact elastic catenary                                            |
-//! | [`tension`]       | the controller's tension distribution, loose cables                   |
+//! | [`tension`]       | the controller's tension distribution, loose cables, internal force   |
 //! | [`equilibrium`]   | static equilibrium by energy minimisation                             |
 //! | [`trajectory`]    | excitation trajectories with excursions                               |
 //! | [`three_phase`]   | the guided three-phase initialisation motion                          |
@@ -57,6 +57,7 @@ pub use physics::{CableCommand, Physics};
 pub use plant::Plant;
 pub use scenario::{simulate, try_simulate, Scenario, SimRun};
 pub use sensors::Noise;
+pub use tension::Pretension;
 pub use three_phase::ThreePhasePlan;
 pub use truth::Truth;
 

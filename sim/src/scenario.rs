@@ -7,6 +7,8 @@
 //! acceleration (`f = m (a - g)`); a taut cable's encoder counts the unstretched length of a cable
 //! of that tension (elasticity, sag, pulley), a loose cable's encoder the path length plus the
 //! slack its drum paid out, rising and falling smoothly over each loose episode (peaks 5-50 mm).
+//! With [`Scenario::pretension`] a redundant robot's controller also moves the internal force
+//! between levels along the excitation (see [`Pretension`]): the same poses at different tensions.
 //!
 //! Every random draw comes from a `ChaCha8Rng` seeded with the scenario seed, one stream per
 //! concern (truth, trajectory, slack, tracker, encoders, load cells): the same scenario gives
@@ -19,7 +21,7 @@ use taut_config::RobotConfig;
 use crate::physics::{CableCommand, CableModel, Physics, G};
 use crate::plant::Plant;
 use crate::sensors::{capstan_factor, Encoder, LoadCell, Noise, Tracker};
-use crate::tension::{distribute, Distribution, MAX_SIM_CABLES};
+use crate::tension::{distribute, shift_internal, Distribution, Pretension, MAX_SIM_CABLES};
 use crate::three_phase::{self, ThreePhaseMotion, ThreePhasePlan};
 use crate::trajectory::{rotate, rotation, Excitation, Workspace};
 use crate::truth::Truth;
@@ -55,6 +57,10 @@ pub struct Scenario {
     pub with_tensions: bool,
     /// Record the platform orientation (small tilts; attachment points move with it).
     pub with_orientation: bool,
+    /// The internal force the controller varies along the excitation, on a robot with four or
+    /// more cables (`None`: the minimum-norm distribution alone). The ceiling is the robot's
+    /// `safety.max_tension_n`, the floor `min_tension_n`.
+    pub pretension: Option<Pretension>,
 }
 
 fn robot(name: &str, mass_kg: f64, anchors: &[[f64; 3]]) -> RobotConfig {
@@ -85,6 +91,7 @@ impl Scenario {
             min_tension_n: 5.0,
             with_tensions: true,
             with_orientation: false,
+            pretension: None,
         }
     }
 
@@ -223,7 +230,9 @@ struct ExcitationModel<'a> {
     models: &'a [CableModel],
     truth: &'a Truth,
     t_min: f64,
+    t_max: f64,
     with_orientation: bool,
+    pretension: Option<&'a Pretension>,
 }
 
 impl ExcitationModel<'_> {
@@ -245,7 +254,7 @@ impl ExcitationModel<'_> {
         let m = self.truth.mass_kg;
         let f = [m * a[0], m * a[1], m * (a[2] + G)];
         let mut tt = [0.0; MAX_SIM_CABLES];
-        let mut dist = distribute(&dirs[..n], f, self.t_min, &mut tt[..n]);
+        let mut dist = self.distribute(t, &dirs[..n], f, &mut tt[..n]);
         if refine && self.models.iter().any(|c| c.w > 0.0) {
             for _ in 0..2 {
                 for j in 0..n {
@@ -255,10 +264,22 @@ impl ExcitationModel<'_> {
                         }
                     }
                 }
-                dist = distribute(&dirs[..n], f, self.t_min, &mut tt[..n]);
+                dist = self.distribute(t, &dirs[..n], f, &mut tt[..n]);
             }
         }
         Instant { p, q, b, t: tt, dist }
+    }
+
+    /// The controller's tensions at excitation time `t`: the distribution, then (every cable
+    /// within its limits) the internal force of the pretension schedule.
+    fn distribute(&self, t: f64, dirs: &[[f64; 3]], f: [f64; 3], out: &mut [f64]) -> Distribution {
+        let dist = distribute(dirs, f, self.t_min, out);
+        if let Some(p) = self.pretension {
+            if dist.feasible && dist.loose == 0 {
+                shift_internal(dirs, self.t_min, self.t_max, p.level_at(t), out);
+            }
+        }
+        dist
     }
 
     /// Fraction of samples (every `stride`-th) with a loose cable.
@@ -284,6 +305,16 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     if !(3..=MAX_SIM_CABLES).contains(&n) {
         return Err(SimError::BadScenario("the simulator handles 3 to 12 cables"));
     }
+    if let Some(p) = &s.pretension {
+        if !p.is_valid() {
+            return Err(SimError::BadScenario("pretension: finite levels, hold_s > 0, 0 <= ramp_s <= hold_s"));
+        }
+        if n < 4 {
+            return Err(SimError::BadScenario(
+                "pretension needs four or more cables: three cables' tensions are fixed by the pose, there is no internal force",
+            ));
+        }
+    }
     let truth = s.truth()?;
     // Load-cell noise continues the stream that drew the offsets.
     let mut cell_rng = rng(s.seed, STREAM_LOADCELL);
@@ -303,7 +334,15 @@ pub fn try_simulate(s: &Scenario) -> Result<SimRun, SimError> {
     if let Some(m) = &tp {
         ex.set_start(m.start);
     }
-    let mut exm = ExcitationModel { ex, models: &models, truth: &truth, t_min: s.min_tension_n, with_orientation: s.with_orientation };
+    let mut exm = ExcitationModel {
+        ex,
+        models: &models,
+        truth: &truth,
+        t_min: s.min_tension_n,
+        t_max: s.robot.safety.max_tension_n,
+        with_orientation: s.with_orientation,
+        pretension: s.pretension.as_ref(),
+    };
     let excursion_s = if s.physics.slack && s.loose_fraction > 0.0 && n_ex > 0 {
         tune_excursions(&mut exm, s.loose_fraction * total as f64 / n_ex as f64, n_ex, dt, s.rate_hz)
     } else {

@@ -105,6 +105,52 @@ fn tensions_balance_the_platform() {
     assert!(checked > run.positions.len() / 2 && loose_checked > 0, "{checked} {loose_checked}");
 }
 
+/// The pretension schedule moves the tensions at the very poses of the run without it: still
+/// balancing the platform, within the floor and the ceiling, unchanged where the level is 0,
+/// and the drums hold the unstretched length of each tension, `L / (1 + T / EA) - k T`; a
+/// 3-cable robot has no internal force to move and is refused.
+#[test]
+fn pretension_moves_the_tensions_at_the_same_poses() {
+    let (ea, k) = (2e4, 5e-5);
+    let mut s = quiet(5);
+    s.physics = Physics { elasticity: Some(ea), compliance_m_per_n: Some(k), ..Physics::default() };
+    let off = simulate(&s);
+    s.pretension = Some(tension::Pretension { levels_n: vec![0.0, 15.0, -15.0], hold_s: 4.0, ramp_s: 1.0 });
+    let on = simulate(&s);
+    assert_eq!(off.positions, on.positions);
+    let n = 4;
+    let (dt, m) = (1.0 / s.rate_hz, on.truth.mass_kg);
+    let (mut moved, mut level0) = (0, 0);
+    for i in 1..on.positions.len() - 1 {
+        let p = on.positions[i];
+        let a: [f64; 3] = std::array::from_fn(|k| (on.positions[i - 1][k] - 2.0 * p[k] + on.positions[i + 1][k]) / (dt * dt));
+        let mut r = [m * a[0], m * a[1], m * (a[2] + G)];
+        let (t_on, t_off) = (&on.tensions[i * n..(i + 1) * n], &off.tensions[i * n..(i + 1) * n]);
+        for j in 0..n {
+            let d = sub(on.truth.anchors[j], p);
+            let drum = norm(d) / (1.0 + t_on[j] / ea) - k * t_on[j];
+            assert!((on.drum_lengths[i * n + j] - drum).abs() < 1e-9, "sample {i} cable {j}: {} vs {drum}", on.drum_lengths[i * n + j]);
+            for k in 0..3 {
+                r[k] -= t_on[j] * d[k] / norm(d);
+            }
+        }
+        assert!(norm(r) < 2e-3 * m * G, "sample {i}: residual {r:?}");
+        assert!(t_on.iter().all(|&t| t >= s.min_tension_n - 1e-9 && t <= s.robot.safety.max_tension_n), "{t_on:?}");
+        let change = (0..n).map(|j| (t_on[j] - t_off[j]).abs()).fold(0.0, f64::max);
+        let phase = (i as f64 * dt) % 12.0;
+        if (1.0..4.0).contains(&phase) {
+            assert_eq!(t_on, t_off, "sample {i}: level 0");
+            level0 += 1;
+        }
+        moved += usize::from(change > 3.0);
+    }
+    assert!(level0 > 200, "{level0}");
+    assert!(moved > on.positions.len() / 2, "{moved} of {} samples moved by more than 3 N", on.positions.len());
+    let mut three = Scenario { pretension: s.pretension.clone(), ..Scenario::three_cable(1) };
+    three.duration_s = 5.0;
+    assert!(matches!(try_simulate(&three), Err(SimError::BadScenario(m)) if m.contains("four or more cables")));
+}
+
 /// During phase k the two held cables keep their lengths, and the platform stays on the circle
 /// where their spheres meet (computed here), while the reeled cable shortens by the plan.
 #[test]

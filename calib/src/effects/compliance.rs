@@ -16,7 +16,8 @@
 //! - **Elasticity**: both shorten the reading by something proportional to the tension; the
 //!   stretch by `G T / EA`. On a recording whose cables keep nearly one length, `G` is a
 //!   constant and the two are one regressor; only tensions varying at different lengths of the
-//!   same cable separate them.
+//!   same cable separate them. A redundant robot's controller can change the tensions at the
+//!   same poses by moving its internal force (measured: docs/diagnosis.md).
 //! - **Drum scale** (not fitted jointly: it mimics only through the tension's dependence on the
 //!   pose): a tension that rises with the cable's length makes `k T` nearly linear in the
 //!   length; tensions changed independently of the length (a follower's swing) separate them.
@@ -80,7 +81,7 @@ impl EffectModel for Compliance {
     fn separation(&self, other: Option<Effect>) -> Option<&'static str> {
         match other {
             Some(Effect::Elasticity) => Some(
-                "the same cable tensioned differently at short and long lengths separates them (the stretch grows with the length, the frame's deflection does not); or load the winch at a fixed length and measure its give",
+                "the same cable tensioned differently at short and long lengths separates them (the stretch grows with the length, the frame's deflection does not): on a robot with four or more cables, record a long taut excitation while the controller moves its internal force (the cables trading tension at the same poses); or load the winch at a fixed length and measure its give",
             ),
             _ => None,
         }
