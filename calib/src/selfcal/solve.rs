@@ -513,9 +513,15 @@ pub fn posterior(pr: &Problem<'_>, s: &State, w: &Whitening, data_scale: f64) ->
     bordered_inverse(&sm, &pr.c)
 }
 
-/// The top-left block of `[S C^T; C 0]^-1`.
+/// The top-left block of `[S C^T; C 0]^-1`; without constraints `S^-1`, by Cholesky (the
+/// readings' information can exceed a prior's by 1e5 and more: an LU inverse loses the prior's
+/// small eigenvalues to round-off).
 fn bordered_inverse(sm: &DMatrix<f64>, c: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let (ng, nc) = (sm.nrows(), c.nrows());
+    if nc == 0 {
+        let cov = sm.clone().cholesky()?.inverse();
+        return cov.iter().all(|v| v.is_finite()).then_some(cov);
+    }
     let mut k = DMatrix::zeros(ng + nc, ng + nc);
     k.view_mut((0, 0), (ng, ng)).copy_from(sm);
     k.view_mut((ng, 0), (nc, ng)).copy_from(c);
