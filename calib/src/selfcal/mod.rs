@@ -1153,6 +1153,34 @@ mod tests {
     }
 
     #[test]
+    fn anchor_priors_release_the_frame_directions_they_fix() {
+        let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
+        let lay = Layout { n: 4, offsets: true, mass: false, ea: false };
+        let fixed = |rows: Vec<(usize, f64, f64)>| {
+            let (c, d) = gauge(&nom, lay, Frame::NominalTranslationYaw);
+            let (c2, d2, f) = prior_gauge(c, d, &nom, lay, &rows);
+            // The constraints left still hold for the nominal anchors.
+            let mut g = DVector::zeros(lay.count());
+            for j in 0..4 {
+                for a in 0..3 {
+                    g[3 * j + a] = nom[j][a];
+                }
+            }
+            assert!((&c2 * &g - &d2).norm() < 1e-9);
+            (c2.nrows(), f)
+        };
+        // Offsets only: the convention unchanged.
+        assert_eq!(fixed(vec![(lay.l0(0), 1.0, 0.02)]), (4, None));
+        // Every coordinate: the priors fix the whole frame.
+        let all: Vec<_> = (0..12).map(|i| (i, 0.0, 0.02)).collect();
+        assert_eq!(fixed(all), (0, Some((4, 4))));
+        // One anchor: the translations, not the yaw about it.
+        assert_eq!(fixed((0..3).map(|i| (i, 0.0, 0.02)).collect()), (1, Some((3, 4))));
+        // The heights only: the vertical translation.
+        assert_eq!(fixed((0..4).map(|j| (3 * j + 2, 0.0, 0.02)).collect()), (3, Some((1, 4))));
+    }
+
+    #[test]
     fn chi2_quantile_matches_tables() {
         // chi2 0.999 quantiles: dof 10 -> 29.59, dof 100 -> 149.4, dof 1000 -> 1143.9.
         assert!((chi2_quantile(10, 3.09) - 29.59).abs() < 0.5);
