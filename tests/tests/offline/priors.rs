@@ -366,3 +366,30 @@ fn locked_winches_are_diagnosed_with_the_designs_priors() {
     assert!(frac >= 0.9, "{within} of {total}");
     assert!(worst_plain > 1.0, "without priors the baseline is within {worst_plain:.2} m");
 }
+
+#[test]
+fn taut_diagnose_uses_the_configurations_priors() {
+    // `taut diagnose rec.csv --config` on one locked-winch recording: the configuration's
+    // `anchor_sigma_m` reach the diagnosis (its baseline starts from the design), and its
+    // baseline anchors are within 4 sigma of the prior of the truth (8 cm).
+    let (rec, truth) = locked_swing(4);
+    let dir = tempfile::tempdir().unwrap();
+    rec.save_atomic(dir.path().join("rec.csv")).unwrap();
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3004);
+    let mut cfg = Scenario::aras_cam(4).robot;
+    for (c, t) in cfg.cables.iter_mut().zip(&truth) {
+        c.anchor = Some(std::array::from_fn(|i| t[i] + PRIOR_SIGMA_M * gauss(&mut rng)));
+        c.anchor_sigma_m = Some([PRIOR_SIGMA_M; 3]);
+        c.platform_point = [0.0; 3];
+    }
+    let json = crate::taut_diagnose(dir.path(), &cfg, "priors");
+    let notes = json["notes"].as_array().unwrap();
+    assert!(notes.iter().any(|n| n.as_str().unwrap().contains("with its priors")), "{notes:?}");
+    let anchors: Vec<[f64; 3]> = serde_json::from_value(json["baseline"]["anchors_m"].clone()).unwrap();
+    for (a, t) in anchors.iter().zip(&truth) {
+        for k in 0..3 {
+            assert!((a[k] - t[k]).abs() < 4.0 * PRIOR_SIGMA_M, "{a:?} against {t:?}");
+        }
+    }
+}
