@@ -99,6 +99,7 @@ fn bench(c: &mut Criterion) {
         window_s: taut_calib::selfcal::WINDOW_S,
         max_iterations: 200,
         stretch: None,
+        priors: None,
     };
     let b = [[0.0; 3]; 4];
     let r = calibrate_without_tracker(&rec, &b, Some(&NOMINAL), &opts).expect("the bench recording calibrates");

@@ -80,6 +80,7 @@ impl TautCalib {
         let frame = match r.frame {
             taut_calib::selfcal::Frame::NominalTranslationYaw => "the nominal anchors' (best translation and rotation about the vertical)",
             taut_calib::selfcal::Frame::NominalRigid => "the nominal anchors' (best translation and rotation)",
+            taut_calib::selfcal::Frame::DesignPriors => "the configuration's (fixed by the design's priors)",
         };
         let mut note = format!(
             "{} dwells, {} readings, chi2/dof {:.2}, {} degrees of freedom, dwell-mean variance x{:.1} (encoders) x{:.1} (load cells) for repeated readings, CRB anchor RMS {:.2} mm, {}; frame: {frame}",
@@ -92,6 +93,17 @@ impl TautCalib {
             r.anchor_rms_crb_m * 1e3,
             if r.used_tensions { "encoders and load cells" } else { "encoders only" }
         );
+        // The design's priors: how much of each parameter came from the recording.
+        let shares: Vec<f64> = r.data_share.iter().flatten().copied().filter(|v| v.is_finite()).collect();
+        if !shares.is_empty() {
+            let (lo, hi) = shares.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+            note.push_str(&format!(
+                "; MAP with the design's priors on {} parameters, data shares {:.0}-{:.0} %",
+                shares.len(),
+                100.0 * lo,
+                100.0 * hi
+            ));
+        }
         // The stretch modelled with the datasheet stiffness (`cable_ea_sigma_n`): named as the
         // refinement with a tracker names it, and carried as the estimate's `elasticity` (the
         // loop then models the stretch the anchors and offsets were fitted with).

@@ -60,10 +60,11 @@ pub fn run(a: &CalibrateArgs, rec: &Recording, parse: &ParseReport, cfg: &RobotC
 
 /// What the `source` of the parameters file says about how they were made.
 pub fn method(r: &SelfCalReport) -> &'static str {
-    if r.used_tensions {
-        "without tracker: encoders + load cells, frame = nominal anchors (translation, yaw)"
-    } else {
-        "without tracker: encoders only, frame = nominal anchors (translation, rotation)"
+    match (r.used_tensions, r.frame) {
+        (true, Frame::DesignPriors) => "without tracker: encoders + load cells, design priors, frame = the design's",
+        (false, Frame::DesignPriors) => "without tracker: encoders only, design priors, frame = the design's",
+        (true, _) => "without tracker: encoders + load cells, frame = nominal anchors (translation, yaw)",
+        (false, _) => "without tracker: encoders only, frame = nominal anchors (translation, rotation)",
     }
 }
 
@@ -99,6 +100,7 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
     let frame = match r.frame {
         Frame::NominalTranslationYaw => "anchors best aligned with the nominal ones by a translation and a rotation about the vertical",
         Frame::NominalRigid => "anchors best aligned with the nominal ones by a translation and a rotation",
+        Frame::DesignPriors => "the configuration's, fixed by the design's priors on the anchors",
     };
     println!("frame: {frame}");
     println!("cable  anchor x/y/z (m)                 1-sigma (mm)            L0 (m)      1-sigma (mm)");
@@ -116,6 +118,14 @@ fn print(rec: &Recording, parse: &ParseReport, r: &SelfCalReport) {
             r.params.l0[j],
             r.sigma.l0[j] * 1e3
         );
+    }
+    if r.data_share.iter().flatten().any(|v| v.is_finite()) {
+        println!("share from the data (the rest from the design's prior; - where no prior):");
+        println!("cable  anchor x     y     z   L0");
+        let pct = |v: f64| if v.is_finite() { format!("{:>5.0}%", 100.0 * v) } else { "     -".to_string() };
+        for (j, s) in r.data_share.iter().enumerate() {
+            println!("{:>5}  {}{}{}{}", j + 1, pct(s[0]), pct(s[1]), pct(s[2]), pct(s[3]));
+        }
     }
     println!("Cramér–Rao bound on the anchors: {:.2} mm RMS after the frame alignment", r.anchor_rms_crb_m * 1e3);
     println!("frame-free quantities:");
@@ -155,6 +165,9 @@ fn json(r: &SelfCalReport, screen: &taut_calib::screen::Screen) -> serde_json::V
         "anchor_sigma_m": r.sigma.anchors,
         "l0_m": r.params.l0,
         "l0_sigma_m": r.sigma.l0,
+        // Per cable [A_x, A_y, A_z, L0]: the share of the estimate from the data, 0-1 (null where
+        // the configuration gives no prior).
+        "data_share": r.data_share.iter().map(|c| c.map(|v| v.is_finite().then_some(v))).collect::<Vec<_>>(),
         "anchor_rms_crb_m": r.anchor_rms_crb_m,
         "distances_m": r.distances.iter().map(|(i, j, e)| serde_json::json!({ "i": i, "j": j, "distance": est(e) })).collect::<Vec<_>>(),
         "heights_m": r.heights.as_ref().map(|h| h.iter().map(est).collect::<Vec<_>>()),

@@ -289,6 +289,7 @@ mod tests {
             hold_weight: vec![],
             eiv: None,
             pulley_axis: vec![],
+            priors: vec![],
         };
         let res = vec![l.iter().map(|v| 1e-3 * (std::f64::consts::TAU * v / lambda + 0.3).sin()).collect::<Vec<f64>>()];
         let train: Vec<usize> = (0..m).filter(|i| i % 5 != 0).collect();

@@ -133,13 +133,20 @@ pub struct DiagnoseOptions {
     /// Threads the candidates of a round are fitted on ([`crate::par`]; the diagnosis is the
     /// same whatever the number). 1 by default.
     pub threads: usize,
+    /// The design's priors, one per cable: means and 1-sigmas of `[A_x, A_y, A_z, L0]`
+    /// (`taut_config::RobotConfig::priors`; a non-finite mean or sigma: none for that
+    /// parameter). With them every fit of the diagnosis is maximum a posteriori (each prior one
+    /// more row, [`fit::Prepared::priors`]) and the baseline starts from the design, so a
+    /// recording that excites little (locked winches) is diagnosed on a geometry the data and
+    /// the design agree on. `None` (the default): none.
+    pub priors: Option<Vec<([f64; 4], [f64; 4])>>,
 }
 
 impl DiagnoseOptions {
     /// Options for the robot `cfg`: its `[calibration]` table ([`DiagnoseOptions::from_config`])
     /// and its cables' swivel-pulley axes.
     pub fn from_robot(cfg: &taut_config::RobotConfig) -> Self {
-        DiagnoseOptions { pulley_axis: cfg.pulley_axes(), ..Self::from_config(&cfg.calibration) }
+        DiagnoseOptions { pulley_axis: cfg.pulley_axes(), priors: cfg.priors(), ..Self::from_config(&cfg.calibration) }
     }
 
     /// Options from the `[calibration]` table (every swivel-pulley axis vertical).
@@ -164,6 +171,7 @@ impl DiagnoseOptions {
             tension_library: TensionEffect::ALL.to_vec(),
             pulley_axis: Vec::new(),
             threads: 1,
+            priors: None,
         }
     }
 
@@ -422,6 +430,13 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
     };
     let mut prep = fit::prepare(rec, b, &sel, opts.min_tension_n, false, opts.encoder_sigma_m);
     prep.pulley_axis = opts.pulley_axis.clone();
+    for (j, (mu, sd)) in opts.priors.iter().flatten().enumerate().take(n) {
+        for k in 0..4 {
+            if mu[k].is_finite() && sd[k].is_finite() && sd[k] > 0.0 {
+                prep.priors.push((4 * j + k, mu[k], sd[k]));
+            }
+        }
+    }
     let m = prep.t.len();
     // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and
     // sag: the tension's noise): see `fit::Eiv`.
@@ -1403,18 +1418,33 @@ fn fit_baseline(
     let loose_by_tension: usize =
         (0..n).map(|j| (0..m).filter(|&i| prep.f[j][i].is_finite() && prep.f[j][i] < opts.min_tension_n).count()).sum();
 
-    // Start: given, or the calibration's initialisation + force-aware calibration.
+    // Start: given, or the calibration's initialisation + force-aware calibration; with the
+    // design's priors, the design and the calibration with them (maximum a posteriori).
     let all_rows: Vec<usize> = (0..m).collect();
     let mut x0: Option<Vec<f64>> = start.map(|p| (0..n).flat_map(|j| p.cable(j)).collect());
+    let copts = crate::CalibOptions {
+        min_tension_n: opts.min_tension_n,
+        tracker_sigma_m: opts.tracker_sigma_m,
+        encoder_sigma_m: opts.encoder_sigma_m,
+        // Only a start for the diagnosis's own fits.
+        model_check: false,
+        priors: opts.priors.clone().filter(|p| p.len() == n),
+        ..crate::CalibOptions::default()
+    };
+    if let (None, Some(priors)) = (&x0, &copts.priors) {
+        let means: Vec<[f64; 4]> = priors.iter().map(|(mu, _)| *mu).collect();
+        if means.iter().all(|m| m[..3].iter().all(|v| v.is_finite())) {
+            let mut data = crate::noise::gather(rec, platform_points, &copts, crate::Weighting::of(rec, &copts));
+            if let Ok(init) = crate::init::from_design(rec, platform_points, &means, &data) {
+                let p = crate::calibrate_gathered(rec, platform_points, &init.params, &copts, &mut data)
+                    .map(|r| r.params)
+                    .unwrap_or(init.params);
+                x0 = Some((0..n).flat_map(|j| p.cable(j)).collect());
+                notes.push("started from the design's anchors, calibrated with its priors".into());
+            }
+        }
+    }
     if x0.is_none() {
-        let copts = crate::CalibOptions {
-            min_tension_n: opts.min_tension_n,
-            tracker_sigma_m: opts.tracker_sigma_m,
-            encoder_sigma_m: opts.encoder_sigma_m,
-            // Only a start for the diagnosis's own fits.
-            model_check: false,
-            ..crate::CalibOptions::default()
-        };
         if let Ok(init) = crate::init::initialise(rec, platform_points, &copts) {
             let p = crate::calibrate(rec, platform_points, &init.params, &copts).map(|r| r.params).unwrap_or(init.params);
             x0 = Some((0..n).flat_map(|j| p.cable(j)).collect());

@@ -48,6 +48,10 @@ pub struct Prepared {
     /// Unit vector of each cable's swivel-pulley axis, from the anchor towards the winch (the
     /// configuration's `pulley_axis`); empty: every axis vertical ([`Prepared::axis`]).
     pub pulley_axis: Vec<[f64; 3]>,
+    /// The design's priors on the geometry: `(parameter index, mean, 1-sigma)`, the index
+    /// `4 j + k` of cable `j`'s `[A_x, A_y, A_z, L0][k]`. Each is one more row of every fit
+    /// ([`fit`]: `(x - mean) / sigma`), so the fits are maximum a posteriori; empty: none.
+    pub priors: Vec<(usize, f64, f64)>,
 }
 
 impl Prepared {
@@ -106,6 +110,7 @@ pub fn prepare(
         hold_weight: vec![],
         eiv: None,
         pulley_axis: vec![],
+        priors: vec![],
     };
     for &i in rows {
         let r = rec.q.as_ref().and_then(|q| crate::model::rotation(q[i]));
@@ -1374,6 +1379,14 @@ impl LeastSquares for Joint<'_> {
                 }
             }
         }
+        for &(k, mu, sd) in &self.prep.priors {
+            let r = (x[k] - mu) / sd;
+            if jacobian {
+                visit(r, &[(k, 1.0 / sd)]);
+            } else {
+                visit(r, &[]);
+            }
+        }
     }
     fn project(&self, x: &mut [f64]) {
         let n = self.prep.n;
@@ -1545,6 +1558,7 @@ mod tests {
             hold_weight: vec![],
             eiv: None,
             pulley_axis: vec![],
+            priors: vec![],
         };
         for i in 0..n_samples {
             let t = i as f64 * 0.01;

@@ -45,6 +45,21 @@
 //! calibration is refused, naming the quantity and what to record instead (poses spanning the
 //! height and the width of the workspace, the load cells).
 //!
+//! # Priors from the design
+//!
+//! With [`SelfCalOptions::priors`] (a configuration's `anchor_sigma_m` and `l0_sigma_m`) each
+//! anchor coordinate and offset with a tolerance is a pseudo-reading of its design value, one
+//! row of the least squares ([`solve::Problem::design`]), counted in the degrees of freedom: the
+//! estimate is maximum a posteriori. Anchor priors are in the configuration's frame, so they fix
+//! the frame themselves: the directions of the frame (translations, the rotation(s) above) they
+//! fix are released from the nominal alignment ([`Frame::DesignPriors`] when they fix all);
+//! without them the convention above stays. The reported sigmas are the posterior's, the
+//! readings' information scaled down by the variance factor (when above 1) and the priors'
+//! taken as given, so each is at most its prior's; [`SelfCalReport::data_share`] says, per
+//! parameter, how much came from the recording (`1 - sigma_post^2 / sigma_prior^2`). A
+//! parameter with a prior is never refused as too uncertain, and a recording of a few poses
+//! (at least three, the priors counted among the readings) is calibrated instead of refused.
+//!
 //! # Start and the mirror solution
 //!
 //! The start is the nominal anchors. Positions come from the force balance at each dwell
@@ -99,6 +114,10 @@ pub struct SelfCalOptions {
     /// datasheet stiffness with its tolerance (`rel_sigma` above 0: each cable's EA fitted within
     /// it; 0: held), as the tracker's refinement ([`crate::bundle::Stretch`]).
     pub stretch: Option<crate::bundle::Stretch>,
+    /// The design's priors, one per cable: means and 1-sigmas of `[A_x, A_y, A_z, L0]`
+    /// (`RobotConfig::priors`; a non-finite mean or sigma: none for that parameter). With them
+    /// the estimate is maximum a posteriori (see "Priors from the design" above).
+    pub priors: Option<Vec<([f64; 4], [f64; 4])>>,
 }
 
 /// The moving windows' length, s: long enough for a dozen tension readings at 62 per second
@@ -133,6 +152,7 @@ impl SelfCalOptions {
             // `[calibration] cable_ea_sigma_n` above 0: `cable_ea_n` is a datasheet value.
             stretch: (c.cable_ea_sigma_n > 0.0 && c.cable_ea_n > 0.0 && c.cable_ea_n.is_finite())
                 .then(|| crate::bundle::Stretch { ea_n: c.cable_ea_n, rel_sigma: c.cable_ea_sigma_n / c.cable_ea_n }),
+            priors: cfg.priors(),
         }
     }
 }
@@ -146,6 +166,9 @@ pub enum Frame {
     /// Best translation and rotation onto the nominal anchors (no tensions: the vertical is not
     /// observed either).
     NominalRigid,
+    /// The configuration's own frame, fixed by the design's priors on the anchors (they fix
+    /// every direction the readings leave free).
+    DesignPriors,
 }
 
 /// A frame-free quantity and its uncertainty.
@@ -220,6 +243,13 @@ pub enum SelfCalError {
     },
     /// No nominal anchors: no start and no frame.
     NoNominalAnchors,
+    /// The priors do not match the recording's cables.
+    PriorCount {
+        /// Length columns in the recording.
+        recording: usize,
+        /// Cables with priors.
+        priors: usize,
+    },
     /// Platform points or nominal anchors do not match the recording's cables.
     CableCount {
         /// Length columns in the recording.
@@ -276,6 +306,9 @@ impl fmt::Display for SelfCalError {
                 f,
                 "the recording has {recording} cables, the configuration {platform_points} platform points and {nominal} nominal anchors; use the configuration of the robot that made the recording"
             ),
+            SelfCalError::PriorCount { recording, priors } => {
+                write!(f, "the recording has {recording} cables, the priors {priors}; use the configuration of the robot that made the recording")
+            }
             SelfCalError::TooFewDwells { found, needed, drifting, moving } => {
                 write!(
                     f,
@@ -309,9 +342,13 @@ impl std::error::Error for SelfCalError {}
 pub struct SelfCalReport {
     /// Anchors (in the frame of [`SelfCalReport::frame`]) and encoder offsets.
     pub params: Params,
-    /// 1-sigma of each anchor coordinate in that frame and of each offset, m (scaled by the
-    /// variance factor).
+    /// 1-sigma of each anchor coordinate in that frame and of each offset, m (the readings'
+    /// information scaled down by the variance factor when above 1; with priors, the posterior).
     pub sigma: Sigmas,
+    /// Per cable, `[A_x, A_y, A_z, L0]`: the share of the estimate from the recording,
+    /// `1 - sigma_posterior^2 / sigma_prior^2` (0: the design's prior alone, 1: the readings
+    /// alone); NaN where the parameter has no prior ([`SelfCalOptions::priors`]).
+    pub data_share: Vec<[f64; 4]>,
     /// Cramér–Rao bound on the anchors: `sqrt(trace(Cov_A) / n)`, the expected RMS error over
     /// anchors after the frame alignment, m.
     pub anchor_rms_crb_m: f64,
@@ -382,6 +419,9 @@ pub fn calibrate_without_tracker(
     if n < 4 {
         return Err(SelfCalError::TooFewCables { n });
     }
+    if let Some(p) = opts.priors.as_ref().filter(|p| p.len() != n) {
+        return Err(SelfCalError::PriorCount { recording: n, priors: p.len() });
+    }
     let rests = dwell::find(rec, opts.encoder_sigma_m.max(1e-7), opts.min_dwell_samples);
     let needed = PoseSetup::of(rec, &rests, opts).needed;
     if rests.dwells.len() >= needed {
@@ -409,8 +449,28 @@ struct PoseSetup {
     stretch: Option<crate::bundle::Stretch>,
     lay: Layout,
     frame: Frame,
-    /// Poses needed: enough that the globals are over-determined twice (each adds rows - 3).
+    /// Poses needed: enough that the globals are over-determined twice (each adds rows - 3);
+    /// the priors' pseudo-readings count towards it.
     needed: usize,
+}
+
+/// Fewest poses with the design's priors: with them a recording that excites little gives an
+/// estimate (the prior where the poses say nothing), and three poses still leave the
+/// chi-square test some degrees of freedom.
+const MIN_POSES_WITH_PRIORS: usize = 3;
+
+/// The design's prior rows of `priors` in the layout `lay`: `(global index, mean, 1-sigma)`
+/// for each parameter with a finite mean and a finite positive sigma.
+fn design_rows(priors: Option<&[([f64; 4], [f64; 4])]>, lay: Layout) -> Vec<(usize, f64, f64)> {
+    let mut rows = Vec::new();
+    for (j, (mu, sd)) in priors.unwrap_or_default().iter().enumerate().take(lay.n) {
+        for k in 0..4 {
+            if mu[k].is_finite() && sd[k].is_finite() && sd[k] > 0.0 {
+                rows.push((if k < 3 { lay.a(j) + k } else { lay.l0(j) }, mu[k], sd[k]));
+            }
+        }
+    }
+    rows
 }
 
 impl PoseSetup {
@@ -422,7 +482,12 @@ impl PoseSetup {
         let frame = if tensions { Frame::NominalTranslationYaw } else { Frame::NominalRigid };
         let per_dwell = n + if tensions { 3 } else { 0 } - 3;
         let free = lay.count() - if tensions { 4 } else { 6 };
-        let needed = (2 * free).div_ceil(per_dwell).max(10);
+        let priors = design_rows(opts.priors.as_deref(), lay).len();
+        let needed = if priors == 0 {
+            (2 * free).div_ceil(per_dwell).max(10)
+        } else {
+            (2 * free.saturating_sub(priors)).div_ceil(per_dwell).max(MIN_POSES_WITH_PRIORS)
+        };
         PoseSetup { tensions, stretch, lay, frame, needed }
     }
 }
@@ -439,7 +504,10 @@ fn solve_poses(
 ) -> Result<SelfCalReport, SelfCalError> {
     let n = rec.n_cables;
     let PoseSetup { tensions, stretch, lay, frame, .. } = PoseSetup::of(rec, &found, opts);
+    let design = design_rows(opts.priors.as_deref(), lay);
     let (c, d) = gauge(nominal, lay, frame);
+    let (c, d, fixed) = prior_gauge(c, d, nominal, lay, &design);
+    let frame = if fixed.is_some_and(|(f, k)| f == k) { Frame::DesignPriors } else { frame };
     let free = lay.count() - c.nrows();
     let sigma_f = opts.loadcell_sigma_n.or_else(|| found.loadcell_sigma()).unwrap_or(0.3).max(1e-3);
     // The variance of a dwell mean: one reading's variance (the encoders' at least the
@@ -455,6 +523,7 @@ fn solve_poses(
         mass: opts.mass_kg,
         min_tension_n: opts.min_tension_n,
         stretch,
+        design: &design,
         c,
         d,
     };
@@ -529,6 +598,12 @@ fn solve_poses(
     let w = pr.whitening(&s);
     let cov = solve::covariance(&pr, &s, &w).ok_or_else(|| SelfCalError::Singular { advice: spread.advice() })?;
     let vf = rep.chi2 / dof as f64;
+    // With priors the variance factor scales the readings' information, not the priors' (whose
+    // variances are given).
+    let post = match design.is_empty() {
+        true => None,
+        false => Some(solve::posterior(&pr, &s, &w, vf.max(1.0)).ok_or_else(|| SelfCalError::Singular { advice: spread.advice() })?),
+    };
     let chi2_ok = ok(rep.chi2);
     if !chi2_ok {
         notes.push(format!(
@@ -540,30 +615,83 @@ fn solve_poses(
     }
     let scale = vf.max(1.0).sqrt();
     let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
-    let est = |value: f64, var: f64| Estimate { value, sigma: var.max(0.0).sqrt() * scale, crb: var.max(0.0).sqrt() };
+    // The 1-sigma of `grad . g`: the posterior's with priors, else the bound scaled.
+    let sigma_of = |grad: &DVector<f64>| match &post {
+        Some(p) => (grad.transpose() * p * grad)[0].max(0.0).sqrt(),
+        None => (grad.transpose() * &cov * grad)[0].max(0.0).sqrt() * scale,
+    };
+    let est = |value: f64, grad: &DVector<f64>| Estimate {
+        value,
+        sigma: sigma_of(grad),
+        crb: (grad.transpose() * &cov * grad)[0].max(0.0).sqrt(),
+    };
+    let unit = |i: usize| DVector::from_fn(lay.count(), |k, _| if k == i { 1.0 } else { 0.0 });
+    let sdp = |i: usize| match &post {
+        Some(p) => p[(i, i)].max(0.0).sqrt(),
+        None => sd(i) * scale,
+    };
     let anchors: Vec<[f64; 3]> = (0..n).map(|j| s.anchor(j)).collect();
     let l0: Vec<f64> = (0..n).map(|j| s.g[lay.l0(j)]).collect();
-    let anchor_sigma: Vec<[f64; 3]> = (0..n).map(|j| [0, 1, 2].map(|a| sd(lay.a(j) + a) * scale)).collect();
-    let l0_sigma: Vec<f64> = (0..n).map(|j| sd(lay.l0(j)) * scale).collect();
-    // Refusal and warnings by the predicted uncertainty.
+    let anchor_sigma: Vec<[f64; 3]> = (0..n).map(|j| [0, 1, 2].map(|a| sdp(lay.a(j) + a))).collect();
+    let l0_sigma: Vec<f64> = (0..n).map(|j| sdp(lay.l0(j))).collect();
+    // Each parameter's prior 1-sigma (infinite: none) and the share of the data.
+    let mut prior_sd = vec![[f64::INFINITY; 4]; n];
+    for &(i, _, sg) in &design {
+        let (j, k) = if i < 3 * n { (i / 3, i % 3) } else { (i - lay.l0(0), 3) };
+        prior_sd[j][k] = sg;
+    }
+    let data_share: Vec<[f64; 4]> = (0..n)
+        .map(|j| {
+            let post_sd = [anchor_sigma[j][0], anchor_sigma[j][1], anchor_sigma[j][2], l0_sigma[j]];
+            std::array::from_fn(|k| match prior_sd[j][k].is_finite() {
+                true => (1.0 - (post_sd[k] / prior_sd[j][k]).powi(2)).clamp(0.0, 1.0),
+                false => f64::NAN,
+            })
+        })
+        .collect();
+    // Refusal and warnings by the predicted uncertainty. With a prior a parameter's sigma is at
+    // most the prior's: the refusal applies to the parameters the recording alone must
+    // determine, and a weak one with a prior is named by its share of the data.
     let mut worst: Option<(Quantity, f64)> = None;
     let mut weak = Vec::new();
     for j in 0..n {
-        let qs = (0..3).map(|a| (Quantity::Anchor(j, a), anchor_sigma[j][a])).chain([(Quantity::Offset(j), l0_sigma[j])]);
-        for (q, sg) in qs {
-            if worst.is_none_or(|(_, w)| sg > w) {
+        let qs = (0..3).map(|a| (Quantity::Anchor(j, a), anchor_sigma[j][a], a)).chain([(Quantity::Offset(j), l0_sigma[j], 3)]);
+        for (q, sg, k) in qs {
+            let has_prior = prior_sd[j][k].is_finite();
+            if !has_prior && worst.is_none_or(|(_, w)| sg > w) {
                 worst = Some((q, sg));
             }
             if sg > opts.weak_sigma_m {
                 weak.push((q, sg));
+                if !has_prior {
+                    notes.push(format!(
+                        "{q} is weakly determined (1-sigma {:.1} mm, above calibration.weak_sigma_m): {}",
+                        sg * 1e3,
+                        spread.advice()
+                    ));
+                }
+            }
+            if has_prior && data_share[j][k] < 0.5 {
+                notes.push(format!(
+                    "{q} is mostly the design's prior ({:.0} % from the data; 1-sigma {:.1} mm of the prior's {:.1} mm)",
+                    100.0 * data_share[j][k],
+                    sg * 1e3,
+                    prior_sd[j][k] * 1e3
+                ));
             }
         }
     }
     if let Some((quantity, sigma_m)) = worst.filter(|(_, s)| !(*s <= opts.max_sigma_m)) {
         return Err(SelfCalError::TooUncertain { quantity, sigma_m, max_sigma_m: opts.max_sigma_m, advice: spread.advice() });
     }
-    for (q, sg) in &weak {
-        notes.push(format!("{q} is weakly determined (1-sigma {:.1} mm, above calibration.weak_sigma_m): {}", sg * 1e3, spread.advice()));
+    match fixed {
+        Some((f, k)) if f == k => {
+            notes.push("frame: the configuration's own, fixed by the design's priors on the anchors".to_string())
+        }
+        Some((f, k)) => notes.push(format!(
+            "frame: the design's priors on the anchors fix {f} of its {k} free directions, the alignment with the nominal anchors the others"
+        )),
+        None => {}
     }
     let mut distances = Vec::new();
     for i in 0..n {
@@ -577,19 +705,19 @@ fn solve_poses(
                 grad[lay.a(i) + a] = u[a];
                 grad[lay.a(j) + a] = -u[a];
             }
-            distances.push((i, j, est(dist, (grad.transpose() * &cov * &grad)[0])));
+            distances.push((i, j, est(dist, &grad)));
         }
     }
     let heights = tensions.then(|| {
         (0..n)
             .map(|j| {
                 let (zi, z0) = (lay.a(j) + 2, lay.a(0) + 2);
-                est(anchors[j][2] - anchors[0][2], cov[(zi, zi)] + cov[(z0, z0)] - 2.0 * cov[(zi, z0)])
+                est(anchors[j][2] - anchors[0][2], &(unit(zi) - unit(z0)))
             })
             .collect()
     });
-    let loadcell_offsets = tensions.then(|| (0..n).map(|j| est(s.g[lay.c(j)], cov[(lay.c(j), lay.c(j))])).collect());
-    let mass = lay.mass.then(|| est(s.g[lay.m()], cov[(lay.m(), lay.m())]));
+    let loadcell_offsets = tensions.then(|| (0..n).map(|j| est(s.g[lay.c(j)], &unit(lay.c(j)))).collect());
+    let mass = lay.mass.then(|| est(s.g[lay.m()], &unit(lay.m())));
     // EA_j = EA / s_j, its sigma to first order.
     let cable_ea_n = stretch.map(|st| {
         (0..n)
@@ -598,7 +726,7 @@ fn solve_poses(
                     let (sf, var) = (s.g[lay.s(j)], cov[(lay.s(j), lay.s(j))]);
                     Estimate {
                         value: st.ea_n / sf,
-                        sigma: st.ea_n * var.max(0.0).sqrt() * scale / (sf * sf),
+                        sigma: st.ea_n * sdp(lay.s(j)) / (sf * sf),
                         crb: st.ea_n * var.max(0.0).sqrt() / (sf * sf),
                     }
                 }
@@ -609,18 +737,20 @@ fn solve_poses(
     let anchor_rms_crb_m = ((0..3 * n).map(|i| cov[(i, i)]).sum::<f64>() / n as f64).sqrt();
     let shape_rms_crb_m = shape_rms(&anchors, &cov);
     if !tensions {
+        let vertical = if frame == Frame::DesignPriors { "the design's priors" } else { "the nominal anchors" };
         notes.insert(
             0,
             if rec.f.is_some() && opts.use_tensions {
-                "no dwell has every tension: encoders only, the frame's vertical is taken from the nominal anchors".to_string()
+                format!("no dwell has every tension: encoders only, the frame's vertical is taken from {vertical}")
             } else {
-                "no tensions: encoders only, the frame's vertical is taken from the nominal anchors".to_string()
+                format!("no tensions: encoders only, the frame's vertical is taken from {vertical}")
             },
         );
     }
     Ok(SelfCalReport {
         params: Params { anchors, l0 },
         sigma: Sigmas { anchors: anchor_sigma, l0: l0_sigma },
+        data_share,
         anchor_rms_crb_m,
         shape_rms_crb_m,
         distances,
@@ -777,8 +907,51 @@ fn gauge(nominal: &[[f64; 3]], lay: Layout, frame: Frame) -> (DMatrix<f64>, DVec
     (c, d)
 }
 
-/// Start: nominal anchors, zero load-cell offsets, the known mass; poses from the force balance
-/// (tensions) or the workspace centre, then offsets and poses alternated with the anchors held.
+/// The gauge constraints `C g = d` ([`gauge`]) with the design's priors `design` on the
+/// anchors: the frame's free directions (the rigid motions of the anchors `C` constrains) that
+/// the priors fix are released, the others keep the nominal alignment. `(C, d)` unchanged and
+/// `None` without anchor priors; else `Some((fixed, free))`, the directions the priors fix of the
+/// frame's free ones.
+fn prior_gauge(
+    c: DMatrix<f64>,
+    d: DVector<f64>,
+    nominal: &[[f64; 3]],
+    lay: Layout,
+    design: &[(usize, f64, f64)],
+) -> (DMatrix<f64>, DVector<f64>, Option<(usize, usize)>) {
+    let anchors = 3 * lay.n;
+    let w: Vec<(usize, f64)> = design.iter().filter(|r| r.0 < anchors).map(|&(i, _, sg)| (i, 1.0 / (sg * sg))).collect();
+    if w.is_empty() {
+        return (c, d, None);
+    }
+    let k = c.nrows();
+    // An orthonormal basis of the frame's motions, and the priors' information along them.
+    let q = c.transpose().qr().q();
+    let mut m = DMatrix::zeros(k, k);
+    for &(i, wi) in &w {
+        let row = q.row(i);
+        m += row.transpose() * row * wi;
+    }
+    let max_w = w.iter().map(|r| r.1).fold(0.0, f64::max);
+    let eig = nalgebra::SymmetricEigen::new(m);
+    let free: Vec<usize> = (0..k).filter(|&e| eig.eigenvalues[e] <= 1e-6 * max_w).collect();
+    let mut g_nom = DVector::zeros(lay.count());
+    for (j, a) in nominal.iter().enumerate() {
+        for ax in 0..3 {
+            g_nom[lay.a(j) + ax] = a[ax];
+        }
+    }
+    let mut c2 = DMatrix::zeros(free.len(), lay.count());
+    for (r, &e) in free.iter().enumerate() {
+        c2.row_mut(r).copy_from(&(q.clone() * eig.eigenvectors.column(e)).transpose());
+    }
+    let d2 = &c2 * g_nom;
+    (c2, d2, Some((k - free.len(), k)))
+}
+
+/// Start: nominal anchors, zero load-cell offsets, the known mass, the design's values where it
+/// has priors; poses from the force balance (tensions) or the workspace centre, then offsets and
+/// poses alternated with the anchors held.
 fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
     let lay = pr.lay;
     let n = lay.n;
@@ -811,9 +984,14 @@ fn start(pr: &Problem<'_>, nominal: &[[f64; 3]]) -> State {
             }
         }
     }
+    // The design's offsets, where it gives them, are the start and held through the
+    // alternation; the others are the median of (reading - distance) over the dwells.
+    let designed: Vec<bool> = (0..n).map(|j| pr.design.iter().any(|r| r.0 == lay.l0(j))).collect();
+    for &(i, mu, _) in pr.design {
+        s.g[i] = mu;
+    }
     for round in 0..8 {
-        // Offsets: median of (reading - distance) over the dwells.
-        for j in 0..n {
+        for j in (0..n).filter(|&j| !designed[j]) {
             let mut v: Vec<f64> = pr
                 .dwells
                 .iter()
@@ -975,6 +1153,34 @@ mod tests {
     }
 
     #[test]
+    fn anchor_priors_release_the_frame_directions_they_fix() {
+        let nom = [[3.5, -1.75, 4.0], [3.5, 1.75, 4.1], [-3.5, 1.75, 3.9], [-3.5, -1.75, 4.0]];
+        let lay = Layout { n: 4, offsets: true, mass: false, ea: false };
+        let fixed = |rows: Vec<(usize, f64, f64)>| {
+            let (c, d) = gauge(&nom, lay, Frame::NominalTranslationYaw);
+            let (c2, d2, f) = prior_gauge(c, d, &nom, lay, &rows);
+            // The constraints left still hold for the nominal anchors.
+            let mut g = DVector::zeros(lay.count());
+            for j in 0..4 {
+                for a in 0..3 {
+                    g[3 * j + a] = nom[j][a];
+                }
+            }
+            assert!((&c2 * &g - &d2).norm() < 1e-9);
+            (c2.nrows(), f)
+        };
+        // Offsets only: the convention unchanged.
+        assert_eq!(fixed(vec![(lay.l0(0), 1.0, 0.02)]), (4, None));
+        // Every coordinate: the priors fix the whole frame.
+        let all: Vec<_> = (0..12).map(|i| (i, 0.0, 0.02)).collect();
+        assert_eq!(fixed(all), (0, Some((4, 4))));
+        // One anchor: the translations, not the yaw about it.
+        assert_eq!(fixed((0..3).map(|i| (i, 0.0, 0.02)).collect()), (1, Some((3, 4))));
+        // The heights only: the vertical translation.
+        assert_eq!(fixed((0..4).map(|j| (3 * j + 2, 0.0, 0.02)).collect()), (3, Some((1, 4))));
+    }
+
+    #[test]
     fn chi2_quantile_matches_tables() {
         // chi2 0.999 quantiles: dof 10 -> 29.59, dof 100 -> 149.4, dof 1000 -> 1143.9.
         assert!((chi2_quantile(10, 3.09) - 29.59).abs() < 0.5);
@@ -1077,6 +1283,7 @@ mod stretch_tests {
             window_s: WINDOW_S,
             max_iterations: 200,
             stretch,
+            priors: None,
         }
     }
 
@@ -1156,6 +1363,7 @@ mod stretch_tests {
             mass: 3.0,
             min_tension_n: 3.0,
             stretch: None,
+            design: &[],
             c,
             d: dd,
         };

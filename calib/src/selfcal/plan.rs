@@ -316,6 +316,7 @@ pub fn plan(inp: &PlanInput<'_>) -> Result<DwellPlan, PlanError> {
             min_tension_n: inp.min_tension_n,
             // The factors' prior is added once to the sum below: none per candidate.
             stretch: stretch.map(|st| crate::bundle::Stretch { rel_sigma: 0.0, ..st }),
+            design: &[],
             c: c.clone(),
             d: d.clone(),
         };

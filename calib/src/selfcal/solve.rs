@@ -9,6 +9,7 @@
 //!          v_kj = (A_j - X_kj) / |A_j - X_kj|,  g_vec = (0, 0, -9.81)
 //! tare     r_kj = f_kj - c_j                                   var sigma_f^2 / N_kj
 //! prior    r_j  = 1 - s_j                                       var (sigma_EA / EA)^2
+//! design   r_i  = mu_i - g_i                                    var sigma_i^2
 //! ```
 //!
 //! With a known stiffness ([`Problem::stretch`], the datasheet `EA`) a length reading is the
@@ -17,6 +18,10 @@
 //! `d / (1 + T / EA_true)`, to first order the model). With a tolerance above 0 each cable's
 //! factor `s_j = EA / EA_j` is a global (after the mass) tied to 1 by its prior row; with 0 it
 //! is held at 1; without a stretch (or without tensions) the ideal model `s_j T = 0`.
+//!
+//! The design's priors ([`Problem::design`]: an anchor coordinate or an offset `L0` known to a
+//! tolerance) are pseudo-readings of their globals, one row each: the solution is then the
+//! maximum a posteriori estimate, and [`posterior`] its covariance.
 //!
 //! In a tare dwell ([`Dwell::tared`]) the tared cables carry no tension: each gives the tare
 //! row (its reading is its load cell's offset) instead of a term of the force balance, and no
@@ -104,6 +109,8 @@ pub struct Problem<'a> {
     /// The cables' stretch (used with tensions): `None`, the ideal model. Its `rel_sigma`
     /// above 0 needs [`Layout::ea`] (the factors fitted), 0 holds the stiffness.
     pub stretch: Option<crate::bundle::Stretch>,
+    /// The design's priors: `(global index, mean, 1-sigma)`, one pseudo-reading each.
+    pub design: &'a [(usize, f64, f64)],
     /// Gauge constraints `C g = d`.
     pub c: DMatrix<f64>,
     /// Right-hand side of the gauge constraints.
@@ -165,14 +172,17 @@ impl Problem<'_> {
         }
     }
 
-    /// The prior rows of the stretch factors: `(index, whitened residual, weight)`.
+    /// The prior rows of the stretch factors and of the design: `(index, whitened residual,
+    /// weight)`.
     fn prior_rows(&self, s: &State) -> Vec<(usize, f64, f64)> {
-        match self.stretch {
+        let mut rows = match self.stretch {
             Some(st) if self.lay.ea && st.rel_sigma > 0.0 => {
                 (0..self.lay.n).map(|j| (self.lay.s(j), (1.0 - s.g[self.lay.s(j)]) / st.rel_sigma, 1.0 / st.rel_sigma)).collect()
             }
             _ => Vec::new(),
-        }
+        };
+        rows.extend(self.design.iter().map(|&(i, mu, sd)| (i, (mu - s.g[i]) / sd, 1.0 / sd)));
+        rows
     }
 
     fn mass_of(&self, s: &State) -> f64 {
@@ -306,6 +316,16 @@ struct Normal {
 }
 
 fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
+    let mut nm = normal_data(pr, s, w);
+    for (i, r, jw) in pr.prior_rows(s) {
+        nm.hgg[(i, i)] += jw * jw;
+        nm.bg[i] += jw * r;
+    }
+    nm
+}
+
+/// The normal equations of the readings alone (no prior rows).
+fn normal_data(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
     let ng = pr.lay.count();
     let kd = pr.dwells.len();
     let mut nm = Normal {
@@ -341,10 +361,6 @@ fn normal(pr: &Problem<'_>, s: &State, w: &Whitening) -> Normal {
         nm.hpp.push(hpp);
         nm.hpg.push(hpg);
         nm.bp.push(bp);
-    }
-    for (i, r, jw) in pr.prior_rows(s) {
-        nm.hgg[(i, i)] += jw * jw;
-        nm.bg[i] += jw * r;
     }
     nm
 }
@@ -479,11 +495,37 @@ pub fn information(pr: &Problem<'_>, s: &State, w: &Whitening) -> Option<DMatrix
 pub fn covariance(pr: &Problem<'_>, s: &State, w: &Whitening) -> Option<DMatrix<f64>> {
     let nm = normal(pr, s, w);
     let (sm, _, _) = reduce(&nm, 0.0)?;
-    let (ng, nc) = (sm.nrows(), pr.c.nrows());
+    bordered_inverse(&sm, &pr.c)
+}
+
+/// The posterior covariance of the globals in the gauge `C g = d` at `s`, the readings'
+/// information divided by `data_scale` (the a-posteriori variance factor, when above 1) and
+/// the priors' taken as given: `(S_data / data_scale + H_prior)^-1`, gauge-projected. Every
+/// parameter with a prior has a posterior variance at most its prior's. `None` as
+/// [`covariance`].
+pub fn posterior(pr: &Problem<'_>, s: &State, w: &Whitening, data_scale: f64) -> Option<DMatrix<f64>> {
+    let nm = normal_data(pr, s, w);
+    let (mut sm, _, _) = reduce(&nm, 0.0)?;
+    sm /= data_scale;
+    for (i, _, jw) in pr.prior_rows(s) {
+        sm[(i, i)] += jw * jw;
+    }
+    bordered_inverse(&sm, &pr.c)
+}
+
+/// The top-left block of `[S C^T; C 0]^-1`; without constraints `S^-1`, by Cholesky (the
+/// readings' information can exceed a prior's by 1e5 and more: an LU inverse loses the prior's
+/// small eigenvalues to round-off).
+fn bordered_inverse(sm: &DMatrix<f64>, c: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let (ng, nc) = (sm.nrows(), c.nrows());
+    if nc == 0 {
+        let cov = sm.clone().cholesky()?.inverse();
+        return cov.iter().all(|v| v.is_finite()).then_some(cov);
+    }
     let mut k = DMatrix::zeros(ng + nc, ng + nc);
-    k.view_mut((0, 0), (ng, ng)).copy_from(&sm);
-    k.view_mut((ng, 0), (nc, ng)).copy_from(&pr.c);
-    k.view_mut((0, ng), (ng, nc)).copy_from(&pr.c.transpose());
+    k.view_mut((0, 0), (ng, ng)).copy_from(sm);
+    k.view_mut((ng, 0), (nc, ng)).copy_from(c);
+    k.view_mut((0, ng), (ng, nc)).copy_from(&c.transpose());
     let inv = k.try_inverse()?;
     let cov = inv.view((0, 0), (ng, ng)).into_owned();
     cov.iter().all(|v| v.is_finite()).then_some(cov)

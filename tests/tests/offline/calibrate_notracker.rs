@@ -1,7 +1,8 @@
 //! `taut calibrate REC.csv` on recordings without a tracker, run as the real
 //! binary: empty tracker columns in every row -> tracker-free calibration, said in the output and
 //! in the parameters file; no tensions; missing lengths; tracker in some rows only (calibrated
-//! with the tracker on those rows, said in a note); 3 cables and no nominal anchors refused.
+//! with the tracker on those rows, said in a note); 3 cables and no nominal anchors refused; a few
+//! dwells calibrated with the design's priors (the data shares reported).
 
 use crate::hostile;
 
@@ -112,4 +113,48 @@ fn three_cables_and_missing_nominal_anchors_are_refused() {
     assert!(!ok);
     assert!(err.contains("needs the nominal anchors"), "{err}");
     assert!(!d.path().join("params.toml").exists());
+}
+
+#[test]
+fn few_dwells_calibrate_with_the_designs_priors_and_report_the_data_share() {
+    // Encoders only, 5 dwells: refused without priors (20 needed). With the design's anchors
+    // (here the true ones) known to 2 cm per axis: calibrated in the configuration's frame, each
+    // coordinate's share from the data in the text and the JSON.
+    let d = tempfile::tempdir().unwrap();
+    let s = Scenario { with_tensions: false, ..Scenario::aras_cam(36) };
+    write(d.path(), &s, 5, |_| {});
+    let (ok, _, err) = taut(d.path(), &ARGS);
+    assert!(!ok && err.contains("only 5 dwell poses found"), "{err}");
+    let truth = s.truth().unwrap();
+    let mut t = format!("[robot]\nname = \"{}\"\nmass_kg = {}\n", s.robot.robot.name, s.robot.robot.mass_kg);
+    for a in &truth.anchors {
+        t += &format!("\n[[cable]]\nanchor = [{}, {}, {}]\nanchor_sigma_m = 0.02\n", a[0], a[1], a[2]);
+    }
+    std::fs::write(d.path().join("robot.toml"), t).unwrap();
+    let (ok, out, err) = taut(d.path(), &ARGS);
+    assert!(ok, "{err}");
+    assert!(out.contains("design priors") && out.contains("share from the data"), "{out}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.path().join("out.json")).unwrap()).unwrap();
+    let shares = json["data_share"].as_array().unwrap();
+    assert_eq!(shares.len(), 4);
+    for (j, c) in shares.iter().enumerate() {
+        let c = c.as_array().unwrap();
+        // Anchor coordinates: a share in 0-1; L0 has no prior here: null.
+        for k in 0..3 {
+            let v = c[k].as_f64().unwrap_or_else(|| panic!("cable {j} [{k}]: {c:?}"));
+            assert!((0.0..=1.0).contains(&v), "cable {j} [{k}]: {v}");
+        }
+        assert!(c[3].is_null(), "cable {j}: {c:?}");
+    }
+    for (j, s) in json["anchor_sigma_m"].as_array().unwrap().iter().enumerate() {
+        for v in s.as_array().unwrap() {
+            // At most the prior's, to round-off: where the readings say nothing (the y
+            // coordinates here) their Schur complement is a difference of terms ~1e9 larger than
+            // the prior's 2500 m^-2, and cancels to ~1e-8 of the prior's variance (measured
+            // 7.5e-9 above it).
+            assert!(v.as_f64().unwrap() <= 0.02 * (1.0 + 1e-6), "cable {j}: sigma {v}");
+        }
+    }
+    let params = std::fs::read_to_string(d.path().join("params.toml")).unwrap();
+    assert!(params.contains("design priors"), "{params}");
 }

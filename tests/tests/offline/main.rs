@@ -54,5 +54,6 @@ mod params_v2;
 mod priors;
 mod report_html;
 mod selfcal;
+mod selfcal_priors;
 mod swapped_cables;
 mod udev_rules;
