@@ -27,6 +27,13 @@ fn taut_diagnose(dir: &std::path::Path, cfg: &taut_config::RobotConfig, name: &s
     serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap()
 }
 
+/// A standard normal draw from `rng` (Box-Muller).
+fn gauss(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
+    use rand::Rng;
+    let (u1, u2): (f64, f64) = (rng.gen::<f64>().max(1e-300), rng.gen());
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
 mod accuracy_sim;
 mod calibrate_notracker;
 mod crate_graph;

@@ -34,6 +34,7 @@
 //! posteriori: at least 90 % of the anchor coordinates of its baseline and final fits within 2
 //! sigma of the truth over [`DIAGNOSE_SEEDS`] seeds (measured 95.0 %).
 
+use crate::gauss;
 use taut_calib::{init, noise, CalibOptions};
 use taut_config::recording::Recording;
 use taut_sim::{CableCommand, Dynamics, Noise, Physics, RigidBody, Scenario};
@@ -49,11 +50,17 @@ const DIAGNOSE_SEEDS: u64 = 10;
 /// The design's tolerance, 1-sigma per axis, m.
 const PRIOR_SIGMA_M: f64 = 0.02;
 
-fn gauss(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
-    use rand::Rng;
-    // Box-Muller.
-    let (u1, u2): (f64, f64) = (rng.gen::<f64>().max(1e-300), rng.gen());
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+/// `s`'s dynamic plant with its drums locked a little long (`LOCK_SLACK_M`, drawn from `rng`),
+/// so that the platform sags onto two or three cables and can swing, after 2 s of settling: the
+/// plant, the rest lengths and the locked commands.
+fn locked(s: &Scenario, rng: &mut rand_chacha::ChaCha8Rng) -> (taut_sim::Plant, Vec<f64>, Vec<CableCommand>) {
+    let (mut plant, hold) = s.plant().unwrap();
+    let cmds: Vec<CableCommand> =
+        hold.iter().map(|&l| CableCommand::Length(l + LOCK_SLACK_M.0 + LOCK_SLACK_M.1 * rand::Rng::gen::<f64>(rng))).collect();
+    for _ in 0..2000 {
+        plant.step(1e-3, &cmds);
+    }
+    (plant, hold, cmds)
 }
 
 /// A locked-winch swing of 20 s: the recording and the true anchors.
@@ -63,14 +70,8 @@ fn locked_swing(seed: u64) -> (Recording, Vec<[f64; 3]>) {
     s.physics = Physics { dynamics: Some(Dynamics::default()), ..Physics::ideal() };
     s.noise = Noise::default();
     let truth = s.truth().unwrap();
-    let (mut plant, hold) = s.plant().unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1000 + seed);
-    // Locked a little long: the platform sags onto two or three cables and can swing.
-    let cmds: Vec<CableCommand> =
-        hold.iter().map(|&l| CableCommand::Length(l + LOCK_SLACK_M.0 + LOCK_SLACK_M.1 * rand::Rng::gen::<f64>(&mut rng))).collect();
-    for _ in 0..2000 {
-        plant.step(1e-3, &cmds);
-    }
+    let (mut plant, hold, cmds) = locked(&s, &mut rng);
     let mut tracker = taut_sim::sensors::Tracker::new(&s.noise);
     let mut trng = rand_chacha::ChaCha8Rng::seed_from_u64(2000 + seed);
     let n = hold.len();
@@ -241,13 +242,8 @@ fn locked_swing_6dof(seed: u64) -> (Recording, Vec<[f64; 3]>) {
     s.physics = Physics { dynamics: Some(Dynamics { rigid_body: Some(body), ..Dynamics::default() }), ..Physics::ideal() };
     s.noise = Noise::default();
     let truth = s.truth().unwrap();
-    let (mut plant, hold) = s.plant().unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1000 + seed);
-    let cmds: Vec<CableCommand> =
-        hold.iter().map(|&l| CableCommand::Length(l + LOCK_SLACK_M.0 + LOCK_SLACK_M.1 * rand::Rng::gen::<f64>(&mut rng))).collect();
-    for _ in 0..2000 {
-        plant.step(1e-3, &cmds);
-    }
+    let (mut plant, hold, cmds) = locked(&s, &mut rng);
     let mut tracker = taut_sim::sensors::Tracker::new(&s.noise);
     let mut trng = rand_chacha::ChaCha8Rng::seed_from_u64(2000 + seed);
     let mut qrng = rand_chacha::ChaCha8Rng::seed_from_u64(4000 + seed);

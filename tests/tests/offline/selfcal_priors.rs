@@ -20,19 +20,14 @@ use taut_config::RobotConfig;
 use taut_sim::dwell::{self, DwellPlan};
 use taut_sim::Scenario;
 
+use crate::gauss;
+
 /// Recordings per case.
 const SEEDS: u64 = 20;
 /// Dwell poses per recording (the self-calibration alone needs 10 with load cells, 20 without).
 const POSES: usize = 5;
 /// The design's tolerance, 1-sigma, m.
 const PRIOR_SIGMA_M: f64 = 0.02;
-
-fn gauss(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
-    use rand::Rng;
-    // Box-Muller.
-    let (u1, u2): (f64, f64) = (rng.gen::<f64>().max(1e-300), rng.gen());
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
 
 /// The scenario's configuration with a design off the truth by `PRIOR_SIGMA_M` per parameter,
 /// and its tolerances.
