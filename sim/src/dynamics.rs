@@ -347,25 +347,31 @@ impl DynState {
             let o = body.offsets[j];
             let path = m.path([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
             let u = path.dir;
-            let ell = path.length();
             let ell_dot = -(u[0] * v[0] + u[1] * v[1] + u[2] * v[2]);
-            let d = self.drum[j].max(1e-6);
-            let s = ell - d;
-            let k = m.ea / d;
-            let c = self.params.damping(k, body.mass);
-            let t = if s > 0.0 { (k * s + c * (ell_dot - self.rate[j])).max(0.0) } else { 0.0 };
+            loads[j] = self.cable_load(j, m.ea, body.mass, path.length(), ell_dot, u);
             for a in 0..3 {
-                f[a] += t * u[a];
+                f[a] += loads[j].force[a];
             }
-            loads[j] = CableLoad {
-                force: [t * u[0], t * u[1], t * u[2]],
-                energy: 0.5 * k * s.max(0.0).powi(2),
-                tension: t,
-                drum_length: self.drum[j],
-                slack: t <= 0.0,
-            };
         }
         f
+    }
+
+    /// Cable `j`'s Kelvin-Voigt pull (axial stiffness `ea`, N; the platform's `mass`, kg) at
+    /// geometric length `ell` (m) lengthening at `ell_dot` (m/s) along the unit direction `u`
+    /// (from the platform towards the anchor), against its drum's length and speed.
+    fn cable_load(&self, j: usize, ea: f64, mass: f64, ell: f64, ell_dot: f64, u: [f64; 3]) -> CableLoad {
+        let d = self.drum[j].max(1e-6);
+        let s = ell - d;
+        let k = ea / d;
+        let c = self.params.damping(k, mass);
+        let t = if s > 0.0 { (k * s + c * (ell_dot - self.rate[j])).max(0.0) } else { 0.0 };
+        CableLoad {
+            force: [t * u[0], t * u[1], t * u[2]],
+            energy: 0.5 * k * s.max(0.0).powi(2),
+            tension: t,
+            drum_length: self.drum[j],
+            slack: t <= 0.0,
+        }
     }
 
     /// The longest stable sub-step at `p` (see the module doc), s.

@@ -197,23 +197,11 @@ impl super::DynState {
             let rj = Vector3::from(arm[j]);
             let a = x + rj;
             let path = m.path([a[0], a[1], a[2]]);
-            let u = Vector3::from(path.dir);
-            let ell = path.length();
-            let ell_dot = -u.dot(&(v + w.cross(&rj)));
-            let d = self.drum[j].max(1e-6);
-            let s = ell - d;
-            let k = m.ea / d;
-            let c = self.params.damping(k, body.mass);
-            let t = if s > 0.0 { (k * s + c * (ell_dot - self.rate[j])).max(0.0) } else { 0.0 };
-            f += t * u;
-            tau += rj.cross(&(t * u));
-            loads[j] = CableLoad {
-                force: [t * u[0], t * u[1], t * u[2]],
-                energy: 0.5 * k * s.max(0.0).powi(2),
-                tension: t,
-                drum_length: self.drum[j],
-                slack: t <= 0.0,
-            };
+            let ell_dot = -Vector3::from(path.dir).dot(&(v + w.cross(&rj)));
+            loads[j] = self.cable_load(j, m.ea, body.mass, path.length(), ell_dot, path.dir);
+            let pull = Vector3::from(loads[j].force);
+            f += pull;
+            tau += rj.cross(&pull);
         }
         (f, tau)
     }
