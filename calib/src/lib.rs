@@ -536,6 +536,13 @@ impl CalibReport {
     }
 }
 
+/// The parameters one cable's design prior (means and 1-sigmas of `[A_x, A_y, A_z, L0]`,
+/// [`CalibOptions::priors`]) constrains: `(k, mean, 1-sigma)` for each with a finite mean and a
+/// finite positive sigma; any other has no prior. Every fit with priors reads them through this.
+pub(crate) fn prior_terms((mu, sd): &([f64; 4], [f64; 4])) -> impl Iterator<Item = (usize, f64, f64)> + '_ {
+    (0..4).filter(|&k| mu[k].is_finite() && sd[k].is_finite() && sd[k] > 0.0).map(|k| (k, mu[k], sd[k]))
+}
+
 /// Calibrates anchors and encoder offsets from `rec`, starting at `init`.
 ///
 /// `platform_points[j]` is `b_j`, the attachment point of cable `j` on the platform (zero for a
@@ -828,8 +835,10 @@ fn calibrate_cable(
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
     let sv = order.map(|k| eig.eigenvalues[k].max(0.0).sqrt());
     // A prior's parameters are pseudo-readings: they count in the degrees of freedom.
-    let prior_sigma =
-        d.prior.map_or([f64::INFINITY; 4], |(mu, s)| std::array::from_fn(|k| if mu[k].is_finite() { s[k] } else { f64::INFINITY }));
+    let mut prior_sigma = [f64::INFINITY; 4];
+    for (k, _, s) in d.prior.iter().flat_map(prior_terms) {
+        prior_sigma[k] = s;
+    }
     let n_prior = prior_sigma.iter().filter(|s| s.is_finite() && **s > 0.0).count();
     let vf = sol.at_x.chi2 / ((m + n_prior) as f64 - 4.0);
     let scale = vf.max(1.0);

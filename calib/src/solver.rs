@@ -432,17 +432,13 @@ fn pass_with<L: Loss, const STATS: bool>(d: &CableData, lo: usize, hi: usize, x:
     }
     // The design's prior: a pseudo-reading `mu_k` of parameter `k` with variance `sigma_k^2`
     // (Jacobian the unit vector, residual `mu_k - x_k`), once per pass whatever its range.
-    if let Some((mu, sigma)) = &d.prior {
-        for k in 0..4 {
-            if sigma[k].is_finite() && sigma[k] > 0.0 && mu[k].is_finite() {
-                let w = 1.0 / (sigma[k] * sigma[k]);
-                let r = mu[k] - x[k];
-                h[DIAG[k]] += w;
-                g[k] += w * r;
-                cost += 0.5 * w * r * r;
-                chi2 += w * r * r;
-            }
-        }
+    for (k, mu, sigma) in d.prior.iter().flat_map(crate::prior_terms) {
+        let w = 1.0 / (sigma * sigma);
+        let r = mu - x[k];
+        h[DIAG[k]] += w;
+        g[k] += w * r;
+        cost += 0.5 * w * r * r;
+        chi2 += w * r * r;
     }
     out.pass = Pass { cost, h, g, chi2 };
     out

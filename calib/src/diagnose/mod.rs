@@ -430,12 +430,8 @@ fn prepare(rec: &Recording, b: &[[f64; 3]], masks: &dataq::DataMasks, opts: &Dia
     };
     let mut prep = fit::prepare(rec, b, &sel, opts.min_tension_n, false, opts.encoder_sigma_m);
     prep.pulley_axis = opts.pulley_axis.clone();
-    for (j, (mu, sd)) in opts.priors.iter().flatten().enumerate().take(n) {
-        for k in 0..4 {
-            if mu[k].is_finite() && sd[k].is_finite() && sd[k] > 0.0 {
-                prep.priors.push((4 * j + k, mu[k], sd[k]));
-            }
-        }
+    for (j, p) in opts.priors.iter().flatten().enumerate().take(n) {
+        prep.priors.extend(crate::prior_terms(p).map(|(k, mu, sd)| (4 * j + k, mu, sd)));
     }
     let m = prep.t.len();
     // Errors-in-variables weights (time offset: the interpolated pose's noise; stretch and

@@ -462,15 +462,8 @@ const MIN_POSES_WITH_PRIORS: usize = 3;
 /// The design's prior rows of `priors` in the layout `lay`: `(global index, mean, 1-sigma)`
 /// for each parameter with a finite mean and a finite positive sigma.
 fn design_rows(priors: Option<&[([f64; 4], [f64; 4])]>, lay: Layout) -> Vec<(usize, f64, f64)> {
-    let mut rows = Vec::new();
-    for (j, (mu, sd)) in priors.unwrap_or_default().iter().enumerate().take(lay.n) {
-        for k in 0..4 {
-            if mu[k].is_finite() && sd[k].is_finite() && sd[k] > 0.0 {
-                rows.push((if k < 3 { lay.a(j) + k } else { lay.l0(j) }, mu[k], sd[k]));
-            }
-        }
-    }
-    rows
+    let cables = priors.unwrap_or_default().iter().enumerate().take(lay.n);
+    cables.flat_map(|(j, p)| crate::prior_terms(p).map(move |(k, mu, sd)| (if k < 3 { lay.a(j) + k } else { lay.l0(j) }, mu, sd))).collect()
 }
 
 impl PoseSetup {
