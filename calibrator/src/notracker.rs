@@ -133,8 +133,7 @@ pub fn plan_robot_time_s(plan: &DwellPlan, cfg: &RobotConfig, ccfg: &ControllerC
     let mut from = plan_start(ccfg);
     let mut t = rest;
     for (p, &mask) in plan.poses.iter().zip(&plan.tare) {
-        let d = ((p[0] - from[0]).powi(2) + (p[1] - from[1]).powi(2) + (p[2] - from[2]).powi(2)).sqrt();
-        t += taut_rt::motion::trapezoid_s(d, m.dwell_speed_m_s.max(1e-3), ccfg.reel_accel_m_s2) + m.dwell_settle_s + m.dwell_s;
+        t += taut_rt::motion::move_time(from, *p, m.dwell_speed_m_s, ccfg.reel_accel_m_s2) + m.dwell_settle_s + m.dwell_s;
         if mask != 0 {
             t += 2.0 * m.dwell_settle_s + tare_s;
         }

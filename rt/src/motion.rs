@@ -1888,7 +1888,7 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// `v` with acceleration `accel` (the start-up's, `motion.init_reel_accel_m_s2`), s. A swinging
 /// platform needs the bounded acceleration: a smoothstep peaks at 6 d / T^2, 5 m/s^2 for 0.3 m
 /// at 0.5 m/s, enough to loosen a position cable of the dynamic plant.
-fn move_time(a: [f64; 3], b: [f64; 3], v: f64, accel: f64) -> f64 {
+pub fn move_time(a: [f64; 3], b: [f64; 3], v: f64, accel: f64) -> f64 {
     trapezoid_s(distance(a, b), v.max(1e-3), accel)
 }
 
